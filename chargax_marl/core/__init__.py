@@ -1,0 +1,33 @@
+"""The shared station simulator: pure functions over pytrees.
+
+- :mod:`station`: the station tree and its compiled arrays.
+- :mod:`types`: parameters, state and step report pytrees.
+- :mod:`params`: building validated parameters from scenario names or custom data.
+- :mod:`physics`: actions, rate curves, node limits, charging and energy flows.
+- :mod:`traffic`: departures and arrivals.
+- :mod:`reward`: prices, profit and penalty terms.
+- :mod:`simulator`: ``reset`` and ``step``.
+- :mod:`observation`: observation features.
+- :mod:`datasets`: bundled and custom exogenous data.
+"""
+
+from chargax_marl.core.params import make_params
+from chargax_marl.core.simulator import empty_state, is_done, reset, step
+from chargax_marl.core.station import (
+    Battery,
+    Port,
+    Splitter,
+    StationArrays,
+    build_station,
+    compile_station,
+    multiple_splitters,
+    multiple_types,
+    single_type,
+)
+from chargax_marl.core.types import PENALTY_TERMS, EnvParams, EnvState, EpisodeTotals, PenaltyWeights, StepInfo
+
+__all__ = [
+    "Battery", "EnvParams", "EnvState", "EpisodeTotals", "PENALTY_TERMS", "PenaltyWeights", "Port", "Splitter",
+    "StationArrays", "StepInfo", "build_station", "compile_station", "empty_state", "is_done", "make_params",
+    "multiple_splitters", "multiple_types", "reset", "single_type", "step",
+]

@@ -1,0 +1,179 @@
+"""Build and validate :class:`EnvParams` from named scenarios or custom data.
+
+All validation happens here, at construction, with errors that name the field, the value
+and what is allowed; the jitted step never sees a bad value.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from chargax_marl.core import datasets
+from chargax_marl.core.station import Splitter, StationArrays, build_station
+from chargax_marl.core.types import ACTION_MODES, CONSTRAINT_MODES, PENALTY_TERMS, EnvParams, PenaltyWeights
+
+MINUTES_PER_DAY = 1440
+
+
+def _finite(field: str, value: Any, *, minimum: float | None = None, strict: bool = False) -> float:
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"field '{field}' must be a number, got {value!r}") from None
+    if not math.isfinite(x):
+        raise ValueError(f"field '{field}' must be finite, got {value!r}")
+    if minimum is not None and (x <= minimum if strict else x < minimum):
+        op = ">" if strict else ">="
+        raise ValueError(f"field '{field}' must be {op} {minimum}, got {value!r}")
+    return x
+
+
+def _array(field: str, value: Any, shape: tuple | None = None, *, non_negative: bool = False) -> np.ndarray:
+    arr = np.asarray(value, dtype=np.float64)
+    if shape is not None and arr.shape != shape:
+        raise ValueError(f"field '{field}' must have shape {shape}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"field '{field}' must not contain NaN or inf")
+    if non_negative and np.any(arr < 0):
+        raise ValueError(f"field '{field}' must be >= 0 everywhere, got minimum {arr.min()!r}")
+    return arr.astype(np.float32)
+
+
+def resample_day(weights_5min: np.ndarray, num_steps: int) -> np.ndarray:
+    """Resample per-5-minute weights (..., 288) to ``num_steps`` steps, preserving each day's sum."""
+    w = np.asarray(weights_5min, dtype=np.float64)
+    if w.shape[-1] == num_steps:
+        return w
+    edges_src = np.linspace(0.0, 1.0, w.shape[-1] + 1)
+    edges_dst = np.linspace(0.0, 1.0, num_steps + 1)
+    cum = np.concatenate([np.zeros(w.shape[:-1] + (1,)), np.cumsum(w, axis=-1)], axis=-1)
+    cum_dst = np.stack([np.interp(edges_dst, edges_src, row) for row in cum.reshape(-1, cum.shape[-1])])
+    return np.diff(cum_dst, axis=-1).reshape(w.shape[:-1] + (num_steps,))
+
+
+def penalty_weights(alpha: PenaltyWeights | dict | None) -> PenaltyWeights:
+    if alpha is None:
+        return PenaltyWeights()
+    if isinstance(alpha, PenaltyWeights):
+        return alpha
+    unknown = set(alpha) - set(PENALTY_TERMS)
+    if unknown:
+        raise KeyError(f"unknown penalty term(s) {sorted(unknown)} in 'alpha'; allowed: {list(PENALTY_TERMS)}")
+    return PenaltyWeights(**{k: _finite(f"alpha.{k}", v) for k, v in alpha.items()})
+
+
+def make_params(
+    *,
+    station: str | Splitter | StationArrays = "multiple_types",
+    station_kwargs: dict | None = None,
+    prices: Any = "NL-2023",
+    first_weekday: int | None = None,
+    user_profile: Any = "shopping",
+    traffic: str | float = "medium",
+    fleet: Any = "EU",
+    moer_kg_per_kwh: Any = None,
+    grid_demand_kwh: Any = None,
+    customer_price_eur_kwh: float = 0.75,
+    grid_fee_eur_kwh: float = 0.0,
+    feed_in_factor: float = 1.0,
+    fixed_cost_eur: float = 0.0,
+    alpha: PenaltyWeights | dict | None = None,
+    beta: float = 0.5,
+    charged_tolerance_kwh: float = 0.05,
+    step_minutes: float = 5.0,
+    num_levels: int = 10,
+    action_mode: str = "absolute",
+    v2g: bool = True,
+    constraint_mode: str = "hard",
+    price_horizon_hours: int = 6,
+    observe_moer: bool | None = None,
+) -> EnvParams:
+    """Assemble the parameters of a station scenario (paper defaults throughout).
+
+    ``station`` is an architecture name (``single_type``, ``multiple_types``,
+    ``multiple_splitters``) with ``station_kwargs`` for its builder, a custom
+    :class:`Splitter` tree, or compiled :class:`StationArrays`. ``prices``, ``user_profile``
+    and ``fleet`` accept a bundled name or custom data (see :mod:`chargax_marl.core.datasets`).
+    ``traffic`` is ``low``/``medium``/``high`` (50/100/250 cars per day) or a number of cars
+    per day. ``moer_kg_per_kwh`` is an array ``(days, steps)`` or ``(steps,)``; when given,
+    MOER is observed unless ``observe_moer=False``. ``grid_demand_kwh`` is ``(steps,)``.
+    """
+    if action_mode not in ACTION_MODES:
+        raise ValueError(f"field 'action_mode' must be one of {ACTION_MODES}, got {action_mode!r}")
+    if constraint_mode not in CONSTRAINT_MODES:
+        raise ValueError(f"field 'constraint_mode' must be one of {CONSTRAINT_MODES}, got {constraint_mode!r}")
+    if not isinstance(num_levels, (int, np.integer)) or num_levels < 1:
+        raise ValueError(f"field 'num_levels' must be an integer >= 1, got {num_levels!r}")
+    if not isinstance(price_horizon_hours, (int, np.integer)) or not 0 <= price_horizon_hours <= 48:
+        raise ValueError(f"field 'price_horizon_hours' must be an integer in [0, 48], got {price_horizon_hours!r}")
+    step_minutes = _finite("step_minutes", step_minutes, minimum=0.0, strict=True)
+    num_steps = MINUTES_PER_DAY / step_minutes
+    if abs(num_steps - round(num_steps)) > 1e-9:
+        raise ValueError(f"field 'step_minutes' must divide a day (1440 min) evenly, got {step_minutes!r}")
+    num_steps = int(round(num_steps))
+
+    stations = build_station(station, **(station_kwargs or {}))
+    price = datasets.load_prices(prices, first_weekday=first_weekday)
+    profile = datasets.load_user_profile(user_profile)
+    fleet_data = datasets.load_fleet(fleet)
+    cars_per_day = datasets.traffic_cars_per_day(traffic)
+
+    weights = resample_day(profile.arrival_weights, num_steps)
+    rate = weights * cars_per_day
+    rate[1] *= profile.weekend_volume_factor
+
+    if moer_kg_per_kwh is None:
+        moer = np.zeros((1, num_steps), np.float32)
+        observe_moer = bool(observe_moer)
+    else:
+        moer = np.asarray(moer_kg_per_kwh, dtype=np.float64)
+        moer = moer[None] if moer.ndim == 1 else moer
+        if moer.ndim != 2 or moer.shape[1] != num_steps:
+            raise ValueError(f"field 'moer_kg_per_kwh' must have shape (days, {num_steps}) or ({num_steps},), "
+                             f"got {np.shape(moer_kg_per_kwh)}")
+        moer = _array("moer_kg_per_kwh", moer, non_negative=True)
+        observe_moer = True if observe_moer is None else bool(observe_moer)
+    demand = (np.zeros(num_steps, np.float32) if grid_demand_kwh is None
+              else _array("grid_demand_kwh", grid_demand_kwh, (num_steps,)))
+
+    def scalar(name, value, **kw):
+        return jnp.asarray(_finite(name, value, **kw), jnp.float32)
+
+    return EnvParams(
+        station=stations,
+        prices_eur_kwh=jnp.asarray(price.prices_eur_kwh, jnp.float32),
+        first_weekday=jnp.asarray(price.first_weekday, jnp.int32),
+        arrival_rate=jnp.asarray(rate, jnp.float32),
+        stay_quantiles_min=jnp.asarray(profile.stay_quantiles_min, jnp.float32),
+        stay_scale_by_hour=jnp.asarray(profile.stay_scale_by_hour, jnp.float32),
+        demand_quantiles_kwh=jnp.asarray(profile.demand_quantiles_kwh, jnp.float32),
+        demand_scale_by_hour=jnp.asarray(profile.demand_scale_by_hour, jnp.float32),
+        arrival_soc_range=jnp.asarray(profile.arrival_soc_range, jnp.float32),
+        charge_sensitive_prob=jnp.asarray(profile.charge_sensitive_prob, jnp.float32),
+        fleet_share=jnp.asarray(fleet_data.share, jnp.float32),
+        fleet_capacity_kwh=jnp.asarray(fleet_data.capacity_kwh, jnp.float32),
+        fleet_ac_kw=jnp.asarray(fleet_data.max_ac_kw, jnp.float32),
+        fleet_dc_kw=jnp.asarray(fleet_data.max_dc_kw, jnp.float32),
+        fleet_tau=jnp.asarray(fleet_data.tau, jnp.float32),
+        moer_kg_per_kwh=jnp.asarray(moer, jnp.float32),
+        grid_demand_kwh=jnp.asarray(demand, jnp.float32),
+        customer_price_eur_kwh=scalar("customer_price_eur_kwh", customer_price_eur_kwh, minimum=0.0),
+        grid_fee_eur_kwh=scalar("grid_fee_eur_kwh", grid_fee_eur_kwh, minimum=0.0),
+        feed_in_factor=scalar("feed_in_factor", feed_in_factor, minimum=0.0),
+        fixed_cost_eur=scalar("fixed_cost_eur", fixed_cost_eur, minimum=0.0),
+        alpha=penalty_weights(alpha),
+        beta=scalar("beta", beta, minimum=0.0),
+        charged_tolerance_kwh=scalar("charged_tolerance_kwh", charged_tolerance_kwh, minimum=0.0, strict=True),
+        step_minutes=step_minutes,
+        num_steps=num_steps,
+        num_levels=int(num_levels),
+        action_mode=action_mode,
+        v2g=bool(v2g),
+        constraint_mode=constraint_mode,
+        price_horizon_hours=int(price_horizon_hours),
+        observe_moer=observe_moer,
+    )

@@ -1,0 +1,189 @@
+"""Physics of one step: actions to currents, rate curves, node limits, charging, energy flows.
+
+This module is the only place that turns currents into power and energy. All functions are
+pure and jittable; there is no Python loop over ports or nodes (only over tree depth, a
+static number of levels).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from chargax_marl.core.station import KIND_BATTERY, StationArrays
+from chargax_marl.core.types import EnvParams, EnvState
+
+
+def rate_curve_kw(soc: jnp.ndarray, max_rate_kw: jnp.ndarray, tau: jnp.ndarray) -> jnp.ndarray:
+    """Charging rate limit r-hat(SoC): ``r-bar`` up to ``tau``, then a linear taper to 0 at SoC 1."""
+    taper = (1.0 - soc) * max_rate_kw / jnp.maximum(1.0 - tau, 1e-6)
+    return jnp.clip(jnp.where(soc <= tau, max_rate_kw, taper), 0.0, max_rate_kw)
+
+
+def discharge_curve_kw(soc: jnp.ndarray, max_rate_kw: jnp.ndarray, tau: jnp.ndarray) -> jnp.ndarray:
+    """Discharging rate limit: the charging curve mirrored at SoC 0.5, ``r-hat(1 - SoC)``."""
+    return rate_curve_kw(1.0 - soc, max_rate_kw, tau)
+
+
+def leaf_min_level(station: StationArrays, num_levels: int, v2g: bool) -> jnp.ndarray:
+    """Lowest discrete level per leaf: ``-L`` where the leaf may discharge, else 0.
+
+    Batteries may always discharge; ports only when V2G is on and the port has a
+    discharge current.
+    """
+    can_discharge = (station.leaf_kind == KIND_BATTERY) | (
+        jnp.asarray(v2g) & (station.leaf_max_discharge_current_a > 0)
+    )
+    return jnp.where(can_discharge, -num_levels, 0).astype(jnp.int32)
+
+
+def target_current(action: jnp.ndarray, state: EnvState, params: EnvParams) -> jnp.ndarray:
+    """Turn an action into the target current per leaf, before any car or node limit.
+
+    ``action`` is, per leaf, a signed discrete level (modes ``absolute`` and ``delta``) or a
+    fraction in [-1, 1] (mode ``continuous``). Out-of-range values are clipped to the valid
+    range of that leaf (levels ``[min_level, L]``, fractions ``[-1, 1]``, no discharge where
+    the leaf cannot discharge).
+    """
+    st = params.station
+    if params.action_mode == "continuous":
+        frac = jnp.clip(action.astype(jnp.float32), -1.0, 1.0)
+        can_discharge = leaf_min_level(st, 1, params.v2g) < 0
+        frac = jnp.where(can_discharge, frac, jnp.maximum(frac, 0.0))
+    elif params.action_mode == "delta":
+        # The paper's formal action: a change of current in steps of max_current / L. Any leaf
+        # may step down; whether it may go below zero is decided by clip_to_car.
+        levels = jnp.clip(action.astype(jnp.int32), -params.num_levels, params.num_levels)
+        return state.current_a + levels.astype(jnp.float32) / params.num_levels * st.leaf_max_current_a
+    else:
+        levels = jnp.clip(action.astype(jnp.int32), leaf_min_level(st, params.num_levels, params.v2g), params.num_levels)
+        frac = levels.astype(jnp.float32) / params.num_levels
+    return frac * jnp.where(frac >= 0, st.leaf_max_current_a, st.leaf_max_discharge_current_a)
+
+
+def clip_to_car(current_a: jnp.ndarray, state: EnvState, params: EnvParams) -> jnp.ndarray:
+    """Clip currents to the port rating, the car's rate curve and its SoC window.
+
+    Charging: at most the port's max current and r-hat(SoC). Discharging: at most the port's
+    max discharge current (0 without V2G), the mirrored curve, and never below the arrival
+    SoC. Empty ports draw 0. The capacity clip of the stored energy is applied in
+    :func:`charge`, after the node limits.
+    """
+    st = params.station
+    v = st.leaf_voltage_v
+    dis_limit = jnp.where(st.leaf_kind == KIND_BATTERY, st.leaf_max_discharge_current_a,
+                          st.leaf_max_discharge_current_a * params.v2g)
+    charge_a = jnp.minimum(st.leaf_max_current_a, rate_curve_kw(state.soc, state.max_rate_kw, state.tau) * 1000.0 / v)
+    dis_a = jnp.minimum(dis_limit, discharge_curve_kw(state.soc, state.max_rate_kw, state.tau) * 1000.0 / v)
+    dis_a = jnp.where(state.soc > state.arrival_soc, dis_a, 0.0)
+    clipped = jnp.clip(current_a, -dis_a, charge_a)
+    return jnp.where(state.occupied, clipped, 0.0)
+
+
+def node_flows_kw(leaf_power_kw: jnp.ndarray, station: StationArrays) -> jnp.ndarray:
+    """Net power through every inner node, ``|sum of its leaves' power| / efficiency`` (H,)."""
+    flows = jnp.zeros((station.num_nodes,), jnp.float32)
+    for d in range(station.depth):
+        idx = station.node_of_leaf_at_depth[d]
+        flows = flows + jax.ops.segment_sum(
+            jnp.where(idx >= 0, leaf_power_kw, 0.0), jnp.maximum(idx, 0), num_segments=station.num_nodes
+        )
+    return jnp.abs(flows) / station.node_efficiency
+
+
+def constraint_excess_kw(leaf_power_kw: jnp.ndarray, station: StationArrays) -> jnp.ndarray:
+    """The paper's c_constraint: the largest excess over any node limit, kW (0 when all hold)."""
+    return jnp.max(jnp.maximum(node_flows_kw(leaf_power_kw, station) - station.node_max_kw, 0.0))
+
+
+def rescale_to_limits(current_a: jnp.ndarray, station: StationArrays) -> jnp.ndarray:
+    """Hard node constraints: scale the leaves of every violating node down, deepest nodes first.
+
+    Nodes at one depth have disjoint leaves, so each depth is one vectorised pass. A factor
+    in (0, 1] multiplies every leaf under a node, so the net flow scales by the same factor:
+    no sign flips, no magnitude grows, and deeper nodes stay within their limits when a
+    shallower node rescales. After the pass every node limit holds.
+    """
+    v = station.leaf_voltage_v
+    for d in reversed(range(station.depth)):
+        power_kw = current_a * v / 1000.0
+        idx = station.node_of_leaf_at_depth[d]
+        net = jax.ops.segment_sum(jnp.where(idx >= 0, power_kw, 0.0), jnp.maximum(idx, 0),
+                                  num_segments=station.num_nodes)
+        flow = jnp.abs(net) / station.node_efficiency
+        # A small safety margin keeps float32 round-off from leaving a flow a hair above its limit.
+        factor = jnp.where(flow > station.node_max_kw,
+                           station.node_max_kw / jnp.maximum(flow, 1e-12) * (1.0 - 1e-6), 1.0)
+        leaf_factor = jnp.where(idx >= 0, factor[jnp.maximum(idx, 0)], 1.0)
+        current_a = current_a * leaf_factor
+    return current_a
+
+
+def apply_actions(action: jnp.ndarray, state: EnvState, params: EnvParams):
+    """Step 1 of the transition: action -> target -> car/port limits -> node limits.
+
+    Returns ``(current_a, excess_kw)`` where ``excess_kw`` is c_constraint of the currents
+    the controller asked for (after car limits, before the hard rescale). In soft mode the
+    currents are not rescaled and the excess is what actually flows.
+    """
+    requested = clip_to_car(target_current(action, state, params), state, params)
+    excess = constraint_excess_kw(requested * params.station.leaf_voltage_v / 1000.0, params.station)
+    if params.constraint_mode == "hard":
+        return rescale_to_limits(requested, params.station), excess
+    return requested, excess
+
+
+def charge(current_a: jnp.ndarray, state: EnvState, params: EnvParams):
+    """Step 2: (dis)charge for one step at constant current, clipped to the car's capacity.
+
+    Returns ``(new_state, leaf_energy_kwh)``: the energy actually moved into each car or
+    battery (negative when discharging), which every later computation uses. The stored
+    current is the current that actually flowed.
+    """
+    st = params.station
+    dt_h = params.step_hours
+    energy = current_a * st.leaf_voltage_v / 1000.0 * dt_h
+    room = jnp.maximum((1.0 - state.soc) * state.capacity_kwh, 0.0)
+    reserve = jnp.maximum((state.soc - state.arrival_soc) * state.capacity_kwh, 0.0)
+    energy = jnp.where(state.occupied, jnp.clip(energy, -reserve, room), 0.0)
+    safe_cap = jnp.maximum(state.capacity_kwh, 1e-6)
+    soc = jnp.where(state.occupied, jnp.clip(state.soc + energy / safe_cap, 0.0, 1.0), 0.0)
+    actual_current = energy / dt_h * 1000.0 / st.leaf_voltage_v
+    remaining = jnp.where(state.occupied, state.energy_remaining_kwh - energy, 0.0)
+    is_port = st.leaf_kind != KIND_BATTERY
+    time_left = jnp.where(state.occupied & is_port, state.time_remaining_min - params.step_minutes,
+                          state.time_remaining_min)
+    new_state = state.replace(current_a=actual_current, soc=soc, energy_remaining_kwh=remaining,
+                              time_remaining_min=time_left)
+    return new_state, energy
+
+
+def energy_flows(leaf_energy_kwh: jnp.ndarray, station: StationArrays) -> dict:
+    """Split one step's leaf energies into the paper's quantities (kWh).
+
+    Grid side of a leaf: ``e / eta_path`` when charging, ``e * eta_path`` when discharging.
+    ``grid_net = into_cars + into_batteries + losses`` holds by construction; losses >= 0.
+    """
+    is_port = station.leaf_kind != KIND_BATTERY
+    eta = station.leaf_path_efficiency
+    grid_side = jnp.where(leaf_energy_kwh > 0, leaf_energy_kwh / eta, leaf_energy_kwh * eta)
+    car_e = jnp.where(is_port, leaf_energy_kwh, 0.0)
+    bat_e = jnp.where(is_port, 0.0, leaf_energy_kwh)
+    grid_to = jnp.sum(jnp.where(is_port & (leaf_energy_kwh > 0), grid_side, 0.0))
+    to_grid = jnp.sum(jnp.where(is_port & (leaf_energy_kwh < 0), grid_side, 0.0))
+    bat_grid = jnp.sum(jnp.where(is_port, 0.0, grid_side))
+    grid_net = grid_to + to_grid + bat_grid
+    delivered = jnp.sum(car_e)
+    battery_net = jnp.sum(bat_e)
+    return {
+        "delivered_kwh": delivered,  # Delta E_net
+        "charged_kwh": jnp.sum(jnp.maximum(car_e, 0.0)),
+        "discharged_kwh": -jnp.sum(jnp.minimum(car_e, 0.0)),
+        "battery_net_kwh": battery_net,
+        "battery_discharged_kwh": -jnp.sum(jnp.minimum(bat_e, 0.0)),
+        "grid_to_cars_kwh": grid_to,  # Delta E_grid->  (>= 0)
+        "cars_to_grid_kwh": to_grid,  # Delta E_->grid  (<= 0)
+        "battery_grid_kwh": bat_grid,
+        "grid_net_kwh": grid_net,
+        "losses_kwh": grid_net - delivered - battery_net,
+    }

@@ -1,0 +1,126 @@
+"""The transition of the shared station simulator: reset and step as pure functions.
+
+``step(key, state, levels, params)`` runs the four stages of paper Appendix A.2 in order
+(apply actions, charge, departures, arrivals), prices the step and updates the episode
+totals. Both the single-agent and the multi-agent view call exactly this function.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from chargax_marl.core import physics, reward as reward_lib, traffic
+from chargax_marl.core.station import KIND_BATTERY
+from chargax_marl.core.types import EnvParams, EnvState, EpisodeTotals, StepInfo
+
+
+def is_workday(day: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
+    """Monday to Friday, counting from the weekday of the data's first day (holidays ignored)."""
+    return jnp.mod(params.first_weekday + day, 7) < 5
+
+
+def empty_state(day: jnp.ndarray, params: EnvParams) -> EnvState:
+    """A station with no cars at step 0 of ``day``; batteries at their initial SoC."""
+    st = params.station
+    num_leaves = st.leaf_kind.shape[0]
+    zeros = jnp.zeros((num_leaves,), jnp.float32)
+    is_bat = st.leaf_kind == KIND_BATTERY
+    nb = st.num_batteries
+
+    def bat(values, default=0.0):
+        # Place per-battery values in the battery slots (the last nb leaves).
+        padded = jnp.concatenate([jnp.full((num_leaves - nb,), default, jnp.float32), values.astype(jnp.float32)])
+        return jnp.where(is_bat, padded, 0.0)
+
+    day = jnp.asarray(day, jnp.int32)
+    return EnvState(
+        current_a=zeros,
+        occupied=is_bat,
+        soc=bat(st.battery_initial_soc),
+        energy_remaining_kwh=zeros,
+        time_remaining_min=zeros,
+        capacity_kwh=bat(st.battery_capacity_kwh),
+        max_rate_kw=jnp.where(is_bat, st.leaf_max_kw, 0.0),
+        tau=bat(st.battery_tau),
+        charge_sensitive=jnp.zeros((num_leaves,), bool),
+        arrival_soc=zeros,
+        day=day,
+        timestep=jnp.zeros((), jnp.int32),
+        is_workday=is_workday(day, params),
+        totals=EpisodeTotals.zeros(),
+    )
+
+
+def reset(key: jax.Array, params: EnvParams) -> EnvState:
+    """Start an empty station on a uniformly random day of the price data (exploring starts)."""
+    day = jax.random.randint(key, (), 0, params.num_days)
+    return empty_state(day, params)
+
+
+def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams):
+    """One 5-minute (``params.step_minutes``) transition. Returns ``(new_state, StepInfo)``.
+
+    ``action`` has one entry per leaf (ports, then batteries): a signed level in
+    ``[-L, L]`` for the discrete modes or a fraction in ``[-1, 1]`` for ``continuous``.
+    Values outside the leaf's range are clipped (see :func:`physics.target_current`).
+    """
+    current, excess_kw = physics.apply_actions(action, state, params)
+    charged_state, leaf_energy = physics.charge(current, state, params)
+    flows = physics.energy_flows(leaf_energy, params.station)
+    departed_state, dep = traffic.depart(charged_state, params)
+    arrived_state, arr = traffic.arrive(key, departed_state, params)
+
+    p_buy, p_sell_grid = reward_lib.grid_prices(state.day, state.timestep, params)
+    profit = reward_lib.profit_eur(flows, p_buy, p_sell_grid, params)
+    moer = reward_lib.moer_now(state.day, state.timestep, params)
+    demand = params.grid_demand_kwh[jnp.clip(state.timestep, 0, params.grid_demand_kwh.shape[0] - 1)]
+    terms = reward_lib.penalty_terms(flows, dep, arr, excess_kw, moer, demand)
+    r = reward_lib.reward(profit, terms, params)
+
+    t = state.totals
+    grid = flows["grid_net_kwh"]
+    totals = EpisodeTotals(
+        reward=t.reward + r,
+        profit_eur=t.profit_eur + profit,
+        energy_charged_kwh=t.energy_charged_kwh + flows["charged_kwh"],
+        energy_discharged_kwh=t.energy_discharged_kwh + flows["discharged_kwh"],
+        energy_delivered_kwh=t.energy_delivered_kwh + flows["delivered_kwh"],
+        battery_net_kwh=t.battery_net_kwh + flows["battery_net_kwh"],
+        grid_import_kwh=t.grid_import_kwh + jnp.maximum(grid, 0.0),
+        grid_export_kwh=t.grid_export_kwh + jnp.maximum(-grid, 0.0),
+        losses_kwh=t.losses_kwh + flows["losses_kwh"],
+        cars_arrived=t.cars_arrived + arr["arrived"],
+        cars_served=t.cars_served + dep["departed"],
+        cars_rejected=t.cars_rejected + arr["rejected"],
+        missing_kwh=t.missing_kwh + dep["missing_kwh"],
+        overtime_min=t.overtime_min + dep["overtime_min"],
+        constraint_excess_kw=t.constraint_excess_kw + excess_kw,
+    )
+    new_state = arrived_state.replace(timestep=state.timestep + 1, totals=totals)
+    info = StepInfo(
+        reward=r,
+        profit_eur=profit,
+        penalties=terms,
+        energy_charged_kwh=flows["charged_kwh"],
+        energy_discharged_kwh=flows["discharged_kwh"],
+        energy_delivered_kwh=flows["delivered_kwh"],
+        battery_net_kwh=flows["battery_net_kwh"],
+        grid_net_kwh=grid,
+        losses_kwh=flows["losses_kwh"],
+        price_buy_eur_kwh=p_buy,
+        price_sell_grid_eur_kwh=p_sell_grid,
+        cars_arrived=arr["arrived"],
+        cars_departed=dep["departed"],
+        cars_rejected=arr["rejected"],
+        missing_kwh=dep["missing_kwh"],
+        overtime_min=dep["overtime_min"],
+        constraint_excess_kw=excess_kw,
+        leaf_energy_kwh=leaf_energy,
+    )
+    return new_state, info
+
+
+def is_done(state: EnvState, params: EnvParams) -> jnp.ndarray:
+    """The day is over (truncation; the station never terminates)."""
+    return state.timestep >= params.num_steps

