@@ -64,18 +64,26 @@ def target_current(action: jnp.ndarray, state: EnvState, params: EnvParams) -> j
 def clip_to_car(current_a: jnp.ndarray, state: EnvState, params: EnvParams) -> jnp.ndarray:
     """Clip currents to the port rating, the car's rate curve and its SoC window.
 
-    Charging: at most the port's max current and r-hat(SoC). Discharging: at most the port's
-    max discharge current (0 without V2G), the mirrored curve, and never below the arrival
-    SoC. Empty ports draw 0. The capacity clip of the stored energy is applied in
-    :func:`charge`, after the node limits.
+    Charging: at most the port's max current, r-hat(SoC), and the current that fills the car
+    within the step. Discharging: at most the port's max discharge current (0 without V2G),
+    the mirrored curve, and the current that empties the car to its arrival SoC within the
+    step. Empty ports draw 0.
+
+    The capacity window is applied here, before the node limits, and not only when charging:
+    with flows of both signs under one node, cutting one leaf after the rescale could raise
+    the node's net flow above its limit. :func:`charge` keeps the same clip as a guard.
     """
     st = params.station
     v = st.leaf_voltage_v
+    to_amps = 1000.0 / (v * params.step_hours)  # kWh moved in one step -> A
+    room_a = jnp.maximum((1.0 - state.soc) * state.capacity_kwh, 0.0) * to_amps
+    reserve_a = jnp.maximum((state.soc - state.arrival_soc) * state.capacity_kwh, 0.0) * to_amps
     dis_limit = jnp.where(st.leaf_kind == KIND_BATTERY, st.leaf_max_discharge_current_a,
                           st.leaf_max_discharge_current_a * params.v2g)
     charge_a = jnp.minimum(st.leaf_max_current_a, rate_curve_kw(state.soc, state.max_rate_kw, state.tau) * 1000.0 / v)
+    charge_a = jnp.minimum(charge_a, room_a)
     dis_a = jnp.minimum(dis_limit, discharge_curve_kw(state.soc, state.max_rate_kw, state.tau) * 1000.0 / v)
-    dis_a = jnp.where(state.soc > state.arrival_soc, dis_a, 0.0)
+    dis_a = jnp.minimum(dis_a, reserve_a)
     clipped = jnp.clip(current_a, -dis_a, charge_a)
     return jnp.where(state.occupied, clipped, 0.0)
 

@@ -1,0 +1,369 @@
+"""Multi-agent view of the station: one agent per charging port and per station battery (JaxMARL 0.2 API).
+
+The transition is :func:`chargax_marl.core.simulator.step`, the very function the single-agent
+view calls; this file only maps the agents' actions to the core's per-leaf levels and builds
+the per-agent observations. The pure functions at module level take ``params`` explicitly
+(so jitted callers may pass them as traced arguments and share compiled code);
+:class:`ChargaxMARL` binds them to ``self.params`` as JaxMARL environments do.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any, Mapping
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxmarl.environments import spaces
+from jaxmarl.environments.multi_agent_env import MultiAgentEnv
+
+from chargax_marl.core import observation, physics, simulator
+from chargax_marl.core.params import make_params
+from chargax_marl.core.station import KIND_AC, KIND_BATTERY, KIND_DC
+from chargax_marl.core.types import PENALTY_TERMS, EnvParams, EnvState, EpisodeTotals, StepInfo
+
+NUM_KINDS = 3  # one-hot order: AC, DC, battery (the values of KIND_AC, KIND_DC, KIND_BATTERY)
+assert (KIND_AC, KIND_DC, KIND_BATTERY) == (0, 1, 2)
+
+
+# --------------------------------------------------------------------------- pure functions
+
+
+def agent_names(params: EnvParams) -> list[str]:
+    """``port_0 .. port_{P-1}`` then ``battery_0 ..``, in leaf order."""
+    st = params.station
+    return [f"port_{i}" for i in range(st.num_ports)] + [f"battery_{j}" for j in range(st.num_batteries)]
+
+
+def action_offset(params: EnvParams) -> int:
+    """Index of idle (level 0) in the shared ``Discrete`` action space: ``L`` or 0.
+
+    ``Discrete(2L+1)`` (index ``k`` is level ``k - L``) when any leaf may discharge or in
+    ``delta`` mode, else ``Discrete(L+1)`` (index ``k`` is level ``k``). Needs concrete params.
+    """
+    if params.action_mode == "delta":
+        return params.num_levels
+    min_level = np.asarray(physics.leaf_min_level(params.station, params.num_levels, params.v2g))
+    return params.num_levels if bool(np.any(min_level < 0)) else 0
+
+
+def min_levels(params: EnvParams) -> jnp.ndarray:
+    """Lowest valid level per agent: ``-L`` where the leaf may discharge (all leaves in delta mode), else 0."""
+    if params.action_mode == "delta":
+        return jnp.full((params.station.num_leaves,), -params.num_levels, jnp.int32)
+    return physics.leaf_min_level(params.station, params.num_levels, params.v2g)
+
+
+def actions_to_levels(indices: jnp.ndarray, params: EnvParams, offset: int) -> jnp.ndarray:
+    """Map per-agent action indices ``(N,)`` to the core's signed levels ``(N,)``.
+
+    Indices outside ``[0, n)`` are clipped into it; a masked (invalid) action falls back to
+    idle, level 0.
+    """
+    n = params.num_levels + 1 + offset
+    idx = jnp.clip(jnp.asarray(indices).astype(jnp.int32), 0, n - 1)
+    levels = idx - offset
+    return jnp.where(levels < min_levels(params), 0, levels).astype(jnp.int32)
+
+
+def levels_to_indices(levels: jnp.ndarray, params: EnvParams, offset: int) -> jnp.ndarray:
+    """Inverse of :func:`actions_to_levels` for valid levels (e.g. from :mod:`chargax_marl.policies`)."""
+    return jnp.asarray(levels).astype(jnp.int32) + offset
+
+
+def avail_actions(params: EnvParams, offset: int) -> jnp.ndarray:
+    """Bool ``(N, n)``: ``True`` where index ``k`` gives a level the agent's leaf can take."""
+    n = params.num_levels + 1 + offset
+    levels = jnp.arange(n, dtype=jnp.int32)[None, :] - offset
+    return levels >= min_levels(params)[:, None]
+
+
+def ancestor_table(params: EnvParams) -> jnp.ndarray:
+    """``(N, D)`` node index of each leaf's ancestors from the deepest to the root, ``-1`` padded."""
+    st = params.station
+    anc = st.node_of_leaf_at_depth.T  # (N, D), ancestors by depth, root first, -1 where none
+    count = jnp.sum(anc >= 0, axis=1)
+    src = count[:, None] - 1 - jnp.arange(st.depth)[None, :]
+    picked = jnp.take_along_axis(anc, jnp.maximum(src, 0), axis=1)
+    return jnp.where(src >= 0, picked, -1)
+
+
+def agent_observations(state: EnvState, params: EnvParams) -> jnp.ndarray:
+    """Every agent's observation as one float32 matrix ``(N, obs_size)``, rows in agent order.
+
+    Columns: the 8 leaf features of :func:`observation.leaf_features`; kind one-hot (AC, DC,
+    battery); load fraction ``|net flow| / max_kw`` of each ancestor node from the deepest to
+    the root, zero-padded to the tree depth; the shared context; the agent index one-hot.
+    """
+    st = params.station
+    n = st.num_leaves
+    feats = observation.leaf_features(state, params)
+    kind = jax.nn.one_hot(st.leaf_kind, NUM_KINDS, dtype=jnp.float32)
+    flows_kw = physics.node_flows_kw(state.current_a * st.leaf_voltage_v / 1000.0, st)
+    load = flows_kw / st.node_max_kw
+    anc = ancestor_table(params)
+    loads = jnp.where(anc >= 0, load[jnp.maximum(anc, 0)], 0.0)
+    ctx = observation.context_features(state, params)
+    return jnp.concatenate(
+        [
+            feats.astype(jnp.float32),
+            kind,
+            loads.astype(jnp.float32),
+            jnp.broadcast_to(ctx, (n, ctx.shape[0])),
+            jnp.eye(n, dtype=jnp.float32),
+        ],
+        axis=1,
+    )
+
+
+def info_scalars(info: StepInfo, state: EnvState) -> dict:
+    """The per-step report as a flat dict of scalars, plus the episode totals of ``state``."""
+    out = {
+        "reward": info.reward,
+        "profit_eur": info.profit_eur,
+        "energy_charged_kwh": info.energy_charged_kwh,
+        "energy_discharged_kwh": info.energy_discharged_kwh,
+        "energy_delivered_kwh": info.energy_delivered_kwh,
+        "battery_net_kwh": info.battery_net_kwh,
+        "grid_net_kwh": info.grid_net_kwh,
+        "losses_kwh": info.losses_kwh,
+        "price_buy_eur_kwh": info.price_buy_eur_kwh,
+        "price_sell_grid_eur_kwh": info.price_sell_grid_eur_kwh,
+        "cars_arrived": info.cars_arrived,
+        "cars_departed": info.cars_departed,
+        "cars_rejected": info.cars_rejected,
+        "missing_kwh": info.missing_kwh,
+        "overtime_min": info.overtime_min,
+        "constraint_excess_kw": info.constraint_excess_kw,
+    }
+    out.update({f"penalty_{k}": info.penalties[k] for k in PENALTY_TERMS})
+    out.update({f"episode_{k}": getattr(state.totals, k) for k in EpisodeTotals.__dataclass_fields__})
+    return {k: jnp.asarray(v, jnp.float32) for k, v in out.items()}
+
+
+def step_arrays(key: jax.Array, state: EnvState, indices: jnp.ndarray, params: EnvParams, offset: int):
+    """One transition from per-agent action indices ``(N,)``, without auto-reset.
+
+    Returns ``(obs (N, obs_size), new_state, reward (), done (), info)`` where ``info`` holds
+    the scalars of :func:`info_scalars` and ``agent_energy_kwh`` ``(N,)``, the energy moved
+    into each agent's car or battery this step (negative when discharging).
+    """
+    levels = actions_to_levels(indices, params, offset)
+    new_state, core_info = simulator.step(key, state, levels, params)
+    obs = agent_observations(new_state, params)
+    info = info_scalars(core_info, new_state)
+    info["agent_energy_kwh"] = core_info.leaf_energy_kwh.astype(jnp.float32)
+    return obs, new_state, core_info.reward, simulator.is_done(new_state, params), info
+
+
+def world_state(state: EnvState, params: EnvParams) -> jnp.ndarray:
+    """The single-agent observation, MAPPO's world state."""
+    return observation.flat_obs(state, params)
+
+
+# --------------------------------------------------------------------------- the environment
+
+
+class ChargaxMARL(MultiAgentEnv):
+    """The EV charging station as a JaxMARL multi-agent environment.
+
+    One agent per charging port (``port_0 .. port_{P-1}``, in port order) and per station
+    battery (``battery_0 ..``); ``self.agents`` follows the core's leaf order. All agents step
+    together through :func:`chargax_marl.core.simulator.step`, the same function the
+    single-agent env calls, and share the station reward (``rewards[a]`` is the same scalar
+    for every agent). An episode is one day: ``dones[a]`` and ``dones["__all__"]`` turn true
+    at its end (truncation); :meth:`step` then auto-resets (JaxMARL's base class).
+
+    Construct with keyword overrides of :func:`chargax_marl.core.make_params` or with ready
+    ``params`` (kept as ``self.params``).
+
+    **Actions.** Every agent has the same ``Discrete(n)`` space. With ``n = 2L+1`` (any leaf
+    may discharge: batteries always, ports with V2G) index ``k`` means level ``k - L``, so
+    ``L`` is idle and ``2L`` full power; with ``n = L+1`` (no leaf can discharge) index ``k``
+    means level ``k``. Level ``l`` targets ``l/L`` of the leaf's max (dis)charge current
+    (``absolute`` mode) or changes the current by that much (``delta`` mode, always
+    ``Discrete(2L+1)`` with every index valid). Discharging levels of a port without V2G are
+    *masked*: :meth:`get_avail_actions` returns ``False`` for them (the mask depends only on
+    the station, not on the state) and, if chosen anyway, such an action falls back to idle
+    (level 0). An action may have shape ``()`` or ``(1,)``. Inside ``jit`` values cannot be
+    checked: indices outside ``[0, n)`` are clipped into it (as the single-agent env
+    clips); outside ``jit`` use :meth:`check_actions` for clear errors. Action mode
+    ``continuous`` is not supported here (``ValueError``): use the single-agent view.
+
+    **Observations.** Every agent gets a float32 vector of the same size
+    (:attr:`obs_size`): its own leaf features (8, :data:`observation.PORT_FEATURES`), its
+    kind one-hot (AC, DC, battery), the load fraction ``|net flow| / max_kw`` of each
+    ancestor node from the deepest to the root (zero-padded to the tree depth), the shared
+    context (prices, time of day, ...), and the agent index one-hot (so a shared policy can
+    tell agents apart). :meth:`get_global_state` is the single-agent observation.
+
+    **Infos.** Every leaf has shape ``(num_agents,)``: the step's reward and profit, every
+    penalty term as ``penalty_<name>``, energies, prices, car counts, the running episode
+    totals as ``episode_<name>`` (scalars broadcast to every agent), and ``agent_energy_kwh``,
+    each agent's own energy this step.
+    """
+
+    def __init__(self, params: EnvParams | None = None, **make_params_kwargs: Any):
+        if params is not None and make_params_kwargs:
+            raise ValueError("ChargaxMARL: pass either 'params' or keyword arguments of make_params, not both")
+        params = params if params is not None else make_params(**make_params_kwargs)
+        if params.action_mode == "continuous":
+            raise ValueError(
+                "ChargaxMARL: action_mode 'continuous' is not supported by the multi-agent view "
+                "(every agent has one Discrete space); use action_mode 'absolute' or 'delta', "
+                "or the single-agent env chargax_marl.single.Chargax for continuous actions"
+            )
+        st = params.station
+        super().__init__(num_agents=st.num_leaves)
+        self.params = params
+        self.agents = agent_names(params)
+        self.agent_index = {a: i for i, a in enumerate(self.agents)}
+        self.action_offset = action_offset(params)
+        self.num_actions = params.num_levels + 1 + self.action_offset
+        self._avail_np = np.asarray(avail_actions(params, self.action_offset))
+        obs_shape = jax.eval_shape(agent_observations, simulator.empty_state(0, params), params).shape
+        self.obs_size = int(obs_shape[1])
+        obs_space = spaces.Box(-jnp.inf, jnp.inf, (self.obs_size,), jnp.float32)
+        act_space = spaces.Discrete(self.num_actions)
+        self.observation_spaces = {a: obs_space for a in self.agents}
+        self.action_spaces = {a: act_space for a in self.agents}
+
+    # ------------------------------------------------------------------ JaxMARL API
+    @functools.partial(jax.jit, static_argnums=(0,))
+    def reset(self, key: jax.Array):
+        """Start an empty station on a random day. Returns ``(obs, state)``."""
+        state = simulator.reset(key, self.params)
+        return self.get_obs(state), state
+
+    def reset_to_day(self, day: int | jax.Array):
+        """Start an empty station on a chosen day of the price data (for fixed evaluation days)."""
+        state = simulator.empty_state(jnp.asarray(day, jnp.int32), self.params)
+        return self.get_obs(state), state
+
+    def step_env(self, key: jax.Array, state: EnvState, actions: Mapping[str, jax.Array]):
+        """One transition without auto-reset: ``(obs, state, rewards, dones, infos)``."""
+        indices = self.stack_actions(actions)
+        obs, new_state, reward, done, info = step_arrays(key, state, indices, self.params, self.action_offset)
+        n = self.num_agents
+        obs_dict = {a: obs[i] for i, a in enumerate(self.agents)}
+        rewards = {a: reward for a in self.agents}
+        dones = {a: done for a in self.agents}
+        dones["__all__"] = done
+        infos = {k: jnp.broadcast_to(v, (n,)) for k, v in info.items()}
+        return obs_dict, new_state, rewards, dones, infos
+
+    def get_obs(self, state: EnvState) -> dict:
+        """Observations keyed by agent (see the class docstring for the layout)."""
+        obs = agent_observations(state, self.params)
+        return {a: obs[i] for i, a in enumerate(self.agents)}
+
+    def get_obs_matrix(self, state: EnvState) -> jnp.ndarray:
+        """All observations as one ``(num_agents, obs_size)`` matrix, rows in agent order."""
+        return agent_observations(state, self.params)
+
+    @functools.partial(jax.jit, static_argnums=(0,))
+    def get_avail_actions(self, state: EnvState) -> dict:
+        """Bool mask ``(n,)`` per agent: ``False`` for levels its leaf cannot take (station-dependent only)."""
+        del state
+        avail = jnp.asarray(self._avail_np)
+        return {a: avail[i] for i, a in enumerate(self.agents)}
+
+    def get_global_state(self, state: EnvState) -> jnp.ndarray:
+        """MAPPO's world state: the single-agent observation ``(state_size,)``."""
+        return world_state(state, self.params)
+
+    @property
+    def state_size(self) -> int:
+        return observation.obs_size(self.params)
+
+    @property
+    def agent_classes(self) -> dict:
+        """Agents by kind: ``{"dc_ports": [...], "ac_ports": [...], "batteries": [...]}`` (lists may be empty)."""
+        kinds = np.asarray(self.params.station.leaf_kind)
+        return {
+            "dc_ports": [a for a, k in zip(self.agents, kinds) if k == KIND_DC],
+            "ac_ports": [a for a, k in zip(self.agents, kinds) if k == KIND_AC],
+            "batteries": [a for a, k in zip(self.agents, kinds) if k == KIND_BATTERY],
+        }
+
+    @property
+    def name(self) -> str:
+        return "ChargaxMARL"
+
+    # ------------------------------------------------------------------ actions
+    def stack_actions(self, actions: Mapping[str, jax.Array]) -> jnp.ndarray:
+        """The action dict as an int32 vector ``(num_agents,)`` in agent order (works under jit).
+
+        Raises ``KeyError`` naming a missing agent and ``ValueError`` for an unknown agent or an
+        action whose shape is not ``()`` or ``(1,)``; the values themselves are not checked.
+        """
+        missing = [a for a in self.agents if a not in actions]
+        if missing:
+            raise KeyError(f"actions has no entry for agent(s) {missing}; expected one per agent in {self.agents}")
+        unknown = [a for a in actions if a not in self.agent_index]
+        if unknown:
+            raise ValueError(f"actions has entries for unknown agent(s) {unknown}; agents are {self.agents}")
+        parts = []
+        for a in self.agents:
+            x = jnp.asarray(actions[a])
+            if x.shape not in ((), (1,)):
+                raise ValueError(f"action of agent {a!r} must have shape () or (1,), got {x.shape}")
+            parts.append(x.reshape(()).astype(jnp.int32))
+        return jnp.stack(parts)
+
+    def check_actions(self, actions: Mapping[str, Any]) -> np.ndarray:
+        """Validate an action dict outside ``jit``; return the int32 index vector in agent order.
+
+        Raises ``ValueError`` naming the agent and the allowed range for a missing or unknown
+        agent, a non-integer action (float, bool, string, ...), a shape other than ``()`` or
+        ``(1,)``, or an index outside ``[0, n)``. Masked actions are accepted (they fall back
+        to idle). Traced values (inside ``jit``) get the structural checks only.
+        """
+        n = self.num_actions
+        allowed = f"an integer in [0, {n - 1}] (Discrete({n}))"
+        if not isinstance(actions, Mapping):
+            raise ValueError(f"actions must be a dict {{agent: {allowed}}}, got {type(actions).__name__}")
+        missing = [a for a in self.agents if a not in actions]
+        if missing:
+            raise ValueError(f"missing action for agent(s) {missing}: every agent needs {allowed}")
+        unknown = [a for a in actions if a not in self.agent_index]
+        if unknown:
+            raise ValueError(f"unknown agent(s) {unknown} in actions; agents are {self.agents}")
+        out = np.empty(self.num_agents, np.int32)
+        for i, a in enumerate(self.agents):
+            v = actions[a]
+            if isinstance(v, jax.core.Tracer):
+                if v.shape not in ((), (1,)) or not jnp.issubdtype(v.dtype, jnp.integer):
+                    raise ValueError(f"action of agent {a!r} must be {allowed} with shape () or (1,), "
+                                     f"got a traced {v.dtype} of shape {v.shape}")
+                out[i] = 0
+                continue
+            if isinstance(v, (bool, np.bool_)):
+                raise ValueError(f"action of agent {a!r} must be {allowed}, got the bool {v!r}")
+            if isinstance(v, (int, np.integer)):
+                k = int(v)
+            else:
+                try:
+                    arr = np.asarray(v)
+                except Exception:  # noqa: BLE001 - anything that is not array-like is a bad action
+                    raise ValueError(f"action of agent {a!r} must be {allowed}, got {v!r}") from None
+                if arr.shape not in ((), (1,)) or arr.dtype == np.bool_ or not np.issubdtype(arr.dtype, np.integer):
+                    raise ValueError(f"action of agent {a!r} must be {allowed} with shape () or (1,), "
+                                     f"got {v!r} (dtype {arr.dtype}, shape {arr.shape})")
+                k = int(arr.reshape(()))
+            if not 0 <= k < n:
+                raise ValueError(f"action of agent {a!r} must be {allowed}, got {k}")
+            out[i] = k
+        return out
+
+    def actions_to_levels(self, actions: Mapping[str, jax.Array] | jax.Array) -> jnp.ndarray:
+        """The core's signed levels ``(num_agents,)`` for an action dict or index vector."""
+        indices = self.stack_actions(actions) if isinstance(actions, Mapping) else jnp.asarray(actions)
+        return actions_to_levels(indices, self.params, self.action_offset)
+
+    def levels_to_actions(self, levels: jax.Array) -> dict:
+        """Action dict for valid signed levels ``(num_agents,)`` (e.g. a rule-based policy of
+        :mod:`chargax_marl.policies`)."""
+        idx = levels_to_indices(levels, self.params, self.action_offset)
+        return {a: idx[i] for i, a in enumerate(self.agents)}

@@ -1,0 +1,133 @@
+"""JaxMARL-style wrappers of :class:`ChargaxMARL`: episode logging and MAPPO's world state.
+
+Both keep JaxMARL's call signatures (``reset(key)``, ``step(key, state, actions)``) and
+forward every other attribute to the wrapped env, so they stack like JaxMARL's: the
+MAPPO order is ``LogWrapper(WorldStateWrapper(env))``.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from chargax_marl.core.types import EnvState, EpisodeTotals
+
+
+class _Wrapper:
+    def __init__(self, env):
+        self._env = env
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._env, name)
+
+    def stack_agent_values(self, x: dict) -> jnp.ndarray:
+        """A per-agent dict as an array ``(num_agents, ...)`` in agent order."""
+        return jnp.stack([x[a] for a in self._env.agents])
+
+
+def _core_state(state) -> EnvState:
+    """Unwrap wrapper states (``.env_state``) down to the core :class:`EnvState`."""
+    while not isinstance(state, EnvState):
+        state = state.env_state
+    return state
+
+
+@struct.dataclass
+class LogEnvState:
+    """JaxMARL's ``LogEnvState`` fields (each ``(num_agents,)``) plus the last finished episode's totals."""
+
+    env_state: Any
+    episode_returns: jnp.ndarray
+    episode_lengths: jnp.ndarray
+    returned_episode_returns: jnp.ndarray
+    returned_episode_lengths: jnp.ndarray
+    returned_totals: EpisodeTotals
+
+
+class LogWrapper(_Wrapper):
+    """Track per-agent episode returns and lengths across auto-resets, as JaxMARL's ``LogWrapper``.
+
+    ``info`` gains ``returned_episode_returns``, ``returned_episode_lengths`` (the last
+    finished episode's values), ``returned_episode`` (True on the step that ended an
+    episode) and ``returned_episode_<total>`` for every field of
+    :class:`chargax_marl.core.EpisodeTotals` (profit, energies, cars served, ...), each of
+    shape ``(num_agents,)``. With ``replace_info=True`` the env's own infos are dropped.
+    """
+
+    def __init__(self, env, replace_info: bool = False):
+        super().__init__(env)
+        self.replace_info = replace_info
+
+    @functools.partial(jax.jit, static_argnums=(0,))
+    def reset(self, key: jax.Array):
+        obs, env_state = self._env.reset(key)
+        n = self._env.num_agents
+        zeros = jnp.zeros((n,), jnp.float32)
+        state = LogEnvState(env_state, zeros, jnp.zeros((n,), jnp.int32), zeros, jnp.zeros((n,), jnp.int32),
+                            EpisodeTotals.zeros())
+        return obs, state
+
+    @functools.partial(jax.jit, static_argnums=(0,))
+    def step(self, key: jax.Array, state: LogEnvState, actions: dict, reset_state=None):
+        if reset_state is None:
+            obs, env_state, reward, done, info = self._env.step(key, state.env_state, actions)
+        else:
+            obs, env_state, reward, done, info = self._env.step(key, state.env_state, actions, reset_state)
+        n = self._env.num_agents
+        ep_done = done["__all__"]
+        new_return = state.episode_returns + self.stack_agent_values(reward).astype(jnp.float32)
+        new_length = state.episode_lengths + 1
+        # The env auto-resets on done, so the finished episode's totals come from the info.
+        finished = EpisodeTotals(**{k: info[f"episode_{k}"][0] for k in EpisodeTotals.__dataclass_fields__})
+        totals = jax.tree.map(lambda new, old: jnp.where(ep_done, new, old), finished, state.returned_totals)
+        state = LogEnvState(
+            env_state=env_state,
+            episode_returns=jnp.where(ep_done, 0.0, new_return),
+            episode_lengths=jnp.where(ep_done, 0, new_length),
+            returned_episode_returns=jnp.where(ep_done, new_return, state.returned_episode_returns),
+            returned_episode_lengths=jnp.where(ep_done, new_length, state.returned_episode_lengths),
+            returned_totals=totals,
+        )
+        info = {} if self.replace_info else dict(info)
+        info["returned_episode_returns"] = state.returned_episode_returns
+        info["returned_episode_lengths"] = state.returned_episode_lengths
+        info["returned_episode"] = jnp.full((n,), ep_done)
+        for k in EpisodeTotals.__dataclass_fields__:
+            info[f"returned_episode_{k}"] = jnp.broadcast_to(getattr(totals, k), (n,))
+        return obs, state, reward, done, info
+
+
+class WorldStateWrapper(_Wrapper):
+    """Add MAPPO's centralised input: ``obs["world_state"]`` of shape ``(num_agents, state_size)``.
+
+    Every row is the env's :meth:`get_global_state` (the single-agent observation) of the
+    returned state, so after an auto-reset it describes the new day.
+    """
+
+    @functools.partial(jax.jit, static_argnums=(0,))
+    def reset(self, key: jax.Array):
+        obs, env_state = self._env.reset(key)
+        obs = dict(obs)
+        obs["world_state"] = self.world_state(env_state)
+        return obs, env_state
+
+    @functools.partial(jax.jit, static_argnums=(0,))
+    def step(self, key: jax.Array, state, actions: dict, reset_state=None):
+        if reset_state is None:
+            obs, env_state, reward, done, info = self._env.step(key, state, actions)
+        else:
+            obs, env_state, reward, done, info = self._env.step(key, state, actions, reset_state)
+        obs = dict(obs)
+        obs["world_state"] = self.world_state(env_state)
+        return obs, env_state, reward, done, info
+
+    def world_state(self, state) -> jnp.ndarray:
+        ws = self._env.get_global_state(_core_state(state))
+        return jnp.broadcast_to(ws, (self._env.num_agents, ws.shape[0]))
+
+    def world_state_size(self) -> int:
+        return self._env.state_size
