@@ -1,18 +1,34 @@
 """Rule-based policies, written in the core's per-leaf levels so both views can use them.
 
 A policy is ``policy(state, key, params) -> levels`` with one signed level per leaf (ports,
-then batteries) in ``[-L, L]``. Convert to a view's action with
-``Chargax.levels_to_action`` (single agent) or the multi-agent view's equivalent.
+then batteries) in ``[-L, L]`` (absolute action mode). Rule-based policies read the
+simulator state, not the observation. To use one with a view:
+
+- single agent: :func:`for_single` gives ``fn(state, key) -> action`` for
+  :class:`chargax_marl.single.Chargax`;
+- multi agent: :func:`for_marl` gives ``fn(state, key) -> {agent: action}`` for
+  :class:`chargax_marl.marl.ChargaxMARL`.
+
+All policies are jittable and vmappable.
 """
 
 from __future__ import annotations
+
+from typing import Callable
 
 import jax
 import jax.numpy as jnp
 
 from chargax_marl.core import physics
+from chargax_marl.core.reward import hour_of_step
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState
+
+Policy = Callable[[EnvState, jax.Array, EnvParams], jnp.ndarray]
+
+
+def _is_battery(params: EnvParams) -> jnp.ndarray:
+    return params.station.leaf_kind == KIND_BATTERY
 
 
 def always_max(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarray:
@@ -22,8 +38,7 @@ def always_max(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarra
     so every car charges as fast as the station allows.
     """
     del state, key
-    is_battery = params.station.leaf_kind == KIND_BATTERY
-    return jnp.where(is_battery, 0, params.num_levels).astype(jnp.int32)
+    return jnp.where(_is_battery(params), 0, params.num_levels).astype(jnp.int32)
 
 
 def random_policy(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarray:
@@ -33,4 +48,105 @@ def random_policy(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.nda
     return jax.random.randint(key, low.shape, low, params.num_levels + 1).astype(jnp.int32)
 
 
-POLICIES = {"always_max": always_max, "random": random_policy}
+def _levels_for_power(power_kw: jnp.ndarray, params: EnvParams, *, round_up: bool) -> jnp.ndarray:
+    """The charging level whose current gives ``power_kw`` at each leaf (clipped to [0, L])."""
+    frac = power_kw / params.station.leaf_max_kw * params.num_levels
+    frac = jnp.ceil(frac - 1e-6) if round_up else jnp.floor(frac + 1e-6)
+    return jnp.clip(frac, 0, params.num_levels).astype(jnp.int32)
+
+
+def minimum_power_kw(state: EnvState, params: EnvParams) -> jnp.ndarray:
+    """Per leaf, the constant power that delivers the remaining demand one step before the
+    planned departure (0 for empty ports, batteries and cars already satisfied)."""
+    hours_left = jnp.maximum(state.time_remaining_min - params.step_minutes, params.step_minutes) / 60.0
+    need = jnp.maximum(state.energy_remaining_kwh, 0.0) / hours_left
+    return jnp.where(state.occupied & ~_is_battery(params), need, 0.0)
+
+
+def price_threshold(state: EnvState, key: jax.Array, params: EnvParams, quantile: float = 0.3) -> jnp.ndarray:
+    """Charge fully while the buy price is in the cheapest ``quantile`` of the day's hours;
+    otherwise charge each car at the lowest level that still meets its demand by its
+    planned departure. Batteries charge fully in cheap hours, discharge fully in the
+    dearest ``quantile`` of hours (when the station may discharge), and idle otherwise.
+    """
+    del key
+    day_prices = params.prices_eur_kwh[state.day]
+    now = day_prices[hour_of_step(state.timestep, params)]
+    cheap = now <= jnp.quantile(day_prices, quantile)
+    dear = now >= jnp.quantile(day_prices, 1.0 - quantile)
+    lazy = _levels_for_power(minimum_power_kw(state, params), params, round_up=True)
+    ports = jnp.where(cheap, params.num_levels, lazy)
+    battery = jnp.where(cheap, params.num_levels, jnp.where(dear, -params.num_levels, 0))
+    return jnp.where(_is_battery(params), battery, ports).astype(jnp.int32)
+
+
+def _greedy_under_limits(priority: jnp.ndarray, state: EnvState, params: EnvParams) -> jnp.ndarray:
+    """Give cars power in order of ``priority`` (lower first), each as much as its rate,
+    its port and the remaining headroom of every node on its path allow."""
+    st = params.station
+    want_kw = jnp.minimum(st.leaf_max_kw, physics.rate_curve_kw(state.soc, state.max_rate_kw, state.tau))
+    room_kw = jnp.maximum((1.0 - state.soc) * state.capacity_kwh, 0.0) / params.step_hours
+    want_kw = jnp.where(state.occupied & ~_is_battery(params), jnp.minimum(want_kw, room_kw), 0.0)
+    headroom = st.node_max_kw * st.node_efficiency  # leaf-side kW each node may still pass
+    ancestors = st.node_of_leaf_at_depth.T  # (L, D), -1 = none
+
+    def give(headroom, leaf):
+        anc = ancestors[leaf]
+        valid = anc >= 0
+        free = jnp.min(jnp.where(valid, headroom[jnp.maximum(anc, 0)], jnp.inf))
+        grant = jnp.clip(jnp.minimum(want_kw[leaf], free), 0.0)
+        headroom = headroom.at[jnp.maximum(anc, 0)].add(jnp.where(valid, -grant, 0.0))
+        return headroom, grant
+
+    order = jnp.argsort(priority)
+    _, grants = jax.lax.scan(give, headroom, order)
+    power = jnp.zeros_like(want_kw).at[order].set(grants)
+    return _levels_for_power(power, params, round_up=False)
+
+
+def earliest_deadline_first(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarray:
+    """Serve cars with the earliest planned departure first, each at the most power the node
+    limits leave; the levels are rounded down so the station never needs a rescale.
+    Batteries idle."""
+    del key
+    priority = jnp.where(state.occupied & ~_is_battery(params), state.time_remaining_min, jnp.inf)
+    return _greedy_under_limits(priority, state, params)
+
+
+def least_laxity_first(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarray:
+    """Serve cars with the least laxity first (minutes left minus minutes needed at full
+    rate), each at the most power the node limits leave. Batteries idle."""
+    del key
+    rate_kw = jnp.maximum(jnp.minimum(params.station.leaf_max_kw, state.max_rate_kw), 1e-3)
+    needed_min = jnp.maximum(state.energy_remaining_kwh, 0.0) / rate_kw * 60.0
+    laxity = state.time_remaining_min - needed_min
+    priority = jnp.where(state.occupied & ~_is_battery(params), laxity, jnp.inf)
+    return _greedy_under_limits(priority, state, params)
+
+
+POLICIES: dict[str, Policy] = {
+    "always_max": always_max,
+    "random": random_policy,
+    "price_threshold": price_threshold,
+    "edf": earliest_deadline_first,
+    "llf": least_laxity_first,
+}
+
+
+def get_policy(name: str) -> Policy:
+    if name not in POLICIES:
+        raise KeyError(f"unknown policy {name!r}; allowed: {sorted(POLICIES)}")
+    return POLICIES[name]
+
+
+def for_single(policy: Policy | str, env, params: EnvParams | None = None):
+    """``fn(state, key) -> action`` in the action space of the single-agent env ``env``."""
+    policy = get_policy(policy) if isinstance(policy, str) else policy
+    params = params if params is not None else env.default_params
+    return lambda state, key: env.levels_to_action(policy(state, key, params), params)
+
+
+def for_marl(policy: Policy | str, env):
+    """``fn(state, key) -> {agent: action}`` for the multi-agent env ``env``."""
+    policy = get_policy(policy) if isinstance(policy, str) else policy
+    return lambda state, key: env.levels_to_actions(policy(state, key, env.params))

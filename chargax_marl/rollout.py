@@ -11,32 +11,28 @@ import argparse
 import time
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from chargax_marl.core import simulator
 from chargax_marl.core.types import EnvParams
+from chargax_marl.evaluation import run_days
 from chargax_marl.policies import POLICIES
 
 
 def rollout_days(policy, params: EnvParams, keys: jax.Array):
-    """Run ``policy`` for one full day per key (vmapped); return the final episode totals."""
+    """Run ``policy(state, key, params)`` for one random day per key (vmapped).
 
-    def one_day(key):
-        key_reset, key_run = jax.random.split(key)
-        state = simulator.reset(key_reset, params)
+    Returns ``(totals, days, returns)``: the final :class:`EpisodeTotals` per day, the day
+    indices drawn as ``reset`` draws them, and each day's summed reward.
+    """
 
-        def body(carry, k):
-            state = carry
-            k_pol, k_step = jax.random.split(k)
-            levels = policy(state, k_pol, params)
-            state, info = simulator.step(k_step, state, levels, params)
-            return state, info.reward
+    @jax.jit
+    def run(keys):
+        days = jax.vmap(lambda k: simulator.reset(k, params).day)(keys)
+        totals = run_days(lambda s, k: policy(s, k, params), params, days, keys[0])
+        return totals, days, totals.reward
 
-        state, rewards = jax.lax.scan(body, state, jax.random.split(key_run, params.num_steps))
-        return state.totals, state.day, rewards.sum()
-
-    return jax.jit(jax.vmap(one_day))(keys)
+    return run(keys)
 
 
 def main(argv=None) -> None:

@@ -91,6 +91,7 @@ def make_params(
     constraint_mode: str = "hard",
     price_horizon_hours: int = 6,
     observe_moer: bool | None = None,
+    reset_days: Any = None,
 ) -> EnvParams:
     """Assemble the parameters of a station scenario (paper defaults throughout).
 
@@ -102,7 +103,9 @@ def make_params(
     per day. ``moer_kg_per_kwh`` is an array ``(days, steps)`` or ``(steps,)`` in kg CO2/kWh, or a
     bundled dataset name (``datasets.MOER_DATASETS``, 5-minute data resampled to the step); when
     given, MOER is observed unless ``observe_moer=False``. ``grid_demand_kwh`` is ``(steps,)`` kWh
-    per step, a shape name (``datasets.GRID_DEMAND_SHAPES``) or a CSV path.
+    per step, a shape name (``datasets.GRID_DEMAND_SHAPES``) or a CSV path. ``reset_days``
+    restricts the days ``reset`` draws from (e.g. training days, holding out evaluation days;
+    see :func:`chargax_marl.evaluation.split_days`); default all days of the price data.
     """
     if action_mode not in ACTION_MODES:
         raise ValueError(f"field 'action_mode' must be one of {ACTION_MODES}, got {action_mode!r}")
@@ -162,6 +165,18 @@ def make_params(
                 f"resolution) but the simulator runs {num_steps} steps per day ({step_minutes:g}-minute resolution)")
         demand = _array("grid_demand_kwh", grid_demand_kwh, (num_steps,))
 
+    days_all = price.prices_eur_kwh.shape[0]
+    if reset_days is None:
+        days = np.arange(days_all, dtype=np.int32)
+    else:
+        days = np.asarray(reset_days)
+        if days.ndim != 1 or days.size == 0 or not np.issubdtype(days.dtype, np.integer):
+            raise ValueError(f"field 'reset_days' must be a non-empty 1-D array of day indices, got {reset_days!r}")
+        if days.min() < 0 or days.max() >= days_all:
+            raise ValueError(f"field 'reset_days' must lie in [0, {days_all - 1}] (days of the price data), "
+                             f"got values from {days.min()} to {days.max()}")
+        days = days.astype(np.int32)
+
     def scalar(name, value, **kw):
         return jnp.asarray(_finite(name, value, **kw), jnp.float32)
 
@@ -183,6 +198,7 @@ def make_params(
         fleet_tau=jnp.asarray(fleet_data.tau, jnp.float32),
         moer_kg_per_kwh=jnp.asarray(moer, jnp.float32),
         grid_demand_kwh=jnp.asarray(demand, jnp.float32),
+        reset_days=jnp.asarray(days),
         customer_price_eur_kwh=scalar("customer_price_eur_kwh", customer_price_eur_kwh, minimum=0.0),
         grid_fee_eur_kwh=scalar("grid_fee_eur_kwh", grid_fee_eur_kwh, minimum=0.0),
         feed_in_factor=scalar("feed_in_factor", feed_in_factor, minimum=0.0),

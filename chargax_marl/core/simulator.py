@@ -53,8 +53,9 @@ def empty_state(day: jnp.ndarray, params: EnvParams) -> EnvState:
 
 
 def reset(key: jax.Array, params: EnvParams) -> EnvState:
-    """Start an empty station on a uniformly random day of the price data (exploring starts)."""
-    day = jax.random.randint(key, (), 0, params.num_days)
+    """Start an empty station on a uniformly random day of ``params.reset_days`` (exploring
+    starts; all days of the price data unless training days were set)."""
+    day = params.reset_days[jax.random.randint(key, (), 0, params.reset_days.shape[0])]
     return empty_state(day, params)
 
 

@@ -76,6 +76,7 @@ class EnvParams:
     fleet_tau: jnp.ndarray  # (K,)
     moer_kg_per_kwh: jnp.ndarray  # (Dm, T) marginal emission rate; zeros when no MOER data
     grid_demand_kwh: jnp.ndarray  # (T,) grid demand signal per step for the grid-demand penalty
+    reset_days: jnp.ndarray  # (R,) int32 day indices reset() draws from (all days by default)
     # --- economics
     customer_price_eur_kwh: jnp.ndarray  # () p_sell, price charged to (and refunded to) car owners
     grid_fee_eur_kwh: jnp.ndarray  # () added to the day-ahead price when buying

@@ -1,0 +1,102 @@
+"""Evaluate a policy over whole days, vmapped, and report mean +- std of the day's results.
+
+A policy here is ``act(state, key) -> levels`` (the core's per-leaf levels). Rule-based
+policies become one with ``lambda s, k: policy(s, k, params)``; a trained network becomes one
+by reading the observation from the state (see ``baselines/``).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from chargax_marl.core import simulator
+from chargax_marl.core.types import EnvParams, EnvState
+
+Act = Callable[[EnvState, jax.Array], jnp.ndarray]
+
+METRICS = {
+    "daily_profit_eur": "profit_eur",
+    "daily_reward": "reward",
+    "energy_delivered_kwh": "energy_delivered_kwh",
+    "missing_kwh_at_departure": "missing_kwh",
+    "overtime_min": "overtime_min",
+    "cars_rejected": "cars_rejected",
+    "cars_served": "cars_served",
+    "constraint_excess_kw": "constraint_excess_kw",
+}
+"""Reported metric -> field of :class:`chargax_marl.core.types.EpisodeTotals`."""
+
+
+def split_days(num_days: int, num_eval: int = 100, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Split day indices into (training days, held-out evaluation days), reproducibly."""
+    if not 0 < num_eval < num_days:
+        raise ValueError(f"field 'num_eval' must lie in [1, {num_days - 1}], got {num_eval!r}")
+    perm = np.random.default_rng(seed).permutation(num_days)
+    return np.sort(perm[num_eval:]).astype(np.int32), np.sort(perm[:num_eval]).astype(np.int32)
+
+
+def run_days(act: Act, params: EnvParams, days, key: jax.Array):
+    """Run ``act`` for one whole day per entry of ``days`` (vmapped); return the final totals
+    (an :class:`EpisodeTotals` with a leading axis over days)."""
+    days = jnp.asarray(days, jnp.int32)
+
+    def one_day(day, key):
+        def body(state, k):
+            k_act, k_step = jax.random.split(k)
+            state, _ = simulator.step(k_step, state, act(state, k_act), params)
+            return state, None
+
+        state, _ = jax.lax.scan(body, simulator.empty_state(day, params), jax.random.split(key, params.num_steps))
+        return state.totals
+
+    return jax.vmap(one_day)(days, jax.random.split(key, days.shape[0]))
+
+
+def summarize(totals) -> dict:
+    """Mean, std, min and max over days of every metric in :data:`METRICS`."""
+    out = {}
+    for name, field in METRICS.items():
+        x = np.asarray(getattr(totals, field), dtype=np.float64)
+        out[name] = {"mean": float(x.mean()), "std": float(x.std()), "min": float(x.min()), "max": float(x.max())}
+    return out
+
+
+def evaluate(act: Act, params: EnvParams, days, key: jax.Array | None = None) -> dict:
+    """Evaluate ``act`` on the given day indices; returns ``{"num_days", "days", "metrics"}``."""
+    key = jax.random.PRNGKey(0) if key is None else key
+    totals = jax.jit(lambda d, k: run_days(act, params, d, k))(jnp.asarray(days), key)
+    return {"num_days": int(np.size(days)), "days": [int(d) for d in np.asarray(days)], "metrics": summarize(totals)}
+
+
+def evaluate_policy(policy, params: EnvParams, days, key: jax.Array | None = None) -> dict:
+    """:func:`evaluate` for a rule-based ``policy(state, key, params)`` or its name."""
+    from chargax_marl.policies import get_policy
+
+    policy = get_policy(policy) if isinstance(policy, str) else policy
+    return evaluate(lambda s, k: policy(s, k, params), params, days, key)
+
+
+def write_json(results: dict, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(results, indent=2, sort_keys=True) + "\n")
+    return path
+
+
+def format_table(results: dict[str, dict]) -> str:
+    """A text table of ``{policy name: evaluate(...) result}``: mean +- std per metric."""
+    names = list(results)
+    metrics = list(METRICS)
+    width = max(len(m) for m in metrics) + 2
+    lines = [" " * width + "".join(f"{n:>24}" for n in names)]
+    for m in metrics:
+        cells = "".join(
+            f"{results[n]['metrics'][m]['mean']:>14.2f} ± {results[n]['metrics'][m]['std']:<7.2f}" for n in names)
+        lines.append(f"{m:<{width}}{cells}")
+    return "\n".join(lines)

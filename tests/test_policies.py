@@ -1,0 +1,123 @@
+"""Rule-based policies and the evaluation module."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from chargax_marl.core import make_params, simulator
+from chargax_marl.core.physics import leaf_min_level, node_flows_kw
+from chargax_marl.evaluation import evaluate_policy, run_days, split_days, summarize, write_json
+from chargax_marl.policies import POLICIES, for_single, get_policy, minimum_power_kw, price_threshold
+from chargax_marl.single import Chargax
+from tests.conftest import three_level_station
+from tests.helpers import no_arrivals, place_car, start
+
+
+@pytest.fixture(scope="module")
+def params():
+    return make_params(station=three_level_station(), traffic=200.0)
+
+
+@pytest.fixture(scope="module")
+def trajectories(params):
+    """One day per policy: the levels chosen and the leaf energies that flowed."""
+    out = {}
+    for name, policy in POLICIES.items():
+        def body(state, k, policy=policy):
+            k1, k2 = jax.random.split(k)
+            levels = policy(state, k1, params)
+            new, info = simulator.step(k2, state, levels, params)
+            return new, (levels, info.leaf_energy_kwh, info.constraint_excess_kw)
+        _, out[name] = jax.jit(lambda k: jax.lax.scan(body, simulator.empty_state(jnp.asarray(3), params),
+                                                         jax.random.split(k, 288)))(jax.random.PRNGKey(0))
+    return out
+
+
+@pytest.mark.parametrize("name", sorted(POLICIES))
+def test_policies_choose_valid_levels_and_hold_node_limits(name, params, trajectories):
+    levels, energy, excess = (np.asarray(x) for x in trajectories[name])
+    low = np.asarray(leaf_min_level(params.station, params.num_levels, params.v2g))
+    assert np.all(levels >= low) and np.all(levels <= params.num_levels)
+    flows = np.asarray(jax.vmap(lambda e: node_flows_kw(e / params.step_hours, params.station))(jnp.asarray(energy)))
+    assert np.all(flows <= np.asarray(params.station.node_max_kw) * (1 + 1e-4) + 1e-3)
+    if name in ("edf", "llf"):
+        assert np.all(excess <= 1e-3), "deadline policies plan within the node limits: nothing to rescale"
+    if name == "always_max":
+        assert np.all(levels[:, :6] == 10) and np.all(levels[:, 6] == 0)
+
+
+def test_policies_respect_masks_without_v2g():
+    p = make_params(station=three_level_station(), v2g=False)
+    s = start(p)
+    for name, policy in POLICIES.items():
+        lv = np.asarray(policy(s, jax.random.PRNGKey(1), p))
+        assert np.all(lv[:6] >= 0), name  # ports cannot discharge without V2G
+
+
+def test_price_threshold_charges_fully_when_cheap_and_minimally_otherwise():
+    p = no_arrivals(make_params(station=three_level_station()))
+    prices = np.tile(np.arange(24, dtype=np.float32) / 100.0, (p.num_days, 1))  # cheapest at night
+    p = p.replace(prices_eur_kwh=jnp.asarray(prices))
+    s = place_car(start(p), 0, soc=0.2, capacity_kwh=100.0, max_rate_kw=150.0, remaining_kwh=20.0, time_min=245.0)
+    cheap = np.asarray(price_threshold(s.replace(timestep=jnp.asarray(12)), None, p))  # 01:00
+    dear = np.asarray(price_threshold(s.replace(timestep=jnp.asarray(240)), None, p))  # 20:00
+    assert cheap[0] == 10 and cheap[6] == 10  # car and battery charge fully
+    # 20 kWh in (245 - 5) min = 5 kW of a 100 kW port -> level ceil(0.5) = 1
+    assert float(minimum_power_kw(s, p)[0]) == pytest.approx(5.0)
+    assert dear[0] == 1 and dear[6] == -10 and dear[1] == 0
+
+
+def test_edf_serves_the_earliest_deadline_first_on_a_tight_node():
+    p = no_arrivals(make_params(station=three_level_station()))
+    s = start(p)
+    # evse0 (150 kW / 0.99) holds dc0 and dc1: dc1 leaves first and gets its full 100 kW.
+    s = place_car(s, 0, soc=0.2, capacity_kwh=100.0, max_rate_kw=150.0, remaining_kwh=50.0, time_min=300.0)
+    s = place_car(s, 1, soc=0.2, capacity_kwh=100.0, max_rate_kw=150.0, remaining_kwh=50.0, time_min=30.0)
+    lv = np.asarray(get_policy("edf")(s, None, p))
+    assert lv[1] == 10 and lv[0] == 4  # 150*0.99 - 100 = 48.5 kW left -> 4 levels of 10 kW
+
+
+def test_evaluation_of_always_max_equals_a_hand_rolled_rollout(params):
+    days = np.array([0, 5, 17])
+    key = jax.random.PRNGKey(4)
+    result = evaluate_policy("always_max", params, days, key)
+    keys = jax.random.split(key, 3)
+    profits = []
+    for d, k in zip(days, keys):
+        state = simulator.empty_state(jnp.asarray(d), params)
+        for kk in jax.random.split(k, params.num_steps):
+            k_act, k_step = jax.random.split(kk)
+            state, info = jax.jit(simulator.step)(k_step, state, POLICIES["always_max"](state, k_act, params), params)
+        profits.append(float(state.totals.profit_eur))
+    assert result["metrics"]["daily_profit_eur"]["mean"] == pytest.approx(np.mean(profits), rel=1e-5)
+    assert result["metrics"]["daily_profit_eur"]["std"] == pytest.approx(np.std(profits), rel=1e-4, abs=1e-3)
+    assert result["days"] == [0, 5, 17]
+
+
+def test_split_days_and_json(tmp_path, params):
+    train, held = split_days(365, 100, seed=0)
+    assert len(held) == 100 and len(train) == 265 and not set(train) & set(held)
+    np.testing.assert_array_equal(split_days(365, 100, seed=0)[1], held)
+    with pytest.raises(ValueError, match="num_eval"):
+        split_days(10, 10)
+    p = make_params(station=three_level_station(), reset_days=train)
+    days = [int(simulator.reset(k, p).day) for k in jax.random.split(jax.random.PRNGKey(0), 50)]
+    assert set(days) <= set(train.tolist())
+    with pytest.raises(ValueError, match="reset_days"):
+        make_params(reset_days=[400])
+    totals = run_days(lambda s, k: POLICIES["always_max"](s, k, params), params, jnp.array([1, 2]), jax.random.PRNGKey(0))
+    path = write_json({"always_max": summarize(totals)}, tmp_path / "out" / "eval.json")
+    assert "daily_profit_eur" in path.read_text()
+
+
+def test_for_single_maps_levels_to_env_actions():
+    env = Chargax(station=three_level_station())
+    p = env.default_params
+    act = for_single("always_max", env)
+    _, state = env.reset(jax.random.PRNGKey(0), p)
+    a = np.asarray(act(state, jax.random.PRNGKey(1)))
+    assert bool(env.action_space(p).contains(jnp.asarray(a)))
+    np.testing.assert_array_equal(np.asarray(env.action_to_levels(jnp.asarray(a), p)), [10] * 6 + [0])
