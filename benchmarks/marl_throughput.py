@@ -5,7 +5,7 @@ policy on the CPU:
 
 1. env-steps/s of ``ChargaxMARL.step`` and ``Chargax.step`` (both with auto-reset), vmapped
    over 1, 16, 256 and 1024 envs inside one jitted ``lax.scan`` (compilation excluded, best
-   of ``repeats`` runs);
+   of ``repeats`` interleaved runs);
 2. steps/s of the PettingZoo wrapper (numpy in and out, one env) against a bare jitted
    single-agent step called from Python on one env.
 
@@ -21,20 +21,22 @@ import argparse
 import time
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from chargax_marl.marl import ChargaxMARL, parallel_env
 from chargax_marl.single import Chargax
 
 
-def _time_best(fn, *args, repeats: int) -> float:
-    jax.block_until_ready(fn(*args))  # compile and warm up
-    best = np.inf
+def _time_best(fns, *args, repeats: int) -> list[float]:
+    """Best wall time of each function over ``repeats`` interleaved rounds (robust to a busy machine)."""
+    for fn in fns:
+        jax.block_until_ready(fn(*args))  # compile and warm up
+    best = [np.inf] * len(fns)
     for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        best = min(best, time.perf_counter() - start)
+        for i, fn in enumerate(fns):
+            start = time.perf_counter()
+            jax.block_until_ready(fn(*args))
+            best[i] = min(best[i], time.perf_counter() - start)
     return best
 
 
@@ -72,8 +74,9 @@ def _marl_runner(env: ChargaxMARL, num_envs: int, num_steps: int):
         def body(carry, _):
             obs, state, key = carry
             key, k_act, k_step = jax.random.split(key, 3)
-            idx = jax.random.randint(k_act, (num_envs, len(agents)), 0, n)
-            actions = {a: idx[:, i] for i, a in enumerate(agents)}
+            # agent-major, as JaxMARL's IPPO unbatchifies its (num_agents * num_envs,) actions
+            idx = jax.random.randint(k_act, (len(agents), num_envs), 0, n)
+            actions = {a: idx[i] for i, a in enumerate(agents)}
             obs, state, rewards, _, _ = jax.vmap(env.step)(jax.random.split(k_step, num_envs), state, actions)
             return (obs, state, key), rewards[agents[0]].sum()
 
@@ -83,7 +86,7 @@ def _marl_runner(env: ChargaxMARL, num_envs: int, num_steps: int):
     return run
 
 
-def marl_throughput(num_envs=(1, 16, 256, 1024), num_steps: int = 288, repeats: int = 3,
+def marl_throughput(num_envs=(1, 16, 256, 1024), num_steps: int = 288, repeats: int = 5,
                     pettingzoo_steps: int = 288, seed: int = 0, **make_params_kwargs) -> dict:
     """Measure and print env-steps/s of both views; return the numbers as a dict.
 
@@ -97,8 +100,8 @@ def marl_throughput(num_envs=(1, 16, 256, 1024), num_steps: int = 288, repeats: 
           f"compile excluded, backend {jax.default_backend()}")
     print(f"{'envs':>6} {'single steps/s':>16} {'MARL steps/s':>14} {'MARL/single':>12}")
     for b in num_envs:
-        t_single = _time_best(_single_runner(single, b, num_steps), key, repeats=repeats)
-        t_marl = _time_best(_marl_runner(marl, b, num_steps), key, repeats=repeats)
+        t_single, t_marl = _time_best([_single_runner(single, b, num_steps), _marl_runner(marl, b, num_steps)], key,
+                                      repeats=repeats)
         s_single, s_marl = b * num_steps / t_single, b * num_steps / t_marl
         rows.append({"num_envs": b, "single_steps_per_s": s_single, "marl_steps_per_s": s_marl,
                      "ratio": s_marl / s_single})
@@ -147,7 +150,7 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--num-envs", type=int, nargs="+", default=[1, 16, 256, 1024])
     parser.add_argument("--num-steps", type=int, default=288)
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args(argv)
     marl_throughput(tuple(args.num_envs), num_steps=args.num_steps, repeats=args.repeats)
 

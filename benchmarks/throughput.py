@@ -14,7 +14,6 @@ import platform
 import time
 
 import jax
-import jax.numpy as jnp
 
 
 def make_runner(env, params, num_envs: int, num_steps: int):

@@ -26,7 +26,8 @@ def make_rollout(env: ChargaxMARL, num_envs: int):
     def sample_actions(key, avail):
         # Uniform over the valid actions: a categorical with -inf logits on the masked ones.
         keys = jax.random.split(key, env.num_agents)
-        return {a: jax.random.categorical(keys[i], jnp.where(avail[a], 0.0, -jnp.inf)) for i, a in enumerate(env.agents)}
+        return {a: jax.random.categorical(keys[i], jnp.where(avail[a], 0.0, -jnp.inf))
+                for i, a in enumerate(env.agents)}
 
     def one_env(key):
         key, k_reset = jax.random.split(key)

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 
-import numpy as np
 
 from chargax_marl.marl import parallel_env
 from chargax_marl.policies import always_max

@@ -9,10 +9,10 @@ from chargax_marl.core import Battery, Port, Splitter, make_params
 
 
 
-def three_level_station() -> Splitter:
+def three_level_station(ac_discharge_current_a: float = 16.0) -> Splitter:
     """grid -> {dc splitter -> 2 EVSE groups of 2 DC ports, ac splitter -> 2 AC ports, battery}."""
     dc = [Port(f"dc{i}", "DC", 500.0, 200.0, 200.0, 0.95) for i in range(4)]
-    ac = [Port(f"ac{i}", "AC", 400.0, 32.0, 16.0, 0.97) for i in range(2)]
+    ac = [Port(f"ac{i}", "AC", 400.0, 32.0, ac_discharge_current_a, 0.97) for i in range(2)]
     evse = [Splitter("evse0", 150.0, tuple(dc[:2]), 0.99), Splitter("evse1", 150.0, tuple(dc[2:]), 0.99)]
     return Splitter(
         "grid",
@@ -38,3 +38,8 @@ def default_params():
 
 def rng(seed: int) -> np.random.Generator:
     return np.random.default_rng(seed)
+
+
+def mixed_station() -> Splitter:
+    """The three-level station with AC ports that cannot discharge (no V2G): masks matter."""
+    return three_level_station(ac_discharge_current_a=0.0)

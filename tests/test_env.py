@@ -10,8 +10,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 from hypothesis import HealthCheck, Phase, given, settings
 
-from chargax_marl.core import compile_station, make_params, multiple_splitters, simulator, single_type
-from chargax_marl.core.types import EpisodeTotals
+from chargax_marl.core import make_params, multiple_splitters, single_type
 from chargax_marl.single import SCENARIOS, Chargax, GymnasiumEnv, LogWrapper, make
 from tests.conftest import three_level_station
 from tests.helpers import random_rollout

@@ -12,28 +12,16 @@ import numpy as np
 import pytest
 from jaxmarl.environments import spaces as jm_spaces
 
-from chargax_marl.core import Battery, Port, Splitter, observation, physics, simulator
+from chargax_marl.core import observation, physics, simulator
 from chargax_marl.marl import ChargaxMARL, LogWrapper, WorldStateWrapper
-from chargax_marl.marl.env import ancestor_table
+from chargax_marl.marl.env import ancestor_loads, ancestor_table
 from chargax_marl.policies import always_max
 from chargax_marl.single import Chargax
+from tests.conftest import mixed_station, three_level_station
 from tests.helpers import no_arrivals, place_car, start
-
 ROOT = Path(__file__).resolve().parents[1]
 KEY = jax.random.PRNGKey(0)
 L = 10
-
-
-def mixed_station() -> Splitter:
-    """grid -> {dc_split -> 2 EVSE of 2 DC ports (V2G); ac_split -> 2 AC ports (no V2G); battery}."""
-    dc = [Port(f"dc{i}", "DC", 500.0, 200.0, 200.0, 0.95) for i in range(4)]
-    ac = [Port(f"ac{i}", "AC", 400.0, 32.0, 0.0, 0.97) for i in range(2)]
-    evse = [Splitter("evse0", 150.0, tuple(dc[:2]), 0.99), Splitter("evse1", 150.0, tuple(dc[2:]), 0.99)]
-    return Splitter("grid", 220.0, (
-        Splitter("dc_split", 200.0, tuple(evse), 0.98),
-        Splitter("ac_split", 20.0, tuple(ac), 0.99),
-        Battery("bat", capacity_kwh=100.0, max_kw=50.0, efficiency=0.95, tau=0.8, initial_soc=0.5),
-    ))
 
 
 @pytest.fixture(scope="module")
@@ -143,6 +131,20 @@ def test_observation_layout(small):
         np.testing.assert_array_equal(o[14 + ctx.shape[0]:], np.eye(7)[i])
     np.testing.assert_array_equal(np.asarray(ancestor_table(p))[6], [0, -1, -1])  # battery hangs under the grid
     np.testing.assert_array_equal(env.get_global_state(s), observation.flat_obs(s, p))
+
+
+def test_ancestor_loads_match_the_core_node_flows(default_params):
+    st = default_params.station
+    frac = jax.random.uniform(KEY, (st.num_leaves,), minval=-1.0, maxval=1.0)  # mixed charging and V2G
+    state = start(default_params).replace(current_a=frac * st.leaf_max_current_a)
+    flows = physics.node_flows_kw(state.current_a * st.leaf_voltage_v / 1000.0, st) / st.node_max_kw
+    anc = np.asarray(ancestor_table(default_params))
+    expected = np.where(anc >= 0, np.asarray(flows)[np.maximum(anc, 0)], 0.0)
+    assert expected.max() > 0.1
+    env = ChargaxMARL(params=default_params)
+    np.testing.assert_allclose(ancestor_loads(state, default_params, env._layout), expected, rtol=1e-5, atol=1e-6)
+    traced = jax.jit(lambda s, p: ancestor_loads(s, p))(state, default_params)  # station constants traced
+    np.testing.assert_allclose(traced, expected, rtol=1e-5, atol=1e-6)
 
 
 # ------------------------------------------------------------------ actions and masks
@@ -381,3 +383,17 @@ def test_jaxmarl_rollout_example_runs(capsys):
     assert "mean day profit" in printed and "env-steps/s" in printed
     assert out["profit"].shape == (4,) and np.isfinite(out["profit"]).all()
     np.testing.assert_allclose(out["logged_profit"], out["profit"], rtol=1e-4, atol=1e-3)
+
+
+def test_scalar_agent_id_keeps_observations_linear():
+    from chargax_marl.marl import ChargaxMARL
+
+    onehot = ChargaxMARL(station=three_level_station(), step_minutes=60.0)
+    scalar = ChargaxMARL(station=three_level_station(), step_minutes=60.0, agent_id="scalar")
+    n = onehot.num_agents
+    assert scalar.obs_size == onehot.obs_size - n + 1
+    obs, _ = scalar.reset(jax.random.PRNGKey(0))
+    ids = [float(obs[a][-1]) for a in scalar.agents]
+    np.testing.assert_allclose(ids, np.arange(n) / (n - 1), rtol=1e-6)
+    with pytest.raises(ValueError, match="agent_id"):
+        ChargaxMARL(agent_id="binary")

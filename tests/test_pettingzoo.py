@@ -11,23 +11,11 @@ import numpy as np
 import pytest
 from pettingzoo.test import parallel_api_test, parallel_seed_test
 
-from chargax_marl.core import Battery, Port, Splitter, make_params, observation
+from chargax_marl.core import make_params, observation
 from chargax_marl.marl import ChargaxParallelEnv, parallel_env
-
+from tests.conftest import mixed_station
 ROOT = Path(__file__).resolve().parents[1]
 L = 10
-
-
-def mixed_station() -> Splitter:
-    """grid -> {dc_split -> 2 EVSE of 2 DC ports (V2G); ac_split -> 2 AC ports (no V2G); battery}."""
-    dc = [Port(f"dc{i}", "DC", 500.0, 200.0, 200.0, 0.95) for i in range(4)]
-    ac = [Port(f"ac{i}", "AC", 400.0, 32.0, 0.0, 0.97) for i in range(2)]
-    evse = [Splitter("evse0", 150.0, tuple(dc[:2]), 0.99), Splitter("evse1", 150.0, tuple(dc[2:]), 0.99)]
-    return Splitter("grid", 220.0, (
-        Splitter("dc_split", 200.0, tuple(evse), 0.98),
-        Splitter("ac_split", 20.0, tuple(ac), 0.99),
-        Battery("bat", capacity_kwh=100.0, max_kw=50.0, efficiency=0.95, tau=0.8, initial_soc=0.5),
-    ))
 
 
 SMALL = dict(station=mixed_station(), traffic=150.0, step_minutes=60)

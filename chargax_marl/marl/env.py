@@ -15,6 +15,7 @@ from typing import Any, Mapping
 import jax
 import jax.numpy as jnp
 import numpy as np
+from flax import struct
 from jaxmarl.environments import spaces
 from jaxmarl.environments.multi_agent_env import MultiAgentEnv
 
@@ -89,60 +90,102 @@ def ancestor_table(params: EnvParams) -> jnp.ndarray:
     return jnp.where(src >= 0, picked, -1)
 
 
-def agent_observations(state: EnvState, params: EnvParams) -> jnp.ndarray:
+@struct.dataclass
+class ObsLayout:
+    """Station-dependent constants of the agent observations (see :func:`obs_layout`)."""
+
+    kind_onehot: jnp.ndarray  # (N, 3) AC, DC, battery
+    ancestors: jnp.ndarray  # (N, D) int32, :func:`ancestor_table`
+    agent_id: jnp.ndarray  # (N, N) one-hot, or (N, 1) index / (N - 1)
+
+
+AGENT_ID_ENCODINGS = ("onehot", "scalar")
+
+
+def obs_layout(params: EnvParams, agent_id: str = "onehot") -> ObsLayout:
+    """Precompute the observation constants of a station (numpy arrays when ``params`` are
+    concrete, so that jitted code bakes them in; traced arrays otherwise).
+
+    ``agent_id`` picks the agent-index feature: ``"onehot"`` (N columns; the observation then
+    grows with the number of agents, so a step costs O(N^2)) or ``"scalar"`` (one column,
+    ``index / (N - 1)``; O(N) per step, for large stations).
+    """
+    if agent_id not in AGENT_ID_ENCODINGS:
+        raise ValueError(f"field 'agent_id' must be one of {AGENT_ID_ENCODINGS}, got {agent_id!r}")
+    st = params.station
+    n = st.num_leaves
+    ids = (jnp.eye(n, dtype=jnp.float32) if agent_id == "onehot"
+           else (jnp.arange(n, dtype=jnp.float32) / max(n - 1, 1))[:, None])
+    layout = ObsLayout(
+        kind_onehot=jax.nn.one_hot(st.leaf_kind, NUM_KINDS, dtype=jnp.float32),
+        ancestors=ancestor_table(params).astype(jnp.int32),
+        agent_id=ids,
+    )
+    if not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(layout)):
+        layout = jax.tree.map(np.asarray, layout)
+    return layout
+
+
+def ancestor_loads(state: EnvState, params: EnvParams, layout: ObsLayout | None = None) -> jnp.ndarray:
+    """``(N, D)`` load fraction of each agent's ancestor nodes, deepest first, zero-padded.
+
+    The load of node ``H`` is its net flow :func:`chargax_marl.core.physics.node_flows_kw`
+    (``|sum of its leaves' V * I| / efficiency``, from the currents in ``state``) over its
+    ``max_kw``. Linear in the number of ports.
+    """
+    layout = obs_layout(params) if layout is None else layout
+    st = params.station
+    load = physics.node_flows_kw(state.current_a * st.leaf_voltage_v / 1000.0, st) / st.node_max_kw
+    anc = layout.ancestors
+    return jnp.where(anc >= 0, load[jnp.maximum(anc, 0)], 0.0)
+
+
+def agent_observations(state: EnvState, params: EnvParams, layout: ObsLayout | None = None) -> jnp.ndarray:
     """Every agent's observation as one float32 matrix ``(N, obs_size)``, rows in agent order.
 
     Columns: the 8 leaf features of :func:`observation.leaf_features`; kind one-hot (AC, DC,
     battery); load fraction ``|net flow| / max_kw`` of each ancestor node from the deepest to
     the root, zero-padded to the tree depth; the shared context; the agent index one-hot.
+    ``layout`` (from :func:`obs_layout`) saves recomputing the station constants.
     """
-    st = params.station
-    n = st.num_leaves
-    feats = observation.leaf_features(state, params)
-    kind = jax.nn.one_hot(st.leaf_kind, NUM_KINDS, dtype=jnp.float32)
-    flows_kw = physics.node_flows_kw(state.current_a * st.leaf_voltage_v / 1000.0, st)
-    load = flows_kw / st.node_max_kw
-    anc = ancestor_table(params)
-    loads = jnp.where(anc >= 0, load[jnp.maximum(anc, 0)], 0.0)
+    layout = obs_layout(params) if layout is None else layout
+    n = params.station.num_leaves
     ctx = observation.context_features(state, params)
     return jnp.concatenate(
         [
-            feats.astype(jnp.float32),
-            kind,
-            loads.astype(jnp.float32),
+            observation.leaf_features(state, params).astype(jnp.float32),
+            layout.kind_onehot,
+            ancestor_loads(state, params, layout).astype(jnp.float32),
             jnp.broadcast_to(ctx, (n, ctx.shape[0])),
-            jnp.eye(n, dtype=jnp.float32),
+            layout.agent_id,
         ],
         axis=1,
     )
 
 
+STEP_INFO_KEYS = (
+    "reward", "profit_eur", "energy_charged_kwh", "energy_discharged_kwh", "energy_delivered_kwh",
+    "battery_net_kwh", "grid_net_kwh", "losses_kwh", "price_buy_eur_kwh", "price_sell_grid_eur_kwh",
+    "cars_arrived", "cars_departed", "cars_rejected", "missing_kwh", "overtime_min", "constraint_excess_kw",
+)
+"""Scalar fields of :class:`chargax_marl.core.StepInfo` reported in the infos under their own names."""
+
+INFO_KEYS = (STEP_INFO_KEYS + tuple(f"penalty_{k}" for k in PENALTY_TERMS)
+             + tuple(f"episode_{k}" for k in EpisodeTotals.__dataclass_fields__))
+"""Every scalar info key, in order: the step's report, ``penalty_<term>``, ``episode_<total>``."""
+
+
 def info_scalars(info: StepInfo, state: EnvState) -> dict:
-    """The per-step report as a flat dict of scalars, plus the episode totals of ``state``."""
-    out = {
-        "reward": info.reward,
-        "profit_eur": info.profit_eur,
-        "energy_charged_kwh": info.energy_charged_kwh,
-        "energy_discharged_kwh": info.energy_discharged_kwh,
-        "energy_delivered_kwh": info.energy_delivered_kwh,
-        "battery_net_kwh": info.battery_net_kwh,
-        "grid_net_kwh": info.grid_net_kwh,
-        "losses_kwh": info.losses_kwh,
-        "price_buy_eur_kwh": info.price_buy_eur_kwh,
-        "price_sell_grid_eur_kwh": info.price_sell_grid_eur_kwh,
-        "cars_arrived": info.cars_arrived,
-        "cars_departed": info.cars_departed,
-        "cars_rejected": info.cars_rejected,
-        "missing_kwh": info.missing_kwh,
-        "overtime_min": info.overtime_min,
-        "constraint_excess_kw": info.constraint_excess_kw,
-    }
+    """The per-step report as a flat dict of float32 scalars keyed as :data:`INFO_KEYS`
+    (the episode totals are those of ``state``)."""
+    out = {k: getattr(info, k) for k in STEP_INFO_KEYS}
     out.update({f"penalty_{k}": info.penalties[k] for k in PENALTY_TERMS})
     out.update({f"episode_{k}": getattr(state.totals, k) for k in EpisodeTotals.__dataclass_fields__})
-    return {k: jnp.asarray(v, jnp.float32) for k, v in out.items()}
+    return {k: jnp.asarray(out[k], jnp.float32) for k in INFO_KEYS}
 
 
-def step_arrays(key: jax.Array, state: EnvState, indices: jnp.ndarray, params: EnvParams, offset: int):
+def step_arrays(key: jax.Array, state: EnvState, indices: jnp.ndarray, params: EnvParams, offset: int,
+                layout: ObsLayout | None = None):
     """One transition from per-agent action indices ``(N,)``, without auto-reset.
 
     Returns ``(obs (N, obs_size), new_state, reward (), done (), info)`` where ``info`` holds
@@ -151,7 +194,7 @@ def step_arrays(key: jax.Array, state: EnvState, indices: jnp.ndarray, params: E
     """
     levels = actions_to_levels(indices, params, offset)
     new_state, core_info = simulator.step(key, state, levels, params)
-    obs = agent_observations(new_state, params)
+    obs = agent_observations(new_state, params, layout)
     info = info_scalars(core_info, new_state)
     info["agent_energy_kwh"] = core_info.leaf_energy_kwh.astype(jnp.float32)
     return obs, new_state, core_info.reward, simulator.is_done(new_state, params), info
@@ -188,15 +231,19 @@ class ChargaxMARL(MultiAgentEnv):
     the station, not on the state) and, if chosen anyway, such an action falls back to idle
     (level 0). An action may have shape ``()`` or ``(1,)``. Inside ``jit`` values cannot be
     checked: indices outside ``[0, n)`` are clipped into it (as the single-agent env
-    clips); outside ``jit`` use :meth:`check_actions` for clear errors. Action mode
-    ``continuous`` is not supported here (``ValueError``): use the single-agent view.
+    clips), then the mask rule applies; outside ``jit`` use :meth:`check_actions` for clear
+    errors. Action mode ``continuous`` is not supported here (``ValueError``): use the
+    single-agent view.
 
     **Observations.** Every agent gets a float32 vector of the same size
     (:attr:`obs_size`): its own leaf features (8, :data:`observation.PORT_FEATURES`), its
     kind one-hot (AC, DC, battery), the load fraction ``|net flow| / max_kw`` of each
-    ancestor node from the deepest to the root (zero-padded to the tree depth), the shared
-    context (prices, time of day, ...), and the agent index one-hot (so a shared policy can
-    tell agents apart). :meth:`get_global_state` is the single-agent observation.
+    ancestor node from the deepest to the root (zero-padded to the tree depth; the flow is
+    :func:`chargax_marl.core.physics.node_flows_kw` of the currents in the state), the shared
+    context (prices, time of day, ...), and the agent index (so a shared policy can tell
+    agents apart): a one-hot by default, or with ``agent_id="scalar"`` one column
+    ``index / (N - 1)``, which keeps the step linear in the number of agents for large
+    stations. :meth:`get_global_state` is the single-agent observation.
 
     **Infos.** Every leaf has shape ``(num_agents,)``: the step's reward and profit, every
     penalty term as ``penalty_<name>``, energies, prices, car counts, the running episode
@@ -204,7 +251,7 @@ class ChargaxMARL(MultiAgentEnv):
     each agent's own energy this step.
     """
 
-    def __init__(self, params: EnvParams | None = None, **make_params_kwargs: Any):
+    def __init__(self, params: EnvParams | None = None, *, agent_id: str = "onehot", **make_params_kwargs: Any):
         if params is not None and make_params_kwargs:
             raise ValueError("ChargaxMARL: pass either 'params' or keyword arguments of make_params, not both")
         params = params if params is not None else make_params(**make_params_kwargs)
@@ -222,7 +269,9 @@ class ChargaxMARL(MultiAgentEnv):
         self.action_offset = action_offset(params)
         self.num_actions = params.num_levels + 1 + self.action_offset
         self._avail_np = np.asarray(avail_actions(params, self.action_offset))
-        obs_shape = jax.eval_shape(agent_observations, simulator.empty_state(0, params), params).shape
+        self._layout = obs_layout(params, agent_id)
+        obs_shape = jax.eval_shape(lambda s: agent_observations(s, params, self._layout),
+                                   simulator.empty_state(0, params)).shape
         self.obs_size = int(obs_shape[1])
         obs_space = spaces.Box(-jnp.inf, jnp.inf, (self.obs_size,), jnp.float32)
         act_space = spaces.Discrete(self.num_actions)
@@ -244,7 +293,8 @@ class ChargaxMARL(MultiAgentEnv):
     def step_env(self, key: jax.Array, state: EnvState, actions: Mapping[str, jax.Array]):
         """One transition without auto-reset: ``(obs, state, rewards, dones, infos)``."""
         indices = self.stack_actions(actions)
-        obs, new_state, reward, done, info = step_arrays(key, state, indices, self.params, self.action_offset)
+        obs, new_state, reward, done, info = step_arrays(key, state, indices, self.params, self.action_offset,
+                                                         self._layout)
         n = self.num_agents
         obs_dict = {a: obs[i] for i, a in enumerate(self.agents)}
         rewards = {a: reward for a in self.agents}
@@ -255,12 +305,12 @@ class ChargaxMARL(MultiAgentEnv):
 
     def get_obs(self, state: EnvState) -> dict:
         """Observations keyed by agent (see the class docstring for the layout)."""
-        obs = agent_observations(state, self.params)
+        obs = agent_observations(state, self.params, self._layout)
         return {a: obs[i] for i, a in enumerate(self.agents)}
 
     def get_obs_matrix(self, state: EnvState) -> jnp.ndarray:
         """All observations as one ``(num_agents, obs_size)`` matrix, rows in agent order."""
-        return agent_observations(state, self.params)
+        return agent_observations(state, self.params, self._layout)
 
     @functools.partial(jax.jit, static_argnums=(0,))
     def get_avail_actions(self, state: EnvState) -> dict:

@@ -25,23 +25,28 @@ from chargax_marl.marl.env import ChargaxMARL
 # Module-level jitted functions with ``params`` as a traced argument: every instance with
 # the same station layout and static settings shares one compilation.
 @jax.jit
-def _reset_random(key: jax.Array, params: EnvParams):
+def _reset_random(key: jax.Array, params: EnvParams, layout: marl_env.ObsLayout):
     key, sub = jax.random.split(key)
     state = simulator.reset(sub, params)
-    return key, state, marl_env.agent_observations(state, params)
+    return key, state, marl_env.agent_observations(state, params, layout)
 
 
 @jax.jit
-def _reset_day(day: jax.Array, params: EnvParams):
+def _reset_day(day: jax.Array, params: EnvParams, layout: marl_env.ObsLayout):
     state = simulator.empty_state(day, params)
-    return state, marl_env.agent_observations(state, params)
+    return state, marl_env.agent_observations(state, params, layout)
 
 
 @jax.jit(static_argnames=("offset",))
-def _step(key: jax.Array, state, indices: jax.Array, params: EnvParams, offset: int):
+def _step(key: jax.Array, state, indices: jax.Array, params: EnvParams, layout: marl_env.ObsLayout, offset: int):
     key, sub = jax.random.split(key)
-    obs, state, reward, done, info = marl_env.step_arrays(sub, state, indices, params, offset)
-    return key, state, (obs, reward, done, info)
+    obs, state, reward, done, info = marl_env.step_arrays(sub, state, indices, params, offset, layout)
+    # One float vector for the host (one transfer instead of one per info key):
+    # [reward, done, info scalars in INFO_KEYS order, energy per agent]
+    packed = jnp.concatenate([jnp.stack([reward.astype(jnp.float32), done.astype(jnp.float32)]
+                                        + [info[k] for k in marl_env.INFO_KEYS]),
+                              info["agent_energy_kwh"]])
+    return key, state, obs, packed
 
 
 _world_state = jax.jit(marl_env.world_state)
@@ -76,6 +81,7 @@ class ChargaxParallelEnv(ParallelEnv):
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
         self.env = ChargaxMARL(params=params, **make_params_kwargs)
         self.params = self.env.params
+        self._layout = jax.tree.map(jnp.asarray, self.env._layout)  # on the device once, not per call
         self.render_mode = render_mode
         self.possible_agents = list(self.env.agents)
         self.agents: list[str] = []
@@ -111,9 +117,9 @@ class ChargaxParallelEnv(ParallelEnv):
             day = int(options["day"])
             if not 0 <= day < self.params.num_days:
                 raise ValueError(f"options['day'] must be in [0, {self.params.num_days - 1}], got {day}")
-            self._state, obs = _reset_day(jnp.asarray(day, jnp.int32), self.params)
+            self._state, obs = _reset_day(jnp.asarray(day, jnp.int32), self.params, self._layout)
         else:
-            self._key, self._state, obs = _reset_random(self._key, self.params)
+            self._key, self._state, obs = _reset_random(self._key, self.params, self._layout)
         self._host_state = None
         self._history = []
         self.agents = list(self.possible_agents)
@@ -128,13 +134,16 @@ class ChargaxParallelEnv(ParallelEnv):
             raise RuntimeError("ChargaxParallelEnv.step() called after the episode ended (the day is over and "
                                "every agent is truncated); call reset() to start a new day")
         indices = self.env.check_actions(actions)
-        self._key, self._state, out = _step(self._key, self._state, indices, self.params, self.env.action_offset)
-        obs, reward, done, info = jax.device_get(out)
+        self._key, self._state, obs, packed = _step(self._key, self._state, indices, self.params, self._layout,
+                                                    self.env.action_offset)
+        obs, packed = jax.device_get((obs, packed))
         self._host_state = None
         obs = np.array(obs, dtype=np.float32)
-        reward, done = float(reward), bool(done)
-        energy = info.pop("agent_energy_kwh")
-        shared = {k: float(v) for k, v in info.items()}
+        values = packed.tolist()
+        reward, done = values[0], bool(values[1])
+        k = len(marl_env.INFO_KEYS)
+        shared = dict(zip(marl_env.INFO_KEYS, values[2:2 + k]))
+        energy = values[2 + k:]
         self._history.append((self._hours_now(), shared["price_buy_eur_kwh"],
                               shared["grid_net_kwh"] / self.params.step_hours))
         agents = self.agents
@@ -142,7 +151,7 @@ class ChargaxParallelEnv(ParallelEnv):
         rewards = {a: reward for a in agents}
         terminations = {a: False for a in agents}
         truncations = {a: done for a in agents}
-        infos = {a: {**shared, "energy_kwh": float(energy[i]), "action_mask": self._masks[a]}
+        infos = {a: {**shared, "energy_kwh": energy[i], "action_mask": self._masks[a]}
                  for i, a in enumerate(agents)}
         if done:
             self.agents = []
@@ -188,14 +197,14 @@ class ChargaxParallelEnv(ParallelEnv):
         minutes = int(s.timestep) * self.params.step_minutes
         lines = [
             f"day {int(s.day)}  step {int(s.timestep)}/{self.params.num_steps}  "
-            f"time {int(minutes // 60) % 24:02d}:{int(minutes % 60):02d}  "
+            f"time {int(minutes // 60):02d}:{int(minutes % 60):02d}  "
             f"price {self._price_now():.4f} EUR/kWh  profit so far {float(s.totals.profit_eur):.2f} EUR",
             f"{'agent':<12}{'kind':<9}{'occupied':>9}{'SoC':>7}{'current A':>11}{'power kW':>10}",
         ]
         for i, a in enumerate(self.possible_agents):
             occ = bool(s.occupied[i])
             soc = f"{float(s.soc[i]):.2f}" if occ else "-"
-            cur = float(s.current_a[i])
+            cur = float(s.current_a[i]) + 0.0  # no "-0.0"
             lines.append(f"{a:<12}{KIND_NAMES[int(kinds[i])]:<9}{('yes' if occ else 'no'):>9}{soc:>7}"
                          f"{cur:>11.1f}{cur * float(volts[i]) / 1000.0:>10.1f}")
         return "\n".join(lines)

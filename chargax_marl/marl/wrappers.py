@@ -22,6 +22,8 @@ class _Wrapper:
         self._env = env
 
     def __getattr__(self, name: str) -> Any:
+        if name == "_env":  # not set yet (e.g. while unpickling): avoid infinite recursion
+            raise AttributeError(name)
         return getattr(self._env, name)
 
     def stack_agent_values(self, x: dict) -> jnp.ndarray:
