@@ -15,6 +15,7 @@ Continuous mode: a ``Box(-1, 1, (L,))`` of current fractions.
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import jax
@@ -112,6 +113,29 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
         new_state, info = simulator.step(key, state, self.action_to_levels(action, params), params)
         obs = self.get_obs(new_state, params)
         return obs, new_state, info.reward, jnp.asarray(False), step_info(info, new_state)
+
+    @functools.partial(jax.jit, static_argnames=("self",))
+    def step(self, key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams | None = None):
+        """gymnax's auto-resetting step, building the observation once.
+
+        Same outputs as :meth:`gymnax.environments.environment.Environment.step` (same key
+        split, same reset state): the state is selected first and the observation is built
+        from the selected state, instead of building the step's and the reset's observation
+        and selecting between them. ``info["final_observation"]`` (the observation before the
+        reset) is only computed when a caller uses it.
+        """
+        if params is None:
+            params = self.default_params
+        key_step, key_reset = jax.random.split(key)
+        new_state, core_info = simulator.step(key_step, state, self.action_to_levels(action, params), params)
+        terminated = jnp.asarray(False)
+        truncated = self.is_truncated(new_state, params)
+        done = jnp.logical_or(terminated, truncated)
+        reset_state = simulator.reset(key_reset, params)
+        out_state = jax.tree.map(lambda x, y: jax.lax.select(done, x, y), reset_state, new_state)
+        info = {**step_info(core_info, new_state), "terminated": terminated, "truncated": truncated,
+                "final_observation": self.get_obs(new_state, params)}
+        return self.get_obs(out_state, params), out_state, core_info.reward, terminated, truncated, info
 
     def reset_env(self, key: jax.Array, params: EnvParams):
         state = simulator.reset(key, params)

@@ -1,0 +1,95 @@
+"""Smoke tests of the benchmark entry points on their smallest settings (no timing assertions).
+
+The peer installs are not exercised: ``peers.py`` is tested on its chargax part, the driver
+protocol (``RESULT {json}``) with a fake peer driver, and its result parsing.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+BENCH = ROOT / "benchmarks"
+
+
+def load(name: str):
+    if str(BENCH) not in sys.path:
+        sys.path.insert(0, str(BENCH))
+    spec = importlib.util.spec_from_file_location(f"bench_{name}", BENCH / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_throughput_main_smallest(tmp_path, capsys):
+    rows = load("throughput").main(["--envs", "1", "--steps", "16", "--repeats", "1", "--csv", str(tmp_path / "t.csv")])
+    assert [r["envs"] for r in rows] == [1] and rows[0]["env_steps_per_s"] > 0
+    assert (tmp_path / "t.csv").read_text().startswith("envs,")
+    assert "s/100k steps" in capsys.readouterr().out
+
+
+def test_scaling_main_smallest(tmp_path, capsys):
+    scaling = load("scaling")
+    rows = scaling.main(["--ports", "16", "--envs", "1", "2", "--views", "single", "--work", "8", "--min-steps", "4",
+                         "--max-steps", "4", "--repeats", "1", "--max-port-envs", "16", "--out", str(tmp_path),
+                         "--no-plot"])
+    assert [(r["view"], r["envs"]) for r in rows] == [("single", 1)]  # envs=2 is over the budget of 16 port-envs
+    assert rows[0]["peak_rss_mb"] > 0 and (tmp_path / "scaling.csv").exists()
+    assert "skip single ports=16 envs=2" in capsys.readouterr().out
+
+
+def test_scaling_fit_and_plot(tmp_path):
+    scaling = load("scaling")
+    rows = [{"view": "single", "ports": p, "envs": e, "env_steps_per_s": 1e6 / (p * e ** -0.5),
+             "us_per_env_step": p * e ** -0.5} for p in (16, 64, 256) for e in (1, 16)]
+    rows.append({"view": "pettingzoo", "ports": 16, "envs": 1, "env_steps_per_s": 3000.0, "us_per_env_step": 333.0})
+    assert scaling.fit_exponent(rows, "single", 1) == pytest.approx(1.0)
+    assert scaling.fit_exponent(rows, "marl-scalar", 1) is None
+    scaling.plot(rows, tmp_path / "s.png")
+    assert (tmp_path / "s.png").stat().st_size > 0
+    assert scaling.station_kwargs(64) == {"num_dc": 40, "num_ac": 24}
+
+
+def test_profile_step_smallest(capsys):
+    table = load("profile_step").main(["--envs", "1", "--steps", "2", "--repeats", "1", "--warmup", "2",
+                                       "--only", "simulator.step", "poisson"])
+    assert set(table[1]) == {"scaffold_us", "simulator.step", "    poisson draw"}
+    assert "poisson draw" in capsys.readouterr().out
+
+
+def test_peers_chargax_part(tmp_path, capsys):
+    peers = load("peers")
+    results = peers.main(["--skip-peers", "--chargax-steps", "32", "--repeats", "1", "--out", str(tmp_path)])
+    assert [r["envs"] for r in results["chargax"]] == [1, 16] and results["peers"] == []
+    saved = json.loads((tmp_path / "peers.json").read_text())
+    assert saved["paper_s_per_100k"]["SustainGym"] == 1554.57
+    assert "chargax_marl 16 envs" in capsys.readouterr().out
+
+
+def test_peers_driver_protocol_with_fake_peer(tmp_path):
+    peers = load("peers")
+    driver = tmp_path / "fake_driver.py"
+    driver.write_text(
+        "import json, sys\n"
+        "steps = int(sys.argv[1])\n"
+        "print('noise before the result')\n"
+        "print('RESULT ' + json.dumps({'peer': 'Fake', 'version': '0.0', 'steps': steps, 'seconds': steps * 0.01,"
+        " 'resets': 0, 'scenario': {'arg': sys.argv[2:]}}))\n")
+    res = peers.run_driver(sys.executable, driver, 500, ["x"])
+    assert res["peer"] == "Fake" and res["scenario"] == {"arg": ["x"]}
+    assert res["s_per_100k"] == pytest.approx(1000.0) and res["extrapolated"]
+    with pytest.raises(ValueError):
+        peers.parse_result("no result here\n")
+    failing = tmp_path / "failing.py"
+    failing.write_text("raise SystemExit('boom')\n")
+    with pytest.raises(RuntimeError):
+        peers.run_driver(sys.executable, failing, 1)
+    # every real peer has a driver file and the install spec names the pinned version
+    for spec in peers.PEERS.values():
+        assert (BENCH / "peer_drivers" / spec["driver"]).exists()
+        assert "==" in spec["nodeps"][0]
