@@ -1,0 +1,380 @@
+"""Pieces shared by the PPO, IPPO and MAPPO trainers.
+
+Networks (separate actor and critic MLPs), masked factored categoricals, GAE, the clipped PPO
+loss, the optimiser with an annealed learning rate, sharding of the env batch over devices,
+held-out evaluation of trained parameters, checkpointing and plotting.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import flax.linen as nn
+import flax.serialization
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax.linen.initializers import constant, variance_scaling
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from chargax_marl.core.params import make_params
+from chargax_marl.evaluation import run_days, split_days, summarize
+
+NEG_INF = -1e9
+
+# Paper Table 3 (PPO hyper-parameters); the trainers start from these.
+PAPER_DEFAULTS: dict[str, Any] = {
+    "LR": 2.5e-4,
+    "ANNEAL_LR": True,
+    "GAMMA": 0.99,
+    "GAE_LAMBDA": 0.95,
+    "MAX_GRAD_NORM": 100.0,
+    "CLIP_EPS": 0.2,
+    "VF_CLIP": 10.0,
+    "ENT_COEF": 0.01,
+    "VF_COEF": 0.25,
+    "NUM_ENVS": 12,
+    "NUM_STEPS": 300,
+    "NUM_MINIBATCHES": 4,
+    "UPDATE_EPOCHS": 4,
+    "TOTAL_TIMESTEPS": int(1e7),
+    # Ours (the paper does not state them):
+    "HIDDEN": 256,
+    "NUM_LAYERS": 2,
+    "ACTIVATION": "tanh",
+    "REWARD_SCALE": 1.0,  # rewards (EUR per step) are multiplied by this before GAE
+    "SCENARIO": "shopping",
+    "TRAFFIC": "medium",
+    "ENV_KWARGS": {},  # extra keyword arguments of make_params (station, prices, alpha, step_minutes, ...)
+    "NUM_EVAL_DAYS": 100,
+    "SPLIT_SEED": 0,
+}
+
+
+# --------------------------------------------------------------------------- env parameters
+
+
+def build_env_params(config: dict):
+    """``(train_params, eval_params, train_days, eval_days)`` for a config.
+
+    Training resets draw from the training days only; the ``NUM_EVAL_DAYS`` held-out days
+    (``split_days(num_days, NUM_EVAL_DAYS, seed=SPLIT_SEED)``) are kept for evaluation.
+    """
+    from chargax_marl.single.scenarios import SCENARIOS
+
+    kwargs = dict(SCENARIOS[config["SCENARIO"]])
+    if config.get("TRAFFIC") is not None:
+        kwargs["traffic"] = config["TRAFFIC"]
+    kwargs.update(config.get("ENV_KWARGS") or {})
+    full = make_params(**kwargs)
+    train_days, eval_days = split_days(int(full.num_days), int(config["NUM_EVAL_DAYS"]), seed=int(config["SPLIT_SEED"]))
+    return make_params(**kwargs, reset_days=train_days), full, train_days, eval_days
+
+
+# --------------------------------------------------------------------------- networks
+
+
+def _act(name: str) -> Callable:
+    return {"tanh": nn.tanh, "relu": nn.relu}[name]
+
+
+def _init(gain: float):
+    """Gaussian init with the variance of an orthogonal init of this gain (``gain**2 / fan_in``).
+
+    Not ``orthogonal``: its batched QR (under ``jax.vmap`` over seeds) runs LAPACK on XLA's
+    CPU thread pool, which deadlocked on this 2-core machine under load (jaxlib 0.10).
+    """
+    return variance_scaling(gain**2, "fan_in", "normal")
+
+
+class MLP(nn.Module):
+    """``NUM_LAYERS`` hidden layers then a linear head (PureJaxRL's gains: sqrt(2) hidden,
+    0.01 policy head, 1 value head)."""
+
+    out: int
+    hidden: int = 256
+    layers: int = 2
+    activation: str = "tanh"
+    head_scale: float = 0.01
+
+    @nn.compact
+    def __call__(self, x):
+        for _ in range(self.layers):
+            x = _act(self.activation)(nn.Dense(self.hidden, kernel_init=_init(np.sqrt(2)),
+                                               bias_init=constant(0.0))(x))
+        return nn.Dense(self.out, kernel_init=_init(self.head_scale), bias_init=constant(0.0))(x)
+
+
+def actor_critic(config: dict, num_logits: int):
+    kw = dict(hidden=int(config["HIDDEN"]), layers=int(config["NUM_LAYERS"]), activation=config["ACTIVATION"])
+    return MLP(num_logits, head_scale=0.01, **kw), MLP(1, head_scale=1.0, **kw)
+
+
+# --------------------------------------------------------------------------- masked categoricals
+
+
+def masked_logits(logits: jnp.ndarray, mask) -> jnp.ndarray:
+    return jnp.where(mask, logits, NEG_INF)
+
+
+def log_prob(logits: jnp.ndarray, action: jnp.ndarray) -> jnp.ndarray:
+    """Log-probability of integer ``action`` under (masked) ``logits (..., K)``."""
+    logp = jax.nn.log_softmax(logits, axis=-1)
+    return jnp.take_along_axis(logp, action[..., None].astype(jnp.int32), axis=-1)[..., 0]
+
+
+def entropy(logits: jnp.ndarray) -> jnp.ndarray:
+    logp = jax.nn.log_softmax(logits, axis=-1)
+    p = jnp.exp(logp)
+    return -jnp.sum(jnp.where(p > 0, p * logp, 0.0), axis=-1)
+
+
+# --------------------------------------------------------------------------- PPO pieces
+
+
+def gae(rewards, values, dones, last_value, gamma: float, lam: float):
+    """Generalised advantage estimation over a rollout ``(T, ...)``; ``dones[t]`` ends the
+    episode after step ``t`` (the day ends: the next value is not bootstrapped)."""
+
+    def body(carry, x):
+        next_adv, next_value = carry
+        r, v, d = x
+        delta = r + gamma * next_value * (1.0 - d) - v
+        adv = delta + gamma * lam * (1.0 - d) * next_adv
+        return (adv, v), adv
+
+    _, adv = jax.lax.scan(body, (jnp.zeros_like(last_value), last_value), (rewards, values, dones), reverse=True)
+    return adv, adv + values
+
+
+def ppo_loss(new_logp, old_logp, advantages, values, old_values, targets, ent, config):
+    """Clipped surrogate + clipped value loss - entropy bonus. Returns ``(total, parts)``."""
+    adv = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+    ratio = jnp.exp(new_logp - old_logp)
+    eps = config["CLIP_EPS"]
+    actor_loss = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - eps, 1 + eps) * adv).mean()
+    v_clip = old_values + jnp.clip(values - old_values, -config["VF_CLIP"], config["VF_CLIP"])
+    value_loss = 0.5 * jnp.maximum((values - targets) ** 2, (v_clip - targets) ** 2).mean()
+    ent = ent.mean()
+    total = actor_loss + config["VF_COEF"] * value_loss - config["ENT_COEF"] * ent
+    approx_kl = ((ratio - 1) - (new_logp - old_logp)).mean()
+    return total, {"actor_loss": actor_loss, "value_loss": value_loss, "entropy": ent, "approx_kl": approx_kl}
+
+
+def make_optimizer(config: dict, num_updates: int):
+    """Adam with global-norm clipping; the learning rate anneals linearly to 0 over training."""
+    steps_per_update = config["NUM_MINIBATCHES"] * config["UPDATE_EPOCHS"]
+
+    def schedule(count):
+        return config["LR"] * (1.0 - (count // steps_per_update) / max(num_updates, 1))
+
+    lr = schedule if config["ANNEAL_LR"] else config["LR"]
+    return optax.chain(optax.clip_by_global_norm(config["MAX_GRAD_NORM"]), optax.adam(lr, eps=1e-5))
+
+
+def num_updates(config: dict) -> int:
+    n = int(config["TOTAL_TIMESTEPS"]) // (int(config["NUM_ENVS"]) * int(config["NUM_STEPS"]))
+    if n < 1:
+        raise ValueError(f"TOTAL_TIMESTEPS={config['TOTAL_TIMESTEPS']} is less than one rollout "
+                         f"(NUM_ENVS*NUM_STEPS={config['NUM_ENVS'] * config['NUM_STEPS']})")
+    return n
+
+
+def episode_metrics(done, info, prefix="returned_episode") -> dict:
+    """Mean over the episodes that ended in a rollout of the episode return and totals."""
+    done = done.astype(jnp.float32)
+    count = done.sum()
+
+    def mean(x):
+        return jnp.where(count > 0, (x * done).sum() / jnp.maximum(count, 1.0), jnp.nan)
+
+    return {
+        "episodes": count,
+        "episode_return": mean(info[f"{prefix}_returns"]),
+        "episode_profit_eur": mean(info[f"{prefix}_profit_eur"]),
+        "episode_energy_delivered_kwh": mean(info[f"{prefix}_energy_delivered_kwh"]),
+    }
+
+
+# --------------------------------------------------------------------------- devices
+
+
+ENV_AXIS = "envs"
+
+
+def env_mesh(num_envs: int) -> Mesh:
+    """A 1-D mesh over every device JAX sees (all hosts after ``jax.distributed.initialize()``)."""
+    devices = jax.devices()
+    if num_envs % len(devices):
+        raise ValueError(f"NUM_ENVS={num_envs} must be divisible by the number of devices ({len(devices)}: "
+                         f"{devices[0].platform}); pick a multiple of {len(devices)}")
+    return Mesh(np.asarray(devices), (ENV_AXIS,))
+
+
+def shard_envs(tree, mesh: Mesh):
+    """Constrain the leading (env) axis of every array leaf to be split over the mesh."""
+    sharding = NamedSharding(mesh, PartitionSpec(ENV_AXIS))
+    return jax.tree.map(lambda x: jax.lax.with_sharding_constraint(x, sharding) if jnp.ndim(x) >= 1 else x, tree)
+
+
+# --------------------------------------------------------------------------- running & evaluation
+
+
+def run_in_chunks(train, keys, num_chunks: int, on_chunk=None, desc: str = "train"):
+    """Run ``train.init`` then ``train.run_updates`` in ``num_chunks`` jitted chunks over the
+    vmapped seeds, calling ``on_chunk(chunk_index, runner_state, metrics)`` after each (e.g.
+    held-out evaluation) under a tqdm progress bar. Returns ``(runner_state, metrics, seconds)``
+    where ``metrics`` holds arrays ``(seeds, updates)``."""
+    from tqdm.auto import tqdm
+
+    total = train.num_updates
+    bounds = np.linspace(0, total, num_chunks + 1).astype(int)
+    sizes = sorted(set(int(b - a) for a, b in zip(bounds[:-1], bounds[1:]) if b > a))
+    init = jax.jit(jax.vmap(train.init))
+    runs = {n: jax.jit(jax.vmap(lambda rs, n=n: train.run_updates(rs, n))) for n in sizes}
+    t0 = time.time()
+    rs = init(keys)
+    chunks = []
+    steps_per_update = train.config["NUM_ENVS"] * train.config["NUM_STEPS"]
+    with tqdm(total=total * steps_per_update, desc=desc, unit="step", unit_scale=True, dynamic_ncols=True) as bar:
+        for i, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
+            if b <= a:
+                continue
+            rs, m = runs[int(b - a)](rs)
+            m = jax.device_get(m)
+            chunks.append(m)
+            bar.update((b - a) * steps_per_update)
+            last = slice(-min(4, b - a), None)  # not every update ends an episode (rollout < day)
+            prof = np.nanmean(m["episode_profit_eur"][:, last])
+            ret = np.nanmean(m["episode_return"][:, last])
+            bar.set_postfix(profit=f"{prof:.1f}", ret=f"{ret:.1f}")
+            tqdm.write(f"[{desc}] update {b}/{total} steps {b * steps_per_update:.3g}: "
+                       f"episode profit {prof:.1f} EUR, return {ret:.1f}, "
+                       f"entropy {np.nanmean(m['entropy'][:, -1]):.2f}, t={time.time() - t0:.0f}s")
+            if on_chunk is not None:
+                on_chunk(i, rs, m, b * steps_per_update, time.time() - t0)
+    metrics = {k: np.concatenate([c[k] for c in chunks], axis=1) for k in chunks[0]}
+    return rs, metrics, time.time() - t0
+
+
+def evaluate_batched(make_act, net_params, eval_params, days, key=None) -> dict:
+    """Greedy held-out evaluation of every seed's parameters (leading axis) with
+    :func:`chargax_marl.evaluation.run_days`. Returns pooled mean ± std over seeds × days
+    (``metrics``) and each seed's mean daily profit (``per_seed_profit``)."""
+    key = jax.random.PRNGKey(1) if key is None else key
+    days = jnp.asarray(days, jnp.int32)
+    seeds = jax.tree.leaves(net_params)[0].shape[0]
+    totals = _eval_fn(make_act, eval_params)(net_params, days, jax.random.split(key, seeds))
+    flat = jax.tree.map(lambda x: np.asarray(x).reshape(-1), totals)
+    out = {"num_days": int(days.shape[0]), "num_seeds": int(seeds), "metrics": summarize(flat),
+           "per_seed_profit": [float(x) for x in np.asarray(totals.profit_eur).mean(axis=1)]}
+    return out
+
+
+_EVAL_CACHE: dict = {}
+
+
+def _eval_fn(make_act, eval_params):
+    k = (make_act, id(eval_params))
+    if k not in _EVAL_CACHE:
+        _EVAL_CACHE[k] = jax.jit(jax.vmap(lambda p, d, kk: run_days(make_act(p), eval_params, d, kk),
+                                          in_axes=(0, None, 0)))
+    return _EVAL_CACHE[k]
+
+
+# --------------------------------------------------------------------------- outputs
+
+
+def save_params(params, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(flax.serialization.to_bytes(jax.device_get(params)))
+    return path
+
+
+def load_params(template, path: str | Path):
+    return flax.serialization.from_bytes(template, Path(path).read_bytes())
+
+
+def to_jsonable(x):
+    if isinstance(x, dict):
+        return {str(k): to_jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [to_jsonable(v) for v in x]
+    if isinstance(x, (np.ndarray, jnp.ndarray)):
+        return to_jsonable(np.asarray(x).tolist())
+    if isinstance(x, (np.floating, float)):
+        return None if not np.isfinite(x) else float(x)
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    return x
+
+
+def write_json(obj: dict, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(to_jsonable(obj), indent=2, default=str) + "\n")
+    return path
+
+
+def smooth_nan(x: np.ndarray) -> np.ndarray:
+    """Carry the last finite value forward along the last axis (updates with no finished episode)."""
+    x = np.array(x, dtype=np.float64)
+    for idx in np.ndindex(x.shape[:-1]):
+        row = x[idx]
+        last = np.nan
+        for t in range(row.shape[0]):
+            if np.isfinite(row[t]):
+                last = row[t]
+            else:
+                row[t] = last
+    return x
+
+
+def plot_learning_curve(path, timesteps, curves: dict[str, np.ndarray], baselines: dict[str, float],
+                        title: str, eval_points=None, ylabel="daily profit (EUR)"):
+    """Mean ± std over seeds of each curve ``(seeds, points)``; baselines as horizontal lines;
+    ``eval_points``: optional ``{label: (timesteps, (seeds, n) array)}`` drawn with markers."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    for label, y in curves.items():
+        y = smooth_nan(np.atleast_2d(y))
+        m, s = np.nanmean(y, 0), np.nanstd(y, 0)
+        (line,) = ax.plot(timesteps, m, label=label)
+        ax.fill_between(timesteps, m - s, m + s, alpha=0.25, color=line.get_color())
+    for label, (t, y) in (eval_points or {}).items():
+        y = np.atleast_2d(y)
+        ax.errorbar(t, y.mean(0), yerr=y.std(0), marker="o", ms=4, capsize=3, label=label)
+    styles = ["--", ":", "-."]
+    for i, (label, v) in enumerate(baselines.items()):
+        ax.axhline(v, ls=styles[i % 3], color=f"C{i + 3}", label=label)
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def parse_config(base: dict, overrides: dict | None) -> dict:
+    config = {**PAPER_DEFAULTS, **base, **(overrides or {})}
+    for k in ("NUM_ENVS", "NUM_STEPS", "NUM_MINIBATCHES", "UPDATE_EPOCHS", "HIDDEN", "NUM_LAYERS", "NUM_EVAL_DAYS"):
+        config[k] = int(config[k])
+    config["TOTAL_TIMESTEPS"] = int(float(config["TOTAL_TIMESTEPS"]))
+    return config
+
+
+def stack_seeds(keys: Sequence) -> jnp.ndarray:
+    return jnp.stack(list(keys))

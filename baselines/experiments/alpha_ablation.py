@@ -1,0 +1,95 @@
+"""Paper Fig. 4b-c: the satisfaction weights alpha vs missing kWh at departure and overtime.
+
+    python -m baselines.experiments.alpha_ablation           # small CPU default
+    python -m baselines.experiments.alpha_ablation --full    # paper scale (1e7 steps, 5 seeds)
+
+For ``satisfaction_time`` (EUR per kWh still missing when a time-sensitive car leaves) and
+``satisfaction_charge`` (EUR per minute a charge-sensitive car overstays) a PPO agent is
+trained per alpha (reward = profit - alpha * term; all other alpha 0) and evaluated greedily
+on the 100 held-out days. Writes ``baselines/results/alpha_ablation.{png,json}``: missing kWh
+(resp. overtime) and profit vs alpha, mean ± std over seeds x days.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from baselines import common
+from baselines.experiments._common import config_of, parser
+from baselines.train import baseline_results, run
+
+SMALL = {"satisfaction_time": (0.0, 0.5, 2.0), "satisfaction_charge": (0.0, 0.05, 0.5)}
+FULL = {"satisfaction_time": (0.0, 0.1, 0.5, 1.0, 2.0, 5.0), "satisfaction_charge": (0.0, 0.01, 0.05, 0.1, 0.5, 1.0)}
+METRIC = {"satisfaction_time": "missing_kwh_at_departure", "satisfaction_charge": "overtime_min"}
+
+
+def main(argv=None, out="baselines/results/alpha_ablation"):
+    args = parser(__doc__, 2e5, 2, 5).parse_args(argv)
+    base, seeds = config_of(args)
+    grid = FULL if args.full else SMALL
+    _, full_params, _, eval_days = common.build_env_params(common.parse_config({}, base))
+    baselines = baseline_results(full_params, eval_days)
+    results = {term: {} for term in grid}
+    zero = None
+    for term, alphas in grid.items():
+        for alpha in alphas:
+            if alpha == 0.0 and zero is not None:
+                results[term][alpha] = zero
+                continue
+            cfg = {**base, "ENV_KWARGS": {"alpha": {term: alpha}}}
+            # evaluation reports the raw terms (profit, missing kWh, overtime) on the held-out days
+            res = run(args.algo, cfg, seeds=seeds, chunks=2, evaluate_every_chunk=False, baselines=baselines,
+                      quiet=True)
+            row = {"alpha": alpha, "metrics": res["evaluation"]["table"][args.algo]["metrics"],
+                   "per_seed_profit": res["evaluation"]["table"][args.algo]["per_seed_profit"],
+                   "wall_seconds": res["wall_seconds"], "timesteps": res["timesteps"]}
+            results[term][alpha] = row
+            if alpha == 0.0:
+                zero = row
+            m = row["metrics"]
+            print(f"{term} alpha={alpha:g}: {METRIC[term]} {m[METRIC[term]]['mean']:.2f} ± {m[METRIC[term]]['std']:.2f}, "
+                  f"profit {m['daily_profit_eur']['mean']:.1f} ({res['wall_seconds']:.0f} s)", flush=True)
+    plot(results, baselines, out + ".png")
+    common.write_json({"algo": args.algo, "full": args.full, "seeds": seeds, "baselines": baselines,
+                       "results": {t: list(r.values()) for t, r in results.items()}}, out + ".json")
+    print(f"wrote {out}.png, {out}.json")
+    return results
+
+
+def plot(results, baselines, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    labels = {"missing_kwh_at_departure": "kWh missing at departure", "overtime_min": "overtime (min per day)"}
+    for ax, term in zip(axes[:2], results):
+        rows = list(results[term].values())
+        x = np.arange(len(rows))
+        key = METRIC[term]
+        ax.bar(x, [r["metrics"][key]["mean"] for r in rows], yerr=[r["metrics"][key]["std"] for r in rows], capsize=3)
+        am = baselines["always_max"]["metrics"][key]["mean"]
+        ax.axhline(am, ls="--", color="C3", label=f"always-max {am:.1f}")
+        ax.set_xticks(x, [f"{r['alpha']:g}" for r in rows])
+        ax.set_xlabel(f"alpha ({term})")
+        ax.set_ylabel(labels[key])
+        ax.legend(fontsize=8)
+        ax.grid(alpha=0.3, axis="y")
+    ax = axes[2]
+    for i, term in enumerate(results):
+        rows = list(results[term].values())
+        ax.errorbar(np.arange(len(rows)) + 0.1 * i, [r["metrics"]["daily_profit_eur"]["mean"] for r in rows],
+                    yerr=[r["metrics"]["daily_profit_eur"]["std"] for r in rows], marker="o", capsize=3, label=term)
+    ax.axhline(baselines["always_max"]["metrics"]["daily_profit_eur"]["mean"], ls="--", color="C3", label="always-max")
+    ax.set_xlabel("alpha index (values on the left panels)")
+    ax.set_ylabel("daily profit (EUR)")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    main()

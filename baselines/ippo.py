@@ -1,0 +1,222 @@
+"""IPPO for :class:`chargax_marl.marl.ChargaxMARL`, in the JaxMARL style (shared parameters).
+
+One actor and one critic are shared by every agent (port or battery); the agent-index
+feature in each observation lets them tell agents apart. Observations come as a dict per
+agent; they are *batchified* into ``(num_agents * num_envs, obs_dim)`` (agent-major, as
+JaxMARL's ``batchify``), actions are sampled from the logits masked by
+``get_avail_actions`` (invalid logits set to -1e9) and *unbatchified* back into a dict. All
+agents receive the shared station reward. Episodes are logged by
+:class:`chargax_marl.marl.wrappers.LogWrapper`. ``jax.vmap(train)(keys)`` trains several
+seeds at once; the env batch is sharded over all devices (:func:`baselines.common.shard_envs`).
+
+:func:`make_train` with ``centralised_critic=True`` is MAPPO (see :mod:`baselines.mappo`):
+the critic then reads the world state of
+:class:`chargax_marl.marl.wrappers.WorldStateWrapper` instead of the agent's observation.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from baselines import common
+from chargax_marl.marl import env as marl_env
+from chargax_marl.marl.env import ChargaxMARL
+from chargax_marl.marl.wrappers import LogWrapper, WorldStateWrapper
+
+
+class Transition(NamedTuple):
+    obs: jnp.ndarray  # (actors, obs_dim)
+    critic_in: jnp.ndarray  # (actors, obs_dim) or (actors, state_dim) for MAPPO
+    avail: jnp.ndarray
+    action: jnp.ndarray
+    log_prob: jnp.ndarray
+    value: jnp.ndarray
+    reward: jnp.ndarray
+    done: jnp.ndarray
+    info: dict
+
+
+class RunnerState(NamedTuple):
+    params: dict
+    opt_state: object
+    env_state: object
+    obs: dict
+    key: jnp.ndarray
+    update: jnp.ndarray
+
+
+INFO_KEYS = ("returned_episode", "returned_episode_returns", "returned_episode_profit_eur",
+             "returned_episode_energy_delivered_kwh")
+
+
+def batchify(x: dict, agents, num_actors: int) -> jnp.ndarray:
+    """``{agent: (envs, ...)}`` -> ``(agents * envs, ...)``, agent-major (JaxMARL)."""
+    x = jnp.stack([x[a] for a in agents])
+    return x.reshape((num_actors,) + x.shape[2:])
+
+
+def unbatchify(x: jnp.ndarray, agents, num_envs: int) -> dict:
+    x = x.reshape((len(agents), num_envs) + x.shape[1:])
+    return {a: x[i] for i, a in enumerate(agents)}
+
+
+class SharedPolicy:
+    """The shared actor (masked ``Discrete``) and critic."""
+
+    def __init__(self, config: dict, env: ChargaxMARL, centralised_critic: bool):
+        self.k = env.num_actions
+        self.obs_dim = env.obs_size
+        self.critic_dim = env.state_size if centralised_critic else env.obs_size
+        self.actor, self.critic = common.actor_critic(config, self.k)
+
+    def init(self, key):
+        ka, kc = jax.random.split(key)
+        return {"actor": self.actor.init(ka, jnp.zeros((self.obs_dim,))),
+                "critic": self.critic.init(kc, jnp.zeros((self.critic_dim,)))}
+
+    def logits(self, params, obs, avail):
+        return common.masked_logits(self.actor.apply(params["actor"], obs), avail)
+
+    def value(self, params, critic_in):
+        return self.critic.apply(params["critic"], critic_in)[..., 0]
+
+
+def make_train(config: dict | None = None, env_params=None, centralised_critic: bool = False):
+    """Build ``train(key)`` (IPPO; MAPPO with ``centralised_critic=True``).
+
+    ``config`` keys are those of :data:`baselines.common.PAPER_DEFAULTS` plus ``AGENT_ID``
+    (``onehot``/``scalar``, the agent-index encoding). ``TOTAL_TIMESTEPS`` counts env steps
+    (one step moves every agent).
+    """
+    config = common.parse_config({"AGENT_ID": "onehot"}, config)
+    if env_params is None:
+        env_params = common.build_env_params(config)[0]
+    base_env = ChargaxMARL(params=env_params, agent_id=config["AGENT_ID"])
+    env = LogWrapper(WorldStateWrapper(base_env) if centralised_critic else base_env)
+    agents = base_env.agents
+    policy = SharedPolicy(config, base_env, centralised_critic)
+    n_envs, n_steps, n_agents = config["NUM_ENVS"], config["NUM_STEPS"], base_env.num_agents
+    n_actors = n_agents * n_envs
+    total_updates = common.num_updates(config)
+    batch = n_actors * n_steps
+    if batch % config["NUM_MINIBATCHES"]:
+        raise ValueError(f"num_agents*NUM_ENVS*NUM_STEPS={batch} must be divisible by NUM_MINIBATCHES")
+    mesh = common.env_mesh(n_envs)
+    tx = common.make_optimizer(config, total_updates)
+
+    def get_avail(env_state):
+        # ``get_avail_actions`` depends only on the station; vmapped over envs and batchified.
+        core = env_state.env_state
+        avail = jax.vmap(base_env.get_avail_actions)(core)
+        return batchify(avail, agents, n_actors)
+
+    def critic_input(obs):
+        if centralised_critic:
+            ws = jnp.swapaxes(obs["world_state"], 0, 1)  # (agents, envs, state)
+            return ws.reshape((n_actors, -1))
+        return batchify(obs, agents, n_actors)
+
+    def init(key):
+        k_net, k_env, key = jax.random.split(key, 3)
+        params = policy.init(k_net)
+        obs, env_state = jax.vmap(env.reset)(jax.random.split(k_env, n_envs))
+        obs, env_state = common.shard_envs((obs, env_state), mesh)
+        return RunnerState(params, tx.init(params), env_state, obs, key, jnp.zeros((), jnp.int32))
+
+    def env_step(carry, _):
+        params, env_state, obs, key = carry
+        key, k_act, k_step = jax.random.split(key, 3)
+        obs_b = batchify(obs, agents, n_actors)
+        avail = get_avail(env_state)
+        logits = policy.logits(params, obs_b, avail)
+        action = jax.random.categorical(k_act, logits)
+        logp = common.log_prob(logits, action)
+        cin = critic_input(obs)
+        value = policy.value(params, cin)
+        actions = unbatchify(action, agents, n_envs)
+        next_obs, env_state, reward, done, info = jax.vmap(env.step)(jax.random.split(k_step, n_envs), env_state,
+                                                                    actions)
+        next_obs, env_state = common.shard_envs((next_obs, env_state), mesh)
+        tr = Transition(obs_b, cin, avail, action, logp, value,
+                        batchify(reward, agents, n_actors) * config["REWARD_SCALE"],
+                        batchify(done, agents, n_actors).astype(jnp.float32),
+                        {k: info[k] for k in INFO_KEYS})  # each (envs, agents)
+        return (params, env_state, next_obs, key), tr
+
+    def loss_fn(params, mb):
+        tr, adv, targets = mb
+        logits = policy.logits(params, tr.obs, tr.avail)
+        new_logp = common.log_prob(logits, tr.action)
+        values = policy.value(params, tr.critic_in)
+        return common.ppo_loss(new_logp, tr.log_prob, adv, values, tr.value, targets, common.entropy(logits), config)
+
+    def update(rs: RunnerState, _):
+        (params, env_state, obs, key), traj = jax.lax.scan(
+            env_step, (rs.params, rs.env_state, rs.obs, rs.key), None, n_steps)
+        last_value = policy.value(params, critic_input(obs))
+        adv, targets = common.gae(traj.reward, traj.value, traj.done, last_value, config["GAMMA"], config["GAE_LAMBDA"])
+
+        def epoch(carry, _):
+            params, opt_state, key = carry
+            key, k_perm = jax.random.split(key)
+            data = (traj._replace(info={}), adv, targets)
+            flat = jax.tree.map(lambda x: x.reshape((batch,) + x.shape[2:]), data)
+            perm = jax.random.permutation(k_perm, batch)
+            mbs = jax.tree.map(lambda x: x[perm].reshape((config["NUM_MINIBATCHES"], -1) + x.shape[1:]), flat)
+
+            def minibatch(carry, mb):
+                params, opt_state = carry
+                (_, parts), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, mb)
+                updates, opt_state = tx.update(grads, opt_state, params)
+                return (jax.tree.map(lambda p, u: p + u, params, updates), opt_state), parts
+
+            (params, opt_state), parts = jax.lax.scan(minibatch, (params, opt_state), mbs)
+            return (params, opt_state, key), parts
+
+        (params, opt_state, key), parts = jax.lax.scan(epoch, (params, rs.opt_state, key), None,
+                                                        config["UPDATE_EPOCHS"])
+        metrics = {k: v.mean() for k, v in parts.items()}
+        # Every agent logs the same episode: use agent 0's column.
+        metrics.update(common.episode_metrics(traj.info["returned_episode"][..., 0],
+                                              {k: v[..., 0] for k, v in traj.info.items()}))
+        return RunnerState(params, opt_state, env_state, obs, key, rs.update + 1), metrics
+
+    def run_updates(rs: RunnerState, n: int):
+        return jax.lax.scan(update, rs, None, n)
+
+    def train(key):
+        rs, metrics = run_updates(init(key), total_updates)
+        return {"runner_state": rs, "metrics": metrics}
+
+    train.init, train.run_updates, train.num_updates, train.config = init, run_updates, total_updates, config
+    train.policy, train.env, train.env_params = policy, base_env, env_params
+    train.make_act = make_act_builder(policy, config["AGENT_ID"])
+    return train
+
+
+def make_act_builder(policy: SharedPolicy, agent_id: str):
+    """``make_act_for(eval_params)(params) -> act(state, key) -> levels``: every agent takes the
+    argmax of its masked logits (greedy), read from the simulator state."""
+    cache = {}
+
+    def make_act_for(eval_params):
+        if id(eval_params) in cache:
+            return cache[id(eval_params)]
+        env = ChargaxMARL(params=eval_params, agent_id=agent_id)
+        avail = jnp.asarray(env._avail_np)
+
+        def make_act(params):
+            def act(state, key):
+                del key
+                idx = jnp.argmax(policy.logits(params, env.get_obs_matrix(state), avail), axis=-1)
+                return marl_env.actions_to_levels(idx, eval_params, env.action_offset)
+
+            return act
+
+        cache[id(eval_params)] = make_act
+        return make_act
+
+    return make_act_for

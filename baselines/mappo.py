@@ -1,0 +1,18 @@
+"""MAPPO for :class:`chargax_marl.marl.ChargaxMARL`: IPPO's shared actor on each agent's own
+observation, with a *centralised* critic on the world state.
+
+The env is wrapped as in JaxMARL's MAPPO, ``LogWrapper(WorldStateWrapper(env))``; the critic
+reads ``obs["world_state"]`` (the env's ``get_global_state``, i.e. the single-agent
+observation of the whole station), batchified to ``(num_agents * num_envs, state_size)``.
+The rest of the loop (masking, batchify, GAE, clipped PPO, sharding, vmapped seeds) is the
+one in :mod:`baselines.ippo`, so that the two differ only in the critic's input.
+"""
+
+from __future__ import annotations
+
+from baselines import ippo
+
+
+def make_train(config: dict | None = None, env_params=None):
+    """Build MAPPO's jittable ``train(key)``; see :func:`baselines.ippo.make_train`."""
+    return ippo.make_train(config, env_params, centralised_critic=True)

@@ -1,0 +1,188 @@
+"""Single-agent PPO for :class:`chargax_marl.single.Chargax`, in the PureJaxRL style.
+
+``train = make_train(config)`` gives a jittable ``train(key)``; ``jax.jit(jax.vmap(train))(keys)``
+trains several seeds in one compiled program. The whole loop (rollout with ``jax.lax.scan``,
+GAE, clipped PPO epochs over shuffled minibatches) is JAX. Defaults are the paper's Table 3.
+
+Policy: one categorical head per port/battery over its action indices (a factored
+``MultiDiscrete``); the joint log-probability is the sum over heads, the entropy the sum of
+the heads' entropies. Leaves with fewer valid indices (no V2G) have the rest masked.
+Actor and critic are separate MLPs (``NUM_LAYERS`` x ``HIDDEN``, tanh; 2 x 256 by default).
+``train.init(key)`` and ``train.run_updates(state, n)`` expose the same loop in pieces (the
+CLI evaluates on held-out days between chunks).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from baselines import common
+from chargax_marl.core.observation import flat_obs
+from chargax_marl.single.env import Chargax
+from chargax_marl.single.wrappers import LogWrapper
+
+
+class Transition(NamedTuple):
+    obs: jnp.ndarray
+    action: jnp.ndarray
+    log_prob: jnp.ndarray  # joint (summed over heads)
+    value: jnp.ndarray
+    reward: jnp.ndarray
+    done: jnp.ndarray
+    info: dict
+
+
+class RunnerState(NamedTuple):
+    params: dict
+    opt_state: object
+    env_state: object
+    obs: jnp.ndarray
+    key: jnp.ndarray
+    update: jnp.ndarray
+
+
+INFO_KEYS = ("returned_episode", "returned_episode_returns", "returned_episode_profit_eur",
+             "returned_episode_energy_delivered_kwh")
+
+
+class Policy:
+    """The factored categorical policy and the critic of a single-agent env."""
+
+    def __init__(self, config: dict, env: Chargax, env_params):
+        nvec = np.asarray(env.action_space(env_params).nvec)
+        self.num_leaves, self.k = len(nvec), int(nvec.max())
+        self.mask = np.arange(self.k)[None, :] < nvec[:, None]
+        self.obs_dim = env.observation_space(env_params).shape[0]
+        self.actor, self.critic = common.actor_critic(config, self.num_leaves * self.k)
+
+    def init(self, key):
+        ka, kc = jax.random.split(key)
+        x = jnp.zeros((self.obs_dim,), jnp.float32)
+        return {"actor": self.actor.init(ka, x), "critic": self.critic.init(kc, x)}
+
+    def logits(self, params, obs):
+        raw = self.actor.apply(params["actor"], obs)
+        return common.masked_logits(raw.reshape(raw.shape[:-1] + (self.num_leaves, self.k)), self.mask)
+
+    def value(self, params, obs):
+        return self.critic.apply(params["critic"], obs)[..., 0]
+
+
+def make_train(config: dict | None = None, env_params=None):
+    """Build ``train(key)`` for a config (keys of :data:`baselines.common.PAPER_DEFAULTS`).
+
+    ``env_params`` defaults to the config's scenario restricted to its training days.
+    """
+    config = common.parse_config({}, config)
+    if env_params is None:
+        env_params = common.build_env_params(config)[0]
+    base_env = Chargax(params=env_params)
+    env = LogWrapper(base_env)
+    policy = Policy(config, base_env, env_params)
+    n_envs, n_steps = config["NUM_ENVS"], config["NUM_STEPS"]
+    total_updates = common.num_updates(config)
+    batch = n_envs * n_steps
+    if batch % config["NUM_MINIBATCHES"]:
+        raise ValueError(f"NUM_ENVS*NUM_STEPS={batch} must be divisible by NUM_MINIBATCHES={config['NUM_MINIBATCHES']}")
+    mesh = common.env_mesh(n_envs)
+    tx = common.make_optimizer(config, total_updates)
+    v_reset = jax.vmap(env.reset, in_axes=(0, None))
+    v_step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
+
+    def init(key):
+        k_net, k_env, key = jax.random.split(key, 3)
+        params = policy.init(k_net)
+        obs, env_state = v_reset(jax.random.split(k_env, n_envs), env_params)
+        obs, env_state = common.shard_envs((obs, env_state), mesh)
+        return RunnerState(params, tx.init(params), env_state, obs, key, jnp.zeros((), jnp.int32))
+
+    def env_step(carry, _):
+        params, env_state, obs, key = carry
+        key, k_act, k_step = jax.random.split(key, 3)
+        logits = policy.logits(params, obs)
+        action = jax.random.categorical(k_act, logits)  # (envs, leaves)
+        logp = common.log_prob(logits, action).sum(-1)
+        value = policy.value(params, obs)
+        next_obs, env_state, reward, term, trunc, info = v_step(jax.random.split(k_step, n_envs), env_state,
+                                                                action, env_params)
+        next_obs, env_state = common.shard_envs((next_obs, env_state), mesh)
+        done = jnp.logical_or(term, trunc)
+        tr = Transition(obs, action, logp, value, reward * config["REWARD_SCALE"], done.astype(jnp.float32),
+                        {k: info[k] for k in INFO_KEYS})
+        return (params, env_state, next_obs, key), tr
+
+    def loss_fn(params, mb):
+        tr, adv, targets = mb
+        logits = policy.logits(params, tr.obs)
+        head_logp = common.log_prob(logits, tr.action)  # (batch, heads)
+        ent = common.entropy(logits).sum(-1)
+        values = policy.value(params, tr.obs)
+        return common.ppo_loss(head_logp.sum(-1), tr.log_prob, adv, values, tr.value, targets, ent, config)
+
+    def update(rs: RunnerState, _):
+        (params, env_state, obs, key), traj = jax.lax.scan(
+            env_step, (rs.params, rs.env_state, rs.obs, rs.key), None, n_steps)
+        last_value = policy.value(params, obs)
+        adv, targets = common.gae(traj.reward, traj.value, traj.done, last_value, config["GAMMA"], config["GAE_LAMBDA"])
+
+        def epoch(carry, _):
+            params, opt_state, key = carry
+            key, k_perm = jax.random.split(key)
+            data = (traj._replace(info={}), adv, targets)
+            flat = jax.tree.map(lambda x: x.reshape((batch,) + x.shape[2:]), data)
+            perm = jax.random.permutation(k_perm, batch)
+            mbs = jax.tree.map(lambda x: x[perm].reshape((config["NUM_MINIBATCHES"], -1) + x.shape[1:]), flat)
+
+            def minibatch(carry, mb):
+                params, opt_state = carry
+                (_, parts), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, mb)
+                updates, opt_state = tx.update(grads, opt_state, params)
+                return (jax.tree.map(lambda p, u: p + u, params, updates), opt_state), parts
+
+            (params, opt_state), parts = jax.lax.scan(minibatch, (params, opt_state), mbs)
+            return (params, opt_state, key), parts
+
+        (params, opt_state, key), parts = jax.lax.scan(epoch, (params, rs.opt_state, key), None,
+                                                        config["UPDATE_EPOCHS"])
+        metrics = {k: v.mean() for k, v in parts.items()}
+        metrics.update(common.episode_metrics(traj.info["returned_episode"], traj.info))
+        return RunnerState(params, opt_state, env_state, obs, key, rs.update + 1), metrics
+
+    def run_updates(rs: RunnerState, n: int):
+        return jax.lax.scan(update, rs, None, n)
+
+    def train(key):
+        rs, metrics = run_updates(init(key), total_updates)
+        return {"runner_state": rs, "metrics": metrics}
+
+    train.init, train.run_updates, train.num_updates, train.config = init, run_updates, total_updates, config
+    train.policy, train.env, train.env_params = policy, base_env, env_params
+    train.make_act = make_act_builder(policy, base_env)
+    return train
+
+
+def make_act_builder(policy: Policy, env: Chargax):
+    """``make_act(params) -> act(state, key) -> levels``: the greedy (argmax per head) policy read
+    from the simulator state, for :mod:`chargax_marl.evaluation`."""
+    cache = {}
+
+    def make_act_for(eval_params):
+        if id(eval_params) in cache:
+            return cache[id(eval_params)]
+
+        def make_act(params):
+            def act(state, key):
+                del key
+                action = jnp.argmax(policy.logits(params, flat_obs(state, eval_params)), axis=-1)
+                return env.action_to_levels(action, eval_params)
+
+            return act
+
+        cache[id(eval_params)] = make_act
+        return make_act
+
+    return make_act_for

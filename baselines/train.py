@@ -1,0 +1,176 @@
+"""Train PPO, IPPO or MAPPO on a scenario, evaluate on held-out days, write PNG + JSON + checkpoint.
+
+    python -m baselines.train --algo ippo --scenario shopping --traffic medium \\
+        --timesteps 1e6 --seeds 4 --out baselines/results/ippo_shopping
+
+Several seeds train in one compiled program (``jax.vmap``); the env batch is sharded over
+all local devices. Training runs in ``--chunks`` jitted pieces under a progress bar; after
+each piece the current greedy policies are evaluated on the held-out days, so the JSON
+records the budget (steps and minutes) at which the mean over seeds first beats always-max.
+The always-max and price-threshold baselines are evaluated on the same held-out days
+(``split_days(num_days, 100, seed=0)``; training resets use the other days only).
+
+Outputs in ``--out``: ``curve.png`` (training episode profit, mean ± std over seeds, the
+held-out evaluations as points, the baselines as horizontal lines), ``results.json``
+(config, curves, evaluation table, wall time, timesteps) and ``params.msgpack`` (the final
+parameters of every seed, ``flax.serialization``; leading axis = seed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from baselines import common
+
+ALGOS = ("ppo", "ippo", "mappo")
+
+
+def get_module(algo: str):
+    from baselines import ippo, mappo, ppo
+
+    return {"ppo": ppo, "ippo": ippo, "mappo": mappo}[algo]
+
+
+# Settings used for the measured CPU runs (differences from Table 3 are documented in README).
+FAST = {"NUM_ENVS": 24, "NUM_STEPS": 150, "HIDDEN": 64, "LR": 1e-3, "ENT_COEF": 0.0, "REWARD_SCALE": 0.1}
+
+
+def baseline_results(eval_params, eval_days) -> dict:
+    from chargax_marl.evaluation import evaluate_policy
+
+    return {name: evaluate_policy(name, eval_params, eval_days) for name in ("always_max", "price_threshold")}
+
+
+def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path | None = None, chunks: int = 10,
+        evaluate_every_chunk: bool = True, baselines: dict | None = None, eval_params=None, eval_days=None,
+        env_params=None, title: str | None = None, quiet: bool = False) -> dict:
+    """Train ``seeds`` seeds of ``algo`` and evaluate them; returns the results dict (and
+    writes the outputs when ``out`` is given). ``eval_params`` / ``env_params`` override the
+    evaluation and training parameters (e.g. another price year)."""
+    from chargax_marl.evaluation import format_table
+
+    mod = get_module(algo)
+    config = common.parse_config({}, config)
+    steps_per_update = config["NUM_ENVS"] * config["NUM_STEPS"]
+    n_upd = common.num_updates(config)
+    chunks = max(1, min(chunks, n_upd))
+    n_upd = (n_upd // chunks) * chunks  # equal chunks: one compiled program
+    config["TOTAL_TIMESTEPS"] = n_upd * steps_per_update
+    train_params, full_params, train_days, held_out = common.build_env_params(config)
+    env_params = train_params if env_params is None else env_params
+    eval_params = full_params if eval_params is None else eval_params
+    eval_days = held_out if eval_days is None else eval_days
+    t_start = time.time()
+    train = mod.make_train(config, env_params)
+    make_act = train.make_act(eval_params)
+    if baselines is None:
+        baselines = baseline_results(eval_params, eval_days)
+    am = baselines["always_max"]["metrics"]["daily_profit_eur"]["mean"]
+    evals = []
+
+    def on_chunk(i, rs, m, steps, seconds):
+        if not evaluate_every_chunk and i < chunks - 1:
+            return
+        ev = common.evaluate_batched(make_act, rs.params, eval_params, eval_days)
+        evals.append({"timesteps": int(steps), "train_seconds": seconds, "per_seed_profit": ev["per_seed_profit"],
+                      "mean_profit": float(np.mean(ev["per_seed_profit"]))})
+        if not quiet:
+            from tqdm.auto import tqdm
+
+            tqdm.write(f"  held-out greedy daily profit: {np.mean(ev['per_seed_profit']):.1f} EUR "
+                  f"(per seed {np.round(ev['per_seed_profit'], 1).tolist()}; always-max {am:.1f})")
+
+    keys = jax.random.split(jax.random.PRNGKey(seed), seeds)
+    rs, metrics, train_seconds = common.run_in_chunks(train, keys, chunks, on_chunk, desc=algo)
+    final = common.evaluate_batched(make_act, rs.params, eval_params, eval_days)
+    wall = time.time() - t_start
+    beats = next((e for e in evals if e["mean_profit"] > am), None)
+    table = {**baselines, algo: final}
+    if not quiet:
+        print(format_table(table))
+    timesteps = (np.arange(n_upd) + 1) * steps_per_update
+    results = {
+        "algo": algo,
+        "config": config,
+        "seeds": seeds,
+        "seed": seed,
+        "devices": [str(d) for d in jax.devices()],
+        "timesteps": int(config["TOTAL_TIMESTEPS"]),
+        "wall_seconds": wall,
+        "train_seconds_incl_compile": train_seconds,
+        "evaluation": {"policy": "greedy (argmax per head)", "num_days": int(np.size(eval_days)),
+                       "days": [int(d) for d in np.asarray(eval_days)], "table": table},
+        "first_beats_always_max": beats,
+        "eval_curve": evals,
+        "curve": {"timesteps": timesteps,
+                  **{k: np.asarray(metrics[k]) for k in ("episode_profit_eur", "episode_return", "entropy",
+                                                           "value_loss", "actor_loss")}},
+    }
+    if out is not None:
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        common.save_params(rs.params, out / "params.msgpack")
+        common.plot_learning_curve(
+            out / "curve.png", timesteps, {f"{algo} training episodes (sampled)": metrics["episode_profit_eur"]},
+            {f"always-max (held-out) {am:.0f}": am,
+             f"price-threshold (held-out) {baselines['price_threshold']['metrics']['daily_profit_eur']['mean']:.0f}":
+                 baselines["price_threshold"]["metrics"]["daily_profit_eur"]["mean"]},
+            title or f"{algo.upper()} {config['SCENARIO']} / {config['TRAFFIC']}: {seeds} seeds",
+            eval_points={f"{algo} held-out (greedy)": ([e["timesteps"] for e in evals],
+                                                        np.asarray([e["per_seed_profit"] for e in evals]).T)}
+            if evals else None)
+        common.write_json(results, out / "results.json")
+        if not quiet:
+            print(f"wrote {out / 'curve.png'}, {out / 'results.json'}, {out / 'params.msgpack'}")
+    results["_params"], results["_train"] = rs.params, train  # for callers (not written to JSON)
+    return results
+
+
+def main(argv=None) -> dict:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--algo", choices=ALGOS, default="ippo")
+    p.add_argument("--scenario", default="shopping")
+    p.add_argument("--traffic", default=None, help="low / medium / high or cars per day (default: the scenario's)")
+    p.add_argument("--prices", default=None, help="price data, e.g. NL-2022")
+    p.add_argument("--timesteps", type=float, default=1e6, help="env steps per seed")
+    p.add_argument("--seeds", type=int, default=2)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--num-envs", type=int, default=None)
+    p.add_argument("--num-steps", type=int, default=None)
+    p.add_argument("--hidden", type=int, default=None)
+    p.add_argument("--lr", type=float, default=None)
+    p.add_argument("--ent-coef", type=float, default=None)
+    p.add_argument("--minibatches", type=int, default=None)
+    p.add_argument("--epochs", type=int, default=None)
+    p.add_argument("--paper", action="store_true", help="use Table 3 exactly (12 envs x 300 steps, 2x256, lr 2.5e-4, "
+                                                        "entropy 0.01); default: the faster CPU settings FAST")
+    p.add_argument("--env-kwargs", default="{}", help="JSON of extra make_params keywords")
+    p.add_argument("--chunks", type=int, default=10, help="training pieces (progress + held-out evaluation)")
+    p.add_argument("--out", default="baselines/results/run")
+    a = p.parse_args(argv)
+    config = {} if a.paper else dict(FAST)
+    config.update({"SCENARIO": a.scenario, "TRAFFIC": a.traffic, "TOTAL_TIMESTEPS": int(a.timesteps),
+                   "ENV_KWARGS": json.loads(a.env_kwargs)})
+    if a.prices:
+        config["ENV_KWARGS"]["prices"] = a.prices
+    for flag, key in (("num_envs", "NUM_ENVS"), ("num_steps", "NUM_STEPS"), ("hidden", "HIDDEN"), ("lr", "LR"),
+                      ("ent_coef", "ENT_COEF"), ("minibatches", "NUM_MINIBATCHES"), ("epochs", "UPDATE_EPOCHS")):
+        if getattr(a, flag) is not None:
+            config[key] = getattr(a, flag)
+    if config["TRAFFIC"] is None:
+        from chargax_marl.single.scenarios import SCENARIOS
+
+        config["TRAFFIC"] = SCENARIOS[a.scenario]["traffic"]
+    print(f"devices: {jax.devices()}  config: {json.dumps({k: v for k, v in config.items()}, default=str)}")
+    res = run(a.algo, config, seeds=a.seeds, seed=a.seed, out=a.out, chunks=a.chunks)
+    return {k: v for k, v in res.items() if not k.startswith("_")}
+
+
+if __name__ == "__main__":
+    main()
