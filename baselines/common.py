@@ -165,6 +165,36 @@ def ppo_loss(new_logp, old_logp, advantages, values, old_values, targets, ent, c
     return total, {"actor_loss": actor_loss, "value_loss": value_loss, "entropy": ent, "approx_kl": approx_kl}
 
 
+def ppo_epochs(loss_fn, tx, params, opt_state, key, traj, adv, targets, batch: int, config: dict):
+    """``UPDATE_EPOCHS`` passes over the rollout in ``NUM_MINIBATCHES`` shuffled minibatches.
+
+    ``traj`` is the rollout (a NamedTuple with an ``info`` field, dropped here) with leading
+    axes ``(steps, actors)``; ``loss_fn(params, (traj, adv, targets))`` returns
+    ``(loss, parts)``. Returns ``(params, opt_state, key, parts)`` with ``parts`` stacked over
+    epochs and minibatches.
+    """
+
+    def epoch(carry, _):
+        params, opt_state, key = carry
+        key, k_perm = jax.random.split(key)
+        data = (traj._replace(info={}), adv, targets)
+        flat = jax.tree.map(lambda x: x.reshape((batch,) + x.shape[2:]), data)
+        perm = jax.random.permutation(k_perm, batch)
+        mbs = jax.tree.map(lambda x: x[perm].reshape((config["NUM_MINIBATCHES"], -1) + x.shape[1:]), flat)
+
+        def minibatch(carry, mb):
+            params, opt_state = carry
+            (_, parts), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, mb)
+            updates, opt_state = tx.update(grads, opt_state, params)
+            return (jax.tree.map(lambda p, u: p + u, params, updates), opt_state), parts
+
+        (params, opt_state), parts = jax.lax.scan(minibatch, (params, opt_state), mbs)
+        return (params, opt_state, key), parts
+
+    (params, opt_state, key), parts = jax.lax.scan(epoch, (params, opt_state, key), None, config["UPDATE_EPOCHS"])
+    return params, opt_state, key, parts
+
+
 def make_optimizer(config: dict, num_updates: int):
     """Adam with global-norm clipping; the learning rate anneals linearly to 0 over training."""
     steps_per_update = config["NUM_MINIBATCHES"] * config["UPDATE_EPOCHS"]

@@ -129,25 +129,8 @@ def make_train(config: dict | None = None, env_params=None):
         last_value = policy.value(params, obs)
         adv, targets = common.gae(traj.reward, traj.value, traj.done, last_value, config["GAMMA"], config["GAE_LAMBDA"])
 
-        def epoch(carry, _):
-            params, opt_state, key = carry
-            key, k_perm = jax.random.split(key)
-            data = (traj._replace(info={}), adv, targets)
-            flat = jax.tree.map(lambda x: x.reshape((batch,) + x.shape[2:]), data)
-            perm = jax.random.permutation(k_perm, batch)
-            mbs = jax.tree.map(lambda x: x[perm].reshape((config["NUM_MINIBATCHES"], -1) + x.shape[1:]), flat)
-
-            def minibatch(carry, mb):
-                params, opt_state = carry
-                (_, parts), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, mb)
-                updates, opt_state = tx.update(grads, opt_state, params)
-                return (jax.tree.map(lambda p, u: p + u, params, updates), opt_state), parts
-
-            (params, opt_state), parts = jax.lax.scan(minibatch, (params, opt_state), mbs)
-            return (params, opt_state, key), parts
-
-        (params, opt_state, key), parts = jax.lax.scan(epoch, (params, rs.opt_state, key), None,
-                                                        config["UPDATE_EPOCHS"])
+        params, opt_state, key, parts = common.ppo_epochs(loss_fn, tx, params, rs.opt_state, key, traj, adv,
+                                                          targets, batch, config)
         metrics = {k: v.mean() for k, v in parts.items()}
         metrics.update(common.episode_metrics(traj.info["returned_episode"], traj.info))
         return RunnerState(params, opt_state, env_state, obs, key, rs.update + 1), metrics
