@@ -60,31 +60,6 @@ def rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: KiB
 
 
-def _marl_runner(env, num_envs: int, num_steps: int):
-    import jax
-
-    n, agents = env.num_actions, env.agents
-
-    @jax.jit
-    def run(key):
-        keys = jax.random.split(key, num_envs + 1)
-        obs, state = jax.vmap(env.reset)(keys[1:])
-
-        def body(carry, _):
-            state, key = carry
-            key, k_act, k_step = jax.random.split(key, 3)
-            idx = jax.random.randint(k_act, (len(agents), num_envs), 0, n)
-            actions = {a: idx[i] for i, a in enumerate(agents)}
-            obs, state, rewards, _, _ = jax.vmap(env.step)(jax.random.split(k_step, num_envs), state, actions)
-            # fold the observations into the output so XLA cannot drop them
-            return (state, key), rewards[agents[0]].sum() + sum(o[..., 0].sum() for o in obs.values())
-
-        _, rewards = jax.lax.scan(body, (state, keys[0]), None, length=num_steps)
-        return rewards.sum()
-
-    return run
-
-
 def _single_runner(env, params, num_envs: int, num_steps: int):
     import jax
 
@@ -115,6 +90,7 @@ def run_worker(view: str, ports: int, envs: list[int], work: int, min_steps: int
     import jax
     import numpy as np
 
+    from marl_throughput import _marl_runner as marl_runner  # the same rollout as the MARL benchmark
     from throughput import load_info, measure
 
     from chargax_marl.core.params import make_params
@@ -156,7 +132,7 @@ def run_worker(view: str, ports: int, envs: list[int], work: int, min_steps: int
             else:
                 from chargax_marl.marl import ChargaxMARL
 
-                fn = _marl_runner(ChargaxMARL(params=params, agent_id=view.split("-")[1]), n, steps)
+                fn = marl_runner(ChargaxMARL(params=params, agent_id=view.split("-")[1]), n, steps)
             compile_s, run_s = measure(fn, repeats)
             del fn
             jax.clear_caches()

@@ -342,16 +342,19 @@ class ChargaxMARL(MultiAgentEnv):
         return "ChargaxMARL"
 
     # ------------------------------------------------------------------ actions
+    def _missing_and_unknown(self, actions: Mapping[str, Any]) -> tuple[list[str], list[str]]:
+        """Agents without an action, and action keys that name no agent."""
+        return [a for a in self.agents if a not in actions], [a for a in actions if a not in self.agent_index]
+
     def stack_actions(self, actions: Mapping[str, jax.Array]) -> jnp.ndarray:
         """The action dict as an int32 vector ``(num_agents,)`` in agent order (works under jit).
 
         Raises ``KeyError`` naming a missing agent and ``ValueError`` for an unknown agent or an
         action whose shape is not ``()`` or ``(1,)``; the values themselves are not checked.
         """
-        missing = [a for a in self.agents if a not in actions]
+        missing, unknown = self._missing_and_unknown(actions)
         if missing:
             raise KeyError(f"actions has no entry for agent(s) {missing}; expected one per agent in {self.agents}")
-        unknown = [a for a in actions if a not in self.agent_index]
         if unknown:
             raise ValueError(f"actions has entries for unknown agent(s) {unknown}; agents are {self.agents}")
         parts = []
@@ -374,10 +377,9 @@ class ChargaxMARL(MultiAgentEnv):
         allowed = f"an integer in [0, {n - 1}] (Discrete({n}))"
         if not isinstance(actions, Mapping):
             raise ValueError(f"actions must be a dict {{agent: {allowed}}}, got {type(actions).__name__}")
-        missing = [a for a in self.agents if a not in actions]
+        missing, unknown = self._missing_and_unknown(actions)
         if missing:
             raise ValueError(f"missing action for agent(s) {missing}: every agent needs {allowed}")
-        unknown = [a for a in actions if a not in self.agent_index]
         if unknown:
             raise ValueError(f"unknown agent(s) {unknown} in actions; agents are {self.agents}")
         out = np.empty(self.num_agents, np.int32)
