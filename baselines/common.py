@@ -47,6 +47,8 @@ PAPER_DEFAULTS: dict[str, Any] = {
     "NUM_LAYERS": 2,
     "ACTIVATION": "tanh",
     "REWARD_SCALE": 1.0,  # rewards (EUR per step) are multiplied by this before GAE
+    "ALWAYS_MAX_PRIOR": 0.0,  # logit offset on each port's full-power action (0: none)
+    "BATTERY_IDLE_PRIOR": 0.0,  # logit offset on each battery's idle action (0: none)
     "SCENARIO": "shopping",
     "TRAFFIC": "medium",
     "ENV_KWARGS": {},  # extra keyword arguments of make_params (station, prices, alpha, step_minutes, ...)
@@ -112,6 +114,23 @@ class MLP(nn.Module):
 def actor_critic(config: dict, num_logits: int):
     kw = dict(hidden=int(config["HIDDEN"]), layers=int(config["NUM_LAYERS"]), activation=config["ACTIVATION"])
     return MLP(num_logits, head_scale=0.01, **kw), MLP(1, head_scale=1.0, **kw)
+
+
+def always_max_prior(config: dict) -> tuple[float, float]:
+    """The validated ``(ALWAYS_MAX_PRIOR, BATTERY_IDLE_PRIOR)``: fixed offsets ``>= 0`` added to
+    the logit of the action that the always-max baseline takes, full power at every port and
+    idle at every battery. With both ``> 0`` the untrained greedy policy *is* always-max and
+    the sampled policy explores around it (an offset of 6 leaves about 5 % of a 21-action
+    head's mass on the other 20 actions, 2 about 73 %); training moves away from the
+    baseline wherever that pays, since the network's logits can outweigh the offsets. A
+    weaker battery offset keeps the battery exploring. ``0`` is the plain policy."""
+    out = []
+    for name in ("ALWAYS_MAX_PRIOR", "BATTERY_IDLE_PRIOR"):
+        b = float(config.get(name, 0.0))
+        if not np.isfinite(b) or b < 0:
+            raise ValueError(f"{name}={b} must be a finite number >= 0 (0 disables the offset)")
+        out.append(b)
+    return tuple(out)
 
 
 # --------------------------------------------------------------------------- masked categoricals
@@ -291,18 +310,40 @@ def run_in_chunks(train, keys, num_chunks: int, on_chunk=None, desc: str = "trai
     return rs, metrics, time.time() - t0
 
 
-def evaluate_batched(make_act, net_params, eval_params, days, key=None) -> dict:
+def evaluate_batched(make_act, net_params, eval_params, days, key=None, reference_profit=None) -> dict:
     """Greedy held-out evaluation of every seed's parameters (leading axis) with
-    :func:`chargax_marl.evaluation.run_days`. Returns pooled mean ± std over seeds × days
-    (``metrics``) and each seed's mean daily profit (``per_seed_profit``)."""
-    key = jax.random.PRNGKey(1) if key is None else key
+    :func:`chargax_marl.evaluation.run_days`.
+
+    Every seed runs with the *same* key as :func:`chargax_marl.evaluation.evaluate` (default
+    ``PRNGKey(0)``), so all policies meet the same drawn cars on the same days (common random
+    numbers): differences between policies are then not masked by the day-to-day spread of
+    traffic (about ±130 EUR/day on the default scenario). Returns pooled mean ± std over seeds
+    × days (``metrics``), each seed's mean daily profit (``per_seed_profit``) and daily profits
+    (``daily_profit``, seeds × days). With ``reference_profit`` (the daily profits of a
+    baseline on the same days and key, e.g. always-max), also ``paired_diff``: per seed, the
+    mean and standard error over days of (policy − reference) profit.
+    """
+    key = jax.random.PRNGKey(0) if key is None else key
     days = jnp.asarray(days, jnp.int32)
     seeds = jax.tree.leaves(net_params)[0].shape[0]
-    totals = _eval_fn(make_act, eval_params)(net_params, days, jax.random.split(key, seeds))
+    totals = _eval_fn(make_act, eval_params)(net_params, days, key)
     flat = jax.tree.map(lambda x: np.asarray(x).reshape(-1), totals)
+    profit = np.asarray(totals.profit_eur, np.float64)
     out = {"num_days": int(days.shape[0]), "num_seeds": int(seeds), "metrics": summarize(flat),
-           "per_seed_profit": [float(x) for x in np.asarray(totals.profit_eur).mean(axis=1)]}
+           "per_seed_profit": [float(x) for x in profit.mean(axis=1)], "daily_profit": profit}
+    if reference_profit is not None:
+        out["paired_diff"] = paired_difference(profit, reference_profit)
     return out
+
+
+def paired_difference(profit, reference_profit) -> dict:
+    """Per seed, mean and standard error over days of ``profit (seeds, days) - reference (days,)``;
+    and the mean over seeds with the standard error of that mean over seeds × days."""
+    d = np.atleast_2d(np.asarray(profit, np.float64)) - np.asarray(reference_profit, np.float64)[None, :]
+    n = d.shape[1]
+    return {"per_seed_mean": [float(x) for x in d.mean(axis=1)],
+            "per_seed_stderr": [float(x) for x in d.std(axis=1, ddof=1) / np.sqrt(n)],
+            "mean": float(d.mean()), "stderr": float(d.std(ddof=1) / np.sqrt(d.size))}
 
 
 _EVAL_CACHE: dict = {}
@@ -312,7 +353,7 @@ def _eval_fn(make_act, eval_params):
     k = (make_act, id(eval_params))
     if k not in _EVAL_CACHE:
         _EVAL_CACHE[k] = jax.jit(jax.vmap(lambda p, d, kk: run_days(make_act(p), eval_params, d, kk),
-                                          in_axes=(0, None, 0)))
+                                          in_axes=(0, None, None)))
     return _EVAL_CACHE[k]
 
 

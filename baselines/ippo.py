@@ -20,8 +20,11 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from baselines import common
+from chargax_marl.core.observation import PORT_FEATURES
+from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.marl import env as marl_env
 from chargax_marl.marl.env import ChargaxMARL
 from chargax_marl.marl.wrappers import LogWrapper, WorldStateWrapper
@@ -71,6 +74,17 @@ class SharedPolicy:
         self.obs_dim = env.obs_size
         self.critic_dim = env.state_size if centralised_critic else env.obs_size
         self.actor, self.critic = common.actor_critic(config, self.k)
+        # ALWAYS_MAX_PRIOR / BATTERY_IDLE_PRIOR: fixed offsets on the always-max baseline's action, read per agent
+        # from the kind one-hot of its observation (after the leaf features): index k - 1
+        # (full power) for ports, the idle index (level 0) for batteries.
+        port_b, battery_b = common.always_max_prior(config)
+        port_row = np.zeros(self.k, np.float32)
+        port_row[self.k - 1] = port_b
+        battery_row = np.zeros(self.k, np.float32)
+        battery_row[env.action_offset] = battery_b
+        self.port_offset, self.battery_offset = port_row, battery_row
+        self.prior = max(port_b, battery_b)
+        self.battery_col = len(PORT_FEATURES) + KIND_BATTERY
 
     def init(self, key):
         ka, kc = jax.random.split(key)
@@ -78,7 +92,11 @@ class SharedPolicy:
                 "critic": self.critic.init(kc, jnp.zeros((self.critic_dim,)))}
 
     def logits(self, params, obs, avail):
-        return common.masked_logits(self.actor.apply(params["actor"], obs), avail)
+        logits = self.actor.apply(params["actor"], obs)
+        if self.prior > 0:
+            is_battery = obs[..., self.battery_col:self.battery_col + 1]
+            logits = logits + (1.0 - is_battery) * self.port_offset + is_battery * self.battery_offset
+        return common.masked_logits(logits, avail)
 
     def value(self, params, critic_in):
         return self.critic.apply(params["critic"], critic_in)[..., 0]

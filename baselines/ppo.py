@@ -22,6 +22,8 @@ import numpy as np
 
 from baselines import common
 from chargax_marl.core.observation import flat_obs
+from chargax_marl.core.station import KIND_BATTERY
+from chargax_marl.policies import always_max
 from chargax_marl.single.env import Chargax
 from chargax_marl.single.wrappers import LogWrapper
 
@@ -58,6 +60,14 @@ class Policy:
         self.mask = np.arange(self.k)[None, :] < nvec[:, None]
         self.obs_dim = env.observation_space(env_params).shape[0]
         self.actor, self.critic = common.actor_critic(config, self.num_leaves * self.k)
+        # ALWAYS_MAX_PRIOR / BATTERY_IDLE_PRIOR: fixed offsets on the index of the always-max
+        # baseline's action of every head (ports: full power; batteries: idle).
+        baseline = np.asarray(env.levels_to_action(always_max(None, None, env_params), env_params))
+        port_b, battery_b = common.always_max_prior(config)
+        is_battery = np.asarray(env_params.station.leaf_kind) == KIND_BATTERY
+        offset = np.zeros((self.num_leaves, self.k), np.float32)
+        offset[np.arange(self.num_leaves), baseline] = np.where(is_battery, battery_b, port_b)
+        self.offset = offset
 
     def init(self, key):
         ka, kc = jax.random.split(key)
@@ -66,7 +76,7 @@ class Policy:
 
     def logits(self, params, obs):
         raw = self.actor.apply(params["actor"], obs)
-        return common.masked_logits(raw.reshape(raw.shape[:-1] + (self.num_leaves, self.k)), self.mask)
+        return common.masked_logits(raw.reshape(raw.shape[:-1] + (self.num_leaves, self.k)) + self.offset, self.mask)
 
     def value(self, params, obs):
         return self.critic.apply(params["critic"], obs)[..., 0]

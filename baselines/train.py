@@ -42,9 +42,23 @@ FAST = {"NUM_ENVS": 24, "NUM_STEPS": 150, "HIDDEN": 64, "LR": 1e-3, "ENT_COEF": 
 
 
 def baseline_results(eval_params, eval_days) -> dict:
-    from chargax_marl.evaluation import evaluate_policy
+    """Always-max and price-threshold on the held-out days, with the evaluation's default key
+    (the same drawn cars that :func:`baselines.common.evaluate_batched` gives the agents).
+    Always-max also keeps its daily profits (``daily_profit``) for paired comparisons."""
+    from chargax_marl.evaluation import evaluate_policy, run_days
+    from chargax_marl.policies import always_max
 
-    return {name: evaluate_policy(name, eval_params, eval_days) for name in ("always_max", "price_threshold")}
+    out = {name: evaluate_policy(name, eval_params, eval_days) for name in ("always_max", "price_threshold")}
+    totals = jax.jit(lambda d, k: run_days(lambda s, kk: always_max(s, kk, eval_params), eval_params, d, k))(
+        np.asarray(eval_days), jax.random.PRNGKey(0))
+    out["always_max"]["daily_profit"] = np.asarray(totals.profit_eur, np.float64)
+    return out
+
+
+def beats(paired: dict) -> bool:
+    """Significantly better than the reference: the paired mean difference over seeds × days
+    exceeds two standard errors."""
+    return paired["mean"] > 2.0 * paired["stderr"]
 
 
 def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path | None = None, chunks: int = 10,
@@ -72,25 +86,29 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
     if baselines is None:
         baselines = baseline_results(eval_params, eval_days)
     am = baselines["always_max"]["metrics"]["daily_profit_eur"]["mean"]
+    am_daily = baselines["always_max"].get("daily_profit")
     evals = []
 
     def on_chunk(i, rs, m, steps, seconds):
         if not evaluate_every_chunk and i < chunks - 1:
             return
-        ev = common.evaluate_batched(make_act, rs.params, eval_params, eval_days)
+        ev = common.evaluate_batched(make_act, rs.params, eval_params, eval_days, reference_profit=am_daily)
         evals.append({"timesteps": int(steps), "train_seconds": seconds, "per_seed_profit": ev["per_seed_profit"],
-                      "mean_profit": float(np.mean(ev["per_seed_profit"]))})
+                      "mean_profit": float(np.mean(ev["per_seed_profit"])),
+                      "vs_always_max": ev.get("paired_diff")})
         if not quiet:
             from tqdm.auto import tqdm
 
+            diff = ev.get("paired_diff")
+            vs = f"; vs always-max {diff['mean']:+.2f} ± {diff['stderr']:.2f}" if diff else ""
             tqdm.write(f"  held-out greedy daily profit: {np.mean(ev['per_seed_profit']):.1f} EUR "
-                  f"(per seed {np.round(ev['per_seed_profit'], 1).tolist()}; always-max {am:.1f})")
+                       f"(per seed {np.round(ev['per_seed_profit'], 1).tolist()}; always-max {am:.1f}{vs})")
 
     keys = jax.random.split(jax.random.PRNGKey(seed), seeds)
     rs, metrics, train_seconds = common.run_in_chunks(train, keys, chunks, on_chunk, desc=algo)
-    final = common.evaluate_batched(make_act, rs.params, eval_params, eval_days)
+    final = common.evaluate_batched(make_act, rs.params, eval_params, eval_days, reference_profit=am_daily)
     wall = time.time() - t_start
-    beats = next((e for e in evals if e["mean_profit"] > am), None)
+    first_beat = next((e for e in evals if e["vs_always_max"] is not None and beats(e["vs_always_max"])), None)
     table = {**baselines, algo: final}
     if not quiet:
         print(format_table(table))
@@ -104,9 +122,11 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
         "timesteps": int(config["TOTAL_TIMESTEPS"]),
         "wall_seconds": wall,
         "train_seconds_incl_compile": train_seconds,
-        "evaluation": {"policy": "greedy (argmax per head)", "num_days": int(np.size(eval_days)),
+        "evaluation": {"policy": "greedy (argmax per head)", "key": "PRNGKey(0) for every policy and seed "
+                       "(common random numbers)", "num_days": int(np.size(eval_days)),
                        "days": [int(d) for d in np.asarray(eval_days)], "table": table},
-        "first_beats_always_max": beats,
+        "vs_always_max": final.get("paired_diff"),
+        "first_beats_always_max": first_beat,
         "eval_curve": evals,
         "curve": {"timesteps": timesteps,
                   **{k: np.asarray(metrics[k]) for k in ("episode_profit_eur", "episode_return", "entropy",
@@ -146,8 +166,13 @@ def main(argv=None) -> dict:
     p.add_argument("--hidden", type=int, default=None)
     p.add_argument("--lr", type=float, default=None)
     p.add_argument("--ent-coef", type=float, default=None)
+    p.add_argument("--gamma", type=float, default=None, help="discount per step (Table 3: 0.99)")
     p.add_argument("--minibatches", type=int, default=None)
     p.add_argument("--epochs", type=int, default=None)
+    p.add_argument("--always-max-prior", type=float, default=None,
+                   help="logit offset >= 0 on each port's full-power action (the always-max rule); 0: none")
+    p.add_argument("--battery-idle-prior", type=float, default=None,
+                   help="logit offset >= 0 on each battery's idle action (the always-max rule); 0: none")
     p.add_argument("--paper", action="store_true", help="use Table 3 exactly (12 envs x 300 steps, 2x256, lr 2.5e-4, "
                                                         "entropy 0.01); default: the faster CPU settings FAST")
     p.add_argument("--env-kwargs", default="{}", help="JSON of extra make_params keywords")
@@ -160,7 +185,9 @@ def main(argv=None) -> dict:
     if a.prices:
         config["ENV_KWARGS"]["prices"] = a.prices
     for flag, key in (("num_envs", "NUM_ENVS"), ("num_steps", "NUM_STEPS"), ("hidden", "HIDDEN"), ("lr", "LR"),
-                      ("ent_coef", "ENT_COEF"), ("minibatches", "NUM_MINIBATCHES"), ("epochs", "UPDATE_EPOCHS")):
+                      ("ent_coef", "ENT_COEF"), ("gamma", "GAMMA"), ("minibatches", "NUM_MINIBATCHES"), ("epochs", "UPDATE_EPOCHS"),
+                      ("always_max_prior", "ALWAYS_MAX_PRIOR"),
+                      ("battery_idle_prior", "BATTERY_IDLE_PRIOR")):
         if getattr(a, flag) is not None:
             config[key] = getattr(a, flag)
     if config["TRAFFIC"] is None:

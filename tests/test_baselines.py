@@ -155,8 +155,78 @@ def test_cli_smoke_writes_png_json_checkpoint(tmp_path):
     assert set(table) == {"always_max", "price_threshold", "ppo"}
     assert table["ppo"]["num_days"] == 100 and res["timesteps"] == 4 * 24 * 2
     assert len(res["eval_curve"]) == 2 and len(res["curve"]["timesteps"]) == 2
+    # paired comparison with always-max on the same days and cars, per evaluation point
+    vs = res["vs_always_max"]
+    assert len(vs["per_seed_mean"]) == 2 and np.isfinite(vs["mean"]) and vs["stderr"] >= 0
+    assert all(e["vs_always_max"] is not None for e in res["eval_curve"])
     # the checkpoint restores into the parameter pytree (leading axis = seed)
     train = ppo.make_train({**TINY, "HIDDEN": 16})
     template = jax.vmap(train.policy.init)(jax.random.split(jax.random.PRNGKey(0), 2))
     restored = common.load_params(template, out / "params.msgpack")
     assert jax.tree.structure(restored) == jax.tree.structure(template)
+
+
+@pytest.mark.parametrize("mod", [ppo, ippo])
+def test_always_max_prior_makes_the_untrained_greedy_policy_always_max(mod):
+    """With ``ALWAYS_MAX_PRIOR`` the untrained greedy policy plays the always-max baseline
+    (ports at full power, battery idle) along a whole day; without it, it does not."""
+    from chargax_marl.core import simulator
+    from chargax_marl.policies import always_max
+
+    train = mod.make_train({**TINY, "ALWAYS_MAX_PRIOR": 6.0, "BATTERY_IDLE_PRIOR": 6.0})
+    plain = mod.make_train(TINY)
+    _, full, _, days = common.build_env_params(train.config)
+    params = train.policy.init(jax.random.PRNGKey(3))
+    act, act_plain = jax.jit(train.make_act(full)(params)), jax.jit(plain.make_act(full)(params))
+    state = simulator.empty_state(int(days[0]), full)
+    step = jax.jit(lambda k, s, a: simulator.step(k, s, a, full)[0])
+    differs = False
+    for t in range(full.num_steps):  # along a whole day of changing observations
+        k = jax.random.PRNGKey(t)
+        levels, ref = np.asarray(act(state, k)), np.asarray(always_max(state, k, full))
+        np.testing.assert_array_equal(levels, ref)
+        differs |= not np.array_equal(np.asarray(act_plain(state, k)), ref)
+        state = step(k, state, levels)
+    assert differs
+    # sampling explores around it: b = 6 leaves e^0 / (e^6 + 20 e^0), about 5 %, of a head's
+    # mass on the other 20 actions (the untrained network's logits are near 0)
+    obs = np.zeros((1, train.policy.obs_dim), np.float32)
+    if mod is ppo:
+        p_max = np.asarray(jax.nn.softmax(train.policy.logits(params, obs)))[0, 0].max()
+    else:
+        avail = np.ones((1, train.policy.k), bool)
+        p_max = np.asarray(jax.nn.softmax(train.policy.logits(params, obs, avail)))[0].max()
+    assert p_max == pytest.approx(np.exp(6) / (np.exp(6) + 20), abs=0.01)
+
+
+def test_always_max_prior_must_be_non_negative():
+    for name in ("ALWAYS_MAX_PRIOR", "BATTERY_IDLE_PRIOR"):
+        for bad in (-1.0, float("nan")):
+            with pytest.raises(ValueError, match=name):
+                ppo.make_train({**TINY, name: bad})
+
+
+def test_held_out_evaluation_uses_common_random_numbers():
+    """Every seed, and the rule-based baselines, meet the same drawn cars: a 'network' that
+    ignores its parameters and plays always-max scores exactly always-max's daily profits,
+    for every seed, and a paired difference of zero."""
+    from chargax_marl.evaluation import evaluate_policy
+    from chargax_marl.policies import always_max
+    from baselines.train import baseline_results
+
+    _, full, _, days = common.build_env_params(common.parse_config({}, TINY))
+    days = days[:8]
+    base = baseline_results(full, days)
+
+    def make_act(p):
+        return lambda s, k: always_max(s, k, full) + 0 * p.astype(np.int32)
+
+    ev = common.evaluate_batched(make_act, np.zeros((3,), np.float32), full, days,
+                                 reference_profit=base["always_max"]["daily_profit"])
+    ref = evaluate_policy("always_max", full, days)["metrics"]["daily_profit_eur"]["mean"]
+    np.testing.assert_allclose(ev["per_seed_profit"], [ref] * 3, rtol=1e-6)
+    np.testing.assert_allclose(ev["daily_profit"], np.broadcast_to(base["always_max"]["daily_profit"], (3, 8)),
+                               rtol=1e-6)
+    assert ev["paired_diff"]["mean"] == pytest.approx(0.0, abs=1e-3)
+    d = common.paired_difference(np.array([[2.0, 4.0]]), np.array([1.0, 1.0]))
+    assert d["mean"] == 2.0 and d["per_seed_mean"] == [2.0] and d["stderr"] == pytest.approx(1.0)
