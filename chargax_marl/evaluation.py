@@ -68,7 +68,12 @@ def summarize(totals) -> dict:
 
 
 def evaluate(act: Act, params: EnvParams, days, key: jax.Array | None = None) -> dict:
-    """Evaluate ``act`` on the given day indices; returns ``{"num_days", "days", "metrics"}``."""
+    """Evaluate ``act`` on the given day indices; returns ``{"num_days", "days", "metrics"}``.
+
+    Cars are drawn from ``key`` (default ``PRNGKey(0)``, also used by the trainers'
+    held-out evaluation): policies evaluated with the same key and days meet the same drawn
+    cars, so their day-by-day profits can be compared pairwise.
+    """
     key = jax.random.PRNGKey(0) if key is None else key
     totals = jax.jit(lambda d, k: run_days(act, params, d, k))(jnp.asarray(days), key)
     return {"num_days": int(np.size(days)), "days": [int(d) for d in np.asarray(days)], "metrics": summarize(totals)}
