@@ -74,16 +74,15 @@ class SharedPolicy:
         self.obs_dim = env.obs_size
         self.critic_dim = env.state_size if centralised_critic else env.obs_size
         self.actor, self.critic = common.actor_critic(config, self.k)
-        # ALWAYS_MAX_PRIOR / BATTERY_IDLE_PRIOR: fixed offsets on the always-max baseline's action, read per agent
-        # from the kind one-hot of its observation (after the leaf features): index k - 1
-        # (full power) for ports, the idle index (level 0) for batteries.
+        # ALWAYS_MAX_PRIOR / BATTERY_IDLE_PRIOR: fixed offsets on the always-max baseline's
+        # action, chosen per agent by the kind one-hot of its observation (after the leaf
+        # features): index k - 1 (full power) for ports, the idle index (level 0) for batteries.
         port_b, battery_b = common.always_max_prior(config)
         port_row = np.zeros(self.k, np.float32)
         port_row[self.k - 1] = port_b
         battery_row = np.zeros(self.k, np.float32)
         battery_row[env.action_offset] = battery_b
         self.port_offset, self.battery_offset = port_row, battery_row
-        self.prior = max(port_b, battery_b)
         self.battery_col = len(PORT_FEATURES) + KIND_BATTERY
 
     def init(self, key):
@@ -93,7 +92,7 @@ class SharedPolicy:
 
     def logits(self, params, obs, avail):
         logits = self.actor.apply(params["actor"], obs)
-        if self.prior > 0:
+        if self.port_offset.any() or self.battery_offset.any():
             is_battery = obs[..., self.battery_col:self.battery_col + 1]
             logits = logits + (1.0 - is_battery) * self.port_offset + is_battery * self.battery_offset
         return common.masked_logits(logits, avail)
