@@ -397,3 +397,68 @@ def test_scalar_agent_id_keeps_observations_linear():
     np.testing.assert_allclose(ids, np.arange(n) / (n - 1), rtol=1e-6)
     with pytest.raises(ValueError, match="agent_id"):
         ChargaxMARL(agent_id="binary")
+
+
+# ------------------------------------------------------------------ per-agent reward shaping
+
+
+def _day_rewards(env, seed=21):
+    """Per-agent rewards ``(T, N)``, the station reward ``(T,)`` and the shares ``(T, N)`` over a
+    day of random valid levels (the same levels and keys for every ``env``)."""
+    p = env.params
+    low = np.asarray(physics.leaf_min_level(p.station, L, p.v2g))
+    levels = jax.random.randint(jax.random.PRNGKey(seed), (p.num_steps, p.station.num_leaves), low, L + 1)
+    keys = jax.random.split(jax.random.PRNGKey(seed + 1), p.num_steps)
+
+    @jax.jit
+    def run(s):
+        def body(s, x):
+            k, lv = x
+            _, s, r, _, info = env.step_env(k, s, {a: lv[i] + env.action_offset for i, a in enumerate(env.agents)})
+            return s, (jnp.stack([r[a] for a in env.agents], -1), info["reward"][0], info["agent_reward_share"], s)
+        return jax.lax.scan(body, s, (keys, levels))[1]
+
+    return jax.device_get(run(start(p)))
+
+
+def test_reward_shares_add_up_and_local_weight_mixes_them(small):
+    r0, station, share, states0 = _day_rewards(small)
+    # default: every agent gets exactly the station reward
+    np.testing.assert_array_equal(r0, np.broadcast_to(station[:, None], r0.shape))
+    # the shares sum to the station reward every step, and differ between agents
+    np.testing.assert_allclose(share.sum(-1), station, rtol=1e-5, atol=1e-4)
+    assert np.abs(share - share.mean(-1, keepdims=True)).max() > 0.1
+    for w in (0.3, 1.0):
+        rw, station_w, share_w, states_w = _day_rewards(ChargaxMARL(params=small.params, local_reward_weight=w))
+        # the weight changes the rewards only, never the trajectory or what infos report
+        for x, y in zip(jax.tree.leaves(states_w), jax.tree.leaves(states0)):
+            np.testing.assert_array_equal(x, y)
+        np.testing.assert_array_equal(station_w, station)
+        np.testing.assert_allclose(rw, (1 - w) * station[:, None] + w * share, rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(rw.sum(-1), (1 - w) * len(small.agents) * station + w * station,
+                                   rtol=1e-5, atol=1e-3)
+
+
+def test_a_battery_share_is_the_money_its_own_energy_made(quiet, quiet_step):
+    p = quiet.params
+    s = start(p)
+    bat = quiet.agents.index("battery_0")
+    assert float(s.soc[bat]) > 0.0
+    _, _, _, _, info = quiet_step(KEY, s, idx_actions(quiet, battery_0=0))  # full discharge, no cars
+    share = np.asarray(info["agent_reward_share"])
+    assert float(info["agent_energy_kwh"][bat]) < 0.0
+    # only the battery moved energy: its share exceeds an idle port's by its own money,
+    # which is the whole profit before the fixed cost; idle ports share the rest evenly
+    ports = np.delete(share, bat)
+    np.testing.assert_allclose(ports, ports[0], rtol=0, atol=1e-6)
+    grid = float(info["grid_net_kwh"][0])
+    assert grid < 0.0  # a net feed-in, paid at the grid's sell price
+    own = -float(info["price_sell_grid_eur_kwh"][0]) * grid
+    np.testing.assert_allclose(own, float(info["profit_eur"][0]) + float(p.fixed_cost_eur), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(share[bat] - ports[0], own, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("bad", [-0.1, 1.5, float("nan")])
+def test_local_reward_weight_must_be_in_unit_interval(small, bad):
+    with pytest.raises(ValueError, match="local_reward_weight.*\\[0, 1\\]"):
+        ChargaxMARL(params=small.params, local_reward_weight=bad)

@@ -219,3 +219,17 @@ def test_pettingzoo_example_runs(capsys):
     printed = capsys.readouterr().out
     assert "random" in printed and "always_max" in printed and "profit" in printed
     assert set(results) == {"random", "always_max"} and all(np.isfinite(v) for v in results.values())
+
+
+def test_local_reward_weight_gives_each_agent_its_share(small_params):
+    env = parallel_env(params=small_params, local_reward_weight=1.0)
+    rng = np.random.default_rng(0)
+    trajectory = play_day(env, 3, lambda e, t: {a: int(rng.integers(e.action_space(a).n)) for a in e.agents})
+    spread = 0.0
+    for _, rewards, _, _, infos in trajectory[1:]:
+        r = np.array([rewards[a] for a in env.possible_agents])
+        station = infos[env.possible_agents[0]]["reward"]
+        np.testing.assert_allclose(r.sum(), station, rtol=1e-5, atol=1e-4)
+        np.testing.assert_allclose(r, [infos[a]["reward_share"] for a in env.possible_agents], rtol=1e-6)
+        spread = max(spread, float(r.max() - r.min()))
+    assert spread > 0.1  # agents are rewarded differently

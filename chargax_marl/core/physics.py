@@ -194,4 +194,6 @@ def energy_flows(leaf_energy_kwh: jnp.ndarray, station: StationArrays) -> dict:
         "battery_grid_kwh": bat_grid,
         "grid_net_kwh": grid_net,
         "losses_kwh": grid_net - delivered - battery_net,
+        "leaf_car_kwh": car_e,  # (L,) energy into each car (0 at batteries); sums to delivered
+        "leaf_grid_kwh": grid_side,  # (L,) grid side of each leaf; sums to grid_net
     }

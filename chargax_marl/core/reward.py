@@ -37,12 +37,32 @@ def moer_now(day, timestep, params: EnvParams) -> jnp.ndarray:
     return m[jnp.mod(day, m.shape[0]), jnp.clip(timestep, 0, m.shape[1] - 1)]
 
 
+def station_grid_price(flows: dict, p_buy, p_sell_grid) -> jnp.ndarray:
+    """The price of the step's grid energy: p_buy for a net draw, p_sell,grid for a net feed-in."""
+    return jnp.where(flows["grid_net_kwh"] > 0, p_buy, p_sell_grid)
+
+
 def profit_eur(flows: dict, p_buy, p_sell_grid, params: EnvParams) -> jnp.ndarray:
     """Paper Eq. 2: customers pay p_sell for Delta E_net; the grid is paid p_buy for a net draw
     or pays p_sell,grid for a net feed-in; minus the fixed cost per step."""
-    grid = flows["grid_net_kwh"]
-    grid_price = jnp.where(grid > 0, p_buy, p_sell_grid)
-    return params.customer_price_eur_kwh * flows["delivered_kwh"] - grid_price * grid - params.fixed_cost_eur
+    grid_price = station_grid_price(flows, p_buy, p_sell_grid)
+    return params.customer_price_eur_kwh * flows["delivered_kwh"] - grid_price * flows["grid_net_kwh"] - params.fixed_cost_eur
+
+
+def leaf_reward_shares(flows: dict, p_buy, p_sell_grid, r, params: EnvParams) -> jnp.ndarray:
+    """Each leaf's share ``(L,)`` of the step reward ``r``; the shares sum to ``r``.
+
+    A leaf's share is the money its own energy made at the step's prices: what its car paid
+    (ports; ``p_sell`` times the energy into the car) minus the grid price of its grid-side
+    energy (the station's price for the step, p_buy or p_sell,grid by the sign of the net
+    grid flow, so the per-leaf terms add up to Eq. 2 without the fixed cost). What no leaf
+    owns alone, the fixed cost and the weighted penalties, is split evenly over the leaves.
+    The multi-agent view mixes these shares into per-agent rewards when asked to
+    (``ChargaxMARL(local_reward_weight=...)``).
+    """
+    own = (params.customer_price_eur_kwh * flows["leaf_car_kwh"]
+           - station_grid_price(flows, p_buy, p_sell_grid) * flows["leaf_grid_kwh"])
+    return own + (r - jnp.sum(own)) / own.shape[0]
 
 
 def penalty_terms(flows: dict, departures: dict, arrivals: dict, excess_kw, moer, grid_demand_kwh) -> dict:

@@ -118,6 +118,7 @@ def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams
         overtime_min=dep["overtime_min"],
         constraint_excess_kw=excess_kw,
         leaf_energy_kwh=leaf_energy,
+        leaf_reward=reward_lib.leaf_reward_shares(flows, p_buy, p_sell_grid, r, params),
     )
     return new_state, info
 

@@ -181,3 +181,4 @@ class StepInfo:
     overtime_min: jnp.ndarray
     constraint_excess_kw: jnp.ndarray
     leaf_energy_kwh: jnp.ndarray  # (L,) energy into each car / battery this step (terminal side)
+    leaf_reward: jnp.ndarray  # (L,) each leaf's share of reward (reward.leaf_reward_shares); sums to reward

@@ -190,14 +190,27 @@ def step_arrays(key: jax.Array, state: EnvState, indices: jnp.ndarray, params: E
 
     Returns ``(obs (N, obs_size), new_state, reward (), done (), info)`` where ``info`` holds
     the scalars of :func:`info_scalars` and ``agent_energy_kwh`` ``(N,)``, the energy moved
-    into each agent's car or battery this step (negative when discharging).
+    into each agent's car or battery this step (negative when discharging), and
+    ``agent_reward_share`` ``(N,)``, each agent's share of the reward
+    (:func:`chargax_marl.core.reward.leaf_reward_shares`; the shares sum to the reward).
     """
     levels = actions_to_levels(indices, params, offset)
     new_state, core_info = simulator.step(key, state, levels, params)
     obs = agent_observations(new_state, params, layout)
     info = info_scalars(core_info, new_state)
     info["agent_energy_kwh"] = core_info.leaf_energy_kwh.astype(jnp.float32)
+    info["agent_reward_share"] = core_info.leaf_reward.astype(jnp.float32)
     return obs, new_state, core_info.reward, simulator.is_done(new_state, params), info
+
+
+def agent_rewards(reward, shares, local_reward_weight: float):
+    """Per-agent rewards ``(N,)``: ``(1 - w) * reward + w * shares`` with ``w`` the
+    (concrete) ``local_reward_weight``; exactly the shared ``reward`` for every agent when
+    ``w == 0``. Works on JAX and NumPy values."""
+    w = float(local_reward_weight)
+    if w == 0.0:
+        return reward + 0.0 * shares  # the shared reward, broadcast to (N,)
+    return (1.0 - w) * reward + w * shares
 
 
 def world_state(state: EnvState, params: EnvParams) -> jnp.ndarray:
@@ -248,10 +261,26 @@ class ChargaxMARL(MultiAgentEnv):
     **Infos.** Every leaf has shape ``(num_agents,)``: the step's reward and profit, every
     penalty term as ``penalty_<name>``, energies, prices, car counts, the running episode
     totals as ``episode_<name>`` (scalars broadcast to every agent), and ``agent_energy_kwh``,
-    each agent's own energy this step.
+    each agent's own energy this step, and ``agent_reward_share``, each agent's share of the
+    reward (:func:`chargax_marl.core.reward.leaf_reward_shares`: the money its own energy
+    made at the step's prices, plus an even part of the fixed cost and penalties; the shares
+    sum to the reward).
+
+    **Rewards.** By default every agent gets the shared station reward ``r``. The optional
+    per-agent shaping ``local_reward_weight=w`` in ``[0, 1]`` gives agent ``i`` the reward
+    ``(1 - w) * r + w * share_i`` instead: ``w = 1`` rewards each agent with its own share
+    only (a local, lower-variance learning signal for independent learners), and the
+    rewards of all agents then still add up to ``r``. Infos and episode totals report the
+    station's reward and profit whatever ``w`` is, so evaluations stay comparable.
     """
 
-    def __init__(self, params: EnvParams | None = None, *, agent_id: str = "onehot", **make_params_kwargs: Any):
+    def __init__(self, params: EnvParams | None = None, *, agent_id: str = "onehot",
+                 local_reward_weight: float = 0.0, **make_params_kwargs: Any):
+        w = float(local_reward_weight)
+        if not 0.0 <= w <= 1.0:  # also rejects NaN
+            raise ValueError(f"ChargaxMARL: field 'local_reward_weight' must be in [0, 1] "
+                             f"(0: the shared station reward), got {local_reward_weight!r}")
+        self.local_reward_weight = w
         if params is not None and make_params_kwargs:
             raise ValueError("ChargaxMARL: pass either 'params' or keyword arguments of make_params, not both")
         params = params if params is not None else make_params(**make_params_kwargs)
@@ -297,7 +326,8 @@ class ChargaxMARL(MultiAgentEnv):
                                                          self._layout)
         n = self.num_agents
         obs_dict = {a: obs[i] for i, a in enumerate(self.agents)}
-        rewards = {a: reward for a in self.agents}
+        per_agent = agent_rewards(reward, info["agent_reward_share"], self.local_reward_weight)
+        rewards = {a: per_agent[i] for i, a in enumerate(self.agents)}
         dones = {a: done for a in self.agents}
         dones["__all__"] = done
         infos = {k: jnp.broadcast_to(v, (n,)) for k, v in info.items()}

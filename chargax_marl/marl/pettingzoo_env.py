@@ -42,10 +42,10 @@ def _step(key: jax.Array, state, indices: jax.Array, params: EnvParams, layout: 
     key, sub = jax.random.split(key)
     obs, state, reward, done, info = marl_env.step_arrays(sub, state, indices, params, offset, layout)
     # One float vector for the host (one transfer instead of one per info key):
-    # [reward, done, info scalars in INFO_KEYS order, energy per agent]
+    # [reward, done, info scalars in INFO_KEYS order, energy per agent, reward share per agent]
     packed = jnp.concatenate([jnp.stack([reward.astype(jnp.float32), done.astype(jnp.float32)]
                                         + [info[k] for k in marl_env.INFO_KEYS]),
-                              info["agent_energy_kwh"]])
+                              info["agent_energy_kwh"], info["agent_reward_share"]])
     return key, state, obs, packed
 
 
@@ -61,10 +61,12 @@ class ChargaxParallelEnv(ParallelEnv):
     - ``step`` raises ``ValueError`` naming the agent and the allowed range for a missing or
       unknown agent, an index outside the space or a non-integer action, and
       ``RuntimeError`` when called before ``reset`` or after the day ended.
-    - Rewards are the shared station reward (EUR); ``terminations`` are always ``False``;
+    - Rewards are the shared station reward (EUR), or the per-agent mix of
+      ``local_reward_weight`` (see :class:`ChargaxMARL`); ``terminations`` are always ``False``;
       ``truncations`` turn ``True`` for every agent at the end of the day. ``infos[agent]``
       also holds the step's report as floats (profit, penalties, energies, prices, car
-      counts, episode totals) and ``energy_kwh``, the agent's own energy this step.
+      counts, episode totals), ``energy_kwh``, the agent's own energy this step, and
+      ``reward_share``, its share of the reward.
     - Seeding: ``reset(seed=s)`` starts a JAX key from ``s``, so the same seed and actions
       give the same trajectory. ``reset()`` without a seed continues the key sequence; the
       first key is ``PRNGKey(0)`` (as the single-agent Gymnasium wrapper).
@@ -143,15 +145,18 @@ class ChargaxParallelEnv(ParallelEnv):
         reward, done = values[0], bool(values[1])
         k = len(marl_env.INFO_KEYS)
         shared = dict(zip(marl_env.INFO_KEYS, values[2:2 + k]))
-        energy = values[2 + k:]
+        n = len(self.possible_agents)
+        energy = values[2 + k:2 + k + n]
+        shares = values[2 + k + n:]
+        per_agent = marl_env.agent_rewards(reward, np.asarray(shares), self.env.local_reward_weight)
         self._history.append((self._hours_now(), shared["price_buy_eur_kwh"],
                               shared["grid_net_kwh"] / self.params.step_hours))
         agents = self.agents
         observations = {a: obs[i] for i, a in enumerate(agents)}
-        rewards = {a: reward for a in agents}
+        rewards = {a: float(per_agent[i]) for i, a in enumerate(agents)}
         terminations = {a: False for a in agents}
         truncations = {a: done for a in agents}
-        infos = {a: {**shared, "energy_kwh": energy[i], "action_mask": self._masks[a]}
+        infos = {a: {**shared, "energy_kwh": energy[i], "reward_share": shares[i], "action_mask": self._masks[a]}
                  for i, a in enumerate(agents)}
         if done:
             self.agents = []
