@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import time
+import warnings
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -49,6 +50,7 @@ PAPER_DEFAULTS: dict[str, Any] = {
     "REWARD_SCALE": 1.0,  # rewards (EUR per step) are multiplied by this before GAE
     "ALWAYS_MAX_PRIOR": 0.0,  # logit offset on each port's full-power action (0: none)
     "BATTERY_IDLE_PRIOR": 0.0,  # logit offset on each battery's idle action (0: none)
+    "LOCAL_REWARD_WEIGHT": 0.0,  # IPPO/MAPPO: ChargaxMARL(local_reward_weight=...) (0: shared reward)
     "SCENARIO": "shopping",
     "TRAFFIC": "medium",
     "ENV_KWARGS": {},  # extra keyword arguments of make_params (station, prices, alpha, step_minutes, ...)
@@ -418,7 +420,9 @@ def plot_learning_curve(path, timesteps, curves: dict[str, np.ndarray], baseline
     fig, ax = plt.subplots(figsize=(7, 4.2))
     for label, y in curves.items():
         y = smooth_nan(np.atleast_2d(y))
-        m, s = np.nanmean(y, 0), np.nanstd(y, 0)
+        with warnings.catch_warnings():  # updates before any seed's first finished episode stay NaN (not drawn)
+            warnings.simplefilter("ignore", RuntimeWarning)
+            m, s = np.nanmean(y, 0), np.nanstd(y, 0)
         (line,) = ax.plot(timesteps, m, label=label)
         ax.fill_between(timesteps, m - s, m + s, alpha=0.25, color=line.get_color())
     for label, (t, y) in (eval_points or {}).items():

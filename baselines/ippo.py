@@ -5,7 +5,9 @@ feature in each observation lets them tell agents apart. Observations come as a 
 agent; they are *batchified* into ``(num_agents * num_envs, obs_dim)`` (agent-major, as
 JaxMARL's ``batchify``), actions are sampled from the logits masked by
 ``get_avail_actions`` (invalid logits set to -1e9) and *unbatchified* back into a dict. All
-agents receive the shared station reward. Episodes are logged by
+agents receive the shared station reward, or with ``LOCAL_REWARD_WEIGHT`` ``w > 0`` the
+mix ``(1 - w) * r + w * share_i`` with their own share of it (see
+:class:`chargax_marl.marl.ChargaxMARL`; evaluation always scores the station's profit). Episodes are logged by
 :class:`chargax_marl.marl.wrappers.LogWrapper`. ``jax.vmap(train)(keys)`` trains several
 seeds at once; the env batch is sharded over all devices (:func:`baselines.common.shard_envs`).
 
@@ -111,7 +113,8 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
     config = common.parse_config({"AGENT_ID": "onehot"}, config)
     if env_params is None:
         env_params = common.build_env_params(config)[0]
-    base_env = ChargaxMARL(params=env_params, agent_id=config["AGENT_ID"])
+    base_env = ChargaxMARL(params=env_params, agent_id=config["AGENT_ID"],
+                           local_reward_weight=config["LOCAL_REWARD_WEIGHT"])
     env = LogWrapper(WorldStateWrapper(base_env) if centralised_critic else base_env)
     agents = base_env.agents
     policy = SharedPolicy(config, base_env, centralised_critic)

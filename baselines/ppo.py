@@ -88,6 +88,9 @@ def make_train(config: dict | None = None, env_params=None):
     ``env_params`` defaults to the config's scenario restricted to its training days.
     """
     config = common.parse_config({}, config)
+    if config["LOCAL_REWARD_WEIGHT"]:
+        raise ValueError(f"LOCAL_REWARD_WEIGHT={config['LOCAL_REWARD_WEIGHT']} applies to the multi-agent "
+                         "trainers (ippo, mappo) only; single-agent PPO learns from the station reward (use 0)")
     if env_params is None:
         env_params = common.build_env_params(config)[0]
     base_env = Chargax(params=env_params)

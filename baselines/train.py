@@ -167,12 +167,16 @@ def main(argv=None) -> dict:
     p.add_argument("--lr", type=float, default=None)
     p.add_argument("--ent-coef", type=float, default=None)
     p.add_argument("--gamma", type=float, default=None, help="discount per step (Table 3: 0.99)")
+    p.add_argument("--gae-lambda", type=float, default=None, help="GAE lambda (Table 3: 0.95)")
     p.add_argument("--minibatches", type=int, default=None)
     p.add_argument("--epochs", type=int, default=None)
     p.add_argument("--always-max-prior", type=float, default=None,
                    help="logit offset >= 0 on each port's full-power action (the always-max rule); 0: none")
     p.add_argument("--battery-idle-prior", type=float, default=None,
                    help="logit offset >= 0 on each battery's idle action (the always-max rule); 0: none")
+    p.add_argument("--local-reward-weight", type=float, default=None,
+                   help="ippo/mappo: weight in [0, 1] of each agent's own share of the reward in its reward "
+                        "(ChargaxMARL local_reward_weight); 0: the shared station reward")
     p.add_argument("--paper", action="store_true", help="use Table 3 exactly (12 envs x 300 steps, 2x256, lr 2.5e-4, "
                                                         "entropy 0.01); default: the faster CPU settings FAST")
     p.add_argument("--env-kwargs", default="{}", help="JSON of extra make_params keywords")
@@ -185,9 +189,11 @@ def main(argv=None) -> dict:
     if a.prices:
         config["ENV_KWARGS"]["prices"] = a.prices
     for flag, key in (("num_envs", "NUM_ENVS"), ("num_steps", "NUM_STEPS"), ("hidden", "HIDDEN"), ("lr", "LR"),
-                      ("ent_coef", "ENT_COEF"), ("gamma", "GAMMA"), ("minibatches", "NUM_MINIBATCHES"), ("epochs", "UPDATE_EPOCHS"),
+                      ("ent_coef", "ENT_COEF"), ("gamma", "GAMMA"),
+                      ("gae_lambda", "GAE_LAMBDA"), ("minibatches", "NUM_MINIBATCHES"), ("epochs", "UPDATE_EPOCHS"),
                       ("always_max_prior", "ALWAYS_MAX_PRIOR"),
-                      ("battery_idle_prior", "BATTERY_IDLE_PRIOR")):
+                      ("battery_idle_prior", "BATTERY_IDLE_PRIOR"),
+                      ("local_reward_weight", "LOCAL_REWARD_WEIGHT")):
         if getattr(a, flag) is not None:
             config[key] = getattr(a, flag)
     if config["TRAFFIC"] is None:

@@ -230,3 +230,16 @@ def test_held_out_evaluation_uses_common_random_numbers():
     assert ev["paired_diff"]["mean"] == pytest.approx(0.0, abs=1e-3)
     d = common.paired_difference(np.array([[2.0, 4.0]]), np.array([1.0, 1.0]))
     assert d["mean"] == 2.0 and d["per_seed_mean"] == [2.0] and d["stderr"] == pytest.approx(1.0)
+
+
+def test_ippo_learns_from_the_local_reward_weight_and_ppo_refuses_it():
+    train = ippo.make_train({**TINY, "LOCAL_REWARD_WEIGHT": 1.0})
+    assert train.env.local_reward_weight == 1.0
+    m = jax.device_get(_finite_losses(train)["metrics"])
+    # agent 0 (a port) is now rewarded with its own share, not the station's profit
+    assert np.all(np.isfinite(m["episode_return"])) and np.all(np.isfinite(m["episode_profit_eur"]))
+    assert np.abs(m["episode_return"] - m["episode_profit_eur"]).max() > 1.0
+    with pytest.raises(ValueError, match="LOCAL_REWARD_WEIGHT"):
+        ppo.make_train({**TINY, "LOCAL_REWARD_WEIGHT": 0.5})
+    with pytest.raises(ValueError, match="local_reward_weight"):
+        ippo.make_train({**TINY, "LOCAL_REWARD_WEIGHT": 2.0})
