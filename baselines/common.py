@@ -408,6 +408,15 @@ def smooth_nan(x: np.ndarray) -> np.ndarray:
     return x
 
 
+def seed_mean_std(curves) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and std over seeds of learning curves ``(seeds, points)`` after :func:`smooth_nan`;
+    points before any seed's first finished episode stay NaN (matplotlib leaves them out)."""
+    y = smooth_nan(np.atleast_2d(np.asarray(curves, dtype=float)))
+    with warnings.catch_warnings():  # all-NaN columns: NaN without "Mean of empty slice"
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmean(y, 0), np.nanstd(y, 0)
+
+
 def plot_learning_curve(path, timesteps, curves: dict[str, np.ndarray], baselines: dict[str, float],
                         title: str, eval_points=None, ylabel="daily profit (EUR)"):
     """Mean ± std over seeds of each curve ``(seeds, points)``; baselines as horizontal lines;
@@ -419,10 +428,7 @@ def plot_learning_curve(path, timesteps, curves: dict[str, np.ndarray], baseline
 
     fig, ax = plt.subplots(figsize=(7, 4.2))
     for label, y in curves.items():
-        y = smooth_nan(np.atleast_2d(y))
-        with warnings.catch_warnings():  # updates before any seed's first finished episode stay NaN (not drawn)
-            warnings.simplefilter("ignore", RuntimeWarning)
-            m, s = np.nanmean(y, 0), np.nanstd(y, 0)
+        m, s = seed_mean_std(y)
         (line,) = ax.plot(timesteps, m, label=label)
         ax.fill_between(timesteps, m - s, m + s, alpha=0.25, color=line.get_color())
     for label, (t, y) in (eval_points or {}).items():

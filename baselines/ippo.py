@@ -7,9 +7,10 @@ JaxMARL's ``batchify``), actions are sampled from the logits masked by
 ``get_avail_actions`` (invalid logits set to -1e9) and *unbatchified* back into a dict. All
 agents receive the shared station reward, or with ``LOCAL_REWARD_WEIGHT`` ``w > 0`` the
 mix ``(1 - w) * r + w * share_i`` with their own share of it (see
-:class:`chargax_marl.marl.ChargaxMARL`; evaluation always scores the station's profit). Episodes are logged by
-:class:`chargax_marl.marl.wrappers.LogWrapper`. ``jax.vmap(train)(keys)`` trains several
-seeds at once; the env batch is sharded over all devices (:func:`baselines.common.shard_envs`).
+:class:`chargax_marl.marl.ChargaxMARL`; evaluation always scores the station's profit).
+Episodes are logged by :class:`chargax_marl.marl.wrappers.LogWrapper`.
+``jax.vmap(train)(keys)`` trains several seeds at once; the env batch is sharded over all
+devices (:func:`baselines.common.shard_envs`).
 
 :func:`make_train` with ``centralised_critic=True`` is MAPPO (see :mod:`baselines.mappo`):
 the critic then reads the world state of

@@ -47,8 +47,7 @@ def plot(results, algo, path):
     fig, axes = plt.subplots(1, len(results), figsize=(4.2 * len(results), 3.6))
     for ax, (traffic, res) in zip(np.atleast_1d(axes), results.items()):
         t = np.asarray(res["curve"]["timesteps"])
-        y = common.smooth_nan(np.asarray(res["curve"]["episode_profit_eur"], dtype=float))
-        m, s = np.nanmean(y, 0), np.nanstd(y, 0)
+        m, s = common.seed_mean_std(res["curve"]["episode_profit_eur"])
         ax.plot(t, m, label=f"{algo} (training, sampled)")
         ax.fill_between(t, m - s, m + s, alpha=0.25)
         table = res["evaluation"]["table"]

@@ -46,7 +46,8 @@ def profit_eur(flows: dict, p_buy, p_sell_grid, params: EnvParams) -> jnp.ndarra
     """Paper Eq. 2: customers pay p_sell for Delta E_net; the grid is paid p_buy for a net draw
     or pays p_sell,grid for a net feed-in; minus the fixed cost per step."""
     grid_price = station_grid_price(flows, p_buy, p_sell_grid)
-    return params.customer_price_eur_kwh * flows["delivered_kwh"] - grid_price * flows["grid_net_kwh"] - params.fixed_cost_eur
+    return (params.customer_price_eur_kwh * flows["delivered_kwh"] - grid_price * flows["grid_net_kwh"]
+            - params.fixed_cost_eur)
 
 
 def leaf_reward_shares(flows: dict, p_buy, p_sell_grid, r, params: EnvParams) -> jnp.ndarray:
