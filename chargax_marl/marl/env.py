@@ -208,8 +208,9 @@ def agent_rewards(reward, shares, local_reward_weight: float):
     (concrete) ``local_reward_weight``; exactly the shared ``reward`` for every agent when
     ``w == 0``. Works on JAX and NumPy values."""
     w = float(local_reward_weight)
-    if w == 0.0:
-        return reward + 0.0 * shares  # the shared reward, broadcast to (N,)
+    if w == 0.0:  # the shared reward, without a dependence on the shares (XLA then skips them)
+        xp = np if isinstance(shares, np.ndarray) else jnp
+        return xp.broadcast_to(reward, xp.shape(shares))
     return (1.0 - w) * reward + w * shares
 
 
