@@ -21,13 +21,13 @@ test: $(STAMP)
 # writes curve.png, results.json and params.msgpack to outputs/train_ippo (about 4 min on 2 cores).
 # No prior: each agent learns from its own share of the station reward (--local-reward-weight 1;
 # the evaluation scores the station's profit) with the paper's entropy coefficient 0.01.
+SCENARIO_FLAGS := --scenario shopping --traffic medium --seeds 2
 train: $(STAMP)
-	$(PY) -m baselines.train --algo ippo --scenario shopping --traffic medium --seeds 2 --ent-coef 0.01 --local-reward-weight 1 --timesteps 1.2e6 --chunks 8 --out outputs/train_ippo
+	$(PY) -m baselines.train --algo ippo $(SCENARIO_FLAGS) --ent-coef 0.01 --local-reward-weight 1 --timesteps 1.2e6 --chunks 8 --out outputs/train_ippo
 
 # Single-agent PPO with the always-max prior (a fixed logit offset on each port's full-power action).
-TRAIN_FLAGS := --scenario shopping --traffic medium --seeds 2 --lr 3e-4 --always-max-prior 6
 train-ppo: $(STAMP)
-	$(PY) -m baselines.train --algo ppo $(TRAIN_FLAGS) --timesteps 1e6 --chunks 10 --out outputs/train_ppo
+	$(PY) -m baselines.train --algo ppo $(SCENARIO_FLAGS) --lr 3e-4 --always-max-prior 6 --timesteps 1e6 --chunks 10 --out outputs/train_ppo
 
 # One day of the always-max baseline (the former `make train`).
 rollout: $(STAMP)
