@@ -41,17 +41,28 @@ def get_module(algo: str):
 FAST = {"NUM_ENVS": 24, "NUM_STEPS": 150, "HIDDEN": 64, "LR": 1e-3, "ENT_COEF": 0.0, "REWARD_SCALE": 0.1}
 
 
-def baseline_results(eval_params, eval_days) -> dict:
-    """Always-max and price-threshold on the held-out days, with the evaluation's default key
-    (the same drawn cars that :func:`baselines.common.evaluate_batched` gives the agents).
-    Always-max also keeps its daily profits (``daily_profit``) for paired comparisons."""
-    from chargax_marl.evaluation import evaluate_policy, run_days
-    from chargax_marl.policies import always_max
+BASELINES = ("always_max", "battery_rule", "price_threshold")
+"""The rule-based references every training run is scored against (``battery_rule`` is
+always-max plus a battery that charges in the day's cheapest 20 % of hours and discharges in
+the dearest 20 %)."""
 
-    out = {name: evaluate_policy(name, eval_params, eval_days) for name in ("always_max", "price_threshold")}
-    totals = jax.jit(lambda d, k: run_days(lambda s, kk: always_max(s, kk, eval_params), eval_params, d, k))(
-        np.asarray(eval_days), jax.random.PRNGKey(0))
-    out["always_max"]["daily_profit"] = np.asarray(totals.profit_eur, np.float64)
+
+def baseline_results(eval_params, eval_days) -> dict:
+    """The :data:`BASELINES` on the held-out days, with the evaluation's default key (the same
+    drawn cars that :func:`baselines.common.evaluate_batched` gives the agents). Each keeps its
+    daily profits (``daily_profit``) for paired comparisons."""
+    from chargax_marl.evaluation import run_days, summarize
+    from chargax_marl.policies import get_policy
+
+    out = {}
+    for name in BASELINES:
+        policy = get_policy(name)
+        totals = jax.jit(lambda d, k: run_days(lambda s, kk: policy(s, kk, eval_params), eval_params, d, k))(
+            np.asarray(eval_days), jax.random.PRNGKey(0))
+        out[name] = {"num_days": int(np.size(eval_days)), "days": [int(d) for d in np.asarray(eval_days)],
+                     "metrics": summarize(totals), "daily_profit": np.asarray(totals.profit_eur, np.float64)}
+    out["battery_rule"]["vs_always_max"] = common.paired_difference(out["battery_rule"]["daily_profit"],
+                                                                    out["always_max"]["daily_profit"])
     return out
 
 
@@ -87,7 +98,11 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
         baselines = baseline_results(eval_params, eval_days)
     am = baselines["always_max"]["metrics"]["daily_profit_eur"]["mean"]
     am_daily = baselines["always_max"].get("daily_profit")
+    rule_daily = baselines.get("battery_rule", {}).get("daily_profit")
     evals = []
+
+    def vs_rule(ev):
+        return None if rule_daily is None else common.paired_difference(ev["daily_profit"], rule_daily)
 
     def on_chunk(i, rs, m, steps, seconds):
         if not evaluate_every_chunk and i < chunks - 1:
@@ -95,12 +110,13 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
         ev = common.evaluate_batched(make_act, rs.params, eval_params, eval_days, reference_profit=am_daily)
         evals.append({"timesteps": int(steps), "train_seconds": seconds, "per_seed_profit": ev["per_seed_profit"],
                       "mean_profit": float(np.mean(ev["per_seed_profit"])),
-                      "vs_always_max": ev.get("paired_diff")})
+                      "vs_always_max": ev.get("paired_diff"), "vs_battery_rule": vs_rule(ev)})
         if not quiet:
             from tqdm.auto import tqdm
 
-            diff = ev.get("paired_diff")
+            diff, rule = ev.get("paired_diff"), vs_rule(ev)
             vs = f"; vs always-max {diff['mean']:+.2f} ± {diff['stderr']:.2f}" if diff else ""
+            vs += f", vs battery rule {rule['mean']:+.2f} ± {rule['stderr']:.2f}" if rule else ""
             tqdm.write(f"  held-out greedy daily profit: {np.mean(ev['per_seed_profit']):.1f} EUR "
                        f"(per seed {np.round(ev['per_seed_profit'], 1).tolist()}; always-max {am:.1f}{vs})")
 
@@ -109,6 +125,7 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
     final = common.evaluate_batched(make_act, rs.params, eval_params, eval_days, reference_profit=am_daily)
     wall = time.time() - t_start
     first_beat = next((e for e in evals if e["vs_always_max"] is not None and beats(e["vs_always_max"])), None)
+    first_beat_rule = next((e for e in evals if e["vs_battery_rule"] is not None and beats(e["vs_battery_rule"])), None)
     table = {**baselines, algo: final}
     if not quiet:
         print(format_table(table))
@@ -126,7 +143,9 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
                        "(common random numbers)", "num_days": int(np.size(eval_days)),
                        "days": [int(d) for d in np.asarray(eval_days)], "table": table},
         "vs_always_max": final.get("paired_diff"),
+        "vs_battery_rule": vs_rule(final),
         "first_beats_always_max": first_beat,
+        "first_beats_battery_rule": first_beat_rule,
         "eval_curve": evals,
         "curve": {"timesteps": timesteps,
                   **{k: np.asarray(metrics[k]) for k in ("episode_profit_eur", "episode_return", "entropy",
@@ -139,6 +158,8 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
         common.plot_learning_curve(
             out / "curve.png", timesteps, {f"{algo} training episodes (sampled)": metrics["episode_profit_eur"]},
             {f"always-max (held-out) {am:.0f}": am,
+             f"always-max + battery rule (held-out) {baselines['battery_rule']['metrics']['daily_profit_eur']['mean']:.0f}":
+                 baselines["battery_rule"]["metrics"]["daily_profit_eur"]["mean"],
              f"price-threshold (held-out) {baselines['price_threshold']['metrics']['daily_profit_eur']['mean']:.0f}":
                  baselines["price_threshold"]["metrics"]["daily_profit_eur"]["mean"]},
             title or f"{algo.upper()} {config['SCENARIO']} / {config['TRAFFIC']}: {seeds} seeds",

@@ -29,6 +29,8 @@ METRICS = {
     "cars_rejected": "cars_rejected",
     "cars_served": "cars_served",
     "constraint_excess_kw": "constraint_excess_kw",
+    "requested_excess_kw": "requested_excess_kw",
+    "battery_terminal_value_eur": "battery_terminal_value_eur",
 }
 """Reported metric -> field of :class:`chargax_marl.core.types.EpisodeTotals`."""
 

@@ -41,6 +41,20 @@ def always_max(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarra
     return jnp.where(_is_battery(params), 0, params.num_levels).astype(jnp.int32)
 
 
+def battery_rule(state: EnvState, key: jax.Array, params: EnvParams, quantile: float = 0.2) -> jnp.ndarray:
+    """Always-max for the ports plus a price rule for the batteries: charge fully in the
+    cheapest ``quantile`` (20 %) of the day's hours, discharge fully in the dearest
+    ``quantile``, idle otherwise. The strong two-line heuristic a learned agent must beat.
+    """
+    del key
+    day_prices = params.prices_eur_kwh[state.day]
+    now = day_prices[hour_of_step(state.timestep, params)]
+    cheap = now <= jnp.quantile(day_prices, quantile)
+    dear = now >= jnp.quantile(day_prices, 1.0 - quantile)
+    battery = jnp.where(cheap, params.num_levels, jnp.where(dear, -params.num_levels, 0))
+    return jnp.where(_is_battery(params), battery, params.num_levels).astype(jnp.int32)
+
+
 def random_policy(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarray:
     """Uniform random level per leaf within the leaf's valid range."""
     del state
@@ -85,17 +99,19 @@ def _greedy_under_limits(priority: jnp.ndarray, state: EnvState, params: EnvPara
     its port and the remaining headroom of every node on its path allow."""
     st = params.station
     want_kw = jnp.minimum(st.leaf_max_kw, physics.rate_curve_kw(state.soc, state.max_rate_kw, state.tau))
-    room_kw = jnp.maximum((1.0 - state.soc) * state.capacity_kwh, 0.0) / params.step_hours
+    room_kw = jnp.maximum((state.target_soc - state.soc) * state.capacity_kwh, 0.0) / params.step_hours
     want_kw = jnp.where(state.occupied & ~_is_battery(params), jnp.minimum(want_kw, room_kw), 0.0)
-    headroom = st.node_max_kw * st.node_efficiency  # leaf-side kW each node may still pass
+    headroom = st.node_max_kw  # grid-side kW each node may still pass
     ancestors = st.node_of_leaf_at_depth.T  # (L, D), -1 = none
+    path_eff = st.leaf_efficiency_at_depth.T  # (L, D): leaf kW = grid-side kW * efficiency up to the node
 
     def give(headroom, leaf):
         anc = ancestors[leaf]
         valid = anc >= 0
-        free = jnp.min(jnp.where(valid, headroom[jnp.maximum(anc, 0)], jnp.inf))
+        eff = path_eff[leaf]
+        free = jnp.min(jnp.where(valid, headroom[jnp.maximum(anc, 0)] * eff, jnp.inf))
         grant = jnp.clip(jnp.minimum(want_kw[leaf], free), 0.0)
-        headroom = headroom.at[jnp.maximum(anc, 0)].add(jnp.where(valid, -grant, 0.0))
+        headroom = headroom.at[jnp.maximum(anc, 0)].add(jnp.where(valid, -grant / eff, 0.0))
         return headroom, grant
 
     order = jnp.argsort(priority)
@@ -126,6 +142,7 @@ def least_laxity_first(state: EnvState, key: jax.Array, params: EnvParams) -> jn
 
 POLICIES: dict[str, Policy] = {
     "always_max": always_max,
+    "battery_rule": battery_rule,
     "random": random_policy,
     "price_threshold": price_threshold,
     "edf": earliest_deadline_first,

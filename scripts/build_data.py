@@ -443,7 +443,7 @@ def build_fleet(zf: zipfile.ZipFile, out: Path) -> list[str]:
     share = regs / regs.sum()
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(ds.FLEET_COLUMNS)
+    w.writerow(ds.FLEET_COLUMNS + ds.FLEET_DISCHARGE_COLUMNS)
     for m, s in zip(models, share):
         sp = specs[m]
         w.writerow([
@@ -453,12 +453,15 @@ def build_fleet(zf: zipfile.ZipFile, out: Path) -> list[str]:
             fmt_fixed(sp["max_ac_charge_power"], 3),
             fmt_fixed(sp["max_dc_charge_power"], 3),
             fmt_fixed(FLEET_TAU, 3),
+            fmt_fixed(sp["max_ac_discharge_power"] if sp["ac_v2g"] == "yes" else 0.0, 3),
+            fmt_fixed(sp["max_dc_discharge_power"] if sp["dc_v2g"] == "yes" else 0.0, 3),
         ])
     fname = ds.FLEET_FILES["EU"]
     write_text(out / fname, buf.getvalue())
     fleet = ds.parse_fleet_csv_text(buf.getvalue(), name="EU")
     print(f"fleet EU: {len(models)} models from ev_specs.json, {int(regs.sum())} registrations, "
-          f"share-weighted capacity {float(np.dot(fleet.share, fleet.capacity_kwh)):.1f} kWh")
+          f"share-weighted capacity {float(np.dot(fleet.share, fleet.capacity_kwh)):.1f} kWh, "
+          f"{int((fleet.max_dc_discharge_kw > 0).sum())} models can discharge at DC, {int((fleet.max_ac_discharge_kw > 0).sum())} at AC")
     return [fname]
 
 

@@ -9,10 +9,16 @@ from chargax_marl.core import simulator
 
 
 def place_car(state, i, *, soc=0.3, capacity_kwh=60.0, max_rate_kw=100.0, tau=0.8, remaining_kwh=20.0,
-              time_min=60.0, charge_sensitive=False, arrival_soc=None, current_a=0.0):
-    """Return ``state`` with a car parked at leaf ``i``."""
+              time_min=60.0, charge_sensitive=False, arrival_soc=None, current_a=0.0, target_soc=1.0,
+              max_discharge_rate_kw=None, earliest_min=0.0):
+    """Return ``state`` with a car parked at leaf ``i`` (by default it may charge to full and
+    discharge at its charging rate)."""
     arrival_soc = soc if arrival_soc is None else arrival_soc
+    max_discharge_rate_kw = max_rate_kw if max_discharge_rate_kw is None else max_discharge_rate_kw
     return state.replace(
+        target_soc=state.target_soc.at[i].set(target_soc),
+        max_discharge_rate_kw=state.max_discharge_rate_kw.at[i].set(max_discharge_rate_kw),
+        earliest_remaining_min=state.earliest_remaining_min.at[i].set(earliest_min),
         occupied=state.occupied.at[i].set(True),
         soc=state.soc.at[i].set(soc),
         capacity_kwh=state.capacity_kwh.at[i].set(capacity_kwh),

@@ -152,13 +152,17 @@ def test_cli_smoke_writes_png_json_checkpoint(tmp_path):
         assert (out / name).stat().st_size > 0, name
     res = json.loads((out / "results.json").read_text())
     table = res["evaluation"]["table"]
-    assert set(table) == {"always_max", "price_threshold", "ppo"}
+    assert set(table) == {"always_max", "battery_rule", "price_threshold", "ppo"}
     assert table["ppo"]["num_days"] == 100 and res["timesteps"] == 4 * 24 * 2
     assert len(res["eval_curve"]) == 2 and len(res["curve"]["timesteps"]) == 2
     # paired comparison with always-max on the same days and cars, per evaluation point
     vs = res["vs_always_max"]
     assert len(vs["per_seed_mean"]) == 2 and np.isfinite(vs["mean"]) and vs["stderr"] >= 0
     assert all(e["vs_always_max"] is not None for e in res["eval_curve"])
+    # and with always-max + the battery price rule
+    rule = res["vs_battery_rule"]
+    assert len(rule["per_seed_mean"]) == 2 and np.isfinite(rule["mean"])
+    assert all(e["vs_battery_rule"] is not None for e in res["eval_curve"])
     # the checkpoint restores into the parameter pytree (leading axis = seed)
     train = ppo.make_train({**TINY, "HIDDEN": 16})
     template = jax.vmap(train.policy.init)(jax.random.split(jax.random.PRNGKey(0), 2))

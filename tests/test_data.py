@@ -414,7 +414,7 @@ def test_bundled_fleet():
     assert 40 < float(np.dot(f.share, f.capacity_kwh)) < 80
     np.testing.assert_array_equal(f.tau, np.full(k, 0.8, np.float32))
     header = (ds.DATA_DIR / "fleet_EU.csv").read_text().splitlines()[0]
-    assert header == "model,share,capacity_kwh,max_ac_kw,max_dc_kw,tau"
+    assert header == "model,share,capacity_kwh,max_ac_kw,max_dc_kw,tau,max_ac_discharge_kw,max_dc_discharge_kw"
     assert ds.load_fleet("EU") is f
 
 

@@ -106,6 +106,8 @@ FLEET_FILES: dict[str, str] = {"EU": "fleet_EU.csv", "US": "fleet_US.csv", "Worl
 HAND_COMPILED_FILES: tuple[str, ...] = ("fleet_US.csv", "fleet_World.csv")
 MOER_INDEX_FILE = "moer.json"
 FLEET_COLUMNS: tuple[str, ...] = ("model", "share", "capacity_kwh", "max_ac_kw", "max_dc_kw", "tau")
+FLEET_DISCHARGE_COLUMNS: tuple[str, ...] = ("max_ac_discharge_kw", "max_dc_discharge_kw")
+"""Optional fleet columns: each model's discharge (V2G) power limit; absent means 0 (cannot discharge)."""
 PRICE_WIDE_COLUMNS: tuple[str, ...] = ("date",) + tuple(f"h{h}" for h in range(24))
 PRICE_LONG_COLUMNS: tuple[str, ...] = ("timestamp", "price_eur_mwh")
 
@@ -799,7 +801,9 @@ def _load_bundled_profile(name: str) -> UserProfileData:
 @dataclass(frozen=True)
 class FleetData:
     """Car models and their shares: ``share``, ``capacity_kwh``, ``max_ac_kw``,
-    ``max_dc_kw``, ``tau`` are float32 arrays of shape (K,); ``share`` sums to 1."""
+    ``max_dc_kw``, ``tau``, ``max_ac_discharge_kw`` and ``max_dc_discharge_kw`` are float32
+    arrays of shape (K,); ``share`` sums to 1. A discharge limit of 0 means the model cannot
+    feed energy back (no V2G) at that kind of port."""
 
     name: str
     models: tuple[str, ...]
@@ -808,13 +812,21 @@ class FleetData:
     max_ac_kw: np.ndarray
     max_dc_kw: np.ndarray
     tau: np.ndarray
+    max_ac_discharge_kw: np.ndarray = None
+    max_dc_discharge_kw: np.ndarray = None
+
+    def __post_init__(self) -> None:
+        for f in FLEET_DISCHARGE_COLUMNS:
+            if getattr(self, f) is None:
+                object.__setattr__(self, f, _readonly(np.zeros(len(self.models), np.float32)))
 
     @property
     def num_models(self) -> int:
         return len(self.models)
 
 
-def _make_fleet(name: str, models: Any, share: Any, capacity_kwh: Any, max_ac_kw: Any, max_dc_kw: Any, tau: Any) -> FleetData:
+def _make_fleet(name: str, models: Any, share: Any, capacity_kwh: Any, max_ac_kw: Any, max_dc_kw: Any, tau: Any,
+                max_ac_discharge_kw: Any = None, max_dc_discharge_kw: Any = None) -> FleetData:
     models = tuple(models)
     k = len(models)
     if k == 0:
@@ -822,7 +834,10 @@ def _make_fleet(name: str, models: Any, share: Any, capacity_kwh: Any, max_ac_kw
     for m in models:
         _validate_name(m, "models")
     cols = {}
-    for field, value in (("share", share), ("capacity_kwh", capacity_kwh), ("max_ac_kw", max_ac_kw), ("max_dc_kw", max_dc_kw), ("tau", tau)):
+    zeros = np.zeros(k)
+    for field, value in (("share", share), ("capacity_kwh", capacity_kwh), ("max_ac_kw", max_ac_kw), ("max_dc_kw", max_dc_kw), ("tau", tau),
+                         ("max_ac_discharge_kw", zeros if max_ac_discharge_kw is None else max_ac_discharge_kw),
+                         ("max_dc_discharge_kw", zeros if max_dc_discharge_kw is None else max_dc_discharge_kw)):
         arr = _as_float_array(value, field)
         if arr.shape != (k,):
             raise ValueError(f"{field}: expected shape ({k},) (one per model), got {tuple(arr.shape)}")
@@ -836,6 +851,10 @@ def _make_fleet(name: str, models: Any, share: Any, capacity_kwh: Any, max_ac_kw
         if (cols[field] <= 0).any():
             i = int(np.argmax(cols[field] <= 0))
             raise ValueError(f"{field}: must be > 0, got {float(cols[field][i])!r} for model {models[i]!r}")
+    for field in FLEET_DISCHARGE_COLUMNS:
+        if (cols[field] < 0).any():
+            i = int(np.argmax(cols[field] < 0))
+            raise ValueError(f"{field}: must be >= 0 (0 = cannot discharge), got {float(cols[field][i])!r} for model {models[i]!r}")
     t = cols["tau"]
     if ((t <= 0) | (t >= 1)).any():
         i = int(np.argmax((t <= 0) | (t >= 1)))
@@ -845,8 +864,9 @@ def _make_fleet(name: str, models: Any, share: Any, capacity_kwh: Any, max_ac_kw
 
 
 def read_fleet_csv(path: str | os.PathLike, name: str | None = None) -> FleetData:
-    """Read a fleet CSV with columns ``model,share,capacity_kwh,max_ac_kw,max_dc_kw,tau``
-    (any order, extra columns ignored, '#' lines are comments)."""
+    """Read a fleet CSV with columns ``model,share,capacity_kwh,max_ac_kw,max_dc_kw,tau`` and
+    optionally ``max_ac_discharge_kw,max_dc_discharge_kw`` (absent: 0, no model discharges);
+    any order, extra columns ignored, '#' lines are comments."""
     text = _read_text(path)
     return parse_fleet_csv_text(text, name=name or Path(path).stem, source=str(path))
 
@@ -859,17 +879,18 @@ def parse_fleet_csv_text(text: str, name: str = "custom", source: str = "<csv>")
     missing = [c for c in FLEET_COLUMNS if c not in header]
     if missing:
         raise ValueError(f"fleet: {source} lacks column(s) {missing}; expected columns {list(FLEET_COLUMNS)}")
-    idx = {c: header.index(c) for c in FLEET_COLUMNS}
+    numeric = FLEET_COLUMNS[1:] + tuple(c for c in FLEET_DISCHARGE_COLUMNS if c in header)
+    idx = {c: header.index(c) for c in ("model",) + numeric}
     body = rows[1:]
     if not body:
         raise ValueError(f"fleet: {source} has a header but no car models")
-    models, cols = [], {c: [] for c in FLEET_COLUMNS[1:]}
+    models, cols = [], {c: [] for c in numeric}
     for i, row in enumerate(body):
         where = f"{source} data row {i + 1}"
         if len(row) != len(header):
             raise ValueError(f"fleet: {where}: expected {len(header)} fields, got {len(row)}")
         models.append(row[idx["model"]].strip())
-        for c in FLEET_COLUMNS[1:]:
+        for c in numeric:
             cols[c].append(_parse_float(row[idx[c]], c, where))
     return _make_fleet(name, models, **cols)
 
@@ -877,7 +898,8 @@ def parse_fleet_csv_text(text: str, name: str = "custom", source: str = "<csv>")
 def load_fleet(source: Any = "EU") -> FleetData:
     """A bundled fleet by name (:data:`FLEETS`), a :class:`FleetData`, or a CSV path."""
     if isinstance(source, FleetData):
-        return _make_fleet(source.name, source.models, source.share, source.capacity_kwh, source.max_ac_kw, source.max_dc_kw, source.tau)
+        return _make_fleet(source.name, source.models, source.share, source.capacity_kwh, source.max_ac_kw, source.max_dc_kw,
+                           source.tau, source.max_ac_discharge_kw, source.max_dc_discharge_kw)
     if isinstance(source, str) and source in FLEETS:
         return _load_bundled_fleet(source)
     if isinstance(source, (str, os.PathLike)):

@@ -18,6 +18,13 @@ from chargax_marl.core.types import ACTION_MODES, CONSTRAINT_MODES, PENALTY_TERM
 
 MINUTES_PER_DAY = 1440
 
+GRID_FEE_EUR_KWH = 0.04
+"""Default surcharge on the day-ahead price when buying: energy tax for EV-charging
+installations plus supplier and network energy charges (sources in the data README)."""
+FIXED_COST_EUR_PER_STEP = 0.35
+"""Default fixed cost per 5-minute step (about 100 EUR/day): the capacity-based network and
+connection charges of a ~900 kW grid connection, an estimate (see the data README)."""
+
 
 def _finite(field: str, value: Any, *, minimum: float | None = None, strict: bool = False) -> float:
     try:
@@ -55,6 +62,23 @@ def resample_day(weights_5min: np.ndarray, num_steps: int) -> np.ndarray:
     return np.diff(cum_dst, axis=-1).reshape(w.shape[:-1] + (num_steps,))
 
 
+def _battery_initial_soc(value: Any, station: StationArrays) -> tuple[np.ndarray, np.ndarray]:
+    """``(low, high)`` arrays ``(B,)`` of the batteries' initial SoC range."""
+    own = np.asarray(station.battery_initial_soc, np.float32)
+    if value is None:
+        return own, own
+    if isinstance(value, (tuple, list, np.ndarray)) and np.ndim(value) == 1:
+        if len(value) != 2:
+            raise ValueError(f"field 'battery_initial_soc' must be a SoC in [0, 1] or a (low, high) pair, got {value!r}")
+        lo = _finite("battery_initial_soc[0]", value[0])
+        hi = _finite("battery_initial_soc[1]", value[1])
+    else:
+        lo = hi = _finite("battery_initial_soc", value)
+    if not 0.0 <= lo <= hi <= 1.0:
+        raise ValueError(f"field 'battery_initial_soc' must satisfy 0 <= low <= high <= 1, got {value!r}")
+    return np.full_like(own, lo), np.full_like(own, hi)
+
+
 def penalty_weights(alpha: PenaltyWeights | dict | None) -> PenaltyWeights:
     if alpha is None:
         return PenaltyWeights()
@@ -78,11 +102,13 @@ def make_params(
     moer_kg_per_kwh: Any = None,
     grid_demand_kwh: Any = None,
     customer_price_eur_kwh: float = 0.75,
-    grid_fee_eur_kwh: float = 0.0,
+    grid_fee_eur_kwh: float = GRID_FEE_EUR_KWH,
     feed_in_factor: float = 1.0,
-    fixed_cost_eur: float = 0.0,
+    fixed_cost_eur: float | None = None,
+    battery_initial_soc: float | tuple | None = None,
+    battery_terminal_price: str | float | None = "day_mean_buy",
     alpha: PenaltyWeights | dict | None = None,
-    beta: float = 0.5,
+    beta: float = 0.0,
     charged_tolerance_kwh: float = 0.05,
     step_minutes: float = 5.0,
     num_levels: int = 10,
@@ -106,6 +132,20 @@ def make_params(
     per step, a shape name (``datasets.GRID_DEMAND_SHAPES``) or a CSV path. ``reset_days``
     restricts the days ``reset`` draws from (e.g. training days, holding out evaluation days;
     see :func:`chargax_marl.evaluation.split_days`); default all days of the price data.
+
+    Economics: the station sells at ``customer_price_eur_kwh`` (the paper's 0.75), buys at
+    the day-ahead price plus ``grid_fee_eur_kwh`` (default 0.04), feeds in at
+    ``feed_in_factor`` times the day-ahead price and pays ``fixed_cost_eur`` per step
+    (default 0.35 at 5-minute steps, about 100 EUR/day, scaled with the step length).
+
+    Station batteries: ``battery_initial_soc`` is a fixed SoC, a ``(low, high)`` range drawn
+    uniformly at every reset, or None (each :class:`Battery`'s own ``initial_soc``).
+    ``battery_terminal_price`` values the batteries' energy change over the day at the last
+    step: ``"day_mean_buy"`` (default: the day's mean day-ahead price plus the grid fee), a
+    price in EUR/kWh, or None (no value, the paper's free battery energy).
+
+    ``beta`` weighs the undertime credit of the charge-sensitive satisfaction term, 0 by
+    default (see :func:`chargax_marl.core.traffic.depart`).
     """
     if action_mode not in ACTION_MODES:
         raise ValueError(f"field 'action_mode' must be one of {ACTION_MODES}, got {action_mode!r}")
@@ -180,6 +220,19 @@ def make_params(
     def scalar(name, value, **kw):
         return jnp.asarray(_finite(name, value, **kw), jnp.float32)
 
+    if fixed_cost_eur is None:
+        fixed_cost_eur = FIXED_COST_EUR_PER_STEP * step_minutes / 5.0
+    soc0_low, soc0_high = _battery_initial_soc(battery_initial_soc, stations)
+    if isinstance(battery_terminal_price, str):
+        if battery_terminal_price != "day_mean_buy":
+            raise ValueError(f"field 'battery_terminal_price' must be 'day_mean_buy', a price in EUR/kWh or None, "
+                             f"got {battery_terminal_price!r}")
+        value_day_mean, value_price = True, 0.0
+    elif battery_terminal_price is None:
+        value_day_mean, value_price = False, 0.0
+    else:
+        value_day_mean, value_price = False, _finite("battery_terminal_price", battery_terminal_price, minimum=0.0)
+
     return EnvParams(
         station=stations,
         prices_eur_kwh=jnp.asarray(price.prices_eur_kwh, jnp.float32),
@@ -196,14 +249,20 @@ def make_params(
         fleet_ac_kw=jnp.asarray(fleet_data.max_ac_kw, jnp.float32),
         fleet_dc_kw=jnp.asarray(fleet_data.max_dc_kw, jnp.float32),
         fleet_tau=jnp.asarray(fleet_data.tau, jnp.float32),
+        fleet_ac_discharge_kw=jnp.asarray(fleet_data.max_ac_discharge_kw, jnp.float32),
+        fleet_dc_discharge_kw=jnp.asarray(fleet_data.max_dc_discharge_kw, jnp.float32),
         moer_kg_per_kwh=jnp.asarray(moer, jnp.float32),
         grid_demand_kwh=jnp.asarray(demand, jnp.float32),
         reset_days=jnp.asarray(days),
+        battery_soc0_low=jnp.asarray(soc0_low, jnp.float32),
+        battery_soc0_high=jnp.asarray(soc0_high, jnp.float32),
         customer_price_eur_kwh=scalar("customer_price_eur_kwh", customer_price_eur_kwh, minimum=0.0),
         grid_fee_eur_kwh=scalar("grid_fee_eur_kwh", grid_fee_eur_kwh, minimum=0.0),
         feed_in_factor=scalar("feed_in_factor", feed_in_factor, minimum=0.0),
         fixed_cost_eur=scalar("fixed_cost_eur", fixed_cost_eur, minimum=0.0),
         alpha=penalty_weights(alpha),
+        battery_value_day_mean=jnp.asarray(value_day_mean),
+        battery_value_eur_kwh=jnp.asarray(value_price, jnp.float32),
         beta=scalar("beta", beta, minimum=0.0),
         charged_tolerance_kwh=scalar("charged_tolerance_kwh", charged_tolerance_kwh, minimum=0.0, strict=True),
         step_minutes=step_minutes,

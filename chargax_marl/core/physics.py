@@ -64,10 +64,12 @@ def target_current(action: jnp.ndarray, state: EnvState, params: EnvParams) -> j
 def clip_to_car(current_a: jnp.ndarray, state: EnvState, params: EnvParams) -> jnp.ndarray:
     """Clip currents to the port rating, the car's rate curve and its SoC window.
 
-    Charging: at most the port's max current, r-hat(SoC), and the current that fills the car
-    within the step. Discharging: at most the port's max discharge current (0 without V2G),
-    the mirrored curve, and the current that empties the car to its arrival SoC within the
-    step. Empty ports draw 0.
+    Charging: at most the port's max current, r-hat(SoC), and the current that brings the
+    car to its target SoC within the step (a car stops charging at its target, as its own
+    charge limit does; batteries' target is 1). Discharging: at most the port's max
+    discharge current (0 without V2G), the mirrored curve of the car's own discharge limit
+    (0 for models that cannot discharge), and the current that empties the car to its
+    arrival SoC within the step. Empty ports draw 0.
 
     The capacity window is applied here, before the node limits, and not only when charging:
     with flows of both signs under one node, cutting one leaf after the rescale could raise
@@ -76,31 +78,48 @@ def clip_to_car(current_a: jnp.ndarray, state: EnvState, params: EnvParams) -> j
     st = params.station
     v = st.leaf_voltage_v
     to_amps = 1000.0 / (v * params.step_hours)  # kWh moved in one step -> A
-    room_a = jnp.maximum((1.0 - state.soc) * state.capacity_kwh, 0.0) * to_amps
+    room_a = jnp.maximum((state.target_soc - state.soc) * state.capacity_kwh, 0.0) * to_amps
     reserve_a = jnp.maximum((state.soc - state.arrival_soc) * state.capacity_kwh, 0.0) * to_amps
     dis_limit = jnp.where(st.leaf_kind == KIND_BATTERY, st.leaf_max_discharge_current_a,
                           st.leaf_max_discharge_current_a * params.v2g)
     charge_a = jnp.minimum(st.leaf_max_current_a, rate_curve_kw(state.soc, state.max_rate_kw, state.tau) * 1000.0 / v)
     charge_a = jnp.minimum(charge_a, room_a)
-    dis_a = jnp.minimum(dis_limit, discharge_curve_kw(state.soc, state.max_rate_kw, state.tau) * 1000.0 / v)
+    dis_a = jnp.minimum(dis_limit, discharge_curve_kw(state.soc, state.max_discharge_rate_kw, state.tau) * 1000.0 / v)
     dis_a = jnp.minimum(dis_a, reserve_a)
     clipped = jnp.clip(current_a, -dis_a, charge_a)
     return jnp.where(state.occupied, clipped, 0.0)
 
 
-def node_flows_kw(leaf_power_kw: jnp.ndarray, station: StationArrays) -> jnp.ndarray:
-    """Net power through every inner node, ``|sum of its leaves' power| / efficiency`` (H,)."""
+def grid_side_kw(leaf_power_kw: jnp.ndarray, station: StationArrays) -> jnp.ndarray:
+    """``(D, L)`` the flow each leaf causes on the grid side of its ancestor at depth ``d``:
+    its power divided by the efficiency of the path up to and including that node when it
+    charges, multiplied by it when it discharges (0 where the leaf has no such ancestor)."""
+    eff = station.leaf_efficiency_at_depth
+    p = leaf_power_kw[None, :]
+    side = jnp.where(p > 0, p / eff, p * eff)
+    return jnp.where(station.node_of_leaf_at_depth >= 0, side, 0.0)
+
+
+def _node_sums(per_depth_leaf: jnp.ndarray, station: StationArrays, depths) -> jnp.ndarray:
+    """Sum ``(D, L)`` leaf contributions into their ancestors at the given depths (H,)."""
     flows = jnp.zeros((station.num_nodes,), jnp.float32)
-    for d in range(station.depth):
+    for d in depths:
         idx = station.node_of_leaf_at_depth[d]
-        flows = flows + jax.ops.segment_sum(
-            jnp.where(idx >= 0, leaf_power_kw, 0.0), jnp.maximum(idx, 0), num_segments=station.num_nodes
-        )
-    return jnp.abs(flows) / station.node_efficiency
+        flows = flows + jax.ops.segment_sum(per_depth_leaf[d], jnp.maximum(idx, 0), num_segments=station.num_nodes)
+    return flows
+
+
+def node_flows_kw(leaf_power_kw: jnp.ndarray, station: StationArrays) -> jnp.ndarray:
+    """Net power through every inner node on its grid side, ``|sum of grid_side_kw|`` (H,).
+
+    This is what the node's cable carries: the power of the leaves below it plus the losses
+    of every port and node on their paths up to and including the node itself.
+    """
+    return jnp.abs(_node_sums(grid_side_kw(leaf_power_kw, station), station, range(station.depth)))
 
 
 def constraint_excess_kw(leaf_power_kw: jnp.ndarray, station: StationArrays) -> jnp.ndarray:
-    """The paper's c_constraint: the largest excess over any node limit, kW (0 when all hold)."""
+    """The paper's c_constraint: the largest grid-side excess over any node limit, kW (0 when all hold)."""
     return jnp.max(jnp.maximum(node_flows_kw(leaf_power_kw, station) - station.node_max_kw, 0.0))
 
 
@@ -108,17 +127,17 @@ def rescale_to_limits(current_a: jnp.ndarray, station: StationArrays) -> jnp.nda
     """Hard node constraints: scale the leaves of every violating node down, deepest nodes first.
 
     Nodes at one depth have disjoint leaves, so each depth is one vectorised pass. A factor
-    in (0, 1] multiplies every leaf under a node, so the net flow scales by the same factor:
-    no sign flips, no magnitude grows, and deeper nodes stay within their limits when a
-    shallower node rescales. After the pass every node limit holds.
+    in (0, 1] multiplies every leaf under a node; a leaf's grid-side flow depends on its
+    power's sign only through the efficiency factor, so the node's grid-side net flow scales
+    by the same factor: no sign flips, no magnitude grows, and deeper nodes stay within their
+    limits when a shallower node rescales. After the pass every node limit holds on the grid
+    side.
     """
     v = station.leaf_voltage_v
     for d in reversed(range(station.depth)):
-        power_kw = current_a * v / 1000.0
         idx = station.node_of_leaf_at_depth[d]
-        net = jax.ops.segment_sum(jnp.where(idx >= 0, power_kw, 0.0), jnp.maximum(idx, 0),
-                                  num_segments=station.num_nodes)
-        flow = jnp.abs(net) / station.node_efficiency
+        side = grid_side_kw(current_a * v / 1000.0, station)[d]
+        flow = jnp.abs(jax.ops.segment_sum(side, jnp.maximum(idx, 0), num_segments=station.num_nodes))
         # A small safety margin keeps float32 round-off from leaving a flow a hair above its limit.
         factor = jnp.where(flow > station.node_max_kw,
                            station.node_max_kw / jnp.maximum(flow, 1e-12) * (1.0 - 1e-6), 1.0)
@@ -130,15 +149,18 @@ def rescale_to_limits(current_a: jnp.ndarray, station: StationArrays) -> jnp.nda
 def apply_actions(action: jnp.ndarray, state: EnvState, params: EnvParams):
     """Step 1 of the transition: action -> target -> car/port limits -> node limits.
 
-    Returns ``(current_a, excess_kw)`` where ``excess_kw`` is c_constraint of the currents
-    the controller asked for (after car limits, before the hard rescale). In soft mode the
-    currents are not rescaled and the excess is what actually flows.
+    Returns ``(current_a, excess_kw, requested_excess_kw)``. ``requested_excess_kw`` is
+    c_constraint of the currents the controller asked for (after car limits, before the hard
+    rescale); ``excess_kw`` is c_constraint of the currents that flow. In hard mode the
+    rescale brings the latter to 0; in soft mode nothing is rescaled and both are equal.
     """
+    volts = params.station.leaf_voltage_v
     requested = clip_to_car(target_current(action, state, params), state, params)
-    excess = constraint_excess_kw(requested * params.station.leaf_voltage_v / 1000.0, params.station)
+    requested_excess = constraint_excess_kw(requested * volts / 1000.0, params.station)
     if params.constraint_mode == "hard":
-        return rescale_to_limits(requested, params.station), excess
-    return requested, excess
+        current = rescale_to_limits(requested, params.station)
+        return current, constraint_excess_kw(current * volts / 1000.0, params.station), requested_excess
+    return requested, requested_excess, requested_excess
 
 
 def charge(current_a: jnp.ndarray, state: EnvState, params: EnvParams):
@@ -151,18 +173,19 @@ def charge(current_a: jnp.ndarray, state: EnvState, params: EnvParams):
     st = params.station
     dt_h = params.step_hours
     energy = current_a * st.leaf_voltage_v / 1000.0 * dt_h
-    room = jnp.maximum((1.0 - state.soc) * state.capacity_kwh, 0.0)
+    room = jnp.maximum((state.target_soc - state.soc) * state.capacity_kwh, 0.0)
     reserve = jnp.maximum((state.soc - state.arrival_soc) * state.capacity_kwh, 0.0)
     energy = jnp.where(state.occupied, jnp.clip(energy, -reserve, room), 0.0)
     safe_cap = jnp.maximum(state.capacity_kwh, 1e-6)
     soc = jnp.where(state.occupied, jnp.clip(state.soc + energy / safe_cap, 0.0, 1.0), 0.0)
     actual_current = energy / dt_h * 1000.0 / st.leaf_voltage_v
-    remaining = jnp.where(state.occupied, state.energy_remaining_kwh - energy, 0.0)
     is_port = st.leaf_kind != KIND_BATTERY
-    time_left = jnp.where(state.occupied & is_port, state.time_remaining_min - params.step_minutes,
-                          state.time_remaining_min)
+    parked = state.occupied & is_port
+    remaining = jnp.where(parked, jnp.maximum(state.energy_remaining_kwh - energy, 0.0), 0.0)
+    time_left = jnp.where(parked, state.time_remaining_min - params.step_minutes, state.time_remaining_min)
+    earliest_left = jnp.where(parked, state.earliest_remaining_min - params.step_minutes, state.earliest_remaining_min)
     new_state = state.replace(current_a=actual_current, soc=soc, energy_remaining_kwh=remaining,
-                              time_remaining_min=time_left)
+                              time_remaining_min=time_left, earliest_remaining_min=earliest_left)
     return new_state, energy
 
 
@@ -194,6 +217,7 @@ def energy_flows(leaf_energy_kwh: jnp.ndarray, station: StationArrays) -> dict:
         "battery_grid_kwh": bat_grid,
         "grid_net_kwh": grid_net,
         "losses_kwh": grid_net - delivered - battery_net,
+        "leaf_energy_kwh": leaf_energy_kwh,  # (L,) energy into each car / battery (terminal side)
         "leaf_car_kwh": car_e,  # (L,) energy into each car (0 at batteries); sums to delivered
         "leaf_grid_kwh": grid_side,  # (L,) grid side of each leaf; sums to grid_net
     }

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import PENALTY_TERMS, EnvParams
 
 
@@ -50,20 +51,84 @@ def profit_eur(flows: dict, p_buy, p_sell_grid, params: EnvParams) -> jnp.ndarra
             - params.fixed_cost_eur)
 
 
-def leaf_reward_shares(flows: dict, p_buy, p_sell_grid, r, params: EnvParams) -> jnp.ndarray:
+def battery_terminal_value_eur(battery_day_kwh, day, params: EnvParams) -> jnp.ndarray:
+    """The value of the station batteries' energy change over the day, ``battery_day_kwh``
+    (terminal side, net into the batteries), booked at the day's last step.
+
+    Priced at the day's mean buy price (mean day-ahead price plus the grid fee) when
+    ``params.battery_value_day_mean``, else at ``params.battery_value_eur_kwh`` (0 turns the
+    term off). Emptying the battery thus earns only what its energy fetched above the price
+    it would cost to buy back, and a battery that ends fuller is credited for what it holds.
+    """
+    mean_buy = jnp.mean(params.prices_eur_kwh[jnp.mod(day, params.prices_eur_kwh.shape[0])]) + params.grid_fee_eur_kwh
+    price = jnp.where(params.battery_value_day_mean, mean_buy, params.battery_value_eur_kwh)
+    return price * battery_day_kwh
+
+
+def leaf_grid_cost_eur(flows: dict, p_buy, p_sell_grid) -> jnp.ndarray:
+    """Each leaf's grid cost ``(L,)``: its grid-side draw at ``p_buy``, its grid-side feed-in
+    at ``p_sell_grid`` plus its pro-rata part of the netting gain. The costs sum to the
+    station's grid cost of Eq. 2; a charging leaf's cost does not depend on other leaves.
+
+    Netting: feed-in that covers another leaf's draw within the station saves ``p_buy`` rather
+    than earning ``p_sell_grid``; the gain ``(p_buy - p_sell_grid) * min(draw, feed-in)`` goes
+    to the feeding leaves in proportion to what they feed in.
+    """
+    g = flows["leaf_grid_kwh"]
+    draw = jnp.sum(jnp.maximum(g, 0.0))
+    feed = jnp.sum(jnp.maximum(-g, 0.0))
+    gain_per_kwh = (p_buy - p_sell_grid) * jnp.minimum(draw, feed) / jnp.maximum(feed, 1e-12)
+    return jnp.where(g > 0, p_buy * g, (p_sell_grid + gain_per_kwh) * g)
+
+
+def leaf_penalty_terms(flows: dict, departures: dict, terms: dict, moer, station) -> dict:
+    """Each penalty term split over the leaves ``{name: (L,)}``; each split sums to the term.
+
+    A term goes to the leaf that caused it where one did: the departure terms to the
+    departing car's port, battery degradation to the battery that discharged, car degradation
+    to the port whose car fed the grid, emissions to each leaf's grid-side energy. The rest
+    (node excess, rejected cars, the grid-demand mismatch) is split evenly over the leaves.
+    """
+    num_leaves = flows["leaf_grid_kwh"].shape[0]
+    is_port = station.leaf_kind != KIND_BATTERY
+    e = flows["leaf_energy_kwh"]
+    g = flows["leaf_grid_kwh"]
+    even = jnp.full((num_leaves,), 1.0 / num_leaves)
+    out = {
+        "constraint": even * terms["constraint"],
+        "satisfaction_time": departures["leaf_missing_kwh"],
+        "satisfaction_charge": departures["leaf_satisfaction_charge"],
+        "sustainability": moer * g,
+        "rejected": even * terms["rejected"],
+        "battery_degradation": jnp.where(is_port, 0.0, jnp.maximum(-e, 0.0)),
+        "car_degradation": jnp.where(is_port & (g < 0), -g, 0.0),
+        "grid_demand": even * terms["grid_demand"],
+    }
+    assert tuple(out) == PENALTY_TERMS
+    return out
+
+
+def leaf_reward_shares(flows: dict, departures: dict, terms: dict, moer, terminal_eur, p_buy, p_sell_grid, r,
+                       params: EnvParams) -> jnp.ndarray:
     """Each leaf's share ``(L,)`` of the step reward ``r``; the shares sum to ``r``.
 
-    A leaf's share is the money its own energy made at the step's prices: what its car paid
-    (ports; ``p_sell`` times the energy into the car) minus the grid price of its grid-side
-    energy (the station's price for the step, p_buy or p_sell,grid by the sign of the net
-    grid flow, so the per-leaf terms add up to Eq. 2 without the fixed cost). What no leaf
-    owns alone, the fixed cost and the weighted penalties, is split evenly over the leaves.
-    The multi-agent view mixes these shares into per-agent rewards when asked to
-    (``ChargaxMARL(local_reward_weight=...)``).
+    A leaf's share is the money its own energy made minus the penalties it caused: what its
+    car paid (``p_sell`` times the energy into the car) minus its grid cost
+    (:func:`leaf_grid_cost_eur`, which does not move with other leaves' actions), the
+    batteries' terminal value to the batteries, and the weighted penalty terms split by
+    :func:`leaf_penalty_terms`. The fixed cost is split evenly. The multi-agent view mixes
+    these shares into per-agent rewards when asked to (``ChargaxMARL(local_reward_weight=...)``).
     """
-    own = (params.customer_price_eur_kwh * flows["leaf_car_kwh"]
-           - station_grid_price(flows, p_buy, p_sell_grid) * flows["leaf_grid_kwh"])
-    return own + (r - jnp.sum(own)) / own.shape[0]
+    st = params.station
+    num_leaves = flows["leaf_grid_kwh"].shape[0]
+    is_bat = st.leaf_kind == KIND_BATTERY
+    own = params.customer_price_eur_kwh * flows["leaf_car_kwh"] - leaf_grid_cost_eur(flows, p_buy, p_sell_grid)
+    own = own + jnp.where(is_bat, terminal_eur / max(st.num_batteries, 1), 0.0)
+    per_leaf = leaf_penalty_terms(flows, departures, terms, moer, st)
+    penalty = sum(getattr(params.alpha, name) * per_leaf[name] for name in PENALTY_TERMS)
+    shares = own - penalty - params.fixed_cost_eur / num_leaves
+    # float round-off only: the parts above add up to r exactly in real arithmetic
+    return shares + (r - jnp.sum(shares)) / num_leaves
 
 
 def penalty_terms(flows: dict, departures: dict, arrivals: dict, excess_kw, moer, grid_demand_kwh) -> dict:

@@ -20,8 +20,19 @@ def is_workday(day: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
     return jnp.mod(params.first_weekday + day, 7) < 5
 
 
-def empty_state(day: jnp.ndarray, params: EnvParams) -> EnvState:
-    """A station with no cars at step 0 of ``day``; batteries at their initial SoC."""
+def battery_initial_soc(params: EnvParams, key: jax.Array | None = None) -> jnp.ndarray:
+    """Initial SoC of each station battery ``(B,)``: uniform in ``[battery_soc0_low,
+    battery_soc0_high]`` drawn from ``key``; without a key, the middle of the range (the
+    fixed value when the range is a single point, as by default)."""
+    lo, hi = params.battery_soc0_low, params.battery_soc0_high
+    if key is None:
+        return 0.5 * (lo + hi)
+    return lo + (hi - lo) * jax.random.uniform(key, lo.shape)
+
+
+def empty_state(day: jnp.ndarray, params: EnvParams, key: jax.Array | None = None) -> EnvState:
+    """A station with no cars at step 0 of ``day``; batteries at their initial SoC
+    (:func:`battery_initial_soc`, drawn from ``key`` when the range is not a point)."""
     st = params.station
     num_leaves = st.leaf_kind.shape[0]
     zeros = jnp.zeros((num_leaves,), jnp.float32)
@@ -37,11 +48,14 @@ def empty_state(day: jnp.ndarray, params: EnvParams) -> EnvState:
     return EnvState(
         current_a=zeros,
         occupied=is_bat,
-        soc=bat(st.battery_initial_soc),
+        soc=bat(battery_initial_soc(params, key)),
         energy_remaining_kwh=zeros,
         time_remaining_min=zeros,
+        earliest_remaining_min=zeros,
         capacity_kwh=bat(st.battery_capacity_kwh),
         max_rate_kw=jnp.where(is_bat, st.leaf_max_kw, 0.0),
+        max_discharge_rate_kw=jnp.where(is_bat, st.leaf_max_kw, 0.0),
+        target_soc=jnp.where(is_bat, 1.0, 0.0),
         tau=bat(st.battery_tau),
         charge_sensitive=jnp.zeros((num_leaves,), bool),
         arrival_soc=zeros,
@@ -55,8 +69,9 @@ def empty_state(day: jnp.ndarray, params: EnvParams) -> EnvState:
 def reset(key: jax.Array, params: EnvParams) -> EnvState:
     """Start an empty station on a uniformly random day of ``params.reset_days`` (exploring
     starts; all days of the price data unless training days were set)."""
-    day = params.reset_days[jax.random.randint(key, (), 0, params.reset_days.shape[0])]
-    return empty_state(day, params)
+    key_day, key_soc = jax.random.split(key)
+    day = params.reset_days[jax.random.randint(key_day, (), 0, params.reset_days.shape[0])]
+    return empty_state(day, params, key_soc)
 
 
 def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams):
@@ -66,14 +81,17 @@ def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams
     ``[-L, L]`` for the discrete modes or a fraction in ``[-1, 1]`` for ``continuous``.
     Values outside the leaf's range are clipped (see :func:`physics.target_current`).
     """
-    current, excess_kw = physics.apply_actions(action, state, params)
+    current, excess_kw, requested_kw = physics.apply_actions(action, state, params)
     charged_state, leaf_energy = physics.charge(current, state, params)
     flows = physics.energy_flows(leaf_energy, params.station)
     departed_state, dep = traffic.depart(charged_state, params)
     arrived_state, arr = traffic.arrive(key, departed_state, params)
 
     p_buy, p_sell_grid = reward_lib.grid_prices(state.day, state.timestep, params)
-    profit = reward_lib.profit_eur(flows, p_buy, p_sell_grid, params)
+    last = state.timestep + 1 >= params.num_steps
+    battery_day_kwh = state.totals.battery_net_kwh + flows["battery_net_kwh"]
+    terminal = jnp.where(last, reward_lib.battery_terminal_value_eur(battery_day_kwh, state.day, params), 0.0)
+    profit = reward_lib.profit_eur(flows, p_buy, p_sell_grid, params) + terminal
     moer = reward_lib.moer_now(state.day, state.timestep, params)
     demand = params.grid_demand_kwh[jnp.clip(state.timestep, 0, params.grid_demand_kwh.shape[0] - 1)]
     terms = reward_lib.penalty_terms(flows, dep, arr, excess_kw, moer, demand)
@@ -97,6 +115,8 @@ def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams
         missing_kwh=t.missing_kwh + dep["missing_kwh"],
         overtime_min=t.overtime_min + dep["overtime_min"],
         constraint_excess_kw=t.constraint_excess_kw + excess_kw,
+        requested_excess_kw=t.requested_excess_kw + requested_kw,
+        battery_terminal_value_eur=t.battery_terminal_value_eur + terminal,
     )
     new_state = arrived_state.replace(timestep=state.timestep + 1, totals=totals)
     info = StepInfo(
@@ -117,8 +137,10 @@ def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams
         missing_kwh=dep["missing_kwh"],
         overtime_min=dep["overtime_min"],
         constraint_excess_kw=excess_kw,
+        requested_excess_kw=requested_kw,
+        battery_terminal_value_eur=terminal,
         leaf_energy_kwh=leaf_energy,
-        leaf_reward=reward_lib.leaf_reward_shares(flows, p_buy, p_sell_grid, r, params),
+        leaf_reward=reward_lib.leaf_reward_shares(flows, dep, terms, moer, terminal, p_buy, p_sell_grid, r, params),
     )
     return new_state, info
 

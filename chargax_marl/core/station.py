@@ -118,8 +118,10 @@ Node = Union["Splitter", Port, Battery]
 class Splitter:
     """An inner node (grid connection, splitter, cable or transformer) with a power limit.
 
-    The net power through the node, ``|sum of leaf powers| / efficiency``, must stay at
-    or below ``max_kw`` (paper Eq. 3).
+    The net power through the node, measured on its grid side, must stay at or below
+    ``max_kw`` (paper Eq. 3): each leaf below it contributes its power divided by the
+    efficiencies on its path up to and including this node when it charges (multiplied
+    when it discharges), and the contributions add with their signs.
     """
 
     name: str
@@ -148,6 +150,9 @@ class StationArrays:
     Leaves are ports ``0..num_ports-1`` then batteries. ``node_of_leaf_at_depth[d, l]``
     is the index of leaf ``l``'s ancestor at depth ``d`` (``-1`` where there is none, for
     leaves that hang higher up); with it, node flows are segment sums, linear in ports.
+    ``leaf_efficiency_at_depth[d, l]`` is the efficiency of the path from leaf ``l`` up to
+    and including that ancestor, the factor that turns the leaf's power into the flow it
+    causes on the node's grid side.
     """
 
     leaf_voltage_v: jnp.ndarray  # (L,)
@@ -155,10 +160,14 @@ class StationArrays:
     leaf_max_discharge_current_a: jnp.ndarray  # (L,) 0 where no V2G
     leaf_efficiency: jnp.ndarray  # (L,) own efficiency
     leaf_path_efficiency: jnp.ndarray  # (L,) product of efficiencies from the root to the leaf
+    leaf_efficiency_at_depth: jnp.ndarray  # (D, L) product of the efficiencies from the leaf up to and
+    #   including its ancestor at depth d (its own efficiency included; 1 where it has none)
     leaf_kind: jnp.ndarray  # (L,) int32: 0 AC, 1 DC, 2 battery
     battery_capacity_kwh: jnp.ndarray  # (B,)
     battery_tau: jnp.ndarray  # (B,)
     battery_initial_soc: jnp.ndarray  # (B,)
+    leaf_solo_max_kw: jnp.ndarray  # (L,) most power a leaf can take alone: its rating and every ancestor's
+    #   limit divided by the efficiency of the path up to that ancestor
     node_max_kw: jnp.ndarray  # (H,)
     node_efficiency: jnp.ndarray  # (H,)
     node_depth: jnp.ndarray  # (H,) int32, root = 0
@@ -223,10 +232,14 @@ def compile_station(root: Splitter) -> StationArrays:
     incidence = np.zeros((num_nodes, num_leaves), dtype=np.float32)
     at_depth = -np.ones((depth, num_leaves), dtype=np.int32)
     path_eff = np.ones(num_leaves, dtype=np.float64)
+    eff_at_depth = np.ones((depth, num_leaves), dtype=np.float64)
     for l, anc in enumerate(leaf_anc):
         for h in anc:
             incidence[h, l] = 1.0
             at_depth[depths[h], l] = h
+            # ancestors below h (deeper) and h itself, plus the leaf's own efficiency
+            below = [a for a in anc if depths[a] >= depths[h]]
+            eff_at_depth[depths[h], l] = leaves[l].efficiency * float(np.prod(node_eff[below]))
         path_eff[l] = leaves[l].efficiency * float(np.prod(node_eff[anc]))
 
     def leaf_attr(fn):
@@ -237,6 +250,12 @@ def compile_station(root: Splitter) -> StationArrays:
         dtype=np.int32,
     )
     bats = [b for b, _ in batteries]
+    leaf_kw = leaf_attr(lambda x: x.voltage_v * x.max_current_a / 1000.0).astype(np.float64)
+    node_kw = np.array([n.max_kw for n in nodes], dtype=np.float64)
+    solo = leaf_kw.copy()
+    for l, anc in enumerate(leaf_anc):
+        for h in anc:
+            solo[l] = min(solo[l], node_kw[h] * eff_at_depth[depths[h], l])
     return StationArrays(
         leaf_voltage_v=jnp.asarray(leaf_attr(lambda x: x.voltage_v)),
         leaf_max_current_a=jnp.asarray(leaf_attr(lambda x: x.max_current_a)),
@@ -245,11 +264,13 @@ def compile_station(root: Splitter) -> StationArrays:
         ),
         leaf_efficiency=jnp.asarray(leaf_attr(lambda x: x.efficiency)),
         leaf_path_efficiency=jnp.asarray(path_eff.astype(np.float32)),
+        leaf_efficiency_at_depth=jnp.asarray(eff_at_depth.astype(np.float32)),
         leaf_kind=jnp.asarray(kind),
         battery_capacity_kwh=jnp.asarray(np.array([b.capacity_kwh for b in bats], dtype=np.float32)),
         battery_tau=jnp.asarray(np.array([b.tau for b in bats], dtype=np.float32)),
         battery_initial_soc=jnp.asarray(np.array([b.initial_soc for b in bats], dtype=np.float32)),
-        node_max_kw=jnp.asarray(np.array([n.max_kw for n in nodes], dtype=np.float32)),
+        leaf_solo_max_kw=jnp.asarray(solo.astype(np.float32)),
+        node_max_kw=jnp.asarray(node_kw.astype(np.float32)),
         node_efficiency=jnp.asarray(node_eff.astype(np.float32)),
         node_depth=jnp.asarray(np.array(depths, dtype=np.int32)),
         node_of_leaf_at_depth=jnp.asarray(at_depth),

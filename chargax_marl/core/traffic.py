@@ -1,7 +1,8 @@
 """Cars leaving and arriving: steps 3 and 4 of the transition.
 
 Departures follow the user type: time-sensitive users (u = 0) leave when their planned
-stay is over, charge-sensitive users (u = 1) when their energy demand is met. Arrivals are
+stay is over, charge-sensitive users (u = 1) when they reach their target SoC. Every car
+carries a target SoC (arrival SoC + demand / capacity) and stops charging there. Arrivals are
 Poisson with the rate of the day type and step, clipped by the free ports (the surplus is
 rejected) and placed first-free-port in port order; each car draws a car profile from the
 fleet and a user profile from the location's distributions.
@@ -15,26 +16,41 @@ import jax.numpy as jnp
 from chargax_marl.core.station import KIND_AC, KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState
 
-CAR_FIELDS = ("current_a", "soc", "energy_remaining_kwh", "time_remaining_min", "capacity_kwh", "max_rate_kw",
-              "tau", "arrival_soc")
+CAR_FIELDS = ("current_a", "soc", "energy_remaining_kwh", "time_remaining_min", "earliest_remaining_min",
+              "capacity_kwh", "max_rate_kw", "max_discharge_rate_kw", "target_soc", "tau", "arrival_soc")
 
 
 def depart(state: EnvState, params: EnvParams):
     """Step 3: remove leaving cars and report the satisfaction quantities.
 
+    Time-sensitive cars leave when their planned stay is over; charge-sensitive cars when
+    they reach their target SoC (remaining demand at most ``charged_tolerance_kwh``).
+
     Returns ``(new_state, report)`` with ``report`` holding ``departed`` (count),
-    ``missing_kwh`` (sum of unmet demand of time-sensitive leavers, c_satisfaction,0),
-    ``overtime_min`` and ``undertime_min`` of charge-sensitive leavers, and
-    ``satisfaction_charge`` = overtime - beta * undertime (c_satisfaction,1).
+    ``missing_kwh`` (unmet demand of time-sensitive leavers, against their target SoC:
+    c_satisfaction,0), ``overtime_min`` (minutes charge-sensitive leavers stayed beyond their
+    planned stay), ``undertime_min`` and ``satisfaction_charge`` = overtime - beta *
+    undertime (c_satisfaction,1), plus the per-leaf ``leaf_missing_kwh`` and
+    ``leaf_satisfaction_charge`` (L,).
+
+    ``undertime_min`` is measured against the earliest finish the car's rate curve allows at
+    its port (alone on its path, see :func:`earliest_finish_min`), not against the drawn
+    planned stay, which no policy controls: it is minus the minutes, within the planned
+    stay, that the car stayed beyond that earliest finish (0 when it left as early as it
+    could). So with ``beta > 0`` every avoidable minute costs ``beta`` up to the planned
+    departure and ``1`` after it. ``beta`` is 0 by default (the term is then the overtime).
     """
     is_port = params.station.leaf_kind != KIND_BATTERY
     active = state.occupied & is_port
     time_up = active & ~state.charge_sensitive & (state.time_remaining_min <= 0.0)
     charged = active & state.charge_sensitive & (state.energy_remaining_kwh <= params.charged_tolerance_kwh)
     leaving = time_up | charged
-    missing = jnp.sum(jnp.where(time_up, jnp.maximum(state.energy_remaining_kwh, 0.0), 0.0))
-    overtime = jnp.sum(jnp.where(charged, jnp.maximum(-state.time_remaining_min, 0.0), 0.0))
-    undertime = jnp.sum(jnp.where(charged, jnp.maximum(state.time_remaining_min, 0.0), 0.0))
+    leaf_missing = jnp.where(time_up, jnp.maximum(state.energy_remaining_kwh, 0.0), 0.0)
+    leaf_over = jnp.where(charged, jnp.maximum(-state.time_remaining_min, 0.0), 0.0)
+    slack = jnp.maximum(state.time_remaining_min - state.earliest_remaining_min, 0.0)  # planned stay - earliest finish
+    delay = jnp.maximum(-state.earliest_remaining_min, 0.0)  # minutes parked beyond the earliest finish
+    leaf_under = jnp.where(charged, -jnp.minimum(delay, slack), 0.0)
+    leaf_charge_term = leaf_over - params.beta * leaf_under
     cleared = {f: jnp.where(leaving, 0.0, getattr(state, f)) for f in CAR_FIELDS}
     new_state = state.replace(
         occupied=state.occupied & ~leaving,
@@ -43,12 +59,37 @@ def depart(state: EnvState, params: EnvParams):
     )
     report = {
         "departed": jnp.sum(leaving).astype(jnp.float32),
-        "missing_kwh": missing,
-        "overtime_min": overtime,
-        "undertime_min": undertime,
-        "satisfaction_charge": overtime - params.beta * undertime,
+        "missing_kwh": jnp.sum(leaf_missing),
+        "overtime_min": jnp.sum(leaf_over),
+        "undertime_min": jnp.sum(leaf_under),
+        "satisfaction_charge": jnp.sum(leaf_charge_term),
+        "leaf_missing_kwh": leaf_missing,
+        "leaf_satisfaction_charge": leaf_charge_term,
     }
     return new_state, report
+
+
+def earliest_finish_min(soc0, target_soc, capacity_kwh, max_rate_kw, tau, solo_max_kw, params: EnvParams):
+    """Minutes a car needs to reach its target (within ``charged_tolerance_kwh``) when it
+    charges as fast as its rate curve and its port allow, alone on its path.
+
+    Continuous time: constant power ``P = min(r-bar, solo_max_kw)`` until the taper
+    ``r-bar (1 - SoC) / (1 - tau)`` falls below ``P``, then the taper (exponential approach
+    to SoC 1). Rounded up to whole steps, at least one step (a car leaves at the earliest
+    after one charging step). The simulator charges at the rate of the start of each step,
+    which is never slower than this bound.
+    """
+    cap = jnp.maximum(capacity_kwh, 1e-6)
+    rbar = jnp.maximum(max_rate_kw, 1e-6)
+    power = jnp.maximum(jnp.minimum(rbar, solo_max_kw), 1e-6)
+    goal = jnp.maximum(target_soc - params.charged_tolerance_kwh / cap, soc0)
+    knee = jnp.clip(1.0 - power * (1.0 - tau) / rbar, tau, 1.0)  # where the taper falls below P
+    bulk_h = cap * jnp.maximum(jnp.minimum(goal, knee) - soc0, 0.0) / power
+    a = jnp.maximum(soc0, knee)
+    taper_h = jnp.where(goal > a, (1.0 - tau) * cap / rbar * jnp.log(jnp.maximum(1.0 - a, 1e-9) / jnp.maximum(1.0 - goal, 1e-9)),
+                        0.0)
+    steps = jnp.maximum(jnp.ceil((bulk_h + taper_h) * 60.0 / params.step_minutes - 1e-4), 1.0)
+    return steps * params.step_minutes
 
 
 def _inverse_cdf(table: jnp.ndarray, u: jnp.ndarray) -> jnp.ndarray:
@@ -89,17 +130,26 @@ def arrive(key: jax.Array, state: EnvState, params: EnvParams):
     cdf = jnp.cumsum(params.fleet_share)
     model = jnp.clip(jnp.searchsorted(cdf / cdf[-1], u[0], side="right"), 0, cdf.shape[0] - 1)
     capacity = params.fleet_capacity_kwh[model]
-    max_rate = jnp.where(st.leaf_kind == KIND_AC, params.fleet_ac_kw[model], params.fleet_dc_kw[model])
+    is_ac = st.leaf_kind == KIND_AC
+    max_rate = jnp.where(is_ac, params.fleet_ac_kw[model], params.fleet_dc_kw[model])
+    max_dis = jnp.where(is_ac, params.fleet_ac_discharge_kw[model], params.fleet_dc_discharge_kw[model])
     tau = params.fleet_tau[model]
-    # User profile: stay and demand scaled by the arrival hour, uniform arrival SoC, user type.
+    # User profile: stay and demand scaled by the arrival hour, user type.
     hour = jnp.clip((state.timestep * params.step_minutes / 60.0).astype(jnp.int32), 0, 23)
     stay = _inverse_cdf(params.stay_quantiles_min, u[1]) * params.stay_scale_by_hour[hour]
     stay = jnp.maximum(stay, params.step_minutes)
+    # The demand fits the car: at most what fills it from the lowest arrival SoC. The
+    # arrival SoC is uniform over the part of the profile's range that leaves room for the
+    # demand, and the car's target is arrival SoC + demand / capacity (<= 1).
     lo, hi = params.arrival_soc_range[0], params.arrival_soc_range[1]
-    soc0 = lo + (hi - lo) * u[2]
     demand = _inverse_cdf(params.demand_quantiles_kwh, u[3]) * params.demand_scale_by_hour[hour]
-    demand = jnp.clip(demand, 0.0, (1.0 - soc0) * capacity)
+    demand = jnp.clip(demand, 0.0, (1.0 - lo) * capacity)
+    hi_fit = jnp.maximum(jnp.minimum(hi, 1.0 - demand / jnp.maximum(capacity, 1e-6)), lo)
+    soc0 = lo + (hi_fit - lo) * u[2]
+    target = jnp.minimum(soc0 + demand / jnp.maximum(capacity, 1e-6), 1.0)
+    demand = (target - soc0) * capacity
     sensitive = u[4] < params.charge_sensitive_prob
+    earliest = earliest_finish_min(soc0, target, capacity, max_rate, tau, st.leaf_solo_max_kw, params)
 
     def put(new, old):
         return jnp.where(new_car, new, old)
@@ -111,8 +161,11 @@ def arrive(key: jax.Array, state: EnvState, params: EnvParams):
         arrival_soc=put(soc0, state.arrival_soc),
         energy_remaining_kwh=put(demand, state.energy_remaining_kwh),
         time_remaining_min=put(stay, state.time_remaining_min),
+        earliest_remaining_min=put(earliest, state.earliest_remaining_min),
         capacity_kwh=put(capacity, state.capacity_kwh),
         max_rate_kw=put(max_rate, state.max_rate_kw),
+        max_discharge_rate_kw=put(max_dis, state.max_discharge_rate_kw),
+        target_soc=put(target, state.target_soc),
         tau=put(tau, state.tau),
         charge_sensitive=jnp.where(new_car, sensitive, state.charge_sensitive),
     )

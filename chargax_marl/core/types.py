@@ -34,9 +34,11 @@ CONSTRAINT_MODES = ("hard", "soft")
 class PenaltyWeights:
     """The weights alpha of ``r = profit - sum_c alpha_c * c`` (paper Eq. 4); all 0 by default.
 
-    Units of the terms they multiply: constraint kW over the limit (max over nodes),
-    satisfaction_time kWh missing at departure, satisfaction_charge minutes (overtime minus
-    beta * undertime), sustainability kg CO2 (MOER kg/kWh * grid kWh), rejected cars,
+    Units of the terms they multiply: constraint kW over the limit on the grid side (max over
+    nodes; in hard mode the excess that flows after the rescale, so 0), satisfaction_time kWh
+    missing at departure (against the car's target SoC), satisfaction_charge minutes
+    (overtime minus beta * undertime, undertime measured against the earliest finish; see
+    :func:`chargax_marl.core.traffic.depart`), sustainability kg CO2 (MOER kg/kWh * grid kWh), rejected cars,
     battery_degradation kWh discharged from station batteries, car_degradation kWh fed to
     the grid from cars, grid_demand kWh of |delivered - demand|.
     """
@@ -74,16 +76,22 @@ class EnvParams:
     fleet_ac_kw: jnp.ndarray  # (K,)
     fleet_dc_kw: jnp.ndarray  # (K,)
     fleet_tau: jnp.ndarray  # (K,)
+    fleet_ac_discharge_kw: jnp.ndarray  # (K,) discharge (V2G) limit at AC ports, 0 = cannot discharge
+    fleet_dc_discharge_kw: jnp.ndarray  # (K,) discharge (V2G) limit at DC ports
     moer_kg_per_kwh: jnp.ndarray  # (Dm, T) marginal emission rate; zeros when no MOER data
     grid_demand_kwh: jnp.ndarray  # (T,) grid demand signal per step for the grid-demand penalty
     reset_days: jnp.ndarray  # (R,) int32 day indices reset() draws from (all days by default)
+    battery_soc0_low: jnp.ndarray  # (B,) initial SoC of each station battery is uniform in [low, high]
+    battery_soc0_high: jnp.ndarray  # (B,)
     # --- economics
     customer_price_eur_kwh: jnp.ndarray  # () p_sell, price charged to (and refunded to) car owners
     grid_fee_eur_kwh: jnp.ndarray  # () added to the day-ahead price when buying
     feed_in_factor: jnp.ndarray  # () p_sell,grid = factor * day-ahead price
     fixed_cost_eur: jnp.ndarray  # () c_dt, per step
     alpha: PenaltyWeights
-    beta: jnp.ndarray  # () weight of undertime in the charge-sensitive satisfaction term
+    battery_value_day_mean: jnp.ndarray  # () bool: value the batteries' energy change at the day's mean buy price
+    battery_value_eur_kwh: jnp.ndarray  # () fixed price of that energy change when the flag is off (0 = no value)
+    beta: jnp.ndarray  # () weight of undertime in the charge-sensitive satisfaction term (default 0)
     charged_tolerance_kwh: jnp.ndarray  # () a charge-sensitive car leaves when remaining <= this
     # --- static settings
     step_minutes: float = struct.field(pytree_node=False, default=5.0)
@@ -122,7 +130,9 @@ class EpisodeTotals:
     cars_rejected: jnp.ndarray
     missing_kwh: jnp.ndarray  # energy still wanted by time-sensitive cars at departure
     overtime_min: jnp.ndarray  # minutes charge-sensitive cars stayed beyond their plan
-    constraint_excess_kw: jnp.ndarray  # summed over steps of the requested excess (max over nodes)
+    constraint_excess_kw: jnp.ndarray  # summed over steps of the excess that flowed (max over nodes; 0 in hard mode)
+    requested_excess_kw: jnp.ndarray  # summed over steps of the excess the controller asked for
+    battery_terminal_value_eur: jnp.ndarray  # value of the batteries' energy change, booked at the last step
 
     @classmethod
     def zeros(cls) -> "EpisodeTotals":
@@ -141,10 +151,13 @@ class EnvState:
     current_a: jnp.ndarray  # signed current set at the leaf, A (negative = discharging)
     occupied: jnp.ndarray  # bool
     soc: jnp.ndarray  # state of charge in [0, 1]
-    energy_remaining_kwh: jnp.ndarray  # energy the user still wants (>= 0)
+    energy_remaining_kwh: jnp.ndarray  # energy the user still wants, (target_soc - soc) * capacity (>= 0)
     time_remaining_min: jnp.ndarray  # minutes until the planned departure (may go negative)
+    earliest_remaining_min: jnp.ndarray  # minutes until the earliest finish the car's curve allows at its port
     capacity_kwh: jnp.ndarray  # battery capacity C of the car
     max_rate_kw: jnp.ndarray  # r-bar of the car for this port's kind
+    max_discharge_rate_kw: jnp.ndarray  # the car's discharge limit for this port's kind (0 = cannot discharge)
+    target_soc: jnp.ndarray  # SoC at which the car stops charging: arrival SoC + demand / capacity (<= 1)
     tau: jnp.ndarray  # bulk/absorption transition SoC
     charge_sensitive: jnp.ndarray  # bool, u = 1
     arrival_soc: jnp.ndarray  # SoC at arrival: discharging never goes below it
@@ -179,6 +192,8 @@ class StepInfo:
     cars_rejected: jnp.ndarray
     missing_kwh: jnp.ndarray
     overtime_min: jnp.ndarray
-    constraint_excess_kw: jnp.ndarray
+    constraint_excess_kw: jnp.ndarray  # grid-side excess that flowed (0 in hard mode)
+    requested_excess_kw: jnp.ndarray  # grid-side excess of the currents the controller asked for
+    battery_terminal_value_eur: jnp.ndarray  # nonzero at the last step only; included in profit_eur
     leaf_energy_kwh: jnp.ndarray  # (L,) energy into each car / battery this step (terminal side)
     leaf_reward: jnp.ndarray  # (L,) each leaf's share of reward (reward.leaf_reward_shares); sums to reward

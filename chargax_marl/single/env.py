@@ -60,6 +60,9 @@ def step_info(info, state: EnvState) -> dict:
         "cars_arrived": info.cars_arrived,
         "cars_departed": info.cars_departed,
         "cars_rejected": info.cars_rejected,
+        "constraint_excess_kw": info.constraint_excess_kw,
+        "requested_excess_kw": info.requested_excess_kw,
+        "battery_terminal_value_eur": info.battery_terminal_value_eur,
     }
     out.update({f"penalty_{k}": info.penalties[k] for k in PENALTY_TERMS})
     out.update({f"episode_{k}": getattr(state.totals, k) for k in EpisodeTotals.__dataclass_fields__})
