@@ -112,17 +112,22 @@ def _greedy_under_limits(priority: jnp.ndarray, state: EnvState, params: EnvPara
         free = jnp.min(jnp.where(valid, headroom[jnp.maximum(anc, 0)] * eff, jnp.inf))
         grant = jnp.clip(jnp.minimum(want_kw[leaf], free), 0.0)
         headroom = headroom.at[jnp.maximum(anc, 0)].add(jnp.where(valid, -grant / eff, 0.0))
-        return headroom, grant
+        return headroom, (grant, free < want_kw[leaf])
 
     order = jnp.argsort(priority)
-    _, grants = jax.lax.scan(give, headroom, order)
+    _, (grants, node_bound) = jax.lax.scan(give, headroom, order)
     power = jnp.zeros_like(want_kw).at[order].set(grants)
-    return _levels_for_power(power, params, round_up=False)
+    node_bound = jnp.zeros_like(want_kw, bool).at[order].set(node_bound)
+    # A grant cut by a node is rounded down so the station never needs a rescale; a grant the
+    # car itself limits is rounded up (the car's curve and target clip the rest), so a car
+    # close to its target still finishes.
+    return jnp.where(node_bound, _levels_for_power(power, params, round_up=False),
+                     _levels_for_power(power, params, round_up=True))
 
 
 def earliest_deadline_first(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarray:
     """Serve cars with the earliest planned departure first, each at the most power the node
-    limits leave; the levels are rounded down so the station never needs a rescale.
+    limits leave; levels cut by a node are rounded down so the station never needs a rescale.
     Batteries idle."""
     del key
     priority = jnp.where(state.occupied & ~_is_battery(params), state.time_remaining_min, jnp.inf)

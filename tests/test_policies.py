@@ -30,7 +30,7 @@ def trajectories(params):
             k1, k2 = jax.random.split(k)
             levels = policy(state, k1, params)
             new, info = simulator.step(k2, state, levels, params)
-            return new, (levels, info.leaf_energy_kwh, info.constraint_excess_kw)
+            return new, (levels, info.leaf_energy_kwh, info.requested_excess_kw)
         _, out[name] = jax.jit(lambda k: jax.lax.scan(body, simulator.empty_state(jnp.asarray(3), params),
                                                          jax.random.split(k, 288)))(jax.random.PRNGKey(0))
     return out
@@ -44,9 +44,32 @@ def test_policies_choose_valid_levels_and_hold_node_limits(name, params, traject
     flows = np.asarray(jax.vmap(lambda e: node_flows_kw(e / params.step_hours, params.station))(jnp.asarray(energy)))
     assert np.all(flows <= np.asarray(params.station.node_max_kw) * (1 + 1e-4) + 1e-3)
     if name in ("edf", "llf"):
-        assert np.all(excess <= 1e-3), "deadline policies plan within the node limits: nothing to rescale"
+        assert np.all(excess <= 1e-3), "deadline policies plan within the grid-side node limits: nothing to rescale"
     if name == "always_max":
         assert np.all(levels[:, :6] == 10) and np.all(levels[:, 6] == 0)
+
+
+@pytest.mark.parametrize("name", ["edf", "llf"])
+def test_deadline_policies_bring_a_car_close_to_its_target_home(name, params):
+    """A car 1 kWh short of its target needs less than one level for a step: the level is
+    rounded up (the car's target clips it), so it finishes and leaves instead of stalling."""
+    p = no_arrivals(params)
+    s = place_car(start(p), 0, soc=0.49, capacity_kwh=100.0, max_rate_kw=50.0, target_soc=0.5,
+                  remaining_kwh=1.0, time_min=600.0, charge_sensitive=True)
+    lv = get_policy(name)(s, None, p)
+    assert int(lv[0]) >= 1
+    _, info = simulator.step(jax.random.PRNGKey(0), s, lv, p)
+    assert float(info.cars_departed) == 1 and float(info.energy_delivered_kwh) == pytest.approx(1.0, rel=1e-4)
+
+
+def test_battery_rule_is_always_max_plus_a_price_rule_for_the_battery():
+    p = make_params(station=three_level_station(), prices=np.tile(np.arange(24.0) / 100.0, (3, 1)), first_weekday=0)
+    s = start(p)
+    night, noon, evening = (np.asarray(get_policy("battery_rule")(s.replace(timestep=jnp.asarray(t)), None, p))
+                            for t in (12, 144, 276))  # hours 1, 12, 23
+    for lv in (night, noon, evening):
+        assert np.all(lv[:6] == 10)
+    assert night[6] == 10 and noon[6] == 0 and evening[6] == -10
 
 
 def test_policies_respect_masks_without_v2g():

@@ -1,0 +1,79 @@
+"""Rule-based policies on the held-out days: daily profit and paired differences.
+
+``python -m baselines.heuristics`` evaluates always-max, always-max + battery price rule,
+price-threshold, EDF and LLF on the 100 held-out days of a scenario
+(``split_days(365, 100, seed=0)``) with the evaluation key 0, so every policy meets the same
+cars, and prints each one's mean daily profit and its paired difference (mean ± standard
+error over days) to always-max and to the battery rule. ``--out`` writes the JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import jax
+import numpy as np
+
+from baselines import common
+from chargax_marl.evaluation import run_days, split_days, summarize, write_json
+from chargax_marl.core import make_params
+from chargax_marl.policies import get_policy
+from chargax_marl.single.scenarios import SCENARIOS
+
+POLICIES = ("always_max", "battery_rule", "price_threshold", "edf", "llf")
+
+
+def evaluate_rules(params, days, policies=POLICIES, key=None) -> dict:
+    """``{policy: {"metrics", "daily_profit", "vs_always_max", "vs_battery_rule"}}`` on ``days``."""
+    key = jax.random.PRNGKey(0) if key is None else key
+    out = {}
+    for name in policies:
+        policy = get_policy(name)
+        t0 = time.time()
+        totals = jax.jit(lambda d, k: run_days(lambda s, kk: policy(s, kk, params), params, d, k))(np.asarray(days), key)
+        out[name] = {"metrics": summarize(totals), "daily_profit": np.asarray(totals.profit_eur, np.float64),
+                     "seconds": time.time() - t0}
+    for name in out:
+        for ref in ("always_max", "battery_rule"):
+            if ref in out:
+                out[name][f"vs_{ref}"] = common.paired_difference(out[name]["daily_profit"], out[ref]["daily_profit"])
+    return out
+
+
+def format_rules(results: dict) -> str:
+    lines = [f"{'policy':<16}{'EUR/day':>10}{'vs always-max':>20}{'vs battery rule':>20}"
+             f"{'delivered kWh':>15}{'missing kWh':>13}{'battery V EUR':>15}"]
+    for name, r in results.items():
+        m = r["metrics"]
+
+        def diff(ref):
+            d = r.get(f"vs_{ref}")
+            return f"{d['mean']:+.2f} ± {d['stderr']:.2f}" if d else "-"
+
+        lines.append(f"{name:<16}{m['daily_profit_eur']['mean']:>10.1f}{diff('always_max'):>20}{diff('battery_rule'):>20}"
+                     f"{m['energy_delivered_kwh']['mean']:>15.0f}{m['missing_kwh_at_departure']['mean']:>13.1f}"
+                     f"{m['battery_terminal_value_eur']['mean']:>15.2f}")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> dict:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--scenario", default="shopping")
+    p.add_argument("--traffic", default="medium")
+    p.add_argument("--out", default=None, help="write the results JSON here")
+    args = p.parse_args(argv)
+    full = make_params(**{**SCENARIOS[args.scenario], "traffic": args.traffic})
+    _, days = split_days(full.num_days, 100, seed=0)
+    results = evaluate_rules(full, days)
+    print(f"{args.scenario} / {args.traffic}: {len(days)} held-out days (split_days(seed=0)), key 0, same cars for all")
+    print(format_rules(results))
+    if args.out:
+        write_json({"scenario": args.scenario, "traffic": args.traffic, "days": [int(d) for d in days],
+                    "results": {k: {kk: vv for kk, vv in v.items() if kk != "daily_profit"} for k, v in results.items()}},
+                   args.out)
+    return results
+
+
+if __name__ == "__main__":
+    main()
