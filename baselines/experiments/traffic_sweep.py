@@ -54,9 +54,9 @@ def plot(results, algo, path):
         ev = table[algo]["metrics"]["daily_profit_eur"]
         ax.errorbar([t[-1]], [ev["mean"]], yerr=[np.std(table[algo]["per_seed_profit"])], fmt="o",
                     label=f"{algo} held-out greedy {ev['mean']:.0f}")
-        for i, name in enumerate(("always_max", "price_threshold")):
+        for i, name in enumerate(("always_max", "battery_rule", "price_threshold")):
             v = table[name]["metrics"]["daily_profit_eur"]["mean"]
-            ax.axhline(v, ls=("--", ":")[i], color=f"C{i + 3}", label=f"{name} {v:.0f}")
+            ax.axhline(v, ls=("--", "-.", ":")[i], color=f"C{i + 3}", label=f"{name} {v:.0f}")
         ax.set_title(f"shopping, {traffic} traffic")
         ax.set_xlabel("environment steps")
         ax.grid(alpha=0.3)

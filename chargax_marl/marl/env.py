@@ -129,9 +129,11 @@ def obs_layout(params: EnvParams, agent_id: str = "onehot") -> ObsLayout:
 def ancestor_loads(state: EnvState, params: EnvParams, layout: ObsLayout | None = None) -> jnp.ndarray:
     """``(N, D)`` load fraction of each agent's ancestor nodes, deepest first, zero-padded.
 
-    The load of node ``H`` is its net flow :func:`chargax_marl.core.physics.node_flows_kw`
-    (``|sum of its leaves' V * I| / efficiency``, from the currents in ``state``) over its
-    ``max_kw``. Linear in the number of ports.
+    The load of node ``H`` is its grid-side net flow
+    :func:`chargax_marl.core.physics.node_flows_kw` (each leaf's ``V * I`` divided by the
+    efficiencies up to and including ``H`` when charging, multiplied when discharging, from
+    the currents in ``state``) over its ``max_kw``: the same flow the hard rescale limits, so
+    a load of 1 means the node binds. Linear in the number of ports.
     """
     layout = obs_layout(params) if layout is None else layout
     st = params.station
@@ -144,7 +146,7 @@ def agent_observations(state: EnvState, params: EnvParams, layout: ObsLayout | N
     """Every agent's observation as one float32 matrix ``(N, obs_size)``, rows in agent order.
 
     Columns: the 8 leaf features of :func:`observation.leaf_features`; kind one-hot (AC, DC,
-    battery); load fraction ``|net flow| / max_kw`` of each ancestor node from the deepest to
+    battery); load fraction ``|grid-side net flow| / max_kw`` of each ancestor node from the deepest to
     the root, zero-padded to the tree depth; the shared context; the agent index one-hot.
     ``layout`` (from :func:`obs_layout`) saves recomputing the station constants.
     """
@@ -252,7 +254,7 @@ class ChargaxMARL(MultiAgentEnv):
 
     **Observations.** Every agent gets a float32 vector of the same size
     (:attr:`obs_size`): its own leaf features (8, :data:`observation.PORT_FEATURES`), its
-    kind one-hot (AC, DC, battery), the load fraction ``|net flow| / max_kw`` of each
+    kind one-hot (AC, DC, battery), the load fraction ``|grid-side net flow| / max_kw`` of each
     ancestor node from the deepest to the root (zero-padded to the tree depth; the flow is
     :func:`chargax_marl.core.physics.node_flows_kw` of the currents in the state), the shared
     context (prices, time of day, ...), and the agent index (so a shared policy can tell
