@@ -267,8 +267,8 @@ class ChargaxMARL(MultiAgentEnv):
     totals as ``episode_<name>`` (scalars broadcast to every agent), and ``agent_energy_kwh``,
     each agent's own energy this step, and ``agent_reward_share``, each agent's share of the
     reward (:func:`chargax_marl.core.reward.leaf_reward_shares`: the money its own energy
-    made at the step's prices, plus an even part of the fixed cost and penalties; the shares
-    sum to the reward).
+    made minus the penalties it caused and an even part of the fixed cost; the shares sum to
+    the reward).
 
     **Rewards.** By default every agent gets the shared station reward ``r``. The optional
     per-agent shaping ``local_reward_weight=w`` in ``[0, 1]`` gives agent ``i`` the reward
