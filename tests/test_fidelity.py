@@ -259,14 +259,22 @@ def test_a_car_stops_at_its_target_and_leaves_there():
     assert float(info.cars_departed) == 1 and float(info.energy_delivered_kwh) == pytest.approx(3.0, rel=1e-4)
 
 
-def test_arriving_cars_have_targets_that_match_their_demand():
+@pytest.fixture(scope="module")
+def busy_day():
+    """``(params, states)``: one high-traffic day of the default station under always-max,
+    the state after every step (one compile for the tests that read it)."""
     p = make_params(traffic="high")
 
     def body(state, k):
-        new, info = simulator.step(k, state, always_max(state, k, p), p)
+        new, _ = simulator.step(k, state, always_max(state, k, p), p)
         return new, new
 
     _, states = jax.jit(lambda k: jax.lax.scan(body, simulator.reset(k, p), jax.random.split(k, 288)))(KEY)
+    return p, states
+
+
+def test_arriving_cars_have_targets_that_match_their_demand(busy_day):
+    p, states = busy_day
     parked = np.asarray(states.occupied) & (np.asarray(p.station.leaf_kind) != KIND_BATTERY)
     target, soc = np.asarray(states.target_soc)[parked], np.asarray(states.soc)[parked]
     cap, remaining = np.asarray(states.capacity_kwh)[parked], np.asarray(states.energy_remaining_kwh)[parked]
@@ -366,14 +374,8 @@ def test_a_car_discharges_at_most_its_own_limit():
         assert float(info.leaf_energy_kwh[0]) == pytest.approx(-limit_kw * DT_H, abs=1e-5)
 
 
-def test_arrivals_take_the_models_discharge_limit():
-    p = make_params(traffic="high")
-
-    def body(state, k):
-        new, _ = simulator.step(k, state, always_max(state, k, p), p)
-        return new, new
-
-    _, states = jax.jit(lambda k: jax.lax.scan(body, simulator.reset(k, p), jax.random.split(k, 288)))(KEY)
+def test_arrivals_take_the_models_discharge_limit(busy_day):
+    p, states = busy_day
     kind = np.asarray(p.station.leaf_kind)
     parked = np.asarray(states.occupied) & (kind != KIND_BATTERY)
     dis = np.asarray(states.max_discharge_rate_kw)
