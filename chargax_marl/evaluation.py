@@ -54,7 +54,10 @@ def run_days(act: Act, params: EnvParams, days, key: jax.Array):
             state, _ = simulator.step(k_step, state, act(state, k_act), params)
             return state, None
 
-        state, _ = jax.lax.scan(body, simulator.empty_state(day, params), jax.random.split(key, params.num_steps))
+        # the batteries' initial SoC (when drawn from a range) from a key of its own, so the
+        # cars drawn from ``key`` stay the same whatever the battery setting
+        start = simulator.empty_state(day, params, jax.random.fold_in(key, 1))
+        state, _ = jax.lax.scan(body, start, jax.random.split(key, params.num_steps))
         return state.totals
 
     return jax.vmap(one_day)(days, jax.random.split(key, days.shape[0]))

@@ -178,6 +178,15 @@ def test_battery_initial_soc_fixed_or_drawn():
     ranged = make_params(battery_initial_soc=(0.1, 0.9))
     socs = np.array([float(simulator.reset(k, ranged).soc[bat]) for k in jax.random.split(KEY, 40)])
     assert socs.min() >= 0.1 and socs.max() <= 0.9 and socs.std() > 0.1
+    # evaluation draws the initial SoC from a key of its own: same cars, another battery start
+    from chargax_marl.evaluation import run_days
+
+    def day_totals(p):
+        return jax.jit(lambda d, k: run_days(lambda s, kk: always_max(s, kk, p), p, d, k))(np.arange(2), KEY)
+
+    a, b = day_totals(make_params(battery_initial_soc=0.5)), day_totals(ranged)
+    np.testing.assert_array_equal(np.asarray(a.cars_arrived), np.asarray(b.cars_arrived))
+    np.testing.assert_array_equal(np.asarray(a.energy_delivered_kwh), np.asarray(b.energy_delivered_kwh))
     with pytest.raises(ValueError, match="battery_initial_soc"):
         make_params(battery_initial_soc=(0.8, 0.2))
     with pytest.raises(ValueError, match="battery_initial_soc"):
