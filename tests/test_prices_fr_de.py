@@ -161,3 +161,17 @@ def test_missing_shared_folder_is_a_clear_error(tmp_path):
     assert bd.ENTSOE_DIR == ROOT.parent / "shared" / "data" / "entsoe-day-ahead"
     with pytest.raises(bd.SharedDataUnavailable, match=r"not found: .*\.\./shared/data/entsoe-day-ahead"):
         bd.build_entsoe_prices(tmp_path / "out", src_dir=tmp_path / "nowhere")
+
+
+def test_summary_describe_and_pngs():
+    from chargax_marl import data
+
+    by = {r["name"]: r for r in data.summary()}
+    for name in NAMES:
+        row = by[name]
+        assert row["kind"] == "prices" and row["licence"] == "MIT (via green-dcc)"
+        assert "ENTSO-E" in row["source"] and "HewlettPackard/green-dcc" in row["source"]
+        assert ("(DE-LU)" if name.startswith("DE") else "(FR)") in row["source"]
+        assert (ROOT / "docs" / f"prices_{name}.png").is_file()
+    text = data.describe("DE-2022")
+    assert "green-dcc" in text and "negative hours" in text
