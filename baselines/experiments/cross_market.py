@@ -1,0 +1,133 @@
+"""Cross-market price shift, beside the price-year shift of paper Fig. 5: train on one
+market-year, evaluate on another.
+
+    python -m baselines.experiments.cross_market                  # small CPU default
+    python -m baselines.experiments.cross_market --full           # paper scale (1e7 steps, 5 seeds)
+    python -m baselines.experiments.cross_market --no-reference   # skip the in-market agents
+
+Sources -> targets: NL-2023 -> NL-2023, DE-2023, FR-2023 (same year, other markets) and
+NL-2021 -> NL-2021, NL-2022, DE-2022, FR-2022 (into the 2022 price crisis, three markets).
+Every target is also trained on itself (the in-market reference), so each cross-market score
+comes with its transfer gap: the paired difference, on the same held-out days and cars
+(common random numbers), between the source-trained agent and the target-trained one.
+
+Writes ``baselines/results/cross_market.{png,json}``: greedy held-out daily profit (mean ± std
+over seeds x days) per source x target, the in-market reference, always-max and
+price-threshold per target, the paired differences to always-max and to the reference, and
+the run's wall time.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from baselines import common
+from baselines.experiments._common import config_of, eval_setup, parser, train_on
+
+EXPERIMENTS = {
+    "NL-2023": ("NL-2023", "DE-2023", "FR-2023"),
+    "NL-2021": ("NL-2021", "NL-2022", "DE-2022", "FR-2022"),
+}
+
+
+def main(argv=None, out="baselines/results/cross_market", *, experiments=None, overrides=None):
+    """``experiments`` ({source: targets}) and ``overrides`` (merged into the training config)
+    are for tests; the command line runs :data:`EXPERIMENTS`."""
+    p = parser(__doc__, 3e5, 2, 5)
+    p.add_argument("--no-reference", action="store_true", help="do not train the in-market reference agents")
+    args = p.parse_args(argv)
+    base, seeds = config_of(args)
+    base = {**base, **(overrides or {})}
+    experiments = EXPERIMENTS if experiments is None else experiments
+    t0 = time.time()
+    markets = list(dict.fromkeys([m for src, targets in experiments.items() for m in (src, *targets)]))
+    evals = {m: eval_setup(base, m) for m in markets}
+    baselines = {m: e[2] for m, e in evals.items()}
+    trained = list(experiments) + ([] if args.no_reference else [m for m in markets if m not in experiments])
+    matrix, runs = {}, {}
+    for src in trained:
+        res = train_on(args.algo, base, src, seeds, baselines[src])
+        act = res["_train"].make_act
+        matrix[src] = {}
+        for tgt in experiments.get(src, (src,)):
+            full, days, _ = evals[tgt]
+            ev = common.evaluate_batched(act(full), res["_params"], full, days,
+                                         reference_profit=baselines[tgt]["always_max"]["daily_profit"])
+            matrix[src][tgt] = ev
+            m, d = ev["metrics"]["daily_profit_eur"], ev["paired_diff"]
+            print(f"train {src} -> eval {tgt}: {m['mean']:.1f} ± {m['std']:.1f} EUR/day "
+                  f"(vs always-max {d['mean']:+.1f} ± {d['stderr']:.1f})", flush=True)
+        runs[src] = {"wall_seconds": res["wall_seconds"], "timesteps": res["timesteps"], "curve": res["curve"]}
+    gaps = transfer_gaps(matrix, experiments)
+    wall = time.time() - t0
+    plot(matrix, baselines, experiments, args.algo, out + ".png")
+    common.write_json({"algo": args.algo, "full": args.full, "seeds": seeds, "timesteps": runs[trained[0]]["timesteps"],
+                       "experiments": {s: list(t) for s, t in experiments.items()},
+                       "evaluation": "greedy, held-out days of each target, PRNGKey(0) for every policy (common random numbers)",
+                       "wall_seconds_total": wall, "matrix": matrix, "transfer_gap_vs_in_market": gaps,
+                       "baselines": baselines, "runs": runs}, out + ".json")
+    print(summary(matrix, baselines, gaps, experiments))
+    print(f"wrote {out}.png, {out}.json ({wall:.0f} s wall)")
+    return matrix
+
+
+def transfer_gaps(matrix: dict, experiments: dict) -> dict:
+    """{source: {target: paired difference (source-trained - target-trained) per seed x day}}
+    for every cross target whose in-market agent was trained."""
+    gaps = {}
+    for src, targets in experiments.items():
+        for tgt in targets:
+            if tgt != src and tgt in matrix and tgt in matrix[tgt]:
+                ref = np.asarray(matrix[tgt][tgt]["daily_profit"]).mean(axis=0)
+                gaps.setdefault(src, {})[tgt] = common.paired_difference(matrix[src][tgt]["daily_profit"], ref)
+    return gaps
+
+
+def summary(matrix: dict, baselines: dict, gaps: dict, experiments: dict) -> str:
+    lines = ["source -> target: source-trained | in-market | always-max | price-threshold EUR/day; gap to in-market"]
+    for src, targets in experiments.items():
+        for tgt in targets:
+            mean = lambda r: r["metrics"]["daily_profit_eur"]["mean"]
+            ref = f"{mean(matrix[tgt][tgt]):7.1f}" if tgt in matrix and tgt in matrix[tgt] else "      -"
+            gap = gaps.get(src, {}).get(tgt)
+            lines.append(f"  {src} -> {tgt}: {mean(matrix[src][tgt]):7.1f} | {ref} | {mean(baselines[tgt]['always_max']):7.1f}"
+                         f" | {mean(baselines[tgt]['price_threshold']):7.1f}"
+                         + (f"; {gap['mean']:+.1f} ± {gap['stderr']:.1f}" if gap else ""))
+    return "\n".join(lines)
+
+
+def plot(matrix, baselines, experiments, algo, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(experiments), figsize=(5.5 * len(experiments), 4), squeeze=False)
+    w = 0.2
+    for ax, (src, targets) in zip(axes[0], experiments.items()):
+        x = np.arange(len(targets))
+        prof = lambda r: r["metrics"]["daily_profit_eur"]
+        cross = [prof(matrix[src][t]) for t in targets]
+        ax.bar(x - 1.5 * w, [c["mean"] for c in cross], w, yerr=[c["std"] for c in cross], capsize=2,
+               label=f"{algo} trained on {src}")
+        ref = [prof(matrix[t][t]) if t in matrix and t in matrix[t] else None for t in targets]
+        ax.bar(x - 0.5 * w, [r["mean"] if r else np.nan for r in ref], w,
+               yerr=[r["std"] if r else 0.0 for r in ref], capsize=2, label=f"{algo} trained on the target")
+        ax.bar(x + 0.5 * w, [prof(baselines[t]["always_max"])["mean"] for t in targets], w, color="grey",
+               label="always-max")
+        ax.bar(x + 1.5 * w, [prof(baselines[t]["price_threshold"])["mean"] for t in targets], w, color="silver",
+               label="price-threshold")
+        ax.set_xticks(x, [f"eval {t}" for t in targets], fontsize=8)
+        ax.set_title(f"trained on {src}", fontsize=10)
+        ax.set_ylabel("held-out daily profit (EUR)")
+        ax.grid(alpha=0.3, axis="y")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    main()
