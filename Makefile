@@ -19,7 +19,7 @@ test: $(STAMP)
 # The main job: IPPO on the default shopping scenario (2 seeds) with a progress bar, then
 # held-out evaluation against always-max, always-max + battery price rule and price-threshold
 # on the same 100 days and cars; writes curve.png, results.json and params.msgpack to
-# outputs/train_ippo (about 4 min on 2 idle cores).
+# outputs/train_ippo (about 7.5 min on 2 idle cores).
 # No prior: each agent learns from its own share of the station reward (--local-reward-weight 1;
 # the evaluation scores the station's profit) with the paper's entropy coefficient 0.01.
 SCENARIO_FLAGS := --scenario shopping --traffic medium --seeds 2
