@@ -568,6 +568,19 @@ def fill_local_days(values: np.ndarray, dst_gap: np.ndarray, start: dt.date, sta
     return flat.reshape(ndays, 24)
 
 
+def write_price_year(out: Path, fname: str, name: str, arr: np.ndarray, first: dt.date, st: dict,
+                     extra: int, extra_width: int) -> list:
+    """Write one price year and print its derivation row (``extra`` is the source-specific
+    count column); returns the days copied from a neighbouring week."""
+    write_price_csv(out / fname, arr, first)
+    copied = st["days_copied_from_week_neighbour"]
+    print(f"  {name}  {arr.shape[0]:4d}  {first.weekday():13d}  {st['dst_gap_filled']:14d}  {st['dst_repeat_averaged']:19d}"
+          f"  {extra:{extra_width}d}  {st['interpolated']:12d}  {len(copied)}")
+    for c in copied:
+        print(f"    copied {c}")
+    return copied
+
+
 def write_price_csv(path: Path, arr: np.ndarray, first: dt.date) -> None:
     """(days, 24) EUR/MWh -> the wide bundled layout ``date,h0..h23`` (3 decimals, trailing zeros cut)."""
     lines = [",".join(ds.PRICE_WIDE_COLUMNS)]
@@ -594,13 +607,8 @@ def build_smard_prices(zf: zipfile.ZipFile, out: Path) -> list[str]:
             assert np.isfinite(arr).all() and arr.shape[1] == 24
             first = dt.date(year, 1, 1)
             fname = f"prices_{zone}_{year}.csv"
-            write_price_csv(out / fname, arr, first)
+            copied = write_price_year(out, fname, name, arr, first, st, st["missing_cells"], 13)
             written.append(fname)
-            copied = st["days_copied_from_week_neighbour"]
-            print(f"  {name}  {arr.shape[0]:4d}  {first.weekday():13d}  {st['dst_gap_filled']:14d}  {st['dst_repeat_averaged']:19d}"
-                  f"  {st['missing_cells']:13d}  {st['interpolated']:12d}  {len(copied)}")
-            for c in copied:
-                print(f"    copied {c}")
             columns = ([SMARD_COL_FR] if zone == "FR" else
                        [SMARD_COL_DE_AT_LU] if year < DE_ZONE_SPLIT.year else
                        [f"{SMARD_COL_DE_AT_LU} before {DE_ZONE_SPLIT}", f"{SMARD_COL_DE_LU} from {DE_ZONE_SPLIT}"])
@@ -746,13 +754,8 @@ def build_entsoe_prices(out: Path, src_dir: Path = ENTSOE_DIR) -> list[str]:
             assert np.isfinite(arr).all() and arr.shape == ((dt.date(year + 1, 1, 1) - first).days, 24)
             assert -500.0 <= arr.min() and arr.max() <= 4000.0, (name, arr.min(), arr.max())  # EU harmonised bounds
             fname = f"prices_{prefix}_{year}.csv"
-            write_price_csv(out / fname, arr, first)
+            copied = write_price_year(out, fname, name, arr, first, st, st["dst_repeat_single"], 17)
             written.append(fname)
-            copied = st["days_copied_from_week_neighbour"]
-            print(f"  {name}  {arr.shape[0]:4d}  {first.weekday():13d}  {st['dst_gap_filled']:14d}  {st['dst_repeat_averaged']:19d}"
-                  f"  {st['dst_repeat_single']:17d}  {st['interpolated']:12d}  {len(copied)}")
-            for c in copied:
-                print(f"    copied {c}")
             for r in st["out_of_order_rows_dropped"]:
                 print(f"    dropped out-of-order placeholder row {r}")
             index[name] = {
