@@ -25,20 +25,26 @@ POLICIES = ("always_max", "battery_rule", "price_threshold", "edf", "llf")
 
 
 def evaluate_rules(params, days, policies=POLICIES, key=None) -> dict:
-    """``{policy: {"metrics", "daily_profit", "vs_always_max", "vs_battery_rule"}}`` on ``days``."""
+    """``{policy: {"num_days", "days", "metrics", "daily_profit"}}`` of each rule-based policy on
+    ``days``, all with the same key (default ``PRNGKey(0)``, the trainers' evaluation key), so
+    every policy meets the same cars and daily profits compare pairwise."""
     key = jax.random.PRNGKey(0) if key is None else key
     out = {}
     for name in policies:
         policy = get_policy(name)
-        t0 = time.time()
         totals = jax.jit(lambda d, k: run_days(lambda s, kk: policy(s, kk, params), params, d, k))(np.asarray(days), key)
-        out[name] = {"metrics": summarize(totals), "daily_profit": np.asarray(totals.profit_eur, np.float64),
-                     "seconds": time.time() - t0}
-    for name in out:
-        for ref in ("always_max", "battery_rule"):
-            if ref in out:
-                out[name][f"vs_{ref}"] = common.paired_difference(out[name]["daily_profit"], out[ref]["daily_profit"])
+        out[name] = {"num_days": int(np.size(days)), "days": [int(d) for d in np.asarray(days)],
+                     "metrics": summarize(totals), "daily_profit": np.asarray(totals.profit_eur, np.float64)}
     return out
+
+
+def add_paired_differences(results: dict, references=("always_max", "battery_rule")) -> dict:
+    """Add ``vs_<reference>`` (paired mean ± standard error over days) to every entry."""
+    for r in results.values():
+        for ref in references:
+            if ref in results:
+                r[f"vs_{ref}"] = common.paired_difference(r["daily_profit"], results[ref]["daily_profit"])
+    return results
 
 
 def format_rules(results: dict) -> str:
@@ -63,15 +69,15 @@ def main(argv=None) -> dict:
     p.add_argument("--traffic", default="medium")
     p.add_argument("--out", default=None, help="write the results JSON here")
     args = p.parse_args(argv)
-    full = make_params(**{**SCENARIOS[args.scenario], "traffic": args.traffic})
-    _, days = split_days(full.num_days, 100, seed=0)
-    results = evaluate_rules(full, days)
+    _, full, _, days = common.build_env_params(common.parse_config({}, {"SCENARIO": args.scenario,
+                                                                         "TRAFFIC": args.traffic}))
+    results = add_paired_differences(evaluate_rules(full, days))
     print(f"{args.scenario} / {args.traffic}: {len(days)} held-out days (split_days(seed=0)), key 0, same cars for all")
     print(format_rules(results))
     if args.out:
         write_json({"scenario": args.scenario, "traffic": args.traffic, "days": [int(d) for d in days],
-                    "results": {k: {kk: vv for kk, vv in v.items() if kk != "daily_profit"} for k, v in results.items()}},
-                   args.out)
+                    "results": {k: {kk: vv for kk, vv in v.items() if kk not in ("daily_profit", "days")}
+                                for k, v in results.items()}}, args.out)
     return results
 
 

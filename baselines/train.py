@@ -51,16 +51,9 @@ def baseline_results(eval_params, eval_days) -> dict:
     """The :data:`BASELINES` on the held-out days, with the evaluation's default key (the same
     drawn cars that :func:`baselines.common.evaluate_batched` gives the agents). Each keeps its
     daily profits (``daily_profit``) for paired comparisons."""
-    from chargax_marl.evaluation import run_days, summarize
-    from chargax_marl.policies import get_policy
+    from baselines.heuristics import evaluate_rules
 
-    out = {}
-    for name in BASELINES:
-        policy = get_policy(name)
-        totals = jax.jit(lambda d, k: run_days(lambda s, kk: policy(s, kk, eval_params), eval_params, d, k))(
-            np.asarray(eval_days), jax.random.PRNGKey(0))
-        out[name] = {"num_days": int(np.size(eval_days)), "days": [int(d) for d in np.asarray(eval_days)],
-                     "metrics": summarize(totals), "daily_profit": np.asarray(totals.profit_eur, np.float64)}
+    out = evaluate_rules(eval_params, eval_days, BASELINES)
     out["battery_rule"]["vs_always_max"] = common.paired_difference(out["battery_rule"]["daily_profit"],
                                                                     out["always_max"]["daily_profit"])
     return out

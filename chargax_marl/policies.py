@@ -41,16 +41,20 @@ def always_max(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarra
     return jnp.where(_is_battery(params), 0, params.num_levels).astype(jnp.int32)
 
 
+def _cheap_or_dear_hour(state: EnvState, params: EnvParams, quantile: float):
+    """Whether the current hour's price is in the cheapest / dearest ``quantile`` of the day's hours."""
+    day_prices = params.prices_eur_kwh[state.day]
+    now = day_prices[hour_of_step(state.timestep, params)]
+    return now <= jnp.quantile(day_prices, quantile), now >= jnp.quantile(day_prices, 1.0 - quantile)
+
+
 def battery_rule(state: EnvState, key: jax.Array, params: EnvParams, quantile: float = 0.2) -> jnp.ndarray:
     """Always-max for the ports plus a price rule for the batteries: charge fully in the
     cheapest ``quantile`` (20 %) of the day's hours, discharge fully in the dearest
     ``quantile``, idle otherwise. The strong two-line heuristic a learned agent must beat.
     """
     del key
-    day_prices = params.prices_eur_kwh[state.day]
-    now = day_prices[hour_of_step(state.timestep, params)]
-    cheap = now <= jnp.quantile(day_prices, quantile)
-    dear = now >= jnp.quantile(day_prices, 1.0 - quantile)
+    cheap, dear = _cheap_or_dear_hour(state, params, quantile)
     battery = jnp.where(cheap, params.num_levels, jnp.where(dear, -params.num_levels, 0))
     return jnp.where(_is_battery(params), battery, params.num_levels).astype(jnp.int32)
 
@@ -84,10 +88,7 @@ def price_threshold(state: EnvState, key: jax.Array, params: EnvParams, quantile
     dearest ``quantile`` of hours (when the station may discharge), and idle otherwise.
     """
     del key
-    day_prices = params.prices_eur_kwh[state.day]
-    now = day_prices[hour_of_step(state.timestep, params)]
-    cheap = now <= jnp.quantile(day_prices, quantile)
-    dear = now >= jnp.quantile(day_prices, 1.0 - quantile)
+    cheap, dear = _cheap_or_dear_hour(state, params, quantile)
     lazy = _levels_for_power(minimum_power_kw(state, params), params, round_up=True)
     ports = jnp.where(cheap, params.num_levels, lazy)
     battery = jnp.where(cheap, params.num_levels, jnp.where(dear, -params.num_levels, 0))

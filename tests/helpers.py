@@ -18,7 +18,7 @@ def place_car(state, i, *, soc=0.3, capacity_kwh=60.0, max_rate_kw=100.0, tau=0.
     return state.replace(
         target_soc=state.target_soc.at[i].set(target_soc),
         max_discharge_rate_kw=state.max_discharge_rate_kw.at[i].set(max_discharge_rate_kw),
-        earliest_remaining_min=state.earliest_remaining_min.at[i].set(earliest_min),
+        slack_min=state.slack_min.at[i].set(time_min - earliest_min),
         occupied=state.occupied.at[i].set(True),
         soc=state.soc.at[i].set(soc),
         capacity_kwh=state.capacity_kwh.at[i].set(capacity_kwh),

@@ -339,7 +339,7 @@ def test_a_ports_share_does_not_move_with_the_battery():
     np.testing.assert_allclose(shares[-10][:2], shares[0][:2], atol=1e-5)
     np.testing.assert_allclose(shares[10][:2], shares[0][:2], atol=1e-5)
     # the battery's degradation penalty is its own
-    assert shares[-10][2] < shares[0][2] - 0.1 * 0.0  # discharging at a netting gain minus its penalty
+    assert shares[-10][2] < shares[0][2]  # its feed-in income here is less than its degradation penalty
     _, info = step(KEY, s, jnp.array([10, 10, -10]), p)
     assert float(info.penalties["battery_degradation"]) > 0
 

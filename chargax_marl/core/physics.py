@@ -90,23 +90,16 @@ def clip_to_car(current_a: jnp.ndarray, state: EnvState, params: EnvParams) -> j
     return jnp.where(state.occupied, clipped, 0.0)
 
 
+def _grid_side(leaf_power_kw: jnp.ndarray, eff: jnp.ndarray, has_node: jnp.ndarray) -> jnp.ndarray:
+    """A leaf's flow on the grid side of a node: power / eff charging, power * eff discharging."""
+    return jnp.where(has_node, jnp.where(leaf_power_kw > 0, leaf_power_kw / eff, leaf_power_kw * eff), 0.0)
+
+
 def grid_side_kw(leaf_power_kw: jnp.ndarray, station: StationArrays) -> jnp.ndarray:
     """``(D, L)`` the flow each leaf causes on the grid side of its ancestor at depth ``d``:
     its power divided by the efficiency of the path up to and including that node when it
     charges, multiplied by it when it discharges (0 where the leaf has no such ancestor)."""
-    eff = station.leaf_efficiency_at_depth
-    p = leaf_power_kw[None, :]
-    side = jnp.where(p > 0, p / eff, p * eff)
-    return jnp.where(station.node_of_leaf_at_depth >= 0, side, 0.0)
-
-
-def _node_sums(per_depth_leaf: jnp.ndarray, station: StationArrays, depths) -> jnp.ndarray:
-    """Sum ``(D, L)`` leaf contributions into their ancestors at the given depths (H,)."""
-    flows = jnp.zeros((station.num_nodes,), jnp.float32)
-    for d in depths:
-        idx = station.node_of_leaf_at_depth[d]
-        flows = flows + jax.ops.segment_sum(per_depth_leaf[d], jnp.maximum(idx, 0), num_segments=station.num_nodes)
-    return flows
+    return _grid_side(leaf_power_kw[None, :], station.leaf_efficiency_at_depth, station.node_of_leaf_at_depth >= 0)
 
 
 def node_flows_kw(leaf_power_kw: jnp.ndarray, station: StationArrays) -> jnp.ndarray:
@@ -115,7 +108,12 @@ def node_flows_kw(leaf_power_kw: jnp.ndarray, station: StationArrays) -> jnp.nda
     This is what the node's cable carries: the power of the leaves below it plus the losses
     of every port and node on their paths up to and including the node itself.
     """
-    return jnp.abs(_node_sums(grid_side_kw(leaf_power_kw, station), station, range(station.depth)))
+    side = grid_side_kw(leaf_power_kw, station)
+    flows = jnp.zeros((station.num_nodes,), jnp.float32)
+    for d in range(station.depth):
+        idx = station.node_of_leaf_at_depth[d]
+        flows = flows + jax.ops.segment_sum(side[d], jnp.maximum(idx, 0), num_segments=station.num_nodes)
+    return jnp.abs(flows)
 
 
 def constraint_excess_kw(leaf_power_kw: jnp.ndarray, station: StationArrays) -> jnp.ndarray:
@@ -136,7 +134,7 @@ def rescale_to_limits(current_a: jnp.ndarray, station: StationArrays) -> jnp.nda
     v = station.leaf_voltage_v
     for d in reversed(range(station.depth)):
         idx = station.node_of_leaf_at_depth[d]
-        side = grid_side_kw(current_a * v / 1000.0, station)[d]
+        side = _grid_side(current_a * v / 1000.0, station.leaf_efficiency_at_depth[d], idx >= 0)
         flow = jnp.abs(jax.ops.segment_sum(side, jnp.maximum(idx, 0), num_segments=station.num_nodes))
         # A small safety margin keeps float32 round-off from leaving a flow a hair above its limit.
         factor = jnp.where(flow > station.node_max_kw,
@@ -183,9 +181,8 @@ def charge(current_a: jnp.ndarray, state: EnvState, params: EnvParams):
     parked = state.occupied & is_port
     remaining = jnp.where(parked, jnp.maximum(state.energy_remaining_kwh - energy, 0.0), 0.0)
     time_left = jnp.where(parked, state.time_remaining_min - params.step_minutes, state.time_remaining_min)
-    earliest_left = jnp.where(parked, state.earliest_remaining_min - params.step_minutes, state.earliest_remaining_min)
     new_state = state.replace(current_a=actual_current, soc=soc, energy_remaining_kwh=remaining,
-                              time_remaining_min=time_left, earliest_remaining_min=earliest_left)
+                              time_remaining_min=time_left)
     return new_state, energy
 
 

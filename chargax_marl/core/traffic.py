@@ -16,7 +16,7 @@ import jax.numpy as jnp
 from chargax_marl.core.station import KIND_AC, KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState
 
-CAR_FIELDS = ("current_a", "soc", "energy_remaining_kwh", "time_remaining_min", "earliest_remaining_min",
+CAR_FIELDS = ("current_a", "soc", "energy_remaining_kwh", "time_remaining_min", "slack_min",
               "capacity_kwh", "max_rate_kw", "max_discharge_rate_kw", "target_soc", "tau", "arrival_soc")
 
 
@@ -47,8 +47,8 @@ def depart(state: EnvState, params: EnvParams):
     leaving = time_up | charged
     leaf_missing = jnp.where(time_up, jnp.maximum(state.energy_remaining_kwh, 0.0), 0.0)
     leaf_over = jnp.where(charged, jnp.maximum(-state.time_remaining_min, 0.0), 0.0)
-    slack = jnp.maximum(state.time_remaining_min - state.earliest_remaining_min, 0.0)  # planned stay - earliest finish
-    delay = jnp.maximum(-state.earliest_remaining_min, 0.0)  # minutes parked beyond the earliest finish
+    slack = jnp.maximum(state.slack_min, 0.0)  # planned stay - earliest finish
+    delay = jnp.maximum(state.slack_min - state.time_remaining_min, 0.0)  # minutes parked beyond the earliest finish
     leaf_under = jnp.where(charged, -jnp.minimum(delay, slack), 0.0)
     leaf_charge_term = leaf_over - params.beta * leaf_under
     cleared = {f: jnp.where(leaving, 0.0, getattr(state, f)) for f in CAR_FIELDS}
@@ -161,7 +161,7 @@ def arrive(key: jax.Array, state: EnvState, params: EnvParams):
         arrival_soc=put(soc0, state.arrival_soc),
         energy_remaining_kwh=put(demand, state.energy_remaining_kwh),
         time_remaining_min=put(stay, state.time_remaining_min),
-        earliest_remaining_min=put(earliest, state.earliest_remaining_min),
+        slack_min=put(stay - earliest, state.slack_min),
         capacity_kwh=put(capacity, state.capacity_kwh),
         max_rate_kw=put(max_rate, state.max_rate_kw),
         max_discharge_rate_kw=put(max_dis, state.max_discharge_rate_kw),

@@ -153,7 +153,7 @@ class EnvState:
     soc: jnp.ndarray  # state of charge in [0, 1]
     energy_remaining_kwh: jnp.ndarray  # energy the user still wants, (target_soc - soc) * capacity (>= 0)
     time_remaining_min: jnp.ndarray  # minutes until the planned departure (may go negative)
-    earliest_remaining_min: jnp.ndarray  # minutes until the earliest finish the car's curve allows at its port
+    slack_min: jnp.ndarray  # planned stay minus the earliest finish the car's curve allows at its port (set at arrival)
     capacity_kwh: jnp.ndarray  # battery capacity C of the car
     max_rate_kw: jnp.ndarray  # r-bar of the car for this port's kind
     max_discharge_rate_kw: jnp.ndarray  # the car's discharge limit for this port's kind (0 = cannot discharge)
