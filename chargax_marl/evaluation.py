@@ -17,6 +17,7 @@ import numpy as np
 
 from chargax_marl.core import simulator
 from chargax_marl.core.types import EnvParams, EnvState
+from chargax_marl.trace import day_keys
 
 Act = Callable[[EnvState, jax.Array], jnp.ndarray]
 
@@ -49,15 +50,17 @@ def run_days(act: Act, params: EnvParams, days, key: jax.Array):
     days = jnp.asarray(days, jnp.int32)
 
     def one_day(day, key):
-        def body(state, k):
-            k_act, k_step = jax.random.split(k)
+        act_keys, step_keys, battery_key = day_keys(key, params.num_steps)
+
+        def body(state, keys):
+            k_act, k_step = keys
             state, _ = simulator.step(k_step, state, act(state, k_act), params)
             return state, None
 
         # the batteries' initial SoC (when drawn from a range) from a key of its own, so the
         # cars drawn from ``key`` stay the same whatever the battery setting
-        start = simulator.empty_state(day, params, jax.random.fold_in(key, 1))
-        state, _ = jax.lax.scan(body, start, jax.random.split(key, params.num_steps))
+        start = simulator.empty_state(day, params, battery_key)
+        state, _ = jax.lax.scan(body, start, (act_keys, step_keys))
         return state.totals
 
     return jax.vmap(one_day)(days, jax.random.split(key, days.shape[0]))

@@ -80,12 +80,21 @@ def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams
     ``action`` has one entry per leaf (ports, then batteries): a signed level in
     ``[-L, L]`` for the discrete modes or a fraction in ``[-1, 1]`` for ``continuous``.
     Values outside the leaf's range are clipped (see :func:`physics.target_current`).
+    The step's cars are drawn from ``key`` (:func:`traffic.draw_arrivals`), independently of
+    the state; :func:`step_with_arrivals` takes them as given (to replay a recorded day).
     """
+    return step_with_arrivals(state, action, traffic.draw_arrivals(key, state.timestep, state.is_workday, params),
+                              params)
+
+
+def step_with_arrivals(state: EnvState, action: jnp.ndarray, arrivals: traffic.Arrivals, params: EnvParams):
+    """:func:`step` with the step's arriving cars given (:class:`traffic.Arrivals`); the rest
+    of the transition is deterministic. Returns ``(new_state, StepInfo)``."""
     current, excess_kw, requested_kw = physics.apply_actions(action, state, params)
     charged_state, leaf_energy = physics.charge(current, state, params)
     flows = physics.energy_flows(leaf_energy, params.station)
     departed_state, dep = traffic.depart(charged_state, params)
-    arrived_state, arr = traffic.arrive(key, departed_state, params)
+    arrived_state, arr = traffic.place_arrivals(departed_state, arrivals, params)
 
     p_buy, p_sell_grid = reward_lib.grid_prices(state.day, state.timestep, params)
     last = state.timestep + 1 >= params.num_steps
@@ -140,6 +149,7 @@ def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams
         requested_excess_kw=requested_kw,
         battery_terminal_value_eur=terminal,
         leaf_energy_kwh=leaf_energy,
+        leaf_arrived=arr["leaf_arrived"],
         leaf_reward=reward_lib.leaf_reward_shares(flows, dep, terms, moer, terminal, p_buy, p_sell_grid, r, params),
     )
     return new_state, info

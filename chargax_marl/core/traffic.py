@@ -5,13 +5,16 @@ stay is over, charge-sensitive users (u = 1) when they reach their target SoC. E
 carries a target SoC (arrival SoC + demand / capacity) and stops charging there. Arrivals are
 Poisson with the rate of the day type and step, clipped by the free ports (the surplus is
 rejected) and placed first-free-port in port order; each car draws a car profile from the
-fleet and a user profile from the location's distributions.
+fleet and a user profile from the location's distributions. The draw
+(:func:`draw_arrivals`) does not look at the station, so the cars of a day do not depend on
+the policy; :func:`place_arrivals` parks them.
 """
 
 from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+from flax import struct
 
 from chargax_marl.core.station import KIND_AC, KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState
@@ -107,35 +110,53 @@ def arrival_rate(timestep: jnp.ndarray, is_workday: jnp.ndarray, params: EnvPara
     return params.arrival_rate[jnp.where(is_workday, 0, 1), t]
 
 
-def arrive(key: jax.Array, state: EnvState, params: EnvParams):
-    """Step 4: sample arrivals, reject the surplus, park the rest first-free-port.
+@struct.dataclass
+class Arrivals:
+    """The cars that ask to park in one step, drawn without looking at the station's state.
 
-    ``state.timestep`` is the step in which the cars arrive (its hour scales the stay and
-    demand). Returns ``(new_state, report)`` with ``arrived``, ``rejected`` and
-    ``requested`` counts.
+    Slot ``k`` (of ``num_ports``) holds the ``k``-th car of the step; the station admits the
+    first ``min(requested, free ports)`` of them and parks car ``k`` at the ``k``-th free port
+    in port order. Because the draw does not depend on the occupancy, the cars of a day are
+    the same whatever the policy does (only which of them find a free port differs): this is
+    what makes a day replayable (:mod:`chargax_marl.trace`). Fields over slots have shape
+    ``(num_ports,)``; rates are given for both port kinds because the port is chosen later.
     """
-    st = params.station
-    key_n, key_u = jax.random.split(key)
-    is_port = st.leaf_kind != KIND_BATTERY
-    free = is_port & ~state.occupied
-    num_free = jnp.sum(free)
-    requested = jax.random.poisson(key_n, arrival_rate(state.timestep, state.is_workday, params))
-    admitted = jnp.minimum(requested, num_free)
-    rank = jnp.cumsum(free) - 1  # rank among free ports, in port order
-    new_car = free & (rank < admitted)
 
-    num_leaves = st.leaf_kind.shape[0]
-    u = jax.random.uniform(key_u, (5, num_leaves))
+    requested: jnp.ndarray  # () int32, cars asking to park this step (the surplus is rejected)
+    model: jnp.ndarray  # (P,) int32 index into the fleet
+    capacity_kwh: jnp.ndarray  # (P,)
+    ac_kw: jnp.ndarray  # (P,) r-bar at an AC port
+    dc_kw: jnp.ndarray  # (P,) r-bar at a DC port
+    ac_discharge_kw: jnp.ndarray  # (P,) discharge limit at an AC port
+    dc_discharge_kw: jnp.ndarray  # (P,)
+    tau: jnp.ndarray  # (P,)
+    arrival_soc: jnp.ndarray  # (P,)
+    target_soc: jnp.ndarray  # (P,) arrival SoC + demand / capacity (<= 1)
+    stay_min: jnp.ndarray  # (P,) planned stay
+    charge_sensitive: jnp.ndarray  # (P,) bool, u = 1
+
+
+SLOT_FIELDS = ("model", "capacity_kwh", "ac_kw", "dc_kw", "ac_discharge_kw", "dc_discharge_kw", "tau",
+               "arrival_soc", "target_soc", "stay_min", "charge_sensitive")
+"""The per-slot fields of :class:`Arrivals` (every field but ``requested``)."""
+
+
+def draw_arrivals(key: jax.Array, timestep: jnp.ndarray, is_workday: jnp.ndarray, params: EnvParams) -> Arrivals:
+    """The step's arriving cars (:class:`Arrivals`): a Poisson count with the rate of the day
+    type and step, and one car profile (fleet) and user profile (stay, demand, arrival SoC,
+    user type) per slot. ``timestep`` is the step in which the cars arrive (its hour scales
+    the stay and demand)."""
+    st = params.station
+    num_slots = st.num_ports
+    key_n, key_u = jax.random.split(key)
+    requested = jax.random.poisson(key_n, arrival_rate(timestep, is_workday, params)).astype(jnp.int32)
+    u = jax.random.uniform(key_u, (5, num_slots))
     # Car profile: model index by inverse CDF of the fleet shares.
     cdf = jnp.cumsum(params.fleet_share)
-    model = jnp.clip(jnp.searchsorted(cdf / cdf[-1], u[0], side="right"), 0, cdf.shape[0] - 1)
+    model = jnp.clip(jnp.searchsorted(cdf / cdf[-1], u[0], side="right"), 0, cdf.shape[0] - 1).astype(jnp.int32)
     capacity = params.fleet_capacity_kwh[model]
-    is_ac = st.leaf_kind == KIND_AC
-    max_rate = jnp.where(is_ac, params.fleet_ac_kw[model], params.fleet_dc_kw[model])
-    max_dis = jnp.where(is_ac, params.fleet_ac_discharge_kw[model], params.fleet_dc_discharge_kw[model])
-    tau = params.fleet_tau[model]
     # User profile: stay and demand scaled by the arrival hour, user type.
-    hour = jnp.clip((state.timestep * params.step_minutes / 60.0).astype(jnp.int32), 0, 23)
+    hour = jnp.clip((timestep * params.step_minutes / 60.0).astype(jnp.int32), 0, 23)
     stay = _inverse_cdf(params.stay_quantiles_min, u[1]) * params.stay_scale_by_hour[hour]
     stay = jnp.maximum(stay, params.step_minutes)
     # The demand fits the car: at most what fills it from the lowest arrival SoC. The
@@ -147,9 +168,46 @@ def arrive(key: jax.Array, state: EnvState, params: EnvParams):
     hi_fit = jnp.maximum(jnp.minimum(hi, 1.0 - demand / jnp.maximum(capacity, 1e-6)), lo)
     soc0 = lo + (hi_fit - lo) * u[2]
     target = jnp.minimum(soc0 + demand / jnp.maximum(capacity, 1e-6), 1.0)
-    demand = (target - soc0) * capacity
-    sensitive = u[4] < params.charge_sensitive_prob
-    earliest = earliest_finish_min(soc0, target, capacity, max_rate, tau, st.leaf_solo_max_kw, params)
+    return Arrivals(
+        requested=requested,
+        model=model,
+        capacity_kwh=capacity,
+        ac_kw=params.fleet_ac_kw[model],
+        dc_kw=params.fleet_dc_kw[model],
+        ac_discharge_kw=params.fleet_ac_discharge_kw[model],
+        dc_discharge_kw=params.fleet_dc_discharge_kw[model],
+        tau=params.fleet_tau[model],
+        arrival_soc=soc0,
+        target_soc=target,
+        stay_min=stay,
+        charge_sensitive=u[4] < params.charge_sensitive_prob,
+    )
+
+
+def place_arrivals(state: EnvState, arrivals: Arrivals, params: EnvParams):
+    """Admit the first ``min(requested, free ports)`` cars of ``arrivals`` and park car ``k``
+    at the ``k``-th free port in port order; reject the surplus.
+
+    Returns ``(new_state, report)`` with ``arrived``, ``rejected`` and ``requested`` counts
+    and ``leaf_arrived`` (L,) bool, the ports that received a car.
+    """
+    st = params.station
+    is_port = st.leaf_kind != KIND_BATTERY
+    free = is_port & ~state.occupied
+    num_free = jnp.sum(free)
+    requested = arrivals.requested
+    admitted = jnp.minimum(requested, num_free)
+    rank = jnp.cumsum(free) - 1  # rank among free ports, in port order
+    new_car = free & (rank < admitted)
+    slot = jnp.clip(rank, 0, st.num_ports - 1)
+    car = arrivals.replace(**{f: getattr(arrivals, f)[slot] for f in SLOT_FIELDS})  # per leaf now
+
+    is_ac = st.leaf_kind == KIND_AC
+    max_rate = jnp.where(is_ac, car.ac_kw, car.dc_kw)
+    max_dis = jnp.where(is_ac, car.ac_discharge_kw, car.dc_discharge_kw)
+    demand = (car.target_soc - car.arrival_soc) * car.capacity_kwh
+    earliest = earliest_finish_min(car.arrival_soc, car.target_soc, car.capacity_kwh, max_rate, car.tau,
+                                   st.leaf_solo_max_kw, params)
 
     def put(new, old):
         return jnp.where(new_car, new, old)
@@ -157,21 +215,28 @@ def arrive(key: jax.Array, state: EnvState, params: EnvParams):
     new_state = state.replace(
         occupied=state.occupied | new_car,
         current_a=put(0.0, state.current_a),
-        soc=put(soc0, state.soc),
-        arrival_soc=put(soc0, state.arrival_soc),
+        soc=put(car.arrival_soc, state.soc),
+        arrival_soc=put(car.arrival_soc, state.arrival_soc),
         energy_remaining_kwh=put(demand, state.energy_remaining_kwh),
-        time_remaining_min=put(stay, state.time_remaining_min),
-        slack_min=put(stay - earliest, state.slack_min),
-        capacity_kwh=put(capacity, state.capacity_kwh),
+        time_remaining_min=put(car.stay_min, state.time_remaining_min),
+        slack_min=put(car.stay_min - earliest, state.slack_min),
+        capacity_kwh=put(car.capacity_kwh, state.capacity_kwh),
         max_rate_kw=put(max_rate, state.max_rate_kw),
         max_discharge_rate_kw=put(max_dis, state.max_discharge_rate_kw),
-        target_soc=put(target, state.target_soc),
-        tau=put(tau, state.tau),
-        charge_sensitive=jnp.where(new_car, sensitive, state.charge_sensitive),
+        target_soc=put(car.target_soc, state.target_soc),
+        tau=put(car.tau, state.tau),
+        charge_sensitive=jnp.where(new_car, car.charge_sensitive, state.charge_sensitive),
     )
     report = {
         "requested": requested.astype(jnp.float32),
         "arrived": admitted.astype(jnp.float32),
         "rejected": (requested - admitted).astype(jnp.float32),
+        "leaf_arrived": new_car,
     }
     return new_state, report
+
+
+def arrive(key: jax.Array, state: EnvState, params: EnvParams):
+    """Step 4: draw the step's cars (:func:`draw_arrivals`) and park them
+    (:func:`place_arrivals`). ``state.timestep`` is the step in which the cars arrive."""
+    return place_arrivals(state, draw_arrivals(key, state.timestep, state.is_workday, params), params)

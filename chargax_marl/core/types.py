@@ -196,4 +196,5 @@ class StepInfo:
     requested_excess_kw: jnp.ndarray  # grid-side excess of the currents the controller asked for
     battery_terminal_value_eur: jnp.ndarray  # nonzero at the last step only; included in profit_eur
     leaf_energy_kwh: jnp.ndarray  # (L,) energy into each car / battery this step (terminal side)
+    leaf_arrived: jnp.ndarray  # (L,) bool, the ports that received a new car at the end of this step
     leaf_reward: jnp.ndarray  # (L,) each leaf's share of reward (reward.leaf_reward_shares); sums to reward

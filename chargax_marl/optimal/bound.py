@@ -1,0 +1,174 @@
+"""The hindsight bound: the best profit any policy with a given port occupancy could make on a day.
+
+:func:`occupancy` replays a reference policy (always-max by default) on a day's trace
+(:mod:`chargax_marl.trace`) and records which car sat at which port in which step.
+:func:`hindsight_bound` then solves, with HiGHS, the LP of :mod:`chargax_marl.optimal.model`
+over those sessions with the day's prices known in advance.
+
+**What it bounds.** The day's profit (:func:`chargax_marl.core.reward.profit_eur` summed over
+the day, terminal battery value and fixed cost included; not the reward, whose penalty
+weights do not change the profit) of every policy whose occupancy is the reference's: the
+same cars at the same ports for the same steps. For time-sensitive cars that is every
+policy (they leave on time whatever happens); a charge-sensitive car leaves when it reaches
+its target, so the class holds the policies that bring each such car to its target in the
+step the reference did (the LP asks the car to reach its target by then, and relaxes "not
+earlier"). A policy that frees ports earlier may admit cars the reference rejected and
+exceed the bound; :mod:`chargax_marl.optimal.milp` bounds over admissions as well on small
+problems. Within the class the bound is an upper bound because currents are continuous (the
+discrete levels are a subset) and every limit the simulator applies is a constraint.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax
+import numpy as np
+
+from chargax_marl import trace as trace_lib
+from chargax_marl.core.types import EnvParams
+from chargax_marl.optimal.model import Economics, Sessions, Solution, StationLimits, build_and_solve
+from chargax_marl.policies import always_max
+
+
+@dataclass
+class Occupancy:
+    """Which car was at which port in which step, from a reference rollout (numpy)."""
+
+    sessions: Sessions  # cars only (batteries are added by the LP)
+    reference_profit_eur: float  # the reference policy's profit on the day
+    day: int
+
+
+def sessions_from_rollout(states, infos, params: EnvParams) -> Sessions:
+    """The car sessions of one replayed day (:func:`chargax_marl.trace.replay`'s ``states``
+    and ``infos``, leading axis = steps). A car present at the start of step ``t`` charges in
+    ``t``; it is the same car as in ``t - 1`` unless the port received a new car in ``t - 1``."""
+    occ = np.asarray(states.occupied)
+    arrived = np.asarray(infos.leaf_arrived)
+    num_steps = occ.shape[0]
+    fields = {f: np.asarray(getattr(states, f), np.float64) for f in
+              ("soc", "arrival_soc", "target_soc", "capacity_kwh", "max_rate_kw", "max_discharge_rate_kw", "tau")}
+    sensitive = np.asarray(states.charge_sensitive)
+    rows = []
+    for port in range(params.station.num_ports):
+        t = 0
+        while t < num_steps:
+            if not occ[t, port]:
+                t += 1
+                continue
+            start = t
+            t += 1
+            while t < num_steps and occ[t, port] and not arrived[t - 1, port]:
+                t += 1
+            # the car charged in start..last; a charge-sensitive car that left before the day's
+            # end left because it reached its target
+            rows.append((port, start, t - 1, start, bool(sensitive[start, port]) and t < num_steps))
+    if not rows:
+        empty = np.zeros(0)
+        return Sessions(*(empty.astype(int),) * 3, *(empty,) * 7, empty.astype(bool), empty.astype(bool))
+    r = np.array([row[:4] for row in rows], dtype=np.int64)
+    port, first, last, at = r.T
+    return Sessions(
+        leaf=port, first=first, last=last,
+        soc0=fields["soc"][at, port], reserve_soc=fields["arrival_soc"][at, port],
+        target_soc=fields["target_soc"][at, port], capacity_kwh=fields["capacity_kwh"][at, port],
+        max_rate_kw=fields["max_rate_kw"][at, port], max_discharge_rate_kw=fields["max_discharge_rate_kw"][at, port],
+        tau=fields["tau"][at, port], must_reach=np.array([row[4] for row in rows], bool),
+        charge_sensitive=sensitive[at, port],
+    )
+
+
+def battery_sessions(params: EnvParams, soc0, first: int, last: int) -> Sessions:
+    """The station batteries as sessions over steps ``first..last`` (always present)."""
+    st = params.station
+    nb = st.num_batteries
+    kw = np.asarray(st.leaf_voltage_v * st.leaf_max_current_a / 1000.0, np.float64)[st.num_ports:]
+    one = np.ones(nb)
+    return Sessions(
+        leaf=np.arange(st.num_ports, st.num_ports + nb), first=np.full(nb, first), last=np.full(nb, last),
+        soc0=np.asarray(soc0, np.float64).reshape(nb), reserve_soc=0 * one, target_soc=one,
+        capacity_kwh=np.asarray(st.battery_capacity_kwh, np.float64), max_rate_kw=kw, max_discharge_rate_kw=kw,
+        tau=np.asarray(st.battery_tau, np.float64), must_reach=np.zeros(nb, bool), charge_sensitive=np.zeros(nb, bool),
+    )
+
+
+def economics(params: EnvParams, trace: trace_lib.DayTrace, first: int = 0, last: int | None = None) -> Economics:
+    """The trace's prices for steps ``first..last`` and the params' customer price."""
+    last = trace.num_steps - 1 if last is None else last
+    sl = slice(first, last + 1)
+    return Economics(buy=np.asarray(trace.price_buy_eur_kwh, np.float64)[sl],
+                     sell=np.asarray(trace.price_sell_grid_eur_kwh, np.float64)[sl],
+                     customer=float(params.customer_price_eur_kwh),
+                     battery_value=float(trace.battery_value_eur_kwh), step_hours=params.step_hours)
+
+
+_REPLAY_CACHE: dict = {}
+
+
+def occupancy(params: EnvParams, trace: trace_lib.DayTrace, day_key: jax.Array, reference=always_max) -> Occupancy:
+    """Replay ``reference(state, key, params)`` on one day's ``trace`` (with the policy keys of
+    ``day_key``, as in evaluation) and record its car sessions."""
+    trace_lib.check_trace(trace, params)
+    cache_key = (id(params), reference)
+    fn = _REPLAY_CACHE.get(cache_key)
+    if fn is None:
+        fn = jax.jit(lambda t, k: trace_lib.replay(lambda s, kk: reference(s, kk, params), params, t, k))
+        _REPLAY_CACHE.clear()
+        _REPLAY_CACHE[cache_key] = fn
+    states, infos, final = fn(trace, day_key)
+    return Occupancy(sessions=sessions_from_rollout(states, infos, params),
+                     reference_profit_eur=float(final.totals.profit_eur), day=int(trace.day))
+
+
+@dataclass
+class Bound:
+    """The hindsight bound of one day: ``profit_eur`` (EUR), the solver's status and time,
+    the reference's profit on the same day and the LP's size."""
+
+    profit_eur: float
+    reference_profit_eur: float
+    status: str
+    solve_s: float
+    num_vars: int
+    num_rows: int
+    num_cars: int
+    solution: Solution
+
+
+def hindsight_bound(params: EnvParams, trace: trace_lib.DayTrace, occ: Occupancy, *,
+                    time_limit_s: float | None = 60.0) -> Bound:
+    """Solve the LP over ``occ``'s sessions and the station batteries for the whole day of
+    ``trace``. See the module docstring for what the value bounds. Raises
+    :class:`chargax_marl.optimal.model.SolverError` when HiGHS finds no optimum (e.g. the
+    time limit)."""
+    trace_lib.check_trace(trace, params)
+    if occ.day != int(trace.day):
+        raise ValueError(f"occupancy field 'day' is {occ.day} but the trace is day {int(trace.day)}")
+    n = trace.num_steps
+    sessions = Sessions.concat([occ.sessions, battery_sessions(params, trace.battery_soc0, 0, n - 1)])
+    sol = build_and_solve(sessions, n, StationLimits.of(params), economics(params, trace),
+                          charged_tolerance_kwh=float(params.charged_tolerance_kwh), time_limit_s=time_limit_s)
+    fixed = float(params.fixed_cost_eur) * n
+    return Bound(profit_eur=sol.value_eur - fixed, reference_profit_eur=occ.reference_profit_eur, status=sol.status,
+                 solve_s=sol.solve_s, num_vars=sol.num_vars, num_rows=sol.num_rows, num_cars=occ.sessions.size,
+                 solution=sol)
+
+
+def bound_days(params: EnvParams, days, key: jax.Array | None = None, reference=always_max, *,
+               time_limit_s: float | None = 60.0) -> list[Bound]:
+    """:func:`hindsight_bound` for each of ``days`` with the cars that evaluation draws with
+    ``key`` (default ``PRNGKey(0)``) and ``reference``'s occupancy."""
+    key = jax.random.PRNGKey(0) if key is None else key
+    traces = trace_lib.make_traces(params, days, key)
+    day_keys = jax.random.split(key, int(np.size(days)))
+    out = []
+    for i in range(int(np.size(days))):
+        tr = trace_lib.day_of(traces, i)
+        occ = occupancy(params, tr, day_keys[i], reference)
+        out.append(hindsight_bound(params, tr, occ, time_limit_s=time_limit_s))
+    return out
+
+
+__all__ = ["Bound", "Occupancy", "battery_sessions", "bound_days", "economics", "hindsight_bound", "occupancy",
+           "sessions_from_rollout"]

@@ -1,0 +1,179 @@
+"""A model-predictive controller: re-solve the station LP over a receding horizon, apply step one.
+
+At each step (or every ``resolve_every`` steps, while the plan still matches the state) the
+controller solves the LP of :mod:`chargax_marl.optimal.model` over the next
+``horizon_hours`` with the cars present now (each staying until its planned departure, no
+knowledge of future arrivals), the day-ahead prices of those hours (known in advance, as on
+a day-ahead market) and the batteries valued at the day's terminal price at the horizon's
+end, and turns the first step's powers into levels.
+
+:class:`MPC` is a policy ``mpc(state, key, params) -> levels`` like those of
+:mod:`chargax_marl.policies`: it runs on the host through :func:`jax.pure_callback`, so it
+works inside ``jit``, ``scan`` and ``vmap`` (the calls are made one state at a time) and
+therefore in :func:`chargax_marl.evaluation.evaluate` and in both views
+(:func:`chargax_marl.policies.for_single`, :func:`chargax_marl.policies.for_marl`). It is
+slow next to the jitted policies: one HiGHS solve per step and state (see
+``baselines/README.md`` for measured times).
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from chargax_marl.core.station import KIND_BATTERY
+from chargax_marl.core.types import EnvParams, EnvState
+from chargax_marl.optimal.model import Economics, Sessions, StationLimits, build_and_solve
+
+_FIELDS = ("day", "timestep", "occupied", "soc", "arrival_soc", "target_soc", "capacity_kwh", "max_rate_kw",
+           "max_discharge_rate_kw", "tau", "charge_sensitive", "time_remaining_min")
+
+
+class MPC:
+    """Receding-horizon LP controller (see the module docstring).
+
+    ``horizon_hours`` (default 4) sets the look-ahead; ``resolve_every`` re-solves every k
+    steps and in between applies the stored plan as long as the cars and SoCs are those the
+    plan predicted (any difference re-solves). ``time_limit_s`` bounds each solve; a solve
+    that fails falls back to charging every car at full power and idling the batteries, and
+    is counted in ``failures``.
+
+    A charge-sensitive car frees its port when it is charged, which only matters for cars
+    the controller cannot see yet; ``urgency_eur_kwh_h`` (default 0.1 EUR/kWh per hour)
+    makes the LP charge such cars early (a bonus per kWh that falls with delay). It changes
+    the plan, not the profit the simulator books.
+    """
+
+    def __init__(self, params: EnvParams, horizon_hours: float = 4.0, resolve_every: int = 1,
+                 time_limit_s: float = 10.0, urgency_eur_kwh_h: float = 0.1):
+        if not horizon_hours > 0:
+            raise ValueError(f"field 'horizon_hours' must be > 0, got {horizon_hours!r}")
+        if int(resolve_every) < 1:
+            raise ValueError(f"field 'resolve_every' must be an integer >= 1, got {resolve_every!r}")
+        self.horizon_steps = max(1, int(math.ceil(horizon_hours * 60.0 / params.step_minutes - 1e-9)))
+        self.resolve_every = int(resolve_every)
+        self.urgency_eur_kwh_h = float(urgency_eur_kwh_h)
+        self.time_limit_s = time_limit_s
+        self.limits = StationLimits.of(params)
+        st = params.station
+        self.num_ports = st.num_ports
+        self.num_leaves = st.num_ports + st.num_batteries
+        self.is_battery = np.asarray(st.leaf_kind) == KIND_BATTERY
+        self.step_minutes = params.step_minutes
+        self.num_steps = params.num_steps
+        self.num_levels = params.num_levels
+        self.continuous = params.action_mode == "continuous"
+        if params.action_mode == "delta":
+            raise ValueError("MPC needs action_mode 'absolute' or 'continuous', got 'delta'")
+        prices = np.asarray(params.prices_eur_kwh, np.float64)
+        hours = np.clip((np.arange(params.num_steps) * params.step_minutes / 60.0).astype(int), 0, 23)
+        fee, factor = float(params.grid_fee_eur_kwh), float(params.feed_in_factor)
+        self.spot = prices[:, hours]  # (D, T)
+        self.buy, self.sell = self.spot + fee, self.spot * factor
+        self.battery_value = (prices.mean(axis=1) + fee if bool(params.battery_value_day_mean)
+                              else np.full(prices.shape[0], float(params.battery_value_eur_kwh)))
+        self.customer = float(params.customer_price_eur_kwh)
+        self.step_hours = params.step_hours
+        self.solves = 0
+        self.failures = 0
+        self.solve_s = 0.0
+        self._plans: dict = {}
+
+    # ---- host side
+    def _sessions(self, s: dict, n: int) -> Sessions:
+        occ = s["occupied"].astype(bool)
+        leaves = np.nonzero(occ)[0]
+        dt = self.step_minutes
+        steps_left = np.ceil(np.maximum(s["time_remaining_min"][leaves], 0.0) / dt - 1e-6).astype(int)
+        bat = self.is_battery[leaves]
+        # Cars are planned to be done one step before their planned departure (a margin
+        # against the rounding to levels and the hard rescale, which may cut the last step); a
+        # charge-sensitive car past its plan (it stays until charged) is planned for this step
+        # only: with a longer window the LP would defer it at every re-solve and the car would
+        # block its port for the rest of the day.
+        last = np.where(bat, n - 1, np.maximum(np.minimum(steps_left - 1, n) - 1, 0))
+        return Sessions(
+            leaf=leaves, first=np.zeros(leaves.shape[0], int), last=last,
+            soc0=s["soc"][leaves], reserve_soc=np.where(bat, 0.0, s["arrival_soc"][leaves]),
+            target_soc=np.where(bat, 1.0, s["target_soc"][leaves]), capacity_kwh=s["capacity_kwh"][leaves],
+            max_rate_kw=s["max_rate_kw"][leaves], max_discharge_rate_kw=s["max_discharge_rate_kw"][leaves],
+            tau=s["tau"][leaves], must_reach=np.zeros(leaves.shape[0], bool),
+            charge_sensitive=s["charge_sensitive"][leaves].astype(bool))
+
+    def plan(self, s: dict) -> np.ndarray:
+        """Net power per leaf and step ``(n, L)`` (kW, car side) for the host state ``s``."""
+        day, t = int(s["day"]), int(s["timestep"])
+        n = max(1, min(self.horizon_steps, self.num_steps - t))
+        d = day % self.buy.shape[0]
+        sl = slice(t, t + n)
+        econ = Economics(buy=self.buy[d, sl], sell=self.sell[d, sl], customer=self.customer,
+                         battery_value=float(self.battery_value[d]), step_hours=self.step_hours)
+        sessions = self._sessions(s, n)
+        out = np.zeros((n, self.num_leaves))
+        if sessions.size == 0:
+            return out
+        self.solves += 1
+        try:
+            urgency = np.where(sessions.charge_sensitive, self.urgency_eur_kwh_h, 0.0)
+            sol = build_and_solve(sessions, n, self.limits, econ, time_limit_s=self.time_limit_s,
+                                  urgency_eur_kwh_h=urgency)
+        except RuntimeError:
+            self.failures += 1
+            out[:, ~self.is_battery] = self.limits.charge_kw[~self.is_battery]
+            return out
+        self.solve_s += sol.solve_s
+        for i, leaf in enumerate(sessions.leaf):
+            net = sol.net_kw[i]
+            if net is not None:
+                out[:net.shape[0], leaf] = net
+        return out
+
+    def _levels(self, net_kw: np.ndarray) -> np.ndarray:
+        """Levels for the plan's first-step powers. Charging rounds up (the car's own limits
+        in the simulator cut the surplus, and a small remainder planned for a car's last step
+        must not round to 0); discharging rounds towards 0."""
+        up = np.maximum(self.limits.charge_kw, 1e-9)
+        down = np.maximum(self.limits.discharge_kw, 1e-9)
+        frac = np.where(net_kw >= 0, net_kw / up, net_kw / down)
+        frac = np.clip(frac, -1.0, 1.0)
+        frac[np.abs(frac) < 1e-6] = 0.0
+        if self.continuous:
+            return frac.astype(np.float32)
+        scaled = frac * self.num_levels
+        return np.where(scaled > 0, np.ceil(scaled - 1e-6), np.trunc(scaled)).astype(np.int32)
+
+    def host_act(self, *arrays) -> np.ndarray:
+        s = {k: np.asarray(v) for k, v in zip(_FIELDS, arrays)}
+        day, t = int(s["day"]), int(s["timestep"])
+        cached = self._plans.get(day)
+        if cached is not None and self.resolve_every > 1:
+            t0, occ, socs, plan = cached
+            k = t - t0
+            if 0 < k < min(self.resolve_every, plan.shape[0]) and np.array_equal(occ, s["occupied"]) and \
+                    np.allclose(socs[k], s["soc"], atol=1e-4):
+                return self._levels(plan[k])
+        plan = self.plan(s)
+        if self.resolve_every > 1:
+            self._plans[day] = (t, s["occupied"].copy(), self._predicted_soc(s, plan), plan)
+        return self._levels(plan[0])
+
+    def _predicted_soc(self, s: dict, plan: np.ndarray) -> np.ndarray:
+        cap = np.maximum(s["capacity_kwh"], 1e-6)
+        steps = np.cumsum(plan * self.step_hours / cap, axis=0)
+        return np.concatenate([s["soc"][None], s["soc"][None] + steps[:-1]], axis=0)
+
+    # ---- the policy
+    def __call__(self, state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarray:
+        del key, params
+        dtype = jnp.float32 if self.continuous else jnp.int32
+        out = jax.ShapeDtypeStruct((self.num_leaves,), dtype)
+        args = [getattr(state, f) for f in _FIELDS]
+        return jax.pure_callback(self.host_act, out, *args, vmap_method="sequential")
+
+
+def mpc_policy(params: EnvParams, **kwargs) -> MPC:
+    """An :class:`MPC` for ``params`` (a policy ``(state, key, params) -> levels``)."""
+    return MPC(params, **kwargs)

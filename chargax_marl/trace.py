@@ -1,0 +1,215 @@
+"""Exogenous day traces: everything about a day that no policy can change, to replay it exactly.
+
+A day of the simulator is driven by two things: the policy's actions and the exogenous
+inputs (the day's prices, the batteries' initial SoC and, per step, the cars that ask to
+park). The cars of a step are drawn from the step's key without looking at the station
+(:func:`chargax_marl.core.traffic.draw_arrivals`), so for a given day and key they are the
+same whatever the policy does; only which of them find a free port depends on it.
+
+:func:`make_traces` records those inputs as a :class:`DayTrace` per day, with the same key
+derivation as :func:`chargax_marl.evaluation.run_days`; :func:`replay` runs a policy on a
+trace and gives, bit for bit, the day that ``run_days`` gives with the same key. The optimal
+baselines (:mod:`chargax_marl.optimal`) read their cars and prices from traces.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from chargax_marl.core import reward as reward_lib
+from chargax_marl.core import simulator, traffic
+from chargax_marl.core.types import EnvParams, EnvState
+
+Act = Callable[[EnvState, jax.Array], jnp.ndarray]
+
+
+def day_keys(day_key: jax.Array, num_steps: int):
+    """The keys of one evaluated day: ``(act_keys, step_keys, battery_key)``.
+
+    ``act_keys[t]`` goes to the policy and ``step_keys[t]`` to the simulator's step ``t`` (it
+    draws the step's cars); ``battery_key`` draws the batteries' initial SoC, apart from the
+    cars so that they stay the same whatever the battery setting.
+    """
+    pairs = jax.vmap(jax.random.split)(jax.random.split(day_key, num_steps))
+    return pairs[:, 0], pairs[:, 1], jax.random.fold_in(day_key, 1)
+
+
+def station_fingerprint(params: EnvParams) -> str:
+    """A short hash of the station's layout and limits (host side): traces made for one
+    station are refused by another."""
+    st = params.station
+    h = hashlib.sha1()
+    for a in (st.leaf_kind, st.leaf_voltage_v, st.leaf_max_current_a, st.leaf_max_discharge_current_a,
+              st.node_max_kw, st.node_of_leaf_at_depth, st.leaf_efficiency_at_depth, st.battery_capacity_kwh):
+        h.update(np.asarray(a).tobytes())
+    return h.hexdigest()[:16]
+
+
+@struct.dataclass
+class DayTrace:
+    """The exogenous inputs of one day (or, with a leading axis, of several days).
+
+    ``arrivals`` holds one :class:`chargax_marl.core.traffic.Arrivals` per step (leading axis
+    ``num_steps``): arrival step = index, and per slot the car model, capacity, r-bar for AC
+    and DC ports, tau, arrival SoC, target SoC, planned stay and user type. Prices are per step
+    in EUR/kWh: what the station pays for a net draw and earns for a net feed-in.
+    """
+
+    day: jnp.ndarray  # () int32
+    arrivals: traffic.Arrivals  # fields with a leading (num_steps,) axis
+    battery_soc0: jnp.ndarray  # (B,) initial SoC of each station battery
+    price_buy_eur_kwh: jnp.ndarray  # (num_steps,)
+    price_sell_grid_eur_kwh: jnp.ndarray  # (num_steps,)
+    battery_value_eur_kwh: jnp.ndarray  # () price of the batteries' net energy change at the day's end
+    step_minutes: float = struct.field(pytree_node=False, default=5.0)
+    num_steps: int = struct.field(pytree_node=False, default=288)
+    station: str = struct.field(pytree_node=False, default="")
+
+
+def _make_trace(params: EnvParams, day, day_key) -> DayTrace:
+    _, step_keys, battery_key = day_keys(day_key, params.num_steps)
+    day = jnp.asarray(day, jnp.int32)
+    workday = simulator.is_workday(day, params)
+    steps = jnp.arange(params.num_steps, dtype=jnp.int32)
+    arrivals = jax.vmap(lambda k, t: traffic.draw_arrivals(k, t, workday, params))(step_keys, steps)
+    buy, sell = jax.vmap(lambda t: reward_lib.grid_prices(day, t, params))(steps)
+    nb = params.station.num_batteries
+    return DayTrace(
+        day=day,
+        arrivals=arrivals,
+        battery_soc0=simulator.battery_initial_soc(params, battery_key) if nb else jnp.zeros((0,), jnp.float32),
+        price_buy_eur_kwh=buy,
+        price_sell_grid_eur_kwh=sell,
+        battery_value_eur_kwh=reward_lib.battery_terminal_value_eur(jnp.float32(1.0), day, params),
+        step_minutes=params.step_minutes,
+        num_steps=params.num_steps,
+    )
+
+
+def make_traces(params: EnvParams, days, key: jax.Array | None = None) -> DayTrace:
+    """The traces of ``days`` (a leading axis over days) for the cars that
+    :func:`chargax_marl.evaluation.run_days` draws with the same ``key`` (default
+    ``PRNGKey(0)``, the evaluation default)."""
+    key = jax.random.PRNGKey(0) if key is None else key
+    days = jnp.atleast_1d(jnp.asarray(days, jnp.int32))
+    fingerprint = station_fingerprint(params)
+    traces = jax.jit(jax.vmap(lambda d, k: _make_trace(params, d, k)))(days, jax.random.split(key, days.shape[0]))
+    return traces.replace(station=fingerprint)
+
+
+CAR_DEFAULTS = {"capacity_kwh": 60.0, "ac_kw": 11.0, "dc_kw": 50.0, "ac_discharge_kw": 0.0, "dc_discharge_kw": 0.0,
+                "tau": 0.8, "arrival_soc": 0.2, "target_soc": 0.8, "stay_min": 60.0, "charge_sensitive": False}
+"""Defaults of :func:`trace_from_cars` for fields a car leaves out."""
+
+
+def trace_from_cars(params: EnvParams, cars: list[dict], day: int = 0, battery_soc0=None) -> DayTrace:
+    """A hand-made day: ``cars`` is a list of dicts with ``arrival_step`` (the step at whose
+    end the car arrives; it charges from the next step) and any fields of
+    :data:`CAR_DEFAULTS`; cars of one step fill its slots in list order (at most one per
+    port). Prices are the params' prices of ``day``; ``battery_soc0`` defaults to the middle
+    of the params' range. For tests and worked examples."""
+    st = params.station
+    n, slots = params.num_steps, st.num_ports
+    fields = {f: np.zeros((n, slots), np.float32) for f in CAR_DEFAULTS}
+    requested = np.zeros(n, np.int32)
+    for i, car in enumerate(cars):
+        unknown = set(car) - set(CAR_DEFAULTS) - {"arrival_step"}
+        if unknown:
+            raise ValueError(f"car {i}: unknown field(s) {sorted(unknown)}; allowed: arrival_step, {sorted(CAR_DEFAULTS)}")
+        t = int(car.get("arrival_step", -1))
+        if not 0 <= t < n:
+            raise ValueError(f"car {i}: field 'arrival_step' must lie in [0, {n - 1}], got {car.get('arrival_step')!r}")
+        k = requested[t]
+        if k >= slots:
+            raise ValueError(f"car {i}: more than {slots} cars (the number of ports) arrive in step {t}")
+        for f, default in CAR_DEFAULTS.items():
+            fields[f][t, k] = car.get(f, default)
+        requested[t] += 1
+    arrivals = traffic.Arrivals(
+        requested=jnp.asarray(requested), model=jnp.full((n, slots), -1, jnp.int32),
+        **{f: jnp.asarray(v, bool if f == "charge_sensitive" else jnp.float32) for f, v in fields.items()})
+    day_arr = jnp.asarray(day, jnp.int32)
+    steps = jnp.arange(n, dtype=jnp.int32)
+    buy, sell = jax.vmap(lambda t: reward_lib.grid_prices(day_arr, t, params))(steps)
+    soc0 = simulator.battery_initial_soc(params) if battery_soc0 is None else jnp.asarray(battery_soc0, jnp.float32)
+    return DayTrace(day=day_arr, arrivals=arrivals, battery_soc0=jnp.atleast_1d(soc0)[:st.num_batteries],
+                    price_buy_eur_kwh=buy, price_sell_grid_eur_kwh=sell,
+                    battery_value_eur_kwh=reward_lib.battery_terminal_value_eur(jnp.float32(1.0), day_arr, params),
+                    step_minutes=params.step_minutes, num_steps=n, station=station_fingerprint(params))
+
+
+def day_of(traces: DayTrace, i: int) -> DayTrace:
+    """The ``i``-th day of a batch of traces."""
+    return jax.tree_util.tree_map(lambda a: a[i], traces)
+
+
+def check_trace(trace: DayTrace, params: EnvParams) -> None:
+    """Raise ``ValueError`` when ``trace`` was not made for ``params`` (another station,
+    step length or day length)."""
+    if trace.step_minutes != params.step_minutes:
+        raise ValueError(f"trace field 'step_minutes' is {trace.step_minutes!r} but params have "
+                         f"step_minutes={params.step_minutes!r}: make the trace with the same params")
+    if trace.num_steps != params.num_steps:
+        raise ValueError(f"trace field 'num_steps' is {trace.num_steps!r} but params have "
+                         f"num_steps={params.num_steps!r}: make the trace with the same params")
+    if isinstance(params.station.leaf_voltage_v, jax.core.Tracer):
+        return  # params traced: only the static fields above can be checked
+    fingerprint = station_fingerprint(params)
+    if trace.station != fingerprint:
+        raise ValueError(f"trace field 'station' is {trace.station!r} but the params' station is {fingerprint!r}: "
+                         "the trace was made for another station (ports, limits or efficiencies differ)")
+    slots = np.shape(trace.arrivals.model)[-1]
+    if slots != params.station.num_ports:
+        raise ValueError(f"trace has {slots} arrival slots per step but the station has "
+                         f"{params.station.num_ports} ports")
+
+
+def replay(act: Act, params: EnvParams, trace: DayTrace, day_key: jax.Array):
+    """Run ``act(state, key) -> levels`` for one day on ``trace`` (one day, no leading axis).
+
+    The policy receives the same keys as in :func:`chargax_marl.evaluation.run_days` with
+    ``day_key``, so the result equals that day of ``run_days`` bit for bit. Returns
+    ``(start_states, infos, final_state)``: the state at the start of every step and the
+    step's :class:`chargax_marl.core.types.StepInfo`, each with a leading ``(num_steps,)`` axis. Jittable.
+    """
+    check_trace(trace, params)
+    act_keys, _, _ = day_keys(day_key, params.num_steps)
+    start = simulator.empty_state(trace.day, params).replace(
+        soc=_battery_soc(trace, params))
+
+    def body(state, xs):
+        k_act, arrivals = xs
+        new_state, info = simulator.step_with_arrivals(state, act(state, k_act), arrivals, params)
+        return new_state, (state, info)
+
+    final, (states, infos) = jax.lax.scan(body, start, (act_keys, trace.arrivals))
+    return states, infos, final
+
+
+def replay_days(act: Act, params: EnvParams, traces: DayTrace, key: jax.Array | None = None):
+    """:func:`replay` over a batch of traces (vmapped), with the per-day keys that
+    :func:`chargax_marl.evaluation.run_days` derives from ``key`` (default ``PRNGKey(0)``).
+    Returns the final :class:`chargax_marl.core.types.EpisodeTotals` (leading axis over days),
+    equal to ``run_days(act, params, traces.day, key)``. Jittable."""
+    key = jax.random.PRNGKey(0) if key is None else key
+    num_days = traces.day.shape[0]
+    return jax.vmap(lambda t, k: replay(act, params, t, k)[2].totals)(traces, jax.random.split(key, num_days))
+
+
+def _battery_soc(trace: DayTrace, params: EnvParams) -> jnp.ndarray:
+    """The start state's SoC vector with the trace's battery SoCs in the battery slots."""
+    st = params.station
+    base = simulator.empty_state(trace.day, params).soc
+    nb = st.num_batteries
+    if nb == 0:
+        return base
+    return base.at[st.num_ports:].set(jnp.asarray(trace.battery_soc0, jnp.float32))
+
+
+__all__ = ["DayTrace", "check_trace", "day_keys", "day_of", "make_traces", "replay", "replay_days", "trace_from_cars", "station_fingerprint"]
