@@ -44,11 +44,12 @@ class MPC:
     A charge-sensitive car frees its port when it is charged, which only matters for cars
     the controller cannot see yet; ``urgency_eur_kwh_h`` (default 0.1 EUR/kWh per hour)
     makes the LP charge such cars early (a bonus per kWh that falls with delay). It changes
-    the plan, not the profit the simulator books.
+    the plan, not the profit the simulator books. ``deadline_margin_steps`` (default 1)
+    plans each car to be done that many steps before its planned departure.
     """
 
     def __init__(self, params: EnvParams, horizon_hours: float = 4.0, resolve_every: int = 1,
-                 time_limit_s: float = 10.0, urgency_eur_kwh_h: float = 0.1):
+                 time_limit_s: float = 10.0, urgency_eur_kwh_h: float = 0.1, deadline_margin_steps: int = 1):
         if not horizon_hours > 0:
             raise ValueError(f"field 'horizon_hours' must be > 0, got {horizon_hours!r}")
         if int(resolve_every) < 1:
@@ -56,6 +57,9 @@ class MPC:
         self.horizon_steps = max(1, int(math.ceil(horizon_hours * 60.0 / params.step_minutes - 1e-9)))
         self.resolve_every = int(resolve_every)
         self.urgency_eur_kwh_h = float(urgency_eur_kwh_h)
+        if int(deadline_margin_steps) < 0:
+            raise ValueError(f"field 'deadline_margin_steps' must be an integer >= 0, got {deadline_margin_steps!r}")
+        self.deadline_margin_steps = int(deadline_margin_steps)
         self.time_limit_s = time_limit_s
         self.limits = StationLimits.of(params)
         st = params.station
@@ -89,12 +93,13 @@ class MPC:
         dt = self.step_minutes
         steps_left = np.ceil(np.maximum(s["time_remaining_min"][leaves], 0.0) / dt - 1e-6).astype(int)
         bat = self.is_battery[leaves]
-        # Cars are planned to be done one step before their planned departure (a margin
-        # against the rounding to levels and the hard rescale, which may cut the last step); a
+        # Cars are planned to be done ``deadline_margin_steps`` (1) before their planned
+        # departure (a margin against the rounding to levels and the hard rescale, which may
+        # cut the last step); a
         # charge-sensitive car past its plan (it stays until charged) is planned for this step
         # only: with a longer window the LP would defer it at every re-solve and the car would
         # block its port for the rest of the day.
-        last = np.where(bat, n - 1, np.maximum(np.minimum(steps_left - 1, n) - 1, 0))
+        last = np.where(bat, n - 1, np.maximum(np.minimum(steps_left - self.deadline_margin_steps, n) - 1, 0))
         return Sessions(
             leaf=leaves, first=np.zeros(leaves.shape[0], int), last=last,
             soc0=s["soc"][leaves], reserve_soc=np.where(bat, 0.0, s["arrival_soc"][leaves]),

@@ -1,0 +1,188 @@
+"""Replayable days, the HiGHS hindsight bound and the MPC controller.
+
+Hand cases have optima computed on paper (flat efficiencies of 1, no grid fee, no fixed
+cost); the property tests compare the bound with the policies' own profits on drawn days.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from chargax_marl import evaluation, optimal, policies, trace
+from chargax_marl.core.params import make_params
+from chargax_marl.core.station import Battery, Port, Splitter
+from chargax_marl.optimal.mpc import MPC
+
+KEY = jax.random.PRNGKey(0)
+
+
+def hand_params(station, hourly_prices, **kw):
+    prices = np.tile(np.asarray(hourly_prices, np.float32), (2, 1))
+    return make_params(station=station, prices=prices, grid_fee_eur_kwh=0.0, fixed_cost_eur=0.0, feed_in_factor=1.0,
+                       customer_price_eur_kwh=0.75, **kw)
+
+
+def run_on_trace(policy, params, tr):
+    _, _, final = jax.jit(lambda t, k: trace.replay(lambda s, kk: policy(s, kk, params), params, t, k))(tr, KEY)
+    return float(final.totals.profit_eur)
+
+
+def bound_for(policy, params, tr):
+    occ = optimal.occupancy(params, tr, KEY, reference=policy)
+    return optimal.hindsight_bound(params, tr, occ)
+
+
+# --- exogenous traces -------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def default_setup():
+    params = make_params(battery_initial_soc=(0.2, 0.8))
+    days = np.array([5, 123])
+    return params, days, trace.make_traces(params, days, KEY)
+
+
+@pytest.mark.parametrize("name", ["random", "battery_rule", "price_threshold"])
+def test_replay_equals_the_keyed_rollout_bit_for_bit(default_setup, name):
+    params, days, traces = default_setup
+    pol = policies.get_policy(name)
+    act = lambda s, k: pol(s, k, params)  # noqa: E731
+    keyed = jax.jit(lambda d, k: evaluation.run_days(act, params, d, k))(jnp.asarray(days), KEY)
+    replayed = jax.jit(lambda t, k: trace.replay_days(act, params, t, k))(traces, KEY)
+    for field in keyed.__dataclass_fields__:
+        a, b = np.asarray(getattr(keyed, field)), np.asarray(getattr(replayed, field))
+        assert a.tobytes() == b.tobytes(), field
+
+
+def test_the_cars_of_a_day_do_not_depend_on_the_policy(default_setup):
+    params, days, traces = default_setup
+    again = trace.make_traces(params, days, KEY)
+    for a, b in zip(jax.tree_util.tree_leaves(traces), jax.tree_util.tree_leaves(again)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    # the slots hold the cars that ask to park, whichever ports are free: a policy that keeps
+    # ports busy (idle) admits a prefix of the same cars the always-max policy meets
+    n_req = np.asarray(traces.arrivals.requested)
+    assert n_req.sum() > 50 and n_req.shape == (2, params.num_steps)
+
+
+def test_a_trace_for_another_station_or_step_length_is_refused(default_setup):
+    params, _, traces = default_setup
+    tr = trace.day_of(traces, 0)
+    other_station = make_params(station_kwargs={"num_dc": 4})
+    with pytest.raises(ValueError, match="station"):
+        trace.replay(lambda s, k: policies.always_max(s, k, other_station), other_station, tr, KEY)
+    other_step = make_params(step_minutes=15.0)
+    with pytest.raises(ValueError, match="step_minutes"):
+        optimal.hindsight_bound(other_step, tr, optimal.occupancy(params, tr, KEY))
+
+
+# --- hand-computed optima ---------------------------------------------------------------
+
+ONE_PORT = Splitter("grid", 1000.0, (Port("p0", "DC", 500.0, 100.0),))  # 50 kW
+
+
+def test_one_car_waits_for_the_cheap_hours():
+    # dear (1.00 EUR/kWh) until 06:00, cheap (0.10) after; the car parks 04:05-08:05 and
+    # wants 24 kWh: the best plan buys all of it at 0.10 -> 24 * (0.75 - 0.10) = 15.6 EUR
+    params = hand_params(ONE_PORT, [1.0] * 6 + [0.1] * 18)
+    tr = trace.trace_from_cars(params, [dict(arrival_step=48, capacity_kwh=60.0, dc_kw=50.0, tau=0.99,
+                                             arrival_soc=0.2, target_soc=0.6, stay_min=240.0)])
+    bound = bound_for(policies.always_max, params, tr)
+    assert bound.status == "optimal"
+    assert bound.profit_eur == pytest.approx(24 * (0.75 - 0.10), abs=1e-4)
+    # always-max charges at once, at the dear price
+    assert bound.reference_profit_eur == pytest.approx(24 * (0.75 - 1.0), abs=1e-3)
+    # the MPC (4 h look-ahead) sees the cheap hours and waits for them
+    assert run_on_trace(MPC(params), params, tr) == pytest.approx(15.6, abs=1e-3)
+
+
+def test_two_cars_share_a_constrained_evse():
+    # a 30 kW EVSE feeds two 50 kW ports for one hour: 30 kWh in all, whatever the split
+    evse = Splitter("evse", 30.0, (Port("p0", "DC", 500.0, 100.0), Port("p1", "DC", 500.0, 100.0)))
+    params = hand_params(Splitter("grid", 1000.0, (evse,)), [0.1] * 24)
+    car = dict(arrival_step=0, capacity_kwh=100.0, dc_kw=50.0, tau=0.99, arrival_soc=0.2, target_soc=0.6,
+               stay_min=60.0)
+    tr = trace.trace_from_cars(params, [car, car])
+    bound = bound_for(policies.always_max, params, tr)
+    assert bound.profit_eur == pytest.approx(30 * (0.75 - 0.10), abs=1e-4)
+    assert bound.num_cars == 2
+    assert bound.reference_profit_eur == pytest.approx(bound.profit_eur, rel=1e-4)
+    assert bound.profit_eur >= bound.reference_profit_eur - 1e-4
+
+
+def test_a_battery_on_a_two_price_day():
+    # 100 kWh battery at 50 %, 50 kW, no losses; 0.05 EUR/kWh until noon, 0.25 after; the
+    # energy change is valued at the day's mean buy price 0.15. Best: fill (50 kWh at 0.05),
+    # then empty (100 kWh at 0.25): -2.5 + 25 - 50 * 0.15 = 15 EUR.
+    bat = Battery("bat", capacity_kwh=100.0, max_kw=50.0, efficiency=1.0, tau=0.99, initial_soc=0.5)
+    params = hand_params(Splitter("grid", 1000.0, (Port("p0", "DC", 500.0, 100.0), bat)), [0.05] * 12 + [0.25] * 12)
+    tr = trace.trace_from_cars(params, [])
+    bound = bound_for(policies.battery_rule, params, tr)
+    assert bound.profit_eur == pytest.approx(15.0, abs=1e-4)
+    # the two-line rule is optimal here (up to the discrete last steps of the rate curve)
+    assert bound.reference_profit_eur == pytest.approx(15.0, abs=0.05)
+    assert bound.reference_profit_eur <= bound.profit_eur + 1e-4
+    assert run_on_trace(MPC(params, horizon_hours=24.0), params, tr) == pytest.approx(15.0, abs=0.05)
+
+
+def test_an_unreachable_target_is_missing_energy_not_an_infeasible_problem():
+    params = hand_params(ONE_PORT, [0.1] * 24)
+    tr = trace.trace_from_cars(params, [dict(arrival_step=0, capacity_kwh=100.0, dc_kw=50.0, tau=0.99,
+                                             arrival_soc=0.0, target_soc=1.0, stay_min=5.0)])
+    bound = bound_for(policies.always_max, params, tr)
+    # one 5-minute step at 50 kW: 50/12 kWh of the 100 wanted
+    assert bound.profit_eur == pytest.approx(50 / 12 * 0.65, abs=1e-4)
+
+
+def test_a_solver_time_limit_is_an_error_not_a_number(default_setup):
+    params, _, traces = default_setup
+    tr = trace.day_of(traces, 0)
+    occ = optimal.occupancy(params, tr, KEY)
+    with pytest.raises(optimal.SolverError, match="limit"):
+        optimal.hindsight_bound(params, tr, occ, time_limit_s=1e-9)
+
+
+# --- properties on drawn days -----------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def small_setup():
+    params = make_params(station_kwargs={"num_dc": 4, "num_ac": 2}, traffic="high", battery_initial_soc=(0.2, 0.8))
+    return params, trace.make_traces(params, np.array([10, 200]), KEY)
+
+
+@pytest.mark.parametrize("name", ["always_max", "battery_rule", "price_threshold", "edf", "random"])
+def test_the_bound_is_above_every_policy_with_the_same_occupancy(small_setup, name):
+    params, traces = small_setup
+    for i in range(2):
+        b = bound_for(policies.get_policy(name), params, trace.day_of(traces, i))
+        assert b.profit_eur >= b.reference_profit_eur - 1e-3 * abs(b.reference_profit_eur) - 1e-3
+
+
+def test_the_bound_is_above_the_mpc_with_the_same_occupancy(small_setup):
+    params, traces = small_setup
+    mpc = MPC(params, horizon_hours=2.0)
+    b = bound_for(mpc, params, trace.day_of(traces, 0))
+    assert mpc.solves > 0 and mpc.failures == 0
+    assert b.profit_eur >= b.reference_profit_eur - 1e-3 * abs(b.reference_profit_eur)
+
+
+def _cars_at_dawn():
+    return [dict(arrival_step=0, capacity_kwh=60.0, dc_kw=100.0, tau=0.8, arrival_soc=0.1, target_soc=0.9,
+                 stay_min=600.0),
+            dict(arrival_step=0, capacity_kwh=80.0, dc_kw=150.0, tau=0.8, arrival_soc=0.3, target_soc=0.95,
+                 stay_min=900.0),
+            dict(arrival_step=0, capacity_kwh=40.0, ac_kw=11.0, tau=0.8, arrival_soc=0.2, target_soc=0.7,
+                 stay_min=1200.0)]
+
+
+@pytest.mark.parametrize("action_mode,tol_eur", [("continuous", 0.02), ("absolute", 1.0)])
+def test_a_full_day_mpc_reaches_the_bound_when_no_car_arrives_later(action_mode, tol_eur):
+    params = make_params(station_kwargs={"num_dc": 2, "num_ac": 2}, action_mode=action_mode)
+    tr = trace.trace_from_cars(params, _cars_at_dawn())
+    mpc = MPC(params, horizon_hours=24.0, deadline_margin_steps=0)
+    profit = run_on_trace(mpc, params, tr)
+    bound = bound_for(mpc, params, tr).profit_eur
+    assert profit <= bound + 1e-3
+    assert bound - profit <= tol_eur
