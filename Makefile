@@ -3,7 +3,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: test train train-ppo rollout bench bench-peers bench-scaling data data-check clean
+.PHONY: test train train-ppo optimal rollout bench bench-peers bench-scaling data data-check clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -29,6 +29,12 @@ train: $(STAMP)
 # Single-agent PPO with the always-max prior (a fixed logit offset on each port's full-power action).
 train-ppo: $(STAMP)
 	$(PY) -m baselines.train --algo ppo $(SCENARIO_FLAGS) --lr 3e-4 --always-max-prior 6 --timesteps 1e6 --chunks 10 --out outputs/train_ppo
+
+# The LP hindsight bound, the MPC and the rule-based policies on the 100 held-out days of the
+# default scenario and of a grid-constrained one (grid at 25 %, high traffic); writes
+# baselines/results/optimal/*.json and *.png and prints the table (about 25 min on 2 idle cores).
+optimal: $(STAMP)
+	$(PY) -m baselines.optimal
 
 # One day of the always-max baseline (the former `make train`).
 rollout: $(STAMP)

@@ -95,6 +95,39 @@ def evaluate_policy(policy, params: EnvParams, days, key: jax.Array | None = Non
     return evaluate(lambda s, k: policy(s, k, params), params, days, key)
 
 
+def hindsight_bound(params: EnvParams, days, key: jax.Array | None = None, reference: str = "always_max",
+                    time_limit_s: float | None = 60.0) -> dict:
+    """The LP hindsight bound (:mod:`chargax_marl.optimal.bound`) of each of ``days`` over
+    ``reference``'s port occupancy, with the cars :func:`evaluate` draws with ``key``:
+    ``{"daily_profit", "reference_daily_profit", "solve_s", "status"}`` (arrays over days)."""
+    from chargax_marl.optimal import bound_days
+    from chargax_marl.policies import get_policy
+
+    bounds = bound_days(params, days, key, get_policy(reference), time_limit_s=time_limit_s)
+    return {"daily_profit": np.array([b.profit_eur for b in bounds]),
+            "reference_daily_profit": np.array([b.reference_profit_eur for b in bounds]),
+            "solve_s": np.array([b.solve_s for b in bounds]), "status": [b.status for b in bounds],
+            "reference": reference}
+
+
+def headroom_captured(daily_profit, always_max_daily, bound_daily) -> dict:
+    """The fraction of the hindsight headroom a policy captures on the same days and cars:
+    ``mean(policy - always-max) / mean(bound - always-max)``, with both means (EUR/day) and
+    their standard errors over days (and seeds, when ``daily_profit`` is ``(seeds, days)``).
+    1 means the bound, 0 always-max; negative is worse than always-max."""
+    a = np.asarray(always_max_daily, np.float64)
+    captured = np.atleast_2d(np.asarray(daily_profit, np.float64)) - a[None, :]
+    headroom = np.asarray(bound_daily, np.float64) - a
+
+    def se(x):
+        return float(np.std(x, ddof=1) / np.sqrt(x.size)) if x.size > 1 else float("nan")
+
+    mean_headroom = float(headroom.mean())
+    return {"fraction": float(captured.mean() / mean_headroom) if mean_headroom > 0 else float("nan"),
+            "captured_eur": float(captured.mean()), "captured_stderr": se(captured),
+            "headroom_eur": mean_headroom, "headroom_stderr": se(headroom)}
+
+
 def write_json(results: dict, path: str | Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -51,6 +51,17 @@ def station_fingerprint(params: EnvParams) -> str:
     return h.hexdigest()[:16]
 
 
+def params_fingerprint(params: EnvParams) -> str:
+    """A short hash of every array and setting of ``params`` (host side), to tell whether
+    stored results were computed for the same scenario."""
+    h = hashlib.sha1()
+    leaves, treedef = jax.tree_util.tree_flatten(params)
+    h.update(str(treedef).encode())
+    for a in leaves:
+        h.update(np.asarray(a).tobytes())
+    return h.hexdigest()[:16]
+
+
 @struct.dataclass
 class DayTrace:
     """The exogenous inputs of one day (or, with a leading axis, of several days).
@@ -212,4 +223,4 @@ def _battery_soc(trace: DayTrace, params: EnvParams) -> jnp.ndarray:
     return base.at[st.num_ports:].set(jnp.asarray(trace.battery_soc0, jnp.float32))
 
 
-__all__ = ["DayTrace", "check_trace", "day_keys", "day_of", "make_traces", "replay", "replay_days", "trace_from_cars", "station_fingerprint"]
+__all__ = ["DayTrace", "check_trace", "day_keys", "day_of", "make_traces", "params_fingerprint", "replay", "replay_days", "trace_from_cars", "station_fingerprint"]

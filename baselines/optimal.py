@@ -1,0 +1,181 @@
+"""How far is each policy from the best? The LP bound, the MPC and the rules on the held-out days.
+
+``python -m baselines.optimal`` (``make optimal``) evaluates, on the 100 held-out days
+(``split_days(365, 100, seed=0)``, evaluation key 0, the same cars for every policy) of
+
+- ``default``: the shopping scenario, medium traffic, the default station;
+- ``grid25_high``: the same station with its grid connection at 25 % of the sum of its
+  children (221 kW instead of 884.5), high traffic;
+
+the rule-based policies (always-max, always-max + battery price rule, EDF, LLF,
+price-threshold), the MPC (:mod:`chargax_marl.optimal.mpc`, 4 h horizon, re-solved every
+step) and the LP hindsight bound over always-max's occupancy
+(:mod:`chargax_marl.optimal.bound`). For each it reports EUR/day, the paired difference to
+always-max (mean ± standard error over days) and the fraction of the headroom captured,
+``(policy - always-max) / (bound - always-max)``, with solve times. Writes
+``baselines/results/optimal/<scenario>.json`` (with the per-day profits, which
+:mod:`baselines.train` reuses for the same params) and ``<scenario>.png``, and prints the
+table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from baselines import common
+from chargax_marl.evaluation import headroom_captured, hindsight_bound, run_days, summarize, write_json
+from chargax_marl.optimal.mpc import MPC
+from chargax_marl.trace import params_fingerprint
+
+RESULTS_DIR = Path(__file__).parent / "results" / "optimal"
+RULES = ("always_max", "battery_rule", "edf", "llf", "price_threshold")
+DEFAULT_ROOT_KW = 884.5  # sum of the default station's root children: 750 (DC) + 34.5 (AC) + 100 (battery)
+
+SCENARIOS = {
+    "default": {"SCENARIO": "shopping", "TRAFFIC": "medium"},
+    "grid25_high": {"SCENARIO": "shopping", "TRAFFIC": "high",
+                    "ENV_KWARGS": {"station_kwargs": {"grid_kw": 0.25 * DEFAULT_ROOT_KW}}},
+}
+
+
+def scenario_params(name: str):
+    """``(eval_params, held_out_days)`` of a named scenario of this runner."""
+    config = common.parse_config({}, SCENARIOS[name])
+    _, full, _, days = common.build_env_params(config)
+    return full, days
+
+
+def evaluate_mpc(params, days, key=None, **mpc_kwargs) -> dict:
+    """The MPC on ``days`` with the evaluation's cars; per-day profits, metrics and timing."""
+    key = jax.random.PRNGKey(0) if key is None else key
+    mpc = MPC(params, **mpc_kwargs)
+    t0 = time.perf_counter()
+    totals = jax.jit(lambda d, k: run_days(lambda s, kk: mpc(s, kk, params), params, d, k))(np.asarray(days), key)
+    wall = time.perf_counter() - t0
+    steps = int(np.size(days)) * params.num_steps
+    return {"daily_profit": np.asarray(totals.profit_eur, np.float64), "metrics": summarize(totals),
+            "wall_s": wall, "solves": mpc.solves, "failures": mpc.failures, "solve_s_total": mpc.solve_s,
+            "ms_per_step": 1000.0 * wall / steps,
+            "settings": {"horizon_steps": mpc.horizon_steps, "resolve_every": mpc.resolve_every,
+                         "urgency_eur_kwh_h": mpc.urgency_eur_kwh_h,
+                         "deadline_margin_steps": mpc.deadline_margin_steps}}
+
+
+def cached(params, days) -> dict | None:
+    """The stored bound / MPC per-day profits for exactly these params and days, or None."""
+    fingerprint = params_fingerprint(params)
+    for path in sorted(RESULTS_DIR.glob("*.json")):
+        data = json.loads(path.read_text())
+        if data.get("params_fingerprint") == fingerprint and data.get("days") == [int(d) for d in days]:
+            return data
+    return None
+
+
+def run_scenario(name: str, mpc_kwargs: dict | None = None, num_days: int | None = None) -> dict:
+    from baselines.heuristics import evaluate_rules
+
+    params, days = scenario_params(name)
+    days = days if num_days is None else days[:num_days]
+    out = {"scenario": name, "config": SCENARIOS[name], "days": [int(d) for d in days],
+           "params_fingerprint": params_fingerprint(params), "key": "PRNGKey(0)",
+           "root_kw": float(params.station.node_max_kw[0]), "policies": {}}
+    t0 = time.perf_counter()
+    rules = evaluate_rules(params, days, RULES)
+    rules_s = time.perf_counter() - t0
+    am = rules["always_max"]["daily_profit"]
+    t0 = time.perf_counter()
+    bound = hindsight_bound(params, days)
+    bound_wall = time.perf_counter() - t0
+    mpc = evaluate_mpc(params, days, **(mpc_kwargs or {}))
+    entries = {k: {"daily_profit": v["daily_profit"], "metrics": v["metrics"]} for k, v in rules.items()}
+    entries["mpc"] = {"daily_profit": mpc["daily_profit"], "metrics": mpc["metrics"],
+                      "timing": {k: mpc[k] for k in ("wall_s", "solves", "failures", "solve_s_total", "ms_per_step")},
+                      "settings": mpc["settings"]}
+    entries["lp_bound"] = {"daily_profit": bound["daily_profit"],
+                           "timing": {"wall_s": bound_wall, "solve_s_mean": float(np.mean(bound["solve_s"])),
+                                      "solve_s_max": float(np.max(bound["solve_s"]))},
+                           "status": sorted(set(bound["status"]))}
+    for key, e in entries.items():
+        p = e["daily_profit"]
+        e["mean_eur"] = float(np.mean(p))
+        e["vs_always_max"] = common.paired_difference(p, am)
+        e["headroom"] = headroom_captured(p, am, bound["daily_profit"])
+        e["daily_profit"] = [float(x) for x in p]
+    out["policies"] = entries
+    out["rules_wall_s"] = rules_s
+    return out
+
+
+def format_optimal(result: dict) -> str:
+    lines = [f"{result['scenario']}: {len(result['days'])} held-out days, key 0, same cars for all; "
+             f"grid connection {result['root_kw']:.1f} kW",
+             f"{'policy':<16}{'EUR/day':>10}{'vs always-max':>18}{'headroom':>10}{'time':>22}"]
+    for name, e in result["policies"].items():
+        d = e["vs_always_max"]
+        t = e.get("timing")
+        if name == "mpc":
+            timing = f"{t['ms_per_step']:.1f} ms/step"
+        elif name == "lp_bound":
+            timing = f"{t['solve_s_mean']:.2f} s/day LP"
+        else:
+            timing = ""
+        lines.append(f"{name:<16}{e['mean_eur']:>10.1f}{d['mean']:>+11.2f} ± {d['stderr']:<5.2f}"
+                     f"{e['headroom']['fraction']:>10.2f}{timing:>22}")
+    return "\n".join(lines)
+
+
+def plot(result: dict, path: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(result["policies"])
+    diffs = [result["policies"][n]["vs_always_max"]["mean"] for n in names]
+    errs = [result["policies"][n]["vs_always_max"]["stderr"] for n in names]
+    fig, ax = plt.subplots(figsize=(7, 3.8))
+    colors = ["C7" if n == "lp_bound" else "C2" if n == "mpc" else "C0" for n in names]
+    ax.bar(names, diffs, yerr=errs, capsize=3, color=colors)
+    ax.axhline(0.0, color="k", lw=0.8)
+    ax.set_ylabel("EUR/day vs always-max (paired)")
+    ax.set_title(f"{result['scenario']}: {len(result['days'])} held-out days; grid {result['root_kw']:.0f} kW")
+    ax.grid(axis="y", alpha=0.3)
+    plt.setp(ax.get_xticklabels(), rotation=20)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def main(argv=None) -> dict:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), choices=list(SCENARIOS))
+    p.add_argument("--horizon-hours", type=float, default=4.0)
+    p.add_argument("--resolve-every", type=int, default=1)
+    p.add_argument("--num-days", type=int, default=None, help="only the first N held-out days (a quick look)")
+    p.add_argument("--out", default=str(RESULTS_DIR))
+    args = p.parse_args(argv)
+    results = {}
+    for name in args.scenarios:
+        t0 = time.perf_counter()
+        r = run_scenario(name, {"horizon_hours": args.horizon_hours, "resolve_every": args.resolve_every},
+                         args.num_days)
+        r["wall_s"] = time.perf_counter() - t0
+        print(format_optimal(r))
+        print(f"({r['wall_s']:.0f} s)")
+        out = Path(args.out)
+        write_json(r, out / f"{name}.json")
+        plot(r, out / f"{name}.png")
+        results[name] = r
+    return results
+
+
+if __name__ == "__main__":
+    main()
