@@ -47,16 +47,60 @@ always-max plus a battery that charges in the day's cheapest 20 % of hours and d
 the dearest 20 %)."""
 
 
-def baseline_results(eval_params, eval_days) -> dict:
+OPTIMAL_CHOICES = ("off", "bound", "mpc")
+
+
+def baseline_results(eval_params, eval_days, optimal: str = "off") -> dict:
     """The :data:`BASELINES` on the held-out days, with the evaluation's default key (the same
     drawn cars that :func:`baselines.common.evaluate_batched` gives the agents). Each keeps its
-    daily profits (``daily_profit``) for paired comparisons."""
+    daily profits (``daily_profit``) for paired comparisons.
+
+    ``optimal``: ``"bound"`` adds ``lp_bound`` (the LP hindsight bound over always-max's
+    occupancy, :func:`chargax_marl.evaluation.hindsight_bound`) and, when ``make optimal``
+    stored it for exactly these params and days, ``mpc``; ``"mpc"`` also runs the MPC when no
+    stored result matches (about 10 min per 100 days on 2 cores); ``"off"`` adds neither.
+    Every entry then gets ``headroom`` (:func:`chargax_marl.evaluation.headroom_captured`).
+    """
     from baselines.heuristics import evaluate_rules
 
+    if optimal not in OPTIMAL_CHOICES:
+        raise ValueError(f"field 'optimal' must be one of {OPTIMAL_CHOICES}, got {optimal!r}")
     out = evaluate_rules(eval_params, eval_days, BASELINES)
     out["battery_rule"]["vs_always_max"] = common.paired_difference(out["battery_rule"]["daily_profit"],
                                                                     out["always_max"]["daily_profit"])
+    if optimal == "off":
+        return out
+    from baselines.optimal import cached, evaluate_mpc
+    from chargax_marl.evaluation import hindsight_bound, summarize_profit
+
+    stored = cached(eval_params, eval_days)
+    if stored is not None:
+        bound_daily = np.asarray(stored["policies"]["lp_bound"]["daily_profit"])
+        mpc_daily = np.asarray(stored["policies"]["mpc"]["daily_profit"])
+        source = "baselines/results/optimal (same params and days)"
+    else:
+        bound_daily = hindsight_bound(eval_params, eval_days)["daily_profit"]
+        mpc_daily = evaluate_mpc(eval_params, eval_days)["daily_profit"] if optimal == "mpc" else None
+        source = "computed"
+    out["lp_bound"] = {"daily_profit": bound_daily, "metrics": summarize_profit(bound_daily), "source": source}
+    if mpc_daily is not None:
+        out["mpc"] = {"daily_profit": mpc_daily, "metrics": summarize_profit(mpc_daily), "source": source}
+    add_headroom(out, out)
     return out
+
+
+def add_headroom(entries: dict, baselines: dict) -> dict:
+    """Add ``headroom`` (fraction of the hindsight headroom captured) to every entry that has
+    ``daily_profit``, when ``baselines`` hold ``lp_bound`` and ``always_max``."""
+    from chargax_marl.evaluation import headroom_captured
+
+    if "lp_bound" not in baselines:
+        return entries
+    am, bound = baselines["always_max"]["daily_profit"], baselines["lp_bound"]["daily_profit"]
+    for e in entries.values():
+        if isinstance(e, dict) and "daily_profit" in e:
+            e["headroom"] = headroom_captured(e["daily_profit"], am, bound)
+    return entries
 
 
 def beats(paired: dict) -> bool:
@@ -67,10 +111,11 @@ def beats(paired: dict) -> bool:
 
 def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path | None = None, chunks: int = 10,
         evaluate_every_chunk: bool = True, baselines: dict | None = None, eval_params=None, eval_days=None,
-        env_params=None, title: str | None = None, quiet: bool = False) -> dict:
+        env_params=None, title: str | None = None, quiet: bool = False, optimal: str = "off") -> dict:
     """Train ``seeds`` seeds of ``algo`` and evaluate them; returns the results dict (and
     writes the outputs when ``out`` is given). ``eval_params`` / ``env_params`` override the
-    evaluation and training parameters (e.g. another price year)."""
+    evaluation and training parameters (e.g. another price year). ``optimal`` adds the LP
+    bound (and the MPC) to the baselines, see :func:`baseline_results`."""
     from chargax_marl.evaluation import format_table
 
     mod = get_module(algo)
@@ -88,7 +133,7 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
     train = mod.make_train(config, env_params)
     make_act = train.make_act(eval_params)
     if baselines is None:
-        baselines = baseline_results(eval_params, eval_days)
+        baselines = baseline_results(eval_params, eval_days, optimal)
     am = baselines["always_max"]["metrics"]["daily_profit_eur"]["mean"]
     am_daily = baselines["always_max"].get("daily_profit")
     rule_daily = baselines.get("battery_rule", {}).get("daily_profit")
@@ -119,6 +164,7 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
     wall = time.time() - t_start
     first_beat = next((e for e in evals if e["vs_always_max"] is not None and beats(e["vs_always_max"])), None)
     first_beat_rule = next((e for e in evals if e["vs_battery_rule"] is not None and beats(e["vs_battery_rule"])), None)
+    add_headroom({"final": final}, baselines)
     table = {**baselines, algo: final}
     if not quiet:
         print(format_table(table))
@@ -137,6 +183,7 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
                        "days": [int(d) for d in np.asarray(eval_days)], "table": table},
         "vs_always_max": final.get("paired_diff"),
         "vs_battery_rule": vs_rule(final),
+        "headroom": final.get("headroom"),
         "first_beats_always_max": first_beat,
         "first_beats_battery_rule": first_beat_rule,
         "eval_curve": evals,
@@ -148,14 +195,15 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         common.save_params(rs.params, out / "params.msgpack")
+        lines = {f"always-max (held-out) {am:.0f}": am}
+        for key, label in (("battery_rule", "always-max + battery rule"), ("price_threshold", "price-threshold"),
+                           ("mpc", "MPC, 4 h horizon"), ("lp_bound", "LP hindsight bound")):
+            if key in baselines:
+                v = baselines[key]["metrics"]["daily_profit_eur"]["mean"]
+                lines[f"{label} (held-out) {v:.0f}"] = v
         common.plot_learning_curve(
             out / "curve.png", timesteps, {f"{algo} training episodes (sampled)": metrics["episode_profit_eur"]},
-            {f"always-max (held-out) {am:.0f}": am,
-             f"always-max + battery rule (held-out) {baselines['battery_rule']['metrics']['daily_profit_eur']['mean']:.0f}":
-                 baselines["battery_rule"]["metrics"]["daily_profit_eur"]["mean"],
-             f"price-threshold (held-out) {baselines['price_threshold']['metrics']['daily_profit_eur']['mean']:.0f}":
-                 baselines["price_threshold"]["metrics"]["daily_profit_eur"]["mean"]},
-            title or f"{algo.upper()} {config['SCENARIO']} / {config['TRAFFIC']}: {seeds} seeds",
+            lines, title or f"{algo.upper()} {config['SCENARIO']} / {config['TRAFFIC']}: {seeds} seeds",
             eval_points={f"{algo} held-out (greedy)": ([e["timesteps"] for e in evals],
                                                         np.asarray([e["per_seed_profit"] for e in evals]).T)}
             if evals else None)
@@ -196,6 +244,8 @@ def main(argv=None) -> dict:
     p.add_argument("--env-kwargs", default="{}", help="JSON of extra make_params keywords")
     p.add_argument("--chunks", type=int, default=10, help="training pieces (progress + held-out evaluation)")
     p.add_argument("--out", default="baselines/results/run")
+    p.add_argument("--optimal", choices=OPTIMAL_CHOICES, default="bound",
+                   help="add the LP hindsight bound (bound, default), also the MPC (mpc), or neither (off)")
     a = p.parse_args(argv)
     config = {} if a.paper else dict(FAST)
     config.update({"SCENARIO": a.scenario, "TRAFFIC": a.traffic, "TOTAL_TIMESTEPS": int(a.timesteps),
@@ -215,7 +265,7 @@ def main(argv=None) -> dict:
 
         config["TRAFFIC"] = SCENARIOS[a.scenario]["traffic"]
     print(f"devices: {jax.devices()}  config: {json.dumps({k: v for k, v in config.items()}, default=str)}")
-    res = run(a.algo, config, seeds=a.seeds, seed=a.seed, out=a.out, chunks=a.chunks)
+    res = run(a.algo, config, seeds=a.seeds, seed=a.seed, out=a.out, chunks=a.chunks, optimal=a.optimal)
     return {k: v for k, v in res.items() if not k.startswith("_")}
 
 

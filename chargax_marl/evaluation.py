@@ -75,6 +75,14 @@ def summarize(totals) -> dict:
     return out
 
 
+def summarize_profit(daily_profit) -> dict:
+    """``{"daily_profit_eur": {mean, std, min, max}}`` of per-day profits alone (for entries,
+    such as the LP bound, that have no other metrics)."""
+    x = np.asarray(daily_profit, np.float64)
+    return {"daily_profit_eur": {"mean": float(x.mean()), "std": float(x.std()), "min": float(x.min()),
+                                 "max": float(x.max())}}
+
+
 def evaluate(act: Act, params: EnvParams, days, key: jax.Array | None = None) -> dict:
     """Evaluate ``act`` on the given day indices; returns ``{"num_days", "days", "metrics"}``.
 
@@ -136,13 +144,22 @@ def write_json(results: dict, path: str | Path) -> Path:
 
 
 def format_table(results: dict[str, dict]) -> str:
-    """A text table of ``{policy name: evaluate(...) result}``: mean +- std per metric."""
+    """A text table of ``{policy name: evaluate(...) result}``: mean +- std per metric ("-"
+    where an entry lacks the metric), plus the fraction of the hindsight headroom captured
+    where entries carry ``headroom``."""
     names = list(results)
     metrics = list(METRICS)
     width = max(len(m) for m in metrics) + 2
+
+    def cell(n, m):
+        v = results[n]["metrics"].get(m)
+        return f"{v['mean']:>14.2f} ± {v['std']:<7.2f}" if v else f"{'-':>14}   {'':<7}"
+
     lines = [" " * width + "".join(f"{n:>24}" for n in names)]
     for m in metrics:
-        cells = "".join(
-            f"{results[n]['metrics'][m]['mean']:>14.2f} ± {results[n]['metrics'][m]['std']:<7.2f}" for n in names)
-        lines.append(f"{m:<{width}}{cells}")
+        lines.append(f"{m:<{width}}" + "".join(cell(n, m) for n in names))
+    if any("headroom" in results[n] for n in names):
+        row = "".join(f"{results[n]['headroom']['fraction']:>14.2f}   {'':<7}" if "headroom" in results[n]
+                      else f"{'-':>14}   {'':<7}" for n in names)
+        lines.append(f"{'headroom_captured':<{width}}{row}")
     return "\n".join(lines)

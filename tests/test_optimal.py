@@ -186,3 +186,31 @@ def test_a_full_day_mpc_reaches_the_bound_when_no_car_arrives_later(action_mode,
     bound = bound_for(mpc, params, tr).profit_eur
     assert profit <= bound + 1e-3
     assert bound - profit <= tol_eur
+
+
+# --- reporting --------------------------------------------------------------------------
+
+def test_headroom_fraction_by_hand():
+    am = np.array([100.0, 200.0])
+    bound = np.array([120.0, 230.0])  # headroom 20 and 30, mean 25
+    h = evaluation.headroom_captured(np.array([110.0, 215.0]), am, bound)
+    assert h["fraction"] == pytest.approx(12.5 / 25.0)
+    assert h["headroom_eur"] == pytest.approx(25.0) and h["captured_eur"] == pytest.approx(12.5)
+    seeds = evaluation.headroom_captured(np.array([[110.0, 215.0], [90.0, 185.0]]), am, bound)
+    assert seeds["fraction"] == pytest.approx(0.0)
+
+
+def test_training_baselines_carry_the_bound_and_the_headroom(small_setup):
+    from baselines.train import baseline_results
+
+    params, _ = small_setup
+    days = np.array([10, 200])
+    base = baseline_results(params, days, optimal="bound")
+    am, bound = base["always_max"]["daily_profit"], base["lp_bound"]["daily_profit"]
+    assert np.all(bound >= am - 1e-3)
+    assert base["always_max"]["headroom"]["fraction"] == pytest.approx(0.0, abs=1e-9)
+    assert base["lp_bound"]["headroom"]["fraction"] == pytest.approx(1.0)
+    assert base["battery_rule"]["headroom"]["fraction"] <= 1.0
+    with pytest.raises(ValueError, match="optimal"):
+        baseline_results(params, days, optimal="yes")
+    assert "headroom_captured" in evaluation.format_table(base)
