@@ -214,3 +214,36 @@ def test_training_baselines_carry_the_bound_and_the_headroom(small_setup):
     with pytest.raises(ValueError, match="optimal"):
         baseline_results(params, days, optimal="yes")
     assert "headroom_captured" in evaluation.format_table(base)
+
+
+# --- the MILP over admissions -----------------------------------------------------------
+
+def test_the_milp_turns_away_a_car_that_would_block_a_better_one():
+    # one port; car A (5 kWh, stays 2 h) arrives first and, admitted first-free-port, blocks
+    # car B (30 kWh, 1 h) ten minutes later. Always-max's occupancy: A only, 5 * 0.65 = 3.25
+    # EUR; the best admission: B only, 30 * 0.65 = 19.5 EUR.
+    from chargax_marl.optimal import milp
+
+    params = hand_params(ONE_PORT, [0.1] * 24)
+    car = dict(capacity_kwh=100.0, dc_kw=50.0, tau=0.99, arrival_soc=0.2)
+    tr = trace.trace_from_cars(params, [dict(car, arrival_step=0, target_soc=0.25, stay_min=120.0),
+                                        dict(car, arrival_step=2, target_soc=0.5, stay_min=60.0)])
+    r = milp.compare(params, tr, KEY, num_steps=36)
+    assert r.reference_eur == pytest.approx(3.25, abs=1e-3)
+    assert r.lp_eur == pytest.approx(3.25, abs=1e-4)
+    assert r.milp_eur == pytest.approx(19.5, abs=1e-4)
+    assert r.num_candidates == 2
+
+
+def test_the_milp_bounds_every_policy_and_the_lp_on_a_window(small_setup):
+    from chargax_marl.optimal import milp
+
+    params = make_params(station_kwargs={"num_dc": 2, "num_ac": 2}, traffic="high")
+    tr = trace.day_of(trace.make_traces(params, np.array([10]), KEY), 0)
+    r = milp.compare(params, tr, KEY, num_steps=24)
+    assert r.num_candidates >= 2
+    assert r.milp_eur >= r.lp_eur - 1e-4 >= r.reference_eur - 2e-3
+    for name in ("battery_rule", "edf", "random"):
+        assert r.milp_eur >= milp.window_profit(params, tr, KEY, policies.get_policy(name), 24) - 1e-3
+    with pytest.raises(ValueError, match="num_steps"):
+        milp.admission_bound(params, tr, 1)

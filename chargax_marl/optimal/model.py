@@ -241,7 +241,14 @@ def build_and_solve(sessions: Sessions, num_steps: int, limits: StationLimits, e
         b.ub[-1] = b.ub[-1].copy()
         b.lb[-1][0] = b.ub[-1][0] = float(sessions.soc0[s])
         if sessions.must_reach[s]:
-            b.lb[-1][m] = max(lo, min(hi, float(sessions.target_soc[s]) - charged_tolerance_kwh / cap_kwh - 1e-5))
+            goal = max(lo, min(hi, float(sessions.target_soc[s]) - charged_tolerance_kwh / cap_kwh - 1e-5))
+            if occupancy_vars is not None and s in occupancy_vars:
+                # only when the session exists: x_end - (goal - lo) z >= lo
+                row = b.new_rows(1, lo, np.inf)
+                b.coef(row, x[m:m + 1], 1.0)
+                b.coef(row, occupancy_vars[s][None], -(goal - lo))
+            else:
+                b.lb[-1][m] = goal
         # SoC dynamics: x_{k+1} - x_k - (p+ - p-) dt / C = 0
         dyn = b.new_rows(m, 0.0, 0.0)
         b.coef(dyn, x[1:], 1.0)
