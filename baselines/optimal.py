@@ -112,6 +112,45 @@ def run_scenario(name: str, mpc_kwargs: dict | None = None, num_days: int | None
     return out
 
 
+MILP_SCENARIO = {"SCENARIO": "shopping", "TRAFFIC": "high", "ENV_KWARGS": {"station_kwargs": {"num_dc": 2, "num_ac": 2}}}
+"""Where the MILP runs: a 4-port station (2 DC, 2 AC, the battery), high traffic."""
+
+
+def run_milp(num_days: int = 10, num_steps: int = 36) -> dict:
+    """MILP (admissions free) against the LP over always-max's occupancy and always-max itself,
+    on the first ``num_steps`` of the first ``num_days`` held-out days of :data:`MILP_SCENARIO`."""
+    from chargax_marl import trace as trace_lib
+    from chargax_marl.optimal import milp
+
+    config = common.parse_config({}, MILP_SCENARIO)
+    _, params, _, days = common.build_env_params(config)
+    days = days[:num_days]
+    key = jax.random.PRNGKey(0)
+    traces = trace_lib.make_traces(params, days, key)
+    keys = jax.random.split(key, len(days))
+    rows = []
+    for i, day in enumerate(days):
+        r = milp.compare(params, trace_lib.day_of(traces, i), keys[i], num_steps)
+        rows.append({"day": int(day), "milp_eur": r.milp_eur, "lp_eur": r.lp_eur, "always_max_eur": r.reference_eur,
+                     "cars": r.num_candidates, "binaries": r.num_binaries, "milp_solve_s": r.milp_solve_s,
+                     "lp_solve_s": r.lp_solve_s})
+    arr = {k: np.array([row[k] for row in rows]) for k in rows[0]}
+    gap = arr["milp_eur"] - arr["lp_eur"]
+    return {"scenario": MILP_SCENARIO, "num_steps": num_steps, "days": [int(d) for d in days], "rows": rows,
+            "mean": {k: float(np.mean(v)) for k, v in arr.items() if k != "day"},
+            "milp_minus_lp": {"mean": float(gap.mean()), "stderr": float(gap.std(ddof=1) / np.sqrt(gap.size)),
+                              "max": float(gap.max())}}
+
+
+def format_milp(r: dict) -> str:
+    m, g = r["mean"], r["milp_minus_lp"]
+    return (f"MILP vs LP, 4-port station, high traffic, first {r['num_steps']} steps of {len(r['days'])} held-out days "
+            f"(window profit, EUR): always-max {m['always_max_eur']:.2f}, LP bound (always-max occupancy) "
+            f"{m['lp_eur']:.2f}, MILP (admissions free) {m['milp_eur']:.2f}; MILP - LP {g['mean']:+.2f} ± "
+            f"{g['stderr']:.2f} (max {g['max']:.2f}); {m['cars']:.1f} cars and {m['binaries']:.0f} binaries per "
+            f"window; solve {m['milp_solve_s']:.1f} s MILP, {m['lp_solve_s']:.3f} s LP")
+
+
 def format_optimal(result: dict) -> str:
     lines = [f"{result['scenario']}: {len(result['days'])} held-out days, key 0, same cars for all; "
              f"grid connection {result['root_kw']:.1f} kW",
@@ -161,8 +200,15 @@ def main(argv=None) -> dict:
     p.add_argument("--resolve-every", type=int, default=1)
     p.add_argument("--num-days", type=int, default=None, help="only the first N held-out days (a quick look)")
     p.add_argument("--out", default=str(RESULTS_DIR))
+    p.add_argument("--milp-days", type=int, default=10, help="held-out days of the MILP comparison (0: skip it)")
+    p.add_argument("--milp-steps", type=int, default=36, help="window of the MILP comparison, steps from midnight")
     args = p.parse_args(argv)
     results = {}
+    if args.milp_days > 0:
+        r = run_milp(args.milp_days, args.milp_steps)
+        print(format_milp(r))
+        write_json(r, Path(args.out) / "milp_small.json")
+        results["milp"] = r
     for name in args.scenarios:
         t0 = time.perf_counter()
         r = run_scenario(name, {"horizon_hours": args.horizon_hours, "resolve_every": args.resolve_every},
