@@ -247,3 +247,26 @@ def test_the_milp_bounds_every_policy_and_the_lp_on_a_window(small_setup):
         assert r.milp_eur >= milp.window_profit(params, tr, KEY, policies.get_policy(name), 24) - 1e-3
     with pytest.raises(ValueError, match="num_steps"):
         milp.admission_bound(params, tr, 1)
+
+
+def test_the_mpc_drives_both_views_like_the_core():
+    """The MPC is an ordinary policy: through ``for_single`` and ``for_marl`` it gives the
+    single-agent and the multi-agent view the same levels as on the core state."""
+    from chargax_marl.marl import ChargaxMARL
+    from chargax_marl.single import make
+
+    env, params = make("shopping", station_kwargs={"num_dc": 2, "num_ac": 2}, traffic="high")
+    mpc = MPC(params, horizon_hours=1.0)
+    _, state = env.reset(KEY, params)
+    single_act = jax.jit(policies.for_single(mpc, env, params))
+    marl = ChargaxMARL(params=params)
+    marl_act = policies.for_marl(mpc, marl)
+    for t in range(30):
+        k = jax.random.fold_in(KEY, t)
+        action = single_act(state, k)
+        levels = np.asarray(mpc(state, k, params))
+        np.testing.assert_array_equal(np.asarray(env.action_to_levels(action, params)), levels)
+        per_agent = marl_act(state, k)
+        assert len(per_agent) == params.station.num_leaves
+        _, state, _, _, _, _ = env.step(k, state, action, params)
+    assert mpc.solves > 0 and mpc.failures == 0
