@@ -152,7 +152,13 @@ def test_cli_smoke_writes_png_json_checkpoint(tmp_path):
         assert (out / name).stat().st_size > 0, name
     res = json.loads((out / "results.json").read_text())
     table = res["evaluation"]["table"]
-    assert set(table) == {"always_max", "battery_rule", "price_threshold", "ppo"}
+    # the LP hindsight bound is a baseline by default (--optimal bound), and every policy,
+    # the agent included, carries its fraction of the headroom between always-max and it
+    assert set(table) == {"always_max", "battery_rule", "price_threshold", "lp_bound", "ppo"}
+    bound, am = np.asarray(table["lp_bound"]["daily_profit"]), np.asarray(table["always_max"]["daily_profit"])
+    assert np.all(bound >= am - 1e-3)
+    assert table["lp_bound"]["headroom"]["fraction"] == pytest.approx(1.0)
+    assert np.isfinite(res["headroom"]["fraction"]) and res["headroom"]["headroom_eur"] > 0
     assert table["ppo"]["num_days"] == 100 and res["timesteps"] == 4 * 24 * 2
     assert len(res["eval_curve"]) == 2 and len(res["curve"]["timesteps"]) == 2
     # paired comparison with always-max on the same days and cars, per evaluation point
