@@ -88,19 +88,31 @@ def key_from_seed(seed: Any, where: str) -> jax.Array:
     return jax.numpy.asarray(np.array([hi, lo], np.uint32))
 
 
-def reset_day(options: dict | None, num_days: int, where: str, allowed: tuple[str, ...] = ("day",)) -> int | None:
+def check_day(day, num_days: int) -> int:
+    """``day`` as an int in ``[0, num_days)``, or ``ValueError`` naming it and the range."""
+    try:
+        value = int(np.asarray(day).item()) if np.ndim(day) == 0 and not isinstance(day, (str, bytes)) else None
+        if value is not None and value != np.asarray(day).item():
+            value = None
+    except (TypeError, ValueError):
+        value = None
+    if value is None or isinstance(day, (bool, np.bool_)):
+        raise ValueError(f"day must be an integer in [0, {num_days - 1}] (the days of the price data), got {day!r}")
+    if not 0 <= value < num_days:
+        raise ValueError(f"day must be in [0, {num_days - 1}] (the days of the price data), got {value}")
+    return value
+
+
+def reset_day(options: dict | None, num_days: int, where: str) -> int | None:
     """The ``day`` reset option as an int in ``[0, num_days)``, or None when not given.
 
-    Raises ``ValueError`` naming the option, its value and what is allowed for a bad day or
-    an unknown option key.
+    Raises ``ValueError`` naming the option, its value and what is allowed for a bad day.
+    Other keys are ignored (PettingZoo's API test passes arbitrary options).
     """
     if not options:
         return None
     if not isinstance(options, dict):
         raise ValueError(f"{where}: options must be a dict or None, got {type(options).__name__}")
-    unknown = [k for k in options if k not in allowed]
-    if unknown:
-        raise ValueError(f"{where}: unknown reset option(s) {unknown}; allowed: {list(allowed)}")
     if "day" not in options or options["day"] is None:
         return None
     day = options["day"]

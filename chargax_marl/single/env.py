@@ -24,6 +24,7 @@ import numpy as np
 from gymnax.environments import environment, spaces
 
 from chargax_marl import bounds
+from chargax_marl.lifecycle import check_day
 from chargax_marl.core import observation, physics, simulator
 from chargax_marl.core.params import make_params
 from chargax_marl.core.types import PENALTY_TERMS, EnvParams, EnvState, EpisodeTotals
@@ -50,21 +51,6 @@ class MultiDiscrete(spaces.Space):
     def contains(self, x: jax.Array) -> jax.Array:
         x = jnp.asarray(x)
         return (x.shape == self.shape) & jnp.all((x >= 0) & (x < self.nvec))
-
-
-def check_day(day, num_days: int) -> int:
-    """``day`` as an int in ``[0, num_days)``, or ``ValueError`` naming it and the range."""
-    try:
-        value = int(np.asarray(day).item()) if np.ndim(day) == 0 and not isinstance(day, (str, bytes)) else None
-        if value is not None and value != np.asarray(day).item():
-            value = None
-    except (TypeError, ValueError):
-        value = None
-    if value is None or isinstance(day, (bool, np.bool_)):
-        raise ValueError(f"day must be an integer in [0, {num_days - 1}] (the days of the price data), got {day!r}")
-    if not 0 <= value < num_days:
-        raise ValueError(f"day must be in [0, {num_days - 1}] (the days of the price data), got {value}")
-    return value
 
 
 def step_info(info, state: EnvState) -> dict:
