@@ -22,6 +22,9 @@ A small margin (``1e-5`` relative, at least ``1e-5``) absorbs float32 rounding.
 
 from __future__ import annotations
 
+import functools
+
+import jax
 import numpy as np
 
 from chargax_marl.core import observation, physics
@@ -29,6 +32,15 @@ from chargax_marl.core.station import KIND_AC, KIND_BATTERY
 from chargax_marl.core.types import EnvParams
 
 _PORT_FEATURES = observation.PORT_FEATURES
+
+
+def _eager(fn):
+    # Concrete values even when called while tracing (e.g. observation_space() inside jit).
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        with jax.ensure_compile_time_eval():
+            return fn(*args, **kwargs)
+    return wrapper
 
 
 def _margin(low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -39,6 +51,7 @@ def _margin(low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return low.astype(np.float32), high.astype(np.float32)
 
 
+@_eager
 def leaf_feature_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
     """``(low, high)`` of :func:`observation.leaf_features`, each ``(L, 8)`` (no margin)."""
     st = params.station
@@ -64,6 +77,7 @@ def leaf_feature_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
     return low, high
 
 
+@_eager
 def context_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
     """``(low, high)`` of :func:`observation.context_features` (no margin)."""
     prices = np.asarray(params.prices_eur_kwh, np.float64) / observation.PRICE_SCALE_EUR_KWH
@@ -78,6 +92,7 @@ def context_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(low), np.concatenate(high)
 
 
+@_eager
 def flat_obs_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
     """``(low, high)`` float32 of the single-agent observation :func:`observation.flat_obs`."""
     low, high = leaf_feature_bounds(params)
@@ -89,6 +104,7 @@ def flat_obs_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
     return _margin(lo, hi)
 
 
+@_eager
 def ancestor_load_bounds(params: EnvParams, ancestors: np.ndarray) -> np.ndarray:
     """Upper bound ``(N, D)`` of each agent's ancestor loads (``ancestors``: the
     ``(N, D)`` node table of :func:`chargax_marl.marl.env.ancestor_table`)."""
@@ -103,6 +119,7 @@ def ancestor_load_bounds(params: EnvParams, ancestors: np.ndarray) -> np.ndarray
     return np.where(anc >= 0, load[np.maximum(anc, 0)], 0.0)
 
 
+@_eager
 def agent_obs_bounds(params: EnvParams, ancestors: np.ndarray, agent_id_width: int) -> tuple[np.ndarray, np.ndarray]:
     """``(low, high)`` float32 ``(obs_size,)`` shared by every agent of the multi-agent view
     (the elementwise min and max over the agents' rows)."""

@@ -208,7 +208,8 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
             return spaces.Box(-1.0, 1.0, (n,), jnp.float32)
         if params.action_mode == "delta":
             return MultiDiscrete(np.full((n,), 2 * params.num_levels + 1))
-        return MultiDiscrete(params.num_levels + 1 - np.asarray(self.min_level(params)))
+        with jax.ensure_compile_time_eval():  # concrete sizes also while tracing
+            return MultiDiscrete(params.num_levels + 1 - np.asarray(self.min_level(params)))
 
     def observation_space(self, params: EnvParams | None = None):
         """``Box(low, high)`` with finite bounds the observations respect (:mod:`chargax_marl.bounds`)."""

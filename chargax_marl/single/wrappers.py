@@ -100,7 +100,8 @@ class FlatDiscrete:
         if params.action_mode != "absolute":
             raise ValueError(f"FlatDiscrete: field 'action_mode' must be 'absolute', got {params.action_mode!r}")
         st = params.station
-        self._min_level = np.asarray(env.min_level(params), np.int32)
+        with jax.ensure_compile_time_eval():
+            self._min_level = np.asarray(env.min_level(params), np.int32)
         L = params.num_levels
         p, b = st.num_ports, st.num_batteries
         low = int(self._min_level[:p].min()) if p else 0
