@@ -25,10 +25,7 @@ $(CLIENTS_STAMP): $(STAMP)
 	touch $(CLIENTS_STAMP)
 
 examples: $(CLIENTS_STAMP)
-	$(PY) examples/purejaxrl_ppo.py --timesteps 384 --num-envs 4 --num-steps 48 --step-minutes 60
-	$(PY) examples/supersuit_sb3.py --timesteps 2048 --num-envs 2 --num-cpus 2
-	$(PY) examples/tianshou_masks.py --episodes 2 --max-cycles 24
-	$(PY) -m pytest -q tests/test_clients.py
+	CHARGAX_CLIENT_EXAMPLES=1 $(PY) -m pytest -q -s tests/test_clients.py -k example
 
 # The main job: IPPO on the default shopping scenario (2 seeds) with a progress bar, then
 # held-out evaluation against always-max, always-max + battery price rule and price-threshold
