@@ -25,7 +25,7 @@ $(CLIENTS_STAMP): $(STAMP)
 	touch $(CLIENTS_STAMP)
 
 examples: $(CLIENTS_STAMP)
-	CHARGAX_CLIENT_EXAMPLES=1 $(PY) -m pytest -q -s tests/test_clients.py -k example
+	CHARGAX_CLIENT_EXAMPLES=1 $(PY) -m pytest -q -s tests/test_clients.py -k "example or snippet"
 
 # The main job: IPPO on the default shopping scenario (2 seeds) with a progress bar, then
 # held-out evaluation against always-max, always-max + battery price rule and price-threshold
