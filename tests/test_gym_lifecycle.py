@@ -285,3 +285,15 @@ def test_flat_discrete_through_gymnax_logwrapper():
     assert bool(done[-1]) and not bool(done[:-1].any()) and np.isfinite(float(returns[-1]))
     with pytest.raises(ValueError, match="action_mode.*'continuous'"):
         FlatDiscrete(Chargax(action_mode="continuous", **HOURLY))
+
+
+def test_subclass_keeps_its_own_observation_on_a_chosen_day():
+    class Doubled(Chargax):
+        def get_obs(self, state, params=None, key=None):
+            return 2.0 * super().get_obs(state, params, key)
+
+    plain, doubled = GymnasiumEnv(**HOURLY), GymnasiumEnv(env=Doubled(**HOURLY))
+    for options in ({"day": 12}, None):
+        a, _ = plain.reset(seed=3, options=options)
+        b, _ = doubled.reset(seed=3, options=options)
+        np.testing.assert_allclose(b, 2.0 * a)

@@ -267,8 +267,10 @@ class GymnasiumEnv(gymnasium.Env):
         super().reset(seed=seed)
         if seed is not None:
             self._key = key
-        if day is not None:
+        if day is not None and type(self.env) is Chargax:
             obs, self._state = _shared_reset_day(jnp.asarray(day, jnp.int32), self.params)
+        elif day is not None:  # a subclass may build its own observation
+            obs, self._state = self.env.reset_to_day(day, self.params)
         else:
             self._key, obs, self._state = self._reset_fn(self._key, self.params)
         self._done = False
