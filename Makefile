@@ -3,7 +3,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: test train train-ppo optimal rollout bench bench-peers bench-scaling data data-check clean
+.PHONY: test examples train train-ppo optimal rollout bench bench-peers bench-scaling data data-check clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -15,6 +15,17 @@ venv: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -n 2 -q
+
+# The client examples with heavy dependencies (stable-baselines3, supersuit, tianshou, torch:
+# the `clients` extra), each on a tiny budget; not part of `make test`. The dependency-light
+# examples (PureJaxRL-style PPO, PettingZoo loop, JaxMARL rollout) run inside `make test`.
+CLIENTS_STAMP := $(VENV)/.clients
+$(CLIENTS_STAMP): $(STAMP)
+	$(PY) -m pip install --quiet -e ".[dev,clients]"
+	touch $(CLIENTS_STAMP)
+
+examples: $(CLIENTS_STAMP)
+	CHARGAX_CLIENT_EXAMPLES=1 $(PY) -m pytest -q -s tests/test_clients.py -k "example or snippet"
 
 # The main job: IPPO on the default shopping scenario (2 seeds) with a progress bar, then
 # held-out evaluation against always-max, always-max + battery price rule and price-threshold

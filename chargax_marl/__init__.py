@@ -1,0 +1,11 @@
+"""chargax_marl: a JAX simulator of EV charging stations for single- and multi-agent RL.
+
+Importing the package registers the Gymnasium ids ``chargax_marl/Chargax-v0`` and
+``chargax_marl/Chargax-<scenario>-v0`` (:mod:`chargax_marl.registration`) and the fork
+guard of :mod:`chargax_marl.lifecycle`.
+"""
+
+from chargax_marl import lifecycle as _lifecycle  # noqa: F401  (registers the at-fork hook)
+from chargax_marl.registration import register_envs as _register_envs
+
+_register_envs()

@@ -46,7 +46,8 @@ def play_day(env, seed, actions_fn):
 
 def test_parallel_api_default_station():
     env = parallel_env()
-    assert env.metadata == {"name": "chargax_v0", "render_modes": ["ansi", "rgb_array"], "is_parallelizable": True}
+    assert env.metadata == {"name": "chargax_v0", "render_modes": ["ansi", "human", "rgb_array"], "is_parallelizable": True,
+                            "render_fps": 4}
     assert len(env.possible_agents) == 17 and env.params.num_steps == 288
     parallel_api_test(env, num_cycles=1000)
     parallel_seed_test(lambda: parallel_env())
@@ -180,7 +181,7 @@ def test_step_before_reset_and_after_the_day_ends(small_params):
 
 def test_invalid_render_mode():
     with pytest.raises(ValueError, match="render_mode"):
-        ChargaxParallelEnv(station=mixed_station(), render_mode="human")
+        ChargaxParallelEnv(station=mixed_station(), render_mode="video")  # "human" is a supported mode
 
 
 # ------------------------------------------------------------------ rendering

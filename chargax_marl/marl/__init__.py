@@ -2,11 +2,40 @@
 
 - :class:`ChargaxMARL`: JaxMARL 0.2 ``MultiAgentEnv`` (``reset(key)``, ``step(key, state, actions)``).
 - :class:`LogWrapper`, :class:`WorldStateWrapper`: JaxMARL-style episode logging and MAPPO world state.
-- :func:`parallel_env` / :class:`ChargaxParallelEnv`: PettingZoo ``ParallelEnv`` (numpy in and out).
+- :func:`parallel_env` / :class:`ChargaxParallelEnv`: PettingZoo ``ParallelEnv`` (numpy in and out);
+  :func:`aec_env`: the same through PettingZoo's AEC API. The module
+  :mod:`chargax_marl.marl.pettingzoo_env` has PettingZoo's usual ``env``, ``raw_env`` and
+  ``parallel_env`` constructors (pass it to PettingZoo's ``max_cycles_test``).
 """
+
+import builtins as _builtins
+
+
+def _import_jaxmarl_quietly() -> None:
+    """Import JaxMARL without its "Importing submoduled environments..." lines.
+
+    A module in its import chain resets ``sys.stdout``, so ``contextlib.redirect_stdout``
+    does not hold: drop just those lines at ``print`` for the duration of the import.
+    """
+    original = _builtins.print
+
+    def quiet(*args, **kwargs):
+        if args and isinstance(args[0], str) and "ubmoduled environments" in args[0]:
+            return
+        original(*args, **kwargs)
+
+    _builtins.print = quiet
+    try:
+        import jaxmarl.environments  # noqa: F401
+    finally:
+        _builtins.print = original
+
+
+_import_jaxmarl_quietly()
 
 from chargax_marl.marl.env import ChargaxMARL
 from chargax_marl.marl.pettingzoo_env import ChargaxParallelEnv, parallel_env
+from chargax_marl.marl.pettingzoo_env import env as aec_env
 from chargax_marl.marl.wrappers import LogEnvState, LogWrapper, WorldStateWrapper
 
-__all__ = ["ChargaxMARL", "ChargaxParallelEnv", "LogEnvState", "LogWrapper", "WorldStateWrapper", "parallel_env"]
+__all__ = ["ChargaxMARL", "ChargaxParallelEnv", "aec_env", "LogEnvState", "LogWrapper", "WorldStateWrapper", "parallel_env"]

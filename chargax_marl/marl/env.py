@@ -19,10 +19,12 @@ from flax import struct
 from jaxmarl.environments import spaces
 from jaxmarl.environments.multi_agent_env import MultiAgentEnv
 
+from chargax_marl import bounds
 from chargax_marl.core import observation, physics, simulator
 from chargax_marl.core.params import make_params
 from chargax_marl.core.station import KIND_AC, KIND_BATTERY, KIND_DC
 from chargax_marl.core.types import PENALTY_TERMS, EnvParams, EnvState, EpisodeTotals, StepInfo
+from chargax_marl.lifecycle import check_day
 
 NUM_KINDS = 3  # one-hot order: AC, DC, battery (the values of KIND_AC, KIND_DC, KIND_BATTERY)
 assert (KIND_AC, KIND_DC, KIND_BATTERY) == (0, 1, 2)
@@ -306,7 +308,9 @@ class ChargaxMARL(MultiAgentEnv):
         obs_shape = jax.eval_shape(lambda s: agent_observations(s, params, self._layout),
                                    simulator.empty_state(0, params)).shape
         self.obs_size = int(obs_shape[1])
-        obs_space = spaces.Box(-jnp.inf, jnp.inf, (self.obs_size,), jnp.float32)
+        low, high = bounds.agent_obs_bounds(params, np.asarray(self._layout.ancestors),
+                                            int(np.shape(self._layout.agent_id)[1]))
+        obs_space = spaces.Box(low, high, (self.obs_size,), jnp.float32)  # finite: chargax_marl.bounds
         act_space = spaces.Discrete(self.num_actions)
         self.observation_spaces = {a: obs_space for a in self.agents}
         self.action_spaces = {a: act_space for a in self.agents}
@@ -319,7 +323,10 @@ class ChargaxMARL(MultiAgentEnv):
         return self.get_obs(state), state
 
     def reset_to_day(self, day: int | jax.Array):
-        """Start an empty station on a chosen day of the price data (for fixed evaluation days)."""
+        """Start an empty station on a chosen day of the price data (for fixed evaluation days;
+        ``ValueError`` for a concrete day outside ``[0, num_days)``)."""
+        if not isinstance(day, jax.core.Tracer):
+            check_day(day, self.params.num_days)
         state = simulator.empty_state(jnp.asarray(day, jnp.int32), self.params)
         return self.get_obs(state), state
 

@@ -1,8 +1,12 @@
 """PettingZoo ``ParallelEnv`` adapter of :class:`ChargaxMARL`: numpy in and out, jitted JAX underneath.
 
 ``parallel_env(**kwargs)`` takes the keyword arguments of :func:`chargax_marl.core.make_params`
-(or ``params=``) plus ``render_mode``. One episode is one day; at its end every agent is
-truncated and ``agents`` becomes empty (no auto-reset): call ``reset()`` to start a new day.
+(or ``params=``) plus ``render_mode``, ``max_cycles``, ``action_mask_in_obs``,
+``local_reward_weight`` and ``agent_id``. One episode is one day (or ``max_cycles`` steps);
+at its end every agent is truncated and ``agents`` becomes empty (no auto-reset): call
+``reset()`` to start a new day. ``env(**kwargs)`` is the same environment through
+PettingZoo's AEC API (``parallel_to_aec``), so this module works with PettingZoo's tests
+and tutorials (``max_cycles_test(pettingzoo_env)``, ``render_test(pettingzoo_env.env)``).
 """
 
 from __future__ import annotations
@@ -13,10 +17,11 @@ import gymnasium
 import jax
 import jax.numpy as jnp
 import numpy as np
+from pettingzoo.utils.conversions import parallel_to_aec
 from pettingzoo.utils.env import ParallelEnv
 
+from chargax_marl import bounds, lifecycle, rendering
 from chargax_marl.core import simulator
-from chargax_marl.core.station import KIND_NAMES
 from chargax_marl.core.types import EnvParams
 from chargax_marl.marl import env as marl_env
 from chargax_marl.marl.env import ChargaxMARL
@@ -55,32 +60,48 @@ _world_state = jax.jit(marl_env.world_state)
 class ChargaxParallelEnv(ParallelEnv):
     """The station as a PettingZoo ``ParallelEnv`` (see :class:`ChargaxMARL` for the model).
 
-    - Observations: ``float32`` vectors in ``Box(-inf, inf, (obs_size,))``, the same layout as
-      :class:`ChargaxMARL`. Actions: ``Discrete(n)`` per agent; ``infos[agent]["action_mask"]``
-      (``np.int8``) marks the valid ones; a masked action falls back to idle.
+    - Observations: ``float32`` vectors in ``Box(low, high, (obs_size,))`` with finite bounds
+      (:mod:`chargax_marl.bounds`), the same layout as :class:`ChargaxMARL`. Actions:
+      ``Discrete(n)`` per agent; ``infos[agent]["action_mask"]`` (a writable ``np.int8``
+      copy) marks the valid ones; a masked action falls back to idle. With
+      ``action_mask_in_obs=True`` each observation is instead
+      ``{"observation": Box, "action_mask": MultiBinary(n)}`` (PettingZoo's classic-env
+      convention, read by Tianshou, AgileRL and RLlib).
     - ``step`` raises ``ValueError`` naming the agent and the allowed range for a missing or
       unknown agent, an index outside the space or a non-integer action, and
       ``RuntimeError`` when called before ``reset`` or after the day ended.
     - Rewards are the shared station reward (EUR), or the per-agent mix of
       ``local_reward_weight`` (see :class:`ChargaxMARL`); ``terminations`` are always ``False``;
-      ``truncations`` turn ``True`` for every agent at the end of the day. ``infos[agent]``
+      ``truncations`` turn ``True`` for every agent at the end of the day, or after
+      ``max_cycles`` steps when given (a shorter episode, for tests and tutorials). ``infos[agent]``
       also holds the step's report as floats (profit, penalties, energies, prices, car
       counts, episode totals), ``energy_kwh``, the agent's own energy this step, and
       ``reward_share``, its share of the reward.
-    - Seeding: ``reset(seed=s)`` starts a JAX key from ``s``, so the same seed and actions
-      give the same trajectory. ``reset()`` without a seed continues the key sequence; the
-      first key is ``PRNGKey(0)`` (as the single-agent Gymnasium wrapper).
-      ``reset(options={"day": d})`` starts on day ``d`` of the price data.
+    - Seeding: ``reset(seed=s)`` starts a JAX key from any non-negative integer ``s``
+      (:func:`chargax_marl.lifecycle.key_from_seed`), so the same seed and actions give the
+      same trajectory. ``reset()`` without a seed continues the key sequence; the first key
+      is ``PRNGKey(0)`` (as the single-agent Gymnasium wrapper).
+      ``reset(options={"day": d})`` starts on day ``d`` in ``[0, num_days)`` of the price
+      data; a bad day or option key raises ``ValueError`` naming it.
     - ``state()`` is the single-agent observation (``state_space``). ``render()`` returns a
-      text table (``render_mode="ansi"``) or an ``HxWx3`` uint8 plot of the day so far
-      (``"rgb_array"``).
+      text table (``render_mode="ansi"``), prints it (``"human"``) or returns an ``HxWx3``
+      uint8 plot of the day so far (``"rgb_array"``).
+    - In a process forked after JAX started, construction and every call raise
+      :class:`chargax_marl.lifecycle.ForkedProcessError` (use the ``spawn`` start method).
     """
 
-    metadata = {"name": "chargax_v0", "render_modes": ["ansi", "rgb_array"], "is_parallelizable": True}
+    metadata = {"name": "chargax_v0", "render_modes": rendering.RENDER_MODES, "is_parallelizable": True,
+                "render_fps": 4}
 
-    def __init__(self, params: EnvParams | None = None, render_mode: str | None = None, **make_params_kwargs: Any):
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+    def __init__(self, params: EnvParams | None = None, render_mode: str | None = None, *,
+                 max_cycles: int | None = None, action_mask_in_obs: bool = False, **make_params_kwargs: Any):
+        lifecycle.check_not_forked("ChargaxParallelEnv")
+        rendering.check_render_mode(render_mode, "ChargaxParallelEnv")
+        if max_cycles is not None and (isinstance(max_cycles, bool) or not isinstance(max_cycles, (int, np.integer))
+                                       or max_cycles < 1):
+            raise ValueError(f"ChargaxParallelEnv: max_cycles must be a positive integer or None, got {max_cycles!r}")
+        self.max_cycles = None if max_cycles is None else int(max_cycles)
+        self.action_mask_in_obs = bool(action_mask_in_obs)
         self.env = ChargaxMARL(params=params, **make_params_kwargs)
         self.params = self.env.params
         self._layout = jax.tree.map(jnp.asarray, self.env._layout)  # on the device once, not per call
@@ -88,21 +109,26 @@ class ChargaxParallelEnv(ParallelEnv):
         self.possible_agents = list(self.env.agents)
         self.agents: list[str] = []
         n_obs, n_act = self.env.obs_size, self.env.num_actions
-        self.observation_spaces = {
-            a: gymnasium.spaces.Box(-np.inf, np.inf, (n_obs,), np.float32) for a in self.possible_agents
-        }
+        jax_space = self.env.observation_spaces[self.possible_agents[0]]
+        low, high = np.asarray(jax_space.low, np.float32), np.asarray(jax_space.high, np.float32)
+        box = gymnasium.spaces.Box(low, high, (n_obs,), np.float32)
+        if self.action_mask_in_obs:
+            self.observation_spaces = {a: gymnasium.spaces.Dict({
+                "observation": box, "action_mask": gymnasium.spaces.MultiBinary(n_act)}) for a in self.possible_agents}
+        else:
+            self.observation_spaces = {a: box for a in self.possible_agents}
         self.action_spaces = {a: gymnasium.spaces.Discrete(n_act) for a in self.possible_agents}
-        self.state_space = gymnasium.spaces.Box(-np.inf, np.inf, (self.env.state_size,), np.float32)
+        s_low, s_high = bounds.flat_obs_bounds(self.params)
+        self.state_space = gymnasium.spaces.Box(s_low, s_high, s_low.shape, np.float32)
         avail = jax.device_get(self.env.get_avail_actions(simulator.empty_state(0, self.params)))
         self._masks = {}
         for a in self.possible_agents:
-            m = np.asarray(avail[a], dtype=np.int8)
-            m.setflags(write=False)
-            self._masks[a] = m
+            self._masks[a] = np.asarray(avail[a], dtype=np.int8)
         self._key = jax.random.PRNGKey(0)
         self._state = None
         self._host_state = None
         self._history: list[tuple[float, float, float]] = []  # (hour, buy price, station kW)
+        self._steps = 0
 
     # ------------------------------------------------------------------ spaces
     def observation_space(self, agent: str) -> gymnasium.spaces.Box:
@@ -113,23 +139,30 @@ class ChargaxParallelEnv(ParallelEnv):
 
     # ------------------------------------------------------------------ episode
     def reset(self, seed: int | None = None, options: dict | None = None):
-        if seed is not None:
-            self._key = jax.random.PRNGKey(int(seed))
-        if options and "day" in options:
-            day = int(options["day"])
-            if not 0 <= day < self.params.num_days:
-                raise ValueError(f"options['day'] must be in [0, {self.params.num_days - 1}], got {day}")
+        lifecycle.check_not_forked("ChargaxParallelEnv.reset")
+        key = None if seed is None else lifecycle.key_from_seed(seed, "ChargaxParallelEnv.reset")
+        day = lifecycle.reset_day(options, self.params.num_days, "ChargaxParallelEnv.reset")
+        if key is not None:
+            self._key = key
+        if day is not None:
             self._state, obs = _reset_day(jnp.asarray(day, jnp.int32), self.params, self._layout)
         else:
             self._key, self._state, obs = _reset_random(self._key, self.params, self._layout)
         self._host_state = None
         self._history = []
+        self._steps = 0
         self.agents = list(self.possible_agents)
         obs = np.array(obs, dtype=np.float32)
-        return ({a: obs[i] for i, a in enumerate(self.agents)},
-                {a: {"action_mask": self._masks[a]} for a in self.agents})
+        return ({a: self._observation(a, obs[i]) for i, a in enumerate(self.agents)},
+                {a: {"action_mask": self._masks[a].copy()} for a in self.agents})
+
+    def _observation(self, agent: str, row: np.ndarray):
+        if self.action_mask_in_obs:
+            return {"observation": row, "action_mask": self._masks[agent].copy()}
+        return row
 
     def step(self, actions: dict):
+        lifecycle.check_not_forked("ChargaxParallelEnv.step")
         if self._state is None:
             raise RuntimeError("ChargaxParallelEnv.step() called before reset(); call reset() to start a day")
         if not self.agents:
@@ -143,6 +176,9 @@ class ChargaxParallelEnv(ParallelEnv):
         obs = np.array(obs, dtype=np.float32)
         values = packed.tolist()
         reward, done = values[0], bool(values[1])
+        self._steps += 1
+        if self.max_cycles is not None and self._steps >= self.max_cycles:
+            done = True
         k = len(marl_env.INFO_KEYS)
         shared = dict(zip(marl_env.INFO_KEYS, values[2:2 + k]))
         n = len(self.possible_agents)
@@ -152,14 +188,17 @@ class ChargaxParallelEnv(ParallelEnv):
         self._history.append((self._hours_now(), shared["price_buy_eur_kwh"],
                               shared["grid_net_kwh"] / self.params.step_hours))
         agents = self.agents
-        observations = {a: obs[i] for i, a in enumerate(agents)}
+        observations = {a: self._observation(a, obs[i]) for i, a in enumerate(agents)}
         rewards = {a: float(per_agent[i]) for i, a in enumerate(agents)}
         terminations = {a: False for a in agents}
         truncations = {a: done for a in agents}
-        infos = {a: {**shared, "energy_kwh": energy[i], "reward_share": shares[i], "action_mask": self._masks[a]}
+        infos = {a: {**shared, "energy_kwh": energy[i], "reward_share": shares[i],
+                     "action_mask": self._masks[a].copy()}
                  for i, a in enumerate(agents)}
         if done:
             self.agents = []
+        if self.render_mode == "human":
+            self.render()
         return observations, rewards, terminations, truncations, infos
 
     def state(self) -> np.ndarray:
@@ -177,63 +216,10 @@ class ChargaxParallelEnv(ParallelEnv):
     def _hours_now(self) -> float:
         return len(self._history) * self.params.step_minutes / 60.0
 
-    def _price_now(self) -> float:
-        s = self._host()
-        hour = min(int(int(s.timestep) * self.params.step_minutes // 60), 23)
-        day = int(s.day) % self.params.num_days
-        return float(np.asarray(self.params.prices_eur_kwh)[day, hour])
-
     def render(self):
-        if self.render_mode is None:
-            gymnasium.logger.warn("ChargaxParallelEnv.render() called without a render_mode; "
-                                  "pass render_mode='ansi' or 'rgb_array' to parallel_env()")
-            return None
-        if self._state is None:
-            raise RuntimeError("ChargaxParallelEnv.render() called before reset()")
-        if self.render_mode == "ansi":
-            return self._render_ansi()
-        return self._render_rgb()
-
-    def _render_ansi(self) -> str:
-        s = self._host()
-        st = self.params.station
-        kinds = np.asarray(st.leaf_kind)
-        volts = np.asarray(st.leaf_voltage_v)
-        minutes = int(s.timestep) * self.params.step_minutes
-        lines = [
-            f"day {int(s.day)}  step {int(s.timestep)}/{self.params.num_steps}  "
-            f"time {int(minutes // 60):02d}:{int(minutes % 60):02d}  "
-            f"price {self._price_now():.4f} EUR/kWh  profit so far {float(s.totals.profit_eur):.2f} EUR",
-            f"{'agent':<12}{'kind':<9}{'occupied':>9}{'SoC':>7}{'current A':>11}{'power kW':>10}",
-        ]
-        for i, a in enumerate(self.possible_agents):
-            occ = bool(s.occupied[i])
-            soc = f"{float(s.soc[i]):.2f}" if occ else "-"
-            cur = float(s.current_a[i]) + 0.0  # no "-0.0"
-            lines.append(f"{a:<12}{KIND_NAMES[int(kinds[i])]:<9}{('yes' if occ else 'no'):>9}{soc:>7}"
-                         f"{cur:>11.1f}{cur * float(volts[i]) / 1000.0:>10.1f}")
-        return "\n".join(lines)
-
-    def _render_rgb(self) -> np.ndarray:
-        from matplotlib.backends.backend_agg import FigureCanvasAgg
-        from matplotlib.figure import Figure
-
-        fig = Figure(figsize=(6.4, 4.0), dpi=80)
-        canvas = FigureCanvasAgg(fig)
-        ax_price, ax_power = fig.subplots(2, 1, sharex=True)
-        if self._history:
-            h = np.asarray(self._history)
-            ax_price.step(h[:, 0], h[:, 1], where="post", color="tab:orange")
-            ax_power.step(h[:, 0], h[:, 2], where="post", color="tab:blue")
-        ax_price.set_ylabel("price EUR/kWh")
-        ax_power.set_ylabel("station kW")
-        ax_power.set_xlabel("hour of the day")
-        ax_power.set_xlim(0, 24)
-        s = self._host()
-        ax_price.set_title(f"day {int(s.day)}, step {int(s.timestep)}/{self.params.num_steps}")
-        fig.tight_layout()
-        canvas.draw()
-        return np.array(canvas.buffer_rgba(), dtype=np.uint8)[..., :3].copy()
+        state = None if self._state is None else self._host()
+        return rendering.render(self.render_mode, state, self.params, self.possible_agents, self._history,
+                                "ChargaxParallelEnv")
 
     def close(self) -> None:
         self._state = None
@@ -243,8 +229,22 @@ class ChargaxParallelEnv(ParallelEnv):
 
 
 def parallel_env(**kwargs: Any) -> ChargaxParallelEnv:
-    """Build a :class:`ChargaxParallelEnv` (``render_mode=``, ``params=`` or ``make_params`` keywords)."""
+    """Build a :class:`ChargaxParallelEnv` (``render_mode=``, ``max_cycles=``,
+    ``action_mask_in_obs=``, ``params=`` or ``make_params`` keywords)."""
     return ChargaxParallelEnv(**kwargs)
 
 
-__all__ = ["ChargaxParallelEnv", "parallel_env"]
+def raw_env(**kwargs: Any):
+    """The AEC view of :func:`parallel_env` (PettingZoo's ``parallel_to_aec``)."""
+    return parallel_to_aec(ChargaxParallelEnv(**kwargs))
+
+
+def env(**kwargs: Any):
+    """PettingZoo's AEC constructor: :func:`raw_env` (same keywords as :func:`parallel_env`).
+
+    Agents act one after another within a cycle; the station steps once all have acted.
+    """
+    return raw_env(**kwargs)
+
+
+__all__ = ["ChargaxParallelEnv", "env", "parallel_env", "raw_env"]

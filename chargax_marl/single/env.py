@@ -20,18 +20,25 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from gymnax.environments import environment, spaces
 
+from chargax_marl import bounds
+from chargax_marl.lifecycle import check_day
 from chargax_marl.core import observation, physics, simulator
 from chargax_marl.core.params import make_params
 from chargax_marl.core.types import PENALTY_TERMS, EnvParams, EnvState, EpisodeTotals
 
 
 class MultiDiscrete(spaces.Space):
-    """A jittable vector of independent discrete choices, entry ``i`` in ``[0, nvec[i])``."""
+    """A jittable vector of independent discrete choices, entry ``i`` in ``[0, nvec[i])``.
+
+    ``nvec`` is a concrete numpy array (also inside ``jit``), so ``int(space.nvec[i])`` and
+    ``space.nvec.max()`` can size a network's output layer.
+    """
 
     def __init__(self, nvec):
-        self.nvec = jnp.asarray(nvec, jnp.int32)
+        self.nvec = np.asarray(nvec, np.int32)
         self.shape = (int(self.nvec.shape[0]),)
         self.dtype = jnp.int32
 
@@ -147,6 +154,8 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
     def reset_to_day(self, day: int | jax.Array, params: EnvParams | None = None):
         """Start an empty station on a chosen day (for evaluation on fixed held-out days)."""
         params = params or self._params
+        if not isinstance(day, jax.core.Tracer):
+            check_day(day, params.num_days)
         state = simulator.empty_state(jnp.asarray(day, jnp.int32), params)
         return self.get_obs(state, params), state
 
@@ -169,18 +178,41 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
         return "Chargax"
 
     @property
-    def num_actions(self) -> int:
+    def num_leaves(self) -> int:
+        """Number of action entries: ports, then batteries."""
         return self._params.station.num_leaves
 
+    @property
+    def num_actions(self) -> int:
+        """gymnax's meaning: the size of one discrete choice. Here the number of choices of
+        each action entry, ``max(action_space().nvec)`` (``2L+1`` with V2G or a battery): a
+        factored policy head has ``num_leaves x num_actions`` logits. In continuous mode the
+        action dimension (``num_leaves``), as for gymnax's continuous envs. For a single
+        ``Discrete`` space use :class:`chargax_marl.single.FlatDiscrete`."""
+        space = self.action_space(self._params)
+        if self._params.action_mode == "continuous":
+            return int(space.shape[0])
+        return int(space.nvec.max())
+
+    def _concrete(self, params: EnvParams) -> EnvParams:
+        # Space sizes depend on station arrays: inside jit with traced params read them from
+        # the construction params (a different station layout would not trace anyway).
+        if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(params.station)):
+            return self._params
+        return params
+
     def action_space(self, params: EnvParams | None = None):
-        params = params or self._params
+        params = self._concrete(params or self._params)
         n = params.station.num_leaves
         if params.action_mode == "continuous":
             return spaces.Box(-1.0, 1.0, (n,), jnp.float32)
         if params.action_mode == "delta":
-            return MultiDiscrete(jnp.full((n,), 2 * params.num_levels + 1))
-        return MultiDiscrete(params.num_levels + 1 - self.min_level(params))
+            return MultiDiscrete(np.full((n,), 2 * params.num_levels + 1))
+        with jax.ensure_compile_time_eval():  # concrete sizes also while tracing
+            return MultiDiscrete(params.num_levels + 1 - np.asarray(self.min_level(params)))
 
     def observation_space(self, params: EnvParams | None = None):
-        params = params or self._params
-        return spaces.Box(-jnp.inf, jnp.inf, (observation.obs_size(params),), jnp.float32)
+        """``Box(low, high)`` with finite bounds the observations respect (:mod:`chargax_marl.bounds`)."""
+        params = self._concrete(params or self._params)
+        low, high = bounds.flat_obs_bounds(params)
+        return spaces.Box(low, high, (observation.obs_size(params),), jnp.float32)

@@ -1,4 +1,5 @@
-"""Wrappers of the single-agent env: episode logging (JAX) and a Gymnasium adapter (numpy)."""
+"""Wrappers of the single-agent env: episode logging and a flat ``Discrete`` view (JAX),
+and a Gymnasium adapter (numpy)."""
 
 from __future__ import annotations
 
@@ -10,8 +11,12 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from gymnax.environments import spaces as gx_spaces
+
+from chargax_marl import bounds, lifecycle, rendering
+from chargax_marl.core import observation, simulator
 from chargax_marl.core.types import EnvParams, EnvState, EpisodeTotals
-from chargax_marl.single.env import Chargax
+from chargax_marl.single.env import Chargax, step_info
 
 
 @struct.dataclass
@@ -69,54 +74,233 @@ class LogWrapper:
         return obs, new_state, reward, terminated, truncated, info
 
 
-class GymnasiumEnv(gymnasium.Env):
-    """Gymnasium adapter: numpy in and out, the jitted JAX step underneath.
+class FlatDiscrete:
+    """A ``Discrete`` view of the single-agent env for code that expects one (PureJaxRL's
+    ``ppo.py``, gymnax's wrappers, DQN heads).
 
-    Observation: ``Box(-inf, inf, (n,), float32)``. Action: ``MultiDiscrete`` with one entry
-    per port and battery (discrete modes) or ``Box(-1, 1)`` (continuous). The episode is one
-    day; it ends with ``truncated=True`` and does not auto-reset. ``reset(seed=...)`` seeds a
-    JAX key, so the same seed gives the same day.
+    Action ``a`` in ``Discrete(n_port * n_battery)`` sets one shared level for every port,
+    ``port_levels[a // n_battery]``, and one shared level for every station battery,
+    ``battery_levels[a % n_battery]``. ``port_levels`` runs from the lowest level any port
+    can take (``-L`` with V2G, else 0) to ``L``; a port that cannot discharge idles at a
+    negative shared level. ``battery_levels`` is ``-L .. L`` (just ``[0]`` without a
+    battery). With the defaults (``L = 10``, V2G) that is ``Discrete(441)``; index
+    ``n_battery * (n_port - 1) + L`` is every port at full power with the battery idle.
+    Actions outside ``[0, n)`` are clipped. Only ``action_mode="absolute"``.
+
+    ``reset``, ``step``, ``observation_space`` and every other attribute are the wrapped
+    env's; ``action_space()`` is ``gymnax.environments.spaces.Discrete(n)`` and
+    ``num_actions`` is ``n``, as gymnax code expects::
+
+        env = LogWrapper(FlatDiscrete(Chargax()))   # gymnax.wrappers.purerl.LogWrapper also works
     """
 
-    metadata = {"render_modes": []}
+    def __init__(self, env: Chargax):
+        self._env = env
+        params = env.default_params
+        if params.action_mode != "absolute":
+            raise ValueError(f"FlatDiscrete: field 'action_mode' must be 'absolute', got {params.action_mode!r}")
+        st = params.station
+        with jax.ensure_compile_time_eval():
+            self._min_level = np.asarray(env.min_level(params), np.int32)
+        L = params.num_levels
+        p, b = st.num_ports, st.num_batteries
+        low = int(self._min_level[:p].min()) if p else 0
+        self.port_levels = np.arange(low, L + 1, dtype=np.int32)
+        self.battery_levels = np.arange(-L, L + 1, dtype=np.int32) if b else np.zeros(1, np.int32)
+        self._is_port = np.arange(st.num_leaves) < p
+        self.n = int(self.port_levels.size * self.battery_levels.size)
 
-    def __init__(self, env: Chargax | None = None, params: EnvParams | None = None, **overrides: Any):
+    def __getattr__(self, name: str):
+        if name == "_env":
+            raise AttributeError(name)
+        return getattr(self._env, name)
+
+    @property
+    def num_actions(self) -> int:
+        return self.n
+
+    def action_space(self, params: EnvParams | None = None) -> gx_spaces.Discrete:
+        return gx_spaces.Discrete(self.n)
+
+    def action_index(self, port_level: int, battery_level: int = 0) -> int:
+        """The flat action of a shared port level and battery level (host side)."""
+        i = int(np.flatnonzero(self.port_levels == port_level)[0])
+        j = int(np.flatnonzero(self.battery_levels == battery_level)[0])
+        return i * self.battery_levels.size + j
+
+    def levels(self, action) -> jnp.ndarray:
+        """The per-leaf levels ``(L,)`` of a flat action (works under jit)."""
+        a = jnp.clip(jnp.asarray(action).astype(jnp.int32).reshape(()), 0, self.n - 1)
+        nb = self.battery_levels.size
+        port = jnp.asarray(self.port_levels)[a // nb]
+        bat = jnp.asarray(self.battery_levels)[a % nb]
+        lv = jnp.where(jnp.asarray(self._is_port), port, bat)
+        return jnp.maximum(lv, jnp.asarray(self._min_level))
+
+    def to_env_action(self, action) -> jnp.ndarray:
+        """The wrapped env's ``MultiDiscrete`` action of a flat action."""
+        return self.levels(action) - jnp.asarray(self._min_level)
+
+    def reset(self, key: jax.Array, params: EnvParams | None = None):
+        return self._env.reset(key, params)
+
+    def step(self, key: jax.Array, state, action, params: EnvParams | None = None):
+        return self._env.step(key, state, self.to_env_action(action), params)
+
+
+# Module-level jitted functions with ``params`` as a traced argument: every GymnasiumEnv of
+# a plain Chargax with the same station layout and static settings shares one compilation
+# (and the wrapper holds no jitted attribute, so it pickles).
+_PROTO = Chargax.__new__(Chargax)  # a stateless Chargax: its methods only read the params passed in
+_PROTO._params = None
+
+
+@jax.jit
+def _shared_reset(key: jax.Array, params: EnvParams):
+    key, sub = jax.random.split(key)
+    state = simulator.reset(sub, params)
+    return key, observation.flat_obs(state, params), state
+
+
+@jax.jit
+def _shared_reset_day(day: jax.Array, params: EnvParams):
+    state = simulator.empty_state(day, params)
+    return observation.flat_obs(state, params), state
+
+
+@jax.jit
+def _shared_step(key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams):
+    key, sub = jax.random.split(key)
+    new_state, info = simulator.step(sub, state, _PROTO.action_to_levels(action, params), params)
+    return (key, observation.flat_obs(new_state, params), new_state, info.reward,
+            simulator.is_done(new_state, params), step_info(info, new_state))
+
+
+def compile_count() -> int:
+    """How many times the shared reset and step were compiled in this process (for tests)."""
+    return int(_shared_reset._cache_size()) + int(_shared_step._cache_size())
+
+
+class GymnasiumEnv(gymnasium.Env):
+    """Gymnasium adapter: numpy in and out, jitted JAX underneath.
+
+    - Observation: ``Box(low, high, (n,), float32)`` with finite bounds the observations
+      respect (:mod:`chargax_marl.bounds`). Action: ``MultiDiscrete`` with one entry per port
+      and battery (discrete modes) or ``Box(-1, 1)`` (continuous).
+    - The episode is one day; it ends with ``truncated=True`` and does not auto-reset:
+      ``step`` after that raises ``RuntimeError`` until ``reset``.
+    - ``reset(seed=s)`` accepts any non-negative integer (``ValueError`` otherwise); the same
+      seed gives the same day and cars (:func:`chargax_marl.lifecycle.key_from_seed`;
+      seeds below ``2**32`` use ``jax.random.PRNGKey(seed)``).
+      ``reset(options={"day": d})`` starts on day ``d`` in ``[0, num_days)`` of the price data.
+    - ``render_mode``: ``"ansi"`` (text table), ``"human"`` (prints it) or ``"rgb_array"``.
+    - Instances of a plain :class:`Chargax` share one compiled reset and step per station
+      layout and static settings; the wrapper pickles.
+    - In a process forked after JAX started, construction and every call raise
+      :class:`chargax_marl.lifecycle.ForkedProcessError` (use the ``spawn`` start method).
+    """
+
+    metadata = {"render_modes": rendering.RENDER_MODES, "render_fps": 4}
+
+    def __init__(self, env: Chargax | None = None, params: EnvParams | None = None,
+                 render_mode: str | None = None, **overrides: Any):
+        lifecycle.check_not_forked("GymnasiumEnv")
+        rendering.check_render_mode(render_mode, "GymnasiumEnv")
         if env is None:
             env = Chargax(params=params, **overrides)
+        elif overrides:
+            raise ValueError(f"GymnasiumEnv: pass either 'env' or keyword overrides, not both (got {sorted(overrides)})")
         self.env = env
         self.params = params if params is not None else env.default_params
-        space = env.action_space(self.params)
+        self.render_mode = render_mode
+        self._build()
+        self._key = jax.random.PRNGKey(0)
+        self._state = None
+        self._done = False
+        self._history: list[tuple[float, float, float]] = []
+
+    def _build(self) -> None:
+        space = self.env.action_space(self.params)
         if self.params.action_mode == "continuous":
             self.action_space = gymnasium.spaces.Box(-1.0, 1.0, space.shape, np.float32)
         else:
             self.action_space = gymnasium.spaces.MultiDiscrete(np.asarray(space.nvec, dtype=np.int64))
-        n = env.observation_space(self.params).shape[0]
-        self.observation_space = gymnasium.spaces.Box(-np.inf, np.inf, (n,), np.float32)
-        self._reset = jax.jit(env.reset_env)
-        self._step = jax.jit(env.step_env)
-        self._key = jax.random.PRNGKey(0)
-        self._state = None
+        low, high = bounds.flat_obs_bounds(self.params)
+        self.observation_space = gymnasium.spaces.Box(low, high, low.shape, np.float32)
+        if type(self.env) is Chargax:
+            self._reset_fn, self._step_fn = _shared_reset, _shared_step
+        else:  # a subclass may change the dynamics: compile its own
+            env = self.env
 
+            def reset_fn(key, params):
+                key, sub = jax.random.split(key)
+                obs, state = env.reset_env(sub, params)
+                return key, obs, state
+
+            def step_fn(key, state, action, params):
+                key, sub = jax.random.split(key)
+                obs, state, reward, _, info = env.step_env(sub, state, action, params)
+                return key, obs, state, reward, env.is_truncated(state, params), info
+
+            self._reset_fn, self._step_fn = jax.jit(reset_fn), jax.jit(step_fn)
+
+    # ------------------------------------------------------------------ pickling
+    def __getstate__(self):
+        d = dict(self.__dict__)
+        d.pop("_reset_fn", None)
+        d.pop("_step_fn", None)
+        d["_key"] = np.asarray(d["_key"])
+        d["_state"] = None if d["_state"] is None else jax.device_get(d["_state"])
+        return d
+
+    def __setstate__(self, d):
+        lifecycle.check_not_forked("GymnasiumEnv")
+        self.__dict__.update(d)
+        self._build()
+
+    # ------------------------------------------------------------------ episode
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        lifecycle.check_not_forked("GymnasiumEnv.reset")
+        if seed is not None:
+            key = lifecycle.key_from_seed(seed, "GymnasiumEnv.reset")
+        day = lifecycle.reset_day(options, self.params.num_days, "GymnasiumEnv.reset")
         super().reset(seed=seed)
         if seed is not None:
-            self._key = jax.random.PRNGKey(seed)
-        self._key, key = jax.random.split(self._key)
-        if options and "day" in options:
-            obs, self._state = self.env.reset_to_day(int(options["day"]), self.params)
+            self._key = key
+        if day is not None and type(self.env) is Chargax:
+            obs, self._state = _shared_reset_day(jnp.asarray(day, jnp.int32), self.params)
+        elif day is not None:  # a subclass may build its own observation
+            obs, self._state = self.env.reset_to_day(day, self.params)
         else:
-            obs, self._state = self._reset(key, self.params)
-        return np.asarray(obs, dtype=np.float32), {}
+            self._key, obs, self._state = self._reset_fn(self._key, self.params)
+        self._done = False
+        self._history = []
+        return np.array(obs, dtype=np.float32), {}
 
     def step(self, action):
+        lifecycle.check_not_forked("GymnasiumEnv.step")
         if self._state is None:
-            raise RuntimeError("GymnasiumEnv.step called before reset()")
+            raise RuntimeError("GymnasiumEnv.step() called before reset(); call reset() to start a day")
         action = np.asarray(action)
         if not self.action_space.contains(action.astype(self.action_space.dtype)):
             raise ValueError(f"action {action.tolist()} is outside the action space {self.action_space}")
-        self._key, key = jax.random.split(self._key)
-        obs, state, reward, _, info = self._step(key, self._state, jnp.asarray(action), self.params)
+        if self._done:
+            raise RuntimeError("GymnasiumEnv.step() called after the episode ended (truncated=True at the end "
+                               "of the day); call reset() to start a new day")
+        self._key, obs, state, reward, done, info = self._step_fn(self._key, self._state, jnp.asarray(action),
+                                                                  self.params)
         self._state = state
-        truncated = bool(self.env.is_truncated(state, self.params))
-        info = {k: float(v) for k, v in jax.device_get(info).items()}
-        return np.asarray(obs, dtype=np.float32), float(reward), False, truncated, info
+        obs, reward, done, info = jax.device_get((obs, reward, done, info))
+        info = {k: float(v) for k, v in info.items()}
+        self._done = bool(done)
+        self._history.append((len(self._history) * self.params.step_minutes / 60.0, info["price_buy_eur_kwh"],
+                              info["grid_net_kwh"] / self.params.step_hours))
+        if self.render_mode == "human":
+            self.render()
+        return np.array(obs, dtype=np.float32), float(reward), False, self._done, info
+
+    def render(self):
+        state = None if self._state is None else jax.device_get(self._state)
+        st = self.params.station
+        names = [f"port_{i}" for i in range(st.num_ports)] + [f"battery_{j}" for j in range(st.num_batteries)]
+        return rendering.render(self.render_mode, state, self.params, names, self._history, "GymnasiumEnv")

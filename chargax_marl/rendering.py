@@ -1,0 +1,89 @@
+"""Rendering shared by the Gymnasium and PettingZoo wrappers (host side, numpy).
+
+Modes: ``"ansi"`` returns a text table of the station now, ``"human"`` prints that table and
+returns None, ``"rgb_array"`` returns an ``HxWx3`` uint8 plot of the day so far (price and
+station power).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from chargax_marl.core.station import KIND_NAMES
+from chargax_marl.core.types import EnvParams
+
+RENDER_MODES = ["ansi", "human", "rgb_array"]
+
+
+def check_render_mode(render_mode: str | None, where: str) -> None:
+    if render_mode is not None and render_mode not in RENDER_MODES:
+        raise ValueError(f"{where}: render_mode must be one of {RENDER_MODES} or None, got {render_mode!r}")
+
+
+def price_now(state, params: EnvParams) -> float:
+    """The day-ahead price (EUR/kWh) of the state's hour; ``state`` on the host."""
+    hour = min(int(int(state.timestep) * params.step_minutes // 60), 23)
+    day = int(state.day) % params.num_days
+    return float(np.asarray(params.prices_eur_kwh)[day, hour])
+
+
+def ansi_table(state, params: EnvParams, names: list[str]) -> str:
+    """One line of context, then one row per leaf (``names`` in leaf order); ``state`` on the host."""
+    st = params.station
+    kinds = np.asarray(st.leaf_kind)
+    volts = np.asarray(st.leaf_voltage_v)
+    minutes = int(state.timestep) * params.step_minutes
+    lines = [
+        f"day {int(state.day)}  step {int(state.timestep)}/{params.num_steps}  "
+        f"time {int(minutes // 60):02d}:{int(minutes % 60):02d}  "
+        f"price {price_now(state, params):.4f} EUR/kWh  profit so far {float(state.totals.profit_eur):.2f} EUR",
+        f"{'agent':<12}{'kind':<9}{'occupied':>9}{'SoC':>7}{'current A':>11}{'power kW':>10}",
+    ]
+    for i, a in enumerate(names):
+        occ = bool(state.occupied[i])
+        soc = f"{float(state.soc[i]):.2f}" if occ else "-"
+        cur = float(state.current_a[i]) + 0.0  # no "-0.0"
+        lines.append(f"{a:<12}{KIND_NAMES[int(kinds[i])]:<9}{('yes' if occ else 'no'):>9}{soc:>7}"
+                     f"{cur:>11.1f}{cur * float(volts[i]) / 1000.0:>10.1f}")
+    return "\n".join(lines)
+
+
+def rgb_plot(history: list[tuple[float, float, float]], state, params: EnvParams) -> np.ndarray:
+    """``HxWx3`` uint8 plot of ``history`` rows ``(hour, buy price, station kW)``."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6.4, 4.0), dpi=80)
+    canvas = FigureCanvasAgg(fig)
+    ax_price, ax_power = fig.subplots(2, 1, sharex=True)
+    if history:
+        h = np.asarray(history)
+        ax_price.step(h[:, 0], h[:, 1], where="post", color="tab:orange")
+        ax_power.step(h[:, 0], h[:, 2], where="post", color="tab:blue")
+    ax_price.set_ylabel("price EUR/kWh")
+    ax_power.set_ylabel("station kW")
+    ax_power.set_xlabel("hour of the day")
+    ax_power.set_xlim(0, 24)
+    ax_price.set_title(f"day {int(state.day)}, step {int(state.timestep)}/{params.num_steps}")
+    fig.tight_layout()
+    canvas.draw()
+    return np.array(canvas.buffer_rgba(), dtype=np.uint8)[..., :3].copy()
+
+
+def render(mode: str | None, state, params: EnvParams, names: list[str], history, where: str):
+    """Dispatch on ``mode``; ``None`` warns (Gymnasium's convention) and returns None."""
+    import gymnasium
+
+    if mode is None:
+        gymnasium.logger.warn(f"{where}.render() called without a render_mode; pass render_mode='ansi', "
+                              "'human' or 'rgb_array' when constructing the env")
+        return None
+    if state is None:
+        raise RuntimeError(f"{where}.render() called before reset()")
+    if mode == "rgb_array":
+        return rgb_plot(history, state, params)
+    text = ansi_table(state, params, names)
+    if mode == "human":
+        print(text)
+        return None
+    return text
