@@ -40,6 +40,8 @@ from typing import Any
 
 import numpy as np
 
+from chargax_marl.core import checks
+
 __all__ = [
     "DATA_DIR",
     "QUANTILE_PROBS",
@@ -69,6 +71,8 @@ __all__ = [
     "load_moer",
     "read_moer_csv",
     "resample_moer",
+    "validate_moer",
+    "validate_grid_demand",
     "GRID_DEMAND_SHAPES",
     "load_grid_demand",
     "read_grid_demand_csv",
@@ -143,6 +147,12 @@ def _check_finite(arr: np.ndarray, field: str) -> None:
         )
 
 
+def _check_bounds(arr: np.ndarray, field: str, low: float | None, high: float | None, unit: str = "",
+                  low_open: bool = False) -> None:
+    """Every entry within ``[low, high]`` and representable in float32 (after :func:`_check_finite`)."""
+    checks.array(field, arr, low=low, high=high, low_open=low_open, unit=unit)
+
+
 def _data_rows(text: str) -> list[list[str]]:
     """CSV rows of ``text`` without a BOM, blank lines and '#' comment lines."""
     if text.startswith("\ufeff"):
@@ -161,7 +171,11 @@ def _read_text(path: str | os.PathLike) -> str:
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(f"no such file: {str(p)!r}")
-    return p.read_text(encoding="utf-8-sig")
+    try:
+        return p.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{str(p)!r} is not UTF-8 text (byte {exc.start}: {exc.object[exc.start:exc.start + 1]!r}); "
+                         "save the CSV as UTF-8") from None
 
 
 # --------------------------------------------------------------------------------------
@@ -181,7 +195,11 @@ def traffic_cars_per_day(traffic: str | float) -> float:
         )
     value = float(traffic)
     if not math.isfinite(value) or value <= 0.0:
-        raise ValueError(f"traffic: cars per day must be a finite number > 0, got {traffic!r}")
+        raise ValueError(f"traffic: cars per day must be a finite number > 0 (at most {checks.MAX_CARS_PER_DAY:g}), "
+                         f"got {traffic!r}")
+    if value > checks.MAX_CARS_PER_DAY:
+        raise ValueError(f"traffic: cars per day must be <= {checks.MAX_CARS_PER_DAY:g} (the per-step arrival draw is "
+                         f"int32), got {traffic!r}")
     return value
 
 
@@ -227,6 +245,7 @@ def _validate_prices(value: Any, field: str = "prices") -> np.ndarray:
     if arr.shape[0] == 0:
         raise ValueError(f"{field}: expected at least one day, got shape {tuple(arr.shape)}")
     _check_finite(arr, field)
+    _check_bounds(arr, field, -checks.MAX_PRICE_EUR_KWH, checks.MAX_PRICE_EUR_KWH, "EUR/kWh")
     return arr.astype(np.float32)
 
 
@@ -325,7 +344,7 @@ def parse_prices_csv_text(text: str, source: str = "<csv>") -> tuple[np.ndarray,
         )
     if eur_mwh.shape[0] == 0:
         raise ValueError(f"prices: {source} has a header but no data rows")
-    return (eur_mwh / 1000.0).astype(np.float32), first.weekday()
+    return _validate_prices(eur_mwh / 1000.0, f"prices ({source})"), first.weekday()
 
 
 def _parse_date(text: str, field: str, where: str) -> _dt.date:
@@ -385,6 +404,12 @@ def _parse_long_prices(body: list[list[str]], source: str) -> tuple[np.ndarray, 
             raise ValueError(
                 f"timestamp: {source}: {day.isoformat()} lacks hours {missing}; every day needs 24 hourly prices "
                 "(one missing hour, the DST gap, is interpolated)"
+            )
+        repeated = sorted(h for h, vals in hours.items() if len(vals) > 1)
+        if len(repeated) > 1 or any(len(hours[h]) > 2 for h in repeated):
+            raise ValueError(
+                f"timestamp: {source}: {day.isoformat()} gives hours {repeated} more than once; only one hour per "
+                "day may repeat (the autumn DST hour, given twice and averaged). Is the day in the file twice?"
             )
         for h, vals in hours.items():
             values[d, h] = float(np.mean(vals))
@@ -649,6 +674,8 @@ def _validate_quantiles(value: Any, field: str) -> np.ndarray:
     if (np.diff(arr) < 0).any():
         i = int(np.argmax(np.diff(arr) < 0))
         raise ValueError(f"{field}: quantiles must be non-decreasing, got {float(arr[i])!r} then {float(arr[i + 1])!r} at index {i + 1}")
+    high, unit = (checks.MAX_STAY_MIN, "min") if field.endswith("_min") else (checks.MAX_DEMAND_KWH, "kWh")
+    _check_bounds(arr, field, 0.0, high, unit)
     if arr.shape[0] != NUM_QUANTILES:
         arr = np.interp(QUANTILE_PROBS, np.linspace(0.0, 1.0, arr.shape[0]), arr)
     return arr.astype(np.float32)
@@ -663,6 +690,7 @@ def _validate_scale(value: Any, field: str) -> np.ndarray:
     _check_finite(arr, field)
     if (arr <= 0).any():
         raise ValueError(f"{field}: factors must be > 0, got {float(arr.min())!r}")
+    _check_bounds(arr, field, 0.0, checks.MAX_FACTOR, low_open=True)
     return arr.astype(np.float32)
 
 
@@ -677,6 +705,13 @@ def _validate_unit_scalar(value: Any, field: str, *, lo_open: bool = False, uppe
         lo_s = "(0" if lo_open else "[0"
         hi_s = "inf)" if upper is None else (f"{upper:g})" if hi_open else f"{upper:g}]")
         raise ValueError(f"{field}: expected a value in {lo_s}, {hi_s}, got {value!r}")
+    return v
+
+
+def _validate_weekend_factor(value: Any) -> float:
+    v = _validate_unit_scalar(value, "weekend_volume_factor", upper=None)
+    if v > checks.MAX_FACTOR:
+        raise ValueError(f"weekend_volume_factor: expected a value in [0, {checks.MAX_FACTOR:g}], got {value!r}")
     return v
 
 
@@ -724,7 +759,7 @@ def make_user_profile(
     return UserProfileData(
         name=_validate_name(name),
         arrival_weights=_readonly(_validate_weights(arrival_weights)),
-        weekend_volume_factor=_validate_unit_scalar(weekend_volume_factor, "weekend_volume_factor", upper=None),
+        weekend_volume_factor=_validate_weekend_factor(weekend_volume_factor),
         stay_quantiles_min=_readonly(_validate_quantiles(stay_quantiles_min, "stay_quantiles_min")),
         stay_scale_by_hour=_readonly(_validate_scale(stay_scale_by_hour, "stay_scale_by_hour")),
         demand_quantiles_kwh=_readonly(_validate_quantiles(demand_quantiles_kwh, "demand_quantiles_kwh")),
@@ -854,6 +889,10 @@ def _make_fleet(name: str, models: Any, share: Any, capacity_kwh: Any, max_ac_kw
         if (cols[field] <= 0).any():
             i = int(np.argmax(cols[field] <= 0))
             raise ValueError(f"{field}: must be > 0, got {float(cols[field][i])!r} for model {models[i]!r}")
+    for field, high, unit in (("capacity_kwh", checks.MAX_CAPACITY_KWH, "kWh"), ("max_ac_kw", checks.MAX_POWER_KW, "kW"),
+                              ("max_dc_kw", checks.MAX_POWER_KW, "kW"), ("max_ac_discharge_kw", checks.MAX_POWER_KW, "kW"),
+                              ("max_dc_discharge_kw", checks.MAX_POWER_KW, "kW"), ("share", None, "")):
+        _check_bounds(cols[field], field, None, high, unit)
     for field in FLEET_DISCHARGE_COLUMNS:
         if (cols[field] < 0).any():
             i = int(np.argmax(cols[field] < 0))
@@ -954,13 +993,18 @@ def _check_resolution(n: int, field: str) -> None:
         raise ValueError(f"{field}: the number of slots per day must divide 1440 minutes evenly, got {n}")
 
 
-def _validate_moer(value: Any, field: str = "moer_kg_per_kwh") -> np.ndarray:
+def validate_moer(value: Any, field: str = "moer_kg_per_kwh", *, check_resolution: bool = True) -> np.ndarray:
+    """The one validator of MOER rates (kg CO2/kWh), whatever the path (bundled, CSV, array,
+    :class:`MoerData`, ``make_params``): shape ``(days, slots)`` or ``(slots,)``, finite, in
+    ``[0, MOER_MAX_KG_KWH]``. ``check_resolution``: slots must divide 1440 minutes (off for
+    arrays already at the simulator's step). Returns float32 ``(days, slots)``."""
     arr = _as_float_array(value, field)
     if arr.ndim == 1:
         arr = arr[None, :]
     if arr.ndim != 2 or arr.shape[0] == 0:
         raise ValueError(f"{field}: expected shape (days, slots) or (slots,), got {tuple(np.shape(value))}")
-    _check_resolution(arr.shape[1], field)
+    if check_resolution:
+        _check_resolution(arr.shape[1], field)
     _check_finite(arr, field)
     if (arr < 0).any():
         raise ValueError(f"{field}: emission rates must be >= 0 kg/kWh, got {float(arr.min())!r}")
@@ -1025,7 +1069,7 @@ def read_moer_csv(path: str | os.PathLike, *, unit: str = "kg_per_kwh") -> tuple
         for j in range(n):
             values[i, j] = _parse_float(row[1 + j], f"m{j}", where)
     _check_consecutive(dates, "date", source)
-    return _validate_moer(values * factors[unit], f"moer: {source}"), dates[0].weekday()
+    return validate_moer(values * factors[unit], f"moer: {source}"), dates[0].weekday()
 
 
 @functools.lru_cache(maxsize=None)
@@ -1047,7 +1091,7 @@ def load_moer(source: Any = "CAISO-SCE-2020") -> MoerData:
     array in kg CO2/kWh ``(days, slots)`` or ``(slots,)``, or a CSV path (kg/kWh;
     see :func:`read_moer_csv`)."""
     if isinstance(source, MoerData):
-        return MoerData(source.name, _readonly(_validate_moer(source.moer_kg_per_kwh)), _check_weekday(source.first_weekday), source.year)
+        return MoerData(source.name, _readonly(validate_moer(source.moer_kg_per_kwh)), _check_weekday(source.first_weekday), source.year)
     if isinstance(source, str) and source in MOER_DATASETS:
         return _load_bundled_moer(source)
     if isinstance(source, (str, os.PathLike)):
@@ -1056,7 +1100,7 @@ def load_moer(source: Any = "CAISO-SCE-2020") -> MoerData:
         arr, fw = read_moer_csv(source)
         return MoerData(Path(source).stem, _readonly(arr), fw, None)
     if isinstance(source, (np.ndarray, list, tuple)) or hasattr(source, "__array__"):
-        return MoerData("custom", _readonly(_validate_moer(source)), 0, None)
+        return MoerData("custom", _readonly(validate_moer(source)), 0, None)
     raise ValueError(f"moer: expected a dataset name {list(MOER_DATASETS)}, an array (days, slots) or a CSV path, got {type(source).__name__}")
 
 
@@ -1081,7 +1125,9 @@ def _residential_shape(num_steps: int) -> np.ndarray:
     return y / y.mean()
 
 
-def _validate_demand(value: Any, num_steps: int, field: str = "grid_demand_kwh") -> np.ndarray:
+def validate_grid_demand(value: Any, num_steps: int, field: str = "grid_demand_kwh") -> np.ndarray:
+    """The one validator of a grid-demand signal (kWh per step), whatever the path (CSV, array,
+    ``make_params``): shape ``(num_steps,)``, finite, in ``[0, checks.MAX_GRID_DEMAND_KWH]``."""
     arr = _as_float_array(value, field)
     if arr.ndim != 1:
         raise ValueError(f"{field}: expected a 1-D array of kWh per step ({num_steps},), got shape {tuple(arr.shape)}")
@@ -1094,6 +1140,7 @@ def _validate_demand(value: Any, num_steps: int, field: str = "grid_demand_kwh")
     _check_finite(arr, field)
     if (arr < 0).any():
         raise ValueError(f"{field}: demand must be >= 0 kWh per step, got {float(arr.min())!r}")
+    _check_bounds(arr, field, 0.0, checks.MAX_GRID_DEMAND_KWH, "kWh per step")
     return arr.astype(np.float32)
 
 
@@ -1145,9 +1192,9 @@ def load_grid_demand(source: Any = "synthetic-residential", num_steps: int = SLO
     if isinstance(source, (str, os.PathLike)):
         if isinstance(source, str) and not _looks_like_path(source):
             raise KeyError(f"grid demand: unknown shape {source!r}; valid names are {list(GRID_DEMAND_SHAPES)} (or pass an array or a CSV path)")
-        arr = _validate_demand(read_grid_demand_csv(source), num_steps, f"grid_demand_kwh ({source})")
+        arr = validate_grid_demand(read_grid_demand_csv(source), num_steps, f"grid_demand_kwh ({source})")
     elif isinstance(source, (np.ndarray, list, tuple)) or hasattr(source, "__array__"):
-        arr = _validate_demand(source, num_steps)
+        arr = validate_grid_demand(source, num_steps)
     else:
         raise ValueError(f"grid demand: expected a shape name {list(GRID_DEMAND_SHAPES)}, an array or a CSV path, got {type(source).__name__}")
     if scale_kwh is not None:
@@ -1156,3 +1203,8 @@ def load_grid_demand(source: Any = "synthetic-residential", num_steps: int = SLO
             raise ValueError("scale_kwh: cannot rescale an all-zero grid demand")
         arr = arr * (scale_kwh / mean)
     return arr.astype(np.float32)
+
+
+# Former private names, kept for callers that imported them.
+_validate_moer = validate_moer
+_validate_demand = validate_grid_demand
