@@ -10,7 +10,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from chargax_marl.core import physics, reward as reward_lib, traffic
+from chargax_marl.core import actions, physics, reward as reward_lib, traffic
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState, EpisodeTotals, StepInfo
 
@@ -79,8 +79,15 @@ def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams
 
     ``action`` has one entry per leaf (ports, then batteries): a signed level in
     ``[-L, L]`` for the discrete modes or a fraction in ``[-1, 1]`` for ``continuous``.
-    Values outside the leaf's range are clipped (see :func:`physics.target_current`).
+    Values outside the leaf's range are clipped and NaN or +-inf entries are idle (see
+    :mod:`chargax_marl.core.actions`); an action without exactly one entry per leaf, or one
+    that is not numeric, raises ``ValueError``.
+
+    The new state keeps the dtypes of ``state`` (float32, int32, bool) and the report is
+    float32, also under ``JAX_ENABLE_X64=1``.
     """
+    action = actions.host_array(action, params.station.num_leaves)
+    action = jnp.reshape(action, (params.station.num_leaves,))
     current, excess_kw, requested_kw = physics.apply_actions(action, state, params)
     charged_state, leaf_energy = physics.charge(current, state, params)
     flows = physics.energy_flows(leaf_energy, params.station)
@@ -142,7 +149,21 @@ def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams
         leaf_energy_kwh=leaf_energy,
         leaf_reward=reward_lib.leaf_reward_shares(flows, dep, terms, moer, terminal, p_buy, p_sell_grid, r, params),
     )
-    return new_state, info
+    return keep_dtypes(new_state, state), as_float32(info)
+
+
+def keep_dtypes(new, like):
+    """``new`` with every leaf cast to the dtype of the matching leaf of ``like``: the state's
+    dtypes stay fixed whatever the x64 flag (random draws are float64 / int64 under x64)."""
+    return jax.tree.map(lambda x, y: jnp.asarray(x).astype(jnp.asarray(y).dtype), new, like)
+
+
+def as_float32(tree):
+    """Floating leaves of ``tree`` as float32 (no-op without x64)."""
+    def cast(x):
+        x = jnp.asarray(x)
+        return x.astype(jnp.float32) if jnp.issubdtype(x.dtype, jnp.floating) else x
+    return jax.tree.map(cast, tree)
 
 
 def is_done(state: EnvState, params: EnvParams) -> jnp.ndarray:
