@@ -81,7 +81,8 @@ def number(field: str, value: Any, *, low: float | None = None, high: float | No
         raise ValueError(f"{who}field '{field}' must be {kind} {allowed}, got {value!r}")
     x32 = float(np.float32(x))
     if not math.isfinite(x32) or (x != 0.0 and abs(x32) < _F32.tiny):
-        raise ValueError(f"{who}field '{field}' = {value!r} is not representable in float32; allowed: {allowed}")
+        raise ValueError(f"{who}field '{field}' must be {kind} {allowed} that float32 can represent "
+                         f"(it underflows to 0 or overflows), got {value!r}")
     return x
 
 

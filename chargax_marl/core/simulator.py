@@ -27,7 +27,7 @@ def battery_initial_soc(params: EnvParams, key: jax.Array | None = None) -> jnp.
     lo, hi = params.battery_soc0_low, params.battery_soc0_high
     if key is None:
         return 0.5 * (lo + hi)
-    return lo + (hi - lo) * jax.random.uniform(key, lo.shape)
+    return lo + (hi - lo) * jax.random.uniform(key, lo.shape, jnp.float32)
 
 
 def empty_state(day: jnp.ndarray, params: EnvParams, key: jax.Array | None = None) -> EnvState:
@@ -70,7 +70,7 @@ def reset(key: jax.Array, params: EnvParams) -> EnvState:
     """Start an empty station on a uniformly random day of ``params.reset_days`` (exploring
     starts; all days of the price data unless training days were set)."""
     key_day, key_soc = jax.random.split(key)
-    day = params.reset_days[jax.random.randint(key_day, (), 0, params.reset_days.shape[0])]
+    day = params.reset_days[jax.random.randint(key_day, (), 0, params.reset_days.shape[0], jnp.int32)]
     return empty_state(day, params, key_soc)
 
 

@@ -119,13 +119,13 @@ def arrive(key: jax.Array, state: EnvState, params: EnvParams):
     is_port = st.leaf_kind != KIND_BATTERY
     free = is_port & ~state.occupied
     num_free = jnp.sum(free)
-    requested = jax.random.poisson(key_n, arrival_rate(state.timestep, state.is_workday, params))
+    requested = jax.random.poisson(key_n, arrival_rate(state.timestep, state.is_workday, params), dtype=jnp.int32)
     admitted = jnp.minimum(requested, num_free)
     rank = jnp.cumsum(free) - 1  # rank among free ports, in port order
     new_car = free & (rank < admitted)
 
     num_leaves = st.leaf_kind.shape[0]
-    u = jax.random.uniform(key_u, (5, num_leaves))
+    u = jax.random.uniform(key_u, (5, num_leaves), jnp.float32)
     # Car profile: model index by inverse CDF of the fleet shares.
     cdf = jnp.cumsum(params.fleet_share)
     model = jnp.clip(jnp.searchsorted(cdf / cdf[-1], u[0], side="right"), 0, cdf.shape[0] - 1)

@@ -39,7 +39,7 @@ class MultiDiscrete(spaces.Space):
         return f"MultiDiscrete({[int(n) for n in self.nvec]})"
 
     def sample(self, key: jax.Array) -> jax.Array:
-        return jax.random.randint(key, self.shape, 0, self.nvec).astype(self.dtype)
+        return jax.random.randint(key, self.shape, 0, self.nvec, self.dtype)
 
     def contains(self, x: jax.Array) -> jax.Array:
         x = jnp.asarray(x)
