@@ -36,6 +36,21 @@ def params():
     return make_params()
 
 
+@pytest.fixture(scope="module")
+def single_env(params):
+    """One single-agent env for the module, so its jitted step compiles once."""
+    from chargax_marl.single.env import Chargax
+
+    return Chargax(params)
+
+
+@pytest.fixture(scope="module")
+def marl_env(params):
+    from chargax_marl.marl.env import ChargaxMARL
+
+    return ChargaxMARL(params)
+
+
 # ----------------------------------------------------------------- 1. float32 overflow
 
 
@@ -175,20 +190,16 @@ def test_non_finite_continuous_action_is_idle(bad):
     assert float(new.current_a[0]) == 0.0 and float(info.battery_net_kwh) == 0.0
 
 
-def test_nan_index_in_the_single_agent_env_is_idle():
-    from chargax_marl.single.env import Chargax
-
-    env = Chargax()
+def test_nan_index_in_the_single_agent_env_is_idle(single_env):
+    env = single_env
     s = _with_car_and_battery(env.default_params)
     _, new, *_ = env.step(KEY, s, np.full(env.num_actions, np.nan), env.default_params)
     assert float(new.current_a[0]) == 0.0 and float(new.current_a[-1]) == 0.0
 
 
 @pytest.mark.parametrize("huge", [np.int64(2**32 + 3), 2**40, np.uint64(2**63), 1e300])
-def test_huge_host_integers_clip_instead_of_wrapping(huge):
-    from chargax_marl.single.env import Chargax
-
-    env = Chargax()
+def test_huge_host_integers_clip_instead_of_wrapping(single_env, huge):
+    env = single_env
     p = env.default_params
     s = _with_car_and_battery(p)
     action = np.full(env.num_actions, huge, dtype=np.asarray(huge).dtype)
@@ -207,10 +218,8 @@ def test_huge_core_level_clips(params):
     np.testing.assert_array_equal(np.asarray(big.current_a), np.asarray(top.current_a))
 
 
-def test_huge_marl_index_clips():
-    from chargax_marl.marl.env import ChargaxMARL
-
-    env = ChargaxMARL()
+def test_huge_marl_index_clips(marl_env):
+    env = marl_env
     _, s = env.reset_to_day(0)
     s = place_car(s, 0, soc=0.5, arrival_soc=0.0)
     _, big, *_ = env.step(KEY, s, {a: np.int64(2**32 + 3) for a in env.agents})
@@ -221,30 +230,24 @@ def test_huge_marl_index_clips():
 
 
 @pytest.mark.parametrize("size", [0, 1, 16, 18])
-def test_action_of_the_wrong_size_is_an_error(params, size):
-    from chargax_marl.single.env import Chargax
-
+def test_action_of_the_wrong_size_is_an_error(params, single_env, size):
     s = start(params)
     action = np.zeros(size, np.int32) if size != 1 else np.int32(3)
     with pytest.raises(ValueError, match=r"'action'.*one entry per leaf.*\(17,\)"):
         simulator.step(KEY, s, action, params)
     with pytest.raises(ValueError, match=r"'action'.*one entry per leaf.*\(17,\)"):
-        Chargax(params).step(KEY, s, action, params)
+        single_env.step(KEY, s, action, params)
 
 
 @pytest.mark.parametrize("bad", ["10", ["a"] * 17, np.array(["x"] * 17), object()])
-def test_string_actions_are_a_clear_error(params, bad):
-    from chargax_marl.single.env import Chargax
-
+def test_string_actions_are_a_clear_error(params, single_env, bad):
     s = start(params)
     with pytest.raises(ValueError, match="'action'.*numbers"):
-        Chargax(params).step(KEY, s, bad, params)
+        single_env.step(KEY, s, bad, params)
 
 
-def test_string_marl_action_names_the_agent():
-    from chargax_marl.marl.env import ChargaxMARL
-
-    env = ChargaxMARL()
+def test_string_marl_action_names_the_agent(marl_env):
+    env = marl_env
     _, s = env.reset_to_day(0)
     acts = {a: 0 for a in env.agents}
     acts["port_3"] = "3"
