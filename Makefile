@@ -13,8 +13,13 @@ $(STAMP): pyproject.toml
 
 venv: $(STAMP)
 
+# The core and view tests run a second time with JAX_ENABLE_X64=1: the state keeps its dtypes
+# whatever the flag (about 1.5 min of CPU on 2 cores).
+X64_TESTS := tests/test_model.py tests/test_bad_input.py
+
 test: $(STAMP)
 	$(PY) -m pytest -n 2 -q
+	JAX_ENABLE_X64=1 $(PY) -m pytest -n 2 -q $(X64_TESTS) -k "not under_x64"
 
 # The main job: IPPO on the default shopping scenario (2 seeds) with a progress bar, then
 # held-out evaluation against always-max, always-max + battery price rule and price-threshold
