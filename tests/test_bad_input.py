@@ -77,6 +77,11 @@ def marl_env(params):
     (lambda: make_params(grid_demand_kwh=np.full(288, 1e39)), "grid_demand_kwh"),
     (lambda: datasets.make_user_profile("x", np.ones(288), np.linspace(0, 1e39, 101), np.linspace(0, 50, 101)),
      "stay_quantiles_min"),
+    (lambda: datasets.load_user_profile("shopping", weekend_volume_factor=1e39), "weekend_volume_factor"),
+    (lambda: datasets.load_fleet(datasets.FleetData("f", ("a",), np.ones(1), np.full(1, 1e39), np.ones(1) * 11,
+                                                    np.ones(1) * 50, np.full(1, 0.8))), "capacity_kwh"),
+    (lambda: datasets.load_grid_demand("synthetic-residential", scale_kwh=1e39), "scale_kwh"),
+    (lambda: make_params(num_levels=2**40), "num_levels"),
 ])
 def test_values_that_overflow_float32_are_rejected(make, field):
     with pytest.raises(ValueError, match=field) as exc:

@@ -40,6 +40,7 @@ MAX_STAY_MIN = 1e6
 MAX_DEMAND_KWH = 1e6
 MAX_GRID_DEMAND_KWH = 1e7  # per step
 MAX_STEPS_PER_DAY = 86_400  # 1-second steps
+MAX_NUM_LEVELS = 10_000  # discrete levels per direction; action indices stay far inside int32
 
 _F32 = np.finfo(np.float32)
 

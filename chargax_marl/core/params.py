@@ -141,8 +141,9 @@ def make_params(
         raise ValueError(f"field 'action_mode' must be one of {ACTION_MODES}, got {action_mode!r}")
     if constraint_mode not in CONSTRAINT_MODES:
         raise ValueError(f"field 'constraint_mode' must be one of {CONSTRAINT_MODES}, got {constraint_mode!r}")
-    if not isinstance(num_levels, (int, np.integer)) or num_levels < 1:
-        raise ValueError(f"field 'num_levels' must be an integer >= 1, got {num_levels!r}")
+    if isinstance(num_levels, (bool, np.bool_)) or not isinstance(num_levels, (int, np.integer)) \
+            or not 1 <= num_levels <= checks.MAX_NUM_LEVELS:
+        raise ValueError(f"field 'num_levels' must be an integer in [1, {checks.MAX_NUM_LEVELS}], got {num_levels!r}")
     if not isinstance(price_horizon_hours, (int, np.integer)) or not 0 <= price_horizon_hours <= 48:
         raise ValueError(f"field 'price_horizon_hours' must be an integer in [0, 48], got {price_horizon_hours!r}")
     step_minutes = _finite("step_minutes", step_minutes, minimum=MINUTES_PER_DAY / checks.MAX_STEPS_PER_DAY,

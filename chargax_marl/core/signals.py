@@ -256,7 +256,7 @@ def load_grid_demand(source: Any = "synthetic-residential", num_steps: int = SLO
     num_steps = int(num_steps)
     _check_resolution(num_steps, "num_steps")
     if scale_kwh is not None:
-        scale_kwh = _validate_unit_scalar(scale_kwh, "scale_kwh", upper=None)
+        scale_kwh = _validate_unit_scalar(scale_kwh, "scale_kwh", upper=checks.MAX_GRID_DEMAND_KWH)
     if isinstance(source, str) and source in GRID_DEMAND_SHAPES:
         if scale_kwh is None:
             scale_kwh = GRID_DEMAND_DEFAULT_SCALE_KWH * SLOTS_PER_DAY / num_steps
