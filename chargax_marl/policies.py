@@ -63,7 +63,7 @@ def random_policy(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.nda
     """Uniform random level per leaf within the leaf's valid range."""
     del state
     low = physics.leaf_min_level(params.station, params.num_levels, params.v2g)
-    return jax.random.randint(key, low.shape, low, params.num_levels + 1).astype(jnp.int32)
+    return jax.random.randint(key, low.shape, low, params.num_levels + 1, jnp.int32)
 
 
 def _levels_for_power(power_kw: jnp.ndarray, params: EnvParams, *, round_up: bool) -> jnp.ndarray:

@@ -32,6 +32,7 @@ import json
 import subprocess
 import sys
 import tempfile
+import types
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -88,13 +89,22 @@ SLOTS = 288
 
 
 def _load_datasets_module():
-    """Import chargax_marl/core/datasets.py by path (numpy only), without the package's JAX imports."""
-    path = ROOT / "chargax_marl" / "core" / "datasets.py"
-    spec = importlib.util.spec_from_file_location("_chargax_datasets_for_build", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    """Import chargax_marl/core/datasets.py and its data modules (numpy only) from this checkout,
+    without the package's JAX imports: stand-in packages serve the imports while it loads."""
+    if "chargax_marl.core" in sys.modules:  # already imported (e.g. under pytest): use it
+        return importlib.import_module("chargax_marl.core.datasets")
+    stubs = {"chargax_marl": ROOT / "chargax_marl", "chargax_marl.core": ROOT / "chargax_marl" / "core"}
+    before = set(sys.modules)
+    for name, path in stubs.items():
+        pkg = types.ModuleType(name)
+        pkg.__path__ = [str(path)]
+        sys.modules[name] = pkg
+    try:
+        return importlib.import_module("chargax_marl.core.datasets")
+    finally:  # leave no stand-in behind: a later real import runs the package's __init__
+        for name in set(sys.modules) - before:
+            if name.startswith("chargax_marl"):
+                del sys.modules[name]
 
 
 ds = _load_datasets_module()

@@ -8,7 +8,11 @@
 - :mod:`reward`: prices, profit and penalty terms.
 - :mod:`simulator`: ``reset`` and ``step``.
 - :mod:`observation`: observation features.
-- :mod:`datasets`: bundled and custom exogenous data.
+- :mod:`datasets`: bundled and custom exogenous data (a re-export of :mod:`prices`,
+  :mod:`profiles` (user profiles and traffic), :mod:`fleets` and :mod:`signals` (MOER, grid
+  demand), each with one validator per data kind; shared helpers in :mod:`data_io`).
+- :mod:`checks`: the bounds and the checker of every user-given number.
+- :mod:`actions`: how NaN, huge, wrongly sized and non-numeric actions are handled.
 """
 
 from chargax_marl.core.params import make_params

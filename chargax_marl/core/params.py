@@ -12,7 +12,7 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from chargax_marl.core import datasets
+from chargax_marl.core import checks, datasets
 from chargax_marl.core.station import Splitter, StationArrays, build_station
 from chargax_marl.core.types import ACTION_MODES, CONSTRAINT_MODES, PENALTY_TERMS, EnvParams, PenaltyWeights
 
@@ -26,28 +26,10 @@ FIXED_COST_EUR_PER_STEP = 0.35
 connection charges of a ~900 kW grid connection, an estimate (see the data README)."""
 
 
-def _finite(field: str, value: Any, *, minimum: float | None = None, strict: bool = False) -> float:
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"field '{field}' must be a number, got {value!r}") from None
-    if not math.isfinite(x):
-        raise ValueError(f"field '{field}' must be finite, got {value!r}")
-    if minimum is not None and (x <= minimum if strict else x < minimum):
-        op = ">" if strict else ">="
-        raise ValueError(f"field '{field}' must be {op} {minimum}, got {value!r}")
-    return x
-
-
-def _array(field: str, value: Any, shape: tuple | None = None, *, non_negative: bool = False) -> np.ndarray:
-    arr = np.asarray(value, dtype=np.float64)
-    if shape is not None and arr.shape != shape:
-        raise ValueError(f"field '{field}' must have shape {shape}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"field '{field}' must not contain NaN or inf")
-    if non_negative and np.any(arr < 0):
-        raise ValueError(f"field '{field}' must be >= 0 everywhere, got minimum {arr.min()!r}")
-    return arr.astype(np.float32)
+def _finite(field: str, value: Any, *, minimum: float | None = None, strict: bool = False,
+            maximum: float | None = None, unit: str = "") -> float:
+    """A finite scalar in range and representable in float32 (:func:`checks.number`)."""
+    return checks.number(field, value, low=minimum, high=maximum, low_open=strict, unit=unit)
 
 
 def resample_day(weights_5min: np.ndarray, num_steps: int) -> np.ndarray:
@@ -80,16 +62,24 @@ def _battery_initial_soc(value: Any, station: StationArrays) -> tuple[np.ndarray
 
 
 def penalty_weights(alpha: PenaltyWeights | dict | None) -> PenaltyWeights:
+    """Validated weights: every term finite with ``|alpha_c| <= checks.MAX_WEIGHT``, whether
+    given as a dict or a :class:`PenaltyWeights`."""
     if alpha is None:
         return PenaltyWeights()
     if isinstance(alpha, PenaltyWeights):
-        return alpha
-    unknown = set(alpha) - set(PENALTY_TERMS)
-    if unknown:
-        raise KeyError(f"unknown penalty term(s) {sorted(unknown)} in 'alpha'; allowed: {list(PENALTY_TERMS)}")
-    return PenaltyWeights(**{k: _finite(f"alpha.{k}", v) for k, v in alpha.items()})
+        values = {k: getattr(alpha, k) for k in PENALTY_TERMS}
+    elif isinstance(alpha, dict):
+        unknown = set(alpha) - set(PENALTY_TERMS)
+        if unknown:
+            raise KeyError(f"unknown penalty term(s) {sorted(unknown)} in 'alpha'; allowed: {list(PENALTY_TERMS)}")
+        values = dict(alpha)
+    else:
+        raise ValueError(f"field 'alpha' must be a dict {{term: weight}} or a PenaltyWeights, got {type(alpha).__name__}")
+    return PenaltyWeights(**{k: checks.number(f"alpha.{k}", v, low=-checks.MAX_WEIGHT, high=checks.MAX_WEIGHT)
+                             for k, v in values.items()})
 
 
+@checks.known_keywords
 def make_params(
     *,
     station: str | Splitter | StationArrays = "multiple_types",
@@ -151,11 +141,13 @@ def make_params(
         raise ValueError(f"field 'action_mode' must be one of {ACTION_MODES}, got {action_mode!r}")
     if constraint_mode not in CONSTRAINT_MODES:
         raise ValueError(f"field 'constraint_mode' must be one of {CONSTRAINT_MODES}, got {constraint_mode!r}")
-    if not isinstance(num_levels, (int, np.integer)) or num_levels < 1:
-        raise ValueError(f"field 'num_levels' must be an integer >= 1, got {num_levels!r}")
+    if isinstance(num_levels, (bool, np.bool_)) or not isinstance(num_levels, (int, np.integer)) \
+            or not 1 <= num_levels <= checks.MAX_NUM_LEVELS:
+        raise ValueError(f"field 'num_levels' must be an integer in [1, {checks.MAX_NUM_LEVELS}], got {num_levels!r}")
     if not isinstance(price_horizon_hours, (int, np.integer)) or not 0 <= price_horizon_hours <= 48:
         raise ValueError(f"field 'price_horizon_hours' must be an integer in [0, 48], got {price_horizon_hours!r}")
-    step_minutes = _finite("step_minutes", step_minutes, minimum=0.0, strict=True)
+    step_minutes = _finite("step_minutes", step_minutes, minimum=MINUTES_PER_DAY / checks.MAX_STEPS_PER_DAY,
+                           maximum=MINUTES_PER_DAY, unit="min")
     num_steps = MINUTES_PER_DAY / step_minutes
     if abs(num_steps - round(num_steps)) > 1e-9:
         raise ValueError(f"field 'step_minutes' must divide a day (1440 min) evenly, got {step_minutes!r}")
@@ -167,6 +159,11 @@ def make_params(
     fleet_data = datasets.load_fleet(fleet)
     cars_per_day = datasets.traffic_cars_per_day(traffic)
 
+    weekend_cars = cars_per_day * profile.weekend_volume_factor
+    if weekend_cars > checks.MAX_CARS_PER_DAY:
+        raise ValueError(f"field 'traffic' ({cars_per_day:g} cars per day) times the profile's weekend_volume_factor "
+                         f"({profile.weekend_volume_factor:g}) must be <= {checks.MAX_CARS_PER_DAY:g} cars per day, "
+                         f"got {weekend_cars:g}")
     weights = resample_day(profile.arrival_weights, num_steps)
     rate = weights * cars_per_day
     rate[1] *= profile.weekend_volume_factor
@@ -177,7 +174,7 @@ def make_params(
         observe_moer = bool(observe_moer)
     elif isinstance(moer_kg_per_kwh, (str, datasets.MoerData)) or hasattr(moer_kg_per_kwh, "__fspath__"):
         moer_data = datasets.load_moer(moer_kg_per_kwh)
-        moer = _array("moer_kg_per_kwh", datasets.resample_moer(moer_data.moer_kg_per_kwh, num_steps), non_negative=True)
+        moer = datasets.validate_moer(datasets.resample_moer(moer_data.moer_kg_per_kwh, num_steps), check_resolution=False)
         observe_moer = True if observe_moer is None else bool(observe_moer)
     else:
         moer = np.asarray(moer_kg_per_kwh, dtype=np.float64)
@@ -190,7 +187,7 @@ def make_params(
         if moer.ndim != 2 or moer.shape[1] != num_steps or moer.shape[0] == 0:
             raise ValueError(f"field 'moer_kg_per_kwh' must have shape (days, {num_steps}) or ({num_steps},), "
                              f"got {np.shape(moer_kg_per_kwh)}")
-        moer = _array("moer_kg_per_kwh", moer, non_negative=True)
+        moer = datasets.validate_moer(moer, check_resolution=False)
         observe_moer = True if observe_moer is None else bool(observe_moer)
     # grid demand: a bundled shape name (generated at num_steps), a CSV path, or an array (num_steps,).
     if grid_demand_kwh is None:
@@ -203,7 +200,7 @@ def make_params(
             raise ValueError(
                 f"field 'grid_demand_kwh' has {arr.shape[0]} steps per day ({MINUTES_PER_DAY / arr.shape[0]:g}-minute "
                 f"resolution) but the simulator runs {num_steps} steps per day ({step_minutes:g}-minute resolution)")
-        demand = _array("grid_demand_kwh", grid_demand_kwh, (num_steps,))
+        demand = datasets.validate_grid_demand(grid_demand_kwh, num_steps)
 
     days_all = price.prices_eur_kwh.shape[0]
     if reset_days is None:
@@ -220,6 +217,8 @@ def make_params(
     def scalar(name, value, **kw):
         return jnp.asarray(_finite(name, value, **kw), jnp.float32)
 
+    price_max = checks.MAX_PRICE_EUR_KWH
+
     if fixed_cost_eur is None:
         fixed_cost_eur = FIXED_COST_EUR_PER_STEP * step_minutes / 5.0
     soc0_low, soc0_high = _battery_initial_soc(battery_initial_soc, stations)
@@ -231,7 +230,8 @@ def make_params(
     elif battery_terminal_price is None:
         value_day_mean, value_price = False, 0.0
     else:
-        value_day_mean, value_price = False, _finite("battery_terminal_price", battery_terminal_price, minimum=0.0)
+        value_day_mean, value_price = False, _finite("battery_terminal_price", battery_terminal_price, minimum=0.0,
+                                                        maximum=price_max, unit="EUR/kWh")
 
     return EnvParams(
         station=stations,
@@ -256,15 +256,18 @@ def make_params(
         reset_days=jnp.asarray(days),
         battery_soc0_low=jnp.asarray(soc0_low, jnp.float32),
         battery_soc0_high=jnp.asarray(soc0_high, jnp.float32),
-        customer_price_eur_kwh=scalar("customer_price_eur_kwh", customer_price_eur_kwh, minimum=0.0),
-        grid_fee_eur_kwh=scalar("grid_fee_eur_kwh", grid_fee_eur_kwh, minimum=0.0),
-        feed_in_factor=scalar("feed_in_factor", feed_in_factor, minimum=0.0),
-        fixed_cost_eur=scalar("fixed_cost_eur", fixed_cost_eur, minimum=0.0),
+        customer_price_eur_kwh=scalar("customer_price_eur_kwh", customer_price_eur_kwh, minimum=0.0,
+                                      maximum=price_max, unit="EUR/kWh"),
+        grid_fee_eur_kwh=scalar("grid_fee_eur_kwh", grid_fee_eur_kwh, minimum=0.0, maximum=price_max, unit="EUR/kWh"),
+        feed_in_factor=scalar("feed_in_factor", feed_in_factor, minimum=0.0, maximum=checks.MAX_FACTOR),
+        fixed_cost_eur=scalar("fixed_cost_eur", fixed_cost_eur, minimum=0.0, maximum=checks.MAX_FIXED_COST_EUR,
+                              unit="EUR per step"),
         alpha=penalty_weights(alpha),
         battery_value_day_mean=jnp.asarray(value_day_mean),
         battery_value_eur_kwh=jnp.asarray(value_price, jnp.float32),
-        beta=scalar("beta", beta, minimum=0.0),
-        charged_tolerance_kwh=scalar("charged_tolerance_kwh", charged_tolerance_kwh, minimum=0.0, strict=True),
+        beta=scalar("beta", beta, minimum=0.0, maximum=checks.MAX_WEIGHT),
+        charged_tolerance_kwh=scalar("charged_tolerance_kwh", charged_tolerance_kwh, minimum=0.0, strict=True,
+                                     maximum=checks.MAX_TOLERANCE_KWH, unit="kWh"),
         step_minutes=step_minutes,
         num_steps=num_steps,
         num_levels=int(num_levels),

@@ -10,6 +10,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from chargax_marl.core import actions
 from chargax_marl.core.station import KIND_BATTERY, StationArrays
 from chargax_marl.core.types import EnvParams, EnvState
 
@@ -43,20 +44,21 @@ def target_current(action: jnp.ndarray, state: EnvState, params: EnvParams) -> j
     ``action`` is, per leaf, a signed discrete level (modes ``absolute`` and ``delta``) or a
     fraction in [-1, 1] (mode ``continuous``). Out-of-range values are clipped to the valid
     range of that leaf (levels ``[min_level, L]``, fractions ``[-1, 1]``, no discharge where
-    the leaf cannot discharge).
+    the leaf cannot discharge); NaN and +-inf are idle (level 0, fraction 0; see
+    :mod:`chargax_marl.core.actions`).
     """
     st = params.station
     if params.action_mode == "continuous":
-        frac = jnp.clip(action.astype(jnp.float32), -1.0, 1.0)
+        frac = actions.to_fraction(action)
         can_discharge = leaf_min_level(st, 1, params.v2g) < 0
         frac = jnp.where(can_discharge, frac, jnp.maximum(frac, 0.0))
     elif params.action_mode == "delta":
         # The paper's formal action: a change of current in steps of max_current / L. Any leaf
         # may step down; whether it may go below zero is decided by clip_to_car.
-        levels = jnp.clip(action.astype(jnp.int32), -params.num_levels, params.num_levels)
+        levels = actions.to_int32(action, -params.num_levels, params.num_levels, 0)
         return state.current_a + levels.astype(jnp.float32) / params.num_levels * st.leaf_max_current_a
     else:
-        levels = jnp.clip(action.astype(jnp.int32), leaf_min_level(st, params.num_levels, params.v2g), params.num_levels)
+        levels = actions.to_int32(action, leaf_min_level(st, params.num_levels, params.v2g), params.num_levels, 0)
         frac = levels.astype(jnp.float32) / params.num_levels
     return frac * jnp.where(frac >= 0, st.leaf_max_current_a, st.leaf_max_discharge_current_a)
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from chargax_marl.core import physics, reward as reward_lib, traffic
+from chargax_marl.core import actions, physics, reward as reward_lib, traffic
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState, EpisodeTotals, StepInfo
 
@@ -27,7 +27,7 @@ def battery_initial_soc(params: EnvParams, key: jax.Array | None = None) -> jnp.
     lo, hi = params.battery_soc0_low, params.battery_soc0_high
     if key is None:
         return 0.5 * (lo + hi)
-    return lo + (hi - lo) * jax.random.uniform(key, lo.shape)
+    return lo + (hi - lo) * jax.random.uniform(key, lo.shape, jnp.float32)
 
 
 def empty_state(day: jnp.ndarray, params: EnvParams, key: jax.Array | None = None) -> EnvState:
@@ -70,7 +70,7 @@ def reset(key: jax.Array, params: EnvParams) -> EnvState:
     """Start an empty station on a uniformly random day of ``params.reset_days`` (exploring
     starts; all days of the price data unless training days were set)."""
     key_day, key_soc = jax.random.split(key)
-    day = params.reset_days[jax.random.randint(key_day, (), 0, params.reset_days.shape[0])]
+    day = params.reset_days[jax.random.randint(key_day, (), 0, params.reset_days.shape[0], jnp.int32)]
     return empty_state(day, params, key_soc)
 
 
@@ -79,7 +79,13 @@ def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams
 
     ``action`` has one entry per leaf (ports, then batteries): a signed level in
     ``[-L, L]`` for the discrete modes or a fraction in ``[-1, 1]`` for ``continuous``.
-    Values outside the leaf's range are clipped (see :func:`physics.target_current`).
+    Values outside the leaf's range are clipped and NaN or +-inf entries are idle (see
+    :mod:`chargax_marl.core.actions`); an action without exactly one entry per leaf, or one
+    that is not numeric, raises ``ValueError``.
+
+    The new state keeps the dtypes of ``state`` (float32, int32, bool) and the report is
+    float32, also under ``JAX_ENABLE_X64=1``.
+
     The step's cars are drawn from ``key`` (:func:`traffic.draw_arrivals`), independently of
     the state; :func:`step_with_arrivals` takes them as given (to replay a recorded day).
     """
@@ -90,6 +96,8 @@ def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams
 def step_with_arrivals(state: EnvState, action: jnp.ndarray, arrivals: traffic.Arrivals, params: EnvParams):
     """:func:`step` with the step's arriving cars given (:class:`traffic.Arrivals`); the rest
     of the transition is deterministic. Returns ``(new_state, StepInfo)``."""
+    action = actions.host_array(action, params.station.num_leaves)
+    action = jnp.reshape(action, (params.station.num_leaves,))
     current, excess_kw, requested_kw = physics.apply_actions(action, state, params)
     charged_state, leaf_energy = physics.charge(current, state, params)
     flows = physics.energy_flows(leaf_energy, params.station)
@@ -152,7 +160,21 @@ def step_with_arrivals(state: EnvState, action: jnp.ndarray, arrivals: traffic.A
         leaf_arrived=arr["leaf_arrived"],
         leaf_reward=reward_lib.leaf_reward_shares(flows, dep, terms, moer, terminal, p_buy, p_sell_grid, r, params),
     )
-    return new_state, info
+    return keep_dtypes(new_state, state), as_float32(info)
+
+
+def keep_dtypes(new, like):
+    """``new`` with every leaf cast to the dtype of the matching leaf of ``like``: the state's
+    dtypes stay fixed whatever the x64 flag (random draws are float64 / int64 under x64)."""
+    return jax.tree.map(lambda x, y: jnp.asarray(x).astype(jnp.asarray(y).dtype), new, like)
+
+
+def as_float32(tree):
+    """Floating leaves of ``tree`` as float32 (no-op without x64)."""
+    def cast(x):
+        x = jnp.asarray(x)
+        return x.astype(jnp.float32) if jnp.issubdtype(x.dtype, jnp.floating) else x
+    return jax.tree.map(cast, tree)
 
 
 def is_done(state: EnvState, params: EnvParams) -> jnp.ndarray:

@@ -14,6 +14,7 @@ Units: voltage in V, current in A, power in kW (``P = V * I / 1000``), energy in
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import math
 from typing import Sequence, Union
 
@@ -21,34 +22,45 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from chargax_marl.core import checks
+
 KIND_AC = 0
 KIND_DC = 1
 KIND_BATTERY = 2
 KIND_NAMES = ("AC", "DC", "battery")
 
 
-def _check_positive(owner: str, field: str, value: float) -> None:
-    if not (isinstance(value, (int, float, np.floating, np.integer)) and math.isfinite(value) and value > 0):
-        raise ValueError(f"{owner}: field '{field}' must be a finite number > 0, got {value!r}")
+def _check_positive(owner: str, field: str, value: float, low: float, high: float, unit: str) -> None:
+    """A finite number > 0 within ``[low, high]`` after the float32 cast (see :mod:`checks`)."""
+    if isinstance(value, (int, float, np.floating, np.integer)) and math.isfinite(value) and value <= 0:
+        raise ValueError(f"{owner}: field '{field}' must be a finite number > 0 (in [{low:g}, {high:g}] {unit}), "
+                         f"got {value!r}")
+    checks.number(field, value, low=low, high=high, unit=unit, owner=owner)
 
 
-def _check_non_negative(owner: str, field: str, value: float) -> None:
-    if not (isinstance(value, (int, float, np.floating, np.integer)) and math.isfinite(value) and value >= 0):
-        raise ValueError(f"{owner}: field '{field}' must be a finite number >= 0, got {value!r}")
+def _check_non_negative(owner: str, field: str, value: float, high: float, unit: str) -> None:
+    if isinstance(value, (int, float, np.floating, np.integer)) and math.isfinite(value) and value < 0:
+        raise ValueError(f"{owner}: field '{field}' must be a finite number >= 0 (in [0, {high:g}] {unit}), "
+                         f"got {value!r}")
+    checks.number(field, value, low=0.0, high=high, unit=unit, owner=owner)
 
 
 def _check_efficiency(owner: str, value: float) -> None:
-    if not (isinstance(value, (int, float, np.floating, np.integer)) and 0.0 < value <= 1.0):
-        raise ValueError(f"{owner}: field 'efficiency' must lie in (0, 1], got {value!r}")
+    if not (isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, (bool, np.bool_))
+            and checks.MIN_EFFICIENCY <= value <= 1.0):
+        raise ValueError(f"{owner}: field 'efficiency' must lie in (0, 1] (at least {checks.MIN_EFFICIENCY:g}), "
+                         f"got {value!r}")
 
 
 def _check_unit_interval(owner: str, field: str, value: float, *, open_low: bool, open_high: bool) -> None:
-    ok_low = value > 0 if open_low else value >= 0
-    ok_high = value < 1 if open_high else value <= 1
-    if not (isinstance(value, (int, float, np.floating, np.integer)) and ok_low and ok_high):
+    ok_type = isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, (bool, np.bool_))
+    ok_low = ok_type and (value > 0 if open_low else value >= 0)
+    ok_high = ok_type and (value < 1 if open_high else value <= 1)
+    if not (ok_low and ok_high):
         lo = "(" if open_low else "["
         hi = ")" if open_high else "]"
         raise ValueError(f"{owner}: field '{field}' must lie in {lo}0, 1{hi}, got {value!r}")
+    checks.number(field, value, low=0.0, high=1.0, low_open=open_low, high_open=open_high, owner=owner)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,9 +83,9 @@ class Port:
         owner = f"Port '{self.name}'"
         if self.kind not in ("AC", "DC"):
             raise ValueError(f"{owner}: field 'kind' must be 'AC' or 'DC', got {self.kind!r}")
-        _check_positive(owner, "voltage_v", self.voltage_v)
-        _check_positive(owner, "max_current_a", self.max_current_a)
-        _check_non_negative(owner, "max_discharge_current_a", self.max_discharge_current_a)
+        _check_positive(owner, "voltage_v", self.voltage_v, checks.MIN_VOLTAGE_V, checks.MAX_VOLTAGE_V, "V")
+        _check_positive(owner, "max_current_a", self.max_current_a, checks.MIN_CURRENT_A, checks.MAX_CURRENT_A, "A")
+        _check_non_negative(owner, "max_discharge_current_a", self.max_discharge_current_a, checks.MAX_CURRENT_A, "A")
         _check_efficiency(owner, self.efficiency)
 
     @property
@@ -99,9 +111,10 @@ class Battery:
 
     def __post_init__(self) -> None:
         owner = f"Battery '{self.name}'"
-        _check_positive(owner, "capacity_kwh", self.capacity_kwh)
-        _check_positive(owner, "max_kw", self.max_kw)
-        _check_positive(owner, "voltage_v", self.voltage_v)
+        _check_positive(owner, "capacity_kwh", self.capacity_kwh, checks.MIN_CAPACITY_KWH, checks.MAX_CAPACITY_KWH,
+                        "kWh")
+        _check_positive(owner, "max_kw", self.max_kw, checks.MIN_POWER_KW, checks.MAX_POWER_KW, "kW")
+        _check_positive(owner, "voltage_v", self.voltage_v, checks.MIN_VOLTAGE_V, checks.MAX_VOLTAGE_V, "V")
         _check_efficiency(owner, self.efficiency)
         _check_unit_interval(owner, "tau", self.tau, open_low=True, open_high=True)
         _check_unit_interval(owner, "initial_soc", self.initial_soc, open_low=False, open_high=False)
@@ -131,7 +144,7 @@ class Splitter:
 
     def __post_init__(self) -> None:
         owner = f"Splitter '{self.name}'"
-        _check_positive(owner, "max_kw", self.max_kw)
+        _check_positive(owner, "max_kw", self.max_kw, checks.MIN_POWER_KW, checks.MAX_POWER_KW, "kW")
         _check_efficiency(owner, self.efficiency)
         object.__setattr__(self, "children", tuple(self.children))
         if len(self.children) == 0:
@@ -333,6 +346,13 @@ def _check_count(builder: str, field: str, value: int, minimum: int) -> None:
         raise ValueError(f"{builder}: field '{field}' must be an integer >= {minimum}, got {value!r}")
 
 
+def _check_grid_kw(builder: str, grid_kw: float | None) -> None:
+    """``grid_kw`` is None (the sum of the root's children) or a rating in kW; 0 is not "default"."""
+    if grid_kw is not None:
+        checks.number("grid_kw", grid_kw, low=checks.MIN_POWER_KW, high=checks.MAX_POWER_KW, unit="kW", owner=builder)
+
+
+@checks.known_keywords
 def single_type(
     num_ports: int = 16,
     *,
@@ -344,16 +364,32 @@ def single_type(
     grid_kw: float | None = None,
     battery: Battery | bool | None = None,
 ) -> Splitter:
-    """Paper Fig. 3a: ``num_ports`` ports of one kind directly under the grid connection."""
+    """Paper Fig. 3a: ``num_ports`` ports of one kind directly under the grid connection.
+
+    ``voltage_v``, ``max_current_a`` and ``grid_kw`` default (None) to the kind's paper values
+    and the sum of the ports; 0 is rejected, not read as "default".
+    """
     _check_count("single_type", "num_ports", num_ports, 1)
-    voltage_v = voltage_v or (DC_VOLTAGE_V if kind == "DC" else AC_VOLTAGE_V)
-    max_current_a = max_current_a or (DC_GROUP_KW * 1000 / DC_VOLTAGE_V if kind == "DC" else AC_MAX_CURRENT_A)
+    if kind not in ("AC", "DC"):
+        raise ValueError(f"single_type: field 'kind' must be 'AC' or 'DC', got {kind!r}")
+    if voltage_v is None:
+        voltage_v = DC_VOLTAGE_V if kind == "DC" else AC_VOLTAGE_V
+    if max_current_a is None:
+        max_current_a = DC_GROUP_KW * 1000 / DC_VOLTAGE_V if kind == "DC" else AC_MAX_CURRENT_A
+    checks.number("voltage_v", voltage_v, low=checks.MIN_VOLTAGE_V, high=checks.MAX_VOLTAGE_V, unit="V",
+                  owner="single_type")
+    checks.number("max_current_a", max_current_a, low=checks.MIN_CURRENT_A, high=checks.MAX_CURRENT_A, unit="A",
+                  owner="single_type")
+    _check_grid_kw("single_type", grid_kw)
     ports = _ports("port_", num_ports, kind, voltage_v, max_current_a, v2g, efficiency, 0)
     children = _root_children(list(ports), battery)
-    root_kw = grid_kw or sum(p.max_kw for p in ports) + (children[-1].max_kw if len(children) > len(ports) else 0.0)
+    if grid_kw is None:
+        grid_kw = sum(p.max_kw for p in ports) + (children[-1].max_kw if len(children) > len(ports) else 0.0)
+    root_kw = grid_kw
     return Splitter("grid", max_kw=root_kw, children=tuple(children))
 
 
+@checks.known_keywords
 def multiple_types(
     num_dc: int = 10,
     num_ac: int = 6,
@@ -380,6 +416,9 @@ def multiple_types(
     _check_count("multiple_types", "ports_per_evse", ports_per_evse, 1)
     if num_dc + num_ac < 1:
         raise ValueError("multiple_types: fields 'num_dc' + 'num_ac' must be >= 1, got 0 ports")
+    for field, value in (("dc_evse_kw", dc_evse_kw), ("ac_evse_kw", ac_evse_kw)):
+        checks.number(field, value, low=checks.MIN_POWER_KW, high=checks.MAX_POWER_KW, unit="kW", owner="multiple_types")
+    _check_grid_kw("multiple_types", grid_kw)
     children: list[Node] = []
     dc_ports = _ports("port_", num_dc, "DC", DC_VOLTAGE_V, dc_evse_kw * 1000 / DC_VOLTAGE_V, v2g, port_efficiency, 0)
     ac_ports = _ports("port_", num_ac, "AC", AC_VOLTAGE_V, ac_evse_kw * 1000 / AC_VOLTAGE_V, v2g, port_efficiency, num_dc)
@@ -392,10 +431,11 @@ def multiple_types(
             Splitter(f"{tag}_splitter", max_kw=evse_kw * n_groups, children=tuple(groups), efficiency=splitter_efficiency)
         )
     children = _root_children(children, battery)
-    root_kw = grid_kw or sum(c.max_kw for c in children)
+    root_kw = sum(c.max_kw for c in children) if grid_kw is None else grid_kw
     return Splitter("grid", max_kw=root_kw, children=tuple(children))
 
 
+@checks.known_keywords
 def multiple_splitters(
     num_dc: int = 10,
     num_ac: int = 6,
@@ -418,6 +458,7 @@ def multiple_splitters(
     the currents. The root is rated at the sum of its splitters.
     """
     _check_count("multiple_splitters", "splitters_per_kind", splitters_per_kind, 1)
+    _check_grid_kw("multiple_splitters", grid_kw)
     _check_unit_interval("multiple_splitters", "splitter_fraction", splitter_fraction, open_low=True, open_high=False)
     base = multiple_types(
         num_dc, num_ac, ports_per_evse=ports_per_evse, dc_evse_kw=dc_evse_kw, ac_evse_kw=ac_evse_kw, v2g=v2g,
@@ -440,7 +481,7 @@ def multiple_splitters(
         kinds.append(Splitter(kind_node.name, max_kw=sum(s.max_kw for s in subs), children=subs,
                               efficiency=splitter_efficiency))
     kinds = _root_children(kinds, battery)
-    root_kw = grid_kw or sum(c.max_kw for c in kinds)
+    root_kw = sum(c.max_kw for c in kinds) if grid_kw is None else grid_kw
     return Splitter("grid", max_kw=root_kw, children=tuple(kinds))
 
 
@@ -461,4 +502,7 @@ def build_station(architecture: str | Splitter | StationArrays = "multiple_types
         return compile_station(architecture)
     if architecture not in ARCHITECTURES:
         raise KeyError(f"unknown architecture {architecture!r}; allowed: {sorted(ARCHITECTURES)} or a Splitter tree")
-    return compile_station(ARCHITECTURES[architecture](**kwargs))
+    builder = ARCHITECTURES[architecture]
+    checks.keywords(f"station_kwargs of {architecture!r}", kwargs,
+                    tuple(inspect.signature(builder).parameters))
+    return compile_station(builder(**kwargs))

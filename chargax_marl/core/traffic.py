@@ -149,8 +149,8 @@ def draw_arrivals(key: jax.Array, timestep: jnp.ndarray, is_workday: jnp.ndarray
     st = params.station
     num_slots = st.num_ports
     key_n, key_u = jax.random.split(key)
-    requested = jax.random.poisson(key_n, arrival_rate(timestep, is_workday, params)).astype(jnp.int32)
-    u = jax.random.uniform(key_u, (5, num_slots))
+    requested = jax.random.poisson(key_n, arrival_rate(timestep, is_workday, params), dtype=jnp.int32)
+    u = jax.random.uniform(key_u, (5, num_slots), jnp.float32)
     # Car profile: model index by inverse CDF of the fleet shares.
     cdf = jnp.cumsum(params.fleet_share)
     model = jnp.clip(jnp.searchsorted(cdf / cdf[-1], u[0], side="right"), 0, cdf.shape[0] - 1).astype(jnp.int32)

@@ -20,7 +20,7 @@ from jaxmarl.environments import spaces
 from jaxmarl.environments.multi_agent_env import MultiAgentEnv
 
 from chargax_marl import bounds
-from chargax_marl.core import observation, physics, simulator
+from chargax_marl.core import actions as core_actions, observation, physics, simulator
 from chargax_marl.core.params import make_params
 from chargax_marl.core.station import KIND_AC, KIND_BATTERY, KIND_DC
 from chargax_marl.core.types import PENALTY_TERMS, EnvParams, EnvState, EpisodeTotals, StepInfo
@@ -61,11 +61,11 @@ def min_levels(params: EnvParams) -> jnp.ndarray:
 def actions_to_levels(indices: jnp.ndarray, params: EnvParams, offset: int) -> jnp.ndarray:
     """Map per-agent action indices ``(N,)`` to the core's signed levels ``(N,)``.
 
-    Indices outside ``[0, n)`` are clipped into it; a masked (invalid) action falls back to
-    idle, level 0.
+    Indices outside ``[0, n)`` are clipped into it (in their own dtype, before any int32
+    cast); NaN and +-inf are idle; a masked (invalid) action falls back to idle, level 0.
     """
     n = params.num_levels + 1 + offset
-    idx = jnp.clip(jnp.asarray(indices).astype(jnp.int32), 0, n - 1)
+    idx = core_actions.to_int32(indices, 0, n - 1, offset)
     levels = idx - offset
     return jnp.where(levels < min_levels(params), 0, levels).astype(jnp.int32)
 
@@ -344,6 +344,14 @@ class ChargaxMARL(MultiAgentEnv):
         infos = {k: jnp.broadcast_to(v, (n,)) for k, v in info.items()}
         return obs_dict, new_state, rewards, dones, infos
 
+    def step(self, key: jax.Array, state: EnvState, actions: Mapping[str, Any], reset_state: EnvState | None = None):
+        """JaxMARL's auto-resetting step; host actions (numpy, Python numbers) are checked and
+        clipped into int32 before they enter ``jit`` (:func:`chargax_marl.core.actions.host_array`),
+        so a large host integer clips instead of wrapping and a string raises ``ValueError``."""
+        if isinstance(actions, Mapping):
+            actions = {a: core_actions.host_array(v, None, f"actions[{a!r}]") for a, v in actions.items()}
+        return super().step(key, state, actions, reset_state)
+
     def get_obs(self, state: EnvState) -> dict:
         """Observations keyed by agent (see the class docstring for the layout)."""
         obs = agent_observations(state, self.params, self._layout)
@@ -400,10 +408,11 @@ class ChargaxMARL(MultiAgentEnv):
             raise ValueError(f"actions has entries for unknown agent(s) {unknown}; agents are {self.agents}")
         parts = []
         for a in self.agents:
-            x = jnp.asarray(actions[a])
+            x = jnp.asarray(core_actions.host_array(actions[a], None, f"actions[{a!r}]"))
             if x.shape not in ((), (1,)):
                 raise ValueError(f"action of agent {a!r} must have shape () or (1,), got {x.shape}")
-            parts.append(x.reshape(()).astype(jnp.int32))
+            core_actions.check_dtype(x, f"actions[{a!r}]")
+            parts.append(core_actions.to_int32(x.reshape(()), 0, self.num_actions - 1, self.action_offset))
         return jnp.stack(parts)
 
     def check_actions(self, actions: Mapping[str, Any]) -> np.ndarray:

@@ -25,7 +25,7 @@ from gymnax.environments import environment, spaces
 
 from chargax_marl import bounds
 from chargax_marl.lifecycle import check_day
-from chargax_marl.core import observation, physics, simulator
+from chargax_marl.core import actions, observation, physics, simulator
 from chargax_marl.core.params import make_params
 from chargax_marl.core.types import PENALTY_TERMS, EnvParams, EnvState, EpisodeTotals
 
@@ -46,7 +46,7 @@ class MultiDiscrete(spaces.Space):
         return f"MultiDiscrete({[int(n) for n in self.nvec]})"
 
     def sample(self, key: jax.Array) -> jax.Array:
-        return jax.random.randint(key, self.shape, 0, self.nvec).astype(self.dtype)
+        return jax.random.randint(key, self.shape, 0, self.nvec, self.dtype)
 
     def contains(self, x: jax.Array) -> jax.Array:
         x = jnp.asarray(x)
@@ -101,13 +101,22 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
         return physics.leaf_min_level(params.station, params.num_levels, params.v2g)
 
     def action_to_levels(self, action: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
-        """Map an action of this env's space to the core's per-leaf levels (or fractions)."""
-        action = jnp.asarray(action)
+        """Map an action of this env's space to the core's per-leaf levels (or fractions).
+
+        Indices outside the space are clipped into it; NaN and +-inf entries are the index of
+        idle (level 0); an action without one entry per leaf raises ``ValueError`` (see
+        :mod:`chargax_marl.core.actions`).
+        """
+        n = params.station.num_leaves
+        action = actions.host_array(action, n)
+        action = jnp.reshape(jnp.asarray(action), (n,))
         if params.action_mode == "continuous":
-            return action.astype(jnp.float32).reshape(-1)
+            return actions.to_fraction(action)
         if params.action_mode == "delta":
-            return action.astype(jnp.int32).reshape(-1) - params.num_levels
-        return action.astype(jnp.int32).reshape(-1) + self.min_level(params)
+            idle = params.num_levels
+            return actions.to_int32(action, 0, 2 * params.num_levels, idle) - params.num_levels
+        min_level = self.min_level(params)
+        return actions.to_int32(action, 0, params.num_levels - min_level, -min_level) + min_level
 
     def levels_to_action(self, levels: jnp.ndarray, params: EnvParams | None = None) -> jnp.ndarray:
         """Inverse of :meth:`action_to_levels` (for rule-based policies written in levels)."""
@@ -124,8 +133,18 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
         obs = self.get_obs(new_state, params)
         return obs, new_state, info.reward, jnp.asarray(False), step_info(info, new_state)
 
-    @functools.partial(jax.jit, static_argnames=("self",))
     def step(self, key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams | None = None):
+        """gymnax's auto-resetting step, building the observation once (see :meth:`_step`).
+
+        A host action (numpy, list, Python numbers) is checked and clipped into int32 / float32
+        before it enters ``jit`` (:func:`chargax_marl.core.actions.host_array`), so a large
+        host integer clips instead of wrapping.
+        """
+        n = (params or self.default_params).station.num_leaves
+        return self._step(key, state, actions.host_array(action, n), params)
+
+    @functools.partial(jax.jit, static_argnames=("self",))
+    def _step(self, key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams | None = None):
         """gymnax's auto-resetting step, building the observation once.
 
         Same outputs as :meth:`gymnax.environments.environment.Environment.step` (same key

@@ -1,0 +1,142 @@
+"""One checker for every scalar the user hands the simulator, and the bounds it enforces.
+
+The simulator runs in float32 (and draws arrivals as int32), but users pass Python floats
+(float64). A value can be finite in float64 and still overflow to inf, or underflow to 0,
+once cast, and products of two legal magnitudes can overflow too. So every number is checked
+*after* the cast and against a documented range that keeps the step's arithmetic finite:
+:func:`number` for scalars, :func:`array` for arrays. Errors are ``ValueError`` and name the
+field, the value and what is allowed.
+
+The bounds (units in the names) are generous for real stations and data, and small enough
+that no product in the step leaves float32.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from typing import Any
+
+import numpy as np
+
+# Physical magnitudes of the station tree.
+MIN_VOLTAGE_V = 1.0
+MAX_VOLTAGE_V = 1e5
+MIN_CURRENT_A = 1e-3
+MAX_CURRENT_A = 1e5
+MIN_POWER_KW = 1e-3
+MAX_POWER_KW = 1e7
+MIN_CAPACITY_KWH = 1e-3
+MAX_CAPACITY_KWH = 1e7
+MIN_EFFICIENCY = 1e-3
+# Exogenous data and economics.
+MAX_PRICE_EUR_KWH = 1e3  # |day-ahead price|, customer price, grid fee, battery terminal price (1e6 EUR/MWh)
+MAX_FACTOR = 1e3  # feed-in factor, weekend volume factor, hourly scale factors
+MAX_FIXED_COST_EUR = 1e6  # per step
+MAX_WEIGHT = 1e6  # |alpha_c| and beta
+MAX_TOLERANCE_KWH = 1e3
+MAX_CARS_PER_DAY = 1e6  # keeps the int32 Poisson draw of arrivals per step far from saturating
+MAX_STAY_MIN = 1e6
+MAX_DEMAND_KWH = 1e6
+MAX_GRID_DEMAND_KWH = 1e7  # per step
+MAX_STEPS_PER_DAY = 86_400  # 1-second steps
+MAX_NUM_LEVELS = 10_000  # discrete levels per direction; action indices stay far inside int32
+
+_F32 = np.finfo(np.float32)
+
+
+def _range_text(low: float | None, high: float | None, low_open: bool, high_open: bool, unit: str) -> str:
+    u = f" {unit}" if unit else ""
+    if low is not None and high is not None:
+        return f"in {'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}{u}"
+    if low is not None:
+        return f"{'>' if low_open else '>='} {low:g}{u}"
+    if high is not None:
+        return f"{'<' if high_open else '<='} {high:g}{u}"
+    return "finite"
+
+
+def number(field: str, value: Any, *, low: float | None = None, high: float | None = None,
+           low_open: bool = False, high_open: bool = False, unit: str = "", owner: str = "",
+           integer: bool = False) -> float:
+    """``value`` as a float that is finite, in range and representable in float32.
+
+    ``owner`` prefixes the message (e.g. ``"Port 'p'"``). Bools and strings are rejected.
+    """
+    who = f"{owner}: " if owner else ""
+    allowed = _range_text(low, high, low_open, high_open, unit)
+    kind = "an integer" if integer else "a finite number"
+    ok_type = isinstance(value, numbers.Integral if integer else numbers.Real)
+    if not ok_type and not isinstance(value, (str, bytes)) and hasattr(value, "dtype") and hasattr(value, "ndim"):
+        # 0-d numpy or jax arrays
+        ok_type = value.ndim == 0 and np.issubdtype(value.dtype, np.integer if integer else np.number) \
+            and not np.issubdtype(value.dtype, np.complexfloating)
+    if isinstance(value, (bool, np.bool_)) or not ok_type:
+        raise ValueError(f"{who}field '{field}' must be {kind} {allowed}, got {value!r}")
+    x = float(value)
+    if not math.isfinite(x):
+        raise ValueError(f"{who}field '{field}' must be {kind} {allowed}, got {value!r}")
+    bad = (low is not None and (x <= low if low_open else x < low)) or (
+        high is not None and (x >= high if high_open else x > high))
+    if bad:
+        raise ValueError(f"{who}field '{field}' must be {kind} {allowed}, got {value!r}")
+    x32 = float(np.float32(x))
+    if not math.isfinite(x32) or (x != 0.0 and abs(x32) < _F32.tiny):
+        raise ValueError(f"{who}field '{field}' must be {kind} {allowed} that float32 can represent "
+                         f"(it underflows to 0 or overflows), got {value!r}")
+    return x
+
+
+def array(field: str, value: Any, *, low: float | None = None, high: float | None = None,
+          low_open: bool = False, high_open: bool = False, unit: str = "") -> np.ndarray:
+    """``value`` as a float64 array whose entries are finite and in range (checked as :func:`number`).
+
+    The message names the first offending entry and its index.
+    """
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"field '{field}' must be an array of numbers, got {type(value).__name__} ({exc})") from None
+    allowed = _range_text(low, high, low_open, high_open, unit)
+    bad = ~np.isfinite(arr)
+    if low is not None:
+        bad |= (arr <= low) if low_open else (arr < low)
+    if high is not None:
+        bad |= (arr >= high) if high_open else (arr > high)
+    with np.errstate(over="ignore", under="ignore"):
+        a32 = arr.astype(np.float32)
+    bad |= ~np.isfinite(a32) | ((arr != 0) & (np.abs(a32) < _F32.tiny))
+    if bad.any():
+        idx = tuple(int(i) for i in np.argwhere(bad)[0])
+        where = idx[0] if len(idx) == 1 else idx
+        raise ValueError(f"field '{field}' must hold finite numbers {allowed}, got {float(arr[idx])!r} at index {where}")
+    return arr
+
+
+def keywords(owner: str, given: dict, allowed: tuple | list) -> None:
+    """Raise ``TypeError`` naming unknown keyword arguments and the allowed names."""
+    unknown = sorted(set(given) - set(allowed))
+    if unknown:
+        raise TypeError(f"{owner}: unknown keyword argument(s) {unknown}; allowed: {sorted(allowed)}")
+
+
+def known_keywords(fn):
+    """Decorate ``fn`` so that an unknown keyword argument raises ``TypeError`` listing the allowed names.
+
+    (Python's own error names the bad keyword but not the ones that exist.)
+    """
+    import functools
+    import inspect
+
+    sig = inspect.signature(fn)
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in sig.parameters.values()):
+        return fn
+    allowed = tuple(n for n, p in sig.parameters.items()
+                    if p.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY))
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        keywords(fn.__name__, kwargs, allowed)
+        return fn(*args, **kwargs)
+
+    return wrapper

@@ -1,0 +1,277 @@
+"""Exogenous per-step signals: marginal emission rates (MOER) and grid demand. Every path
+(bundled name, array, CSV, ``make_params`` keyword) goes through :func:`validate_moer` or
+:func:`validate_grid_demand`.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import numbers
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from chargax_marl.core import checks
+from chargax_marl.core.data_io import (
+    DATA_DIR,
+    GRID_DEMAND_SHAPES,
+    MINUTES_PER_DAY,
+    MOER_DATASETS,
+    MOER_INDEX_FILE,
+    SLOTS_PER_DAY,
+    _as_float_array,
+    _check_bounds,
+    _check_consecutive,
+    _check_finite,
+    _check_weekday,
+    _data_rows,
+    _looks_like_path,
+    _parse_date,
+    _parse_float,
+    _read_text,
+    _readonly,
+    _validate_unit_scalar,
+)
+
+
+@dataclass(frozen=True)
+class MoerData:
+    """Marginal operating emission rate ``moer_kg_per_kwh[day, slot]`` in kg CO2/kWh (float32).
+
+    Columns are equal slots of the *local* day (288 = 5 minutes for the bundled
+    data). ``first_weekday`` is the weekday of day 0 (0 = Monday); ``year`` the
+    calendar year of the data (``None`` for custom data).
+    """
+
+    name: str
+    moer_kg_per_kwh: np.ndarray
+    first_weekday: int = 0
+    year: int | None = None
+
+    @property
+    def num_days(self) -> int:
+        return int(self.moer_kg_per_kwh.shape[0])
+
+    @property
+    def step_minutes(self) -> float:
+        return MINUTES_PER_DAY / self.moer_kg_per_kwh.shape[1]
+
+
+MOER_MAX_KG_KWH = 5.0  # sanity bound for custom data (coal-only grids are ~1 kg/kWh)
+
+
+def _check_resolution(n: int, field: str) -> None:
+    if n <= 0 or MINUTES_PER_DAY % n:
+        raise ValueError(f"{field}: the number of slots per day must divide 1440 minutes evenly, got {n}")
+
+
+def validate_moer(value: Any, field: str = "moer_kg_per_kwh", *, check_resolution: bool = True) -> np.ndarray:
+    """The one validator of MOER rates (kg CO2/kWh), whatever the path (bundled, CSV, array,
+    :class:`MoerData`, ``make_params``): shape ``(days, slots)`` or ``(slots,)``, finite, in
+    ``[0, MOER_MAX_KG_KWH]``. ``check_resolution``: slots must divide 1440 minutes (off for
+    arrays already at the simulator's step). Returns float32 ``(days, slots)``."""
+    arr = _as_float_array(value, field)
+    if arr.ndim == 1:
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[0] == 0:
+        raise ValueError(f"{field}: expected shape (days, slots) or (slots,), got {tuple(np.shape(value))}")
+    if check_resolution:
+        _check_resolution(arr.shape[1], field)
+    _check_finite(arr, field)
+    if (arr < 0).any():
+        raise ValueError(f"{field}: emission rates must be >= 0 kg/kWh, got {float(arr.min())!r}")
+    if (arr > MOER_MAX_KG_KWH).any():
+        raise ValueError(
+            f"{field}: got {float(arr.max())!r}, above {MOER_MAX_KG_KWH} kg CO2/kWh; is it in lbs/MWh or g/kWh? "
+            "(1 lbs/MWh = 0.000453592 kg/kWh, 1 g/kWh = 0.001 kg/kWh)"
+        )
+    return arr.astype(np.float32)
+
+
+def resample_moer(moer: Any, num_steps: int, field: str = "moer_kg_per_kwh") -> np.ndarray:
+    """Resample a rate ``(days, slots)`` to ``(days, num_steps)`` per day.
+
+    Coarser target: mean over the source slots of each step (slots must nest);
+    finer target: each source slot repeated. Rates are intensive (kg/kWh), so
+    averaging / repeating preserves the daily mean.
+    """
+    arr = np.asarray(moer, dtype=np.float64)
+    arr = arr[None] if arr.ndim == 1 else arr
+    n = arr.shape[1]
+    if n == num_steps:
+        return arr.astype(np.float32)
+    if n % num_steps == 0:
+        return arr.reshape(arr.shape[0], num_steps, n // num_steps).mean(axis=2).astype(np.float32)
+    if num_steps % n == 0:
+        return np.repeat(arr, num_steps // n, axis=1).astype(np.float32)
+    # non-nesting resolutions: piecewise-constant source integrated over each target step
+    edges_src = np.linspace(0.0, 1.0, n + 1)
+    edges_dst = np.linspace(0.0, 1.0, num_steps + 1)
+    cum = np.concatenate([np.zeros((arr.shape[0], 1)), np.cumsum(arr, axis=1) / n], axis=1)
+    out = np.stack([np.diff(np.interp(edges_dst, edges_src, row)) * num_steps for row in cum])
+    return out.astype(np.float32)
+
+
+def read_moer_csv(path: str | os.PathLike, *, unit: str = "kg_per_kwh") -> tuple[np.ndarray, int]:
+    """Read a wide MOER CSV: ``date,m0,...,m{N-1}`` (one row per local day, ISO
+    date, N slots with N dividing 1440; '#' lines are comments). ``unit`` is
+    ``"kg_per_kwh"``, ``"g_per_kwh"`` or ``"lbs_per_mwh"``. Returns
+    ``(moer_kg_per_kwh (days, N) float32, first_weekday)``."""
+    factors = {"kg_per_kwh": 1.0, "g_per_kwh": 1e-3, "lbs_per_mwh": 0.45359237e-3}
+    if unit not in factors:
+        raise ValueError(f"unit: expected one of {sorted(factors)}, got {unit!r}")
+    source = str(path)
+    rows = _data_rows(_read_text(path))
+    if not rows:
+        raise ValueError(f"moer: {source} is empty; expected a header date,m0,...,m<N-1>")
+    header = [c.strip().lower() for c in rows[0]]
+    n = len(header) - 1
+    if header[0] != "date" or n < 1 or header[1:] != [f"m{i}" for i in range(n)]:
+        raise ValueError(f"moer: {source}: unrecognised header {','.join(rows[0])[:80]!r}; expected 'date,m0,...,m<N-1>'")
+    _check_resolution(n, f"moer: {source}")
+    body = rows[1:]
+    if not body:
+        raise ValueError(f"moer: {source} has a header but no data rows")
+    dates, values = [], np.empty((len(body), n))
+    for i, row in enumerate(body):
+        where = f"{source} data row {i + 1}"
+        if len(row) != n + 1:
+            raise ValueError(f"moer: {where}: expected {n + 1} fields (date + {n} slots), got {len(row)}")
+        dates.append(_parse_date(row[0], "date", where))
+        for j in range(n):
+            values[i, j] = _parse_float(row[1 + j], f"m{j}", where)
+    _check_consecutive(dates, "date", source)
+    return validate_moer(values * factors[unit], f"moer: {source}"), dates[0].weekday()
+
+
+@functools.lru_cache(maxsize=None)
+def _moer_index() -> dict[str, dict[str, Any]]:
+    return json.loads((DATA_DIR / MOER_INDEX_FILE).read_text(encoding="utf-8"))["datasets"]
+
+
+@functools.lru_cache(maxsize=None)
+def _load_bundled_moer(name: str) -> MoerData:
+    entry = _moer_index()[name]
+    arr, fw = read_moer_csv(DATA_DIR / entry["file"], unit=entry["unit"])
+    if fw != entry["first_weekday"] or arr.shape[0] != entry["days"]:
+        raise RuntimeError(f"bundled MOER file {entry['file']} disagrees with {MOER_INDEX_FILE}; run `make data`")
+    return MoerData(name, _readonly(arr), fw, int(entry["year"]))
+
+
+def load_moer(source: Any = "CAISO-SCE-2020") -> MoerData:
+    """MOER data: a bundled name (:data:`MOER_DATASETS`), a :class:`MoerData`, an
+    array in kg CO2/kWh ``(days, slots)`` or ``(slots,)``, or a CSV path (kg/kWh;
+    see :func:`read_moer_csv`)."""
+    if isinstance(source, MoerData):
+        return MoerData(source.name, _readonly(validate_moer(source.moer_kg_per_kwh)), _check_weekday(source.first_weekday), source.year)
+    if isinstance(source, str) and source in MOER_DATASETS:
+        return _load_bundled_moer(source)
+    if isinstance(source, (str, os.PathLike)):
+        if isinstance(source, str) and not _looks_like_path(source):
+            raise KeyError(f"moer: unknown dataset {source!r}; valid names are {list(MOER_DATASETS)} (or pass an array or a CSV path)")
+        arr, fw = read_moer_csv(source)
+        return MoerData(Path(source).stem, _readonly(arr), fw, None)
+    if isinstance(source, (np.ndarray, list, tuple)) or hasattr(source, "__array__"):
+        return MoerData("custom", _readonly(validate_moer(source)), 0, None)
+    raise ValueError(f"moer: expected a dataset name {list(MOER_DATASETS)}, an array (days, slots) or a CSV path, got {type(source).__name__}")
+
+
+# Synthetic residential load (no source data; see data/README.md): a night base
+# plus a morning and an evening Gaussian peak, by local hour.
+# (centre hour, sd hours, relative height); base level 1.
+GRID_DEMAND_RESIDENTIAL_PEAKS: tuple[tuple[float, float, float], ...] = ((7.5, 1.25, 0.8), (19.0, 2.0, 1.5))
+GRID_DEMAND_DEFAULT_SCALE_KWH: float = 5.0  # daily mean kWh per 5-minute step of the default shape
+
+
+def _residential_shape(num_steps: int) -> np.ndarray:
+    t = (np.arange(num_steps) + 0.5) * 24.0 / num_steps  # step centres, hours
+    y = np.ones(num_steps)
+    for centre, sd, height in GRID_DEMAND_RESIDENTIAL_PEAKS:
+        d = np.abs(t - centre)
+        d = np.minimum(d, 24.0 - d)
+        y += height * np.exp(-0.5 * (d / sd) ** 2)
+    return y / y.mean()
+
+
+def validate_grid_demand(value: Any, num_steps: int, field: str = "grid_demand_kwh") -> np.ndarray:
+    """The one validator of a grid-demand signal (kWh per step), whatever the path (CSV, array,
+    ``make_params``): shape ``(num_steps,)``, finite, in ``[0, checks.MAX_GRID_DEMAND_KWH]``."""
+    arr = _as_float_array(value, field)
+    if arr.ndim != 1:
+        raise ValueError(f"{field}: expected a 1-D array of kWh per step ({num_steps},), got shape {tuple(arr.shape)}")
+    if arr.shape[0] != num_steps:
+        raise ValueError(
+            f"{field}: got {arr.shape[0]} steps per day ({MINUTES_PER_DAY / max(arr.shape[0], 1):g}-minute resolution) "
+            f"but the simulator runs {num_steps} steps per day ({MINUTES_PER_DAY / num_steps:g}-minute resolution); "
+            "resample it or use a bundled shape name"
+        )
+    _check_finite(arr, field)
+    if (arr < 0).any():
+        raise ValueError(f"{field}: demand must be >= 0 kWh per step, got {float(arr.min())!r}")
+    _check_bounds(arr, field, 0.0, checks.MAX_GRID_DEMAND_KWH, "kWh per step")
+    return arr.astype(np.float32)
+
+
+def read_grid_demand_csv(path: str | os.PathLike) -> np.ndarray:
+    """Read a grid-demand CSV: a header with a column ``grid_demand_kwh`` (other
+    columns, e.g. a time, are ignored) and one row per step of the day (kWh per
+    step). Returns a float64 array ``(steps,)``; the resolution is checked by the
+    caller."""
+    source = str(path)
+    rows = _data_rows(_read_text(path))
+    if not rows:
+        raise ValueError(f"grid demand: {source} is empty; expected a header with a column grid_demand_kwh")
+    header = [c.strip().lower() for c in rows[0]]
+    if "grid_demand_kwh" not in header:
+        raise ValueError(f"grid demand: {source}: no column 'grid_demand_kwh' in header {rows[0]!r}")
+    j = header.index("grid_demand_kwh")
+    body = rows[1:]
+    if not body:
+        raise ValueError(f"grid demand: {source} has a header but no data rows")
+    out = []
+    for i, row in enumerate(body):
+        where = f"{source} data row {i + 1}"
+        if len(row) != len(header):
+            raise ValueError(f"grid demand: {where}: expected {len(header)} fields, got {len(row)}")
+        out.append(_parse_float(row[j], "grid_demand_kwh", where))
+    return np.asarray(out)
+
+
+def load_grid_demand(source: Any = "synthetic-residential", num_steps: int = SLOTS_PER_DAY, scale_kwh: float | None = None) -> np.ndarray:
+    """Grid demand per step of the day in kWh, float32 ``(num_steps,)``.
+
+    ``source``: a shape name (:data:`GRID_DEMAND_SHAPES`), scaled so its daily
+    mean is ``scale_kwh`` kWh per step (default
+    :data:`GRID_DEMAND_DEFAULT_SCALE_KWH` times ``num_steps`` / 288, i.e. the
+    same daily energy at any resolution); an array ``(num_steps,)``; or a CSV
+    path (:func:`read_grid_demand_csv`). For arrays and CSVs ``scale_kwh``, if
+    given, rescales to that daily mean per step.
+    """
+    if isinstance(num_steps, bool) or not isinstance(num_steps, numbers.Integral) or num_steps < 1:
+        raise ValueError(f"num_steps: expected a positive integer, got {num_steps!r}")
+    num_steps = int(num_steps)
+    _check_resolution(num_steps, "num_steps")
+    if scale_kwh is not None:
+        scale_kwh = _validate_unit_scalar(scale_kwh, "scale_kwh", upper=checks.MAX_GRID_DEMAND_KWH)
+    if isinstance(source, str) and source in GRID_DEMAND_SHAPES:
+        if scale_kwh is None:
+            scale_kwh = GRID_DEMAND_DEFAULT_SCALE_KWH * SLOTS_PER_DAY / num_steps
+        return (_residential_shape(num_steps) * scale_kwh).astype(np.float32)
+    if isinstance(source, (str, os.PathLike)):
+        if isinstance(source, str) and not _looks_like_path(source):
+            raise KeyError(f"grid demand: unknown shape {source!r}; valid names are {list(GRID_DEMAND_SHAPES)} (or pass an array or a CSV path)")
+        arr = validate_grid_demand(read_grid_demand_csv(source), num_steps, f"grid_demand_kwh ({source})")
+    elif isinstance(source, (np.ndarray, list, tuple)) or hasattr(source, "__array__"):
+        arr = validate_grid_demand(source, num_steps)
+    else:
+        raise ValueError(f"grid demand: expected a shape name {list(GRID_DEMAND_SHAPES)}, an array or a CSV path, got {type(source).__name__}")
+    if scale_kwh is not None:
+        mean = float(arr.mean())
+        if not mean > 0:
+            raise ValueError("scale_kwh: cannot rescale an all-zero grid demand")
+        arr = arr * (scale_kwh / mean)
+    return arr.astype(np.float32)
