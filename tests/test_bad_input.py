@@ -198,7 +198,7 @@ def test_non_finite_continuous_action_is_idle(bad):
 def test_nan_index_in_the_single_agent_env_is_idle(single_env):
     env = single_env
     s = _with_car_and_battery(env.default_params)
-    _, new, *_ = env.step(KEY, s, np.full(env.num_actions, np.nan), env.default_params)
+    _, new, *_ = env.step(KEY, s, np.full(env.num_leaves, np.nan), env.default_params)
     assert float(new.current_a[0]) == 0.0 and float(new.current_a[-1]) == 0.0
 
 
@@ -207,7 +207,7 @@ def test_huge_host_integers_clip_instead_of_wrapping(single_env, huge):
     env = single_env
     p = env.default_params
     s = _with_car_and_battery(p)
-    action = np.full(env.num_actions, huge, dtype=np.asarray(huge).dtype)
+    action = np.full(env.num_leaves, huge, dtype=np.asarray(huge).dtype)
     _, clipped, *_ = env.step(KEY, s, action, p)
     top = env.action_space(p).nvec - 1
     _, expected, *_ = env.step(KEY, s, np.asarray(top, np.int32), p)
