@@ -414,17 +414,7 @@ def build_profiles(zf: zipfile.ZipFile, out: Path) -> list[str]:
             if isinstance(v, np.ndarray):
                 p[k] = [round_sig(x) for x in v.tolist()]
         # validate exactly as the runtime loader will
-        ds.make_user_profile(
-            name,
-            [p["arrival_weights_workday"], p["arrival_weights_weekend"]],
-            p["stay_quantiles_min"],
-            p["demand_quantiles_kwh"],
-            weekend_volume_factor=p["weekend_volume_factor"],
-            stay_scale_by_hour=p["stay_scale_by_hour"],
-            demand_scale_by_hour=p["demand_scale_by_hour"],
-            arrival_soc_range=tuple(p["arrival_soc_range"]),
-            charge_sensitive_prob=p["charge_sensitive_prob"],
-        )
+        ds.profile_from_dict(name, p)
         ss, dsc = p["stay_scale_by_hour"], p["demand_scale_by_hour"]
         print(
             f"  {name:11s}  {p['stay_quantiles_min'][50]:17.1f}  {p['demand_quantiles_kwh'][50]:19.1f}"

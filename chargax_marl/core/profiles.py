@@ -237,7 +237,12 @@ def list_user_profiles() -> list[str]:
 @functools.lru_cache(maxsize=None)
 def _load_bundled_profile(name: str) -> UserProfileData:
     doc = _us_profiles_json() if name in US_USER_PROFILES else _profiles_json()
-    p = doc["profiles"][name]
+    return profile_from_dict(name, doc["profiles"][name])
+
+
+def profile_from_dict(name: str, p: dict) -> UserProfileData:
+    """A validated profile from one entry of the bundled profile JSON (the runtime loader and
+    ``scripts/build_data.py`` share it, so the data is checked the same way on both sides)."""
     return make_user_profile(
         name,
         [p["arrival_weights_workday"], p["arrival_weights_weekend"]],
