@@ -44,7 +44,7 @@ def default_setup():
     return params, days, trace.make_traces(params, days, KEY)
 
 
-@pytest.mark.parametrize("name", ["random", "battery_rule", "price_threshold"])
+@pytest.mark.parametrize("name", ["random", "battery_rule"])
 def test_replay_equals_the_keyed_rollout_bit_for_bit(default_setup, name):
     params, days, traces = default_setup
     pol = policies.get_policy(name)
@@ -179,7 +179,8 @@ def _cars_at_dawn():
 
 @pytest.mark.parametrize("action_mode,tol_eur", [("continuous", 0.02), ("absolute", 1.0)])
 def test_a_full_day_mpc_reaches_the_bound_when_no_car_arrives_later(action_mode, tol_eur):
-    params = make_params(station_kwargs={"num_dc": 2, "num_ac": 2}, action_mode=action_mode)
+    # 15-minute steps keep the host-side MPC loop short (96 solves)
+    params = make_params(station_kwargs={"num_dc": 2, "num_ac": 2}, action_mode=action_mode, step_minutes=15.0)
     tr = trace.trace_from_cars(params, _cars_at_dawn())
     mpc = MPC(params, horizon_hours=24.0, deadline_margin_steps=0)
     profit = run_on_trace(mpc, params, tr)
@@ -261,7 +262,7 @@ def test_the_mpc_drives_both_views_like_the_core():
     single_act = jax.jit(policies.for_single(mpc, env, params))
     marl = ChargaxMARL(params=params)
     marl_act = policies.for_marl(mpc, marl)
-    for t in range(30):
+    for t in range(12):
         k = jax.random.fold_in(KEY, t)
         action = single_act(state, k)
         levels = np.asarray(mpc(state, k, params))
