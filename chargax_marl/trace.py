@@ -191,8 +191,10 @@ def replay(act: Act, params: EnvParams, trace: DayTrace, day_key: jax.Array):
     """
     check_trace(trace, params)
     act_keys, _, _ = day_keys(day_key, params.num_steps)
-    start = simulator.empty_state(trace.day, params).replace(
-        soc=_battery_soc(trace, params))
+    start = simulator.empty_state(trace.day, params)
+    if params.station.num_batteries:
+        start = start.replace(soc=start.soc.at[params.station.num_ports:].set(
+            jnp.asarray(trace.battery_soc0, jnp.float32)))
 
     def body(state, xs):
         k_act, arrivals = xs
@@ -211,16 +213,6 @@ def replay_days(act: Act, params: EnvParams, traces: DayTrace, key: jax.Array | 
     key = jax.random.PRNGKey(0) if key is None else key
     num_days = traces.day.shape[0]
     return jax.vmap(lambda t, k: replay(act, params, t, k)[2].totals)(traces, jax.random.split(key, num_days))
-
-
-def _battery_soc(trace: DayTrace, params: EnvParams) -> jnp.ndarray:
-    """The start state's SoC vector with the trace's battery SoCs in the battery slots."""
-    st = params.station
-    base = simulator.empty_state(trace.day, params).soc
-    nb = st.num_batteries
-    if nb == 0:
-        return base
-    return base.at[st.num_ports:].set(jnp.asarray(trace.battery_soc0, jnp.float32))
 
 
 __all__ = ["DayTrace", "check_trace", "day_keys", "day_of", "make_traces", "params_fingerprint", "replay", "replay_days", "trace_from_cars", "station_fingerprint"]

@@ -65,6 +65,25 @@ def test_the_cars_of_a_day_do_not_depend_on_the_policy(default_setup):
     # ports busy (idle) admits a prefix of the same cars the always-max policy meets
     n_req = np.asarray(traces.arrivals.requested)
     assert n_req.sum() > 50 and n_req.shape == (2, params.num_steps)
+    # the same key parks the same first car whichever ports are taken: on an empty station it
+    # goes to port 0, with ports 0-2 busy to port 3 (per-port draws gave it other attributes)
+    from chargax_marl.core import simulator, traffic
+
+    key = jax.random.PRNGKey(7)
+    empty = simulator.empty_state(jnp.int32(5), params)
+    busy = empty.replace(occupied=empty.occupied.at[:3].set(True))
+    arrivals = traffic.draw_arrivals(key, empty.timestep, empty.is_workday, params).replace(
+        requested=jnp.int32(1))
+    a, _ = traffic.place_arrivals(empty, arrivals, params)
+    b, _ = traffic.place_arrivals(busy, arrivals, params)
+    drawn_a, _ = traffic.arrive(key, empty.replace(timestep=jnp.int32(150)), params)
+    drawn_b, _ = traffic.arrive(key, busy.replace(timestep=jnp.int32(150)), params)
+    for field in ("soc", "target_soc", "capacity_kwh", "time_remaining_min"):
+        assert float(getattr(a, field)[0]) == float(getattr(b, field)[3]) > 0, field
+        first_a = np.asarray(getattr(drawn_a, field))[np.asarray(drawn_a.occupied & ~empty.occupied)]
+        first_b = np.asarray(getattr(drawn_b, field))[np.asarray(drawn_b.occupied & ~busy.occupied)]
+        n = min(first_a.size, first_b.size)
+        np.testing.assert_array_equal(first_a[:n], first_b[:n])
 
 
 def test_a_trace_for_another_station_or_step_length_is_refused(default_setup):

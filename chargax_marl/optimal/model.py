@@ -235,20 +235,19 @@ def build_and_solve(sessions: Sessions, num_steps: int, limits: StationLimits, e
             value = value + float(urgency_eur_kwh_h[s]) * (n - steps) * dt
         pp = b.vars(m, 0.0, max(cmax, 0.0), cost=value * dt)
         pm = b.vars(m, 0.0, max(dmax, 0.0), cost=-value * dt)
-        x = b.vars(m + 1, lo, hi)
-        # x_0 fixed at the start SoC; the end may be forced to the target
-        b.lb[-1] = b.lb[-1].copy()
-        b.ub[-1] = b.ub[-1].copy()
-        b.lb[-1][0] = b.ub[-1][0] = float(sessions.soc0[s])
-        if sessions.must_reach[s]:
-            goal = max(lo, min(hi, float(sessions.target_soc[s]) - charged_tolerance_kwh / cap_kwh - 1e-5))
-            if occupancy_vars is not None and s in occupancy_vars:
-                # only when the session exists: x_end - (goal - lo) z >= lo
-                row = b.new_rows(1, lo, np.inf)
-                b.coef(row, x[m:m + 1], 1.0)
-                b.coef(row, occupancy_vars[s][None], -(goal - lo))
-            else:
-                b.lb[-1][m] = goal
+        # SoC x_0..x_m: x_0 fixed at the start SoC; the end may be forced to the target
+        x_lo, x_hi = np.full(m + 1, lo), np.full(m + 1, hi)
+        x_lo[0] = x_hi[0] = float(sessions.soc0[s])
+        goal = max(lo, min(hi, float(sessions.target_soc[s]) - charged_tolerance_kwh / cap_kwh - 1e-5))
+        conditional = occupancy_vars is not None and s in occupancy_vars
+        if sessions.must_reach[s] and not conditional:
+            x_lo[m] = goal
+        x = b.vars(m + 1, x_lo, x_hi)
+        if sessions.must_reach[s] and conditional:
+            # only when the session exists: x_end - (goal - lo) z >= lo
+            row = b.new_rows(1, lo, np.inf)
+            b.coef(row, x[m:m + 1], 1.0)
+            b.coef(row, occupancy_vars[s][None], -(goal - lo))
         # SoC dynamics: x_{k+1} - x_k - (p+ - p-) dt / C = 0
         dyn = b.new_rows(m, 0.0, 0.0)
         b.coef(dyn, x[1:], 1.0)
