@@ -1,0 +1,144 @@
+"""Training speed of the baselines: PPO, IPPO and MAPPO env-steps per second (issue 17).
+
+Each algorithm's ``make_train`` is built with the paper defaults (:data:`baselines.common.PAPER_DEFAULTS`)
+except ``NUM_ENVS`` and ``TOTAL_TIMESTEPS``; its ``jax.jit(train)`` is compiled once (compile
+seconds are reported apart), then the compiled programs are timed *interleaved* (round-robin
+over the algorithms, ``repeats`` rounds, best of them) so that a load change on a shared
+machine hits every algorithm alike. The 1-minute load average is printed beside the figures.
+
+    python benchmarks/train_speed.py                         # ppo ippo mappo, 16 envs, 100k steps
+    python benchmarks/train_speed.py --envs 16 1024 --repeats 3
+    python benchmarks/train_speed.py --algos ppo ippo --set HIDDEN=64   # a hyper-parameter option
+
+Importable: :func:`measure_training` returns the rows, :func:`format_rows` the table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+STEPS_100K = 100_000
+
+
+def _steps_for(num_envs: int, timesteps: int, num_steps: int) -> int:
+    """``timesteps`` rounded up to whole updates (``NUM_ENVS * NUM_STEPS`` env-steps each)."""
+    per_update = num_envs * num_steps
+    return max(1, -(-int(timesteps) // per_update)) * per_update
+
+
+def build(algo: str, num_envs: int, timesteps: int, overrides: dict | None = None):
+    """``(jitted train, config)`` of ``baselines.<algo>`` with the paper defaults plus the overrides."""
+    if str(ROOT) not in sys.path:
+        sys.path.insert(0, str(ROOT))
+    import jax
+
+    from baselines import common
+
+    mod = importlib.import_module(f"baselines.{algo}")
+    config = dict(overrides or {})
+    num_steps = int(config.get("NUM_STEPS", common.PAPER_DEFAULTS["NUM_STEPS"]))
+    config["NUM_ENVS"] = int(num_envs)
+    config["TOTAL_TIMESTEPS"] = _steps_for(num_envs, timesteps, num_steps)
+    train = mod.make_train(config)
+    return jax.jit(train), train.config
+
+
+def measure_training(algos=("ppo", "ippo", "mappo"), num_envs: int = 16, timesteps: int = STEPS_100K,
+                     repeats: int = 3, overrides: dict | None = None, verbose: bool = True) -> list[dict]:
+    """Compile each algorithm once, then time ``repeats`` interleaved rounds; one row per algorithm.
+
+    Row keys: ``algo``, ``envs``, ``steps`` (env-steps per run, whole updates), ``compile_s``,
+    ``run_s`` (best round), ``runs_s`` (every round), ``s_per_100k``, ``steps_per_s``,
+    ``ratio_vs_ppo`` (env-steps/s over PPO's, when PPO is measured), ``load`` (1-min load
+    average before the first and after the last round).
+    """
+    import jax
+
+    key = jax.random.PRNGKey(0)
+    compiled, rows = {}, {}
+    for algo in algos:
+        train, config = build(algo, num_envs, timesteps, overrides)
+        t0 = time.perf_counter()
+        fn = train.lower(key).compile()
+        compile_s = time.perf_counter() - t0
+        compiled[algo] = fn
+        rows[algo] = {"algo": algo, "envs": int(num_envs), "steps": int(config["TOTAL_TIMESTEPS"]),
+                      "compile_s": compile_s, "runs_s": [],
+                      "overrides": {k: v for k, v in (overrides or {}).items()}}
+        if verbose:
+            print(f"  compiled {algo:<6} {num_envs:>5} envs in {compile_s:6.1f} s", flush=True)
+    for algo in algos:  # one untimed warm-up run each (allocations, thread pools)
+        jax.block_until_ready(compiled[algo](key))
+    load_before = os.getloadavg()[0]
+    for r in range(repeats):
+        for algo in algos:
+            t0 = time.perf_counter()
+            jax.block_until_ready(compiled[algo](jax.random.PRNGKey(r + 1)))
+            rows[algo]["runs_s"].append(time.perf_counter() - t0)
+    load_after = os.getloadavg()[0]
+    out = []
+    for algo in algos:
+        row = rows[algo]
+        row["run_s"] = min(row["runs_s"])
+        row["s_per_100k"] = row["run_s"] / row["steps"] * STEPS_100K
+        row["steps_per_s"] = row["steps"] / row["run_s"]
+        row["load"] = (load_before, load_after)
+        out.append(row)
+    if "ppo" in rows:
+        for row in out:
+            row["ratio_vs_ppo"] = row["steps_per_s"] / rows["ppo"]["steps_per_s"]
+    return out
+
+
+def format_rows(rows: list[dict]) -> str:
+    lines = [f"{'algo':<6} {'envs':>5} {'steps':>9} {'compile s':>9} {'s/100k':>8} {'steps/s':>10} "
+             f"{'vs PPO':>7}  load 1-min (before, after)"]
+    for r in rows:
+        ratio = f"{r['ratio_vs_ppo']:.2f}" if "ratio_vs_ppo" in r else "-"
+        lines.append(f"{r['algo']:<6} {r['envs']:>5} {r['steps']:>9,} {r['compile_s']:>9.1f} {r['s_per_100k']:>8.2f} "
+                     f"{r['steps_per_s']:>10,.0f} {ratio:>7}  {r['load'][0]:.2f}, {r['load'][1]:.2f}")
+    return "\n".join(lines)
+
+
+def _parse_set(items) -> dict:
+    out = {}
+    for item in items or []:
+        k, _, v = item.partition("=")
+        try:
+            out[k] = json.loads(v)
+        except json.JSONDecodeError:
+            out[k] = v
+    return out
+
+
+def main(argv=None) -> list[dict]:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--algos", nargs="+", default=["ppo", "ippo", "mappo"])
+    p.add_argument("--envs", nargs="+", type=int, default=[16])
+    p.add_argument("--timesteps", type=int, default=STEPS_100K, help="env-steps per run (rounded up to whole updates)")
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--set", nargs="*", metavar="KEY=VALUE", help="config overrides (JSON values), e.g. HIDDEN=64")
+    p.add_argument("--json", type=Path, help="also write the rows here")
+    args = p.parse_args(argv)
+    import jax
+
+    print(f"jax {jax.__version__} on {jax.devices()[0].platform} x{len(jax.devices())}, {os.cpu_count()} CPUs, "
+          f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
+    rows = []
+    for n in args.envs:
+        rows += measure_training(args.algos, n, args.timesteps, args.repeats, _parse_set(args.set))
+    print(format_rows(rows))
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
+    return rows
+
+
+if __name__ == "__main__":
+    main()
