@@ -41,6 +41,21 @@ def test_mappo_update_runs_with_finite_losses():
     assert np.all(np.asarray(out["metrics"]["episodes"]) == 4)
 
 
+@pytest.mark.parametrize("minibatches", [2, 8])  # 2 < 5 agents: the update gathers from the table; 8: it does not
+def test_mappo_shared_critic_matches_per_agent_critic(monkeypatch, minibatches):
+    """The centralised critic run once per (step, env) gives the training of one run per agent row."""
+    config = {**TINY, "NUM_MINIBATCHES": minibatches, "TOTAL_TIMESTEPS": 2 * 4 * 24}
+    outs = []
+    for dedup in (False, True):
+        monkeypatch.setattr(ippo, "DEDUP_CENTRAL_CRITIC", dedup)
+        outs.append(jax.device_get(jax.jit(mappo.make_train(config))(jax.random.PRNGKey(3))))
+    ref, new = outs
+    for k in ("actor_loss", "value_loss", "entropy", "approx_kl", "episode_return"):
+        np.testing.assert_allclose(new["metrics"][k], ref["metrics"][k], rtol=1e-4, atol=1e-6, err_msg=k)
+    for a, b in zip(jax.tree.leaves(new["runner_state"].params), jax.tree.leaves(ref["runner_state"].params)):
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6)
+
+
 def test_ppo_policy_is_factored_and_masked():
     train = ppo.make_train(TINY)
     pol = train.policy
