@@ -8,7 +8,7 @@ machine hits every algorithm alike. The 1-minute load average is printed beside 
 
     python benchmarks/train_speed.py                         # ppo ippo mappo, 16 envs, 100k steps
     python benchmarks/train_speed.py --envs 16 1024 --repeats 3
-    python benchmarks/train_speed.py --algos ppo ippo --set HIDDEN=64   # a hyper-parameter option
+    python benchmarks/train_speed.py --algos ppo ippo --set ippo.HIDDEN=64   # an option for IPPO only
 
 Importable: :func:`measure_training` returns the rows, :func:`format_rows` the table.
 """
@@ -57,21 +57,24 @@ def measure_training(algos=("ppo", "ippo", "mappo"), num_envs: int = 16, timeste
     Row keys: ``algo``, ``envs``, ``steps`` (env-steps per run, whole updates), ``compile_s``,
     ``run_s`` (best round), ``runs_s`` (every round), ``s_per_100k``, ``steps_per_s``,
     ``ratio_vs_ppo`` (env-steps/s over PPO's, when PPO is measured), ``load`` (1-min load
-    average before the first and after the last round).
+    average before the first and after the last round). ``overrides`` are config keys for
+    every algorithm; a key ``"<algo>.<KEY>"`` applies to that algorithm only.
     """
     import jax
 
     key = jax.random.PRNGKey(0)
     compiled, rows = {}, {}
     for algo in algos:
-        train, config = build(algo, num_envs, timesteps, overrides)
+        mine = {k: v for k, v in (overrides or {}).items() if "." not in k}
+        mine.update({k.split(".", 1)[1]: v for k, v in (overrides or {}).items() if k.startswith(algo + ".")})
+        train, config = build(algo, num_envs, timesteps, mine)
         t0 = time.perf_counter()
         fn = train.lower(key).compile()
         compile_s = time.perf_counter() - t0
         compiled[algo] = fn
         rows[algo] = {"algo": algo, "envs": int(num_envs), "steps": int(config["TOTAL_TIMESTEPS"]),
                       "compile_s": compile_s, "runs_s": [],
-                      "overrides": {k: v for k, v in (overrides or {}).items()}}
+                      "overrides": mine}
         if verbose:
             print(f"  compiled {algo:<6} {num_envs:>5} envs in {compile_s:6.1f} s", flush=True)
     for algo in algos:  # one untimed warm-up run each (allocations, thread pools)
@@ -99,11 +102,11 @@ def measure_training(algos=("ppo", "ippo", "mappo"), num_envs: int = 16, timeste
 
 def format_rows(rows: list[dict]) -> str:
     lines = [f"{'algo':<6} {'envs':>5} {'steps':>9} {'compile s':>9} {'s/100k':>8} {'steps/s':>10} "
-             f"{'vs PPO':>7}  load 1-min (before, after)"]
+             f"{'vs PPO':>7}  load 1-min (before, after)  overrides"]
     for r in rows:
         ratio = f"{r['ratio_vs_ppo']:.2f}" if "ratio_vs_ppo" in r else "-"
         lines.append(f"{r['algo']:<6} {r['envs']:>5} {r['steps']:>9,} {r['compile_s']:>9.1f} {r['s_per_100k']:>8.2f} "
-                     f"{r['steps_per_s']:>10,.0f} {ratio:>7}  {r['load'][0]:.2f}, {r['load'][1]:.2f}")
+                     f"{r['steps_per_s']:>10,.0f} {ratio:>7}  {r['load'][0]:.2f}, {r['load'][1]:.2f}  {r.get('overrides') or ''}")
     return "\n".join(lines)
 
 
