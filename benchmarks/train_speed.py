@@ -100,6 +100,62 @@ def measure_training(algos=("ppo", "ippo", "mappo"), num_envs: int = 16, timeste
     return out
 
 
+def mlp_macs(sizes) -> int:
+    """Multiply-adds of one forward pass of a dense MLP with these layer widths."""
+    return sum(a * b for a, b in zip(sizes[:-1], sizes[1:]))
+
+
+def network_macs(algo: str, overrides: dict | None = None) -> dict:
+    """Analytic multiply-adds of the networks per env-step: ``rollout`` (actor + critic forward
+    for every actor row of a step) and ``update`` (``UPDATE_EPOCHS`` x forward + backward,
+    counted as 3 forward passes, of every row); ``rows`` the network rows per env-step."""
+    train, config = build(algo, 1, 10**9, dict(overrides or {}))
+    pol, h, layers = train.policy, int(config["HIDDEN"]), int(config["NUM_LAYERS"])
+    epochs = int(config["UPDATE_EPOCHS"])
+    if algo == "ppo":
+        actor = mlp_macs([pol.obs_dim] + [h] * layers + [pol.num_leaves * pol.k])
+        critic = mlp_macs([pol.obs_dim] + [h] * layers + [1])
+        rows, rollout = 1, actor + critic
+        update = epochs * 3 * rollout
+    else:
+        n = train.env.num_agents
+        actor = mlp_macs([pol.obs_dim] + [h] * layers + [pol.k])
+        critic = mlp_macs([pol.critic_dim] + [h] * layers + [1])
+        shared = algo == "mappo"  # one critic row per env (baselines.ippo.DEDUP_CENTRAL_CRITIC)
+        rows = n
+        rollout = n * actor + (1 if shared else n) * critic
+        # MAPPO's update evaluates the critic on the whole rollout once per minibatch
+        mb = int(config["NUM_MINIBATCHES"])
+        update = epochs * 3 * (n * actor + ((mb if mb < n else n) if shared else n) * critic)
+    return {"algo": algo, "rows": rows, "rollout_macs": rollout, "update_macs": update,
+            "total_macs": rollout + update}
+
+
+def profile_phases(algo: str, num_envs: int = 16, updates: int = 2, repeats: int = 2,
+                   overrides: dict | None = None) -> dict:
+    """Seconds per update split into rollout (+ GAE) and one update epoch, from timing the
+    program with ``UPDATE_EPOCHS`` 1 and 4: ``epoch = (t4 - t1) / 3``, ``rollout = t1 - epoch``."""
+    import jax
+
+    from baselines import common
+
+    steps = updates * num_envs * common.PAPER_DEFAULTS["NUM_STEPS"]
+    t = {}
+    for ep in (1, 4):
+        train, _ = build(algo, num_envs, steps, {**(overrides or {}), "UPDATE_EPOCHS": ep})
+        fn = train.lower(jax.random.PRNGKey(0)).compile()
+        jax.block_until_ready(fn(jax.random.PRNGKey(0)))
+        best = float("inf")
+        for r in range(repeats):
+            t0 = time.perf_counter()
+            jax.block_until_ready(fn(jax.random.PRNGKey(r + 1)))
+            best = min(best, time.perf_counter() - t0)
+        t[ep] = best / updates
+    epoch = (t[4] - t[1]) / 3
+    return {"algo": algo, "envs": num_envs, "update_s": t[4], "rollout_s": t[1] - epoch, "epoch_s": epoch,
+            "load": os.getloadavg()[0]}
+
+
 def format_rows(rows: list[dict]) -> str:
     lines = [f"{'algo':<6} {'envs':>5} {'steps':>9} {'compile s':>9} {'s/100k':>8} {'steps/s':>10} "
              f"{'vs PPO':>7}  load 1-min (before, after)  overrides"]
@@ -129,11 +185,23 @@ def main(argv=None) -> list[dict]:
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--set", nargs="*", metavar="KEY=VALUE", help="config overrides (JSON values), e.g. HIDDEN=64")
     p.add_argument("--json", type=Path, help="also write the rows here")
+    p.add_argument("--phases", action="store_true",
+                   help="instead: split an update into rollout and epochs, with the networks' multiply-adds")
     args = p.parse_args(argv)
     import jax
 
     print(f"jax {jax.__version__} on {jax.devices()[0].platform} x{len(jax.devices())}, {os.cpu_count()} CPUs, "
           f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
+    if args.phases:
+        for algo in args.algos:
+            m = network_macs(algo, _parse_set(args.set))
+            for n in args.envs:
+                ph = profile_phases(algo, n, overrides=_parse_set(args.set))
+                print(f"{algo:<6} {n:>5} envs: update {ph['update_s']:.3f} s = rollout {ph['rollout_s']:.3f} "
+                      f"+ 4 x epoch {ph['epoch_s']:.3f}; network MACs per env-step: rollout "
+                      f"{m['rollout_macs'] / 1e6:.2f} M, update {m['update_macs'] / 1e6:.2f} M; load {ph['load']:.1f}",
+                      flush=True)
+        return []
     rows = []
     for n in args.envs:
         rows += measure_training(args.algos, n, args.timesteps, args.repeats, _parse_set(args.set))
