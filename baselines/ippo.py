@@ -35,7 +35,11 @@ from chargax_marl.marl.wrappers import LogWrapper, WorldStateWrapper
 
 class Transition(NamedTuple):
     obs: jnp.ndarray  # (actors, obs_dim)
-    critic_in: jnp.ndarray  # (actors, obs_dim) or (actors, state_dim) for MAPPO
+    # IPPO: a zero placeholder (actors,), the critic reads ``obs``. MAPPO: during the rollout the world state
+    # (envs, state_dim), once per env; for the update the row's index into the rollout's
+    # table of world states (:func:`make_train`), or its world state (actors, state_dim)
+    # when ``DEDUP_CENTRAL_CRITIC`` is off.
+    critic_in: jnp.ndarray
     avail: jnp.ndarray
     action: jnp.ndarray
     log_prob: jnp.ndarray
@@ -56,6 +60,13 @@ class RunnerState(NamedTuple):
 
 INFO_KEYS = ("returned_episode", "returned_episode_returns", "returned_episode_profit_eur",
              "returned_episode_energy_delivered_kwh")
+
+# MAPPO: every agent of an env sees the same world state, so the centralised critic runs once
+# per (step, env) and its value is shared by the env's agents, in the rollout and in the
+# update (the minibatch rows then gather their values from the rollout's table). Exactly the
+# same function and gradients; only the order of floating-point sums differs. ``False``
+# evaluates the critic once per agent row (the JaxMARL layout); kept for the equivalence test.
+DEDUP_CENTRAL_CRITIC = True
 
 
 def batchify(x: dict, agents, num_actors: int) -> jnp.ndarray:
@@ -128,17 +139,27 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
     mesh = common.env_mesh(n_envs)
     tx = common.make_optimizer(config, total_updates)
 
-    def get_avail(env_state):
-        # ``get_avail_actions`` depends only on the station; vmapped over envs and batchified.
-        core = env_state.env_state
-        avail = jax.vmap(base_env.get_avail_actions)(core)
-        return batchify(avail, agents, n_actors)
+    # ``get_avail_actions`` depends only on the station: one constant (actors, K) mask, agent-major.
+    avail_agents = base_env.get_avail_actions(None)
+    avail_b = jnp.asarray(np.repeat(np.stack([np.asarray(avail_agents[a]) for a in agents]), n_envs, axis=0))
+    dedup = centralised_critic and DEDUP_CENTRAL_CRITIC
+    # In the update the deduplicated critic runs on the whole rollout's world states
+    # (n_steps * n_envs rows) for every minibatch: cheaper than one row per agent row while
+    # a minibatch holds more rows than that, i.e. NUM_MINIBATCHES < num_agents.
+    dedup_update = dedup and config["NUM_MINIBATCHES"] < n_agents
 
-    def critic_input(obs):
-        if centralised_critic:
-            ws = jnp.swapaxes(obs["world_state"], 0, 1)  # (agents, envs, state)
-            return ws.reshape((n_actors, -1))
-        return batchify(obs, agents, n_actors)
+    def world_state(obs):
+        return obs["world_state"][:, 0]  # (envs, state): the same row for every agent of an env
+
+    def rollout_value(params, obs, obs_b):
+        """``(critic_in, value (actors,))`` of the step's observations."""
+        if not centralised_critic:
+            return jnp.zeros((n_actors,), jnp.int8), policy.value(params, obs_b)  # unused placeholder
+        ws = world_state(obs)
+        if dedup:
+            return ws, jnp.tile(policy.value(params, ws), n_agents)  # agent-major rows
+        ws_b = jnp.swapaxes(obs["world_state"], 0, 1).reshape((n_actors, -1))  # (agents * envs, state)
+        return ws, policy.value(params, ws_b)
 
     def init(key):
         k_net, k_env, key = jax.random.split(key, 3)
@@ -151,12 +172,11 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         params, env_state, obs, key = carry
         key, k_act, k_step = jax.random.split(key, 3)
         obs_b = batchify(obs, agents, n_actors)
-        avail = get_avail(env_state)
+        avail = avail_b
         logits = policy.logits(params, obs_b, avail)
         action = jax.random.categorical(k_act, logits)
         logp = common.log_prob(logits, action)
-        cin = critic_input(obs)
-        value = policy.value(params, cin)
+        cin, value = rollout_value(params, obs, obs_b)
         actions = unbatchify(action, agents, n_envs)
         next_obs, env_state, reward, done, info = jax.vmap(env.step)(jax.random.split(k_step, n_envs), env_state,
                                                                     actions)
@@ -167,17 +187,33 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
                         {k: info[k] for k in INFO_KEYS})  # each (envs, agents)
         return (params, env_state, next_obs, key), tr
 
-    def loss_fn(params, mb):
-        tr, adv, targets = mb
-        logits = policy.logits(params, tr.obs, tr.avail)
-        new_logp = common.log_prob(logits, tr.action)
-        values = policy.value(params, tr.critic_in)
-        return common.ppo_loss(new_logp, tr.log_prob, adv, values, tr.value, targets, common.entropy(logits), config)
+    def make_loss(ws_table):
+        def loss_fn(params, mb):
+            tr, adv, targets = mb
+            logits = policy.logits(params, tr.obs, tr.avail)
+            new_logp = common.log_prob(logits, tr.action)
+            if not centralised_critic:
+                values = policy.value(params, tr.obs)
+            elif dedup_update:
+                values = policy.value(params, ws_table)[tr.critic_in]
+            else:
+                values = policy.value(params, tr.critic_in)
+            return common.ppo_loss(new_logp, tr.log_prob, adv, values, tr.value, targets, common.entropy(logits),
+                                   config)
+
+        return loss_fn
 
     def update(rs: RunnerState, _):
         (params, env_state, obs, key), traj = jax.lax.scan(
             env_step, (rs.params, rs.env_state, rs.obs, rs.key), None, n_steps)
-        last_value = policy.value(params, critic_input(obs))
+        last_value = rollout_value(params, obs, batchify(obs, agents, n_actors))[1]
+        ws_table = None
+        if centralised_critic:
+            ws_table = traj.critic_in.reshape((n_steps * n_envs, -1))  # (step, env) world states
+            # row (t, agent * n_envs + e) reads world state t * n_envs + e
+            idx = (jnp.arange(n_steps)[:, None] * n_envs + jnp.arange(n_actors)[None, :] % n_envs).astype(jnp.int32)
+            traj = traj._replace(critic_in=idx if dedup_update else ws_table[idx])
+        loss_fn = make_loss(ws_table)
         adv, targets = common.gae(traj.reward, traj.value, traj.done, last_value, config["GAMMA"], config["GAE_LAMBDA"])
 
         params, opt_state, key, parts = common.ppo_epochs(loss_fn, tx, params, rs.opt_state, key, traj, adv,

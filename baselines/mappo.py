@@ -3,7 +3,9 @@ observation, with a *centralised* critic on the world state.
 
 The env is wrapped as in JaxMARL's MAPPO, ``LogWrapper(WorldStateWrapper(env))``; the critic
 reads ``obs["world_state"]`` (the env's ``get_global_state``, i.e. the single-agent
-observation of the whole station), batchified to ``(num_agents * num_envs, state_size)``.
+observation of the whole station). All agents of an env share that world state, so the
+critic runs once per env and step and its value is shared by the env's agents (the same
+values as one critic call per agent row; :data:`baselines.ippo.DEDUP_CENTRAL_CRITIC`).
 The rest of the loop (masking, batchify, GAE, clipped PPO, sharding, vmapped seeds) is the
 one in :mod:`baselines.ippo`, so that the two differ only in the critic's input.
 """

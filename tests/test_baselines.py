@@ -41,6 +41,21 @@ def test_mappo_update_runs_with_finite_losses():
     assert np.all(np.asarray(out["metrics"]["episodes"]) == 4)
 
 
+@pytest.mark.parametrize("minibatches", [2, 8])  # 2 < 5 agents: the update gathers from the table; 8: it does not
+def test_mappo_shared_critic_matches_per_agent_critic(monkeypatch, minibatches):
+    """The centralised critic run once per (step, env) gives the training of one run per agent row."""
+    config = {**TINY, "NUM_MINIBATCHES": minibatches, "TOTAL_TIMESTEPS": 2 * 4 * 24}
+    outs = []
+    for dedup in (False, True):
+        monkeypatch.setattr(ippo, "DEDUP_CENTRAL_CRITIC", dedup)
+        outs.append(jax.device_get(jax.jit(mappo.make_train(config))(jax.random.PRNGKey(3))))
+    ref, new = outs
+    for k in ("actor_loss", "value_loss", "entropy", "approx_kl", "episode_return"):
+        np.testing.assert_allclose(new["metrics"][k], ref["metrics"][k], rtol=1e-4, atol=1e-6, err_msg=k)
+    for a, b in zip(jax.tree.leaves(new["runner_state"].params), jax.tree.leaves(ref["runner_state"].params)):
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6)
+
+
 def test_ppo_policy_is_factored_and_masked():
     train = ppo.make_train(TINY)
     pol = train.policy
@@ -253,3 +268,15 @@ def test_ippo_learns_from_the_local_reward_weight_and_ppo_refuses_it():
         ppo.make_train({**TINY, "LOCAL_REWARD_WEIGHT": 0.5})
     with pytest.raises(ValueError, match="local_reward_weight"):
         ippo.make_train({**TINY, "LOCAL_REWARD_WEIGHT": 2.0})
+
+
+def test_train_speed_counts_network_work_and_rounds_to_whole_updates():
+    from benchmarks import train_speed
+
+    assert train_speed._steps_for(16, 100_000, 300) == 21 * 4800
+    assert train_speed.mlp_macs([4, 8, 2]) == 4 * 8 + 8 * 2
+    ppo_m, ippo_m, mappo_m = (train_speed.network_macs(a) for a in ("ppo", "ippo", "mappo"))
+    assert ippo_m["rows"] == mappo_m["rows"] == 17 and ppo_m["rows"] == 1
+    # 17 agents through 2 x 256 MLPs: about 9 x PPO's work per env-step; MAPPO's shared critic less
+    assert 8 < ippo_m["total_macs"] / ppo_m["total_macs"] < 10
+    assert ppo_m["total_macs"] < mappo_m["total_macs"] < ippo_m["total_macs"]
