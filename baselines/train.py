@@ -26,7 +26,11 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from baselines import common
+if __name__ == "__main__":  # before the imports below: importing gymnax already runs JAX, after which
+    from baselines import distributed  # jax.distributed.initialize() is refused
+
+    distributed.initialize_from_argv()
+from baselines import common  # noqa: E402
 
 ALGOS = ("ppo", "ippo", "mappo")
 
@@ -118,6 +122,13 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
     bound (and the MPC) to the baselines, see :func:`baseline_results`."""
     from chargax_marl.evaluation import format_table
 
+    from baselines import distributed
+
+    main_process = distributed.is_main()  # only process 0 prints and writes (multi-process runs)
+    quiet = quiet or not main_process
+    out = out if main_process else None
+    multi = jax.process_count() > 1
+    host = distributed.to_host if multi else (lambda tree: tree)  # params readable on this process
     mod = get_module(algo)
     config = common.parse_config({}, config)
     steps_per_update = config["NUM_ENVS"] * config["NUM_STEPS"]
@@ -145,7 +156,7 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
     def on_chunk(i, rs, m, steps, seconds):
         if not evaluate_every_chunk and i < chunks - 1:
             return
-        ev = common.evaluate_batched(make_act, rs.params, eval_params, eval_days, reference_profit=am_daily)
+        ev = common.evaluate_batched(make_act, host(rs.params), eval_params, eval_days, reference_profit=am_daily)
         evals.append({"timesteps": int(steps), "train_seconds": seconds, "per_seed_profit": ev["per_seed_profit"],
                       "mean_profit": float(np.mean(ev["per_seed_profit"])),
                       "vs_always_max": ev.get("paired_diff"), "vs_battery_rule": vs_rule(ev)})
@@ -159,8 +170,11 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
                        f"(per seed {np.round(ev['per_seed_profit'], 1).tolist()}; always-max {am:.1f}{vs})")
 
     keys = jax.random.split(jax.random.PRNGKey(seed), seeds)
+    if multi:  # inputs of a program over every process's devices must be global arrays
+        keys = distributed.replicate(keys)
     rs, metrics, train_seconds = common.run_in_chunks(train, keys, chunks, on_chunk, desc=algo)
-    final = common.evaluate_batched(make_act, rs.params, eval_params, eval_days, reference_profit=am_daily)
+    params = host(rs.params)
+    final = common.evaluate_batched(make_act, params, eval_params, eval_days, reference_profit=am_daily)
     wall = time.time() - t_start
     first_beat = next((e for e in evals if e["vs_always_max"] is not None and beats(e["vs_always_max"])), None)
     first_beat_rule = next((e for e in evals if e["vs_battery_rule"] is not None and beats(e["vs_battery_rule"])), None)
@@ -175,6 +189,7 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
         "seeds": seeds,
         "seed": seed,
         "devices": [str(d) for d in jax.devices()],
+        "num_processes": jax.process_count(),
         "timesteps": int(config["TOTAL_TIMESTEPS"]),
         "wall_seconds": wall,
         "train_seconds_incl_compile": train_seconds,
@@ -194,7 +209,7 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
-        common.save_params(rs.params, out / "params.msgpack")
+        common.save_params(params, out / "params.msgpack")
         lines = {f"always-max (held-out) {am:.0f}": am}
         for key, label in (("battery_rule", "always-max + battery rule"), ("price_threshold", "price-threshold"),
                            ("mpc", "MPC, 4 h horizon"), ("lp_bound", "LP hindsight bound")):
@@ -210,7 +225,7 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
         common.write_json(results, out / "results.json")
         if not quiet:
             print(f"wrote {out / 'curve.png'}, {out / 'results.json'}, {out / 'params.msgpack'}")
-    results["_params"], results["_train"] = rs.params, train  # for callers (not written to JSON)
+    results["_params"], results["_train"] = params, train  # for callers (not written to JSON)
     return results
 
 
@@ -246,7 +261,13 @@ def main(argv=None) -> dict:
     p.add_argument("--out", default="baselines/results/run")
     p.add_argument("--optimal", choices=OPTIMAL_CHOICES, default="bound",
                    help="add the LP hindsight bound (bound, default), also the MPC (mpc), or neither (off)")
+    from baselines import distributed
+
+    distributed.add_arguments(p)
     a = p.parse_args(argv)
+    # `python -m baselines.train` has initialised before its imports; a caller of main() must have
+    # called distributed.initialize() before importing baselines.train (see baselines/distributed.py)
+    distributed.initialize_from_argv(argv)
     config = {} if a.paper else dict(FAST)
     config.update({"SCENARIO": a.scenario, "TRAFFIC": a.traffic, "TOTAL_TIMESTEPS": int(a.timesteps),
                    "ENV_KWARGS": json.loads(a.env_kwargs)})
@@ -264,7 +285,9 @@ def main(argv=None) -> dict:
         from chargax_marl.single.scenarios import SCENARIOS
 
         config["TRAFFIC"] = SCENARIOS[a.scenario]["traffic"]
-    print(f"devices: {jax.devices()}  config: {json.dumps({k: v for k, v in config.items()}, default=str)}")
+    if jax.process_index() == 0:
+        print(f"processes: {jax.process_count()}  devices: {jax.devices()}  "
+              f"config: {json.dumps({k: v for k, v in config.items()}, default=str)}")
     res = run(a.algo, config, seeds=a.seeds, seed=a.seed, out=a.out, chunks=a.chunks, optimal=a.optimal)
     return {k: v for k, v in res.items() if not k.startswith("_")}
 
