@@ -257,6 +257,7 @@ def main(argv=None) -> dict:
     p.add_argument("--paper", action="store_true", help="use Table 3 exactly (12 envs x 300 steps, 2x256, lr 2.5e-4, "
                                                         "entropy 0.01); default: the faster CPU settings FAST")
     p.add_argument("--env-kwargs", default="{}", help="JSON of extra make_params keywords")
+    p.add_argument("--eval-days", type=int, default=None, help="held-out days (default 100)")
     p.add_argument("--chunks", type=int, default=10, help="training pieces (progress + held-out evaluation)")
     p.add_argument("--out", default="baselines/results/run")
     p.add_argument("--optimal", choices=OPTIMAL_CHOICES, default="bound",
@@ -278,7 +279,7 @@ def main(argv=None) -> dict:
                       ("gae_lambda", "GAE_LAMBDA"), ("minibatches", "NUM_MINIBATCHES"), ("epochs", "UPDATE_EPOCHS"),
                       ("always_max_prior", "ALWAYS_MAX_PRIOR"),
                       ("battery_idle_prior", "BATTERY_IDLE_PRIOR"),
-                      ("local_reward_weight", "LOCAL_REWARD_WEIGHT")):
+                      ("local_reward_weight", "LOCAL_REWARD_WEIGHT"), ("eval_days", "NUM_EVAL_DAYS")):
         if getattr(a, flag) is not None:
             config[key] = getattr(a, flag)
     if config["TRAFFIC"] is None:
