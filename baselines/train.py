@@ -4,7 +4,8 @@
         --timesteps 1e6 --seeds 4 --out baselines/results/ippo_shopping
 
 Several seeds train in one compiled program (``jax.vmap``); the env batch is sharded over
-all local devices. Training runs in ``--chunks`` jitted pieces under a progress bar; after
+every device JAX sees: the local ones, or those of every process with ``--coordinator HOST:PORT
+--num-processes N --process-id i`` (``jax.distributed``; only process 0 prints and writes). Training runs in ``--chunks`` jitted pieces under a progress bar; after
 each piece the current greedy policies are evaluated on the held-out days, so the JSON
 records the budget (steps and minutes) at which the mean over seeds first beats always-max.
 The always-max and price-threshold baselines are evaluated on the same held-out days
