@@ -12,7 +12,7 @@ Two things differ from one process, and :mod:`baselines.train` handles both here
   trained parameters (replicated) are read from this process's copy (:func:`to_host`)
   before the held-out evaluation, which every process then runs on its own devices.
 
-Only process 0 writes outputs and prints (:func:`is_main`). On CPU the processes exchange
+Only process 0 writes outputs and prints the evaluation (:func:`is_main`). On CPU the processes exchange
 data through gloo (``jax_cpu_collectives_implementation``); ``tests/test_distributed.py``
 runs the training CLI as two processes on one machine this way.
 """
@@ -32,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     d.add_argument("--distributed", action="store_true",
                    help="call jax.distributed.initialize() first (implied by --coordinator); without "
                         "--coordinator JAX detects the cluster (SLURM, Open MPI, ...). Every process runs "
-                        "the same command; only process 0 prints and writes --out")
+                        "the same command; only process 0 writes --out")
     d.add_argument("--coordinator", default=None, help="HOST:PORT of process 0's coordinator service")
     d.add_argument("--num-processes", type=int, default=None)
     d.add_argument("--process-id", type=int, default=None)
@@ -66,7 +66,7 @@ def initialize(coordinator_address: str | None = None, num_processes: int | None
 
 
 def is_main() -> bool:
-    """Whether this is process 0, the one that prints and writes outputs."""
+    """Whether this is process 0, the one that writes outputs."""
     return jax.process_index() == 0
 
 

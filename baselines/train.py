@@ -5,7 +5,8 @@
 
 Several seeds train in one compiled program (``jax.vmap``); the env batch is sharded over
 every device JAX sees: the local ones, or those of every process with ``--coordinator HOST:PORT
---num-processes N --process-id i`` (``jax.distributed``; only process 0 prints and writes). Training runs in ``--chunks`` jitted pieces under a progress bar; after
+--num-processes N --process-id i`` (``jax.distributed``; only process 0 writes ``--out``).
+Training runs in ``--chunks`` jitted pieces under a progress bar; after
 each piece the current greedy policies are evaluated on the held-out days, so the JSON
 records the budget (steps and minutes) at which the mean over seeds first beats always-max.
 The always-max and price-threshold baselines are evaluated on the same held-out days
@@ -125,7 +126,7 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
 
     from baselines import distributed
 
-    main_process = distributed.is_main()  # only process 0 prints and writes (multi-process runs)
+    main_process = distributed.is_main()  # only process 0 writes and prints the evaluation
     quiet = quiet or not main_process
     out = out if main_process else None
     multi = jax.process_count() > 1
