@@ -4,7 +4,9 @@
         --timesteps 1e6 --seeds 4 --out baselines/results/ippo_shopping
 
 Several seeds train in one compiled program (``jax.vmap``); the env batch is sharded over
-all local devices. Training runs in ``--chunks`` jitted pieces under a progress bar; after
+every device JAX sees: the local ones, or those of every process with ``--coordinator HOST:PORT
+--num-processes N --process-id i`` (``jax.distributed``; only process 0 writes ``--out``).
+Training runs in ``--chunks`` jitted pieces under a progress bar; after
 each piece the current greedy policies are evaluated on the held-out days, so the JSON
 records the budget (steps and minutes) at which the mean over seeds first beats always-max.
 The always-max and price-threshold baselines are evaluated on the same held-out days
@@ -26,7 +28,11 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from baselines import common
+if __name__ == "__main__":  # before the imports below: importing gymnax already runs JAX, after which
+    from baselines import distributed  # jax.distributed.initialize() is refused
+
+    distributed.initialize_from_argv()
+from baselines import common  # noqa: E402
 
 ALGOS = ("ppo", "ippo", "mappo")
 
@@ -118,6 +124,13 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
     bound (and the MPC) to the baselines, see :func:`baseline_results`."""
     from chargax_marl.evaluation import format_table
 
+    from baselines import distributed
+
+    main_process = distributed.is_main()  # only process 0 writes and prints the evaluation
+    quiet = quiet or not main_process
+    out = out if main_process else None
+    multi = jax.process_count() > 1
+    host = distributed.to_host if multi else (lambda tree: tree)  # params readable on this process
     mod = get_module(algo)
     config = common.parse_config({}, config)
     steps_per_update = config["NUM_ENVS"] * config["NUM_STEPS"]
@@ -145,7 +158,7 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
     def on_chunk(i, rs, m, steps, seconds):
         if not evaluate_every_chunk and i < chunks - 1:
             return
-        ev = common.evaluate_batched(make_act, rs.params, eval_params, eval_days, reference_profit=am_daily)
+        ev = common.evaluate_batched(make_act, host(rs.params), eval_params, eval_days, reference_profit=am_daily)
         evals.append({"timesteps": int(steps), "train_seconds": seconds, "per_seed_profit": ev["per_seed_profit"],
                       "mean_profit": float(np.mean(ev["per_seed_profit"])),
                       "vs_always_max": ev.get("paired_diff"), "vs_battery_rule": vs_rule(ev)})
@@ -159,8 +172,11 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
                        f"(per seed {np.round(ev['per_seed_profit'], 1).tolist()}; always-max {am:.1f}{vs})")
 
     keys = jax.random.split(jax.random.PRNGKey(seed), seeds)
+    if multi:  # inputs of a program over every process's devices must be global arrays
+        keys = distributed.replicate(keys)
     rs, metrics, train_seconds = common.run_in_chunks(train, keys, chunks, on_chunk, desc=algo)
-    final = common.evaluate_batched(make_act, rs.params, eval_params, eval_days, reference_profit=am_daily)
+    params = host(rs.params)
+    final = common.evaluate_batched(make_act, params, eval_params, eval_days, reference_profit=am_daily)
     wall = time.time() - t_start
     first_beat = next((e for e in evals if e["vs_always_max"] is not None and beats(e["vs_always_max"])), None)
     first_beat_rule = next((e for e in evals if e["vs_battery_rule"] is not None and beats(e["vs_battery_rule"])), None)
@@ -175,6 +191,7 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
         "seeds": seeds,
         "seed": seed,
         "devices": [str(d) for d in jax.devices()],
+        "num_processes": jax.process_count(),
         "timesteps": int(config["TOTAL_TIMESTEPS"]),
         "wall_seconds": wall,
         "train_seconds_incl_compile": train_seconds,
@@ -194,7 +211,7 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
-        common.save_params(rs.params, out / "params.msgpack")
+        common.save_params(params, out / "params.msgpack")
         lines = {f"always-max (held-out) {am:.0f}": am}
         for key, label in (("battery_rule", "always-max + battery rule"), ("price_threshold", "price-threshold"),
                            ("mpc", "MPC, 4 h horizon"), ("lp_bound", "LP hindsight bound")):
@@ -210,7 +227,7 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
         common.write_json(results, out / "results.json")
         if not quiet:
             print(f"wrote {out / 'curve.png'}, {out / 'results.json'}, {out / 'params.msgpack'}")
-    results["_params"], results["_train"] = rs.params, train  # for callers (not written to JSON)
+    results["_params"], results["_train"] = params, train  # for callers (not written to JSON)
     return results
 
 
@@ -242,11 +259,18 @@ def main(argv=None) -> dict:
     p.add_argument("--paper", action="store_true", help="use Table 3 exactly (12 envs x 300 steps, 2x256, lr 2.5e-4, "
                                                         "entropy 0.01); default: the faster CPU settings FAST")
     p.add_argument("--env-kwargs", default="{}", help="JSON of extra make_params keywords")
+    p.add_argument("--eval-days", type=int, default=None, help="held-out days (default 100)")
     p.add_argument("--chunks", type=int, default=10, help="training pieces (progress + held-out evaluation)")
     p.add_argument("--out", default="baselines/results/run")
     p.add_argument("--optimal", choices=OPTIMAL_CHOICES, default="bound",
                    help="add the LP hindsight bound (bound, default), also the MPC (mpc), or neither (off)")
+    from baselines import distributed
+
+    distributed.add_arguments(p)
     a = p.parse_args(argv)
+    # `python -m baselines.train` has initialised before its imports; a caller of main() must have
+    # called distributed.initialize() before importing baselines.train (see baselines/distributed.py)
+    distributed.initialize_from_argv(argv)
     config = {} if a.paper else dict(FAST)
     config.update({"SCENARIO": a.scenario, "TRAFFIC": a.traffic, "TOTAL_TIMESTEPS": int(a.timesteps),
                    "ENV_KWARGS": json.loads(a.env_kwargs)})
@@ -257,14 +281,16 @@ def main(argv=None) -> dict:
                       ("gae_lambda", "GAE_LAMBDA"), ("minibatches", "NUM_MINIBATCHES"), ("epochs", "UPDATE_EPOCHS"),
                       ("always_max_prior", "ALWAYS_MAX_PRIOR"),
                       ("battery_idle_prior", "BATTERY_IDLE_PRIOR"),
-                      ("local_reward_weight", "LOCAL_REWARD_WEIGHT")):
+                      ("local_reward_weight", "LOCAL_REWARD_WEIGHT"), ("eval_days", "NUM_EVAL_DAYS")):
         if getattr(a, flag) is not None:
             config[key] = getattr(a, flag)
     if config["TRAFFIC"] is None:
         from chargax_marl.single.scenarios import SCENARIOS
 
         config["TRAFFIC"] = SCENARIOS[a.scenario]["traffic"]
-    print(f"devices: {jax.devices()}  config: {json.dumps({k: v for k, v in config.items()}, default=str)}")
+    if jax.process_index() == 0:
+        print(f"processes: {jax.process_count()}  devices: {jax.devices()}  "
+              f"config: {json.dumps({k: v for k, v in config.items()}, default=str)}")
     res = run(a.algo, config, seeds=a.seeds, seed=a.seed, out=a.out, chunks=a.chunks, optimal=a.optimal)
     return {k: v for k, v in res.items() if not k.startswith("_")}
 
