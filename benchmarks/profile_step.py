@@ -31,7 +31,7 @@ def pieces(env, params):
     import jax
     import jax.numpy as jnp
 
-    from chargax_marl.core import observation, physics, reward as reward_lib, simulator, traffic
+    from chargax_marl.core import observation, physics, reward as reward_lib, rng, simulator, traffic
 
     st = params.station
     levels_of = env.action_to_levels
@@ -62,10 +62,17 @@ def pieces(env, params):
         return traffic.arrive(key, s, params)
 
     def poisson(key, s, a):
-        return jax.random.poisson(key, traffic.arrival_rate(s.timestep, s.is_workday, params))
+        u = rng.uniform(rng.key_seed(key), rng.ARRIVALS, (1,))[0]
+        return rng.poisson(u, traffic.arrival_rate(s.timestep, s.is_workday, params))
 
     def uniform5(key, s, a):
-        return jax.random.uniform(key, (5, st.leaf_kind.shape[0]))
+        return rng.uniform(rng.key_seed(key), rng.ARRIVALS, (5 * st.num_ports,))
+
+    def old_poisson(key, s, a):
+        return jax.random.poisson(key, traffic.arrival_rate(s.timestep, s.is_workday, params))
+
+    def old_uniform5(key, s, a):
+        return jax.random.uniform(key, (5, st.num_ports))
 
     def searchsorted(key, s, a):
         cdf = jnp.cumsum(params.fleet_share)
@@ -94,7 +101,8 @@ def pieces(env, params):
     return {"scaffold": scaffold, "env.step (auto-reset)": step, "env.step_env": step_env,
             "simulator.step": full_core, "  apply_actions": apply_actions, "    clip_to_car+target": clip_only,
             "    +rescale_to_limits": rescale, "  charge": charge, "  energy_flows": flows, "  depart": depart,
-            "  arrive": arrive, "    poisson draw": poisson, "    uniform (5,L) draw": uniform5,
+            "  arrive": arrive, "    poisson draw (inverse CDF)": poisson, "    uniform (5,P) draw (hash)": uniform5,
+            "    [0.2: jax.random.poisson]": old_poisson, "    [0.2: threefry (5,P) uniform]": old_uniform5,
             "    searchsorted": searchsorted, "  grid prices+profit": rewards, "observation.flat_obs": obs,
             "env.reset": reset}
 

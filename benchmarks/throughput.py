@@ -88,32 +88,101 @@ def measure(fn, repeats: int):
     return compile_s, best
 
 
+def _base_package(rev: str) -> str:
+    """Extract ``chargax_marl`` at git revision ``rev`` as the package ``chargax_ab_base``
+    (imports renamed) in a temporary folder on ``sys.path``; returns its name."""
+    import re
+    import sys
+    import tarfile
+    import tempfile
+    from io import BytesIO
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    blob = subprocess.run(["git", "-C", str(root), "archive", rev, "chargax_marl"], check=True,
+                          capture_output=True).stdout
+    tmp = Path(tempfile.mkdtemp(prefix="chargax_ab_"))
+    with tarfile.open(fileobj=BytesIO(blob)) as tar:
+        tar.extractall(tmp)
+    (tmp / "chargax_marl").rename(tmp / "chargax_ab_base")
+    for py in (tmp / "chargax_ab_base").rglob("*.py"):
+        py.write_text(re.sub(r"\bchargax_marl\b", "chargax_ab_base", py.read_text()))
+    sys.path.insert(0, str(tmp))
+    return "chargax_ab_base"
+
+
+def _views(package: str, scenario: str, agent_id: str):
+    import importlib
+
+    single = importlib.import_module(f"{package}.single")
+    marl = importlib.import_module(f"{package}.marl")
+    env, params = single.make(scenario)
+    return {"single": (env, params), "marl": (marl.ChargaxMARL(params=params, agent_id=agent_id), params)}
+
+
 def main(argv=None) -> list[dict]:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--envs", type=int, nargs="+", default=[1, 16, 256, 1024])
-    parser.add_argument("--steps", type=int, default=2880, help="scan length per call (default 10 days)")
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--envs", type=int, nargs="+", default=[1, 16, 256, 1024, 4096])
+    parser.add_argument("--total", type=int, default=2 ** 19, help="env-steps per timed call (default 2^19)")
+    parser.add_argument("--min-steps", type=int, default=96, help="shortest scan per call (default 96)")
+    parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--scenario", default="shopping")
+    parser.add_argument("--agent-id", default="onehot", choices=["onehot", "scalar"],
+                        help="agent-index feature of the multi-agent view (default: its default, one-hot)")
+    parser.add_argument("--devices", type=int, default=os.cpu_count() or 1,
+                        help="host devices to split the env batch over (default: one per core)")
+    parser.add_argument("--base", default=None,
+                        help="also time the env of this git revision, interleaved in the same run (A/B)")
+    parser.add_argument("--train", action="store_true",
+                        help="also time PPO / IPPO / MAPPO training (benchmarks/train_speed.py)")
     parser.add_argument("--csv", default=None, help="also write the rows to this CSV file")
     args = parser.parse_args(argv)
 
-    from chargax_marl.single import make
+    from envbench import set_host_devices
 
-    env, params = make(args.scenario)
+    set_host_devices(args.devices)  # before JAX starts its backend
+    from envbench import compiled_rollout, steps_for, time_interleaved
+
+    packages = {"": "chargax_marl"}
+    if args.base:
+        packages["base "] = _base_package(args.base)
+    views = {label: _views(pkg, args.scenario, args.agent_id) for label, pkg in packages.items()}
+    env, params = views[""]["single"]
     info = machine_info()
     print(f"chargax_marl throughput | scenario={args.scenario} ports={params.station.num_ports} "
-          f"batteries={params.station.num_batteries} | jax {info['jax']} on {info['backend']} ({info['device']}) | "
-          f"{info['cpu']} x{info['cores']} cores | {load_info()}")
-    print(f"{'envs':>6} {'steps/env':>10} {'compile s':>10} {'run s':>9} {'env-steps/s':>14} {'s/100k steps':>13}")
+          f"batteries={params.station.num_batteries} | MARL agent_id={args.agent_id} | jax {info['jax']} on "
+          f"{info['backend']} ({info['device']}) x{len(jax.devices())} devices | {info['cpu']} x{info['cores']} cores | "
+          f"{load_info()}")
+    print("random actions, auto-reset, every observation element consumed, compile excluded, best of "
+          f"{args.repeats} interleaved calls of ~{args.total:,} env-steps")
+    names = [f"{label}{view}" for label in views for view in ("single", "marl")]
+    print(f"{'envs':>6} {'dev':>4} " + " ".join(f"{n + ' steps/s':>20}" for n in names)
+          + f" {'marl/single':>12}" + (f" {'single new/base':>16} {'marl new/base':>14}" if args.base else "")
+          + f" {'single s/100k':>14} {'compile s':>10}")
     rows = []
     for n in args.envs:
-        steps = max(args.steps // max(n // 16, 1), 288) if n > 16 else args.steps
-        compile_s, run_s = measure(make_runner(env, params, n, steps), args.repeats)
-        sps = n * steps / run_s
-        rows.append({"envs": n, "steps": steps, "compile_s": compile_s, "run_s": run_s, "env_steps_per_s": sps,
-                     "s_per_100k": 1e5 / sps})
-        print(f"{n:>6} {steps:>10} {compile_s:>10.2f} {run_s:>9.3f} {sps:>14,.0f} {1e5 / sps:>13.3f}")
+        steps = steps_for(n, args.total, args.min_steps)
+        fns, used = {}, 1
+        for label, vs in views.items():
+            for view, (e, p) in vs.items():
+                fns[f"{label}{view}"], used = compiled_rollout(view, e, p, n, steps)
+        compile_s, best = time_interleaved(fns, args.repeats)
+        sps = {k: n * steps / v for k, v in best.items()}
+        row = {"envs": n, "devices": used, "steps": steps, **{f"{k.replace(' ', '_')}_steps_per_s": v for k, v in sps.items()},
+               "marl_over_single": sps["marl"] / sps["single"], "compile_s_max": max(compile_s.values())}
+        line = f"{n:>6} {used:>4} " + " ".join(f"{sps[k]:>20,.0f}" for k in names) + f" {row['marl_over_single']:>12.2f}"
+        if args.base:
+            row["single_new_over_base"] = sps["single"] / sps["base single"]
+            row["marl_new_over_base"] = sps["marl"] / sps["base marl"]
+            line += f" {row['single_new_over_base']:>16.2f} {row['marl_new_over_base']:>14.2f}"
+        row["single_s_per_100k"] = 1e5 / sps["single"]
+        print(line + f" {row['single_s_per_100k']:>14.3f} {max(compile_s.values()):>10.2f}", flush=True)
+        rows.append(row)
     print(load_info())
+    if args.train:
+        import train_speed
+
+        train_speed.main([])
     if args.csv:
         with open(args.csv, "w", newline="") as f:
             writer = csv.DictWriter(f, fieldnames=list(rows[0]))

@@ -27,10 +27,13 @@ def load(name: str):
 
 
 def test_throughput_main_smallest(tmp_path, capsys):
-    rows = load("throughput").main(["--envs", "1", "--steps", "16", "--repeats", "1", "--csv", str(tmp_path / "t.csv")])
-    assert [r["envs"] for r in rows] == [1] and rows[0]["env_steps_per_s"] > 0
+    rows = load("throughput").main(["--envs", "1", "--total", "8", "--min-steps", "8", "--repeats", "1", "--devices", "1",
+                                    "--csv", str(tmp_path / "t.csv")])
+    assert [r["envs"] for r in rows] == [1] and rows[0]["single_steps_per_s"] > 0 and rows[0]["marl_steps_per_s"] > 0
+    assert rows[0]["marl_over_single"] == rows[0]["marl_steps_per_s"] / rows[0]["single_steps_per_s"]
     assert (tmp_path / "t.csv").read_text().startswith("envs,")
-    assert "s/100k steps" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "marl/single" in out and "single s/100k" in out
 
 
 def test_scaling_main_smallest(tmp_path, capsys):

@@ -10,7 +10,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from chargax_marl.core import actions, physics, reward as reward_lib, traffic
+from chargax_marl.core import actions, physics, reward as reward_lib, rng, traffic
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState, EpisodeTotals, StepInfo
 
@@ -27,7 +27,7 @@ def battery_initial_soc(params: EnvParams, key: jax.Array | None = None) -> jnp.
     lo, hi = params.battery_soc0_low, params.battery_soc0_high
     if key is None:
         return 0.5 * (lo + hi)
-    return lo + (hi - lo) * jax.random.uniform(key, lo.shape, jnp.float32)
+    return lo + (hi - lo) * rng.uniform(rng.key_seed(key), rng.RESET, (1 + lo.shape[0],))[1:]
 
 
 def empty_state(day: jnp.ndarray, params: EnvParams, key: jax.Array | None = None) -> EnvState:
@@ -69,9 +69,11 @@ def empty_state(day: jnp.ndarray, params: EnvParams, key: jax.Array | None = Non
 def reset(key: jax.Array, params: EnvParams) -> EnvState:
     """Start an empty station on a uniformly random day of ``params.reset_days`` (exploring
     starts; all days of the price data unless training days were set)."""
-    key_day, key_soc = jax.random.split(key)
-    day = params.reset_days[jax.random.randint(key_day, (), 0, params.reset_days.shape[0], jnp.int32)]
-    return empty_state(day, params, key_soc)
+    # The day and the batteries' SoC are draws 0 and 1.. of the key's reset stream (:mod:`rng`).
+    n = params.reset_days.shape[0]
+    u = rng.uniform(rng.key_seed(key), rng.RESET, (1,))[0]
+    day = params.reset_days[jnp.minimum((u * n).astype(jnp.int32), n - 1)]
+    return empty_state(day, params, key)
 
 
 def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams):

@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from chargax_marl.core import rng
 from chargax_marl.core.station import KIND_AC, KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState
 
@@ -144,13 +145,15 @@ SLOT_FIELDS = ("model", "capacity_kwh", "ac_kw", "dc_kw", "ac_discharge_kw", "dc
 def draw_arrivals(key: jax.Array, timestep: jnp.ndarray, is_workday: jnp.ndarray, params: EnvParams) -> Arrivals:
     """The step's arriving cars (:class:`Arrivals`): a Poisson count with the rate of the day
     type and step, and one car profile (fleet) and user profile (stay, demand, arrival SoC,
-    user type) per slot. ``timestep`` is the step in which the cars arrive (its hour scales
+    user type) per slot. All of them come from ``key`` through :mod:`chargax_marl.core.rng`
+    (one hash call; the count by inversion of the Poisson CDF). ``timestep`` is the step in which the cars arrive (its hour scales
     the stay and demand)."""
     st = params.station
     num_slots = st.num_ports
-    key_n, key_u = jax.random.split(key)
-    requested = jax.random.poisson(key_n, arrival_rate(timestep, is_workday, params), dtype=jnp.int32)
-    u = jax.random.uniform(key_u, (5, num_slots), jnp.float32)
+    # One hash call gives the count's uniform and five uniforms per slot (see :mod:`rng`).
+    draws = rng.uniform(rng.key_seed(key), rng.ARRIVALS, (1 + 5 * num_slots,))
+    requested = rng.poisson(draws[0], arrival_rate(timestep, is_workday, params))
+    u = draws[1:].reshape(5, num_slots)
     # Car profile: model index by inverse CDF of the fleet shares.
     cdf = jnp.cumsum(params.fleet_share)
     model = jnp.clip(jnp.searchsorted(cdf / cdf[-1], u[0], side="right"), 0, cdf.shape[0] - 1).astype(jnp.int32)

@@ -333,24 +333,54 @@ class ChargaxMARL(MultiAgentEnv):
     def step_env(self, key: jax.Array, state: EnvState, actions: Mapping[str, jax.Array]):
         """One transition without auto-reset: ``(obs, state, rewards, dones, infos)``."""
         indices = self.stack_actions(actions)
-        obs, new_state, reward, done, info = step_arrays(key, state, indices, self.params, self.action_offset,
-                                                         self._layout)
+        levels = actions_to_levels(indices, self.params, self.action_offset)
+        new_state, core_info = simulator.step(key, state, levels, self.params)
+        done = simulator.is_done(new_state, self.params)
+        obs, rewards, dones, infos = self._outputs(new_state, new_state, core_info, done)
+        return obs, new_state, rewards, dones, infos
+
+    def step(self, key: jax.Array, state: EnvState, actions: Mapping[str, Any], reset_state: EnvState | None = None):
+        """JaxMARL's auto-resetting step: ``(obs, state, rewards, dones, infos)``; at the end of
+        the day the returned state and observations are those of a fresh day (``reset_state``
+        when given, else a random one) while rewards, dones and infos are the last step's.
+
+        Host actions (numpy, Python numbers) are checked and clipped into int32 before they
+        enter ``jit`` (:func:`chargax_marl.core.actions.host_array`), so a large host integer
+        clips instead of wrapping and a string raises ``ValueError``."""
+        if isinstance(actions, Mapping):
+            actions = {a: core_actions.host_array(v, None, f"actions[{a!r}]") for a, v in actions.items()}
+        return self._step(key, state, actions, reset_state)
+
+    @functools.partial(jax.jit, static_argnums=(0,))
+    def _step(self, key: jax.Array, state: EnvState, actions: Mapping[str, Any], reset_state: EnvState | None = None):
+        """The auto-resetting step with the state selected first and the observations built
+        once from the selected state (JaxMARL's base class builds the stepped and the reset
+        observations and selects between them). The key is not split: the step's cars and
+        the reset's day come from separate streams of it (:mod:`chargax_marl.core.rng`)."""
+        indices = self.stack_actions(actions)
+        levels = actions_to_levels(indices, self.params, self.action_offset)
+        new_state, core_info = simulator.step(key, state, levels, self.params)
+        done = simulator.is_done(new_state, self.params)
+        fresh = simulator.reset(key, self.params) if reset_state is None else reset_state
+        out_state = jax.tree.map(lambda x, y: jax.lax.select(done, x, y), fresh, new_state)
+        obs, rewards, dones, infos = self._outputs(out_state, new_state, core_info, done)
+        return obs, out_state, rewards, dones, infos
+
+    def _outputs(self, obs_state: EnvState, stepped: EnvState, core_info: StepInfo, done):
+        """The dicts of a step: observations of ``obs_state``; rewards, dones and infos of the
+        step that produced ``stepped``."""
         n = self.num_agents
+        obs = agent_observations(obs_state, self.params, self._layout)
         obs_dict = {a: obs[i] for i, a in enumerate(self.agents)}
-        per_agent = agent_rewards(reward, info["agent_reward_share"], self.local_reward_weight)
+        info = info_scalars(core_info, stepped)
+        info["agent_energy_kwh"] = core_info.leaf_energy_kwh.astype(jnp.float32)
+        info["agent_reward_share"] = core_info.leaf_reward.astype(jnp.float32)
+        per_agent = agent_rewards(core_info.reward, info["agent_reward_share"], self.local_reward_weight)
         rewards = {a: per_agent[i] for i, a in enumerate(self.agents)}
         dones = {a: done for a in self.agents}
         dones["__all__"] = done
         infos = {k: jnp.broadcast_to(v, (n,)) for k, v in info.items()}
-        return obs_dict, new_state, rewards, dones, infos
-
-    def step(self, key: jax.Array, state: EnvState, actions: Mapping[str, Any], reset_state: EnvState | None = None):
-        """JaxMARL's auto-resetting step; host actions (numpy, Python numbers) are checked and
-        clipped into int32 before they enter ``jit`` (:func:`chargax_marl.core.actions.host_array`),
-        so a large host integer clips instead of wrapping and a string raises ``ValueError``."""
-        if isinstance(actions, Mapping):
-            actions = {a: core_actions.host_array(v, None, f"actions[{a!r}]") for a, v in actions.items()}
-        return super().step(key, state, actions, reset_state)
+        return obs_dict, rewards, dones, infos
 
     def get_obs(self, state: EnvState) -> dict:
         """Observations keyed by agent (see the class docstring for the layout)."""

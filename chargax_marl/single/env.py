@@ -147,16 +147,19 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
     def _step(self, key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams | None = None):
         """gymnax's auto-resetting step, building the observation once.
 
-        Same outputs as :meth:`gymnax.environments.environment.Environment.step` (same key
-        split, same reset state): the state is selected first and the observation is built
-        from the selected state, instead of building the step's and the reset's observation
-        and selecting between them. ``info["final_observation"]`` (the observation before the
+        Same semantics as :meth:`gymnax.environments.environment.Environment.step`, with two
+        savings: the state is selected first and the observation is built once from the
+        selected state (instead of building the step's and the reset's observation and
+        selecting between them), and the key is not split (the step's cars and the reset's
+        day come from separate streams of the same key, :mod:`chargax_marl.core.rng`). ``info["final_observation"]`` (the observation before the
         reset) is only computed when a caller uses it.
         """
         if params is None:
             params = self.default_params
-        key_step, key_reset = jax.random.split(key)
-        new_state, core_info = simulator.step(key_step, state, self.action_to_levels(action, params), params)
+        # One key serves both: the step's cars and the reset draw from distinct streams of it
+        # (:mod:`chargax_marl.core.rng`), so no split is needed.
+        key_reset = key
+        new_state, core_info = simulator.step(key, state, self.action_to_levels(action, params), params)
         terminated = jnp.asarray(False)
         truncated = self.is_truncated(new_state, params)
         done = jnp.logical_or(terminated, truncated)
