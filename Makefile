@@ -56,8 +56,10 @@ optimal: $(STAMP)
 rollout: $(STAMP)
 	$(PY) -m chargax_marl.rollout
 
+# Single and multi-agent env-steps/s at 1..4096 envs (one host device per core), then PPO /
+# IPPO / MAPPO training s per 100k steps, in one run (~15 min on 2 idle cores).
 bench: $(STAMP)
-	$(PY) benchmarks/throughput.py
+	$(PY) benchmarks/throughput.py --train
 
 # Installs EV2Gym and SustainGym into benchmarks/.peers/ and times them beside chargax_marl.
 bench-peers: $(STAMP)
