@@ -61,8 +61,11 @@ def test_scaling_fit_and_plot(tmp_path):
 def test_profile_step_smallest(capsys):
     table = load("profile_step").main(["--envs", "1", "--steps", "2", "--repeats", "1", "--warmup", "2",
                                        "--only", "simulator.step", "poisson"])
-    assert set(table[1]) == {"scaffold_us", "simulator.step", "    poisson draw"}
-    assert "poisson draw" in capsys.readouterr().out
+    # the inverse-CDF draw of the current step, and 0.2's jax.random.poisson timed beside it
+    assert set(table[1]) == {"scaffold_us", "simulator.step", "    poisson draw (inverse CDF)",
+                             "    [0.2: jax.random.poisson]"}
+    assert all(table[1][k] >= 0 for k in table[1])
+    assert "poisson draw (inverse CDF)" in capsys.readouterr().out
 
 
 def test_peers_chargax_part(tmp_path, capsys):

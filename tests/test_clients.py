@@ -91,10 +91,18 @@ def test_pettingzoo_seeds_and_day_option_errors():
         env.reset(options={"day": 400})
 
 
-def test_import_is_silent():
-    out = subprocess.run([sys.executable, "-c", "import chargax_marl.marl"], capture_output=True, text=True,
-                         check=True, cwd=ROOT)
-    assert out.stdout == ""
+def test_import_is_silent_and_keeps_the_callers_streams():
+    # A module in JaxMARL's import chain resets sys.stdout; the caller's capture (pytest's
+    # capsys, a notebook, redirect_stdout) must survive our import of it.
+    code = ("import io, sys\n"
+            "mine_out, mine_err = io.StringIO(), io.StringIO()\n"
+            "sys.stdout, sys.stderr = mine_out, mine_err\n"
+            "import chargax_marl.marl\n"
+            "kept = sys.stdout is mine_out and sys.stderr is mine_err\n"
+            "sys.stdout, sys.stderr = sys.__stdout__, sys.__stderr__\n"
+            "print(kept, repr(mine_out.getvalue()))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
+    assert out.stdout.strip() == "True ''"
 
 
 def test_observation_and_state_spaces_are_finite():

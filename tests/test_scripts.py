@@ -15,13 +15,6 @@ def load(path: str):
     return module
 
 
-def test_throughput_benchmark_runs(capsys):
-    rows = load("benchmarks/throughput.py").main(["--envs", "1", "2", "--steps", "288", "--repeats", "1"])
-    assert [r["envs"] for r in rows] == [1, 2]
-    assert all(r["env_steps_per_s"] > 0 and r["compile_s"] > 0 for r in rows)
-    assert "env-steps/s" in capsys.readouterr().out
-
-
 def test_rollout_prints_the_days_figures(capsys):
     from chargax_marl.rollout import main
 

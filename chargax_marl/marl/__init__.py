@@ -9,15 +9,19 @@
 """
 
 import builtins as _builtins
+import sys as _sys
 
 
 def _import_jaxmarl_quietly() -> None:
     """Import JaxMARL without its "Importing submoduled environments..." lines.
 
     A module in its import chain resets ``sys.stdout``, so ``contextlib.redirect_stdout``
-    does not hold: drop just those lines at ``print`` for the duration of the import.
+    does not hold: drop just those lines at ``print`` for the duration of the import, and
+    put back the caller's ``sys.stdout`` / ``sys.stderr`` (pytest's ``capsys``, a notebook's
+    capture or a ``redirect_stdout`` around our import would otherwise be silently replaced).
     """
     original = _builtins.print
+    streams = _sys.stdout, _sys.stderr
 
     def quiet(*args, **kwargs):
         if args and isinstance(args[0], str) and "ubmoduled environments" in args[0]:
@@ -29,6 +33,7 @@ def _import_jaxmarl_quietly() -> None:
         import jaxmarl.environments  # noqa: F401
     finally:
         _builtins.print = original
+        _sys.stdout, _sys.stderr = streams
 
 
 _import_jaxmarl_quietly()
