@@ -10,8 +10,12 @@ what the parameters allow, so the observations stay inside them on any trajector
   the fleet (ports) or the battery's own capacity (batteries).
 - rate now over the leaf's max power: ``[0, r / P]`` with ``r`` the fleet's largest rate
   for the port's kind (AC or DC) and ``P`` the port's max power; 1 for batteries.
-- prices over :data:`observation.PRICE_SCALE_EUR_KWH`: the min and max of the price data;
-  customer price: its value; MOER: the min and max of the MOER data.
+- prices and the day's price quantiles over :data:`observation.PRICE_SCALE_EUR_KWH`: the min
+  and max of the price data plus the min and max of the time-of-use surcharge; customer
+  price: its value; MOER: the min and max of the MOER data; hour left until the price
+  changes: ``[0, 1]``.
+- grid connection load: ``[-F, F]`` and the day's peak over the connection's limit
+  ``[0, F]``, with ``F`` every leaf's full power over its path efficiency, over the limit.
 - Multi-agent only: kind one-hot and agent id in ``[0, 1]``; each ancestor node's load in
   ``[0, F / max_kw]`` with ``F`` the node's grid-side flow with every leaf below it at its
   full (dis)charge power (losses divide a charging leaf's power by at most the path's
@@ -77,14 +81,29 @@ def leaf_feature_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
     return low, high
 
 
+def _root_load_bound(params: EnvParams) -> float:
+    """Largest |grid-side flow at the grid connection| over its limit: every leaf at full
+    charging (or discharging) current, no rescale (the soft constraint mode lets it flow)."""
+    st = params.station
+    volts = np.asarray(st.leaf_voltage_v, np.float64)
+    amps = np.maximum(np.asarray(st.leaf_max_current_a, np.float64),
+                      np.asarray(st.leaf_max_discharge_current_a, np.float64))
+    eta = np.asarray(st.leaf_path_efficiency, np.float64)
+    return float(np.sum(volts * amps / 1000.0 / eta) * (1.0 + 1e-4) / float(np.asarray(st.node_max_kw)[0]))
+
+
 @_eager
 def context_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
     """``(low, high)`` of :func:`observation.context_features` (no margin)."""
-    prices = np.asarray(params.prices_eur_kwh, np.float64) / observation.PRICE_SCALE_EUR_KWH
+    tou = np.asarray(params.tou_fee_eur_kwh, np.float64)
+    spot = np.asarray(params.prices_eur_kwh, np.float64)
+    prices = np.array([spot.min() + tou.min(), spot.max() + tou.max()]) / observation.PRICE_SCALE_EUR_KWH
     h = params.price_horizon_hours + 1
+    q = len(observation.PRICE_QUANTILES)
     customer = float(np.asarray(params.customer_price_eur_kwh)) / observation.PRICE_SCALE_EUR_KWH
-    low = [np.full(h, prices.min()), [customer], [-1.0, -1.0], [0.0], [0.0]]
-    high = [np.full(h, prices.max()), [customer], [1.0, 1.0], [1.0], [1.0]]
+    root = _root_load_bound(params)
+    low = [np.full(h, prices[0]), [customer], [-1.0, -1.0], [0.0], [0.0], [0.0], np.full(q, prices[0]), [-root], [0.0]]
+    high = [np.full(h, prices[1]), [customer], [1.0, 1.0], [1.0], [1.0], [1.0], np.full(q, prices[1]), [root], [root]]
     if params.observe_moer:
         moer = np.asarray(params.moer_kg_per_kwh, np.float64) / observation.MOER_SCALE_KG_KWH
         low.append([moer.min()])

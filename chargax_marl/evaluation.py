@@ -32,6 +32,8 @@ METRICS = {
     "constraint_excess_kw": "constraint_excess_kw",
     "requested_excess_kw": "requested_excess_kw",
     "battery_terminal_value_eur": "battery_terminal_value_eur",
+    "peak_grid_kw": "peak_grid_kw",
+    "peak_demand_charge_eur": "peak_demand_charge_eur",
 }
 """Reported metric -> field of :class:`chargax_marl.core.types.EpisodeTotals`."""
 

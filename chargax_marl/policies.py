@@ -42,8 +42,9 @@ def always_max(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarra
 
 
 def _cheap_or_dear_hour(state: EnvState, params: EnvParams, quantile: float):
-    """Whether the current hour's price is in the cheapest / dearest ``quantile`` of the day's hours."""
-    day_prices = params.prices_eur_kwh[state.day]
+    """Whether the current hour's buy price (day-ahead plus the time-of-use surcharge) is in the
+    cheapest / dearest ``quantile`` of the day's hours."""
+    day_prices = params.prices_eur_kwh[state.day] + params.tou_fee_eur_kwh
     now = day_prices[hour_of_step(state.timestep, params)]
     return now <= jnp.quantile(day_prices, quantile), now >= jnp.quantile(day_prices, 1.0 - quantile)
 

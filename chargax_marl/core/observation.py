@@ -10,7 +10,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from chargax_marl.core import physics
-from chargax_marl.core.reward import day_ahead_price, moer_now
+from chargax_marl.core.reward import day_ahead_price, day_price_quantiles, moer_now, tou_fee
 from chargax_marl.core.types import EnvParams, EnvState
 
 ENERGY_SCALE_KWH = 100.0
@@ -21,6 +21,10 @@ MOER_SCALE_KG_KWH = 1.0
 PORT_FEATURES = ("occupied", "soc", "energy_remaining", "time_remaining", "rate_now", "capacity",
                  "charge_sensitive", "current")
 BATTERY_FEATURES = ("soc", "current")
+PRICE_QUANTILES = (0.0, 0.2, 0.5, 0.8, 1.0)
+"""Quantiles of the day's 24 hourly buy-side prices in the context (min, 20 %, median, 80 %, max)."""
+EXTRA_CONTEXT = 1 + len(PRICE_QUANTILES) + 1 + 1
+"""Context features after the day index: hour left, price quantiles, grid load, peak so far."""
 
 
 def leaf_features(state: EnvState, params: EnvParams) -> jnp.ndarray:
@@ -44,18 +48,38 @@ def leaf_features(state: EnvState, params: EnvParams) -> jnp.ndarray:
     )
 
 
+def root_load(state: EnvState, params: EnvParams) -> jnp.ndarray:
+    """The station's net draw at the grid connection from the currents in ``state`` (each
+    leaf's ``V * I`` over its path efficiency when charging, times it when feeding in) as a
+    fraction of the connection's limit: 1 = the grid connection binds, negative = feed-in."""
+    st = params.station
+    power_kw = state.current_a * st.leaf_voltage_v / 1000.0
+    grid_kw = jnp.where(power_kw > 0, power_kw / st.leaf_path_efficiency, power_kw * st.leaf_path_efficiency)
+    return jnp.sum(grid_kw) / st.node_max_kw[0]
+
+
 def context_features(state: EnvState, params: EnvParams) -> jnp.ndarray:
-    """Shared context: price now and the next H hours, customer price, time of day (sin, cos),
-    workday flag, day of the data, and MOER now when ``params.observe_moer``."""
-    prices = jnp.stack([day_ahead_price(state.day, state.timestep, params, h)
+    """Shared context, in order (:data:`CONTEXT_FEATURES`): the buy-side price (day-ahead plus
+    the time-of-use surcharge) now and the next H hours, customer price, time of day (sin, cos),
+    workday flag, day of the data, the fraction of the hour left until the price changes, the
+    day's price quantiles (:data:`PRICE_QUANTILES`), the grid connection's load
+    (:func:`root_load`), the day's peak draw so far over the connection's limit, and MOER now
+    when ``params.observe_moer``."""
+    prices = jnp.stack([day_ahead_price(state.day, state.timestep, params, h) + tou_fee(state.timestep, params, h)
                         for h in range(params.price_horizon_hours + 1)])
     angle = 2.0 * jnp.pi * state.timestep / params.num_steps
+    minute_of_hour = jnp.mod(state.timestep * params.step_minutes, 60.0)
+    root_kw = params.station.node_max_kw[0]
     parts = [
         prices / PRICE_SCALE_EUR_KWH,
         jnp.atleast_1d(params.customer_price_eur_kwh / PRICE_SCALE_EUR_KWH),
         jnp.stack([jnp.sin(angle), jnp.cos(angle)]),
         jnp.atleast_1d(state.is_workday.astype(jnp.float32)),
         jnp.atleast_1d(state.day / jnp.maximum(params.num_days - 1, 1)),
+        jnp.atleast_1d((60.0 - minute_of_hour) / 60.0),
+        day_price_quantiles(state.day, params) / PRICE_SCALE_EUR_KWH,
+        jnp.atleast_1d(root_load(state, params)),
+        jnp.atleast_1d(state.totals.peak_grid_kw / root_kw),
     ]
     if params.observe_moer:
         parts.append(jnp.atleast_1d(moer_now(state.day, state.timestep, params) / MOER_SCALE_KG_KWH))
@@ -82,5 +106,5 @@ def flat_obs(state: EnvState, params: EnvParams) -> jnp.ndarray:
 
 def obs_size(params: EnvParams) -> int:
     st = params.station
-    context = params.price_horizon_hours + 1 + 1 + 2 + 1 + 1 + int(params.observe_moer)
+    context = params.price_horizon_hours + 1 + 1 + 2 + 1 + 1 + EXTRA_CONTEXT + int(params.observe_moer)
     return st.num_ports * len(PORT_FEATURES) + st.num_batteries * len(BATTERY_FEATURES) + context

@@ -12,7 +12,8 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from chargax_marl.core import checks, datasets
+from chargax_marl.core import checks, datasets, tariffs
+from chargax_marl.core.observation import PRICE_QUANTILES
 from chargax_marl.core.station import Splitter, StationArrays, build_station
 from chargax_marl.core.types import ACTION_MODES, CONSTRAINT_MODES, PENALTY_TERMS, EnvParams, PenaltyWeights
 
@@ -84,6 +85,7 @@ def make_params(
     *,
     station: str | Splitter | StationArrays = "multiple_types",
     station_kwargs: dict | None = None,
+    grid_fraction: float | None = None,
     prices: Any = "NL-2023",
     first_weekday: int | None = None,
     user_profile: Any = "shopping",
@@ -93,6 +95,9 @@ def make_params(
     grid_demand_kwh: Any = None,
     customer_price_eur_kwh: float = 0.75,
     grid_fee_eur_kwh: float = GRID_FEE_EUR_KWH,
+    tou_fee_eur_kwh: Any = None,
+    peak_demand_eur_kw: float = 0.0,
+    peak_demand_booking: str = "end_of_day",
     feed_in_factor: float = 1.0,
     fixed_cost_eur: float | None = None,
     battery_initial_soc: float | tuple | None = None,
@@ -113,7 +118,10 @@ def make_params(
 
     ``station`` is an architecture name (``single_type``, ``multiple_types``,
     ``multiple_splitters``) with ``station_kwargs`` for its builder, a custom
-    :class:`Splitter` tree, or compiled :class:`StationArrays`. ``prices``, ``user_profile``
+    :class:`Splitter` tree, or compiled :class:`StationArrays`. ``grid_fraction`` in (0, 1]
+    sets the grid connection (the root) to that fraction of the sum of its children's limits
+    (0.25: a quarter of what the EVSEs and the battery could draw together); it replaces the
+    builder's ``grid_kw``. ``prices``, ``user_profile``
     and ``fleet`` accept a bundled name or custom data (see :mod:`chargax_marl.core.datasets`).
     ``traffic`` is ``low``/``medium``/``high`` (50/100/250 cars per day) or a number of cars
     per day. ``moer_kg_per_kwh`` is an array ``(days, steps)`` or ``(steps,)`` in kg CO2/kWh, or a
@@ -127,6 +135,11 @@ def make_params(
     the day-ahead price plus ``grid_fee_eur_kwh`` (default 0.04), feeds in at
     ``feed_in_factor`` times the day-ahead price and pays ``fixed_cost_eur`` per step
     (default 0.35 at 5-minute steps, about 100 EUR/day, scaled with the step length).
+    Network tariff terms (:mod:`chargax_marl.core.tariffs`): ``tou_fee_eur_kwh`` adds a
+    time-of-use surcharge per local hour to the buy price (24 values or a preset such as
+    ``"evening-peak"``); ``peak_demand_eur_kw`` charges EUR per kW of the day's highest net
+    grid draw, booked at the day's last step (``peak_demand_booking="end_of_day"``) or as the
+    running peak rises (``"incremental"``, same daily total). Both are part of the profit.
 
     Station batteries: ``battery_initial_soc`` is a fixed SoC, a ``(low, high)`` range drawn
     uniformly at every reset, or None (each :class:`Battery`'s own ``initial_soc``).
@@ -153,7 +166,9 @@ def make_params(
         raise ValueError(f"field 'step_minutes' must divide a day (1440 min) evenly, got {step_minutes!r}")
     num_steps = int(round(num_steps))
 
-    stations = build_station(station, **(station_kwargs or {}))
+    stations = build_station(station, grid_fraction=grid_fraction, **(station_kwargs or {}))
+    tou = tariffs.tou_fee(tou_fee_eur_kwh)
+    peak_rate, peak_incremental = tariffs.peak_demand(peak_demand_eur_kw, peak_demand_booking)
     price = datasets.load_prices(prices, first_weekday=first_weekday)
     profile = datasets.load_user_profile(user_profile)
     fleet_data = datasets.load_fleet(fleet)
@@ -236,6 +251,9 @@ def make_params(
     return EnvParams(
         station=stations,
         prices_eur_kwh=jnp.asarray(price.prices_eur_kwh, jnp.float32),
+        day_price_quantiles_eur_kwh=jnp.asarray(
+            np.quantile(np.asarray(price.prices_eur_kwh, np.float64) + tou[None, :], PRICE_QUANTILES, axis=1).T,
+            jnp.float32),
         first_weekday=jnp.asarray(price.first_weekday, jnp.int32),
         arrival_rate=jnp.asarray(rate, jnp.float32),
         stay_quantiles_min=jnp.asarray(profile.stay_quantiles_min, jnp.float32),
@@ -259,6 +277,9 @@ def make_params(
         customer_price_eur_kwh=scalar("customer_price_eur_kwh", customer_price_eur_kwh, minimum=0.0,
                                       maximum=price_max, unit="EUR/kWh"),
         grid_fee_eur_kwh=scalar("grid_fee_eur_kwh", grid_fee_eur_kwh, minimum=0.0, maximum=price_max, unit="EUR/kWh"),
+        tou_fee_eur_kwh=jnp.asarray(tou, jnp.float32),
+        peak_demand_eur_kw=jnp.asarray(peak_rate, jnp.float32),
+        peak_demand_incremental=jnp.asarray(peak_incremental),
         feed_in_factor=scalar("feed_in_factor", feed_in_factor, minimum=0.0, maximum=checks.MAX_FACTOR),
         fixed_cost_eur=scalar("fixed_cost_eur", fixed_cost_eur, minimum=0.0, maximum=checks.MAX_FIXED_COST_EUR,
                               unit="EUR per step"),

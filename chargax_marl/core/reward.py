@@ -26,10 +26,42 @@ def day_ahead_price(day: jnp.ndarray, timestep: jnp.ndarray, params: EnvParams, 
     return flat[jnp.mod(idx, flat.shape[0])]
 
 
+def tou_fee(timestep: jnp.ndarray, params: EnvParams, ahead_hours: int = 0) -> jnp.ndarray:
+    """The time-of-use surcharge (EUR/kWh) ``ahead_hours`` after the hour of ``timestep``."""
+    return params.tou_fee_eur_kwh[jnp.mod(hour_of_step(timestep, params) + ahead_hours, 24)]
+
+
 def grid_prices(day, timestep, params: EnvParams):
-    """``(p_buy, p_sell_grid)`` in EUR/kWh for the step."""
+    """``(p_buy, p_sell_grid)`` in EUR/kWh for the step: the buy price is the day-ahead price
+    plus the grid fee plus the hour's time-of-use surcharge; feed-in earns ``feed_in_factor``
+    times the day-ahead price."""
     spot = day_ahead_price(day, timestep, params)
-    return spot + params.grid_fee_eur_kwh, spot * params.feed_in_factor
+    return spot + params.grid_fee_eur_kwh + tou_fee(timestep, params), spot * params.feed_in_factor
+
+
+def day_price_quantiles(day, params: EnvParams) -> jnp.ndarray:
+    """The day's quantiles of the hourly buy-side price (day-ahead plus time-of-use surcharge),
+    EUR/kWh, precomputed by ``make_params`` (:data:`EnvParams.day_price_quantiles_eur_kwh`)."""
+    q = params.day_price_quantiles_eur_kwh
+    return q[jnp.mod(day, q.shape[0])]
+
+
+def day_mean_buy_price(day, params: EnvParams) -> jnp.ndarray:
+    """The day's mean buy price (EUR/kWh): mean day-ahead price, grid fee, mean surcharge."""
+    spot = params.prices_eur_kwh[jnp.mod(day, params.prices_eur_kwh.shape[0])]
+    return jnp.mean(spot) + params.grid_fee_eur_kwh + jnp.mean(params.tou_fee_eur_kwh)
+
+
+def peak_demand_charge(grid_net_kwh, peak_before_kw, last, params: EnvParams):
+    """``(peak_after_kw, charge_eur)``: the running peak of the net grid draw (kW, the step's
+    energy over its length; feed-in counts as 0) and the peak-demand charge booked this step,
+    ``peak_demand_eur_kw`` times the day's peak at the last step, or times the rise of the
+    running peak in every step with incremental booking (the same daily total)."""
+    draw_kw = jnp.maximum(grid_net_kwh, 0.0) / params.step_hours
+    peak_after = jnp.maximum(peak_before_kw, draw_kw)
+    booked_kw = jnp.where(params.peak_demand_incremental, peak_after - peak_before_kw,
+                          jnp.where(last, peak_after, 0.0))
+    return peak_after, params.peak_demand_eur_kw * booked_kw
 
 
 def moer_now(day, timestep, params: EnvParams) -> jnp.ndarray:
@@ -55,13 +87,12 @@ def battery_terminal_value_eur(battery_day_kwh, day, params: EnvParams) -> jnp.n
     """The value of the station batteries' energy change over the day, ``battery_day_kwh``
     (terminal side, net into the batteries), booked at the day's last step.
 
-    Priced at the day's mean buy price (mean day-ahead price plus the grid fee) when
+    Priced at the day's mean buy price (:func:`day_mean_buy_price`) when
     ``params.battery_value_day_mean``, else at ``params.battery_value_eur_kwh`` (0 turns the
     term off). Emptying the battery thus earns only what its energy fetched above the price
     it would cost to buy back, and a battery that ends fuller is credited for what it holds.
     """
-    mean_buy = jnp.mean(params.prices_eur_kwh[jnp.mod(day, params.prices_eur_kwh.shape[0])]) + params.grid_fee_eur_kwh
-    price = jnp.where(params.battery_value_day_mean, mean_buy, params.battery_value_eur_kwh)
+    price = jnp.where(params.battery_value_day_mean, day_mean_buy_price(day, params), params.battery_value_eur_kwh)
     return price * battery_day_kwh
 
 
@@ -109,14 +140,14 @@ def leaf_penalty_terms(flows: dict, departures: dict, terms: dict, moer, station
 
 
 def leaf_reward_shares(flows: dict, departures: dict, terms: dict, moer, terminal_eur, p_buy, p_sell_grid, r,
-                       params: EnvParams) -> jnp.ndarray:
+                       params: EnvParams, peak_charge_eur=0.0) -> jnp.ndarray:
     """Each leaf's share ``(L,)`` of the step reward ``r``; the shares sum to ``r``.
 
     A leaf's share is the money its own energy made minus the penalties it caused: what its
     car paid (``p_sell`` times the energy into the car) minus its grid cost
     (:func:`leaf_grid_cost_eur`, which does not move with other leaves' actions), the
     batteries' terminal value to the batteries, and the weighted penalty terms split by
-    :func:`leaf_penalty_terms`. The fixed cost is split evenly. The multi-agent view mixes
+    :func:`leaf_penalty_terms`. The fixed cost and the peak-demand charge are split evenly. The multi-agent view mixes
     these shares into per-agent rewards when asked to (``ChargaxMARL(local_reward_weight=...)``).
     """
     st = params.station
@@ -126,7 +157,7 @@ def leaf_reward_shares(flows: dict, departures: dict, terms: dict, moer, termina
     own = own + jnp.where(is_bat, terminal_eur / max(st.num_batteries, 1), 0.0)
     per_leaf = leaf_penalty_terms(flows, departures, terms, moer, st)
     penalty = sum(getattr(params.alpha, name) * per_leaf[name] for name in PENALTY_TERMS)
-    shares = own - penalty - params.fixed_cost_eur / num_leaves
+    shares = own - penalty - (params.fixed_cost_eur + peak_charge_eur) / num_leaves
     # float round-off only: the parts above add up to r exactly in real arithmetic
     return shares + (r - jnp.sum(shares)) / num_leaves
 

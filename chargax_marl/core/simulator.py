@@ -110,7 +110,8 @@ def step_with_arrivals(state: EnvState, action: jnp.ndarray, arrivals: traffic.A
     last = state.timestep + 1 >= params.num_steps
     battery_day_kwh = state.totals.battery_net_kwh + flows["battery_net_kwh"]
     terminal = jnp.where(last, reward_lib.battery_terminal_value_eur(battery_day_kwh, state.day, params), 0.0)
-    profit = reward_lib.profit_eur(flows, p_buy, p_sell_grid, params) + terminal
+    peak_kw, peak_charge = reward_lib.peak_demand_charge(flows["grid_net_kwh"], state.totals.peak_grid_kw, last, params)
+    profit = reward_lib.profit_eur(flows, p_buy, p_sell_grid, params) + terminal - peak_charge
     moer = reward_lib.moer_now(state.day, state.timestep, params)
     demand = params.grid_demand_kwh[jnp.clip(state.timestep, 0, params.grid_demand_kwh.shape[0] - 1)]
     terms = reward_lib.penalty_terms(flows, dep, arr, excess_kw, moer, demand)
@@ -136,6 +137,8 @@ def step_with_arrivals(state: EnvState, action: jnp.ndarray, arrivals: traffic.A
         constraint_excess_kw=t.constraint_excess_kw + excess_kw,
         requested_excess_kw=t.requested_excess_kw + requested_kw,
         battery_terminal_value_eur=t.battery_terminal_value_eur + terminal,
+        peak_grid_kw=peak_kw,
+        peak_demand_charge_eur=t.peak_demand_charge_eur + peak_charge,
     )
     new_state = arrived_state.replace(timestep=state.timestep + 1, totals=totals)
     info = StepInfo(
@@ -158,9 +161,11 @@ def step_with_arrivals(state: EnvState, action: jnp.ndarray, arrivals: traffic.A
         constraint_excess_kw=excess_kw,
         requested_excess_kw=requested_kw,
         battery_terminal_value_eur=terminal,
+        peak_demand_charge_eur=peak_charge,
         leaf_energy_kwh=leaf_energy,
         leaf_arrived=arr["leaf_arrived"],
-        leaf_reward=reward_lib.leaf_reward_shares(flows, dep, terms, moer, terminal, p_buy, p_sell_grid, r, params),
+        leaf_reward=reward_lib.leaf_reward_shares(flows, dep, terms, moer, terminal, p_buy, p_sell_grid, r, params,
+                                                  peak_charge),
     )
     return keep_dtypes(new_state, state), as_float32(info)
 

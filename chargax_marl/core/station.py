@@ -492,17 +492,39 @@ ARCHITECTURES = {
 }
 
 
-def build_station(architecture: str | Splitter | StationArrays = "multiple_types", **kwargs) -> StationArrays:
-    """Compile a named architecture (with builder keyword arguments), a custom tree, or pass through arrays."""
+def with_grid_fraction(root: Splitter, grid_fraction: float) -> Splitter:
+    """``root`` with its limit (the grid connection) set to ``grid_fraction`` times the sum of
+    its children's limits: 0.25 makes a station whose connection carries a quarter of what
+    its EVSEs, cables and batteries could draw together, so the agents must share it."""
+    f = checks.number("grid_fraction", grid_fraction, low=0.0, low_open=True, high=1.0)
+    children_kw = sum(c.max_kw for c in root.children)
+    return dataclasses.replace(root, max_kw=f * children_kw)
+
+
+def build_station(architecture: str | Splitter | StationArrays = "multiple_types", *,
+                  grid_fraction: float | None = None, **kwargs) -> StationArrays:
+    """Compile a named architecture (with builder keyword arguments), a custom tree, or pass
+    through arrays. ``grid_fraction`` (in (0, 1]) sets the root's limit to that fraction of the
+    sum of its children's limits (:func:`with_grid_fraction`)."""
     if isinstance(architecture, StationArrays):
+        if grid_fraction is not None:
+            raise ValueError("build_station: field 'grid_fraction' needs a named architecture or a Splitter tree, "
+                             "not compiled StationArrays")
         return architecture
     if isinstance(architecture, Splitter):
         if kwargs:
             raise ValueError(f"build_station: keyword arguments {sorted(kwargs)} only apply to named architectures")
-        return compile_station(architecture)
-    if architecture not in ARCHITECTURES:
-        raise KeyError(f"unknown architecture {architecture!r}; allowed: {sorted(ARCHITECTURES)} or a Splitter tree")
-    builder = ARCHITECTURES[architecture]
-    checks.keywords(f"station_kwargs of {architecture!r}", kwargs,
-                    tuple(inspect.signature(builder).parameters))
-    return compile_station(builder(**kwargs))
+        root = architecture
+    else:
+        if architecture not in ARCHITECTURES:
+            raise KeyError(f"unknown architecture {architecture!r}; allowed: {sorted(ARCHITECTURES)} or a Splitter tree")
+        builder = ARCHITECTURES[architecture]
+        checks.keywords(f"station_kwargs of {architecture!r}", kwargs,
+                        tuple(inspect.signature(builder).parameters))
+        if grid_fraction is not None and kwargs.get("grid_kw") is not None:
+            raise ValueError(f"give either 'grid_fraction' ({grid_fraction!r}) or station_kwargs 'grid_kw' "
+                             f"({kwargs['grid_kw']!r}), not both: both set the grid connection's limit")
+        root = builder(**kwargs)
+    if grid_fraction is not None:
+        root = with_grid_fraction(root, grid_fraction)
+    return compile_station(root)

@@ -63,6 +63,8 @@ class EnvParams:
     station: StationArrays
     # --- exogenous data
     prices_eur_kwh: jnp.ndarray  # (D, 24) day-ahead price per local hour
+    day_price_quantiles_eur_kwh: jnp.ndarray  # (D, Q) quantiles (observation.PRICE_QUANTILES) of each day's
+    #   hourly day-ahead price plus time-of-use surcharge; derived by make_params (rebuild params to change prices)
     first_weekday: jnp.ndarray  # () int32, weekday of day 0 (0 = Monday)
     arrival_rate: jnp.ndarray  # (2, T) expected arrivals per step; row 0 workday, row 1 weekend
     stay_quantiles_min: jnp.ndarray  # (Q,) inverse CDF of the stay duration
@@ -86,6 +88,9 @@ class EnvParams:
     # --- economics
     customer_price_eur_kwh: jnp.ndarray  # () p_sell, price charged to (and refunded to) car owners
     grid_fee_eur_kwh: jnp.ndarray  # () added to the day-ahead price when buying
+    tou_fee_eur_kwh: jnp.ndarray  # (24,) time-of-use surcharge on the buy price per local hour (zeros: none)
+    peak_demand_eur_kw: jnp.ndarray  # () EUR per kW of the day's highest net grid draw (0: no peak charge)
+    peak_demand_incremental: jnp.ndarray  # () bool: book the peak charge as the running peak rises, else at the last step
     feed_in_factor: jnp.ndarray  # () p_sell,grid = factor * day-ahead price
     fixed_cost_eur: jnp.ndarray  # () c_dt, per step
     alpha: PenaltyWeights
@@ -133,6 +138,8 @@ class EpisodeTotals:
     constraint_excess_kw: jnp.ndarray  # summed over steps of the excess that flowed (max over nodes; 0 in hard mode)
     requested_excess_kw: jnp.ndarray  # summed over steps of the excess the controller asked for
     battery_terminal_value_eur: jnp.ndarray  # value of the batteries' energy change, booked at the last step
+    peak_grid_kw: jnp.ndarray  # running maximum of the net grid draw (kW, step average) so far today
+    peak_demand_charge_eur: jnp.ndarray  # peak-demand charge booked so far (part of profit_eur, positive = paid)
 
     @classmethod
     def zeros(cls) -> "EpisodeTotals":
@@ -195,6 +202,7 @@ class StepInfo:
     constraint_excess_kw: jnp.ndarray  # grid-side excess that flowed (0 in hard mode)
     requested_excess_kw: jnp.ndarray  # grid-side excess of the currents the controller asked for
     battery_terminal_value_eur: jnp.ndarray  # nonzero at the last step only; included in profit_eur
+    peak_demand_charge_eur: jnp.ndarray  # peak-demand charge booked this step (subtracted in profit_eur)
     leaf_energy_kwh: jnp.ndarray  # (L,) energy into each car / battery this step (terminal side)
     leaf_arrived: jnp.ndarray  # (L,) bool, the ports that received a new car at the end of this step
     leaf_reward: jnp.ndarray  # (L,) each leaf's share of reward (reward.leaf_reward_shares); sums to reward

@@ -22,6 +22,7 @@ from jaxmarl.environments.multi_agent_env import MultiAgentEnv
 from chargax_marl import bounds
 from chargax_marl.core import actions as core_actions, observation, physics, simulator
 from chargax_marl.core.params import make_params
+from chargax_marl.core.scenarios import scenario_kwargs
 from chargax_marl.core.station import KIND_AC, KIND_BATTERY, KIND_DC
 from chargax_marl.core.types import PENALTY_TERMS, EnvParams, EnvState, EpisodeTotals, StepInfo
 from chargax_marl.lifecycle import check_day
@@ -171,7 +172,7 @@ STEP_INFO_KEYS = (
     "reward", "profit_eur", "energy_charged_kwh", "energy_discharged_kwh", "energy_delivered_kwh",
     "battery_net_kwh", "grid_net_kwh", "losses_kwh", "price_buy_eur_kwh", "price_sell_grid_eur_kwh",
     "cars_arrived", "cars_departed", "cars_rejected", "missing_kwh", "overtime_min", "constraint_excess_kw",
-    "requested_excess_kw", "battery_terminal_value_eur",
+    "requested_excess_kw", "battery_terminal_value_eur", "peak_demand_charge_eur",
 )
 """Scalar fields of :class:`chargax_marl.core.StepInfo` reported in the infos under their own names."""
 
@@ -254,6 +255,13 @@ class ChargaxMARL(MultiAgentEnv):
     errors. Action mode ``continuous`` is not supported here (``ValueError``): use the
     single-agent view.
 
+    **Construction.** ``ChargaxMARL()`` is the paper default (``shopping``, medium traffic);
+    ``ChargaxMARL(scenario="shopping-grid25-high")`` picks a named scenario of
+    :mod:`chargax_marl.core.scenarios` (also the coordination scenarios with a constrained
+    grid connection, a time-of-use surcharge and a peak-demand charge), keyword arguments of
+    :func:`chargax_marl.core.params.make_params` override it, and ``params=`` passes ready
+    parameters.
+
     **Observations.** Every agent gets a float32 vector of the same size
     (:attr:`obs_size`): its own leaf features (8, :data:`observation.PORT_FEATURES`), its
     kind one-hot (AC, DC, battery), the load fraction ``|grid-side net flow| / max_kw`` of each
@@ -280,15 +288,18 @@ class ChargaxMARL(MultiAgentEnv):
     station's reward and profit whatever ``w`` is, so evaluations stay comparable.
     """
 
-    def __init__(self, params: EnvParams | None = None, *, agent_id: str = "onehot",
+    def __init__(self, params: EnvParams | None = None, *, scenario: str | None = None, agent_id: str = "onehot",
                  local_reward_weight: float = 0.0, **make_params_kwargs: Any):
         w = float(local_reward_weight)
         if not 0.0 <= w <= 1.0:  # also rejects NaN
             raise ValueError(f"ChargaxMARL: field 'local_reward_weight' must be in [0, 1] "
                              f"(0: the shared station reward), got {local_reward_weight!r}")
         self.local_reward_weight = w
-        if params is not None and make_params_kwargs:
-            raise ValueError("ChargaxMARL: pass either 'params' or keyword arguments of make_params, not both")
+        if params is not None and (make_params_kwargs or scenario is not None):
+            raise ValueError("ChargaxMARL: pass either 'params' or a scenario / keyword arguments of make_params, "
+                             "not both")
+        if scenario is not None:
+            make_params_kwargs = scenario_kwargs(scenario, **make_params_kwargs)
         params = params if params is not None else make_params(**make_params_kwargs)
         if params.action_mode == "continuous":
             raise ValueError(

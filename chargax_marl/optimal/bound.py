@@ -100,7 +100,8 @@ def economics(params: EnvParams, trace: trace_lib.DayTrace, first: int = 0, last
     return Economics(buy=np.asarray(trace.price_buy_eur_kwh, np.float64)[sl],
                      sell=np.asarray(trace.price_sell_grid_eur_kwh, np.float64)[sl],
                      customer=float(params.customer_price_eur_kwh),
-                     battery_value=float(trace.battery_value_eur_kwh), step_hours=params.step_hours)
+                     battery_value=float(trace.battery_value_eur_kwh), step_hours=params.step_hours,
+                     peak_eur_kw=float(params.peak_demand_eur_kw))
 
 
 _REPLAY_CACHE: dict = {}

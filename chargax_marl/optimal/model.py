@@ -17,7 +17,9 @@ would book, under every limit the simulator applies:
 - every node limit on the grid side (``p+ / eta - p- * eta`` summed under the node, with the
   efficiency of the path up to and including it; dropped in ``soft`` constraint mode, where
   the simulator lets the excess flow);
-- the grid price: the net draw at the buy price, the net feed-in at the grid's sell price;
+- the grid price: the net draw at the buy price (time-of-use surcharge included), the net
+  feed-in at the grid's sell price;
+- the peak-demand charge on the highest net draw of the steps (when the params set one);
 - the batteries' net energy change valued at the day's terminal price.
 
 Relaxations, so that the optimum bounds the simulator from above: currents are continuous
@@ -119,6 +121,8 @@ class Economics:
     customer: float
     battery_value: float  # per kWh of net energy into the batteries over the problem
     step_hours: float
+    peak_eur_kw: float = 0.0  # peak-demand charge per kW of the highest net draw (step average)
+    peak_so_far_kw: float = 0.0  # the day's peak before the problem's first step (already paid for)
 
 
 @dataclass
@@ -208,6 +212,13 @@ def build_and_solve(sessions: Sessions, num_steps: int, limits: StationLimits, e
     grid_rows = b.new_rows(n, 0.0, 0.0)  # g_imp - g_exp - sum(grid side) = 0
     b.coef(grid_rows, g_imp, 1.0)
     b.coef(grid_rows, g_exp, -1.0)
+    if econ.peak_eur_kw > 0.0:
+        # the day's peak: peak >= net draw of every step (and >= the peak so far), priced per kW
+        peak = b.vars(1, econ.peak_so_far_kw, np.inf, cost=-econ.peak_eur_kw)
+        peak_rows = b.new_rows(n, -np.inf, 0.0)  # (g_imp - g_exp) / dt - peak <= 0
+        b.coef(peak_rows, g_imp, 1.0 / dt)
+        b.coef(peak_rows, g_exp, -1.0 / dt)
+        b.coef(peak_rows, np.repeat(peak, n), -1.0)
     node_rows = None
     if limits.hard:
         node_rows = b.new_rows(n * num_nodes, -np.tile(limits.node_max_kw, n), np.tile(limits.node_max_kw, n))

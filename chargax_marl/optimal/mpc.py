@@ -3,8 +3,9 @@
 At each step (or every ``resolve_every`` steps, while the plan still matches the state) the
 controller solves the LP of :mod:`chargax_marl.optimal.model` over the next
 ``horizon_hours`` with the cars present now (each staying until its planned departure, no
-knowledge of future arrivals), the day-ahead prices of those hours (known in advance, as on
-a day-ahead market) and the batteries valued at the day's terminal price at the horizon's
+knowledge of future arrivals), the buy and sell prices of those hours (known in advance, as on
+a day-ahead market; time-of-use surcharge included), the peak-demand charge on any draw above
+the day's peak so far, and the batteries valued at the day's terminal price at the horizon's
 end, and turns the first step's powers into levels.
 
 :class:`MPC` is a policy ``mpc(state, key, params) -> levels`` like those of
@@ -24,12 +25,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from chargax_marl.core import reward as reward_lib
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState
 from chargax_marl.optimal.model import Economics, Sessions, StationLimits, build_and_solve
 
 _FIELDS = ("day", "timestep", "occupied", "soc", "arrival_soc", "target_soc", "capacity_kwh", "max_rate_kw",
-           "max_discharge_rate_kw", "tau", "charge_sensitive", "time_remaining_min")
+           "max_discharge_rate_kw", "tau", "charge_sensitive", "time_remaining_min", "peak_grid_kw")
 
 
 class MPC:
@@ -72,13 +74,15 @@ class MPC:
         self.continuous = params.action_mode == "continuous"
         if params.action_mode == "delta":
             raise ValueError("MPC needs action_mode 'absolute' or 'continuous', got 'delta'")
-        prices = np.asarray(params.prices_eur_kwh, np.float64)
-        hours = np.clip((np.arange(params.num_steps) * params.step_minutes / 60.0).astype(int), 0, 23)
-        fee, factor = float(params.grid_fee_eur_kwh), float(params.feed_in_factor)
-        self.spot = prices[:, hours]  # (D, T)
-        self.buy, self.sell = self.spot + fee, self.spot * factor
-        self.battery_value = (prices.mean(axis=1) + fee if bool(params.battery_value_day_mean)
-                              else np.full(prices.shape[0], float(params.battery_value_eur_kwh)))
+        # the simulator's own prices (reward.grid_prices: time-of-use surcharge included) and
+        # terminal battery value, for every day and step
+        days = jnp.arange(params.num_days, dtype=jnp.int32)
+        steps = jnp.arange(params.num_steps, dtype=jnp.int32)
+        buy, sell = jax.vmap(lambda d: jax.vmap(lambda t: reward_lib.grid_prices(d, t, params))(steps))(days)
+        self.buy, self.sell = np.asarray(buy, np.float64), np.asarray(sell, np.float64)  # (D, T)
+        self.battery_value = np.asarray(jax.vmap(
+            lambda d: reward_lib.battery_terminal_value_eur(jnp.float32(1.0), d, params))(days), np.float64)
+        self.peak_eur_kw = float(params.peak_demand_eur_kw)
         self.customer = float(params.customer_price_eur_kwh)
         self.step_hours = params.step_hours
         self.solves = 0
@@ -115,7 +119,8 @@ class MPC:
         d = day % self.buy.shape[0]
         sl = slice(t, t + n)
         econ = Economics(buy=self.buy[d, sl], sell=self.sell[d, sl], customer=self.customer,
-                         battery_value=float(self.battery_value[d]), step_hours=self.step_hours)
+                         battery_value=float(self.battery_value[d]), step_hours=self.step_hours,
+                         peak_eur_kw=self.peak_eur_kw, peak_so_far_kw=float(s["peak_grid_kw"]))
         sessions = self._sessions(s, n)
         out = np.zeros((n, self.num_leaves))
         if sessions.size == 0:
@@ -175,7 +180,7 @@ class MPC:
         del key, params
         dtype = jnp.float32 if self.continuous else jnp.int32
         out = jax.ShapeDtypeStruct((self.num_leaves,), dtype)
-        args = [getattr(state, f) for f in _FIELDS]
+        args = [state.totals.peak_grid_kw if f == "peak_grid_kw" else getattr(state, f) for f in _FIELDS]
         return jax.pure_callback(self.host_act, out, *args, vmap_method="sequential")
 
 

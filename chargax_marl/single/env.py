@@ -70,6 +70,7 @@ def step_info(info, state: EnvState) -> dict:
         "constraint_excess_kw": info.constraint_excess_kw,
         "requested_excess_kw": info.requested_excess_kw,
         "battery_terminal_value_eur": info.battery_terminal_value_eur,
+        "peak_demand_charge_eur": info.peak_demand_charge_eur,
     }
     out.update({f"penalty_{k}": info.penalties[k] for k in PENALTY_TERMS})
     out.update({f"episode_{k}": getattr(state.totals, k) for k in EpisodeTotals.__dataclass_fields__})

@@ -1,28 +1,24 @@
-"""Named scenarios: the four user profiles (paper Table 2) crossed with the traffic levels.
+"""Named scenarios of the single-agent view: ``make(name, **overrides)``.
 
-``make("shopping")`` is the paper default (medium traffic); ``make("workplace-high")``,
-``make("highway-low")`` etc. pick a profile and traffic level. Keyword overrides go to
-:func:`chargax_marl.core.params.make_params`.
+The scenarios themselves (the four user profiles of paper Table 2 at three traffic levels,
+and the coordination scenarios ``shopping-grid10-<traffic>``, ``shopping-grid25-<traffic>``, ``shopping-grid50-<traffic>``,
+``shopping-peak``, ``shopping-peak-high``, ``shopping-grid50-peak-high``) are defined in
+:mod:`chargax_marl.core.scenarios`, shared with ``ChargaxMARL(scenario=...)``.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from chargax_marl.core import datasets
+from chargax_marl.core.scenarios import COORDINATION_SCENARIOS, SCENARIOS, scenario_kwargs
 from chargax_marl.core.types import EnvParams
 from chargax_marl.single.env import Chargax
 
-SCENARIOS: dict[str, dict[str, Any]] = {}
-for _profile in datasets.USER_PROFILES:
-    SCENARIOS[_profile] = {"user_profile": _profile, "traffic": "medium"}
-    for _traffic in datasets.TRAFFIC_LEVELS:
-        SCENARIOS[f"{_profile}-{_traffic}"] = {"user_profile": _profile, "traffic": _traffic}
+__all__ = ["COORDINATION_SCENARIOS", "SCENARIOS", "make"]
 
 
 def make(name: str = "shopping", **overrides: Any) -> tuple[Chargax, EnvParams]:
-    """Return ``(env, params)`` for a named scenario, with keyword overrides applied."""
-    if name not in SCENARIOS:
-        raise KeyError(f"unknown scenario {name!r}; allowed: {sorted(SCENARIOS)}")
-    env = Chargax(**{**SCENARIOS[name], **overrides})
+    """Return ``(env, params)`` for a named scenario (:data:`SCENARIOS`), with keyword
+    overrides of :func:`chargax_marl.core.params.make_params` applied on top."""
+    env = Chargax(**scenario_kwargs(name, **overrides))
     return env, env.default_params

@@ -1,0 +1,117 @@
+"""How often each node of the station binds under a policy: where the agents are coupled.
+
+A node *binds* in a step when the grid-side flow of the currents the policy asks for (after
+the cars' own limits, before the hard rescale; :func:`chargax_marl.core.physics.apply_actions`)
+reaches the node's limit. Where no node binds, the ports do not interact and a multi-agent
+problem falls apart into independent ones; the coordination scenarios of
+:mod:`chargax_marl.core.scenarios` are built so that they do.
+
+``python -m chargax_marl.binding`` prints, for the default and every coordination scenario, the
+percentage of steps in which each kind of node binds under always-max on held-out days
+(the table in the README). The per-node figures come from :func:`node_binding`.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from chargax_marl.core import physics, simulator
+from chargax_marl.core.params import make_params
+from chargax_marl.core.scenarios import COORDINATION_SCENARIOS, scenario_kwargs
+from chargax_marl.core.types import EnvParams
+from chargax_marl.evaluation import split_days
+from chargax_marl.policies import always_max
+from chargax_marl.trace import day_keys
+
+BIND_TOLERANCE = 1e-4
+"""A node binds when the requested flow is at least ``(1 - BIND_TOLERANCE)`` of its limit."""
+
+
+def node_binding(params: EnvParams, days, key: jax.Array | None = None, policy=always_max) -> np.ndarray:
+    """Fraction of steps ``(H,)`` in which each inner node binds under ``policy``, over one
+    whole day per entry of ``days`` with the cars that evaluation draws with ``key``
+    (default ``PRNGKey(0)``, as :func:`chargax_marl.evaluation.evaluate_policy`)."""
+    key = jax.random.PRNGKey(0) if key is None else key
+    days = jnp.asarray(days, jnp.int32)
+    st = params.station
+    limit = st.node_max_kw * (1.0 - BIND_TOLERANCE)
+
+    def one_day(day, day_key):
+        act_keys, step_keys, battery_key = day_keys(day_key, params.num_steps)
+
+        def body(state, keys):
+            k_act, k_step = keys
+            levels = policy(state, k_act, params)
+            requested_a = physics.clip_to_car(physics.target_current(levels, state, params), state, params)
+            flows = physics.node_flows_kw(requested_a * st.leaf_voltage_v / 1000.0, st)
+            state, _ = simulator.step(k_step, state, levels, params)
+            return state, flows >= limit
+
+        _, binds = jax.lax.scan(body, simulator.empty_state(day, params, battery_key), (act_keys, step_keys))
+        return jnp.mean(binds.astype(jnp.float32), axis=0)
+
+    per_day = jax.jit(jax.vmap(one_day))(days, jax.random.split(key, days.shape[0]))
+    return np.asarray(per_day, np.float64).mean(axis=0)
+
+
+def _kind(name: str) -> str:
+    """Node groups of the bundled architectures: the grid connection, cables, EVSE pairs."""
+    if name == "grid":
+        return "grid connection"
+    for prefix, label in (("dc_evse", "DC EVSE pairs"), ("ac_evse", "AC EVSE pairs"), ("dc_", "DC cable"),
+                          ("ac_", "AC cable")):
+        if name.startswith(prefix):
+            return label
+    return name
+
+
+GROUPS = ("grid connection", "DC cable", "AC cable", "DC EVSE pairs", "AC EVSE pairs")
+
+
+def grouped(params: EnvParams, fractions: np.ndarray) -> dict:
+    """Mean binding fraction per node group (:data:`GROUPS`) of the bundled architectures."""
+    out: dict[str, list[float]] = {}
+    for name, f in zip(params.station.node_names, fractions):
+        out.setdefault(_kind(name), []).append(float(f))
+    return {k: float(np.mean(v)) for k, v in out.items()}
+
+
+def table(scenarios=("shopping",) + COORDINATION_SCENARIOS, num_days: int = 100) -> list[dict]:
+    """One row per scenario: the grid limit and the percentage of steps each node group binds
+    under always-max on the held-out days ``split_days(365, num_days)``."""
+    rows = []
+    for name in scenarios:
+        params = make_params(**scenario_kwargs(name))
+        _, days = split_days(params.num_days, num_days, seed=0)
+        fractions = node_binding(params, days)
+        rows.append({"scenario": name, "grid_kw": float(params.station.node_max_kw[0]),
+                     **{g: 100.0 * v for g, v in grouped(params, fractions).items()}})
+    return rows
+
+
+def format_table(rows: list[dict]) -> str:
+    head = "| scenario | grid connection kW | " + " | ".join(f"{g} % of steps" for g in GROUPS) + " |"
+    lines = [head, "|" + "---|" * (len(GROUPS) + 2)]
+    for r in rows:
+        cells = " | ".join(f"{r[g]:.1f}" if g in r else "–" for g in GROUPS)
+        lines.append(f"| `{r['scenario']}` | {r['grid_kw']:.1f} | {cells} |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> list[dict]:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--days", type=int, default=100, help="held-out days per scenario (default 100)")
+    parser.add_argument("--scenarios", nargs="+", default=None, help="default: shopping and every coordination scenario")
+    args = parser.parse_args(argv)
+    rows = table(tuple(args.scenarios) if args.scenarios else ("shopping",) + COORDINATION_SCENARIOS, args.days)
+    print(f"always-max, {args.days} held-out days (split_days seed 0), key 0: % of steps in which a node binds")
+    print(format_table(rows))
+    return rows
+
+
+if __name__ == "__main__":
+    main()
