@@ -23,7 +23,7 @@ import numpy as np
 from flax import struct
 
 from chargax_marl.core import reward as reward_lib
-from chargax_marl.core import simulator, traffic
+from chargax_marl.core import rng, simulator, traffic
 from chargax_marl.core.types import EnvParams, EnvState
 
 Act = Callable[[EnvState, jax.Array], jnp.ndarray]
@@ -52,9 +52,11 @@ def station_fingerprint(params: EnvParams) -> str:
 
 
 def params_fingerprint(params: EnvParams) -> str:
-    """A short hash of every array and setting of ``params`` (host side), to tell whether
-    stored results were computed for the same scenario."""
+    """A short hash of every array and setting of ``params`` (host side) and of the random
+    stream's version (:data:`chargax_marl.core.rng.STREAM_VERSION`), to tell whether stored
+    results were computed for the same scenario and cars."""
     h = hashlib.sha1()
+    h.update(f"stream {rng.STREAM_VERSION}".encode())
     leaves, treedef = jax.tree_util.tree_flatten(params)
     h.update(str(treedef).encode())
     for a in leaves:

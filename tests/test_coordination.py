@@ -243,3 +243,15 @@ def test_binding_table_sees_the_constrained_connection():
     assert free[0] == 0.0 and tight[0] > 0.2  # the root: never binds at 884.5 kW, often at 88.5 kW
     groups = binding.grouped(make_params(), tight)
     assert set(groups) == set(binding.GROUPS)
+
+
+def test_fingerprint_changes_with_the_random_stream(monkeypatch):
+    # stored bound / MPC results are looked up by fingerprint: a new random stream draws other
+    # cars for the same params, so it must not find the old stream's results
+    from chargax_marl.core import rng
+
+    p = make_params()
+    before = trace_lib.params_fingerprint(p)
+    monkeypatch.setattr(rng, "STREAM_VERSION", rng.STREAM_VERSION + 1)
+    assert trace_lib.params_fingerprint(p) != before
+    assert trace_lib.params_fingerprint(make_params(peak_demand_eur_kw=0.1)) != trace_lib.params_fingerprint(p)

@@ -29,6 +29,12 @@ _M1 = np.uint32(0x85EBCA6B)
 _M2 = np.uint32(0xC2B2AE35)
 _STREAM = np.uint32(0x632BE5AB)
 
+STREAM_VERSION = 3
+"""The version of the random stream: bumped whenever the same key draws other cars, days or
+SoCs (1: per-port draws of 0.1, 2: per-slot Threefry draws of 0.2, 3: this counter hash). It
+is part of :func:`chargax_marl.trace.params_fingerprint`, so results stored for one stream
+are not read back as if they were another's."""
+
 # Stream ids: one per consumer, so that draws of different purposes never share a counter.
 ARRIVALS = 1
 RESET = 2
