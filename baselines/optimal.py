@@ -4,8 +4,11 @@
 (``split_days(365, 100, seed=0)``, evaluation key 0, the same cars for every policy) of
 
 - ``default``: the shopping scenario, medium traffic, the default station;
-- ``grid25_high``: the same station with its grid connection at 25 % of the sum of its
-  children (221 kW instead of 884.5), high traffic;
+- ``grid25_high`` / ``grid10_high``: the same station with its grid connection at 25 % /
+  10 % of the sum of its children (221 / 88 kW instead of 884.5), high traffic (the named
+  scenarios ``shopping-grid25-high`` / ``shopping-grid10-high``);
+- ``peak``: the default station with the evening time-of-use surcharge and the peak-demand
+  charge (``shopping-peak``);
 
 the rule-based policies (always-max, always-max + battery price rule, EDF, LLF,
 price-threshold), the MPC (:mod:`chargax_marl.optimal.mpc`, 4 h horizon, re-solved every
@@ -39,8 +42,9 @@ DEFAULT_ROOT_KW = 884.5  # sum of the default station's root children: 750 (DC) 
 
 SCENARIOS = {
     "default": {"SCENARIO": "shopping", "TRAFFIC": "medium"},
-    "grid25_high": {"SCENARIO": "shopping", "TRAFFIC": "high",
-                    "ENV_KWARGS": {"station_kwargs": {"grid_kw": 0.25 * DEFAULT_ROOT_KW}}},
+    "grid25_high": {"SCENARIO": "shopping-grid25-high"},
+    "grid10_high": {"SCENARIO": "shopping-grid10-high"},
+    "peak": {"SCENARIO": "shopping-peak"},
 }
 
 
