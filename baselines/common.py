@@ -52,7 +52,7 @@ PAPER_DEFAULTS: dict[str, Any] = {
     "BATTERY_IDLE_PRIOR": 0.0,  # logit offset on each battery's idle action (0: none)
     "LOCAL_REWARD_WEIGHT": 0.0,  # IPPO/MAPPO: ChargaxMARL(local_reward_weight=...) (0: shared reward)
     "SCENARIO": "shopping",
-    "TRAFFIC": "medium",
+    "TRAFFIC": None,  # low / medium / high or cars per day; None: the scenario's own (medium for "shopping")
     "ENV_KWARGS": {},  # extra keyword arguments of make_params (station, prices, alpha, step_minutes, ...)
     "NUM_EVAL_DAYS": 100,
     "SPLIT_SEED": 0,

@@ -255,3 +255,18 @@ def test_fingerprint_changes_with_the_random_stream(monkeypatch):
     monkeypatch.setattr(rng, "STREAM_VERSION", rng.STREAM_VERSION + 1)
     assert trace_lib.params_fingerprint(p) != before
     assert trace_lib.params_fingerprint(make_params(peak_demand_eur_kw=0.1)) != trace_lib.params_fingerprint(p)
+
+
+def test_baselines_keep_a_named_scenarios_traffic():
+    # the trainers' and `make optimal`'s configs once forced "medium" over the scenario's own
+    # traffic, so "shopping-grid10-high" was evaluated at medium traffic
+    from baselines import common
+    from baselines.optimal import scenario_params
+
+    config = common.parse_config({}, {"SCENARIO": "shopping-grid10-high"})
+    _, full, _, _ = common.build_env_params(config)
+    assert float(full.arrival_rate.sum()) == pytest.approx(float(make_params(traffic="high").arrival_rate.sum()))
+    params, _ = scenario_params("grid10_high")
+    assert float(params.arrival_rate.sum()) == pytest.approx(float(full.arrival_rate.sum()))
+    medium = common.build_env_params(common.parse_config({}, {"SCENARIO": "shopping-grid10-high", "TRAFFIC": "medium"}))[1]
+    assert float(medium.arrival_rate.sum()) < float(full.arrival_rate.sum())
