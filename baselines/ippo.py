@@ -161,6 +161,14 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         ws_b = jnp.swapaxes(obs["world_state"], 0, 1).reshape((n_actors, -1))  # (agents * envs, state)
         return ws, policy.value(params, ws_b)
 
+    # BATTERY_SHAPING (common.battery_shaping, per agent as common.agent_battery_shaping).
+    is_bat = np.asarray(env_params.station.leaf_kind) == KIND_BATTERY
+
+    def shaping(price, info):
+        """Per-actor ``(agents * envs,)`` shaping term of a step (info leaves ``(envs, agents)``)."""
+        per_agent = common.agent_battery_shaping(price, info, is_bat, config["LOCAL_REWARD_WEIGHT"])
+        return per_agent.T.reshape((n_actors,))  # agent-major, as batchify
+
     def init(key):
         k_net, k_env, key = jax.random.split(key, 3)
         params = policy.init(k_net)
@@ -178,11 +186,14 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         logp = common.log_prob(logits, action)
         cin, value = rollout_value(params, obs, obs_b)
         actions = unbatchify(action, agents, n_envs)
+        price = common.battery_value_price(env_state, env_params)  # (envs,) the day before the step
         next_obs, env_state, reward, done, info = jax.vmap(env.step)(jax.random.split(k_step, n_envs), env_state,
                                                                     actions)
+        reward_b = batchify(reward, agents, n_actors)
+        if config["BATTERY_SHAPING"]:
+            reward_b = reward_b + shaping(price, info)
         next_obs, env_state = common.shard_envs((next_obs, env_state), mesh)
-        tr = Transition(obs_b, cin, avail, action, logp, value,
-                        batchify(reward, agents, n_actors) * config["REWARD_SCALE"],
+        tr = Transition(obs_b, cin, avail, action, logp, value, reward_b * config["REWARD_SCALE"],
                         batchify(done, agents, n_actors).astype(jnp.float32),
                         {k: info[k] for k in INFO_KEYS})  # each (envs, agents)
         return (params, env_state, next_obs, key), tr

@@ -44,7 +44,8 @@ def get_module(algo: str):
 
 
 # Settings used for the measured CPU runs (differences from Table 3 are documented in README).
-FAST = {"NUM_ENVS": 24, "NUM_STEPS": 150, "HIDDEN": 64, "LR": 1e-3, "ENT_COEF": 0.0, "REWARD_SCALE": 0.1}
+FAST = {"NUM_ENVS": 24, "NUM_STEPS": 150, "HIDDEN": 64, "LR": 1e-3, "ENT_COEF": 0.0, "REWARD_SCALE": 0.1,
+        "BATTERY_SHAPING": True}
 
 
 BASELINES = ("always_max", "battery_rule", "price_threshold")
@@ -256,6 +257,10 @@ def main(argv=None) -> dict:
     p.add_argument("--local-reward-weight", type=float, default=None,
                    help="ippo/mappo: weight in [0, 1] of each agent's own share of the reward in its reward "
                         "(ChargaxMARL local_reward_weight); 0: the shared station reward")
+    p.add_argument("--battery-shaping", choices=("on", "off"), default=None,
+                   help="value the batteries' energy change at every step at the env's terminal price instead of "
+                        "at the day's last step (same daily profit; see common.battery_shaping). Default: on "
+                        "(off with --paper)")
     p.add_argument("--paper", action="store_true", help="use Table 3 exactly (12 envs x 300 steps, 2x256, lr 2.5e-4, "
                                                         "entropy 0.01); default: the faster CPU settings FAST")
     p.add_argument("--env-kwargs", default="{}", help="JSON of extra make_params keywords")
@@ -284,6 +289,8 @@ def main(argv=None) -> dict:
                       ("local_reward_weight", "LOCAL_REWARD_WEIGHT"), ("eval_days", "NUM_EVAL_DAYS")):
         if getattr(a, flag) is not None:
             config[key] = getattr(a, flag)
+    if a.battery_shaping is not None:
+        config["BATTERY_SHAPING"] = a.battery_shaping == "on"
     if config["TRAFFIC"] is None:
         from chargax_marl.single.scenarios import SCENARIOS
 
