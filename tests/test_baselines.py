@@ -185,6 +185,17 @@ def test_cli_smoke_writes_png_json_checkpoint(tmp_path):
     rule = res["vs_battery_rule"]
     assert len(rule["per_seed_mean"]) == 2 and np.isfinite(rule["mean"])
     assert all(e["vs_battery_rule"] is not None for e in res["eval_curve"])
+    # per seed: both paired differences, the headroom fraction and when it first beats each rule
+    assert res["scenario"]["name"] == "shopping" and res["scenario"]["held_out_days"] == 100
+    assert len(res["per_seed"]) == 2
+    for i, p in enumerate(res["per_seed"]):
+        assert p["vs_always_max"]["mean"] == pytest.approx(vs["per_seed_mean"][i])
+        assert p["vs_battery_rule"]["mean"] == pytest.approx(rule["per_seed_mean"][i])
+        assert np.isfinite(p["headroom_fraction"])
+        for k in ("first_beats_always_max", "first_beats_battery_rule"):
+            assert p[k] is None or (p[k]["timesteps"] > 0 and p[k]["wall_minutes"] > 0)
+    assert res["over_seeds"]["vs_always_max"]["mean"] == pytest.approx(vs["mean"])
+    assert set(res["over_seeds"]) == {"vs_always_max", "vs_battery_rule", "headroom_fraction"}
     # the checkpoint restores into the parameter pytree (leading axis = seed)
     train = ppo.make_train({**TINY, "HIDDEN": 16})
     template = jax.vmap(train.policy.init)(jax.random.split(jax.random.PRNGKey(0), 2))
@@ -340,3 +351,8 @@ def test_battery_shaping_trains_and_changes_the_return_not_the_profit(mod):
     # same seeds, same first rollout: the logged profit is the station's in both runs
     np.testing.assert_allclose(outs[True]["episode_profit_eur"][:, 0], outs[False]["episode_profit_eur"][:, 0],
                                rtol=1e-5)
+
+
+def test_agent_advantage_normalisation_trains():
+    train = ippo.make_train({**TINY, "AGENT_ADV_NORM": True, "BATTERY_SHAPING": True, "LOCAL_REWARD_WEIGHT": 1.0})
+    _finite_losses(train)
