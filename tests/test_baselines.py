@@ -353,6 +353,19 @@ def test_battery_shaping_trains_and_changes_the_return_not_the_profit(mod):
                                rtol=1e-5)
 
 
-def test_agent_advantage_normalisation_trains():
-    train = ippo.make_train({**TINY, "AGENT_ADV_NORM": True, "BATTERY_SHAPING": True, "LOCAL_REWARD_WEIGHT": 1.0})
-    _finite_losses(train)
+@pytest.mark.parametrize("mod", [ippo, mappo])
+def test_battery_net_and_agent_advantage_normalisation_train(mod):
+    train = mod.make_train({**TINY, "AGENT_ADV_NORM": True, "BATTERY_SHAPING": True, "LOCAL_REWARD_WEIGHT": 1.0,
+                            "BATTERY_NET": True, "ENV_KWARGS": {**TINY_ENV, "num_levels": 1}})
+    out = _finite_losses(train)
+    params = out["runner_state"].params
+    assert "battery_actor" in params
+    assert ("battery_critic" in params) == (mod is ippo)  # MAPPO's critic reads the world state
+    # the battery's logits come from its own actor: changing it moves the battery row only
+    policy, env = train.policy, train.env
+    p0 = jax.tree.map(lambda x: x[0], params)
+    obs = env.get_obs_matrix(env.reset_to_day(0)[1])
+    avail = jnp.asarray(env._avail_np)
+    p1 = {**p0, "battery_actor": jax.tree.map(lambda x: x + 1.0, p0["battery_actor"])}
+    moved = np.abs(np.asarray(policy.logits(p1, obs, avail) - policy.logits(p0, obs, avail))).max(axis=1)
+    assert moved[-1] > 0 and np.all(moved[:-1] == 0)
