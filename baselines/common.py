@@ -51,6 +51,7 @@ PAPER_DEFAULTS: dict[str, Any] = {
     "ALWAYS_MAX_PRIOR": 0.0,  # logit offset on each port's full-power action (0: none)
     "BATTERY_IDLE_PRIOR": 0.0,  # logit offset on each battery's idle action (0: none)
     "LOCAL_REWARD_WEIGHT": 0.0,  # IPPO/MAPPO: ChargaxMARL(local_reward_weight=...) (0: shared reward)
+    "BATTERY_SHAPING": False,  # value the batteries' energy change at every step, not at the day's end
     "SCENARIO": "shopping",
     "TRAFFIC": None,  # low / medium / high or cars per day; None: the scenario's own (medium for "shopping")
     "ENV_KWARGS": {},  # extra keyword arguments of make_params (station, prices, alpha, step_minutes, ...)
@@ -133,6 +134,55 @@ def always_max_prior(config: dict) -> tuple[float, float]:
             raise ValueError(f"{name}={b} must be a finite number >= 0 (0 disables the offset)")
         out.append(b)
     return tuple(out)
+
+
+# --------------------------------------------------------------------------- battery value shaping
+
+
+def core_state(state):
+    """Unwrap wrapper states (``.env_state``) down to the core ``EnvState`` (it has ``totals``)."""
+    while not hasattr(state, "totals"):
+        state = state.env_state
+    return state
+
+
+def battery_value_price(state, params) -> jnp.ndarray:
+    """The price (EUR/kWh) at which the env values the batteries' energy change at the end of
+    the day of ``state`` (before the step; with auto-reset the next state may be a new day)."""
+    from chargax_marl.core.reward import battery_terminal_value_eur
+
+    return battery_terminal_value_eur(jnp.float32(1.0), core_state(state).day, params)
+
+
+def battery_shaping(price, battery_net_kwh, terminal_eur) -> jnp.ndarray:
+    """``BATTERY_SHAPING``: the term added to a step's reward so that the batteries' energy is
+    valued when it moves, ``price * battery_net_kwh``, instead of all at once at the day's last
+    step (``- terminal_eur``, the env's terminal booking, non-zero at the last step only).
+
+    The env books ``price * sum_t battery_net_kwh_t`` at the last step; this books the same
+    amount step by step, so a day's undiscounted sum of rewards, and the profit that is
+    evaluated, are unchanged. What changes is when the learner sees it: with gamma = 0.99 per
+    5-minute step a reward 288 steps ahead weighs 0.06, so energy sold from the battery in the
+    morning looked like almost free money and the cost of buying it back was nearly invisible.
+    Shaped, discharging earns ``(p_now - price)`` per kWh at once and charging ``(price - p_now)``.
+    """
+    return price * battery_net_kwh - terminal_eur
+
+
+def agent_battery_shaping(price, info, is_battery, local_reward_weight: float) -> jnp.ndarray:
+    """:func:`battery_shaping` per agent of :class:`chargax_marl.marl.ChargaxMARL`, ``(..., agents)``
+    from the step's ``info`` (leaves ``(..., agents)``) and ``price (...)``, mixed like the env's
+    rewards ``(1 - w) * r + w * share_i``: every agent gets the station's term with weight
+    ``1 - w``; with weight ``w`` each battery agent gets the term of its own energy (the env gives
+    the terminal value to the batteries' shares, evenly) and a port nothing. The agents' terms
+    thus add up to the station's, as the shares do."""
+    is_battery = jnp.asarray(is_battery, jnp.float32)
+    price = jnp.asarray(price)[..., None]
+    station = battery_shaping(price, info["battery_net_kwh"][..., :1], info["battery_terminal_value_eur"][..., :1])
+    own = is_battery * battery_shaping(price, info["agent_energy_kwh"],
+                                       info["battery_terminal_value_eur"] / jnp.maximum(is_battery.sum(), 1.0))
+    w = float(local_reward_weight)
+    return (1.0 - w) * station + w * own
 
 
 # --------------------------------------------------------------------------- masked categoricals

@@ -98,21 +98,41 @@ class SharedPolicy:
         battery_row[env.action_offset] = battery_b
         self.port_offset, self.battery_offset = port_row, battery_row
         self.battery_col = len(PORT_FEATURES) + KIND_BATTERY
+        # BATTERY_NET: the battery agents get their own actor (and, with a critic on the agent's
+        # own observation, their own critic) instead of the ports' network with a kind feature.
+        # With one shared actor the battery's discharge index is the ports' (V2G) discharge,
+        # which the 16 ports learn to avoid, and that carried over to the battery.
+        self.battery_net = bool(config["BATTERY_NET"])
+        self.battery_critic = self.battery_net and not centralised_critic
 
     def init(self, key):
-        ka, kc = jax.random.split(key)
-        return {"actor": self.actor.init(ka, jnp.zeros((self.obs_dim,))),
-                "critic": self.critic.init(kc, jnp.zeros((self.critic_dim,)))}
+        ka, kc, kba, kbc = jax.random.split(key, 4)
+        params = {"actor": self.actor.init(ka, jnp.zeros((self.obs_dim,))),
+                  "critic": self.critic.init(kc, jnp.zeros((self.critic_dim,)))}
+        if self.battery_net:
+            params["battery_actor"] = self.actor.init(kba, jnp.zeros((self.obs_dim,)))
+        if self.battery_critic:
+            params["battery_critic"] = self.critic.init(kbc, jnp.zeros((self.critic_dim,)))
+        return params
+
+    def is_battery(self, obs):
+        return obs[..., self.battery_col:self.battery_col + 1]
 
     def logits(self, params, obs, avail):
         logits = self.actor.apply(params["actor"], obs)
+        if self.battery_net:
+            logits = jnp.where(self.is_battery(obs) > 0.5, self.actor.apply(params["battery_actor"], obs), logits)
         if self.port_offset.any() or self.battery_offset.any():
             is_battery = obs[..., self.battery_col:self.battery_col + 1]
             logits = logits + (1.0 - is_battery) * self.port_offset + is_battery * self.battery_offset
         return common.masked_logits(logits, avail)
 
     def value(self, params, critic_in):
-        return self.critic.apply(params["critic"], critic_in)[..., 0]
+        v = self.critic.apply(params["critic"], critic_in)[..., 0]
+        if self.battery_critic:  # critic_in is the agent's own observation
+            v = jnp.where(self.is_battery(critic_in)[..., 0] > 0.5,
+                          self.critic.apply(params["battery_critic"], critic_in)[..., 0], v)
+        return v
 
 
 def make_train(config: dict | None = None, env_params=None, centralised_critic: bool = False):
@@ -122,7 +142,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
     (``onehot``/``scalar``, the agent-index encoding). ``TOTAL_TIMESTEPS`` counts env steps
     (one step moves every agent).
     """
-    config = common.parse_config({"AGENT_ID": "onehot"}, config)
+    config = common.parse_config({"AGENT_ID": "onehot", "AGENT_ADV_NORM": False, "BATTERY_NET": False}, config)
     if env_params is None:
         env_params = common.build_env_params(config)[0]
     base_env = ChargaxMARL(params=env_params, agent_id=config["AGENT_ID"],
@@ -161,6 +181,25 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         ws_b = jnp.swapaxes(obs["world_state"], 0, 1).reshape((n_actors, -1))  # (agents * envs, state)
         return ws, policy.value(params, ws_b)
 
+    # BATTERY_SHAPING (common.battery_shaping, per agent as common.agent_battery_shaping).
+    is_bat = np.asarray(env_params.station.leaf_kind) == KIND_BATTERY
+
+    def shaping(price, info):
+        """Per-actor ``(agents * envs,)`` shaping term of a step (info leaves ``(envs, agents)``)."""
+        per_agent = common.agent_battery_shaping(price, info, is_bat, config["LOCAL_REWARD_WEIGHT"])
+        return per_agent.T.reshape((n_actors,))  # agent-major, as batchify
+
+    def per_agent_normalised(adv):
+        """AGENT_ADV_NORM: each agent's advantages ``(steps, agents * envs)`` scaled to mean 0 and
+        std 1 over its own rows of the rollout, before the minibatches mix the agents (whose
+        global normalisation then leaves them about as they are). Without it the battery's
+        advantages (cents per step) are scaled by the ports' spread (euros per step) and its
+        head hardly moves against the entropy bonus and the ports' gradients."""
+        a = adv.reshape((n_steps, n_agents, n_envs))
+        mean = a.mean(axis=(0, 2), keepdims=True)
+        std = a.std(axis=(0, 2), keepdims=True)
+        return ((a - mean) / (std + 1e-8)).reshape(adv.shape)
+
     def init(key):
         k_net, k_env, key = jax.random.split(key, 3)
         params = policy.init(k_net)
@@ -178,11 +217,14 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         logp = common.log_prob(logits, action)
         cin, value = rollout_value(params, obs, obs_b)
         actions = unbatchify(action, agents, n_envs)
+        price = common.battery_value_price(env_state, env_params)  # (envs,) the day before the step
         next_obs, env_state, reward, done, info = jax.vmap(env.step)(jax.random.split(k_step, n_envs), env_state,
                                                                     actions)
+        reward_b = batchify(reward, agents, n_actors)
+        if config["BATTERY_SHAPING"]:
+            reward_b = reward_b + shaping(price, info)
         next_obs, env_state = common.shard_envs((next_obs, env_state), mesh)
-        tr = Transition(obs_b, cin, avail, action, logp, value,
-                        batchify(reward, agents, n_actors) * config["REWARD_SCALE"],
+        tr = Transition(obs_b, cin, avail, action, logp, value, reward_b * config["REWARD_SCALE"],
                         batchify(done, agents, n_actors).astype(jnp.float32),
                         {k: info[k] for k in INFO_KEYS})  # each (envs, agents)
         return (params, env_state, next_obs, key), tr
@@ -215,6 +257,8 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
             traj = traj._replace(critic_in=idx if dedup_update else ws_table[idx])
         loss_fn = make_loss(ws_table)
         adv, targets = common.gae(traj.reward, traj.value, traj.done, last_value, config["GAMMA"], config["GAE_LAMBDA"])
+        if config["AGENT_ADV_NORM"]:
+            adv = per_agent_normalised(adv)
 
         params, opt_state, key, parts = common.ppo_epochs(loss_fn, tx, params, rs.opt_state, key, traj, adv,
                                                           targets, batch, config)

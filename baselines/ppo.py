@@ -120,8 +120,11 @@ def make_train(config: dict | None = None, env_params=None):
         action = jax.random.categorical(k_act, logits)  # (envs, leaves)
         logp = common.log_prob(logits, action).sum(-1)
         value = policy.value(params, obs)
+        price = common.battery_value_price(env_state, env_params)  # the day before the (auto-resetting) step
         next_obs, env_state, reward, term, trunc, info = v_step(jax.random.split(k_step, n_envs), env_state,
                                                                 action, env_params)
+        if config["BATTERY_SHAPING"]:
+            reward = reward + common.battery_shaping(price, info["battery_net_kwh"], info["battery_terminal_value_eur"])
         next_obs, env_state = common.shard_envs((next_obs, env_state), mesh)
         done = jnp.logical_or(term, trunc)
         tr = Transition(obs, action, logp, value, reward * config["REWARD_SCALE"], done.astype(jnp.float32),

@@ -44,7 +44,8 @@ def get_module(algo: str):
 
 
 # Settings used for the measured CPU runs (differences from Table 3 are documented in README).
-FAST = {"NUM_ENVS": 24, "NUM_STEPS": 150, "HIDDEN": 64, "LR": 1e-3, "ENT_COEF": 0.0, "REWARD_SCALE": 0.1}
+FAST = {"NUM_ENVS": 24, "NUM_STEPS": 150, "HIDDEN": 64, "LR": 1e-3, "ENT_COEF": 0.0, "REWARD_SCALE": 0.1,
+        "BATTERY_SHAPING": True}
 
 
 BASELINES = ("always_max", "battery_rule", "price_threshold")
@@ -113,6 +114,54 @@ def beats(paired: dict) -> bool:
     """Significantly better than the reference: the paired mean difference over seeds × days
     exceeds two standard errors."""
     return paired["mean"] > 2.0 * paired["stderr"]
+
+
+def seed_beats(paired: dict, i: int) -> bool:
+    """Seed ``i`` is significantly better than the reference on the held-out days (its mean paired
+    difference exceeds two standard errors over days)."""
+    return paired["per_seed_mean"][i] > 2.0 * paired["per_seed_stderr"][i]
+
+
+def over_seeds(values) -> dict:
+    """Mean and standard error over seeds of per-seed numbers (``stderr`` is NaN for one seed)."""
+    v = np.asarray(values, np.float64)
+    return {"mean": float(v.mean()), "stderr": float(v.std(ddof=1) / np.sqrt(v.size)) if v.size > 1 else float("nan"),
+            "min": float(v.min()), "max": float(v.max()), "all_seeds_positive": bool(np.all(v > 0))}
+
+
+def per_seed_results(final: dict, evals: list, baselines: dict, seed: int) -> list[dict]:
+    """One entry per trained seed: its paired differences (mean and standard error over the
+    held-out days) to always-max (``vs_always_max``) and to always-max + battery rule
+    (``vs_battery_rule``), the fraction of the LP bound's headroom it captures
+    (``headroom_fraction``, when the bound was computed), and the env steps and wall minutes
+    (since the start of training, compile and evaluations included) of the first held-out
+    evaluation at which this seed beats each reference by more than two standard errors
+    (``None``: never)."""
+    from chargax_marl.evaluation import headroom_captured
+
+    profit = np.atleast_2d(np.asarray(final["daily_profit"], np.float64))
+    am = np.asarray(baselines["always_max"]["daily_profit"], np.float64)
+    rule = baselines.get("battery_rule", {}).get("daily_profit")
+    bound = baselines.get("lp_bound", {}).get("daily_profit")
+    vs_am = common.paired_difference(profit, am)
+    vs_rule = common.paired_difference(profit, rule) if rule is not None else None
+    out = []
+    for i in range(profit.shape[0]):
+        def first(key):
+            e = next((e for e in evals if e.get(key) is not None and seed_beats(e[key], i)), None)
+            return None if e is None else {"timesteps": e["timesteps"], "wall_minutes": e["train_seconds"] / 60.0}
+
+        out.append({
+            "seed_index": i, "key": f"split(PRNGKey({seed}), seeds)[{i}]",
+            "mean_profit_eur": float(profit[i].mean()),
+            "vs_always_max": {"mean": vs_am["per_seed_mean"][i], "stderr": vs_am["per_seed_stderr"][i]},
+            "vs_battery_rule": None if vs_rule is None else {"mean": vs_rule["per_seed_mean"][i],
+                                                             "stderr": vs_rule["per_seed_stderr"][i]},
+            "headroom_fraction": None if bound is None else headroom_captured(profit[i], am, bound)["fraction"],
+            "first_beats_always_max": first("vs_always_max"),
+            "first_beats_battery_rule": first("vs_battery_rule"),
+        })
+    return out
 
 
 def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path | None = None, chunks: int = 10,
@@ -185,8 +234,17 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
     if not quiet:
         print(format_table(table))
     timesteps = (np.arange(n_upd) + 1) * steps_per_update
+    per_seed = per_seed_results(final, evals, baselines, seed)
+    summary = {k: over_seeds([p[k]["mean"] for p in per_seed]) for k in ("vs_always_max", "vs_battery_rule")
+               if all(p[k] is not None for p in per_seed)}
+    if all(p["headroom_fraction"] is not None for p in per_seed):
+        summary["headroom_fraction"] = over_seeds([p["headroom_fraction"] for p in per_seed])
     results = {
         "algo": algo,
+        "scenario": {"name": config["SCENARIO"], "traffic": config["TRAFFIC"], "env_kwargs": config["ENV_KWARGS"],
+                     "held_out_days": int(np.size(eval_days))},
+        "per_seed": per_seed,
+        "over_seeds": summary,
         "config": config,
         "seeds": seeds,
         "seed": seed,
@@ -208,6 +266,16 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
                   **{k: np.asarray(metrics[k]) for k in ("episode_profit_eur", "episode_return", "entropy",
                                                            "value_loss", "actor_loss")}},
     }
+    if not quiet:
+        for p_ in per_seed:
+            rule, hf = p_["vs_battery_rule"], p_["headroom_fraction"]
+            print(f"seed {p_['seed_index']}: vs always-max {p_['vs_always_max']['mean']:+.2f} ± "
+                  f"{p_['vs_always_max']['stderr']:.2f}" + (f", vs battery rule {rule['mean']:+.2f} ± "
+                                                            f"{rule['stderr']:.2f}" if rule else "")
+                  + (f", headroom {hf:.2f}" if hf is not None else "")
+                  + f"; first beats the battery rule: {p_['first_beats_battery_rule']}")
+        for k, v in summary.items():
+            print(f"over seeds, {k}: {v['mean']:+.3f} ± {v['stderr']:.3f} (min {v['min']:+.3f}, max {v['max']:+.3f})")
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
@@ -256,6 +324,15 @@ def main(argv=None) -> dict:
     p.add_argument("--local-reward-weight", type=float, default=None,
                    help="ippo/mappo: weight in [0, 1] of each agent's own share of the reward in its reward "
                         "(ChargaxMARL local_reward_weight); 0: the shared station reward")
+    p.add_argument("--battery-shaping", choices=("on", "off"), default=None,
+                   help="value the batteries' energy change at every step at the env's terminal price instead of "
+                        "at the day's last step (same daily profit; see common.battery_shaping). Default: on "
+                        "(off with --paper)")
+    p.add_argument("--agent-adv-norm", choices=("on", "off"), default=None,
+                   help="ippo/mappo: normalise the advantages per agent (over its rows of the rollout) instead of "
+                        "only over the minibatch (default off)")
+    p.add_argument("--battery-net", choices=("on", "off"), default=None,
+                   help="ippo/mappo: a separate actor (ippo: and critic) for the battery agents (default off)")
     p.add_argument("--paper", action="store_true", help="use Table 3 exactly (12 envs x 300 steps, 2x256, lr 2.5e-4, "
                                                         "entropy 0.01); default: the faster CPU settings FAST")
     p.add_argument("--env-kwargs", default="{}", help="JSON of extra make_params keywords")
@@ -284,6 +361,12 @@ def main(argv=None) -> dict:
                       ("local_reward_weight", "LOCAL_REWARD_WEIGHT"), ("eval_days", "NUM_EVAL_DAYS")):
         if getattr(a, flag) is not None:
             config[key] = getattr(a, flag)
+    if a.battery_net is not None:
+        config["BATTERY_NET"] = a.battery_net == "on"
+    if a.agent_adv_norm is not None:
+        config["AGENT_ADV_NORM"] = a.agent_adv_norm == "on"
+    if a.battery_shaping is not None:
+        config["BATTERY_SHAPING"] = a.battery_shaping == "on"
     if config["TRAFFIC"] is None:
         from chargax_marl.single.scenarios import SCENARIOS
 

@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -184,6 +185,17 @@ def test_cli_smoke_writes_png_json_checkpoint(tmp_path):
     rule = res["vs_battery_rule"]
     assert len(rule["per_seed_mean"]) == 2 and np.isfinite(rule["mean"])
     assert all(e["vs_battery_rule"] is not None for e in res["eval_curve"])
+    # per seed: both paired differences, the headroom fraction and when it first beats each rule
+    assert res["scenario"]["name"] == "shopping" and res["scenario"]["held_out_days"] == 100
+    assert len(res["per_seed"]) == 2
+    for i, p in enumerate(res["per_seed"]):
+        assert p["vs_always_max"]["mean"] == pytest.approx(vs["per_seed_mean"][i])
+        assert p["vs_battery_rule"]["mean"] == pytest.approx(rule["per_seed_mean"][i])
+        assert np.isfinite(p["headroom_fraction"])
+        for k in ("first_beats_always_max", "first_beats_battery_rule"):
+            assert p[k] is None or (p[k]["timesteps"] > 0 and p[k]["wall_minutes"] > 0)
+    assert res["over_seeds"]["vs_always_max"]["mean"] == pytest.approx(vs["mean"])
+    assert set(res["over_seeds"]) == {"vs_always_max", "vs_battery_rule", "headroom_fraction"}
     # the checkpoint restores into the parameter pytree (leading axis = seed)
     train = ppo.make_train({**TINY, "HIDDEN": 16})
     template = jax.vmap(train.policy.init)(jax.random.split(jax.random.PRNGKey(0), 2))
@@ -280,3 +292,80 @@ def test_train_speed_counts_network_work_and_rounds_to_whole_updates():
     # 17 agents through 2 x 256 MLPs: about 9 x PPO's work per env-step; MAPPO's shared critic less
     assert 8 < ippo_m["total_macs"] / ppo_m["total_macs"] < 10
     assert ppo_m["total_macs"] < mappo_m["total_macs"] < ippo_m["total_macs"]
+
+
+def _tiny_day(rewards_of, w):
+    """Step a tiny day with random actions; ``rewards_of(pre_state, reward, info)`` -> the
+    step's (original, shaped) rewards. Returns their sums over the day and the day's profit."""
+    from chargax_marl.marl.env import ChargaxMARL
+
+    env = ChargaxMARL(local_reward_weight=w, **TINY_ENV)
+    _, state = env.reset_to_day(3)
+    key = jax.random.PRNGKey(1)
+    raw, shaped, shaped_first = 0.0, 0.0, None
+    for _ in range(int(env.params.num_steps)):
+        key, k_act, k_step = jax.random.split(key, 3)
+        idx = jax.random.randint(k_act, (env.num_agents,), 0, env.num_actions)
+        idx = jnp.where(jnp.asarray(env._avail_np)[jnp.arange(env.num_agents), idx], idx, env.action_offset)
+        actions = {a: idx[i] for i, a in enumerate(env.agents)}
+        _, new_state, rewards, _, info = env.step_env(k_step, state, actions)
+        r = np.stack([np.asarray(rewards[a]) for a in env.agents])
+        s = r + np.asarray(rewards_of(env, state, info))
+        raw, shaped = raw + r, shaped + s
+        shaped_first = s - r if shaped_first is None else shaped_first
+        state = new_state
+    return raw, shaped, shaped_first, float(state.totals.profit_eur)
+
+
+@pytest.mark.parametrize("w", [0.0, 1.0])
+def test_battery_shaping_moves_the_battery_value_but_keeps_the_days_reward(w):
+    """BATTERY_SHAPING books the batteries' terminal value step by step: each agent's (and the
+    station's) undiscounted day total is unchanged, the first step's reward is not."""
+    from chargax_marl.core.station import KIND_BATTERY
+    from chargax_marl.marl.env import ChargaxMARL
+
+    env0 = ChargaxMARL(**TINY_ENV)
+    is_bat = np.asarray(env0.params.station.leaf_kind) == KIND_BATTERY
+
+    def rewards_of(env, state, info):
+        price = common.battery_value_price(state, env.params)
+        return common.agent_battery_shaping(price, info, is_bat, w)
+
+    raw, shaped, first, profit = _tiny_day(rewards_of, w)
+    np.testing.assert_allclose(shaped, raw, atol=1e-3)  # per agent, w = 0 and w = 1
+    assert np.abs(first).max() > 1e-3  # the battery's first step is valued at once
+    if w == 0.0:
+        np.testing.assert_allclose(raw, profit, rtol=1e-5)  # the shared reward is the station's profit
+    # the single-agent form is the station's term (w = 0)
+    info_like = {"battery_net_kwh": np.ones(3), "battery_terminal_value_eur": np.array([0.0, 0.0, 5.0])}
+    np.testing.assert_allclose(common.battery_shaping(2.0, info_like["battery_net_kwh"],
+                                                      info_like["battery_terminal_value_eur"]), [2.0, 2.0, -3.0])
+
+
+@pytest.mark.parametrize("mod", [ppo, ippo])
+def test_battery_shaping_trains_and_changes_the_return_not_the_profit(mod):
+    outs = {}
+    for on in (False, True):
+        train = mod.make_train({**TINY, "BATTERY_SHAPING": on})
+        outs[on] = jax.device_get(_finite_losses(train)["metrics"])
+    # same seeds, same first rollout: the logged profit is the station's in both runs
+    np.testing.assert_allclose(outs[True]["episode_profit_eur"][:, 0], outs[False]["episode_profit_eur"][:, 0],
+                               rtol=1e-5)
+
+
+@pytest.mark.parametrize("mod", [ippo, mappo])
+def test_battery_net_and_agent_advantage_normalisation_train(mod):
+    train = mod.make_train({**TINY, "AGENT_ADV_NORM": True, "BATTERY_SHAPING": True, "LOCAL_REWARD_WEIGHT": 1.0,
+                            "BATTERY_NET": True, "ENV_KWARGS": {**TINY_ENV, "num_levels": 1}})
+    out = _finite_losses(train)
+    params = out["runner_state"].params
+    assert "battery_actor" in params
+    assert ("battery_critic" in params) == (mod is ippo)  # MAPPO's critic reads the world state
+    # the battery's logits come from its own actor: changing it moves the battery row only
+    policy, env = train.policy, train.env
+    p0 = jax.tree.map(lambda x: x[0], params)
+    obs = env.get_obs_matrix(env.reset_to_day(0)[1])
+    avail = jnp.asarray(env._avail_np)
+    p1 = {**p0, "battery_actor": jax.tree.map(lambda x: x + 1.0, p0["battery_actor"])}
+    moved = np.abs(np.asarray(policy.logits(p1, obs, avail) - policy.logits(p0, obs, avail))).max(axis=1)
+    assert moved[-1] > 0 and np.all(moved[:-1] == 0)
