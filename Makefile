@@ -56,7 +56,8 @@ train-ppo: $(STAMP)
 	$(PY) -m baselines.train --algo ppo $(SCENARIO_FLAGS) --seeds 4 --gamma 0.95 --env-kwargs '{"num_levels": 1}' --timesteps 2e6 --chunks 8 --out outputs/train_ppo
 
 # The LP hindsight bound, the MPC and the rule-based policies on the 100 held-out days of the
-# default scenario and of a grid-constrained one (grid at 25 %, high traffic); writes
+# default scenario and of three coordination scenarios (grid at 25 % and 10 %, high traffic;
+# time-of-use and peak-demand charge), plus the small MILP comparison; writes
 # baselines/results/optimal/*.json and *.png and prints the table (about 25 min on 2 idle cores).
 optimal: $(STAMP)
 	$(PY) -m baselines.optimal
