@@ -123,7 +123,7 @@ class SharedPolicy:
         if self.battery_net:
             logits = jnp.where(self.is_battery(obs) > 0.5, self.actor.apply(params["battery_actor"], obs), logits)
         if self.port_offset.any() or self.battery_offset.any():
-            is_battery = obs[..., self.battery_col:self.battery_col + 1]
+            is_battery = self.is_battery(obs)
             logits = logits + (1.0 - is_battery) * self.port_offset + is_battery * self.battery_offset
         return common.masked_logits(logits, avail)
 

@@ -46,7 +46,7 @@ def node_binding(params: EnvParams, days, key: jax.Array | None = None, policy=a
         def body(state, keys):
             k_act, k_step = keys
             levels = policy(state, k_act, params)
-            requested_a = physics.clip_to_car(physics.target_current(levels, state, params), state, params)
+            requested_a = physics.requested_current(levels, state, params)
             flows = physics.node_flows_kw(requested_a * st.leaf_voltage_v / 1000.0, st)
             state, _ = simulator.step(k_step, state, levels, params)
             return state, flows >= limit

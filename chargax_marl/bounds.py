@@ -81,15 +81,16 @@ def leaf_feature_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
     return low, high
 
 
-def _root_load_bound(params: EnvParams) -> float:
-    """Largest |grid-side flow at the grid connection| over its limit: every leaf at full
-    charging (or discharging) current, no rescale (the soft constraint mode lets it flow)."""
+def _full_power_loads(params: EnvParams) -> np.ndarray:
+    """``(H,)`` each node's grid-side flow over its limit with every leaf below it at its full
+    (dis)charge current and no rescale (the soft constraint mode lets it flow), with a 1e-4
+    margin: the largest load any mix of charging and discharging leaves can put on it."""
     st = params.station
     volts = np.asarray(st.leaf_voltage_v, np.float64)
     amps = np.maximum(np.asarray(st.leaf_max_current_a, np.float64),
                       np.asarray(st.leaf_max_discharge_current_a, np.float64))
-    eta = np.asarray(st.leaf_path_efficiency, np.float64)
-    return float(np.sum(volts * amps / 1000.0 / eta) * (1.0 + 1e-4) / float(np.asarray(st.node_max_kw)[0]))
+    flows = np.asarray(physics.node_flows_kw(np.asarray(volts * amps / 1000.0, np.float32), st), np.float64)
+    return flows * (1.0 + 1e-4) / np.maximum(np.asarray(st.node_max_kw, np.float64), 1e-12)
 
 
 @_eager
@@ -101,7 +102,7 @@ def context_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
     h = params.price_horizon_hours + 1
     q = len(observation.PRICE_QUANTILES)
     customer = float(np.asarray(params.customer_price_eur_kwh)) / observation.PRICE_SCALE_EUR_KWH
-    root = _root_load_bound(params)
+    root = float(_full_power_loads(params)[0])  # node 0 is the grid connection
     low = [np.full(h, prices[0]), [customer], [-1.0, -1.0], [0.0], [0.0], [0.0], np.full(q, prices[0]), [-root], [0.0]]
     high = [np.full(h, prices[1]), [customer], [1.0, 1.0], [1.0], [1.0], [1.0], np.full(q, prices[1]), [root], [root]]
     if params.observe_moer:
@@ -127,13 +128,7 @@ def flat_obs_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
 def ancestor_load_bounds(params: EnvParams, ancestors: np.ndarray) -> np.ndarray:
     """Upper bound ``(N, D)`` of each agent's ancestor loads (``ancestors``: the
     ``(N, D)`` node table of :func:`chargax_marl.marl.env.ancestor_table`)."""
-    st = params.station
-    volts = np.asarray(st.leaf_voltage_v, np.float64)
-    amps = np.maximum(np.asarray(st.leaf_max_current_a, np.float64),
-                      np.asarray(st.leaf_max_discharge_current_a, np.float64))
-    full_kw = volts * amps / 1000.0
-    flows = np.asarray(physics.node_flows_kw(np.asarray(full_kw, np.float32), st), np.float64)
-    load = flows * (1.0 + 1e-4) / np.maximum(np.asarray(st.node_max_kw, np.float64), 1e-12)
+    load = _full_power_loads(params)
     anc = np.asarray(ancestors)
     return np.where(anc >= 0, load[np.maximum(anc, 0)], 0.0)
 

@@ -53,20 +53,18 @@ def root_load(state: EnvState, params: EnvParams) -> jnp.ndarray:
     leaf's ``V * I`` over its path efficiency when charging, times it when feeding in) as a
     fraction of the connection's limit: 1 = the grid connection binds, negative = feed-in."""
     st = params.station
-    power_kw = state.current_a * st.leaf_voltage_v / 1000.0
-    grid_kw = jnp.where(power_kw > 0, power_kw / st.leaf_path_efficiency, power_kw * st.leaf_path_efficiency)
-    return jnp.sum(grid_kw) / st.node_max_kw[0]
+    return jnp.sum(physics.path_grid_side(state.current_a * st.leaf_voltage_v / 1000.0, st)) / st.node_max_kw[0]
 
 
 def context_features(state: EnvState, params: EnvParams) -> jnp.ndarray:
-    """Shared context, in order (:data:`CONTEXT_FEATURES`): the buy-side price (day-ahead plus
+    """Shared context, in order: the buy-side price (day-ahead plus
     the time-of-use surcharge) now and the next H hours, customer price, time of day (sin, cos),
     workday flag, day of the data, the fraction of the hour left until the price changes, the
     day's price quantiles (:data:`PRICE_QUANTILES`), the grid connection's load
     (:func:`root_load`), the day's peak draw so far over the connection's limit, and MOER now
     when ``params.observe_moer``."""
-    prices = jnp.stack([day_ahead_price(state.day, state.timestep, params, h) + tou_fee(state.timestep, params, h)
-                        for h in range(params.price_horizon_hours + 1)])
+    ahead = jnp.arange(params.price_horizon_hours + 1)  # one gather per table, not one per hour
+    prices = day_ahead_price(state.day, state.timestep, params, ahead) + tou_fee(state.timestep, params, ahead)
     angle = 2.0 * jnp.pi * state.timestep / params.num_steps
     minute_of_hour = jnp.mod(state.timestep * params.step_minutes, 60.0)
     root_kw = params.station.node_max_kw[0]

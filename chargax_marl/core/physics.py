@@ -97,6 +97,13 @@ def _grid_side(leaf_power_kw: jnp.ndarray, eff: jnp.ndarray, has_node: jnp.ndarr
     return jnp.where(has_node, jnp.where(leaf_power_kw > 0, leaf_power_kw / eff, leaf_power_kw * eff), 0.0)
 
 
+def path_grid_side(leaf_values: jnp.ndarray, station: StationArrays) -> jnp.ndarray:
+    """Each leaf's power (or energy) on the grid side of the whole path to the grid connection:
+    divided by the path efficiency when charging, multiplied by it when discharging."""
+    eta = station.leaf_path_efficiency
+    return jnp.where(leaf_values > 0, leaf_values / eta, leaf_values * eta)
+
+
 def grid_side_kw(leaf_power_kw: jnp.ndarray, station: StationArrays) -> jnp.ndarray:
     """``(D, L)`` the flow each leaf causes on the grid side of its ancestor at depth ``d``:
     its power divided by the efficiency of the path up to and including that node when it
@@ -146,6 +153,12 @@ def rescale_to_limits(current_a: jnp.ndarray, station: StationArrays) -> jnp.nda
     return current_a
 
 
+def requested_current(action: jnp.ndarray, state: EnvState, params: EnvParams) -> jnp.ndarray:
+    """The currents the controller asks for: the action's target current within the car's and
+    the port's limits, before the node limits (what :func:`apply_actions` rescales)."""
+    return clip_to_car(target_current(action, state, params), state, params)
+
+
 def apply_actions(action: jnp.ndarray, state: EnvState, params: EnvParams):
     """Step 1 of the transition: action -> target -> car/port limits -> node limits.
 
@@ -155,7 +168,7 @@ def apply_actions(action: jnp.ndarray, state: EnvState, params: EnvParams):
     rescale brings the latter to 0; in soft mode nothing is rescaled and both are equal.
     """
     volts = params.station.leaf_voltage_v
-    requested = clip_to_car(target_current(action, state, params), state, params)
+    requested = requested_current(action, state, params)
     requested_excess = constraint_excess_kw(requested * volts / 1000.0, params.station)
     if params.constraint_mode == "hard":
         current = rescale_to_limits(requested, params.station)
@@ -195,8 +208,7 @@ def energy_flows(leaf_energy_kwh: jnp.ndarray, station: StationArrays) -> dict:
     ``grid_net = into_cars + into_batteries + losses`` holds by construction; losses >= 0.
     """
     is_port = station.leaf_kind != KIND_BATTERY
-    eta = station.leaf_path_efficiency
-    grid_side = jnp.where(leaf_energy_kwh > 0, leaf_energy_kwh / eta, leaf_energy_kwh * eta)
+    grid_side = path_grid_side(leaf_energy_kwh, station)
     car_e = jnp.where(is_port, leaf_energy_kwh, 0.0)
     bat_e = jnp.where(is_port, 0.0, leaf_energy_kwh)
     grid_to = jnp.sum(jnp.where(is_port & (leaf_energy_kwh > 0), grid_side, 0.0))

@@ -16,8 +16,8 @@ def hour_of_step(timestep: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
     return jnp.clip((timestep * params.step_minutes / 60.0).astype(jnp.int32), 0, 23)
 
 
-def day_ahead_price(day: jnp.ndarray, timestep: jnp.ndarray, params: EnvParams, ahead_hours: int = 0) -> jnp.ndarray:
-    """Day-ahead price (EUR/kWh) ``ahead_hours`` after the hour of ``timestep``.
+def day_ahead_price(day: jnp.ndarray, timestep: jnp.ndarray, params: EnvParams, ahead_hours=0) -> jnp.ndarray:
+    """Day-ahead price (EUR/kWh) ``ahead_hours`` (an int or an array of them) after the hour of ``timestep``.
 
     Hours past midnight read the next day's prices (the year wraps to its first day).
     """
@@ -26,8 +26,9 @@ def day_ahead_price(day: jnp.ndarray, timestep: jnp.ndarray, params: EnvParams, 
     return flat[jnp.mod(idx, flat.shape[0])]
 
 
-def tou_fee(timestep: jnp.ndarray, params: EnvParams, ahead_hours: int = 0) -> jnp.ndarray:
-    """The time-of-use surcharge (EUR/kWh) ``ahead_hours`` after the hour of ``timestep``."""
+def tou_fee(timestep: jnp.ndarray, params: EnvParams, ahead_hours=0) -> jnp.ndarray:
+    """The time-of-use surcharge (EUR/kWh) ``ahead_hours`` (an int or an array of them) after
+    the hour of ``timestep``."""
     return params.tou_fee_eur_kwh[jnp.mod(hour_of_step(timestep, params) + ahead_hours, 24)]
 
 

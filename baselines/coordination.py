@@ -1,7 +1,7 @@
 """The README's table of the coordination scenarios: always-max, the battery price rule and the
 LP hindsight bound (over always-max's occupancy) on the 100 held-out days, key 0, same cars.
 
-Run: ``.venv/bin/python scripts/coordination_table.py`` (about 2 min on 2 cores); writes
+Run: ``python -m baselines.coordination`` (about 2 min on 2 cores); writes
 ``baselines/results/coordination/table.json`` and prints the Markdown rows.
 """
 
@@ -14,14 +14,14 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from chargax_marl import policies
+from baselines.heuristics import evaluate_rules
 from chargax_marl.core.params import make_params
 from chargax_marl.core.scenarios import scenario_kwargs
-from chargax_marl.evaluation import hindsight_bound, run_days, split_days
+from chargax_marl.evaluation import hindsight_bound, split_days
 
 SCENARIOS = ("shopping", "shopping-grid10-high", "shopping-grid25-high", "shopping-peak", "shopping-peak-high",
              "shopping-grid50-peak-high")
-OUT = Path(__file__).resolve().parents[1] / "baselines" / "results" / "coordination" / "table.json"
+OUT = Path(__file__).resolve().parent / "results" / "coordination" / "table.json"
 
 
 def paired(x: np.ndarray) -> tuple[float, float]:
@@ -37,20 +37,17 @@ def main() -> dict:
     for name in SCENARIOS:
         t0 = time.perf_counter()
         params = make_params(**scenario_kwargs(name))
-        totals = {}
-        for pol in ("always_max", "battery_rule"):
-            fn = policies.get_policy(pol)
-            totals[pol] = jax.jit(lambda d, k, fn=fn: run_days(lambda s, kk: fn(s, kk, params), params, d, k))(days, key)
-        am = np.asarray(totals["always_max"].profit_eur, np.float64)
-        br = np.asarray(totals["battery_rule"].profit_eur, np.float64)
+        rules = evaluate_rules(params, days, ("always_max", "battery_rule"), key)
+        am, br = rules["always_max"]["daily_profit"], rules["battery_rule"]["daily_profit"]
+        am_metrics = rules["always_max"]["metrics"]
         bound = hindsight_bound(params, days, key)
         row = {"always_max": float(am.mean()), "battery_rule": float(br.mean()),
                "battery_rule_vs_always_max": paired(br - am),
                "bound": float(bound["daily_profit"].mean()),
                "bound_vs_always_max": paired(bound["daily_profit"] - am),
                "bound_reference_matches": bool(np.allclose(bound["reference_daily_profit"], am, atol=0.05)),
-               "always_max_peak_kw": float(np.asarray(totals["always_max"].peak_grid_kw).mean()),
-               "always_max_peak_charge_eur": float(np.asarray(totals["always_max"].peak_demand_charge_eur).mean()),
+               "always_max_peak_kw": am_metrics["peak_grid_kw"]["mean"],
+               "always_max_peak_charge_eur": am_metrics["peak_demand_charge_eur"]["mean"],
                "lp_solve_s_mean": float(bound["solve_s"].mean()), "wall_s": time.perf_counter() - t0}
         out["scenarios"][name] = row
         d, b = row["battery_rule_vs_always_max"], row["bound_vs_always_max"]
