@@ -108,7 +108,11 @@ def test_grid_side_energy_through_every_node_within_its_limit(tree, seed):
     through = _grid_side_node_energy(tree, np.asarray(info.leaf_energy_kwh, np.float64), p.station.leaf_names)
     for name, limit in _limits(tree).items():
         assert abs(through[name]) <= limit * DT_H * (1 + 1e-4) + 1e-6, (name, through[name] / DT_H, limit)
-    assert float(info.constraint_excess_kw) == 0.0
+    # hard mode: what flows is within every limit up to float32 rounding, whose size follows
+    # the leaf powers that cancel in a node's net flow (a 1 kW root over ~200 kW leaves left
+    # 2.3e-6 kW, hypothesis seed 216238), not the limit
+    scale_kw = float(np.abs(np.asarray(info.leaf_energy_kwh, np.float64)).sum()) / DT_H
+    assert float(info.constraint_excess_kw) <= 1e-6 * (1.0 + scale_kw)
 
 
 def test_soft_mode_reports_what_flows():
