@@ -441,6 +441,14 @@ def test_reward_shares_add_up_and_local_weight_mixes_them(small):
         np.testing.assert_allclose(rw, (1 - w) * station[:, None] + w * share, rtol=1e-6, atol=1e-6)
         np.testing.assert_allclose(rw.sum(-1), (1 - w) * len(small.agents) * station + w * station,
                                    rtol=1e-5, atol=1e-3)
+    # without the refund of discharged car energy (the original Chargax's books) the shares still
+    # add up; the same levels now earn what the discharging cars' owners are not refunded
+    off = ChargaxMARL(station=mixed_station(), traffic=150.0, refund_discharged_energy=False)
+    _, station_off, share_off, states_off = _day_rewards(off)
+    for x, y in zip(jax.tree.leaves(states_off.soc), jax.tree.leaves(states0.soc)):
+        np.testing.assert_array_equal(x, y)
+    np.testing.assert_allclose(share_off.sum(-1), station_off, rtol=1e-5, atol=1e-4)
+    assert np.all(station_off >= station - 1e-4) and station_off.sum() > station.sum() + 0.1
 
 
 def test_a_battery_share_is_the_money_its_own_energy_made(quiet, quiet_step):

@@ -94,6 +94,7 @@ def make_params(
     moer_kg_per_kwh: Any = None,
     grid_demand_kwh: Any = None,
     customer_price_eur_kwh: float = 0.75,
+    refund_discharged_energy: bool = True,
     grid_fee_eur_kwh: float = GRID_FEE_EUR_KWH,
     tou_fee_eur_kwh: Any = None,
     peak_demand_eur_kw: float = 0.0,
@@ -135,6 +136,11 @@ def make_params(
     the day-ahead price plus ``grid_fee_eur_kwh`` (default 0.04), feeds in at
     ``feed_in_factor`` times the day-ahead price and pays ``fixed_cost_eur`` per step
     (default 0.35 at 5-minute steps, about 100 EUR/day, scaled with the step length).
+    ``refund_discharged_energy`` (default True) refunds car owners ``customer_price_eur_kwh``
+    for every kWh discharged from their car (V2G), so customers pay for the net energy
+    delivered; False bills only the energy put into each car and refunds nothing, the
+    original Chargax implementation's accounting, under which discharging a car before it
+    leaves earns money (see :func:`chargax_marl.core.reward.billed_car_kwh`).
     Network tariff terms (:mod:`chargax_marl.core.tariffs`): ``tou_fee_eur_kwh`` adds a
     time-of-use surcharge per local hour to the buy price (24 values or a preset such as
     ``"evening-peak"``); ``peak_demand_eur_kw`` charges EUR per kW of the day's highest net
@@ -150,6 +156,9 @@ def make_params(
     ``beta`` weighs the undertime credit of the charge-sensitive satisfaction term, 0 by
     default (see :func:`chargax_marl.core.traffic.depart`).
     """
+    if not isinstance(refund_discharged_energy, (bool, np.bool_)):
+        raise ValueError(f"field 'refund_discharged_energy' must be a bool (True: refund car owners for energy "
+                         f"discharged from their car; False: no refund), got {refund_discharged_energy!r}")
     if action_mode not in ACTION_MODES:
         raise ValueError(f"field 'action_mode' must be one of {ACTION_MODES}, got {action_mode!r}")
     if constraint_mode not in CONSTRAINT_MODES:
@@ -276,6 +285,7 @@ def make_params(
         battery_soc0_high=jnp.asarray(soc0_high, jnp.float32),
         customer_price_eur_kwh=scalar("customer_price_eur_kwh", customer_price_eur_kwh, minimum=0.0,
                                       maximum=price_max, unit="EUR/kWh"),
+        refund_discharged_energy=jnp.asarray(bool(refund_discharged_energy)),
         grid_fee_eur_kwh=scalar("grid_fee_eur_kwh", grid_fee_eur_kwh, minimum=0.0, maximum=price_max, unit="EUR/kWh"),
         tou_fee_eur_kwh=jnp.asarray(tou, jnp.float32),
         peak_demand_eur_kw=jnp.asarray(peak_rate, jnp.float32),

@@ -76,11 +76,30 @@ def station_grid_price(flows: dict, p_buy, p_sell_grid) -> jnp.ndarray:
     return jnp.where(flows["grid_net_kwh"] > 0, p_buy, p_sell_grid)
 
 
+def billed_car_kwh(flows: dict, params: EnvParams) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """``(per_leaf (L,), total ())``: the car energy (kWh) the customers pay ``p_sell`` for
+    in the step, the one rule behind :func:`profit_eur` and :func:`leaf_reward_shares`.
+
+    With ``params.refund_discharged_energy`` (the default) each car pays for its net energy
+    (charged minus discharged: energy taken out of a car by V2G is refunded at ``p_sell``),
+    and the total is Delta E_net. Without it each car pays for the energy put in and gets
+    nothing back for energy taken out (``max(e, 0)`` per car, the original Chargax
+    accounting), and the total is the energy charged. Batteries are not cars (0 here). The
+    total is the flows' own sum of the per-leaf values, so the shares add up to the profit.
+    """
+    refund = params.refund_discharged_energy
+    car = flows["leaf_car_kwh"]
+    return (jnp.where(refund, car, jnp.maximum(car, 0.0)),
+            jnp.where(refund, flows["delivered_kwh"], flows["charged_kwh"]))
+
+
 def profit_eur(flows: dict, p_buy, p_sell_grid, params: EnvParams) -> jnp.ndarray:
-    """Paper Eq. 2: customers pay p_sell for Delta E_net; the grid is paid p_buy for a net draw
-    or pays p_sell,grid for a net feed-in; minus the fixed cost per step."""
+    """Paper Eq. 2: customers pay p_sell for Delta E_net (for the energy charged alone when
+    discharged energy is not refunded, :func:`billed_car_kwh`); the grid is paid p_buy for a
+    net draw or pays p_sell,grid for a net feed-in; minus the fixed cost per step."""
     grid_price = station_grid_price(flows, p_buy, p_sell_grid)
-    return (params.customer_price_eur_kwh * flows["delivered_kwh"] - grid_price * flows["grid_net_kwh"]
+    _, billed = billed_car_kwh(flows, params)
+    return (params.customer_price_eur_kwh * billed - grid_price * flows["grid_net_kwh"]
             - params.fixed_cost_eur)
 
 
@@ -145,7 +164,7 @@ def leaf_reward_shares(flows: dict, departures: dict, terms: dict, moer, termina
     """Each leaf's share ``(L,)`` of the step reward ``r``; the shares sum to ``r``.
 
     A leaf's share is the money its own energy made minus the penalties it caused: what its
-    car paid (``p_sell`` times the energy into the car) minus its grid cost
+    car paid (``p_sell`` times the energy into the car, :func:`billed_car_kwh`) minus its grid cost
     (:func:`leaf_grid_cost_eur`, which does not move with other leaves' actions), the
     batteries' terminal value to the batteries, and the weighted penalty terms split by
     :func:`leaf_penalty_terms`. The fixed cost and the peak-demand charge are split evenly. The multi-agent view mixes
@@ -154,7 +173,8 @@ def leaf_reward_shares(flows: dict, departures: dict, terms: dict, moer, termina
     st = params.station
     num_leaves = flows["leaf_grid_kwh"].shape[0]
     is_bat = st.leaf_kind == KIND_BATTERY
-    own = params.customer_price_eur_kwh * flows["leaf_car_kwh"] - leaf_grid_cost_eur(flows, p_buy, p_sell_grid)
+    billed, _ = billed_car_kwh(flows, params)
+    own = params.customer_price_eur_kwh * billed - leaf_grid_cost_eur(flows, p_buy, p_sell_grid)
     own = own + jnp.where(is_bat, terminal_eur / max(st.num_batteries, 1), 0.0)
     per_leaf = leaf_penalty_terms(flows, departures, terms, moer, st)
     penalty = sum(getattr(params.alpha, name) * per_leaf[name] for name in PENALTY_TERMS)

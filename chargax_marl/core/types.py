@@ -87,6 +87,8 @@ class EnvParams:
     battery_soc0_high: jnp.ndarray  # (B,)
     # --- economics
     customer_price_eur_kwh: jnp.ndarray  # () p_sell, price charged to (and refunded to) car owners
+    refund_discharged_energy: jnp.ndarray  # () bool: car owners get p_sell back for energy taken out of
+    #   their car (default); False: they pay for energy put in and get nothing back (the original Chargax)
     grid_fee_eur_kwh: jnp.ndarray  # () added to the day-ahead price when buying
     tou_fee_eur_kwh: jnp.ndarray  # (24,) time-of-use surcharge on the buy price per local hour (zeros: none)
     peak_demand_eur_kw: jnp.ndarray  # () EUR per kW of the day's highest net grid draw (0: no peak charge)

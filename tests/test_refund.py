@@ -1,0 +1,157 @@
+"""Refunding energy discharged from customers' cars (``refund_discharged_energy``).
+
+The default refunds it (customers pay for the net energy delivered); ``False`` bills only the
+energy put into each car, the original Chargax accounting. The simulator's profit and the
+per-leaf reward shares must price the same thing. Hand cases: flat
+0.10 EUR/kWh, no losses, no grid fee or fixed cost, customer price 0.75.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from chargax_marl import policies
+from chargax_marl.core import datasets, physics, reward as reward_lib, simulator
+from chargax_marl.core.params import make_params
+from chargax_marl.core.station import Battery, Port, Splitter
+from tests.helpers import no_arrivals, place_car, start
+
+KEY = jax.random.PRNGKey(0)
+PRICE, CUSTOMER = 0.10, 0.75
+STEP = jax.jit(simulator.step)  # the refund flag is an array field: one compile serves both modes
+
+
+def v2g_station() -> Splitter:
+    """Two 50 kW DC ports that may discharge and a 100 kWh battery, all without losses."""
+    ports = tuple(Port(f"p{i}", "DC", 500.0, 100.0, 100.0, 1.0) for i in range(2))
+    bat = Battery("bat", capacity_kwh=100.0, max_kw=50.0, efficiency=1.0, tau=0.99, initial_soc=0.5)
+    return Splitter("grid", 1000.0, ports + (bat,), efficiency=1.0)
+
+
+def flat_params(refund=True, station=None, **kw):
+    return make_params(station=station or v2g_station(), prices=np.full((2, 24), PRICE, np.float32),
+                       grid_fee_eur_kwh=0.0, fixed_cost_eur=0.0, customer_price_eur_kwh=CUSTOMER,
+                       refund_discharged_energy=refund, **kw)
+
+
+# --------------------------------------------------------------------------- the option
+
+def test_refund_is_the_default():
+    assert bool(make_params().refund_discharged_energy) is True
+    assert bool(make_params(refund_discharged_energy=False).refund_discharged_energy) is False
+    assert bool(make_params(refund_discharged_energy=np.bool_(False)).refund_discharged_energy) is False
+
+
+@pytest.mark.parametrize("bad", ["yes", 1, 0, 1.0, None, "False"])
+def test_a_bad_refund_flag_names_the_field_the_value_and_what_is_allowed(bad):
+    with pytest.raises(ValueError, match=r"refund_discharged_energy.*must be a bool.*got " + re.escape(repr(bad))):
+        make_params(refund_discharged_energy=bad)
+
+
+# --------------------------------------------------------------------------- one step by hand
+
+def _v2g_step(refund):
+    """Port 0's car (SoC 0.5, arrived at 0.2) discharges at 50 kW, port 1's charges at 20 kW."""
+    p = no_arrivals(flat_params(refund, alpha={"car_degradation": 0.01}))
+    s = place_car(start(p), 0, soc=0.5, arrival_soc=0.2, capacity_kwh=100.0, max_rate_kw=50.0, tau=0.99,
+                  time_min=600.0)
+    s = place_car(s, 1, soc=0.2, capacity_kwh=100.0, max_rate_kw=50.0, tau=0.99, time_min=600.0)
+    _, info = STEP(KEY, s, jnp.array([-10, 4, 0]), p)
+    return info
+
+
+def test_a_discharging_car_is_refunded_only_with_the_refund():
+    on, off = _v2g_step(True), _v2g_step(False)
+    e_dis, e_chg = 50.0 / 12.0, 20.0 / 12.0
+    # the same energies flow either way
+    for info in (on, off):
+        assert float(info.energy_discharged_kwh) == pytest.approx(e_dis, rel=1e-5)
+        assert float(info.energy_charged_kwh) == pytest.approx(e_chg, rel=1e-5)
+        assert float(info.grid_net_kwh) == pytest.approx(e_chg - e_dis, rel=1e-5)  # a net feed-in at 0.10
+    assert float(on.profit_eur) == pytest.approx(CUSTOMER * (e_chg - e_dis) - PRICE * (e_chg - e_dis), rel=1e-5)
+    assert float(off.profit_eur) == pytest.approx(CUSTOMER * e_chg - PRICE * (e_chg - e_dis), rel=1e-5)
+    assert float(off.profit_eur - on.profit_eur) == pytest.approx(CUSTOMER * e_dis, rel=1e-5)
+    # the shares add up to the reward in both modes, and only the discharging car's share moves
+    for info in (on, off):
+        assert float(np.sum(info.leaf_reward)) == pytest.approx(float(info.reward), abs=1e-5)
+    d = np.asarray(off.leaf_reward) - np.asarray(on.leaf_reward)
+    np.testing.assert_allclose(d, [CUSTOMER * e_dis, 0.0, 0.0], atol=1e-5)
+
+
+def test_a_charging_car_and_the_battery_pay_the_same_in_both_modes():
+    infos = {}
+    for refund in (True, False):
+        p = no_arrivals(flat_params(refund))
+        s = place_car(start(p), 1, soc=0.2, capacity_kwh=100.0, max_rate_kw=50.0, tau=0.99, time_min=600.0)
+        _, infos[refund] = STEP(KEY, s, jnp.array([0, 10, -10]), p)  # battery discharges: not a car
+    assert float(infos[True].profit_eur) == float(infos[False].profit_eur)
+    np.testing.assert_array_equal(np.asarray(infos[True].leaf_reward), np.asarray(infos[False].leaf_reward))
+    assert float(infos[True].battery_net_kwh) < 0.0
+
+
+# --------------------------------------------------------------------------- a day of random levels
+
+@pytest.fixture(scope="module")
+def random_days():
+    """A day of random valid levels with and without the refund (the same keys, cars and
+    levels) and with the default, on a small V2G station whose cars may all discharge."""
+    station = Splitter("grid", 220.0, (
+        Splitter("dc", 200.0, tuple(Port(f"dc{i}", "DC", 500.0, 200.0, 200.0, 0.95) for i in range(4)), 0.98),
+        Splitter("ac", 20.0, tuple(Port(f"ac{i}", "AC", 400.0, 32.0, 16.0, 0.97) for i in range(2)), 0.99),
+        Battery("bat", capacity_kwh=100.0, max_kw=50.0, efficiency=0.95, tau=0.8, initial_soc=0.5)))
+    eu = datasets.load_fleet("EU")
+    fleet = dataclasses.replace(eu, max_ac_discharge_kw=eu.max_ac_kw, max_dc_discharge_kw=eu.max_dc_kw)
+    kw = dict(station=station, traffic=150.0, fleet=fleet, alpha={"car_degradation": 0.02, "satisfaction_time": 0.1})
+
+    @jax.jit
+    def day(p):
+        def body(s, k):
+            k1, k2 = jax.random.split(k)
+            s2, info = simulator.step(k2, s, policies.random_policy(s, k1, p), p)
+            return s2, info
+        return jax.lax.scan(body, simulator.reset(KEY, p), jax.random.split(KEY, p.num_steps))[1]
+
+    params = {r: make_params(**kw, refund_discharged_energy=r) for r in (True, False)}
+    params["default"] = make_params(**kw)
+    return params, {k: jax.device_get(day(p)) for k, p in params.items()}
+
+
+def test_the_refund_changes_the_books_not_the_trajectory(random_days):
+    _, infos = random_days
+    on, off = infos[True], infos[False]
+    np.testing.assert_array_equal(on.leaf_energy_kwh, off.leaf_energy_kwh)
+    discharged = np.asarray(on.energy_discharged_kwh, np.float64)
+    assert discharged.sum() > 10.0, "the random levels discharge cars"
+    np.testing.assert_allclose(np.asarray(off.profit_eur, np.float64) - np.asarray(on.profit_eur, np.float64),
+                               CUSTOMER * discharged, rtol=1e-4, atol=1e-4)
+    assert np.all(np.asarray(off.reward) >= np.asarray(on.reward) - 1e-5)
+    for info in (on, off):
+        np.testing.assert_allclose(info.leaf_reward.sum(-1), info.reward, rtol=1e-5, atol=1e-4)
+
+
+def test_the_default_books_exactly_what_it_did_before(random_days):
+    params, infos = random_days
+    on = infos[True]
+    # the default is the refund, bit for bit
+    for a, b in zip(jax.tree_util.tree_leaves(infos["default"]), jax.tree_util.tree_leaves(on)):
+        assert np.asarray(a).tobytes() == np.asarray(b).tobytes()
+    # and it books the net energy delivered at the customer price, the formula before the option;
+    # evaluated op by op, the same float32 operations give the same bits
+    p = params[True]
+    steps = np.nonzero(np.asarray(on.energy_discharged_kwh) > 0)[0]
+    assert steps.size > 5
+    for t in steps[:5]:
+        flows = physics.energy_flows(jnp.asarray(on.leaf_energy_kwh[t]), p.station)
+        buy, sell = jnp.asarray(on.price_buy_eur_kwh[t]), jnp.asarray(on.price_sell_grid_eur_kwh[t])
+        grid_price = reward_lib.station_grid_price(flows, buy, sell)
+        before = p.customer_price_eur_kwh * flows["delivered_kwh"] - grid_price * flows["grid_net_kwh"] - p.fixed_cost_eur
+        assert np.asarray(reward_lib.profit_eur(flows, buy, sell, p)).tobytes() == np.asarray(before).tobytes()
+        billed, _ = reward_lib.billed_car_kwh(flows, p)
+        assert np.asarray(billed).tobytes() == np.asarray(flows["leaf_car_kwh"]).tobytes()
+        assert float(on.profit_eur[t]) == pytest.approx(float(before), rel=1e-6, abs=1e-6)
