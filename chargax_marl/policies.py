@@ -60,6 +60,27 @@ def battery_rule(state: EnvState, key: jax.Array, params: EnvParams, quantile: f
     return jnp.where(_is_battery(params), battery, params.num_levels).astype(jnp.int32)
 
 
+def discharge_departing(state: EnvState, key: jax.Array, params: EnvParams, steps_before: int = 2) -> jnp.ndarray:
+    """Always-max, except that a time-sensitive car whose planned departure is within the
+    next ``steps_before`` (2) steps discharges at full power (where its port and the car may
+    discharge); batteries idle.
+
+    It takes back, just before the car leaves, energy the customer has paid for. That earns
+    money only when discharged energy is not refunded to the car owner
+    (``make_params(refund_discharged_energy=False)``, the original Chargax accounting); with
+    the refund (the default) each kWh taken back is repaid at the customer price and sold at
+    the grid price, a loss. The simulator never takes a car below its arrival SoC.
+    Charge-sensitive cars leave when charged, not at a planned time: they charge at full power.
+    """
+    del key
+    is_battery = _is_battery(params)
+    can_discharge = (physics.leaf_min_level(params.station, params.num_levels, params.v2g) < 0) & ~is_battery
+    departing = (state.occupied & ~state.charge_sensitive & (state.max_discharge_rate_kw > 0)
+                 & (state.time_remaining_min <= steps_before * params.step_minutes))
+    ports = jnp.where(departing & can_discharge, -params.num_levels, params.num_levels)
+    return jnp.where(is_battery, 0, ports).astype(jnp.int32)
+
+
 def random_policy(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarray:
     """Uniform random level per leaf within the leaf's valid range."""
     del state
@@ -154,6 +175,7 @@ POLICIES: dict[str, Policy] = {
     "price_threshold": price_threshold,
     "edf": earliest_deadline_first,
     "llf": least_laxity_first,
+    "discharge_departing": discharge_departing,
 }
 
 

@@ -1,8 +1,8 @@
 """Refunding energy discharged from customers' cars (``refund_discharged_energy``).
 
 The default refunds it (customers pay for the net energy delivered); ``False`` bills only the
-energy put into each car, the original Chargax accounting. The simulator's profit and the
-per-leaf reward shares must price the same thing. Hand cases: flat
+energy put into each car, the original Chargax accounting. The simulator's profit, the
+per-leaf reward shares and the LP bound must all price the same thing. Hand cases: flat
 0.10 EUR/kWh, no losses, no grid fee or fixed cost, customer price 0.75.
 """
 
@@ -16,10 +16,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from chargax_marl import policies
+from chargax_marl import optimal, policies, trace
 from chargax_marl.core import datasets, physics, reward as reward_lib, simulator
 from chargax_marl.core.params import make_params
 from chargax_marl.core.station import Battery, Port, Splitter
+from chargax_marl.optimal.mpc import MPC
 from tests.helpers import no_arrivals, place_car, start
 
 KEY = jax.random.PRNGKey(0)
@@ -155,3 +156,67 @@ def test_the_default_books_exactly_what_it_did_before(random_days):
         billed, _ = reward_lib.billed_car_kwh(flows, p)
         assert np.asarray(billed).tobytes() == np.asarray(flows["leaf_car_kwh"]).tobytes()
         assert float(on.profit_eur[t]) == pytest.approx(float(before), rel=1e-6, abs=1e-6)
+
+
+# --------------------------------------------------------------------------- the LP bound
+
+ONE_PORT = Splitter("grid", 1000.0, (Port("p0", "DC", 500.0, 100.0, 100.0, 1.0),), efficiency=1.0)
+CAR = dict(arrival_step=0, capacity_kwh=100.0, dc_kw=50.0, dc_discharge_kw=50.0, tau=0.99, arrival_soc=0.2,
+           target_soc=0.6, stay_min=60.0)
+
+
+def _one_car(refund, policy):
+    p = flat_params(refund, station=ONE_PORT)
+    tr = trace.trace_from_cars(p, [CAR])
+    return optimal.hindsight_bound(p, tr, optimal.occupancy(p, tr, KEY, reference=policy))
+
+
+def test_the_lp_prices_the_refund_by_hand():
+    # one car, 12 steps at up to 50 kW (4.17 kWh a step either way), SoC between its arrival 0.2
+    # and its target 0.6 (40 kWh apart). With the refund it pays the net: 40 kWh * 0.65 = 26.
+    # Without it a kWh charged earns 0.65 and a kWh discharged 0.10; charged C and discharged D
+    # share the 50 kWh a port can pass in the hour (it charges or discharges in a step, not both)
+    # and C - D <= 40: C = 45, D = 5 -> 29.25 + 0.5 = 29.75.
+    on = _one_car(True, policies.always_max)
+    off = _one_car(False, policies.always_max)
+    assert on.profit_eur == pytest.approx(26.0, abs=1e-4)
+    assert off.profit_eur == pytest.approx(29.75, abs=1e-4)
+    assert on.reference_profit_eur == pytest.approx(off.reference_profit_eur, abs=1e-6)  # always-max never discharges
+    # discharging the car in its last two steps (8.33 kWh) loses 0.65 a kWh with the refund and
+    # earns 0.10 a kWh without; the bound stays above it
+    dep_on = _one_car(True, policies.discharge_departing)
+    dep_off = _one_car(False, policies.discharge_departing)
+    assert dep_on.reference_profit_eur == pytest.approx(26.0 - 0.65 * 50 / 6, abs=1e-3)
+    assert dep_off.reference_profit_eur == pytest.approx(26.0 + 0.10 * 50 / 6, abs=1e-3)
+    assert dep_off.profit_eur >= dep_off.reference_profit_eur > on.profit_eur
+
+
+def test_the_bound_without_the_refund_is_above_the_bound_with_it_and_the_rules():
+    # the default station (4 DC, 2 AC) on a busy day: a tenth of the EU fleet may discharge at DC
+    kw = dict(station_kwargs={"num_dc": 4, "num_ac": 2}, traffic="high")
+    on, off = make_params(**kw), make_params(**kw, refund_discharged_energy=False)
+    tr = trace.day_of(trace.make_traces(on, np.array([30]), KEY), 0)
+    b_on = optimal.hindsight_bound(on, tr, optimal.occupancy(on, tr, KEY))
+    b_off = optimal.hindsight_bound(off, tr, optimal.occupancy(off, tr, KEY))
+    assert b_off.reference_profit_eur == pytest.approx(b_on.reference_profit_eur, abs=1e-3)
+    assert b_on.profit_eur >= b_on.reference_profit_eur - 1e-3 * abs(b_on.reference_profit_eur)
+    assert b_off.profit_eur > b_on.profit_eur + 1.0
+    # discharging departing cars earns money without the refund, and stays under that bound
+    dep = optimal.hindsight_bound(off, tr, optimal.occupancy(off, tr, KEY, reference=policies.discharge_departing))
+    assert dep.reference_profit_eur > b_off.reference_profit_eur
+    assert dep.profit_eur >= dep.reference_profit_eur - 1e-3 * abs(dep.reference_profit_eur)
+
+
+def test_the_mpc_prices_the_refund_too():
+    # the hand case above: with the refund the MPC charges the 40 kWh (26 EUR); without it, it
+    # also takes energy back and charges it again, between that and the bound's 29.75
+    profit = {}
+    for refund in (True, False):
+        p = flat_params(refund, station=ONE_PORT)
+        tr = trace.trace_from_cars(p, [CAR])
+        mpc = MPC(p)
+        _, _, final = jax.jit(lambda t, k: trace.replay(lambda s, kk: mpc(s, kk, p), p, t, k))(tr, KEY)
+        profit[refund] = float(final.totals.profit_eur)
+        assert mpc.failures == 0
+    assert profit[True] == pytest.approx(26.0, abs=0.05)
+    assert 26.5 < profit[False] <= 29.75 + 1e-3

@@ -94,14 +94,16 @@ def battery_sessions(params: EnvParams, soc0, first: int, last: int) -> Sessions
 
 
 def economics(params: EnvParams, trace: trace_lib.DayTrace, first: int = 0, last: int | None = None) -> Economics:
-    """The trace's prices for steps ``first..last`` and the params' customer price."""
+    """The trace's prices for steps ``first..last`` and the params' customer price (and
+    whether discharged car energy is refunded)."""
     last = trace.num_steps - 1 if last is None else last
     sl = slice(first, last + 1)
     return Economics(buy=np.asarray(trace.price_buy_eur_kwh, np.float64)[sl],
                      sell=np.asarray(trace.price_sell_grid_eur_kwh, np.float64)[sl],
                      customer=float(params.customer_price_eur_kwh),
                      battery_value=float(trace.battery_value_eur_kwh), step_hours=params.step_hours,
-                     peak_eur_kw=float(params.peak_demand_eur_kw))
+                     peak_eur_kw=float(params.peak_demand_eur_kw),
+                     refund_discharged=bool(params.refund_discharged_energy))
 
 
 _REPLAY_CACHE: dict = {}

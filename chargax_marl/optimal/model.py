@@ -19,6 +19,9 @@ would book, under every limit the simulator applies:
   the simulator lets the excess flow);
 - the grid price: the net draw at the buy price (time-of-use surcharge included), the net
   feed-in at the grid's sell price;
+- the customer price on a car's charge, and on its discharge as a refund unless
+  ``Economics.refund_discharged`` is False (then a car charges or discharges in a step, not
+  both: ``p+ / cmax + p- / dmax <= 1``);
 - the peak-demand charge on the highest net draw of the steps (when the params set one);
 - the batteries' net energy change valued at the day's terminal price.
 
@@ -123,6 +126,7 @@ class Economics:
     step_hours: float
     peak_eur_kw: float = 0.0  # peak-demand charge per kW of the highest net draw (step average)
     peak_so_far_kw: float = 0.0  # the day's peak before the problem's first step (already paid for)
+    refund_discharged: bool = True  # car owners get ``customer`` back per kWh taken out of their car
 
 
 @dataclass
@@ -244,8 +248,10 @@ def build_and_solve(sessions: Sessions, num_steps: int, limits: StationLimits, e
         value = np.full(m, price)
         if urgency_eur_kwh_h is not None:
             value = value + float(urgency_eur_kwh_h[s]) * (n - steps) * dt
+        # without the refund a car's discharge earns no customer price (the urgency bonus stays)
+        refund = is_bat or econ.refund_discharged
         pp = b.vars(m, 0.0, max(cmax, 0.0), cost=value * dt)
-        pm = b.vars(m, 0.0, max(dmax, 0.0), cost=-value * dt)
+        pm = b.vars(m, 0.0, max(dmax, 0.0), cost=-(value if refund else value - price) * dt)
         # SoC x_0..x_m: x_0 fixed at the start SoC; the end may be forced to the target
         x_lo, x_hi = np.full(m + 1, lo), np.full(m + 1, hi)
         x_lo[0] = x_hi[0] = float(sessions.soc0[s])
@@ -277,6 +283,13 @@ def build_and_solve(sessions: Sessions, num_steps: int, limits: StationLimits, e
             taper = b.new_rows(m, -np.inf, slope)  # p+ + slope x <= slope
             b.coef(taper, pp, 1.0)
             b.coef(taper, x[:-1], slope)
+        if not refund and cmax > 0 and dmax > 0:
+            # the simulator charges or discharges a car in a step, never both: p+ / cmax + p- / dmax
+            # <= 1 (the convex hull of the two). Without it, charging and discharging at once would
+            # bill the customer for energy that never stays in the car.
+            hull = b.new_rows(m, -np.inf, 1.0)
+            b.coef(hull, pp, 1.0 / cmax)
+            b.coef(hull, pm, 1.0 / dmax)
         if dmax > 0:
             slope_d = float(sessions.max_discharge_rate_kw[s]) / max(1.0 - tau, 1e-6)
             mirror = b.new_rows(m, -np.inf, 0.0)  # p- - slope x <= 0

@@ -84,6 +84,7 @@ class MPC:
             lambda d: reward_lib.battery_terminal_value_eur(jnp.float32(1.0), d, params))(days), np.float64)
         self.peak_eur_kw = float(params.peak_demand_eur_kw)
         self.customer = float(params.customer_price_eur_kwh)
+        self.refund_discharged = bool(params.refund_discharged_energy)
         self.step_hours = params.step_hours
         self.solves = 0
         self.failures = 0
@@ -120,7 +121,8 @@ class MPC:
         sl = slice(t, t + n)
         econ = Economics(buy=self.buy[d, sl], sell=self.sell[d, sl], customer=self.customer,
                          battery_value=float(self.battery_value[d]), step_hours=self.step_hours,
-                         peak_eur_kw=self.peak_eur_kw, peak_so_far_kw=float(s["peak_grid_kw"]))
+                         peak_eur_kw=self.peak_eur_kw, peak_so_far_kw=float(s["peak_grid_kw"]),
+                         refund_discharged=self.refund_discharged)
         sessions = self._sessions(s, n)
         out = np.zeros((n, self.num_leaves))
         if sessions.size == 0:
