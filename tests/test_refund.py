@@ -220,3 +220,15 @@ def test_the_mpc_prices_the_refund_too():
         assert mpc.failures == 0
     assert profit[True] == pytest.approx(26.0, abs=0.05)
     assert 26.5 < profit[False] <= 29.75 + 1e-3
+
+
+def test_the_measurement_script_runs_on_a_few_days():
+    from baselines import refund
+
+    profits = refund.daily_profits("shopping", rules=("always_max", "discharge_departing"), num_eval=3,
+                                   fleet=refund.all_v2g())
+    on, off = profits["discharge_departing", True], profits["discharge_departing", False]
+    assert on.shape == (3,) and np.all(off > on)
+    np.testing.assert_array_equal(profits["always_max", True], profits["always_max", False])
+    table = refund.format_table(profits, rules=("always_max", "discharge_departing"))
+    assert "off - on" in table and table.count("\n") == 2
