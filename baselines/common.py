@@ -185,6 +185,32 @@ def agent_battery_shaping(price, info, is_battery, local_reward_weight: float) -
     return (1.0 - w) * station + w * own
 
 
+def relative_price_columns(env):
+    """``(price_cols, q20_col, q50_col, q80_col)``: where a :class:`chargax_marl.marl.ChargaxMARL`
+    agent observation holds the observed buy prices (now and the next hours) and the day's
+    20 / 50 / 80 % price quantiles (the shared context sits just before the agent index)."""
+    from chargax_marl.core import observation
+
+    params = env.params
+    id_width = int(np.shape(env._layout.agent_id)[1])
+    ctx0 = env.obs_size - id_width - observation.context_size(params)
+    prices = ctx0 + np.arange(int(params.price_horizon_hours) + 1)
+    q0 = ctx0 + observation.context_index(params, "price_quantiles")
+    qi = {q: q0 + observation.PRICE_QUANTILES.index(q) for q in (0.2, 0.5, 0.8)}
+    return prices, qi[0.2], qi[0.5], qi[0.8]
+
+
+def relative_prices(obs, prices, q20, q50, q80) -> jnp.ndarray:
+    """Each observed price's place in its day's range, ``(p - median) / (q80 - q20)`` (the spread
+    floored at 0.01 EUR/kWh), clipped to [-5, 5]: the comparison a battery's charge or discharge
+    decision turns on, which the raw prices (a few hundredths apart within a day, while the
+    day's level moves by tenths) leave the network to learn."""
+    from chargax_marl.core.observation import PRICE_SCALE_EUR_KWH
+
+    spread = jnp.maximum(obs[..., q80] - obs[..., q20], 0.01 / PRICE_SCALE_EUR_KWH)[..., None]
+    return jnp.clip((obs[..., prices] - obs[..., q50][..., None]) / spread, -5.0, 5.0)
+
+
 # --------------------------------------------------------------------------- masked categoricals
 
 

@@ -104,6 +104,18 @@ class SharedPolicy:
         # which the 16 ports learn to avoid, and that carried over to the battery.
         self.battery_net = bool(config["BATTERY_NET"])
         self.battery_critic = self.battery_net and not centralised_critic
+        # RELATIVE_PRICES: each observed price (now and the next hours) also as its place in the
+        # day's range, (p - median) / (q80 - q20), appended to the actor's and the critic's input.
+        self.relative = common.relative_price_columns(env) if config["RELATIVE_PRICES"] else None
+        if self.relative is not None:
+            self.obs_dim += len(self.relative[0])
+            if not centralised_critic:
+                self.critic_dim += len(self.relative[0])
+
+    def features(self, obs):
+        if self.relative is None:
+            return obs
+        return jnp.concatenate([obs, common.relative_prices(obs, *self.relative)], axis=-1)
 
     def init(self, key):
         ka, kc, kba, kbc = jax.random.split(key, 4)
@@ -119,19 +131,21 @@ class SharedPolicy:
         return obs[..., self.battery_col:self.battery_col + 1]
 
     def logits(self, params, obs, avail):
-        logits = self.actor.apply(params["actor"], obs)
+        x = self.features(obs)
+        logits = self.actor.apply(params["actor"], x)
         if self.battery_net:
-            logits = jnp.where(self.is_battery(obs) > 0.5, self.actor.apply(params["battery_actor"], obs), logits)
+            logits = jnp.where(self.is_battery(obs) > 0.5, self.actor.apply(params["battery_actor"], x), logits)
         if self.port_offset.any() or self.battery_offset.any():
             is_battery = self.is_battery(obs)
             logits = logits + (1.0 - is_battery) * self.port_offset + is_battery * self.battery_offset
         return common.masked_logits(logits, avail)
 
     def value(self, params, critic_in):
-        v = self.critic.apply(params["critic"], critic_in)[..., 0]
+        x = critic_in if self.critic_dim == critic_in.shape[-1] else self.features(critic_in)
+        v = self.critic.apply(params["critic"], x)[..., 0]
         if self.battery_critic:  # critic_in is the agent's own observation
             v = jnp.where(self.is_battery(critic_in)[..., 0] > 0.5,
-                          self.critic.apply(params["battery_critic"], critic_in)[..., 0], v)
+                          self.critic.apply(params["battery_critic"], x)[..., 0], v)
         return v
 
 
@@ -142,7 +156,8 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
     (``onehot``/``scalar``, the agent-index encoding). ``TOTAL_TIMESTEPS`` counts env steps
     (one step moves every agent).
     """
-    config = common.parse_config({"AGENT_ID": "onehot", "AGENT_ADV_NORM": False, "BATTERY_NET": False}, config)
+    config = common.parse_config({"AGENT_ID": "onehot", "AGENT_ADV_NORM": False, "BATTERY_NET": False,
+                                  "BATTERY_GAMMA": None, "RELATIVE_PRICES": False}, config)
     if env_params is None:
         env_params = common.build_env_params(config)[0]
     base_env = ChargaxMARL(params=env_params, agent_id=config["AGENT_ID"],
@@ -188,6 +203,13 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         """Per-actor ``(agents * envs,)`` shaping term of a step (info leaves ``(envs, agents)``)."""
         per_agent = common.agent_battery_shaping(price, info, is_bat, config["LOCAL_REWARD_WEIGHT"])
         return per_agent.T.reshape((n_actors,))  # agent-major, as batchify
+
+    # BATTERY_GAMMA: the battery agents' own discount (None: GAMMA). A port's decisions pay off
+    # within minutes; a battery's charge pays off hours later, when it is discharged.
+    battery_gamma = config["GAMMA"] if config["BATTERY_GAMMA"] is None else float(config["BATTERY_GAMMA"])
+    if not 0.0 <= battery_gamma <= 1.0:
+        raise ValueError(f"BATTERY_GAMMA={battery_gamma} must be in [0, 1] (or None: GAMMA)")
+    gamma_b = jnp.asarray(np.repeat(np.where(is_bat, battery_gamma, config["GAMMA"]), n_envs), jnp.float32)
 
     def per_agent_normalised(adv):
         """AGENT_ADV_NORM: each agent's advantages ``(steps, agents * envs)`` scaled to mean 0 and
@@ -256,7 +278,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
             idx = (jnp.arange(n_steps)[:, None] * n_envs + jnp.arange(n_actors)[None, :] % n_envs).astype(jnp.int32)
             traj = traj._replace(critic_in=idx if dedup_update else ws_table[idx])
         loss_fn = make_loss(ws_table)
-        adv, targets = common.gae(traj.reward, traj.value, traj.done, last_value, config["GAMMA"], config["GAE_LAMBDA"])
+        adv, targets = common.gae(traj.reward, traj.value, traj.done, last_value, gamma_b, config["GAE_LAMBDA"])
         if config["AGENT_ADV_NORM"]:
             adv = per_agent_normalised(adv)
 

@@ -331,6 +331,11 @@ def main(argv=None) -> dict:
     p.add_argument("--agent-adv-norm", choices=("on", "off"), default=None,
                    help="ippo/mappo: normalise the advantages per agent (over its rows of the rollout) instead of "
                         "only over the minibatch (default off)")
+    p.add_argument("--relative-prices", choices=("on", "off"), default=None,
+                   help="ippo/mappo: also feed the networks each observed price's place in the day's range, "
+                        "(p - median) / (q80 - q20) (see common.relative_prices); default off")
+    p.add_argument("--battery-gamma", type=float, default=None,
+                   help="ippo/mappo: the battery agents' discount per step (default: --gamma)")
     p.add_argument("--battery-net", choices=("on", "off"), default=None,
                    help="ippo/mappo: a separate actor (ippo: and critic) for the battery agents (default off)")
     p.add_argument("--paper", action="store_true", help="use Table 3 exactly (12 envs x 300 steps, 2x256, lr 2.5e-4, "
@@ -361,6 +366,10 @@ def main(argv=None) -> dict:
                       ("local_reward_weight", "LOCAL_REWARD_WEIGHT"), ("eval_days", "NUM_EVAL_DAYS")):
         if getattr(a, flag) is not None:
             config[key] = getattr(a, flag)
+    if a.relative_prices is not None:
+        config["RELATIVE_PRICES"] = a.relative_prices == "on"
+    if a.battery_gamma is not None:
+        config["BATTERY_GAMMA"] = a.battery_gamma
     if a.battery_net is not None:
         config["BATTERY_NET"] = a.battery_net == "on"
     if a.agent_adv_norm is not None:

@@ -369,3 +369,81 @@ def test_battery_net_and_agent_advantage_normalisation_train(mod):
     p1 = {**p0, "battery_actor": jax.tree.map(lambda x: x + 1.0, p0["battery_actor"])}
     moved = np.abs(np.asarray(policy.logits(p1, obs, avail) - policy.logits(p0, obs, avail))).max(axis=1)
     assert moved[-1] > 0 and np.all(moved[:-1] == 0)
+
+
+def test_battery_gamma_discounts_the_battery_rows_only():
+    """``BATTERY_GAMMA``: GAE with a per-row discount equals GAE with each row's own scalar."""
+    rng = np.random.default_rng(0)
+    r, v, d = (jnp.asarray(rng.normal(size=(6, 3)), jnp.float32) for _ in range(3))
+    d = (d > 1.0).astype(jnp.float32)
+    last = jnp.asarray(rng.normal(size=(3,)), jnp.float32)
+    gammas = jnp.asarray([0.9, 0.9, 0.99])
+    adv, tgt = common.gae(r, v, d, last, gammas, 0.95)
+    for i, g in enumerate((0.9, 0.9, 0.99)):
+        a_i, t_i = common.gae(r[:, i:i + 1], v[:, i:i + 1], d[:, i:i + 1], last[i:i + 1], g, 0.95)
+        np.testing.assert_allclose(adv[:, i], a_i[:, 0], rtol=1e-6)
+        np.testing.assert_allclose(tgt[:, i], t_i[:, 0], rtol=1e-6)
+    assert not np.allclose(adv[:, 2], common.gae(r, v, d, last, 0.9, 0.95)[0][:, 2])
+    out = _finite_losses(ippo.make_train({**TINY, "BATTERY_GAMMA": 0.99}))
+    assert out["metrics"]["actor_loss"].shape == (2, 1)
+    with pytest.raises(ValueError, match="BATTERY_GAMMA"):
+        ippo.make_train({**TINY, "BATTERY_GAMMA": 1.5})
+
+
+def test_relative_prices_read_the_observed_prices_and_quantiles():
+    """``RELATIVE_PRICES``: the columns are the context's prices and day quantiles, and each
+    feature is ``(p - median) / (q80 - q20)``."""
+    from chargax_marl.core import observation
+    from chargax_marl.marl import ChargaxMARL
+
+    for agent_id in ("onehot", "scalar"):
+        env = ChargaxMARL(agent_id=agent_id, **TINY_ENV)
+        state = env.reset_to_day(3)[1]
+        obs = np.asarray(env.get_obs_matrix(state))
+        ctx = np.asarray(observation.context_features(common.core_state(state), env.params))
+        prices, q20, q50, q80 = common.relative_price_columns(env)
+        i = observation.context_index(env.params, "price_quantiles")
+        np.testing.assert_array_equal(obs[0, prices], ctx[:env.params.price_horizon_hours + 1])
+        np.testing.assert_array_equal(obs[0, [q20, q50, q80]], ctx[i + 1:i + 4])
+        rel = np.asarray(common.relative_prices(jnp.asarray(obs), prices, q20, q50, q80))
+        np.testing.assert_allclose(rel[1], np.clip((obs[1, prices] - obs[1, q50]) / (obs[1, q80] - obs[1, q20]), -5, 5),
+                                   rtol=1e-5)
+    assert observation.context_size(env.params) == ctx.shape[0]
+    train = ippo.make_train({**TINY, "RELATIVE_PRICES": True})
+    assert train.policy.obs_dim == train.env.obs_size + len(prices)
+    _finite_losses(train)
+    assert mappo.make_train({**TINY, "RELATIVE_PRICES": True}).policy.critic_dim == train.env.state_size
+
+
+def test_attribution_scores_the_run_and_swaps_ports_and_battery(tmp_path):
+    """``baselines.attribution``: the ``learned`` row reproduces the run's own held-out score,
+    and the mixes take the battery's levels from one policy and the ports' from the other."""
+    from baselines import attribution
+    from baselines import train as cli
+    from chargax_marl import policies
+    from chargax_marl.core import make_params
+
+    out = tmp_path / "run"
+    cli.main(["--algo", "ippo", "--timesteps", str(4 * 24), "--seeds", "2", "--num-envs", "4", "--num-steps", "24",
+              "--hidden", "16", "--chunks", "1", "--optimal", "off", "--env-kwargs", json.dumps(TINY_ENV),
+              "--out", str(out)])
+    res = json.loads((out / "results.json").read_text())
+    att = attribution.attribute(out)
+    learned = [s["mean"] for s in att["mixes"]["learned"]["per_seed"]]
+    np.testing.assert_allclose(learned, [p["vs_always_max"]["mean"] for p in res["per_seed"]], rtol=1e-6, atol=1e-6)
+    assert set(att["mixes"]) == set(attribution.MIXES) and "learned" in attribution.format_attribution(att)
+    from chargax_marl.core import simulator
+
+    params = make_params(**TINY_ENV)
+    key = jax.random.PRNGKey(0)
+    start = simulator.reset(key, params)
+    # an hour (60-minute steps) in which the battery rule charges or discharges, so the mixes differ
+    state = next(s for s in (start.replace(timestep=jnp.int32(h)) for h in range(24))
+                 if int(policies.battery_rule(s, key, params)[-1]) != 0)
+    mixes = attribution.mixed_policies(lambda s, k: policies.always_max(s, k, params), params)
+    np.testing.assert_array_equal(mixes["learned_ports_rule_battery"](state, key), policies.battery_rule(state, key, params))
+    np.testing.assert_array_equal(mixes["always_max_ports_learned_battery"](state, key),
+                                  policies.always_max(state, key, params))
+    rule_act = lambda s, k: policies.battery_rule(s, k, params)  # noqa: E731
+    ports_from_rule = attribution.mixed_policies(rule_act, params)["always_max_ports_learned_battery"](state, key)
+    np.testing.assert_array_equal(ports_from_rule, policies.battery_rule(state, key, params))

@@ -102,7 +102,29 @@ def flat_obs(state: EnvState, params: EnvParams) -> jnp.ndarray:
     return jnp.concatenate([parts["ports"].reshape(-1), parts["batteries"].reshape(-1), parts["context"]])
 
 
+def context_parts(params: EnvParams) -> tuple[tuple[str, int], ...]:
+    """``(name, width)`` of each part of :func:`context_features`, in order."""
+    return (("prices", int(params.price_horizon_hours) + 1), ("customer_price", 1), ("time_of_day", 2),
+            ("workday", 1), ("day", 1), ("hour_left", 1), ("price_quantiles", len(PRICE_QUANTILES)),
+            ("grid_load", 1), ("peak_so_far", 1), ("moer", int(bool(params.observe_moer))))
+
+
+def context_size(params: EnvParams) -> int:
+    """Length of :func:`context_features`."""
+    return sum(width for _, width in context_parts(params))
+
+
+def context_index(params: EnvParams, name: str) -> int:
+    """Where part ``name`` of :func:`context_parts` starts inside the context."""
+    start = 0
+    for part, width in context_parts(params):
+        if part == name:
+            return start
+        start += width
+    raise ValueError(f"no context part {name!r}; parts are {[p for p, _ in context_parts(params)]}")
+
+
 def obs_size(params: EnvParams) -> int:
     st = params.station
-    context = params.price_horizon_hours + 1 + 1 + 2 + 1 + 1 + EXTRA_CONTEXT + int(params.observe_moer)
+    context = context_size(params)
     return st.num_ports * len(PORT_FEATURES) + st.num_batteries * len(BATTERY_FEATURES) + context

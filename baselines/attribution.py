@@ -1,0 +1,112 @@
+"""Which agents carry a trained policy's gap to the battery rule: swap the ports' and the
+batteries' decisions between the trained policy and the rules.
+
+    python -m baselines.attribution outputs/train_ippo          # a run directory of baselines.train
+
+On the run's held-out days and cars (the evaluation key 0), every seed of the run is scored as
+
+* ``learned``: the trained policy (greedy), as ``baselines.train`` scores it;
+* ``learned_ports_rule_battery``: the trained ports, the battery from the battery price rule;
+* ``always_max_ports_learned_battery``: ports at full power, the trained battery;
+
+each as the paired difference to always-max (mean ± standard error over days, then over
+seeds). Where the second row is near the battery rule and the third near the first, the
+ports have learned always-max and the battery is what falls short; the reverse points at
+the ports. ``--out`` writes the JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from baselines import common
+
+MIXES = ("learned", "learned_ports_rule_battery", "always_max_ports_learned_battery")
+
+
+def load_run(run_dir: str | Path):
+    """``(results, train, params)`` of a ``baselines.train`` output directory: its
+    ``results.json``, the rebuilt ``train`` of its algorithm and config, and the trained
+    parameters of every seed (leading axis = seed) from ``params.msgpack``."""
+    from baselines.train import get_module
+
+    run_dir = Path(run_dir)
+    results = json.loads((run_dir / "results.json").read_text())
+    train = get_module(results["algo"]).make_train(results["config"])
+    template = jax.vmap(train.policy.init)(jax.random.split(jax.random.PRNGKey(0), int(results["seeds"])))
+    return results, train, common.load_params(template, run_dir / "params.msgpack")
+
+
+def mixed_policies(act, params) -> dict:
+    """The :data:`MIXES` as ``policy(state, key) -> levels`` from a trained ``act``."""
+    from chargax_marl import policies
+
+    is_battery = policies._is_battery(params)
+    return {
+        "learned": act,
+        "learned_ports_rule_battery": lambda s, k: jnp.where(is_battery, policies.battery_rule(s, k, params), act(s, k)),
+        "always_max_ports_learned_battery": lambda s, k: jnp.where(is_battery, act(s, k),
+                                                                   policies.always_max(s, k, params)),
+    }
+
+
+def attribute(run_dir: str | Path) -> dict:
+    """Score every seed of a run under each mix; see the module docstring."""
+    from baselines.heuristics import evaluate_rules
+    from baselines.train import over_seeds
+    from chargax_marl.evaluation import run_days
+
+    results, train, all_params = load_run(run_dir)
+    _, eval_params, _, days = common.build_env_params(train.config)
+    days = np.asarray(days)
+    key = jax.random.PRNGKey(0)  # the evaluation key of baselines.train: the same cars for every policy
+    rules = evaluate_rules(eval_params, days, ("always_max", "battery_rule"), key=key)
+    am = rules["always_max"]["daily_profit"]
+    make_act = train.make_act(eval_params)
+    per_seed = {m: [] for m in MIXES}
+    for i in range(int(results["seeds"])):
+        act = make_act(jax.tree.map(lambda x: x[i], all_params))
+        for name, policy in mixed_policies(act, eval_params).items():
+            totals = jax.jit(lambda d, k: run_days(policy, eval_params, d, k))(days, key)
+            per_seed[name].append(common.paired_difference(np.asarray(totals.profit_eur, np.float64), am))
+    out = {"run": str(run_dir), "algo": results["algo"], "num_days": int(days.size), "seeds": int(results["seeds"]),
+           "battery_rule_vs_always_max": common.paired_difference(rules["battery_rule"]["daily_profit"], am),
+           "mixes": {}}
+    for name, diffs in per_seed.items():
+        out["mixes"][name] = {"per_seed": [{"mean": d["mean"], "stderr": d["stderr"]} for d in diffs],
+                              "over_seeds": over_seeds([d["mean"] for d in diffs])}
+    return out
+
+
+def format_attribution(out: dict) -> str:
+    rule = out["battery_rule_vs_always_max"]
+    lines = [f"{out['algo']} run {out['run']}: paired difference to always-max, EUR/day, {out['num_days']} held-out "
+             f"days, {out['seeds']} seeds (mean ± s.e. over seeds; per seed)",
+             f"  {'battery rule':34s} {rule['mean']:+7.2f} ± {rule['stderr']:.2f} (over days)"]
+    for name, m in out["mixes"].items():
+        o = m["over_seeds"]
+        seeds = " ".join(f"{s['mean']:+.2f}" for s in m["per_seed"])
+        lines.append(f"  {name:34s} {o['mean']:+7.2f} ± {o['stderr']:.2f}   [{seeds}]")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> dict:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("run_dir", help="an output directory of python -m baselines.train (results.json, params.msgpack)")
+    p.add_argument("--out", default=None, help="write the JSON here")
+    a = p.parse_args(argv)
+    out = attribute(a.run_dir)
+    print(format_attribution(out))
+    if a.out:
+        common.write_json(out, a.out)
+    return out
+
+
+if __name__ == "__main__":
+    main()
