@@ -185,17 +185,16 @@ def agent_battery_shaping(price, info, is_battery, local_reward_weight: float) -
     return (1.0 - w) * station + w * own
 
 
-def relative_price_columns(env):
-    """``(price_cols, q20_col, q50_col, q80_col)``: where a :class:`chargax_marl.marl.ChargaxMARL`
-    agent observation holds the observed buy prices (now and the next hours) and the day's
-    20 / 50 / 80 % price quantiles (the shared context sits just before the agent index)."""
+def relative_price_columns(params, context_start: int):
+    """``(price_cols, q20_col, q50_col, q80_col)``: where an observation whose shared context
+    (:func:`chargax_marl.core.observation.context_features`) starts at column ``context_start``
+    holds the observed buy prices (now and the next hours) and the day's 20 / 50 / 80 % price
+    quantiles. The single-agent observation ends with the context; a
+    :class:`chargax_marl.marl.ChargaxMARL` agent's has the agent index after it."""
     from chargax_marl.core import observation
 
-    params = env.params
-    id_width = int(np.shape(env._layout.agent_id)[1])
-    ctx0 = env.obs_size - id_width - observation.context_size(params)
-    prices = ctx0 + np.arange(int(params.price_horizon_hours) + 1)
-    q0 = ctx0 + observation.context_index(params, "price_quantiles")
+    prices = context_start + np.arange(int(params.price_horizon_hours) + 1)
+    q0 = context_start + observation.context_index(params, "price_quantiles")
     qi = {q: q0 + observation.PRICE_QUANTILES.index(q) for q in (0.2, 0.5, 0.8)}
     return prices, qi[0.2], qi[0.5], qi[0.8]
 

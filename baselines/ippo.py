@@ -106,7 +106,13 @@ class SharedPolicy:
         self.battery_critic = self.battery_net and not centralised_critic
         # RELATIVE_PRICES: each observed price (now and the next hours) also as its place in the
         # day's range, (p - median) / (q80 - q20), appended to the actor's and the critic's input.
-        self.relative = common.relative_price_columns(env) if config["RELATIVE_PRICES"] else None
+        self.relative = None
+        if config["RELATIVE_PRICES"]:  # the context sits just before the agent index
+            from chargax_marl.core.observation import context_size
+
+            id_width = int(np.shape(env._layout.agent_id)[1])
+            self.relative = common.relative_price_columns(env.params, env.obs_size - id_width
+                                                          - context_size(env.params))
         if self.relative is not None:
             self.obs_dim += len(self.relative[0])
             if not centralised_critic:

@@ -68,18 +68,31 @@ class Policy:
         offset = np.zeros((self.num_leaves, self.k), np.float32)
         offset[np.arange(self.num_leaves), baseline] = np.where(is_battery, battery_b, port_b)
         self.offset = offset
+        # RELATIVE_PRICES: each observed price's place in the day's range appended to the input
+        # (common.relative_prices); the observation ends with the shared context.
+        self.relative = None
+        if config["RELATIVE_PRICES"]:
+            from chargax_marl.core.observation import context_size
+
+            self.relative = common.relative_price_columns(env_params, self.obs_dim - context_size(env_params))
+        self.input_dim = self.obs_dim + (0 if self.relative is None else len(self.relative[0]))
+
+    def features(self, obs):
+        if self.relative is None:
+            return obs
+        return jnp.concatenate([obs, common.relative_prices(obs, *self.relative)], axis=-1)
 
     def init(self, key):
         ka, kc = jax.random.split(key)
-        x = jnp.zeros((self.obs_dim,), jnp.float32)
+        x = jnp.zeros((self.input_dim,), jnp.float32)
         return {"actor": self.actor.init(ka, x), "critic": self.critic.init(kc, x)}
 
     def logits(self, params, obs):
-        raw = self.actor.apply(params["actor"], obs)
+        raw = self.actor.apply(params["actor"], self.features(obs))
         return common.masked_logits(raw.reshape(raw.shape[:-1] + (self.num_leaves, self.k)) + self.offset, self.mask)
 
     def value(self, params, obs):
-        return self.critic.apply(params["critic"], obs)[..., 0]
+        return self.critic.apply(params["critic"], self.features(obs))[..., 0]
 
 
 def make_train(config: dict | None = None, env_params=None):
@@ -87,7 +100,7 @@ def make_train(config: dict | None = None, env_params=None):
 
     ``env_params`` defaults to the config's scenario restricted to its training days.
     """
-    config = common.parse_config({}, config)
+    config = common.parse_config({"RELATIVE_PRICES": False}, config)
     if config["LOCAL_REWARD_WEIGHT"]:
         raise ValueError(f"LOCAL_REWARD_WEIGHT={config['LOCAL_REWARD_WEIGHT']} applies to the multi-agent "
                          "trainers (ippo, mappo) only; single-agent PPO learns from the station reward (use 0)")

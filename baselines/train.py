@@ -332,7 +332,7 @@ def main(argv=None) -> dict:
                    help="ippo/mappo: normalise the advantages per agent (over its rows of the rollout) instead of "
                         "only over the minibatch (default off)")
     p.add_argument("--relative-prices", choices=("on", "off"), default=None,
-                   help="ippo/mappo: also feed the networks each observed price's place in the day's range, "
+                   help="also feed the networks each observed price's place in the day's range, "
                         "(p - median) / (q80 - q20) (see common.relative_prices); default off")
     p.add_argument("--battery-gamma", type=float, default=None,
                    help="ippo/mappo: the battery agents' discount per step (default: --gamma)")

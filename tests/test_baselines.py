@@ -401,7 +401,8 @@ def test_relative_prices_read_the_observed_prices_and_quantiles():
         state = env.reset_to_day(3)[1]
         obs = np.asarray(env.get_obs_matrix(state))
         ctx = np.asarray(observation.context_features(common.core_state(state), env.params))
-        prices, q20, q50, q80 = common.relative_price_columns(env)
+        ctx0 = env.obs_size - np.shape(env._layout.agent_id)[1] - observation.context_size(env.params)
+        prices, q20, q50, q80 = common.relative_price_columns(env.params, ctx0)
         i = observation.context_index(env.params, "price_quantiles")
         np.testing.assert_array_equal(obs[0, prices], ctx[:env.params.price_horizon_hours + 1])
         np.testing.assert_array_equal(obs[0, [q20, q50, q80]], ctx[i + 1:i + 4])
@@ -413,6 +414,14 @@ def test_relative_prices_read_the_observed_prices_and_quantiles():
     assert train.policy.obs_dim == train.env.obs_size + len(prices)
     _finite_losses(train)
     assert mappo.make_train({**TINY, "RELATIVE_PRICES": True}).policy.critic_dim == train.env.state_size
+    # single-agent PPO: the same features from the flat observation, which ends with the context
+    ppo_train = ppo.make_train({**TINY, "RELATIVE_PRICES": True})
+    flat = np.asarray(observation.flat_obs(common.core_state(state), ppo_train.env_params))
+    cols = common.relative_price_columns(ppo_train.env_params, flat.shape[0] - ctx.shape[0])
+    np.testing.assert_array_equal(flat[cols[0]], ctx[:env.params.price_horizon_hours + 1])
+    np.testing.assert_allclose(np.asarray(common.relative_prices(jnp.asarray(flat), *cols)), rel[0], rtol=1e-5)
+    assert ppo_train.policy.input_dim == ppo_train.policy.obs_dim + len(prices)
+    _finite_losses(ppo_train)
 
 
 def test_attribution_scores_the_run_and_swaps_ports_and_battery(tmp_path):
