@@ -154,35 +154,85 @@ def battery_value_price(state, params) -> jnp.ndarray:
     return battery_terminal_value_eur(jnp.float32(1.0), core_state(state).day, params)
 
 
-def battery_shaping(price, battery_net_kwh, terminal_eur) -> jnp.ndarray:
+def battery_shaping(price, battery_net_kwh, terminal_eur, value_after=None, energy_before=0.0) -> jnp.ndarray:
     """``BATTERY_SHAPING``: the term added to a step's reward so that the batteries' energy is
-    valued when it moves, ``price * battery_net_kwh``, instead of all at once at the day's last
-    step (``- terminal_eur``, the env's terminal booking, non-zero at the last step only).
+    valued when it moves instead of all at once at the day's last step (``- terminal_eur``,
+    the env's terminal booking, non-zero at the last step only).
 
-    The env books ``price * sum_t battery_net_kwh_t`` at the last step; this books the same
-    amount step by step, so a day's undiscounted sum of rewards, and the profit that is
-    evaluated, are unchanged. What changes is when the learner sees it: with gamma = 0.99 per
-    5-minute step a reward 288 steps ahead weighs 0.06, so energy sold from the battery in the
-    morning looked like almost free money and the cost of buying it back was nearly invisible.
-    Shaped, discharging earns ``(p_now - price)`` per kWh at once and charging ``(price - p_now)``.
+    It is the change of the potential ``Phi = value * E`` over the step, ``value_after *
+    (energy_before + battery_net_kwh) - price * energy_before``, with ``price`` the value of a
+    stored kWh before the step and ``value_after`` after it (default: the same), ``E`` the
+    batteries' stored energy. With one value all day (``"day_mean"``: the env's terminal
+    price) this is ``price * battery_net_kwh``: the env books ``price * sum_t
+    battery_net_kwh_t`` at the last step and this books the same amount step by step, so a
+    day's undiscounted sum of rewards and the evaluated profit are unchanged. What changes is
+    when the learner sees it: with gamma = 0.99 per 5-minute step a reward 288 steps ahead
+    weighs 0.06, so energy sold from the battery in the morning looked like almost free money.
+    With values that move through the day (``"storage_value"``, :mod:`baselines.storage_value`)
+    the day's sum differs from the env's by a constant of the day's first state.
     """
-    return price * battery_net_kwh - terminal_eur
+    value_after = price if value_after is None else value_after
+    return value_after * (energy_before + battery_net_kwh) - price * energy_before - terminal_eur
 
 
-def agent_battery_shaping(price, info, is_battery, local_reward_weight: float) -> jnp.ndarray:
+def agent_battery_shaping(price, info, is_battery, local_reward_weight: float, value_after=None,
+                          energy_before=None) -> jnp.ndarray:
     """:func:`battery_shaping` per agent of :class:`chargax_marl.marl.ChargaxMARL`, ``(..., agents)``
-    from the step's ``info`` (leaves ``(..., agents)``) and ``price (...)``, mixed like the env's
-    rewards ``(1 - w) * r + w * share_i``: every agent gets the station's term with weight
-    ``1 - w``; with weight ``w`` each battery agent gets the term of its own energy (the env gives
-    the terminal value to the batteries' shares, evenly) and a port nothing. The agents' terms
-    thus add up to the station's, as the shares do."""
+    from the step's ``info`` (leaves ``(..., agents)``), ``price (...)`` and optionally
+    ``value_after (...)`` and each agent's stored energy before the step ``energy_before (...,
+    agents)``, mixed like the env's rewards ``(1 - w) * r + w * share_i``: every agent gets
+    the station's term with weight ``1 - w``; with weight ``w`` each battery agent gets the
+    term of its own energy (the env gives the terminal value to the batteries' shares,
+    evenly) and a port nothing. The agents' terms thus add up to the station's, as the shares do."""
     is_battery = jnp.asarray(is_battery, jnp.float32)
     price = jnp.asarray(price)[..., None]
-    station = battery_shaping(price, info["battery_net_kwh"][..., :1], info["battery_terminal_value_eur"][..., :1])
-    own = is_battery * battery_shaping(price, info["agent_energy_kwh"],
-                                       info["battery_terminal_value_eur"] / jnp.maximum(is_battery.sum(), 1.0))
+    value_after = price if value_after is None else jnp.asarray(value_after)[..., None]
+    own_e = info["agent_energy_kwh"] * is_battery
+    e0 = jnp.zeros_like(own_e) if energy_before is None else energy_before * is_battery
+    station = battery_shaping(price, own_e.sum(-1, keepdims=True), info["battery_terminal_value_eur"][..., :1],
+                              value_after, e0.sum(-1, keepdims=True))
+    own = is_battery * battery_shaping(price, own_e, info["battery_terminal_value_eur"] /
+                                       jnp.maximum(is_battery.sum(), 1.0), value_after, e0)
     w = float(local_reward_weight)
     return (1.0 - w) * station + w * own
+
+
+SHAPING_MODES = ("off", "day_mean", "storage_value")
+
+
+def shaping_mode(config: dict) -> str:
+    """``BATTERY_SHAPING`` as one of :data:`SHAPING_MODES` (``False`` / ``True`` are ``"off"`` /
+    ``"day_mean"``)."""
+    v = config.get("BATTERY_SHAPING", False)
+    mode = {False: "off", True: "day_mean", None: "off"}.get(v, v) if isinstance(v, (bool, type(None))) else v
+    if mode not in SHAPING_MODES:
+        raise ValueError(f"BATTERY_SHAPING must be a bool or one of {SHAPING_MODES}, got {v!r}")
+    return mode
+
+
+def battery_potential(config: dict, env_params):
+    """``None`` when ``BATTERY_SHAPING`` is off, else ``potential(env_state) -> (value_before,
+    value_after, energy_before)``: the value (EUR/kWh) of a stored kWh before and after the
+    step of the (possibly batched) ``env_state`` and each leaf's stored energy before it
+    (kWh; only the batteries' is used), the inputs of :func:`battery_shaping`."""
+    mode = shaping_mode(config)
+    if mode == "off":
+        return None
+    table = None
+    if mode == "storage_value":
+        from baselines.storage_value import storage_values
+
+        table = jnp.asarray(storage_values(env_params))
+
+    def potential(env_state):
+        core = core_state(env_state)
+        energy = core.soc * core.capacity_kwh
+        if table is None:
+            v = battery_value_price(env_state, env_params)
+            return v, v, energy
+        return table[core.day, core.timestep], table[core.day, core.timestep + 1], energy
+
+    return potential
 
 
 def relative_price_columns(params, context_start: int):

@@ -205,9 +205,12 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
     # BATTERY_SHAPING (common.battery_shaping, per agent as common.agent_battery_shaping).
     is_bat = np.asarray(env_params.station.leaf_kind) == KIND_BATTERY
 
-    def shaping(price, info):
+    potential = common.battery_potential(config, env_params)
+
+    def shaping(pot, info):
         """Per-actor ``(agents * envs,)`` shaping term of a step (info leaves ``(envs, agents)``)."""
-        per_agent = common.agent_battery_shaping(price, info, is_bat, config["LOCAL_REWARD_WEIGHT"])
+        v0, v1, e0 = pot
+        per_agent = common.agent_battery_shaping(v0, info, is_bat, config["LOCAL_REWARD_WEIGHT"], v1, e0)
         return per_agent.T.reshape((n_actors,))  # agent-major, as batchify
 
     # BATTERY_GAMMA: the battery agents' own discount (None: GAMMA). A port's decisions pay off
@@ -245,12 +248,12 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         logp = common.log_prob(logits, action)
         cin, value = rollout_value(params, obs, obs_b)
         actions = unbatchify(action, agents, n_envs)
-        price = common.battery_value_price(env_state, env_params)  # (envs,) the day before the step
+        pot = None if potential is None else potential(env_state)  # before the (auto-resetting) step
         next_obs, env_state, reward, done, info = jax.vmap(env.step)(jax.random.split(k_step, n_envs), env_state,
                                                                     actions)
         reward_b = batchify(reward, agents, n_actors)
-        if config["BATTERY_SHAPING"]:
-            reward_b = reward_b + shaping(price, info)
+        if pot is not None:
+            reward_b = reward_b + shaping(pot, info)
         next_obs, env_state = common.shard_envs((next_obs, env_state), mesh)
         tr = Transition(obs_b, cin, avail, action, logp, value, reward_b * config["REWARD_SCALE"],
                         batchify(done, agents, n_actors).astype(jnp.float32),

@@ -324,10 +324,11 @@ def main(argv=None) -> dict:
     p.add_argument("--local-reward-weight", type=float, default=None,
                    help="ippo/mappo: weight in [0, 1] of each agent's own share of the reward in its reward "
                         "(ChargaxMARL local_reward_weight); 0: the shared station reward")
-    p.add_argument("--battery-shaping", choices=("on", "off"), default=None,
-                   help="value the batteries' energy change at every step at the env's terminal price instead of "
-                        "at the day's last step (same daily profit; see common.battery_shaping). Default: on "
-                        "(off with --paper)")
+    p.add_argument("--battery-shaping", choices=("on", "off", "day_mean", "storage_value"), default=None,
+                   help="value the batteries' energy as it moves instead of at the day's last step: 'on' = "
+                        "'day_mean' at the env's terminal price (same daily profit), 'storage_value' at the value "
+                        "of a stored kWh from the day's battery-only LP (baselines/storage_value.py); see "
+                        "common.battery_shaping. Default: on (off with --paper)")
     p.add_argument("--agent-adv-norm", choices=("on", "off"), default=None,
                    help="ippo/mappo: normalise the advantages per agent (over its rows of the rollout) instead of "
                         "only over the minibatch (default off)")
@@ -375,7 +376,7 @@ def main(argv=None) -> dict:
     if a.agent_adv_norm is not None:
         config["AGENT_ADV_NORM"] = a.agent_adv_norm == "on"
     if a.battery_shaping is not None:
-        config["BATTERY_SHAPING"] = a.battery_shaping == "on"
+        config["BATTERY_SHAPING"] = {"on": True, "off": False}.get(a.battery_shaping, a.battery_shaping)
     if config["TRAFFIC"] is None:
         from chargax_marl.single.scenarios import SCENARIOS
 

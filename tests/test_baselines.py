@@ -456,3 +456,68 @@ def test_attribution_scores_the_run_and_swaps_ports_and_battery(tmp_path):
     rule_act = lambda s, k: policies.battery_rule(s, k, params)  # noqa: E731
     ports_from_rule = attribution.mixed_policies(rule_act, params)["always_max_ports_learned_battery"](state, key)
     np.testing.assert_array_equal(ports_from_rule, policies.battery_rule(state, key, params))
+
+
+def test_storage_value_hand_case_and_bounds():
+    """The battery-only LP's value of a stored kWh: where no energy bound binds, every step's
+    value is the terminal price (energy moves freely through the day); with losses a kWh
+    bought at ``p`` costs ``p / eta``, so the values stay within the day's prices scaled by eta."""
+    from baselines import storage_value
+
+    v = storage_value.day_values([0.1, 0.3, 0.2], 0.15, eta=1.0, power_kw=1.0, capacity_kwh=10.0, e0=5.0,
+                                 step_hours=1.0)
+    np.testing.assert_allclose(v, [0.15, 0.15, 0.15, 0.15], atol=1e-9)
+    # a small battery that starts empty: the first step's kWh is worth the dearest sale it
+    # can still reach (0.3 at step 1); after that sale only step 2's 0.2 remains
+    v = storage_value.day_values([0.1, 0.3, 0.2], 0.0, eta=1.0, power_kw=1.0, capacity_kwh=1.0, e0=0.0,
+                                 step_hours=1.0)
+    assert v[2] == pytest.approx(0.2) and v[3] == 0.0
+    from chargax_marl.core import make_params
+
+    params = make_params(**TINY_ENV)
+    table = storage_value.storage_values(params)
+    prices = storage_value.step_buy_prices(params)
+    eta = float(np.asarray(params.station.leaf_path_efficiency)[-1])
+    assert table.shape == (prices.shape[0], prices.shape[1] + 1)
+    from chargax_marl.core.reward import day_mean_buy_price
+
+    np.testing.assert_allclose(table[:, -1], [float(day_mean_buy_price(d, params)) for d in range(prices.shape[0])],
+                               rtol=1e-5)
+    lo = np.minimum(prices.min(axis=1, keepdims=True) / eta, table[:, -1:])
+    hi = np.maximum(prices.max(axis=1, keepdims=True) * eta, table[:, -1:])
+    assert np.all(table >= lo - 1e-5) and np.all(table <= hi + 1e-5)
+    with pytest.raises(ValueError, match="battery"):
+        storage_value.storage_values(make_params(station="single_type", station_kwargs={"num_ports": 2}))
+
+
+@pytest.mark.parametrize("w", [0.0, 1.0])
+def test_storage_value_shaping_changes_the_day_by_a_constant_of_its_first_state(w):
+    """``BATTERY_SHAPING="storage_value"``: a potential, so each agent's day total moves by
+    ``(terminal price - value[day, 0]) * E_0`` (the battery's, shared as the shares are), which
+    no action changes."""
+    from chargax_marl.core.station import KIND_BATTERY
+    from chargax_marl.marl.env import ChargaxMARL
+
+    env0 = ChargaxMARL(**TINY_ENV)
+    is_bat = np.asarray(env0.params.station.leaf_kind) == KIND_BATTERY
+    potential = common.battery_potential({"BATTERY_SHAPING": "storage_value"}, env0.params)
+    start = {}
+
+    def rewards_of(env, state, info):
+        v0, v1, e0 = potential(state)
+        if not start:
+            start.update(v0=float(v0), e0=float(np.sum(np.asarray(e0)[is_bat])), day=int(state.day))
+        return common.agent_battery_shaping(v0, info, is_bat, w, v1, e0)
+
+    raw, shaped, first, _ = _tiny_day(rewards_of, w)
+    from chargax_marl.core.reward import day_mean_buy_price
+
+    const = (float(day_mean_buy_price(start["day"], env0.params)) - start["v0"]) * start["e0"]
+    expected = raw + np.where(is_bat, w * const, 0.0) + (1.0 - w) * const
+    np.testing.assert_allclose(shaped, expected, atol=2e-3)
+    assert abs(const) > 1e-3  # the case is not trivial
+    out = _finite_losses(ippo.make_train({**TINY, "BATTERY_SHAPING": "storage_value"}))
+    assert np.all(np.isfinite(out["metrics"]["episode_return"]))
+    _finite_losses(ppo.make_train({**TINY, "BATTERY_SHAPING": "storage_value"}))
+    with pytest.raises(ValueError, match="BATTERY_SHAPING"):
+        common.shaping_mode({"BATTERY_SHAPING": "hourly"})
