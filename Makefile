@@ -40,10 +40,11 @@ examples: $(CLIENTS_STAMP)
 # each agent learns from its own share of the station reward (--local-reward-weight 1; the
 # evaluation scores the station's profit); the battery's energy is valued as it moves
 # (battery shaping, on by default); the battery has its own actor and critic (--battery-net);
-# advantages are normalised per agent; gamma 0.9 (the shaped rewards are nearly immediate).
+# advantages are normalised per agent; gamma 0.9 (the shaped rewards are nearly immediate); the
+# networks also read each observed price's place in the day's range (--relative-prices).
 SCENARIO_FLAGS := --scenario shopping --traffic medium
 MARL_FLAGS := --ent-coef 0.01 --gamma 0.9 --local-reward-weight 1 --battery-net on --agent-adv-norm on \
-	--env-kwargs '{"num_levels": 1}'
+	--relative-prices on --env-kwargs '{"num_levels": 1}'
 train: $(STAMP)
 	$(PY) -m baselines.train --algo ippo $(SCENARIO_FLAGS) --seeds 4 $(MARL_FLAGS) --timesteps 3e5 --chunks 3 --out outputs/train_ippo
 
@@ -51,9 +52,10 @@ train: $(STAMP)
 train-mappo: $(STAMP)
 	$(PY) -m baselines.train --algo mappo $(SCENARIO_FLAGS) --seeds 4 $(MARL_FLAGS) --timesteps 3e5 --chunks 3 --out outputs/train_mappo
 
-# Single-agent PPO, no prior: full-power actions (num_levels 1), battery shaping, gamma 0.95.
+# Single-agent PPO, no prior: full-power actions (num_levels 1), battery shaping, gamma 0.95,
+# relative prices.
 train-ppo: $(STAMP)
-	$(PY) -m baselines.train --algo ppo $(SCENARIO_FLAGS) --seeds 4 --gamma 0.95 --env-kwargs '{"num_levels": 1}' --timesteps 2e6 --chunks 8 --out outputs/train_ppo
+	$(PY) -m baselines.train --algo ppo $(SCENARIO_FLAGS) --seeds 4 --gamma 0.95 --relative-prices on --env-kwargs '{"num_levels": 1}' --timesteps 2e6 --chunks 8 --out outputs/train_ppo
 
 # The LP hindsight bound, the MPC and the rule-based policies on the 100 held-out days of the
 # default scenario and of three coordination scenarios (grid at 25 % and 10 %, high traffic;
