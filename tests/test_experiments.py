@@ -49,3 +49,22 @@ def test_summary_and_plot(tmp_path):
     path = tmp_path / "cm.png"
     cm.plot(matrix, baselines, EXPERIMENTS, "ppo", path)
     assert path.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_traffic_sweep_appendix_conditions_build_valid_params():
+    """``traffic_sweep --appendix``: the four bundled profiles (EU fleet) and the US / World
+    fleets (shopping), each a config whose env parameters build; the default is the main figure."""
+    from baselines import common
+    from baselines.experiments import traffic_sweep as ts
+
+    assert ts.conditions() == [("shopping", "EU")]
+    cells = ts.conditions(ts.PROFILES, ts.FLEETS)
+    assert cells == [("shopping", "EU"), ("residential", "EU"), ("workplace", "EU"), ("highway", "EU"),
+                     ("shopping", "US"), ("shopping", "World")]
+    shares = {}
+    for profile, fleet in cells:
+        cfg = common.parse_config({}, ts.condition_config({"ENV_KWARGS": {"num_levels": 1}}, profile, fleet, "high"))
+        train_params, full, _, days = common.build_env_params(cfg)
+        assert cfg["ENV_KWARGS"] == {"num_levels": 1, "fleet": fleet} and np.size(days) == 100
+        shares[fleet] = np.asarray(full.fleet_capacity_kwh)
+    assert not np.array_equal(shares["EU"], shares["US"])  # the fleet really changes

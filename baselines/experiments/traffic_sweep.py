@@ -2,6 +2,13 @@
 
     python -m baselines.experiments.traffic_sweep            # small CPU default
     python -m baselines.experiments.traffic_sweep --full     # paper scale (1e7 steps, 20 seeds)
+    python -m baselines.experiments.traffic_sweep --appendix # the appendix: every profile and fleet
+
+``--appendix`` repeats the sweep for the four bundled user profiles (shopping, residential,
+workplace, highway; EU fleet) and for the US and World fleets (shopping) and writes
+``baselines/results/traffic_sweep_appendix.{png,json}``; ``--profiles`` / ``--fleets`` pick
+conditions by hand (every profile with the first fleet, then the first profile with every
+other fleet).
 
 Writes ``baselines/results/traffic_sweep.{png,json}``: per traffic level the training
 episode profit (mean ± std over seeds), the greedy held-out daily profit and the
@@ -17,25 +24,90 @@ from baselines.experiments._common import config_of, parser
 from baselines.train import run
 
 TRAFFIC = ("low", "medium", "high")
+PROFILES = ("shopping", "residential", "workplace", "highway")
+FLEETS = ("EU", "US", "World")
 
 
-def main(argv=None, out="baselines/results/traffic_sweep"):
-    args = parser(__doc__, 3e5, 2, 20).parse_args(argv)
+def conditions(profiles=("shopping",), fleets=("EU",)) -> list[tuple[str, str]]:
+    """``(profile, fleet)`` pairs: every profile with the first fleet, then the first profile
+    with each other fleet (the appendix varies one at a time)."""
+    out = [(p, fleets[0]) for p in profiles] + [(profiles[0], f) for f in fleets[1:]]
+    return list(dict.fromkeys(out))
+
+
+def condition_config(base: dict, profile: str, fleet: str, traffic: str) -> dict:
+    """The training config of one cell: ``base`` on ``profile``'s scenario at ``traffic`` with ``fleet``."""
+    return {**base, "SCENARIO": profile, "TRAFFIC": traffic,
+            "ENV_KWARGS": {**(base.get("ENV_KWARGS") or {}), "fleet": fleet}}
+
+
+def main(argv=None, out=None):
+    p = parser(__doc__, 3e5, 2, 20)
+    p.add_argument("--appendix", action="store_true", help="every bundled profile (EU fleet) and fleet (shopping)")
+    p.add_argument("--profiles", nargs="+", choices=PROFILES, default=None)
+    p.add_argument("--fleets", nargs="+", choices=FLEETS, default=None)
+    args = p.parse_args(argv)
     base, seeds = config_of(args)
+    profiles = args.profiles or (PROFILES if args.appendix else ("shopping",))
+    fleets = args.fleets or (FLEETS if args.appendix else ("EU",))
+    cells = conditions(tuple(profiles), tuple(fleets))
+    if out is None:
+        out = "baselines/results/traffic_sweep" + ("" if cells == [("shopping", "EU")] else "_appendix")
+    results = {}
+    for profile, fleet in cells:
+        sweep = _sweep(args, base, seeds, profile, fleet)
+        if cells == [("shopping", "EU")]:
+            results = sweep  # the main figure keeps its layout: {traffic: result}
+        else:
+            results[f"{profile}/{fleet}"] = sweep
+    if cells == [("shopping", "EU")]:
+        plot(results, args.algo, out + ".png")
+    else:
+        plot_grid(results, args.algo, out + ".png")
+    common.write_json({"algo": args.algo, "full": args.full, "seeds": seeds, "conditions": [list(c) for c in cells],
+                       "results": results}, out + ".json")
+    print(f"wrote {out}.png, {out}.json")
+    return results
+
+
+def _sweep(args, base, seeds, profile, fleet) -> dict:
     results = {}
     for traffic in TRAFFIC:
-        cfg = {**base, "SCENARIO": "shopping", "TRAFFIC": traffic}
+        cfg = condition_config(base, profile, fleet, traffic)
         res = run(args.algo, cfg, seeds=seeds, chunks=4, evaluate_every_chunk=False, quiet=True)
         results[traffic] = {k: v for k, v in res.items() if not k.startswith("_")}
         t = res["evaluation"]["table"]
-        print(f"{traffic:>6}: {args.algo} {t[args.algo]['metrics']['daily_profit_eur']['mean']:.1f} | always-max "
+        print(f"{profile}/{fleet} {traffic:>6}: {args.algo} {t[args.algo]['metrics']['daily_profit_eur']['mean']:.1f} | always-max "
               f"{t['always_max']['metrics']['daily_profit_eur']['mean']:.1f} | price-threshold "
               f"{t['price_threshold']['metrics']['daily_profit_eur']['mean']:.1f} EUR/day "
               f"({res['wall_seconds']:.0f} s)", flush=True)
-    plot(results, args.algo, out + ".png")
-    common.write_json({"algo": args.algo, "full": args.full, "seeds": seeds, "results": results}, out + ".json")
-    print(f"wrote {out}.png, {out}.json")
     return results
+
+
+def plot_grid(results: dict, algo: str, path):
+    """One row per condition (``profile/fleet``): held-out daily profit per traffic level of the
+    learned agent (mean ± std over seeds) and of the rule-based baselines."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(results), figsize=(3.6 * len(results), 3.4), squeeze=False)
+    for ax, (cond, sweep) in zip(axes[0], results.items()):
+        x = np.arange(len(sweep))
+        for i, name in enumerate((algo, "always_max", "battery_rule")):
+            table = [sweep[t]["evaluation"]["table"][name] for t in sweep]
+            m = [e["metrics"]["daily_profit_eur"]["mean"] for e in table]
+            s = [np.std(e["per_seed_profit"]) if "per_seed_profit" in e else 0.0 for e in table]
+            ax.errorbar(x + 0.08 * (i - 1), m, yerr=s, fmt="o-" if i == 0 else "s--", label=name, color=f"C{i}")
+        ax.set_xticks(x, list(sweep))
+        ax.set_title(cond)
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("held-out daily profit (EUR)")
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def plot(results, algo, path):
