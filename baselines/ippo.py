@@ -113,9 +113,11 @@ class SharedPolicy:
             id_width = int(np.shape(env._layout.agent_id)[1])
             self.relative = common.relative_price_columns(env.params, env.obs_size - id_width
                                                           - context_size(env.params))
+        # the critic reads the same features when it reads the agent's own observation (IPPO)
+        self.critic_features = self.relative is not None and not centralised_critic
         if self.relative is not None:
             self.obs_dim += len(self.relative[0])
-            if not centralised_critic:
+            if self.critic_features:
                 self.critic_dim += len(self.relative[0])
 
     def features(self, obs):
@@ -147,7 +149,7 @@ class SharedPolicy:
         return common.masked_logits(logits, avail)
 
     def value(self, params, critic_in):
-        x = critic_in if self.critic_dim == critic_in.shape[-1] else self.features(critic_in)
+        x = self.features(critic_in) if self.critic_features else critic_in
         v = self.critic.apply(params["critic"], x)[..., 0]
         if self.battery_critic:  # critic_in is the agent's own observation
             v = jnp.where(self.is_battery(critic_in)[..., 0] > 0.5,

@@ -19,15 +19,13 @@ import argparse
 import dataclasses
 import time
 
-import jax
 import numpy as np
 
 from baselines.common import paired_difference
 from chargax_marl.core import datasets
 from chargax_marl.core.params import make_params
 from chargax_marl.core.scenarios import scenario_kwargs
-from chargax_marl.evaluation import run_days, split_days
-from chargax_marl.policies import get_policy
+from chargax_marl.evaluation import split_days
 
 RULES = ("always_max", "battery_rule", "discharge_departing")
 
@@ -41,18 +39,15 @@ def all_v2g(fleet="EU") -> datasets.FleetData:
 def daily_profits(scenario: str = "shopping", rules=RULES, num_eval: int = 100, key=None, **overrides) -> dict:
     """``{(rule, refund): daily profit (days,)}`` on the held-out days, refund in (True, False);
     ``overrides`` go to ``make_params`` on top of the scenario."""
-    key = jax.random.PRNGKey(0) if key is None else key
+    from baselines.heuristics import evaluate_rules
+
     kwargs = scenario_kwargs(scenario, **overrides)
     base = make_params(**kwargs)
     _, days = split_days(int(base.num_days), num_eval, seed=0)
-    params = {True: base, False: make_params(**kwargs, refund_discharged_energy=False)}
     out = {}
-    for name in rules:
-        policy = get_policy(name)
-        # the refund flag is an array field of the params: one compile per rule serves both
-        fn = jax.jit(lambda prm, d, k, policy=policy: run_days(lambda s, kk: policy(s, kk, prm), prm, d, k))
-        for refund, prm in params.items():
-            out[(name, refund)] = np.asarray(fn(prm, np.asarray(days), key).profit_eur, np.float64)
+    for refund, prm in ((True, base), (False, make_params(**kwargs, refund_discharged_energy=False))):
+        for name, r in evaluate_rules(prm, days, rules, key=key).items():
+            out[(name, refund)] = r["daily_profit"]
     return out
 
 

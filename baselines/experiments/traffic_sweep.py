@@ -51,19 +51,12 @@ def main(argv=None, out=None):
     profiles = args.profiles or (PROFILES if args.appendix else ("shopping",))
     fleets = args.fleets or (FLEETS if args.appendix else ("EU",))
     cells = conditions(tuple(profiles), tuple(fleets))
+    main_figure = cells == [("shopping", "EU")]  # keeps its layout: {traffic: result}
     if out is None:
-        out = "baselines/results/traffic_sweep" + ("" if cells == [("shopping", "EU")] else "_appendix")
-    results = {}
-    for profile, fleet in cells:
-        sweep = _sweep(args, base, seeds, profile, fleet)
-        if cells == [("shopping", "EU")]:
-            results = sweep  # the main figure keeps its layout: {traffic: result}
-        else:
-            results[f"{profile}/{fleet}"] = sweep
-    if cells == [("shopping", "EU")]:
-        plot(results, args.algo, out + ".png")
-    else:
-        plot_grid(results, args.algo, out + ".png")
+        out = "baselines/results/traffic_sweep" + ("" if main_figure else "_appendix")
+    sweeps = {f"{profile}/{fleet}": _sweep(args, base, seeds, profile, fleet) for profile, fleet in cells}
+    results = sweeps["shopping/EU"] if main_figure else sweeps
+    (plot if main_figure else plot_grid)(results, args.algo, out + ".png")
     common.write_json({"algo": args.algo, "full": args.full, "seeds": seeds, "conditions": [list(c) for c in cells],
                        "results": results}, out + ".json")
     print(f"wrote {out}.png, {out}.json")
