@@ -246,8 +246,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         obs_b = batchify(obs, agents, n_actors)
         avail = avail_b
         logits = policy.logits(params, obs_b, avail)
-        action = jax.random.categorical(k_act, logits)
-        logp = common.log_prob(logits, action)
+        action, logp = common.sample_categorical(k_act, logits)
         cin, value = rollout_value(params, obs, obs_b)
         actions = unbatchify(action, agents, n_envs)
         pot = None if potential is None else potential(env_state)  # before the (auto-resetting) step

@@ -132,8 +132,8 @@ def make_train(config: dict | None = None, env_params=None):
         params, env_state, obs, key = carry
         key, k_act, k_step = jax.random.split(key, 3)
         logits = policy.logits(params, obs)
-        action = jax.random.categorical(k_act, logits)  # (envs, leaves)
-        logp = common.log_prob(logits, action).sum(-1)
+        action, head_logp = common.sample_categorical(k_act, logits)  # (envs, leaves)
+        logp = head_logp.sum(-1)
         value = policy.value(params, obs)
         pot = None if potential is None else potential(env_state)  # before the (auto-resetting) step
         next_obs, env_state, reward, term, trunc, info = v_step(jax.random.split(k_step, n_envs), env_state,

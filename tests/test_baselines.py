@@ -89,6 +89,32 @@ def test_ippo_update_finite_and_masks_unavailable_actions():
     assert probs[:, :10].max() < 1e-6  # discharge indices of a no-V2G port have zero probability
 
 
+def test_inverse_cdf_sampler_matches_the_softmax_and_never_picks_a_masked_action():
+    """The rollouts' sampler: frequencies match softmax(logits) (chi-square), masked indices
+    (first, middle, last) are never drawn, even at u = 0 and the largest float32 u < 1, and
+    the returned log-probability is the chosen index's."""
+    logits = jnp.asarray([[0.3, -1.0, 2.0, 0.0, 0.7],
+                          [common.NEG_INF, 1.0, common.NEG_INF, 0.5, common.NEG_INF]], jnp.float32)
+    probs = np.asarray(jax.nn.softmax(logits, axis=-1), np.float64)
+    n = 40_000
+    draw = jax.jit(jax.vmap(lambda k: common.sample_categorical(k, logits)))
+    action, logp = draw(jax.random.split(jax.random.PRNGKey(3), n))
+    action, logp = np.asarray(action), np.asarray(logp)
+    for h in range(2):
+        counts = np.bincount(action[:, h], minlength=5)
+        expected = probs[h] * n
+        valid = expected > 0
+        assert counts[~valid].sum() == 0
+        chi2 = float((((counts - expected) ** 2)[valid] / expected[valid]).sum())
+        assert chi2 < 20.0, (h, counts, expected)  # 4 or 1 dof; p < 1e-3
+    np.testing.assert_allclose(logp, np.log(probs)[np.arange(2)[None, :], action], rtol=1e-5, atol=1e-6)
+    edges = jnp.asarray([0.0, 1.0 - 2.0 ** -24, 0.5], jnp.float32)
+    a, lp = jax.vmap(lambda u: common.categorical_from_uniform(jnp.full((2,), u), logits))(edges)
+    a = np.asarray(a)
+    assert list(a[:, 0]) == [0, 4, a[2, 0]] and set(a[:, 1]) <= {1, 3}
+    assert a[0, 1] == 1 and a[1, 1] == 3 and np.all(np.isfinite(np.asarray(lp)))
+
+
 def test_gae_matches_reference():
     rng = np.random.default_rng(0)
     r, v, d = rng.normal(size=(6, 2)), rng.normal(size=(6, 2)), (rng.random((6, 2)) < 0.3).astype(np.float32)
