@@ -342,21 +342,44 @@ def ppo_loss(new_logp, old_logp, advantages, values, old_values, targets, ent, c
     return total, {"actor_loss": actor_loss, "value_loss": value_loss, "entropy": ent, "approx_kl": approx_kl}
 
 
-def ppo_epochs(loss_fn, tx, params, opt_state, key, traj, adv, targets, batch: int, config: dict):
+def shuffled_rows(key: jax.Array, steps: int, actors: int, agents: int = 1) -> jnp.ndarray:
+    """A random order ``(steps * actors,)`` of the rows of a rollout flattened from ``(steps, actors)``.
+
+    With ``agents == 1`` a uniform permutation of the rows. With ``agents > 1`` the actors are
+    agent-major (``actor = agent * envs + env``, ``envs = actors / agents``) and the
+    *env-steps* ``(step, env)`` are permuted instead, each followed by its ``agents`` rows in
+    agent order: a minibatch then holds every agent of the env-steps it draws. Permuting the
+    rows of a multi-agent rollout (81,600 for 17 agents x 16 envs x 300 steps, a sort) cost
+    about a quarter of an IPPO epoch on a CPU; permuting its env-steps is ``agents`` times
+    smaller.
+    """
+    if agents == 1:
+        return jax.random.permutation(key, steps * actors)
+    envs = actors // agents
+    unit = jax.random.permutation(key, steps * envs)  # step * envs + env
+    step, env = unit // envs, unit % envs
+    rows = step[:, None] * actors + jnp.arange(agents)[None, :] * envs + env[:, None]
+    return rows.reshape(-1)
+
+
+def ppo_epochs(loss_fn, tx, params, opt_state, key, traj, adv, targets, batch: int, config: dict,
+               agents: int = 1):
     """``UPDATE_EPOCHS`` passes over the rollout in ``NUM_MINIBATCHES`` shuffled minibatches.
 
     ``traj`` is the rollout (a NamedTuple with an ``info`` field, dropped here) with leading
     axes ``(steps, actors)``; ``loss_fn(params, (traj, adv, targets))`` returns
     ``(loss, parts)``. Returns ``(params, opt_state, key, parts)`` with ``parts`` stacked over
-    epochs and minibatches.
+    epochs and minibatches. ``agents > 1`` (IPPO, MAPPO: ``actors = agents * envs``,
+    agent-major) shuffles env-steps, each with all of its agents' rows (:func:`shuffled_rows`).
     """
+    steps, actors = traj.reward.shape[:2]
 
     def epoch(carry, _):
         params, opt_state, key = carry
         key, k_perm = jax.random.split(key)
         data = (traj._replace(info={}), adv, targets)
         flat = jax.tree.map(lambda x: x.reshape((batch,) + x.shape[2:]), data)
-        perm = jax.random.permutation(k_perm, batch)
+        perm = shuffled_rows(k_perm, steps, actors, agents)
         mbs = jax.tree.map(lambda x: x[perm].reshape((config["NUM_MINIBATCHES"], -1) + x.shape[1:]), flat)
 
         def minibatch(carry, mb):

@@ -177,8 +177,9 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
     n_actors = n_agents * n_envs
     total_updates = common.num_updates(config)
     batch = n_actors * n_steps
-    if batch % config["NUM_MINIBATCHES"]:
-        raise ValueError(f"num_agents*NUM_ENVS*NUM_STEPS={batch} must be divisible by NUM_MINIBATCHES")
+    if (n_envs * n_steps) % config["NUM_MINIBATCHES"]:  # minibatches hold whole env-steps (common.shuffled_rows)
+        raise ValueError(f"NUM_ENVS*NUM_STEPS={n_envs * n_steps} must be divisible by "
+                         f"NUM_MINIBATCHES={config['NUM_MINIBATCHES']}")
     mesh = common.env_mesh(n_envs)
     tx = common.make_optimizer(config, total_updates)
 
@@ -293,7 +294,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
             adv = per_agent_normalised(adv)
 
         params, opt_state, key, parts = common.ppo_epochs(loss_fn, tx, params, rs.opt_state, key, traj, adv,
-                                                          targets, batch, config)
+                                                          targets, batch, config, agents=n_agents)
         metrics = {k: v.mean() for k, v in parts.items()}
         # Every agent logs the same episode: use agent 0's column.
         metrics.update(common.episode_metrics(traj.info["returned_episode"][..., 0],

@@ -115,6 +115,24 @@ def test_inverse_cdf_sampler_matches_the_softmax_and_never_picks_a_masked_action
     assert a[0, 1] == 1 and a[1, 1] == 3 and np.all(np.isfinite(np.asarray(lp)))
 
 
+def test_multi_agent_shuffle_keeps_each_env_step_whole():
+    """IPPO/MAPPO minibatches: the row order is a permutation of the rollout's rows, and every
+    block of ``agents`` rows is one env-step (same step, same env) with all its agents in order."""
+    steps, agents, envs = 7, 3, 4
+    actors = agents * envs
+    rows = np.asarray(common.shuffled_rows(jax.random.PRNGKey(5), steps, actors, agents))
+    assert sorted(rows.tolist()) == list(range(steps * actors))
+    step, actor = rows // actors, rows % actors
+    agent, env = actor // envs, actor % envs
+    blocks = lambda x: x.reshape(-1, agents)  # noqa: E731
+    assert np.all(blocks(step) == blocks(step)[:, :1]) and np.all(blocks(env) == blocks(env)[:, :1])
+    assert np.all(blocks(agent) == np.arange(agents))
+    units = blocks(step)[:, 0] * envs + blocks(env)[:, 0]
+    assert not np.array_equal(units, np.sort(units))  # shuffled
+    single = np.asarray(common.shuffled_rows(jax.random.PRNGKey(5), steps, actors))
+    assert sorted(single.tolist()) == list(range(steps * actors))
+
+
 def test_gae_matches_reference():
     rng = np.random.default_rng(0)
     r, v, d = rng.normal(size=(6, 2)), rng.normal(size=(6, 2)), (rng.random((6, 2)) < 0.3).astype(np.float32)
