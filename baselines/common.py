@@ -249,6 +249,14 @@ def relative_price_columns(params, context_start: int):
     return prices, qi[0.2], qi[0.5], qi[0.8]
 
 
+def with_relative_prices(obs, columns) -> jnp.ndarray:
+    """The network input: ``obs`` with :func:`relative_prices` appended, or ``obs`` itself when
+    ``columns`` (from :func:`relative_price_columns`) is ``None`` (``RELATIVE_PRICES`` off)."""
+    if columns is None:
+        return obs
+    return jnp.concatenate([obs, relative_prices(obs, *columns)], axis=-1)
+
+
 def relative_prices(obs, prices, q20, q50, q80) -> jnp.ndarray:
     """Each observed price's place in its day's range, ``(p - median) / (q80 - q20)`` (the spread
     floored at 0.01 EUR/kWh), clipped to [-5, 5]: the comparison a battery's charge or discharge
@@ -283,13 +291,13 @@ def categorical_from_uniform(u: jnp.ndarray, logits: jnp.ndarray):
     in ``[0, 1)``. Returns ``(action int32 (...), log-probability of it (...))``.
 
     The chosen index is the first ``j`` with ``cdf[j] > u * cdf[K-1]``, so an index of zero
-    probability (a masked action, ``NEG_INF`` logit) is never chosen, whatever ``u``.
+    probability (a masked action, ``NEG_INF`` logit) is never chosen, whatever ``u``; the
+    margin keeps ``u * cdf[K-1]`` below ``cdf[K-1]``, so some ``j < K`` always qualifies.
     """
     logp_all = jax.nn.log_softmax(logits, axis=-1)
     cdf = jnp.cumsum(jnp.exp(logp_all), axis=-1)
     t = (u * _INVERSION_MARGIN)[..., None] * cdf[..., -1:]
     action = jnp.sum(cdf <= t, axis=-1, dtype=jnp.int32)
-    action = jnp.minimum(action, logits.shape[-1] - 1)
     return action, jnp.take_along_axis(logp_all, action[..., None], axis=-1)[..., 0]
 
 
@@ -298,8 +306,9 @@ def sample_categorical(key: jax.Array, logits: jnp.ndarray):
 
     Same distribution as ``jax.random.categorical`` (which adds Gumbel noise to every logit,
     ``K`` uniforms per head), from one uniform per head by inversion
-    (:func:`categorical_from_uniform`): on a CPU the rollouts' sampling cost about a third of
-    a PPO rollout step with 16 envs, this a fifth of that (``benchmarks/train_speed.py --phases``).
+    (:func:`categorical_from_uniform`). On this project's 2-core CPU the Gumbel draw was about
+    two thirds of a PPO rollout step with 16 envs (140 of 215 us); this costs about a third of
+    that (``benchmarks/README.md``, training speed).
     """
     return categorical_from_uniform(jax.random.uniform(key, logits.shape[:-1]), logits)
 
@@ -362,8 +371,7 @@ def shuffled_rows(key: jax.Array, steps: int, actors: int, agents: int = 1) -> j
     return rows.reshape(-1)
 
 
-def ppo_epochs(loss_fn, tx, params, opt_state, key, traj, adv, targets, batch: int, config: dict,
-               agents: int = 1):
+def ppo_epochs(loss_fn, tx, params, opt_state, key, traj, adv, targets, config: dict, agents: int = 1):
     """``UPDATE_EPOCHS`` passes over the rollout in ``NUM_MINIBATCHES`` shuffled minibatches.
 
     ``traj`` is the rollout (a NamedTuple with an ``info`` field, dropped here) with leading
@@ -373,6 +381,7 @@ def ppo_epochs(loss_fn, tx, params, opt_state, key, traj, adv, targets, batch: i
     agent-major) shuffles env-steps, each with all of its agents' rows (:func:`shuffled_rows`).
     """
     steps, actors = traj.reward.shape[:2]
+    batch = steps * actors
 
     def epoch(carry, _):
         params, opt_state, key = carry

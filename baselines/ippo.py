@@ -121,9 +121,7 @@ class SharedPolicy:
                 self.critic_dim += len(self.relative[0])
 
     def features(self, obs):
-        if self.relative is None:
-            return obs
-        return jnp.concatenate([obs, common.relative_prices(obs, *self.relative)], axis=-1)
+        return common.with_relative_prices(obs, self.relative)
 
     def init(self, key):
         ka, kc, kba, kbc = jax.random.split(key, 4)
@@ -176,7 +174,6 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
     n_envs, n_steps, n_agents = config["NUM_ENVS"], config["NUM_STEPS"], base_env.num_agents
     n_actors = n_agents * n_envs
     total_updates = common.num_updates(config)
-    batch = n_actors * n_steps
     if (n_envs * n_steps) % config["NUM_MINIBATCHES"]:  # minibatches hold whole env-steps (common.shuffled_rows)
         raise ValueError(f"NUM_ENVS*NUM_STEPS={n_envs * n_steps} must be divisible by "
                          f"NUM_MINIBATCHES={config['NUM_MINIBATCHES']}")
@@ -294,7 +291,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
             adv = per_agent_normalised(adv)
 
         params, opt_state, key, parts = common.ppo_epochs(loss_fn, tx, params, rs.opt_state, key, traj, adv,
-                                                          targets, batch, config, agents=n_agents)
+                                                          targets, config, agents=n_agents)
         metrics = {k: v.mean() for k, v in parts.items()}
         # Every agent logs the same episode: use agent 0's column.
         metrics.update(common.episode_metrics(traj.info["returned_episode"][..., 0],

@@ -78,9 +78,7 @@ class Policy:
         self.input_dim = self.obs_dim + (0 if self.relative is None else len(self.relative[0]))
 
     def features(self, obs):
-        if self.relative is None:
-            return obs
-        return jnp.concatenate([obs, common.relative_prices(obs, *self.relative)], axis=-1)
+        return common.with_relative_prices(obs, self.relative)
 
     def init(self, key):
         ka, kc = jax.random.split(key)
@@ -164,7 +162,7 @@ def make_train(config: dict | None = None, env_params=None):
         adv, targets = common.gae(traj.reward, traj.value, traj.done, last_value, config["GAMMA"], config["GAE_LAMBDA"])
 
         params, opt_state, key, parts = common.ppo_epochs(loss_fn, tx, params, rs.opt_state, key, traj, adv,
-                                                          targets, batch, config)
+                                                          targets, config)
         metrics = {k: v.mean() for k, v in parts.items()}
         metrics.update(common.episode_metrics(traj.info["returned_episode"], traj.info))
         return RunnerState(params, opt_state, env_state, obs, key, rs.update + 1), metrics

@@ -367,14 +367,12 @@ def main(argv=None) -> dict:
                       ("local_reward_weight", "LOCAL_REWARD_WEIGHT"), ("eval_days", "NUM_EVAL_DAYS")):
         if getattr(a, flag) is not None:
             config[key] = getattr(a, flag)
-    if a.relative_prices is not None:
-        config["RELATIVE_PRICES"] = a.relative_prices == "on"
     if a.battery_gamma is not None:
         config["BATTERY_GAMMA"] = a.battery_gamma
-    if a.battery_net is not None:
-        config["BATTERY_NET"] = a.battery_net == "on"
-    if a.agent_adv_norm is not None:
-        config["AGENT_ADV_NORM"] = a.agent_adv_norm == "on"
+    for flag, key in (("relative_prices", "RELATIVE_PRICES"), ("battery_net", "BATTERY_NET"),
+                      ("agent_adv_norm", "AGENT_ADV_NORM")):
+        if getattr(a, flag) is not None:
+            config[key] = getattr(a, flag) == "on"
     if a.battery_shaping is not None:
         config["BATTERY_SHAPING"] = {"on": True, "off": False}.get(a.battery_shaping, a.battery_shaping)
     if config["TRAFFIC"] is None:
