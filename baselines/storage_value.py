@@ -44,12 +44,11 @@ def _battery_constants(params):
 
 
 def step_buy_prices(params) -> np.ndarray:
-    """``(days, steps)`` buy price (EUR/kWh) of every step: day-ahead + grid fee + time-of-use."""
-    steps = int(params.num_steps)
-    hour = np.clip((np.arange(steps) * float(params.step_minutes) / 60.0).astype(int), 0, 23)
-    spot = np.asarray(params.prices_eur_kwh, np.float64)
-    tou = np.asarray(params.tou_fee_eur_kwh, np.float64)
-    return spot[:, hour] + float(params.grid_fee_eur_kwh) + tou[hour][None, :]
+    """``(days, steps)`` buy price (EUR/kWh) of every step, as the env prices it
+    (:func:`chargax_marl.core.reward.price_tables`: day-ahead + grid fee + time-of-use)."""
+    from chargax_marl.core.reward import price_tables
+
+    return np.asarray(price_tables(params)[0], np.float64)
 
 
 def day_values(prices, terminal_price: float, eta: float, power_kw: float, capacity_kwh: float, e0: float,
@@ -87,13 +86,16 @@ def storage_values(params) -> np.ndarray:
     """``(days, steps + 1)`` float32 value of a stored kWh at the start of every step of every
     day of ``params`` (last column: the env's terminal price, the day's mean buy price, or the
     fixed battery price of ``make_params(battery_terminal_price=...)``)."""
-    from chargax_marl.core.reward import day_mean_buy_price
+    import jax
+    import jax.numpy as jnp
+
+    from chargax_marl.core.reward import battery_terminal_value_eur
 
     eta, power_kw, capacity_kwh, e0 = _battery_constants(params)
     prices = step_buy_prices(params)
+    days = jnp.arange(prices.shape[0], dtype=jnp.int32)
+    terminal = np.asarray(jax.vmap(lambda d: battery_terminal_value_eur(jnp.float32(1.0), d, params))(days), np.float64)
     out = np.zeros((prices.shape[0], prices.shape[1] + 1), np.float64)
     for day in range(prices.shape[0]):
-        terminal = (float(day_mean_buy_price(day, params)) if bool(params.battery_value_day_mean)
-                    else float(params.battery_value_eur_kwh))
-        out[day] = day_values(prices[day], terminal, eta, power_kw, capacity_kwh, e0, float(params.step_hours))
+        out[day] = day_values(prices[day], terminal[day], eta, power_kw, capacity_kwh, e0, float(params.step_hours))
     return out.astype(np.float32)

@@ -6,6 +6,7 @@ which the energy flowed.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
 from chargax_marl.core.station import KIND_BATTERY
@@ -38,6 +39,15 @@ def grid_prices(day, timestep, params: EnvParams):
     times the day-ahead price."""
     spot = day_ahead_price(day, timestep, params)
     return spot + params.grid_fee_eur_kwh + tou_fee(timestep, params), spot * params.feed_in_factor
+
+
+def price_tables(params: EnvParams):
+    """``(buy, sell)``, each ``(days, steps)`` EUR/kWh: :func:`grid_prices` of every step of
+    every day of the price data, for planners that read all of a day's prices at once (the
+    MPC, the trainers' storage values)."""
+    days = jnp.arange(params.num_days, dtype=jnp.int32)
+    steps = jnp.arange(params.num_steps, dtype=jnp.int32)
+    return jax.vmap(lambda d: jax.vmap(lambda t: grid_prices(d, t, params))(steps))(days)
 
 
 def day_price_quantiles(day, params: EnvParams) -> jnp.ndarray:

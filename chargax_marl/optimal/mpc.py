@@ -77,8 +77,7 @@ class MPC:
         # the simulator's own prices (reward.grid_prices: time-of-use surcharge included) and
         # terminal battery value, for every day and step
         days = jnp.arange(params.num_days, dtype=jnp.int32)
-        steps = jnp.arange(params.num_steps, dtype=jnp.int32)
-        buy, sell = jax.vmap(lambda d: jax.vmap(lambda t: reward_lib.grid_prices(d, t, params))(steps))(days)
+        buy, sell = reward_lib.price_tables(params)
         self.buy, self.sell = np.asarray(buy, np.float64), np.asarray(sell, np.float64)  # (D, T)
         self.battery_value = np.asarray(jax.vmap(
             lambda d: reward_lib.battery_terminal_value_eur(jnp.float32(1.0), d, params))(days), np.float64)
