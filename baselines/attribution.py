@@ -69,11 +69,15 @@ def attribute(run_dir: str | Path) -> dict:
     rules = evaluate_rules(eval_params, days, ("always_max", "battery_rule"), key=key)
     am = rules["always_max"]["daily_profit"]
     make_act = train.make_act(eval_params)
+    # One program per mix, the seed's parameters an argument (not a constant): compiled once, run per seed.
+    score = {name: jax.jit(lambda p, d, k, name=name: run_days(mixed_policies(make_act(p), eval_params)[name],
+                                                                eval_params, d, k))
+             for name in MIXES}
     per_seed = {m: [] for m in MIXES}
     for i in range(int(results["seeds"])):
-        act = make_act(jax.tree.map(lambda x: x[i], all_params))
-        for name, policy in mixed_policies(act, eval_params).items():
-            totals = jax.jit(lambda d, k: run_days(policy, eval_params, d, k))(days, key)
+        seed_params = jax.tree.map(lambda x: x[i], all_params)
+        for name in MIXES:
+            totals = score[name](seed_params, days, key)
             per_seed[name].append(common.paired_difference(np.asarray(totals.profit_eur, np.float64), am))
     out = {"run": str(run_dir), "algo": results["algo"], "num_days": int(days.size), "seeds": int(results["seeds"]),
            "battery_rule_vs_always_max": common.paired_difference(rules["battery_rule"]["daily_profit"], am),
