@@ -23,7 +23,7 @@ from flax.linen.initializers import constant, variance_scaling
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from chargax_marl.core.params import make_params
-from chargax_marl.evaluation import run_days, split_days, summarize
+from chargax_marl.evaluation import METRICS, run_days, split_days, summarize
 
 NEG_INF = -1e9
 
@@ -510,8 +510,8 @@ def evaluate_batched(make_act, net_params, eval_params, days, key=None, referenc
     ``PRNGKey(0)``), so all policies meet the same drawn cars on the same days (common random
     numbers): differences between policies are then not masked by the day-to-day spread of
     traffic (about ±130 EUR/day on the default scenario). Returns pooled mean ± std over seeds
-    × days (``metrics``), each seed's mean daily profit (``per_seed_profit``) and daily profits
-    (``daily_profit``, seeds × days). With ``reference_profit`` (the daily profits of a
+    × days (``metrics``), each seed's mean daily profit (``per_seed_profit``) and mean of every
+    metric over days (``per_seed_metrics``), and daily profits (``daily_profit``, seeds × days). With ``reference_profit`` (the daily profits of a
     baseline on the same days and key, e.g. always-max), also ``paired_diff``: per seed, the
     mean and standard error over days of (policy − reference) profit.
     """
@@ -522,7 +522,9 @@ def evaluate_batched(make_act, net_params, eval_params, days, key=None, referenc
     flat = jax.tree.map(lambda x: np.asarray(x).reshape(-1), totals)
     profit = np.asarray(totals.profit_eur, np.float64)
     out = {"num_days": int(days.shape[0]), "num_seeds": int(seeds), "metrics": summarize(flat),
-           "per_seed_profit": [float(x) for x in profit.mean(axis=1)], "daily_profit": profit}
+           "per_seed_profit": [float(x) for x in profit.mean(axis=1)], "daily_profit": profit,
+           "per_seed_metrics": {name: [float(x) for x in np.asarray(getattr(totals, field), np.float64).mean(axis=1)]
+                                for name, field in METRICS.items()}}
     if reference_profit is not None:
         out["paired_diff"] = paired_difference(profit, reference_profit)
     return out

@@ -68,3 +68,85 @@ def test_traffic_sweep_appendix_conditions_build_valid_params():
         assert cfg["ENV_KWARGS"] == {"num_levels": 1, "fleet": fleet} and np.size(days) == 100
         shares[fleet] = np.asarray(full.fleet_capacity_kwh)
     assert not np.array_equal(shares["EU"], shares["US"])  # the fleet really changes
+
+
+def _args(argv, full_seeds=20):
+    from baselines.experiments import _common
+
+    return _common.parser("doc", full_seeds=full_seeds).parse_args(argv)
+
+
+def test_runner_defaults_are_the_tuned_settings_and_full_is_the_paper_s_budget():
+    from baselines.experiments import _common
+    from baselines.train import FAST
+
+    base, seeds = _common.config_of(_args([]))
+    assert seeds == 4 and base["TOTAL_TIMESTEPS"] == 2_000_000
+    assert base["GAMMA"] == 0.95 and base["RELATIVE_PRICES"] is True and base["ENV_KWARGS"] == {"num_levels": 1}
+    assert all(base[k] == v for k, v in FAST.items())
+    multi, _ = _common.config_of(_args(["--algo", "ippo"]))
+    assert multi["LOCAL_REWARD_WEIGHT"] == 1.0 and multi["BATTERY_NET"] and multi["GAMMA"] == 0.9
+    full, full_seeds = _common.config_of(_args(["--full"]))
+    assert full_seeds == 20 and full["TOTAL_TIMESTEPS"] == 10_000_000 and full["GAMMA"] == 0.95
+    table3, _ = _common.config_of(_args(["--full", "--settings", "table3"]))
+    assert table3 == {"ENV_KWARGS": {}, "TOTAL_TIMESTEPS": 10_000_000}  # parse_config fills in Table 3
+    # the tuned settings are not shared mutable state: a runner adding env kwargs leaves them alone
+    again = _common.with_env_kwargs(base, fleet="US")
+    assert again["ENV_KWARGS"] == {"num_levels": 1, "fleet": "US"} and _common.TUNED["ppo"]["ENV_KWARGS"] == {"num_levels": 1}
+
+
+def test_the_record_says_when_a_run_is_cut_from_the_paper_s_scale():
+    from baselines.experiments import _common
+
+    args = _args(["--seeds", "3", "--timesteps", "5e5"])
+    base, seeds = _common.config_of(args)
+    rec = _common.Record(args, seeds, base, paper_seeds=20, figure="Fig. 4a").as_dict()
+    assert rec["cut"] is True and "3 seeds x 5e+05" in rec["cut_note"] and "20 x 1e+07" in rec["cut_note"]
+    assert rec["paper"] == {"timesteps_per_seed": 10_000_000, "seeds": 20}
+    assert rec["machine"]["cores"] >= 1 and rec["wall_seconds"] >= 0 and rec["timesteps_per_seed"] == 500_000
+    full = _args(["--full"])
+    base, seeds = _common.config_of(full)
+    assert _common.Record(full, seeds, base, paper_seeds=20, figure="Fig. 4a").as_dict()["cut"] is False
+    # fewer seeds than the paper's at the paper's steps is still cut
+    assert _common.Record(full, 5, base, paper_seeds=20, figure="Fig. 4a").as_dict()["cut"] is True
+    none = _common.Record(args, seeds, base, paper_seeds=None, figure="refund").as_dict()
+    assert none["cut"] is False and none["paper"] is None and none["cut_note"].startswith("no paper counterpart")
+
+
+def test_paired_differences_over_seeds():
+    from baselines.experiments import alpha_ablation, refund_effect
+
+    d = alpha_ablation.paired_over_seeds([3.0, 5.0, 7.0], [1.0, 1.0, 1.0])
+    assert d["per_seed"] == [2.0, 4.0, 6.0] and np.isclose(d["mean"], 4.0) and np.isclose(d["stderr"], 2.0 / np.sqrt(3))
+    a = np.array([[1.0, 3.0], [2.0, 6.0]])  # seeds x days
+    r = refund_effect.paired_seeds(a, np.zeros_like(a))
+    assert r["per_seed"] == [2.0, 4.0] and np.isclose(r["mean"], 3.0) and np.isclose(r["stderr"], 1.0)
+
+
+def _cell(agent, am, rule, bound, seeds=2, days=5):
+    rng = np.random.default_rng(0)
+    noise = rng.normal(0, 1, size=days)
+
+    def entry(v, per_seed=False):
+        daily = np.full((seeds, days), v) + noise if per_seed else v + noise
+        e = {"metrics": {"daily_profit_eur": {"mean": float(np.mean(daily)), "std": 1.0}}, "daily_profit": daily}
+        if per_seed:
+            e["per_seed_profit"] = list(np.mean(daily, axis=1))
+        return e
+
+    return {"evaluation": {"table": {"ppo": entry(agent, True), "always_max": entry(am), "battery_rule": entry(rule),
+                                     "lp_bound": entry(bound)}},
+            "curve": {"timesteps": np.array([1, 2]), "episode_profit_eur": np.array([[1.0, 2.0], [1.5, 2.5]])},
+            "vs_always_max": {"mean": agent - am, "stderr": 0.1},
+            "over_seeds": {"headroom_fraction": {"mean": (agent - am) / (bound - am), "stderr": 0.01}}}
+
+
+def test_traffic_sweep_log_line_and_plots(tmp_path):
+    from baselines.experiments import traffic_sweep as ts
+
+    sweep = {t: _cell(10.0 + i, 9.0 + i, 9.5 + i, 12.0 + i) for i, t in enumerate(ts.TRAFFIC)}
+    text = ts.line(sweep["low"], "ppo")
+    assert "lp_bound 12.0" in text and "vs_always_max +1.00" in text and "headroom +0.333" in text
+    ts.plot(sweep, "ppo", tmp_path / "main.png")
+    ts.plot_grid({"shopping/EU": sweep, "highway/EU": sweep}, "ppo", tmp_path / "grid.png")
+    assert (tmp_path / "main.png").read_bytes()[:4] == b"\x89PNG" and (tmp_path / "grid.png").stat().st_size > 0

@@ -1,45 +1,123 @@
-"""Shared argument handling and training / evaluation steps of the experiment runners (small CPU
-defaults, ``--full`` = paper scale)."""
+"""What the experiment runners share: their arguments, learning settings, budgets and run records.
+
+Every runner trains on the CPU-sized default budget unless ``--full`` asks for the paper's (1e7
+env-steps per seed and the paper's seed count for that figure). ``--settings`` picks the
+learning settings: ``tuned`` (default) are those of the learned-agents work (``make train-ppo``
+for PPO, ``make train`` for IPPO / MAPPO); ``table3`` are the paper's Table 3 exactly. Every
+result file records the budget, the seeds, the settings, the wall time and the machine, and
+whether the run was cut from the paper's scale (``cut``), so no cut run reads as the paper's.
+"""
 
 from __future__ import annotations
 
 import argparse
+import time
+from pathlib import Path
 
 from baselines import common
-from baselines.train import FAST, baseline_results, run
+from baselines.train import FAST, OPTIMAL_CHOICES, baseline_results, run
 
-PAPER_SCALE = {"TOTAL_TIMESTEPS": int(1e7)}  # Table 3 hyper-parameters, 1e7 steps
+PAPER_TIMESTEPS = int(1e7)  # Table 3: 1e7 env-steps per seed
+
+SINGLE = {**FAST, "GAMMA": 0.95, "RELATIVE_PRICES": True, "ENV_KWARGS": {"num_levels": 1}}
+MULTI = {**FAST, "ENT_COEF": 0.01, "GAMMA": 0.9, "LOCAL_REWARD_WEIGHT": 1.0, "BATTERY_NET": True,
+         "AGENT_ADV_NORM": True, "RELATIVE_PRICES": True, "ENV_KWARGS": {"num_levels": 1}}
+TUNED = {"ppo": SINGLE, "ippo": MULTI, "mappo": MULTI}
+"""The ``tuned`` learning settings per algorithm: the Makefile's ``train-ppo`` (PPO) and
+``train`` / ``train-mappo`` (IPPO / MAPPO) flags. Full-power actions (``num_levels`` 1), battery
+shaping, relative prices; no always-max prior."""
+
+DEFAULT_TIMESTEPS = 2e6
+DEFAULT_SEEDS = 4
 
 
-def parser(doc: str, timesteps: float, seeds: int, full_seeds: int) -> argparse.ArgumentParser:
+def parser(doc: str, full_seeds: int, timesteps: float = DEFAULT_TIMESTEPS,
+           seeds: int = DEFAULT_SEEDS) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--algo", choices=("ppo", "ippo", "mappo"), default="ppo")
     p.add_argument("--full", action="store_true",
-                   help=f"paper scale: Table 3 hyper-parameters, 1e7 steps, {full_seeds} seeds")
-    p.add_argument("--timesteps", type=float, default=timesteps)
-    p.add_argument("--seeds", type=int, default=seeds)
-    p.add_argument("--full-seeds", type=int, default=full_seeds, help=argparse.SUPPRESS)
+                   help=f"the paper's budget: {PAPER_TIMESTEPS:.0e} env-steps per seed, {full_seeds} seeds")
+    p.add_argument("--timesteps", type=float, default=timesteps, help="env-steps per seed (without --full)")
+    p.add_argument("--seeds", type=int, default=seeds, help="seeds (without --full)")
+    p.add_argument("--settings", choices=("tuned", "table3"), default="tuned",
+                   help="learning settings: the learned-agents ones (tuned) or the paper's Table 3 (table3)")
+    p.add_argument("--optimal", choices=OPTIMAL_CHOICES, default="bound",
+                   help="add the LP hindsight bound (bound, default), also the MPC (mpc), or neither (off)")
+    p.set_defaults(full_seeds=full_seeds)
     return p
 
 
 def config_of(args) -> tuple[dict, int]:
-    if args.full:
-        return dict(PAPER_SCALE), args.full_seeds
-    return {**FAST, "TOTAL_TIMESTEPS": int(args.timesteps)}, args.seeds
+    """``(training config, seeds)`` of the parsed arguments."""
+    base = dict(TUNED[args.algo]) if args.settings == "tuned" else {}
+    base["ENV_KWARGS"] = dict(base.get("ENV_KWARGS") or {})
+    base["TOTAL_TIMESTEPS"] = PAPER_TIMESTEPS if args.full else int(args.timesteps)
+    return base, (args.full_seeds if args.full else args.seeds)
+
+
+def output(out: str) -> str:
+    """``out`` (a path prefix for ``.png`` / ``.json``), its folder created."""
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    return str(out)
+
+
+def with_env_kwargs(base: dict, **kwargs) -> dict:
+    """``base`` with ``kwargs`` added to its ``ENV_KWARGS`` (the others kept)."""
+    return {**base, "ENV_KWARGS": {**(base.get("ENV_KWARGS") or {}), **kwargs}}
 
 
 def with_prices(base: dict, prices: str) -> dict:
     """``base`` with the price dataset ``prices`` (other ``ENV_KWARGS`` kept)."""
-    return {**base, "ENV_KWARGS": {**(base.get("ENV_KWARGS") or {}), "prices": prices}}
+    return with_env_kwargs(base, prices=prices)
 
 
-def eval_setup(base: dict, prices: str) -> tuple:
-    """``(full params, held-out days, always-max / price-threshold results)`` of ``base`` on ``prices``."""
+def eval_setup(base: dict, prices: str, optimal: str = "off") -> tuple:
+    """``(full params, held-out days, baseline results)`` of ``base`` on ``prices``."""
     _, full, _, days = common.build_env_params(common.parse_config({}, with_prices(base, prices)))
-    return full, days, baseline_results(full, days)
+    return full, days, baseline_results(full, days, optimal)
 
 
 def train_on(algo: str, base: dict, prices: str, seeds: int, baselines: dict) -> dict:
     """Train ``seeds`` seeds on ``prices`` (2 chunks, evaluated once at the end on its own held-out days)."""
     return run(algo, with_prices(base, prices), seeds=seeds, chunks=2, evaluate_every_chunk=False,
                baselines=baselines, quiet=True)
+
+
+class Record:
+    """The budget and provenance every runner writes beside its results: start it before the
+    first training, call :meth:`as_dict` after the last."""
+
+    def __init__(self, args, seeds: int, base: dict, paper_seeds: int | None, figure: str):
+        """``paper_seeds``: the paper's seed count for this figure (``None``: no paper counterpart)."""
+        self.args, self.seeds, self.base, self.paper_seeds, self.figure = args, seeds, base, paper_seeds, figure
+        self.t0 = time.time()
+
+    def as_dict(self) -> dict:
+        from chargax_marl.machine import machine_info
+
+        timesteps = int(self.base["TOTAL_TIMESTEPS"])
+        paper = self.paper_seeds is not None
+        cut = paper and (timesteps < PAPER_TIMESTEPS or self.seeds < self.paper_seeds)
+        info = machine_info()
+        return {
+            "figure": self.figure,
+            "algo": self.args.algo,
+            "full": bool(self.args.full),
+            "settings": self.args.settings,
+            "seeds": self.seeds,
+            "timesteps_per_seed": timesteps,
+            "paper": {"timesteps_per_seed": PAPER_TIMESTEPS, "seeds": self.paper_seeds} if paper else None,
+            "cut": cut,
+            "cut_note": (f"cut from the paper's scale: {self.seeds} seeds x {timesteps:.2g} env-steps per seed "
+                         f"(the paper: {self.paper_seeds} x {PAPER_TIMESTEPS:.0e})") if cut else
+                        "the paper's scale" if paper else
+                        f"no paper counterpart: {self.seeds} seeds x {timesteps:.2g} env-steps per seed",
+            "wall_seconds": time.time() - self.t0,
+            "machine": info,
+        }
+
+    def summary(self) -> str:
+        d = self.as_dict()
+        m = d["machine"]
+        return (f"{d['figure']}: {d['cut_note']}; {d['wall_seconds'] / 60:.1f} min on {m['cpu']} x{m['cores']} "
+                f"({m['backend']})")

@@ -1,13 +1,16 @@
 """Paper Fig. 4b-c: the satisfaction weights alpha vs missing kWh at departure and overtime.
 
-    python -m baselines.experiments.alpha_ablation           # small CPU default
-    python -m baselines.experiments.alpha_ablation --full    # paper scale (1e7 steps, 5 seeds)
+    python -m baselines.experiments.alpha_ablation           # CPU default (2e6 steps, 4 seeds)
+    python -m baselines.experiments.alpha_ablation --full    # the paper's budget (1e7 steps, 5 seeds)
 
 For ``satisfaction_time`` (EUR per kWh still missing when a time-sensitive car leaves) and
 ``satisfaction_charge`` (EUR per minute a charge-sensitive car overstays) a PPO agent is
 trained per alpha (reward = profit - alpha * term; all other alpha 0) and evaluated greedily
 on the 100 held-out days. Writes ``baselines/results/alpha_ablation.{png,json}``: missing kWh
-(resp. overtime) and profit vs alpha, mean ± std over seeds x days.
+(resp. overtime) and profit vs alpha, mean ± std over seeds x days, the per-seed means, and
+each alpha's paired difference to alpha 0 (mean ± standard error over seeds, the same days
+and cars), beside always-max, always-max + battery rule and the LP hindsight bound (of the
+profit).
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from baselines import common
-from baselines.experiments._common import config_of, parser
+from baselines.experiments._common import Record, output, config_of, parser, with_env_kwargs
 from baselines.train import baseline_results, run
 
 SMALL = {"satisfaction_time": (0.0, 0.5, 2.0), "satisfaction_charge": (0.0, 0.05, 0.5)}
@@ -24,11 +27,13 @@ METRIC = {"satisfaction_time": "missing_kwh_at_departure", "satisfaction_charge"
 
 
 def main(argv=None, out="baselines/results/alpha_ablation"):
-    args = parser(__doc__, 2e5, 2, 5).parse_args(argv)
+    args = parser(__doc__, full_seeds=5).parse_args(argv)
+    out = output(out)
     base, seeds = config_of(args)
+    record = Record(args, seeds, base, paper_seeds=5, figure="Fig. 4b-c")
     grid = FULL if args.full else SMALL
     _, full_params, _, eval_days = common.build_env_params(common.parse_config({}, base))
-    baselines = baseline_results(full_params, eval_days)
+    baselines = baseline_results(full_params, eval_days, args.optimal)
     results = {term: {} for term in grid}
     zero = None
     for term, alphas in grid.items():
@@ -36,27 +41,51 @@ def main(argv=None, out="baselines/results/alpha_ablation"):
             if alpha == 0.0 and zero is not None:
                 results[term][alpha] = zero
                 continue
-            cfg = {**base, "ENV_KWARGS": {"alpha": {term: alpha}}}
+            cfg = with_env_kwargs(base, alpha={term: alpha})
             # evaluation reports the raw terms (profit, missing kWh, overtime) on the held-out days
             res = run(args.algo, cfg, seeds=seeds, chunks=2, evaluate_every_chunk=False, baselines=baselines,
                       quiet=True)
-            row = {"alpha": alpha, "metrics": res["evaluation"]["table"][args.algo]["metrics"],
-                   "per_seed_profit": res["evaluation"]["table"][args.algo]["per_seed_profit"],
-                   "wall_seconds": res["wall_seconds"], "timesteps": res["timesteps"]}
+            ev = res["evaluation"]["table"][args.algo]
+            row = {"alpha": alpha, "metrics": ev["metrics"], "per_seed_profit": ev["per_seed_profit"],
+                   "per_seed": {k: ev["per_seed_metrics"][k] for k in TERMS},
+                   "vs_always_max": res["vs_always_max"], "wall_seconds": res["wall_seconds"],
+                   "timesteps": res["timesteps"]}
             results[term][alpha] = row
             if alpha == 0.0:
                 zero = row
             m = row["metrics"]
             print(f"{term} alpha={alpha:g}: {METRIC[term]} {m[METRIC[term]]['mean']:.2f} ± {m[METRIC[term]]['std']:.2f}, "
                   f"profit {m['daily_profit_eur']['mean']:.1f} ({res['wall_seconds']:.0f} s)", flush=True)
-    plot(results, baselines, out + ".png")
-    common.write_json({"algo": args.algo, "full": args.full, "seeds": seeds, "baselines": baselines,
+    for term, rows in results.items():
+        for row in rows.values():
+            row["vs_alpha0"] = {k: paired_over_seeds(row["per_seed"][k], zero["per_seed"][k]) for k in row["per_seed"]}
+    common.write_json({**record.as_dict(), "baselines": baselines,
                        "results": {t: list(r.values()) for t, r in results.items()}}, out + ".json")
+    plot(results, baselines, out + ".png")
     print(f"wrote {out}.png, {out}.json")
+    print(record.summary())
     return results
 
 
+TERMS = ("daily_profit_eur", "missing_kwh_at_departure", "overtime_min")
+
+
+def paired_over_seeds(a, b) -> dict:
+    """Mean ± standard error over seeds of ``a - b`` (seed i against seed i: the same days and
+    cars, and the same initial key)."""
+    d = np.asarray(a, np.float64) - np.asarray(b, np.float64)
+    se = float(d.std(ddof=1) / np.sqrt(d.size)) if d.size > 1 else float("nan")
+    return {"mean": float(d.mean()), "stderr": se, "per_seed": d.tolist()}
+
+
+def _se(per_seed) -> float:
+    x = np.asarray(per_seed, np.float64)
+    return float(x.std(ddof=1) / np.sqrt(x.size)) if x.size > 1 else 0.0
+
+
 def plot(results, baselines, path):
+    """Missing kWh, overtime and profit per alpha: means over seeds x days, error bars the
+    standard error over seeds of the per-seed means."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -68,7 +97,7 @@ def plot(results, baselines, path):
         rows = list(results[term].values())
         x = np.arange(len(rows))
         key = METRIC[term]
-        ax.bar(x, [r["metrics"][key]["mean"] for r in rows], yerr=[r["metrics"][key]["std"] for r in rows], capsize=3)
+        ax.bar(x, [r["metrics"][key]["mean"] for r in rows], yerr=[_se(r["per_seed"][key]) for r in rows], capsize=3)
         am = baselines["always_max"]["metrics"][key]["mean"]
         ax.axhline(am, ls="--", color="C3", label=f"always-max {am:.1f}")
         ax.set_xticks(x, [f"{r['alpha']:g}" for r in rows])
@@ -80,8 +109,11 @@ def plot(results, baselines, path):
     for i, term in enumerate(results):
         rows = list(results[term].values())
         ax.errorbar(np.arange(len(rows)) + 0.1 * i, [r["metrics"]["daily_profit_eur"]["mean"] for r in rows],
-                    yerr=[r["metrics"]["daily_profit_eur"]["std"] for r in rows], marker="o", capsize=3, label=term)
-    ax.axhline(baselines["always_max"]["metrics"]["daily_profit_eur"]["mean"], ls="--", color="C3", label="always-max")
+                    yerr=[_se(r["per_seed"]["daily_profit_eur"]) for r in rows], marker="o", capsize=3, label=term)
+    for i, name in enumerate(("always_max", "battery_rule", "lp_bound")):
+        if name in baselines:
+            v = baselines[name]["metrics"]["daily_profit_eur"]["mean"]
+            ax.axhline(v, ls=("--", "-.", "-")[i], color=f"C{i + 3}", label=f"{name} {v:.0f}")
     ax.set_xlabel("alpha index (values on the left panels)")
     ax.set_ylabel("daily profit (EUR)")
     ax.legend(fontsize=8)

@@ -1,8 +1,8 @@
 """Cross-market price shift, beside the price-year shift of paper Fig. 5: train on one
 market-year, evaluate on another.
 
-    python -m baselines.experiments.cross_market                  # small CPU default
-    python -m baselines.experiments.cross_market --full           # paper scale (1e7 steps, 5 seeds)
+    python -m baselines.experiments.cross_market                  # CPU default (2e6 steps, 4 seeds)
+    python -m baselines.experiments.cross_market --full           # the paper's budget (1e7 steps, 5 seeds)
     python -m baselines.experiments.cross_market --no-reference   # skip the in-market agents
 
 Sources -> targets: NL-2023 -> NL-2023, DE-2023, FR-2023 (same year, other markets) and
@@ -24,7 +24,7 @@ import time
 import numpy as np
 
 from baselines import common
-from baselines.experiments._common import config_of, eval_setup, parser, train_on
+from baselines.experiments._common import Record, output, config_of, eval_setup, parser, train_on
 
 EXPERIMENTS = {
     "NL-2023": ("NL-2023", "DE-2023", "FR-2023"),
@@ -35,15 +35,17 @@ EXPERIMENTS = {
 def main(argv=None, out="baselines/results/cross_market", *, experiments=None, overrides=None):
     """``experiments`` ({source: targets}) and ``overrides`` (merged into the training config)
     are for tests; the command line runs :data:`EXPERIMENTS`."""
-    p = parser(__doc__, 3e5, 2, 5)
+    p = parser(__doc__, full_seeds=5)
     p.add_argument("--no-reference", action="store_true", help="do not train the in-market reference agents")
     args = p.parse_args(argv)
+    out = output(out)
     base, seeds = config_of(args)
     base = {**base, **(overrides or {})}
     experiments = EXPERIMENTS if experiments is None else experiments
     t0 = time.time()
+    record = Record(args, seeds, base, paper_seeds=5, figure="cross-market (beside Fig. 5)")
     markets = list(dict.fromkeys([m for src, targets in experiments.items() for m in (src, *targets)]))
-    evals = {m: eval_setup(base, m) for m in markets}
+    evals = {m: eval_setup(base, m, args.optimal) for m in markets}
     baselines = {m: e[2] for m, e in evals.items()}
     trained = list(experiments) + ([] if args.no_reference else [m for m in markets if m not in experiments])
     matrix, runs = {}, {}
@@ -63,7 +65,7 @@ def main(argv=None, out="baselines/results/cross_market", *, experiments=None, o
     gaps = transfer_gaps(matrix, experiments)
     wall = time.time() - t0
     plot(matrix, baselines, experiments, args.algo, out + ".png")
-    common.write_json({"algo": args.algo, "full": args.full, "seeds": seeds, "timesteps": runs[trained[0]]["timesteps"],
+    common.write_json({**record.as_dict(), "timesteps": runs[trained[0]]["timesteps"],
                        "experiments": {s: list(t) for s, t in experiments.items()},
                        "evaluation": "greedy, held-out days of each target, PRNGKey(0) for every policy (common random numbers)",
                        "wall_seconds_total": wall, "matrix": matrix, "transfer_gap_vs_in_market": gaps,

@@ -1,18 +1,20 @@
 """Paper Fig. 4a: PPO in the shopping scenario at low / medium / high traffic vs always-max.
 
-    python -m baselines.experiments.traffic_sweep            # small CPU default
-    python -m baselines.experiments.traffic_sweep --full     # paper scale (1e7 steps, 20 seeds)
-    python -m baselines.experiments.traffic_sweep --appendix # the appendix: every profile and fleet
-
-``--appendix`` repeats the sweep for the four bundled user profiles (shopping, residential,
-workplace, highway; EU fleet) and for the US and World fleets (shopping) and writes
-``baselines/results/traffic_sweep_appendix.{png,json}``; ``--profiles`` / ``--fleets`` pick
-conditions by hand (every profile with the first fleet, then the first profile with every
-other fleet).
+    python -m baselines.experiments.traffic_sweep            # CPU default (2e6 steps, 4 seeds)
+    python -m baselines.experiments.traffic_sweep --full     # the paper's budget (1e7 steps, 20 seeds)
+    python -m baselines.experiments.traffic_sweep --appendix # also the appendix: every profile and fleet
 
 Writes ``baselines/results/traffic_sweep.{png,json}``: per traffic level the training
-episode profit (mean ± std over seeds), the greedy held-out daily profit and the
-always-max / price-threshold baselines on the same 100 held-out days.
+episode profit (mean ± std over seeds), the greedy held-out daily profit, its paired
+difference to always-max and to always-max + battery rule, the fraction of the hindsight
+headroom it captures, and always-max / battery rule / price-threshold / the LP hindsight
+bound on the same 100 held-out days and cars.
+
+``--appendix`` repeats the sweep for the four bundled user profiles (shopping, residential,
+workplace, highway; EU fleet) and for the US and World fleets (shopping) and also writes
+``baselines/results/traffic_sweep_appendix.{png,json}``; ``--profiles`` / ``--fleets`` pick
+conditions by hand (every profile with the first fleet, then the first profile with every
+other fleet). Shopping with the EU fleet is the main figure whenever it is among them.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from baselines import common
-from baselines.experiments._common import config_of, parser
+from baselines.experiments._common import Record, output, config_of, parser, with_env_kwargs
 from baselines.train import run
 
 TRAFFIC = ("low", "medium", "high")
@@ -37,44 +39,56 @@ def conditions(profiles=("shopping",), fleets=("EU",)) -> list[tuple[str, str]]:
 
 def condition_config(base: dict, profile: str, fleet: str, traffic: str) -> dict:
     """The training config of one cell: ``base`` on ``profile``'s scenario at ``traffic`` with ``fleet``."""
-    return {**base, "SCENARIO": profile, "TRAFFIC": traffic,
-            "ENV_KWARGS": {**(base.get("ENV_KWARGS") or {}), "fleet": fleet}}
+    return {**with_env_kwargs(base, fleet=fleet), "SCENARIO": profile, "TRAFFIC": traffic}
 
 
-def main(argv=None, out=None):
-    p = parser(__doc__, 3e5, 2, 20)
+def main(argv=None, out="baselines/results/traffic_sweep"):
+    p = parser(__doc__, full_seeds=20)
     p.add_argument("--appendix", action="store_true", help="every bundled profile (EU fleet) and fleet (shopping)")
     p.add_argument("--profiles", nargs="+", choices=PROFILES, default=None)
     p.add_argument("--fleets", nargs="+", choices=FLEETS, default=None)
     args = p.parse_args(argv)
+    out = output(out)
     base, seeds = config_of(args)
     profiles = args.profiles or (PROFILES if args.appendix else ("shopping",))
     fleets = args.fleets or (FLEETS if args.appendix else ("EU",))
     cells = conditions(tuple(profiles), tuple(fleets))
-    main_figure = cells == [("shopping", "EU")]  # keeps its layout: {traffic: result}
-    if out is None:
-        out = "baselines/results/traffic_sweep" + ("" if main_figure else "_appendix")
+    record = Record(args, seeds, base, paper_seeds=20, figure="Fig. 4a" + (" and appendix" if len(cells) > 1 else ""))
     sweeps = {f"{profile}/{fleet}": _sweep(args, base, seeds, profile, fleet) for profile, fleet in cells}
-    results = sweeps["shopping/EU"] if main_figure else sweeps
-    (plot if main_figure else plot_grid)(results, args.algo, out + ".png")
-    common.write_json({"algo": args.algo, "full": args.full, "seeds": seeds, "conditions": [list(c) for c in cells],
-                       "results": results}, out + ".json")
-    print(f"wrote {out}.png, {out}.json")
-    return results
+    meta = record.as_dict()
+    if "shopping/EU" in sweeps:  # the main figure: {traffic: result}
+        common.write_json({**meta, "results": sweeps["shopping/EU"]}, out + ".json")
+        plot(sweeps["shopping/EU"], args.algo, out + ".png")
+        print(f"wrote {out}.png, {out}.json")
+    if len(cells) > 1:
+        common.write_json({**meta, "conditions": [list(c) for c in cells], "results": sweeps}, out + "_appendix.json")
+        plot_grid(sweeps, args.algo, out + "_appendix.png")
+        print(f"wrote {out}_appendix.png, {out}_appendix.json")
+    print(record.summary())
+    return sweeps
 
 
 def _sweep(args, base, seeds, profile, fleet) -> dict:
     results = {}
     for traffic in TRAFFIC:
         cfg = condition_config(base, profile, fleet, traffic)
-        res = run(args.algo, cfg, seeds=seeds, chunks=4, evaluate_every_chunk=False, quiet=True)
+        res = run(args.algo, cfg, seeds=seeds, chunks=4, evaluate_every_chunk=False, quiet=True,
+                  optimal=args.optimal)
         results[traffic] = {k: v for k, v in res.items() if not k.startswith("_")}
-        t = res["evaluation"]["table"]
-        print(f"{profile}/{fleet} {traffic:>6}: {args.algo} {t[args.algo]['metrics']['daily_profit_eur']['mean']:.1f} | always-max "
-              f"{t['always_max']['metrics']['daily_profit_eur']['mean']:.1f} | price-threshold "
-              f"{t['price_threshold']['metrics']['daily_profit_eur']['mean']:.1f} EUR/day "
-              f"({res['wall_seconds']:.0f} s)", flush=True)
+        print(f"{profile}/{fleet} {traffic:>6}: {line(res, args.algo)} ({res['wall_seconds']:.0f} s)", flush=True)
     return results
+
+
+def line(res: dict, algo: str) -> str:
+    """One cell's held-out profits and paired differences, for the log."""
+    t = res["evaluation"]["table"]
+    out = " | ".join(f"{name} {t[name]['metrics']['daily_profit_eur']['mean']:.1f}"
+                     for name in (algo, "always_max", "battery_rule", "price_threshold", "lp_bound") if name in t)
+    for key in ("vs_always_max", "vs_battery_rule"):
+        if res.get(key):
+            out += f" | {algo} {key} {res[key]['mean']:+.2f} ± {res[key]['stderr']:.2f}"
+    hf = res.get("over_seeds", {}).get("headroom_fraction")
+    return out + (f" | headroom {hf['mean']:+.3f} ± {hf['stderr']:.3f}" if hf else "")
 
 
 def plot_grid(results: dict, algo: str, path):
@@ -88,7 +102,9 @@ def plot_grid(results: dict, algo: str, path):
     fig, axes = plt.subplots(1, len(results), figsize=(3.6 * len(results), 3.4), squeeze=False)
     for ax, (cond, sweep) in zip(axes[0], results.items()):
         x = np.arange(len(sweep))
-        for i, name in enumerate((algo, "always_max", "battery_rule")):
+        for i, name in enumerate((algo, "always_max", "battery_rule", "lp_bound")):
+            if any(name not in sweep[t]["evaluation"]["table"] for t in sweep):
+                continue
             table = [sweep[t]["evaluation"]["table"][name] for t in sweep]
             m = [e["metrics"]["daily_profit_eur"]["mean"] for e in table]
             s = [np.std(e["per_seed_profit"]) if "per_seed_profit" in e else 0.0 for e in table]
@@ -119,9 +135,10 @@ def plot(results, algo, path):
         ev = table[algo]["metrics"]["daily_profit_eur"]
         ax.errorbar([t[-1]], [ev["mean"]], yerr=[np.std(table[algo]["per_seed_profit"])], fmt="o",
                     label=f"{algo} held-out greedy {ev['mean']:.0f}")
-        for i, name in enumerate(("always_max", "battery_rule", "price_threshold")):
-            v = table[name]["metrics"]["daily_profit_eur"]["mean"]
-            ax.axhline(v, ls=("--", "-.", ":")[i], color=f"C{i + 3}", label=f"{name} {v:.0f}")
+        for i, name in enumerate(("always_max", "battery_rule", "price_threshold", "lp_bound")):
+            if name in table:
+                v = table[name]["metrics"]["daily_profit_eur"]["mean"]
+                ax.axhline(v, ls=("--", "-.", ":", "-")[i], color=f"C{i + 3}", label=f"{name} {v:.0f}")
         ax.set_title(f"shopping, {traffic} traffic")
         ax.set_xlabel("environment steps")
         ax.grid(alpha=0.3)
