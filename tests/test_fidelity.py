@@ -222,18 +222,20 @@ def _charge_sensitive_car(p, level: int, *, stay_min: float = 600.0):
                   remaining_kwh=(target - soc0) * cap, time_min=stay_min, charge_sensitive=True,
                   earliest_min=earliest)
     lv = jnp.array([level])
+    overtime = 0.0
     for n in range(1, 300):
         s, info = step(KEY, s, lv, p)
+        overtime += float(info.overtime_min)
         if float(info.cars_departed) == 1:
-            return n * 5.0, earliest, info
+            return n * 5.0, earliest, info, overtime
     raise AssertionError("the car never left")
 
 
 def test_undertime_is_measured_against_the_earliest_finish():
     tree = Splitter("grid", 200.0, (Port("p", "DC", 500.0, 200.0, 0.0, 1.0),))
     p = no_arrivals(make_params(station=tree, beta=0.5))
-    fast_min, earliest, fast = _charge_sensitive_car(p, 10)
-    slow_min, _, slow = _charge_sensitive_car(p, 3)
+    fast_min, earliest, fast, _ = _charge_sensitive_car(p, 10)
+    slow_min, _, slow, _ = _charge_sensitive_car(p, 3)
     # at full power the car leaves at its earliest finish: no credit, no penalty
     assert fast_min <= earliest + 1e-6
     assert float(fast.penalties["satisfaction_charge"]) == pytest.approx(0.0, abs=1e-6)
@@ -241,10 +243,13 @@ def test_undertime_is_measured_against_the_earliest_finish():
     assert slow_min > fast_min + 20
     assert float(slow.penalties["satisfaction_charge"]) == pytest.approx(0.5 * (slow_min - earliest), abs=1e-3)
     # past the plan: every minute past the plan counts fully on top
-    late_min, _, late = _charge_sensitive_car(p, 3, stay_min=fast_min + 10.0)
+    late_min, _, late, late_over = _charge_sensitive_car(p, 3, stay_min=fast_min + 10.0)
     over = late_min - (fast_min + 10.0)
-    assert over > 0 and float(late.overtime_min) == pytest.approx(over, abs=1e-3)
-    assert float(late.penalties["satisfaction_charge"]) == pytest.approx(over + 0.5 * (fast_min + 10.0 - earliest),
+    # the overtime accrues step by step (the departure step books its last 5 minutes), the
+    # undertime credit at departure
+    assert over > 5 and late_over == pytest.approx(over, abs=1e-3)
+    assert float(late.overtime_min) == pytest.approx(5.0, abs=1e-3)
+    assert float(late.penalties["satisfaction_charge"]) == pytest.approx(5.0 + 0.5 * (fast_min + 10.0 - earliest),
                                                                        abs=1e-3)
 
 

@@ -167,9 +167,25 @@ def test_charge_sensitive_departure_records_over_and_undertime(params):
     s1, info = step(KEY, s, levels(params, dc0=10, dc2=10), params)
     assert not bool(s1.occupied[0]) and not bool(s1.occupied[2]) and bool(s1.occupied[3])
     assert float(info.cars_departed) == 2
-    assert float(info.overtime_min) == pytest.approx(5.0)  # car 2: 0 - 5 min
-    assert float(info.penalties["satisfaction_charge"]) == pytest.approx(5.0 - beta * 25.0)
+    # car 2 left 5 min past its plan; car 3 stays, and its 5 min past the plan count as well
+    assert float(info.overtime_min) == pytest.approx(10.0)
+    assert float(info.penalties["satisfaction_charge"]) == pytest.approx(10.0 - beta * 25.0)
     assert float(s1.time_remaining_min[3]) == pytest.approx(-5.0)
+
+
+def test_a_late_charge_sensitive_car_that_is_never_charged_still_costs_its_overtime(params):
+    """Overtime accrues while the car is parked past its plan: a policy that keeps a late car
+    from its target (so it never leaves) pays every step of it, not nothing."""
+    s = place_car(start(params), 3, soc=0.2, capacity_kwh=100.0, max_rate_kw=100.0, remaining_kwh=10.0,
+                  time_min=7.0, charge_sensitive=True)
+    over = []
+    for _ in range(6):
+        s, info = step(KEY, s, levels(params), params)  # idle: the car never reaches its target
+        over.append(float(info.overtime_min))
+        assert float(info.cars_departed) == 0
+    # 7 min of plan: the second step is 3 min past it, every later step 5
+    np.testing.assert_allclose(over, [0.0, 3.0, 5.0, 5.0, 5.0, 5.0], atol=1e-5)
+    assert float(s.totals.overtime_min) == pytest.approx(23.0, abs=1e-4)
 
 
 def test_arrivals_fill_first_free_ports_and_count_rejections(params):

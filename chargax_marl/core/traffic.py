@@ -32,10 +32,15 @@ def depart(state: EnvState, params: EnvParams):
 
     Returns ``(new_state, report)`` with ``report`` holding ``departed`` (count),
     ``missing_kwh`` (unmet demand of time-sensitive leavers, against their target SoC:
-    c_satisfaction,0), ``overtime_min`` (minutes charge-sensitive leavers stayed beyond their
-    planned stay), ``undertime_min`` and ``satisfaction_charge`` = overtime - beta *
-    undertime (c_satisfaction,1), plus the per-leaf ``leaf_missing_kwh`` and
-    ``leaf_satisfaction_charge`` (L,).
+    c_satisfaction,0), ``overtime_min`` (minutes of this step that parked charge-sensitive
+    cars spent beyond their planned stay), ``undertime_min`` and ``satisfaction_charge`` =
+    overtime - beta * undertime (c_satisfaction,1), plus the per-leaf ``leaf_missing_kwh``
+    and ``leaf_satisfaction_charge`` (L,).
+
+    Overtime accrues step by step while the car is parked past its plan, so over a stay it
+    sums to the minutes the car overstayed. (Counting it only when the car left let a policy
+    that never brought a late car to its target escape the penalty: the car stayed until
+    the episode ended and its overtime was never booked.)
 
     ``undertime_min`` is measured against the earliest finish the car's rate curve allows at
     its port (alone on its path, see :func:`earliest_finish_min`), not against the drawn
@@ -50,7 +55,9 @@ def depart(state: EnvState, params: EnvParams):
     charged = active & state.charge_sensitive & (state.energy_remaining_kwh <= params.charged_tolerance_kwh)
     leaving = time_up | charged
     leaf_missing = jnp.where(time_up, jnp.maximum(state.energy_remaining_kwh, 0.0), 0.0)
-    leaf_over = jnp.where(charged, jnp.maximum(-state.time_remaining_min, 0.0), 0.0)
+    # this step's minutes past the plan (physics has already taken the step off the clock)
+    leaf_over = jnp.where(active & state.charge_sensitive,
+                          jnp.clip(-state.time_remaining_min, 0.0, params.step_minutes), 0.0)
     slack = jnp.maximum(state.slack_min, 0.0)  # planned stay - earliest finish
     delay = jnp.maximum(state.slack_min - state.time_remaining_min, 0.0)  # minutes parked beyond the earliest finish
     leaf_under = jnp.where(charged, -jnp.minimum(delay, slack), 0.0)

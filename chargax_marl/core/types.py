@@ -136,7 +136,7 @@ class EpisodeTotals:
     cars_served: jnp.ndarray  # departed cars
     cars_rejected: jnp.ndarray
     missing_kwh: jnp.ndarray  # energy still wanted by time-sensitive cars at departure
-    overtime_min: jnp.ndarray  # minutes charge-sensitive cars stayed beyond their plan
+    overtime_min: jnp.ndarray  # minutes this step that parked charge-sensitive cars spent beyond their plan
     constraint_excess_kw: jnp.ndarray  # summed over steps of the excess that flowed (max over nodes; 0 in hard mode)
     requested_excess_kw: jnp.ndarray  # summed over steps of the excess the controller asked for
     battery_terminal_value_eur: jnp.ndarray  # value of the batteries' energy change, booked at the last step
