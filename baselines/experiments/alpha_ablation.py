@@ -19,7 +19,7 @@ import numpy as np
 
 from baselines import common
 from baselines.experiments._common import Record, output, config_of, parser, with_env_kwargs
-from baselines.train import baseline_results, run
+from baselines.train import baseline_results, over_seeds, run
 
 SMALL = {"satisfaction_time": (0.0, 0.5, 2.0), "satisfaction_charge": (0.0, 0.05, 0.5)}
 FULL = {"satisfaction_time": (0.0, 0.1, 0.5, 1.0, 2.0, 5.0), "satisfaction_charge": (0.0, 0.01, 0.05, 0.1, 0.5, 1.0)}
@@ -72,10 +72,9 @@ TERMS = ("daily_profit_eur", "missing_kwh_at_departure", "overtime_min")
 
 def paired_over_seeds(a, b) -> dict:
     """Mean ± standard error over seeds of ``a - b`` (seed i against seed i: the same days and
-    cars, and the same initial key)."""
+    cars, and the same initial key), with the per-seed differences."""
     d = np.asarray(a, np.float64) - np.asarray(b, np.float64)
-    se = float(d.std(ddof=1) / np.sqrt(d.size)) if d.size > 1 else float("nan")
-    return {"mean": float(d.mean()), "stderr": se, "per_seed": d.tolist()}
+    return {**over_seeds(d), "per_seed": d.tolist()}
 
 
 def _se(per_seed) -> float:

@@ -27,7 +27,7 @@ from baselines import common
 from baselines.experiments._common import Record, output, config_of, parser, with_env_kwargs
 from baselines.heuristics import evaluate_rules
 from baselines.refund import RULES, all_v2g
-from baselines.train import run
+from baselines.train import over_seeds, run
 
 FLEETS = ("EU", "EU-all-v2g")
 ACCOUNTS = {True: "refund", False: "no_refund"}
@@ -93,10 +93,9 @@ def references(params, days, optimal: str) -> dict:
 
 def paired_seeds(a, b) -> dict:
     """``a - b`` (seeds x days, the same days and cars): mean and standard error over seeds of
-    the per-seed means."""
+    the per-seed means, with the per-seed means."""
     d = (np.asarray(a, np.float64) - np.asarray(b, np.float64)).mean(axis=1)
-    se = float(d.std(ddof=1) / np.sqrt(d.size)) if d.size > 1 else float("nan")
-    return {"mean": float(d.mean()), "stderr": se, "per_seed": d.tolist()}
+    return {**over_seeds(d), "per_seed": d.tolist()}
 
 
 def plot(results: dict, algo: str, path):
@@ -129,7 +128,7 @@ def plot(results: dict, algo: str, path):
         ax.axhline(0, color="black", lw=0.8)
         ax.set_yscale("symlog", linthresh=10)  # the bound without the refund is two orders larger
         ax.set_xticks(x, labels, rotation=20, ha="right", fontsize=8)
-        ax.set_ylabel("vs always-max (EUR/day, same accounting; symlog)")
+        ax.set_ylabel("EUR/day vs always-max (symlog)")
         ax.set_title(f"shopping, {fleet} fleet")
         ax.grid(alpha=0.3, axis="y")
         ax.legend(fontsize=7)

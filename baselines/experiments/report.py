@@ -1,0 +1,170 @@
+"""Markdown tables of the experiment runners' result files (``docs/REPRODUCTION.md`` quotes them).
+
+    python -m baselines.experiments.report [--results baselines/results]
+
+Every difference is paired (the same held-out days and cars) and reported as mean ± standard
+error over seeds of the per-seed means; "seeds above" counts the seeds whose mean is above
+the reference. A runner's file that is missing is skipped with a line saying so.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+
+def pm(d: dict | None, digits: int = 2) -> str:
+    if d is None:
+        return "–"
+    return f"{d['mean']:+.{digits}f} ± {d['stderr']:.{digits}f}"
+
+
+def seeds_stat(per_seed) -> dict:
+    """Mean, standard error over seeds and the count above zero of per-seed numbers."""
+    v = np.asarray(per_seed, np.float64)
+    se = float(v.std(ddof=1) / np.sqrt(v.size)) if v.size > 1 else float("nan")
+    return {"mean": float(v.mean()), "stderr": se, "above": int((v > 0).sum()), "n": int(v.size)}
+
+
+def provenance(d: dict) -> str:
+    m = d.get("machine") or {}
+    wall = d.get("wall_seconds")
+    return (f"{d.get('cut_note', '')}; settings `{d.get('settings', '?')}`; "
+            + (f"{wall / 60:.0f} min wall" if wall else "wall time not recorded")
+            + (f" on {m.get('cpu')} ×{m.get('cores')} ({m.get('backend')})" if m else ""))
+
+
+def _profit(table: dict, name: str) -> str:
+    return f"{table[name]['metrics']['daily_profit_eur']['mean']:.1f}" if name in table else "–"
+
+
+def _cell_row(label: str, res: dict, algo: str) -> str:
+    t = res["evaluation"]["table"]
+    per_seed = res.get("per_seed") or []
+    am = seeds_stat([p["vs_always_max"]["mean"] for p in per_seed])
+    rule = seeds_stat([p["vs_battery_rule"]["mean"] for p in per_seed])
+    hf = res.get("over_seeds", {}).get("headroom_fraction")
+    return (f"| {label} | {_profit(t, algo)} | {_profit(t, 'always_max')} | {_profit(t, 'battery_rule')} | "
+            f"{_profit(t, 'lp_bound')} | {pm(am)} ({am['above']}/{am['n']}) | {pm(rule)} ({rule['above']}/{rule['n']}) | "
+            f"{pm(hf, 3) if hf else '–'} | {res['wall_seconds'] / 60:.1f} |")
+
+
+CELL_HEADER = ("| {what} | {algo} EUR/day | always-max | battery rule | LP bound | {algo} − always-max (seeds above) | "
+               "{algo} − battery rule (seeds above) | headroom fraction | wall min |\n|---|---|---|---|---|---|---|---|---|")
+
+
+def traffic_sweep(d: dict) -> str:
+    algo = d["algo"]
+    rows = [_cell_row(traffic, res, algo) for traffic, res in d["results"].items()]
+    return "\n".join([provenance(d), "", CELL_HEADER.format(what="traffic", algo=algo.upper()), *rows])
+
+
+def appendix(d: dict) -> str:
+    algo = d["algo"]
+    rows = [_cell_row(f"{cond} {traffic}", res, algo) for cond, sweep in d["results"].items()
+            for traffic, res in sweep.items()]
+    return "\n".join([provenance(d), "", CELL_HEADER.format(what="profile/fleet traffic", algo=algo.upper()), *rows])
+
+
+METRIC = {"satisfaction_time": "missing_kwh_at_departure", "satisfaction_charge": "overtime_min"}
+
+
+def alpha_ablation(d: dict) -> str:
+    am = d["baselines"]["always_max"]["metrics"]
+    lines = [provenance(d), "",
+             "| term | α | its metric (mean over seeds × days) | metric − α 0 (seeds below) | profit EUR/day | "
+             "profit − α 0 | wall min |", "|---|---|---|---|---|---|---|"]
+    for term, rows in d["results"].items():
+        key = METRIC[term]
+        for r in rows:
+            v = r.get("vs_alpha0", {})
+            dm, dp = v.get(key), v.get("daily_profit_eur")
+            change = "–"
+            if dm and r["alpha"]:
+                change = f"{pm(dm)} ({sum(x < 0 for x in dm['per_seed'])}/{len(dm['per_seed'])})"
+            unit = "kWh" if "kwh" in key else "min"
+            lines.append(f"| {term} | {r['alpha']:g} | {r['metrics'][key]['mean']:.1f} {unit} | {change} | "
+                         f"{r['metrics']['daily_profit_eur']['mean']:.1f} | {pm(dp) if r['alpha'] else '–'} | "
+                         f"{r['wall_seconds'] / 60:.1f} |")
+    lines.append("")
+    lines.append(f"Always-max: {am['missing_kwh_at_departure']['mean']:.1f} kWh missing, "
+                 f"{am['overtime_min']['mean']:.1f} min overtime, {am['daily_profit_eur']['mean']:.1f} EUR/day"
+                 + "".join(f"; {n.replace('_', ' ')} {_profit(d['baselines'], n)} EUR/day"
+                           for n in ("battery_rule", "lp_bound") if n in d["baselines"]) + ".")
+    return "\n".join(lines)
+
+
+def price_shift(d: dict) -> str:
+    years = list(d["matrix"])
+    lines = [provenance(d), "",
+             "Held-out daily profit EUR (train year × eval year), then the paired difference to always-max of the eval "
+             "year (mean ± s.e. over seeds, seeds above):", "",
+             "| train \\ eval | " + " | ".join(years) + " |", "|---|" + "---|" * len(years)]
+    for ty, row in d["matrix"].items():
+        cells = []
+        for ey in years:
+            ev = row[ey]
+            s = seeds_stat(ev["paired_diff"]["per_seed_mean"])
+            cells.append(f"{ev['metrics']['daily_profit_eur']['mean']:.1f} ({pm(s)}, {s['above']}/{s['n']})")
+        lines.append(f"| {ty} | " + " | ".join(cells) + " |")
+    for name in ("always_max", "battery_rule", "lp_bound"):
+        if all(name in d["baselines"][ey] for ey in years):
+            lines.append(f"| {name.replace('_', ' ')} | " + " | ".join(_profit(d["baselines"][ey], name) for ey in years) + " |")
+    return "\n".join(lines)
+
+
+def refund_effect(d: dict) -> str:
+    lines = [provenance(d), ""]
+    for fleet, res in d["results"].items():
+        refs = res["references"]
+        lines += [f"**{fleet}** ({d.get('fleets', {}).get(fleet, '')}): daily profit EUR and − always-max under the same "
+                  "accounting", "",
+                  "| policy | with the refund (default) | − always-max | without (the original's) | − always-max | "
+                  "without − with |", "|---|---|---|---|---|---|"]
+        for name in refs["refund"]:
+            on, off = refs["refund"][name], refs["no_refund"][name]
+            diff = {"mean": float(np.mean(off["daily_profit"]) - np.mean(on["daily_profit"])),
+                    "stderr": float(np.std(np.subtract(off["daily_profit"], on["daily_profit"]), ddof=1)
+                                    / np.sqrt(len(on["daily_profit"])))}
+            lines.append(f"| {name.replace('_', ' ')} | {_profit(refs['refund'], name)} | {pm(on['vs_always_max'])} | "
+                         f"{_profit(refs['no_refund'], name)} | {pm(off['vs_always_max'])} | {pm(diff)} |")
+        for trained, row in res["agents"].items():
+            on = seeds_stat(row["refund"]["paired_diff"]["per_seed_mean"])
+            off = seeds_stat(row["no_refund"]["paired_diff"]["per_seed_mean"])
+            lines.append(f"| {d['algo'].upper()} {trained.replace('_', ' ')} | "
+                         f"{row['refund']['metrics']['daily_profit_eur']['mean']:.1f} | {pm(on)} ({on['above']}/{on['n']}) | "
+                         f"{row['no_refund']['metrics']['daily_profit_eur']['mean']:.1f} | {pm(off)} ({off['above']}/{off['n']}) | "
+                         f"{pm(row['off_minus_on'])} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+REPORTS = {"traffic_sweep": traffic_sweep, "traffic_sweep_appendix": appendix, "alpha_ablation": alpha_ablation,
+           "price_shift": price_shift, "refund_effect": refund_effect}
+
+
+def main(argv=None) -> str:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--results", default="baselines/results")
+    args = p.parse_args(argv)
+    parts = []
+    for name, fn in REPORTS.items():
+        path = Path(args.results) / f"{name}.json"
+        if not path.exists():
+            parts.append(f"### {name}\n\n(no {path})")
+            continue
+        d = json.loads(path.read_text())
+        if "cut_note" not in d:  # before the runners recorded their budget and machine
+            parts.append(f"### {name}\n\n({path} was written by an older runner: re-run it)")
+            continue
+        parts.append(f"### {name}\n\n" + fn(d))
+    text = "\n\n".join(parts)
+    print(text)
+    return text
+
+
+if __name__ == "__main__":
+    main()
