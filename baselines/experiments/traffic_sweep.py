@@ -61,7 +61,8 @@ def main(argv=None, out="baselines/results/traffic_sweep"):
         plot(sweeps["shopping/EU"], args.algo, out + ".png")
         print(f"wrote {out}.png, {out}.json")
     if len(cells) > 1:
-        common.write_json({**meta, "conditions": [list(c) for c in cells], "results": sweeps}, out + "_appendix.json")
+        common.write_json({**meta, "conditions": [list(c) for c in cells], "results": slim(sweeps)},
+                          out + "_appendix.json")
         plot_grid(sweeps, args.algo, out + "_appendix.png")
         print(f"wrote {out}_appendix.png, {out}_appendix.json")
     print(record.summary())
@@ -79,6 +80,14 @@ def _sweep(args, base, seeds, profile, fleet) -> dict:
     return results
 
 
+def slim(sweeps: dict) -> dict:
+    """``sweeps`` with each cell's training curve reduced to the episode profit (the other
+    curves of 18 cells made the appendix file 7.6 MB; the main figure's file keeps them)."""
+    keep = ("timesteps", "episode_profit_eur")
+    return {cond: {t: {**res, "curve": {k: res["curve"][k] for k in keep}} for t, res in sweep.items()}
+            for cond, sweep in sweeps.items()}
+
+
 def line(res: dict, algo: str) -> str:
     """One cell's held-out profits and paired differences, for the log."""
     t = res["evaluation"]["table"]
@@ -92,8 +101,9 @@ def line(res: dict, algo: str) -> str:
 
 
 def plot_grid(results: dict, algo: str, path):
-    """One row per condition (``profile/fleet``): held-out daily profit per traffic level of the
-    learned agent (mean ± std over seeds) and of the rule-based baselines."""
+    """One panel per condition (``profile/fleet``): held-out daily profit minus always-max's
+    on the same days and cars, per traffic level, of the learned agent (mean ± std over seeds),
+    the battery rule and the LP bound."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -102,17 +112,19 @@ def plot_grid(results: dict, algo: str, path):
     fig, axes = plt.subplots(1, len(results), figsize=(3.6 * len(results), 3.4), squeeze=False)
     for ax, (cond, sweep) in zip(axes[0], results.items()):
         x = np.arange(len(sweep))
-        for i, name in enumerate((algo, "always_max", "battery_rule", "lp_bound")):
+        am = [sweep[t]["evaluation"]["table"]["always_max"]["metrics"]["daily_profit_eur"]["mean"] for t in sweep]
+        for i, name in enumerate((algo, "battery_rule", "lp_bound")):
             if any(name not in sweep[t]["evaluation"]["table"] for t in sweep):
                 continue
             table = [sweep[t]["evaluation"]["table"][name] for t in sweep]
-            m = [e["metrics"]["daily_profit_eur"]["mean"] for e in table]
+            m = [e["metrics"]["daily_profit_eur"]["mean"] - a for e, a in zip(table, am)]
             s = [np.std(e["per_seed_profit"]) if "per_seed_profit" in e else 0.0 for e in table]
-            ax.errorbar(x + 0.08 * (i - 1), m, yerr=s, fmt="o-" if i == 0 else "s--", label=name, color=f"C{i}")
+            ax.errorbar(x, m, yerr=s, fmt="o-" if i == 0 else "s--", label=name, color=f"C{i}", capsize=3)
+        ax.axhline(0.0, color="C3", ls=":", label="always_max")
         ax.set_xticks(x, list(sweep))
         ax.set_title(cond)
         ax.grid(alpha=0.3)
-    axes[0][0].set_ylabel("held-out daily profit (EUR)")
+    axes[0][0].set_ylabel("held-out EUR/day − always-max")
     axes[0][0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
