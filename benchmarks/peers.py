@@ -79,6 +79,8 @@ def venv_python(peers_dir: Path, name: str) -> Path:
     return peers_dir / name / "bin" / "python"
 
 
+# The peers' `-c` checks run with `-P` (no current directory on sys.path): from the repository root,
+# chargax_marl.egg-info would show the peer's gymnasium our `gymnasium.envs` entry point, which imports jax.
 def _run(cmd: list[str], timeout: float | None = None) -> subprocess.CompletedProcess:
     return subprocess.run([str(c) for c in cmd], capture_output=True, text=True, timeout=timeout)
 
@@ -87,7 +89,7 @@ def install_peer(name: str, peers_dir: Path, reinstall: bool = False) -> tuple[P
     """Create ``peers_dir/name`` and install the peer; return ``(python, message)`` (python None on failure)."""
     spec = PEERS[name]
     py = venv_python(peers_dir, name)
-    if py.exists() and not reinstall and _run([py, "-c", spec["check"]], 300).returncode == 0:
+    if py.exists() and not reinstall and _run([py, "-P", "-c", spec["check"]], 300).returncode == 0:
         return py, "already installed"
     try:
         venv.EnvBuilder(with_pip=True, clear=True).create(peers_dir / name)
@@ -95,7 +97,7 @@ def install_peer(name: str, peers_dir: Path, reinstall: bool = False) -> tuple[P
             proc = _run([py, "-m", "pip", "install", "--quiet", "--disable-pip-version-check", *args], 1800)
             if proc.returncode != 0:
                 return None, f"pip install {' '.join(args)} failed: {proc.stderr.strip().splitlines()[-3:]}"
-        proc = _run([py, "-c", spec["check"]], 300)
+        proc = _run([py, "-P", "-c", spec["check"]], 300)
         if proc.returncode != 0:
             return None, f"import check failed: {proc.stderr.strip().splitlines()[-1:]}"
     except (OSError, subprocess.SubprocessError) as exc:
@@ -110,7 +112,7 @@ def peer_versions(py: Path, packages: list[str]) -> dict:
             "    try: out[p] = m.version(p)\n"
             "    except Exception: out[p] = None\n"
             "print(json.dumps(out))")
-    proc = _run([py, "-c", code], 120)
+    proc = _run([py, "-P", "-c", code], 120)
     return json.loads(proc.stdout) if proc.returncode == 0 else {}
 
 
