@@ -114,12 +114,12 @@ def test_the_record_says_when_a_run_is_cut_from_the_paper_s_scale():
 
 
 def test_paired_differences_over_seeds():
-    from baselines.experiments import alpha_ablation, refund_effect
+    from baselines.experiments._common import paired_over_seeds
 
-    d = alpha_ablation.paired_over_seeds([3.0, 5.0, 7.0], [1.0, 1.0, 1.0])
+    d = paired_over_seeds([3.0, 5.0, 7.0], [1.0, 1.0, 1.0])
     assert d["per_seed"] == [2.0, 4.0, 6.0] and np.isclose(d["mean"], 4.0) and np.isclose(d["stderr"], 2.0 / np.sqrt(3))
     a = np.array([[1.0, 3.0], [2.0, 6.0]])  # seeds x days
-    r = refund_effect.paired_seeds(a, np.zeros_like(a))
+    r = paired_over_seeds(a, np.zeros_like(a))
     assert r["per_seed"] == [2.0, 4.0] and np.isclose(r["mean"], 3.0) and np.isclose(r["stderr"], 1.0)
 
 

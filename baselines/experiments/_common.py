@@ -14,8 +14,10 @@ import argparse
 import time
 from pathlib import Path
 
+import numpy as np
+
 from baselines import common
-from baselines.train import FAST, OPTIMAL_CHOICES, baseline_results, run
+from baselines.train import FAST, OPTIMAL_CHOICES, baseline_results, over_seeds, run
 
 PAPER_TIMESTEPS = int(1e7)  # Table 3: 1e7 env-steps per seed
 
@@ -83,6 +85,14 @@ def train_on(algo: str, base: dict, prices: str, seeds: int, baselines: dict) ->
                baselines=baselines, quiet=True)
 
 
+def paired_over_seeds(a, b) -> dict:
+    """``a - b`` seed against seed (the same days and cars): mean ± standard error over seeds,
+    with the per-seed differences. ``(seeds, days)`` arrays are first averaged over days."""
+    d = np.asarray(a, np.float64) - np.asarray(b, np.float64)
+    d = d.mean(axis=1) if d.ndim == 2 else d
+    return {**over_seeds(d), "per_seed": d.tolist()}
+
+
 class Record:
     """The budget and provenance every runner writes beside its results: start it before the
     first training, call :meth:`as_dict` after the last."""
@@ -116,8 +126,9 @@ class Record:
             "machine": info,
         }
 
-    def summary(self) -> str:
-        d = self.as_dict()
+    @staticmethod
+    def summary(d: dict) -> str:
+        """One line of an :meth:`as_dict` result, for the log."""
         m = d["machine"]
         return (f"{d['figure']}: {d['cut_note']}; {d['wall_seconds'] / 60:.1f} min on {m['cpu']} x{m['cores']} "
                 f"({m['backend']})")

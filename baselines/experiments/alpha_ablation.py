@@ -18,8 +18,8 @@ from __future__ import annotations
 import numpy as np
 
 from baselines import common
-from baselines.experiments._common import Record, output, config_of, parser, with_env_kwargs
-from baselines.train import baseline_results, over_seeds, run
+from baselines.experiments._common import Record, config_of, output, paired_over_seeds, parser, with_env_kwargs
+from baselines.train import baseline_results, run
 
 SMALL = {"satisfaction_time": (0.0, 0.5, 2.0), "satisfaction_charge": (0.0, 0.05, 0.5)}
 FULL = {"satisfaction_time": (0.0, 0.1, 0.5, 1.0, 2.0, 5.0), "satisfaction_charge": (0.0, 0.01, 0.05, 0.1, 0.5, 1.0)}
@@ -59,22 +59,16 @@ def main(argv=None, out="baselines/results/alpha_ablation"):
     for term, rows in results.items():
         for row in rows.values():
             row["vs_alpha0"] = {k: paired_over_seeds(row["per_seed"][k], zero["per_seed"][k]) for k in row["per_seed"]}
-    common.write_json({**record.as_dict(), "baselines": baselines,
+    meta = record.as_dict()
+    common.write_json({**meta, "baselines": baselines,
                        "results": {t: list(r.values()) for t, r in results.items()}}, out + ".json")
     plot(results, baselines, out + ".png")
     print(f"wrote {out}.png, {out}.json")
-    print(record.summary())
+    print(Record.summary(meta))
     return results
 
 
 TERMS = ("daily_profit_eur", "missing_kwh_at_departure", "overtime_min")
-
-
-def paired_over_seeds(a, b) -> dict:
-    """Mean ± standard error over seeds of ``a - b`` (seed i against seed i: the same days and
-    cars, and the same initial key), with the per-seed differences."""
-    d = np.asarray(a, np.float64) - np.asarray(b, np.float64)
-    return {**over_seeds(d), "per_seed": d.tolist()}
 
 
 def _se(per_seed) -> float:

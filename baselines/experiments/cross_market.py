@@ -65,7 +65,8 @@ def main(argv=None, out="baselines/results/cross_market", *, experiments=None, o
     gaps = transfer_gaps(matrix, experiments)
     wall = time.time() - t0
     plot(matrix, baselines, experiments, args.algo, out + ".png")
-    common.write_json({**record.as_dict(), "timesteps": runs[trained[0]]["timesteps"],
+    meta = record.as_dict()
+    common.write_json({**meta, "timesteps": runs[trained[0]]["timesteps"],
                        "experiments": {s: list(t) for s, t in experiments.items()},
                        "evaluation": "greedy, held-out days of each target, PRNGKey(0) for every policy (common random numbers)",
                        "wall_seconds_total": wall, "matrix": matrix, "transfer_gap_vs_in_market": gaps,

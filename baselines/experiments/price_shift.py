@@ -47,10 +47,11 @@ def main(argv=None, out="baselines/results/price_shift"):
         rows[train_year] = {"wall_seconds": res["wall_seconds"], "timesteps": res["timesteps"],
                             "curve": res["curve"]}
     baselines = {y: e[2] for y, e in evals.items()}
-    common.write_json({**record.as_dict(), "matrix": matrix, "baselines": baselines, "runs": rows}, out + ".json")
+    meta = record.as_dict()
+    common.write_json({**meta, "matrix": matrix, "baselines": baselines, "runs": rows}, out + ".json")
     plot(matrix, baselines, args.algo, out + ".png")
     print(f"wrote {out}.png, {out}.json")
-    print(record.summary())
+    print(Record.summary(meta))
     return matrix
 
 

@@ -24,10 +24,10 @@ from __future__ import annotations
 import numpy as np
 
 from baselines import common
-from baselines.experiments._common import Record, output, config_of, parser, with_env_kwargs
-from baselines.heuristics import evaluate_rules
+from baselines.experiments._common import Record, config_of, output, paired_over_seeds, parser, with_env_kwargs
+from baselines.heuristics import add_paired_differences, evaluate_rules
 from baselines.refund import RULES, all_v2g
-from baselines.train import over_seeds, run
+from baselines.train import run
 
 FLEETS = ("EU", "EU-all-v2g")
 ACCOUNTS = {True: "refund", False: "no_refund"}
@@ -61,19 +61,20 @@ def main(argv=None, out="baselines/results/refund_effect"):
                 ev = common.evaluate_batched(res["_train"].make_act(full), res["_params"], full, days,
                                              reference_profit=refs["always_max"]["daily_profit"])
                 row[ACCOUNTS[eval_refund]] = ev
-            row["off_minus_on"] = paired_seeds(row["no_refund"]["daily_profit"], row["refund"]["daily_profit"])
+            row["off_minus_on"] = paired_over_seeds(row["no_refund"]["daily_profit"], row["refund"]["daily_profit"])
             results[fleet]["agents"][f"trained_{ACCOUNTS[train_refund]}"] = row
             print(f"{fleet}, trained with {ACCOUNTS[train_refund]}: " + "; ".join(
                 f"evaluated with {ACCOUNTS[e]} {row[ACCOUNTS[e]]['metrics']['daily_profit_eur']['mean']:.1f} EUR/day "
                 f"(vs always-max {row[ACCOUNTS[e]]['paired_diff']['mean']:+.2f} ± "
                 f"{row[ACCOUNTS[e]]['paired_diff']['stderr']:.2f})" for e in (True, False))
                 + f"; off - on {row['off_minus_on']['mean']:+.2f} ({res['wall_seconds']:.0f} s)", flush=True)
-    common.write_json({**record.as_dict(), "fleets": {f: "bundled EU fleet" if f == "EU" else
+    meta = record.as_dict()
+    common.write_json({**meta, "fleets": {f: "bundled EU fleet" if f == "EU" else
                                                       "EU fleet, every model may discharge at its charging limit"
                                                       for f in args.fleets}, "results": results}, out + ".json")
     plot(results, args.algo, out + ".png")
     print(f"wrote {out}.png, {out}.json")
-    print(record.summary())
+    print(Record.summary(meta))
     return results
 
 
@@ -86,16 +87,7 @@ def references(params, days, optimal: str) -> dict:
     if optimal != "off":
         bound = hindsight_bound(params, days)["daily_profit"]
         out["lp_bound"] = {"daily_profit": bound, "metrics": summarize_profit(bound)}
-    for r in out.values():
-        r["vs_always_max"] = common.paired_difference(r["daily_profit"], out["always_max"]["daily_profit"])
-    return out
-
-
-def paired_seeds(a, b) -> dict:
-    """``a - b`` (seeds x days, the same days and cars): mean and standard error over seeds of
-    the per-seed means, with the per-seed means."""
-    d = (np.asarray(a, np.float64) - np.asarray(b, np.float64)).mean(axis=1)
-    return {**over_seeds(d), "per_seed": d.tolist()}
+    return add_paired_differences(out, ("always_max",))
 
 
 def plot(results: dict, algo: str, path):

@@ -15,6 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
+from baselines.common import paired_difference
+from baselines.train import over_seeds
+
 
 def pm(d: dict | None, digits: int = 2) -> str:
     if d is None:
@@ -23,10 +26,9 @@ def pm(d: dict | None, digits: int = 2) -> str:
 
 
 def seeds_stat(per_seed) -> dict:
-    """Mean, standard error over seeds and the count above zero of per-seed numbers."""
+    """:func:`baselines.train.over_seeds` of per-seed numbers, with how many are above zero."""
     v = np.asarray(per_seed, np.float64)
-    se = float(v.std(ddof=1) / np.sqrt(v.size)) if v.size > 1 else float("nan")
-    return {"mean": float(v.mean()), "stderr": se, "above": int((v > 0).sum()), "n": int(v.size)}
+    return {**over_seeds(v), "above": int((v > 0).sum()), "n": int(v.size)}
 
 
 def provenance(d: dict) -> str:
@@ -126,9 +128,7 @@ def refund_effect(d: dict) -> str:
                   "without − with |", "|---|---|---|---|---|---|"]
         for name in refs["refund"]:
             on, off = refs["refund"][name], refs["no_refund"][name]
-            diff = {"mean": float(np.mean(off["daily_profit"]) - np.mean(on["daily_profit"])),
-                    "stderr": float(np.std(np.subtract(off["daily_profit"], on["daily_profit"]), ddof=1)
-                                    / np.sqrt(len(on["daily_profit"])))}
+            diff = paired_difference(off["daily_profit"], on["daily_profit"])
             lines.append(f"| {name.replace('_', ' ')} | {_profit(refs['refund'], name)} | {pm(on['vs_always_max'])} | "
                          f"{_profit(refs['no_refund'], name)} | {pm(off['vs_always_max'])} | {pm(diff)} |")
         for trained, row in res["agents"].items():

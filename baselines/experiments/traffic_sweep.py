@@ -65,7 +65,7 @@ def main(argv=None, out="baselines/results/traffic_sweep"):
                           out + "_appendix.json")
         plot_grid(sweeps, args.algo, out + "_appendix.png")
         print(f"wrote {out}_appendix.png, {out}_appendix.json")
-    print(record.summary())
+    print(Record.summary(meta))
     return sweeps
 
 
