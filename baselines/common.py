@@ -23,6 +23,7 @@ from flax.linen.initializers import constant, variance_scaling
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from chargax_marl.core.params import make_params
+from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.evaluation import METRICS, run_days, split_days, summarize
 
 NEG_INF = -1e9
@@ -154,50 +155,33 @@ def battery_value_price(state, params) -> jnp.ndarray:
     return battery_terminal_value_eur(jnp.float32(1.0), core_state(state).day, params)
 
 
-def battery_shaping(price, battery_net_kwh, terminal_eur, value_after=None, energy_before=0.0) -> jnp.ndarray:
+def battery_shaping(shift_eur, terminal_eur) -> jnp.ndarray:
     """``BATTERY_SHAPING``: the term added to a step's reward so that the batteries' energy is
-    valued when it moves instead of all at once at the day's last step (``- terminal_eur``,
-    the env's terminal booking, non-zero at the last step only).
+    valued when it moves instead of all at once at the day's last step: the change of the
+    potential over the step, ``shift_eur`` (from :func:`battery_potential`), minus the env's
+    terminal booking ``terminal_eur`` (non-zero at the last step only).
 
-    It is the change of the potential ``Phi = value * E`` over the step, ``value_after *
-    (energy_before + battery_net_kwh) - price * energy_before``, with ``price`` the value of a
-    stored kWh before the step and ``value_after`` after it (default: the same), ``E`` the
-    batteries' stored energy. With one value all day (``"day_mean"``: the env's terminal
-    price) this is ``price * battery_net_kwh``: the env books ``price * sum_t
-    battery_net_kwh_t`` at the last step and this books the same amount step by step, so a
-    day's undiscounted sum of rewards and the evaluated profit are unchanged. What changes is
-    when the learner sees it: with gamma = 0.99 per 5-minute step a reward 288 steps ahead
-    weighs 0.06, so energy sold from the battery in the morning looked like almost free money.
-    With values that move through the day (``"storage_value"``, :mod:`baselines.storage_value`)
-    the day's sum differs from the env's by a constant of the day's first state.
+    With one value per kWh all day (``"day_mean"``: the env's terminal price ``p``) the
+    shift is ``p * battery_net_kwh``: the env books ``p * sum_t battery_net_kwh_t`` at the last
+    step and this books the same amount step by step, so a day's undiscounted sum of rewards
+    and the evaluated profit are unchanged. What changes is when the learner sees it: with
+    gamma = 0.99 per 5-minute step a reward 288 steps ahead weighs 0.06, so energy sold from
+    the battery in the morning looked like almost free money. With potentials that move
+    through the day (``"storage_value"``, ``"dp"``) the day's sum differs from the env's by a
+    constant of the day's first state.
     """
-    value_after = price if value_after is None else value_after
-    return value_after * (energy_before + battery_net_kwh) - price * energy_before - terminal_eur
+    return shift_eur - terminal_eur
 
 
-def agent_battery_shaping(price, info, is_battery, local_reward_weight: float, value_after=None,
-                          energy_before=None) -> jnp.ndarray:
-    """:func:`battery_shaping` per agent of :class:`chargax_marl.marl.ChargaxMARL`, ``(..., agents)``
-    from the step's ``info`` (leaves ``(..., agents)``), ``price (...)`` and optionally
-    ``value_after (...)`` and each agent's stored energy before the step ``energy_before (...,
-    agents)``, mixed like the env's rewards ``(1 - w) * r + w * share_i``: every agent gets
-    the station's term with weight ``1 - w``; with weight ``w`` each battery agent gets the
-    term of its own energy (the env gives the terminal value to the batteries' shares,
-    evenly) and a port nothing. The agents' terms thus add up to the station's, as the shares do."""
-    is_battery = jnp.asarray(is_battery, jnp.float32)
-    price = jnp.asarray(price)[..., None]
-    value_after = price if value_after is None else jnp.asarray(value_after)[..., None]
-    own_e = info["agent_energy_kwh"] * is_battery
-    e0 = jnp.zeros_like(own_e) if energy_before is None else energy_before * is_battery
-    station = battery_shaping(price, own_e.sum(-1, keepdims=True), info["battery_terminal_value_eur"][..., :1],
-                              value_after, e0.sum(-1, keepdims=True))
-    own = is_battery * battery_shaping(price, own_e, info["battery_terminal_value_eur"] /
-                                       jnp.maximum(is_battery.sum(), 1.0), value_after, e0)
-    w = float(local_reward_weight)
-    return (1.0 - w) * station + w * own
+def agent_battery_shaping(price, info, is_battery, local_reward_weight: float) -> jnp.ndarray:
+    """:func:`agent_potential_shaping` with one value ``price (...)`` per stored kWh before and
+    after the step (``"day_mean"``): each agent's share of ``price * net`` minus the terminal
+    booking."""
+    price = jnp.asarray(price)
+    return agent_potential_shaping(lambda net: price * net, info, is_battery, local_reward_weight)
 
 
-SHAPING_MODES = ("off", "day_mean", "storage_value")
+SHAPING_MODES = ("off", "day_mean", "storage_value", "dp")
 
 
 def shaping_mode(config: dict) -> str:
@@ -211,13 +195,48 @@ def shaping_mode(config: dict) -> str:
 
 
 def battery_potential(config: dict, env_params):
-    """``None`` when ``BATTERY_SHAPING`` is off, else ``potential(env_state) -> (value_before,
-    value_after, energy_before)``: the value (EUR/kWh) of a stored kWh before and after the
-    step of the (possibly batched) ``env_state`` and each leaf's stored energy before it
-    (kWh; only the batteries' is used), the inputs of :func:`battery_shaping`."""
+    """``None`` when ``BATTERY_SHAPING`` is off, else ``potential(env_state) -> shift``, where
+    ``shift(net_kwh)`` is the change of the potential ``Phi`` of the batteries' stored energy
+    over the step of the (possibly batched) ``env_state`` when the batteries take in
+    ``net_kwh`` (terminal side, negative when discharging; shaped like the batch):
+    ``Phi_{t+1}(E_t + net_kwh) - Phi_t(E_t)``. The shaping term of a step is ``shift(net) -
+    terminal booking`` (:func:`battery_shaping`, :func:`agent_potential_shaping`).
+
+    ``Phi`` by mode: ``"day_mean"`` the env's terminal price times the energy (the day's
+    undiscounted reward is unchanged), ``"storage_value"`` the battery-only LP's value per kWh
+    of each step times the energy, ``"dp"`` the battery-only dynamic programme's value of the
+    energy level (:mod:`baselines.storage_value`); the last two move the day's sum by a
+    constant of its first state."""
     mode = shaping_mode(config)
     if mode == "off":
         return None
+    is_battery = jnp.asarray(np.asarray(env_params.station.leaf_kind) == KIND_BATTERY)
+
+    def stored_kwh(core):
+        return jnp.sum(jnp.where(is_battery, core.soc * core.capacity_kwh, 0.0), axis=-1)
+
+    if mode == "dp":
+        from baselines.storage_value import dp_values
+
+        grid_np, table_np = dp_values(env_params)
+        table, step_kwh = jnp.asarray(table_np), float(grid_np[1] - grid_np[0])
+
+        def level_value(rows, energy):  # rows (..., K) at energy (...,): linear between points
+            x = jnp.clip(energy / step_kwh, 0.0, rows.shape[-1] - 1.0)
+            i = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, rows.shape[-1] - 2)
+            lo = jnp.take_along_axis(rows, i[..., None], axis=-1)[..., 0]
+            hi = jnp.take_along_axis(rows, i[..., None] + 1, axis=-1)[..., 0]
+            return lo + (x - i) * (hi - lo)
+
+        def potential(env_state):
+            core = core_state(env_state)
+            e0 = stored_kwh(core)
+            phi0 = level_value(table[core.day, core.timestep], e0)
+            after = table[core.day, core.timestep + 1]
+            return lambda net_kwh: level_value(after, e0 + net_kwh) - phi0
+
+        return potential
+
     table = None
     if mode == "storage_value":
         from baselines.storage_value import storage_values
@@ -226,13 +245,29 @@ def battery_potential(config: dict, env_params):
 
     def potential(env_state):
         core = core_state(env_state)
-        energy = core.soc * core.capacity_kwh
+        e0 = stored_kwh(core)
         if table is None:
-            v = battery_value_price(env_state, env_params)
-            return v, v, energy
-        return table[core.day, core.timestep], table[core.day, core.timestep + 1], energy
+            v0 = v1 = battery_value_price(env_state, env_params)
+        else:
+            v0, v1 = table[core.day, core.timestep], table[core.day, core.timestep + 1]
+        return lambda net_kwh: v1 * (e0 + net_kwh) - v0 * e0
 
     return potential
+
+
+def agent_potential_shaping(shift, info, is_battery, local_reward_weight: float) -> jnp.ndarray:
+    """The shaping term of each agent of :class:`chargax_marl.marl.ChargaxMARL`, ``(...,
+    agents)``, from a ``shift`` of :func:`battery_potential` and the step's ``info`` (leaves
+    ``(..., agents)``), mixed like the env's rewards ``(1 - w) * r + w * share_i``: every agent
+    gets the station's term with weight ``1 - w``; with weight ``w`` the battery agents share
+    it evenly (as the env shares the terminal value among them) and a port gets nothing. The
+    agents' terms thus add up to the station's, as the shares do."""
+    is_battery = jnp.asarray(is_battery, jnp.float32)
+    net = jnp.sum(info["agent_energy_kwh"] * is_battery, axis=-1)
+    station = (shift(net) - info["battery_terminal_value_eur"][..., 0])[..., None]
+    own = is_battery * station / jnp.maximum(is_battery.sum(), 1.0)
+    w = float(local_reward_weight)
+    return (1.0 - w) * station + w * own
 
 
 def relative_price_columns(params, context_start: int):

@@ -202,15 +202,14 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         ws_b = jnp.swapaxes(obs["world_state"], 0, 1).reshape((n_actors, -1))  # (agents * envs, state)
         return ws, policy.value(params, ws_b)
 
-    # BATTERY_SHAPING (common.battery_shaping, per agent as common.agent_battery_shaping).
+    # BATTERY_SHAPING (common.battery_potential, per agent as common.agent_potential_shaping).
     is_bat = np.asarray(env_params.station.leaf_kind) == KIND_BATTERY
 
     potential = common.battery_potential(config, env_params)
 
     def shaping(pot, info):
         """Per-actor ``(agents * envs,)`` shaping term of a step (info leaves ``(envs, agents)``)."""
-        v0, v1, e0 = pot
-        per_agent = common.agent_battery_shaping(v0, info, is_bat, config["LOCAL_REWARD_WEIGHT"], v1, e0)
+        per_agent = common.agent_potential_shaping(pot, info, is_bat, config["LOCAL_REWARD_WEIGHT"])
         return per_agent.T.reshape((n_actors,))  # agent-major, as batchify
 
     # BATTERY_GAMMA: the battery agents' own discount (None: GAMMA). A port's decisions pay off

@@ -115,7 +115,6 @@ def make_train(config: dict | None = None, env_params=None):
     mesh = common.env_mesh(n_envs)
     tx = common.make_optimizer(config, total_updates)
     potential = common.battery_potential(config, env_params)  # BATTERY_SHAPING
-    is_battery = jnp.asarray(np.asarray(env_params.station.leaf_kind) == KIND_BATTERY)
     v_reset = jax.vmap(env.reset, in_axes=(0, None))
     v_step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
 
@@ -137,10 +136,7 @@ def make_train(config: dict | None = None, env_params=None):
         next_obs, env_state, reward, term, trunc, info = v_step(jax.random.split(k_step, n_envs), env_state,
                                                                 action, env_params)
         if pot is not None:
-            v0, v1, e0 = pot
-            stored = jnp.sum(jnp.where(is_battery, e0, 0.0), axis=-1)  # the batteries' energy before the step
-            reward = reward + common.battery_shaping(v0, info["battery_net_kwh"], info["battery_terminal_value_eur"],
-                                                     v1, stored)
+            reward = reward + common.battery_shaping(pot(info["battery_net_kwh"]), info["battery_terminal_value_eur"])
         next_obs, env_state = common.shard_envs((next_obs, env_state), mesh)
         done = jnp.logical_or(term, trunc)
         tr = Transition(obs, action, logp, value, reward * config["REWARD_SCALE"], done.astype(jnp.float32),

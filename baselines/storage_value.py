@@ -1,5 +1,8 @@
-"""The value of a kWh held in the station battery at each step of each day: the duals of a
-battery-only arbitrage LP on the day's known prices, for ``BATTERY_SHAPING="storage_value"``.
+"""The value of the energy held in the station battery at each step of each day, from the
+day's known prices: the duals of a battery-only arbitrage LP (``BATTERY_SHAPING=
+"storage_value"``, a value per kWh) and the value function of the same problem with the
+battery's three full-power actions solved by dynamic programming (``BATTERY_SHAPING="dp"``,
+a value per stored energy level, :func:`dp_values`).
 
 Day-ahead prices are published the day before, so a station knows all of a day's prices at
 midnight. For each day the LP below buys and sells the battery's energy against those
@@ -51,6 +54,18 @@ def step_buy_prices(params) -> np.ndarray:
     return np.asarray(price_tables(params)[0], np.float64)
 
 
+def terminal_prices(params) -> np.ndarray:
+    """``(days,)`` the env's terminal price of every day (EUR/kWh): what a stored kWh is credited
+    at the day's end (:func:`chargax_marl.core.reward.battery_terminal_value_eur`)."""
+    import jax
+    import jax.numpy as jnp
+
+    from chargax_marl.core.reward import battery_terminal_value_eur
+
+    days = jnp.arange(np.asarray(params.prices_eur_kwh).shape[0], dtype=jnp.int32)
+    return np.asarray(jax.vmap(lambda d: battery_terminal_value_eur(jnp.float32(1.0), d, params))(days), np.float64)
+
+
 def day_values(prices, terminal_price: float, eta: float, power_kw: float, capacity_kwh: float, e0: float,
                step_hours: float) -> np.ndarray:
     """``(T + 1,)`` value of a stored kWh at the start of each step of one day, the last entry
@@ -86,16 +101,71 @@ def storage_values(params) -> np.ndarray:
     """``(days, steps + 1)`` float32 value of a stored kWh at the start of every step of every
     day of ``params`` (last column: the env's terminal price, the day's mean buy price, or the
     fixed battery price of ``make_params(battery_terminal_price=...)``)."""
-    import jax
-    import jax.numpy as jnp
-
-    from chargax_marl.core.reward import battery_terminal_value_eur
-
     eta, power_kw, capacity_kwh, e0 = _battery_constants(params)
     prices = step_buy_prices(params)
-    days = jnp.arange(prices.shape[0], dtype=jnp.int32)
-    terminal = np.asarray(jax.vmap(lambda d: battery_terminal_value_eur(jnp.float32(1.0), d, params))(days), np.float64)
+    terminal = terminal_prices(params)
     out = np.zeros((prices.shape[0], prices.shape[1] + 1), np.float64)
     for day in range(prices.shape[0]):
         out[day] = day_values(prices[day], terminal[day], eta, power_kw, capacity_kwh, e0, float(params.step_hours))
     return out.astype(np.float32)
+
+
+def dp_values(params, points_per_step: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """``(grid (K,), value (days, steps + 1, K))``: the most a battery holding ``grid[k]`` kWh
+    at the start of step ``t`` of ``day`` can still earn that day, ``value[day, t, k]`` (EUR),
+    by backward induction over the battery's three full-power actions (discharge, idle,
+    charge) on the day's buy prices; ``value[day, steps]`` is the env's terminal booking,
+    the day's terminal price times the energy held.
+
+    The same battery-only model as :func:`day_values` (the batteries as one store of their
+    summed capacity and power, energy priced at the buy price both ways, the path efficiency
+    each way), but with the discrete actions the ``num_levels=1`` agents choose among, and
+    valued per energy level rather than per kWh. As a potential ``Phi_t = value[day, t](E_t)``
+    (linear in between grid points, ``points_per_step`` of them per step's full-power energy)
+    the shaping term of a step is ``Phi_{t+1}(E_{t+1}) - Phi_t(E_t)`` minus the env's terminal
+    booking at the day's last step, so a day's undiscounted sum moves by ``terminal price *
+    E_0 - Phi_0(E_0)``, a constant of the first state (Ng, Harada and Russell 1999). A
+    one-step learner then sees each action's loss against the best action of the battery-only
+    problem, instead of a comparison with one value per kWh that is zero wherever the LP is
+    indifferent. The learner's policy still sees only its observation, not this table.
+    """
+    eta, power_kw, capacity_kwh, _ = _battery_constants(params)
+    grid, value = level_values(step_buy_prices(params), terminal_prices(params), eta, power_kw * float(params.step_hours), capacity_kwh,
+                               points_per_step)
+    return grid.astype(np.float32), value.astype(np.float32)
+
+
+def level_values(prices, terminal_price, eta: float, step_kwh: float, capacity_kwh: float,
+                 points_per_step: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """``(grid (K,), value (days, steps + 1, K))`` of :func:`dp_values` for buy prices ``(days,
+    steps)`` and terminal prices ``(days,)``: per step, the best of discharging ``step_kwh``
+    (earns ``eta * p`` per kWh taken out), idling and charging ``step_kwh`` (costs ``p /
+    eta`` per kWh stored), each cut at the empty and the full battery."""
+    if isinstance(points_per_step, bool) or int(points_per_step) != points_per_step or points_per_step < 1:
+        raise ValueError(f"points_per_step must be an integer >= 1, got {points_per_step!r}")
+    if not (step_kwh > 0 and capacity_kwh > 0 and 0 < eta <= 1):
+        raise ValueError(f"need step_kwh > 0, capacity_kwh > 0 and 0 < eta <= 1, got {step_kwh!r}, "
+                         f"{capacity_kwh!r}, {eta!r}")
+    prices = np.atleast_2d(np.asarray(prices, np.float64))
+    days, steps = prices.shape
+    num = max(int(np.ceil(capacity_kwh / step_kwh * int(points_per_step) - 1e-9)), 1)
+    grid = np.linspace(0.0, capacity_kwh, num + 1)
+    value = np.zeros((days, steps + 1, grid.size), np.float64)
+    value[:, steps] = np.broadcast_to(np.asarray(terminal_price, np.float64), (days,))[:, None] * grid[None, :]
+    full = np.minimum(grid + step_kwh, capacity_kwh)  # after a full-power charge
+    empty = np.maximum(grid - step_kwh, 0.0)  # after a full-power discharge
+    for t in range(steps - 1, -1, -1):
+        p = prices[:, t, None]
+        nxt = value[:, t + 1]
+        discharge = eta * p * (grid - empty) + _interp_rows(nxt, grid, empty)
+        charge = -p * (full - grid) / eta + _interp_rows(nxt, grid, full)
+        value[:, t] = np.maximum(np.maximum(discharge, nxt), charge)
+    return grid, value
+
+
+def _interp_rows(rows: np.ndarray, grid: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``rows (..., K)`` on the uniform ``grid (K,)``, linearly interpolated at ``x (K,)``."""
+    h = grid[1] - grid[0]
+    i = np.clip(np.floor(x / h).astype(np.int64), 0, grid.size - 2)
+    w = (x - grid[i]) / h
+    return rows[..., i] * (1.0 - w) + rows[..., i + 1] * w

@@ -324,10 +324,11 @@ def main(argv=None) -> dict:
     p.add_argument("--local-reward-weight", type=float, default=None,
                    help="ippo/mappo: weight in [0, 1] of each agent's own share of the reward in its reward "
                         "(ChargaxMARL local_reward_weight); 0: the shared station reward")
-    p.add_argument("--battery-shaping", choices=("on", "off", "day_mean", "storage_value"), default=None,
+    p.add_argument("--battery-shaping", choices=("on", "off", "day_mean", "storage_value", "dp"), default=None,
                    help="value the batteries' energy as it moves instead of at the day's last step: 'on' = "
                         "'day_mean' at the env's terminal price (same daily profit), 'storage_value' at the value "
-                        "of a stored kWh from the day's battery-only LP (baselines/storage_value.py); see "
+                        "of a stored kWh from the day's battery-only LP, 'dp' at the value of the stored energy level from the "
+                        "day's battery-only dynamic programme (both baselines/storage_value.py); see "
                         "common.battery_shaping. Default: on (off with --paper)")
     p.add_argument("--agent-adv-norm", choices=("on", "off"), default=None,
                    help="ippo/mappo: normalise the advantages per agent (over its rows of the rollout) instead of "

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from baselines import common, ippo, mappo, ppo
+from baselines import common, ippo, mappo, ppo, storage_value
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -382,7 +382,7 @@ def test_battery_shaping_moves_the_battery_value_but_keeps_the_days_reward(w):
         np.testing.assert_allclose(raw, profit, rtol=1e-5)  # the shared reward is the station's profit
     # the single-agent form is the station's term (w = 0)
     info_like = {"battery_net_kwh": np.ones(3), "battery_terminal_value_eur": np.array([0.0, 0.0, 5.0])}
-    np.testing.assert_allclose(common.battery_shaping(2.0, info_like["battery_net_kwh"],
+    np.testing.assert_allclose(common.battery_shaping(2.0 * info_like["battery_net_kwh"],
                                                       info_like["battery_terminal_value_eur"]), [2.0, 2.0, -3.0])
 
 
@@ -545,13 +545,14 @@ def test_storage_value_shaping_changes_the_day_by_a_constant_of_its_first_state(
     env0 = ChargaxMARL(**TINY_ENV)
     is_bat = np.asarray(env0.params.station.leaf_kind) == KIND_BATTERY
     potential = common.battery_potential({"BATTERY_SHAPING": "storage_value"}, env0.params)
+    table = storage_value.storage_values(env0.params)
     start = {}
 
     def rewards_of(env, state, info):
-        v0, v1, e0 = potential(state)
         if not start:
-            start.update(v0=float(v0), e0=float(np.sum(np.asarray(e0)[is_bat])), day=int(state.day))
-        return common.agent_battery_shaping(v0, info, is_bat, w, v1, e0)
+            e0 = float(np.sum(np.asarray(state.soc * state.capacity_kwh)[is_bat]))
+            start.update(v0=float(table[int(state.day), int(state.timestep)]), e0=e0, day=int(state.day))
+        return common.agent_potential_shaping(potential(state), info, is_bat, w)
 
     raw, shaped, first, _ = _tiny_day(rewards_of, w)
     from chargax_marl.core.reward import day_mean_buy_price
@@ -565,6 +566,80 @@ def test_storage_value_shaping_changes_the_day_by_a_constant_of_its_first_state(
     _finite_losses(ppo.make_train({**TINY, "BATTERY_SHAPING": "storage_value"}))
     with pytest.raises(ValueError, match="BATTERY_SHAPING"):
         common.shaping_mode({"BATTERY_SHAPING": "hourly"})
+
+
+def test_dp_values_are_the_hand_computed_best_of_the_three_full_power_actions():
+    """Prices 0.1, 0.3, 0.2, a 1 kWh battery that moves 1 kWh per step, terminal price 0.15:
+    empty at the start it buys at 0.1 and sells at 0.3 (0.2); full it sells at 0.3 (0.3). With
+    a path efficiency of 0.5 buying at 0.1 costs 0.2 per stored kWh and selling at 0.3 earns
+    0.15, so the empty battery idles and the full one earns 0.15 (selling at 0.3 or holding)."""
+    grid, v = storage_value.level_values([[0.1, 0.3, 0.2]], [0.15], eta=1.0, step_kwh=1.0, capacity_kwh=1.0,
+                                         points_per_step=1)
+    np.testing.assert_allclose(grid, [0.0, 1.0])
+    np.testing.assert_allclose(v[0], [[0.2, 0.3], [0.0, 0.3], [0.0, 0.2], [0.0, 0.15]], atol=1e-12)
+    _, v = storage_value.level_values([[0.1, 0.3, 0.2]], [0.15], eta=0.5, step_kwh=1.0, capacity_kwh=1.0,
+                                      points_per_step=1)
+    # full: sell at 0.3 for 0.15, at 0.2 for 0.1, or hold to the end for 0.15
+    np.testing.assert_allclose(v[0, :, 0], 0.0, atol=1e-12)
+    np.testing.assert_allclose(v[0, :, 1], [0.15, 0.15, 0.15, 0.15], atol=1e-12)
+    # a finer grid interpolates half a kWh: buy 0.5 kWh at 0.1 is not possible (a full step is 1
+    # kWh, cut at full), so from 0.5 kWh the best is to top up at 0.1 and sell 1 kWh at 0.3
+    grid, v = storage_value.level_values([[0.1, 0.3, 0.2]], [0.15], eta=1.0, step_kwh=1.0, capacity_kwh=1.0,
+                                         points_per_step=2)
+    np.testing.assert_allclose(grid, [0.0, 0.5, 1.0])
+    np.testing.assert_allclose(v[0, 0, 1], -0.05 + 0.3, atol=1e-12)
+    for bad in (0, 1.5, True):
+        with pytest.raises(ValueError, match="points_per_step"):
+            storage_value.level_values([[0.1]], [0.1], 1.0, 1.0, 1.0, points_per_step=bad)
+    with pytest.raises(ValueError, match="eta"):
+        storage_value.level_values([[0.1]], [0.1], 1.5, 1.0, 1.0)
+
+
+def test_dp_values_never_lose_to_idling_and_end_at_the_terminal_booking():
+    from chargax_marl.core import make_params
+
+    params = make_params()
+    grid, v = storage_value.dp_values(params)
+    terminal = storage_value.terminal_prices(params)
+    np.testing.assert_allclose(v[:, -1], terminal[:, None] * grid[None, :], rtol=1e-5, atol=1e-4)
+    # holding is always allowed, so a level is worth at least what it is worth one step later
+    assert np.all(v[:, :-1] >= v[:, 1:] - 1e-3)
+    # on days without negative prices more energy is never worth less (it can be sold or held);
+    # on days with them it can be (an emptier battery is paid to charge)
+    positive = np.all(storage_value.step_buy_prices(params) > 0, axis=1)
+    assert 0 < positive.sum() < positive.size
+    assert np.all(np.diff(v[positive], axis=-1) >= -1e-3)
+    assert np.any(np.diff(v[~positive], axis=-1) < -1e-3)
+
+
+@pytest.mark.parametrize("w", [0.0, 1.0])
+def test_dp_shaping_changes_the_day_by_a_constant_of_its_first_state(w):
+    """``BATTERY_SHAPING="dp"``: a potential of the stored energy level, so each agent's day
+    total moves by ``terminal price * E_0 - value[day, 0](E_0)``, which no action changes."""
+    from chargax_marl.core.station import KIND_BATTERY
+    from chargax_marl.marl.env import ChargaxMARL
+
+    env0 = ChargaxMARL(**TINY_ENV)
+    is_bat = np.asarray(env0.params.station.leaf_kind) == KIND_BATTERY
+    potential = common.battery_potential({"BATTERY_SHAPING": "dp"}, env0.params)
+    grid, table = storage_value.dp_values(env0.params)
+    start = {}
+
+    def rewards_of(env, state, info):
+        if not start:
+            e0 = float(np.sum(np.asarray(state.soc * state.capacity_kwh)[is_bat]))
+            start.update(phi0=float(np.interp(e0, grid, table[int(state.day), int(state.timestep)])), e0=e0,
+                         day=int(state.day))
+        return common.agent_potential_shaping(potential(state), info, is_bat, w)
+
+    raw, shaped, first, _ = _tiny_day(rewards_of, w)
+    const = float(storage_value.terminal_prices(env0.params)[start["day"]]) * start["e0"] - start["phi0"]
+    expected = raw + np.where(is_bat, w * const, 0.0) + (1.0 - w) * const
+    np.testing.assert_allclose(shaped, expected, atol=2e-3)
+    assert abs(const) > 1e-3  # the case is not trivial
+    out = _finite_losses(ippo.make_train({**TINY, "BATTERY_SHAPING": "dp"}))
+    assert np.all(np.isfinite(out["metrics"]["episode_return"]))
+    _finite_losses(ppo.make_train({**TINY, "BATTERY_SHAPING": "dp"}))
 
 
 def test_cli_on_off_flags_reach_the_config(monkeypatch):
