@@ -372,16 +372,19 @@ def gae(rewards, values, dones, last_value, gamma: float, lam: float):
     return adv, adv + values
 
 
-def ppo_loss(new_logp, old_logp, advantages, values, old_values, targets, ent, config):
-    """Clipped surrogate + clipped value loss - entropy bonus. Returns ``(total, parts)``."""
+def ppo_loss(new_logp, old_logp, advantages, values, old_values, targets, ent, config, ent_coef=None):
+    """Clipped surrogate + clipped value loss - entropy bonus. Returns ``(total, parts)``.
+
+    ``ent_coef``: the entropy coefficient of each row (default ``config["ENT_COEF"]`` for all)."""
     adv = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
     ratio = jnp.exp(new_logp - old_logp)
     eps = config["CLIP_EPS"]
     actor_loss = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - eps, 1 + eps) * adv).mean()
     v_clip = old_values + jnp.clip(values - old_values, -config["VF_CLIP"], config["VF_CLIP"])
     value_loss = 0.5 * jnp.maximum((values - targets) ** 2, (v_clip - targets) ** 2).mean()
+    bonus = (config["ENT_COEF"] if ent_coef is None else ent_coef) * ent
     ent = ent.mean()
-    total = actor_loss + config["VF_COEF"] * value_loss - config["ENT_COEF"] * ent
+    total = actor_loss + config["VF_COEF"] * value_loss - bonus.mean()
     approx_kl = ((ratio - 1) - (new_logp - old_logp)).mean()
     return total, {"actor_loss": actor_loss, "value_loss": value_loss, "entropy": ent, "approx_kl": approx_kl}
 

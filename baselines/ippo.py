@@ -163,7 +163,8 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
     (one step moves every agent).
     """
     config = common.parse_config({"AGENT_ID": "onehot", "AGENT_ADV_NORM": False, "BATTERY_NET": False,
-                                  "BATTERY_GAMMA": None, "RELATIVE_PRICES": False}, config)
+                                  "BATTERY_GAMMA": None, "BATTERY_ENT_COEF": None,
+                                  "RELATIVE_PRICES": False}, config)
     if env_params is None:
         env_params = common.build_env_params(config)[0]
     base_env = ChargaxMARL(params=env_params, agent_id=config["AGENT_ID"],
@@ -217,6 +218,13 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
     battery_gamma = config["GAMMA"] if config["BATTERY_GAMMA"] is None else float(config["BATTERY_GAMMA"])
     if not 0.0 <= battery_gamma <= 1.0:
         raise ValueError(f"BATTERY_GAMMA={battery_gamma} must be in [0, 1] (or None: GAMMA)")
+    # BATTERY_ENT_COEF: the battery agents' own entropy bonus (None: ENT_COEF). Early on a
+    # random battery discharges at the wrong hours and its discharge probability collapses
+    # before it has learned when discharging pays; the ports want little entropy.
+    if config["BATTERY_ENT_COEF"] is not None and not (np.isfinite(float(config["BATTERY_ENT_COEF"]))
+                                                       and float(config["BATTERY_ENT_COEF"]) >= 0):
+        raise ValueError(f"BATTERY_ENT_COEF={config['BATTERY_ENT_COEF']} must be a finite number >= 0 "
+                         "(or None: ENT_COEF)")
     gamma_b = jnp.asarray(np.repeat(np.where(is_bat, battery_gamma, config["GAMMA"]), n_envs), jnp.float32)
 
     def per_agent_normalised(adv):
@@ -269,8 +277,12 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
                 values = policy.value(params, ws_table)[tr.critic_in]
             else:
                 values = policy.value(params, tr.critic_in)
+            ent_coef = None
+            if config["BATTERY_ENT_COEF"] is not None:  # the battery rows' own entropy coefficient
+                ent_coef = jnp.where(policy.is_battery(tr.obs)[..., 0] > 0.5, float(config["BATTERY_ENT_COEF"]),
+                                     float(config["ENT_COEF"]))
             return common.ppo_loss(new_logp, tr.log_prob, adv, values, tr.value, targets, common.entropy(logits),
-                                   config)
+                                   config, ent_coef)
 
         return loss_fn
 

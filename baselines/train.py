@@ -338,6 +338,8 @@ def main(argv=None) -> dict:
                         "(p - median) / (q80 - q20) (see common.relative_prices); default off")
     p.add_argument("--battery-gamma", type=float, default=None,
                    help="ippo/mappo: the battery agents' discount per step (default: --gamma)")
+    p.add_argument("--battery-ent-coef", type=float, default=None,
+                   help="ippo/mappo: the battery agents' entropy coefficient (default: --ent-coef)")
     p.add_argument("--battery-net", choices=("on", "off"), default=None,
                    help="ippo/mappo: a separate actor (ippo: and critic) for the battery agents (default off)")
     p.add_argument("--paper", action="store_true", help="use Table 3 exactly (12 envs x 300 steps, 2x256, lr 2.5e-4, "
@@ -370,6 +372,8 @@ def main(argv=None) -> dict:
             config[key] = getattr(a, flag)
     if a.battery_gamma is not None:
         config["BATTERY_GAMMA"] = a.battery_gamma
+    if a.battery_ent_coef is not None:
+        config["BATTERY_ENT_COEF"] = a.battery_ent_coef
     for flag, key in (("relative_prices", "RELATIVE_PRICES"), ("battery_net", "BATTERY_NET"),
                       ("agent_adv_norm", "AGENT_ADV_NORM")):
         if getattr(a, flag) is not None:

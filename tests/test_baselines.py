@@ -434,6 +434,23 @@ def test_battery_gamma_discounts_the_battery_rows_only():
         ippo.make_train({**TINY, "BATTERY_GAMMA": 1.5})
 
 
+def test_battery_ent_coef_weighs_the_battery_rows_entropy_only():
+    """``BATTERY_ENT_COEF``: the loss's entropy bonus is each row's coefficient times its
+    entropy, averaged; without it every row has ``ENT_COEF``."""
+    rng = np.random.default_rng(1)
+    logp, old, adv, val, oldv, tgt, ent = (jnp.asarray(rng.normal(size=6), jnp.float32) for _ in range(7))
+    config = {"CLIP_EPS": 0.2, "VF_CLIP": 10.0, "VF_COEF": 0.5, "ENT_COEF": 0.01}
+    coef = jnp.asarray([0.01] * 5 + [0.2])
+    base, _ = common.ppo_loss(logp, old, adv, val, oldv, tgt, ent, config)
+    rows, parts = common.ppo_loss(logp, old, adv, val, oldv, tgt, ent, config, coef)
+    np.testing.assert_allclose(rows - base, -(0.2 - 0.01) * float(ent[5]) / 6, rtol=1e-5)
+    np.testing.assert_allclose(parts["entropy"], float(ent.mean()), rtol=1e-6)
+    _finite_losses(ippo.make_train({**TINY, "BATTERY_ENT_COEF": 0.05}))
+    for bad in (-0.1, float("nan")):
+        with pytest.raises(ValueError, match="BATTERY_ENT_COEF"):
+            ippo.make_train({**TINY, "BATTERY_ENT_COEF": bad})
+
+
 def test_relative_prices_read_the_observed_prices_and_quantiles():
     """``RELATIVE_PRICES``: the columns are the context's prices and day quantiles, and each
     feature is ``(p - median) / (q80 - q20)``."""
@@ -649,8 +666,9 @@ def test_cli_on_off_flags_reach_the_config(monkeypatch):
     seen = {}
     monkeypatch.setattr(train, "run", lambda algo, config, **kw: seen.update(config) or {})
     train.main(["--algo", "ippo", "--relative-prices", "on", "--battery-net", "off", "--agent-adv-norm", "on",
-                "--battery-gamma", "0.95", "--timesteps", "100"])
+                "--battery-gamma", "0.95", "--battery-ent-coef", "0.05", "--battery-shaping", "dp", "--timesteps", "100"])
     assert seen["RELATIVE_PRICES"] is True and seen["BATTERY_NET"] is False
     assert seen["AGENT_ADV_NORM"] is True and seen["BATTERY_GAMMA"] == 0.95
+    assert seen["BATTERY_ENT_COEF"] == 0.05 and seen["BATTERY_SHAPING"] == "dp"
     train.main(["--algo", "ippo", "--relative-prices", "off", "--agent-adv-norm", "off", "--timesteps", "100"])
     assert seen["RELATIVE_PRICES"] is False and seen["AGENT_ADV_NORM"] is False
