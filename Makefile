@@ -44,13 +44,13 @@ examples: $(CLIENTS_STAMP)
 # networks also read each observed price's place in the day's range (--relative-prices).
 SCENARIO_FLAGS := --scenario shopping --traffic medium
 MARL_FLAGS := --ent-coef 0.01 --gamma 0.9 --local-reward-weight 1 --battery-net on --agent-adv-norm on \
-	--relative-prices on --env-kwargs '{"num_levels": 1}'
+	--relative-prices on --env-kwargs '{"num_levels": 1}' --battery-shaping dp --battery-ent-coef 0.05
 train: $(STAMP)
-	$(PY) -m baselines.train --algo ippo $(SCENARIO_FLAGS) --seeds 4 $(MARL_FLAGS) --timesteps 3e5 --chunks 3 --out outputs/train_ippo
+	$(PY) -m baselines.train --algo ippo $(SCENARIO_FLAGS) --seeds 4 $(MARL_FLAGS) --timesteps 8e5 --chunks 4 --out outputs/train_ippo
 
 # MAPPO with the same flags (centralised critic on the world state).
 train-mappo: $(STAMP)
-	$(PY) -m baselines.train --algo mappo $(SCENARIO_FLAGS) --seeds 4 $(MARL_FLAGS) --timesteps 3e5 --chunks 3 --out outputs/train_mappo
+	$(PY) -m baselines.train --algo mappo $(SCENARIO_FLAGS) --seeds 4 $(MARL_FLAGS) --timesteps 8e5 --chunks 4 --out outputs/train_mappo
 
 # Single-agent PPO, no prior: full-power actions (num_levels 1), battery shaping, gamma 0.95,
 # relative prices.

@@ -115,9 +115,9 @@ class MLP(nn.Module):
         return nn.Dense(self.out, kernel_init=_init(self.head_scale), bias_init=constant(0.0))(x)
 
 
-def actor_critic(config: dict, num_logits: int):
+def actor_critic(config: dict, num_logits: int, num_values: int = 1):
     kw = dict(hidden=int(config["HIDDEN"]), layers=int(config["NUM_LAYERS"]), activation=config["ACTIVATION"])
-    return MLP(num_logits, head_scale=0.01, **kw), MLP(1, head_scale=1.0, **kw)
+    return MLP(num_logits, head_scale=0.01, **kw), MLP(num_values, head_scale=1.0, **kw)
 
 
 def always_max_prior(config: dict) -> tuple[float, float]:

@@ -59,7 +59,14 @@ class Policy:
         self.num_leaves, self.k = len(nvec), int(nvec.max())
         self.mask = np.arange(self.k)[None, :] < nvec[:, None]
         self.obs_dim = env.observation_space(env_params).shape[0]
-        self.actor, self.critic = common.actor_critic(config, self.num_leaves * self.k)
+        # SPLIT_CREDIT: two parts of the reward, the ports' and the batteries' shares, each with
+        # its own value; the port heads learn from the first advantage, the battery heads from
+        # the second (one critic network with two outputs).
+        self.is_battery = np.asarray(env_params.station.leaf_kind) == KIND_BATTERY
+        self.split = bool(config["SPLIT_CREDIT"])
+        if self.split and not self.is_battery.any():
+            raise ValueError("SPLIT_CREDIT=True needs a station with a battery; this station has none")
+        self.actor, self.critic = common.actor_critic(config, self.num_leaves * self.k, 2 if self.split else 1)
         # ALWAYS_MAX_PRIOR / BATTERY_IDLE_PRIOR: fixed offsets on the index of the always-max
         # baseline's action of every head (ports: full power; batteries: idle).
         baseline = np.asarray(env.levels_to_action(always_max(None, None, env_params), env_params))
@@ -90,7 +97,17 @@ class Policy:
         return common.masked_logits(raw.reshape(raw.shape[:-1] + (self.num_leaves, self.k)) + self.offset, self.mask)
 
     def value(self, params, obs):
-        return self.critic.apply(params["critic"], self.features(obs))[..., 0]
+        """``(...)``, or ``(..., 2)`` (ports, batteries) with ``SPLIT_CREDIT``."""
+        v = self.critic.apply(params["critic"], self.features(obs))
+        return v if self.split else v[..., 0]
+
+    def credit_logp(self, head_logp):
+        """The log-probability of the joint action ``(...)``, or with ``SPLIT_CREDIT`` that of
+        the ports' and the batteries' parts ``(..., 2)``."""
+        if not self.split:
+            return head_logp.sum(-1)
+        bat = jnp.asarray(self.is_battery)
+        return jnp.stack([jnp.where(bat, 0.0, head_logp).sum(-1), jnp.where(bat, head_logp, 0.0).sum(-1)], -1)
 
 
 def make_train(config: dict | None = None, env_params=None):
@@ -98,7 +115,7 @@ def make_train(config: dict | None = None, env_params=None):
 
     ``env_params`` defaults to the config's scenario restricted to its training days.
     """
-    config = common.parse_config({"RELATIVE_PRICES": False}, config)
+    config = common.parse_config({"RELATIVE_PRICES": False, "SPLIT_CREDIT": False}, config)
     if config["LOCAL_REWARD_WEIGHT"]:
         raise ValueError(f"LOCAL_REWARD_WEIGHT={config['LOCAL_REWARD_WEIGHT']} applies to the multi-agent "
                          "trainers (ippo, mappo) only; single-agent PPO learns from the station reward (use 0)")
@@ -130,13 +147,17 @@ def make_train(config: dict | None = None, env_params=None):
         key, k_act, k_step = jax.random.split(key, 3)
         logits = policy.logits(params, obs)
         action, head_logp = common.sample_categorical(k_act, logits)  # (envs, leaves)
-        logp = head_logp.sum(-1)
+        logp = policy.credit_logp(head_logp)
         value = policy.value(params, obs)
         pot = None if potential is None else potential(env_state)  # before the (auto-resetting) step
         next_obs, env_state, reward, term, trunc, info = v_step(jax.random.split(k_step, n_envs), env_state,
                                                                 action, env_params)
-        if pot is not None:
-            reward = reward + common.battery_shaping(pot(info["battery_net_kwh"]), info["battery_terminal_value_eur"])
+        shaping = 0.0 if pot is None else common.battery_shaping(pot(info["battery_net_kwh"]),
+                                                                 info["battery_terminal_value_eur"])
+        if policy.split:  # (envs, 2): the ports' share, the batteries' share and the shaping
+            reward = jnp.stack([reward - info["battery_reward_eur"], info["battery_reward_eur"] + shaping], -1)
+        else:
+            reward = reward + shaping
         next_obs, env_state = common.shard_envs((next_obs, env_state), mesh)
         done = jnp.logical_or(term, trunc)
         tr = Transition(obs, action, logp, value, reward * config["REWARD_SCALE"], done.astype(jnp.float32),
@@ -149,13 +170,17 @@ def make_train(config: dict | None = None, env_params=None):
         head_logp = common.log_prob(logits, tr.action)  # (batch, heads)
         ent = common.entropy(logits).sum(-1)
         values = policy.value(params, tr.obs)
-        return common.ppo_loss(head_logp.sum(-1), tr.log_prob, adv, values, tr.value, targets, ent, config)
+        return common.ppo_loss(policy.credit_logp(head_logp), tr.log_prob, adv, values, tr.value, targets, ent,
+                               config)
 
     def update(rs: RunnerState, _):
         (params, env_state, obs, key), traj = jax.lax.scan(
             env_step, (rs.params, rs.env_state, rs.obs, rs.key), None, n_steps)
         last_value = policy.value(params, obs)
-        adv, targets = common.gae(traj.reward, traj.value, traj.done, last_value, config["GAMMA"], config["GAE_LAMBDA"])
+        done = traj.done[..., None] if policy.split else traj.done
+        adv, targets = common.gae(traj.reward, traj.value, done, last_value, config["GAMMA"], config["GAE_LAMBDA"])
+        if policy.split:  # each part's advantages to mean 0 and std 1 over the rollout
+            adv = (adv - adv.mean(axis=(0, 1))) / (adv.std(axis=(0, 1)) + 1e-8)
 
         params, opt_state, key, parts = common.ppo_epochs(loss_fn, tx, params, rs.opt_state, key, traj, adv,
                                                           targets, config)

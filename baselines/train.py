@@ -338,6 +338,9 @@ def main(argv=None) -> dict:
                         "(p - median) / (q80 - q20) (see common.relative_prices); default off")
     p.add_argument("--battery-gamma", type=float, default=None,
                    help="ippo/mappo: the battery agents' discount per step (default: --gamma)")
+    p.add_argument("--split-credit", choices=("on", "off"), default=None,
+                   help="ppo: the port heads learn from the ports' share of the reward, the battery heads from "
+                        "the batteries' share (and the battery shaping), each with its own value (default off)")
     p.add_argument("--battery-ent-coef", type=float, default=None,
                    help="ippo/mappo: the battery agents' entropy coefficient (default: --ent-coef)")
     p.add_argument("--battery-net", choices=("on", "off"), default=None,
@@ -372,6 +375,8 @@ def main(argv=None) -> dict:
             config[key] = getattr(a, flag)
     if a.battery_gamma is not None:
         config["BATTERY_GAMMA"] = a.battery_gamma
+    if a.split_credit is not None:
+        config["SPLIT_CREDIT"] = a.split_credit == "on"
     if a.battery_ent_coef is not None:
         config["BATTERY_ENT_COEF"] = a.battery_ent_coef
     for flag, key in (("relative_prices", "RELATIVE_PRICES"), ("battery_net", "BATTERY_NET"),

@@ -386,6 +386,53 @@ def test_battery_shaping_moves_the_battery_value_but_keeps_the_days_reward(w):
                                                       info_like["battery_terminal_value_eur"]), [2.0, 2.0, -3.0])
 
 
+def test_split_credit_gives_port_and_battery_heads_their_own_log_probability_and_value():
+    """``SPLIT_CREDIT``: the joint log-probability splits into the port heads' and the battery
+    heads' parts, the critic has one value per part, and training runs; a station without a
+    battery is refused by name."""
+    from chargax_marl.core import make_params
+
+    train = ppo.make_train({**TINY, "SPLIT_CREDIT": True, "BATTERY_SHAPING": "dp"})
+    policy = train.policy
+    head_logp = jnp.asarray(np.random.default_rng(0).normal(size=(3, policy.num_leaves)), jnp.float32)
+    parts = np.asarray(policy.credit_logp(head_logp))
+    bat = policy.is_battery
+    assert bat.sum() == 1 and parts.shape == (3, 2)
+    np.testing.assert_allclose(parts[:, 0], np.asarray(head_logp)[:, ~bat].sum(-1), rtol=1e-6)
+    np.testing.assert_allclose(parts[:, 1], np.asarray(head_logp)[:, bat].sum(-1), rtol=1e-6)
+    params = policy.init(jax.random.PRNGKey(0))
+    assert policy.value(params, jnp.zeros((5, policy.obs_dim))).shape == (5, 2)
+    out = _finite_losses(train)
+    assert np.all(np.isfinite(out["metrics"]["value_loss"]))
+    with pytest.raises(ValueError, match="SPLIT_CREDIT"):
+        ppo.make_train({**TINY, "SPLIT_CREDIT": True, "ENV_KWARGS": {**TINY_ENV, "station_kwargs": {"num_ports": 4}}})
+
+
+def test_single_env_reports_the_batteries_share_of_the_reward():
+    """``info["battery_reward_eur"]`` is the batteries' leaves' share of the step reward (the
+    ports' shares are the rest), and 0 without a battery."""
+    from chargax_marl.core import make_params, simulator
+    from chargax_marl.core.station import KIND_BATTERY
+    from chargax_marl.single.env import Chargax
+
+    for with_battery in (True, False):
+        params = make_params(station="single_type", station_kwargs={"num_ports": 4, "battery": with_battery})
+        env = Chargax(params=params)
+        key = jax.random.PRNGKey(3)
+        obs, state = env.reset(key, params)
+        is_bat = np.asarray(params.station.leaf_kind) == KIND_BATTERY
+        seen = []
+        for t in range(30):
+            key, k_a, k_s = jax.random.split(key, 3)
+            action = env.action_space(params).sample(k_a)
+            _, core_info = simulator.step(k_s, state, env.action_to_levels(action, params), params)
+            obs, state, reward, _, info = env.step_env(k_s, state, action, params)
+            expected = float(np.asarray(core_info.leaf_reward)[is_bat].sum())
+            np.testing.assert_allclose(float(info["battery_reward_eur"]), expected, rtol=1e-5, atol=1e-5)
+            seen.append(expected)
+        assert (np.abs(seen).max() > 1e-4) == with_battery
+
+
 @pytest.mark.parametrize("mod", [ppo, ippo])
 def test_battery_shaping_trains_and_changes_the_return_not_the_profit(mod):
     outs = {}

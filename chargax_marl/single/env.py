@@ -27,6 +27,7 @@ from chargax_marl import bounds
 from chargax_marl.lifecycle import check_day
 from chargax_marl.core import actions, observation, physics, simulator
 from chargax_marl.core.params import make_params
+from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import PENALTY_TERMS, EnvParams, EnvState, EpisodeTotals
 
 
@@ -53,8 +54,11 @@ class MultiDiscrete(spaces.Space):
         return (x.shape == self.shape) & jnp.all((x >= 0) & (x < self.nvec))
 
 
-def step_info(info, state: EnvState) -> dict:
-    """Flatten a core :class:`StepInfo` and the episode totals into a dict of scalars."""
+def step_info(info, state: EnvState, params: EnvParams) -> dict:
+    """Flatten a core :class:`StepInfo` and the episode totals into a dict of scalars;
+    ``battery_reward_eur`` is the batteries' share of the step's reward (their leaves' shares,
+    :func:`chargax_marl.core.reward.leaf_reward_shares`; with the ports' it sums to the reward)."""
+    is_battery = params.station.leaf_kind == KIND_BATTERY
     out = {
         "profit_eur": info.profit_eur,
         "energy_charged_kwh": info.energy_charged_kwh,
@@ -71,6 +75,7 @@ def step_info(info, state: EnvState) -> dict:
         "requested_excess_kw": info.requested_excess_kw,
         "battery_terminal_value_eur": info.battery_terminal_value_eur,
         "peak_demand_charge_eur": info.peak_demand_charge_eur,
+        "battery_reward_eur": jnp.sum(jnp.where(is_battery, info.leaf_reward, 0.0)),
     }
     out.update({f"penalty_{k}": info.penalties[k] for k in PENALTY_TERMS})
     out.update({f"episode_{k}": getattr(state.totals, k) for k in EpisodeTotals.__dataclass_fields__})
@@ -132,7 +137,7 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
     def step_env(self, key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams):
         new_state, info = simulator.step(key, state, self.action_to_levels(action, params), params)
         obs = self.get_obs(new_state, params)
-        return obs, new_state, info.reward, jnp.asarray(False), step_info(info, new_state)
+        return obs, new_state, info.reward, jnp.asarray(False), step_info(info, new_state, params)
 
     def step(self, key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams | None = None):
         """gymnax's auto-resetting step, building the observation once (see :meth:`_step`).
@@ -166,7 +171,7 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
         done = jnp.logical_or(terminated, truncated)
         reset_state = simulator.reset(key_reset, params)
         out_state = jax.tree.map(lambda x, y: jax.lax.select(done, x, y), reset_state, new_state)
-        info = {**step_info(core_info, new_state), "terminated": terminated, "truncated": truncated,
+        info = {**step_info(core_info, new_state, params), "terminated": terminated, "truncated": truncated,
                 "final_observation": self.get_obs(new_state, params)}
         return self.get_obs(out_state, params), out_state, core_info.reward, terminated, truncated, info
 

@@ -173,7 +173,7 @@ def _shared_step(key: jax.Array, state: EnvState, action: jax.Array, params: Env
     key, sub = jax.random.split(key)
     new_state, info = simulator.step(sub, state, _PROTO.action_to_levels(action, params), params)
     return (key, observation.flat_obs(new_state, params), new_state, info.reward,
-            simulator.is_done(new_state, params), step_info(info, new_state))
+            simulator.is_done(new_state, params), step_info(info, new_state, params))
 
 
 def compile_count() -> int:
