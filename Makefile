@@ -38,8 +38,10 @@ examples: $(CLIENTS_STAMP)
 # params.msgpack to outputs/train_ippo (see baselines/README.md for the measured wall time).
 # No prior. Ports and battery choose among {discharge, idle, charge} at full power (num_levels 1);
 # each agent learns from its own share of the station reward (--local-reward-weight 1; the
-# evaluation scores the station's profit); the battery's energy is valued as it moves
-# (battery shaping, on by default); the battery has its own actor and critic (--battery-net);
+# evaluation scores the station's profit); the battery's stored energy is valued by the
+# battery-only dynamic programme on the day's known prices (--battery-shaping dp, a potential:
+# each step shows the battery its loss against that programme's best action); the battery has
+# its own actor and critic (--battery-net) and its own entropy bonus (--battery-ent-coef 0.05);
 # advantages are normalised per agent; gamma 0.9 (the shaped rewards are nearly immediate); the
 # networks also read each observed price's place in the day's range (--relative-prices).
 SCENARIO_FLAGS := --scenario shopping --traffic medium
@@ -52,10 +54,11 @@ train: $(STAMP)
 train-mappo: $(STAMP)
 	$(PY) -m baselines.train --algo mappo $(SCENARIO_FLAGS) --seeds 4 $(MARL_FLAGS) --timesteps 8e5 --chunks 4 --out outputs/train_mappo
 
-# Single-agent PPO, no prior: full-power actions (num_levels 1), battery shaping, gamma 0.95,
-# relative prices.
+# Single-agent PPO, no prior: full-power actions (num_levels 1), the battery's energy valued by
+# the battery-only dynamic programme (--battery-shaping dp), the port heads and the battery heads
+# each learning from their own share of the reward (--split-credit), gamma 0.95, relative prices.
 train-ppo: $(STAMP)
-	$(PY) -m baselines.train --algo ppo $(SCENARIO_FLAGS) --seeds 4 --gamma 0.95 --relative-prices on --env-kwargs '{"num_levels": 1}' --timesteps 2e6 --chunks 8 --out outputs/train_ppo
+	$(PY) -m baselines.train --algo ppo $(SCENARIO_FLAGS) --seeds 4 --gamma 0.95 --relative-prices on --env-kwargs '{"num_levels": 1}' --battery-shaping dp --split-credit on --timesteps 5e6 --chunks 10 --out outputs/train_ppo
 
 # The LP hindsight bound, the MPC and the rule-based policies on the 100 held-out days of the
 # default scenario and of three coordination scenarios (grid at 25 % and 10 %, high traffic;

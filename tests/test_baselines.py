@@ -564,6 +564,47 @@ def test_attribution_scores_the_run_and_swaps_ports_and_battery(tmp_path):
     rule_act = lambda s, k: policies.battery_rule(s, k, params)  # noqa: E731
     ports_from_rule = attribution.mixed_policies(rule_act, params)["always_max_ports_learned_battery"](state, key)
     np.testing.assert_array_equal(ports_from_rule, policies.battery_rule(state, key, params))
+    # baselines.read_policy reads the same run: shares of the battery's actions, 24 hours
+    from baselines import read_policy
+
+    reading = read_policy.read(out, num_days=3)
+    assert reading["num_days"] == 3 and len(reading["per_seed"]) == 2
+    for seed in reading["per_seed"]:
+        assert abs(sum(seed["battery_share"].values()) - 1.0) < 1e-6 and len(seed["hourly_action"]) == 24
+        assert all(-1.0 <= a <= 1.0 for a in seed["hourly_action"]) and 0.0 <= seed["ports_full_power_share"] <= 1.0
+    assert "hourly SoC" in read_policy.format_reading(reading)
+
+
+def test_dp_battery_action_earns_the_programme_s_value_in_its_own_model():
+    """Played through the battery-only model from 50 % (a grid point), the programme's greedy
+    action earns exactly ``value[day, 0](E_0)``: the action read from the state and the table
+    agree."""
+    from baselines import read_policy
+    from chargax_marl.core import make_params, simulator
+    from chargax_marl.core.station import KIND_BATTERY
+
+    params = make_params()
+    grid, table = storage_value.dp_values(params)
+    prices = storage_value.step_buy_prices(params)
+    eta, power_kw, capacity_kwh, e0 = storage_value._battery_constants(params)
+    step_kwh = power_kw * float(params.step_hours)
+    act = jax.jit(read_policy.dp_battery_action(params))
+    is_bat = np.asarray(params.station.leaf_kind) == KIND_BATTERY
+    for day in (5, 147):
+        state = simulator.empty_state(jnp.int32(day), params, jax.random.PRNGKey(0))
+        energy, earned, moves = e0, 0.0, set()
+        for t in range(int(params.num_steps)):
+            soc = jnp.where(jnp.asarray(is_bat), energy / capacity_kwh, state.soc)
+            a, _ = act(state.replace(timestep=jnp.int32(t), soc=soc))
+            a = int(a)
+            moves.add(a)
+            after = min(max(energy + a * step_kwh, 0.0), capacity_kwh)
+            p = prices[day, t]
+            earned += eta * p * (energy - after) if after < energy else -p * (after - energy) / eta
+            energy = after
+        earned += storage_value.terminal_prices(params)[day] * energy
+        np.testing.assert_allclose(earned, np.interp(e0, grid, table[day, 0]), rtol=1e-4, atol=1e-3)
+        assert moves == {-1, 0, 1}  # it trades on these days
 
 
 def test_storage_value_hand_case_and_bounds():

@@ -83,7 +83,8 @@ def test_runner_defaults_are_the_tuned_settings_and_full_is_the_paper_s_budget()
     base, seeds = _common.config_of(_args([]))
     assert seeds == 4 and base["TOTAL_TIMESTEPS"] == 2_000_000
     assert base["GAMMA"] == 0.95 and base["RELATIVE_PRICES"] is True and base["ENV_KWARGS"] == {"num_levels": 1}
-    assert all(base[k] == v for k, v in FAST.items())
+    assert all(base[k] == v for k, v in FAST.items() if k not in ("BATTERY_SHAPING",))
+    assert base["BATTERY_SHAPING"] == "dp" and base["SPLIT_CREDIT"] is True
     multi, _ = _common.config_of(_args(["--algo", "ippo"]))
     assert multi["LOCAL_REWARD_WEIGHT"] == 1.0 and multi["BATTERY_NET"] and multi["GAMMA"] == 0.9
     full, full_seeds = _common.config_of(_args(["--full"]))
@@ -93,6 +94,32 @@ def test_runner_defaults_are_the_tuned_settings_and_full_is_the_paper_s_budget()
     # the tuned settings are not shared mutable state: a runner adding env kwargs leaves them alone
     again = _common.with_env_kwargs(base, fleet="US")
     assert again["ENV_KWARGS"] == {"num_levels": 1, "fleet": "US"} and _common.TUNED["ppo"]["ENV_KWARGS"] == {"num_levels": 1}
+
+
+def test_the_tuned_settings_are_the_makefile_s_flags(monkeypatch):
+    """``_common.TUNED`` is what ``make train-ppo`` / ``make train`` / ``make train-mappo`` pass to
+    ``baselines.train`` (budget, seeds and output aside), read from the Makefile itself."""
+    import re
+    import shlex
+    from pathlib import Path
+
+    from baselines import train
+    from baselines.experiments import _common
+
+    text = Path(__file__).resolve().parents[1].joinpath("Makefile").read_text().replace("\\\n", " ")
+    variables = dict(re.findall(r"^(\w+) := (.*)$", text, flags=re.M))
+    seen = {}
+    monkeypatch.setattr(train, "run", lambda algo, config, **kw: seen.update({algo: config}) or {})
+    for target in ("train", "train-ppo", "train-mappo"):
+        line = re.search(rf"^{target}:.*\n\t(.*)$", text, flags=re.M).group(1)
+        line = re.sub(r"\$\((\w+)\)", lambda m: variables.get(m.group(1), ""), line)
+        argv = shlex.split(line)
+        train.main(argv[argv.index("baselines.train") + 1:])
+    for algo in ("ppo", "ippo", "mappo"):
+        got = {k: v for k, v in seen[algo].items() if k not in ("TOTAL_TIMESTEPS", "SCENARIO", "TRAFFIC")}
+        want = {k: v for k, v in _common.TUNED[algo].items() if k != "TOTAL_TIMESTEPS"}
+        assert got == want, (algo, {k: (got.get(k), want.get(k)) for k in set(got) | set(want)
+                                    if got.get(k) != want.get(k)})
 
 
 def test_the_record_says_when_a_run_is_cut_from_the_paper_s_scale():

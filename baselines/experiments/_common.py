@@ -21,13 +21,17 @@ from baselines.train import FAST, OPTIMAL_CHOICES, baseline_results, over_seeds,
 
 PAPER_TIMESTEPS = int(1e7)  # Table 3: 1e7 env-steps per seed
 
-SINGLE = {**FAST, "GAMMA": 0.95, "RELATIVE_PRICES": True, "ENV_KWARGS": {"num_levels": 1}}
+SINGLE = {**FAST, "GAMMA": 0.95, "RELATIVE_PRICES": True, "ENV_KWARGS": {"num_levels": 1},
+          "BATTERY_SHAPING": "dp", "SPLIT_CREDIT": True}
 MULTI = {**FAST, "ENT_COEF": 0.01, "GAMMA": 0.9, "LOCAL_REWARD_WEIGHT": 1.0, "BATTERY_NET": True,
-         "AGENT_ADV_NORM": True, "RELATIVE_PRICES": True, "ENV_KWARGS": {"num_levels": 1}}
+         "AGENT_ADV_NORM": True, "RELATIVE_PRICES": True, "ENV_KWARGS": {"num_levels": 1},
+         "BATTERY_SHAPING": "dp", "BATTERY_ENT_COEF": 0.05}
 TUNED = {"ppo": SINGLE, "ippo": MULTI, "mappo": MULTI}
 """The ``tuned`` learning settings per algorithm: the Makefile's ``train-ppo`` (PPO) and
-``train`` / ``train-mappo`` (IPPO / MAPPO) flags. Full-power actions (``num_levels`` 1), battery
-shaping, relative prices; no always-max prior."""
+``train`` / ``train-mappo`` (IPPO / MAPPO) flags (``tests/test_experiments.py`` checks that they
+agree). Full-power actions (``num_levels`` 1), the battery-only programme's potential
+(``BATTERY_SHAPING="dp"``), relative prices; no always-max prior. The result files committed
+before these settings record the ones they ran with (``config``)."""
 
 DEFAULT_TIMESTEPS = 2e6
 DEFAULT_SEEDS = 4

@@ -1,0 +1,129 @@
+"""Read a trained run's battery along the held-out days: what it does each hour, next to the
+battery-only dynamic programme (:func:`baselines.storage_value.dp_values`) and the battery rule.
+
+    python -m baselines.read_policy outputs/train_ippo            # a run directory of baselines.train
+    python -m baselines.read_policy outputs/train_ippo --days 20 --out reading.json
+
+For every seed (greedy policy, the run's held-out days, evaluation key 0, so the cars of
+``baselines.train``'s evaluation) it reports the share of steps the batteries discharge, idle
+and charge; per hour of the day, the mean action (-1 discharge ... +1 charge) and the mean
+state of charge; and how often the learned battery takes the programme's action where the
+programme strictly prefers one (ties, such as discharging an empty battery, left out). The
+ports are read as they are: the share of port steps at full power while a car is parked.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from baselines import common
+from baselines.attribution import load_run
+from chargax_marl.core import simulator
+from chargax_marl.core.station import KIND_BATTERY
+
+
+def dp_battery_action(params):
+    """``act(state) -> (action in {-1, 0, 1}, strict)``: the battery-only programme's best
+    full-power action for the batteries' stored energy, and whether it is strictly best."""
+    from baselines.storage_value import _battery_constants, dp_values, step_buy_prices
+
+    grid, table = dp_values(params)
+    grid, table = jnp.asarray(grid), jnp.asarray(table)
+    prices = jnp.asarray(step_buy_prices(params), jnp.float32)
+    eta, power_kw, capacity_kwh, _ = _battery_constants(params)
+    step_kwh = power_kw * float(params.step_hours)
+    is_battery = params.station.leaf_kind == KIND_BATTERY
+
+    def act(state):
+        e = jnp.sum(jnp.where(is_battery, state.soc * state.capacity_kwh, 0.0))
+        nxt, p = table[state.day, state.timestep + 1], prices[state.day, state.timestep]
+        full, empty = jnp.minimum(e + step_kwh, capacity_kwh), jnp.maximum(e - step_kwh, 0.0)
+        q = jnp.stack([eta * p * (e - empty) + jnp.interp(empty, grid, nxt), jnp.interp(e, grid, nxt),
+                       -p * (full - e) / eta + jnp.interp(full, grid, nxt)])
+        best = jnp.argmax(q)
+        strict = jnp.sort(q)[-1] - jnp.sort(q)[-2] > 1e-4
+        return best - 1, strict
+
+    return act
+
+
+def read(run_dir: str | Path, num_days: int | None = None) -> dict:
+    results, train, all_params = load_run(run_dir)
+    _, params, _, days = common.build_env_params(train.config)
+    days = np.asarray(days)[:num_days] if num_days else np.asarray(days)
+    make_act = train.make_act(params)
+    dp_act = dp_battery_action(params)
+    is_battery = np.asarray(params.station.leaf_kind) == KIND_BATTERY
+    top = int(params.num_levels)
+    steps_per_hour = int(round(60.0 / float(params.step_minutes)))
+
+    def one_day(seed_params, day, key):
+        act = make_act(seed_params)
+
+        def body(carry, _):
+            state, key = carry
+            key, k_act, k_step = jax.random.split(key, 3)
+            levels = act(state, k_act)
+            bat = jnp.sign(jnp.sum(jnp.where(is_battery, levels, 0)))
+            dp, strict = dp_act(state)
+            soc = jnp.sum(jnp.where(is_battery, state.soc * state.capacity_kwh, 0.0)) / jnp.maximum(
+                jnp.sum(jnp.where(is_battery, state.capacity_kwh, 0.0)), 1e-6)
+            parked = state.occupied & ~jnp.asarray(is_battery)
+            full = jnp.sum(parked & (levels == top)), jnp.sum(parked)
+            new_state, _ = simulator.step(k_step, state, levels, params)
+            return (new_state, key), (bat, dp, strict, soc, full[0], full[1])
+
+        state = simulator.empty_state(day, params, key)
+        return jax.lax.scan(body, (state, key), None, int(params.num_steps))[1]
+
+    run_days = jax.jit(jax.vmap(one_day, in_axes=(None, 0, None)))
+    key = jax.random.PRNGKey(0)
+    out = {"run": str(run_dir), "algo": results["algo"], "num_days": int(days.size), "per_seed": []}
+    for i in range(int(results["seeds"])):
+        seed_params = jax.tree.map(lambda x: x[i], all_params)
+        bat, dp, strict, soc, full, parked = (np.asarray(x) for x in run_days(seed_params, jnp.asarray(days), key))
+        hours = bat.shape[1] // steps_per_hour
+        by_hour = lambda x: x[:, :hours * steps_per_hour].reshape(x.shape[0], hours, steps_per_hour).mean(axis=(0, 2))
+        out["per_seed"].append({
+            "battery_share": {name: float((bat == v).mean()) for name, v in (("discharge", -1), ("idle", 0),
+                                                                             ("charge", 1))},
+            "hourly_action": [round(float(x), 3) for x in by_hour(bat.astype(np.float64))],
+            "hourly_soc": [round(float(x), 3) for x in by_hour(soc)],
+            "agrees_with_dp": float((bat == dp)[strict].mean()) if strict.any() else None,
+            "ports_full_power_share": float(full.sum() / max(parked.sum(), 1)),
+        })
+    return out
+
+
+def format_reading(out: dict) -> str:
+    lines = [f"{out['algo']} run {out['run']}, {out['num_days']} held-out days"]
+    for i, s in enumerate(out["per_seed"]):
+        share = ", ".join(f"{k} {v:.2f}" for k, v in s["battery_share"].items())
+        lines.append(f"seed {i}: battery {share}; agrees with the programme where it has a strict best "
+                     f"action {s['agrees_with_dp']:.2f}; ports at full power {s['ports_full_power_share']:.3f}")
+        lines.append("  hourly action " + " ".join(f"{a:+.2f}" for a in s["hourly_action"]))
+        lines.append("  hourly SoC    " + " ".join(f"{a:.2f}" for a in s["hourly_soc"]))
+    return "\n".join(lines)
+
+
+def main(argv=None) -> dict:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("run_dir")
+    p.add_argument("--days", type=int, default=None, help="the first N held-out days (default all)")
+    p.add_argument("--out", default=None, help="write the JSON here")
+    a = p.parse_args(argv)
+    out = read(a.run_dir, a.days)
+    print(format_reading(out))
+    if a.out:
+        Path(a.out).write_text(json.dumps(out, indent=1))
+    return out
+
+
+if __name__ == "__main__":
+    main()
