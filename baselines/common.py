@@ -216,24 +216,17 @@ def battery_potential(config: dict, env_params):
         return jnp.sum(jnp.where(is_battery, core.soc * core.capacity_kwh, 0.0), axis=-1)
 
     if mode == "dp":
-        from baselines.storage_value import dp_values
+        from baselines.storage_value import dp_values, level_value
 
         grid_np, table_np = dp_values(env_params)
         table, step_kwh = jnp.asarray(table_np), float(grid_np[1] - grid_np[0])
 
-        def level_value(rows, energy):  # rows (..., K) at energy (...,): linear between points
-            x = jnp.clip(energy / step_kwh, 0.0, rows.shape[-1] - 1.0)
-            i = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, rows.shape[-1] - 2)
-            lo = jnp.take_along_axis(rows, i[..., None], axis=-1)[..., 0]
-            hi = jnp.take_along_axis(rows, i[..., None] + 1, axis=-1)[..., 0]
-            return lo + (x - i) * (hi - lo)
-
         def potential(env_state):
             core = core_state(env_state)
             e0 = stored_kwh(core)
-            phi0 = level_value(table[core.day, core.timestep], e0)
+            phi0 = level_value(table[core.day, core.timestep], e0, step_kwh)
             after = table[core.day, core.timestep + 1]
-            return lambda net_kwh: level_value(after, e0 + net_kwh) - phi0
+            return lambda net_kwh: level_value(after, e0 + net_kwh, step_kwh) - phi0
 
         return potential
 

@@ -71,9 +71,8 @@ class Policy:
         # baseline's action of every head (ports: full power; batteries: idle).
         baseline = np.asarray(env.levels_to_action(always_max(None, None, env_params), env_params))
         port_b, battery_b = common.always_max_prior(config)
-        is_battery = np.asarray(env_params.station.leaf_kind) == KIND_BATTERY
         offset = np.zeros((self.num_leaves, self.k), np.float32)
-        offset[np.arange(self.num_leaves), baseline] = np.where(is_battery, battery_b, port_b)
+        offset[np.arange(self.num_leaves), baseline] = np.where(self.is_battery, battery_b, port_b)
         self.offset = offset
         # RELATIVE_PRICES: each observed price's place in the day's range appended to the input
         # (common.relative_prices); the observation ends with the shared context.

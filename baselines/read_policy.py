@@ -31,10 +31,10 @@ from chargax_marl.core.station import KIND_BATTERY
 def dp_battery_action(params):
     """``act(state) -> (action in {-1, 0, 1}, strict)``: the battery-only programme's best
     full-power action for the batteries' stored energy, and whether it is strictly best."""
-    from baselines.storage_value import _battery_constants, dp_values, step_buy_prices
+    from baselines.storage_value import _battery_constants, action_values, dp_values, level_value, step_buy_prices
 
     grid, table = dp_values(params)
-    grid, table = jnp.asarray(grid), jnp.asarray(table)
+    table, grid_kwh = jnp.asarray(table), float(grid[1] - grid[0])
     prices = jnp.asarray(step_buy_prices(params), jnp.float32)
     eta, power_kw, capacity_kwh, _ = _battery_constants(params)
     step_kwh = power_kw * float(params.step_hours)
@@ -42,10 +42,9 @@ def dp_battery_action(params):
 
     def act(state):
         e = jnp.sum(jnp.where(is_battery, state.soc * state.capacity_kwh, 0.0))
-        nxt, p = table[state.day, state.timestep + 1], prices[state.day, state.timestep]
-        full, empty = jnp.minimum(e + step_kwh, capacity_kwh), jnp.maximum(e - step_kwh, 0.0)
-        q = jnp.stack([eta * p * (e - empty) + jnp.interp(empty, grid, nxt), jnp.interp(e, grid, nxt),
-                       -p * (full - e) / eta + jnp.interp(full, grid, nxt)])
+        nxt = table[state.day, state.timestep + 1]
+        q = jnp.stack(action_values(jnp, lambda x: level_value(nxt, x, grid_kwh), e, prices[state.day, state.timestep],
+                                    eta, step_kwh, capacity_kwh))
         best = jnp.argmax(q)
         strict = jnp.sort(q)[-1] - jnp.sort(q)[-2] > 1e-4
         return best - 1, strict

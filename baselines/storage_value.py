@@ -152,15 +152,35 @@ def level_values(prices, terminal_price, eta: float, step_kwh: float, capacity_k
     grid = np.linspace(0.0, capacity_kwh, num + 1)
     value = np.zeros((days, steps + 1, grid.size), np.float64)
     value[:, steps] = np.broadcast_to(np.asarray(terminal_price, np.float64), (days,))[:, None] * grid[None, :]
-    full = np.minimum(grid + step_kwh, capacity_kwh)  # after a full-power charge
-    empty = np.maximum(grid - step_kwh, 0.0)  # after a full-power discharge
     for t in range(steps - 1, -1, -1):
-        p = prices[:, t, None]
         nxt = value[:, t + 1]
-        discharge = eta * p * (grid - empty) + _interp_rows(nxt, grid, empty)
-        charge = -p * (full - grid) / eta + _interp_rows(nxt, grid, full)
-        value[:, t] = np.maximum(np.maximum(discharge, nxt), charge)
+        q = action_values(np, lambda e: _interp_rows(nxt, grid, e), grid, prices[:, t, None], eta, step_kwh,
+                          capacity_kwh)
+        value[:, t] = np.maximum(np.maximum(q[0], q[1]), q[2])
     return grid, value
+
+
+def action_values(xp, value_after, energy, price, eta: float, step_kwh: float, capacity_kwh: float):
+    """``(discharge, idle, charge)``: what each full-power action earns this step at ``price``
+    from a stored ``energy`` plus ``value_after(energy after)``, the value of the level it
+    leaves (``xp``: ``numpy`` or ``jax.numpy``). Discharging earns ``eta * p`` per kWh taken
+    out, charging costs ``p / eta`` per kWh stored, each cut at the empty and the full battery."""
+    full = xp.minimum(energy + step_kwh, capacity_kwh)
+    empty = xp.maximum(energy - step_kwh, 0.0)
+    return (eta * price * (energy - empty) + value_after(empty), value_after(energy),
+            -price * (full - energy) / eta + value_after(full))
+
+
+def level_value(rows, energy, step_kwh: float):
+    """``rows (..., K)`` of values on the uniform grid ``0, step_kwh, ...`` (:func:`dp_values`),
+    read at ``energy (...)`` linearly between grid points (jax)."""
+    import jax.numpy as jnp
+
+    x = jnp.clip(energy / step_kwh, 0.0, rows.shape[-1] - 1.0)
+    i = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, rows.shape[-1] - 2)
+    lo = jnp.take_along_axis(rows, i[..., None], axis=-1)[..., 0]
+    hi = jnp.take_along_axis(rows, i[..., None] + 1, axis=-1)[..., 0]
+    return lo + (x - i) * (hi - lo)
 
 
 def _interp_rows(rows: np.ndarray, grid: np.ndarray, x: np.ndarray) -> np.ndarray:
