@@ -53,6 +53,7 @@ PAPER_DEFAULTS: dict[str, Any] = {
     "BATTERY_IDLE_PRIOR": 0.0,  # logit offset on each battery's idle action (0: none)
     "LOCAL_REWARD_WEIGHT": 0.0,  # IPPO/MAPPO: ChargaxMARL(local_reward_weight=...) (0: shared reward)
     "BATTERY_SHAPING": False,  # value the batteries' energy change at every step, not at the day's end
+    "PORT_SHAPING": "off",  # "plan": each parked car's remaining demand valued by its best plan (baselines/car_value.py)
     "SCENARIO": "shopping",
     "TRAFFIC": None,  # low / medium / high or cars per day; None: the scenario's own (medium for "shopping")
     "ENV_KWARGS": {},  # extra keyword arguments of make_params (station, prices, alpha, step_minutes, ...)
@@ -261,6 +262,14 @@ def agent_potential_shaping(shift, info, is_battery, local_reward_weight: float)
     own = is_battery * station / jnp.maximum(is_battery.sum(), 1.0)
     w = float(local_reward_weight)
     return (1.0 - w) * station + w * own
+
+
+def mix_own_terms(own, local_reward_weight: float) -> jnp.ndarray:
+    """Per-agent terms ``own (..., agents)`` mixed like the env's rewards, ``(1 - w) * sum + w *
+    own``: every agent gets the station's sum with weight ``1 - w`` and its own term with
+    weight ``w`` (the port shaping of :mod:`baselines.car_value` in IPPO/MAPPO)."""
+    w = float(local_reward_weight)
+    return (1.0 - w) * jnp.sum(own, axis=-1, keepdims=True) + w * own
 
 
 def relative_price_columns(params, context_start: int):

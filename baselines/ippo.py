@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from baselines import common
+from baselines import car_value, common
 from chargax_marl.core.observation import PORT_FEATURES
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.marl import env as marl_env
@@ -207,6 +207,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
     is_bat = np.asarray(env_params.station.leaf_kind) == KIND_BATTERY
 
     potential = common.battery_potential(config, env_params)
+    car_potential = car_value.car_potential(config, env_params)  # PORT_SHAPING, each port its own car's term
 
     def shaping(pot, info):
         """Per-actor ``(agents * envs,)`` shaping term of a step (info leaves ``(envs, agents)``)."""
@@ -255,11 +256,15 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         cin, value = rollout_value(params, obs, obs_b)
         actions = unbatchify(action, agents, n_envs)
         pot = None if potential is None else potential(env_state)  # before the (auto-resetting) step
+        car_pot = None if car_potential is None else car_potential(env_state)
         next_obs, env_state, reward, done, info = jax.vmap(env.step)(jax.random.split(k_step, n_envs), env_state,
                                                                     actions)
         reward_b = batchify(reward, agents, n_actors)
         if pot is not None:
             reward_b = reward_b + shaping(pot, info)
+        if car_pot is not None:
+            own = common.mix_own_terms(car_pot(info["agent_energy_kwh"]), config["LOCAL_REWARD_WEIGHT"])
+            reward_b = reward_b + own.T.reshape((n_actors,))
         next_obs, env_state = common.shard_envs((next_obs, env_state), mesh)
         tr = Transition(obs_b, cin, avail, action, logp, value, reward_b * config["REWARD_SCALE"],
                         batchify(done, agents, n_actors).astype(jnp.float32),

@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from baselines import common
+from baselines import car_value, common
 from chargax_marl.core.observation import flat_obs
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.policies import always_max
@@ -131,6 +131,7 @@ def make_train(config: dict | None = None, env_params=None):
     mesh = common.env_mesh(n_envs)
     tx = common.make_optimizer(config, total_updates)
     potential = common.battery_potential(config, env_params)  # BATTERY_SHAPING
+    car_potential = car_value.car_potential(config, env_params)  # PORT_SHAPING
     v_reset = jax.vmap(env.reset, in_axes=(0, None))
     v_step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
 
@@ -149,14 +150,17 @@ def make_train(config: dict | None = None, env_params=None):
         logp = policy.credit_logp(head_logp)
         value = policy.value(params, obs)
         pot = None if potential is None else potential(env_state)  # before the (auto-resetting) step
+        car_pot = None if car_potential is None else car_potential(env_state)
         next_obs, env_state, reward, term, trunc, info = v_step(jax.random.split(k_step, n_envs), env_state,
                                                                 action, env_params)
         shaping = 0.0 if pot is None else common.battery_shaping(pot(info["battery_net_kwh"]),
                                                                  info["battery_terminal_value_eur"])
-        if policy.split:  # (envs, 2): the ports' share, the batteries' share and the shaping
-            reward = jnp.stack([reward - info["battery_reward_eur"], info["battery_reward_eur"] + shaping], -1)
+        port_shaping = 0.0 if car_pot is None else jnp.sum(car_pot(info["leaf_energy_kwh"]), axis=-1)
+        if policy.split:  # (envs, 2): the ports' share and their shaping, the batteries' share and theirs
+            reward = jnp.stack([reward - info["battery_reward_eur"] + port_shaping,
+                                info["battery_reward_eur"] + shaping], -1)
         else:
-            reward = reward + shaping
+            reward = reward + shaping + port_shaping
         next_obs, env_state = common.shard_envs((next_obs, env_state), mesh)
         done = jnp.logical_or(term, trunc)
         tr = Transition(obs, action, logp, value, reward * config["REWARD_SCALE"], done.astype(jnp.float32),

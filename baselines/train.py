@@ -330,6 +330,10 @@ def main(argv=None) -> dict:
                         "of a stored kWh from the day's battery-only LP, 'dp' at the value of the stored energy level from the "
                         "day's battery-only dynamic programme (both baselines/storage_value.py); see "
                         "common.battery_shaping. Default: on (off with --paper)")
+    p.add_argument("--port-shaping", choices=("off", "plan"), default=None,
+                   help="'plan': each port also sees the change of its parked car's best-plan value under the "
+                        "day's prices (baselines/car_value.py, a potential per car; charge-sensitive cars have "
+                        "none); default off")
     p.add_argument("--agent-adv-norm", choices=("on", "off"), default=None,
                    help="ippo/mappo: normalise the advantages per agent (over its rows of the rollout) instead of "
                         "only over the minibatch (default off)")
@@ -383,6 +387,8 @@ def main(argv=None) -> dict:
                       ("agent_adv_norm", "AGENT_ADV_NORM")):
         if getattr(a, flag) is not None:
             config[key] = getattr(a, flag) == "on"
+    if a.port_shaping is not None:
+        config["PORT_SHAPING"] = a.port_shaping
     if a.battery_shaping is not None:
         config["BATTERY_SHAPING"] = {"on": True, "off": False}.get(a.battery_shaping, a.battery_shaping)
     if config["TRAFFIC"] is None:

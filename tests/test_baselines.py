@@ -754,9 +754,10 @@ def test_cli_on_off_flags_reach_the_config(monkeypatch):
     seen = {}
     monkeypatch.setattr(train, "run", lambda algo, config, **kw: seen.update(config) or {})
     train.main(["--algo", "ippo", "--relative-prices", "on", "--battery-net", "off", "--agent-adv-norm", "on",
-                "--battery-gamma", "0.95", "--battery-ent-coef", "0.05", "--battery-shaping", "dp", "--timesteps", "100"])
+                "--battery-gamma", "0.95", "--battery-ent-coef", "0.05", "--battery-shaping", "dp", "--port-shaping", "plan",
+                "--timesteps", "100"])
     assert seen["RELATIVE_PRICES"] is True and seen["BATTERY_NET"] is False
     assert seen["AGENT_ADV_NORM"] is True and seen["BATTERY_GAMMA"] == 0.95
-    assert seen["BATTERY_ENT_COEF"] == 0.05 and seen["BATTERY_SHAPING"] == "dp"
+    assert seen["BATTERY_ENT_COEF"] == 0.05 and seen["BATTERY_SHAPING"] == "dp" and seen["PORT_SHAPING"] == "plan"
     train.main(["--algo", "ippo", "--relative-prices", "off", "--agent-adv-norm", "off", "--timesteps", "100"])
     assert seen["RELATIVE_PRICES"] is False and seen["AGENT_ADV_NORM"] is False

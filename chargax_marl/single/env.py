@@ -55,9 +55,11 @@ class MultiDiscrete(spaces.Space):
 
 
 def step_info(info, state: EnvState, params: EnvParams) -> dict:
-    """Flatten a core :class:`StepInfo` and the episode totals into a dict of scalars;
-    ``battery_reward_eur`` is the batteries' share of the step's reward (their leaves' shares,
-    :func:`chargax_marl.core.reward.leaf_reward_shares`; with the ports' it sums to the reward)."""
+    """Flatten a core :class:`StepInfo` and the episode totals into a dict of scalars, plus
+    ``leaf_energy_kwh`` ``(L,)``, the energy into each car and battery this step (terminal
+    side, negative when discharging); ``battery_reward_eur`` is the batteries' share of the
+    step's reward (their leaves' shares, :func:`chargax_marl.core.reward.leaf_reward_shares`;
+    with the ports' it sums to the reward)."""
     is_battery = params.station.leaf_kind == KIND_BATTERY
     out = {
         "profit_eur": info.profit_eur,
@@ -76,6 +78,7 @@ def step_info(info, state: EnvState, params: EnvParams) -> dict:
         "battery_terminal_value_eur": info.battery_terminal_value_eur,
         "peak_demand_charge_eur": info.peak_demand_charge_eur,
         "battery_reward_eur": jnp.sum(jnp.where(is_battery, info.leaf_reward, 0.0)),
+        "leaf_energy_kwh": info.leaf_energy_kwh,
     }
     out.update({f"penalty_{k}": info.penalties[k] for k in PENALTY_TERMS})
     out.update({f"episode_{k}": getattr(state.totals, k) for k in EpisodeTotals.__dataclass_fields__})

@@ -1,0 +1,233 @@
+"""The value of each parked car's remaining demand under the day's prices (``PORT_SHAPING="plan"``).
+
+A port earns ``c - p_t / eta`` per kWh it charges into a car at step ``t``: the customer
+price ``c`` minus the step's buy price ``p_t`` (day-ahead + grid fee + time-of-use, as the env
+prices it) over the port's path efficiency ``eta``. A time-sensitive car that still wants
+``need`` kWh and stays ``k`` more whole steps (cut at the day's end) takes ``q`` kWh per
+step in the plan (:data:`PLAN_POWER_FRACTION` of the lower of the port's and the car's top
+power, times the step). Ignoring
+the other cars, the best plan for it charges in the cheapest steps of its stay first while
+the margin is positive::
+
+    V = sum_j max(c - p_(j) / eta, 0) * clip(need - q * (j - 1), 0, q)
+
+over the stay's steps sorted by price, ``p_(1) <= p_(2) <= ...``.
+
+The trainers use ``V`` as a potential per car: a port's shaping term is ``V`` after the step
+(the same car, ``need`` less what it took, one step less; 0 once it has left) minus ``V``
+before it. A car that arrives during the step enters the potential from the next step on,
+so over a car's stay the terms add up to ``-V`` at its first step, which no action changes,
+and a step's own profit plus its term is what the step lost against the plan: charging in
+one of the plan's steps scores about 0, charging at a dearer step than the plan's dearest
+scores the price difference, idling in a plan step scores the price difference to the step
+that must replace it.
+
+Charge-sensitive cars (they leave when charged) have no potential: a port that delays one
+keeps the cars behind it out (a rule that timed them like the others lost 75 EUR/day
+against always-max on the default scenario; ``baselines/README.md``).
+
+It is a learning signal only; the evaluation scores the env's profit.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from chargax_marl.core.station import KIND_BATTERY
+
+PORT_SHAPING_MODES = ("off", "plan")
+PLAN_POWER_FRACTION = 0.5
+"""The plan counts on this fraction of a car's top power per step (the lower of the port's and
+the car's): the taper near full, a port sharing its EVSE and the station's limits cut what a
+car takes, and a plan that counts on more tells a port it can wait when it cannot. Played as
+a rule with the battery-only programme on the default scenario's 100 held-out days, fractions
+0.2 / 0.5 / 1.0 earned +15.4 / +15.5 / +13.3 EUR/day over always-max (``baselines/README.md``)."""
+
+
+def price_order(params) -> tuple[np.ndarray, np.ndarray]:
+    """``(steps, prices)``, each ``(days, T)``: every day's steps sorted by buy price (cheapest
+    first, ties by time) and their prices (EUR/kWh)."""
+    from baselines.storage_value import step_buy_prices
+
+    prices = step_buy_prices(params)
+    order = np.argsort(prices, axis=1, kind="stable").astype(np.int32)
+    return order, np.take_along_axis(prices, order, axis=1).astype(np.float32)
+
+
+def plan_energy(sorted_steps, t, steps_left, need_kwh, step_kwh) -> jnp.ndarray:
+    """``(L, T)``: the kWh each car's plan charges at each of ``sorted_steps`` (one day's row of
+    :func:`price_order`): ``step_kwh`` at the stay's cheapest steps (from step ``t``, ``steps_left``
+    of them) until ``need_kwh`` is met."""
+    steps_left, need_kwh, step_kwh = (jnp.asarray(x, jnp.float32)[:, None] for x in (steps_left, need_kwh, step_kwh))
+    in_stay = (sorted_steps[None, :] >= t) & (sorted_steps[None, :] < t + steps_left)
+    rank = jnp.cumsum(in_stay, axis=1) - 1  # 0 for the stay's cheapest step
+    return jnp.where(in_stay, jnp.clip(need_kwh - step_kwh * rank, 0.0, step_kwh), 0.0)
+
+
+def plan_value(sorted_steps, sorted_prices, t, steps_left, need_kwh, step_kwh, efficiency, customer_price):
+    """``V`` (EUR) of the module docstring for each car ``(L,)``: ``sorted_steps`` /
+    ``sorted_prices`` ``(T,)`` one day's row of :func:`price_order`, ``t`` the current step,
+    ``steps_left`` the steps the car still charges (``<= 0``: none), ``need_kwh`` its
+    remaining demand, ``step_kwh`` what the plan charges per step, ``efficiency`` its port's
+    path efficiency, ``customer_price`` what a delivered kWh sells for."""
+    energy = plan_energy(sorted_steps, t, steps_left, need_kwh, step_kwh)
+    margin = jnp.maximum(customer_price - sorted_prices[None, :] / jnp.asarray(efficiency)[:, None], 0.0)
+    return jnp.sum(margin * energy, axis=1)
+
+
+def steps_of(minutes_left, step_minutes: float) -> jnp.ndarray:
+    """The steps a time-sensitive car still charges: it leaves after the step that takes its
+    minutes left to 0 or below, so ``ceil(minutes / step)`` (0 when none are left)."""
+    return jnp.maximum(jnp.ceil(minutes_left / step_minutes - 1e-4), 0.0)
+
+
+def port_shaping_mode(config: dict) -> str:
+    """``PORT_SHAPING`` as one of :data:`PORT_SHAPING_MODES`."""
+    mode = config.get("PORT_SHAPING", "off")
+    mode = "off" if mode in (None, False) else mode
+    if mode not in PORT_SHAPING_MODES:
+        raise ValueError(f"PORT_SHAPING must be one of {PORT_SHAPING_MODES}, got {config.get('PORT_SHAPING')!r}")
+    return mode
+
+
+def car_values(env_params):
+    """``values(core, timestep, minutes_left, need_kwh) -> V (L,)`` for one (unbatched) core
+    state: each leaf's car valued at step ``timestep`` with ``minutes_left`` of its stay and
+    ``need_kwh`` still wanted (``(L,)`` each; 0 for batteries, empty ports and charge-sensitive
+    cars). ``values(core, core.timestep, core.time_remaining_min, core.energy_remaining_kwh)``
+    is the potential of ``core``."""
+    order_np, sorted_np = price_order(env_params)
+    order, sorted_prices = jnp.asarray(order_np), jnp.asarray(sorted_np)
+    st = env_params.station
+    is_port = jnp.asarray(np.asarray(st.leaf_kind) != KIND_BATTERY)
+    eff = jnp.asarray(st.leaf_path_efficiency, jnp.float32)
+    leaf_max_kw = jnp.asarray(st.leaf_max_kw, jnp.float32)
+    step_min, step_h = float(env_params.step_minutes), float(env_params.step_hours)
+    customer = jnp.asarray(env_params.customer_price_eur_kwh, jnp.float32)
+
+    def values(core, timestep, minutes_left, need_kwh):
+        planned = core.occupied & is_port & ~core.charge_sensitive
+        q = PLAN_POWER_FRACTION * jnp.minimum(leaf_max_kw, core.max_rate_kw) * step_h
+        need = jnp.where(planned, jnp.maximum(need_kwh, 0.0), 0.0)
+        v = plan_value(order[core.day], sorted_prices[core.day], timestep, steps_of(minutes_left, step_min), need,
+                       q, eff, customer)
+        return jnp.where(planned, v, 0.0)
+
+    return values
+
+
+def car_potential(config: dict, env_params):
+    """``None`` when ``PORT_SHAPING`` is off, else ``potential(env_state) -> shift``, where
+    ``shift(leaf_energy_kwh)`` is each leaf's change of ``V`` over the step of the (possibly
+    batched) ``env_state`` when the leaves take ``leaf_energy_kwh`` (shaped like the state's
+    leaves, ``(..., L)``; 0 for batteries, empty ports and charge-sensitive cars). The value
+    after the step is computed from the state before it, so the env's auto-reset does not
+    hide it."""
+    if port_shaping_mode(config) == "off":
+        return None
+    from baselines.common import core_state
+
+    values = car_values(env_params)
+    step_min = float(env_params.step_minutes)
+
+    def one(core, leaf_energy_kwh):
+        before = values(core, core.timestep, core.time_remaining_min, core.energy_remaining_kwh)
+        after = values(core, core.timestep + 1, core.time_remaining_min - step_min,
+                       jnp.maximum(core.energy_remaining_kwh, 0.0) - leaf_energy_kwh)
+        return after - before
+
+    def potential(env_state):
+        core = core_state(env_state)
+        fn = one
+        for _ in range(jnp.ndim(core.timestep)):  # the env batch
+            fn = jax.vmap(fn)
+        return lambda leaf_energy_kwh: fn(core, leaf_energy_kwh)
+
+    return potential
+
+
+# --------------------------------------------------------------------------- the plan as a rule
+
+
+def plan_action(env_params, battery: str = "dp", power_fraction: float = PLAN_POWER_FRACTION):
+    """``act(state, key, params) -> levels`` (the :mod:`chargax_marl.policies` signature): each
+    port charges its car at full power when the current step is one of its plan's steps (a
+    time-sensitive car, :func:`plan_value`'s plan at ``power_fraction`` of its top power;
+    charge-sensitive cars always charge) and idles otherwise; the batteries follow the
+    battery-only programme's best action (``battery="dp"``) or idle (``"idle"``). A reference
+    for what the port shaping's teacher earns, not a trained policy."""
+    from baselines.read_policy import dp_battery_action
+
+    order_np, sorted_np = price_order(env_params)
+    order, sorted_prices = jnp.asarray(order_np), jnp.asarray(sorted_np)
+    st = env_params.station
+    is_battery = jnp.asarray(np.asarray(st.leaf_kind) == KIND_BATTERY)
+    eff = jnp.asarray(st.leaf_path_efficiency, jnp.float32)
+    step_min, step_h = float(env_params.step_minutes), float(env_params.step_hours)
+    dp = dp_battery_action(env_params) if battery == "dp" else None
+
+    def act(state, key, params):
+        del key
+        t = state.timestep
+        steps, prices = order[state.day], sorted_prices[state.day]
+        q = power_fraction * jnp.minimum(st.leaf_max_kw, state.max_rate_kw) * step_h
+        energy = plan_energy(steps, t, steps_of(state.time_remaining_min, step_min),
+                             jnp.maximum(state.energy_remaining_kwh, 0.0), q)
+        margin_ok = params.customer_price_eur_kwh - prices[None, :] / eff[:, None] > 0
+        now = jnp.any((energy > 0) & margin_ok & (steps[None, :] == t), axis=1)
+        ports = jnp.where(now | state.charge_sensitive, params.num_levels, 0)
+        bat = 0 if dp is None else dp(state)[0] * params.num_levels
+        return jnp.where(is_battery, bat, ports).astype(jnp.int32)
+
+    return act
+
+
+def main(argv=None) -> dict:
+    """``python -m baselines.car_value [--scenario default]``: the plan rule (:func:`plan_action`)
+    on the 100 held-out days of a scenario of :mod:`baselines.optimal`, with and without the
+    programme's battery, at several plan power fractions, against always-max and the battery
+    rule (paired over days, the same cars), and the fraction of the LP bound's headroom from
+    ``baselines/results/optimal/<scenario>.json``."""
+    import argparse
+    import json
+
+    from baselines import common
+    from baselines.heuristics import evaluate_rules
+    from baselines.optimal import RESULTS_DIR, SCENARIOS
+    from chargax_marl.evaluation import run_days
+
+    p = argparse.ArgumentParser(description=main.__doc__)
+    p.add_argument("--scenario", default="default", choices=sorted(SCENARIOS))
+    p.add_argument("--fractions", default="0.2,0.5,1.0")
+    a = p.parse_args(argv)
+    config = common.parse_config({}, {**SCENARIOS[a.scenario], "ENV_KWARGS": {"num_levels": 1}})
+    _, params, _, days = common.build_env_params(config)
+    rules = evaluate_rules(params, days, policies=("always_max", "battery_rule"))
+    am, rule = rules["always_max"]["daily_profit"], rules["battery_rule"]["daily_profit"]
+    bound = json.loads((RESULTS_DIR / f"{a.scenario}.json").read_text())["policies"]["lp_bound"]
+    headroom = float(np.mean(bound["daily_profit"]) - np.mean(am))
+    key = jax.random.PRNGKey(0)
+    out = {"scenario": a.scenario, "always_max_eur": float(am.mean()), "headroom_eur": headroom, "rows": []}
+    print(f"{a.scenario}: always-max {am.mean():.2f} EUR/day, battery rule {rule.mean() - am.mean():+.2f}, "
+          f"bound headroom {headroom:.2f}; {len(days)} held-out days, key 0")
+    for battery in ("idle", "dp"):
+        for frac in (float(x) for x in a.fractions.split(",")):
+            act = plan_action(params, battery, frac)
+            totals = jax.jit(lambda d, k: run_days(lambda s, kk: act(s, kk, params), params, d, k))(np.asarray(days), key)
+            profit = np.asarray(totals.profit_eur, np.float64)
+            row = {"battery": battery, "power_fraction": frac, "vs_always_max": common.paired_difference(profit, am),
+                   "vs_battery_rule": common.paired_difference(profit, rule),
+                   "headroom_fraction": float((profit.mean() - am.mean()) / headroom),
+                   "energy_delivered_kwh": float(np.mean(totals.energy_delivered_kwh))}
+            out["rows"].append(row)
+            print(f"  ports plan {frac:.1f}, battery {battery:<4}: vs always-max {row['vs_always_max']['mean']:+6.2f} "
+                  f"± {row['vs_always_max']['stderr']:.2f}, vs battery rule {row['vs_battery_rule']['mean']:+6.2f} "
+                  f"± {row['vs_battery_rule']['stderr']:.2f}, headroom {row['headroom_fraction']:.3f}, "
+                  f"delivered {row['energy_delivered_kwh']:.1f} kWh")
+    return out
+
+
+if __name__ == "__main__":
+    main()
