@@ -151,7 +151,7 @@ def car_potential(config: dict, env_params):
 # --------------------------------------------------------------------------- the plan as a rule
 
 
-def plan_action(env_params, battery: str = "dp", power_fraction: float = PLAN_POWER_FRACTION):
+def plan_action(env_params, battery: str = "dp", power_fraction: float | None = PLAN_POWER_FRACTION):
     """``act(state, key, params) -> levels`` (the :mod:`chargax_marl.policies` signature): each
     port charges its car at full power when the current step is one of its plan's steps (a
     time-sensitive car, :func:`plan_value`'s plan at ``power_fraction`` of its top power;
@@ -172,12 +172,12 @@ def plan_action(env_params, battery: str = "dp", power_fraction: float = PLAN_PO
         del key
         t = state.timestep
         steps, prices = order[state.day], sorted_prices[state.day]
-        q = power_fraction * jnp.minimum(st.leaf_max_kw, state.max_rate_kw) * step_h
+        q = (power_fraction or 0.0) * jnp.minimum(st.leaf_max_kw, state.max_rate_kw) * step_h
         energy = plan_energy(steps, t, steps_of(state.time_remaining_min, step_min),
                              jnp.maximum(state.energy_remaining_kwh, 0.0), q)
         margin_ok = params.customer_price_eur_kwh - prices[None, :] / eff[:, None] > 0
         now = jnp.any((energy > 0) & margin_ok & (steps[None, :] == t), axis=1)
-        ports = jnp.where(now | state.charge_sensitive, params.num_levels, 0)
+        ports = jnp.where(now | state.charge_sensitive | (power_fraction is None), params.num_levels, 0)
         bat = 0 if dp is None else dp(state)[0] * params.num_levels
         return jnp.where(is_battery, bat, ports).astype(jnp.int32)
 
@@ -213,7 +213,7 @@ def main(argv=None) -> dict:
     print(f"{a.scenario}: always-max {am.mean():.2f} EUR/day, battery rule {rule.mean() - am.mean():+.2f}, "
           f"bound headroom {headroom:.2f}; {len(days)} held-out days, key 0")
     for battery in ("idle", "dp"):
-        for frac in (float(x) for x in a.fractions.split(",")):
+        for frac in [None] * (battery == "dp") + [float(x) for x in a.fractions.split(",")]:
             act = plan_action(params, battery, frac)
             totals = jax.jit(lambda d, k: run_days(lambda s, kk: act(s, kk, params), params, d, k))(np.asarray(days), key)
             profit = np.asarray(totals.profit_eur, np.float64)
@@ -222,7 +222,8 @@ def main(argv=None) -> dict:
                    "headroom_fraction": float((profit.mean() - am.mean()) / headroom),
                    "energy_delivered_kwh": float(np.mean(totals.energy_delivered_kwh))}
             out["rows"].append(row)
-            print(f"  ports plan {frac:.1f}, battery {battery:<4}: vs always-max {row['vs_always_max']['mean']:+6.2f} "
+            ports = "always-max" if frac is None else f"plan {frac:.1f}"
+            print(f"  ports {ports:<10}, battery {battery:<4}: vs always-max {row['vs_always_max']['mean']:+6.2f} "
                   f"± {row['vs_always_max']['stderr']:.2f}, vs battery rule {row['vs_battery_rule']['mean']:+6.2f} "
                   f"± {row['vs_battery_rule']['stderr']:.2f}, headroom {row['headroom_fraction']:.3f}, "
                   f"delivered {row['energy_delivered_kwh']:.1f} kWh")
