@@ -291,7 +291,8 @@ class GymnasiumEnv(gymnasium.Env):
                                                                   self.params)
         self._state = state
         obs, reward, done, info = jax.device_get((obs, reward, done, info))
-        info = {k: float(v) for k, v in info.items()}
+        # scalars as floats; per-leaf entries (``leaf_energy_kwh``) as float32 arrays
+        info = {k: float(v) if np.ndim(v) == 0 else np.asarray(v, np.float32) for k, v in info.items()}
         self._done = bool(done)
         self._history.append((len(self._history) * self.params.step_minutes / 60.0, info["price_buy_eur_kwh"],
                               info["grid_net_kwh"] / self.params.step_hours))
