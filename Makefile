@@ -43,16 +43,21 @@ examples: $(CLIENTS_STAMP)
 # each step shows the battery its loss against that programme's best action); the battery has
 # its own actor and critic (--battery-net) and its own entropy bonus (--battery-ent-coef 0.05);
 # advantages are normalised per agent; gamma 0.9 (the shaped rewards are nearly immediate); the
-# networks also read each observed price's place in the day's range (--relative-prices).
+# networks also read each observed price's place in the day's range (--relative-prices). Each
+# port's parked car is valued by its best plan under the day's prices, a potential as for the
+# battery (--port-shaping plan: each step shows the port its loss against that plan), and each
+# agent observes its port's plan advice, charge now or wait (--plan-obs on); see
+# baselines/car_value.py.
 SCENARIO_FLAGS := --scenario shopping --traffic medium
 MARL_FLAGS := --ent-coef 0.01 --gamma 0.9 --local-reward-weight 1 --battery-net on --agent-adv-norm on \
-	--relative-prices on --env-kwargs '{"num_levels": 1}' --battery-shaping dp --battery-ent-coef 0.05
+	--relative-prices on --env-kwargs '{"num_levels": 1}' --battery-shaping dp --battery-ent-coef 0.05 \
+	--port-shaping plan --plan-obs on
 train: $(STAMP)
-	$(PY) -m baselines.train --algo ippo $(SCENARIO_FLAGS) --seeds 4 $(MARL_FLAGS) --timesteps 8e5 --chunks 4 --out outputs/train_ippo
+	$(PY) -m baselines.train --algo ippo $(SCENARIO_FLAGS) --seeds 4 $(MARL_FLAGS) --timesteps 6e5 --chunks 4 --out outputs/train_ippo
 
 # MAPPO with the same flags (centralised critic on the world state).
 train-mappo: $(STAMP)
-	$(PY) -m baselines.train --algo mappo $(SCENARIO_FLAGS) --seeds 4 $(MARL_FLAGS) --timesteps 8e5 --chunks 4 --out outputs/train_mappo
+	$(PY) -m baselines.train --algo mappo $(SCENARIO_FLAGS) --seeds 4 $(MARL_FLAGS) --timesteps 6e5 --chunks 4 --out outputs/train_mappo
 
 # Single-agent PPO, no prior: full-power actions (num_levels 1), the battery's energy valued by
 # the battery-only dynamic programme (--battery-shaping dp), the port heads and the battery heads

@@ -27,6 +27,13 @@ keeps the cars behind it out (a rule that timed them like the others lost 75 EUR
 against always-max on the default scenario; ``baselines/README.md``).
 
 It is a learning signal only; the evaluation scores the env's profit.
+
+``PLAN_OBS`` (IPPO / MAPPO / PPO) also shows each agent its port's plan advice, charge now or
+wait (:func:`plan_advice`), as one more observation column: whether a step is in a car's
+plan turns on the rank of its price among all the steps of the stay, which a port reading
+hourly prices 6 h ahead learned badly (with the potential alone the learners lost against
+always-max, ``baselines/README.md``). The advice reads the day's whole price list within the
+stay and the car's top power, which the observation holds only in part.
 """
 
 from __future__ import annotations
@@ -151,33 +158,51 @@ def car_potential(config: dict, env_params):
 # --------------------------------------------------------------------------- the plan as a rule
 
 
-def plan_action(env_params, battery: str = "dp", power_fraction: float | None = PLAN_POWER_FRACTION):
-    """``act(state, key, params) -> levels`` (the :mod:`chargax_marl.policies` signature): each
-    port charges its car at full power when the current step is one of its plan's steps (a
-    time-sensitive car, :func:`plan_value`'s plan at ``power_fraction`` of its top power;
-    charge-sensitive cars always charge) and idles otherwise; the batteries follow the
-    battery-only programme's best action (``battery="dp"``) or idle (``"idle"``). A reference
-    for what the port shaping's teacher earns, not a trained policy."""
-    from baselines.read_policy import dp_battery_action
-
+def plan_advice(env_params, power_fraction: float | None = PLAN_POWER_FRACTION):
+    """``advice(core) -> (L,)`` float32 for one (unbatched) core state: 1 where a port should
+    charge its car now by the plan (a time-sensitive car whose plan, :func:`plan_energy` at
+    ``power_fraction`` of its top power, uses the current step at a positive margin; every
+    charge-sensitive car), 0 for idle, empty ports and batteries. ``power_fraction=None``:
+    1 for every occupied port (always-max). The ``PLAN_OBS`` feature of IPPO/MAPPO and the
+    ports of :func:`plan_action`."""
     order_np, sorted_np = price_order(env_params)
     order, sorted_prices = jnp.asarray(order_np), jnp.asarray(sorted_np)
     st = env_params.station
-    is_battery = jnp.asarray(np.asarray(st.leaf_kind) == KIND_BATTERY)
+    is_port = jnp.asarray(np.asarray(st.leaf_kind) != KIND_BATTERY)
     eff = jnp.asarray(st.leaf_path_efficiency, jnp.float32)
+    leaf_max_kw = jnp.asarray(st.leaf_max_kw, jnp.float32)
     step_min, step_h = float(env_params.step_minutes), float(env_params.step_hours)
+    customer = jnp.asarray(env_params.customer_price_eur_kwh, jnp.float32)
+
+    def advice(core):
+        t = core.timestep
+        steps, prices = order[core.day], sorted_prices[core.day]
+        q = (power_fraction or 0.0) * jnp.minimum(leaf_max_kw, core.max_rate_kw) * step_h
+        energy = plan_energy(steps, t, steps_of(core.time_remaining_min, step_min),
+                             jnp.maximum(core.energy_remaining_kwh, 0.0), q)
+        margin_ok = customer - prices[None, :] / eff[:, None] > 0
+        now = jnp.any((energy > 0) & margin_ok & (steps[None, :] == t), axis=1)
+        charge = now | core.charge_sensitive | (power_fraction is None)
+        return (charge & core.occupied & is_port).astype(jnp.float32)
+
+    return advice
+
+
+def plan_action(env_params, battery: str = "dp", power_fraction: float | None = PLAN_POWER_FRACTION):
+    """``act(state, key, params) -> levels`` (the :mod:`chargax_marl.policies` signature): each
+    port charges its car at full power where :func:`plan_advice` says so and idles otherwise;
+    the batteries follow the battery-only programme's best action (``battery="dp"``) or idle
+    (``"idle"``). A reference for what the port shaping's teacher earns, not a trained
+    policy. ``power_fraction=None``: the ports charge at full power always (always-max)."""
+    from baselines.read_policy import dp_battery_action
+
+    is_battery = jnp.asarray(np.asarray(env_params.station.leaf_kind) == KIND_BATTERY)
+    advice = plan_advice(env_params, power_fraction)
     dp = dp_battery_action(env_params) if battery == "dp" else None
 
     def act(state, key, params):
         del key
-        t = state.timestep
-        steps, prices = order[state.day], sorted_prices[state.day]
-        q = (power_fraction or 0.0) * jnp.minimum(st.leaf_max_kw, state.max_rate_kw) * step_h
-        energy = plan_energy(steps, t, steps_of(state.time_remaining_min, step_min),
-                             jnp.maximum(state.energy_remaining_kwh, 0.0), q)
-        margin_ok = params.customer_price_eur_kwh - prices[None, :] / eff[:, None] > 0
-        now = jnp.any((energy > 0) & margin_ok & (steps[None, :] == t), axis=1)
-        ports = jnp.where(now | state.charge_sensitive | (power_fraction is None), params.num_levels, 0)
+        ports = jnp.where(advice(state) > 0.5, params.num_levels, 0)
         bat = 0 if dp is None else dp(state)[0] * params.num_levels
         return jnp.where(is_battery, bat, ports).astype(jnp.int32)
 

@@ -115,10 +115,28 @@ class SharedPolicy:
                                                           - context_size(env.params))
         # the critic reads the same features when it reads the agent's own observation (IPPO)
         self.critic_features = self.relative is not None and not centralised_critic
+        # PLAN_OBS: each agent's observation ends with its leaf's plan advice
+        # (car_value.plan_advice: 1 = its car's best plan under the day's prices charges now;
+        # always 0 for the batteries), before the relative prices.
+        self.plan = car_value.plan_advice(env.params) if config["PLAN_OBS"] else None
+        if self.plan is not None:
+            self.obs_dim += 1
+            if not centralised_critic:
+                self.critic_dim += 1
         if self.relative is not None:
             self.obs_dim += len(self.relative[0])
             if self.critic_features:
                 self.critic_dim += len(self.relative[0])
+
+    def with_plan(self, obs_matrix, core):
+        """``obs_matrix (..., agents, obs)`` with the :data:`PLAN_OBS` column of the (batched)
+        core state ``core`` appended; unchanged when ``PLAN_OBS`` is off."""
+        if self.plan is None:
+            return obs_matrix
+        fn = self.plan
+        for _ in range(jnp.ndim(core.timestep)):
+            fn = jax.vmap(fn)
+        return jnp.concatenate([obs_matrix, fn(core)[..., None]], axis=-1)
 
     def features(self, obs):
         return common.with_relative_prices(obs, self.relative)
@@ -164,7 +182,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
     """
     config = common.parse_config({"AGENT_ID": "onehot", "AGENT_ADV_NORM": False, "BATTERY_NET": False,
                                   "BATTERY_GAMMA": None, "BATTERY_ENT_COEF": None,
-                                  "RELATIVE_PRICES": False}, config)
+                                  "RELATIVE_PRICES": False, "PLAN_OBS": False}, config)
     if env_params is None:
         env_params = common.build_env_params(config)[0]
     base_env = ChargaxMARL(params=env_params, agent_id=config["AGENT_ID"],
@@ -246,10 +264,18 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         obs, env_state = common.shard_envs((obs, env_state), mesh)
         return RunnerState(params, tx.init(params), env_state, obs, key, jnp.zeros((), jnp.int32))
 
+    def agent_rows(obs, env_state):
+        """The actors' observations ``(agents * envs, obs)`` (agent-major), with the plan
+        advice of ``env_state`` when ``PLAN_OBS`` is on."""
+        if policy.plan is None:
+            return batchify(obs, agents, n_actors)
+        per_env = policy.with_plan(jnp.stack([obs[a] for a in agents], axis=1), common.core_state(env_state))
+        return jnp.swapaxes(per_env, 0, 1).reshape((n_actors, -1))
+
     def env_step(carry, _):
         params, env_state, obs, key = carry
         key, k_act, k_step = jax.random.split(key, 3)
-        obs_b = batchify(obs, agents, n_actors)
+        obs_b = agent_rows(obs, env_state)
         avail = avail_b
         logits = policy.logits(params, obs_b, avail)
         action, logp = common.sample_categorical(k_act, logits)
@@ -294,7 +320,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
     def update(rs: RunnerState, _):
         (params, env_state, obs, key), traj = jax.lax.scan(
             env_step, (rs.params, rs.env_state, rs.obs, rs.key), None, n_steps)
-        last_value = rollout_value(params, obs, batchify(obs, agents, n_actors))[1]
+        last_value = rollout_value(params, obs, agent_rows(obs, env_state))[1]
         ws_table = None
         if centralised_critic:
             ws_table = traj.critic_in.reshape((n_steps * n_envs, -1))  # (step, env) world states
@@ -341,7 +367,8 @@ def make_act_builder(policy: SharedPolicy, agent_id: str):
         def make_act(params):
             def act(state, key):
                 del key
-                idx = jnp.argmax(policy.logits(params, env.get_obs_matrix(state), avail), axis=-1)
+                obs = policy.with_plan(env.get_obs_matrix(state), state)
+                idx = jnp.argmax(policy.logits(params, obs, avail), axis=-1)
                 return marl_env.actions_to_levels(idx, eval_params, env.action_offset)
 
             return act

@@ -81,7 +81,21 @@ class Policy:
             from chargax_marl.core.observation import context_size
 
             self.relative = common.relative_price_columns(env_params, self.obs_dim - context_size(env_params))
-        self.input_dim = self.obs_dim + (0 if self.relative is None else len(self.relative[0]))
+        # PLAN_OBS: the observation also ends with every leaf's plan advice
+        # (car_value.plan_advice), before the relative prices.
+        self.plan = car_value.plan_advice(env_params) if config["PLAN_OBS"] else None
+        self.input_dim = (self.obs_dim + (0 if self.plan is None else self.num_leaves)
+                          + (0 if self.relative is None else len(self.relative[0])))
+
+    def with_plan(self, obs, core):
+        """``obs (..., obs_dim)`` with the plan advice of the (batched) core state ``core``
+        appended when ``PLAN_OBS`` is on."""
+        if self.plan is None:
+            return obs
+        fn = self.plan
+        for _ in range(jnp.ndim(core.timestep)):
+            fn = jax.vmap(fn)
+        return jnp.concatenate([obs, fn(core)], axis=-1)
 
     def features(self, obs):
         return common.with_relative_prices(obs, self.relative)
@@ -114,7 +128,7 @@ def make_train(config: dict | None = None, env_params=None):
 
     ``env_params`` defaults to the config's scenario restricted to its training days.
     """
-    config = common.parse_config({"RELATIVE_PRICES": False, "SPLIT_CREDIT": False}, config)
+    config = common.parse_config({"RELATIVE_PRICES": False, "SPLIT_CREDIT": False, "PLAN_OBS": False}, config)
     if config["LOCAL_REWARD_WEIGHT"]:
         raise ValueError(f"LOCAL_REWARD_WEIGHT={config['LOCAL_REWARD_WEIGHT']} applies to the multi-agent "
                          "trainers (ippo, mappo) only; single-agent PPO learns from the station reward (use 0)")
@@ -145,6 +159,7 @@ def make_train(config: dict | None = None, env_params=None):
     def env_step(carry, _):
         params, env_state, obs, key = carry
         key, k_act, k_step = jax.random.split(key, 3)
+        obs = policy.with_plan(obs, common.core_state(env_state))
         logits = policy.logits(params, obs)
         action, head_logp = common.sample_categorical(k_act, logits)  # (envs, leaves)
         logp = policy.credit_logp(head_logp)
@@ -179,7 +194,7 @@ def make_train(config: dict | None = None, env_params=None):
     def update(rs: RunnerState, _):
         (params, env_state, obs, key), traj = jax.lax.scan(
             env_step, (rs.params, rs.env_state, rs.obs, rs.key), None, n_steps)
-        last_value = policy.value(params, obs)
+        last_value = policy.value(params, policy.with_plan(obs, common.core_state(env_state)))
         done = traj.done[..., None] if policy.split else traj.done
         adv, targets = common.gae(traj.reward, traj.value, done, last_value, config["GAMMA"], config["GAE_LAMBDA"])
         if policy.split:  # each part's advantages to mean 0 and std 1 over the rollout
@@ -216,7 +231,8 @@ def make_act_builder(policy: Policy, env: Chargax):
         def make_act(params):
             def act(state, key):
                 del key
-                action = jnp.argmax(policy.logits(params, flat_obs(state, eval_params)), axis=-1)
+                obs = policy.with_plan(flat_obs(state, eval_params), state)
+                action = jnp.argmax(policy.logits(params, obs), axis=-1)
                 return env.action_to_levels(action, eval_params)
 
             return act

@@ -58,6 +58,9 @@ def read(run_dir: str | Path, num_days: int | None = None) -> dict:
     days = np.asarray(days)[:num_days] if num_days else np.asarray(days)
     make_act = train.make_act(params)
     dp_act = dp_battery_action(params)
+    from baselines.car_value import plan_advice
+
+    advice = plan_advice(params)
     is_battery = np.asarray(params.station.leaf_kind) == KIND_BATTERY
     top = int(params.num_levels)
     steps_per_hour = int(round(60.0 / float(params.step_minutes)))
@@ -75,8 +78,9 @@ def read(run_dir: str | Path, num_days: int | None = None) -> dict:
                 jnp.sum(jnp.where(is_battery, state.capacity_kwh, 0.0)), 1e-6)
             parked = state.occupied & ~jnp.asarray(is_battery)
             full = jnp.sum(parked & (levels == top)), jnp.sum(parked)
+            follows = jnp.sum(parked & ((levels == top) == (advice(state) > 0.5)))
             new_state, _ = simulator.step(k_step, state, levels, params)
-            return (new_state, key), (bat, dp, strict, soc, full[0], full[1])
+            return (new_state, key), (bat, dp, strict, soc, full[0], full[1], follows)
 
         state = simulator.empty_state(day, params, key)
         return jax.lax.scan(body, (state, key), None, int(params.num_steps))[1]
@@ -86,7 +90,8 @@ def read(run_dir: str | Path, num_days: int | None = None) -> dict:
     out = {"run": str(run_dir), "algo": results["algo"], "num_days": int(days.size), "per_seed": []}
     for i in range(int(results["seeds"])):
         seed_params = jax.tree.map(lambda x: x[i], all_params)
-        bat, dp, strict, soc, full, parked = (np.asarray(x) for x in run_days(seed_params, jnp.asarray(days), key))
+        bat, dp, strict, soc, full, parked, follows = (np.asarray(x) for x in run_days(seed_params, jnp.asarray(days),
+                                                                                          key))
         hours = bat.shape[1] // steps_per_hour
         by_hour = lambda x: x[:, :hours * steps_per_hour].reshape(x.shape[0], hours, steps_per_hour).mean(axis=(0, 2))
         out["per_seed"].append({
@@ -96,6 +101,7 @@ def read(run_dir: str | Path, num_days: int | None = None) -> dict:
             "hourly_soc": [round(float(x), 3) for x in by_hour(soc)],
             "agrees_with_dp": float((bat == dp)[strict].mean()) if strict.any() else None,
             "ports_full_power_share": float(full.sum() / max(parked.sum(), 1)),
+            "ports_follow_plan_share": float(follows.sum() / max(parked.sum(), 1)),
         })
     return out
 
@@ -105,7 +111,8 @@ def format_reading(out: dict) -> str:
     for i, s in enumerate(out["per_seed"]):
         share = ", ".join(f"{k} {v:.2f}" for k, v in s["battery_share"].items())
         lines.append(f"seed {i}: battery {share}; agrees with the programme where it has a strict best "
-                     f"action {s['agrees_with_dp']:.2f}; ports at full power {s['ports_full_power_share']:.3f}")
+                     f"action {s['agrees_with_dp']:.2f}; ports at full power {s['ports_full_power_share']:.3f}, "
+                     f"as the plan advises (car_value.plan_advice) {s['ports_follow_plan_share']:.3f}")
         lines.append("  hourly action " + " ".join(f"{a:+.2f}" for a in s["hourly_action"]))
         lines.append("  hourly SoC    " + " ".join(f"{a:.2f}" for a in s["hourly_soc"]))
     return "\n".join(lines)

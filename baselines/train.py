@@ -334,6 +334,9 @@ def main(argv=None) -> dict:
                    help="'plan': each port also sees the change of its parked car's best-plan value under the "
                         "day's prices (baselines/car_value.py, a potential per car; charge-sensitive cars have "
                         "none); default off")
+    p.add_argument("--plan-obs", choices=("on", "off"), default=None,
+                   help="ippo/mappo: each agent also observes its port's plan advice (1 = the car's best plan "
+                        "under the day's prices charges now; baselines/car_value.plan_advice); default off")
     p.add_argument("--agent-adv-norm", choices=("on", "off"), default=None,
                    help="ippo/mappo: normalise the advantages per agent (over its rows of the rollout) instead of "
                         "only over the minibatch (default off)")
@@ -384,7 +387,7 @@ def main(argv=None) -> dict:
     if a.battery_ent_coef is not None:
         config["BATTERY_ENT_COEF"] = a.battery_ent_coef
     for flag, key in (("relative_prices", "RELATIVE_PRICES"), ("battery_net", "BATTERY_NET"),
-                      ("agent_adv_norm", "AGENT_ADV_NORM")):
+                      ("agent_adv_norm", "AGENT_ADV_NORM"), ("plan_obs", "PLAN_OBS")):
         if getattr(a, flag) is not None:
             config[key] = getattr(a, flag) == "on"
     if a.port_shaping is not None:

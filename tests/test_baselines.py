@@ -572,6 +572,7 @@ def test_attribution_scores_the_run_and_swaps_ports_and_battery(tmp_path):
     for seed in reading["per_seed"]:
         assert abs(sum(seed["battery_share"].values()) - 1.0) < 1e-6 and len(seed["hourly_action"]) == 24
         assert all(-1.0 <= a <= 1.0 for a in seed["hourly_action"]) and 0.0 <= seed["ports_full_power_share"] <= 1.0
+        assert 0.0 <= seed["ports_follow_plan_share"] <= 1.0
     assert "hourly SoC" in read_policy.format_reading(reading)
 
 

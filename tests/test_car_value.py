@@ -183,3 +183,56 @@ def test_plan_rule_charges_in_the_plan_s_step_only():
         assert np.all(levels[1:][~is_bat[1:]] == 0) and np.all(levels[is_bat] == 0)
         sensitive = _one_car_state(params, minutes_left=120.0, need_kwh=q, charge_sensitive=True)
         assert np.asarray(act(sensitive.replace(timestep=jnp.int32(t)), None, params))[0] == 1
+
+
+def test_plan_advice_is_the_rule_s_port_decision():
+    """``plan_advice`` is 1 exactly where the plan rule charges a port: never for batteries or
+    empty ports, always for a charge-sensitive car."""
+    params = make_params(**TINY_ENV, num_levels=1)
+    advice = car_value.plan_advice(params)
+    act = car_value.plan_action(params, battery="idle")
+    is_bat = np.asarray(params.station.leaf_kind) == KIND_BATTERY
+    q = car_value.PLAN_POWER_FRACTION * float(params.station.leaf_max_kw[0]) * float(params.step_hours)
+    for t in range(6):
+        state = _one_car_state(params, minutes_left=120.0, need_kwh=q).replace(timestep=jnp.int32(t))
+        a = np.asarray(advice(state))
+        np.testing.assert_array_equal(a, (np.asarray(act(state, None, params)) > 0).astype(np.float32))
+        assert np.all(a[1:] == 0)
+        sensitive = _one_car_state(params, minutes_left=120.0, need_kwh=q, charge_sensitive=True)
+        assert float(advice(sensitive.replace(timestep=jnp.int32(t)))[0]) == 1.0
+    assert not is_bat[0] and is_bat.any()
+
+
+def test_ippo_plan_obs_appends_the_advice_to_every_agent_s_observation():
+    """With ``PLAN_OBS`` the actor reads one more column, the plan advice of its leaf, in the
+    rollout and in the greedy evaluation act."""
+    from chargax_marl.marl.env import ChargaxMARL
+
+    train = ippo.make_train({**TINY, "PORT_SHAPING": "off", "PLAN_OBS": True, "LOCAL_REWARD_WEIGHT": 1.0})
+    out = jax.jit(jax.vmap(train))(jax.random.split(jax.random.PRNGKey(0), 2))
+    assert np.all(np.isfinite(np.asarray(out["metrics"]["actor_loss"])))
+    env = ChargaxMARL(params=train.env_params)
+    assert train.policy.obs_dim == env.obs_size + 1
+    params = make_params(**TINY_ENV, num_levels=1)
+    state = _one_car_state(params, minutes_left=120.0, need_kwh=5.0, charge_sensitive=True)
+    rows = train.policy.with_plan(env.get_obs_matrix(state), state)
+    np.testing.assert_array_equal(np.asarray(rows[:, -1]), np.asarray(car_value.plan_advice(params)(state)))
+    assert float(rows[0, -1]) == 1.0
+    seed0 = jax.tree.map(lambda x: x[0], out["runner_state"].params)
+    levels = train.make_act(params)(seed0)(state, None)
+    assert np.asarray(levels).shape == (params.station.num_leaves,)
+
+
+def test_ppo_plan_obs_appends_every_leaf_s_advice():
+    from chargax_marl.core.observation import flat_obs
+
+    train = ppo.make_train({**TINY, "PORT_SHAPING": "plan", "PLAN_OBS": True, "SPLIT_CREDIT": True})
+    out = jax.jit(jax.vmap(train))(jax.random.split(jax.random.PRNGKey(0), 2))
+    assert np.all(np.isfinite(np.asarray(out["metrics"]["actor_loss"])))
+    params = make_params(**TINY_ENV, num_levels=1)
+    state = _one_car_state(params, minutes_left=120.0, need_kwh=5.0, charge_sensitive=True)
+    obs = train.policy.with_plan(flat_obs(state, params), state)
+    n = params.station.num_leaves
+    np.testing.assert_array_equal(np.asarray(obs[-n:]), np.asarray(car_value.plan_advice(params)(state)))
+    seed0 = jax.tree.map(lambda x: x[0], out["runner_state"].params)
+    assert np.asarray(train.make_act(params)(seed0)(state, None)).shape == (n,)

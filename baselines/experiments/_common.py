@@ -25,12 +25,13 @@ SINGLE = {**FAST, "GAMMA": 0.95, "RELATIVE_PRICES": True, "ENV_KWARGS": {"num_le
           "BATTERY_SHAPING": "dp", "SPLIT_CREDIT": True}
 MULTI = {**FAST, "ENT_COEF": 0.01, "GAMMA": 0.9, "LOCAL_REWARD_WEIGHT": 1.0, "BATTERY_NET": True,
          "AGENT_ADV_NORM": True, "RELATIVE_PRICES": True, "ENV_KWARGS": {"num_levels": 1},
-         "BATTERY_SHAPING": "dp", "BATTERY_ENT_COEF": 0.05}
+         "BATTERY_SHAPING": "dp", "BATTERY_ENT_COEF": 0.05, "PORT_SHAPING": "plan", "PLAN_OBS": True}
 TUNED = {"ppo": SINGLE, "ippo": MULTI, "mappo": MULTI}
 """The ``tuned`` learning settings per algorithm: the Makefile's ``train-ppo`` (PPO) and
 ``train`` / ``train-mappo`` (IPPO / MAPPO) flags (``tests/test_experiments.py`` checks that they
 agree). Full-power actions (``num_levels`` 1), the battery-only programme's potential
-(``BATTERY_SHAPING="dp"``), relative prices; no always-max prior. The result files committed
+(``BATTERY_SHAPING="dp"``), relative prices; IPPO / MAPPO also the ports' plan as a potential
+and as an observation (``PORT_SHAPING="plan"``, ``PLAN_OBS``); no always-max prior. The result files committed
 before these settings record the ones they ran with (``config``)."""
 
 DEFAULT_TIMESTEPS = 2e6
