@@ -99,20 +99,25 @@ def port_shaping_mode(config: dict) -> str:
     return mode
 
 
+def _plan_constants(env_params):
+    """What the plan reads from the params: every day's steps by price and their prices, the
+    port mask, the path efficiencies, the leaves' top power, the step in minutes and hours and
+    the customer price."""
+    order_np, sorted_np = price_order(env_params)
+    st = env_params.station
+    return (jnp.asarray(order_np), jnp.asarray(sorted_np), jnp.asarray(np.asarray(st.leaf_kind) != KIND_BATTERY),
+            jnp.asarray(st.leaf_path_efficiency, jnp.float32), jnp.asarray(st.leaf_max_kw, jnp.float32),
+            float(env_params.step_minutes), float(env_params.step_hours),
+            jnp.asarray(env_params.customer_price_eur_kwh, jnp.float32))
+
+
 def car_values(env_params):
     """``values(core, timestep, minutes_left, need_kwh) -> V (L,)`` for one (unbatched) core
     state: each leaf's car valued at step ``timestep`` with ``minutes_left`` of its stay and
     ``need_kwh`` still wanted (``(L,)`` each; 0 for batteries, empty ports and charge-sensitive
     cars). ``values(core, core.timestep, core.time_remaining_min, core.energy_remaining_kwh)``
     is the potential of ``core``."""
-    order_np, sorted_np = price_order(env_params)
-    order, sorted_prices = jnp.asarray(order_np), jnp.asarray(sorted_np)
-    st = env_params.station
-    is_port = jnp.asarray(np.asarray(st.leaf_kind) != KIND_BATTERY)
-    eff = jnp.asarray(st.leaf_path_efficiency, jnp.float32)
-    leaf_max_kw = jnp.asarray(st.leaf_max_kw, jnp.float32)
-    step_min, step_h = float(env_params.step_minutes), float(env_params.step_hours)
-    customer = jnp.asarray(env_params.customer_price_eur_kwh, jnp.float32)
+    order, sorted_prices, is_port, eff, leaf_max_kw, step_min, step_h, customer = _plan_constants(env_params)
 
     def values(core, timestep, minutes_left, need_kwh):
         planned = core.occupied & is_port & ~core.charge_sensitive
@@ -165,14 +170,7 @@ def plan_advice(env_params, power_fraction: float | None = PLAN_POWER_FRACTION):
     charge-sensitive car), 0 for idle, empty ports and batteries. ``power_fraction=None``:
     1 for every occupied port (always-max). The ``PLAN_OBS`` feature of IPPO/MAPPO and the
     ports of :func:`plan_action`."""
-    order_np, sorted_np = price_order(env_params)
-    order, sorted_prices = jnp.asarray(order_np), jnp.asarray(sorted_np)
-    st = env_params.station
-    is_port = jnp.asarray(np.asarray(st.leaf_kind) != KIND_BATTERY)
-    eff = jnp.asarray(st.leaf_path_efficiency, jnp.float32)
-    leaf_max_kw = jnp.asarray(st.leaf_max_kw, jnp.float32)
-    step_min, step_h = float(env_params.step_minutes), float(env_params.step_hours)
-    customer = jnp.asarray(env_params.customer_price_eur_kwh, jnp.float32)
+    order, sorted_prices, is_port, eff, leaf_max_kw, step_min, step_h, customer = _plan_constants(env_params)
 
     def advice(core):
         t = core.timestep
