@@ -133,10 +133,7 @@ class SharedPolicy:
         core state ``core`` appended; unchanged when ``PLAN_OBS`` is off."""
         if self.plan is None:
             return obs_matrix
-        fn = self.plan
-        for _ in range(jnp.ndim(core.timestep)):
-            fn = jax.vmap(fn)
-        return jnp.concatenate([obs_matrix, fn(core)[..., None]], axis=-1)
+        return jnp.concatenate([obs_matrix, car_value.batched(self.plan, core)(core)[..., None]], axis=-1)
 
     def features(self, obs):
         return common.with_relative_prices(obs, self.relative)

@@ -92,10 +92,7 @@ class Policy:
         appended when ``PLAN_OBS`` is on."""
         if self.plan is None:
             return obs
-        fn = self.plan
-        for _ in range(jnp.ndim(core.timestep)):
-            fn = jax.vmap(fn)
-        return jnp.concatenate([obs, fn(core)], axis=-1)
+        return jnp.concatenate([obs, car_value.batched(self.plan, core)(core)], axis=-1)
 
     def features(self, obs):
         return common.with_relative_prices(obs, self.relative)

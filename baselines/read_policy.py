@@ -24,6 +24,7 @@ import numpy as np
 
 from baselines import common
 from baselines.attribution import load_run
+from baselines.car_value import plan_advice
 from chargax_marl.core import simulator
 from chargax_marl.core.station import KIND_BATTERY
 
@@ -58,8 +59,6 @@ def read(run_dir: str | Path, num_days: int | None = None) -> dict:
     days = np.asarray(days)[:num_days] if num_days else np.asarray(days)
     make_act = train.make_act(params)
     dp_act = dp_battery_action(params)
-    from baselines.car_value import plan_advice
-
     advice = plan_advice(params)
     is_battery = np.asarray(params.station.leaf_kind) == KIND_BATTERY
     top = int(params.num_levels)
