@@ -21,7 +21,20 @@ import time
 
 import jax
 
-from chargax_marl.machine import load_info, machine_info  # noqa: F401 (re-exported for the other scripts)
+
+# Importing chargax_marl imports gymnax, whose modules build jnp arrays at import time and so
+# start JAX's backend: after that, ``--devices`` (XLA_FLAGS) has no effect. These wrappers
+# import it only when called, after ``main`` has set the host device count.
+def machine_info() -> dict:
+    from chargax_marl.machine import machine_info as info
+
+    return info()
+
+
+def load_info() -> str:
+    from chargax_marl.machine import load_info as info
+
+    return info()
 
 
 def make_runner(env, params, num_envs: int, num_steps: int):
@@ -118,6 +131,11 @@ def main(argv=None) -> list[dict]:
     from envbench import set_host_devices
 
     set_host_devices(args.devices)  # before JAX starts its backend
+    if len(jax.devices()) != args.devices:
+        raise RuntimeError(
+            f"--devices {args.devices}: JAX sees {len(jax.devices())} device(s) because its backend started "
+            "before the host device count was set (something imported chargax_marl or gymnax first); run "
+            "this script as its own process, or pass --devices equal to the devices JAX already has")
     from envbench import compiled_rollout, steps_for, time_interleaved
 
     packages = {"": "chargax_marl"}

@@ -36,6 +36,31 @@ def test_throughput_main_smallest(tmp_path, capsys):
     assert "marl/single" in out and "single s/100k" in out
 
 
+def test_throughput_uses_the_requested_host_devices():
+    """``make bench`` splits the batch over one host device per core; importing chargax_marl
+    (gymnax) starts JAX's backend, so the device count must be set before that import. Since
+    ef03962 it was not, and every row silently ran on one device."""
+    import os
+    import subprocess
+
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONPATH": str(ROOT)}
+    env.pop("XLA_FLAGS", None)
+    out = subprocess.run([sys.executable, str(BENCH / "throughput.py"), "--envs", "2", "--total", "8",
+                          "--min-steps", "8", "--repeats", "1", "--devices", "2"],
+                         env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert "x2 devices" in out.stdout
+    row = next(line.split() for line in out.stdout.splitlines() if line.split()[:1] == ["2"])
+    assert row[1] == "2", out.stdout  # the "dev" column: the batch of 2 envs ran on 2 devices
+
+
+def test_throughput_refuses_a_device_count_it_cannot_have():
+    import jax
+
+    with pytest.raises(RuntimeError, match="--devices"):
+        load("throughput").main(["--envs", "1", "--devices", str(jax.device_count() + 1)])
+
+
 def test_scaling_main_smallest(tmp_path, capsys):
     scaling = load("scaling")
     rows = scaling.main(["--ports", "16", "--envs", "1", "2", "--views", "single", "--work", "8", "--min-steps", "4",
