@@ -145,6 +145,14 @@ def ancestor_loads(state: EnvState, params: EnvParams, layout: ObsLayout | None 
     return jnp.where(anc >= 0, load[jnp.maximum(anc, 0)], 0.0)
 
 
+def _observation_parts(state: EnvState, params: EnvParams, layout: ObsLayout):
+    """The column blocks of :func:`agent_observations`: per-agent blocks ``(N, w)`` and the
+    shared context ``(C,)``."""
+    leaf = observation.leaf_features(state, params).astype(jnp.float32)
+    loads = ancestor_loads(state, params, layout).astype(jnp.float32)
+    return leaf, layout.kind_onehot, loads, observation.context_features(state, params), layout.agent_id
+
+
 def agent_observations(state: EnvState, params: EnvParams, layout: ObsLayout | None = None) -> jnp.ndarray:
     """Every agent's observation as one float32 matrix ``(N, obs_size)``, rows in agent order.
 
@@ -154,18 +162,19 @@ def agent_observations(state: EnvState, params: EnvParams, layout: ObsLayout | N
     ``layout`` (from :func:`obs_layout`) saves recomputing the station constants.
     """
     layout = obs_layout(params) if layout is None else layout
+    leaf, kind, loads, ctx, agent_id = _observation_parts(state, params, layout)
     n = params.station.num_leaves
-    ctx = observation.context_features(state, params)
-    return jnp.concatenate(
-        [
-            observation.leaf_features(state, params).astype(jnp.float32),
-            layout.kind_onehot,
-            ancestor_loads(state, params, layout).astype(jnp.float32),
-            jnp.broadcast_to(ctx, (n, ctx.shape[0])),
-            layout.agent_id,
-        ],
-        axis=1,
-    )
+    return jnp.concatenate([leaf, kind, loads, jnp.broadcast_to(ctx, (n, ctx.shape[0])), agent_id], axis=1)
+
+
+def agent_observation_rows(state: EnvState, params: EnvParams, layout: ObsLayout | None = None) -> list:
+    """The rows of :func:`agent_observations` as a list of ``(obs_size,)`` arrays, each built
+    on its own (the same values bit for bit). The dict API hands out one array per agent:
+    slicing the matrix made XLA write the ``(N, obs_size)`` matrix and then copy every row
+    out of it; built per agent, each row is written once (or fused into its reader)."""
+    layout = obs_layout(params) if layout is None else layout
+    leaf, kind, loads, ctx, agent_id = _observation_parts(state, params, layout)
+    return [jnp.concatenate([leaf[i], kind[i], loads[i], ctx, agent_id[i]]) for i in range(leaf.shape[0])]
 
 
 STEP_INFO_KEYS = (
@@ -381,8 +390,8 @@ class ChargaxMARL(MultiAgentEnv):
         """The dicts of a step: observations of ``obs_state``; rewards, dones and infos of the
         step that produced ``stepped``."""
         n = self.num_agents
-        obs = agent_observations(obs_state, self.params, self._layout)
-        obs_dict = {a: obs[i] for i, a in enumerate(self.agents)}
+        rows = agent_observation_rows(obs_state, self.params, self._layout)
+        obs_dict = dict(zip(self.agents, rows))
         info = info_scalars(core_info, stepped)
         info["agent_energy_kwh"] = core_info.leaf_energy_kwh.astype(jnp.float32)
         info["agent_reward_share"] = core_info.leaf_reward.astype(jnp.float32)
@@ -395,8 +404,7 @@ class ChargaxMARL(MultiAgentEnv):
 
     def get_obs(self, state: EnvState) -> dict:
         """Observations keyed by agent (see the class docstring for the layout)."""
-        obs = agent_observations(state, self.params, self._layout)
-        return {a: obs[i] for i, a in enumerate(self.agents)}
+        return dict(zip(self.agents, agent_observation_rows(state, self.params, self._layout)))
 
     def get_obs_matrix(self, state: EnvState) -> jnp.ndarray:
         """All observations as one ``(num_agents, obs_size)`` matrix, rows in agent order."""
