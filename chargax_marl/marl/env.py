@@ -24,6 +24,7 @@ from chargax_marl.core import actions as core_actions, observation, physics, sim
 from chargax_marl.core.params import make_params
 from chargax_marl.core.scenarios import scenario_kwargs
 from chargax_marl.core.station import KIND_AC, KIND_BATTERY, KIND_DC
+from chargax_marl.core.rng import materialize
 from chargax_marl.core.types import PENALTY_TERMS, EnvParams, EnvState, EpisodeTotals, StepInfo
 from chargax_marl.lifecycle import check_day
 
@@ -140,7 +141,9 @@ def ancestor_loads(state: EnvState, params: EnvParams, layout: ObsLayout | None 
     """
     layout = obs_layout(params) if layout is None else layout
     st = params.station
-    load = physics.node_flows_kw(state.current_a * st.leaf_voltage_v / 1000.0, st) / st.node_max_kw
+    # current_a stored once (rng.materialize): the node sums' transposes otherwise recompute
+    # the step's whole current chain, once per tree level.
+    load = physics.node_flows_kw(materialize(state.current_a) * st.leaf_voltage_v / 1000.0, st) / st.node_max_kw
     anc = layout.ancestors
     return jnp.where(anc >= 0, load[jnp.maximum(anc, 0)], 0.0)
 
