@@ -163,7 +163,10 @@ def draw_arrivals(key: jax.Array, timestep: jnp.ndarray, is_workday: jnp.ndarray
     u = draws[1:].reshape(5, num_slots)
     # Car profile: model index by inverse CDF of the fleet shares.
     cdf = jnp.cumsum(params.fleet_share)
-    model = jnp.clip(jnp.searchsorted(cdf / cdf[-1], u[0], side="right"), 0, cdf.shape[0] - 1).astype(jnp.int32)
+    # searchsorted by comparing with every entry (a fleet has tens of models): one fused
+    # op, where the default binary search is a loop that costs a dispatch per iteration.
+    model = jnp.clip(jnp.searchsorted(cdf / cdf[-1], u[0], side="right", method="compare_all"),
+                     0, cdf.shape[0] - 1).astype(jnp.int32)
     capacity = params.fleet_capacity_kwh[model]
     # User profile: stay and demand scaled by the arrival hour, user type.
     hour = jnp.clip((timestep * params.step_minutes / 60.0).astype(jnp.int32), 0, 23)
