@@ -10,7 +10,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from chargax_marl.core import actions
+from chargax_marl.core import actions, rng
 from chargax_marl.core.station import KIND_BATTERY, StationArrays
 from chargax_marl.core.types import EnvParams, EnvState
 
@@ -188,7 +188,7 @@ def charge(current_a: jnp.ndarray, state: EnvState, params: EnvParams):
     energy = current_a * st.leaf_voltage_v / 1000.0 * dt_h
     room = jnp.maximum((state.target_soc - state.soc) * state.capacity_kwh, 0.0)
     reserve = jnp.maximum((state.soc - state.arrival_soc) * state.capacity_kwh, 0.0)
-    energy = jnp.where(state.occupied, jnp.clip(energy, -reserve, room), 0.0)
+    energy = rng.materialize(jnp.where(state.occupied, jnp.clip(energy, -reserve, room), 0.0))
     safe_cap = jnp.maximum(state.capacity_kwh, 1e-6)
     soc = jnp.where(state.occupied, jnp.clip(state.soc + energy / safe_cap, 0.0, 1.0), 0.0)
     actual_current = energy / dt_h * 1000.0 / st.leaf_voltage_v

@@ -53,7 +53,7 @@ def depart(state: EnvState, params: EnvParams):
     active = state.occupied & is_port
     time_up = active & ~state.charge_sensitive & (state.time_remaining_min <= 0.0)
     charged = active & state.charge_sensitive & (state.energy_remaining_kwh <= params.charged_tolerance_kwh)
-    leaving = time_up | charged
+    leaving = rng.materialize(time_up | charged)
     leaf_missing = jnp.where(time_up, jnp.maximum(state.energy_remaining_kwh, 0.0), 0.0)
     # this step's minutes past the plan (physics has already taken the step off the clock)
     leaf_over = jnp.where(active & state.charge_sensitive,
@@ -211,7 +211,7 @@ def place_arrivals(state: EnvState, arrivals: Arrivals, params: EnvParams):
     requested = arrivals.requested
     admitted = jnp.minimum(requested, num_free)
     rank = jnp.cumsum(free) - 1  # rank among free ports, in port order
-    new_car = free & (rank < admitted)
+    new_car = rng.materialize(free & (rank < admitted))
     slot = jnp.clip(rank, 0, st.num_ports - 1)
     car = arrivals.replace(**{f: getattr(arrivals, f)[slot] for f in SLOT_FIELDS})  # per leaf now
 
