@@ -24,9 +24,14 @@ import os
 import time
 
 
+def without_host_devices(xla_flags: str) -> str:
+    """``xla_flags`` without a host device count (JAX's default: one CPU device)."""
+    return " ".join(f for f in xla_flags.split() if "host_platform_device_count" not in f)
+
+
 def set_host_devices(count: int) -> None:
     """Expose ``count`` CPU devices to XLA; must run before JAX initialises its backend."""
-    flags = [f for f in os.environ.get("XLA_FLAGS", "").split() if "host_platform_device_count" not in f]
+    flags = without_host_devices(os.environ.get("XLA_FLAGS", "")).split()
     if count > 1:
         flags.append(f"--xla_force_host_platform_device_count={count}")
     os.environ["XLA_FLAGS"] = " ".join(flags)

@@ -175,9 +175,15 @@ def main(argv=None) -> list[dict]:
         rows.append(row)
     print(load_info())
     if args.train:
-        import train_speed
+        # Its own process: this one exposes --devices host devices, and the trainers would
+        # shard their 16 envs over them; `make train` runs on JAX's default single CPU device.
+        import sys
 
-        train_speed.main([])
+        from envbench import without_host_devices
+
+        env = {**os.environ, "XLA_FLAGS": without_host_devices(os.environ.get("XLA_FLAGS", ""))}
+        subprocess.run([sys.executable, os.path.join(os.path.dirname(os.path.abspath(__file__)), "train_speed.py")],
+                       check=True, env=env)
     if args.csv:
         with open(args.csv, "w", newline="") as f:
             writer = csv.DictWriter(f, fieldnames=list(rows[0]))
