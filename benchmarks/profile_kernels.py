@@ -11,6 +11,7 @@ inputs).
 
     python benchmarks/profile_kernels.py --view single --envs 4096 --top 30
     python benchmarks/profile_kernels.py --view marl --envs 16
+    python benchmarks/profile_kernels.py --chargax-root ../old-checkout      # the same for another commit
 
 The kernel times are summed over XLA's worker threads (two kernels may overlap), and the
 trace itself adds a fixed cost per kernel, so at 1-16 envs the figures overstate small
@@ -60,9 +61,13 @@ def main(argv=None) -> list[dict]:
     parser.add_argument("--steps", type=int, default=32, help="scan length of the traced call")
     parser.add_argument("--top", type=int, default=25)
     parser.add_argument("--scenario", default="shopping")
+    parser.add_argument("--chargax-root", default=None,
+                        help="import chargax_marl from this checkout (e.g. an older commit, for a before/after)")
     args = parser.parse_args(argv)
 
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    if args.chargax_root:
+        sys.path.insert(0, os.path.abspath(args.chargax_root))
     import jax
     import jax.numpy as jnp
     from jax._src.profiler import ProfileData
@@ -88,7 +93,9 @@ def main(argv=None) -> list[dict]:
                         total_ns[event.name] += event.duration_ns
     env_steps = args.envs * args.steps
     summed = sum(total_ns.values())
-    print(f"profile_kernels | view={args.view} envs={args.envs} | {len(total_ns)} kernels, summed kernel time "
+    import chargax_marl
+
+    print(f"profile_kernels | {os.path.dirname(os.path.dirname(chargax_marl.__file__))} | view={args.view} envs={args.envs} | {len(total_ns)} kernels, summed kernel time "
           f"{summed / env_steps:.0f} ns per env-step")
     rows = []
     for name, ns in total_ns.most_common(args.top):
