@@ -64,6 +64,12 @@ def make_runner(env, params, num_envs: int, num_steps: int):
     return jax.jit(run)
 
 
+def state_bytes(env, params) -> int:
+    """Bytes of one env's state pytree (what a vmapped rollout carries per env)."""
+    _, state = env.reset(jax.random.PRNGKey(0), params)
+    return int(sum(x.nbytes for x in jax.tree.leaves(state)))
+
+
 def measure(fn, repeats: int):
     """``(compile_s, best_run_s)``: the first call (compile + run) and the best of ``repeats`` later calls."""
     key = jax.random.PRNGKey(0)
@@ -174,6 +180,8 @@ def main(argv=None) -> list[dict]:
         print(line + f" {row['single_s_per_100k']:>14.3f} {max(compile_s.values()):>10.2f}", flush=True)
         rows.append(row)
     print(load_info())
+    print(f"memory per env: state {state_bytes(env, params):,} bytes (the pytree a rollout carries per env; "
+          "the compiled step's temporaries scale with the batch as well, see scaling.py's peak RSS)")
     if args.train:
         # Its own process: this one exposes --devices host devices, and the trainers would
         # shard their 16 envs over them; `make train` runs on JAX's default single CPU device.

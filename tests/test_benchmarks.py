@@ -34,6 +34,7 @@ def test_throughput_main_smallest(tmp_path, capsys):
     assert (tmp_path / "t.csv").read_text().startswith("envs,")
     out = capsys.readouterr().out
     assert "marl/single" in out and "single s/100k" in out
+    assert "memory per env: state 867 bytes" in out  # 17 leaves x (11 float32 + 2 bool fields), day, step, workday, 19 float32 totals
 
 
 def test_throughput_uses_the_requested_host_devices():
