@@ -45,6 +45,9 @@ SCENARIOS = {
     "grid25_high": {"SCENARIO": "shopping-grid25-high"},
     "grid10_high": {"SCENARIO": "shopping-grid10-high"},
     "peak": {"SCENARIO": "shopping-peak"},
+    # make train's action space (full power, idle or full discharge per leaf): the MPC rounds
+    # its plan to these levels, so this is the MPC line of make train's learning curves.
+    "default_full_power": {"SCENARIO": "shopping", "TRAFFIC": "medium", "ENV_KWARGS": {"num_levels": 1}},
 }
 
 

@@ -280,22 +280,67 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         common.save_params(params, out / "params.msgpack")
-        lines = {f"always-max (held-out) {am:.0f}": am}
-        for key, label in (("battery_rule", "always-max + battery rule"), ("price_threshold", "price-threshold"),
-                           ("mpc", "MPC, 4 h horizon"), ("lp_bound", "LP hindsight bound")):
-            if key in baselines:
-                v = baselines[key]["metrics"]["daily_profit_eur"]["mean"]
-                lines[f"{label} (held-out) {v:.0f}"] = v
-        common.plot_learning_curve(
-            out / "curve.png", timesteps, {f"{algo} training episodes (sampled)": metrics["episode_profit_eur"]},
-            lines, title or f"{algo.upper()} {config['SCENARIO']} / {config['TRAFFIC']}: {seeds} seeds",
-            eval_points={f"{algo} held-out (greedy)": ([e["timesteps"] for e in evals],
-                                                        np.asarray([e["per_seed_profit"] for e in evals]).T)}
-            if evals else None)
+        plot_curve(out / "curve.png", algo, timesteps, metrics["episode_profit_eur"], baselines, evals,
+                   title or f"{algo.upper()} {config['SCENARIO']} / {config['TRAFFIC']}: {seeds} seeds")
         common.write_json(results, out / "results.json")
         if not quiet:
             print(f"wrote {out / 'curve.png'}, {out / 'results.json'}, {out / 'params.msgpack'}")
     results["_params"], results["_train"] = params, train  # for callers (not written to JSON)
+    return results
+
+
+LINES = (("battery_rule", "always-max + battery rule"), ("price_threshold", "price-threshold"),
+         ("mpc", "MPC, 4 h horizon"), ("lp_bound", "LP hindsight bound"))
+"""The reference policies drawn as horizontal lines on a learning curve (after always-max)."""
+
+
+def plot_curve(path, algo: str, timesteps, episode_profit, baselines: dict, evals: list, title: str):
+    """A run's learning curve: the sampled training-episode profit over seeds, the held-out
+    greedy evaluations, and every reference of ``baselines`` present (:data:`LINES`) as a line."""
+    am = baselines["always_max"]["metrics"]["daily_profit_eur"]["mean"]
+    lines = {f"always-max (held-out) {am:.0f}": am}
+    for key, label in LINES:
+        if key in baselines:
+            v = baselines[key]["metrics"]["daily_profit_eur"]["mean"]
+            lines[f"{label} (held-out) {v:.0f}"] = v
+    common.plot_learning_curve(
+        path, timesteps, {f"{algo} training episodes (sampled)": np.asarray(episode_profit)}, lines, title,
+        eval_points={f"{algo} held-out (greedy)": ([e["timesteps"] for e in evals],
+                                                    np.asarray([e["per_seed_profit"] for e in evals]).T)}
+        if evals else None)
+
+
+def add_stored_mpc(run_dir) -> dict:
+    """Add the MPC that ``make optimal`` (``python -m baselines.optimal``) stored for exactly a
+    run's evaluation params and held-out days to the run's ``results.json`` (its evaluation
+    table, with ``headroom`` and the run's paired difference to it, ``vs_mpc``) and redraw its
+    ``curve.png`` with the MPC line, without retraining. Raises ``LookupError`` when no stored
+    result matches (run ``python -m baselines.optimal --scenarios ...`` for these params first)."""
+    from baselines.optimal import cached
+    from chargax_marl.evaluation import summarize_profit
+
+    run_dir = Path(run_dir)
+    results = json.loads((run_dir / "results.json").read_text())
+    config = common.parse_config({}, results["config"])
+    _, eval_params, _, days = common.build_env_params(config)
+    days = results["evaluation"]["days"] if results["evaluation"].get("days") else days
+    stored = cached(eval_params, days)
+    if stored is None or "mpc" not in stored["policies"]:
+        raise LookupError(f"{run_dir}: no stored MPC for its params and {len(days)} held-out days in "
+                          "baselines/results/optimal (run `python -m baselines.optimal` for this scenario)")
+    table = results["evaluation"]["table"]
+    mpc_daily = np.asarray(stored["policies"]["mpc"]["daily_profit"])
+    table["mpc"] = {"daily_profit": mpc_daily.tolist(), "metrics": summarize_profit(mpc_daily),
+                    "source": "baselines/results/optimal (same params and days)"}
+    add_headroom({"mpc": table["mpc"]}, {k: {"daily_profit": np.asarray(v["daily_profit"])} for k, v in table.items()
+                                          if isinstance(v, dict) and "daily_profit" in v})
+    algo = results["algo"]
+    results["vs_mpc"] = common.paired_difference(table[algo]["daily_profit"], mpc_daily)  # (seeds, days) - (days,)
+    common.write_json(results, run_dir / "results.json")
+    curve = results["curve"]
+    title = f"{algo.upper()} {config['SCENARIO']} / {config['TRAFFIC']}: {results['seeds']} seeds"
+    plot_curve(run_dir / "curve.png", algo, curve["timesteps"], curve["episode_profit_eur"], table,
+               results["eval_curve"], title)
     return results
 
 
@@ -360,10 +405,20 @@ def main(argv=None) -> dict:
     p.add_argument("--out", default="baselines/results/run")
     p.add_argument("--optimal", choices=OPTIMAL_CHOICES, default="bound",
                    help="add the LP hindsight bound (bound, default), also the MPC (mpc), or neither (off)")
+    p.add_argument("--replot", nargs="+", default=None, metavar="RUN_DIR",
+                   help="train nothing: add the stored MPC for each run's params and days to its results.json "
+                        "and redraw its curve.png (add_stored_mpc)")
     from baselines import distributed
 
     distributed.add_arguments(p)
     a = p.parse_args(argv)
+    if a.replot:
+        for run_dir in a.replot:
+            r = add_stored_mpc(run_dir)
+            mpc = r["evaluation"]["table"]["mpc"]["metrics"]["daily_profit_eur"]["mean"]
+            print(f"{run_dir}: MPC {mpc:.2f} EUR/day added" + (f"; {r['algo']} vs MPC {r['vs_mpc']['mean']:+.2f} ± "
+                                                                f"{r['vs_mpc']['stderr']:.2f}" if "vs_mpc" in r else ""))
+        return {}
     # `python -m baselines.train` has initialised before its imports; a caller of main() must have
     # called distributed.initialize() before importing baselines.train (see baselines/distributed.py)
     distributed.initialize_from_argv(argv)

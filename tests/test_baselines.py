@@ -762,3 +762,40 @@ def test_cli_on_off_flags_reach_the_config(monkeypatch):
     assert seen["BATTERY_ENT_COEF"] == 0.05 and seen["BATTERY_SHAPING"] == "dp" and seen["PORT_SHAPING"] == "plan"
     train.main(["--algo", "ippo", "--relative-prices", "off", "--agent-adv-norm", "off", "--timesteps", "100"])
     assert seen["RELATIVE_PRICES"] is False and seen["AGENT_ADV_NORM"] is False
+
+
+def test_replot_adds_the_stored_mpc_for_exactly_the_runs_params(tmp_path, monkeypatch):
+    """``python -m baselines.train --replot RUN`` finds the MPC stored for the run's params and
+    held-out days, adds it to the run's table with the paired difference, and redraws the
+    curve; without a matching stored result it raises ``LookupError``."""
+    from baselines import optimal
+    from baselines import train as cli
+    from chargax_marl.trace import params_fingerprint
+
+    out = tmp_path / "run"
+    cli.main(["--algo", "ippo", "--timesteps", str(4 * 24), "--seeds", "2", "--num-envs", "4", "--num-steps", "24",
+              "--hidden", "16", "--chunks", "1", "--optimal", "off", "--env-kwargs", json.dumps(TINY_ENV),
+              "--out", str(out)])
+    res = json.loads((out / "results.json").read_text())
+    monkeypatch.setattr(optimal, "RESULTS_DIR", tmp_path / "optimal")
+    (tmp_path / "optimal").mkdir()
+    with pytest.raises(LookupError, match="no stored MPC"):
+        cli.main(["--replot", str(out)])
+    config = common.parse_config({}, res["config"])
+    _, eval_params, _, days = common.build_env_params(config)
+    days = [int(d) for d in days]
+    mpc_daily = np.linspace(10.0, 20.0, len(days))
+    stored = {"params_fingerprint": params_fingerprint(eval_params), "days": days,
+              "policies": {"mpc": {"daily_profit": mpc_daily.tolist()}}}
+    (tmp_path / "optimal" / "other.json").write_text(json.dumps({**stored, "params_fingerprint": "0" * 16}))
+    (tmp_path / "optimal" / "tiny.json").write_text(json.dumps(stored))
+    before = (out / "curve.png").stat().st_mtime_ns
+    cli.main(["--replot", str(out)])
+    new = json.loads((out / "results.json").read_text())
+    table = new["evaluation"]["table"]
+    assert table["mpc"]["daily_profit"] == pytest.approx(mpc_daily.tolist())
+    learned = np.asarray(table["ippo"]["daily_profit"])  # (seeds, days)
+    assert new["vs_mpc"]["mean"] == pytest.approx(float((learned - mpc_daily[None, :]).mean()))
+    assert len(new["vs_mpc"]["per_seed_mean"]) == 2
+    assert new["per_seed"] == res["per_seed"]  # nothing else of the run changes
+    assert (out / "curve.png").stat().st_mtime_ns > before
