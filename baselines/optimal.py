@@ -48,6 +48,9 @@ SCENARIOS = {
     # make train's action space (full power, idle or full discharge per leaf): the MPC rounds
     # its plan to these levels, so this is the MPC line of make train's learning curves.
     "default_full_power": {"SCENARIO": "shopping", "TRAFFIC": "medium", "ENV_KWARGS": {"num_levels": 1}},
+    "grid25_high_full_power": {"SCENARIO": "shopping-grid25-high", "ENV_KWARGS": {"num_levels": 1}},
+    "peak_full_power": {"SCENARIO": "shopping-peak",
+                        "ENV_KWARGS": {"num_levels": 1, "peak_demand_booking": "incremental"}},
 }
 
 
