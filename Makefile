@@ -67,8 +67,10 @@ train-ppo: $(STAMP)
 
 # The LP hindsight bound, the MPC and the rule-based policies on the 100 held-out days of the
 # default scenario and of three coordination scenarios (grid at 25 % and 10 %, high traffic;
-# time-of-use and peak-demand charge), plus the small MILP comparison; writes
-# baselines/results/optimal/*.json and *.png and prints the table (about 25 min on 2 idle cores).
+# time-of-use and peak-demand charge), the same in the learned agents' full-power action space
+# (num_levels 1: the MPC lines of their learning curves, see `baselines.train --replot`), plus the
+# small MILP comparison; writes baselines/results/optimal/*.json and *.png and prints the table
+# (about 40 min on 2 idle cores).
 optimal: $(STAMP)
 	$(PY) -m baselines.optimal
 
