@@ -312,6 +312,33 @@ def test_each_penalty_term_equals_a_hand_computation():
     assert float(info.leaf_energy_kwh[4]) == pytest.approx(e_ac, rel=1e-6)
 
 
+def test_a_zero_weight_contributes_exactly_zero_and_its_term_is_not_computed():
+    """``r = profit - sum_c alpha_c c`` with ``alpha_c = 0`` must not depend on ``c`` at all:
+    not even a non-finite term may leak in (``0 * inf`` is NaN), and with the weights fixed at
+    compile time the compiled step drops the unweighted terms (the default all-zero weights
+    made every step compute them all)."""
+    from chargax_marl.core import reward as reward_lib
+    from chargax_marl.core.types import PENALTY_TERMS
+
+    p0 = make_params(station=three_level_station())
+    terms = {name: jnp.float32(jnp.inf) for name in PENALTY_TERMS}
+    assert float(reward_lib.reward(jnp.float32(5.0), terms, p0)) == 5.0
+    p1 = make_params(station=three_level_station(), alpha={"satisfaction_time": 2.0})
+    terms = {**terms, "satisfaction_time": jnp.float32(1.5)}
+    assert float(reward_lib.reward(jnp.float32(5.0), terms, p1)) == 2.0
+
+    # The compiled step with the weights closed over: the constraint term (the node sums of the
+    # currents that flow, three scatters on this 3-level station) is there only when weighted.
+    action = jnp.zeros((p0.station.num_leaves,), jnp.int32)
+
+    def scatters(prm):
+        fn = jax.jit(lambda k, s_: simulator.step(k, s_, action, prm)[1].reward)
+        return fn.lower(KEY, start(prm)).compile().as_text().count(" scatter(")
+
+    weighted = make_params(station=three_level_station(), alpha={"constraint": 1.0})
+    assert scatters(p0) < scatters(weighted)
+
+
 def test_price_lookahead_past_midnight_reads_next_day(params):
     s = start(params, day=5).replace(timestep=jnp.asarray(287))
     ctx = np.asarray(context_features(s, params)) * PRICE_SCALE_EUR_KWH
