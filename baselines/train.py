@@ -416,8 +416,8 @@ def main(argv=None) -> dict:
         for run_dir in a.replot:
             r = add_stored_mpc(run_dir)
             mpc = r["evaluation"]["table"]["mpc"]["metrics"]["daily_profit_eur"]["mean"]
-            print(f"{run_dir}: MPC {mpc:.2f} EUR/day added" + (f"; {r['algo']} vs MPC {r['vs_mpc']['mean']:+.2f} ± "
-                                                                f"{r['vs_mpc']['stderr']:.2f}" if "vs_mpc" in r else ""))
+            print(f"{run_dir}: MPC {mpc:.2f} EUR/day added; {r['algo']} vs MPC {r['vs_mpc']['mean']:+.2f} ± "
+                  f"{r['vs_mpc']['stderr']:.2f}")
         return {}
     # `python -m baselines.train` has initialised before its imports; a caller of main() must have
     # called distributed.initialize() before importing baselines.train (see baselines/distributed.py)
