@@ -22,9 +22,9 @@ import time
 import jax
 
 
-# Importing chargax_marl imports gymnax, whose modules build jnp arrays at import time and so
-# start JAX's backend: after that, ``--devices`` (XLA_FLAGS) has no effect. These wrappers
-# import it only when called, after ``main`` has set the host device count.
+# The views import gymnax (single) and jaxmarl (MARL), whose modules build jnp arrays at import
+# time and so start JAX's backend: after that, ``--devices`` (XLA_FLAGS) has no effect. These
+# wrappers import chargax_marl only when called, after ``main`` has set the host device count.
 def machine_info() -> dict:
     from chargax_marl.machine import machine_info as info
 
@@ -140,7 +140,7 @@ def main(argv=None) -> list[dict]:
     if len(jax.devices()) != args.devices:
         raise RuntimeError(
             f"--devices {args.devices}: JAX sees {len(jax.devices())} device(s) because its backend started "
-            "before the host device count was set (something imported chargax_marl or gymnax first); run "
+            "before the host device count was set (something imported chargax_marl's views, gymnax or jaxmarl first); run "
             "this script as its own process, or pass --devices equal to the devices JAX already has")
     from envbench import compiled_rollout, steps_for, time_interleaved
 

@@ -22,7 +22,7 @@ NAMESPACE = "chargax_marl"
 
 def env_ids() -> dict[str, dict]:
     """Every id this package registers, with the keyword arguments it passes."""
-    from chargax_marl.single.scenarios import SCENARIOS
+    from chargax_marl.core.scenarios import SCENARIOS
 
     ids = {f"{NAMESPACE}/Chargax-v0": {}}
     for name, kwargs in SCENARIOS.items():

@@ -5,6 +5,7 @@ forked workers, and the single-agent env's spaces for gymnax code."""
 from __future__ import annotations
 
 import functools
+import os
 import multiprocessing
 import pickle
 import warnings
@@ -153,6 +154,27 @@ def test_gymnasium_make_ids():
     env = gymnasium.make("chargax_marl:chargax_marl/Chargax-v0", **HOURLY)  # the module-prefixed form
     env.reset(seed=0)
 
+
+def test_importing_the_package_leaves_jax_unstarted():
+    """``import chargax_marl`` (which registers the ids) and the view-free modules must not
+    start JAX's backend, so a script may still set the host device count or call
+    ``jax.distributed.initialize`` afterwards. The registration used to import the single
+    view, hence gymnax, whose modules build arrays at import time: the flag set below was
+    then ignored and JAX saw one device."""
+    import subprocess
+    import sys
+
+    code = ("import os, chargax_marl, chargax_marl.core, chargax_marl.evaluation, chargax_marl.policies, "
+            "chargax_marl.trace, chargax_marl.optimal\n"
+            "import gymnasium\n"
+            "assert 'chargax_marl/Chargax-v0' in gymnasium.registry\n"
+            "os.environ['XLA_FLAGS'] = '--xla_force_host_platform_device_count=3'\n"
+            "import jax\n"
+            "print(len(jax.devices('cpu')))\n")
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "XLA_FLAGS": ""}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split()[-1] == "3", out.stdout
 
 # ------------------------------------------------------------------ finite bounds
 
