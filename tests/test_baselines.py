@@ -799,3 +799,28 @@ def test_replot_adds_the_stored_mpc_for_exactly_the_runs_params(tmp_path, monkey
     assert len(new["vs_mpc"]["per_seed_mean"]) == 2
     assert new["per_seed"] == res["per_seed"]  # nothing else of the run changes
     assert (out / "curve.png").stat().st_mtime_ns > before
+
+
+def test_sensitivity_battery_step_on_an_empty_station_is_the_hand_computed_trade():
+    """With no cars, charging the battery for one step changes each day by exactly what the
+    step costs at that step's price plus what the stored energy is worth at the day's end; a
+    port idling changes nothing, and neither does a step outside the day."""
+    from baselines import sensitivity
+    from chargax_marl.core import make_params
+    from tests.helpers import no_arrivals
+
+    params = no_arrivals(make_params(**{**TINY_ENV, "step_minutes": 15.0}))
+    days, step = np.array([3, 40, 200]), 30
+    out = sensitivity.sensitivity(params, days, step=step)
+    eta, power_kw, capacity_kwh, e0 = storage_value._battery_constants(params)
+    assert e0 + power_kw * float(params.step_hours) < 0.8 * capacity_kwh  # below the taper: the full charge
+    stored = power_kw * float(params.step_hours)
+    prices = storage_value.step_buy_prices(params)[days, step]
+    expected = -prices * stored / eta + storage_value.terminal_prices(params)[days] * stored
+    np.testing.assert_allclose(out["battery_charges"]["daily_difference_eur"], expected, rtol=1e-4, atol=1e-4)
+    assert np.all(np.asarray(out["port_idles"]["daily_difference_eur"]) == 0.0)
+    assert out["battery_charges"]["days_served_cars_differ"] == 0
+    outside = sensitivity.sensitivity(params, days, step=-5)
+    assert all(np.all(np.asarray(outside[p]["daily_difference_eur"]) == 0.0) for p in sensitivity.PERTURBATIONS)
+    with pytest.raises(ValueError, match="perturbation"):
+        sensitivity.perturbed_always_max(params, "battery_discharges", 0)
