@@ -164,6 +164,14 @@ def per_seed_results(final: dict, evals: list, baselines: dict, seed: int) -> li
     return out
 
 
+def chunked_updates(config: dict, chunks: int) -> tuple[int, int]:
+    """``(chunks, updates)`` that :func:`run` trains ``config`` with: the updates its
+    ``TOTAL_TIMESTEPS`` holds, rounded down to equal chunks (one compiled program)."""
+    n_upd = common.num_updates(config)
+    chunks = max(1, min(chunks, n_upd))
+    return chunks, (n_upd // chunks) * chunks
+
+
 def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path | None = None, chunks: int = 10,
         evaluate_every_chunk: bool = True, baselines: dict | None = None, eval_params=None, eval_days=None,
         env_params=None, title: str | None = None, quiet: bool = False, optimal: str = "off") -> dict:
@@ -183,9 +191,7 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
     mod = get_module(algo)
     config = common.parse_config({}, config)
     steps_per_update = config["NUM_ENVS"] * config["NUM_STEPS"]
-    n_upd = common.num_updates(config)
-    chunks = max(1, min(chunks, n_upd))
-    n_upd = (n_upd // chunks) * chunks  # equal chunks: one compiled program
+    chunks, n_upd = chunked_updates(config, chunks)
     config["TOTAL_TIMESTEPS"] = n_upd * steps_per_update
     train_params, full_params, train_days, held_out = common.build_env_params(config)
     env_params = train_params if env_params is None else env_params

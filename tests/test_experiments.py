@@ -6,6 +6,8 @@ runner compiles several programs (minutes on 2 cores), so it is not part of the 
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from baselines.experiments import cross_market as cm
@@ -177,3 +179,61 @@ def test_traffic_sweep_log_line_and_plots(tmp_path):
     ts.plot(sweep, "ppo", tmp_path / "main.png")
     ts.plot_grid({"shopping/EU": sweep, "highway/EU": sweep}, "ppo", tmp_path / "grid.png")
     assert (tmp_path / "main.png").read_bytes()[:4] == b"\x89PNG" and (tmp_path / "grid.png").stat().st_size > 0
+
+
+def _stored_run(tmp_path, config, **overrides):
+    """A ``results.json`` as ``baselines.train`` writes it, for ``config`` (4 chunks, 2 seeds)."""
+    import json
+
+    from baselines import common
+    from baselines.train import chunked_updates
+
+    parsed = common.parse_config({}, config)
+    _, n_upd = chunked_updates(parsed, 4)
+    res = {"algo": "ppo", "seeds": 2, "seed": 0, "timesteps": n_upd * parsed["NUM_ENVS"] * parsed["NUM_STEPS"],
+           "config": {**parsed, "TOTAL_TIMESTEPS": n_upd * parsed["NUM_ENVS"] * parsed["NUM_STEPS"]},
+           "wall_seconds": 12.5, **overrides}
+    path = tmp_path / "results.json"
+    path.write_text(json.dumps(res))
+    return str(path)
+
+
+def test_a_reused_cell_must_be_the_run_the_runner_would_make(tmp_path):
+    """``traffic_sweep --reuse``: a stored run is taken only when its algorithm, seeds, budget,
+    settings and parameters are the cell's; the station may be spelled with or without its
+    default fleet. Anything else is an error naming the difference."""
+    import pytest
+
+    from baselines.experiments import traffic_sweep as ts
+    from baselines.experiments._common import reused_run
+
+    base, _ = _common_config(["--timesteps", "1e5"])
+    cell = ts.condition_config(base, "shopping", "EU", "medium")  # ENV_KWARGS with fleet "EU" (the default)
+    stored = {**cell, "ENV_KWARGS": {"num_levels": 1}}
+    assert reused_run(_stored_run(tmp_path, stored), "ppo", cell, 2, 4)["wall_seconds"] == 12.5
+    for kwargs, (algo, seeds, config), needle in [
+        ({}, ("ppo", 4, cell), "seeds=2 (this run: 4)"),
+        ({}, ("ippo", 2, cell), "algo='ppo'"),
+        ({}, ("ppo", 2, {**cell, "LR": 1e-4}), "config LR="),
+        ({}, ("ppo", 2, ts.condition_config(base, "shopping", "EU", "high")), "config TRAFFIC='medium'"),
+        ({}, ("ppo", 2, ts.condition_config(base, "shopping", "US", "medium")), "builds another station"),
+        ({"timesteps": 3600}, ("ppo", 2, cell), "timesteps=3600"),
+    ]:
+        with pytest.raises(ValueError, match=re.escape(needle)):
+            reused_run(_stored_run(tmp_path, stored, **kwargs), algo, config, seeds, 4)
+
+
+def test_the_sweep_refuses_a_malformed_reuse():
+    import pytest
+
+    from baselines.experiments import traffic_sweep as ts
+
+    for argv in (["--reuse", "medium"], ["--reuse", "peak=x.json"], ["--traffic", "low", "--reuse", "high=x.json"]):
+        with pytest.raises(SystemExit):
+            ts.main(argv, out="/nonexistent/never")
+
+
+def _common_config(argv):
+    from baselines.experiments import _common
+
+    return _common.config_of(_args(argv))

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from baselines import common
-from baselines.train import FAST, OPTIMAL_CHOICES, baseline_results, over_seeds, run
+from baselines.train import FAST, OPTIMAL_CHOICES, baseline_results, chunked_updates, over_seeds, run
 
 PAPER_TIMESTEPS = int(1e7)  # Table 3: 1e7 env-steps per seed
 
@@ -96,6 +96,39 @@ def paired_over_seeds(a, b) -> dict:
     d = np.asarray(a, np.float64) - np.asarray(b, np.float64)
     d = d.mean(axis=1) if d.ndim == 2 else d
     return {**over_seeds(d), "per_seed": d.tolist()}
+
+
+def reused_run(path, algo: str, config: dict, seeds: int, chunks: int) -> dict:
+    """The results of a run that ``baselines.train`` already made (its ``results.json`` at
+    ``path``), checked to be the run that ``run(algo, config, seeds=seeds, chunks=chunks)``
+    would make: the same algorithm, seeds (from key 0), learning settings, env-steps, training
+    and evaluation parameters and held-out days. Raises ``ValueError`` naming what differs."""
+    import json
+
+    import jax
+
+    with open(path) as f:
+        res = json.load(f)
+    config = common.parse_config({}, config)
+    _, n_upd = chunked_updates(config, chunks)
+    want = {"algo": algo, "seeds": seeds, "seed": 0,
+            "timesteps": n_upd * config["NUM_ENVS"] * config["NUM_STEPS"]}
+    diffs = [f"{k}={res.get(k)!r} (this run: {v!r})" for k, v in want.items() if res.get(k) != v]
+    theirs = res.get("config", {})
+    diffs += [f"config {k}={theirs.get(k)!r} (this run: {config.get(k)!r})"
+              for k in sorted(set(config) | set(theirs)) if k not in ("TOTAL_TIMESTEPS", "ENV_KWARGS")
+              and theirs.get(k) != config.get(k)]
+    if not diffs:  # ENV_KWARGS may spell the same station differently (a default given or not)
+        mine, other = (common.build_env_params(common.parse_config({}, c)) for c in (config, theirs))
+        same = all(jax.tree_util.tree_structure(a) == jax.tree_util.tree_structure(b) and
+                   all(np.array_equal(x, y) for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)))
+                   for a, b in zip(mine, other))
+        if not same:
+            diffs.append(f"config ENV_KWARGS={theirs.get('ENV_KWARGS')!r} builds another station, "
+                         f"prices or days than {config['ENV_KWARGS']!r}")
+    if diffs:
+        raise ValueError(f"{path} is not this run: " + "; ".join(diffs))
+    return res
 
 
 class Record:

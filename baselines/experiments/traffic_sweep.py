@@ -15,6 +15,11 @@ workplace, highway; EU fleet) and for the US and World fleets (shopping) and als
 ``baselines/results/traffic_sweep_appendix.{png,json}``; ``--profiles`` / ``--fleets`` pick
 conditions by hand (every profile with the first fleet, then the first profile with every
 other fleet). Shopping with the EU fleet is the main figure whenever it is among them.
+
+``--traffic`` picks traffic levels. ``--reuse medium=DIR/results.json`` takes a shopping/EU
+cell from a run ``baselines.train`` already made with the same settings, seeds and budget
+(checked; a mismatch is an error) instead of training it again; the result file names the
+reused files and adds their wall time (``reused``, ``wall_seconds_with_reused``).
 """
 
 from __future__ import annotations
@@ -22,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from baselines import common
-from baselines.experiments._common import Record, output, config_of, parser, with_env_kwargs
+from baselines.experiments._common import Record, config_of, output, parser, reused_run, with_env_kwargs
 from baselines.train import run
 
 TRAFFIC = ("low", "medium", "high")
@@ -47,15 +52,25 @@ def main(argv=None, out="baselines/results/traffic_sweep"):
     p.add_argument("--appendix", action="store_true", help="every bundled profile (EU fleet) and fleet (shopping)")
     p.add_argument("--profiles", nargs="+", choices=PROFILES, default=None)
     p.add_argument("--fleets", nargs="+", choices=FLEETS, default=None)
+    p.add_argument("--traffic", nargs="+", choices=TRAFFIC, default=list(TRAFFIC), help="traffic levels")
+    p.add_argument("--reuse", nargs="+", default=[], metavar="TRAFFIC=RESULTS_JSON",
+                   help="shopping/EU cells already trained by baselines.train with these settings")
     args = p.parse_args(argv)
+    reuse = parse_reuse(p, args.reuse, args.traffic)
     out = output(out)
     base, seeds = config_of(args)
     profiles = args.profiles or (PROFILES if args.appendix else ("shopping",))
     fleets = args.fleets or (FLEETS if args.appendix else ("EU",))
     cells = conditions(tuple(profiles), tuple(fleets))
     record = Record(args, seeds, base, paper_seeds=20, figure="Fig. 4a" + (" and appendix" if len(cells) > 1 else ""))
-    sweeps = {f"{profile}/{fleet}": _sweep(args, base, seeds, profile, fleet) for profile, fleet in cells}
+    sweeps = {f"{profile}/{fleet}": _sweep(args, base, seeds, profile, fleet,
+                                           reuse if (profile, fleet) == ("shopping", "EU") else {})
+              for profile, fleet in cells}
     meta = record.as_dict()
+    if reuse:
+        meta["reused"] = {t: {"path": path, "wall_seconds": sweeps["shopping/EU"][t]["wall_seconds"]}
+                          for t, path in reuse.items()}
+        meta["wall_seconds_with_reused"] = meta["wall_seconds"] + sum(r["wall_seconds"] for r in meta["reused"].values())
     if "shopping/EU" in sweeps:  # the main figure: {traffic: result}
         common.write_json({**meta, "results": sweeps["shopping/EU"]}, out + ".json")
         plot(sweeps["shopping/EU"], args.algo, out + ".png")
@@ -69,14 +84,32 @@ def main(argv=None, out="baselines/results/traffic_sweep"):
     return sweeps
 
 
-def _sweep(args, base, seeds, profile, fleet) -> dict:
+CHUNKS = 4  # a cell trains in 4 chunks (its env-steps rounded to them), evaluated once at the end
+
+
+def parse_reuse(p, items: list[str], traffic: list[str]) -> dict[str, str]:
+    """``{traffic: results.json path}`` of ``--reuse TRAFFIC=PATH`` items (errors through ``p``)."""
+    reuse = {}
+    for item in items:
+        level, sep, path = item.partition("=")
+        if not sep or level not in traffic or not path:
+            p.error(f"--reuse {item!r}: expected TRAFFIC=RESULTS_JSON with TRAFFIC one of {traffic}")
+        reuse[level] = path
+    return reuse
+
+
+def _sweep(args, base, seeds, profile, fleet, reuse: dict) -> dict:
     results = {}
-    for traffic in TRAFFIC:
+    for traffic in args.traffic:
         cfg = condition_config(base, profile, fleet, traffic)
-        res = run(args.algo, cfg, seeds=seeds, chunks=4, evaluate_every_chunk=False, quiet=True,
-                  optimal=args.optimal)
+        if traffic in reuse:
+            res = reused_run(reuse[traffic], args.algo, cfg, seeds, CHUNKS)
+        else:
+            res = run(args.algo, cfg, seeds=seeds, chunks=CHUNKS, evaluate_every_chunk=False, quiet=True,
+                      optimal=args.optimal)
         results[traffic] = {k: v for k, v in res.items() if not k.startswith("_")}
-        print(f"{profile}/{fleet} {traffic:>6}: {line(res, args.algo)} ({res['wall_seconds']:.0f} s)", flush=True)
+        how = f"reused {reuse[traffic]}, " if traffic in reuse else ""
+        print(f"{profile}/{fleet} {traffic:>6}: {line(res, args.algo)} ({how}{res['wall_seconds']:.0f} s)", flush=True)
     return results
 
 
