@@ -223,17 +223,38 @@ def test_a_reused_cell_must_be_the_run_the_runner_would_make(tmp_path):
             reused_run(_stored_run(tmp_path, stored, **kwargs), algo, config, seeds, 4)
 
 
-def test_the_sweep_refuses_a_malformed_reuse():
+def test_the_sweep_reads_reused_cells_and_refuses_cells_it_does_not_train(tmp_path):
+    import argparse
+
     import pytest
 
     from baselines.experiments import traffic_sweep as ts
 
-    for argv in (["--reuse", "medium"], ["--reuse", "peak=x.json"], ["--traffic", "low", "--reuse", "high=x.json"]):
+    cells = ts.conditions(ts.PROFILES, ts.FLEETS)
+    got = ts.parse_reuse(argparse.ArgumentParser(), ["medium=a.json", "highway/EU/high=b.json", "shopping/US/low=c"],
+                         cells, list(ts.TRAFFIC))
+    assert got == {"shopping/EU/medium": "a.json", "highway/EU/high": "b.json", "shopping/US/low": "c"}
+    for argv in (["--reuse", "medium"], ["--reuse", "peak=x.json"], ["--traffic", "low", "--reuse", "high=x.json"],
+                 ["--reuse", "highway/EU/high=x.json"],  # not in the main figure's sweep without --appendix
+                 ["--appendix", "--reuse", "highway/US/high=x.json"], ["--reuse", "medium="]):
         with pytest.raises(SystemExit):
-            ts.main(argv, out="/nonexistent/never")
+            ts.main(argv, out=str(tmp_path / "never" / "sweep"))
+    assert not (tmp_path / "never").exists()  # refused before anything is written
 
 
 def _common_config(argv):
     from baselines.experiments import _common
 
     return _common.config_of(_args(argv))
+
+
+def test_the_report_counts_a_reused_cell_s_wall_time():
+    from baselines.experiments.report import provenance
+
+    machine = {"cpu": "Xeon", "cores": 2, "backend": "cpu"}
+    plain = {"cut_note": "the paper's scale", "settings": "tuned", "wall_seconds": 600.0, "machine": machine}
+    assert provenance(plain) == "the paper's scale; settings `tuned`; 10 min wall on Xeon ×2 (cpu)"
+    reused = {**plain, "wall_seconds_with_reused": 3000.0,
+              "reused": {"medium": {"path": "runs/medium/results.json", "wall_seconds": 2400.0}}}
+    assert provenance(reused) == ("the paper's scale; settings `tuned`; 50 min wall (with the reused medium cell "
+                                  "(runs/medium/results.json)) on Xeon ×2 (cpu)")

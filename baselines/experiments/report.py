@@ -33,9 +33,12 @@ def seeds_stat(per_seed) -> dict:
 
 def provenance(d: dict) -> str:
     m = d.get("machine") or {}
-    wall = d.get("wall_seconds")
+    wall = d.get("wall_seconds_with_reused", d.get("wall_seconds"))
+    reused = d.get("reused") or {}
     return (f"{d.get('cut_note', '')}; settings `{d.get('settings', '?')}`; "
             + (f"{wall / 60:.0f} min wall" if wall else "wall time not recorded")
+            + (" (with the reused " + ", ".join(f"{k} cell ({v['path']})" for k, v in reused.items()) + ")"
+               if reused else "")
             + (f" on {m.get('cpu')} ×{m.get('cores')} ({m.get('backend')})" if m else ""))
 
 

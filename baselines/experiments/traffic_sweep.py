@@ -16,10 +16,17 @@ workplace, highway; EU fleet) and for the US and World fleets (shopping) and als
 conditions by hand (every profile with the first fleet, then the first profile with every
 other fleet). Shopping with the EU fleet is the main figure whenever it is among them.
 
-``--traffic`` picks traffic levels. ``--reuse medium=DIR/results.json`` takes a shopping/EU
-cell from a run ``baselines.train`` already made with the same settings, seeds and budget
-(checked; a mismatch is an error) instead of training it again; the result file names the
-reused files and adds their wall time (``reused``, ``wall_seconds_with_reused``).
+``--traffic`` picks traffic levels. ``--reuse medium=DIR/results.json`` (or
+``highway/EU/high=...`` for another condition) takes a cell from a run ``baselines.train``
+already made with the same settings, seeds and budget (checked; a mismatch is an error)
+instead of training it again, so a paper-scale sweep can be built a cell at a time, e.g.::
+
+    python -m baselines.train --algo ppo --scenario highway --traffic high --seeds 20 --timesteps 1e7 \
+        --chunks 4 --gamma 0.95 --relative-prices on --env-kwargs '{"num_levels": 1}' \
+        --battery-shaping dp --split-credit on --out runs/highway_EU_high
+
+The result file names the reused files and adds their wall time (``reused``,
+``wall_seconds_with_reused``).
 """
 
 from __future__ import annotations
@@ -53,23 +60,21 @@ def main(argv=None, out="baselines/results/traffic_sweep"):
     p.add_argument("--profiles", nargs="+", choices=PROFILES, default=None)
     p.add_argument("--fleets", nargs="+", choices=FLEETS, default=None)
     p.add_argument("--traffic", nargs="+", choices=TRAFFIC, default=list(TRAFFIC), help="traffic levels")
-    p.add_argument("--reuse", nargs="+", default=[], metavar="TRAFFIC=RESULTS_JSON",
-                   help="shopping/EU cells already trained by baselines.train with these settings")
+    p.add_argument("--reuse", nargs="+", default=[], metavar="[PROFILE/FLEET/]TRAFFIC=RESULTS_JSON",
+                   help="cells already trained by baselines.train with these settings (default condition shopping/EU)")
     args = p.parse_args(argv)
-    reuse = parse_reuse(p, args.reuse, args.traffic)
-    out = output(out)
     base, seeds = config_of(args)
     profiles = args.profiles or (PROFILES if args.appendix else ("shopping",))
     fleets = args.fleets or (FLEETS if args.appendix else ("EU",))
     cells = conditions(tuple(profiles), tuple(fleets))
+    reuse = parse_reuse(p, args.reuse, cells, args.traffic)
+    out = output(out)
     record = Record(args, seeds, base, paper_seeds=20, figure="Fig. 4a" + (" and appendix" if len(cells) > 1 else ""))
-    sweeps = {f"{profile}/{fleet}": _sweep(args, base, seeds, profile, fleet,
-                                           reuse if (profile, fleet) == ("shopping", "EU") else {})
-              for profile, fleet in cells}
+    sweeps = {f"{profile}/{fleet}": _sweep(args, base, seeds, profile, fleet, reuse) for profile, fleet in cells}
     meta = record.as_dict()
     if reuse:
-        meta["reused"] = {t: {"path": path, "wall_seconds": sweeps["shopping/EU"][t]["wall_seconds"]}
-                          for t, path in reuse.items()}
+        meta["reused"] = {key: {"path": path, "wall_seconds": sweeps[key.rsplit("/", 1)[0]][key.rsplit("/", 1)[1]]
+                                ["wall_seconds"]} for key, path in reuse.items()}
         meta["wall_seconds_with_reused"] = meta["wall_seconds"] + sum(r["wall_seconds"] for r in meta["reused"].values())
     if "shopping/EU" in sweeps:  # the main figure: {traffic: result}
         common.write_json({**meta, "results": sweeps["shopping/EU"]}, out + ".json")
@@ -87,14 +92,19 @@ def main(argv=None, out="baselines/results/traffic_sweep"):
 CHUNKS = 4  # a cell trains in 4 chunks (its env-steps rounded to them), evaluated once at the end
 
 
-def parse_reuse(p, items: list[str], traffic: list[str]) -> dict[str, str]:
-    """``{traffic: results.json path}`` of ``--reuse TRAFFIC=PATH`` items (errors through ``p``)."""
+def parse_reuse(p, items: list[str], cells: list[tuple[str, str]], traffic: list[str]) -> dict[str, str]:
+    """``{"profile/fleet/traffic": results.json path}`` of ``--reuse [PROFILE/FLEET/]TRAFFIC=PATH``
+    items; a bare traffic level means shopping/EU. A cell that this sweep does not train is an
+    error (through ``p``)."""
+    valid = [f"{profile}/{fleet}/{t}" for profile, fleet in cells for t in traffic]
     reuse = {}
     for item in items:
-        level, sep, path = item.partition("=")
-        if not sep or level not in traffic or not path:
-            p.error(f"--reuse {item!r}: expected TRAFFIC=RESULTS_JSON with TRAFFIC one of {traffic}")
-        reuse[level] = path
+        cell, sep, path = item.partition("=")
+        key = f"shopping/EU/{cell}" if "/" not in cell else cell
+        if not sep or not path or key not in valid:
+            p.error(f"--reuse {item!r}: expected [PROFILE/FLEET/]TRAFFIC=RESULTS_JSON with a cell of this sweep "
+                    f"({', '.join(valid)})")
+        reuse[key] = path
     return reuse
 
 
@@ -102,13 +112,14 @@ def _sweep(args, base, seeds, profile, fleet, reuse: dict) -> dict:
     results = {}
     for traffic in args.traffic:
         cfg = condition_config(base, profile, fleet, traffic)
-        if traffic in reuse:
-            res = reused_run(reuse[traffic], args.algo, cfg, seeds, CHUNKS)
+        stored = reuse.get(f"{profile}/{fleet}/{traffic}")
+        if stored:
+            res = reused_run(stored, args.algo, cfg, seeds, CHUNKS)
         else:
             res = run(args.algo, cfg, seeds=seeds, chunks=CHUNKS, evaluate_every_chunk=False, quiet=True,
                       optimal=args.optimal)
         results[traffic] = {k: v for k, v in res.items() if not k.startswith("_")}
-        how = f"reused {reuse[traffic]}, " if traffic in reuse else ""
+        how = f"reused {stored}, " if stored else ""
         print(f"{profile}/{fleet} {traffic:>6}: {line(res, args.algo)} ({how}{res['wall_seconds']:.0f} s)", flush=True)
     return results
 
