@@ -238,7 +238,7 @@ def test_the_sweep_reads_reused_cells_and_refuses_cells_it_does_not_train(tmp_pa
                  ["--reuse", "highway/EU/high=x.json"],  # not in the main figure's sweep without --appendix
                  ["--appendix", "--reuse", "highway/US/high=x.json"], ["--reuse", "medium="]):
         with pytest.raises(SystemExit):
-            ts.main(argv, out=str(tmp_path / "never" / "sweep"))
+            ts.main(argv + ["--out", str(tmp_path / "never" / "sweep")])
     assert not (tmp_path / "never").exists()  # refused before anything is written
 
 

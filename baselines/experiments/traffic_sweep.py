@@ -1,4 +1,4 @@
-"""Paper Fig. 4a: PPO in the shopping scenario at low / medium / high traffic vs always-max.
+r"""Paper Fig. 4a: PPO in the shopping scenario at low / medium / high traffic vs always-max.
 
     python -m baselines.experiments.traffic_sweep            # CPU default (2e6 steps, 4 seeds)
     python -m baselines.experiments.traffic_sweep --full     # the paper's budget (1e7 steps, 20 seeds)
@@ -62,13 +62,14 @@ def main(argv=None, out="baselines/results/traffic_sweep"):
     p.add_argument("--traffic", nargs="+", choices=TRAFFIC, default=list(TRAFFIC), help="traffic levels")
     p.add_argument("--reuse", nargs="+", default=[], metavar="[PROFILE/FLEET/]TRAFFIC=RESULTS_JSON",
                    help="cells already trained by baselines.train with these settings (default condition shopping/EU)")
+    p.add_argument("--out", default=out, help="path prefix of the result files (.json, .png, _appendix.*)")
     args = p.parse_args(argv)
     base, seeds = config_of(args)
     profiles = args.profiles or (PROFILES if args.appendix else ("shopping",))
     fleets = args.fleets or (FLEETS if args.appendix else ("EU",))
     cells = conditions(tuple(profiles), tuple(fleets))
     reuse = parse_reuse(p, args.reuse, cells, args.traffic)
-    out = output(out)
+    out = output(args.out)
     record = Record(args, seeds, base, paper_seeds=20, figure="Fig. 4a" + (" and appendix" if len(cells) > 1 else ""))
     sweeps = {f"{profile}/{fleet}": _sweep(args, base, seeds, profile, fleet, reuse) for profile, fleet in cells}
     meta = record.as_dict()
