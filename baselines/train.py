@@ -33,6 +33,7 @@ if __name__ == "__main__":  # before the imports below: importing gymnax already
 
     distributed.initialize_from_argv()
 from baselines import common  # noqa: E402
+from chargax_marl.machine import code_version  # noqa: E402
 
 ALGOS = ("ppo", "ippo", "mappo")
 
@@ -255,6 +256,7 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
         "seeds": seeds,
         "seed": seed,
         "devices": [str(d) for d in jax.devices()],
+        "code": code_version(),
         "num_processes": jax.process_count(),
         "timesteps": int(config["TOTAL_TIMESTEPS"]),
         "wall_seconds": wall,

@@ -27,6 +27,19 @@ def machine_info() -> dict:
             "device": dev.device_kind, "python": platform.python_version()}
 
 
+def code_version(root=None) -> dict:
+    """The git commit of the checkout at ``root`` (default: this package's) and whether it has
+    uncommitted changes, for result files; ``commit`` is ``None`` outside a git checkout."""
+    root = root or os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    try:
+        def git(*args):
+            return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, timeout=10,
+                                  check=True).stdout.strip()
+        return {"commit": git("rev-parse", "HEAD"), "dirty": bool(git("status", "--porcelain", "--untracked-files=no"))}
+    except (OSError, subprocess.SubprocessError):
+        return {"commit": None, "dirty": None}
+
+
 def load_info() -> str:
     """The 1/5/15-minute load averages, as ``uptime`` prints them (other jobs skew timings)."""
     try:

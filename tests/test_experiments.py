@@ -6,6 +6,7 @@ runner compiles several programs (minutes on 2 cores), so it is not part of the 
 
 from __future__ import annotations
 
+import json
 import re
 
 import numpy as np
@@ -183,8 +184,6 @@ def test_traffic_sweep_log_line_and_plots(tmp_path):
 
 def _stored_run(tmp_path, config, **overrides):
     """A ``results.json`` as ``baselines.train`` writes it, for ``config`` (4 chunks, 2 seeds)."""
-    import json
-
     from baselines import common
     from baselines.train import chunked_updates
 
@@ -210,7 +209,16 @@ def test_a_reused_cell_must_be_the_run_the_runner_would_make(tmp_path):
     base, _ = _common_config(["--timesteps", "1e5"])
     cell = ts.condition_config(base, "shopping", "EU", "medium")  # ENV_KWARGS with fleet "EU" (the default)
     stored = {**cell, "ENV_KWARGS": {"num_levels": 1}}
-    assert reused_run(_stored_run(tmp_path, stored), "ppo", cell, 2, 4)["wall_seconds"] == 12.5
+    got = reused_run(_stored_run(tmp_path, stored), "ppo", cell, 2, 4)
+    assert got["wall_seconds"] == 12.5 and got["reused_from"]["options_added_since"] == []
+    # a run stored before an option existed is that option at its default, and says so
+    older = _stored_run(tmp_path, stored)
+    res = json.loads(open(older).read())
+    del res["config"]["PORT_SHAPING"]
+    open(older, "w").write(json.dumps(res))
+    assert reused_run(older, "ppo", cell, 2, 4)["reused_from"]["options_added_since"] == ["PORT_SHAPING"]
+    with pytest.raises(ValueError, match=re.escape("config PORT_SHAPING=None (this run: 'plan')")):
+        reused_run(older, "ppo", {**cell, "PORT_SHAPING": "plan"}, 2, 4)
     for kwargs, (algo, seeds, config), needle in [
         ({}, ("ppo", 4, cell), "seeds=2 (this run: 4)"),
         ({}, ("ippo", 2, cell), "algo='ppo'"),
@@ -258,3 +266,12 @@ def test_the_report_counts_a_reused_cell_s_wall_time():
               "reused": {"medium": {"path": "runs/medium/results.json", "wall_seconds": 2400.0}}}
     assert provenance(reused) == ("the paper's scale; settings `tuned`; 50 min wall (with the reused medium cell "
                                   "(runs/medium/results.json)) on Xeon ×2 (cpu)")
+
+
+def test_code_version_names_the_checkout_s_commit(tmp_path):
+    from chargax_marl.machine import code_version
+
+    here = code_version()
+    if here["commit"] is not None:  # an installed copy outside git has none
+        assert re.fullmatch(r"[0-9a-f]{40}", here["commit"]) and isinstance(here["dirty"], bool)
+    assert code_version(tmp_path) == {"commit": None, "dirty": None}

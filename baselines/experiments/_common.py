@@ -102,7 +102,12 @@ def reused_run(path, algo: str, config: dict, seeds: int, chunks: int) -> dict:
     """The results of a run that ``baselines.train`` already made (its ``results.json`` at
     ``path``), checked to be the run that ``run(algo, config, seeds=seeds, chunks=chunks)``
     would make: the same algorithm, seeds (from key 0), learning settings, env-steps, training
-    and evaluation parameters and held-out days. Raises ``ValueError`` naming what differs."""
+    and evaluation parameters and held-out days. Raises ``ValueError`` naming what differs.
+
+    A setting the stored run lacks is accepted at its default (:data:`baselines.common.PAPER_DEFAULTS`):
+    options are added off by default, so the run predates it. The code's version is not
+    checked; the result carries ``reused_from`` with the path, the stored run's ``code``
+    (commit, where it was recorded) and those options, so a reader can see what was mixed."""
     import json
 
     import jax
@@ -115,6 +120,9 @@ def reused_run(path, algo: str, config: dict, seeds: int, chunks: int) -> dict:
             "timesteps": n_upd * config["NUM_ENVS"] * config["NUM_STEPS"]}
     diffs = [f"{k}={res.get(k)!r} (this run: {v!r})" for k, v in want.items() if res.get(k) != v]
     theirs = res.get("config", {})
+    # an option the stored run predates is taken at its default: options are added off by default
+    absent = sorted(k for k in config if k not in theirs and config[k] == common.PAPER_DEFAULTS.get(k, object()))
+    theirs = {**{k: config[k] for k in absent}, **theirs}
     diffs += [f"config {k}={theirs.get(k)!r} (this run: {config.get(k)!r})"
               for k in sorted(set(config) | set(theirs)) if k not in ("TOTAL_TIMESTEPS", "ENV_KWARGS")
               and theirs.get(k) != config.get(k)]
@@ -128,7 +136,7 @@ def reused_run(path, algo: str, config: dict, seeds: int, chunks: int) -> dict:
                          f"prices or days than {config['ENV_KWARGS']!r}")
     if diffs:
         raise ValueError(f"{path} is not this run: " + "; ".join(diffs))
-    return res
+    return {**res, "reused_from": {"path": str(path), "code": res.get("code"), "options_added_since": absent}}
 
 
 class Record:
