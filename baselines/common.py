@@ -606,6 +606,9 @@ def load_params(template, path: str | Path):
 
 
 def to_jsonable(x):
+    """``x`` as JSON values: arrays as lists, non-finite floats as ``None``, and a float that is
+    a float32 value as the shortest decimal that reads back to the same float32 (the trainers'
+    metrics are float32; their float64 expansions took three times the digits)."""
     if isinstance(x, dict):
         return {str(k): to_jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
@@ -613,16 +616,31 @@ def to_jsonable(x):
     if isinstance(x, (np.ndarray, jnp.ndarray)):
         return to_jsonable(np.asarray(x).tolist())
     if isinstance(x, (np.floating, float)):
-        return None if not np.isfinite(x) else float(x)
+        if not np.isfinite(x):
+            return None
+        single = np.float32(x)
+        return float(str(single)) if float(single) == float(x) else float(x)
     if isinstance(x, (np.integer,)):
         return int(x)
     return x
 
 
+def _dumps(x, indent: int = 0) -> str:
+    """JSON with nested objects indented and lists of numbers or strings on one line."""
+    pad, inner = " " * indent, " " * (indent + 2)
+    if isinstance(x, dict) and x:
+        items = ",\n".join(f"{inner}{json.dumps(k)}: {_dumps(v, indent + 2)}" for k, v in x.items())
+        return "{\n" + items + "\n" + pad + "}"
+    if isinstance(x, list) and any(isinstance(v, (dict, list)) for v in x):
+        return "[\n" + ",\n".join(inner + _dumps(v, indent + 2) for v in x) + "\n" + pad + "]"
+    return json.dumps(x, default=str)
+
+
 def write_json(obj: dict, path: str | Path) -> Path:
+    """Write ``obj`` (see :func:`to_jsonable`) as indented JSON whose number lists take one line each."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(to_jsonable(obj), indent=2, default=str) + "\n")
+    path.write_text(_dumps(to_jsonable(obj)) + "\n")
     return path
 
 

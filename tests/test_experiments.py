@@ -275,3 +275,27 @@ def test_code_version_names_the_checkout_s_commit(tmp_path):
     if here["commit"] is not None:  # an installed copy outside git has none
         assert re.fullmatch(r"[0-9a-f]{40}", here["commit"]) and isinstance(here["dirty"], bool)
     assert code_version(tmp_path) == {"commit": None, "dirty": None}
+
+
+def test_result_files_keep_float32_values_exactly_and_number_lists_on_one_line(tmp_path):
+    """``common.write_json``: a float32 metric is written as its shortest decimal and reads back
+    to the same float32; float64 statistics are kept as they are; number lists take one line."""
+    from baselines import common
+
+    metric = np.float32([340.23096, -0.0112, 1e-7])
+    obj = {"curve": {"profit": metric, "seeds": [[1.5, 2.5], [3.5, 4.5]]}, "mean": 10.358861465454103,
+           "missing": float("nan"), "empty": {}, "names": ["a", "b"]}
+    path = common.write_json(obj, tmp_path / "r.json")
+    back = json.loads(path.read_text())
+    np.testing.assert_array_equal(np.float32(back["curve"]["profit"]), metric)
+    assert back["mean"] == 10.358861465454103 and back["missing"] is None and back["empty"] == {}
+    assert back["curve"]["seeds"] == [[1.5, 2.5], [3.5, 4.5]]
+    lines = path.read_text().splitlines()
+    assert '    "profit": [340.23096, -0.0112, 1e-07],' in lines and '  "names": ["a", "b"]' in lines
+
+
+def test_runner_files_keep_only_the_profit_curve():
+    from baselines.experiments._common import profit_curve
+
+    curve = {"timesteps": [1, 2], "episode_profit_eur": [[1.0, 2.0]], "entropy": [[0.5, 0.4]], "value_loss": [[1.0, 0.9]]}
+    assert profit_curve(curve) == {"timesteps": [1, 2], "episode_profit_eur": [[1.0, 2.0]]}

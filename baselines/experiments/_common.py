@@ -90,6 +90,13 @@ def train_on(algo: str, base: dict, prices: str, seeds: int, baselines: dict) ->
                baselines=baselines, quiet=True)
 
 
+def profit_curve(curve: dict) -> dict:
+    """A run's training curve cut to what the runners plot: the timesteps and the sampled
+    episode profit per seed. The loss and entropy curves of every cell made the result files
+    tens of MB; a run's own ``results.json`` (``baselines.train --out``) keeps them."""
+    return {k: curve[k] for k in ("timesteps", "episode_profit_eur")}
+
+
 def paired_over_seeds(a, b) -> dict:
     """``a - b`` seed against seed (the same days and cars): mean ± standard error over seeds,
     with the per-seed differences. ``(seeds, days)`` arrays are first averaged over days."""

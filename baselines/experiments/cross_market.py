@@ -24,7 +24,7 @@ import time
 import numpy as np
 
 from baselines import common
-from baselines.experiments._common import Record, output, config_of, eval_setup, parser, train_on
+from baselines.experiments._common import Record, config_of, eval_setup, output, parser, profit_curve, train_on
 
 EXPERIMENTS = {
     "NL-2023": ("NL-2023", "DE-2023", "FR-2023"),
@@ -61,7 +61,7 @@ def main(argv=None, out="baselines/results/cross_market", *, experiments=None, o
             m, d = ev["metrics"]["daily_profit_eur"], ev["paired_diff"]
             print(f"train {src} -> eval {tgt}: {m['mean']:.1f} ± {m['std']:.1f} EUR/day "
                   f"(vs always-max {d['mean']:+.1f} ± {d['stderr']:.1f})", flush=True)
-        runs[src] = {"wall_seconds": res["wall_seconds"], "timesteps": res["timesteps"], "curve": res["curve"]}
+        runs[src] = {"wall_seconds": res["wall_seconds"], "timesteps": res["timesteps"], "curve": profit_curve(res["curve"])}
     gaps = transfer_gaps(matrix, experiments)
     wall = time.time() - t0
     plot(matrix, baselines, experiments, args.algo, out + ".png")

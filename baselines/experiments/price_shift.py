@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from baselines import common
-from baselines.experiments._common import Record, output, config_of, eval_setup, parser, train_on
+from baselines.experiments._common import Record, config_of, eval_setup, output, parser, profit_curve, train_on
 from baselines.train import add_headroom
 
 YEARS = ("NL-2021", "NL-2022", "NL-2023")
@@ -45,7 +45,7 @@ def main(argv=None, out="baselines/results/price_shift"):
                   f"vs always-max {d['mean']:+.2f} ± {d['stderr']:.2f}, vs battery rule {r['mean']:+.2f} ± "
                   f"{r['stderr']:.2f}", flush=True)
         rows[train_year] = {"wall_seconds": res["wall_seconds"], "timesteps": res["timesteps"],
-                            "curve": res["curve"]}
+                            "curve": profit_curve(res["curve"])}
     baselines = {y: e[2] for y, e in evals.items()}
     meta = record.as_dict()
     common.write_json({**meta, "matrix": matrix, "baselines": baselines, "runs": rows}, out + ".json")

@@ -34,7 +34,8 @@ from __future__ import annotations
 import numpy as np
 
 from baselines import common
-from baselines.experiments._common import Record, config_of, output, parser, reused_run, with_env_kwargs
+from baselines.experiments._common import (Record, config_of, output, parser, profit_curve, reused_run,
+                                           with_env_kwargs)
 from baselines.train import run
 
 TRAFFIC = ("low", "medium", "high")
@@ -82,7 +83,7 @@ def main(argv=None, out="baselines/results/traffic_sweep"):
         plot(sweeps["shopping/EU"], args.algo, out + ".png")
         print(f"wrote {out}.png, {out}.json")
     if len(cells) > 1:
-        common.write_json({**meta, "conditions": [list(c) for c in cells], "results": slim(sweeps)},
+        common.write_json({**meta, "conditions": [list(c) for c in cells], "results": sweeps},
                           out + "_appendix.json")
         plot_grid(sweeps, args.algo, out + "_appendix.png")
         print(f"wrote {out}_appendix.png, {out}_appendix.json")
@@ -119,18 +120,11 @@ def _sweep(args, base, seeds, profile, fleet, reuse: dict) -> dict:
         else:
             res = run(args.algo, cfg, seeds=seeds, chunks=CHUNKS, evaluate_every_chunk=False, quiet=True,
                       optimal=args.optimal)
-        results[traffic] = {k: v for k, v in res.items() if not k.startswith("_")}
+        results[traffic] = {**{k: v for k, v in res.items() if not k.startswith("_")}, "curve": profit_curve(res["curve"])}
         how = f"reused {stored}, " if stored else ""
         print(f"{profile}/{fleet} {traffic:>6}: {line(res, args.algo)} ({how}{res['wall_seconds']:.0f} s)", flush=True)
     return results
 
-
-def slim(sweeps: dict) -> dict:
-    """``sweeps`` with each cell's training curve reduced to the episode profit (the other
-    curves of 18 cells made the appendix file 7.6 MB; the main figure's file keeps them)."""
-    keep = ("timesteps", "episode_profit_eur")
-    return {cond: {t: {**res, "curve": {k: res["curve"][k] for k in keep}} for t, res in sweep.items()}
-            for cond, sweep in sweeps.items()}
 
 
 def line(res: dict, algo: str) -> str:
