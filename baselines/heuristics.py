@@ -1,7 +1,8 @@
 """Rule-based policies on the held-out days: daily profit and paired differences.
 
 ``python -m baselines.heuristics`` evaluates always-max, always-max + battery price rule,
-price-threshold, EDF and LLF on the 100 held-out days of a scenario
+price-threshold, EDF, LLF and (on a station with a battery) the two rules of the trainers'
+teachers (:data:`TEACHER_RULES`) on the 100 held-out days of a scenario
 (``split_days(365, 100, seed=0)``) with the evaluation key 0, so every policy meets the same
 cars, and prints each one's mean daily profit and its paired difference (mean ± standard
 error over days) to always-max and to the battery rule. ``--out`` writes the JSON.
@@ -18,20 +19,58 @@ import numpy as np
 from baselines import common
 from chargax_marl.evaluation import run_days, split_days, summarize, write_json
 from chargax_marl.core import make_params
+from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.policies import get_policy
 from chargax_marl.single.scenarios import SCENARIOS
 
 POLICIES = ("always_max", "battery_rule", "price_threshold", "edf", "llf")
 
+PROGRAMME = "battery_programme"
+"""Always-max ports with the batteries on the battery-only programme: at each step the
+best of discharge / idle / charge at full power for the stored energy, by backward induction
+over the day's known buy prices (:func:`baselines.read_policy.dp_battery_action`). It is
+the battery shaping's teacher (``BATTERY_SHAPING="dp"``) played as a rule, no learning, and
+so the reference a learner trained with that shaping has to beat to show it learned more
+than its teacher."""
+
+PLAN_PROGRAMME = "plan_programme"
+"""The ports on their cars' plans (:func:`baselines.car_value.plan_action` at
+:data:`baselines.car_value.PLAN_POWER_FRACTION`: full power in the steps of each car's
+cheapest plan, idle otherwise) with the batteries on the battery-only programme: both
+teachers of the multi-agent settings (``PORT_SHAPING="plan"``, ``PLAN_OBS``,
+``BATTERY_SHAPING="dp"``) played as a rule."""
+
+TEACHER_RULES = (PROGRAMME, PLAN_PROGRAMME)
+"""Rules built from the trainers' shaping teachers, per station and price table (so not
+:mod:`chargax_marl.policies` rules); each needs a battery."""
+
+
+def has_battery(params) -> bool:
+    return bool(np.any(np.asarray(params.station.leaf_kind) == KIND_BATTERY))
+
+
+def rule_policy(name: str, params):
+    """The ``policy(state, key, params)`` of a rule name: a :mod:`chargax_marl.policies` rule, or
+    one of :data:`TEACHER_RULES` (built for ``params``; a ``ValueError`` on a station without
+    a battery)."""
+    if name not in TEACHER_RULES:
+        return get_policy(name)
+    if not has_battery(params):
+        raise ValueError(f"policy {name!r} needs a station with a battery; this station has none")
+    from baselines.car_value import PLAN_POWER_FRACTION, plan_action
+
+    return plan_action(params, battery="dp", power_fraction=None if name == PROGRAMME else PLAN_POWER_FRACTION)
+
 
 def evaluate_rules(params, days, policies=POLICIES, key=None) -> dict:
     """``{policy: {"num_days", "days", "metrics", "daily_profit"}}`` of each rule-based policy on
     ``days``, all with the same key (default ``PRNGKey(0)``, the trainers' evaluation key), so
-    every policy meets the same cars and daily profits compare pairwise."""
+    every policy meets the same cars and daily profits compare pairwise. ``policies`` may name
+    :data:`TEACHER_RULES`."""
     key = jax.random.PRNGKey(0) if key is None else key
     out = {}
     for name in policies:
-        policy = get_policy(name)
+        policy = rule_policy(name, params)
         totals = jax.jit(lambda d, k: run_days(lambda s, kk: policy(s, kk, params), params, d, k))(np.asarray(days), key)
         out[name] = {"num_days": int(np.size(days)), "days": [int(d) for d in np.asarray(days)],
                      "metrics": summarize(totals), "daily_profit": np.asarray(totals.profit_eur, np.float64)}
@@ -48,7 +87,7 @@ def add_paired_differences(results: dict, references=("always_max", "battery_rul
 
 
 def format_rules(results: dict) -> str:
-    lines = [f"{'policy':<16}{'EUR/day':>10}{'vs always-max':>20}{'vs battery rule':>20}"
+    lines = [f"{'policy':<18}{'EUR/day':>10}{'vs always-max':>20}{'vs battery rule':>20}"
              f"{'delivered kWh':>15}{'missing kWh':>13}{'battery V EUR':>15}"]
     for name, r in results.items():
         m = r["metrics"]
@@ -57,7 +96,7 @@ def format_rules(results: dict) -> str:
             d = r.get(f"vs_{ref}")
             return f"{d['mean']:+.2f} ± {d['stderr']:.2f}" if d else "-"
 
-        lines.append(f"{name:<16}{m['daily_profit_eur']['mean']:>10.1f}{diff('always_max'):>20}{diff('battery_rule'):>20}"
+        lines.append(f"{name:<18}{m['daily_profit_eur']['mean']:>10.1f}{diff('always_max'):>20}{diff('battery_rule'):>20}"
                      f"{m['energy_delivered_kwh']['mean']:>15.0f}{m['missing_kwh_at_departure']['mean']:>13.1f}"
                      f"{m['battery_terminal_value_eur']['mean']:>15.2f}")
     return "\n".join(lines)
@@ -71,7 +110,8 @@ def main(argv=None) -> dict:
     args = p.parse_args(argv)
     _, full, _, days = common.build_env_params(common.parse_config({}, {"SCENARIO": args.scenario,
                                                                          "TRAFFIC": args.traffic}))
-    results = add_paired_differences(evaluate_rules(full, days))
+    names = POLICIES + TEACHER_RULES * has_battery(full)
+    results = add_paired_differences(evaluate_rules(full, days, names))
     print(f"{args.scenario} / {args.traffic}: {len(days)} held-out days (split_days(seed=0)), key 0, same cars for all")
     print(format_rules(results))
     if args.out:

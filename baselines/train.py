@@ -9,8 +9,10 @@ every device JAX sees: the local ones, or those of every process with ``--coordi
 Training runs in ``--chunks`` jitted pieces under a progress bar; after
 each piece the current greedy policies are evaluated on the held-out days, so the JSON
 records the budget (steps and minutes) at which the mean over seeds first beats always-max.
-The always-max and price-threshold baselines are evaluated on the same held-out days
-(``split_days(num_days, 100, seed=0)``; training resets use the other days only).
+The baselines (always-max, the battery rule, price-threshold and, on a station with a
+battery, the teachers' rules ``battery_programme`` and ``plan_programme``) are evaluated on
+the same held-out days (``split_days(num_days, 100, seed=0)``; training resets use the other
+days only) and cars; each seed's paired difference to each is in the JSON.
 
 Outputs in ``--out``: ``curve.png`` (training episode profit, mean ± std over seeds, the
 held-out evaluations as points, the baselines as horizontal lines), ``results.json``
@@ -52,14 +54,20 @@ FAST = {"NUM_ENVS": 24, "NUM_STEPS": 150, "HIDDEN": 64, "LR": 1e-3, "ENT_COEF": 
 BASELINES = ("always_max", "battery_rule", "price_threshold")
 """The rule-based references every training run is scored against (``battery_rule`` is
 always-max plus a battery that charges in the day's cheapest 20 % of hours and discharges in
-the dearest 20 %)."""
+the dearest 20 %); on a station with a battery also the teachers' rules,
+``battery_programme`` (always-max plus the battery-only programme) and ``plan_programme``
+(the ports' plans plus the programme), :data:`baselines.heuristics.TEACHER_RULES`."""
+
+REFERENCES = ("always_max", "battery_rule", "battery_programme", "plan_programme")
+"""The baselines each trained seed gets a paired difference to (``vs_<name>``), where present."""
 
 
 OPTIMAL_CHOICES = ("off", "bound", "mpc")
 
 
 def baseline_results(eval_params, eval_days, optimal: str = "off") -> dict:
-    """The :data:`BASELINES` on the held-out days, with the evaluation's default key (the same
+    """The :data:`BASELINES` (and, on a station with a battery, the teachers' rules) on the
+    held-out days, with the evaluation's default key (the same
     drawn cars that :func:`baselines.common.evaluate_batched` gives the agents). Each keeps its
     daily profits (``daily_profit``) for paired comparisons.
 
@@ -69,13 +77,19 @@ def baseline_results(eval_params, eval_days, optimal: str = "off") -> dict:
     stored result matches (about 10 min per 100 days on 2 cores); ``"off"`` adds neither.
     Every entry then gets ``headroom`` (:func:`chargax_marl.evaluation.headroom_captured`).
     """
-    from baselines.heuristics import evaluate_rules
+    from baselines.heuristics import TEACHER_RULES, evaluate_rules, has_battery
 
     if optimal not in OPTIMAL_CHOICES:
         raise ValueError(f"field 'optimal' must be one of {OPTIMAL_CHOICES}, got {optimal!r}")
-    out = evaluate_rules(eval_params, eval_days, BASELINES)
-    out["battery_rule"]["vs_always_max"] = common.paired_difference(out["battery_rule"]["daily_profit"],
-                                                                    out["always_max"]["daily_profit"])
+    out = evaluate_rules(eval_params, eval_days, BASELINES + TEACHER_RULES * has_battery(eval_params))
+    for name in REFERENCES[1:]:
+        if name in out:
+            out[name]["vs_always_max"] = common.paired_difference(out[name]["daily_profit"],
+                                                                  out["always_max"]["daily_profit"])
+    for name in TEACHER_RULES:
+        if name in out:
+            out[name]["vs_battery_rule"] = common.paired_difference(out[name]["daily_profit"],
+                                                                    out["battery_rule"]["daily_profit"])
     if optimal == "off":
         return out
     from baselines.optimal import cached, evaluate_mpc
@@ -132,8 +146,9 @@ def over_seeds(values) -> dict:
 
 def per_seed_results(final: dict, evals: list, baselines: dict, seed: int) -> list[dict]:
     """One entry per trained seed: its paired differences (mean and standard error over the
-    held-out days) to always-max (``vs_always_max``) and to always-max + battery rule
-    (``vs_battery_rule``), the fraction of the LP bound's headroom it captures
+    held-out days) to always-max (``vs_always_max``), to always-max + battery rule
+    (``vs_battery_rule``) and, where the baselines hold them, to the teachers' rules
+    (``vs_battery_programme``, ``vs_plan_programme``), the fraction of the LP bound's headroom it captures
     (``headroom_fraction``, when the bound was computed), and the env steps and wall minutes
     (since the start of training, compile and evaluations included) of the first held-out
     evaluation at which this seed beats each reference by more than two standard errors
@@ -142,26 +157,25 @@ def per_seed_results(final: dict, evals: list, baselines: dict, seed: int) -> li
 
     profit = np.atleast_2d(np.asarray(final["daily_profit"], np.float64))
     am = np.asarray(baselines["always_max"]["daily_profit"], np.float64)
-    rule = baselines.get("battery_rule", {}).get("daily_profit")
     bound = baselines.get("lp_bound", {}).get("daily_profit")
-    vs_am = common.paired_difference(profit, am)
-    vs_rule = common.paired_difference(profit, rule) if rule is not None else None
+    vs = {name: common.paired_difference(profit, baselines[name]["daily_profit"])
+          for name in REFERENCES if name in baselines}
     out = []
     for i in range(profit.shape[0]):
         def first(key):
             e = next((e for e in evals if e.get(key) is not None and seed_beats(e[key], i)), None)
             return None if e is None else {"timesteps": e["timesteps"], "wall_minutes": e["train_seconds"] / 60.0}
 
-        out.append({
-            "seed_index": i, "key": f"split(PRNGKey({seed}), seeds)[{i}]",
-            "mean_profit_eur": float(profit[i].mean()),
-            "vs_always_max": {"mean": vs_am["per_seed_mean"][i], "stderr": vs_am["per_seed_stderr"][i]},
-            "vs_battery_rule": None if vs_rule is None else {"mean": vs_rule["per_seed_mean"][i],
-                                                             "stderr": vs_rule["per_seed_stderr"][i]},
-            "headroom_fraction": None if bound is None else headroom_captured(profit[i], am, bound)["fraction"],
-            "first_beats_always_max": first("vs_always_max"),
-            "first_beats_battery_rule": first("vs_battery_rule"),
-        })
+        entry = {"seed_index": i, "key": f"split(PRNGKey({seed}), seeds)[{i}]", "mean_profit_eur": float(profit[i].mean())}
+        for name in REFERENCES:
+            if name in vs or name in REFERENCES[:2]:  # battery_rule: None when absent
+                d = vs.get(name)
+                entry[f"vs_{name}"] = None if d is None else {"mean": d["per_seed_mean"][i], "stderr": d["per_seed_stderr"][i]}
+        entry["headroom_fraction"] = None if bound is None else headroom_captured(profit[i], am, bound)["fraction"]
+        for name in REFERENCES:
+            if f"vs_{name}" in entry:
+                entry[f"first_beats_{name}"] = first(f"vs_{name}")
+        out.append(entry)
     return out
 
 
@@ -206,10 +220,15 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
     am = baselines["always_max"]["metrics"]["daily_profit_eur"]["mean"]
     am_daily = baselines["always_max"].get("daily_profit")
     rule_daily = baselines.get("battery_rule", {}).get("daily_profit")
+    teachers = [name for name in REFERENCES[2:] if name in baselines]  # the teachers' rules (a station with a battery)
     evals = []
 
     def vs_rule(ev):
         return None if rule_daily is None else common.paired_difference(ev["daily_profit"], rule_daily)
+
+    def vs_programme(ev):
+        return {f"vs_{name}": common.paired_difference(ev["daily_profit"], baselines[name]["daily_profit"])
+                for name in teachers}
 
     def on_chunk(i, rs, m, steps, seconds):
         if not evaluate_every_chunk and i < chunks - 1:
@@ -217,13 +236,15 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
         ev = common.evaluate_batched(make_act, host(rs.params), eval_params, eval_days, reference_profit=am_daily)
         evals.append({"timesteps": int(steps), "train_seconds": seconds, "per_seed_profit": ev["per_seed_profit"],
                       "mean_profit": float(np.mean(ev["per_seed_profit"])),
-                      "vs_always_max": ev.get("paired_diff"), "vs_battery_rule": vs_rule(ev)})
+                      "vs_always_max": ev.get("paired_diff"), "vs_battery_rule": vs_rule(ev), **vs_programme(ev)})
         if not quiet:
             from tqdm.auto import tqdm
 
             diff, rule = ev.get("paired_diff"), vs_rule(ev)
             vs = f"; vs always-max {diff['mean']:+.2f} ± {diff['stderr']:.2f}" if diff else ""
             vs += f", vs battery rule {rule['mean']:+.2f} ± {rule['stderr']:.2f}" if rule else ""
+            vs += "".join(f", vs {k[3:].replace('_', ' ')} {d['mean']:+.2f} ± {d['stderr']:.2f}"
+                          for k, d in vs_programme(ev).items())
             tqdm.write(f"  held-out greedy daily profit: {np.mean(ev['per_seed_profit']):.1f} EUR "
                        f"(per seed {np.round(ev['per_seed_profit'], 1).tolist()}; always-max {am:.1f}{vs})")
 
@@ -242,8 +263,8 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
         print(format_table(table))
     timesteps = (np.arange(n_upd) + 1) * steps_per_update
     per_seed = per_seed_results(final, evals, baselines, seed)
-    summary = {k: over_seeds([p[k]["mean"] for p in per_seed]) for k in ("vs_always_max", "vs_battery_rule")
-               if all(p[k] is not None for p in per_seed)}
+    summary = {f"vs_{k}": over_seeds([p[f"vs_{k}"]["mean"] for p in per_seed]) for k in REFERENCES
+               if all(p.get(f"vs_{k}") is not None for p in per_seed)}
     if all(p["headroom_fraction"] is not None for p in per_seed):
         summary["headroom_fraction"] = over_seeds([p["headroom_fraction"] for p in per_seed])
     results = {
@@ -266,9 +287,11 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
                        "days": [int(d) for d in np.asarray(eval_days)], "table": table},
         "vs_always_max": final.get("paired_diff"),
         "vs_battery_rule": vs_rule(final),
+        **vs_programme(final),
         "headroom": final.get("headroom"),
         "first_beats_always_max": first_beat,
         "first_beats_battery_rule": first_beat_rule,
+        **{f"first_beats_{name}": next((e for e in evals if beats(e[f"vs_{name}"])), None) for name in teachers},
         "eval_curve": evals,
         "curve": {"timesteps": timesteps,
                   **{k: np.asarray(metrics[k]) for k in ("episode_profit_eur", "episode_return", "entropy",
@@ -280,6 +303,8 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
             print(f"seed {p_['seed_index']}: vs always-max {p_['vs_always_max']['mean']:+.2f} ± "
                   f"{p_['vs_always_max']['stderr']:.2f}" + (f", vs battery rule {rule['mean']:+.2f} ± "
                                                             f"{rule['stderr']:.2f}" if rule else "")
+                  + "".join(f", vs {name.replace('_', ' ')} {p_[f'vs_{name}']['mean']:+.2f} ± "
+                            f"{p_[f'vs_{name}']['stderr']:.2f}" for name in teachers)
                   + (f", headroom {hf:.2f}" if hf is not None else "")
                   + f"; first beats the battery rule: {p_['first_beats_battery_rule']}")
         for k, v in summary.items():
@@ -297,7 +322,8 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
     return results
 
 
-LINES = (("battery_rule", "always-max + battery rule"), ("price_threshold", "price-threshold"),
+LINES = (("battery_rule", "always-max + battery rule"), ("battery_programme", "always-max + battery programme"),
+         ("plan_programme", "plan + battery programme"), ("price_threshold", "price-threshold"),
          ("mpc", "MPC, 4 h horizon"), ("lp_bound", "LP hindsight bound"))
 """The reference policies drawn as horizontal lines on a learning curve (after always-max)."""
 

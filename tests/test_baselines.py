@@ -214,7 +214,9 @@ def test_cli_smoke_writes_png_json_checkpoint(tmp_path):
     table = res["evaluation"]["table"]
     # the LP hindsight bound is a baseline by default (--optimal bound), and every policy,
     # the agent included, carries its fraction of the headroom between always-max and it
-    assert set(table) == {"always_max", "battery_rule", "price_threshold", "lp_bound", "ppo"}
+    # on a station with a battery, the battery shaping's teacher played as a rule is a baseline too
+    assert set(table) == {"always_max", "battery_rule", "price_threshold", "battery_programme", "plan_programme",
+                          "lp_bound", "ppo"}
     bound, am = np.asarray(table["lp_bound"]["daily_profit"]), np.asarray(table["always_max"]["daily_profit"])
     assert np.all(bound >= am - 1e-3)
     assert table["lp_bound"]["headroom"]["fraction"] == pytest.approx(1.0)
@@ -239,12 +241,94 @@ def test_cli_smoke_writes_png_json_checkpoint(tmp_path):
         for k in ("first_beats_always_max", "first_beats_battery_rule"):
             assert p[k] is None or (p[k]["timesteps"] > 0 and p[k]["wall_minutes"] > 0)
     assert res["over_seeds"]["vs_always_max"]["mean"] == pytest.approx(vs["mean"])
-    assert set(res["over_seeds"]) == {"vs_always_max", "vs_battery_rule", "headroom_fraction"}
+    assert list(res["over_seeds"]) == ["vs_always_max", "vs_battery_rule", "vs_battery_programme", "vs_plan_programme",
+                                       "headroom_fraction"]
+    for name in ("battery_programme", "plan_programme"):
+        gap = np.mean(table[name]["daily_profit"]) - np.mean(table["always_max"]["daily_profit"])
+        assert table[name]["vs_always_max"]["mean"] == pytest.approx(gap, abs=1e-3)
+        for i, p in enumerate(res["per_seed"]):
+            assert p[f"vs_{name}"]["mean"] == pytest.approx(res[f"vs_{name}"]["per_seed_mean"][i])
+            # a seed's differences agree with the references' own profits
+            assert p["vs_always_max"]["mean"] - p[f"vs_{name}"]["mean"] == pytest.approx(gap, abs=1e-3)
+    _check_add_teacher_rules_reproduces(out / "results.json", res)
     # the checkpoint restores into the parameter pytree (leading axis = seed)
     train = ppo.make_train({**TINY, "HIDDEN": 16})
     template = jax.vmap(train.policy.init)(jax.random.split(jax.random.PRNGKey(0), 2))
     restored = common.load_params(template, out / "params.msgpack")
     assert jax.tree.structure(restored) == jax.tree.structure(template)
+
+
+def _check_add_teacher_rules_reproduces(path, res):
+    """``baselines.experiments.add_teacher_rules`` on the run's file with the teachers' rules
+    taken out (as a run made before they were baselines) puts back what the run recorded; a
+    file whose always-max differs from a replay on this code is refused and left as it was."""
+    from baselines.experiments import add_teacher_rules
+
+    rules = ("battery_programme", "plan_programme")
+    old = json.loads(path.read_text())
+    for name in rules:
+        del old["evaluation"]["table"][name], old[f"vs_{name}"], old[f"first_beats_{name}"]
+        del old["over_seeds"][f"vs_{name}"]
+        for p in old["per_seed"]:
+            del p[f"vs_{name}"], p[f"first_beats_{name}"]
+    path.write_text(json.dumps(old))
+    add_teacher_rules.main([str(path)])
+    new = json.loads(path.read_text())
+    assert list(new["evaluation"]["table"])[-1] == "ppo"
+    assert list(new["over_seeds"]) == list(res["over_seeds"])
+    for name in rules:
+        fresh = res["evaluation"]["table"][name]
+        np.testing.assert_allclose(new["evaluation"]["table"][name]["daily_profit"], fresh["daily_profit"], rtol=1e-6)
+        assert new["evaluation"]["table"][name]["headroom"]["fraction"] == pytest.approx(
+            fresh["headroom"]["fraction"], rel=1e-5)
+        for a, b in zip(new["per_seed"], res["per_seed"]):
+            assert a[f"vs_{name}"] == pytest.approx(b[f"vs_{name}"], rel=1e-5)
+            assert list(a).index(f"vs_{name}") < list(a).index("headroom_fraction")
+        assert new["over_seeds"][f"vs_{name}"]["mean"] == pytest.approx(res["over_seeds"][f"vs_{name}"]["mean"], rel=1e-5)
+        assert new[f"vs_{name}"]["mean"] == pytest.approx(res[f"vs_{name}"]["mean"], rel=1e-5)
+    # another model's always-max: refused, nothing written
+    bad = json.loads(path.read_text())
+    bad["evaluation"]["table"]["always_max"]["daily_profit"][3] += 1.0
+    path.write_text(json.dumps(bad))
+    with pytest.raises(ValueError, match="always_max replayed on this code differs .* by up to 1.000"):
+        add_teacher_rules.main([str(path)])
+    assert json.loads(path.read_text()) == bad
+
+
+def test_battery_programme_rule_is_always_max_ports_and_the_programme_s_battery():
+    """The ``battery_programme`` baseline: every occupied port at full power, the battery at the
+    programme's full-power action; ``plan_programme``: the ports on the plan's advice, the
+    same battery. Refused, naming the policy, on a station without a battery, where the
+    baselines leave them out."""
+    from baselines import car_value, read_policy
+    from baselines.heuristics import PLAN_PROGRAMME, PROGRAMME, evaluate_rules, rule_policy
+    from baselines.train import baseline_results
+    from chargax_marl.core import make_params, simulator
+    from chargax_marl.core.station import KIND_BATTERY
+    from chargax_marl.policies import always_max
+
+    params = make_params(**TINY_ENV)
+    act, dp = rule_policy(PROGRAMME, params), read_policy.dp_battery_action(params)
+    plan, advice = rule_policy(PLAN_PROGRAMME, params), car_value.plan_advice(params)
+    is_bat = np.asarray(params.station.leaf_kind) == KIND_BATTERY
+    state = simulator.reset(jax.random.PRNGKey(1), params)
+    state = state.replace(occupied=jnp.ones_like(state.occupied))  # a car at every port (an empty one's level acts on nothing)
+    seen = set()
+    for t in range(int(params.num_steps)):
+        s = state.replace(timestep=jnp.int32(t))
+        levels, ref = np.asarray(act(s, None, params)), np.asarray(always_max(s, None, params))
+        np.testing.assert_array_equal(levels[~is_bat], ref[~is_bat])
+        assert np.all(levels[is_bat] == int(dp(s)[0]) * int(params.num_levels))
+        planned = np.asarray(plan(s, None, params))
+        np.testing.assert_array_equal(planned[~is_bat], (np.asarray(advice(s))[~is_bat] > 0.5) * int(params.num_levels))
+        np.testing.assert_array_equal(planned[is_bat], levels[is_bat])
+        seen.add(int(dp(s)[0]))
+    assert len(seen) > 1  # the battery trades on this day
+    bare = make_params(**{**TINY_ENV, "station_kwargs": {"num_ports": 4, "battery": False}})
+    for name in (PROGRAMME, PLAN_PROGRAMME):
+        with pytest.raises(ValueError, match=name):
+            evaluate_rules(bare, np.arange(2), (name,))
+    assert not {PROGRAMME, PLAN_PROGRAMME} & set(baseline_results(bare, np.arange(2)))
 
 
 @pytest.mark.parametrize("mod", [ppo, ippo])

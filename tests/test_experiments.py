@@ -299,3 +299,30 @@ def test_runner_files_keep_only_the_profit_curve():
 
     curve = {"timesteps": [1, 2], "episode_profit_eur": [[1.0, 2.0]], "entropy": [[0.5, 0.4]], "value_loss": [[1.0, 0.9]]}
     assert profit_curve(curve) == {"timesteps": [1, 2], "episode_profit_eur": [[1.0, 2.0]]}
+
+
+def test_the_report_shows_the_teachers_rules_where_a_run_holds_them():
+    """A cell's row gives the per-seed differences to both teachers' rules (mean ± s.e., seeds
+    above) and a file made before they were baselines shows "–"; the rules' own line follows."""
+    from baselines.experiments import report
+
+    def seed(am, rule, prog=None, plan=None):
+        s = {"vs_always_max": {"mean": am}, "vs_battery_rule": {"mean": rule}}
+        if prog is not None:
+            s.update(vs_battery_programme={"mean": prog}, vs_plan_programme={"mean": plan})
+        return s
+
+    cell = _cell(10.0, 9.0, 9.5, 12.0)
+    cell["wall_seconds"] = 60.0
+    cell["per_seed"] = [seed(1.0, 0.5, 0.2, -1.0), seed(1.2, 0.7, -0.2, -2.0)]
+    row = report._cell_row("low", cell, "ppo")
+    assert "| +0.00 ± 0.20 (1/2) | -1.50 ± 0.50 (0/2) |" in row and row.count("|") == 12
+    old = {**cell, "per_seed": [seed(1.0, 0.5), seed(1.2, 0.7)]}
+    assert "| +0.60 ± 0.10 (2/2) | – | – |" in report._cell_row("low", old, "ppo")
+    assert report.CELL_HEADER.count("|") == 2 * 12 and "plan programme" in report.CELL_HEADER
+    assert report.teacher_rules({}, [("low", old)]) == ""
+    for name, d in (("battery_programme", 1.0), ("plan_programme", 3.0)):
+        cell["evaluation"]["table"][name] = {"vs_always_max": {"mean": d, "stderr": 0.5},
+                                             "headroom": {"fraction": d / 3.0}}
+    text = report.teacher_rules({}, [("low", cell)])
+    assert "| low | +1.00 ± 0.50 (0.333) | +3.00 ± 0.50 (1.000) |" in text

@@ -6,7 +6,8 @@ agent on the held-out days of all three years.
 
 Writes ``baselines/results/price_shift.{png,json}``: the train-year x eval-year matrix of
 greedy held-out daily profit (mean ± std over seeds x days), each cell's paired difference
-to always-max and to always-max + battery rule on the eval year's held-out days and cars
+to always-max, to always-max + battery rule and to always-max + battery programme (the
+battery shaping's teacher as a rule) on the eval year's held-out days and cars
 (mean ± standard error), and the fraction of that year's hindsight headroom captured, beside
 always-max, the battery rule and the LP hindsight bound per year. (The paper evaluates on
 36,500 episodes per agent; here every agent meets each year's same 100 held-out days.)
@@ -38,6 +39,9 @@ def main(argv=None, out="baselines/results/price_shift"):
             ev = common.evaluate_batched(train.make_act(full), res["_params"], full, days,
                                          reference_profit=bl["always_max"]["daily_profit"])
             ev["vs_battery_rule"] = common.paired_difference(ev["daily_profit"], bl["battery_rule"]["daily_profit"])
+            if "battery_programme" in bl:
+                ev["vs_battery_programme"] = common.paired_difference(ev["daily_profit"],
+                                                                      bl["battery_programme"]["daily_profit"])
             add_headroom({"agent": ev}, bl)
             matrix[train_year][eval_year] = ev
             d, r = ev["paired_diff"], ev["vs_battery_rule"]

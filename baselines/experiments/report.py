@@ -4,7 +4,11 @@
 
 Every difference is paired (the same held-out days and cars) and reported as mean ± standard
 error over seeds of the per-seed means; "seeds above" counts the seeds whose mean is above
-the reference. A runner's file that is missing is skipped with a line saying so.
+the reference. The teachers' rules (``battery_programme``: always-max ports with the
+battery-only programme; ``plan_programme``: the ports' plans with it) show "–" in files made
+before they were baselines, until ``python -m baselines.experiments.add_teacher_rules FILE``
+adds them. A runner's file that is
+missing is skipped with a line saying so.
 """
 
 from __future__ import annotations
@@ -46,32 +50,65 @@ def _profit(table: dict, name: str) -> str:
     return f"{table[name]['metrics']['daily_profit_eur']['mean']:.1f}" if name in table else "–"
 
 
+TEACHERS = ("battery_programme", "plan_programme")
+"""The teachers' rules (:data:`baselines.heuristics.TEACHER_RULES`)."""
+
+
+def _vs_seeds(per_seed: list, name: str) -> str:
+    """``mean ± s.e. (seeds above/seeds)`` of the per-seed differences to ``name``, or "–" when
+    the file predates that reference."""
+    if not per_seed or not all(p.get(f"vs_{name}") for p in per_seed):
+        return "–"
+    st = seeds_stat([p[f"vs_{name}"]["mean"] for p in per_seed])
+    return f"{pm(st)} ({st['above']}/{st['n']})"
+
+
 def _cell_row(label: str, res: dict, algo: str) -> str:
     t = res["evaluation"]["table"]
     per_seed = res.get("per_seed") or []
-    am = seeds_stat([p["vs_always_max"]["mean"] for p in per_seed])
-    rule = seeds_stat([p["vs_battery_rule"]["mean"] for p in per_seed])
     hf = res.get("over_seeds", {}).get("headroom_fraction")
     return (f"| {label} | {_profit(t, algo)} | {_profit(t, 'always_max')} | {_profit(t, 'battery_rule')} | "
-            f"{_profit(t, 'lp_bound')} | {pm(am)} ({am['above']}/{am['n']}) | {pm(rule)} ({rule['above']}/{rule['n']}) | "
-            f"{pm(hf, 3) if hf else '–'} | {res['wall_seconds'] / 60:.1f} |")
+            f"{_profit(t, 'lp_bound')} | "
+            + " | ".join(_vs_seeds(per_seed, n) for n in ("always_max", "battery_rule") + TEACHERS)
+            + f" | {pm(hf, 3) if hf else '–'} | {res['wall_seconds'] / 60:.1f} |")
 
 
 CELL_HEADER = ("| {what} | {algo} EUR/day | always-max | battery rule | LP bound | {algo} − always-max (seeds above) | "
-               "{algo} − battery rule (seeds above) | headroom fraction | wall min |\n|---|---|---|---|---|---|---|---|---|")
+               "{algo} − battery rule | {algo} − battery programme | {algo} − plan programme | headroom fraction | "
+               "wall min |\n|---|---|---|---|---|---|---|---|---|---|---|")
+
+
+def teacher_rules(d: dict, cells: list[tuple[str, dict]]) -> str:
+    """The teachers' rules over always-max per cell (one line each), where the file holds them."""
+    rows = []
+    for label, res in cells:
+        t = res["evaluation"]["table"]
+        if all(n in t for n in TEACHERS):
+            rows.append(f"| {label} | " + " | ".join(f"{pm(t[n]['vs_always_max'])} ({t[n]['headroom']['fraction']:.3f})"
+                                                    if "headroom" in t[n] else pm(t[n]["vs_always_max"])
+                                                    for n in TEACHERS) + " |")
+    if not rows:
+        return ""
+    return "\n".join(["", "The teachers' rules (no learning) − always-max, mean ± s.e. over the held-out days "
+                           "(headroom fraction):", "",
+                       "| cell | battery programme (always-max ports) | plan programme (the ports' plans) |",
+                       "|---|---|---|", *rows])
 
 
 def traffic_sweep(d: dict) -> str:
     algo = d["algo"]
-    rows = [_cell_row(traffic, res, algo) for traffic, res in d["results"].items()]
-    return "\n".join([provenance(d), "", CELL_HEADER.format(what="traffic", algo=algo.upper()), *rows])
+    cells = list(d["results"].items())
+    rows = [_cell_row(traffic, res, algo) for traffic, res in cells]
+    return "\n".join([provenance(d), "", CELL_HEADER.format(what="traffic", algo=algo.upper()), *rows,
+                      teacher_rules(d, cells)])
 
 
 def appendix(d: dict) -> str:
     algo = d["algo"]
-    rows = [_cell_row(f"{cond} {traffic}", res, algo) for cond, sweep in d["results"].items()
-            for traffic, res in sweep.items()]
-    return "\n".join([provenance(d), "", CELL_HEADER.format(what="profile/fleet traffic", algo=algo.upper()), *rows])
+    cells = [(f"{cond} {traffic}", res) for cond, sweep in d["results"].items() for traffic, res in sweep.items()]
+    rows = [_cell_row(label, res, algo) for label, res in cells]
+    return "\n".join([provenance(d), "", CELL_HEADER.format(what="profile/fleet traffic", algo=algo.upper()), *rows,
+                      teacher_rules(d, cells)])
 
 
 METRIC = {"satisfaction_time": "missing_kwh_at_departure", "satisfaction_charge": "overtime_min"}
@@ -115,9 +152,20 @@ def price_shift(d: dict) -> str:
             s = seeds_stat(ev["paired_diff"]["per_seed_mean"])
             cells.append(f"{ev['metrics']['daily_profit_eur']['mean']:.1f} ({pm(s)}, {s['above']}/{s['n']})")
         lines.append(f"| {ty} | " + " | ".join(cells) + " |")
-    for name in ("always_max", "battery_rule", "lp_bound"):
+    for name in ("always_max", "battery_rule", *TEACHERS, "lp_bound"):
         if all(name in d["baselines"][ey] for ey in years):
             lines.append(f"| {name.replace('_', ' ')} | " + " | ".join(_profit(d["baselines"][ey], name) for ey in years) + " |")
+    for name in TEACHERS:
+        if not all(f"vs_{name}" in ev for row in d["matrix"].values() for ev in row.values()):
+            continue
+        lines += ["", f"The same agents − {name.replace('_', ' ')} of the eval year (mean ± s.e. over seeds, "
+                  "seeds above):", "", "| train \\ eval | " + " | ".join(years) + " |", "|---|" + "---|" * len(years)]
+        for ty, row in d["matrix"].items():
+            cells = []
+            for ey in years:
+                st = seeds_stat(row[ey][f"vs_{name}"]["per_seed_mean"])
+                cells.append(f"{pm(st)} ({st['above']}/{st['n']})")
+            lines.append(f"| {ty} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 

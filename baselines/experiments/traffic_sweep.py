@@ -6,9 +6,10 @@ r"""Paper Fig. 4a: PPO in the shopping scenario at low / medium / high traffic v
 
 Writes ``baselines/results/traffic_sweep.{png,json}``: per traffic level the training
 episode profit (mean ± std over seeds), the greedy held-out daily profit, its paired
-difference to always-max and to always-max + battery rule, the fraction of the hindsight
-headroom it captures, and always-max / battery rule / price-threshold / the LP hindsight
-bound on the same 100 held-out days and cars.
+difference to always-max, to always-max + battery rule and to always-max + battery programme
+(the battery shaping's teacher as a rule), the fraction of the hindsight headroom it
+captures, and always-max / battery rule / battery programme / price-threshold / the LP
+hindsight bound on the same 100 held-out days and cars.
 
 ``--appendix`` repeats the sweep for the four bundled user profiles (shopping, residential,
 workplace, highway; EU fleet) and for the US and World fleets (shopping) and also writes
@@ -131,8 +132,9 @@ def line(res: dict, algo: str) -> str:
     """One cell's held-out profits and paired differences, for the log."""
     t = res["evaluation"]["table"]
     out = " | ".join(f"{name} {t[name]['metrics']['daily_profit_eur']['mean']:.1f}"
-                     for name in (algo, "always_max", "battery_rule", "price_threshold", "lp_bound") if name in t)
-    for key in ("vs_always_max", "vs_battery_rule"):
+                     for name in (algo, "always_max", "battery_rule", "battery_programme", "price_threshold", "lp_bound")
+                     if name in t)
+    for key in ("vs_always_max", "vs_battery_rule", "vs_battery_programme"):
         if res.get(key):
             out += f" | {algo} {key} {res[key]['mean']:+.2f} ± {res[key]['stderr']:.2f}"
     hf = res.get("over_seeds", {}).get("headroom_fraction")
@@ -152,13 +154,13 @@ def plot_grid(results: dict, algo: str, path):
     for ax, (cond, sweep) in zip(axes[0], results.items()):
         x = np.arange(len(sweep))
         am = [sweep[t]["evaluation"]["table"]["always_max"]["metrics"]["daily_profit_eur"]["mean"] for t in sweep]
-        for i, name in enumerate((algo, "battery_rule", "lp_bound")):
+        for i, name in enumerate((algo, "battery_rule", "lp_bound", "battery_programme")):
             if any(name not in sweep[t]["evaluation"]["table"] for t in sweep):
                 continue
             table = [sweep[t]["evaluation"]["table"][name] for t in sweep]
             m = [e["metrics"]["daily_profit_eur"]["mean"] - a for e, a in zip(table, am)]
             s = [np.std(e["per_seed_profit"]) if "per_seed_profit" in e else 0.0 for e in table]
-            ax.errorbar(x, m, yerr=s, fmt="o-" if i == 0 else "s--", label=name, color=f"C{i}", capsize=3)
+            ax.errorbar(x, m, yerr=s, fmt="o-" if i == 0 else "s--", label=name, color=f"C{i if i < 3 else 4}", capsize=3)
         ax.axhline(0.0, color="C3", ls=":", label="always_max")
         ax.set_xticks(x, list(sweep))
         ax.set_title(cond)
@@ -186,10 +188,10 @@ def plot(results, algo, path):
         ev = table[algo]["metrics"]["daily_profit_eur"]
         ax.errorbar([t[-1]], [ev["mean"]], yerr=[np.std(table[algo]["per_seed_profit"])], fmt="o",
                     label=f"{algo} held-out greedy {ev['mean']:.0f}")
-        for i, name in enumerate(("always_max", "battery_rule", "price_threshold", "lp_bound")):
+        for i, name in enumerate(("always_max", "battery_rule", "price_threshold", "lp_bound", "battery_programme")):
             if name in table:
                 v = table[name]["metrics"]["daily_profit_eur"]["mean"]
-                ax.axhline(v, ls=("--", "-.", ":", "-")[i], color=f"C{i + 3}", label=f"{name} {v:.0f}")
+                ax.axhline(v, ls=("--", "-.", ":", "-", (0, (5, 1, 1, 1)))[i], color=f"C{i + 3}", label=f"{name} {v:.0f}")
         ax.set_title(f"shopping, {traffic} traffic")
         ax.set_xlabel("environment steps")
         ax.grid(alpha=0.3)

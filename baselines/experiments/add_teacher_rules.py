@@ -1,0 +1,167 @@
+"""Score committed training results against the teachers' rules, without retraining.
+
+    python -m baselines.experiments.add_teacher_rules baselines/results/traffic_sweep.json ...
+
+The trainers' shaping teachers, played as rules with no learning
+(:data:`baselines.heuristics.TEACHER_RULES`):
+
+- ``battery_programme``: always-max ports, the batteries on the battery-only programme (the
+  teacher of ``BATTERY_SHAPING="dp"``, PPO's and the multi-agent settings');
+- ``plan_programme``: the ports on their cars' plans, the batteries on the programme (also
+  the teacher of ``PORT_SHAPING="plan"`` and ``PLAN_OBS``, the multi-agent settings').
+
+:func:`baselines.train.baseline_results` evaluates both on every station with a battery, so
+each new run records its paired differences to them (``vs_battery_programme``,
+``vs_plan_programme``). Runs made before that lack them; this adds to every training result
+in each file (a ``baselines.train`` result: ``config``, ``evaluation``, ``per_seed``) what a
+new run would record:
+
+- each rule in the evaluation table, with its paired differences to always-max and to the
+  battery rule and its share of the LP bound's headroom;
+- per seed and over seeds, ``vs_<rule>`` (the seed's mean paired difference and its standard
+  error over the held-out days);
+- the run's ``vs_<rule>`` over seeds × days.
+
+A ``price_shift`` result (Fig. 5) gets the rules per evaluation year and each cell's
+``vs_<rule>``.
+
+The first-beats budgets are not added: the stored evaluations during training keep only each
+seed's mean profit. Before touching a result it rebuilds the run's evaluation params and
+held-out days from its ``config`` and replays always-max and the battery rule with the
+evaluation key; a run whose stored days or profits differ from the replay (another model
+version) is refused with a ``ValueError``, and the file is left as it was. The file is
+rewritten in place.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from baselines import common
+from baselines.train import add_headroom, over_seeds
+
+
+def training_results(tree, path: str = "") -> list[tuple[str, dict]]:
+    """``(where, result)`` of every ``baselines.train`` result nested in a result file."""
+    if isinstance(tree, dict):
+        if {"config", "evaluation", "per_seed"} <= set(tree):
+            return [(path or "/", tree)]
+        return [hit for k, v in tree.items() for hit in training_results(v, f"{path}/{k}")]
+    return []
+
+
+def teacher_entries(params, days, stored: dict, where: str) -> dict:
+    """``{rule: entry}`` of the teachers' rules on ``days`` (evaluation key 0), each with its
+    paired differences to the stored always-max and battery rule and its headroom share, after
+    checking that always-max and the battery rule replayed on this code give the stored
+    ``stored[name]["daily_profit"]`` (else a ``ValueError``: the run was made on another model)."""
+    from baselines.heuristics import TEACHER_RULES, evaluate_rules
+
+    if [int(d) for d in np.asarray(days)] != [int(d) for d in stored["always_max"]["days"]]:
+        raise ValueError(f"{where}: its config builds other held-out days than it was evaluated on")
+    rules = evaluate_rules(params, days, ("always_max", "battery_rule") + TEACHER_RULES)
+    for name in ("always_max", "battery_rule"):
+        ref = np.asarray(stored[name]["daily_profit"], np.float64)
+        if not np.allclose(rules[name]["daily_profit"], ref, rtol=1e-5, atol=1e-3):
+            worst = float(np.max(np.abs(rules[name]["daily_profit"] - ref)))
+            raise ValueError(f"{where}: {name} replayed on this code differs from the stored run by up to "
+                             f"{worst:.3f} EUR/day: the run was made on another model; retrain it instead")
+    out = {}
+    for name in TEACHER_RULES:
+        e = rules[name]
+        for ref in ("always_max", "battery_rule"):
+            e[f"vs_{ref}"] = common.paired_difference(e["daily_profit"], stored[ref]["daily_profit"])
+        add_headroom({name: e}, stored)
+        out[name] = e
+    return out
+
+
+def add_to_result(res: dict, where: str = "") -> bool:
+    """Add the teachers' rules to one training result in place (see the module's doc).
+    ``False`` when the run's station has no battery (nothing to add)."""
+    from baselines.heuristics import has_battery
+
+    _, params, _, days = common.build_env_params(common.parse_config({}, res["config"]))
+    if not has_battery(params):
+        return False
+    table, algo = res["evaluation"]["table"], res["algo"]
+    rules = teacher_entries(params, days, table, where)
+    res["evaluation"]["table"] = {**{k: v for k, v in table.items() if k not in rules and k != algo}, **rules,
+                                  algo: table[algo]}
+    learned = np.atleast_2d(np.asarray(table[algo]["daily_profit"], np.float64))
+    summary = res.get("over_seeds", {})
+    for name, rule in rules.items():
+        vs, key = common.paired_difference(learned, rule["daily_profit"]), f"vs_{name}"
+        for i, seed in enumerate(res["per_seed"]):
+            items = [(k, v) for k, v in seed.items() if k != key]
+            at = next(j for j, (k, _) in enumerate(items) if k == "headroom_fraction")
+            items.insert(at, (key, {"mean": vs["per_seed_mean"][i], "stderr": vs["per_seed_stderr"][i]}))
+            res["per_seed"][i] = dict(items)
+        summary = {**{k: v for k, v in summary.items() if k.startswith("vs_") and k != key},
+                   key: over_seeds([s[key]["mean"] for s in res["per_seed"]]),
+                   **{k: v for k, v in summary.items() if not k.startswith("vs_")}}
+        res[key] = vs
+    res["over_seeds"] = summary
+    return True
+
+
+def add_to_price_shift(d: dict, where: str = "") -> dict:
+    """Add the teachers' rules to a ``price_shift`` result (``matrix`` train year x eval year,
+    ``baselines`` per eval year) in place: per eval year the rules' entries, checked as in
+    :func:`teacher_entries`, and per cell ``vs_<rule>``. Returns ``{cell: {key: difference}}``."""
+    from baselines.experiments._common import TUNED, with_prices
+
+    if d.get("settings") != "tuned":
+        raise ValueError(f"{where}: settings {d.get('settings')!r}; only the tuned settings' params are rebuilt here")
+    base = {**TUNED[d["algo"]], "ENV_KWARGS": dict(TUNED[d["algo"]].get("ENV_KWARGS") or {})}
+    for year, bl in d["baselines"].items():
+        _, params, _, days = common.build_env_params(common.parse_config({}, with_prices(base, year)))
+        bl.update(teacher_entries(params, days, bl, f"{where} {year}"))
+    rows = {}
+    for train_year, row in d["matrix"].items():
+        for eval_year, ev in row.items():
+            bl = d["baselines"][eval_year]
+            for name in (n for n in bl if n.endswith("_programme")):
+                ev[f"vs_{name}"] = common.paired_difference(ev["daily_profit"], bl[name]["daily_profit"])
+            rows[f"{train_year} -> {eval_year}"] = {k: v for k, v in ev.items() if k.endswith("_programme")}
+    return rows
+
+
+def _line(diffs: dict) -> str:
+    return ", ".join(f"{k[3:]} {v['mean']:+.2f} ± {v['stderr']:.2f}" for k, v in diffs.items())
+
+
+def main(argv=None) -> dict:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("files", nargs="+", help="result files of baselines.train or of the experiment runners")
+    args = p.parse_args(argv)
+    out = {}
+    for f in args.files:
+        d = json.loads(Path(f).read_text())
+        if "matrix" in d and d.get("figure") == "Fig. 5":
+            rows = add_to_price_shift(d, f)
+            for cell, diffs in rows.items():
+                print(f"{f} {cell}: {d['algo']} − {_line(diffs)} (over seeds × days)", flush=True)
+        else:
+            found = training_results(d)
+            if not found:
+                raise ValueError(f"{f}: no baselines.train result in it")
+            rows = {}
+            for where, res in found:  # all checked before the file is written
+                if not add_to_result(res, f"{f}{where}"):
+                    print(f"{f}{where}: no battery, nothing added")
+                    continue
+                rows[where] = {k: v for k, v in res["over_seeds"].items() if k.startswith("vs_")}
+                print(f"{f}{where}: {res['algo']} − {_line(rows[where])} (over {len(res['per_seed'])} seeds)",
+                      flush=True)
+        common.write_json(d, f)
+        out[f] = rows
+    return out
+
+
+if __name__ == "__main__":
+    main()
