@@ -67,7 +67,8 @@ def plot(matrix, baselines, algo, path):
 
     fig, ax = plt.subplots(figsize=(7.5, 4))
     x = np.arange(len(YEARS))
-    refs = [(n, c) for n, c in (("always_max", "grey"), ("battery_rule", "dimgrey"), ("lp_bound", "black"))
+    refs = [(n, c) for n, c in (("always_max", "grey"), ("battery_rule", "dimgrey"), ("battery_programme", "tan"),
+                                ("plan_programme", "peru"), ("lp_bound", "black"))
             if all(n in baselines[ey] for ey in YEARS)]
     w = 0.8 / (len(YEARS) + len(refs))
     for i, ty in enumerate(YEARS):

@@ -154,13 +154,13 @@ def plot_grid(results: dict, algo: str, path):
     for ax, (cond, sweep) in zip(axes[0], results.items()):
         x = np.arange(len(sweep))
         am = [sweep[t]["evaluation"]["table"]["always_max"]["metrics"]["daily_profit_eur"]["mean"] for t in sweep]
-        for i, name in enumerate((algo, "battery_rule", "lp_bound", "battery_programme")):
+        for i, name in enumerate((algo, "battery_rule", "lp_bound", "battery_programme", "plan_programme")):
             if any(name not in sweep[t]["evaluation"]["table"] for t in sweep):
                 continue
             table = [sweep[t]["evaluation"]["table"][name] for t in sweep]
             m = [e["metrics"]["daily_profit_eur"]["mean"] - a for e, a in zip(table, am)]
             s = [np.std(e["per_seed_profit"]) if "per_seed_profit" in e else 0.0 for e in table]
-            ax.errorbar(x, m, yerr=s, fmt="o-" if i == 0 else "s--", label=name, color=f"C{i if i < 3 else 4}", capsize=3)
+            ax.errorbar(x, m, yerr=s, fmt="o-" if i == 0 else "s--", label=name, color=f"C{i if i < 3 else i + 1}", capsize=3)
         ax.axhline(0.0, color="C3", ls=":", label="always_max")
         ax.set_xticks(x, list(sweep))
         ax.set_title(cond)
@@ -188,10 +188,12 @@ def plot(results, algo, path):
         ev = table[algo]["metrics"]["daily_profit_eur"]
         ax.errorbar([t[-1]], [ev["mean"]], yerr=[np.std(table[algo]["per_seed_profit"])], fmt="o",
                     label=f"{algo} held-out greedy {ev['mean']:.0f}")
-        for i, name in enumerate(("always_max", "battery_rule", "price_threshold", "lp_bound", "battery_programme")):
+        for i, name in enumerate(("always_max", "battery_rule", "price_threshold", "lp_bound", "battery_programme",
+                                  "plan_programme")):
             if name in table:
                 v = table[name]["metrics"]["daily_profit_eur"]["mean"]
-                ax.axhline(v, ls=("--", "-.", ":", "-", (0, (5, 1, 1, 1)))[i], color=f"C{i + 3}", label=f"{name} {v:.0f}")
+                ax.axhline(v, ls=("--", "-.", ":", "-", (0, (5, 1, 1, 1)), (0, (3, 1, 1, 1, 1, 1)))[i], color=f"C{i + 3}",
+                           label=f"{name} {v:.0f}")
         ax.set_title(f"shopping, {traffic} traffic")
         ax.set_xlabel("environment steps")
         ax.grid(alpha=0.3)
