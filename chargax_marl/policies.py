@@ -119,7 +119,13 @@ def price_threshold(state: EnvState, key: jax.Array, params: EnvParams, quantile
 
 def _greedy_under_limits(priority: jnp.ndarray, state: EnvState, params: EnvParams) -> jnp.ndarray:
     """Give cars power in order of ``priority`` (lower first), each as much as its rate,
-    its port and the remaining headroom of every node on its path allow."""
+    its port and the remaining headroom of every node on its path allow, as a level.
+
+    A grant cut by a node is rounded down to a level, so the station never needs a rescale; a
+    grant the car itself limits is rounded up (the car's curve and target clip the rest), so a
+    car close to its target still finishes. Each car takes from its nodes' headroom what it
+    will draw at its level, not its unrounded grant: with few levels (``num_levels`` 1) a
+    node-bound car rounds to idle, and the power it does not draw stays for the cars after it."""
     st = params.station
     want_kw = jnp.minimum(st.leaf_max_kw, physics.rate_curve_kw(state.soc, state.max_rate_kw, state.tau))
     room_kw = jnp.maximum((state.target_soc - state.soc) * state.capacity_kwh, 0.0) / params.step_hours
@@ -127,25 +133,25 @@ def _greedy_under_limits(priority: jnp.ndarray, state: EnvState, params: EnvPara
     headroom = st.node_max_kw  # grid-side kW each node may still pass
     ancestors = st.node_of_leaf_at_depth.T  # (L, D), -1 = none
     path_eff = st.leaf_efficiency_at_depth.T  # (L, D): leaf kW = grid-side kW * efficiency up to the node
+    levels = params.num_levels
 
     def give(headroom, leaf):
         anc = ancestors[leaf]
         valid = anc >= 0
         eff = path_eff[leaf]
+        want = want_kw[leaf]
         free = jnp.min(jnp.where(valid, headroom[jnp.maximum(anc, 0)] * eff, jnp.inf))
-        grant = jnp.clip(jnp.minimum(want_kw[leaf], free), 0.0)
-        headroom = headroom.at[jnp.maximum(anc, 0)].add(jnp.where(valid, -grant / eff, 0.0))
-        return headroom, (grant, free < want_kw[leaf])
+        grant = jnp.clip(jnp.minimum(want, free), 0.0)
+        node_bound = free < want
+        frac = grant / st.leaf_max_kw[leaf] * levels
+        level = jnp.clip(jnp.where(node_bound, jnp.floor(frac + 1e-6), jnp.ceil(frac - 1e-6)), 0, levels)
+        drawn = jnp.where(node_bound, level / levels * st.leaf_max_kw[leaf], grant)
+        headroom = headroom.at[jnp.maximum(anc, 0)].add(jnp.where(valid, -drawn / eff, 0.0))
+        return headroom, level.astype(jnp.int32)
 
     order = jnp.argsort(priority)
-    _, (grants, node_bound) = jax.lax.scan(give, headroom, order)
-    power = jnp.zeros_like(want_kw).at[order].set(grants)
-    node_bound = jnp.zeros_like(want_kw, bool).at[order].set(node_bound)
-    # A grant cut by a node is rounded down so the station never needs a rescale; a grant the
-    # car itself limits is rounded up (the car's curve and target clip the rest), so a car
-    # close to its target still finishes.
-    return jnp.where(node_bound, _levels_for_power(power, params, round_up=False),
-                     _levels_for_power(power, params, round_up=True))
+    _, given = jax.lax.scan(give, headroom, order)
+    return jnp.zeros(want_kw.shape, jnp.int32).at[order].set(given)
 
 
 def earliest_deadline_first(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarray:

@@ -144,3 +144,20 @@ def test_for_single_maps_levels_to_env_actions():
     a = np.asarray(act(state, jax.random.PRNGKey(1)))
     assert bool(env.action_space(p).contains(jnp.asarray(a)))
     np.testing.assert_array_equal(np.asarray(env.action_to_levels(jnp.asarray(a), p)), [10] * 6 + [0])
+
+
+def test_a_node_bound_car_that_rounds_to_idle_leaves_its_power_to_the_next():
+    """At one level per direction a node-bound grant rounds to idle; the power it would have
+    had stays for the cars after it. dc1 (leaves first) takes evse0's 100 kW port in full;
+    dc0 (next) finds less than a port's worth left on evse0 and idles; dc2 (last, a 50 kW car
+    on evse1) then still fits under dc_split, which dc0's unused grant had used up before."""
+    p = no_arrivals(make_params(station=three_level_station(), num_levels=1))
+    s = start(p)
+    s = place_car(s, 1, soc=0.2, capacity_kwh=100.0, max_rate_kw=150.0, remaining_kwh=50.0, time_min=30.0)
+    s = place_car(s, 0, soc=0.2, capacity_kwh=100.0, max_rate_kw=150.0, remaining_kwh=50.0, time_min=60.0)
+    s = place_car(s, 2, soc=0.2, capacity_kwh=100.0, max_rate_kw=50.0, remaining_kwh=50.0, time_min=300.0)
+    for name in ("edf", "llf"):
+        lv = np.asarray(get_policy(name)(s, None, p))
+        assert lv[1] == 1 and lv[0] == 0 and lv[2] == 1, (name, lv)
+        _, info = simulator.step(jax.random.PRNGKey(0), s, jnp.asarray(lv), p)
+        assert float(info.requested_excess_kw) <= 1e-3  # planned within the limits: nothing to rescale
