@@ -290,3 +290,45 @@ def test_the_mpc_drives_both_views_like_the_core():
         assert len(per_agent) == params.station.num_leaves
         _, state, _, _, _, _ = env.step(k, state, action, params)
     assert mpc.solves > 0 and mpc.failures == 0
+
+
+def test_refreshing_the_rules_keeps_the_bound_and_refuses_another_model(tmp_path, monkeypatch):
+    """``optimal --rules-only`` puts the current rules in place of stored ones (here a stale
+    EDF) with their paired differences and headroom, keeps the stored bound and MPC, and
+    refuses a file whose always-max does not replay (another model) or whose params differ."""
+    import json
+
+    from baselines import optimal as opt
+    from baselines.heuristics import evaluate_rules
+
+    monkeypatch.setattr(opt, "RULES", ("always_max", "edf"))
+    params, days = opt.scenario_params("default_full_power")
+    days = np.asarray(days)[:2]
+    fresh = evaluate_rules(params, days, ("always_max", "edf"))
+    am = fresh["always_max"]["daily_profit"]
+    bound = [float(x) + 10.0 for x in am]
+    shown = {"vs_always_max": {"mean": 4.0, "stderr": 0.0}, "headroom": {"fraction": 0.4}, "mean_eur": 1.0}
+    mpc = {"daily_profit": [float(x) + 4.0 for x in am], "timing": {"wall_s": 99.0}, **shown}
+    stored = {"scenario": "default_full_power", "days": [int(d) for d in days], "root_kw": 100.0,
+              "params_fingerprint": trace.params_fingerprint(params), "policies": {
+                  "always_max": {"daily_profit": [float(x) for x in am], **shown},
+                  "edf": {"daily_profit": [-999.0, -999.0], **shown}, "mpc": mpc,
+                  "lp_bound": {"daily_profit": bound, **shown}}}
+    path = tmp_path / "default_full_power.json"
+    path.write_text(json.dumps(stored))
+    out = opt.refresh_rules("default_full_power", tmp_path)
+    edf = out["policies"]["edf"]
+    np.testing.assert_allclose(edf["daily_profit"], fresh["edf"]["daily_profit"], rtol=1e-6)
+    assert edf["vs_always_max"]["mean"] == pytest.approx(float(np.mean(fresh["edf"]["daily_profit"] - am)), abs=1e-3)
+    assert edf["headroom"]["fraction"] == pytest.approx(float(np.mean(fresh["edf"]["daily_profit"] - am)) / 10.0,
+                                                        rel=1e-4)
+    assert out["policies"]["mpc"] == mpc and out["policies"]["lp_bound"] == {"daily_profit": bound, **shown}
+    assert json.loads(path.read_text())["policies"]["edf"]["mean_eur"] == pytest.approx(edf["mean_eur"])
+    assert (tmp_path / "default_full_power.png").stat().st_size > 0
+    stored["policies"]["always_max"]["daily_profit"][0] += 5.0
+    path.write_text(json.dumps(stored))
+    with pytest.raises(ValueError, match="always_max replayed"):
+        opt.refresh_rules("default_full_power", tmp_path)
+    path.write_text(json.dumps({**stored, "params_fingerprint": "other"}))
+    with pytest.raises(ValueError, match="other params or days"):
+        opt.refresh_rules("default_full_power", tmp_path)
