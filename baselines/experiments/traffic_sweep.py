@@ -6,10 +6,10 @@ r"""Paper Fig. 4a: PPO in the shopping scenario at low / medium / high traffic v
 
 Writes ``baselines/results/traffic_sweep.{png,json}``: per traffic level the training
 episode profit (mean ± std over seeds), the greedy held-out daily profit, its paired
-difference to always-max, to always-max + battery rule and to always-max + battery programme
-(the battery shaping's teacher as a rule), the fraction of the hindsight headroom it
-captures, and always-max / battery rule / battery programme / price-threshold / the LP
-hindsight bound on the same 100 held-out days and cars.
+difference to always-max, to always-max + battery rule and to the teachers' rules
+(``battery_programme``, ``plan_programme``: the shaping teachers played as rules), the
+fraction of the hindsight headroom it captures, and always-max / battery rule / the teachers'
+rules / price-threshold / the LP hindsight bound on the same 100 held-out days and cars.
 
 ``--appendix`` repeats the sweep for the four bundled user profiles (shopping, residential,
 workplace, highway; EU fleet) and for the US and World fleets (shopping) and also writes
