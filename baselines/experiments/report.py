@@ -193,12 +193,14 @@ def refund_effect(d: dict) -> str:
     return "\n".join(lines)
 
 
-REPORTS = {"traffic_sweep": traffic_sweep, "traffic_sweep_5e6_appendix": appendix, "traffic_sweep_appendix": appendix,
+REPORTS = {"traffic_sweep": traffic_sweep, "traffic_sweep_5e6_appendix": appendix, "traffic_sweep_5e6_fleets": appendix,
+           "traffic_sweep_appendix": appendix,
            "alpha_ablation": alpha_ablation, "price_shift": price_shift, "refund_effect": refund_effect}
 """The result files (``<name>.json`` under ``--results``) and their tables: Fig. 4a at the paper's
-scale, the appendix's profiles with the tuned settings (``traffic_sweep --timesteps 5e6
---profiles ... --out baselines/results/traffic_sweep_5e6``) and every condition with the earlier
-settings, Fig. 4b-c, Fig. 5, the refund."""
+scale, the appendix's profiles and fleets with the tuned settings (``traffic_sweep --timesteps
+5e6 --profiles ... --out baselines/results/traffic_sweep_5e6``, then ``--fleets ...``, the
+``_appendix`` file of that run kept as ``traffic_sweep_5e6_fleets``) and every condition with
+the earlier settings, Fig. 4b-c, Fig. 5, the refund."""
 
 
 def main(argv=None) -> str:
