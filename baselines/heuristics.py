@@ -62,6 +62,18 @@ def rule_policy(name: str, params):
     return plan_action(params, battery="dp", power_fraction=None if name == PROGRAMME else PLAN_POWER_FRACTION)
 
 
+def check_replay(replayed: dict, stored: dict, names, where: str) -> None:
+    """Refuse (``ValueError``) a stored result whose ``names`` (rule entries with
+    ``daily_profit``) differ from ``replayed`` on this code by more than float32 noise: it was
+    made on another model, and new entries computed beside it would not compare."""
+    for name in names:
+        ref = np.asarray(stored[name]["daily_profit"], np.float64)
+        if not np.allclose(replayed[name]["daily_profit"], ref, rtol=1e-5, atol=1e-3):
+            worst = float(np.max(np.abs(replayed[name]["daily_profit"] - ref)))
+            raise ValueError(f"{where}: {name} replayed on this code differs from the stored run by up to "
+                             f"{worst:.3f} EUR/day: the run was made on another model; re-run it instead")
+
+
 def evaluate_rules(params, days, policies=POLICIES, key=None) -> dict:
     """``{policy: {"num_days", "days", "metrics", "daily_profit"}}`` of each rule-based policy on
     ``days``, all with the same key (default ``PRNGKey(0)``, the trainers' evaluation key), so

@@ -127,7 +127,7 @@ def refresh_rules(name: str, out_dir: Path = RESULTS_DIR) -> dict:
     put them in place of the stored rules, keeping its LP bound and MPC (minutes to hours to
     recompute). Refuses (``ValueError``) a file made for other params or days, or whose
     always-max no longer replays to the stored profits (another model: re-run the scenario)."""
-    from baselines.heuristics import evaluate_rules
+    from baselines.heuristics import check_replay, evaluate_rules
 
     path = Path(out_dir) / f"{name}.json"
     stored = json.loads(path.read_text())
@@ -138,9 +138,8 @@ def refresh_rules(name: str, out_dir: Path = RESULTS_DIR) -> dict:
     t0 = time.perf_counter()
     rules = evaluate_rules(params, days, RULES)
     rules_s = time.perf_counter() - t0
+    check_replay(rules, stored["policies"], ("always_max",), str(path))
     am = rules["always_max"]["daily_profit"]
-    if not np.allclose(am, stored["policies"]["always_max"]["daily_profit"], rtol=1e-5, atol=1e-3):
-        raise ValueError(f"{path}: always_max replayed on this code differs from the stored one; re-run the scenario")
     bound = np.asarray(stored["policies"]["lp_bound"]["daily_profit"], np.float64)
     for key, v in rules.items():
         p = v["daily_profit"]

@@ -167,10 +167,9 @@ def per_seed_results(final: dict, evals: list, baselines: dict, seed: int) -> li
             return None if e is None else {"timesteps": e["timesteps"], "wall_minutes": e["train_seconds"] / 60.0}
 
         entry = {"seed_index": i, "key": f"split(PRNGKey({seed}), seeds)[{i}]", "mean_profit_eur": float(profit[i].mean())}
-        for name in REFERENCES:
-            if name in vs or name in REFERENCES[:2]:  # battery_rule: None when absent
-                d = vs.get(name)
-                entry[f"vs_{name}"] = None if d is None else {"mean": d["per_seed_mean"][i], "stderr": d["per_seed_stderr"][i]}
+        for name in (n for n in REFERENCES if n in vs or n == "battery_rule"):  # battery_rule: None when absent
+            d = vs.get(name)
+            entry[f"vs_{name}"] = None if d is None else {"mean": d["per_seed_mean"][i], "stderr": d["per_seed_stderr"][i]}
         entry["headroom_fraction"] = None if bound is None else headroom_captured(profit[i], am, bound)["fraction"]
         for name in REFERENCES:
             if f"vs_{name}" in entry:
@@ -234,9 +233,10 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
         if not evaluate_every_chunk and i < chunks - 1:
             return
         ev = common.evaluate_batched(make_act, host(rs.params), eval_params, eval_days, reference_profit=am_daily)
+        teacher_diffs = vs_programme(ev)
         evals.append({"timesteps": int(steps), "train_seconds": seconds, "per_seed_profit": ev["per_seed_profit"],
                       "mean_profit": float(np.mean(ev["per_seed_profit"])),
-                      "vs_always_max": ev.get("paired_diff"), "vs_battery_rule": vs_rule(ev), **vs_programme(ev)})
+                      "vs_always_max": ev.get("paired_diff"), "vs_battery_rule": vs_rule(ev), **teacher_diffs})
         if not quiet:
             from tqdm.auto import tqdm
 
@@ -244,7 +244,7 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
             vs = f"; vs always-max {diff['mean']:+.2f} ± {diff['stderr']:.2f}" if diff else ""
             vs += f", vs battery rule {rule['mean']:+.2f} ± {rule['stderr']:.2f}" if rule else ""
             vs += "".join(f", vs {k[3:].replace('_', ' ')} {d['mean']:+.2f} ± {d['stderr']:.2f}"
-                          for k, d in vs_programme(ev).items())
+                          for k, d in teacher_diffs.items())
             tqdm.write(f"  held-out greedy daily profit: {np.mean(ev['per_seed_profit']):.1f} EUR "
                        f"(per seed {np.round(ev['per_seed_profit'], 1).tolist()}; always-max {am:.1f}{vs})")
 

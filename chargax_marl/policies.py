@@ -90,9 +90,13 @@ def random_policy(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.nda
 
 def _levels_for_power(power_kw: jnp.ndarray, params: EnvParams, *, round_up: bool) -> jnp.ndarray:
     """The charging level whose current gives ``power_kw`` at each leaf (clipped to [0, L])."""
-    frac = power_kw / params.station.leaf_max_kw * params.num_levels
-    frac = jnp.ceil(frac - 1e-6) if round_up else jnp.floor(frac + 1e-6)
-    return jnp.clip(frac, 0, params.num_levels).astype(jnp.int32)
+    return _level_of(power_kw / params.station.leaf_max_kw * params.num_levels, round_up, params.num_levels)
+
+
+def _level_of(frac, round_up, num_levels) -> jnp.ndarray:
+    """``frac`` (levels, fractional) rounded up where ``round_up`` (a bool or bool array) else
+    down, clipped to [0, ``num_levels``]."""
+    return jnp.clip(jnp.where(round_up, jnp.ceil(frac - 1e-6), jnp.floor(frac + 1e-6)), 0, num_levels).astype(jnp.int32)
 
 
 def minimum_power_kw(state: EnvState, params: EnvParams) -> jnp.ndarray:
@@ -143,11 +147,10 @@ def _greedy_under_limits(priority: jnp.ndarray, state: EnvState, params: EnvPara
         free = jnp.min(jnp.where(valid, headroom[jnp.maximum(anc, 0)] * eff, jnp.inf))
         grant = jnp.clip(jnp.minimum(want, free), 0.0)
         node_bound = free < want
-        frac = grant / st.leaf_max_kw[leaf] * levels
-        level = jnp.clip(jnp.where(node_bound, jnp.floor(frac + 1e-6), jnp.ceil(frac - 1e-6)), 0, levels)
+        level = _level_of(grant / st.leaf_max_kw[leaf] * levels, ~node_bound, levels)
         drawn = jnp.where(node_bound, level / levels * st.leaf_max_kw[leaf], grant)
         headroom = headroom.at[jnp.maximum(anc, 0)].add(jnp.where(valid, -drawn / eff, 0.0))
-        return headroom, level.astype(jnp.int32)
+        return headroom, level
 
     order = jnp.argsort(priority)
     _, given = jax.lax.scan(give, headroom, order)

@@ -320,9 +320,9 @@ def test_the_report_shows_the_teachers_rules_where_a_run_holds_them():
     old = {**cell, "per_seed": [seed(1.0, 0.5), seed(1.2, 0.7)]}
     assert "| +0.60 ± 0.10 (2/2) | – | – |" in report._cell_row("low", old, "ppo")
     assert report.CELL_HEADER.count("|") == 2 * 12 and "plan programme" in report.CELL_HEADER
-    assert report.teacher_rules({}, [("low", old)]) == ""
+    assert report.teacher_rules([("low", old)]) == ""
     for name, d in (("battery_programme", 1.0), ("plan_programme", 3.0)):
         cell["evaluation"]["table"][name] = {"vs_always_max": {"mean": d, "stderr": 0.5},
                                              "headroom": {"fraction": d / 3.0}}
-    text = report.teacher_rules({}, [("low", cell)])
+    text = report.teacher_rules([("low", cell)])
     assert "| low | +1.00 ± 0.50 (0.333) | +3.00 ± 0.50 (1.000) |" in text

@@ -59,17 +59,12 @@ def teacher_entries(params, days, stored: dict, where: str) -> dict:
     paired differences to the stored always-max and battery rule and its headroom share, after
     checking that always-max and the battery rule replayed on this code give the stored
     ``stored[name]["daily_profit"]`` (else a ``ValueError``: the run was made on another model)."""
-    from baselines.heuristics import TEACHER_RULES, evaluate_rules
+    from baselines.heuristics import TEACHER_RULES, check_replay, evaluate_rules
 
     if [int(d) for d in np.asarray(days)] != [int(d) for d in stored["always_max"]["days"]]:
         raise ValueError(f"{where}: its config builds other held-out days than it was evaluated on")
     rules = evaluate_rules(params, days, ("always_max", "battery_rule") + TEACHER_RULES)
-    for name in ("always_max", "battery_rule"):
-        ref = np.asarray(stored[name]["daily_profit"], np.float64)
-        if not np.allclose(rules[name]["daily_profit"], ref, rtol=1e-5, atol=1e-3):
-            worst = float(np.max(np.abs(rules[name]["daily_profit"] - ref)))
-            raise ValueError(f"{where}: {name} replayed on this code differs from the stored run by up to "
-                             f"{worst:.3f} EUR/day: the run was made on another model; retrain it instead")
+    check_replay(rules, stored, ("always_max", "battery_rule"), where)
     out = {}
     for name in TEACHER_RULES:
         e = rules[name]
@@ -117,9 +112,8 @@ def add_to_price_shift(d: dict, where: str = "") -> dict:
 
     if d.get("settings") != "tuned":
         raise ValueError(f"{where}: settings {d.get('settings')!r}; only the tuned settings' params are rebuilt here")
-    base = {**TUNED[d["algo"]], "ENV_KWARGS": dict(TUNED[d["algo"]].get("ENV_KWARGS") or {})}
     for year, bl in d["baselines"].items():
-        _, params, _, days = common.build_env_params(common.parse_config({}, with_prices(base, year)))
+        _, params, _, days = common.build_env_params(common.parse_config({}, with_prices(TUNED[d["algo"]], year)))
         bl.update(teacher_entries(params, days, bl, f"{where} {year}"))
     rows = {}
     for train_year, row in d["matrix"].items():

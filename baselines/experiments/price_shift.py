@@ -39,9 +39,8 @@ def main(argv=None, out="baselines/results/price_shift"):
             ev = common.evaluate_batched(train.make_act(full), res["_params"], full, days,
                                          reference_profit=bl["always_max"]["daily_profit"])
             ev["vs_battery_rule"] = common.paired_difference(ev["daily_profit"], bl["battery_rule"]["daily_profit"])
-            if "battery_programme" in bl:
-                ev["vs_battery_programme"] = common.paired_difference(ev["daily_profit"],
-                                                                      bl["battery_programme"]["daily_profit"])
+            for name in (n for n in ("battery_programme", "plan_programme") if n in bl):  # the teachers' rules
+                ev[f"vs_{name}"] = common.paired_difference(ev["daily_profit"], bl[name]["daily_profit"])
             add_headroom({"agent": ev}, bl)
             matrix[train_year][eval_year] = ev
             d, r = ev["paired_diff"], ev["vs_battery_rule"]

@@ -78,7 +78,7 @@ CELL_HEADER = ("| {what} | {algo} EUR/day | always-max | battery rule | LP bound
                "wall min |\n|---|---|---|---|---|---|---|---|---|---|---|")
 
 
-def teacher_rules(d: dict, cells: list[tuple[str, dict]]) -> str:
+def teacher_rules(cells: list[tuple[str, dict]]) -> str:
     """The teachers' rules over always-max per cell (one line each), where the file holds them."""
     rows = []
     for label, res in cells:
@@ -100,7 +100,7 @@ def traffic_sweep(d: dict) -> str:
     cells = list(d["results"].items())
     rows = [_cell_row(traffic, res, algo) for traffic, res in cells]
     return "\n".join([provenance(d), "", CELL_HEADER.format(what="traffic", algo=algo.upper()), *rows,
-                      teacher_rules(d, cells)])
+                      teacher_rules(cells)])
 
 
 def appendix(d: dict) -> str:
@@ -108,7 +108,7 @@ def appendix(d: dict) -> str:
     cells = [(f"{cond} {traffic}", res) for cond, sweep in d["results"].items() for traffic, res in sweep.items()]
     rows = [_cell_row(label, res, algo) for label, res in cells]
     return "\n".join([provenance(d), "", CELL_HEADER.format(what="profile/fleet traffic", algo=algo.upper()), *rows,
-                      teacher_rules(d, cells)])
+                      teacher_rules(cells)])
 
 
 METRIC = {"satisfaction_time": "missing_kwh_at_departure", "satisfaction_charge": "overtime_min"}

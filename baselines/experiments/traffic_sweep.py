@@ -134,7 +134,7 @@ def line(res: dict, algo: str) -> str:
     out = " | ".join(f"{name} {t[name]['metrics']['daily_profit_eur']['mean']:.1f}"
                      for name in (algo, "always_max", "battery_rule", "battery_programme", "price_threshold", "lp_bound")
                      if name in t)
-    for key in ("vs_always_max", "vs_battery_rule", "vs_battery_programme"):
+    for key in ("vs_always_max", "vs_battery_rule", "vs_battery_programme", "vs_plan_programme"):
         if res.get(key):
             out += f" | {algo} {key} {res[key]['mean']:+.2f} ± {res[key]['stderr']:.2f}"
     hf = res.get("over_seeds", {}).get("headroom_fraction")
