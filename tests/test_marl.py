@@ -191,6 +191,29 @@ def test_action_shapes_and_clipping(small, small_step):
         np.testing.assert_array_equal(x, y)
 
 
+def test_action_dtypes_clip_alike_stacked_or_mixed(small):
+    """One dtype: the vector is clipped in one op; mixed dtypes: each agent on its own. Same ints."""
+    raw = [-5, 3, 2 * L + 7, 0, 1, 99, 2]
+    want = np.clip(raw, 0, small.num_actions - 1)
+    same = {a: jnp.int32(v) for a, v in zip(small.agents, raw)}
+    mixed = dict(same, port_0=jnp.float32(-5.5), port_2=np.int64(2 * L + 7), port_4=jnp.asarray(True))
+    want_mixed = want.copy()
+    want_mixed[4] = 1
+    for acts, expected in ((same, want), (mixed, want_mixed)):
+        np.testing.assert_array_equal(small.stack_actions(acts), expected)
+        np.testing.assert_array_equal(jax.jit(small.stack_actions)(acts), expected)
+
+
+def test_step_observations_are_the_matrix_rows(small, small_step):
+    """The dict's rows (built per agent inside the jitted step) equal get_obs_matrix bit for bit."""
+    _, s = small.reset(KEY)
+    for t in range(3):
+        obs, s, _, _, _ = small_step(jax.random.fold_in(KEY, t), s, idx_actions(small, port_0=2 * L, battery_0=0))
+        matrix = np.asarray(jax.jit(small.get_obs_matrix)(s))
+        for i, a in enumerate(small.agents):
+            np.testing.assert_array_equal(np.asarray(obs[a]), matrix[i])
+
+
 def test_delta_mode_and_no_discharge_station():
     delta = ChargaxMARL(station=mixed_station(), action_mode="delta")
     assert delta.num_actions == 2 * L + 1
