@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from baselines import common
+from baselines import common, outputs
 
 MIXES = ("learned", "learned_ports_rule_battery", "always_max_ports_learned_battery")
 
@@ -40,7 +40,7 @@ def load_run(run_dir: str | Path):
     results = json.loads((run_dir / "results.json").read_text())
     train = get_module(results["algo"]).make_train(results["config"])
     template = jax.vmap(train.policy.init)(jax.random.split(jax.random.PRNGKey(0), int(results["seeds"])))
-    return results, train, common.load_params(template, run_dir / "params.msgpack")
+    return results, train, outputs.load_params(template, run_dir / "params.msgpack")
 
 
 def mixed_policies(act, params) -> dict:
@@ -108,7 +108,7 @@ def main(argv=None) -> dict:
     out = attribute(a.run_dir)
     print(format_attribution(out))
     if a.out:
-        common.write_json(out, a.out)
+        outputs.write_json(out, a.out)
     return out
 
 

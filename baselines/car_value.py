@@ -148,7 +148,7 @@ def car_potential(config: dict, env_params):
     hide it."""
     if port_shaping_mode(config) == "off":
         return None
-    from baselines.common import core_state
+    from baselines.shaping import core_state
 
     values = car_values(env_params)
     step_min = float(env_params.step_minutes)

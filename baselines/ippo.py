@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from baselines import car_value, common
+from baselines import car_value, common, shaping
 from chargax_marl.core.observation import PORT_FEATURES
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.marl import env as marl_env
@@ -218,15 +218,15 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         ws_b = jnp.swapaxes(obs["world_state"], 0, 1).reshape((n_actors, -1))  # (agents * envs, state)
         return ws, policy.value(params, ws_b)
 
-    # BATTERY_SHAPING (common.battery_potential, per agent as common.agent_potential_shaping).
+    # BATTERY_SHAPING (shaping.battery_potential, per agent as shaping.agent_potential_shaping).
     is_bat = np.asarray(env_params.station.leaf_kind) == KIND_BATTERY
 
-    potential = common.battery_potential(config, env_params)
+    potential = shaping.battery_potential(config, env_params)
     car_potential = car_value.car_potential(config, env_params)  # PORT_SHAPING, each port its own car's term
 
-    def shaping(pot, info):
+    def battery_term(pot, info):
         """Per-actor ``(agents * envs,)`` shaping term of a step (info leaves ``(envs, agents)``)."""
-        per_agent = common.agent_potential_shaping(pot, info, is_bat, config["LOCAL_REWARD_WEIGHT"])
+        per_agent = shaping.agent_potential_shaping(pot, info, is_bat, config["LOCAL_REWARD_WEIGHT"])
         return per_agent.T.reshape((n_actors,))  # agent-major, as batchify
 
     # BATTERY_GAMMA: the battery agents' own discount (None: GAMMA). A port's decisions pay off
@@ -266,7 +266,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         advice of ``env_state`` when ``PLAN_OBS`` is on."""
         if policy.plan is None:
             return batchify(obs, agents, n_actors)
-        per_env = policy.with_plan(jnp.stack([obs[a] for a in agents], axis=1), common.core_state(env_state))
+        per_env = policy.with_plan(jnp.stack([obs[a] for a in agents], axis=1), shaping.core_state(env_state))
         return jnp.swapaxes(per_env, 0, 1).reshape((n_actors, -1))
 
     def env_step(carry, _):
@@ -284,9 +284,9 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
                                                                     actions)
         reward_b = batchify(reward, agents, n_actors)
         if pot is not None:
-            reward_b = reward_b + shaping(pot, info)
+            reward_b = reward_b + battery_term(pot, info)
         if car_pot is not None:
-            own = common.mix_own_terms(car_pot(info["agent_energy_kwh"]), config["LOCAL_REWARD_WEIGHT"])
+            own = shaping.mix_own_terms(car_pot(info["agent_energy_kwh"]), config["LOCAL_REWARD_WEIGHT"])
             reward_b = reward_b + own.T.reshape((n_actors,))
         next_obs, env_state = common.shard_envs((next_obs, env_state), mesh)
         tr = Transition(obs_b, cin, avail, action, logp, value, reward_b * config["REWARD_SCALE"],

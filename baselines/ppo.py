@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from baselines import car_value, common
+from baselines import car_value, common, shaping
 from chargax_marl.core.observation import flat_obs
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.policies import always_max
@@ -141,7 +141,7 @@ def make_train(config: dict | None = None, env_params=None):
         raise ValueError(f"NUM_ENVS*NUM_STEPS={batch} must be divisible by NUM_MINIBATCHES={config['NUM_MINIBATCHES']}")
     mesh = common.env_mesh(n_envs)
     tx = common.make_optimizer(config, total_updates)
-    potential = common.battery_potential(config, env_params)  # BATTERY_SHAPING
+    potential = shaping.battery_potential(config, env_params)  # BATTERY_SHAPING
     car_potential = car_value.car_potential(config, env_params)  # PORT_SHAPING
     v_reset = jax.vmap(env.reset, in_axes=(0, None))
     v_step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
@@ -156,7 +156,7 @@ def make_train(config: dict | None = None, env_params=None):
     def env_step(carry, _):
         params, env_state, obs, key = carry
         key, k_act, k_step = jax.random.split(key, 3)
-        obs = policy.with_plan(obs, common.core_state(env_state))
+        obs = policy.with_plan(obs, shaping.core_state(env_state))
         logits = policy.logits(params, obs)
         action, head_logp = common.sample_categorical(k_act, logits)  # (envs, leaves)
         logp = policy.credit_logp(head_logp)
@@ -165,14 +165,14 @@ def make_train(config: dict | None = None, env_params=None):
         car_pot = None if car_potential is None else car_potential(env_state)
         next_obs, env_state, reward, term, trunc, info = v_step(jax.random.split(k_step, n_envs), env_state,
                                                                 action, env_params)
-        shaping = 0.0 if pot is None else common.battery_shaping(pot(info["battery_net_kwh"]),
-                                                                 info["battery_terminal_value_eur"])
+        battery_term = 0.0 if pot is None else shaping.battery_shaping(pot(info["battery_net_kwh"]),
+                                                                      info["battery_terminal_value_eur"])
         port_shaping = 0.0 if car_pot is None else jnp.sum(car_pot(info["leaf_energy_kwh"]), axis=-1)
         if policy.split:  # (envs, 2): the ports' share and their shaping, the batteries' share and theirs
             reward = jnp.stack([reward - info["battery_reward_eur"] + port_shaping,
-                                info["battery_reward_eur"] + shaping], -1)
+                                info["battery_reward_eur"] + battery_term], -1)
         else:
-            reward = reward + shaping + port_shaping
+            reward = reward + battery_term + port_shaping
         next_obs, env_state = common.shard_envs((next_obs, env_state), mesh)
         done = jnp.logical_or(term, trunc)
         tr = Transition(obs, action, logp, value, reward * config["REWARD_SCALE"], done.astype(jnp.float32),
@@ -191,7 +191,7 @@ def make_train(config: dict | None = None, env_params=None):
     def update(rs: RunnerState, _):
         (params, env_state, obs, key), traj = jax.lax.scan(
             env_step, (rs.params, rs.env_state, rs.obs, rs.key), None, n_steps)
-        last_value = policy.value(params, policy.with_plan(obs, common.core_state(env_state)))
+        last_value = policy.value(params, policy.with_plan(obs, shaping.core_state(env_state)))
         done = traj.done[..., None] if policy.split else traj.done
         adv, targets = common.gae(traj.reward, traj.value, done, last_value, config["GAMMA"], config["GAE_LAMBDA"])
         if policy.split:  # each part's advantages to mean 0 and std 1 over the rollout

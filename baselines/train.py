@@ -34,7 +34,7 @@ if __name__ == "__main__":  # before the imports below: importing gymnax already
     from baselines import distributed  # jax.distributed.initialize() is refused
 
     distributed.initialize_from_argv()
-from baselines import common  # noqa: E402
+from baselines import common, outputs  # noqa: E402
 from chargax_marl.machine import code_version  # noqa: E402
 
 ALGOS = ("ppo", "ippo", "mappo")
@@ -312,10 +312,10 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
-        common.save_params(params, out / "params.msgpack")
+        outputs.save_params(params, out / "params.msgpack")
         plot_curve(out / "curve.png", algo, timesteps, metrics["episode_profit_eur"], baselines, evals,
                    title or f"{algo.upper()} {config['SCENARIO']} / {config['TRAFFIC']}: {seeds} seeds")
-        common.write_json(results, out / "results.json")
+        outputs.write_json(results, out / "results.json")
         if not quiet:
             print(f"wrote {out / 'curve.png'}, {out / 'results.json'}, {out / 'params.msgpack'}")
     results["_params"], results["_train"] = params, train  # for callers (not written to JSON)
@@ -337,7 +337,7 @@ def plot_curve(path, algo: str, timesteps, episode_profit, baselines: dict, eval
         if key in baselines:
             v = baselines[key]["metrics"]["daily_profit_eur"]["mean"]
             lines[f"{label} (held-out) {v:.0f}"] = v
-    common.plot_learning_curve(
+    outputs.plot_learning_curve(
         path, timesteps, {f"{algo} training episodes (sampled)": np.asarray(episode_profit)}, lines, title,
         eval_points={f"{algo} held-out (greedy)": ([e["timesteps"] for e in evals],
                                                     np.asarray([e["per_seed_profit"] for e in evals]).T)}
@@ -370,7 +370,7 @@ def add_stored_mpc(run_dir) -> dict:
                                           if isinstance(v, dict) and "daily_profit" in v})
     algo = results["algo"]
     results["vs_mpc"] = common.paired_difference(table[algo]["daily_profit"], mpc_daily)  # (seeds, days) - (days,)
-    common.write_json(results, run_dir / "results.json")
+    outputs.write_json(results, run_dir / "results.json")
     curve = results["curve"]
     title = f"{algo.upper()} {config['SCENARIO']} / {config['TRAFFIC']}: {results['seeds']} seeds"
     plot_curve(run_dir / "curve.png", algo, curve["timesteps"], curve["episode_profit_eur"], table,
@@ -408,7 +408,7 @@ def main(argv=None) -> dict:
                         "'day_mean' at the env's terminal price (same daily profit), 'storage_value' at the value "
                         "of a stored kWh from the day's battery-only LP, 'dp' at the value of the stored energy level from the "
                         "day's battery-only dynamic programme (both baselines/storage_value.py); see "
-                        "common.battery_shaping. Default: on (off with --paper)")
+                        "baselines.shaping.battery_shaping. Default: on (off with --paper)")
     p.add_argument("--port-shaping", choices=("off", "plan"), default=None,
                    help="'plan': each port also sees the change of its parked car's best-plan value under the "
                         "day's prices (baselines/car_value.py, a potential per car; charge-sensitive cars have "

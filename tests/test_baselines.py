@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from baselines import common, ippo, mappo, ppo, storage_value
+from baselines import common, ippo, mappo, outputs, ppo, shaping, storage_value
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -173,7 +173,7 @@ def test_num_envs_must_divide_devices(monkeypatch):
 _SHARDED = r"""
 import jax, numpy as np
 assert jax.device_count() == 2, jax.devices()
-from baselines import ppo, ippo, common
+from baselines import common, ippo, outputs, ppo, shaping
 from tests.test_baselines import TINY
 for mod in (ppo, ippo):
     train = mod.make_train(TINY)
@@ -254,7 +254,7 @@ def test_cli_smoke_writes_png_json_checkpoint(tmp_path):
     # the checkpoint restores into the parameter pytree (leading axis = seed)
     train = ppo.make_train({**TINY, "HIDDEN": 16})
     template = jax.vmap(train.policy.init)(jax.random.split(jax.random.PRNGKey(0), 2))
-    restored = common.load_params(template, out / "params.msgpack")
+    restored = outputs.load_params(template, out / "params.msgpack")
     assert jax.tree.structure(restored) == jax.tree.structure(template)
 
 
@@ -456,8 +456,8 @@ def test_battery_shaping_moves_the_battery_value_but_keeps_the_days_reward(w):
     is_bat = np.asarray(env0.params.station.leaf_kind) == KIND_BATTERY
 
     def rewards_of(env, state, info):
-        price = common.battery_value_price(state, env.params)
-        return common.agent_battery_shaping(price, info, is_bat, w)
+        price = shaping.battery_value_price(state, env.params)
+        return shaping.agent_battery_shaping(price, info, is_bat, w)
 
     raw, shaped, first, profit = _tiny_day(rewards_of, w)
     np.testing.assert_allclose(shaped, raw, atol=1e-3)  # per agent, w = 0 and w = 1
@@ -466,7 +466,7 @@ def test_battery_shaping_moves_the_battery_value_but_keeps_the_days_reward(w):
         np.testing.assert_allclose(raw, profit, rtol=1e-5)  # the shared reward is the station's profit
     # the single-agent form is the station's term (w = 0)
     info_like = {"battery_net_kwh": np.ones(3), "battery_terminal_value_eur": np.array([0.0, 0.0, 5.0])}
-    np.testing.assert_allclose(common.battery_shaping(2.0 * info_like["battery_net_kwh"],
+    np.testing.assert_allclose(shaping.battery_shaping(2.0 * info_like["battery_net_kwh"],
                                                       info_like["battery_terminal_value_eur"]), [2.0, 2.0, -3.0])
 
 
@@ -592,7 +592,7 @@ def test_relative_prices_read_the_observed_prices_and_quantiles():
         env = ChargaxMARL(agent_id=agent_id, **TINY_ENV)
         state = env.reset_to_day(3)[1]
         obs = np.asarray(env.get_obs_matrix(state))
-        ctx = np.asarray(observation.context_features(common.core_state(state), env.params))
+        ctx = np.asarray(observation.context_features(shaping.core_state(state), env.params))
         ctx0 = env.obs_size - np.shape(env._layout.agent_id)[1] - observation.context_size(env.params)
         prices, q20, q50, q80 = common.relative_price_columns(env.params, ctx0)
         i = observation.context_index(env.params, "price_quantiles")
@@ -608,7 +608,7 @@ def test_relative_prices_read_the_observed_prices_and_quantiles():
     assert mappo.make_train({**TINY, "RELATIVE_PRICES": True}).policy.critic_dim == train.env.state_size
     # single-agent PPO: the same features from the flat observation, which ends with the context
     ppo_train = ppo.make_train({**TINY, "RELATIVE_PRICES": True})
-    flat = np.asarray(observation.flat_obs(common.core_state(state), ppo_train.env_params))
+    flat = np.asarray(observation.flat_obs(shaping.core_state(state), ppo_train.env_params))
     cols = common.relative_price_columns(ppo_train.env_params, flat.shape[0] - ctx.shape[0])
     np.testing.assert_array_equal(flat[cols[0]], ctx[:env.params.price_horizon_hours + 1])
     np.testing.assert_allclose(np.asarray(common.relative_prices(jnp.asarray(flat), *cols)), rel[0], rtol=1e-5)
@@ -734,7 +734,7 @@ def test_storage_value_shaping_changes_the_day_by_a_constant_of_its_first_state(
 
     env0 = ChargaxMARL(**TINY_ENV)
     is_bat = np.asarray(env0.params.station.leaf_kind) == KIND_BATTERY
-    potential = common.battery_potential({"BATTERY_SHAPING": "storage_value"}, env0.params)
+    potential = shaping.battery_potential({"BATTERY_SHAPING": "storage_value"}, env0.params)
     table = storage_value.storage_values(env0.params)
     start = {}
 
@@ -742,7 +742,7 @@ def test_storage_value_shaping_changes_the_day_by_a_constant_of_its_first_state(
         if not start:
             e0 = float(np.sum(np.asarray(state.soc * state.capacity_kwh)[is_bat]))
             start.update(v0=float(table[int(state.day), int(state.timestep)]), e0=e0, day=int(state.day))
-        return common.agent_potential_shaping(potential(state), info, is_bat, w)
+        return shaping.agent_potential_shaping(potential(state), info, is_bat, w)
 
     raw, shaped, first, _ = _tiny_day(rewards_of, w)
     from chargax_marl.core.reward import day_mean_buy_price
@@ -755,7 +755,7 @@ def test_storage_value_shaping_changes_the_day_by_a_constant_of_its_first_state(
     assert np.all(np.isfinite(out["metrics"]["episode_return"]))
     _finite_losses(ppo.make_train({**TINY, "BATTERY_SHAPING": "storage_value"}))
     with pytest.raises(ValueError, match="BATTERY_SHAPING"):
-        common.shaping_mode({"BATTERY_SHAPING": "hourly"})
+        shaping.shaping_mode({"BATTERY_SHAPING": "hourly"})
 
 
 def test_dp_values_are_the_hand_computed_best_of_the_three_full_power_actions():
@@ -811,7 +811,7 @@ def test_dp_shaping_changes_the_day_by_a_constant_of_its_first_state(w):
 
     env0 = ChargaxMARL(**TINY_ENV)
     is_bat = np.asarray(env0.params.station.leaf_kind) == KIND_BATTERY
-    potential = common.battery_potential({"BATTERY_SHAPING": "dp"}, env0.params)
+    potential = shaping.battery_potential({"BATTERY_SHAPING": "dp"}, env0.params)
     grid, table = storage_value.dp_values(env0.params)
     start = {}
 
@@ -820,7 +820,7 @@ def test_dp_shaping_changes_the_day_by_a_constant_of_its_first_state(w):
             e0 = float(np.sum(np.asarray(state.soc * state.capacity_kwh)[is_bat]))
             start.update(phi0=float(np.interp(e0, grid, table[int(state.day), int(state.timestep)])), e0=e0,
                          day=int(state.day))
-        return common.agent_potential_shaping(potential(state), info, is_bat, w)
+        return shaping.agent_potential_shaping(potential(state), info, is_bat, w)
 
     raw, shaped, first, _ = _tiny_day(rewards_of, w)
     const = float(storage_value.terminal_prices(env0.params)[start["day"]]) * start["e0"] - start["phi0"]

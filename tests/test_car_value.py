@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from baselines import car_value, common, ippo, ppo
+from baselines import car_value, ippo, ppo, shaping
 from chargax_marl.core import make_params, simulator
 from chargax_marl.core.station import KIND_BATTERY
 
@@ -159,9 +159,9 @@ def test_port_shaping_trains_and_keeps_the_logged_profit(mod):
 
 def test_mix_own_terms_adds_up_like_the_rewards():
     own = jnp.asarray([[1.0, -2.0, 0.5]])
-    np.testing.assert_allclose(np.asarray(common.mix_own_terms(own, 1.0)), np.asarray(own))
-    np.testing.assert_allclose(np.asarray(common.mix_own_terms(own, 0.0)), [[-0.5, -0.5, -0.5]])
-    mixed = common.mix_own_terms(own, 0.3)
+    np.testing.assert_allclose(np.asarray(shaping.mix_own_terms(own, 1.0)), np.asarray(own))
+    np.testing.assert_allclose(np.asarray(shaping.mix_own_terms(own, 0.0)), [[-0.5, -0.5, -0.5]])
+    mixed = shaping.mix_own_terms(own, 0.3)
     np.testing.assert_allclose(float(mixed.sum()), float(own.sum()) * (0.7 * 3 + 0.3), rtol=1e-6)
 
 

@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines import common
+from baselines import common, outputs
 from baselines.train import add_headroom, over_seeds
 
 
@@ -152,7 +152,7 @@ def main(argv=None) -> dict:
                 rows[where] = {k: v for k, v in res["over_seeds"].items() if k.startswith("vs_")}
                 print(f"{f}{where}: {res['algo']} − {_line(rows[where])} (over {len(res['per_seed'])} seeds)",
                       flush=True)
-        common.write_json(d, f)
+        outputs.write_json(d, f)
         out[f] = rows
     return out
 

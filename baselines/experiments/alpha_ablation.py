@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from baselines import common
+from baselines import common, outputs
 from baselines.experiments._common import Record, config_of, output, paired_over_seeds, parser, with_env_kwargs
 from baselines.train import baseline_results, run
 
@@ -60,7 +60,7 @@ def main(argv=None, out="baselines/results/alpha_ablation"):
         for row in rows.values():
             row["vs_alpha0"] = {k: paired_over_seeds(row["per_seed"][k], zero["per_seed"][k]) for k in row["per_seed"]}
     meta = record.as_dict()
-    common.write_json({**meta, "baselines": baselines,
+    outputs.write_json({**meta, "baselines": baselines,
                        "results": {t: list(r.values()) for t, r in results.items()}}, out + ".json")
     plot(results, baselines, out + ".png")
     print(f"wrote {out}.png, {out}.json")

@@ -23,7 +23,7 @@ import time
 
 import numpy as np
 
-from baselines import common
+from baselines import common, outputs
 from baselines.experiments._common import Record, config_of, eval_setup, output, parser, profit_curve, train_on
 
 EXPERIMENTS = {
@@ -66,7 +66,7 @@ def main(argv=None, out="baselines/results/cross_market", *, experiments=None, o
     wall = time.time() - t0
     plot(matrix, baselines, experiments, args.algo, out + ".png")
     meta = record.as_dict()
-    common.write_json({**meta, "timesteps": runs[trained[0]]["timesteps"],
+    outputs.write_json({**meta, "timesteps": runs[trained[0]]["timesteps"],
                        "experiments": {s: list(t) for s, t in experiments.items()},
                        "evaluation": "greedy, held-out days of each target, PRNGKey(0) for every policy (common random numbers)",
                        "wall_seconds_total": wall, "matrix": matrix, "transfer_gap_vs_in_market": gaps,

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from baselines import common
+from baselines import common, outputs
 from baselines.experiments._common import Record, config_of, eval_setup, output, parser, profit_curve, train_on
 from baselines.train import add_headroom
 
@@ -51,7 +51,7 @@ def main(argv=None, out="baselines/results/price_shift"):
                             "curve": profit_curve(res["curve"])}
     baselines = {y: e[2] for y, e in evals.items()}
     meta = record.as_dict()
-    common.write_json({**meta, "matrix": matrix, "baselines": baselines, "runs": rows}, out + ".json")
+    outputs.write_json({**meta, "matrix": matrix, "baselines": baselines, "runs": rows}, out + ".json")
     plot(matrix, baselines, args.algo, out + ".png")
     print(f"wrote {out}.png, {out}.json")
     print(Record.summary(meta))

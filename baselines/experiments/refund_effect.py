@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from baselines import common
+from baselines import common, outputs
 from baselines.experiments._common import Record, config_of, output, paired_over_seeds, parser, with_env_kwargs
 from baselines.heuristics import add_paired_differences, evaluate_rules
 from baselines.refund import RULES, all_v2g
@@ -69,7 +69,7 @@ def main(argv=None, out="baselines/results/refund_effect"):
                 f"{row[ACCOUNTS[e]]['paired_diff']['stderr']:.2f})" for e in (True, False))
                 + f"; off - on {row['off_minus_on']['mean']:+.2f} ({res['wall_seconds']:.0f} s)", flush=True)
     meta = record.as_dict()
-    common.write_json({**meta, "fleets": {f: "bundled EU fleet" if f == "EU" else
+    outputs.write_json({**meta, "fleets": {f: "bundled EU fleet" if f == "EU" else
                                                       "EU fleet, every model may discharge at its charging limit"
                                                       for f in args.fleets}, "results": results}, out + ".json")
     plot(results, args.algo, out + ".png")

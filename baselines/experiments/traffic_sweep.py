@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from baselines import common
+from baselines import outputs
 from baselines.experiments._common import (Record, config_of, output, parser, profit_curve, reused_run,
                                            with_env_kwargs)
 from baselines.train import run
@@ -80,11 +80,11 @@ def main(argv=None, out="baselines/results/traffic_sweep"):
                                 ["wall_seconds"]} for key, path in reuse.items()}
         meta["wall_seconds_with_reused"] = meta["wall_seconds"] + sum(r["wall_seconds"] for r in meta["reused"].values())
     if "shopping/EU" in sweeps:  # the main figure: {traffic: result}
-        common.write_json({**meta, "results": sweeps["shopping/EU"]}, out + ".json")
+        outputs.write_json({**meta, "results": sweeps["shopping/EU"]}, out + ".json")
         plot(sweeps["shopping/EU"], args.algo, out + ".png")
         print(f"wrote {out}.png, {out}.json")
     if len(cells) > 1:
-        common.write_json({**meta, "conditions": [list(c) for c in cells], "results": sweeps},
+        outputs.write_json({**meta, "conditions": [list(c) for c in cells], "results": sweeps},
                           out + "_appendix.json")
         plot_grid(sweeps, args.algo, out + "_appendix.png")
         print(f"wrote {out}_appendix.png, {out}_appendix.json")
@@ -181,7 +181,7 @@ def plot(results, algo, path):
     fig, axes = plt.subplots(1, len(results), figsize=(4.2 * len(results), 3.6))
     for ax, (traffic, res) in zip(np.atleast_1d(axes), results.items()):
         t = np.asarray(res["curve"]["timesteps"])
-        m, s = common.seed_mean_std(res["curve"]["episode_profit_eur"])
+        m, s = outputs.seed_mean_std(res["curve"]["episode_profit_eur"])
         ax.plot(t, m, label=f"{algo} (training, sampled)")
         ax.fill_between(t, m - s, m + s, alpha=0.25)
         table = res["evaluation"]["table"]
