@@ -177,10 +177,7 @@ def agent_observation_rows(state: EnvState, params: EnvParams, layout: ObsLayout
     out of it; built per agent, each row is written once (or fused into its reader)."""
     layout = obs_layout(params) if layout is None else layout
     leaf, kind, loads, ctx, agent_id = _observation_parts(state, params, layout)
-    # The per-agent blocks joined first: a row is then three pieces, not five, and a consumer's
-    # reduction over a row splits (XLA's algebraic simplifier) into one kernel per varying piece.
-    own = jnp.concatenate([leaf, kind, loads], axis=1)
-    return [jnp.concatenate([own[i], ctx, agent_id[i]]) for i in range(leaf.shape[0])]
+    return [jnp.concatenate([leaf[i], kind[i], loads[i], ctx, agent_id[i]]) for i in range(leaf.shape[0])]
 
 
 STEP_INFO_KEYS = (
@@ -467,10 +464,8 @@ class ChargaxMARL(MultiAgentEnv):
             if x.shape not in ((), (1,)):
                 raise ValueError(f"action of agent {a!r} must have shape () or (1,), got {x.shape}")
             core_actions.check_dtype(x, f"actions[{a!r}]")
-            parts.append(x.reshape(()))
-        if len({x.dtype for x in parts}) == 1:  # one clip over the stacked vector: one kernel, not N
-            return core_actions.to_int32(jnp.stack(parts), 0, self.num_actions - 1, self.action_offset)
-        return jnp.stack([core_actions.to_int32(x, 0, self.num_actions - 1, self.action_offset) for x in parts])
+            parts.append(core_actions.to_int32(x.reshape(()), 0, self.num_actions - 1, self.action_offset))
+        return jnp.stack(parts)
 
     def check_actions(self, actions: Mapping[str, Any]) -> np.ndarray:
         """Validate an action dict outside ``jit``; return the int32 index vector in agent order.
