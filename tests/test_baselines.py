@@ -173,7 +173,7 @@ def test_num_envs_must_divide_devices(monkeypatch):
 _SHARDED = r"""
 import jax, numpy as np
 assert jax.device_count() == 2, jax.devices()
-from baselines import common, ippo, outputs, ppo, shaping
+from baselines import ippo, ppo
 from tests.test_baselines import TINY
 for mod in (ppo, ippo):
     train = mod.make_train(TINY)

@@ -57,7 +57,7 @@ def test_summary_and_plot(tmp_path):
 def test_traffic_sweep_appendix_conditions_build_valid_params():
     """``traffic_sweep --appendix``: the four bundled profiles (EU fleet) and the US / World
     fleets (shopping), each a config whose env parameters build; the default is the main figure."""
-    from baselines import common, outputs
+    from baselines import common
     from baselines.experiments import traffic_sweep as ts
 
     assert ts.conditions() == [("shopping", "EU")]
@@ -184,7 +184,7 @@ def test_traffic_sweep_log_line_and_plots(tmp_path):
 
 def _stored_run(tmp_path, config, **overrides):
     """A ``results.json`` as ``baselines.train`` writes it, for ``config`` (4 chunks, 2 seeds)."""
-    from baselines import common, outputs
+    from baselines import common
     from baselines.train import chunked_updates
 
     parsed = common.parse_config({}, config)
@@ -280,7 +280,7 @@ def test_code_version_names_the_checkout_s_commit(tmp_path):
 def test_result_files_keep_float32_values_exactly_and_number_lists_on_one_line(tmp_path):
     """``outputs.write_json``: a float32 metric is written as its shortest decimal and reads back
     to the same float32; float64 statistics are kept as they are; number lists take one line."""
-    from baselines import common, outputs
+    from baselines import outputs
 
     metric = np.float32([340.23096, -0.0112, 1e-7])
     obj = {"curve": {"profit": metric, "seeds": [[1.5, 2.5], [3.5, 4.5]]}, "mean": 10.358861465454103,

@@ -192,7 +192,8 @@ def test_action_shapes_and_clipping(small, small_step):
 
 
 def test_action_dtypes_clip_alike_stacked_or_mixed(small):
-    """One dtype: the vector is clipped in one op; mixed dtypes: each agent on its own. Same ints."""
+    """Actions of one dtype and of mixed dtypes (float, int64, bool) become the same clipped
+    int32 indices, eagerly and under jit."""
     raw = [-5, 3, 2 * L + 7, 0, 1, 99, 2]
     want = np.clip(raw, 0, small.num_actions - 1)
     same = {a: jnp.int32(v) for a, v in zip(small.agents, raw)}
