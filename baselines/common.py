@@ -55,6 +55,7 @@ PAPER_DEFAULTS: dict[str, Any] = {
     "TRAFFIC": None,  # low / medium / high or cars per day; None: the scenario's own (medium for "shopping")
     "ENV_KWARGS": {},  # extra keyword arguments of make_params (station, prices, alpha, step_minutes, ...)
     "NUM_EVAL_DAYS": 100,
+    "EVAL_DRAWS": 1,  # car draws per held-out day, keys PRNGKey(0 .. EVAL_DRAWS - 1), averaged per day (draw_keys)
     "SPLIT_SEED": 0,
 }
 
@@ -408,23 +409,45 @@ def run_in_chunks(train, keys, num_chunks: int, on_chunk=None, desc: str = "trai
     return rs, metrics, time.time() - t0
 
 
-def evaluate_batched(make_act, net_params, eval_params, days, key=None, reference_profit=None) -> dict:
+def draw_keys(draws: int = 1) -> list:
+    """The evaluation keys of ``draws`` car draws per held-out day: ``PRNGKey(0) ... PRNGKey(draws - 1)``.
+    Every policy is scored under the same keys (the same cars), and its per-day profit is the
+    mean over the draws, so a paired difference's standard error over days treats the days,
+    not the draws, as the independent units (the draws of one day share its prices). Draw 0
+    is the single-draw evaluation's key."""
+    if isinstance(draws, bool) or not isinstance(draws, (int, np.integer)) or int(draws) < 1:
+        raise ValueError(f"field 'EVAL_DRAWS' (car draws per held-out day) must be a positive integer, got {draws!r}")
+    return [jax.random.PRNGKey(k) for k in range(int(draws))]
+
+
+def mean_over_draws(evaluate, keys):
+    """``evaluate(key) -> pytree of arrays`` averaged leaf by leaf over ``keys`` (one call per key)."""
+    outs = [jax.device_get(evaluate(k)) for k in keys]
+    return jax.tree.map(lambda *x: np.mean(np.stack([np.asarray(v, np.float64) for v in x]), axis=0), *outs)
+
+
+def evaluate_batched(make_act, net_params, eval_params, days, key=None, reference_profit=None, draws: int = 1) -> dict:
     """Greedy held-out evaluation of every seed's parameters (leading axis) with
     :func:`chargax_marl.evaluation.run_days`.
 
     Every seed runs with the *same* key as :func:`chargax_marl.evaluation.evaluate` (default
     ``PRNGKey(0)``), so all policies meet the same drawn cars on the same days (common random
     numbers): differences between policies are then not masked by the day-to-day spread of
-    traffic (about ±130 EUR/day on the default scenario). Returns pooled mean ± std over seeds
+    traffic (about ±130 EUR/day on the default scenario). With ``draws`` > 1 (and no ``key``)
+    each day is played under the keys of :func:`draw_keys` and every per-day total is the mean
+    over the draws. Returns pooled mean ± std over seeds
     × days (``metrics``), each seed's mean daily profit (``per_seed_profit``) and mean of every
     metric over days (``per_seed_metrics``), and daily profits (``daily_profit``, seeds × days). With ``reference_profit`` (the daily profits of a
     baseline on the same days and key, e.g. always-max), also ``paired_diff``: per seed, the
     mean and standard error over days of (policy − reference) profit.
     """
-    key = jax.random.PRNGKey(0) if key is None else key
+    if key is not None and draws != 1:
+        raise ValueError(f"evaluate_batched: give either a key or draws > 1, not both (draws={draws!r})")
+    keys = [key] if key is not None else draw_keys(draws)
     days = jnp.asarray(days, jnp.int32)
     seeds = jax.tree.leaves(net_params)[0].shape[0]
-    totals = _eval_fn(make_act, eval_params)(net_params, days, key)
+    fn = _eval_fn(make_act, eval_params)
+    totals = mean_over_draws(lambda k: fn(net_params, days, k), keys)
     flat = jax.tree.map(lambda x: np.asarray(x).reshape(-1), totals)
     profit = np.asarray(totals.profit_eur, np.float64)
     out = {"num_days": int(days.shape[0]), "num_seeds": int(seeds), "metrics": summarize(flat),
@@ -461,6 +484,7 @@ def parse_config(base: dict, overrides: dict | None) -> dict:
     config = {**PAPER_DEFAULTS, **base, **(overrides or {})}
     for k in ("NUM_ENVS", "NUM_STEPS", "NUM_MINIBATCHES", "UPDATE_EPOCHS", "HIDDEN", "NUM_LAYERS", "NUM_EVAL_DAYS"):
         config[k] = int(config[k])
+    draw_keys(config["EVAL_DRAWS"])  # a clear error for a bad draw count, before anything trains
     config["TOTAL_TIMESTEPS"] = int(float(config["TOTAL_TIMESTEPS"]))
     return config
 

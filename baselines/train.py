@@ -65,7 +65,7 @@ REFERENCES = ("always_max", "battery_rule", "battery_programme", "plan_programme
 OPTIMAL_CHOICES = ("off", "bound", "mpc")
 
 
-def baseline_results(eval_params, eval_days, optimal: str = "off") -> dict:
+def baseline_results(eval_params, eval_days, optimal: str = "off", draws: int = 1) -> dict:
     """The :data:`BASELINES` (and, on a station with a battery, the teachers' rules) on the
     held-out days, with the evaluation's default key (the same
     drawn cars that :func:`baselines.common.evaluate_batched` gives the agents). Each keeps its
@@ -76,12 +76,15 @@ def baseline_results(eval_params, eval_days, optimal: str = "off") -> dict:
     stored it for exactly these params and days, ``mpc``; ``"mpc"`` also runs the MPC when no
     stored result matches (about 10 min per 100 days on 2 cores); ``"off"`` adds neither.
     Every entry then gets ``headroom`` (:func:`chargax_marl.evaluation.headroom_captured`).
+    With ``draws`` > 1 every rule and the bound are scored under the keys of
+    :func:`baselines.common.draw_keys`, each day's profit the mean over the draws; the stored
+    MPC (one draw) is then not used, and ``optimal="mpc"`` runs the MPC on every draw.
     """
     from baselines.heuristics import TEACHER_RULES, evaluate_rules, has_battery
 
     if optimal not in OPTIMAL_CHOICES:
         raise ValueError(f"field 'optimal' must be one of {OPTIMAL_CHOICES}, got {optimal!r}")
-    out = evaluate_rules(eval_params, eval_days, BASELINES + TEACHER_RULES * has_battery(eval_params))
+    out = evaluate_rules(eval_params, eval_days, BASELINES + TEACHER_RULES * has_battery(eval_params), draws=draws)
     for name in REFERENCES[1:]:
         if name in out:
             out[name]["vs_always_max"] = common.paired_difference(out[name]["daily_profit"],
@@ -95,15 +98,17 @@ def baseline_results(eval_params, eval_days, optimal: str = "off") -> dict:
     from baselines.optimal import cached, evaluate_mpc
     from chargax_marl.evaluation import hindsight_bound, summarize_profit
 
-    stored = cached(eval_params, eval_days)
+    stored = cached(eval_params, eval_days) if draws == 1 else None
     if stored is not None:
         bound_daily = np.asarray(stored["policies"]["lp_bound"]["daily_profit"])
         mpc_daily = np.asarray(stored["policies"]["mpc"]["daily_profit"])
         source = "baselines/results/optimal (same params and days)"
     else:
-        bound_daily = hindsight_bound(eval_params, eval_days)["daily_profit"]
-        mpc_daily = evaluate_mpc(eval_params, eval_days)["daily_profit"] if optimal == "mpc" else None
-        source = "computed"
+        keys = common.draw_keys(draws)
+        bound_daily = common.mean_over_draws(lambda k: hindsight_bound(eval_params, eval_days, k)["daily_profit"], keys)
+        mpc_daily = (common.mean_over_draws(lambda k: evaluate_mpc(eval_params, eval_days, k)["daily_profit"], keys)
+                     if optimal == "mpc" else None)
+        source = "computed" if draws == 1 else f"computed, mean over {draws} car draws per day"
     out["lp_bound"] = {"daily_profit": bound_daily, "metrics": summarize_profit(bound_daily), "source": source}
     if mpc_daily is not None:
         out["mpc"] = {"daily_profit": mpc_daily, "metrics": summarize_profit(mpc_daily), "source": source}
@@ -214,8 +219,9 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
     t_start = time.time()
     train = mod.make_train(config, env_params)
     make_act = train.make_act(eval_params)
+    draws = int(config["EVAL_DRAWS"])
     if baselines is None:
-        baselines = baseline_results(eval_params, eval_days, optimal)
+        baselines = baseline_results(eval_params, eval_days, optimal, draws)
     am = baselines["always_max"]["metrics"]["daily_profit_eur"]["mean"]
     am_daily = baselines["always_max"].get("daily_profit")
     rule_daily = baselines.get("battery_rule", {}).get("daily_profit")
@@ -232,7 +238,8 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
     def on_chunk(i, rs, m, steps, seconds):
         if not evaluate_every_chunk and i < chunks - 1:
             return
-        ev = common.evaluate_batched(make_act, host(rs.params), eval_params, eval_days, reference_profit=am_daily)
+        ev = common.evaluate_batched(make_act, host(rs.params), eval_params, eval_days, reference_profit=am_daily,
+                                     draws=draws)
         teacher_diffs = vs_programme(ev)
         evals.append({"timesteps": int(steps), "train_seconds": seconds, "per_seed_profit": ev["per_seed_profit"],
                       "mean_profit": float(np.mean(ev["per_seed_profit"])),
@@ -253,7 +260,7 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
         keys = distributed.replicate(keys)
     rs, metrics, train_seconds = common.run_in_chunks(train, keys, chunks, on_chunk, desc=algo)
     params = host(rs.params)
-    final = common.evaluate_batched(make_act, params, eval_params, eval_days, reference_profit=am_daily)
+    final = common.evaluate_batched(make_act, params, eval_params, eval_days, reference_profit=am_daily, draws=draws)
     wall = time.time() - t_start
     first_beat = next((e for e in evals if e["vs_always_max"] is not None and beats(e["vs_always_max"])), None)
     first_beat_rule = next((e for e in evals if e["vs_battery_rule"] is not None and beats(e["vs_battery_rule"])), None)
@@ -270,7 +277,7 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
     results = {
         "algo": algo,
         "scenario": {"name": config["SCENARIO"], "traffic": config["TRAFFIC"], "env_kwargs": config["ENV_KWARGS"],
-                     "held_out_days": int(np.size(eval_days))},
+                     "held_out_days": int(np.size(eval_days)), "car_draws_per_day": draws},
         "per_seed": per_seed,
         "over_seeds": summary,
         "config": config,
@@ -282,8 +289,11 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
         "timesteps": int(config["TOTAL_TIMESTEPS"]),
         "wall_seconds": wall,
         "train_seconds_incl_compile": train_seconds,
-        "evaluation": {"policy": "greedy (argmax per head)", "key": "PRNGKey(0) for every policy and seed "
-                       "(common random numbers)", "num_days": int(np.size(eval_days)),
+        "evaluation": {"policy": "greedy (argmax per head)",
+                       "key": ("PRNGKey(0) for every policy and seed (common random numbers)" if draws == 1 else
+                               f"PRNGKey(0) ... PRNGKey({draws - 1}) for every policy and seed (common random "
+                               f"numbers), each day's totals the mean over the {draws} car draws"),
+                       "draws": draws, "num_days": int(np.size(eval_days)),
                        "days": [int(d) for d in np.asarray(eval_days)], "table": table},
         "vs_always_max": final.get("paired_diff"),
         "vs_battery_rule": vs_rule(final),
@@ -314,7 +324,8 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
         out.mkdir(parents=True, exist_ok=True)
         outputs.save_params(params, out / "params.msgpack")
         plot_curve(out / "curve.png", algo, timesteps, metrics["episode_profit_eur"], baselines, evals,
-                   title or f"{algo.upper()} {config['SCENARIO']} / {config['TRAFFIC']}: {seeds} seeds")
+                   title or f"{algo.upper()} {config['SCENARIO']} / {config['TRAFFIC']}: {seeds} seeds"
+                   + (f", held-out days x {draws} car draws" if draws > 1 else ""))
         outputs.write_json(results, out / "results.json")
         if not quiet:
             print(f"wrote {out / 'curve.png'}, {out / 'results.json'}, {out / 'params.msgpack'}")
@@ -358,6 +369,9 @@ def add_stored_mpc(run_dir) -> dict:
     config = common.parse_config({}, results["config"])
     _, eval_params, _, days = common.build_env_params(config)
     days = results["evaluation"]["days"] if results["evaluation"].get("days") else days
+    if int(config["EVAL_DRAWS"]) != 1:
+        raise LookupError(f"{run_dir}: evaluated on {config['EVAL_DRAWS']} car draws per day; the stored MPC "
+                          "is one draw (PRNGKey(0)), so it does not pair with this run")
     stored = cached(eval_params, days)
     if stored is None or "mpc" not in stored["policies"]:
         raise LookupError(f"{run_dir}: no stored MPC for its params and {len(days)} held-out days in "
@@ -435,6 +449,9 @@ def main(argv=None) -> dict:
                                                         "entropy 0.01); default: the faster CPU settings FAST")
     p.add_argument("--env-kwargs", default="{}", help="JSON of extra make_params keywords")
     p.add_argument("--eval-days", type=int, default=None, help="held-out days (default 100)")
+    p.add_argument("--eval-draws", type=int, default=None,
+                   help="car draws per held-out day (default 1): every policy, rule and the bound scored under "
+                        "PRNGKey(0 .. N-1), each day's profit the mean over the draws (baselines.common.draw_keys)")
     p.add_argument("--chunks", type=int, default=10, help="training pieces (progress + held-out evaluation)")
     p.add_argument("--out", default="baselines/results/run")
     p.add_argument("--optimal", choices=OPTIMAL_CHOICES, default="bound",
@@ -466,7 +483,8 @@ def main(argv=None) -> dict:
                       ("gae_lambda", "GAE_LAMBDA"), ("minibatches", "NUM_MINIBATCHES"), ("epochs", "UPDATE_EPOCHS"),
                       ("always_max_prior", "ALWAYS_MAX_PRIOR"),
                       ("battery_idle_prior", "BATTERY_IDLE_PRIOR"),
-                      ("local_reward_weight", "LOCAL_REWARD_WEIGHT"), ("eval_days", "NUM_EVAL_DAYS")):
+                      ("local_reward_weight", "LOCAL_REWARD_WEIGHT"), ("eval_days", "NUM_EVAL_DAYS"),
+                      ("eval_draws", "EVAL_DRAWS")):
         if getattr(a, flag) is not None:
             config[key] = getattr(a, flag)
     if a.battery_gamma is not None:

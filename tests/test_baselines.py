@@ -331,6 +331,41 @@ def test_battery_programme_rule_is_always_max_ports_and_the_programme_s_battery(
     assert not {PROGRAMME, PLAN_PROGRAMME} & set(baseline_results(bare, np.arange(2)))
 
 
+def test_grid_programme_holds_the_battery_s_charge_while_the_ports_alone_overload_the_connection():
+    """``grid_programme``: always-max ports and the programme's battery, except a charge while
+    the ports' full-power draw exceeds the grid connection (a 25 % connection with every port
+    taken); with the full connection it is ``battery_programme`` at every step."""
+    from baselines import read_policy
+    from baselines.heuristics import GRID_PROGRAMME, PROGRAMME, evaluate_rules, rule_policy
+    from chargax_marl.core import make_params, simulator
+    from chargax_marl.core.station import KIND_BATTERY
+
+    seen = {}
+    for fraction in (0.25, None):
+        params = make_params(**TINY_ENV, grid_fraction=fraction)
+        act, prog, dp = rule_policy(GRID_PROGRAMME, params), rule_policy(PROGRAMME, params), \
+            read_policy.dp_battery_action(params)
+        is_bat = np.asarray(params.station.leaf_kind) == KIND_BATTERY
+        state = simulator.reset(jax.random.PRNGKey(1), params)
+        car = lambda field, value: jnp.where(jnp.asarray(is_bat), getattr(state, field), value)  # noqa: E731
+        # a 100 kWh car taking 150 kW at every port: 600 kW of ports against a 175 kW connection at 25 %
+        state = state.replace(occupied=jnp.ones_like(state.occupied), soc=car("soc", 0.1),
+                              target_soc=car("target_soc", 1.0), capacity_kwh=car("capacity_kwh", 100.0),
+                              max_rate_kw=car("max_rate_kw", 150.0), tau=car("tau", 0.8))
+        for t in range(int(params.num_steps)):
+            s = state.replace(timestep=jnp.int32(t))
+            levels, ref = np.asarray(act(s, None, params)), np.asarray(prog(s, None, params))
+            np.testing.assert_array_equal(levels[~is_bat], ref[~is_bat])  # always-max ports
+            want = int(dp(s)[0])
+            want = 0 if (fraction is not None and want > 0) else want  # every step overloads the 25 % connection
+            assert np.all(levels[is_bat] == want * int(params.num_levels)), (fraction, t)
+            seen.setdefault(fraction, set()).add(int(dp(s)[0]))
+    assert 1 in seen[0.25]  # the programme charges at some step, where the rule holds the battery
+    bare = make_params(**{**TINY_ENV, "station_kwargs": {"num_ports": 4, "battery": False}})
+    with pytest.raises(ValueError, match=GRID_PROGRAMME):
+        evaluate_rules(bare, np.arange(2), (GRID_PROGRAMME,))
+
+
 @pytest.mark.parametrize("mod", [ppo, ippo])
 def test_always_max_prior_makes_the_untrained_greedy_policy_always_max(mod):
     """With ``ALWAYS_MAX_PRIOR`` the untrained greedy policy plays the always-max baseline
@@ -616,7 +651,7 @@ def test_relative_prices_read_the_observed_prices_and_quantiles():
     _finite_losses(ppo_train)
 
 
-def test_attribution_scores_the_run_and_swaps_ports_and_battery(tmp_path):
+def test_attribution_scores_the_run_and_swaps_ports_and_battery(tmp_path, monkeypatch):
     """``baselines.attribution``: the ``learned`` row reproduces the run's own held-out score,
     and the mixes take the battery's levels from one policy and the ports' from the other."""
     from baselines import attribution
@@ -658,6 +693,59 @@ def test_attribution_scores_the_run_and_swaps_ports_and_battery(tmp_path):
         assert all(-1.0 <= a <= 1.0 for a in seed["hourly_action"]) and 0.0 <= seed["ports_full_power_share"] <= 1.0
         assert 0.0 <= seed["ports_follow_plan_share"] <= 1.0
     assert "hourly SoC" in read_policy.format_reading(reading)
+    # baselines.redraw scores the same run on more cars: draw 0 is the run's own evaluation,
+    # draw 1 the rules' evaluation under PRNGKey(1), averaged per day
+    from baselines import redraw
+    from baselines.heuristics import evaluate_rules
+
+    two = redraw.redraw(out, draws=2, bound=False)
+    assert two["draws"] == 2 and two["seeds"] == 2 and two["replay_check_max_abs_eur"] < 1e-3
+    for i, p in enumerate(res["per_seed"]):
+        assert two["vs"]["always_max"]["draw0_per_seed"][i]["mean"] == pytest.approx(p["vs_always_max"]["mean"], abs=1e-4)
+        assert two["vs"]["always_max"]["draw0_per_seed"][i]["stderr"] == pytest.approx(p["vs_always_max"]["stderr"],
+                                                                                      rel=1e-4)
+    _, eval_params, _, days = common.build_env_params(json.loads((out / "results.json").read_text())["config"])
+    by_key = [evaluate_rules(eval_params, days, ("always_max", "battery_rule"), key=jax.random.PRNGKey(k)) for k in (0, 1)]
+    rule_gain = np.mean([r["battery_rule"]["daily_profit"] - r["always_max"]["daily_profit"] for r in by_key])
+    assert two["references_vs_always_max"]["battery_rule"]["mean"] == pytest.approx(rule_gain, abs=1e-4)
+    assert not np.allclose(by_key[0]["always_max"]["daily_profit"], by_key[1]["always_max"]["daily_profit"])
+    assert "2 car draws" in redraw.format_redraw(two)
+    # the MPC's draws (a stand-in that earns always-max + 1 EUR/day here, so the wiring shows):
+    # paired on the first mpc_draws draws only, with the bound's headroom on the same draws
+    import baselines.optimal
+
+    def fake_mpc(params, days, key):
+        return {"daily_profit": evaluate_rules(params, days, ("always_max",), key=key)["always_max"]["daily_profit"] + 1.0}
+
+    monkeypatch.setattr(baselines.optimal, "evaluate_mpc", fake_mpc)
+    with_mpc = redraw.redraw(out, draws=2, bound=True, mpc_draws=1)
+    vs_am, vs_mpc = with_mpc["vs"]["always_max"]["draw0_per_seed"], with_mpc["vs"]["mpc"]["per_seed"]
+    for i in range(2):
+        assert vs_mpc[i]["mean"] == pytest.approx(vs_am[i]["mean"] - 1.0, abs=1e-4)
+    assert with_mpc["references_vs_always_max"]["mpc"]["mean"] == pytest.approx(1.0, abs=1e-4)
+    frac = with_mpc["headroom_fraction"]
+    assert frac["references"]["lp_bound"] == pytest.approx(1.0) and frac["references"]["always_max"] == 0.0
+    assert frac["mpc_on_its_draws"]["mpc"] == pytest.approx(1.0 / with_mpc["headroom_eur_per_draw"][0], rel=1e-5)
+    assert with_mpc["headroom_eur"] == pytest.approx(np.mean(with_mpc["headroom_eur_per_draw"]))
+    with pytest.raises(ValueError, match="mpc_draws must be an integer in"):
+        redraw.redraw(out, draws=1, mpc_draws=2)
+    # a run whose stored score this code does not reproduce is refused, as are zero draws
+    res["per_seed"][0]["mean_profit_eur"] += 1.0
+    (out / "results.json").write_text(json.dumps(res))
+    with pytest.raises(ValueError, match="another model"):
+        redraw.redraw(out, draws=1)
+    with pytest.raises(ValueError, match="draws must be a positive integer"):
+        redraw.redraw(out, draws=0)
+
+
+def test_redraw_clusters_the_draws_of_a_day_before_the_standard_error():
+    """Two days, two draws each: the per-day means 2 and 4 give mean 3 and s.e. 1 (not the
+    s.e. of four independent numbers), and 3 > 2 x 1 beats."""
+    from baselines.redraw import day_clustered
+
+    d = day_clustered(np.array([[1.0, 3.0], [3.0, 5.0]]))  # (draws, days)
+    assert d == {"mean": 3.0, "stderr": pytest.approx(1.0), "beats": True}
+    assert day_clustered(np.array([[1.0, -3.0], [3.0, 1.0]]))["beats"] is False  # per day 2, -1: 0.5 < 2 x 1.5
 
 
 def test_dp_battery_action_earns_the_programme_s_value_in_its_own_model():
@@ -908,3 +996,40 @@ def test_sensitivity_battery_step_on_an_empty_station_is_the_hand_computed_trade
     assert all(np.all(np.asarray(outside[p]["daily_difference_eur"]) == 0.0) for p in sensitivity.PERTURBATIONS)
     with pytest.raises(ValueError, match="perturbation"):
         sensitivity.perturbed_always_max(params, "battery_discharges", 0)
+
+
+def test_eval_draws_score_every_policy_on_the_mean_over_car_draws_of_each_day(tmp_path):
+    """``--eval-draws 2``: the rules, the bound and the agent are scored under PRNGKey(0) and
+    PRNGKey(1), each day's profit the mean of the two; the run says so, ``baselines.redraw``
+    replays it only with at least its draws, and the one-draw stored MPC is refused."""
+    from baselines import redraw
+    from baselines import train as cli
+    from baselines.heuristics import evaluate_rules
+
+    out = tmp_path / "run"
+    cli.main(["--algo", "ppo", "--timesteps", str(4 * 24), "--seeds", "2", "--num-envs", "4", "--num-steps", "24",
+              "--hidden", "16", "--chunks", "1", "--eval-draws", "2", "--env-kwargs", json.dumps(TINY_ENV),
+              "--out", str(out)])
+    res = json.loads((out / "results.json").read_text())
+    assert res["evaluation"]["draws"] == 2 and res["scenario"]["car_draws_per_day"] == 2
+    assert "PRNGKey(1)" in res["evaluation"]["key"]
+    table = res["evaluation"]["table"]
+    _, eval_params, _, days = common.build_env_params(res["config"])
+    by_key = [evaluate_rules(eval_params, days, ("always_max",), key=jax.random.PRNGKey(k))["always_max"]["daily_profit"]
+              for k in (0, 1)]
+    assert not np.allclose(by_key[0], by_key[1])  # the draws differ ...
+    np.testing.assert_allclose(table["always_max"]["daily_profit"], np.mean(by_key, axis=0), rtol=1e-6, atol=1e-4)
+    assert np.all(np.asarray(table["lp_bound"]["daily_profit"]) >= np.asarray(table["always_max"]["daily_profit"]) - 1e-3)
+    assert "2 car draws" in table["lp_bound"]["source"]
+    # ... and the agent's stored score is the mean over the same two draws (redraw's replay check)
+    again = redraw.redraw(out, draws=2, bound=False)
+    assert again["replay_check_max_abs_eur"] < 1e-3
+    with pytest.raises(ValueError, match="draws >= 2"):
+        redraw.redraw(out, draws=1, bound=False)
+    with pytest.raises(LookupError, match="car draws"):
+        cli.add_stored_mpc(out)
+    with pytest.raises(ValueError, match="either a key or draws"):
+        common.evaluate_batched(None, None, eval_params, days, key=jax.random.PRNGKey(0), draws=2)
+    for bad in (0, -1, 1.5, True):
+        with pytest.raises(ValueError, match="field 'EVAL_DRAWS'"):
+            common.parse_config({}, {"EVAL_DRAWS": bad})
