@@ -38,6 +38,8 @@ stay and the car's top power, which the observation holds only in part.
 
 from __future__ import annotations
 
+from baselines.config import build_env_params, resolve
+from baselines.eval import stats
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -215,24 +217,24 @@ def plan_action(env_params, battery: str = "dp", power_fraction: float | None = 
 
 def main(argv=None) -> dict:
     """``python -m baselines.car_value [--scenario default]``: the plan rule (:func:`plan_action`)
-    on the 100 held-out days of a scenario of :mod:`baselines.optimal`, with and without the
+    on the 100 held-out days of a scenario of :mod:`baselines.analysis.references`, with and without the
     programme's battery, at several plan power fractions, against always-max and the battery
     rule (paired over days, the same cars), and the fraction of the LP bound's headroom from
-    ``baselines/results/optimal/<scenario>.json``."""
+    ``results/optimal/<scenario>.json``."""
     import argparse
     import json
 
-    from baselines import common
+
     from baselines.heuristics import evaluate_rules
-    from baselines.optimal import RESULTS_DIR, SCENARIOS
+    from baselines.analysis.references import RESULTS_DIR, SCENARIOS
     from chargax_marl.evaluation import run_days
 
     p = argparse.ArgumentParser(description=main.__doc__)
     p.add_argument("--scenario", default="default", choices=sorted(SCENARIOS))
     p.add_argument("--fractions", default="0.2,0.5,1.0")
     a = p.parse_args(argv)
-    config = common.parse_config({}, {**SCENARIOS[a.scenario], "ENV_KWARGS": {"num_levels": 1}})
-    _, params, _, days = common.build_env_params(config)
+    config = resolve({**SCENARIOS[a.scenario], "ENV_KWARGS": {"num_levels": 1}})
+    _, params, _, days = build_env_params(config)
     rules = evaluate_rules(params, days, policies=("always_max", "battery_rule"))
     am, rule = rules["always_max"]["daily_profit"], rules["battery_rule"]["daily_profit"]
     bound = json.loads((RESULTS_DIR / f"{a.scenario}.json").read_text())["policies"]["lp_bound"]
@@ -246,8 +248,8 @@ def main(argv=None) -> dict:
             act = plan_action(params, battery, frac)
             totals = jax.jit(lambda d, k: run_days(lambda s, kk: act(s, kk, params), params, d, k))(np.asarray(days), key)
             profit = np.asarray(totals.profit_eur, np.float64)
-            row = {"battery": battery, "power_fraction": frac, "vs_always_max": common.paired_difference(profit, am),
-                   "vs_battery_rule": common.paired_difference(profit, rule),
+            row = {"battery": battery, "power_fraction": frac, "vs_always_max": stats.paired_difference(profit, am),
+                   "vs_battery_rule": stats.paired_difference(profit, rule),
                    "headroom_fraction": float((profit.mean() - am.mean()) / headroom),
                    "energy_delivered_kwh": float(np.mean(totals.energy_delivered_kwh))}
             out["rows"].append(row)

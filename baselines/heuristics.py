@@ -17,7 +17,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from baselines import common
+from baselines.config import build_env_params, resolve
+from baselines.eval import heldout
+from baselines.eval import stats
 from chargax_marl.evaluation import run_days, split_days, summarize, write_json
 from chargax_marl.core import make_params
 from chargax_marl.core.station import KIND_BATTERY
@@ -52,7 +54,7 @@ alone (grid side) exceeds the limit of a node above a battery. There the program
 would be rescaled with the ports', taking the scarce connection from the cars
 (``baselines/README.md``, issue 13: on ``shopping-grid25-high`` this one change is worth
 +1.1 EUR/day over the programme on 16 car draws, what IPPO learned there). Not a teacher of
-any trainer; ``baselines.redraw`` scores it beside the teachers' rules."""
+any trainer; ``baselines.analysis.redraw`` scores it beside the teachers' rules."""
 
 BATTERY_RULES = TEACHER_RULES + (GRID_PROGRAMME,)
 """Every rule of this module that needs a battery."""
@@ -122,12 +124,12 @@ def evaluate_rules(params, days, policies=POLICIES, key=None, draws: int = 1) ->
     keys of :func:`baselines.common.draw_keys` and its totals are the means over the draws."""
     if key is not None and draws != 1:
         raise ValueError(f"evaluate_rules: give either a key or draws > 1, not both (draws={draws!r})")
-    keys = [key] if key is not None else common.draw_keys(draws)
+    keys = [key] if key is not None else heldout.draw_keys(draws)
     out = {}
     for name in policies:
         policy = rule_policy(name, params)
         fn = jax.jit(lambda d, k: run_days(lambda s, kk: policy(s, kk, params), params, d, k))
-        totals = common.mean_over_draws(lambda k: fn(np.asarray(days), k), keys)
+        totals = heldout.mean_over_draws(lambda k: fn(np.asarray(days), k), keys)
         out[name] = {"num_days": int(np.size(days)), "days": [int(d) for d in np.asarray(days)],
                      "metrics": summarize(totals), "daily_profit": np.asarray(totals.profit_eur, np.float64)}
     return out
@@ -138,7 +140,7 @@ def add_paired_differences(results: dict, references=("always_max", "battery_rul
     for r in results.values():
         for ref in references:
             if ref in results:
-                r[f"vs_{ref}"] = common.paired_difference(r["daily_profit"], results[ref]["daily_profit"])
+                r[f"vs_{ref}"] = stats.paired_difference(r["daily_profit"], results[ref]["daily_profit"])
     return results
 
 
@@ -164,7 +166,7 @@ def main(argv=None) -> dict:
     p.add_argument("--traffic", default="medium")
     p.add_argument("--out", default=None, help="write the results JSON here")
     args = p.parse_args(argv)
-    _, full, _, days = common.build_env_params(common.parse_config({}, {"SCENARIO": args.scenario,
+    _, full, _, days = build_env_params(resolve({"SCENARIO": args.scenario,
                                                                          "TRAFFIC": args.traffic}))
     names = POLICIES + BATTERY_RULES * has_battery(full)
     results = add_paired_differences(evaluate_rules(full, days, names))

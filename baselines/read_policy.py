@@ -22,8 +22,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from baselines import common
-from baselines.attribution import load_run
+from baselines.config import build_env_params
+from baselines.runs import load_run
 from baselines.car_value import plan_advice
 from chargax_marl.core import simulator
 from chargax_marl.core.station import KIND_BATTERY
@@ -55,7 +55,7 @@ def dp_battery_action(params):
 
 def read(run_dir: str | Path, num_days: int | None = None) -> dict:
     results, train, all_params = load_run(run_dir)
-    _, params, _, days = common.build_env_params(train.config)
+    _, params, _, days = build_env_params(train.config)
     days = np.asarray(days)[:num_days] if num_days else np.asarray(days)
     make_act = train.make_act(params)
     dp_act = dp_battery_action(params)

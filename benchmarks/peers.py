@@ -25,7 +25,7 @@ The paper's Table 4 row "100k random steps": EV2Gym 77.95 s, Chargym 36.34 s, Su
 3. times chargax_marl for 100k random env-steps: 1 env (a 100k-step ``lax.scan``) and 16
    vmapped envs (6250 steps x 16 envs), compile time reported separately;
 4. optionally (``--ppo``) the wall time of 100k PPO training env-steps with 1 and 16 envs
-   and of IPPO, from ``baselines/ppo.py`` / ``baselines/ippo.py`` (``make_train(config)``);
+   and of IPPO, from ``baselines/algos/ppo.py`` / ``baselines/algos/ippo.py`` (``make_train(config)``);
    skipped with a message when those are missing or fail.
 
 Writes ``benchmarks/results/peers.json`` and ``peers.csv`` (``--out``).

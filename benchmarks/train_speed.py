@@ -15,6 +15,7 @@ Importable: :func:`measure_training` returns the rows, :func:`format_rows` the t
 
 from __future__ import annotations
 
+from baselines.config import SCHEMA
 import argparse
 import importlib
 import json
@@ -43,7 +44,7 @@ def build(algo: str, num_envs: int, timesteps: int, overrides: dict | None = Non
 
     mod = importlib.import_module(f"baselines.{algo}")
     config = dict(overrides or {})
-    num_steps = int(config.get("NUM_STEPS", common.PAPER_DEFAULTS["NUM_STEPS"]))
+    num_steps = int(config.get("NUM_STEPS", SCHEMA["NUM_STEPS"].default))
     config["NUM_ENVS"] = int(num_envs)
     config["TOTAL_TIMESTEPS"] = _steps_for(num_envs, timesteps, num_steps)
     train = mod.make_train(config)
@@ -121,7 +122,7 @@ def network_macs(algo: str, overrides: dict | None = None) -> dict:
         n = train.env.num_agents
         actor = mlp_macs([pol.obs_dim] + [h] * layers + [pol.k])
         critic = mlp_macs([pol.critic_dim] + [h] * layers + [1])
-        shared = algo == "mappo"  # one critic row per env (baselines.ippo.DEDUP_CENTRAL_CRITIC)
+        shared = algo == "mappo"  # one critic row per env (baselines.algos.ippo.DEDUP_CENTRAL_CRITIC)
         rows = n
         rollout = n * actor + (1 if shared else n) * critic
         # MAPPO's update evaluates the critic on the whole rollout once per minibatch
@@ -139,7 +140,7 @@ def profile_phases(algo: str, num_envs: int = 16, updates: int = 2, repeats: int
 
     from baselines import common
 
-    steps = updates * num_envs * common.PAPER_DEFAULTS["NUM_STEPS"]
+    steps = updates * num_envs * SCHEMA["NUM_STEPS"].default
     t = {}
     for ep in (1, 4):
         train, _ = build(algo, num_envs, steps, {**(overrides or {}), "UPDATE_EPOCHS": ep})

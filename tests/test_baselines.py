@@ -17,6 +17,14 @@ import numpy as np
 import pytest
 
 from baselines import common, ippo, mappo, outputs, ppo, shaping, storage_value
+from baselines.config import build_env_params, resolve
+from baselines import runs
+from baselines.algos import features
+from baselines.algos import networks
+from baselines.algos import ppo_core
+from baselines.algos import runner
+from baselines.eval import heldout
+from baselines.eval import stats
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -66,7 +74,7 @@ def test_ppo_policy_is_factored_and_masked():
     assert logits.shape == (3, 5, 21)
     # the joint log-prob of a MultiDiscrete action is the sum of the heads' log-probs
     a = np.zeros((3, 5), np.int32)
-    lp = common.log_prob(logits, a).sum(-1)
+    lp = networks.log_prob(logits, a).sum(-1)
     np.testing.assert_allclose(lp, 5 * np.log(1 / 21), rtol=1e-3)
 
 
@@ -77,7 +85,7 @@ def test_ippo_update_finite_and_masks_unavailable_actions():
     assert np.all(np.asarray(out["metrics"]["episodes"]) == 4)
     params = jax.tree.map(lambda x: x[0], out["runner_state"].params)
     # ports cannot discharge: masked levels never chosen by the greedy evaluation policy
-    _, full, _, days = common.build_env_params(train.config)
+    _, full, _, days = build_env_params(train.config)
     act = train.make_act(full)(params)
     from chargax_marl.core import simulator
 
@@ -94,10 +102,10 @@ def test_inverse_cdf_sampler_matches_the_softmax_and_never_picks_a_masked_action
     (first, middle, last) are never drawn, even at u = 0 and the largest float32 u < 1, and
     the returned log-probability is the chosen index's."""
     logits = jnp.asarray([[0.3, -1.0, 2.0, 0.0, 0.7],
-                          [common.NEG_INF, 1.0, common.NEG_INF, 0.5, common.NEG_INF]], jnp.float32)
+                          [networks.NEG_INF, 1.0, networks.NEG_INF, 0.5, networks.NEG_INF]], jnp.float32)
     probs = np.asarray(jax.nn.softmax(logits, axis=-1), np.float64)
     n = 40_000
-    draw = jax.jit(jax.vmap(lambda k: common.sample_categorical(k, logits)))
+    draw = jax.jit(jax.vmap(lambda k: networks.sample_categorical(k, logits)))
     action, logp = draw(jax.random.split(jax.random.PRNGKey(3), n))
     action, logp = np.asarray(action), np.asarray(logp)
     for h in range(2):
@@ -109,7 +117,7 @@ def test_inverse_cdf_sampler_matches_the_softmax_and_never_picks_a_masked_action
         assert chi2 < 20.0, (h, counts, expected)  # 4 or 1 dof; p < 1e-3
     np.testing.assert_allclose(logp, np.log(probs)[np.arange(2)[None, :], action], rtol=1e-5, atol=1e-6)
     edges = jnp.asarray([0.0, 1.0 - 2.0 ** -24, 0.5], jnp.float32)
-    a, lp = jax.vmap(lambda u: common.categorical_from_uniform(jnp.full((2,), u), logits))(edges)
+    a, lp = jax.vmap(lambda u: networks.categorical_from_uniform(jnp.full((2,), u), logits))(edges)
     a = np.asarray(a)
     assert a[0, 0] == 0 and a[1, 0] == 4 and set(a[:, 1]) <= {1, 3}
     assert a[0, 1] == 1 and a[1, 1] == 3 and np.all(np.isfinite(np.asarray(lp)))
@@ -120,7 +128,7 @@ def test_multi_agent_shuffle_keeps_each_env_step_whole():
     block of ``agents`` rows is one env-step (same step, same env) with all its agents in order."""
     steps, agents, envs = 7, 3, 4
     actors = agents * envs
-    rows = np.asarray(common.shuffled_rows(jax.random.PRNGKey(5), steps, actors, agents))
+    rows = np.asarray(ppo_core.shuffled_rows(jax.random.PRNGKey(5), steps, actors, agents))
     assert sorted(rows.tolist()) == list(range(steps * actors))
     step, actor = rows // actors, rows % actors
     agent, env = actor // envs, actor % envs
@@ -129,7 +137,7 @@ def test_multi_agent_shuffle_keeps_each_env_step_whole():
     assert np.all(blocks(agent) == np.arange(agents))
     units = blocks(step)[:, 0] * envs + blocks(env)[:, 0]
     assert not np.array_equal(units, np.sort(units))  # shuffled
-    single = np.asarray(common.shuffled_rows(jax.random.PRNGKey(5), steps, actors))
+    single = np.asarray(ppo_core.shuffled_rows(jax.random.PRNGKey(5), steps, actors))
     assert sorted(single.tolist()) == list(range(steps * actors))
 
 
@@ -137,7 +145,7 @@ def test_gae_matches_reference():
     rng = np.random.default_rng(0)
     r, v, d = rng.normal(size=(6, 2)), rng.normal(size=(6, 2)), (rng.random((6, 2)) < 0.3).astype(np.float32)
     last = rng.normal(size=2)
-    adv, tgt = common.gae(r, v, d, last, 0.9, 0.8)
+    adv, tgt = ppo_core.gae(r, v, d, last, 0.9, 0.8)
     ref = np.zeros((6, 2))
     nxt_a, nxt_v = np.zeros(2), last
     for t in reversed(range(6)):
@@ -167,7 +175,7 @@ def test_num_envs_must_divide_devices(monkeypatch):
 
     monkeypatch.setattr(jax, "devices", lambda *a: [Dev(), Dev()])
     with pytest.raises(ValueError, match="divisible by the number of devices"):
-        common.env_mesh(3)
+        runner.env_mesh(3)
 
 
 _SHARDED = r"""
@@ -254,7 +262,7 @@ def test_cli_smoke_writes_png_json_checkpoint(tmp_path):
     # the checkpoint restores into the parameter pytree (leading axis = seed)
     train = ppo.make_train({**TINY, "HIDDEN": 16})
     template = jax.vmap(train.policy.init)(jax.random.split(jax.random.PRNGKey(0), 2))
-    restored = outputs.load_params(template, out / "params.msgpack")
+    restored = runs.load_params(template, out / "params.msgpack")
     assert jax.tree.structure(restored) == jax.tree.structure(template)
 
 
@@ -302,7 +310,7 @@ def test_battery_programme_rule_is_always_max_ports_and_the_programme_s_battery(
     baselines leave them out."""
     from baselines import car_value, read_policy
     from baselines.heuristics import PLAN_PROGRAMME, PROGRAMME, evaluate_rules, rule_policy
-    from baselines.train import baseline_results
+    from baselines.eval.heldout import baseline_results
     from chargax_marl.core import make_params, simulator
     from chargax_marl.core.station import KIND_BATTERY
     from chargax_marl.policies import always_max
@@ -375,7 +383,7 @@ def test_always_max_prior_makes_the_untrained_greedy_policy_always_max(mod):
 
     train = mod.make_train({**TINY, "ALWAYS_MAX_PRIOR": 6.0, "BATTERY_IDLE_PRIOR": 6.0})
     plain = mod.make_train(TINY)
-    _, full, _, days = common.build_env_params(train.config)
+    _, full, _, days = build_env_params(train.config)
     params = train.policy.init(jax.random.PRNGKey(3))
     act, act_plain = jax.jit(train.make_act(full)(params)), jax.jit(plain.make_act(full)(params))
     state = simulator.empty_state(int(days[0]), full)
@@ -412,23 +420,23 @@ def test_held_out_evaluation_uses_common_random_numbers():
     for every seed, and a paired difference of zero."""
     from chargax_marl.evaluation import evaluate_policy
     from chargax_marl.policies import always_max
-    from baselines.train import baseline_results
+    from baselines.eval.heldout import baseline_results
 
-    _, full, _, days = common.build_env_params(common.parse_config({}, TINY))
+    _, full, _, days = build_env_params(resolve(TINY))
     days = days[:8]
     base = baseline_results(full, days)
 
     def make_act(p):
         return lambda s, k: always_max(s, k, full) + 0 * p.astype(np.int32)
 
-    ev = common.evaluate_batched(make_act, np.zeros((3,), np.float32), full, days,
+    ev = heldout.evaluate_batched(make_act, np.zeros((3,), np.float32), full, days,
                                  reference_profit=base["always_max"]["daily_profit"])
     ref = evaluate_policy("always_max", full, days)["metrics"]["daily_profit_eur"]["mean"]
     np.testing.assert_allclose(ev["per_seed_profit"], [ref] * 3, rtol=1e-6)
     np.testing.assert_allclose(ev["daily_profit"], np.broadcast_to(base["always_max"]["daily_profit"], (3, 8)),
                                rtol=1e-6)
     assert ev["paired_diff"]["mean"] == pytest.approx(0.0, abs=1e-3)
-    d = common.paired_difference(np.array([[2.0, 4.0]]), np.array([1.0, 1.0]))
+    d = stats.paired_difference(np.array([[2.0, 4.0]]), np.array([1.0, 1.0]))
     assert d["mean"] == 2.0 and d["per_seed_mean"] == [2.0] and d["stderr"] == pytest.approx(1.0)
 
 
@@ -588,12 +596,12 @@ def test_battery_gamma_discounts_the_battery_rows_only():
     d = (d > 1.0).astype(jnp.float32)
     last = jnp.asarray(rng.normal(size=(3,)), jnp.float32)
     gammas = jnp.asarray([0.9, 0.9, 0.99])
-    adv, tgt = common.gae(r, v, d, last, gammas, 0.95)
+    adv, tgt = ppo_core.gae(r, v, d, last, gammas, 0.95)
     for i, g in enumerate((0.9, 0.9, 0.99)):
-        a_i, t_i = common.gae(r[:, i:i + 1], v[:, i:i + 1], d[:, i:i + 1], last[i:i + 1], g, 0.95)
+        a_i, t_i = ppo_core.gae(r[:, i:i + 1], v[:, i:i + 1], d[:, i:i + 1], last[i:i + 1], g, 0.95)
         np.testing.assert_allclose(adv[:, i], a_i[:, 0], rtol=1e-6)
         np.testing.assert_allclose(tgt[:, i], t_i[:, 0], rtol=1e-6)
-    assert not np.allclose(adv[:, 2], common.gae(r, v, d, last, 0.9, 0.95)[0][:, 2])
+    assert not np.allclose(adv[:, 2], ppo_core.gae(r, v, d, last, 0.9, 0.95)[0][:, 2])
     out = _finite_losses(ippo.make_train({**TINY, "BATTERY_GAMMA": 0.99}))
     assert out["metrics"]["actor_loss"].shape == (2, 1)
     with pytest.raises(ValueError, match="BATTERY_GAMMA"):
@@ -607,8 +615,8 @@ def test_battery_ent_coef_weighs_the_battery_rows_entropy_only():
     logp, old, adv, val, oldv, tgt, ent = (jnp.asarray(rng.normal(size=6), jnp.float32) for _ in range(7))
     config = {"CLIP_EPS": 0.2, "VF_CLIP": 10.0, "VF_COEF": 0.5, "ENT_COEF": 0.01}
     coef = jnp.asarray([0.01] * 5 + [0.2])
-    base, _ = common.ppo_loss(logp, old, adv, val, oldv, tgt, ent, config)
-    rows, parts = common.ppo_loss(logp, old, adv, val, oldv, tgt, ent, config, coef)
+    base, _ = ppo_core.ppo_loss(logp, old, adv, val, oldv, tgt, ent, config)
+    rows, parts = ppo_core.ppo_loss(logp, old, adv, val, oldv, tgt, ent, config, coef)
     np.testing.assert_allclose(rows - base, -(0.2 - 0.01) * float(ent[5]) / 6, rtol=1e-5)
     np.testing.assert_allclose(parts["entropy"], float(ent.mean()), rtol=1e-6)
     _finite_losses(ippo.make_train({**TINY, "BATTERY_ENT_COEF": 0.05}))
@@ -629,11 +637,11 @@ def test_relative_prices_read_the_observed_prices_and_quantiles():
         obs = np.asarray(env.get_obs_matrix(state))
         ctx = np.asarray(observation.context_features(shaping.core_state(state), env.params))
         ctx0 = env.obs_size - np.shape(env._layout.agent_id)[1] - observation.context_size(env.params)
-        prices, q20, q50, q80 = common.relative_price_columns(env.params, ctx0)
+        prices, q20, q50, q80 = features.relative_price_columns(env.params, ctx0)
         i = observation.context_index(env.params, "price_quantiles")
         np.testing.assert_array_equal(obs[0, prices], ctx[:env.params.price_horizon_hours + 1])
         np.testing.assert_array_equal(obs[0, [q20, q50, q80]], ctx[i + 1:i + 4])
-        rel = np.asarray(common.relative_prices(jnp.asarray(obs), prices, q20, q50, q80))
+        rel = np.asarray(features.relative_prices(jnp.asarray(obs), prices, q20, q50, q80))
         np.testing.assert_allclose(rel[1], np.clip((obs[1, prices] - obs[1, q50]) / (obs[1, q80] - obs[1, q20]), -5, 5),
                                    rtol=1e-5)
     assert observation.context_size(env.params) == ctx.shape[0]
@@ -644,15 +652,15 @@ def test_relative_prices_read_the_observed_prices_and_quantiles():
     # single-agent PPO: the same features from the flat observation, which ends with the context
     ppo_train = ppo.make_train({**TINY, "RELATIVE_PRICES": True})
     flat = np.asarray(observation.flat_obs(shaping.core_state(state), ppo_train.env_params))
-    cols = common.relative_price_columns(ppo_train.env_params, flat.shape[0] - ctx.shape[0])
+    cols = features.relative_price_columns(ppo_train.env_params, flat.shape[0] - ctx.shape[0])
     np.testing.assert_array_equal(flat[cols[0]], ctx[:env.params.price_horizon_hours + 1])
-    np.testing.assert_allclose(np.asarray(common.relative_prices(jnp.asarray(flat), *cols)), rel[0], rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(features.relative_prices(jnp.asarray(flat), *cols)), rel[0], rtol=1e-5)
     assert ppo_train.policy.input_dim == ppo_train.policy.obs_dim + len(prices)
     _finite_losses(ppo_train)
 
 
 def test_attribution_scores_the_run_and_swaps_ports_and_battery(tmp_path, monkeypatch):
-    """``baselines.attribution``: the ``learned`` row reproduces the run's own held-out score,
+    """``baselines.analysis.attribution``: the ``learned`` row reproduces the run's own held-out score,
     and the mixes take the battery's levels from one policy and the ports' from the other."""
     from baselines import attribution
     from baselines import train as cli
@@ -693,7 +701,7 @@ def test_attribution_scores_the_run_and_swaps_ports_and_battery(tmp_path, monkey
         assert all(-1.0 <= a <= 1.0 for a in seed["hourly_action"]) and 0.0 <= seed["ports_full_power_share"] <= 1.0
         assert 0.0 <= seed["ports_follow_plan_share"] <= 1.0
     assert "hourly SoC" in read_policy.format_reading(reading)
-    # baselines.redraw scores the same run on more cars: draw 0 is the run's own evaluation,
+    # baselines.analysis.redraw scores the same run on more cars: draw 0 is the run's own evaluation,
     # draw 1 the rules' evaluation under PRNGKey(1), averaged per day
     from baselines import redraw
     from baselines.heuristics import evaluate_rules
@@ -704,7 +712,7 @@ def test_attribution_scores_the_run_and_swaps_ports_and_battery(tmp_path, monkey
         assert two["vs"]["always_max"]["draw0_per_seed"][i]["mean"] == pytest.approx(p["vs_always_max"]["mean"], abs=1e-4)
         assert two["vs"]["always_max"]["draw0_per_seed"][i]["stderr"] == pytest.approx(p["vs_always_max"]["stderr"],
                                                                                       rel=1e-4)
-    _, eval_params, _, days = common.build_env_params(json.loads((out / "results.json").read_text())["config"])
+    _, eval_params, _, days = build_env_params(json.loads((out / "results.json").read_text())["config"])
     by_key = [evaluate_rules(eval_params, days, ("always_max", "battery_rule"), key=jax.random.PRNGKey(k)) for k in (0, 1)]
     rule_gain = np.mean([r["battery_rule"]["daily_profit"] - r["always_max"]["daily_profit"] for r in by_key])
     assert two["references_vs_always_max"]["battery_rule"]["mean"] == pytest.approx(rule_gain, abs=1e-4)
@@ -712,12 +720,12 @@ def test_attribution_scores_the_run_and_swaps_ports_and_battery(tmp_path, monkey
     assert "2 car draws" in redraw.format_redraw(two)
     # the MPC's draws (a stand-in that earns always-max + 1 EUR/day here, so the wiring shows):
     # paired on the first mpc_draws draws only, with the bound's headroom on the same draws
-    import baselines.optimal
+    import baselines.analysis.references
 
     def fake_mpc(params, days, key):
         return {"daily_profit": evaluate_rules(params, days, ("always_max",), key=key)["always_max"]["daily_profit"] + 1.0}
 
-    monkeypatch.setattr(baselines.optimal, "evaluate_mpc", fake_mpc)
+    monkeypatch.setattr(baselines.analysis.references, "evaluate_mpc", fake_mpc)
     with_mpc = redraw.redraw(out, draws=2, bound=True, mpc_draws=1)
     vs_am, vs_mpc = with_mpc["vs"]["always_max"]["draw0_per_seed"], with_mpc["vs"]["mpc"]["per_seed"]
     for i in range(2):
@@ -741,7 +749,7 @@ def test_attribution_scores_the_run_and_swaps_ports_and_battery(tmp_path, monkey
 def test_redraw_clusters_the_draws_of_a_day_before_the_standard_error():
     """Two days, two draws each: the per-day means 2 and 4 give mean 3 and s.e. 1 (not the
     s.e. of four independent numbers), and 3 > 2 x 1 beats."""
-    from baselines.redraw import day_clustered
+    from baselines.eval.stats import day_clustered
 
     d = day_clustered(np.array([[1.0, 3.0], [3.0, 5.0]]))  # (draws, days)
     assert d == {"mean": 3.0, "stderr": pytest.approx(1.0), "beats": True}
@@ -953,8 +961,8 @@ def test_replot_adds_the_stored_mpc_for_exactly_the_runs_params(tmp_path, monkey
     (tmp_path / "optimal").mkdir()
     with pytest.raises(LookupError, match="no stored MPC"):
         cli.main(["--replot", str(out)])
-    config = common.parse_config({}, res["config"])
-    _, eval_params, _, days = common.build_env_params(config)
+    config = resolve(res["config"])
+    _, eval_params, _, days = build_env_params(config)
     days = [int(d) for d in days]
     mpc_daily = np.linspace(10.0, 20.0, len(days))
     stored = {"params_fingerprint": params_fingerprint(eval_params), "days": days,
@@ -1000,7 +1008,7 @@ def test_sensitivity_battery_step_on_an_empty_station_is_the_hand_computed_trade
 
 def test_eval_draws_score_every_policy_on_the_mean_over_car_draws_of_each_day(tmp_path):
     """``--eval-draws 2``: the rules, the bound and the agent are scored under PRNGKey(0) and
-    PRNGKey(1), each day's profit the mean of the two; the run says so, ``baselines.redraw``
+    PRNGKey(1), each day's profit the mean of the two; the run says so, ``baselines.analysis.redraw``
     replays it only with at least its draws, and the one-draw stored MPC is refused."""
     from baselines import redraw
     from baselines import train as cli
@@ -1014,7 +1022,7 @@ def test_eval_draws_score_every_policy_on_the_mean_over_car_draws_of_each_day(tm
     assert res["evaluation"]["draws"] == 2 and res["scenario"]["car_draws_per_day"] == 2
     assert "PRNGKey(1)" in res["evaluation"]["key"]
     table = res["evaluation"]["table"]
-    _, eval_params, _, days = common.build_env_params(res["config"])
+    _, eval_params, _, days = build_env_params(res["config"])
     by_key = [evaluate_rules(eval_params, days, ("always_max",), key=jax.random.PRNGKey(k))["always_max"]["daily_profit"]
               for k in (0, 1)]
     assert not np.allclose(by_key[0], by_key[1])  # the draws differ ...
@@ -1029,7 +1037,7 @@ def test_eval_draws_score_every_policy_on_the_mean_over_car_draws_of_each_day(tm
     with pytest.raises(LookupError, match="car draws"):
         cli.add_stored_mpc(out)
     with pytest.raises(ValueError, match="either a key or draws"):
-        common.evaluate_batched(None, None, eval_params, days, key=jax.random.PRNGKey(0), draws=2)
+        heldout.evaluate_batched(None, None, eval_params, days, key=jax.random.PRNGKey(0), draws=2)
     for bad in (0, -1, 1.5, True):
         with pytest.raises(ValueError, match="field 'EVAL_DRAWS'"):
-            common.parse_config({}, {"EVAL_DRAWS": bad})
+            resolve({"EVAL_DRAWS": bad})

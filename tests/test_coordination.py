@@ -5,6 +5,7 @@ both views, and the node-binding table."""
 
 from __future__ import annotations
 
+from baselines.config import build_env_params, resolve
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -262,12 +263,12 @@ def test_baselines_keep_a_named_scenarios_traffic():
     # the trainers' and `make optimal`'s configs once forced "medium" over the scenario's own
     # traffic, so "shopping-grid10-high" was evaluated at medium traffic
     from baselines import common
-    from baselines.optimal import scenario_params
+    from baselines.analysis.references import scenario_params
 
-    config = common.parse_config({}, {"SCENARIO": "shopping-grid10-high"})
-    _, full, _, _ = common.build_env_params(config)
+    config = resolve({"SCENARIO": "shopping-grid10-high"})
+    _, full, _, _ = build_env_params(config)
     assert float(full.arrival_rate.sum()) == pytest.approx(float(make_params(traffic="high").arrival_rate.sum()))
     params, _ = scenario_params("grid10_high")
     assert float(params.arrival_rate.sum()) == pytest.approx(float(full.arrival_rate.sum()))
-    medium = common.build_env_params(common.parse_config({}, {"SCENARIO": "shopping-grid10-high", "TRAFFIC": "medium"}))[1]
+    medium = build_env_params(resolve({"SCENARIO": "shopping-grid10-high", "TRAFFIC": "medium"}))[1]
     assert float(medium.arrival_rate.sum()) < float(full.arrival_rate.sum())

@@ -6,6 +6,8 @@ runner compiles several programs (minutes on 2 cores), so it is not part of the 
 
 from __future__ import annotations
 
+from baselines.config import build_env_params, resolve
+from baselines import runs
 import json
 import re
 
@@ -66,8 +68,8 @@ def test_traffic_sweep_appendix_conditions_build_valid_params():
                      ("shopping", "US"), ("shopping", "World")]
     shares = {}
     for profile, fleet in cells:
-        cfg = common.parse_config({}, ts.condition_config({"ENV_KWARGS": {"num_levels": 1}}, profile, fleet, "high"))
-        train_params, full, _, days = common.build_env_params(cfg)
+        cfg = resolve(ts.condition_config({"ENV_KWARGS": {"num_levels": 1}}, profile, fleet, "high"))
+        train_params, full, _, days = build_env_params(cfg)
         assert cfg["ENV_KWARGS"] == {"num_levels": 1, "fleet": fleet} and np.size(days) == 100
         shares[fleet] = np.asarray(full.fleet_capacity_kwh)
     assert not np.array_equal(shares["EU"], shares["US"])  # the fleet really changes
@@ -144,7 +146,7 @@ def test_the_record_says_when_a_run_is_cut_from_the_paper_s_scale():
 
 
 def test_paired_differences_over_seeds():
-    from baselines.experiments._common import paired_over_seeds
+    from baselines.eval.stats import paired_over_seeds
 
     d = paired_over_seeds([3.0, 5.0, 7.0], [1.0, 1.0, 1.0])
     assert d["per_seed"] == [2.0, 4.0, 6.0] and np.isclose(d["mean"], 4.0) and np.isclose(d["stderr"], 2.0 / np.sqrt(3))
@@ -185,9 +187,9 @@ def test_traffic_sweep_log_line_and_plots(tmp_path):
 def _stored_run(tmp_path, config, **overrides):
     """A ``results.json`` as ``baselines.train`` writes it, for ``config`` (4 chunks, 2 seeds)."""
     from baselines import common
-    from baselines.train import chunked_updates
+    from baselines.pipeline import chunked_updates
 
-    parsed = common.parse_config({}, config)
+    parsed = resolve(config)
     _, n_upd = chunked_updates(parsed, 4)
     res = {"algo": "ppo", "seeds": 2, "seed": 0, "timesteps": n_upd * parsed["NUM_ENVS"] * parsed["NUM_STEPS"],
            "config": {**parsed, "TOTAL_TIMESTEPS": n_upd * parsed["NUM_ENVS"] * parsed["NUM_STEPS"]},
@@ -278,14 +280,14 @@ def test_code_version_names_the_checkout_s_commit(tmp_path):
 
 
 def test_result_files_keep_float32_values_exactly_and_number_lists_on_one_line(tmp_path):
-    """``outputs.write_json``: a float32 metric is written as its shortest decimal and reads back
+    """``runs.write_json``: a float32 metric is written as its shortest decimal and reads back
     to the same float32; float64 statistics are kept as they are; number lists take one line."""
     from baselines import outputs
 
     metric = np.float32([340.23096, -0.0112, 1e-7])
     obj = {"curve": {"profit": metric, "seeds": [[1.5, 2.5], [3.5, 4.5]]}, "mean": 10.358861465454103,
            "missing": float("nan"), "empty": {}, "names": ["a", "b"]}
-    path = outputs.write_json(obj, tmp_path / "r.json")
+    path = runs.write_json(obj, tmp_path / "r.json")
     back = json.loads(path.read_text())
     np.testing.assert_array_equal(np.float32(back["curve"]["profit"]), metric)
     assert back["mean"] == 10.358861465454103 and back["missing"] is None and back["empty"] == {}

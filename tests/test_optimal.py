@@ -221,7 +221,7 @@ def test_headroom_fraction_by_hand():
 
 
 def test_training_baselines_carry_the_bound_and_the_headroom(small_setup):
-    from baselines.train import baseline_results
+    from baselines.eval.heldout import baseline_results
 
     params, _ = small_setup
     days = np.array([10, 200])

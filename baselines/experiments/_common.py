@@ -11,28 +11,25 @@ whether the run was cut from the paper's scale (``cut``), so no cut run reads as
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
 
-from baselines import common
-from baselines.train import FAST, OPTIMAL_CHOICES, baseline_results, chunked_updates, over_seeds, run
+from baselines.config import SCHEMA, build_env_params, resolve, settings
+from baselines.eval.heldout import OPTIMAL_CHOICES, baseline_results
+from baselines.pipeline import RunOutput, chunked_updates, run
+from chargax_marl.machine import machine_info
 
 PAPER_TIMESTEPS = int(1e7)  # Table 3: 1e7 env-steps per seed
 
-SINGLE = {**FAST, "GAMMA": 0.95, "RELATIVE_PRICES": True, "ENV_KWARGS": {"num_levels": 1},
-          "BATTERY_SHAPING": "dp", "SPLIT_CREDIT": True}
-MULTI = {**FAST, "ENT_COEF": 0.01, "GAMMA": 0.9, "LOCAL_REWARD_WEIGHT": 1.0, "BATTERY_NET": True,
-         "AGENT_ADV_NORM": True, "RELATIVE_PRICES": True, "ENV_KWARGS": {"num_levels": 1},
-         "BATTERY_SHAPING": "dp", "BATTERY_ENT_COEF": 0.05, "PORT_SHAPING": "plan", "PLAN_OBS": True}
-TUNED = {"ppo": SINGLE, "ippo": MULTI, "mappo": MULTI}
-"""The ``tuned`` learning settings per algorithm: the Makefile's ``train-ppo`` (PPO) and
-``train`` / ``train-mappo`` (IPPO / MAPPO) flags (``tests/test_experiments.py`` checks that they
-agree). Full-power actions (``num_levels`` 1), the battery-only programme's potential
-(``BATTERY_SHAPING="dp"``), relative prices; IPPO / MAPPO also the ports' plan as a potential
-and as an observation (``PORT_SHAPING="plan"``, ``PLAN_OBS``); no always-max prior. The result files committed
-before these settings record the ones they ran with (``config``)."""
+TUNED = {algo: {k: v for k, v in settings(algo).items() if k not in ("SCENARIO", "TRAFFIC", "TOTAL_TIMESTEPS")}
+         for algo in ("ppo", "ippo", "mappo")}
+"""The ``tuned`` learning settings per algorithm: those of ``baselines/configs/<algo>.toml``
+(``make train-ppo``, ``make train``, ``make train-mappo``) without their scenario and budget.
+The result files committed before these settings record the ones they ran with (``config``)."""
 
 DEFAULT_TIMESTEPS = 2e6
 DEFAULT_SEEDS = 4
@@ -80,11 +77,11 @@ def with_prices(base: dict, prices: str) -> dict:
 
 def eval_setup(base: dict, prices: str, optimal: str = "off") -> tuple:
     """``(full params, held-out days, baseline results)`` of ``base`` on ``prices``."""
-    _, full, _, days = common.build_env_params(common.parse_config({}, with_prices(base, prices)))
+    _, full, _, days = build_env_params(resolve(with_prices(base, prices)))
     return full, days, baseline_results(full, days, optimal)
 
 
-def train_on(algo: str, base: dict, prices: str, seeds: int, baselines: dict) -> dict:
+def train_on(algo: str, base: dict, prices: str, seeds: int, baselines: dict) -> RunOutput:
     """Train ``seeds`` seeds on ``prices`` (2 chunks, evaluated once at the end on its own held-out days)."""
     return run(algo, with_prices(base, prices), seeds=seeds, chunks=2, evaluate_every_chunk=False,
                baselines=baselines, quiet=True)
@@ -97,12 +94,6 @@ def profit_curve(curve: dict) -> dict:
     return {k: curve[k] for k in ("timesteps", "episode_profit_eur")}
 
 
-def paired_over_seeds(a, b) -> dict:
-    """``a - b`` seed against seed (the same days and cars): mean ± standard error over seeds,
-    with the per-seed differences. ``(seeds, days)`` arrays are first averaged over days."""
-    d = np.asarray(a, np.float64) - np.asarray(b, np.float64)
-    d = d.mean(axis=1) if d.ndim == 2 else d
-    return {**over_seeds(d), "per_seed": d.tolist()}
 
 
 def reused_run(path, algo: str, config: dict, seeds: int, chunks: int) -> dict:
@@ -115,26 +106,23 @@ def reused_run(path, algo: str, config: dict, seeds: int, chunks: int) -> dict:
     options are added off by default, so the run predates it. The code's version is not
     checked; the result carries ``reused_from`` with the path, the stored run's ``code``
     (commit, where it was recorded) and those options, so a reader can see what was mixed."""
-    import json
-
-    import jax
 
     with open(path) as f:
         res = json.load(f)
-    config = common.parse_config({}, config)
+    config = resolve(config)
     _, n_upd = chunked_updates(config, chunks)
     want = {"algo": algo, "seeds": seeds, "seed": 0,
             "timesteps": n_upd * config["NUM_ENVS"] * config["NUM_STEPS"]}
     diffs = [f"{k}={res.get(k)!r} (this run: {v!r})" for k, v in want.items() if res.get(k) != v]
     theirs = res.get("config", {})
     # an option the stored run predates is taken at its default: options are added off by default
-    absent = sorted(k for k in config if k not in theirs and config[k] == common.PAPER_DEFAULTS.get(k, object()))
+    absent = sorted(k for k in config if k not in theirs and config[k] == (SCHEMA[k].default if k in SCHEMA else object()))
     theirs = {**{k: config[k] for k in absent}, **theirs}
     diffs += [f"config {k}={theirs.get(k)!r} (this run: {config.get(k)!r})"
               for k in sorted(set(config) | set(theirs)) if k not in ("TOTAL_TIMESTEPS", "ENV_KWARGS")
               and theirs.get(k) != config.get(k)]
     if not diffs:  # ENV_KWARGS may spell the same station differently (a default given or not)
-        mine, other = (common.build_env_params(common.parse_config({}, c)) for c in (config, theirs))
+        mine, other = (build_env_params(resolve(c)) for c in (config, theirs))
         same = all(jax.tree_util.tree_structure(a) == jax.tree_util.tree_structure(b) and
                    all(np.array_equal(x, y) for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)))
                    for a, b in zip(mine, other))
@@ -156,8 +144,6 @@ class Record:
         self.t0 = time.time()
 
     def as_dict(self) -> dict:
-        from chargax_marl.machine import machine_info
-
         timesteps = int(self.base["TOTAL_TIMESTEPS"])
         paper = self.paper_seeds is not None
         cut = paper and (timesteps < PAPER_TIMESTEPS or self.seeds < self.paper_seeds)

@@ -1,6 +1,6 @@
 """Score committed training results against the teachers' rules, without retraining.
 
-    python -m baselines.experiments.add_teacher_rules baselines/results/traffic_sweep.json ...
+    python -m baselines.experiments.add_teacher_rules results/traffic_sweep.json ...
 
 The trainers' shaping teachers, played as rules with no learning
 (:data:`baselines.heuristics.TEACHER_RULES`):
@@ -41,8 +41,18 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines import common, outputs
-from baselines.train import add_headroom, over_seeds
+from baselines import runs
+from baselines.config import build_env_params, resolve
+from baselines.eval import stats
+from baselines.eval.heldout import add_headroom
+from baselines.eval.stats import over_seeds
+from baselines.experiments._common import TUNED, with_prices
+from baselines.heuristics import (
+    TEACHER_RULES,
+    check_replay,
+    evaluate_rules,
+    has_battery,
+)
 
 
 def training_results(tree, path: str = "") -> list[tuple[str, dict]]:
@@ -59,8 +69,6 @@ def teacher_entries(params, days, stored: dict, where: str) -> dict:
     paired differences to the stored always-max and battery rule and its headroom share, after
     checking that always-max and the battery rule replayed on this code give the stored
     ``stored[name]["daily_profit"]`` (else a ``ValueError``: the run was made on another model)."""
-    from baselines.heuristics import TEACHER_RULES, check_replay, evaluate_rules
-
     if [int(d) for d in np.asarray(days)] != [int(d) for d in stored["always_max"]["days"]]:
         raise ValueError(f"{where}: its config builds other held-out days than it was evaluated on")
     rules = evaluate_rules(params, days, ("always_max", "battery_rule") + TEACHER_RULES)
@@ -69,7 +77,7 @@ def teacher_entries(params, days, stored: dict, where: str) -> dict:
     for name in TEACHER_RULES:
         e = rules[name]
         for ref in ("always_max", "battery_rule"):
-            e[f"vs_{ref}"] = common.paired_difference(e["daily_profit"], stored[ref]["daily_profit"])
+            e[f"vs_{ref}"] = stats.paired_difference(e["daily_profit"], stored[ref]["daily_profit"])
         add_headroom({name: e}, stored)
         out[name] = e
     return out
@@ -78,9 +86,7 @@ def teacher_entries(params, days, stored: dict, where: str) -> dict:
 def add_to_result(res: dict, where: str = "") -> bool:
     """Add the teachers' rules to one training result in place (see the module's doc).
     ``False`` when the run's station has no battery (nothing to add)."""
-    from baselines.heuristics import has_battery
-
-    _, params, _, days = common.build_env_params(common.parse_config({}, res["config"]))
+    _, params, _, days = build_env_params(resolve(res["config"]))
     if not has_battery(params):
         return False
     table, algo = res["evaluation"]["table"], res["algo"]
@@ -90,7 +96,7 @@ def add_to_result(res: dict, where: str = "") -> bool:
     learned = np.atleast_2d(np.asarray(table[algo]["daily_profit"], np.float64))
     summary = res.get("over_seeds", {})
     for name, rule in rules.items():
-        vs, key = common.paired_difference(learned, rule["daily_profit"]), f"vs_{name}"
+        vs, key = stats.paired_difference(learned, rule["daily_profit"]), f"vs_{name}"
         for i, seed in enumerate(res["per_seed"]):
             items = [(k, v) for k, v in seed.items() if k != key]
             at = next(j for j, (k, _) in enumerate(items) if k == "headroom_fraction")
@@ -108,19 +114,17 @@ def add_to_price_shift(d: dict, where: str = "") -> dict:
     """Add the teachers' rules to a ``price_shift`` result (``matrix`` train year x eval year,
     ``baselines`` per eval year) in place: per eval year the rules' entries, checked as in
     :func:`teacher_entries`, and per cell ``vs_<rule>``. Returns ``{cell: {key: difference}}``."""
-    from baselines.experiments._common import TUNED, with_prices
-
     if d.get("settings") != "tuned":
         raise ValueError(f"{where}: settings {d.get('settings')!r}; only the tuned settings' params are rebuilt here")
     for year, bl in d["baselines"].items():
-        _, params, _, days = common.build_env_params(common.parse_config({}, with_prices(TUNED[d["algo"]], year)))
+        _, params, _, days = build_env_params(resolve(with_prices(TUNED[d["algo"]], year)))
         bl.update(teacher_entries(params, days, bl, f"{where} {year}"))
     rows = {}
     for train_year, row in d["matrix"].items():
         for eval_year, ev in row.items():
             bl = d["baselines"][eval_year]
             for name in (n for n in bl if n.endswith("_programme")):
-                ev[f"vs_{name}"] = common.paired_difference(ev["daily_profit"], bl[name]["daily_profit"])
+                ev[f"vs_{name}"] = stats.paired_difference(ev["daily_profit"], bl[name]["daily_profit"])
             rows[f"{train_year} -> {eval_year}"] = {k: v for k, v in ev.items() if k.endswith("_programme")}
     return rows
 
@@ -152,7 +156,7 @@ def main(argv=None) -> dict:
                 rows[where] = {k: v for k, v in res["over_seeds"].items() if k.startswith("vs_")}
                 print(f"{f}{where}: {res['algo']} − {_line(rows[where])} (over {len(res['per_seed'])} seeds)",
                       flush=True)
-        outputs.write_json(d, f)
+        runs.write_json(d, f)
         out[f] = rows
     return out
 

@@ -6,7 +6,7 @@
 For ``satisfaction_time`` (EUR per kWh still missing when a time-sensitive car leaves) and
 ``satisfaction_charge`` (EUR per minute a charge-sensitive car overstays) a PPO agent is
 trained per alpha (reward = profit - alpha * term; all other alpha 0) and evaluated greedily
-on the 100 held-out days. Writes ``baselines/results/alpha_ablation.{png,json}``: missing kWh
+on the 100 held-out days. Writes ``outputs/alpha_ablation.{png,json}``: missing kWh
 (resp. overtime) and profit vs alpha, mean ± std over seeds x days, the per-seed means, and
 each alpha's paired difference to alpha 0 (mean ± standard error over seeds, the same days
 and cars), beside always-max, always-max + battery rule and the LP hindsight bound (of the
@@ -15,24 +15,35 @@ profit).
 
 from __future__ import annotations
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
-from baselines import common, outputs
-from baselines.experiments._common import Record, config_of, output, paired_over_seeds, parser, with_env_kwargs
-from baselines.train import baseline_results, run
+from baselines import runs
+from baselines.config import build_env_params, resolve
+from baselines.eval.heldout import baseline_results
+from baselines.eval.stats import paired_over_seeds
+from baselines.experiments._common import (
+    Record,
+    config_of,
+    output,
+    parser,
+    with_env_kwargs,
+)
+from baselines.pipeline import run
 
 SMALL = {"satisfaction_time": (0.0, 0.5, 2.0), "satisfaction_charge": (0.0, 0.05, 0.5)}
 FULL = {"satisfaction_time": (0.0, 0.1, 0.5, 1.0, 2.0, 5.0), "satisfaction_charge": (0.0, 0.01, 0.05, 0.1, 0.5, 1.0)}
 METRIC = {"satisfaction_time": "missing_kwh_at_departure", "satisfaction_charge": "overtime_min"}
 
 
-def main(argv=None, out="baselines/results/alpha_ablation"):
+def main(argv=None, out="outputs/alpha_ablation"):
     args = parser(__doc__, full_seeds=5).parse_args(argv)
     out = output(out)
     base, seeds = config_of(args)
     record = Record(args, seeds, base, paper_seeds=5, figure="Fig. 4b-c")
     grid = FULL if args.full else SMALL
-    _, full_params, _, eval_days = common.build_env_params(common.parse_config({}, base))
+    _, full_params, _, eval_days = build_env_params(resolve(base))
     baselines = baseline_results(full_params, eval_days, args.optimal)
     results = {term: {} for term in grid}
     zero = None
@@ -44,7 +55,7 @@ def main(argv=None, out="baselines/results/alpha_ablation"):
             cfg = with_env_kwargs(base, alpha={term: alpha})
             # evaluation reports the raw terms (profit, missing kWh, overtime) on the held-out days
             res = run(args.algo, cfg, seeds=seeds, chunks=2, evaluate_every_chunk=False, baselines=baselines,
-                      quiet=True)
+                      quiet=True).results
             ev = res["evaluation"]["table"][args.algo]
             row = {"alpha": alpha, "metrics": ev["metrics"], "per_seed_profit": ev["per_seed_profit"],
                    "per_seed": {k: ev["per_seed_metrics"][k] for k in TERMS},
@@ -60,7 +71,7 @@ def main(argv=None, out="baselines/results/alpha_ablation"):
         for row in rows.values():
             row["vs_alpha0"] = {k: paired_over_seeds(row["per_seed"][k], zero["per_seed"][k]) for k in row["per_seed"]}
     meta = record.as_dict()
-    outputs.write_json({**meta, "baselines": baselines,
+    runs.write_json({**meta, "baselines": baselines,
                        "results": {t: list(r.values()) for t, r in results.items()}}, out + ".json")
     plot(results, baselines, out + ".png")
     print(f"wrote {out}.png, {out}.json")
@@ -79,10 +90,7 @@ def _se(per_seed) -> float:
 def plot(results, baselines, path):
     """Missing kWh, overtime and profit per alpha: means over seeds x days, error bars the
     standard error over seeds of the per-seed means."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
     labels = {"missing_kwh_at_departure": "kWh missing at departure", "overtime_min": "overtime (min per day)"}

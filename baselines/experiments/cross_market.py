@@ -11,7 +11,7 @@ Every target is also trained on itself (the in-market reference), so each cross-
 comes with its transfer gap: the paired difference, on the same held-out days and cars
 (common random numbers), between the source-trained agent and the target-trained one.
 
-Writes ``baselines/results/cross_market.{png,json}``: greedy held-out daily profit (mean ± std
+Writes ``outputs/cross_market.{png,json}``: greedy held-out daily profit (mean ± std
 over seeds x days) per source x target, the in-market reference, always-max and
 price-threshold per target, the paired differences to always-max and to the reference, and
 the run's wall time.
@@ -21,10 +21,20 @@ from __future__ import annotations
 
 import time
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
-from baselines import common, outputs
-from baselines.experiments._common import Record, config_of, eval_setup, output, parser, profit_curve, train_on
+from baselines.eval import heldout, stats
+from baselines.experiments._common import (
+    Record,
+    config_of,
+    eval_setup,
+    output,
+    parser,
+    profit_curve,
+    train_on,
+)
 
 EXPERIMENTS = {
     "NL-2023": ("NL-2023", "DE-2023", "FR-2023"),
@@ -32,7 +42,7 @@ EXPERIMENTS = {
 }
 
 
-def main(argv=None, out="baselines/results/cross_market", *, experiments=None, overrides=None):
+def main(argv=None, out="outputs/cross_market", *, experiments=None, overrides=None):
     """``experiments`` ({source: targets}) and ``overrides`` (merged into the training config)
     are for tests; the command line runs :data:`EXPERIMENTS`."""
     p = parser(__doc__, full_seeds=5)
@@ -50,12 +60,12 @@ def main(argv=None, out="baselines/results/cross_market", *, experiments=None, o
     trained = list(experiments) + ([] if args.no_reference else [m for m in markets if m not in experiments])
     matrix, runs = {}, {}
     for src in trained:
-        res = train_on(args.algo, base, src, seeds, baselines[src])
-        act = res["_train"].make_act
+        out = train_on(args.algo, base, src, seeds, baselines[src])
+        act, res = out.trainer.make_act, out.results
         matrix[src] = {}
         for tgt in experiments.get(src, (src,)):
             full, days, _ = evals[tgt]
-            ev = common.evaluate_batched(act(full), res["_params"], full, days,
+            ev = heldout.evaluate_batched(act(full), out.params, full, days,
                                          reference_profit=baselines[tgt]["always_max"]["daily_profit"])
             matrix[src][tgt] = ev
             m, d = ev["metrics"]["daily_profit_eur"], ev["paired_diff"]
@@ -66,7 +76,7 @@ def main(argv=None, out="baselines/results/cross_market", *, experiments=None, o
     wall = time.time() - t0
     plot(matrix, baselines, experiments, args.algo, out + ".png")
     meta = record.as_dict()
-    outputs.write_json({**meta, "timesteps": runs[trained[0]]["timesteps"],
+    runs.write_json({**meta, "timesteps": runs[trained[0]]["timesteps"],
                        "experiments": {s: list(t) for s, t in experiments.items()},
                        "evaluation": "greedy, held-out days of each target, PRNGKey(0) for every policy (common random numbers)",
                        "wall_seconds_total": wall, "matrix": matrix, "transfer_gap_vs_in_market": gaps,
@@ -84,7 +94,7 @@ def transfer_gaps(matrix: dict, experiments: dict) -> dict:
         for tgt in targets:
             if tgt != src and tgt in matrix and tgt in matrix[tgt]:
                 ref = np.asarray(matrix[tgt][tgt]["daily_profit"]).mean(axis=0)
-                gaps.setdefault(src, {})[tgt] = common.paired_difference(matrix[src][tgt]["daily_profit"], ref)
+                gaps.setdefault(src, {})[tgt] = stats.paired_difference(matrix[src][tgt]["daily_profit"], ref)
     return gaps
 
 
@@ -102,10 +112,7 @@ def summary(matrix: dict, baselines: dict, gaps: dict, experiments: dict) -> str
 
 
 def plot(matrix, baselines, experiments, algo, path):
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, len(experiments), figsize=(5.5 * len(experiments), 4), squeeze=False)
     w = 0.2

@@ -4,7 +4,7 @@ agent on the held-out days of all three years.
     python -m baselines.experiments.price_shift              # CPU default (2e6 steps, 4 seeds)
     python -m baselines.experiments.price_shift --full       # the paper's budget (1e7 steps, 10 seeds)
 
-Writes ``baselines/results/price_shift.{png,json}``: the train-year x eval-year matrix of
+Writes ``outputs/price_shift.{png,json}``: the train-year x eval-year matrix of
 greedy held-out daily profit (mean ± std over seeds x days), each cell's paired difference
 to always-max, to always-max + battery rule and to always-max + battery programme (the
 battery shaping's teacher as a rule) on the eval year's held-out days and cars
@@ -15,16 +15,27 @@ always-max, the battery rule and the LP hindsight bound per year. (The paper eva
 
 from __future__ import annotations
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
-from baselines import common, outputs
-from baselines.experiments._common import Record, config_of, eval_setup, output, parser, profit_curve, train_on
-from baselines.train import add_headroom
+from baselines import runs
+from baselines.eval import heldout, stats
+from baselines.eval.heldout import add_headroom
+from baselines.experiments._common import (
+    Record,
+    config_of,
+    eval_setup,
+    output,
+    parser,
+    profit_curve,
+    train_on,
+)
 
 YEARS = ("NL-2021", "NL-2022", "NL-2023")
 
 
-def main(argv=None, out="baselines/results/price_shift"):
+def main(argv=None, out="outputs/price_shift"):
     args = parser(__doc__, full_seeds=10).parse_args(argv)
     out = output(out)
     base, seeds = config_of(args)
@@ -32,15 +43,15 @@ def main(argv=None, out="baselines/results/price_shift"):
     evals = {year: eval_setup(base, year, args.optimal) for year in YEARS}
     matrix, rows = {}, {}
     for train_year in YEARS:
-        res = train_on(args.algo, base, train_year, seeds, evals[train_year][2])
-        train = res["_train"]
+        out = train_on(args.algo, base, train_year, seeds, evals[train_year][2])
+        train, res = out.trainer, out.results
         matrix[train_year] = {}
         for eval_year, (full, days, bl) in evals.items():
-            ev = common.evaluate_batched(train.make_act(full), res["_params"], full, days,
+            ev = heldout.evaluate_batched(train.make_act(full), out.params, full, days,
                                          reference_profit=bl["always_max"]["daily_profit"])
-            ev["vs_battery_rule"] = common.paired_difference(ev["daily_profit"], bl["battery_rule"]["daily_profit"])
+            ev["vs_battery_rule"] = stats.paired_difference(ev["daily_profit"], bl["battery_rule"]["daily_profit"])
             for name in (n for n in ("battery_programme", "plan_programme") if n in bl):  # the teachers' rules
-                ev[f"vs_{name}"] = common.paired_difference(ev["daily_profit"], bl[name]["daily_profit"])
+                ev[f"vs_{name}"] = stats.paired_difference(ev["daily_profit"], bl[name]["daily_profit"])
             add_headroom({"agent": ev}, bl)
             matrix[train_year][eval_year] = ev
             d, r = ev["paired_diff"], ev["vs_battery_rule"]
@@ -51,7 +62,7 @@ def main(argv=None, out="baselines/results/price_shift"):
                             "curve": profit_curve(res["curve"])}
     baselines = {y: e[2] for y, e in evals.items()}
     meta = record.as_dict()
-    outputs.write_json({**meta, "matrix": matrix, "baselines": baselines, "runs": rows}, out + ".json")
+    runs.write_json({**meta, "matrix": matrix, "baselines": baselines, "runs": rows}, out + ".json")
     plot(matrix, baselines, args.algo, out + ".png")
     print(f"wrote {out}.png, {out}.json")
     print(Record.summary(meta))
@@ -59,10 +70,7 @@ def main(argv=None, out="baselines/results/price_shift"):
 
 
 def plot(matrix, baselines, algo, path):
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7.5, 4))
     x = np.arange(len(YEARS))

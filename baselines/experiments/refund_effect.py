@@ -5,15 +5,15 @@
 
 The original Chargax never refunds energy discharged from a customer's car, so taking energy
 back from a car before it leaves earns money there (``make_params(refund_discharged_energy=False)``
-reproduces that accounting; ``python -m baselines.refund`` shows what it is worth to fixed
+reproduces that accounting; ``python -m baselines.experiments.refund`` shows what it is worth to fixed
 rules). Here PPO is trained under each accounting on the default scenario (the ``tuned``
 settings, see ``_common.TUNED``), for the bundled EU fleet (11 % of the cars may discharge) and
-for the EU fleet with every model allowed to discharge (``baselines.refund.all_v2g``). Each
+for the EU fleet with every model allowed to discharge (``baselines.experiments.refund.all_v2g``). Each
 agent is then evaluated greedily under **both** accountings on the same 100 held-out days and
 cars. The refund changes the books, not the trajectory, so for one agent ``off - on`` is exactly
 what its car discharging earned from not refunding the owners.
 
-Writes ``baselines/results/refund_effect.{png,json}``: per fleet, trained-on x evaluated-on,
+Writes ``outputs/refund_effect.{png,json}``: per fleet, trained-on x evaluated-on,
 the daily profit and its paired difference to always-max under the same accounting (mean ±
 standard error over seeds, the same days and cars), and always-max, always-max + battery
 rule, ``discharge_departing`` and the LP hindsight bound under each accounting.
@@ -21,13 +21,25 @@ rule, ``discharge_departing`` and the LP hindsight bound under each accounting.
 
 from __future__ import annotations
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
-from baselines import common, outputs
-from baselines.experiments._common import Record, config_of, output, paired_over_seeds, parser, with_env_kwargs
+from baselines import runs
+from baselines.config import build_env_params, resolve
+from baselines.eval import heldout
+from baselines.eval.stats import paired_over_seeds
+from baselines.experiments._common import (
+    Record,
+    config_of,
+    output,
+    parser,
+    with_env_kwargs,
+)
 from baselines.heuristics import add_paired_differences, evaluate_rules
-from baselines.refund import RULES, all_v2g
-from baselines.train import run
+from baselines.pipeline import run
+from baselines.experiments.refund import RULES, all_v2g
+from chargax_marl.evaluation import hindsight_bound, summarize_profit
 
 FLEETS = ("EU", "EU-all-v2g")
 ACCOUNTS = {True: "refund", False: "no_refund"}
@@ -38,7 +50,7 @@ def fleet_of(name: str):
     return all_v2g("EU") if name == "EU-all-v2g" else name
 
 
-def main(argv=None, out="baselines/results/refund_effect"):
+def main(argv=None, out="outputs/refund_effect"):
     p = parser(__doc__, full_seeds=5)
     p.add_argument("--fleets", nargs="+", choices=FLEETS, default=list(FLEETS))
     args = p.parse_args(argv)
@@ -50,15 +62,16 @@ def main(argv=None, out="baselines/results/refund_effect"):
         setups = {}
         for refund in (True, False):
             cfg = with_env_kwargs(base, fleet=fleet_of(fleet), refund_discharged_energy=refund)
-            _, full, _, days = common.build_env_params(common.parse_config({}, cfg))
+            _, full, _, days = build_env_params(resolve(cfg))
             setups[refund] = (cfg, full, days, references(full, days, args.optimal))
         results[fleet] = {"references": {ACCOUNTS[r]: s[3] for r, s in setups.items()}, "agents": {}}
         for train_refund, (cfg, *_rest) in setups.items():
-            res = run(args.algo, cfg, seeds=seeds, chunks=2, evaluate_every_chunk=False,
+            out = run(args.algo, cfg, seeds=seeds, chunks=2, evaluate_every_chunk=False,
                       baselines=setups[train_refund][3], quiet=True)
+            res = out.results
             row = {"wall_seconds": res["wall_seconds"], "timesteps": res["timesteps"]}
             for eval_refund, (_, full, days, refs) in setups.items():
-                ev = common.evaluate_batched(res["_train"].make_act(full), res["_params"], full, days,
+                ev = heldout.evaluate_batched(out.trainer.make_act(full), out.params, full, days,
                                              reference_profit=refs["always_max"]["daily_profit"])
                 row[ACCOUNTS[eval_refund]] = ev
             row["off_minus_on"] = paired_over_seeds(row["no_refund"]["daily_profit"], row["refund"]["daily_profit"])
@@ -69,7 +82,7 @@ def main(argv=None, out="baselines/results/refund_effect"):
                 f"{row[ACCOUNTS[e]]['paired_diff']['stderr']:.2f})" for e in (True, False))
                 + f"; off - on {row['off_minus_on']['mean']:+.2f} ({res['wall_seconds']:.0f} s)", flush=True)
     meta = record.as_dict()
-    outputs.write_json({**meta, "fleets": {f: "bundled EU fleet" if f == "EU" else
+    runs.write_json({**meta, "fleets": {f: "bundled EU fleet" if f == "EU" else
                                                       "EU fleet, every model may discharge at its charging limit"
                                                       for f in args.fleets}, "results": results}, out + ".json")
     plot(results, args.algo, out + ".png")
@@ -81,8 +94,6 @@ def main(argv=None, out="baselines/results/refund_effect"):
 def references(params, days, optimal: str) -> dict:
     """The refund rules (always-max, battery rule, discharge departing) and, unless ``optimal``
     is ``"off"``, the LP hindsight bound, on ``days`` with the evaluation key."""
-    from chargax_marl.evaluation import hindsight_bound, summarize_profit
-
     out = evaluate_rules(params, days, RULES)
     if optimal != "off":
         bound = hindsight_bound(params, days)["daily_profit"]
@@ -93,10 +104,7 @@ def references(params, days, optimal: str) -> dict:
 def plot(results: dict, algo: str, path):
     """Per fleet, the paired difference to always-max (same accounting) of the rules and of the
     agents trained with / without the refund, evaluated with / without it."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, len(results), figsize=(5.5 * len(results), 3.8), squeeze=False)
     for ax, (fleet, res) in zip(axes[0], results.items()):

@@ -1,6 +1,6 @@
 """Markdown tables of the experiment runners' result files (``docs/REPRODUCTION.md`` quotes them).
 
-    python -m baselines.experiments.report [--results baselines/results]
+    python -m baselines.experiments.report [--results results]
 
 Every difference is paired (the same held-out days and cars) and reported as mean ± standard
 error over seeds of the per-seed means; "seeds above" counts the seeds whose mean is above
@@ -19,8 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines.common import paired_difference
-from baselines.train import over_seeds
+from baselines.eval.stats import over_seeds, paired_difference
 
 
 def pm(d: dict | None, digits: int = 2) -> str:
@@ -198,14 +197,14 @@ REPORTS = {"traffic_sweep": traffic_sweep, "traffic_sweep_5e6_appendix": appendi
            "alpha_ablation": alpha_ablation, "price_shift": price_shift, "refund_effect": refund_effect}
 """The result files (``<name>.json`` under ``--results``) and their tables: Fig. 4a at the paper's
 scale, the appendix's profiles and fleets with the tuned settings (``traffic_sweep --timesteps
-5e6 --profiles ... --out baselines/results/traffic_sweep_5e6``, then ``--fleets ...``, the
+5e6 --profiles ... --out results/traffic_sweep_5e6``, then ``--fleets ...``, the
 ``_appendix`` file of that run kept as ``traffic_sweep_5e6_fleets``) and every condition with
 the earlier settings, Fig. 4b-c, Fig. 5, the refund."""
 
 
 def main(argv=None) -> str:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--results", default="baselines/results")
+    p.add_argument("--results", default="results")
     args = p.parse_args(argv)
     parts = []
     for name, fn in REPORTS.items():

@@ -4,7 +4,7 @@ r"""Paper Fig. 4a: PPO in the shopping scenario at low / medium / high traffic v
     python -m baselines.experiments.traffic_sweep --full     # the paper's budget (1e7 steps, 20 seeds)
     python -m baselines.experiments.traffic_sweep --appendix # also the appendix: every profile and fleet
 
-Writes ``baselines/results/traffic_sweep.{png,json}``: per traffic level the training
+Writes ``outputs/traffic_sweep.{png,json}``: per traffic level the training
 episode profit (mean ± std over seeds), the greedy held-out daily profit, its paired
 difference to always-max, to always-max + battery rule and to the teachers' rules
 (``battery_programme``, ``plan_programme``: the shaping teachers played as rules), the
@@ -13,7 +13,7 @@ rules / price-threshold / the LP hindsight bound on the same 100 held-out days a
 
 ``--appendix`` repeats the sweep for the four bundled user profiles (shopping, residential,
 workplace, highway; EU fleet) and for the US and World fleets (shopping) and also writes
-``baselines/results/traffic_sweep_appendix.{png,json}``; ``--profiles`` / ``--fleets`` pick
+``results/traffic_sweep_appendix.{png,json}``; ``--profiles`` / ``--fleets`` pick
 conditions by hand (every profile with the first fleet, then the first profile with every
 other fleet). Shopping with the EU fleet is the main figure whenever it is among them.
 
@@ -32,12 +32,21 @@ The result file names the reused files and adds their wall time (``reused``,
 
 from __future__ import annotations
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
-from baselines import outputs
-from baselines.experiments._common import (Record, config_of, output, parser, profit_curve, reused_run,
-                                           with_env_kwargs)
-from baselines.train import run
+from baselines import runs
+from baselines.experiments._common import (
+    Record,
+    config_of,
+    output,
+    parser,
+    profit_curve,
+    reused_run,
+    with_env_kwargs,
+)
+from baselines.pipeline import run
 
 TRAFFIC = ("low", "medium", "high")
 PROFILES = ("shopping", "residential", "workplace", "highway")
@@ -56,7 +65,7 @@ def condition_config(base: dict, profile: str, fleet: str, traffic: str) -> dict
     return {**with_env_kwargs(base, fleet=fleet), "SCENARIO": profile, "TRAFFIC": traffic}
 
 
-def main(argv=None, out="baselines/results/traffic_sweep"):
+def main(argv=None, out="outputs/traffic_sweep"):
     p = parser(__doc__, full_seeds=20)
     p.add_argument("--appendix", action="store_true", help="every bundled profile (EU fleet) and fleet (shopping)")
     p.add_argument("--profiles", nargs="+", choices=PROFILES, default=None)
@@ -80,11 +89,11 @@ def main(argv=None, out="baselines/results/traffic_sweep"):
                                 ["wall_seconds"]} for key, path in reuse.items()}
         meta["wall_seconds_with_reused"] = meta["wall_seconds"] + sum(r["wall_seconds"] for r in meta["reused"].values())
     if "shopping/EU" in sweeps:  # the main figure: {traffic: result}
-        outputs.write_json({**meta, "results": sweeps["shopping/EU"]}, out + ".json")
+        runs.write_json({**meta, "results": sweeps["shopping/EU"]}, out + ".json")
         plot(sweeps["shopping/EU"], args.algo, out + ".png")
         print(f"wrote {out}.png, {out}.json")
     if len(cells) > 1:
-        outputs.write_json({**meta, "conditions": [list(c) for c in cells], "results": sweeps},
+        runs.write_json({**meta, "conditions": [list(c) for c in cells], "results": sweeps},
                           out + "_appendix.json")
         plot_grid(sweeps, args.algo, out + "_appendix.png")
         print(f"wrote {out}_appendix.png, {out}_appendix.json")
@@ -120,7 +129,7 @@ def _sweep(args, base, seeds, profile, fleet, reuse: dict) -> dict:
             res = reused_run(stored, args.algo, cfg, seeds, CHUNKS)
         else:
             res = run(args.algo, cfg, seeds=seeds, chunks=CHUNKS, evaluate_every_chunk=False, quiet=True,
-                      optimal=args.optimal)
+                      optimal=args.optimal).results
         results[traffic] = {**{k: v for k, v in res.items() if not k.startswith("_")}, "curve": profit_curve(res["curve"])}
         how = f"reused {stored}, " if stored else ""
         print(f"{profile}/{fleet} {traffic:>6}: {line(res, args.algo)} ({how}{res['wall_seconds']:.0f} s)", flush=True)
@@ -145,10 +154,7 @@ def plot_grid(results: dict, algo: str, path):
     """One panel per condition (``profile/fleet``): held-out daily profit minus always-max's
     on the same days and cars, per traffic level, of the learned agent (mean ± std over seeds),
     the battery rule and the LP bound."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, len(results), figsize=(3.6 * len(results), 3.4), squeeze=False)
     for ax, (cond, sweep) in zip(axes[0], results.items()):
@@ -173,15 +179,12 @@ def plot_grid(results: dict, algo: str, path):
 
 
 def plot(results, algo, path):
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, len(results), figsize=(4.2 * len(results), 3.6))
     for ax, (traffic, res) in zip(np.atleast_1d(axes), results.items()):
         t = np.asarray(res["curve"]["timesteps"])
-        m, s = outputs.seed_mean_std(res["curve"]["episode_profit_eur"])
+        m, s = runs.seed_mean_std(res["curve"]["episode_profit_eur"])
         ax.plot(t, m, label=f"{algo} (training, sampled)")
         ax.fill_between(t, m - s, m + s, alpha=0.25)
         table = res["evaluation"]["table"]

@@ -1,8 +1,8 @@
 """The README's table of the coordination scenarios: always-max, the battery price rule and the
 LP hindsight bound (over always-max's occupancy) on the 100 held-out days, key 0, same cars.
 
-Run: ``python -m baselines.coordination`` (about 2 min on 2 cores); writes
-``baselines/results/coordination/table.json`` and prints the Markdown rows.
+Run: ``python -m baselines.analysis.coordination`` (about 2 min on 2 cores); writes
+``results/coordination/table.json`` and prints the Markdown rows.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from chargax_marl.evaluation import hindsight_bound, split_days
 
 SCENARIOS = ("shopping", "shopping-grid10-high", "shopping-grid25-high", "shopping-peak", "shopping-peak-high",
              "shopping-grid50-peak-high")
-OUT = Path(__file__).resolve().parent / "results" / "coordination" / "table.json"
+OUT = Path("outputs/coordination/table.json")  # copy to results/ to commit
 
 
 def paired(x: np.ndarray) -> tuple[float, float]:

@@ -1,6 +1,6 @@
 """Score a trained run on more cars: every held-out day with several car draws.
 
-    python -m baselines.redraw baselines/results/ippo_shopping_grid25_high_4e6 --draws 16 --out-dir DIR
+    python -m baselines.analysis.redraw results/ippo_shopping_grid25_high_4e6 --draws 16 --out-dir DIR
 
 ``baselines.train`` scores every policy on the 100 held-out days with one key (``PRNGKey(0)``,
 unless ``--eval-draws`` says more), so every policy meets the same cars. On a station that turns cars away the day-to-day
@@ -33,41 +33,38 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines import common, outputs
+from baselines import runs
+from baselines.config import build_env_params
+from baselines.eval import heldout, stats
+from baselines.eval.references import cached, evaluate_mpc
+from baselines.eval.stats import over_seeds
+from baselines.heuristics import BATTERY_RULES, evaluate_rules, has_battery
+from baselines.runs import load_run
+from chargax_marl.evaluation import hindsight_bound
+from chargax_marl.trace import params_fingerprint
 
 RULES = ("always_max", "battery_rule")
 
 
-def day_clustered(diff: np.ndarray) -> dict:
-    """``diff`` ``(draws, days)`` of one seed: mean, standard error over days of the per-day mean
-    over draws, and whether the mean exceeds two standard errors."""
-    per_day = np.asarray(diff, np.float64).mean(axis=0)
-    stderr = float(per_day.std(ddof=1) / np.sqrt(per_day.size))
-    mean = float(per_day.mean())
-    return {"mean": mean, "stderr": stderr, "beats": bool(mean > 2.0 * stderr)}
 
 
 _REFERENCES: dict = {}
 
 
-def references(eval_params, days, draws: int, bound: bool, mpc_draws: int = 0) -> dict:
+def references(eval_params, days, draws: int, bound: bool, mpc_draws: int = 0, references_dir=None) -> dict:
     """``{name: (draws, days) daily profits}`` of the rules (and ``lp_bound``, the LP hindsight
     bound over always-max's occupancy, with ``bound``) under keys ``PRNGKey(0 .. draws - 1)``,
     and ``mpc`` (``(mpc_draws, days)``: the MPC of ``make optimal`` on the first ``mpc_draws``
-    draws; draw 0 from ``baselines/results/optimal`` when it stored these params and days);
+    draws; draw 0 from ``references_dir`` when ``make optimal`` stored these params and days there);
     computed once per params, days and draws in a process, so several runs of one scenario
     share them."""
-    from baselines.heuristics import BATTERY_RULES, evaluate_rules, has_battery
-    from baselines.optimal import cached, evaluate_mpc
-    from chargax_marl.evaluation import hindsight_bound
-    from chargax_marl.trace import params_fingerprint
 
     cache_key = (params_fingerprint(eval_params), tuple(int(d) for d in days), int(draws), bool(bound), int(mpc_draws))
     if cache_key not in _REFERENCES:
         names = RULES + BATTERY_RULES * has_battery(eval_params)
         out = {n: [] for n in names + ("lp_bound",) * bool(bound) + ("mpc",) * bool(mpc_draws)}
-        stored = cached(eval_params, days) if mpc_draws else None
-        for k, key in enumerate(common.draw_keys(draws)):
+        stored = cached(eval_params, days, references_dir) if mpc_draws and references_dir else None
+        for k, key in enumerate(heldout.draw_keys(draws)):
             for name, r in evaluate_rules(eval_params, days, names, key=key).items():
                 out[name].append(r["daily_profit"])
             if bound:
@@ -81,24 +78,22 @@ def references(eval_params, days, draws: int, bound: bool, mpc_draws: int = 0) -
 
 
 def redraw(run_dir: str | Path, draws: int = 8, bound: bool = True, mpc_draws: int = 0,
-           check_tolerance_eur: float = 1e-2) -> dict:
+           check_tolerance_eur: float = 1e-2, references_dir=None) -> dict:
     """Replay a run on ``draws`` car draws per held-out day; see the module docstring. With
     ``bound``, also the LP hindsight bound of every draw and each seed's fraction of the
     headroom (bound - always-max) over all draws; with ``mpc_draws``, the MPC on the first
     ``mpc_draws`` draws and each seed's paired difference to it on those draws
     (``vs["mpc"]``)."""
-    from baselines.attribution import load_run
-    from baselines.train import over_seeds
 
     if isinstance(draws, bool) or not isinstance(draws, (int, np.integer)) or int(draws) < 1:
         raise ValueError(f"draws must be a positive integer, got {draws!r}")
-    keys = common.draw_keys(draws)
+    keys = heldout.draw_keys(draws)
     if isinstance(mpc_draws, bool) or not isinstance(mpc_draws, (int, np.integer)) or not 0 <= mpc_draws <= draws:
         raise ValueError(f"mpc_draws must be an integer in [0, draws={draws}], got {mpc_draws!r}")
     results, train, all_params = load_run(run_dir)
-    _, eval_params, _, days = common.build_env_params(train.config)
+    _, eval_params, _, days = build_env_params(train.config)
     days = np.asarray(days)
-    score = common._eval_fn(train.make_act(eval_params), eval_params)
+    score = heldout._eval_fn(train.make_act(eval_params), eval_params)
     run_draws = int(train.config.get("EVAL_DRAWS", 1))
     if draws < run_draws:
         raise ValueError(f"{run_dir} was evaluated on {run_draws} car draws per day; redraw it with draws >= {run_draws}, "
@@ -110,7 +105,7 @@ def redraw(run_dir: str | Path, draws: int = 8, bound: bool = True, mpc_draws: i
     if worst > check_tolerance_eur:
         raise ValueError(f"{run_dir}: its {run_draws} evaluation draw(s) replayed on this code differ from results.json "
                          f"by up to {worst:.3f} EUR/day per seed: the run was made on another model; re-run it instead")
-    refs = references(eval_params, days, draws, bound, int(mpc_draws))
+    refs = references(eval_params, days, draws, bound, int(mpc_draws), references_dir)
     am = refs["always_max"]
     scenario = results.get("scenario")
     out = {"run": str(run_dir), "algo": results["algo"],
@@ -118,7 +113,7 @@ def redraw(run_dir: str | Path, draws: int = 8, bound: bool = True, mpc_draws: i
            "num_days": int(days.size), "draws": int(draws), "seeds": int(learned.shape[0]),
            "keys": f"PRNGKey(0) ... PRNGKey({int(draws) - 1})", "replay_check_max_abs_eur": worst,
            "references_mean_profit_eur": {n: float(v.mean()) for n, v in refs.items()},
-           "references_vs_always_max": {n: day_clustered(v - am[:len(v)]) for n, v in refs.items()
+           "references_vs_always_max": {n: stats.day_clustered(v - am[:len(v)]) for n, v in refs.items()
                                         if n != "always_max"},
            "per_draw_vs_always_max": {"learned_per_seed": [[float(x) for x in (learned[i] - am).mean(axis=1)]
                                                             for i in range(learned.shape[0])],
@@ -141,8 +136,8 @@ def redraw(run_dir: str | Path, draws: int = 8, bound: bool = True, mpc_draws: i
         out["headroom_fraction"]["over_seeds"] = over_seeds(out["headroom_fraction"]["per_seed"])
     for name in (n for n in refs if n != "lp_bound"):
         n = len(refs[name])  # the MPC's draws are the first mpc_draws
-        per_seed = [day_clustered(learned[i, :n] - refs[name]) for i in range(learned.shape[0])]
-        first_draw = [day_clustered(learned[i, :1] - refs[name][:1]) for i in range(learned.shape[0])]
+        per_seed = [stats.day_clustered(learned[i, :n] - refs[name]) for i in range(learned.shape[0])]
+        first_draw = [stats.day_clustered(learned[i, :1] - refs[name][:1]) for i in range(learned.shape[0])]
         out["vs"][name] = {"per_seed": per_seed, "over_seeds": over_seeds([d["mean"] for d in per_seed]),
                            "seeds_above": int(sum(d["mean"] > 0 for d in per_seed)),
                            "seeds_beating": int(sum(d["beats"] for d in per_seed)),
@@ -185,15 +180,17 @@ def main(argv=None) -> dict:
                         "of 100 days on shopping-grid25-high)")
     p.add_argument("--mpc-draws", type=int, default=0,
                    help="run the MPC of make optimal on the first N draws too (about 5 min per draw of 100 days "
-                        "at full power on 2 cores; draw 0 comes from baselines/results/optimal when stored)")
+                        "at full power on 2 cores; draw 0 comes from --references when stored there)")
+    p.add_argument("--references", default=None, help="a directory `make optimal` wrote (e.g. results/optimal)")
     p.add_argument("--out-dir", default=None, help="write RUN_NAME.json for every run here")
     a = p.parse_args(argv)
     outs = {}
     for run_dir in a.run_dirs:
-        out = outs[run_dir] = redraw(run_dir, a.draws, bound=a.bound == "on", mpc_draws=a.mpc_draws)
+        out = outs[run_dir] = redraw(run_dir, a.draws, bound=a.bound == "on", mpc_draws=a.mpc_draws,
+                                        references_dir=a.references)
         print(format_redraw(out), flush=True)
         if a.out_dir:
-            outputs.write_json(out, Path(a.out_dir) / f"{Path(run_dir).name}.json")
+            runs.write_json(out, Path(a.out_dir) / f"{Path(run_dir).name}.json")
     return outs
 
 

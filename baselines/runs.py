@@ -9,7 +9,12 @@ from pathlib import Path
 import flax.serialization
 import jax
 import jax.numpy as jnp
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
+
+from baselines import runs
+from baselines.algos import registry
 
 
 def save_params(params, path: str | Path) -> Path:
@@ -89,10 +94,7 @@ def plot_learning_curve(path, timesteps, curves: dict[str, np.ndarray], baseline
                         title: str, eval_points=None, ylabel="daily profit (EUR)"):
     """Mean ± std over seeds of each curve ``(seeds, points)``; baselines as horizontal lines;
     ``eval_points``: optional ``{label: (timesteps, (seeds, n) array)}`` drawn with markers."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 4.2))
     for label, y in curves.items():
@@ -115,3 +117,36 @@ def plot_learning_curve(path, timesteps, curves: dict[str, np.ndarray], baseline
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+LINES = (("battery_rule", "always-max + battery rule"), ("battery_programme", "always-max + battery programme"),
+         ("plan_programme", "plan + battery programme"), ("price_threshold", "price-threshold"),
+         ("mpc", "MPC, 4 h horizon"), ("lp_bound", "LP hindsight bound"))
+"""The reference policies drawn as horizontal lines on a learning curve (after always-max)."""
+
+
+def plot_curve(path, algo: str, timesteps, episode_profit, baselines: dict, evals: list, title: str):
+    """A run's learning curve: the sampled training-episode profit over seeds, the held-out
+    greedy evaluations, and every reference of ``baselines`` present (:data:`LINES`) as a line."""
+    am = baselines["always_max"]["metrics"]["daily_profit_eur"]["mean"]
+    lines = {f"always-max (held-out) {am:.0f}": am}
+    for key, label in LINES:
+        if key in baselines:
+            v = baselines[key]["metrics"]["daily_profit_eur"]["mean"]
+            lines[f"{label} (held-out) {v:.0f}"] = v
+    runs.plot_learning_curve(
+        path, timesteps, {f"{algo} training episodes (sampled)": np.asarray(episode_profit)}, lines, title,
+        eval_points={f"{algo} held-out (greedy)": ([e["timesteps"] for e in evals],
+                                                    np.asarray([e["per_seed_profit"] for e in evals]).T)}
+        if evals else None)
+
+
+def load_run(run_dir: str | Path):
+    """``(results, train, params)`` of a ``baselines.train`` output directory: its
+    ``results.json``, the rebuilt ``train`` of its algorithm and config, and the trained
+    parameters of every seed (leading axis = seed) from ``params.msgpack``."""
+    run_dir = Path(run_dir)
+    results = json.loads((run_dir / "results.json").read_text())
+    train = registry.make_train(results["algo"], results["config"])
+    template = jax.vmap(train.policy.init)(jax.random.split(jax.random.PRNGKey(0), int(results["seeds"])))
+    return results, train, runs.load_params(template, run_dir / "params.msgpack")

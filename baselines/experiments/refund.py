@@ -3,7 +3,7 @@
 The original Chargax implementation never refunds energy discharged from a customer's car,
 so taking energy back from a car before it leaves earns money there. This simulator refunds
 it by default (``make_params(refund_discharged_energy=True)``); ``False`` reproduces the
-original's accounting. ``python -m baselines.refund`` evaluates always-max, always-max + the
+original's accounting. ``python -m baselines.experiments.refund`` evaluates always-max, always-max + the
 battery price rule and "discharge departing cars" (:func:`chargax_marl.policies.discharge_departing`)
 under both, on a scenario's 100 held-out days (``split_days(365, 100, seed=0)``) with the
 evaluation key 0, so every run meets the same cars; it prints each one's mean daily profit,
@@ -21,7 +21,8 @@ import time
 
 import numpy as np
 
-from baselines.common import paired_difference
+from baselines.eval.stats import paired_difference
+from baselines.heuristics import evaluate_rules
 from chargax_marl.core import datasets
 from chargax_marl.core.params import make_params
 from chargax_marl.core.scenarios import scenario_kwargs
@@ -39,8 +40,6 @@ def all_v2g(fleet="EU") -> datasets.FleetData:
 def daily_profits(scenario: str = "shopping", rules=RULES, num_eval: int = 100, key=None, **overrides) -> dict:
     """``{(rule, refund): daily profit (days,)}`` on the held-out days, refund in (True, False);
     ``overrides`` go to ``make_params`` on top of the scenario."""
-    from baselines.heuristics import evaluate_rules
-
     kwargs = scenario_kwargs(scenario, **overrides)
     base = make_params(**kwargs)
     _, days = split_days(int(base.num_days), num_eval, seed=0)

@@ -5,16 +5,16 @@ The env is wrapped as in JaxMARL's MAPPO, ``LogWrapper(WorldStateWrapper(env))``
 reads ``obs["world_state"]`` (the env's ``get_global_state``, i.e. the single-agent
 observation of the whole station). All agents of an env share that world state, so the
 critic runs once per env and step and its value is shared by the env's agents (the same
-values as one critic call per agent row; :data:`baselines.ippo.DEDUP_CENTRAL_CRITIC`).
+values as one critic call per agent row; :data:`baselines.algos.ippo.DEDUP_CENTRAL_CRITIC`).
 The rest of the loop (masking, batchify, GAE, clipped PPO, sharding, vmapped seeds) is the
-one in :mod:`baselines.ippo`, so that the two differ only in the critic's input.
+one in :mod:`baselines.algos.ippo`, so that the two differ only in the critic's input.
 """
 
 from __future__ import annotations
 
-from baselines import ippo
+from baselines.algos import ippo
 
 
 def make_train(config: dict | None = None, env_params=None):
-    """Build MAPPO's jittable ``train(key)``; see :func:`baselines.ippo.make_train`."""
+    """Build MAPPO's jittable ``train(key)``; see :func:`baselines.algos.ippo.make_train`."""
     return ippo.make_train(config, env_params, centralised_critic=True)

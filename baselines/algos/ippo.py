@@ -12,7 +12,7 @@ Episodes are logged by :class:`chargax_marl.marl.wrappers.LogWrapper`.
 ``jax.vmap(train)(keys)`` trains several seeds at once; the env batch is sharded over all
 devices (:func:`baselines.common.shard_envs`).
 
-:func:`make_train` with ``centralised_critic=True`` is MAPPO (see :mod:`baselines.mappo`):
+:func:`make_train` with ``centralised_critic=True`` is MAPPO (see :mod:`baselines.algos.mappo`):
 the critic then reads the world state of
 :class:`chargax_marl.marl.wrappers.WorldStateWrapper` instead of the agent's observation.
 """
@@ -25,8 +25,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from baselines import car_value, common, shaping
-from chargax_marl.core.observation import PORT_FEATURES
+from baselines import car_value, shaping
+from baselines.algos import features, networks, ppo_core, runner
+from baselines.algos.trainer import Trainer
+from baselines.config import build_env_params, resolve
+from chargax_marl.core.observation import PORT_FEATURES, context_size
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.marl import env as marl_env
 from chargax_marl.marl.env import ChargaxMARL
@@ -87,11 +90,11 @@ class SharedPolicy:
         self.k = env.num_actions
         self.obs_dim = env.obs_size
         self.critic_dim = env.state_size if centralised_critic else env.obs_size
-        self.actor, self.critic = common.actor_critic(config, self.k)
+        self.actor, self.critic = networks.actor_critic(config, self.k)
         # ALWAYS_MAX_PRIOR / BATTERY_IDLE_PRIOR: fixed offsets on the always-max baseline's
         # action, chosen per agent by the kind one-hot of its observation (after the leaf
         # features): index k - 1 (full power) for ports, the idle index (level 0) for batteries.
-        port_b, battery_b = common.always_max_prior(config)
+        port_b, battery_b = networks.always_max_prior(config)
         port_row = np.zeros(self.k, np.float32)
         port_row[self.k - 1] = port_b
         battery_row = np.zeros(self.k, np.float32)
@@ -108,10 +111,9 @@ class SharedPolicy:
         # day's range, (p - median) / (q80 - q20), appended to the actor's and the critic's input.
         self.relative = None
         if config["RELATIVE_PRICES"]:  # the context sits just before the agent index
-            from chargax_marl.core.observation import context_size
 
             id_width = int(np.shape(env._layout.agent_id)[1])
-            self.relative = common.relative_price_columns(env.params, env.obs_size - id_width
+            self.relative = features.relative_price_columns(env.params, env.obs_size - id_width
                                                           - context_size(env.params))
         # the critic reads the same features when it reads the agent's own observation (IPPO)
         self.critic_features = self.relative is not None and not centralised_critic
@@ -136,7 +138,7 @@ class SharedPolicy:
         return jnp.concatenate([obs_matrix, car_value.batched(self.plan, core)(core)[..., None]], axis=-1)
 
     def features(self, obs):
-        return common.with_relative_prices(obs, self.relative)
+        return features.with_relative_prices(obs, self.relative)
 
     def init(self, key):
         ka, kc, kba, kbc = jax.random.split(key, 4)
@@ -159,7 +161,7 @@ class SharedPolicy:
         if self.port_offset.any() or self.battery_offset.any():
             is_battery = self.is_battery(obs)
             logits = logits + (1.0 - is_battery) * self.port_offset + is_battery * self.battery_offset
-        return common.masked_logits(logits, avail)
+        return networks.masked_logits(logits, avail)
 
     def value(self, params, critic_in):
         x = self.features(critic_in) if self.critic_features else critic_in
@@ -177,11 +179,11 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
     (``onehot``/``scalar``, the agent-index encoding). ``TOTAL_TIMESTEPS`` counts env steps
     (one step moves every agent).
     """
-    config = common.parse_config({"AGENT_ID": "onehot", "AGENT_ADV_NORM": False, "BATTERY_NET": False,
+    config = resolve({**{"AGENT_ID": "onehot", "AGENT_ADV_NORM": False, "BATTERY_NET": False,
                                   "BATTERY_GAMMA": None, "BATTERY_ENT_COEF": None,
-                                  "RELATIVE_PRICES": False, "PLAN_OBS": False}, config)
+                                  "RELATIVE_PRICES": False, "PLAN_OBS": False}, **(config or {})})
     if env_params is None:
-        env_params = common.build_env_params(config)[0]
+        env_params = build_env_params(config)[0]
     base_env = ChargaxMARL(params=env_params, agent_id=config["AGENT_ID"],
                            local_reward_weight=config["LOCAL_REWARD_WEIGHT"])
     env = LogWrapper(WorldStateWrapper(base_env) if centralised_critic else base_env)
@@ -189,12 +191,12 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
     policy = SharedPolicy(config, base_env, centralised_critic)
     n_envs, n_steps, n_agents = config["NUM_ENVS"], config["NUM_STEPS"], base_env.num_agents
     n_actors = n_agents * n_envs
-    total_updates = common.num_updates(config)
-    if (n_envs * n_steps) % config["NUM_MINIBATCHES"]:  # minibatches hold whole env-steps (common.shuffled_rows)
+    total_updates = ppo_core.num_updates(config)
+    if (n_envs * n_steps) % config["NUM_MINIBATCHES"]:  # minibatches hold whole env-steps (ppo_core.shuffled_rows)
         raise ValueError(f"NUM_ENVS*NUM_STEPS={n_envs * n_steps} must be divisible by "
                          f"NUM_MINIBATCHES={config['NUM_MINIBATCHES']}")
-    mesh = common.env_mesh(n_envs)
-    tx = common.make_optimizer(config, total_updates)
+    mesh = runner.env_mesh(n_envs)
+    tx = ppo_core.make_optimizer(config, total_updates)
 
     # ``get_avail_actions`` depends only on the station: one constant (actors, K) mask, agent-major.
     avail_agents = base_env.get_avail_actions(None)
@@ -258,7 +260,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         k_net, k_env, key = jax.random.split(key, 3)
         params = policy.init(k_net)
         obs, env_state = jax.vmap(env.reset)(jax.random.split(k_env, n_envs))
-        obs, env_state = common.shard_envs((obs, env_state), mesh)
+        obs, env_state = runner.shard_envs((obs, env_state), mesh)
         return RunnerState(params, tx.init(params), env_state, obs, key, jnp.zeros((), jnp.int32))
 
     def agent_rows(obs, env_state):
@@ -275,7 +277,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         obs_b = agent_rows(obs, env_state)
         avail = avail_b
         logits = policy.logits(params, obs_b, avail)
-        action, logp = common.sample_categorical(k_act, logits)
+        action, logp = networks.sample_categorical(k_act, logits)
         cin, value = rollout_value(params, obs, obs_b)
         actions = unbatchify(action, agents, n_envs)
         pot = None if potential is None else potential(env_state)  # before the (auto-resetting) step
@@ -288,7 +290,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         if car_pot is not None:
             own = shaping.mix_own_terms(car_pot(info["agent_energy_kwh"]), config["LOCAL_REWARD_WEIGHT"])
             reward_b = reward_b + own.T.reshape((n_actors,))
-        next_obs, env_state = common.shard_envs((next_obs, env_state), mesh)
+        next_obs, env_state = runner.shard_envs((next_obs, env_state), mesh)
         tr = Transition(obs_b, cin, avail, action, logp, value, reward_b * config["REWARD_SCALE"],
                         batchify(done, agents, n_actors).astype(jnp.float32),
                         {k: info[k] for k in INFO_KEYS})  # each (envs, agents)
@@ -298,7 +300,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         def loss_fn(params, mb):
             tr, adv, targets = mb
             logits = policy.logits(params, tr.obs, tr.avail)
-            new_logp = common.log_prob(logits, tr.action)
+            new_logp = networks.log_prob(logits, tr.action)
             if not centralised_critic:
                 values = policy.value(params, tr.obs)
             elif dedup_update:
@@ -309,7 +311,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
             if config["BATTERY_ENT_COEF"] is not None:  # the battery rows' own entropy coefficient
                 ent_coef = jnp.where(policy.is_battery(tr.obs)[..., 0] > 0.5, float(config["BATTERY_ENT_COEF"]),
                                      float(config["ENT_COEF"]))
-            return common.ppo_loss(new_logp, tr.log_prob, adv, values, tr.value, targets, common.entropy(logits),
+            return ppo_core.ppo_loss(new_logp, tr.log_prob, adv, values, tr.value, targets, networks.entropy(logits),
                                    config, ent_coef)
 
         return loss_fn
@@ -325,29 +327,24 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
             idx = (jnp.arange(n_steps)[:, None] * n_envs + jnp.arange(n_actors)[None, :] % n_envs).astype(jnp.int32)
             traj = traj._replace(critic_in=idx if dedup_update else ws_table[idx])
         loss_fn = make_loss(ws_table)
-        adv, targets = common.gae(traj.reward, traj.value, traj.done, last_value, gamma_b, config["GAE_LAMBDA"])
+        adv, targets = ppo_core.gae(traj.reward, traj.value, traj.done, last_value, gamma_b, config["GAE_LAMBDA"])
         if config["AGENT_ADV_NORM"]:
             adv = per_agent_normalised(adv)
 
-        params, opt_state, key, parts = common.ppo_epochs(loss_fn, tx, params, rs.opt_state, key, traj, adv,
+        params, opt_state, key, parts = ppo_core.ppo_epochs(loss_fn, tx, params, rs.opt_state, key, traj, adv,
                                                           targets, config, agents=n_agents)
         metrics = {k: v.mean() for k, v in parts.items()}
         # Every agent logs the same episode: use agent 0's column.
-        metrics.update(common.episode_metrics(traj.info["returned_episode"][..., 0],
+        metrics.update(ppo_core.episode_metrics(traj.info["returned_episode"][..., 0],
                                               {k: v[..., 0] for k, v in traj.info.items()}))
         return RunnerState(params, opt_state, env_state, obs, key, rs.update + 1), metrics
 
     def run_updates(rs: RunnerState, n: int):
         return jax.lax.scan(update, rs, None, n)
 
-    def train(key):
-        rs, metrics = run_updates(init(key), total_updates)
-        return {"runner_state": rs, "metrics": metrics}
-
-    train.init, train.run_updates, train.num_updates, train.config = init, run_updates, total_updates, config
-    train.policy, train.env, train.env_params = policy, base_env, env_params
-    train.make_act = make_act_builder(policy, config["AGENT_ID"])
-    return train
+    return Trainer(init=init, run_updates=run_updates, num_updates=total_updates, config=config,
+                   policy=policy, env=base_env, env_params=env_params,
+                   make_act=make_act_builder(policy, config["AGENT_ID"]))
 
 
 def make_act_builder(policy: SharedPolicy, agent_id: str):

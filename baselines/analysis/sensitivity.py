@@ -12,8 +12,8 @@ idling for one step. Where nothing cascades, the difference is a few cents; wher
 reorder, a day moves by tens of euros. The spread over days sets how large a policy's gain
 must be before 100 held-out days can resolve it (``baselines/README.md``, issue 13).
 
-Run: ``python -m baselines.sensitivity`` (about 1 min on 2 cores); writes
-``baselines/results/sensitivity.json`` and prints the Markdown table.
+Run: ``python -m baselines.analysis.sensitivity`` (about 1 min on 2 cores); writes
+``results/sensitivity.json`` and prints the Markdown table.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from chargax_marl.evaluation import run_days, split_days
 
 SCENARIOS = ("shopping", "shopping-grid25-medium", "shopping-grid50-high", "shopping-grid25-high", "shopping-peak-high")
 PERTURBATIONS = ("battery_charges", "port_idles")
-OUT = Path(__file__).resolve().parent / "results" / "sensitivity.json"
+OUT = Path("outputs/sensitivity.json")  # copy to results/ to commit
 
 
 def perturbed_always_max(params, perturbation: str, step: int):

@@ -1,7 +1,7 @@
 """Which agents carry a trained policy's gap to the battery rule: swap the ports' and the
 batteries' decisions between the trained policy and the rules.
 
-    python -m baselines.attribution outputs/train_ippo          # a run directory of baselines.train
+    python -m baselines.analysis.attribution outputs/train_ippo          # a run directory of baselines.train
 
 On the run's held-out days and cars (the evaluation key 0), every seed of the run is scored as
 
@@ -18,35 +18,27 @@ the ports. ``--out`` writes the JSON.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from baselines import common, outputs
+from baselines import runs
+from baselines.config import build_env_params
+from baselines.eval import stats
+from baselines.eval.stats import over_seeds
+from baselines.heuristics import evaluate_rules
+from chargax_marl import policies
+from chargax_marl.evaluation import run_days
 
 MIXES = ("learned", "learned_ports_rule_battery", "always_max_ports_learned_battery")
 
 
-def load_run(run_dir: str | Path):
-    """``(results, train, params)`` of a ``baselines.train`` output directory: its
-    ``results.json``, the rebuilt ``train`` of its algorithm and config, and the trained
-    parameters of every seed (leading axis = seed) from ``params.msgpack``."""
-    from baselines.train import get_module
-
-    run_dir = Path(run_dir)
-    results = json.loads((run_dir / "results.json").read_text())
-    train = get_module(results["algo"]).make_train(results["config"])
-    template = jax.vmap(train.policy.init)(jax.random.split(jax.random.PRNGKey(0), int(results["seeds"])))
-    return results, train, outputs.load_params(template, run_dir / "params.msgpack")
 
 
 def mixed_policies(act, params) -> dict:
     """The :data:`MIXES` as ``policy(state, key) -> levels`` from a trained ``act``."""
-    from chargax_marl import policies
-
     is_battery = policies._is_battery(params)
     return {
         "learned": act,
@@ -58,12 +50,9 @@ def mixed_policies(act, params) -> dict:
 
 def attribute(run_dir: str | Path) -> dict:
     """Score every seed of a run under each mix; see the module docstring."""
-    from baselines.heuristics import evaluate_rules
-    from baselines.train import over_seeds
-    from chargax_marl.evaluation import run_days
 
-    results, train, all_params = load_run(run_dir)
-    _, eval_params, _, days = common.build_env_params(train.config)
+    results, train, all_params = runs.load_run(run_dir)
+    _, eval_params, _, days = build_env_params(train.config)
     days = np.asarray(days)
     key = jax.random.PRNGKey(0)  # the evaluation key of baselines.train: the same cars for every policy
     rules = evaluate_rules(eval_params, days, ("always_max", "battery_rule"), key=key)
@@ -78,9 +67,9 @@ def attribute(run_dir: str | Path) -> dict:
         seed_params = jax.tree.map(lambda x: x[i], all_params)
         for name in MIXES:
             totals = score[name](seed_params, days, key)
-            per_seed[name].append(common.paired_difference(np.asarray(totals.profit_eur, np.float64), am))
+            per_seed[name].append(stats.paired_difference(np.asarray(totals.profit_eur, np.float64), am))
     out = {"run": str(run_dir), "algo": results["algo"], "num_days": int(days.size), "seeds": int(results["seeds"]),
-           "battery_rule_vs_always_max": common.paired_difference(rules["battery_rule"]["daily_profit"], am),
+           "battery_rule_vs_always_max": stats.paired_difference(rules["battery_rule"]["daily_profit"], am),
            "mixes": {}}
     for name, diffs in per_seed.items():
         out["mixes"][name] = {"per_seed": [{"mean": d["mean"], "stderr": d["stderr"]} for d in diffs],
@@ -108,7 +97,7 @@ def main(argv=None) -> dict:
     out = attribute(a.run_dir)
     print(format_attribution(out))
     if a.out:
-        outputs.write_json(out, a.out)
+        runs.write_json(out, a.out)
     return out
 
 

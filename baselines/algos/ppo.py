@@ -20,8 +20,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from baselines import car_value, common, shaping
-from chargax_marl.core.observation import flat_obs
+from baselines import car_value, shaping
+from baselines.algos import features, networks, ppo_core, runner
+from baselines.algos.trainer import Trainer
+from baselines.config import build_env_params, resolve
+from chargax_marl.core.observation import context_size, flat_obs
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.policies import always_max
 from chargax_marl.single.env import Chargax
@@ -66,21 +69,19 @@ class Policy:
         self.split = bool(config["SPLIT_CREDIT"])
         if self.split and not self.is_battery.any():
             raise ValueError("SPLIT_CREDIT=True needs a station with a battery; this station has none")
-        self.actor, self.critic = common.actor_critic(config, self.num_leaves * self.k, 2 if self.split else 1)
+        self.actor, self.critic = networks.actor_critic(config, self.num_leaves * self.k, 2 if self.split else 1)
         # ALWAYS_MAX_PRIOR / BATTERY_IDLE_PRIOR: fixed offsets on the index of the always-max
         # baseline's action of every head (ports: full power; batteries: idle).
         baseline = np.asarray(env.levels_to_action(always_max(None, None, env_params), env_params))
-        port_b, battery_b = common.always_max_prior(config)
+        port_b, battery_b = networks.always_max_prior(config)
         offset = np.zeros((self.num_leaves, self.k), np.float32)
         offset[np.arange(self.num_leaves), baseline] = np.where(self.is_battery, battery_b, port_b)
         self.offset = offset
         # RELATIVE_PRICES: each observed price's place in the day's range appended to the input
-        # (common.relative_prices); the observation ends with the shared context.
+        # (features.relative_prices); the observation ends with the shared context.
         self.relative = None
         if config["RELATIVE_PRICES"]:
-            from chargax_marl.core.observation import context_size
-
-            self.relative = common.relative_price_columns(env_params, self.obs_dim - context_size(env_params))
+            self.relative = features.relative_price_columns(env_params, self.obs_dim - context_size(env_params))
         # PLAN_OBS: the observation also ends with every leaf's plan advice
         # (car_value.plan_advice), before the relative prices.
         self.plan = car_value.plan_advice(env_params) if config["PLAN_OBS"] else None
@@ -95,7 +96,7 @@ class Policy:
         return jnp.concatenate([obs, car_value.batched(self.plan, core)(core)], axis=-1)
 
     def features(self, obs):
-        return common.with_relative_prices(obs, self.relative)
+        return features.with_relative_prices(obs, self.relative)
 
     def init(self, key):
         ka, kc = jax.random.split(key)
@@ -104,7 +105,7 @@ class Policy:
 
     def logits(self, params, obs):
         raw = self.actor.apply(params["actor"], self.features(obs))
-        return common.masked_logits(raw.reshape(raw.shape[:-1] + (self.num_leaves, self.k)) + self.offset, self.mask)
+        return networks.masked_logits(raw.reshape(raw.shape[:-1] + (self.num_leaves, self.k)) + self.offset, self.mask)
 
     def value(self, params, obs):
         """``(...)``, or ``(..., 2)`` (ports, batteries) with ``SPLIT_CREDIT``."""
@@ -125,22 +126,22 @@ def make_train(config: dict | None = None, env_params=None):
 
     ``env_params`` defaults to the config's scenario restricted to its training days.
     """
-    config = common.parse_config({"RELATIVE_PRICES": False, "SPLIT_CREDIT": False, "PLAN_OBS": False}, config)
+    config = resolve({**{"RELATIVE_PRICES": False, "SPLIT_CREDIT": False, "PLAN_OBS": False}, **(config or {})})
     if config["LOCAL_REWARD_WEIGHT"]:
         raise ValueError(f"LOCAL_REWARD_WEIGHT={config['LOCAL_REWARD_WEIGHT']} applies to the multi-agent "
                          "trainers (ippo, mappo) only; single-agent PPO learns from the station reward (use 0)")
     if env_params is None:
-        env_params = common.build_env_params(config)[0]
+        env_params = build_env_params(config)[0]
     base_env = Chargax(params=env_params)
     env = LogWrapper(base_env)
     policy = Policy(config, base_env, env_params)
     n_envs, n_steps = config["NUM_ENVS"], config["NUM_STEPS"]
-    total_updates = common.num_updates(config)
+    total_updates = ppo_core.num_updates(config)
     batch = n_envs * n_steps
     if batch % config["NUM_MINIBATCHES"]:
         raise ValueError(f"NUM_ENVS*NUM_STEPS={batch} must be divisible by NUM_MINIBATCHES={config['NUM_MINIBATCHES']}")
-    mesh = common.env_mesh(n_envs)
-    tx = common.make_optimizer(config, total_updates)
+    mesh = runner.env_mesh(n_envs)
+    tx = ppo_core.make_optimizer(config, total_updates)
     potential = shaping.battery_potential(config, env_params)  # BATTERY_SHAPING
     car_potential = car_value.car_potential(config, env_params)  # PORT_SHAPING
     v_reset = jax.vmap(env.reset, in_axes=(0, None))
@@ -150,7 +151,7 @@ def make_train(config: dict | None = None, env_params=None):
         k_net, k_env, key = jax.random.split(key, 3)
         params = policy.init(k_net)
         obs, env_state = v_reset(jax.random.split(k_env, n_envs), env_params)
-        obs, env_state = common.shard_envs((obs, env_state), mesh)
+        obs, env_state = runner.shard_envs((obs, env_state), mesh)
         return RunnerState(params, tx.init(params), env_state, obs, key, jnp.zeros((), jnp.int32))
 
     def env_step(carry, _):
@@ -158,7 +159,7 @@ def make_train(config: dict | None = None, env_params=None):
         key, k_act, k_step = jax.random.split(key, 3)
         obs = policy.with_plan(obs, shaping.core_state(env_state))
         logits = policy.logits(params, obs)
-        action, head_logp = common.sample_categorical(k_act, logits)  # (envs, leaves)
+        action, head_logp = networks.sample_categorical(k_act, logits)  # (envs, leaves)
         logp = policy.credit_logp(head_logp)
         value = policy.value(params, obs)
         pot = None if potential is None else potential(env_state)  # before the (auto-resetting) step
@@ -173,7 +174,7 @@ def make_train(config: dict | None = None, env_params=None):
                                 info["battery_reward_eur"] + battery_term], -1)
         else:
             reward = reward + battery_term + port_shaping
-        next_obs, env_state = common.shard_envs((next_obs, env_state), mesh)
+        next_obs, env_state = runner.shard_envs((next_obs, env_state), mesh)
         done = jnp.logical_or(term, trunc)
         tr = Transition(obs, action, logp, value, reward * config["REWARD_SCALE"], done.astype(jnp.float32),
                         {k: info[k] for k in INFO_KEYS})
@@ -182,10 +183,10 @@ def make_train(config: dict | None = None, env_params=None):
     def loss_fn(params, mb):
         tr, adv, targets = mb
         logits = policy.logits(params, tr.obs)
-        head_logp = common.log_prob(logits, tr.action)  # (batch, heads)
-        ent = common.entropy(logits).sum(-1)
+        head_logp = networks.log_prob(logits, tr.action)  # (batch, heads)
+        ent = networks.entropy(logits).sum(-1)
         values = policy.value(params, tr.obs)
-        return common.ppo_loss(policy.credit_logp(head_logp), tr.log_prob, adv, values, tr.value, targets, ent,
+        return ppo_core.ppo_loss(policy.credit_logp(head_logp), tr.log_prob, adv, values, tr.value, targets, ent,
                                config)
 
     def update(rs: RunnerState, _):
@@ -193,27 +194,22 @@ def make_train(config: dict | None = None, env_params=None):
             env_step, (rs.params, rs.env_state, rs.obs, rs.key), None, n_steps)
         last_value = policy.value(params, policy.with_plan(obs, shaping.core_state(env_state)))
         done = traj.done[..., None] if policy.split else traj.done
-        adv, targets = common.gae(traj.reward, traj.value, done, last_value, config["GAMMA"], config["GAE_LAMBDA"])
+        adv, targets = ppo_core.gae(traj.reward, traj.value, done, last_value, config["GAMMA"], config["GAE_LAMBDA"])
         if policy.split:  # each part's advantages to mean 0 and std 1 over the rollout
             adv = (adv - adv.mean(axis=(0, 1))) / (adv.std(axis=(0, 1)) + 1e-8)
 
-        params, opt_state, key, parts = common.ppo_epochs(loss_fn, tx, params, rs.opt_state, key, traj, adv,
+        params, opt_state, key, parts = ppo_core.ppo_epochs(loss_fn, tx, params, rs.opt_state, key, traj, adv,
                                                           targets, config)
         metrics = {k: v.mean() for k, v in parts.items()}
-        metrics.update(common.episode_metrics(traj.info["returned_episode"], traj.info))
+        metrics.update(ppo_core.episode_metrics(traj.info["returned_episode"], traj.info))
         return RunnerState(params, opt_state, env_state, obs, key, rs.update + 1), metrics
 
     def run_updates(rs: RunnerState, n: int):
         return jax.lax.scan(update, rs, None, n)
 
-    def train(key):
-        rs, metrics = run_updates(init(key), total_updates)
-        return {"runner_state": rs, "metrics": metrics}
-
-    train.init, train.run_updates, train.num_updates, train.config = init, run_updates, total_updates, config
-    train.policy, train.env, train.env_params = policy, base_env, env_params
-    train.make_act = make_act_builder(policy, base_env)
-    return train
+    return Trainer(init=init, run_updates=run_updates, num_updates=total_updates, config=config,
+                   policy=policy, env=base_env, env_params=env_params,
+                   make_act=make_act_builder(policy, base_env))
 
 
 def make_act_builder(policy: Policy, env: Chargax):

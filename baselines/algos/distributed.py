@@ -23,12 +23,14 @@ import argparse
 
 import jax
 import numpy as np
+from jax.experimental import multihost_utils
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The command-line flags of a multi-process run (``--distributed``, ``--coordinator``,
     ``--num-processes``, ``--process-id``)."""
-    d = parser.add_argument_group("multi-process (multi-host) training, see baselines/distributed.py")
+    d = parser.add_argument_group("multi-process (multi-host) training, see baselines/algos/distributed.py")
     d.add_argument("--distributed", action="store_true",
                    help="call jax.distributed.initialize() first (implied by --coordinator); without "
                         "--coordinator JAX detects the cluster (SLURM, Open MPI, ...). Every process runs "
@@ -75,7 +77,6 @@ def replicate(x, mesh=None):
     replicated on every device of ``mesh`` (default: all devices). Unchanged on one process."""
     if jax.process_count() == 1:
         return x
-    from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
     mesh = Mesh(np.asarray(jax.devices()), ("all",)) if mesh is None else mesh
     typed = jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
@@ -88,8 +89,6 @@ def to_host(tree):
     """Every array leaf as a NumPy array on this process: a replicated leaf from this process's
     own copy, a leaf split across processes gathered from all of them (a collective: every
     process must call it)."""
-    from jax.experimental import multihost_utils
-
     def leaf(x):
         if not isinstance(x, jax.Array) or x.is_fully_addressable:
             return np.asarray(x)

@@ -1,6 +1,6 @@
 """How far is each policy from the best? The LP bound, the MPC and the rules on the held-out days.
 
-``python -m baselines.optimal`` (``make optimal``) evaluates, on the 100 held-out days
+``python -m baselines.analysis.references`` (``make optimal``) evaluates, on the 100 held-out days
 (``split_days(365, 100, seed=0)``, evaluation key 0, the same cars for every policy) of
 
 - ``default``: the shopping scenario, medium traffic, the default station;
@@ -16,7 +16,7 @@ step) and the LP hindsight bound over always-max's occupancy
 (:mod:`chargax_marl.optimal.bound`). For each it reports EUR/day, the paired difference to
 always-max (mean ± standard error over days) and the fraction of the headroom captured,
 ``(policy - always-max) / (bound - always-max)``, with solve times. Writes
-``baselines/results/optimal/<scenario>.json`` (with the per-day profits, which
+``results/optimal/<scenario>.json`` (with the per-day profits, which
 :mod:`baselines.train` reuses for the same params) and ``<scenario>.png``, and prints the
 table.
 """
@@ -29,14 +29,23 @@ import time
 from pathlib import Path
 
 import jax
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
-from baselines import common
-from chargax_marl.evaluation import headroom_captured, hindsight_bound, run_days, summarize, write_json
-from chargax_marl.optimal.mpc import MPC
+from baselines.config import build_env_params, resolve
+from baselines.eval import references, stats
+from baselines.heuristics import check_replay, evaluate_rules
+from chargax_marl import trace as trace_lib
+from chargax_marl.evaluation import (
+    headroom_captured,
+    hindsight_bound,
+    write_json,
+)
+from chargax_marl.optimal import milp
 from chargax_marl.trace import params_fingerprint
 
-RESULTS_DIR = Path(__file__).parent / "results" / "optimal"
+RESULTS_DIR = Path("results/optimal")  # relative to the working directory: the repository root
 RULES = ("always_max", "battery_rule", "edf", "llf", "price_threshold")
 DEFAULT_ROOT_KW = 884.5  # sum of the default station's root children: 750 (DC) + 34.5 (AC) + 100 (battery)
 
@@ -56,40 +65,16 @@ SCENARIOS = {
 
 def scenario_params(name: str):
     """``(eval_params, held_out_days)`` of a named scenario of this runner."""
-    config = common.parse_config({}, SCENARIOS[name])
-    _, full, _, days = common.build_env_params(config)
+    config = resolve(SCENARIOS[name])
+    _, full, _, days = build_env_params(config)
     return full, days
 
 
-def evaluate_mpc(params, days, key=None, **mpc_kwargs) -> dict:
-    """The MPC on ``days`` with the evaluation's cars; per-day profits, metrics and timing."""
-    key = jax.random.PRNGKey(0) if key is None else key
-    mpc = MPC(params, **mpc_kwargs)
-    t0 = time.perf_counter()
-    totals = jax.jit(lambda d, k: run_days(lambda s, kk: mpc(s, kk, params), params, d, k))(np.asarray(days), key)
-    wall = time.perf_counter() - t0
-    steps = int(np.size(days)) * params.num_steps
-    return {"daily_profit": np.asarray(totals.profit_eur, np.float64), "metrics": summarize(totals),
-            "wall_s": wall, "solves": mpc.solves, "failures": mpc.failures, "solve_s_total": mpc.solve_s,
-            "ms_per_step": 1000.0 * wall / steps,
-            "settings": {"horizon_steps": mpc.horizon_steps, "resolve_every": mpc.resolve_every,
-                         "urgency_eur_kwh_h": mpc.urgency_eur_kwh_h,
-                         "deadline_margin_steps": mpc.deadline_margin_steps}}
 
 
-def cached(params, days) -> dict | None:
-    """The stored bound / MPC per-day profits for exactly these params and days, or None."""
-    fingerprint = params_fingerprint(params)
-    for path in sorted(RESULTS_DIR.glob("*.json")):
-        data = json.loads(path.read_text())
-        if data.get("params_fingerprint") == fingerprint and data.get("days") == [int(d) for d in days]:
-            return data
-    return None
 
 
 def run_scenario(name: str, mpc_kwargs: dict | None = None, num_days: int | None = None) -> dict:
-    from baselines.heuristics import evaluate_rules
-
     params, days = scenario_params(name)
     days = days if num_days is None else days[:num_days]
     out = {"scenario": name, "config": SCENARIOS[name], "days": [int(d) for d in days],
@@ -102,7 +87,7 @@ def run_scenario(name: str, mpc_kwargs: dict | None = None, num_days: int | None
     t0 = time.perf_counter()
     bound = hindsight_bound(params, days)
     bound_wall = time.perf_counter() - t0
-    mpc = evaluate_mpc(params, days, **(mpc_kwargs or {}))
+    mpc = references.evaluate_mpc(params, days, **(mpc_kwargs or {}))
     entries = {k: {"daily_profit": v["daily_profit"], "metrics": v["metrics"]} for k, v in rules.items()}
     entries["mpc"] = {"daily_profit": mpc["daily_profit"], "metrics": mpc["metrics"],
                       "timing": {k: mpc[k] for k in ("wall_s", "solves", "failures", "solve_s_total", "ms_per_step")},
@@ -114,7 +99,7 @@ def run_scenario(name: str, mpc_kwargs: dict | None = None, num_days: int | None
     for key, e in entries.items():
         p = e["daily_profit"]
         e["mean_eur"] = float(np.mean(p))
-        e["vs_always_max"] = common.paired_difference(p, am)
+        e["vs_always_max"] = stats.paired_difference(p, am)
         e["headroom"] = headroom_captured(p, am, bound["daily_profit"])
         e["daily_profit"] = [float(x) for x in p]
     out["policies"] = entries
@@ -127,8 +112,6 @@ def refresh_rules(name: str, out_dir: Path = RESULTS_DIR) -> dict:
     put them in place of the stored rules, keeping its LP bound and MPC (minutes to hours to
     recompute). Refuses (``ValueError``) a file made for other params or days, or whose
     always-max no longer replays to the stored profits (another model: re-run the scenario)."""
-    from baselines.heuristics import check_replay, evaluate_rules
-
     path = Path(out_dir) / f"{name}.json"
     stored = json.loads(path.read_text())
     params, days = scenario_params(name)
@@ -144,7 +127,7 @@ def refresh_rules(name: str, out_dir: Path = RESULTS_DIR) -> dict:
     for key, v in rules.items():
         p = v["daily_profit"]
         stored["policies"][key] = {"daily_profit": [float(x) for x in p], "metrics": v["metrics"],
-                                   "mean_eur": float(np.mean(p)), "vs_always_max": common.paired_difference(p, am),
+                                   "mean_eur": float(np.mean(p)), "vs_always_max": stats.paired_difference(p, am),
                                    "headroom": headroom_captured(p, am, bound)}
     stored["rules_wall_s"] = rules_s
     write_json(stored, path)
@@ -159,11 +142,9 @@ MILP_SCENARIO = {"SCENARIO": "shopping", "TRAFFIC": "high", "ENV_KWARGS": {"stat
 def run_milp(num_days: int = 10, num_steps: int = 36) -> dict:
     """MILP (admissions free) against the LP over always-max's occupancy and always-max itself,
     on the first ``num_steps`` of the first ``num_days`` held-out days of :data:`MILP_SCENARIO`."""
-    from chargax_marl import trace as trace_lib
-    from chargax_marl.optimal import milp
 
-    config = common.parse_config({}, MILP_SCENARIO)
-    _, params, _, days = common.build_env_params(config)
+    config = resolve(MILP_SCENARIO)
+    _, params, _, days = build_env_params(config)
     days = days[:num_days]
     key = jax.random.PRNGKey(0)
     traces = trace_lib.make_traces(params, days, key)
@@ -210,10 +191,7 @@ def format_optimal(result: dict) -> str:
 
 
 def plot(result: dict, path: Path) -> Path:
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     names = list(result["policies"])
     diffs = [result["policies"][n]["vs_always_max"]["mean"] for n in names]

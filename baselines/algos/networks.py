@@ -1,0 +1,114 @@
+"""Actor and critic MLPs, the always-max prior, and masked categorical distributions."""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax.linen.initializers import constant, variance_scaling
+
+NEG_INF = -1e9
+
+
+def _act(name: str) -> Callable:
+    return {"tanh": nn.tanh, "relu": nn.relu}[name]
+
+
+def _init(gain: float):
+    """Gaussian init with the variance of an orthogonal init of this gain (``gain**2 / fan_in``).
+
+    Not ``orthogonal``: its batched QR (under ``jax.vmap`` over seeds) runs LAPACK on XLA's
+    CPU thread pool, which deadlocked on this 2-core machine under load (jaxlib 0.10).
+    """
+    return variance_scaling(gain**2, "fan_in", "normal")
+
+
+class MLP(nn.Module):
+    """``NUM_LAYERS`` hidden layers then a linear head (PureJaxRL's gains: sqrt(2) hidden,
+    0.01 policy head, 1 value head)."""
+
+    out: int
+    hidden: int = 256
+    layers: int = 2
+    activation: str = "tanh"
+    head_scale: float = 0.01
+
+    @nn.compact
+    def __call__(self, x):
+        for _ in range(self.layers):
+            x = _act(self.activation)(nn.Dense(self.hidden, kernel_init=_init(np.sqrt(2)),
+                                               bias_init=constant(0.0))(x))
+        return nn.Dense(self.out, kernel_init=_init(self.head_scale), bias_init=constant(0.0))(x)
+
+
+def actor_critic(config: dict, num_logits: int, num_values: int = 1):
+    kw = dict(hidden=int(config["HIDDEN"]), layers=int(config["NUM_LAYERS"]), activation=config["ACTIVATION"])
+    return MLP(num_logits, head_scale=0.01, **kw), MLP(num_values, head_scale=1.0, **kw)
+
+
+def always_max_prior(config: dict) -> tuple[float, float]:
+    """The validated ``(ALWAYS_MAX_PRIOR, BATTERY_IDLE_PRIOR)``: fixed offsets ``>= 0`` added to
+    the logit of the action that the always-max baseline takes, full power at every port and
+    idle at every battery. With both ``> 0`` the untrained greedy policy *is* always-max and
+    the sampled policy explores around it (an offset of 6 leaves about 5 % of a 21-action
+    head's mass on the other 20 actions, 2 about 73 %); training moves away from the
+    baseline wherever that pays, since the network's logits can outweigh the offsets. A
+    weaker battery offset keeps the battery exploring. ``0`` is the plain policy."""
+    out = []
+    for name in ("ALWAYS_MAX_PRIOR", "BATTERY_IDLE_PRIOR"):
+        b = float(config.get(name, 0.0))
+        if not np.isfinite(b) or b < 0:
+            raise ValueError(f"{name}={b} must be a finite number >= 0 (0 disables the offset)")
+        out.append(b)
+    return tuple(out)
+
+
+def masked_logits(logits: jnp.ndarray, mask) -> jnp.ndarray:
+    return jnp.where(mask, logits, NEG_INF)
+
+
+def log_prob(logits: jnp.ndarray, action: jnp.ndarray) -> jnp.ndarray:
+    """Log-probability of integer ``action`` under (masked) ``logits (..., K)``."""
+    logp = jax.nn.log_softmax(logits, axis=-1)
+    return jnp.take_along_axis(logp, action[..., None].astype(jnp.int32), axis=-1)[..., 0]
+
+
+# t = u * total is shrunk by this relative margin so that rounding can never push it to the
+# total, where the inversion would fall through to the masked (zero-probability) tail.
+_INVERSION_MARGIN = np.float32(1.0 - 2.0 ** -22)
+
+
+def categorical_from_uniform(u: jnp.ndarray, logits: jnp.ndarray):
+    """One draw per head from ``softmax(logits (..., K))`` by inverting its CDF at ``u (...)``
+    in ``[0, 1)``. Returns ``(action int32 (...), log-probability of it (...))``.
+
+    The chosen index is the first ``j`` with ``cdf[j] > u * cdf[K-1]``, so an index of zero
+    probability (a masked action, ``NEG_INF`` logit) is never chosen, whatever ``u``; the
+    margin keeps ``u * cdf[K-1]`` below ``cdf[K-1]``, so some ``j < K`` always qualifies.
+    """
+    logp_all = jax.nn.log_softmax(logits, axis=-1)
+    cdf = jnp.cumsum(jnp.exp(logp_all), axis=-1)
+    t = (u * _INVERSION_MARGIN)[..., None] * cdf[..., -1:]
+    action = jnp.sum(cdf <= t, axis=-1, dtype=jnp.int32)
+    return action, jnp.take_along_axis(logp_all, action[..., None], axis=-1)[..., 0]
+
+
+def sample_categorical(key: jax.Array, logits: jnp.ndarray):
+    """``(action, log-probability)`` of one draw per head of ``logits (..., K)``.
+
+    Same distribution as ``jax.random.categorical`` (which adds Gumbel noise to every logit,
+    ``K`` uniforms per head), from one uniform per head by inversion
+    (:func:`categorical_from_uniform`). On this project's 2-core CPU the Gumbel draw was about
+    two thirds of a PPO rollout step with 16 envs (140 of 215 us); this costs about a third of
+    that (``benchmarks/README.md``, training speed).
+    """
+    return categorical_from_uniform(jax.random.uniform(key, logits.shape[:-1]), logits)
+
+
+def entropy(logits: jnp.ndarray) -> jnp.ndarray:
+    logp = jax.nn.log_softmax(logits, axis=-1)
+    p = jnp.exp(logp)
+    return -jnp.sum(jnp.where(p > 0, p * logp, 0.0), axis=-1)

@@ -1,0 +1,39 @@
+"""What every ``make_train`` returns: the training function and the pieces its callers use."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable
+
+
+@dataclass(frozen=True, eq=False)
+class Trainer:
+    """A built trainer, PureJaxRL-shaped: ``trainer(key)`` trains one seed end to end.
+
+    Attributes:
+        init: ``init(key) -> runner_state``: networks, optimiser and envs of one seed.
+        run_updates: ``run_updates(runner_state, n) -> (runner_state, metrics)``: ``n``
+            PPO updates (a ``jax.lax.scan``); metrics have a leading update axis.
+        num_updates: the updates ``config["TOTAL_TIMESTEPS"]`` holds.
+        config: the resolved config (:data:`baselines.config.SCHEMA`).
+        policy: the networks (``init``, ``logits``, ``value``).
+        env: the unwrapped env view the trainer steps.
+        env_params: the training env parameters.
+        make_act: ``make_act(eval_params)(params) -> act(state, key) -> levels``: the greedy
+            policy of trained parameters as a rule :func:`chargax_marl.evaluation.run_days`
+            plays.
+    """
+
+    init: Callable
+    run_updates: Callable
+    num_updates: int
+    config: dict
+    policy: Any
+    env: Any
+    env_params: Any
+    make_act: Callable
+
+    def __call__(self, key):
+        """Train one seed from ``key``; ``{"runner_state", "metrics"}``."""
+        rs, metrics = self.run_updates(self.init(key), self.num_updates)
+        return {"runner_state": rs, "metrics": metrics}

@@ -1,0 +1,248 @@
+"""One schema for every training setting, read from TOML files with ``KEY=value`` overrides.
+
+A config is a flat mapping of upper-case keys. :data:`SCHEMA` names every key the trainers,
+the evaluation and the command line read, with its default and what it allows; a file in
+``baselines/configs/`` (or any path) sets some of them, and ``KEY=value`` arguments set more::
+
+    python -m baselines.train --config ippo TOTAL_TIMESTEPS=2e6 SEEDS=2
+
+The defaults of :data:`SCHEMA` are the paper's Table 3 with every learning aid off, so a
+stored run's config, which lists the keys it ran with, resolves to the same settings; the
+best-known settings per algorithm are the files ``ppo.toml``, ``ippo.toml`` and
+``mappo.toml``, and ``ippo`` is the command line's default. An unknown key, or a value of the
+wrong kind, raises :class:`ConfigError` naming the key, the value and what is allowed.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from chargax_marl.core.params import make_params
+from chargax_marl.evaluation import split_days
+from chargax_marl.single.scenarios import SCENARIOS
+
+CONFIG_DIR = Path(__file__).resolve().parent / "configs"
+DEFAULT_CONFIG = "ippo"
+
+
+class ConfigError(ValueError):
+    """A config key that is unknown, or a value that the key does not allow."""
+
+
+@dataclass(frozen=True)
+class Field:
+    """One config key: its default, the kinds of value it takes, and (optionally) its choices."""
+
+    default: Any
+    kinds: tuple
+    choices: tuple = ()
+    doc: str = ""
+
+
+_NUM = (int, float)
+_BATTERY_SHAPING = (False, True, "off", "day_mean", "storage_value", "dp")
+
+SCHEMA: dict[str, Field] = {
+    # PPO (the paper's Table 3)
+    "LR": Field(2.5e-4, _NUM, doc="Adam learning rate"),
+    "ANNEAL_LR": Field(True, (bool,), doc="anneal the learning rate linearly to 0"),
+    "GAMMA": Field(0.99, _NUM, doc="discount per step"),
+    "GAE_LAMBDA": Field(0.95, _NUM, doc="GAE lambda"),
+    "MAX_GRAD_NORM": Field(100.0, _NUM, doc="global gradient-norm clip"),
+    "CLIP_EPS": Field(0.2, _NUM, doc="PPO ratio clip"),
+    "VF_CLIP": Field(10.0, _NUM, doc="value clip"),
+    "ENT_COEF": Field(0.01, _NUM, doc="entropy bonus"),
+    "VF_COEF": Field(0.25, _NUM, doc="value-loss weight"),
+    "NUM_ENVS": Field(12, (int,), doc="parallel envs per seed"),
+    "NUM_STEPS": Field(300, (int,), doc="rollout steps per update"),
+    "NUM_MINIBATCHES": Field(4, (int,), doc="minibatches per epoch"),
+    "UPDATE_EPOCHS": Field(4, (int,), doc="epochs per update"),
+    "TOTAL_TIMESTEPS": Field(10_000_000, _NUM, doc="env steps per seed"),
+    # networks and rewards (the paper does not state them)
+    "HIDDEN": Field(256, (int,), doc="hidden units per layer"),
+    "NUM_LAYERS": Field(2, (int,), doc="hidden layers"),
+    "ACTIVATION": Field("tanh", (str,), ("tanh", "relu")),
+    "REWARD_SCALE": Field(1.0, _NUM, doc="rewards (EUR per step) are multiplied by this before GAE"),
+    "ALWAYS_MAX_PRIOR": Field(0.0, _NUM, doc="logit offset >= 0 on each port's full-power action"),
+    "BATTERY_IDLE_PRIOR": Field(0.0, _NUM, doc="logit offset >= 0 on each battery's idle action"),
+    # learning aids: the teachers' shaping and observation features
+    "BATTERY_SHAPING": Field(
+        False,
+        (bool, str),
+        _BATTERY_SHAPING,
+        "value the batteries' energy as it moves: True = day_mean; storage_value; dp",
+    ),
+    "PORT_SHAPING": Field("off", (str,), ("off", "plan"), "each parked car's plan value as a potential"),
+    "PLAN_OBS": Field(False, (bool,), doc="each agent also observes its port's plan advice"),
+    "RELATIVE_PRICES": Field(False, (bool,), doc="the networks also read relative prices"),
+    # multi-agent (IPPO / MAPPO)
+    "AGENT_ID": Field("onehot", (str,), ("onehot", "scalar"), "agent-index encoding"),
+    "LOCAL_REWARD_WEIGHT": Field(0.0, _NUM, doc="weight in [0, 1] of each agent's own share"),
+    "AGENT_ADV_NORM": Field(False, (bool,), doc="normalise the advantages per agent"),
+    "BATTERY_NET": Field(False, (bool,), doc="a separate actor (and critic) for the batteries"),
+    "BATTERY_GAMMA": Field(None, _NUM, doc="the battery agents' discount (None: GAMMA)"),
+    "BATTERY_ENT_COEF": Field(None, _NUM, doc="the battery agents' entropy bonus (None: ENT_COEF)"),
+    # single-agent PPO
+    "SPLIT_CREDIT": Field(False, (bool,), doc="port heads and battery heads learn from own shares"),
+    # the scenario and the held-out protocol
+    "SCENARIO": Field("shopping", (str,), tuple(SCENARIOS), "a named scenario"),
+    "TRAFFIC": Field(None, (str, int, float), doc="low / medium / high or cars per day"),
+    "ENV_KWARGS": Field({}, (dict,), doc="extra keyword arguments of make_params"),
+    "NUM_EVAL_DAYS": Field(100, (int,), doc="held-out days"),
+    "EVAL_DRAWS": Field(1, (int,), doc="car draws per held-out day (keys 0 .. N-1)"),
+    "SPLIT_SEED": Field(0, (int,), doc="seed of the held-out split"),
+}
+"""Every key a trainer reads, with its default (Table 3, learning aids off)."""
+
+RUN_SCHEMA: dict[str, Field] = {
+    "ALGO": Field("ippo", (str,), ("ppo", "ippo", "mappo")),
+    "SEEDS": Field(2, (int,), doc="seeds trained at once (vmapped)"),
+    "SEED": Field(0, (int,), doc="the first seed's key"),
+    "CHUNKS": Field(10, (int,), doc="training pieces (progress and held-out evaluation)"),
+    "OUT": Field("outputs/run", (str,), doc="run directory (git-ignored outputs/ by default)"),
+    "OPTIMAL": Field("bound", (str,), ("off", "bound", "mpc"), "references beside the rules"),
+    "REFERENCES_DIR": Field(
+        "", (str,), doc="directory of stored references (make optimal) to reuse; empty: compute"
+    ),
+}
+"""Keys of a run (what to train and where to write), not of the trainer."""
+
+_INTEGERS = tuple(k for k, f in {**SCHEMA, **RUN_SCHEMA}.items() if f.kinds == (int,))
+
+
+def _check(key: str, value: Any, field: Field) -> Any:
+    """``value`` for ``key`` coerced to its kind, or :class:`ConfigError`."""
+    if value is None and field.default is None:
+        return None
+    ok = isinstance(value, field.kinds) and not (isinstance(value, bool) and bool not in field.kinds)
+    if field.kinds == (int,) and isinstance(value, float) and value.is_integer():
+        value, ok = int(value), True
+    if ok and isinstance(value, float) and not math.isfinite(value):
+        ok = False
+    if ok and field.choices and value not in field.choices:
+        ok = False
+    if not ok:
+        allowed = f"one of {list(field.choices)}" if field.choices else " or ".join(
+            k.__name__ for k in field.kinds
+        )
+        raise ConfigError(f"config key {key}={value!r} is not allowed: expected {allowed}")
+    return value
+
+
+def resolve(config: dict | None = None, schema: dict[str, Field] = SCHEMA) -> dict:
+    """The full config: every key of ``schema``, from ``config`` or its default.
+
+    Args:
+        config: keys to set (a stored run's ``config``, a file's, or overrides).
+        schema: the keys allowed (:data:`SCHEMA` for a trainer).
+
+    Returns:
+        A new dict with every key of ``schema``; ``TOTAL_TIMESTEPS`` as an int.
+
+    Raises:
+        ConfigError: a key not in ``schema``, or a value it does not allow.
+    """
+    config = dict(config or {})
+    unknown = sorted(set(config) - set(schema))
+    if unknown:
+        raise ConfigError(f"unknown config key(s) {unknown}; allowed: {sorted(schema)}")
+    out = {}
+    for key, field in schema.items():
+        value = config.get(key, field.default)
+        out[key] = _check(key, dict(value) if isinstance(value, dict) else value, field)
+    if "TOTAL_TIMESTEPS" in out:
+        out["TOTAL_TIMESTEPS"] = int(float(out["TOTAL_TIMESTEPS"]))
+    if "EVAL_DRAWS" in out and out["EVAL_DRAWS"] < 1:
+        raise ConfigError(f"config key EVAL_DRAWS={out['EVAL_DRAWS']!r}: expected an integer >= 1")
+    return out
+
+
+def config_path(name: str | Path) -> Path:
+    """The TOML file of a config name (``ippo``) or path (``my.toml``).
+
+    Raises:
+        ConfigError: no such file.
+    """
+    path = Path(name)
+    if path.suffix != ".toml":
+        path = CONFIG_DIR / f"{name}.toml"
+    if not path.is_file():
+        names = sorted(p.stem for p in CONFIG_DIR.glob("*.toml"))
+        raise ConfigError(f"config {str(name)!r}: no file {path}; the bundled configs are {names}")
+    return path
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """``"KEY=value"`` as ``(KEY, value)``, the value read as a TOML value (a bare word: a string).
+
+    Raises:
+        ConfigError: no ``=`` in ``text``.
+    """
+    key, sep, raw = text.partition("=")
+    if not sep or not key.strip():
+        raise ConfigError(f"override {text!r}: expected KEY=value, e.g. TOTAL_TIMESTEPS=2e6")
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw
+    return key.strip().upper(), value
+
+
+def settings(name: str | Path) -> dict:
+    """The trainer keys a config file sets, as written (not resolved, no run keys).
+
+    Args:
+        name: a bundled config's name or a path to a TOML file.
+
+    Returns:
+        The file's keys of :data:`SCHEMA` and their values.
+    """
+    raw = tomllib.loads(config_path(name).read_text())
+    return {k: v for k, v in raw.items() if k not in RUN_SCHEMA}
+
+
+def load(name: str | Path = DEFAULT_CONFIG, overrides=()) -> tuple[dict, dict]:
+    """A config file with ``KEY=value`` overrides, split into trainer and run settings.
+
+    Args:
+        name: a bundled config's name (``ippo``, ``ppo``, ...) or a path to a TOML file.
+        overrides: ``"KEY=value"`` strings, applied after the file.
+
+    Returns:
+        ``(config, run)``: the resolved trainer config (:data:`SCHEMA`) and run settings
+        (:data:`RUN_SCHEMA`).
+
+    Raises:
+        ConfigError: no such file, an unknown key, or a value the key does not allow.
+    """
+    raw = tomllib.loads(config_path(name).read_text())
+    raw.update(dict(parse_override(o) for o in overrides))
+    run = {k: raw.pop(k) for k in list(raw) if k in RUN_SCHEMA}
+    return resolve(raw), resolve(run, RUN_SCHEMA)
+
+
+def build_env_params(config: dict):
+    """The training and held-out env parameters of a config.
+
+    Args:
+        config: a resolved config (``SCENARIO``, ``TRAFFIC``, ``ENV_KWARGS``,
+            ``NUM_EVAL_DAYS``, ``SPLIT_SEED``).
+
+    Returns:
+        ``(train_params, eval_params, train_days, eval_days)``: training resets draw from the
+        training days only; the ``NUM_EVAL_DAYS`` held-out days
+        (``split_days(num_days, NUM_EVAL_DAYS, seed=SPLIT_SEED)``) are kept for evaluation.
+    """
+    kwargs = dict(SCENARIOS[config["SCENARIO"]])
+    if config.get("TRAFFIC") is not None:
+        kwargs["traffic"] = config["TRAFFIC"]
+    kwargs.update(config.get("ENV_KWARGS") or {})
+    full = make_params(**kwargs)
+    train_days, eval_days = split_days(
+        int(full.num_days), int(config["NUM_EVAL_DAYS"]), seed=int(config["SPLIT_SEED"])
+    )
+    return make_params(**kwargs, reset_days=train_days), full, train_days, eval_days

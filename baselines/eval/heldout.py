@@ -1,0 +1,190 @@
+"""The held-out protocol: every policy on the same days and cars (car draws per day), the rules'
+and the optimal references beside it, and what each trained seed scores against them."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from baselines import heuristics
+from baselines.eval import references, stats
+from chargax_marl.evaluation import (
+    METRICS,
+    headroom_captured,
+    hindsight_bound,
+    run_days,
+    summarize,
+    summarize_profit,
+)
+
+
+def draw_keys(draws: int = 1) -> list:
+    """The evaluation keys of ``draws`` car draws per held-out day: ``PRNGKey(0) ... PRNGKey(draws - 1)``.
+    Every policy is scored under the same keys (the same cars), and its per-day profit is the
+    mean over the draws, so a paired difference's standard error over days treats the days,
+    not the draws, as the independent units (the draws of one day share its prices). Draw 0
+    is the single-draw evaluation's key."""
+    if isinstance(draws, bool) or not isinstance(draws, (int, np.integer)) or int(draws) < 1:
+        raise ValueError(f"field 'EVAL_DRAWS' (car draws per held-out day) must be a positive integer, got {draws!r}")
+    return [jax.random.PRNGKey(k) for k in range(int(draws))]
+
+
+def mean_over_draws(evaluate, keys):
+    """``evaluate(key) -> pytree of arrays`` averaged leaf by leaf over ``keys`` (one call per key)."""
+    outs = [jax.device_get(evaluate(k)) for k in keys]
+    return jax.tree.map(lambda *x: np.mean(np.stack([np.asarray(v, np.float64) for v in x]), axis=0), *outs)
+
+
+def evaluate_batched(make_act, net_params, eval_params, days, key=None, reference_profit=None, draws: int = 1) -> dict:
+    """Greedy held-out evaluation of every seed's parameters (leading axis) with
+    :func:`chargax_marl.evaluation.run_days`.
+
+    Every seed runs with the *same* key as :func:`chargax_marl.evaluation.evaluate` (default
+    ``PRNGKey(0)``), so all policies meet the same drawn cars on the same days (common random
+    numbers): differences between policies are then not masked by the day-to-day spread of
+    traffic (about ±130 EUR/day on the default scenario). With ``draws`` > 1 (and no ``key``)
+    each day is played under the keys of :func:`draw_keys` and every per-day total is the mean
+    over the draws. Returns pooled mean ± std over seeds
+    × days (``metrics``), each seed's mean daily profit (``per_seed_profit``) and mean of every
+    metric over days (``per_seed_metrics``), and daily profits (``daily_profit``, seeds × days). With ``reference_profit`` (the daily profits of a
+    baseline on the same days and key, e.g. always-max), also ``paired_diff``: per seed, the
+    mean and standard error over days of (policy − reference) profit.
+    """
+    if key is not None and draws != 1:
+        raise ValueError(f"evaluate_batched: give either a key or draws > 1, not both (draws={draws!r})")
+    keys = [key] if key is not None else draw_keys(draws)
+    days = jnp.asarray(days, jnp.int32)
+    seeds = jax.tree.leaves(net_params)[0].shape[0]
+    fn = _eval_fn(make_act, eval_params)
+    totals = mean_over_draws(lambda k: fn(net_params, days, k), keys)
+    flat = jax.tree.map(lambda x: np.asarray(x).reshape(-1), totals)
+    profit = np.asarray(totals.profit_eur, np.float64)
+    out = {"num_days": int(days.shape[0]), "num_seeds": int(seeds), "metrics": summarize(flat),
+           "per_seed_profit": [float(x) for x in profit.mean(axis=1)], "daily_profit": profit,
+           "per_seed_metrics": {name: [float(x) for x in np.asarray(getattr(totals, field), np.float64).mean(axis=1)]
+                                for name, field in METRICS.items()}}
+    if reference_profit is not None:
+        out["paired_diff"] = stats.paired_difference(profit, reference_profit)
+    return out
+
+
+_EVAL_CACHE: dict = {}
+
+
+def _eval_fn(make_act, eval_params):
+    k = (make_act, id(eval_params))
+    if k not in _EVAL_CACHE:
+        _EVAL_CACHE[k] = jax.jit(jax.vmap(lambda p, d, kk: run_days(make_act(p), eval_params, d, kk),
+                                          in_axes=(0, None, None)))
+    return _EVAL_CACHE[k]
+
+
+BASELINES = ("always_max", "battery_rule", "price_threshold")
+"""The rule-based references every training run is scored against (``battery_rule`` is
+always-max plus a battery that charges in the day's cheapest 20 % of hours and discharges in
+the dearest 20 %); on a station with a battery also the teachers' rules,
+``battery_programme`` (always-max plus the battery-only programme) and ``plan_programme``
+(the ports' plans plus the programme), :data:`baselines.heuristics.TEACHER_RULES`."""
+
+
+REFERENCES = ("always_max", "battery_rule", "battery_programme", "plan_programme")
+"""The baselines each trained seed gets a paired difference to (``vs_<name>``), where present."""
+
+
+OPTIMAL_CHOICES = ("off", "bound", "mpc")
+
+
+def baseline_results(eval_params, eval_days, optimal: str = "off", draws: int = 1,
+                     references_dir=None) -> dict:
+    """The :data:`BASELINES` (and, on a station with a battery, the teachers' rules) on the
+    held-out days, with the evaluation's default key (the same
+    drawn cars that :func:`evaluate_batched` gives the agents). Each keeps its
+    daily profits (``daily_profit``) for paired comparisons.
+
+    ``optimal``: ``"bound"`` adds ``lp_bound`` (the LP hindsight bound over always-max's
+    occupancy, :func:`chargax_marl.evaluation.hindsight_bound`) and, when ``references_dir``
+    (a directory ``make optimal`` wrote) holds them for exactly these params and days, the
+    stored bound and ``mpc``; ``"mpc"`` also runs the MPC when no
+    stored result matches (about 10 min per 100 days on 2 cores); ``"off"`` adds neither.
+    Every entry then gets ``headroom`` (:func:`chargax_marl.evaluation.headroom_captured`).
+    With ``draws`` > 1 every rule and the bound are scored under the keys of
+    :func:`draw_keys`, each day's profit the mean over the draws; the stored
+    MPC (one draw) is then not used, and ``optimal="mpc"`` runs the MPC on every draw.
+    """
+    if optimal not in OPTIMAL_CHOICES:
+        raise ValueError(f"field 'optimal' must be one of {OPTIMAL_CHOICES}, got {optimal!r}")
+    names = BASELINES + heuristics.TEACHER_RULES * heuristics.has_battery(eval_params)
+    out = heuristics.evaluate_rules(eval_params, eval_days, names, draws=draws)
+    for name in REFERENCES[1:]:
+        if name in out:
+            out[name]["vs_always_max"] = stats.paired_difference(out[name]["daily_profit"],
+                                                                  out["always_max"]["daily_profit"])
+    for name in heuristics.TEACHER_RULES:
+        if name in out:
+            out[name]["vs_battery_rule"] = stats.paired_difference(out[name]["daily_profit"],
+                                                                    out["battery_rule"]["daily_profit"])
+    if optimal == "off":
+        return out
+    stored = None
+    if references_dir is not None and draws == 1:
+        stored = references.cached(eval_params, eval_days, references_dir)
+    if stored is not None:
+        bound_daily = np.asarray(stored["policies"]["lp_bound"]["daily_profit"])
+        mpc_daily = np.asarray(stored["policies"]["mpc"]["daily_profit"])
+        source = f"{references_dir} (same params and days)"
+    else:
+        keys = draw_keys(draws)
+        bound_daily = mean_over_draws(lambda k: hindsight_bound(eval_params, eval_days, k)["daily_profit"], keys)
+        mpc_daily = (mean_over_draws(lambda k: references.evaluate_mpc(eval_params, eval_days, k)["daily_profit"], keys)
+                     if optimal == "mpc" else None)
+        source = "computed" if draws == 1 else f"computed, mean over {draws} car draws per day"
+    out["lp_bound"] = {"daily_profit": bound_daily, "metrics": summarize_profit(bound_daily), "source": source}
+    if mpc_daily is not None:
+        out["mpc"] = {"daily_profit": mpc_daily, "metrics": summarize_profit(mpc_daily), "source": source}
+    add_headroom(out, out)
+    return out
+
+
+def add_headroom(entries: dict, baselines: dict) -> dict:
+    """Add ``headroom`` (fraction of the hindsight headroom captured) to every entry that has
+    ``daily_profit``, when ``baselines`` hold ``lp_bound`` and ``always_max``."""
+    if "lp_bound" not in baselines:
+        return entries
+    am, bound = baselines["always_max"]["daily_profit"], baselines["lp_bound"]["daily_profit"]
+    for e in entries.values():
+        if isinstance(e, dict) and "daily_profit" in e:
+            e["headroom"] = headroom_captured(e["daily_profit"], am, bound)
+    return entries
+
+
+def per_seed_results(final: dict, evals: list, baselines: dict, seed: int) -> list[dict]:
+    """One entry per trained seed: its paired differences (mean and standard error over the
+    held-out days) to always-max (``vs_always_max``), to always-max + battery rule
+    (``vs_battery_rule``) and, where the baselines hold them, to the teachers' rules
+    (``vs_battery_programme``, ``vs_plan_programme``), the fraction of the LP bound's headroom it captures
+    (``headroom_fraction``, when the bound was computed), and the env steps and wall minutes
+    (since the start of training, compile and evaluations included) of the first held-out
+    evaluation at which this seed beats each reference by more than two standard errors
+    (``None``: never)."""
+    profit = np.atleast_2d(np.asarray(final["daily_profit"], np.float64))
+    am = np.asarray(baselines["always_max"]["daily_profit"], np.float64)
+    bound = baselines.get("lp_bound", {}).get("daily_profit")
+    vs = {name: stats.paired_difference(profit, baselines[name]["daily_profit"])
+          for name in REFERENCES if name in baselines}
+    out = []
+    for i in range(profit.shape[0]):
+        def first(key):
+            e = next((e for e in evals if e.get(key) is not None and stats.seed_beats(e[key], i)), None)
+            return None if e is None else {"timesteps": e["timesteps"], "wall_minutes": e["train_seconds"] / 60.0}
+
+        entry = {"seed_index": i, "key": f"split(PRNGKey({seed}), seeds)[{i}]", "mean_profit_eur": float(profit[i].mean())}
+        for name in (n for n in REFERENCES if n in vs or n == "battery_rule"):  # battery_rule: None when absent
+            d = vs.get(name)
+            entry[f"vs_{name}"] = None if d is None else {"mean": d["per_seed_mean"][i], "stderr": d["per_seed_stderr"][i]}
+        entry["headroom_fraction"] = None if bound is None else headroom_captured(profit[i], am, bound)["fraction"]
+        for name in REFERENCES:
+            if f"vs_{name}" in entry:
+                entry[f"first_beats_{name}"] = first(f"vs_{name}")
+        out.append(entry)
+    return out

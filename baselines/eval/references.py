@@ -1,0 +1,52 @@
+"""The MPC on held-out days, and references stored by ``python -m baselines.analysis.references``
+read back from a directory the caller names."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from chargax_marl.evaluation import run_days, summarize
+from chargax_marl.optimal.mpc import MPC
+from chargax_marl.trace import params_fingerprint
+
+
+def evaluate_mpc(params, days, key=None, **mpc_kwargs) -> dict:
+    """The MPC on ``days`` with the evaluation's cars; per-day profits, metrics and timing."""
+    key = jax.random.PRNGKey(0) if key is None else key
+    mpc = MPC(params, **mpc_kwargs)
+    t0 = time.perf_counter()
+    totals = jax.jit(lambda d, k: run_days(lambda s, kk: mpc(s, kk, params), params, d, k))(np.asarray(days), key)
+    wall = time.perf_counter() - t0
+    steps = int(np.size(days)) * params.num_steps
+    return {"daily_profit": np.asarray(totals.profit_eur, np.float64), "metrics": summarize(totals),
+            "wall_s": wall, "solves": mpc.solves, "failures": mpc.failures, "solve_s_total": mpc.solve_s,
+            "ms_per_step": 1000.0 * wall / steps,
+            "settings": {"horizon_steps": mpc.horizon_steps, "resolve_every": mpc.resolve_every,
+                         "urgency_eur_kwh_h": mpc.urgency_eur_kwh_h,
+                         "deadline_margin_steps": mpc.deadline_margin_steps}}
+
+
+def cached(params, days, directory: str | Path) -> dict | None:
+    """The references stored in ``directory`` for exactly these params and days.
+
+    Args:
+        params: the evaluation's env parameters.
+        days: the held-out days.
+        directory: a directory of ``<scenario>.json`` files written by
+            ``python -m baselines.analysis.references``.
+
+    Returns:
+        The stored result (per-day profits of the bound, the MPC and the rules), or ``None``
+        when no file matches the params' fingerprint and the days.
+    """
+    fingerprint = params_fingerprint(params)
+    for path in sorted(Path(directory).glob("*.json")):
+        data = json.loads(path.read_text())
+        if data.get("params_fingerprint") == fingerprint and data.get("days") == [int(d) for d in days]:
+            return data
+    return None
