@@ -18,6 +18,8 @@ venv: $(STAMP)
 X64_TESTS := tests/test_model.py tests/test_bad_input.py
 
 test: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
 	$(PY) -m pytest -n 2 -q
 	JAX_ENABLE_X64=1 $(PY) -m pytest -n 2 -q $(X64_TESTS) -k "not under_x64"
 

@@ -167,7 +167,7 @@ def time_training(total_steps: int = STEPS_100K) -> list[dict]:
     plans = [("ppo", "PPO(1)", 1), ("ppo", "PPO(16)", 16), ("ippo", "IPPO(1)", 1), ("ippo", "IPPO(16)", 16)]
     for module, label, n in plans:
         try:
-            mod = importlib.import_module(f"baselines.{module}")
+            mod = importlib.import_module(f"baselines.algos.{module}")
             config = dict(getattr(mod, "DEFAULT_CONFIG", {}) or {})
             config = _training_config(config, n, total_steps)
             train = jax.jit(mod.make_train(config))

@@ -1,6 +1,6 @@
 """Training speed of the baselines: PPO, IPPO and MAPPO env-steps per second (issue 17).
 
-Each algorithm's ``make_train`` is built with the paper defaults (:data:`baselines.common.PAPER_DEFAULTS`)
+Each algorithm's ``make_train`` is built with the paper defaults (:data:`baselines.config.SCHEMA`)
 except ``NUM_ENVS`` and ``TOTAL_TIMESTEPS``; its ``jax.jit(train)`` is compiled once (compile
 seconds are reported apart), then the compiled programs are timed *interleaved* (round-robin
 over the algorithms, ``repeats`` rounds, best of them) so that a load change on a shared
@@ -15,16 +15,20 @@ Importable: :func:`measure_training` returns the rows, :func:`format_rows` the t
 
 from __future__ import annotations
 
-from baselines.config import SCHEMA
 import argparse
-import importlib
 import json
 import os
 import sys
 import time
 from pathlib import Path
 
+import jax
+
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # baselines/ is not installed: run from a checkout
+from baselines.algos import registry  # noqa: E402
+from baselines.config import SCHEMA  # noqa: E402
+
 STEPS_100K = 100_000
 
 
@@ -36,18 +40,11 @@ def _steps_for(num_envs: int, timesteps: int, num_steps: int) -> int:
 
 def build(algo: str, num_envs: int, timesteps: int, overrides: dict | None = None):
     """``(jitted train, config)`` of ``baselines.<algo>`` with the paper defaults plus the overrides."""
-    if str(ROOT) not in sys.path:
-        sys.path.insert(0, str(ROOT))
-    import jax
-
-    from baselines import common
-
-    mod = importlib.import_module(f"baselines.{algo}")
     config = dict(overrides or {})
     num_steps = int(config.get("NUM_STEPS", SCHEMA["NUM_STEPS"].default))
     config["NUM_ENVS"] = int(num_envs)
     config["TOTAL_TIMESTEPS"] = _steps_for(num_envs, timesteps, num_steps)
-    train = mod.make_train(config)
+    train = registry.make_train(algo, config)
     return jax.jit(train), train.config
 
 
@@ -61,7 +58,6 @@ def measure_training(algos=("ppo", "ippo", "mappo"), num_envs: int = 16, timeste
     average before the first and after the last round). ``overrides`` are config keys for
     every algorithm; a key ``"<algo>.<KEY>"`` applies to that algorithm only.
     """
-    import jax
 
     key = jax.random.PRNGKey(0)
     compiled, rows = {}, {}
@@ -136,9 +132,6 @@ def profile_phases(algo: str, num_envs: int = 16, updates: int = 2, repeats: int
                    overrides: dict | None = None) -> dict:
     """Seconds per update split into rollout (+ GAE) and one update epoch, from timing the
     program with ``UPDATE_EPOCHS`` 1 and 4: ``epoch = (t4 - t1) / 3``, ``rollout = t1 - epoch``."""
-    import jax
-
-    from baselines import common
 
     steps = updates * num_envs * SCHEMA["NUM_STEPS"].default
     t = {}
@@ -189,7 +182,6 @@ def main(argv=None) -> list[dict]:
     p.add_argument("--phases", action="store_true",
                    help="instead: split an update into rollout and epochs, with the networks' multiply-adds")
     args = p.parse_args(argv)
-    import jax
 
     print(f"jax {jax.__version__} on {jax.devices()[0].platform} x{len(jax.devices())}, {os.cpu_count()} CPUs, "
           f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)

@@ -16,9 +16,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from baselines import common, ippo, mappo, outputs, ppo, shaping, storage_value
-from baselines.config import build_env_params, resolve
-from baselines import runs
+from baselines import runs, shaping, storage_value
+from baselines import train as cli
+from baselines.algos import ippo, mappo, ppo
+from baselines.config import ConfigError, build_env_params, resolve
 from baselines.algos import features
 from baselines.algos import networks
 from baselines.algos import ppo_core
@@ -31,6 +32,19 @@ ROOT = Path(__file__).resolve().parents[1]
 TINY_ENV = {"station": "single_type", "station_kwargs": {"num_ports": 4, "battery": True}, "step_minutes": 60.0}
 TINY = {"NUM_ENVS": 4, "NUM_STEPS": 24, "NUM_MINIBATCHES": 2, "UPDATE_EPOCHS": 2, "HIDDEN": 32,
         "TOTAL_TIMESTEPS": 4 * 24, "ENV_KWARGS": TINY_ENV, "REWARD_SCALE": 0.1}
+
+
+def _toml(value) -> str:
+    """``value`` as a TOML inline value (for a ``KEY=value`` override)."""
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{k} = {_toml(v)}" for k, v in value.items()) + " }"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return json.dumps(value)
+
+
+TINY_CLI = ["--config", "cpu", "SEEDS=2", "NUM_ENVS=4", "NUM_STEPS=24", "HIDDEN=16", f"ENV_KWARGS={_toml(TINY_ENV)}"]
+"""The command line of a tiny run (add ``ALGO=``, ``TOTAL_TIMESTEPS=``, ``CHUNKS=``, ``OUT=``)."""
 
 
 def _finite_losses(train, seeds=2):
@@ -181,8 +195,11 @@ def test_num_envs_must_divide_devices(monkeypatch):
 _SHARDED = r"""
 import jax, numpy as np
 assert jax.device_count() == 2, jax.devices()
-from baselines import ippo, ppo
-from tests.test_baselines import TINY
+from baselines.algos import ippo, ppo
+TINY = {"NUM_ENVS": 4, "NUM_STEPS": 24, "NUM_MINIBATCHES": 2, "UPDATE_EPOCHS": 2, "HIDDEN": 32,
+        "TOTAL_TIMESTEPS": 4 * 24, "REWARD_SCALE": 0.1,
+        "ENV_KWARGS": {"station": "single_type", "station_kwargs": {"num_ports": 4, "battery": True},
+                       "step_minutes": 60.0}}
 for mod in (ppo, ippo):
     train = mod.make_train(TINY)
     rs = jax.jit(jax.vmap(train.init))(jax.random.split(jax.random.PRNGKey(0), 2))
@@ -211,11 +228,8 @@ def test_sharded_training_on_two_host_devices():
 
 
 def test_cli_smoke_writes_png_json_checkpoint(tmp_path):
-    from baselines import train as cli
-
     out = tmp_path / "run"
-    cli.main(["--algo", "ppo", "--timesteps", str(4 * 24 * 2), "--seeds", "2", "--num-envs", "4", "--num-steps", "24",
-              "--hidden", "16", "--chunks", "2", "--seed", "1", "--env-kwargs", json.dumps(TINY_ENV), "--out", str(out)])
+    cli.main([*TINY_CLI, "ALGO=ppo", f"TOTAL_TIMESTEPS={4 * 24 * 2}", "CHUNKS=2", "SEED=1", f"OUT={_toml(str(out))}"])
     for name in ("curve.png", "results.json", "params.msgpack"):
         assert (out / name).stat().st_size > 0, name
     res = json.loads((out / "results.json").read_text())
@@ -662,15 +676,12 @@ def test_relative_prices_read_the_observed_prices_and_quantiles():
 def test_attribution_scores_the_run_and_swaps_ports_and_battery(tmp_path, monkeypatch):
     """``baselines.analysis.attribution``: the ``learned`` row reproduces the run's own held-out score,
     and the mixes take the battery's levels from one policy and the ports' from the other."""
-    from baselines import attribution
-    from baselines import train as cli
+    from baselines.analysis import attribution
     from chargax_marl import policies
     from chargax_marl.core import make_params
 
     out = tmp_path / "run"
-    cli.main(["--algo", "ippo", "--timesteps", str(4 * 24), "--seeds", "2", "--num-envs", "4", "--num-steps", "24",
-              "--hidden", "16", "--chunks", "1", "--optimal", "off", "--env-kwargs", json.dumps(TINY_ENV),
-              "--out", str(out)])
+    cli.main([*TINY_CLI, "ALGO=ippo", f"TOTAL_TIMESTEPS={4 * 24}", "CHUNKS=1", "OPTIMAL=off", f"OUT={_toml(str(out))}"])
     res = json.loads((out / "results.json").read_text())
     att = attribution.attribute(out)
     learned = [s["mean"] for s in att["mixes"]["learned"]["per_seed"]]
@@ -703,7 +714,7 @@ def test_attribution_scores_the_run_and_swaps_ports_and_battery(tmp_path, monkey
     assert "hourly SoC" in read_policy.format_reading(reading)
     # baselines.analysis.redraw scores the same run on more cars: draw 0 is the run's own evaluation,
     # draw 1 the rules' evaluation under PRNGKey(1), averaged per day
-    from baselines import redraw
+    from baselines.analysis import redraw
     from baselines.heuristics import evaluate_rules
 
     two = redraw.redraw(out, draws=2, bound=False)
@@ -928,39 +939,37 @@ def test_dp_shaping_changes_the_day_by_a_constant_of_its_first_state(w):
     _finite_losses(ppo.make_train({**TINY, "BATTERY_SHAPING": "dp"}))
 
 
-def test_cli_on_off_flags_reach_the_config(monkeypatch):
-    """``baselines.train`` maps each on/off flag and ``--battery-gamma`` to its config key."""
-    from baselines import train
+def test_cli_overrides_reach_the_config_and_unknown_keys_raise(monkeypatch):
+    """``KEY=value`` arguments override the config file's keys; a misspelt key raises, naming
+    it and the allowed keys, before anything trains."""
+    from baselines import pipeline
 
     seen = {}
-    monkeypatch.setattr(train, "run", lambda algo, config, **kw: seen.update(config) or {})
-    train.main(["--algo", "ippo", "--relative-prices", "on", "--battery-net", "off", "--agent-adv-norm", "on",
-                "--battery-gamma", "0.95", "--battery-ent-coef", "0.05", "--battery-shaping", "dp", "--port-shaping", "plan",
-                "--timesteps", "100"])
-    assert seen["RELATIVE_PRICES"] is True and seen["BATTERY_NET"] is False
-    assert seen["AGENT_ADV_NORM"] is True and seen["BATTERY_GAMMA"] == 0.95
-    assert seen["BATTERY_ENT_COEF"] == 0.05 and seen["BATTERY_SHAPING"] == "dp" and seen["PORT_SHAPING"] == "plan"
-    train.main(["--algo", "ippo", "--relative-prices", "off", "--agent-adv-norm", "off", "--timesteps", "100"])
-    assert seen["RELATIVE_PRICES"] is False and seen["AGENT_ADV_NORM"] is False
+    monkeypatch.setattr(pipeline, "run", lambda algo, config, **kw: seen.update(config, ALGO=algo, **kw)
+                        or pipeline.RunOutput({}, None, None))
+    cli.main(["RELATIVE_PRICES=true", "BATTERY_NET=false", "BATTERY_GAMMA=0.95", "BATTERY_SHAPING=dp",
+              "PORT_SHAPING=plan", "TOTAL_TIMESTEPS=100"])
+    assert seen["RELATIVE_PRICES"] is True and seen["BATTERY_NET"] is False and seen["ALGO"] == "ippo"
+    assert seen["BATTERY_GAMMA"] == 0.95 and seen["BATTERY_SHAPING"] == "dp" and seen["PORT_SHAPING"] == "plan"
+    assert seen["TOTAL_TIMESTEPS"] == 100 and seen["out"] == "outputs/train_ippo"
+    with pytest.raises(ConfigError, match="BATTERY_NETT.*allowed.*BATTERY_NET"):
+        cli.main(["BATTERY_NETT=true"])
+    with pytest.raises(ConfigError, match="PORT_SHAPING='planned'.*one of"):
+        cli.main(["PORT_SHAPING=planned"])
 
 
 def test_replot_adds_the_stored_mpc_for_exactly_the_runs_params(tmp_path, monkeypatch):
     """``python -m baselines.train --replot RUN`` finds the MPC stored for the run's params and
     held-out days, adds it to the run's table with the paired difference, and redraws the
     curve; without a matching stored result it raises ``LookupError``."""
-    from baselines import optimal
-    from baselines import train as cli
     from chargax_marl.trace import params_fingerprint
 
     out = tmp_path / "run"
-    cli.main(["--algo", "ippo", "--timesteps", str(4 * 24), "--seeds", "2", "--num-envs", "4", "--num-steps", "24",
-              "--hidden", "16", "--chunks", "1", "--optimal", "off", "--env-kwargs", json.dumps(TINY_ENV),
-              "--out", str(out)])
+    cli.main([*TINY_CLI, "ALGO=ippo", f"TOTAL_TIMESTEPS={4 * 24}", "CHUNKS=1", "OPTIMAL=off", f"OUT={_toml(str(out))}"])
     res = json.loads((out / "results.json").read_text())
-    monkeypatch.setattr(optimal, "RESULTS_DIR", tmp_path / "optimal")
     (tmp_path / "optimal").mkdir()
     with pytest.raises(LookupError, match="no stored MPC"):
-        cli.main(["--replot", str(out)])
+        cli.main(["--replot", str(out), "--references", str(tmp_path / "optimal")])
     config = resolve(res["config"])
     _, eval_params, _, days = build_env_params(config)
     days = [int(d) for d in days]
@@ -970,7 +979,7 @@ def test_replot_adds_the_stored_mpc_for_exactly_the_runs_params(tmp_path, monkey
     (tmp_path / "optimal" / "other.json").write_text(json.dumps({**stored, "params_fingerprint": "0" * 16}))
     (tmp_path / "optimal" / "tiny.json").write_text(json.dumps(stored))
     before = (out / "curve.png").stat().st_mtime_ns
-    cli.main(["--replot", str(out)])
+    cli.main(["--replot", str(out), "--references", str(tmp_path / "optimal")])
     new = json.loads((out / "results.json").read_text())
     table = new["evaluation"]["table"]
     assert table["mpc"]["daily_profit"] == pytest.approx(mpc_daily.tolist())
@@ -985,7 +994,7 @@ def test_sensitivity_battery_step_on_an_empty_station_is_the_hand_computed_trade
     """With no cars, charging the battery for one step changes each day by exactly what the
     step costs at that step's price plus what the stored energy is worth at the day's end; a
     port idling changes nothing, and neither does a step outside the day."""
-    from baselines import sensitivity
+    from baselines.analysis import sensitivity
     from chargax_marl.core import make_params
     from tests.helpers import no_arrivals
 
@@ -1010,14 +1019,12 @@ def test_eval_draws_score_every_policy_on_the_mean_over_car_draws_of_each_day(tm
     """``--eval-draws 2``: the rules, the bound and the agent are scored under PRNGKey(0) and
     PRNGKey(1), each day's profit the mean of the two; the run says so, ``baselines.analysis.redraw``
     replays it only with at least its draws, and the one-draw stored MPC is refused."""
-    from baselines import redraw
-    from baselines import train as cli
+    from baselines import pipeline
+    from baselines.analysis import redraw
     from baselines.heuristics import evaluate_rules
 
     out = tmp_path / "run"
-    cli.main(["--algo", "ppo", "--timesteps", str(4 * 24), "--seeds", "2", "--num-envs", "4", "--num-steps", "24",
-              "--hidden", "16", "--chunks", "1", "--eval-draws", "2", "--env-kwargs", json.dumps(TINY_ENV),
-              "--out", str(out)])
+    cli.main([*TINY_CLI, "ALGO=ppo", f"TOTAL_TIMESTEPS={4 * 24}", "CHUNKS=1", "EVAL_DRAWS=2", f"OUT={_toml(str(out))}"])
     res = json.loads((out / "results.json").read_text())
     assert res["evaluation"]["draws"] == 2 and res["scenario"]["car_draws_per_day"] == 2
     assert "PRNGKey(1)" in res["evaluation"]["key"]
@@ -1035,9 +1042,9 @@ def test_eval_draws_score_every_policy_on_the_mean_over_car_draws_of_each_day(tm
     with pytest.raises(ValueError, match="draws >= 2"):
         redraw.redraw(out, draws=1, bound=False)
     with pytest.raises(LookupError, match="car draws"):
-        cli.add_stored_mpc(out)
+        pipeline.add_stored_mpc(out, tmp_path)
     with pytest.raises(ValueError, match="either a key or draws"):
         heldout.evaluate_batched(None, None, eval_params, days, key=jax.random.PRNGKey(0), draws=2)
     for bad in (0, -1, 1.5, True):
-        with pytest.raises(ValueError, match="field 'EVAL_DRAWS'"):
+        with pytest.raises(ValueError, match="EVAL_DRAWS"):
             resolve({"EVAL_DRAWS": bad})

@@ -262,7 +262,6 @@ def test_fingerprint_changes_with_the_random_stream(monkeypatch):
 def test_baselines_keep_a_named_scenarios_traffic():
     # the trainers' and `make optimal`'s configs once forced "medium" over the scenario's own
     # traffic, so "shopping-grid10-high" was evaluated at medium traffic
-    from baselines import common
     from baselines.analysis.references import scenario_params
 
     config = resolve({"SCENARIO": "shopping-grid10-high"})

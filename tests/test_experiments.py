@@ -59,7 +59,6 @@ def test_summary_and_plot(tmp_path):
 def test_traffic_sweep_appendix_conditions_build_valid_params():
     """``traffic_sweep --appendix``: the four bundled profiles (EU fleet) and the US / World
     fleets (shopping), each a config whose env parameters build; the default is the main figure."""
-    from baselines import common
     from baselines.experiments import traffic_sweep as ts
 
     assert ts.conditions() == [("shopping", "EU")]
@@ -82,49 +81,42 @@ def _args(argv, full_seeds=20):
 
 
 def test_runner_defaults_are_the_tuned_settings_and_full_is_the_paper_s_budget():
+    from baselines.config import settings
     from baselines.experiments import _common
-    from baselines.train import FAST
 
+    cpu = settings("cpu")
     base, seeds = _common.config_of(_args([]))
     assert seeds == 4 and base["TOTAL_TIMESTEPS"] == 2_000_000
     assert base["GAMMA"] == 0.95 and base["RELATIVE_PRICES"] is True and base["ENV_KWARGS"] == {"num_levels": 1}
-    assert all(base[k] == v for k, v in FAST.items() if k not in ("BATTERY_SHAPING",))
+    assert all(base[k] == v for k, v in cpu.items() if k not in ("BATTERY_SHAPING", "TOTAL_TIMESTEPS", "ALGO", "OUT"))
     assert base["BATTERY_SHAPING"] == "dp" and base["SPLIT_CREDIT"] is True
     multi, _ = _common.config_of(_args(["--algo", "ippo"]))
     assert multi["LOCAL_REWARD_WEIGHT"] == 1.0 and multi["BATTERY_NET"] and multi["GAMMA"] == 0.9
     full, full_seeds = _common.config_of(_args(["--full"]))
     assert full_seeds == 20 and full["TOTAL_TIMESTEPS"] == 10_000_000 and full["GAMMA"] == 0.95
     table3, _ = _common.config_of(_args(["--full", "--settings", "table3"]))
-    assert table3 == {"ENV_KWARGS": {}, "TOTAL_TIMESTEPS": 10_000_000}  # parse_config fills in Table 3
+    assert table3 == {"ENV_KWARGS": {}, "TOTAL_TIMESTEPS": 10_000_000}  # resolve() fills in Table 3
     # the tuned settings are not shared mutable state: a runner adding env kwargs leaves them alone
     again = _common.with_env_kwargs(base, fleet="US")
     assert again["ENV_KWARGS"] == {"num_levels": 1, "fleet": "US"} and _common.TUNED["ppo"]["ENV_KWARGS"] == {"num_levels": 1}
 
 
-def test_the_tuned_settings_are_the_makefile_s_flags(monkeypatch):
-    """``_common.TUNED`` is what ``make train-ppo`` / ``make train`` / ``make train-mappo`` pass to
-    ``baselines.train`` (budget, seeds and output aside), read from the Makefile itself."""
+def test_the_makefile_s_training_targets_name_a_config_and_nothing_else():
+    """``make train`` / ``train-ppo`` / ``train-mappo`` run ``baselines.train --config NAME``
+    with no other argument; the runners' tuned settings are those files' learning settings."""
     import re
-    import shlex
     from pathlib import Path
 
-    from baselines import train
+    from baselines.config import load
     from baselines.experiments import _common
 
-    text = Path(__file__).resolve().parents[1].joinpath("Makefile").read_text().replace("\\\n", " ")
-    variables = dict(re.findall(r"^(\w+) := (.*)$", text, flags=re.M))
-    seen = {}
-    monkeypatch.setattr(train, "run", lambda algo, config, **kw: seen.update({algo: config}) or {})
-    for target in ("train", "train-ppo", "train-mappo"):
+    text = Path(__file__).resolve().parents[1].joinpath("Makefile").read_text()
+    for target, name in (("train", "ippo"), ("train-ppo", "ppo"), ("train-mappo", "mappo")):
         line = re.search(rf"^{target}:.*\n\t(.*)$", text, flags=re.M).group(1)
-        line = re.sub(r"\$\((\w+)\)", lambda m: variables.get(m.group(1), ""), line)
-        argv = shlex.split(line)
-        train.main(argv[argv.index("baselines.train") + 1:])
-    for algo in ("ppo", "ippo", "mappo"):
-        got = {k: v for k, v in seen[algo].items() if k not in ("TOTAL_TIMESTEPS", "SCENARIO", "TRAFFIC")}
-        want = {k: v for k, v in _common.TUNED[algo].items() if k != "TOTAL_TIMESTEPS"}
-        assert got == want, (algo, {k: (got.get(k), want.get(k)) for k in set(got) | set(want)
-                                    if got.get(k) != want.get(k)})
+        assert line == f"$(PY) -m baselines.train --config {name}", (target, line)
+        config, run = load(name)
+        assert run["ALGO"] == name
+        assert all(config[k] == v for k, v in _common.TUNED[name].items())
 
 
 def test_the_record_says_when_a_run_is_cut_from_the_paper_s_scale():
@@ -186,7 +178,6 @@ def test_traffic_sweep_log_line_and_plots(tmp_path):
 
 def _stored_run(tmp_path, config, **overrides):
     """A ``results.json`` as ``baselines.train`` writes it, for ``config`` (4 chunks, 2 seeds)."""
-    from baselines import common
     from baselines.pipeline import chunked_updates
 
     parsed = resolve(config)
@@ -282,7 +273,6 @@ def test_code_version_names_the_checkout_s_commit(tmp_path):
 def test_result_files_keep_float32_values_exactly_and_number_lists_on_one_line(tmp_path):
     """``runs.write_json``: a float32 metric is written as its shortest decimal and reads back
     to the same float32; float64 statistics are kept as they are; number lists take one line."""
-    from baselines import outputs
 
     metric = np.float32([340.23096, -0.0112, 1e-7])
     obj = {"curve": {"profit": metric, "seeds": [[1.5, 2.5], [3.5, 4.5]]}, "mean": 10.358861465454103,

@@ -298,7 +298,7 @@ def test_refreshing_the_rules_keeps_the_bound_and_refuses_another_model(tmp_path
     refuses a file whose always-max does not replay (another model) or whose params differ."""
     import json
 
-    from baselines import optimal as opt
+    from baselines.analysis import references as opt
     from baselines.heuristics import evaluate_rules
 
     monkeypatch.setattr(opt, "RULES", ("always_max", "edf"))

@@ -223,7 +223,7 @@ def test_the_mpc_prices_the_refund_too():
 
 
 def test_the_measurement_script_runs_on_a_few_days():
-    from baselines import refund
+    from baselines.experiments import refund
 
     profits = refund.daily_profits("shopping", rules=("always_max", "discharge_departing"), num_eval=3,
                                    fleet=refund.all_v2g())
