@@ -15,6 +15,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
 from chargax_marl.core import datasets as ds
@@ -165,10 +167,7 @@ def plot_profiles(prices: Any = "NL-2023", user_profile: Any = "shopping", fleet
     distributions (inverse CDFs); fleet shares by model. Any argument may be
     ``None`` to leave its panel(s) empty.
     """
-    import matplotlib
-
     matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -9,11 +9,11 @@ import os
 import platform
 import subprocess
 
+import jax
+
 
 def machine_info() -> dict:
     """CPU model, core count, jax version, backend and device kind (for result files and READMEs)."""
-    import jax
-
     model = platform.processor() or platform.machine()
     try:
         out = subprocess.run(["lscpu"], capture_output=True, text=True, timeout=10).stdout

@@ -16,14 +16,16 @@ group for Gymnasium versions that load plugins.
 
 from __future__ import annotations
 
+import gymnasium
+
+from chargax_marl.core.scenarios import SCENARIOS
+
 ENTRY_POINT = "chargax_marl.single.wrappers:GymnasiumEnv"
 NAMESPACE = "chargax_marl"
 
 
 def env_ids() -> dict[str, dict]:
     """Every id this package registers, with the keyword arguments it passes."""
-    from chargax_marl.core.scenarios import SCENARIOS
-
     ids = {f"{NAMESPACE}/Chargax-v0": {}}
     for name, kwargs in SCENARIOS.items():
         ids[f"{NAMESPACE}/Chargax-{name}-v0"] = dict(kwargs)
@@ -32,8 +34,6 @@ def env_ids() -> dict[str, dict]:
 
 def register_envs() -> None:
     """Register the ids of :func:`env_ids` (again: a no-op)."""
-    import gymnasium
-
     for env_id, kwargs in env_ids().items():
         if env_id not in gymnasium.registry:
             gymnasium.register(id=env_id, entry_point=ENTRY_POINT, kwargs=kwargs)

@@ -7,7 +7,10 @@ station power).
 
 from __future__ import annotations
 
+import gymnasium
 import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 
 from chargax_marl.core.station import KIND_NAMES
 from chargax_marl.core.types import EnvParams
@@ -50,8 +53,6 @@ def ansi_table(state, params: EnvParams, names: list[str]) -> str:
 
 def rgb_plot(history: list[tuple[float, float, float]], state, params: EnvParams) -> np.ndarray:
     """``HxWx3`` uint8 plot of ``history`` rows ``(hour, buy price, station kW)``."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
 
     fig = Figure(figsize=(6.4, 4.0), dpi=80)
     canvas = FigureCanvasAgg(fig)
@@ -72,8 +73,6 @@ def rgb_plot(history: list[tuple[float, float, float]], state, params: EnvParams
 
 def render(mode: str | None, state, params: EnvParams, names: list[str], history, where: str):
     """Dispatch on ``mode``; ``None`` warns (Gymnasium's convention) and returns None."""
-    import gymnasium
-
     if mode is None:
         gymnasium.logger.warn(f"{where}.render() called without a render_mode; pass render_mode='ansi', "
                               "'human' or 'rgb_array' when constructing the env")

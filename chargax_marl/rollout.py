@@ -17,6 +17,7 @@ from chargax_marl.core import simulator
 from chargax_marl.core.types import EnvParams
 from chargax_marl.evaluation import run_days
 from chargax_marl.policies import POLICIES
+from chargax_marl.single import make
 
 
 def rollout_days(policy, params: EnvParams, keys: jax.Array):
@@ -43,7 +44,6 @@ def main(argv=None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
 
-    from chargax_marl.single import make
 
     _, params = make(args.scenario)
     keys = jax.random.split(jax.random.PRNGKey(args.seed), args.days)

@@ -13,6 +13,8 @@ that no product in the step leaves float32.
 
 from __future__ import annotations
 
+import functools
+import inspect
 import math
 import numbers
 from typing import Any
@@ -125,8 +127,6 @@ def known_keywords(fn):
 
     (Python's own error names the bad keyword but not the ones that exist.)
     """
-    import functools
-    import inspect
 
     sig = inspect.signature(fn)
     if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in sig.parameters.values()):

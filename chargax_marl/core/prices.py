@@ -17,6 +17,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+from zoneinfo import ZoneInfo
 
 import numpy as np
 
@@ -106,7 +107,7 @@ def load_prices(source: Any = "NL-2023", *, first_weekday: int | None = None) ->
     return data
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _price_index() -> dict[str, dict[str, Any]]:
     merged: dict[str, dict[str, Any]] = {}
     for fname in PRICE_INDEX_FILES:
@@ -114,7 +115,7 @@ def _price_index() -> dict[str, dict[str, Any]]:
     return merged
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _load_bundled_prices(name: str) -> PriceData:
     entry = _price_index()[name]
     prices, first_weekday = read_prices_csv(DATA_DIR / entry["file"])
@@ -279,12 +280,10 @@ def parse_day_ahead_csv(
     year, ``first_date``, ``days``, ``dst_gap_filled``, ``dst_repeat_averaged``
     and ``interpolated`` (other missing hours).
     """
-    from zoneinfo import ZoneInfo
-
     if unit not in ("eur_kwh", "eur_mwh"):
         raise ValueError(f"unit: expected 'eur_kwh' or 'eur_mwh', got {unit!r}")
     tz = ZoneInfo(timezone)
-    utc = _dt.timezone.utc
+    utc = _dt.UTC
     if text.startswith("\ufeff"):
         text = text[1:]
     reader = list(csv.reader(io.StringIO(text)))
@@ -406,5 +405,5 @@ def parse_day_ahead_csv(
 def _wall_time_missing(day: _dt.date, hour: int, tz) -> bool:
     """True if ``day hour:00`` does not exist in ``tz`` (spring-forward gap)."""
     naive = _dt.datetime(day.year, day.month, day.day, hour)
-    back = naive.replace(tzinfo=tz).astimezone(_dt.timezone.utc).astimezone(tz)
+    back = naive.replace(tzinfo=tz).astimezone(_dt.UTC).astimezone(tz)
     return back.replace(tzinfo=None) != naive
