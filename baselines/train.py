@@ -62,7 +62,7 @@ def main(argv=None) -> dict:
     Raises:
         baselines.config.ConfigError: an unknown config, key or value.
     """
-    a = parser().parse_args(argv)
+    a = parser().parse_intermixed_args(argv)
     if a.replot:
         for run_dir in a.replot:
             r = pipeline.add_stored_mpc(run_dir, a.references)

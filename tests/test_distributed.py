@@ -24,10 +24,10 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
-TINY_ENV = {"station": "single_type", "station_kwargs": {"num_ports": 4, "battery": True}, "step_minutes": 60.0}
-ARGS = ["--algo", "ppo", "--timesteps", str(2 * 4 * 24), "--seeds", "2", "--seed", "3", "--num-envs", "4",
-        "--num-steps", "24", "--hidden", "16", "--minibatches", "2", "--epochs", "1", "--chunks", "1",
-        "--eval-days", "4", "--optimal", "off", "--env-kwargs", json.dumps(TINY_ENV)]
+ARGS = ["--config", "cpu", "ALGO=ppo", f"TOTAL_TIMESTEPS={2 * 4 * 24}", "SEEDS=2", "SEED=3", "NUM_ENVS=4",
+        "NUM_STEPS=24", "HIDDEN=16", "NUM_MINIBATCHES=2", "UPDATE_EPOCHS=1", "CHUNKS=1", "NUM_EVAL_DAYS=4",
+        "OPTIMAL=off",
+        'ENV_KWARGS={ station = "single_type", station_kwargs = { num_ports = 4, battery = true }, step_minutes = 60.0 }']
 TIMEOUT_S = 480  # three compiles on 2 shared cores
 FAST_COMPILE = "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
 
@@ -75,9 +75,9 @@ def test_two_process_training_matches_one_process_with_two_devices(tmp_path):
     outs = {name: tmp_path / name for name in ("proc0", "proc1", "single")}
     logs = {name: tmp_path / f"{name}.log" for name in outs}
     dist = ["--coordinator", f"127.0.0.1:{port}", "--num-processes", "2"]
-    procs = {f"proc{i}": _launch([*dist, "--process-id", str(i), "--out", str(outs[f"proc{i}"])], 1,
+    procs = {f"proc{i}": _launch([*dist, "--process-id", str(i), f"OUT='{outs[f'proc{i}']}'"], 1,
                                  logs[f"proc{i}"]) for i in range(2)}
-    procs["single"] = _launch(["--out", str(outs["single"])], 2, logs["single"])
+    procs["single"] = _launch([f"OUT='{outs['single']}'"], 2, logs["single"])
     _wait_all(procs, logs)
 
     # only process 0 wrote outputs (process 1 got its own --out, which must not exist) and printed
