@@ -14,92 +14,57 @@ import argparse
 import time
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from baselines import common
 from chargax_marl.evaluation import run_days, split_days, summarize, write_json
 from chargax_marl.core import make_params
-from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.policies import get_policy
 from chargax_marl.single.scenarios import SCENARIOS
+# Re-exported for the callers of this module until they import the library
+# (chargax_marl.teachers.rules).
+from chargax_marl.teachers.rules import grid_programme as grid_programme_action  # noqa: F401
+from chargax_marl.teachers.rules import has_battery
 
 POLICIES = ("always_max", "battery_rule", "price_threshold", "edf", "llf")
 
 PROGRAMME = "battery_programme"
 """Always-max ports with the batteries on the battery-only programme: at each step the
 best of discharge / idle / charge at full power for the stored energy, by backward induction
-over the day's known buy prices (:func:`baselines.read_policy.dp_battery_action`). It is
+over the day's known buy prices (:func:`chargax_marl.teachers.storage_value.dp_battery_action`). It is
 the battery shaping's teacher (``BATTERY_SHAPING="dp"``) played as a rule, no learning, and
 so the reference a learner trained with that shaping has to beat to show it learned more
 than its teacher."""
 
 PLAN_PROGRAMME = "plan_programme"
-"""The ports on their cars' plans (:func:`baselines.car_value.plan_action` at
-:data:`baselines.car_value.PLAN_POWER_FRACTION`: full power in the steps of each car's
+"""The ports on their cars' plans (:func:`chargax_marl.teachers.car_plan.plan_action` at
+:data:`chargax_marl.teachers.car_plan.PLAN_POWER_FRACTION`: full power in the steps of each car's
 cheapest plan, idle otherwise) with the batteries on the battery-only programme: both
 teachers of the multi-agent settings (``PORT_SHAPING="plan"``, ``PLAN_OBS``,
 ``BATTERY_SHAPING="dp"``) played as a rule."""
 
 TEACHER_RULES = (PROGRAMME, PLAN_PROGRAMME)
-"""Rules built from the trainers' shaping teachers, per station and price table (so not
-:mod:`chargax_marl.policies` rules); each needs a battery."""
+"""Rules built from the trainers' shaping teachers, per station and price table
+(:mod:`chargax_marl.teachers.rules`, built by :func:`chargax_marl.policies.get_policy` with
+params); each needs a battery."""
 
 GRID_PROGRAMME = "grid_programme"
 """``battery_programme`` that knows the node limits: always-max ports, the batteries on the
 battery-only programme, except that they do not charge while the ports' full-power draw
 alone (grid side) exceeds the limit of a node above a battery. There the programme's charge
 would be rescaled with the ports', taking the scarce connection from the cars
-(``baselines/README.md``, issue 13: on ``shopping-grid25-high`` this one change is worth
-+1.1 EUR/day over the programme on 16 car draws, what IPPO learned there). Not a teacher of
-any trainer; ``baselines.redraw`` scores it beside the teachers' rules."""
+(see ``baselines/README.md`` for what this one change is worth on ``shopping-grid25-high``).
+Not a teacher of any trainer; ``baselines.redraw`` scores it beside the teachers' rules."""
 
 BATTERY_RULES = TEACHER_RULES + (GRID_PROGRAMME,)
 """Every rule of this module that needs a battery."""
-
-
-def grid_programme_action(params):
-    """``act(state, key, params) -> levels`` of :data:`GRID_PROGRAMME`."""
-    from chargax_marl.core import physics
-    from baselines.read_policy import dp_battery_action
-
-    st = params.station
-    is_battery = np.asarray(st.leaf_kind) == KIND_BATTERY
-    # the nodes above any battery (every depth of its path to the grid connection)
-    above = np.asarray(st.node_of_leaf_at_depth)[:, is_battery].reshape(-1)
-    above = jnp.asarray(np.unique(above[above >= 0]), jnp.int32)
-    is_battery = jnp.asarray(is_battery)
-    dp = dp_battery_action(params)
-
-    def act(state, key, p):
-        del key
-        ports = jnp.where(is_battery, 0, p.num_levels).astype(jnp.int32)
-        demand_kw = physics.requested_current(ports, state, p) * st.leaf_voltage_v / 1000.0
-        binding = jnp.any(physics.node_flows_kw(demand_kw, st)[above] > st.node_max_kw[above])
-        bat = dp(state)[0]
-        bat = jnp.where(binding & (bat > 0), 0, bat)
-        return jnp.where(is_battery, bat * p.num_levels, ports).astype(jnp.int32)
-
-    return act
-
-
-def has_battery(params) -> bool:
-    return bool(np.any(np.asarray(params.station.leaf_kind) == KIND_BATTERY))
 
 
 def rule_policy(name: str, params):
     """The ``policy(state, key, params)`` of a rule name: a :mod:`chargax_marl.policies` rule, or
     one of :data:`BATTERY_RULES` (built for ``params``; a ``ValueError`` on a station without
     a battery)."""
-    if name not in BATTERY_RULES:
-        return get_policy(name)
-    if not has_battery(params):
-        raise ValueError(f"policy {name!r} needs a station with a battery; this station has none")
-    if name == GRID_PROGRAMME:
-        return grid_programme_action(params)
-    from baselines.car_value import PLAN_POWER_FRACTION, plan_action
-
-    return plan_action(params, battery="dp", power_fraction=None if name == PROGRAMME else PLAN_POWER_FRACTION)
+    return get_policy(name, params)
 
 
 def check_replay(replayed: dict, stored: dict, names, where: str) -> None:

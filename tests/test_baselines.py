@@ -16,7 +16,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from baselines import common, ippo, mappo, outputs, ppo, shaping, storage_value
+from baselines import common, ippo, mappo, outputs, ppo, shaping
+from chargax_marl.teachers import storage_value
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -300,7 +301,7 @@ def test_battery_programme_rule_is_always_max_ports_and_the_programme_s_battery(
     programme's full-power action; ``plan_programme``: the ports on the plan's advice, the
     same battery. Refused, naming the policy, on a station without a battery, where the
     baselines leave them out."""
-    from baselines import car_value, read_policy
+    from baselines import car_value
     from baselines.heuristics import PLAN_PROGRAMME, PROGRAMME, evaluate_rules, rule_policy
     from baselines.train import baseline_results
     from chargax_marl.core import make_params, simulator
@@ -308,7 +309,7 @@ def test_battery_programme_rule_is_always_max_ports_and_the_programme_s_battery(
     from chargax_marl.policies import always_max
 
     params = make_params(**TINY_ENV)
-    act, dp = rule_policy(PROGRAMME, params), read_policy.dp_battery_action(params)
+    act, dp = rule_policy(PROGRAMME, params), storage_value.dp_battery_action(params)
     plan, advice = rule_policy(PLAN_PROGRAMME, params), car_value.plan_advice(params)
     is_bat = np.asarray(params.station.leaf_kind) == KIND_BATTERY
     state = simulator.reset(jax.random.PRNGKey(1), params)
@@ -335,7 +336,6 @@ def test_grid_programme_holds_the_battery_s_charge_while_the_ports_alone_overloa
     """``grid_programme``: always-max ports and the programme's battery, except a charge while
     the ports' full-power draw exceeds the grid connection (a 25 % connection with every port
     taken); with the full connection it is ``battery_programme`` at every step."""
-    from baselines import read_policy
     from baselines.heuristics import GRID_PROGRAMME, PROGRAMME, evaluate_rules, rule_policy
     from chargax_marl.core import make_params, simulator
     from chargax_marl.core.station import KIND_BATTERY
@@ -344,7 +344,7 @@ def test_grid_programme_holds_the_battery_s_charge_while_the_ports_alone_overloa
     for fraction in (0.25, None):
         params = make_params(**TINY_ENV, grid_fraction=fraction)
         act, prog, dp = rule_policy(GRID_PROGRAMME, params), rule_policy(PROGRAMME, params), \
-            read_policy.dp_battery_action(params)
+            storage_value.dp_battery_action(params)
         is_bat = np.asarray(params.station.leaf_kind) == KIND_BATTERY
         state = simulator.reset(jax.random.PRNGKey(1), params)
         car = lambda field, value: jnp.where(jnp.asarray(is_bat), getattr(state, field), value)  # noqa: E731
@@ -752,16 +752,15 @@ def test_dp_battery_action_earns_the_programme_s_value_in_its_own_model():
     """Played through the battery-only model from 50 % (a grid point), the programme's greedy
     action earns exactly ``value[day, 0](E_0)``: the action read from the state and the table
     agree."""
-    from baselines import read_policy
     from chargax_marl.core import make_params, simulator
     from chargax_marl.core.station import KIND_BATTERY
 
     params = make_params()
     grid, table = storage_value.dp_values(params)
     prices = storage_value.step_buy_prices(params)
-    eta, power_kw, capacity_kwh, e0 = storage_value._battery_constants(params)
+    eta, power_kw, capacity_kwh, e0 = storage_value.battery_constants(params)
     step_kwh = power_kw * float(params.step_hours)
-    act = jax.jit(read_policy.dp_battery_action(params))
+    act = jax.jit(storage_value.dp_battery_action(params))
     is_bat = np.asarray(params.station.leaf_kind) == KIND_BATTERY
     for day in (5, 147):
         state = simulator.empty_state(jnp.int32(day), params, jax.random.PRNGKey(0))
@@ -784,8 +783,6 @@ def test_storage_value_hand_case_and_bounds():
     """The battery-only LP's value of a stored kWh: where no energy bound binds, every step's
     value is the terminal price (energy moves freely through the day); with losses a kWh
     bought at ``p`` costs ``p / eta``, so the values stay within the day's prices scaled by eta."""
-    from baselines import storage_value
-
     v = storage_value.day_values([0.1, 0.3, 0.2], 0.15, eta=1.0, power_kw=1.0, capacity_kwh=10.0, e0=5.0,
                                  step_hours=1.0)
     np.testing.assert_allclose(v, [0.15, 0.15, 0.15, 0.15], atol=1e-9)
@@ -984,7 +981,7 @@ def test_sensitivity_battery_step_on_an_empty_station_is_the_hand_computed_trade
     params = no_arrivals(make_params(**{**TINY_ENV, "step_minutes": 15.0}))
     days, step = np.array([3, 40, 200]), 30
     out = sensitivity.sensitivity(params, days, step=step)
-    eta, power_kw, capacity_kwh, e0 = storage_value._battery_constants(params)
+    eta, power_kw, capacity_kwh, e0 = storage_value.battery_constants(params)
     assert e0 + power_kw * float(params.step_hours) < 0.8 * capacity_kwh  # below the taper: the full charge
     stored = power_kw * float(params.step_hours)
     prices = storage_value.step_buy_prices(params)[days, step]
