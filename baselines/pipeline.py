@@ -21,6 +21,7 @@ from baselines.eval import heldout, references, stats
 from chargax_marl.evaluation import format_table, summarize_profit
 from chargax_marl.machine import code_version
 
+
 @dataclass(frozen=True)
 class RunOutput:
     """What :func:`run` returns.

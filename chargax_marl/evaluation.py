@@ -101,7 +101,7 @@ def evaluate_policy(policy, params: EnvParams, days, key: jax.Array | None = Non
     """:func:`evaluate` for a rule-based ``policy(state, key, params)`` or its name."""
     from chargax_marl.policies import get_policy
 
-    policy = get_policy(policy) if isinstance(policy, str) else policy
+    policy = get_policy(policy, params) if isinstance(policy, str) else policy
     return evaluate(lambda s, k: policy(s, k, params), params, days, key)
 
 
@@ -113,7 +113,7 @@ def hindsight_bound(params: EnvParams, days, key: jax.Array | None = None, refer
     from chargax_marl.optimal import bound_days
     from chargax_marl.policies import get_policy
 
-    bounds = bound_days(params, days, key, get_policy(reference), time_limit_s=time_limit_s)
+    bounds = bound_days(params, days, key, get_policy(reference, params), time_limit_s=time_limit_s)
     return {"daily_profit": np.array([b.profit_eur for b in bounds]),
             "reference_daily_profit": np.array([b.reference_profit_eur for b in bounds]),
             "solve_s": np.array([b.solve_s for b in bounds]), "status": [b.status for b in bounds],

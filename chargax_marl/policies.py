@@ -10,6 +10,10 @@ simulator state, not the observation. To use one with a view:
   :class:`chargax_marl.marl.ChargaxMARL`.
 
 All policies are jittable and vmappable.
+
+The teachers' rules (``battery_programme``, ``plan_programme``, ``grid_programme``,
+:mod:`chargax_marl.teachers.rules`) read tables built for one station and price table, so
+they are built for given params: ``get_policy("battery_programme", params)``.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from chargax_marl.core import physics
 from chargax_marl.core.reward import hour_of_step
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState
+from chargax_marl.teachers.rules import RULE_BUILDERS
 
 Policy = Callable[[EnvState, jax.Array, EnvParams], jnp.ndarray]
 
@@ -188,20 +193,44 @@ POLICIES: dict[str, Policy] = {
 }
 
 
-def get_policy(name: str) -> Policy:
+TEACHER_RULES = tuple(RULE_BUILDERS)
+"""The teachers' rules (:mod:`chargax_marl.teachers.rules`): :func:`get_policy` builds them for
+given params; each needs a station with a battery."""
+
+
+def get_policy(name: str, params: EnvParams | None = None) -> Policy:
+    """The policy of a name.
+
+    Args:
+        name: a key of :data:`POLICIES` or one of :data:`TEACHER_RULES`.
+        params: concrete params to build a teacher's rule for (ignored by the other rules).
+
+    Returns:
+        ``policy(state, key, params) -> levels``.
+
+    Raises:
+        KeyError: an unknown name.
+        ValueError: a teacher's rule without ``params``, or for a station without a battery.
+    """
+    if name in RULE_BUILDERS:
+        if params is None:
+            raise ValueError(f"policy {name!r} is built for a station and its prices: "
+                             f"call get_policy({name!r}, params)")
+        return RULE_BUILDERS[name](params)
     if name not in POLICIES:
-        raise KeyError(f"unknown policy {name!r}; allowed: {sorted(POLICIES)}")
+        allowed = sorted(POLICIES) + sorted(TEACHER_RULES)
+        raise KeyError(f"unknown policy {name!r}; allowed: {allowed}")
     return POLICIES[name]
 
 
 def for_single(policy: Policy | str, env, params: EnvParams | None = None):
     """``fn(state, key) -> action`` in the action space of the single-agent env ``env``."""
-    policy = get_policy(policy) if isinstance(policy, str) else policy
     params = params if params is not None else env.default_params
+    policy = get_policy(policy, params) if isinstance(policy, str) else policy
     return lambda state, key: env.levels_to_action(policy(state, key, params), params)
 
 
 def for_marl(policy: Policy | str, env):
     """``fn(state, key) -> {agent: action}`` for the multi-agent env ``env``."""
-    policy = get_policy(policy) if isinstance(policy, str) else policy
+    policy = get_policy(policy, env.params) if isinstance(policy, str) else policy
     return lambda state, key: env.levels_to_actions(policy(state, key, env.params))

@@ -16,16 +16,17 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from baselines import runs, shaping, storage_value
+from baselines import runs
 from baselines import train as cli
-from baselines.algos import ippo, mappo, ppo
+from baselines.algos import aids, ippo, mappo, ppo
 from baselines.config import ConfigError, build_env_params, resolve
-from baselines.algos import features
 from baselines.algos import networks
 from baselines.algos import ppo_core
 from baselines.algos import runner
 from baselines.eval import heldout
 from baselines.eval import stats
+from chargax_marl.teachers import car_plan, prices, storage_value
+from chargax_marl.teachers import shaping as teacher_shaping
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -322,16 +323,15 @@ def test_battery_programme_rule_is_always_max_ports_and_the_programme_s_battery(
     programme's full-power action; ``plan_programme``: the ports on the plan's advice, the
     same battery. Refused, naming the policy, on a station without a battery, where the
     baselines leave them out."""
-    from baselines import car_value, read_policy
-    from baselines.heuristics import PLAN_PROGRAMME, PROGRAMME, evaluate_rules, rule_policy
+    from baselines.eval.rules import PLAN_PROGRAMME, PROGRAMME, evaluate_rules, rule_policy
     from baselines.eval.heldout import baseline_results
     from chargax_marl.core import make_params, simulator
     from chargax_marl.core.station import KIND_BATTERY
     from chargax_marl.policies import always_max
 
     params = make_params(**TINY_ENV)
-    act, dp = rule_policy(PROGRAMME, params), read_policy.dp_battery_action(params)
-    plan, advice = rule_policy(PLAN_PROGRAMME, params), car_value.plan_advice(params)
+    act, dp = rule_policy(PROGRAMME, params), storage_value.dp_battery_action(params)
+    plan, advice = rule_policy(PLAN_PROGRAMME, params), car_plan.plan_advice(params)
     is_bat = np.asarray(params.station.leaf_kind) == KIND_BATTERY
     state = simulator.reset(jax.random.PRNGKey(1), params)
     state = state.replace(occupied=jnp.ones_like(state.occupied))  # a car at every port (an empty one's level acts on nothing)
@@ -357,8 +357,7 @@ def test_grid_programme_holds_the_battery_s_charge_while_the_ports_alone_overloa
     """``grid_programme``: always-max ports and the programme's battery, except a charge while
     the ports' full-power draw exceeds the grid connection (a 25 % connection with every port
     taken); with the full connection it is ``battery_programme`` at every step."""
-    from baselines import read_policy
-    from baselines.heuristics import GRID_PROGRAMME, PROGRAMME, evaluate_rules, rule_policy
+    from baselines.eval.rules import GRID_PROGRAMME, PROGRAMME, evaluate_rules, rule_policy
     from chargax_marl.core import make_params, simulator
     from chargax_marl.core.station import KIND_BATTERY
 
@@ -366,7 +365,7 @@ def test_grid_programme_holds_the_battery_s_charge_while_the_ports_alone_overloa
     for fraction in (0.25, None):
         params = make_params(**TINY_ENV, grid_fraction=fraction)
         act, prog, dp = rule_policy(GRID_PROGRAMME, params), rule_policy(PROGRAMME, params), \
-            read_policy.dp_battery_action(params)
+            storage_value.dp_battery_action(params)
         is_bat = np.asarray(params.station.leaf_kind) == KIND_BATTERY
         state = simulator.reset(jax.random.PRNGKey(1), params)
         car = lambda field, value: jnp.where(jnp.asarray(is_bat), getattr(state, field), value)  # noqa: E731
@@ -513,8 +512,8 @@ def test_battery_shaping_moves_the_battery_value_but_keeps_the_days_reward(w):
     is_bat = np.asarray(env0.params.station.leaf_kind) == KIND_BATTERY
 
     def rewards_of(env, state, info):
-        price = shaping.battery_value_price(state, env.params)
-        return shaping.agent_battery_shaping(price, info, is_bat, w)
+        price = teacher_shaping.battery_value_price(state, env.params)
+        return teacher_shaping.agent_battery_shaping(price, info, is_bat, w)
 
     raw, shaped, first, profit = _tiny_day(rewards_of, w)
     np.testing.assert_allclose(shaped, raw, atol=1e-3)  # per agent, w = 0 and w = 1
@@ -523,7 +522,7 @@ def test_battery_shaping_moves_the_battery_value_but_keeps_the_days_reward(w):
         np.testing.assert_allclose(raw, profit, rtol=1e-5)  # the shared reward is the station's profit
     # the single-agent form is the station's term (w = 0)
     info_like = {"battery_net_kwh": np.ones(3), "battery_terminal_value_eur": np.array([0.0, 0.0, 5.0])}
-    np.testing.assert_allclose(shaping.battery_shaping(2.0 * info_like["battery_net_kwh"],
+    np.testing.assert_allclose(teacher_shaping.battery_shaping(2.0 * info_like["battery_net_kwh"],
                                                       info_like["battery_terminal_value_eur"]), [2.0, 2.0, -3.0])
 
 
@@ -649,13 +648,13 @@ def test_relative_prices_read_the_observed_prices_and_quantiles():
         env = ChargaxMARL(agent_id=agent_id, **TINY_ENV)
         state = env.reset_to_day(3)[1]
         obs = np.asarray(env.get_obs_matrix(state))
-        ctx = np.asarray(observation.context_features(shaping.core_state(state), env.params))
+        ctx = np.asarray(observation.context_features(teacher_shaping.core_state(state), env.params))
         ctx0 = env.obs_size - np.shape(env._layout.agent_id)[1] - observation.context_size(env.params)
-        prices, q20, q50, q80 = features.relative_price_columns(env.params, ctx0)
+        prices, q20, q50, q80 = prices.relative_price_columns(env.params, ctx0)
         i = observation.context_index(env.params, "price_quantiles")
         np.testing.assert_array_equal(obs[0, prices], ctx[:env.params.price_horizon_hours + 1])
         np.testing.assert_array_equal(obs[0, [q20, q50, q80]], ctx[i + 1:i + 4])
-        rel = np.asarray(features.relative_prices(jnp.asarray(obs), prices, q20, q50, q80))
+        rel = np.asarray(prices.relative_prices(jnp.asarray(obs), prices, q20, q50, q80))
         np.testing.assert_allclose(rel[1], np.clip((obs[1, prices] - obs[1, q50]) / (obs[1, q80] - obs[1, q20]), -5, 5),
                                    rtol=1e-5)
     assert observation.context_size(env.params) == ctx.shape[0]
@@ -665,10 +664,10 @@ def test_relative_prices_read_the_observed_prices_and_quantiles():
     assert mappo.make_train({**TINY, "RELATIVE_PRICES": True}).policy.critic_dim == train.env.state_size
     # single-agent PPO: the same features from the flat observation, which ends with the context
     ppo_train = ppo.make_train({**TINY, "RELATIVE_PRICES": True})
-    flat = np.asarray(observation.flat_obs(shaping.core_state(state), ppo_train.env_params))
-    cols = features.relative_price_columns(ppo_train.env_params, flat.shape[0] - ctx.shape[0])
+    flat = np.asarray(observation.flat_obs(teacher_shaping.core_state(state), ppo_train.env_params))
+    cols = prices.relative_price_columns(ppo_train.env_params, flat.shape[0] - ctx.shape[0])
     np.testing.assert_array_equal(flat[cols[0]], ctx[:env.params.price_horizon_hours + 1])
-    np.testing.assert_allclose(np.asarray(features.relative_prices(jnp.asarray(flat), *cols)), rel[0], rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(prices.relative_prices(jnp.asarray(flat), *cols)), rel[0], rtol=1e-5)
     assert ppo_train.policy.input_dim == ppo_train.policy.obs_dim + len(prices)
     _finite_losses(ppo_train)
 
@@ -676,7 +675,7 @@ def test_relative_prices_read_the_observed_prices_and_quantiles():
 def test_attribution_scores_the_run_and_swaps_ports_and_battery(tmp_path, monkeypatch):
     """``baselines.analysis.attribution``: the ``learned`` row reproduces the run's own held-out score,
     and the mixes take the battery's levels from one policy and the ports' from the other."""
-    from baselines.analysis import attribution
+    from baselines.analysis import attribution, read_policy
     from chargax_marl import policies
     from chargax_marl.core import make_params
 
@@ -703,7 +702,6 @@ def test_attribution_scores_the_run_and_swaps_ports_and_battery(tmp_path, monkey
     ports_from_rule = attribution.mixed_policies(rule_act, params)["always_max_ports_learned_battery"](state, key)
     np.testing.assert_array_equal(ports_from_rule, policies.battery_rule(state, key, params))
     # baselines.read_policy reads the same run: shares of the battery's actions, 24 hours
-    from baselines import read_policy
 
     reading = read_policy.read(out, num_days=3)
     assert reading["num_days"] == 3 and len(reading["per_seed"]) == 2
@@ -715,7 +713,7 @@ def test_attribution_scores_the_run_and_swaps_ports_and_battery(tmp_path, monkey
     # baselines.analysis.redraw scores the same run on more cars: draw 0 is the run's own evaluation,
     # draw 1 the rules' evaluation under PRNGKey(1), averaged per day
     from baselines.analysis import redraw
-    from baselines.heuristics import evaluate_rules
+    from baselines.eval.rules import evaluate_rules
 
     two = redraw.redraw(out, draws=2, bound=False)
     assert two["draws"] == 2 and two["seeds"] == 2 and two["replay_check_max_abs_eur"] < 1e-3
@@ -771,16 +769,15 @@ def test_dp_battery_action_earns_the_programme_s_value_in_its_own_model():
     """Played through the battery-only model from 50 % (a grid point), the programme's greedy
     action earns exactly ``value[day, 0](E_0)``: the action read from the state and the table
     agree."""
-    from baselines import read_policy
     from chargax_marl.core import make_params, simulator
     from chargax_marl.core.station import KIND_BATTERY
 
     params = make_params()
     grid, table = storage_value.dp_values(params)
     prices = storage_value.step_buy_prices(params)
-    eta, power_kw, capacity_kwh, e0 = storage_value._battery_constants(params)
+    eta, power_kw, capacity_kwh, e0 = storage_value.battery_constants(params)
     step_kwh = power_kw * float(params.step_hours)
-    act = jax.jit(read_policy.dp_battery_action(params))
+    act = jax.jit(storage_value.dp_battery_action(params))
     is_bat = np.asarray(params.station.leaf_kind) == KIND_BATTERY
     for day in (5, 147):
         state = simulator.empty_state(jnp.int32(day), params, jax.random.PRNGKey(0))
@@ -803,7 +800,6 @@ def test_storage_value_hand_case_and_bounds():
     """The battery-only LP's value of a stored kWh: where no energy bound binds, every step's
     value is the terminal price (energy moves freely through the day); with losses a kWh
     bought at ``p`` costs ``p / eta``, so the values stay within the day's prices scaled by eta."""
-    from baselines import storage_value
 
     v = storage_value.day_values([0.1, 0.3, 0.2], 0.15, eta=1.0, power_kw=1.0, capacity_kwh=10.0, e0=5.0,
                                  step_hours=1.0)
@@ -841,7 +837,7 @@ def test_storage_value_shaping_changes_the_day_by_a_constant_of_its_first_state(
 
     env0 = ChargaxMARL(**TINY_ENV)
     is_bat = np.asarray(env0.params.station.leaf_kind) == KIND_BATTERY
-    potential = shaping.battery_potential({"BATTERY_SHAPING": "storage_value"}, env0.params)
+    potential = aids.battery_potential({"BATTERY_SHAPING": "storage_value"}, env0.params)
     table = storage_value.storage_values(env0.params)
     start = {}
 
@@ -849,7 +845,7 @@ def test_storage_value_shaping_changes_the_day_by_a_constant_of_its_first_state(
         if not start:
             e0 = float(np.sum(np.asarray(state.soc * state.capacity_kwh)[is_bat]))
             start.update(v0=float(table[int(state.day), int(state.timestep)]), e0=e0, day=int(state.day))
-        return shaping.agent_potential_shaping(potential(state), info, is_bat, w)
+        return teacher_shaping.agent_potential_shaping(potential(state), info, is_bat, w)
 
     raw, shaped, first, _ = _tiny_day(rewards_of, w)
     from chargax_marl.core.reward import day_mean_buy_price
@@ -862,7 +858,7 @@ def test_storage_value_shaping_changes_the_day_by_a_constant_of_its_first_state(
     assert np.all(np.isfinite(out["metrics"]["episode_return"]))
     _finite_losses(ppo.make_train({**TINY, "BATTERY_SHAPING": "storage_value"}))
     with pytest.raises(ValueError, match="BATTERY_SHAPING"):
-        shaping.shaping_mode({"BATTERY_SHAPING": "hourly"})
+        aids.shaping_mode({"BATTERY_SHAPING": "hourly"})
 
 
 def test_dp_values_are_the_hand_computed_best_of_the_three_full_power_actions():
@@ -918,7 +914,7 @@ def test_dp_shaping_changes_the_day_by_a_constant_of_its_first_state(w):
 
     env0 = ChargaxMARL(**TINY_ENV)
     is_bat = np.asarray(env0.params.station.leaf_kind) == KIND_BATTERY
-    potential = shaping.battery_potential({"BATTERY_SHAPING": "dp"}, env0.params)
+    potential = aids.battery_potential({"BATTERY_SHAPING": "dp"}, env0.params)
     grid, table = storage_value.dp_values(env0.params)
     start = {}
 
@@ -927,7 +923,7 @@ def test_dp_shaping_changes_the_day_by_a_constant_of_its_first_state(w):
             e0 = float(np.sum(np.asarray(state.soc * state.capacity_kwh)[is_bat]))
             start.update(phi0=float(np.interp(e0, grid, table[int(state.day), int(state.timestep)])), e0=e0,
                          day=int(state.day))
-        return shaping.agent_potential_shaping(potential(state), info, is_bat, w)
+        return teacher_shaping.agent_potential_shaping(potential(state), info, is_bat, w)
 
     raw, shaped, first, _ = _tiny_day(rewards_of, w)
     const = float(storage_value.terminal_prices(env0.params)[start["day"]]) * start["e0"] - start["phi0"]
@@ -1001,7 +997,7 @@ def test_sensitivity_battery_step_on_an_empty_station_is_the_hand_computed_trade
     params = no_arrivals(make_params(**{**TINY_ENV, "step_minutes": 15.0}))
     days, step = np.array([3, 40, 200]), 30
     out = sensitivity.sensitivity(params, days, step=step)
-    eta, power_kw, capacity_kwh, e0 = storage_value._battery_constants(params)
+    eta, power_kw, capacity_kwh, e0 = storage_value.battery_constants(params)
     assert e0 + power_kw * float(params.step_hours) < 0.8 * capacity_kwh  # below the taper: the full charge
     stored = power_kw * float(params.step_hours)
     prices = storage_value.step_buy_prices(params)[days, step]
@@ -1021,7 +1017,7 @@ def test_eval_draws_score_every_policy_on_the_mean_over_car_draws_of_each_day(tm
     replays it only with at least its draws, and the one-draw stored MPC is refused."""
     from baselines import pipeline
     from baselines.analysis import redraw
-    from baselines.heuristics import evaluate_rules
+    from baselines.eval.rules import evaluate_rules
 
     out = tmp_path / "run"
     cli.main([*TINY_CLI, "ALGO=ppo", f"TOTAL_TIMESTEPS={4 * 24}", "CHUNKS=1", "EVAL_DRAWS=2", f"OUT={_toml(str(out))}"])

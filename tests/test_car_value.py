@@ -1,5 +1,6 @@
-"""The port shaping (``PORT_SHAPING="plan"``, :mod:`baselines.car_value`): each parked car's
-remaining demand valued by its best plan under the day's prices, used as a potential per car."""
+"""The car plan teacher (:mod:`chargax_marl.teachers.car_plan`, the trainers' ``PORT_SHAPING="plan"``
+through :mod:`baselines.car_value`): each parked car's remaining demand valued by its best plan
+under the day's prices, used as a potential per car."""
 
 from __future__ import annotations
 
@@ -8,9 +9,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from baselines import car_value, ippo, ppo, shaping
+from baselines.algos import aids, ippo, ppo
 from chargax_marl.core import make_params, simulator
 from chargax_marl.core.station import KIND_BATTERY
+from chargax_marl.teachers import car_plan, shaping
 
 TINY_ENV = {"station": "single_type", "station_kwargs": {"num_ports": 4, "battery": True}, "step_minutes": 60.0}
 TINY = {"NUM_ENVS": 4, "NUM_STEPS": 24, "NUM_MINIBATCHES": 2, "UPDATE_EPOCHS": 2, "HIDDEN": 32,
@@ -27,13 +29,13 @@ def test_plan_value_fills_the_cheapest_steps_of_the_stay_first():
     and efficiency 1, only steps 4 and 5 count (10 kWh at 0.35 and 10 at 0.15)."""
     prices = np.array([0.3, 0.1, 0.5, 0.2, 0.4, 0.6], np.float32)
     order = np.argsort(prices, kind="stable").astype(np.int32)
-    got = car_value.plan_value(jnp.asarray(order), jnp.asarray(prices[order]), 1,
+    got = car_plan.plan_value(jnp.asarray(order), jnp.asarray(prices[order]), 1,
                                steps_left=[3, 3, 0, 1], need_kwh=[15.0, 2.0, 15.0, 15.0],
                                step_kwh=[10.0, 10.0, 10.0, 10.0], efficiency=[0.5, 0.5, 0.5, 1.0],
                                customer_price=0.75)
     # the last car: efficiency 1, one step (step 1): 10 kWh at 0.75 - 0.1
     np.testing.assert_allclose(np.asarray(got), [7.25, 1.10, 0.0, 6.5], rtol=1e-6)
-    late = car_value.plan_value(jnp.asarray(order), jnp.asarray(prices[order]), 4, steps_left=[10], need_kwh=[30.0],
+    late = car_plan.plan_value(jnp.asarray(order), jnp.asarray(prices[order]), 4, steps_left=[10], need_kwh=[30.0],
                                 step_kwh=[10.0], efficiency=[1.0], customer_price=0.75)
     # steps 4 and 5 only (the day ends): 10 kWh at 0.75 - 0.4 and 10 at 0.75 - 0.6
     np.testing.assert_allclose(np.asarray(late), [3.5 + 1.5], rtol=1e-6)
@@ -57,13 +59,13 @@ def test_shaped_step_scores_the_loss_against_the_plan():
     next step) scores ``(margin now - margin next) * q < 0`` after shaping, idling scores 0,
     whichever step is dearer; a charge-sensitive car gets no term."""
     params = make_params(**TINY_ENV, num_levels=1)
-    pot = car_value.car_potential({"PORT_SHAPING": "plan"}, params)
-    prices = car_value.price_order(params)
+    pot = car_plan.car_potential(params)
+    prices = car_plan.price_order(params)
     buy = np.empty_like(prices[1][0])
     buy[prices[0][0]] = prices[1][0]  # day 0's buy price of every step
     eff = float(params.station.leaf_path_efficiency[0])
     c = float(params.customer_price_eur_kwh)
-    q = car_value.PLAN_POWER_FRACTION * float(params.station.leaf_max_kw[0]) * float(params.step_hours)
+    q = car_plan.PLAN_POWER_FRACTION * float(params.station.leaf_max_kw[0]) * float(params.step_hours)
     state = _one_car_state(params, minutes_left=120.0, need_kwh=q)
     shift = pot(state)
     charge = np.zeros(params.station.num_leaves, np.float32)
@@ -87,8 +89,8 @@ def test_car_potential_telescopes_over_a_day(policy):
     from chargax_marl import policies
 
     params = make_params(station="single_type", station_kwargs={"num_ports": 6, "battery": True}, num_levels=1)
-    pot = car_value.car_potential({"PORT_SHAPING": "plan"}, params)
-    values = car_value.car_values(params)
+    pot = car_plan.car_potential(params)
+    values = car_plan.car_values(params)
     act = getattr(policies, policy)
 
     def day(key):
@@ -111,8 +113,8 @@ def test_car_potential_telescopes_over_a_day(policy):
 
 def test_port_shaping_bad_value_is_refused_by_name():
     with pytest.raises(ValueError, match="PORT_SHAPING.*'bogus'"):
-        car_value.car_potential({"PORT_SHAPING": "bogus"}, make_params(**TINY_ENV))
-    assert car_value.car_potential({"PORT_SHAPING": "off"}, make_params(**TINY_ENV)) is None
+        aids.car_potential({"PORT_SHAPING": "bogus"}, make_params(**TINY_ENV))
+    assert aids.car_potential({"PORT_SHAPING": "off"}, make_params(**TINY_ENV)) is None
 
 
 def test_single_env_reports_each_leaf_s_energy():
@@ -170,11 +172,11 @@ def test_plan_rule_charges_in_the_plan_s_step_only():
     now is no dearer than the next step; a charge-sensitive car always charges; the battery
     idles with ``battery="idle"``."""
     params = make_params(**TINY_ENV, num_levels=1)
-    act = car_value.plan_action(params, battery="idle")
-    order, sorted_prices = car_value.price_order(params)
+    act = car_plan.plan_action(params, battery="idle")
+    order, sorted_prices = car_plan.price_order(params)
     buy = np.empty_like(sorted_prices[0])
     buy[order[0]] = sorted_prices[0]
-    q = car_value.PLAN_POWER_FRACTION * float(params.station.leaf_max_kw[0]) * float(params.step_hours)
+    q = car_plan.PLAN_POWER_FRACTION * float(params.station.leaf_max_kw[0]) * float(params.step_hours)
     is_bat = np.asarray(params.station.leaf_kind) == KIND_BATTERY
     for t in range(6):
         state = _one_car_state(params, minutes_left=120.0, need_kwh=q).replace(timestep=jnp.int32(t))
@@ -189,10 +191,10 @@ def test_plan_advice_is_the_rule_s_port_decision():
     """``plan_advice`` is 1 exactly where the plan rule charges a port: never for batteries or
     empty ports, always for a charge-sensitive car."""
     params = make_params(**TINY_ENV, num_levels=1)
-    advice = car_value.plan_advice(params)
-    act = car_value.plan_action(params, battery="idle")
+    advice = car_plan.plan_advice(params)
+    act = car_plan.plan_action(params, battery="idle")
     is_bat = np.asarray(params.station.leaf_kind) == KIND_BATTERY
-    q = car_value.PLAN_POWER_FRACTION * float(params.station.leaf_max_kw[0]) * float(params.step_hours)
+    q = car_plan.PLAN_POWER_FRACTION * float(params.station.leaf_max_kw[0]) * float(params.step_hours)
     for t in range(6):
         state = _one_car_state(params, minutes_left=120.0, need_kwh=q).replace(timestep=jnp.int32(t))
         a = np.asarray(advice(state))
@@ -216,7 +218,7 @@ def test_ippo_plan_obs_appends_the_advice_to_every_agent_s_observation():
     params = make_params(**TINY_ENV, num_levels=1)
     state = _one_car_state(params, minutes_left=120.0, need_kwh=5.0, charge_sensitive=True)
     rows = train.policy.with_plan(env.get_obs_matrix(state), state)
-    np.testing.assert_array_equal(np.asarray(rows[:, -1]), np.asarray(car_value.plan_advice(params)(state)))
+    np.testing.assert_array_equal(np.asarray(rows[:, -1]), np.asarray(car_plan.plan_advice(params)(state)))
     assert float(rows[0, -1]) == 1.0
     seed0 = jax.tree.map(lambda x: x[0], out["runner_state"].params)
     levels = train.make_act(params)(seed0)(state, None)
@@ -233,6 +235,6 @@ def test_ppo_plan_obs_appends_every_leaf_s_advice():
     state = _one_car_state(params, minutes_left=120.0, need_kwh=5.0, charge_sensitive=True)
     obs = train.policy.with_plan(flat_obs(state, params), state)
     n = params.station.num_leaves
-    np.testing.assert_array_equal(np.asarray(obs[-n:]), np.asarray(car_value.plan_advice(params)(state)))
+    np.testing.assert_array_equal(np.asarray(obs[-n:]), np.asarray(car_plan.plan_advice(params)(state)))
     seed0 = jax.tree.map(lambda x: x[0], out["runner_state"].params)
     assert np.asarray(train.make_act(params)(seed0)(state, None)).shape == (n,)

@@ -299,7 +299,7 @@ def test_refreshing_the_rules_keeps_the_bound_and_refuses_another_model(tmp_path
     import json
 
     from baselines.analysis import references as opt
-    from baselines.heuristics import evaluate_rules
+    from baselines.eval.rules import evaluate_rules
 
     monkeypatch.setattr(opt, "RULES", ("always_max", "edf"))
     params, days = opt.scenario_params("default_full_power")

@@ -25,8 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from baselines import car_value, shaping
-from baselines.algos import features, networks, ppo_core, runner
+from baselines.algos import aids, networks, ppo_core, runner
 from baselines.algos.trainer import Trainer
 from baselines.config import build_env_params, resolve
 from chargax_marl.core.observation import PORT_FEATURES, context_size
@@ -34,6 +33,8 @@ from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.marl import env as marl_env
 from chargax_marl.marl.env import ChargaxMARL
 from chargax_marl.marl.wrappers import LogWrapper, WorldStateWrapper
+from chargax_marl.teachers import car_plan, prices
+from chargax_marl.teachers import shaping as teacher_shaping
 
 
 class Transition(NamedTuple):
@@ -113,14 +114,14 @@ class SharedPolicy:
         if config["RELATIVE_PRICES"]:  # the context sits just before the agent index
 
             id_width = int(np.shape(env._layout.agent_id)[1])
-            self.relative = features.relative_price_columns(env.params, env.obs_size - id_width
+            self.relative = prices.relative_price_columns(env.params, env.obs_size - id_width
                                                           - context_size(env.params))
         # the critic reads the same features when it reads the agent's own observation (IPPO)
         self.critic_features = self.relative is not None and not centralised_critic
         # PLAN_OBS: each agent's observation ends with its leaf's plan advice
-        # (car_value.plan_advice: 1 = its car's best plan under the day's prices charges now;
+        # (car_plan.plan_advice: 1 = its car's best plan under the day's prices charges now;
         # always 0 for the batteries), before the relative prices.
-        self.plan = car_value.plan_advice(env.params) if config["PLAN_OBS"] else None
+        self.plan = car_plan.plan_advice(env.params) if config["PLAN_OBS"] else None
         if self.plan is not None:
             self.obs_dim += 1
             if not centralised_critic:
@@ -135,10 +136,10 @@ class SharedPolicy:
         core state ``core`` appended; unchanged when ``PLAN_OBS`` is off."""
         if self.plan is None:
             return obs_matrix
-        return jnp.concatenate([obs_matrix, car_value.batched(self.plan, core)(core)[..., None]], axis=-1)
+        return jnp.concatenate([obs_matrix, car_plan.batched(self.plan, core)(core)[..., None]], axis=-1)
 
     def features(self, obs):
-        return features.with_relative_prices(obs, self.relative)
+        return prices.with_relative_prices(obs, self.relative)
 
     def init(self, key):
         ka, kc, kba, kbc = jax.random.split(key, 4)
@@ -220,15 +221,15 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         ws_b = jnp.swapaxes(obs["world_state"], 0, 1).reshape((n_actors, -1))  # (agents * envs, state)
         return ws, policy.value(params, ws_b)
 
-    # BATTERY_SHAPING (shaping.battery_potential, per agent as shaping.agent_potential_shaping).
+    # BATTERY_SHAPING (shaping.battery_potential, per agent as teacher_shaping.agent_potential_shaping).
     is_bat = np.asarray(env_params.station.leaf_kind) == KIND_BATTERY
 
-    potential = shaping.battery_potential(config, env_params)
-    car_potential = car_value.car_potential(config, env_params)  # PORT_SHAPING, each port its own car's term
+    potential = aids.battery_potential(config, env_params)
+    car_potential = aids.car_potential(config, env_params)  # PORT_SHAPING, each port its own car's term
 
     def battery_term(pot, info):
         """Per-actor ``(agents * envs,)`` shaping term of a step (info leaves ``(envs, agents)``)."""
-        per_agent = shaping.agent_potential_shaping(pot, info, is_bat, config["LOCAL_REWARD_WEIGHT"])
+        per_agent = teacher_shaping.agent_potential_shaping(pot, info, is_bat, config["LOCAL_REWARD_WEIGHT"])
         return per_agent.T.reshape((n_actors,))  # agent-major, as batchify
 
     # BATTERY_GAMMA: the battery agents' own discount (None: GAMMA). A port's decisions pay off
@@ -268,7 +269,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         advice of ``env_state`` when ``PLAN_OBS`` is on."""
         if policy.plan is None:
             return batchify(obs, agents, n_actors)
-        per_env = policy.with_plan(jnp.stack([obs[a] for a in agents], axis=1), shaping.core_state(env_state))
+        per_env = policy.with_plan(jnp.stack([obs[a] for a in agents], axis=1), teacher_shaping.core_state(env_state))
         return jnp.swapaxes(per_env, 0, 1).reshape((n_actors, -1))
 
     def env_step(carry, _):
@@ -288,7 +289,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         if pot is not None:
             reward_b = reward_b + battery_term(pot, info)
         if car_pot is not None:
-            own = shaping.mix_own_terms(car_pot(info["agent_energy_kwh"]), config["LOCAL_REWARD_WEIGHT"])
+            own = teacher_shaping.mix_own_terms(car_pot(info["agent_energy_kwh"]), config["LOCAL_REWARD_WEIGHT"])
             reward_b = reward_b + own.T.reshape((n_actors,))
         next_obs, env_state = runner.shard_envs((next_obs, env_state), mesh)
         tr = Transition(obs_b, cin, avail, action, logp, value, reward_b * config["REWARD_SCALE"],

@@ -20,8 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from baselines import car_value, shaping
-from baselines.algos import features, networks, ppo_core, runner
+from baselines.algos import aids, networks, ppo_core, runner
 from baselines.algos.trainer import Trainer
 from baselines.config import build_env_params, resolve
 from chargax_marl.core.observation import context_size, flat_obs
@@ -29,6 +28,8 @@ from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.policies import always_max
 from chargax_marl.single.env import Chargax
 from chargax_marl.single.wrappers import LogWrapper
+from chargax_marl.teachers import car_plan, prices
+from chargax_marl.teachers import shaping as teacher_shaping
 
 
 class Transition(NamedTuple):
@@ -78,13 +79,13 @@ class Policy:
         offset[np.arange(self.num_leaves), baseline] = np.where(self.is_battery, battery_b, port_b)
         self.offset = offset
         # RELATIVE_PRICES: each observed price's place in the day's range appended to the input
-        # (features.relative_prices); the observation ends with the shared context.
+        # (chargax_marl.teachers.prices.relative_prices); the observation ends with the shared context.
         self.relative = None
         if config["RELATIVE_PRICES"]:
-            self.relative = features.relative_price_columns(env_params, self.obs_dim - context_size(env_params))
+            self.relative = prices.relative_price_columns(env_params, self.obs_dim - context_size(env_params))
         # PLAN_OBS: the observation also ends with every leaf's plan advice
-        # (car_value.plan_advice), before the relative prices.
-        self.plan = car_value.plan_advice(env_params) if config["PLAN_OBS"] else None
+        # (car_plan.plan_advice), before the relative prices.
+        self.plan = car_plan.plan_advice(env_params) if config["PLAN_OBS"] else None
         self.input_dim = (self.obs_dim + (0 if self.plan is None else self.num_leaves)
                           + (0 if self.relative is None else len(self.relative[0])))
 
@@ -93,10 +94,10 @@ class Policy:
         appended when ``PLAN_OBS`` is on."""
         if self.plan is None:
             return obs
-        return jnp.concatenate([obs, car_value.batched(self.plan, core)(core)], axis=-1)
+        return jnp.concatenate([obs, car_plan.batched(self.plan, core)(core)], axis=-1)
 
     def features(self, obs):
-        return features.with_relative_prices(obs, self.relative)
+        return prices.with_relative_prices(obs, self.relative)
 
     def init(self, key):
         ka, kc = jax.random.split(key)
@@ -142,8 +143,8 @@ def make_train(config: dict | None = None, env_params=None):
         raise ValueError(f"NUM_ENVS*NUM_STEPS={batch} must be divisible by NUM_MINIBATCHES={config['NUM_MINIBATCHES']}")
     mesh = runner.env_mesh(n_envs)
     tx = ppo_core.make_optimizer(config, total_updates)
-    potential = shaping.battery_potential(config, env_params)  # BATTERY_SHAPING
-    car_potential = car_value.car_potential(config, env_params)  # PORT_SHAPING
+    potential = aids.battery_potential(config, env_params)  # BATTERY_SHAPING
+    car_potential = aids.car_potential(config, env_params)  # PORT_SHAPING
     v_reset = jax.vmap(env.reset, in_axes=(0, None))
     v_step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
 
@@ -157,7 +158,7 @@ def make_train(config: dict | None = None, env_params=None):
     def env_step(carry, _):
         params, env_state, obs, key = carry
         key, k_act, k_step = jax.random.split(key, 3)
-        obs = policy.with_plan(obs, shaping.core_state(env_state))
+        obs = policy.with_plan(obs, teacher_shaping.core_state(env_state))
         logits = policy.logits(params, obs)
         action, head_logp = networks.sample_categorical(k_act, logits)  # (envs, leaves)
         logp = policy.credit_logp(head_logp)
@@ -166,7 +167,7 @@ def make_train(config: dict | None = None, env_params=None):
         car_pot = None if car_potential is None else car_potential(env_state)
         next_obs, env_state, reward, term, trunc, info = v_step(jax.random.split(k_step, n_envs), env_state,
                                                                 action, env_params)
-        battery_term = 0.0 if pot is None else shaping.battery_shaping(pot(info["battery_net_kwh"]),
+        battery_term = 0.0 if pot is None else teacher_shaping.battery_shaping(pot(info["battery_net_kwh"]),
                                                                       info["battery_terminal_value_eur"])
         port_shaping = 0.0 if car_pot is None else jnp.sum(car_pot(info["leaf_energy_kwh"]), axis=-1)
         if policy.split:  # (envs, 2): the ports' share and their shaping, the batteries' share and theirs
@@ -192,7 +193,7 @@ def make_train(config: dict | None = None, env_params=None):
     def update(rs: RunnerState, _):
         (params, env_state, obs, key), traj = jax.lax.scan(
             env_step, (rs.params, rs.env_state, rs.obs, rs.key), None, n_steps)
-        last_value = policy.value(params, policy.with_plan(obs, shaping.core_state(env_state)))
+        last_value = policy.value(params, policy.with_plan(obs, teacher_shaping.core_state(env_state)))
         done = traj.done[..., None] if policy.split else traj.done
         adv, targets = ppo_core.gae(traj.reward, traj.value, done, last_value, config["GAMMA"], config["GAE_LAMBDA"])
         if policy.split:  # each part's advantages to mean 0 and std 1 over the rollout

@@ -27,8 +27,8 @@ import numpy as np
 from baselines import runs
 from baselines.config import build_env_params
 from baselines.eval import stats
+from baselines.eval.rules import evaluate_rules
 from baselines.eval.stats import over_seeds
-from baselines.heuristics import evaluate_rules
 from chargax_marl import policies
 from chargax_marl.evaluation import run_days
 

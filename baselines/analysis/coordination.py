@@ -14,7 +14,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from baselines.heuristics import evaluate_rules
+from baselines.eval.rules import evaluate_rules
 from chargax_marl.core.params import make_params
 from chargax_marl.core.scenarios import scenario_kwargs
 from chargax_marl.evaluation import hindsight_bound, split_days

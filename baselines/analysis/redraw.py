@@ -37,10 +37,11 @@ from baselines import runs
 from baselines.config import build_env_params
 from baselines.eval import heldout, stats
 from baselines.eval.references import cached, evaluate_mpc
+from baselines.eval.rules import BATTERY_RULES, evaluate_rules
 from baselines.eval.stats import over_seeds
-from baselines.heuristics import BATTERY_RULES, evaluate_rules, has_battery
 from baselines.runs import load_run
 from chargax_marl.evaluation import hindsight_bound
+from chargax_marl.teachers.rules import has_battery
 from chargax_marl.trace import params_fingerprint
 
 RULES = ("always_max", "battery_rule")

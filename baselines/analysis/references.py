@@ -35,7 +35,7 @@ import numpy as np
 
 from baselines.config import build_env_params, resolve
 from baselines.eval import references, stats
-from baselines.heuristics import check_replay, evaluate_rules
+from baselines.eval.rules import check_replay, evaluate_rules
 from chargax_marl import trace as trace_lib
 from chargax_marl.evaluation import (
     headroom_captured,

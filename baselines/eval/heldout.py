@@ -7,8 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from baselines import heuristics
-from baselines.eval import references, stats
+from baselines.eval import protocol, references, rules, stats
 from chargax_marl.evaluation import (
     METRICS,
     headroom_captured,
@@ -17,23 +16,7 @@ from chargax_marl.evaluation import (
     summarize,
     summarize_profit,
 )
-
-
-def draw_keys(draws: int = 1) -> list:
-    """The evaluation keys of ``draws`` car draws per held-out day: ``PRNGKey(0) ... PRNGKey(draws - 1)``.
-    Every policy is scored under the same keys (the same cars), and its per-day profit is the
-    mean over the draws, so a paired difference's standard error over days treats the days,
-    not the draws, as the independent units (the draws of one day share its prices). Draw 0
-    is the single-draw evaluation's key."""
-    if isinstance(draws, bool) or not isinstance(draws, (int, np.integer)) or int(draws) < 1:
-        raise ValueError(f"field 'EVAL_DRAWS' (car draws per held-out day) must be a positive integer, got {draws!r}")
-    return [jax.random.PRNGKey(k) for k in range(int(draws))]
-
-
-def mean_over_draws(evaluate, keys):
-    """``evaluate(key) -> pytree of arrays`` averaged leaf by leaf over ``keys`` (one call per key)."""
-    outs = [jax.device_get(evaluate(k)) for k in keys]
-    return jax.tree.map(lambda *x: np.mean(np.stack([np.asarray(v, np.float64) for v in x]), axis=0), *outs)
+from chargax_marl.teachers.rules import has_battery
 
 
 def evaluate_batched(make_act, net_params, eval_params, days, key=None, reference_profit=None, draws: int = 1) -> dict:
@@ -53,11 +36,11 @@ def evaluate_batched(make_act, net_params, eval_params, days, key=None, referenc
     """
     if key is not None and draws != 1:
         raise ValueError(f"evaluate_batched: give either a key or draws > 1, not both (draws={draws!r})")
-    keys = [key] if key is not None else draw_keys(draws)
+    keys = [key] if key is not None else protocol.draw_keys(draws)
     days = jnp.asarray(days, jnp.int32)
     seeds = jax.tree.leaves(net_params)[0].shape[0]
     fn = _eval_fn(make_act, eval_params)
-    totals = mean_over_draws(lambda k: fn(net_params, days, k), keys)
+    totals = protocol.mean_over_draws(lambda k: fn(net_params, days, k), keys)
     flat = jax.tree.map(lambda x: np.asarray(x).reshape(-1), totals)
     profit = np.asarray(totals.profit_eur, np.float64)
     out = {"num_days": int(days.shape[0]), "num_seeds": int(seeds), "metrics": summarize(flat),
@@ -85,7 +68,7 @@ BASELINES = ("always_max", "battery_rule", "price_threshold")
 always-max plus a battery that charges in the day's cheapest 20 % of hours and discharges in
 the dearest 20 %); on a station with a battery also the teachers' rules,
 ``battery_programme`` (always-max plus the battery-only programme) and ``plan_programme``
-(the ports' plans plus the programme), :data:`baselines.heuristics.TEACHER_RULES`."""
+(the ports' plans plus the programme), :data:`baselines.rules.TEACHER_RULES`."""
 
 
 REFERENCES = ("always_max", "battery_rule", "battery_programme", "plan_programme")
@@ -114,13 +97,13 @@ def baseline_results(eval_params, eval_days, optimal: str = "off", draws: int = 
     """
     if optimal not in OPTIMAL_CHOICES:
         raise ValueError(f"field 'optimal' must be one of {OPTIMAL_CHOICES}, got {optimal!r}")
-    names = BASELINES + heuristics.TEACHER_RULES * heuristics.has_battery(eval_params)
-    out = heuristics.evaluate_rules(eval_params, eval_days, names, draws=draws)
+    names = BASELINES + rules.TEACHER_RULES * has_battery(eval_params)
+    out = rules.evaluate_rules(eval_params, eval_days, names, draws=draws)
     for name in REFERENCES[1:]:
         if name in out:
             out[name]["vs_always_max"] = stats.paired_difference(out[name]["daily_profit"],
                                                                   out["always_max"]["daily_profit"])
-    for name in heuristics.TEACHER_RULES:
+    for name in rules.TEACHER_RULES:
         if name in out:
             out[name]["vs_battery_rule"] = stats.paired_difference(out[name]["daily_profit"],
                                                                     out["battery_rule"]["daily_profit"])
@@ -134,9 +117,9 @@ def baseline_results(eval_params, eval_days, optimal: str = "off", draws: int = 
         mpc_daily = np.asarray(stored["policies"]["mpc"]["daily_profit"])
         source = f"{references_dir} (same params and days)"
     else:
-        keys = draw_keys(draws)
-        bound_daily = mean_over_draws(lambda k: hindsight_bound(eval_params, eval_days, k)["daily_profit"], keys)
-        mpc_daily = (mean_over_draws(lambda k: references.evaluate_mpc(eval_params, eval_days, k)["daily_profit"], keys)
+        keys = protocol.draw_keys(draws)
+        bound_daily = protocol.mean_over_draws(lambda k: hindsight_bound(eval_params, eval_days, k)["daily_profit"], keys)
+        mpc_daily = (protocol.mean_over_draws(lambda k: references.evaluate_mpc(eval_params, eval_days, k)["daily_profit"], keys)
                      if optimal == "mpc" else None)
         source = "computed" if draws == 1 else f"computed, mean over {draws} car draws per day"
     out["lp_bound"] = {"daily_profit": bound_daily, "metrics": summarize_profit(bound_daily), "source": source}

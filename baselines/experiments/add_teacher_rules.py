@@ -3,7 +3,7 @@
     python -m baselines.experiments.add_teacher_rules results/traffic_sweep.json ...
 
 The trainers' shaping teachers, played as rules with no learning
-(:data:`baselines.heuristics.TEACHER_RULES`):
+(:data:`baselines.eval.rules.TEACHER_RULES`):
 
 - ``battery_programme``: always-max ports, the batteries on the battery-only programme (the
   teacher of ``BATTERY_SHAPING="dp"``, PPO's and the multi-agent settings');
@@ -45,14 +45,14 @@ from baselines import runs
 from baselines.config import build_env_params, resolve
 from baselines.eval import stats
 from baselines.eval.heldout import add_headroom
-from baselines.eval.stats import over_seeds
-from baselines.experiments._common import TUNED, with_prices
-from baselines.heuristics import (
+from baselines.eval.rules import (
     TEACHER_RULES,
     check_replay,
     evaluate_rules,
-    has_battery,
 )
+from baselines.eval.stats import over_seeds
+from baselines.experiments._common import TUNED, with_prices
+from chargax_marl.teachers.rules import has_battery
 
 
 def training_results(tree, path: str = "") -> list[tuple[str, dict]]:

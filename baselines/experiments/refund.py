@@ -21,8 +21,8 @@ import time
 
 import numpy as np
 
+from baselines.eval.rules import evaluate_rules
 from baselines.eval.stats import paired_difference
-from baselines.heuristics import evaluate_rules
 from chargax_marl.core import datasets
 from chargax_marl.core.params import make_params
 from chargax_marl.core.scenarios import scenario_kwargs

@@ -28,6 +28,7 @@ import numpy as np
 from baselines import runs
 from baselines.config import build_env_params, resolve
 from baselines.eval import heldout
+from baselines.eval.rules import add_paired_differences, evaluate_rules
 from baselines.eval.stats import paired_over_seeds
 from baselines.experiments._common import (
     Record,
@@ -36,9 +37,8 @@ from baselines.experiments._common import (
     parser,
     with_env_kwargs,
 )
-from baselines.heuristics import add_paired_differences, evaluate_rules
-from baselines.pipeline import run
 from baselines.experiments.refund import RULES, all_v2g
+from baselines.pipeline import run
 from chargax_marl.evaluation import hindsight_bound, summarize_profit
 
 FLEETS = ("EU", "EU-all-v2g")

@@ -50,7 +50,7 @@ def _profit(table: dict, name: str) -> str:
 
 
 TEACHERS = ("battery_programme", "plan_programme")
-"""The teachers' rules (:data:`baselines.heuristics.TEACHER_RULES`)."""
+"""The teachers' rules (:data:`baselines.eval.rules.TEACHER_RULES`)."""
 
 
 def _vs_seeds(per_seed: list, name: str) -> str:

@@ -1,8 +1,9 @@
 """Read a trained run's battery along the held-out days: what it does each hour, next to the
-battery-only dynamic programme (:func:`baselines.storage_value.dp_values`) and the battery rule.
+battery-only dynamic programme (:func:`chargax_marl.teachers.storage_value.dp_values`) and the
+battery rule.
 
-    python -m baselines.read_policy outputs/train_ippo            # a run directory of baselines.train
-    python -m baselines.read_policy outputs/train_ippo --days 20 --out reading.json
+    python -m baselines.analysis.read_policy outputs/train_ippo            # a run directory of baselines.train
+    python -m baselines.analysis.read_policy outputs/train_ippo --days 20 --out reading.json
 
 For every seed (greedy policy, the run's held-out days, evaluation key 0, so the cars of
 ``baselines.train``'s evaluation) it reports the share of steps the batteries discharge, idle
@@ -24,33 +25,10 @@ import numpy as np
 
 from baselines.config import build_env_params
 from baselines.runs import load_run
-from baselines.car_value import plan_advice
 from chargax_marl.core import simulator
 from chargax_marl.core.station import KIND_BATTERY
-
-
-def dp_battery_action(params):
-    """``act(state) -> (action in {-1, 0, 1}, strict)``: the battery-only programme's best
-    full-power action for the batteries' stored energy, and whether it is strictly best."""
-    from baselines.storage_value import _battery_constants, action_values, dp_values, level_value, step_buy_prices
-
-    grid, table = dp_values(params)
-    table, grid_kwh = jnp.asarray(table), float(grid[1] - grid[0])
-    prices = jnp.asarray(step_buy_prices(params), jnp.float32)
-    eta, power_kw, capacity_kwh, _ = _battery_constants(params)
-    step_kwh = power_kw * float(params.step_hours)
-    is_battery = params.station.leaf_kind == KIND_BATTERY
-
-    def act(state):
-        e = jnp.sum(jnp.where(is_battery, state.soc * state.capacity_kwh, 0.0))
-        nxt = table[state.day, state.timestep + 1]
-        q = jnp.stack(action_values(jnp, lambda x: level_value(nxt, x, grid_kwh), e, prices[state.day, state.timestep],
-                                    eta, step_kwh, capacity_kwh))
-        best = jnp.argmax(q)
-        strict = jnp.sort(q)[-1] - jnp.sort(q)[-2] > 1e-4
-        return best - 1, strict
-
-    return act
+from chargax_marl.teachers.car_plan import plan_advice
+from chargax_marl.teachers.storage_value import dp_battery_action
 
 
 def read(run_dir: str | Path, num_days: int | None = None) -> dict:
@@ -111,7 +89,7 @@ def format_reading(out: dict) -> str:
         share = ", ".join(f"{k} {v:.2f}" for k, v in s["battery_share"].items())
         lines.append(f"seed {i}: battery {share}; agrees with the programme where it has a strict best "
                      f"action {s['agrees_with_dp']:.2f}; ports at full power {s['ports_full_power_share']:.3f}, "
-                     f"as the plan advises (car_value.plan_advice) {s['ports_follow_plan_share']:.3f}")
+                     f"as the plan advises (plan_advice) {s['ports_follow_plan_share']:.3f}")
         lines.append("  hourly action " + " ".join(f"{a:+.2f}" for a in s["hourly_action"]))
         lines.append("  hourly SoC    " + " ".join(f"{a:.2f}" for a in s["hourly_soc"]))
     return "\n".join(lines)

@@ -1,66 +1,60 @@
-"""The value of each parked car's remaining demand under the day's prices (``PORT_SHAPING="plan"``).
+"""The value of each parked car's remaining demand under the day's prices, and the plan as advice.
 
 A port earns ``c - p_t / eta`` per kWh it charges into a car at step ``t``: the customer
 price ``c`` minus the step's buy price ``p_t`` (day-ahead + grid fee + time-of-use, as the env
 prices it) over the port's path efficiency ``eta``. A time-sensitive car that still wants
 ``need`` kWh and stays ``k`` more whole steps (cut at the day's end) takes ``q`` kWh per
 step in the plan (:data:`PLAN_POWER_FRACTION` of the lower of the port's and the car's top
-power, times the step). Ignoring
-the other cars, the best plan for it charges in the cheapest steps of its stay first while
-the margin is positive::
+power, times the step). Ignoring the other cars, the best plan for it charges in the
+cheapest steps of its stay first while the margin is positive::
 
     V = sum_j max(c - p_(j) / eta, 0) * clip(need - q * (j - 1), 0, q)
 
 over the stay's steps sorted by price, ``p_(1) <= p_(2) <= ...``.
 
-The trainers use ``V`` as a potential per car: a port's shaping term is ``V`` after the step
-(the same car, ``need`` less what it took, one step less; 0 once it has left) minus ``V``
-before it. A car that arrives during the step enters the potential from the next step on,
-so over a car's stay the terms add up to ``-V`` at its first step, which no action changes,
-and a step's own profit plus its term is what the step lost against the plan: charging in
-one of the plan's steps scores about 0, charging at a dearer step than the plan's dearest
-scores the price difference, idling in a plan step scores the price difference to the step
-that must replace it.
+As a potential per car (:func:`car_potential`, :class:`chargax_marl.wrappers.CarPlanShaping`)
+a port's shaping term is ``V`` after the step (the same car, ``need`` less what it took, one
+step less; 0 once it has left) minus ``V`` before it. A car that arrives during the step
+enters the potential from the next step on, so over a car's stay the terms add up to ``-V``
+at its first step, which no action changes, and a step's own profit plus its term is what
+the step lost against the plan: charging in one of the plan's steps scores about 0,
+charging at a dearer step than the plan's dearest scores the price difference, idling in a
+plan step scores the price difference to the step that must replace it.
 
 Charge-sensitive cars (they leave when charged) have no potential: a port that delays one
-keeps the cars behind it out (a rule that timed them like the others lost 75 EUR/day
-against always-max on the default scenario; ``baselines/README.md``).
+keeps the cars behind it out (a rule that timed them like the others lost against
+always-max; see ``baselines/README.md``).
 
 It is a learning signal only; the evaluation scores the env's profit.
 
-``PLAN_OBS`` (IPPO / MAPPO / PPO) also shows each agent its port's plan advice, charge now or
-wait (:func:`plan_advice`), as one more observation column: whether a step is in a car's
-plan turns on the rank of its price among all the steps of the stay, which a port reading
-hourly prices 6 h ahead learned badly (with the potential alone the learners lost against
-always-max, ``baselines/README.md``). The advice reads the day's whole price list within the
-stay and the car's top power, which the observation holds only in part.
+The plan advice (:func:`plan_advice`, :class:`chargax_marl.wrappers.PlanAdviceObservation`)
+shows each port whether its car's plan charges now: whether a step is in a car's plan turns
+on the rank of its price among all the steps of the stay, which a port reading hourly prices
+a few hours ahead learns badly. The advice reads the day's whole price list within the stay
+and the car's top power, which the observation holds only in part. :func:`plan_action`
+plays the plan as a rule.
 """
 
 from __future__ import annotations
 
-from baselines.config import build_env_params, resolve
-from baselines.eval import stats
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from chargax_marl.core.station import KIND_BATTERY
+from chargax_marl.teachers.shaping import core_state
+from chargax_marl.teachers.storage_value import dp_battery_action, step_buy_prices
 
-PORT_SHAPING_MODES = ("off", "plan")
 PLAN_POWER_FRACTION = 0.5
 """The plan counts on this fraction of a car's top power per step (the lower of the port's and
 the car's): the taper near full, a port sharing its EVSE and the station's limits cut what a
-car takes, and a plan that counts on more tells a port it can wait when it cannot. Played as
-a rule with the battery-only programme on the default scenario's 100 held-out days, fractions
-0.2 / 0.5 / 1.0 earned +15.49 / +15.46 / +12.91 EUR/day over always-max (``python -m
-baselines.car_value``, ``baselines/README.md``)."""
+car takes, and a plan that counts on more tells a port it can wait when it cannot. For the
+fractions compared as rules (``python -m baselines.car_value``) see ``baselines/README.md``."""
 
 
 def price_order(params) -> tuple[np.ndarray, np.ndarray]:
     """``(steps, prices)``, each ``(days, T)``: every day's steps sorted by buy price (cheapest
     first, ties by time) and their prices (EUR/kWh)."""
-    from baselines.storage_value import step_buy_prices
-
     prices = step_buy_prices(params)
     order = np.argsort(prices, axis=1, kind="stable").astype(np.int32)
     return order, np.take_along_axis(prices, order, axis=1).astype(np.float32)
@@ -101,16 +95,7 @@ def batched(fn, core):
     return fn
 
 
-def port_shaping_mode(config: dict) -> str:
-    """``PORT_SHAPING`` as one of :data:`PORT_SHAPING_MODES`."""
-    mode = config.get("PORT_SHAPING", "off")
-    mode = "off" if mode in (None, False) else mode
-    if mode not in PORT_SHAPING_MODES:
-        raise ValueError(f"PORT_SHAPING must be one of {PORT_SHAPING_MODES}, got {config.get('PORT_SHAPING')!r}")
-    return mode
-
-
-def _plan_constants(env_params):
+def plan_constants(env_params):
     """What the plan reads from the params: every day's steps by price and their prices, the
     port mask, the path efficiencies, the leaves' top power, the step in minutes and hours and
     the customer price."""
@@ -128,7 +113,7 @@ def car_values(env_params):
     ``need_kwh`` still wanted (``(L,)`` each; 0 for batteries, empty ports and charge-sensitive
     cars). ``values(core, core.timestep, core.time_remaining_min, core.energy_remaining_kwh)``
     is the potential of ``core``."""
-    order, sorted_prices, is_port, eff, leaf_max_kw, step_min, step_h, customer = _plan_constants(env_params)
+    order, sorted_prices, is_port, eff, leaf_max_kw, step_min, step_h, customer = plan_constants(env_params)
 
     def values(core, timestep, minutes_left, need_kwh):
         planned = core.occupied & is_port & ~core.charge_sensitive
@@ -141,17 +126,20 @@ def car_values(env_params):
     return values
 
 
-def car_potential(config: dict, env_params):
-    """``None`` when ``PORT_SHAPING`` is off, else ``potential(env_state) -> shift``, where
-    ``shift(leaf_energy_kwh)`` is each leaf's change of ``V`` over the step of the (possibly
-    batched) ``env_state`` when the leaves take ``leaf_energy_kwh`` (shaped like the state's
-    leaves, ``(..., L)``; 0 for batteries, empty ports and charge-sensitive cars). The value
-    after the step is computed from the state before it, so the env's auto-reset does not
-    hide it."""
-    if port_shaping_mode(config) == "off":
-        return None
-    from baselines.shaping import core_state
+def car_potential(env_params):
+    """Each leaf's change of the car plan value ``V`` over a step, as a potential per car.
 
+    Args:
+        env_params: concrete :class:`chargax_marl.core.types.EnvParams`.
+
+    Returns:
+        ``potential(env_state) -> shift``, where ``shift(leaf_energy_kwh)`` is each leaf's
+        change of ``V`` (EUR) over the step of the (possibly wrapped and batched)
+        ``env_state``, taken *before* the step, when the leaves take ``leaf_energy_kwh``
+        (shaped like the state's leaves, ``(..., L)``; 0 for batteries, empty ports and
+        charge-sensitive cars). The value after the step is computed from the state before
+        it, so the env's auto-reset does not hide it.
+    """
     values = car_values(env_params)
     step_min = float(env_params.step_minutes)
 
@@ -176,9 +164,9 @@ def plan_advice(env_params, power_fraction: float | None = PLAN_POWER_FRACTION):
     charge its car now by the plan (a time-sensitive car whose plan, :func:`plan_energy` at
     ``power_fraction`` of its top power, uses the current step at a positive margin; every
     charge-sensitive car), 0 for idle, empty ports and batteries. ``power_fraction=None``:
-    1 for every occupied port (always-max). The ``PLAN_OBS`` feature of IPPO/MAPPO and the
+    1 for every occupied port (always-max). The plan advice observation feature and the
     ports of :func:`plan_action`."""
-    order, sorted_prices, is_port, eff, leaf_max_kw, step_min, step_h, customer = _plan_constants(env_params)
+    order, sorted_prices, is_port, eff, leaf_max_kw, step_min, step_h, customer = plan_constants(env_params)
 
     def advice(core):
         t = core.timestep
@@ -200,8 +188,6 @@ def plan_action(env_params, battery: str = "dp", power_fraction: float | None = 
     the batteries follow the battery-only programme's best action (``battery="dp"``) or idle
     (``"idle"``). A reference for what the port shaping's teacher earns, not a trained
     policy. ``power_fraction=None``: the ports charge at full power always (always-max)."""
-    from baselines.read_policy import dp_battery_action
-
     is_battery = jnp.asarray(np.asarray(env_params.station.leaf_kind) == KIND_BATTERY)
     advice = plan_advice(env_params, power_fraction)
     dp = dp_battery_action(env_params) if battery == "dp" else None
@@ -213,53 +199,3 @@ def plan_action(env_params, battery: str = "dp", power_fraction: float | None = 
         return jnp.where(is_battery, bat, ports).astype(jnp.int32)
 
     return act
-
-
-def main(argv=None) -> dict:
-    """``python -m baselines.car_value [--scenario default]``: the plan rule (:func:`plan_action`)
-    on the 100 held-out days of a scenario of :mod:`baselines.analysis.references`, with and without the
-    programme's battery, at several plan power fractions, against always-max and the battery
-    rule (paired over days, the same cars), and the fraction of the LP bound's headroom from
-    ``results/optimal/<scenario>.json``."""
-    import argparse
-    import json
-
-
-    from baselines.heuristics import evaluate_rules
-    from baselines.analysis.references import RESULTS_DIR, SCENARIOS
-    from chargax_marl.evaluation import run_days
-
-    p = argparse.ArgumentParser(description=main.__doc__)
-    p.add_argument("--scenario", default="default", choices=sorted(SCENARIOS))
-    p.add_argument("--fractions", default="0.2,0.5,1.0")
-    a = p.parse_args(argv)
-    config = resolve({**SCENARIOS[a.scenario], "ENV_KWARGS": {"num_levels": 1}})
-    _, params, _, days = build_env_params(config)
-    rules = evaluate_rules(params, days, policies=("always_max", "battery_rule"))
-    am, rule = rules["always_max"]["daily_profit"], rules["battery_rule"]["daily_profit"]
-    bound = json.loads((RESULTS_DIR / f"{a.scenario}.json").read_text())["policies"]["lp_bound"]
-    headroom = float(np.mean(bound["daily_profit"]) - np.mean(am))
-    key = jax.random.PRNGKey(0)
-    out = {"scenario": a.scenario, "always_max_eur": float(am.mean()), "headroom_eur": headroom, "rows": []}
-    print(f"{a.scenario}: always-max {am.mean():.2f} EUR/day, battery rule {rule.mean() - am.mean():+.2f}, "
-          f"bound headroom {headroom:.2f}; {len(days)} held-out days, key 0")
-    for battery in ("idle", "dp"):
-        for frac in [None] * (battery == "dp") + [float(x) for x in a.fractions.split(",")]:
-            act = plan_action(params, battery, frac)
-            totals = jax.jit(lambda d, k: run_days(lambda s, kk: act(s, kk, params), params, d, k))(np.asarray(days), key)
-            profit = np.asarray(totals.profit_eur, np.float64)
-            row = {"battery": battery, "power_fraction": frac, "vs_always_max": stats.paired_difference(profit, am),
-                   "vs_battery_rule": stats.paired_difference(profit, rule),
-                   "headroom_fraction": float((profit.mean() - am.mean()) / headroom),
-                   "energy_delivered_kwh": float(np.mean(totals.energy_delivered_kwh))}
-            out["rows"].append(row)
-            ports = "always-max" if frac is None else f"plan {frac:.1f}"
-            print(f"  ports {ports:<10}, battery {battery:<4}: vs always-max {row['vs_always_max']['mean']:+6.2f} "
-                  f"± {row['vs_always_max']['stderr']:.2f}, vs battery rule {row['vs_battery_rule']['mean']:+6.2f} "
-                  f"± {row['vs_battery_rule']['stderr']:.2f}, headroom {row['headroom_fraction']:.3f}, "
-                  f"delivered {row['energy_delivered_kwh']:.1f} kWh")
-    return out
-
-
-if __name__ == "__main__":
-    main()

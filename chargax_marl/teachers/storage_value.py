@@ -1,16 +1,17 @@
 """The value of the energy held in the station battery at each step of each day, from the
-day's known prices: the duals of a battery-only arbitrage LP (``BATTERY_SHAPING=
-"storage_value"``, a value per kWh) and the value function of the same problem with the
-battery's three full-power actions solved by dynamic programming (``BATTERY_SHAPING="dp"``,
-a value per stored energy level, :func:`dp_values`).
+day's known prices: the duals of a battery-only arbitrage LP (:func:`storage_values`, a value
+per kWh) and the value function of the same problem with the battery's three full-power
+actions solved by dynamic programming (:func:`dp_values`, a value per stored energy level),
+with the programme's best action read from a state (:func:`dp_battery_action`).
 
 Day-ahead prices are published the day before, so a station knows all of a day's prices at
 midnight. For each day the LP below buys and sells the battery's energy against those
 prices; the dual of its energy balance at step ``t`` is ``value[day, t]`` (EUR/kWh): what one
 more kWh in the battery at the start of step ``t`` is worth for the rest of the day.
 
-The trainers use it as a *potential* ``Phi_t = value[day, t] * E_t`` (``E_t`` the batteries'
-stored energy at the start of step ``t``): the shaping term of a step is ``Phi_{t+1} - Phi_t``
+A trainer uses it as a *potential* ``Phi_t = value[day, t] * E_t`` (``E_t`` the batteries'
+stored energy at the start of step ``t``; :func:`chargax_marl.teachers.shaping.battery_potential`,
+:class:`chargax_marl.wrappers.BatteryShaping`): the shaping term of a step is ``Phi_{t+1} - Phi_t``
 minus the env's terminal booking at the day's last step, where ``value[day, T]`` is the
 env's own terminal price (the day's mean buy price), so a day's undiscounted shaped reward
 differs from the env's by ``(terminal price - value[day, 0]) * E_0``, which no action
@@ -27,17 +28,34 @@ profit.
 
 from __future__ import annotations
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 from scipy.optimize import linprog
 
+from chargax_marl.core.reward import battery_terminal_value_eur, price_tables
 from chargax_marl.core.station import KIND_BATTERY
 
 
-def _battery_constants(params):
+def battery_constants(params) -> tuple[float, float, float, float]:
+    """The station's batteries as one store: ``(eta, power_kw, capacity_kwh, e0_kwh)``, the mean
+    path efficiency of the battery leaves, their summed top power (kW) and capacity (kWh), and
+    the energy they hold at the start of a day (the middle of the initial SoC range, kWh).
+
+    Args:
+        params: concrete :class:`chargax_marl.core.types.EnvParams`.
+
+    Returns:
+        ``(eta, power_kw, capacity_kwh, e0_kwh)`` as Python floats.
+
+    Raises:
+        ValueError: the station has no battery.
+    """
     st = params.station
     kind = np.asarray(st.leaf_kind)
     if int(np.sum(kind == KIND_BATTERY)) == 0:
-        raise ValueError("BATTERY_SHAPING='storage_value' needs a station with a battery; this station has none")
+        raise ValueError("the battery teachers (storage value, dynamic programme) need a station with a battery; "
+                         "this station has none")
     eta = float(np.mean(np.asarray(st.leaf_path_efficiency)[kind == KIND_BATTERY]))
     power_kw = float(np.sum(np.asarray(st.leaf_max_kw)[kind == KIND_BATTERY]))
     capacity_kwh = float(np.sum(np.asarray(st.battery_capacity_kwh)))
@@ -47,21 +65,14 @@ def _battery_constants(params):
 
 
 def step_buy_prices(params) -> np.ndarray:
-    """``(days, steps)`` buy price (EUR/kWh) of every step, as the env prices it
+    """``(days, steps)`` float64 buy price (EUR/kWh) of every step, as the env prices it
     (:func:`chargax_marl.core.reward.price_tables`: day-ahead + grid fee + time-of-use)."""
-    from chargax_marl.core.reward import price_tables
-
     return np.asarray(price_tables(params)[0], np.float64)
 
 
 def terminal_prices(params) -> np.ndarray:
     """``(days,)`` the env's terminal price of every day (EUR/kWh): what a stored kWh is credited
     at the day's end (:func:`chargax_marl.core.reward.battery_terminal_value_eur`)."""
-    import jax
-    import jax.numpy as jnp
-
-    from chargax_marl.core.reward import battery_terminal_value_eur
-
     days = jnp.arange(np.asarray(params.prices_eur_kwh).shape[0], dtype=jnp.int32)
     return np.asarray(jax.vmap(lambda d: battery_terminal_value_eur(jnp.float32(1.0), d, params))(days), np.float64)
 
@@ -101,7 +112,7 @@ def storage_values(params) -> np.ndarray:
     """``(days, steps + 1)`` float32 value of a stored kWh at the start of every step of every
     day of ``params`` (last column: the env's terminal price, the day's mean buy price, or the
     fixed battery price of ``make_params(battery_terminal_price=...)``)."""
-    eta, power_kw, capacity_kwh, e0 = _battery_constants(params)
+    eta, power_kw, capacity_kwh, e0 = battery_constants(params)
     prices = step_buy_prices(params)
     terminal = terminal_prices(params)
     out = np.zeros((prices.shape[0], prices.shape[1] + 1), np.float64)
@@ -129,7 +140,7 @@ def dp_values(params, points_per_step: int = 4) -> tuple[np.ndarray, np.ndarray]
     problem, instead of a comparison with one value per kWh that is zero wherever the LP is
     indifferent. The learner's policy still sees only its observation, not this table.
     """
-    eta, power_kw, capacity_kwh, _ = _battery_constants(params)
+    eta, power_kw, capacity_kwh, _ = battery_constants(params)
     grid, value = level_values(step_buy_prices(params), terminal_prices(params), eta, power_kw * float(params.step_hours), capacity_kwh,
                                points_per_step)
     return grid.astype(np.float32), value.astype(np.float32)
@@ -174,8 +185,6 @@ def action_values(xp, value_after, energy, price, eta: float, step_kwh: float, c
 def level_value(rows, energy, step_kwh: float):
     """``rows (..., K)`` of values on the uniform grid ``0, step_kwh, ...`` (:func:`dp_values`),
     read at ``energy (...)`` linearly between grid points (jax)."""
-    import jax.numpy as jnp
-
     x = jnp.clip(energy / step_kwh, 0.0, rows.shape[-1] - 1.0)
     i = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, rows.shape[-1] - 2)
     lo = jnp.take_along_axis(rows, i[..., None], axis=-1)[..., 0]
@@ -189,3 +198,38 @@ def _interp_rows(rows: np.ndarray, grid: np.ndarray, x: np.ndarray) -> np.ndarra
     i = np.clip(np.floor(x / h).astype(np.int64), 0, grid.size - 2)
     w = (x - grid[i]) / h
     return rows[..., i] * (1.0 - w) + rows[..., i + 1] * w
+
+
+def dp_battery_action(params):
+    """The battery-only programme's best full-power action, read from a simulator state.
+
+    Args:
+        params: concrete :class:`chargax_marl.core.types.EnvParams` of a station with a battery
+            (the tables of :func:`dp_values` are built for its days and prices).
+
+    Returns:
+        ``act(state) -> (action, strict)`` for one (unbatched) core state: ``action`` int32 in
+        ``{-1, 0, 1}`` (discharge, idle, charge at full power) for the batteries' summed
+        stored energy, and ``strict`` bool, whether that action is strictly best (by more than
+        1e-4 EUR). Jittable.
+
+    Raises:
+        ValueError: the station has no battery.
+    """
+    grid, table = dp_values(params)
+    table, grid_kwh = jnp.asarray(table), float(grid[1] - grid[0])
+    prices = jnp.asarray(step_buy_prices(params), jnp.float32)
+    eta, power_kw, capacity_kwh, _ = battery_constants(params)
+    step_kwh = power_kw * float(params.step_hours)
+    is_battery = params.station.leaf_kind == KIND_BATTERY
+
+    def act(state):
+        e = jnp.sum(jnp.where(is_battery, state.soc * state.capacity_kwh, 0.0))
+        nxt = table[state.day, state.timestep + 1]
+        q = jnp.stack(action_values(jnp, lambda x: level_value(nxt, x, grid_kwh), e, prices[state.day, state.timestep],
+                                    eta, step_kwh, capacity_kwh))
+        best = jnp.argmax(q)
+        strict = jnp.sort(q)[-1] - jnp.sort(q)[-2] > 1e-4
+        return best - 1, strict
+
+    return act

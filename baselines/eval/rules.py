@@ -1,107 +1,63 @@
 """Rule-based policies on the held-out days: daily profit and paired differences.
 
-``python -m baselines.heuristics`` evaluates always-max, always-max + battery price rule,
-price-threshold, EDF, LLF and (on a station with a battery) the two rules of the trainers'
-teachers (:data:`TEACHER_RULES`) on the 100 held-out days of a scenario
-(``split_days(365, 100, seed=0)``) with the evaluation key 0, so every policy meets the same
-cars, and prints each one's mean daily profit and its paired difference (mean ± standard
-error over days) to always-max and to the battery rule. ``--out`` writes the JSON.
+The rules are :mod:`chargax_marl.policies` (always-max, the battery rule, price-threshold,
+EDF, LLF) and the teachers' rules of :mod:`chargax_marl.teachers.rules`; every rule is played
+with the evaluation's keys, so every policy meets the same cars.
 """
 
 from __future__ import annotations
 
-import argparse
-import time
-
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-from baselines.config import build_env_params, resolve
-from baselines.eval import heldout
-from baselines.eval import stats
-from chargax_marl.evaluation import run_days, split_days, summarize, write_json
-from chargax_marl.core import make_params
-from chargax_marl.core.station import KIND_BATTERY
+from baselines.eval import protocol, stats
+from chargax_marl.evaluation import run_days, summarize
 from chargax_marl.policies import get_policy
-from chargax_marl.single.scenarios import SCENARIOS
 
 POLICIES = ("always_max", "battery_rule", "price_threshold", "edf", "llf")
+
 
 PROGRAMME = "battery_programme"
 """Always-max ports with the batteries on the battery-only programme: at each step the
 best of discharge / idle / charge at full power for the stored energy, by backward induction
-over the day's known buy prices (:func:`baselines.read_policy.dp_battery_action`). It is
+over the day's known buy prices (:func:`chargax_marl.teachers.storage_value.dp_battery_action`). It is
 the battery shaping's teacher (``BATTERY_SHAPING="dp"``) played as a rule, no learning, and
 so the reference a learner trained with that shaping has to beat to show it learned more
 than its teacher."""
 
+
 PLAN_PROGRAMME = "plan_programme"
-"""The ports on their cars' plans (:func:`baselines.car_value.plan_action` at
-:data:`baselines.car_value.PLAN_POWER_FRACTION`: full power in the steps of each car's
+"""The ports on their cars' plans (:func:`chargax_marl.teachers.car_plan.plan_action` at
+:data:`chargax_marl.teachers.car_plan.PLAN_POWER_FRACTION`: full power in the steps of each car's
 cheapest plan, idle otherwise) with the batteries on the battery-only programme: both
 teachers of the multi-agent settings (``PORT_SHAPING="plan"``, ``PLAN_OBS``,
 ``BATTERY_SHAPING="dp"``) played as a rule."""
 
+
 TEACHER_RULES = (PROGRAMME, PLAN_PROGRAMME)
-"""Rules built from the trainers' shaping teachers, per station and price table (so not
-:mod:`chargax_marl.policies` rules); each needs a battery."""
+"""Rules built from the trainers' shaping teachers, per station and price table
+(:mod:`chargax_marl.teachers.rules`, built by :func:`chargax_marl.policies.get_policy` with
+params); each needs a battery."""
+
 
 GRID_PROGRAMME = "grid_programme"
 """``battery_programme`` that knows the node limits: always-max ports, the batteries on the
 battery-only programme, except that they do not charge while the ports' full-power draw
 alone (grid side) exceeds the limit of a node above a battery. There the programme's charge
 would be rescaled with the ports', taking the scarce connection from the cars
-(``baselines/README.md``, issue 13: on ``shopping-grid25-high`` this one change is worth
-+1.1 EUR/day over the programme on 16 car draws, what IPPO learned there). Not a teacher of
-any trainer; ``baselines.analysis.redraw`` scores it beside the teachers' rules."""
+(see ``baselines/README.md`` for what this one change is worth on ``shopping-grid25-high``).
+Not a teacher of any trainer; ``baselines.redraw`` scores it beside the teachers' rules."""
+
 
 BATTERY_RULES = TEACHER_RULES + (GRID_PROGRAMME,)
 """Every rule of this module that needs a battery."""
-
-
-def grid_programme_action(params):
-    """``act(state, key, params) -> levels`` of :data:`GRID_PROGRAMME`."""
-    from chargax_marl.core import physics
-    from baselines.read_policy import dp_battery_action
-
-    st = params.station
-    is_battery = np.asarray(st.leaf_kind) == KIND_BATTERY
-    # the nodes above any battery (every depth of its path to the grid connection)
-    above = np.asarray(st.node_of_leaf_at_depth)[:, is_battery].reshape(-1)
-    above = jnp.asarray(np.unique(above[above >= 0]), jnp.int32)
-    is_battery = jnp.asarray(is_battery)
-    dp = dp_battery_action(params)
-
-    def act(state, key, p):
-        del key
-        ports = jnp.where(is_battery, 0, p.num_levels).astype(jnp.int32)
-        demand_kw = physics.requested_current(ports, state, p) * st.leaf_voltage_v / 1000.0
-        binding = jnp.any(physics.node_flows_kw(demand_kw, st)[above] > st.node_max_kw[above])
-        bat = dp(state)[0]
-        bat = jnp.where(binding & (bat > 0), 0, bat)
-        return jnp.where(is_battery, bat * p.num_levels, ports).astype(jnp.int32)
-
-    return act
-
-
-def has_battery(params) -> bool:
-    return bool(np.any(np.asarray(params.station.leaf_kind) == KIND_BATTERY))
 
 
 def rule_policy(name: str, params):
     """The ``policy(state, key, params)`` of a rule name: a :mod:`chargax_marl.policies` rule, or
     one of :data:`BATTERY_RULES` (built for ``params``; a ``ValueError`` on a station without
     a battery)."""
-    if name not in BATTERY_RULES:
-        return get_policy(name)
-    if not has_battery(params):
-        raise ValueError(f"policy {name!r} needs a station with a battery; this station has none")
-    if name == GRID_PROGRAMME:
-        return grid_programme_action(params)
-    from baselines.car_value import PLAN_POWER_FRACTION, plan_action
-
-    return plan_action(params, battery="dp", power_fraction=None if name == PROGRAMME else PLAN_POWER_FRACTION)
+    return get_policy(name, params)
 
 
 def check_replay(replayed: dict, stored: dict, names, where: str) -> None:
@@ -121,15 +77,15 @@ def evaluate_rules(params, days, policies=POLICIES, key=None, draws: int = 1) ->
     ``days``, all with the same key (default ``PRNGKey(0)``, the trainers' evaluation key), so
     every policy meets the same cars and daily profits compare pairwise. ``policies`` may name
     :data:`TEACHER_RULES`. With ``draws`` > 1 (and no ``key``), every day is played under the
-    keys of :func:`baselines.common.draw_keys` and its totals are the means over the draws."""
+    keys of :func:`baselines.eval.protocol.draw_keys` and its totals are the means over the draws."""
     if key is not None and draws != 1:
         raise ValueError(f"evaluate_rules: give either a key or draws > 1, not both (draws={draws!r})")
-    keys = [key] if key is not None else heldout.draw_keys(draws)
+    keys = [key] if key is not None else protocol.draw_keys(draws)
     out = {}
     for name in policies:
         policy = rule_policy(name, params)
         fn = jax.jit(lambda d, k: run_days(lambda s, kk: policy(s, kk, params), params, d, k))
-        totals = heldout.mean_over_draws(lambda k: fn(np.asarray(days), k), keys)
+        totals = protocol.mean_over_draws(lambda k: fn(np.asarray(days), k), keys)
         out[name] = {"num_days": int(np.size(days)), "days": [int(d) for d in np.asarray(days)],
                      "metrics": summarize(totals), "daily_profit": np.asarray(totals.profit_eur, np.float64)}
     return out
@@ -158,26 +114,3 @@ def format_rules(results: dict) -> str:
                      f"{m['energy_delivered_kwh']['mean']:>15.0f}{m['missing_kwh_at_departure']['mean']:>13.1f}"
                      f"{m['battery_terminal_value_eur']['mean']:>15.2f}")
     return "\n".join(lines)
-
-
-def main(argv=None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--scenario", default="shopping")
-    p.add_argument("--traffic", default="medium")
-    p.add_argument("--out", default=None, help="write the results JSON here")
-    args = p.parse_args(argv)
-    _, full, _, days = build_env_params(resolve({"SCENARIO": args.scenario,
-                                                                         "TRAFFIC": args.traffic}))
-    names = POLICIES + BATTERY_RULES * has_battery(full)
-    results = add_paired_differences(evaluate_rules(full, days, names))
-    print(f"{args.scenario} / {args.traffic}: {len(days)} held-out days (split_days(seed=0)), key 0, same cars for all")
-    print(format_rules(results))
-    if args.out:
-        write_json({"scenario": args.scenario, "traffic": args.traffic, "days": [int(d) for d in days],
-                    "results": {k: {kk: vv for kk, vv in v.items() if kk not in ("daily_profit", "days")}
-                                for k, v in results.items()}}, args.out)
-    return results
-
-
-if __name__ == "__main__":
-    main()

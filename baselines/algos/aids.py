@@ -1,0 +1,53 @@
+"""The learning aids of the trainers' config mapped onto the library's teachers.
+
+``BATTERY_SHAPING`` (:mod:`chargax_marl.teachers.shaping`: the batteries' stored energy
+valued as a potential) and ``PORT_SHAPING`` (:mod:`chargax_marl.teachers.car_plan`: each
+parked car's plan value as a potential).
+"""
+
+from __future__ import annotations
+
+from chargax_marl.teachers import car_plan
+from chargax_marl.teachers import shaping as teacher_shaping
+
+PORT_SHAPING_MODES = ("off", "plan")
+
+
+def port_shaping_mode(config: dict) -> str:
+    """``PORT_SHAPING`` as one of :data:`PORT_SHAPING_MODES`."""
+    mode = config.get("PORT_SHAPING", "off")
+    mode = "off" if mode in (None, False) else mode
+    if mode not in PORT_SHAPING_MODES:
+        raise ValueError(f"PORT_SHAPING must be one of {PORT_SHAPING_MODES}, got {config.get('PORT_SHAPING')!r}")
+    return mode
+
+
+def car_potential(config: dict, env_params):
+    """``None`` when ``PORT_SHAPING`` is off, else the per-car potential of
+    :func:`chargax_marl.teachers.car_plan.car_potential`: ``potential(env_state) -> shift``."""
+    if port_shaping_mode(config) == "off":
+        return None
+    return car_plan.car_potential(env_params)
+
+
+SHAPING_MODES = ("off",) + teacher_shaping.BATTERY_POTENTIALS
+
+
+def shaping_mode(config: dict) -> str:
+    """``BATTERY_SHAPING`` as one of :data:`SHAPING_MODES` (``False`` / ``True`` are ``"off"`` /
+    ``"day_mean"``)."""
+    v = config.get("BATTERY_SHAPING", False)
+    mode = {False: "off", True: "day_mean", None: "off"}.get(v, v) if isinstance(v, (bool, type(None))) else v
+    if mode not in SHAPING_MODES:
+        raise ValueError(f"BATTERY_SHAPING must be a bool or one of {SHAPING_MODES}, got {v!r}")
+    return mode
+
+
+def battery_potential(config: dict, env_params):
+    """``None`` when ``BATTERY_SHAPING`` is off, else the potential of
+    :func:`chargax_marl.teachers.shaping.battery_potential` of that mode:
+    ``potential(env_state) -> shift(net_kwh)``."""
+    mode = shaping_mode(config)
+    if mode == "off":
+        return None
+    return teacher_shaping.battery_potential(env_params, mode)

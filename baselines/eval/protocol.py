@@ -1,0 +1,23 @@
+"""The car draws of the held-out protocol: which keys, and how a day's totals are averaged."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+
+
+def draw_keys(draws: int = 1) -> list:
+    """The evaluation keys of ``draws`` car draws per held-out day: ``PRNGKey(0) ... PRNGKey(draws - 1)``.
+    Every policy is scored under the same keys (the same cars), and its per-day profit is the
+    mean over the draws, so a paired difference's standard error over days treats the days,
+    not the draws, as the independent units (the draws of one day share its prices). Draw 0
+    is the single-draw evaluation's key."""
+    if isinstance(draws, bool) or not isinstance(draws, (int, np.integer)) or int(draws) < 1:
+        raise ValueError(f"field 'EVAL_DRAWS' (car draws per held-out day) must be a positive integer, got {draws!r}")
+    return [jax.random.PRNGKey(k) for k in range(int(draws))]
+
+
+def mean_over_draws(evaluate, keys):
+    """``evaluate(key) -> pytree of arrays`` averaged leaf by leaf over ``keys`` (one call per key)."""
+    outs = [jax.device_get(evaluate(k)) for k in keys]
+    return jax.tree.map(lambda *x: np.mean(np.stack([np.asarray(v, np.float64) for v in x]), axis=0), *outs)

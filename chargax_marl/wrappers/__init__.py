@@ -1,0 +1,25 @@
+"""Wrappers that put the teachers (:mod:`chargax_marl.teachers`) into an env, PureJaxRL / JaxMARL
+style: each wraps the gymnax view (:class:`chargax_marl.single.Chargax`, ``reset(key,
+params)``, ``step(key, state, action, params)``) or the JaxMARL view
+(:class:`chargax_marl.marl.ChargaxMARL`, ``reset(key)``, ``step(key, state, actions)``), keeps its
+call signatures, forwards every other attribute, and is jit and vmap friendly. The teachers'
+tables are built from the env's own params (its days and prices).
+
+Reward shaping (potential-based, Ng, Harada and Russell 1999): :class:`BatteryShaping`,
+:class:`CarPlanShaping`. Observation features: :class:`PlanAdviceObservation`,
+:class:`RelativePriceObservation`. A JaxMARL stack::
+
+    env = ChargaxMARL(params=params, local_reward_weight=1.0)
+    env = RelativePriceObservation(PlanAdviceObservation(CarPlanShaping(BatteryShaping(env))))
+    env = LogWrapper(env)  # chargax_marl.marl.LogWrapper
+"""
+
+from chargax_marl.wrappers.observations import (
+    ObservationFeatures,
+    PlanAdviceObservation,
+    RelativePriceObservation,
+)
+from chargax_marl.wrappers.shaping import BatteryShaping, CarPlanShaping
+
+__all__ = ["BatteryShaping", "CarPlanShaping", "ObservationFeatures", "PlanAdviceObservation",
+           "RelativePriceObservation"]

@@ -1,0 +1,121 @@
+"""Observation feature wrappers: the teachers' views appended as columns
+(:mod:`chargax_marl.teachers`).
+
+JaxMARL view: every agent's observation gains the same number of columns, and
+``observation_space(agent)``, ``observation_spaces`` and ``obs_size`` grow with them, so
+JaxMARL's own IPPO sizes its network from them unmodified; other keys (MAPPO's
+``world_state``) pass through. Gymnax view: the flat observation gains the columns, and
+``observation_space(params)`` grows with it.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from chargax_marl.core import observation
+from chargax_marl.teachers.car_plan import PLAN_POWER_FRACTION, plan_advice
+from chargax_marl.teachers.prices import relative_price_columns, relative_prices
+from chargax_marl.teachers.shaping import core_state
+from chargax_marl.wrappers.base import TeacherWrapper, base_env
+
+
+class ObservationFeatures(TeacherWrapper):
+    """Appends ``width`` columns to each observation; subclasses define :meth:`features`.
+
+    Args:
+        env: either view, possibly wrapped.
+        width: columns appended per agent (JaxMARL) or to the flat observation (gymnax).
+        low, high: the appended columns' bounds, for the observation space.
+    """
+
+    def __init__(self, env, width: int, low: float, high: float):
+        super().__init__(env)
+        self.width = int(width)
+        self._low = np.full(self.width, low, np.float32)
+        self._high = np.full(self.width, high, np.float32)
+        if self.is_marl:
+            self.obs_size = env.obs_size + self.width
+            self.observation_spaces = {a: self._grown(env.observation_space(a)) for a in env.agents}
+
+    def _grown(self, space):
+        low, high = (np.concatenate([np.broadcast_to(np.asarray(b, np.float32), space.shape), x])
+                     for b, x in ((space.low, self._low), (space.high, self._high)))
+        return type(space)(low, high, (space.shape[0] + self.width,), space.dtype)
+
+    def features(self, obs, state):
+        """The appended columns: ``(agents, width)`` from the dict ``obs`` (JaxMARL) or
+        ``(width,)`` from the flat ``obs`` (gymnax), for the (wrapped) core ``state``."""
+        raise NotImplementedError
+
+    def _append(self, obs, state):
+        extra = self.features(obs, state)
+        if not self.is_marl:
+            return jnp.concatenate([obs, extra], axis=-1)
+        grown = {a: jnp.concatenate([obs[a], extra[i]]) for i, a in enumerate(self._env.agents)}
+        return {**obs, **grown}
+
+    def observation_space(self, agent_or_params=None):
+        """JaxMARL: the grown ``Box`` of ``agent``; gymnax: the grown ``Box`` for ``params``."""
+        if self.is_marl:
+            return self.observation_spaces[agent_or_params]
+        return self._grown(self._env.observation_space(agent_or_params))
+
+    def reset(self, key, *args):
+        obs, state = self._env.reset(key, *args)
+        return self._append(obs, state), state
+
+    def step(self, key, state, action, *args):
+        obs, state, *rest = self._env.step(key, state, action, *args)
+        return (self._append(obs, state), state, *rest)
+
+    def get_obs(self, state, *args, **kwargs):
+        """The wrapped env's observation of ``state`` with the columns appended."""
+        return self._append(self._env.get_obs(state, *args, **kwargs), state)
+
+
+class PlanAdviceObservation(ObservationFeatures):
+    """Each port's plan advice (:func:`chargax_marl.teachers.car_plan.plan_advice`): 1.0 where its
+    car's cheapest plan under the day's prices charges now (every charge-sensitive car), else
+    0.0 (idle, empty ports, batteries), read from the returned state (after an auto-reset, the
+    new day's). JaxMARL view: one column per agent, its own leaf's advice. Gymnax view: one
+    column per leaf ``(L,)``, ports then batteries.
+
+    Args:
+        env: either view, possibly wrapped.
+        power_fraction: the fraction of a car's top power the plan counts on per step.
+    """
+
+    def __init__(self, env, power_fraction: float = PLAN_POWER_FRACTION):
+        params = env.params if hasattr(env, "agents") else env.default_params
+        super().__init__(env, 1 if hasattr(env, "agents") else params.station.num_leaves, 0.0, 1.0)
+        self._advice = plan_advice(self.env_params, power_fraction)
+
+    def features(self, obs, state):
+        advice = self._advice(core_state(state))
+        return advice[:, None] if self.is_marl else advice
+
+
+class RelativePriceObservation(ObservationFeatures):
+    """Each observed buy price's place in its day's range, ``(p - median) / (q80 - q20)``
+    (:func:`chargax_marl.teachers.prices.relative_prices`; ``H + 1`` columns, now and the next
+    ``H = price_horizon_hours`` hours, clipped to [-5, 5]), computed from the env's own
+    observation columns. JaxMARL view: every agent's row; gymnax view: the flat observation.
+
+    Args:
+        env: either view, possibly wrapped (other appended columns come after the env's own,
+            so the price columns stay where the env puts them).
+    """
+
+    def __init__(self, env):
+        params = env.params if hasattr(env, "agents") else env.default_params
+        super().__init__(env, int(params.price_horizon_hours) + 1, -5.0, 5.0)
+        inner = base_env(env)
+        end = (inner.obs_size - int(np.shape(inner._layout.agent_id)[1]) if self.is_marl
+               else observation.obs_size(params))
+        self.columns = relative_price_columns(params, end - observation.context_size(params))
+
+    def features(self, obs, state):
+        if not self.is_marl:
+            return relative_prices(obs, *self.columns)
+        return jnp.stack([relative_prices(obs[a], *self.columns) for a in self._env.agents])
