@@ -17,6 +17,8 @@ import numpy as np
 
 from chargax_marl.core import simulator
 from chargax_marl.core.types import EnvParams, EnvState
+from chargax_marl.optimal import bound_days
+from chargax_marl.policies import get_policy
 from chargax_marl.trace import day_keys
 
 Act = Callable[[EnvState, jax.Array], jnp.ndarray]
@@ -99,8 +101,6 @@ def evaluate(act: Act, params: EnvParams, days, key: jax.Array | None = None) ->
 
 def evaluate_policy(policy, params: EnvParams, days, key: jax.Array | None = None) -> dict:
     """:func:`evaluate` for a rule-based ``policy(state, key, params)`` or its name."""
-    from chargax_marl.policies import get_policy
-
     policy = get_policy(policy, params) if isinstance(policy, str) else policy
     return evaluate(lambda s, k: policy(s, k, params), params, days, key)
 
@@ -110,8 +110,6 @@ def hindsight_bound(params: EnvParams, days, key: jax.Array | None = None, refer
     """The LP hindsight bound (:mod:`chargax_marl.optimal.bound`) of each of ``days`` over
     ``reference``'s port occupancy, with the cars :func:`evaluate` draws with ``key``:
     ``{"daily_profit", "reference_daily_profit", "solve_s", "status"}`` (arrays over days)."""
-    from chargax_marl.optimal import bound_days
-    from chargax_marl.policies import get_policy
 
     bounds = bound_days(params, days, key, get_policy(reference, params), time_limit_s=time_limit_s)
     return {"daily_profit": np.array([b.profit_eur for b in bounds]),

@@ -27,11 +27,15 @@ class ForkedProcessError(RuntimeError):
     """Raised in a child process forked after JAX started in its parent."""
 
 
+try:  # a private JAX helper: without it, assume JAX started (the safe side)
+    from jax._src import xla_bridge as _xla_bridge
+except ImportError:  # pragma: no cover
+    _xla_bridge = None
+
+
 def _jax_started() -> bool:
     try:
-        from jax._src import xla_bridge
-
-        return bool(xla_bridge.backends_are_initialized())
+        return bool(_xla_bridge.backends_are_initialized())
     except Exception:  # noqa: BLE001 - a JAX without this helper: assume started (the safe side)
         return True
 

@@ -11,32 +11,27 @@
 import builtins as _builtins
 import sys as _sys
 
-
-def _import_jaxmarl_quietly() -> None:
-    """Import JaxMARL without its "Importing submoduled environments..." lines.
-
-    A module in its import chain resets ``sys.stdout``, so ``contextlib.redirect_stdout``
-    does not hold: drop just those lines at ``print`` for the duration of the import, and
-    put back the caller's ``sys.stdout`` / ``sys.stderr`` (pytest's ``capsys``, a notebook's
-    capture or a ``redirect_stdout`` around our import would otherwise be silently replaced).
-    """
-    original = _builtins.print
-    streams = _sys.stdout, _sys.stderr
-
-    def quiet(*args, **kwargs):
-        if args and isinstance(args[0], str) and "ubmoduled environments" in args[0]:
-            return
-        original(*args, **kwargs)
-
-    _builtins.print = quiet
-    try:
-        import jaxmarl.environments  # noqa: F401
-    finally:
-        _builtins.print = original
-        _sys.stdout, _sys.stderr = streams
+# Import JaxMARL without its "Importing submoduled environments..." lines. A module in its
+# import chain resets ``sys.stdout``, so ``contextlib.redirect_stdout`` does not hold: drop just
+# those lines at ``print`` for the duration of the import, and put back the caller's
+# ``sys.stdout`` / ``sys.stderr`` (pytest's ``capsys``, a notebook's capture or a
+# ``redirect_stdout`` around our import would otherwise be silently replaced).
+_original_print = _builtins.print
+_streams = _sys.stdout, _sys.stderr
 
 
-_import_jaxmarl_quietly()
+def _quiet_print(*args, **kwargs):
+    if args and isinstance(args[0], str) and "ubmoduled environments" in args[0]:
+        return
+    _original_print(*args, **kwargs)
+
+
+_builtins.print = _quiet_print
+try:
+    import jaxmarl.environments  # noqa: F401, E402
+finally:
+    _builtins.print = _original_print
+    _sys.stdout, _sys.stderr = _streams
 
 from chargax_marl.marl.env import ChargaxMARL
 from chargax_marl.marl.pettingzoo_env import ChargaxParallelEnv, parallel_env
