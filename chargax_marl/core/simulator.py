@@ -236,7 +236,8 @@ STEP_INFO_KEYS = (
     "reward", "profit_eur", "energy_charged_kwh", "energy_discharged_kwh", "energy_delivered_kwh",
     "battery_net_kwh", "grid_net_kwh", "losses_kwh", "price_buy_eur_kwh", "price_sell_grid_eur_kwh",
     "cars_arrived", "cars_departed", "cars_rejected", "missing_kwh", "overtime_min",
-    "constraint_excess_kw", "requested_excess_kw", "battery_terminal_value_eur", "peak_demand_charge_eur",
+    "constraint_excess_kw", "requested_excess_kw", "battery_terminal_value_eur",
+    "peak_demand_charge_eur",
 )
 """Scalar fields of :class:`StepInfo` reported in the infos under their own names."""
 

@@ -4,10 +4,11 @@ The transition is :func:`chargax_marl.core.simulator.step` (with
 :func:`chargax_marl.core.simulator.step_auto_reset`), the very functions the single-agent view
 calls; this file only maps the agents' actions to the core's per-leaf levels and builds the
 per-agent observations. :func:`step_arrays` is the one array transition; the JaxMARL dict API
-(:meth:`ChargaxMARL.step`, ``step_env``) is a view of it, and :meth:`ChargaxMARL.validate_actions`
-is the one check of an action dict. The pure functions at module level take ``params`` explicitly
-(so jitted callers may pass them as traced arguments and share compiled code);
-:class:`ChargaxMARL` binds them to ``self.params`` as JaxMARL environments do.
+(:meth:`ChargaxMARL.step`, ``step_env``) is a view of it, and
+:meth:`ChargaxMARL.validate_actions` is the one check of an action dict. The pure functions at
+module level take ``params`` explicitly (so jitted callers may pass them as traced arguments
+and share compiled code); :class:`ChargaxMARL` binds them to ``self.params`` as JaxMARL
+environments do.
 """
 
 from __future__ import annotations
@@ -287,8 +288,8 @@ class ChargaxMARL(MultiAgentEnv):
     clipped into it (as the single-agent env clips), then the mask rule applies;
     :meth:`check_actions` refuses them instead (PettingZoo's strict check). A missing or
     unknown agent, a non-number or a wrong shape raises ``ValueError`` at every entry point
-    (:meth:`validate_actions`). Action mode ``continuous`` is not supported here (``ValueError``): use the
-    single-agent view.
+    (:meth:`validate_actions`). Action mode ``continuous`` is not supported here
+    (``ValueError``): use the single-agent view.
 
     **Construction.** ``ChargaxMARL()`` is the paper default (``shopping``, medium traffic);
     ``ChargaxMARL(scenario="shopping-grid25-high")`` picks a named scenario of
@@ -314,9 +315,9 @@ class ChargaxMARL(MultiAgentEnv):
     term as ``penalty_<name>``, energies, prices, car counts, the running episode totals as
     ``episode_<name>`` (scalars broadcast to every agent), ``leaf_energy_kwh`` and its alias
     ``agent_energy_kwh``, each agent's own energy this step, and ``agent_reward_share``, each
-    agent's share of the reward (:func:`chargax_marl.core.reward.leaf_reward_shares`: the money its own energy
-    made minus the penalties it caused and an even part of the fixed cost; the shares sum to
-    the reward).
+    agent's share of the reward (:func:`chargax_marl.core.reward.leaf_reward_shares`: the
+    money its own energy made minus the penalties it caused and an even part of the fixed
+    cost; the shares sum to the reward).
 
     **Rewards.** By default every agent gets the shared station reward ``r``. The optional
     per-agent shaping ``local_reward_weight=w`` in ``[0, 1]`` gives agent ``i`` the reward

@@ -157,7 +157,8 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
         terminated = jnp.asarray(False)
         info = {**simulator.info_dict(core_info, stepped, params), "terminated": terminated,
                 "truncated": done, "final_observation": self.get_obs(stepped, params)}
-        return self.get_obs(next_state, params), next_state, core_info.reward, terminated, done, info
+        obs = self.get_obs(next_state, params)
+        return obs, next_state, core_info.reward, terminated, done, info
 
     def reset_env(self, key: jax.Array, params: EnvParams):
         state = simulator.reset(key, params)
