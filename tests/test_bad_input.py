@@ -21,8 +21,8 @@ import numpy as np
 import pytest
 
 from chargax_marl.core import (
-    Battery, PenaltyWeights, Port, Splitter, datasets, make_params, multiple_splitters, multiple_types, simulator,
-    single_type,
+    Battery, PenaltyWeights, Port, Splitter, actions, datasets, make_params, multiple_splitters,
+    multiple_types, simulator, single_type,
 )
 from chargax_marl.core.station import compile_station
 from tests.helpers import place_car, start
@@ -216,11 +216,15 @@ def test_huge_host_integers_clip_instead_of_wrapping(single_env, huge):
 
 
 def test_huge_core_level_clips(params):
+    """The core clips the largest int32 level; a host integer beyond int32 is clipped into it
+    at the edge (``actions.host_array``, what the views' ``step`` apply) before the core."""
     s = _with_car_and_battery(params)
     n = params.station.num_leaves
-    big, _ = simulator.step(KEY, s, np.full(n, 2**32 + 3, np.int64), params)
     top, _ = simulator.step(KEY, s, jnp.full(n, params.num_levels, jnp.int32), params)
-    np.testing.assert_array_equal(np.asarray(big.current_a), np.asarray(top.current_a))
+    host_big = actions.host_array(np.full(n, 2**32 + 3, np.int64), n)
+    for big in (jnp.full(n, 2**31 - 1, jnp.int32), host_big):
+        clipped, _ = simulator.step(KEY, s, big, params)
+        np.testing.assert_array_equal(np.asarray(clipped.current_a), np.asarray(top.current_a))
 
 
 def test_huge_marl_index_clips(marl_env):

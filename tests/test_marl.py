@@ -87,8 +87,9 @@ def test_default_station_base_api():
     assert set(dones) == set(env.agents) | {"__all__"}
     assert set(rewards) == set(obs) == set(env.agents)
     assert len({float(r) for r in rewards.values()}) == 1  # the shared station reward
-    for k, v in infos.items():
-        assert v.shape == (env.num_agents,), k
+    for k, v in infos.items():  # one row per agent; the final observation is each agent's own
+        want = (env.num_agents, env.obs_size) if k == "final_observation" else (env.num_agents,)
+        assert v.shape == want, k
     for k in ("profit_eur", "energy_delivered_kwh", "grid_net_kwh", "cars_arrived", "cars_rejected",
               "agent_energy_kwh") + tuple(f"penalty_{t}" for t in ("constraint", "satisfaction_time", "rejected")):
         assert k in infos, k
@@ -395,7 +396,7 @@ def test_missing_agent_inside_jit_names_it(small, small_step):
     _, s = small.reset(KEY)
     actions = idx_actions(small)
     del actions["port_3"]
-    with pytest.raises(KeyError, match="port_3"):
+    with pytest.raises(ValueError, match="missing agent.*port_3"):
         small_step(KEY, s, actions)
     with pytest.raises(ValueError, match="port_1.*shape"):
         small.step_env(KEY, s, dict(idx_actions(small), port_1=jnp.zeros((2,), jnp.int32)))

@@ -2,7 +2,13 @@
 
 ``step(key, state, levels, params)`` runs the four stages of paper Appendix A.2 in order
 (apply actions, charge, departures, arrivals), prices the step and updates the episode
-totals. Both the single-agent and the multi-agent view call exactly this function.
+totals. :func:`step_auto_reset` adds the start of a fresh day at the end of one, and
+:func:`info_dict` flattens the step's report. Both the single-agent and the multi-agent view
+call exactly these functions.
+
+Everything here is traceable and takes arrays only: turning host input (numpy, Python
+numbers, strings) into arrays is the views' job, at their entry points
+(:mod:`chargax_marl.core.actions`).
 """
 
 from __future__ import annotations
@@ -10,9 +16,9 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from chargax_marl.core import actions, physics, reward as reward_lib, rng, traffic
+from chargax_marl.core import physics, reward as reward_lib, rng, traffic
 from chargax_marl.core.station import KIND_BATTERY
-from chargax_marl.core.types import EnvParams, EnvState, EpisodeTotals, StepInfo
+from chargax_marl.core.types import PENALTY_TERMS, EnvParams, EnvState, EpisodeTotals, StepInfo
 
 
 def is_workday(day: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
@@ -79,11 +85,13 @@ def reset(key: jax.Array, params: EnvParams) -> EnvState:
 def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams):
     """One 5-minute (``params.step_minutes``) transition. Returns ``(new_state, StepInfo)``.
 
-    ``action`` has one entry per leaf (ports, then batteries): a signed level in
-    ``[-L, L]`` for the discrete modes or a fraction in ``[-1, 1]`` for ``continuous``.
-    Values outside the leaf's range are clipped and NaN or +-inf entries are idle (see
-    :mod:`chargax_marl.core.actions`); an action without exactly one entry per leaf, or one
-    that is not numeric, raises ``ValueError``.
+    ``action`` is an array (jax or numpy, possibly traced) with one entry per leaf (ports,
+    then batteries): a signed level in ``[-L, L]`` for the discrete modes or a fraction in
+    ``[-1, 1]`` for ``continuous``. Values outside the leaf's range are clipped and NaN or
+    +-inf entries are idle; an action without exactly one entry per leaf raises
+    ``ValueError``. Host values that do not fit int32 / float32 (a numpy ``int64`` beyond
+    ``2**31``) are the caller's to clip first (:func:`chargax_marl.core.actions.host_array`,
+    which the views' ``step`` entry points apply).
 
     The new state keeps the dtypes of ``state`` (float32, int32, bool) and the report is
     float32, also under ``JAX_ENABLE_X64=1``.
@@ -97,9 +105,16 @@ def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams
 
 def step_with_arrivals(state: EnvState, action: jnp.ndarray, arrivals: traffic.Arrivals, params: EnvParams):
     """:func:`step` with the step's arriving cars given (:class:`traffic.Arrivals`); the rest
-    of the transition is deterministic. Returns ``(new_state, StepInfo)``."""
-    action = actions.host_array(action, params.station.num_leaves)
-    action = jnp.reshape(action, (params.station.num_leaves,))
+    of the transition is deterministic. Returns ``(new_state, StepInfo)``.
+
+    Raises:
+        ValueError: ``action`` does not have exactly one entry per leaf (a static shape check).
+    """
+    num_leaves = params.station.num_leaves
+    if jnp.size(action) != num_leaves:
+        raise ValueError(f"field 'action' must have one entry per leaf (ports, then batteries): "
+                         f"shape ({num_leaves},), got shape {jnp.shape(action)}")
+    action = jnp.reshape(action, (num_leaves,))
     current, excess_kw, requested_kw = physics.apply_actions(action, state, params)
     charged_state, leaf_energy = physics.charge(current, state, params)
     flows = physics.energy_flows(leaf_energy, params.station)
@@ -187,3 +202,75 @@ def as_float32(tree):
 def is_done(state: EnvState, params: EnvParams) -> jnp.ndarray:
     """The day is over (truncation; the station never terminates)."""
     return state.timestep >= params.num_steps
+
+
+def step_auto_reset(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams,
+                    reset_state: EnvState | None = None):
+    """:func:`step`, then a fresh day where the step ended one: the auto-reset of both views.
+
+    As gymnax's ``Environment.step``: step, reset, and select the reset state where done
+    (``lax.select`` per leaf). The key is not split: the step's cars and the reset's day come
+    from separate streams of the same key (:mod:`chargax_marl.core.rng`).
+
+    Args:
+        key: the step's key (also the reset's).
+        state: the state to step.
+        action: per-leaf levels or fractions, as for :func:`step`.
+        params: the environment parameters.
+        reset_state: the state to start from at the end of the day; ``None`` draws one with
+            :func:`reset`.
+
+    Returns:
+        ``(next_state, stepped_state, info, done)``: the state to continue from (the reset
+        one where ``done``), the state the step reached, the step's :class:`StepInfo`, and
+        whether the step ended the day.
+    """
+    stepped, info = step(key, state, action, params)
+    done = is_done(stepped, params)
+    fresh = reset(key, params) if reset_state is None else reset_state
+    next_state = jax.tree.map(lambda x, y: jax.lax.select(done, x, y), fresh, stepped)
+    return next_state, stepped, info, done
+
+
+STEP_INFO_KEYS = (
+    "reward", "profit_eur", "energy_charged_kwh", "energy_discharged_kwh", "energy_delivered_kwh",
+    "battery_net_kwh", "grid_net_kwh", "losses_kwh", "price_buy_eur_kwh", "price_sell_grid_eur_kwh",
+    "cars_arrived", "cars_departed", "cars_rejected", "missing_kwh", "overtime_min",
+    "constraint_excess_kw", "requested_excess_kw", "battery_terminal_value_eur",
+    "peak_demand_charge_eur",
+)
+"""Scalar fields of :class:`StepInfo` reported in the infos under their own names."""
+
+INFO_KEYS = (STEP_INFO_KEYS + ("battery_reward_eur",) + tuple(f"penalty_{k}" for k in PENALTY_TERMS)
+             + tuple(f"episode_{k}" for k in EpisodeTotals.__dataclass_fields__))
+"""Every scalar key of :func:`info_dict`, in order: the step's report, ``battery_reward_eur``,
+``penalty_<term>``, ``episode_<total>``."""
+
+AUTO_RESET_INFO_KEYS = ("terminated", "truncated", "final_observation")
+"""The keys the views' auto-resetting ``step`` adds to :func:`info_dict` (gymnax's names)."""
+
+
+def info_dict(info: StepInfo, state: EnvState, params: EnvParams) -> dict:
+    """The step's report as the views' info dict: float32 scalars keyed as :data:`INFO_KEYS`
+    and ``leaf_energy_kwh`` ``(L,)``.
+
+    Args:
+        info: the report of :func:`step`.
+        state: the stepped state, whose running totals become ``episode_<total>``.
+        params: the environment parameters.
+
+    Returns:
+        A dict with :data:`INFO_KEYS` (``battery_reward_eur`` is the batteries' leaves' share
+        of the reward, :func:`chargax_marl.core.reward.leaf_reward_shares`; with the ports'
+        it sums to the reward) and ``leaf_energy_kwh``, the energy into each car and battery
+        this step (terminal side, negative when discharging).
+    """
+    is_battery = params.station.leaf_kind == KIND_BATTERY
+    out = {k: getattr(info, k) for k in STEP_INFO_KEYS}
+    out["battery_reward_eur"] = jnp.sum(jnp.where(is_battery, info.leaf_reward, 0.0))
+    out.update({f"penalty_{k}": info.penalties[k] for k in PENALTY_TERMS})
+    out.update({f"episode_{k}": getattr(state.totals, k)
+                for k in EpisodeTotals.__dataclass_fields__})
+    out = {k: jnp.asarray(out[k], jnp.float32) for k in INFO_KEYS}
+    out["leaf_energy_kwh"] = info.leaf_energy_kwh.astype(jnp.float32)
+    return out

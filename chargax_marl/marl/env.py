@@ -1,10 +1,14 @@
 """Multi-agent view of the station: one agent per charging port and per station battery (JaxMARL 0.2 API).
 
-The transition is :func:`chargax_marl.core.simulator.step`, the very function the single-agent
-view calls; this file only maps the agents' actions to the core's per-leaf levels and builds
-the per-agent observations. The pure functions at module level take ``params`` explicitly
-(so jitted callers may pass them as traced arguments and share compiled code);
-:class:`ChargaxMARL` binds them to ``self.params`` as JaxMARL environments do.
+The transition is :func:`chargax_marl.core.simulator.step` (with
+:func:`chargax_marl.core.simulator.step_auto_reset`), the very functions the single-agent view
+calls; this file only maps the agents' actions to the core's per-leaf levels and builds the
+per-agent observations. :func:`step_arrays` is the one array transition; the JaxMARL dict API
+(:meth:`ChargaxMARL.step`, ``step_env``) is a view of it, and
+:meth:`ChargaxMARL.validate_actions` is the one check of an action dict. The pure functions at
+module level take ``params`` explicitly (so jitted callers may pass them as traced arguments
+and share compiled code); :class:`ChargaxMARL` binds them to ``self.params`` as JaxMARL
+environments do.
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ from chargax_marl.core.params import make_params
 from chargax_marl.core.scenarios import scenario_kwargs
 from chargax_marl.core.station import KIND_AC, KIND_BATTERY, KIND_DC
 from chargax_marl.core.rng import materialize
-from chargax_marl.core.types import PENALTY_TERMS, EnvParams, EnvState, EpisodeTotals, StepInfo
+from chargax_marl.core.types import EnvParams, EnvState
 from chargax_marl.lifecycle import check_day
 
 NUM_KINDS = 3  # one-hot order: AC, DC, battery (the values of KIND_AC, KIND_DC, KIND_BATTERY)
@@ -180,45 +184,64 @@ def agent_observation_rows(state: EnvState, params: EnvParams, layout: ObsLayout
     return [jnp.concatenate([leaf[i], kind[i], loads[i], ctx, agent_id[i]]) for i in range(leaf.shape[0])]
 
 
-STEP_INFO_KEYS = (
-    "reward", "profit_eur", "energy_charged_kwh", "energy_discharged_kwh", "energy_delivered_kwh",
-    "battery_net_kwh", "grid_net_kwh", "losses_kwh", "price_buy_eur_kwh", "price_sell_grid_eur_kwh",
-    "cars_arrived", "cars_departed", "cars_rejected", "missing_kwh", "overtime_min", "constraint_excess_kw",
-    "requested_excess_kw", "battery_terminal_value_eur", "peak_demand_charge_eur",
-)
-"""Scalar fields of :class:`chargax_marl.core.StepInfo` reported in the infos under their own names."""
+STEP_INFO_KEYS = simulator.STEP_INFO_KEYS
+INFO_KEYS = simulator.INFO_KEYS
+"""Every scalar info key (:func:`chargax_marl.core.simulator.info_dict`), in order."""
 
-INFO_KEYS = (STEP_INFO_KEYS + tuple(f"penalty_{k}" for k in PENALTY_TERMS)
-             + tuple(f"episode_{k}" for k in EpisodeTotals.__dataclass_fields__))
-"""Every scalar info key, in order: the step's report, ``penalty_<term>``, ``episode_<total>``."""
+AGENT_INFO_KEYS = ("agent_energy_kwh", "agent_reward_share")
+"""The per-agent info entries this view adds to the single-agent view's keys."""
 
 
-def info_scalars(info: StepInfo, state: EnvState) -> dict:
-    """The per-step report as a flat dict of float32 scalars keyed as :data:`INFO_KEYS`
-    (the episode totals are those of ``state``)."""
-    out = {k: getattr(info, k) for k in STEP_INFO_KEYS}
-    out.update({f"penalty_{k}": info.penalties[k] for k in PENALTY_TERMS})
-    out.update({f"episode_{k}": getattr(state.totals, k) for k in EpisodeTotals.__dataclass_fields__})
-    return {k: jnp.asarray(out[k], jnp.float32) for k in INFO_KEYS}
+def step_arrays(key: jax.Array, state: EnvState, indices: jnp.ndarray, params: EnvParams,
+                offset: int, layout: ObsLayout | None = None, *, local_reward_weight: float = 0.0,
+                auto_reset: bool = False, reset_state: EnvState | None = None):
+    """The multi-agent transition on arrays; ``ChargaxMARL.step`` / ``step_env`` are views of it.
 
+    Args:
+        key: the step's key.
+        state: the state to step.
+        indices: ``(N,)`` action indices in agent order (clipped into ``[0, n)``, NaN idle,
+            masked levels idle: :func:`actions_to_levels`).
+        params: the environment parameters.
+        offset: :func:`action_offset` of ``params``.
+        layout: :func:`obs_layout` of ``params`` (built when ``None``).
+        local_reward_weight: ``w`` of :func:`agent_rewards` (concrete).
+        auto_reset: start a fresh day where the step ends one
+            (:func:`chargax_marl.core.simulator.step_auto_reset`).
+        reset_state: with ``auto_reset``, the fresh day's state (``None``: a random one).
 
-def step_arrays(key: jax.Array, state: EnvState, indices: jnp.ndarray, params: EnvParams, offset: int,
-                layout: ObsLayout | None = None):
-    """One transition from per-agent action indices ``(N,)``, without auto-reset.
-
-    Returns ``(obs (N, obs_size), new_state, reward (), done (), info)`` where ``info`` holds
-    the scalars of :func:`info_scalars` and ``agent_energy_kwh`` ``(N,)``, the energy moved
-    into each agent's car or battery this step (negative when discharging), and
-    ``agent_reward_share`` ``(N,)``, each agent's share of the reward
-    (:func:`chargax_marl.core.reward.leaf_reward_shares`; the shares sum to the reward).
+    Returns:
+        ``(obs (N, obs_size), next_state, rewards (N,), done (), info)``; ``obs`` is that of
+        ``next_state``. ``info`` holds :func:`chargax_marl.core.simulator.info_dict` (scalars
+        and ``leaf_energy_kwh``), ``agent_energy_kwh`` ``(N,)`` (the same energies, named for
+        agents) and ``agent_reward_share`` ``(N,)``, each agent's share of the reward
+        (:func:`chargax_marl.core.reward.leaf_reward_shares`; the shares sum to the reward);
+        with ``auto_reset`` also ``terminated``, ``truncated`` and ``final_observation``
+        (the observation matrix before the reset).
     """
+    next_state, rewards, done, info = _transition(key, state, indices, params, offset, layout,
+                                                  local_reward_weight, auto_reset, reset_state)
+    return agent_observations(next_state, params, layout), next_state, rewards, done, info
+
+
+def _transition(key, state, indices, params, offset, layout, local_reward_weight, auto_reset,
+                reset_state):
+    """:func:`step_arrays` without the observation: ``(next_state, rewards, done, info)``."""
     levels = actions_to_levels(indices, params, offset)
-    new_state, core_info = simulator.step(key, state, levels, params)
-    obs = agent_observations(new_state, params, layout)
-    info = info_scalars(core_info, new_state)
-    info["agent_energy_kwh"] = core_info.leaf_energy_kwh.astype(jnp.float32)
+    if auto_reset:
+        next_state, stepped, core_info, done = simulator.step_auto_reset(key, state, levels, params,
+                                                                         reset_state)
+    else:
+        stepped, core_info = simulator.step(key, state, levels, params)
+        next_state, done = stepped, simulator.is_done(stepped, params)
+    info = simulator.info_dict(core_info, stepped, params)
+    info["agent_energy_kwh"] = info["leaf_energy_kwh"]
     info["agent_reward_share"] = core_info.leaf_reward.astype(jnp.float32)
-    return obs, new_state, core_info.reward, simulator.is_done(new_state, params), info
+    if auto_reset:
+        info.update(terminated=jnp.asarray(False), truncated=done,
+                    final_observation=agent_observations(stepped, params, layout))
+    rewards = agent_rewards(core_info.reward, info["agent_reward_share"], local_reward_weight)
+    return next_state, rewards, done, info
 
 
 def agent_rewards(reward, shares, local_reward_weight: float):
@@ -261,11 +284,12 @@ class ChargaxMARL(MultiAgentEnv):
     ``Discrete(2L+1)`` with every index valid). Discharging levels of a port without V2G are
     *masked*: :meth:`get_avail_actions` returns ``False`` for them (the mask depends only on
     the station, not on the state) and, if chosen anyway, such an action falls back to idle
-    (level 0). An action may have shape ``()`` or ``(1,)``. Inside ``jit`` values cannot be
-    checked: indices outside ``[0, n)`` are clipped into it (as the single-agent env
-    clips), then the mask rule applies; outside ``jit`` use :meth:`check_actions` for clear
-    errors. Action mode ``continuous`` is not supported here (``ValueError``): use the
-    single-agent view.
+    (level 0). An action may have shape ``()`` or ``(1,)``. Indices outside ``[0, n)`` are
+    clipped into it (as the single-agent env clips), then the mask rule applies;
+    :meth:`check_actions` refuses them instead (PettingZoo's strict check). A missing or
+    unknown agent, a non-number or a wrong shape raises ``ValueError`` at every entry point
+    (:meth:`validate_actions`). Action mode ``continuous`` is not supported here
+    (``ValueError``): use the single-agent view.
 
     **Construction.** ``ChargaxMARL()`` is the paper default (``shopping``, medium traffic);
     ``ChargaxMARL(scenario="shopping-grid25-high")`` picks a named scenario of
@@ -284,13 +308,16 @@ class ChargaxMARL(MultiAgentEnv):
     ``index / (N - 1)``, which keeps the step linear in the number of agents for large
     stations. :meth:`get_global_state` is the single-agent observation.
 
-    **Infos.** Every leaf has shape ``(num_agents,)``: the step's reward and profit, every
-    penalty term as ``penalty_<name>``, energies, prices, car counts, the running episode
-    totals as ``episode_<name>`` (scalars broadcast to every agent), and ``agent_energy_kwh``,
-    each agent's own energy this step, and ``agent_reward_share``, each agent's share of the
-    reward (:func:`chargax_marl.core.reward.leaf_reward_shares`: the money its own energy
-    made minus the penalties it caused and an even part of the fixed cost; the shares sum to
-    the reward).
+    **Infos.** The single-agent view's keys (:func:`chargax_marl.core.simulator.info_dict`;
+    :meth:`step` adds ``terminated``, ``truncated`` and ``final_observation``, the
+    ``(num_agents, obs_size)`` observations before an auto-reset) plus :data:`AGENT_INFO_KEYS`.
+    Every leaf has leading axis ``num_agents``: the step's reward and profit, every penalty
+    term as ``penalty_<name>``, energies, prices, car counts, the running episode totals as
+    ``episode_<name>`` (scalars broadcast to every agent), ``leaf_energy_kwh`` and its alias
+    ``agent_energy_kwh``, each agent's own energy this step, and ``agent_reward_share``, each
+    agent's share of the reward (:func:`chargax_marl.core.reward.leaf_reward_shares`: the
+    money its own energy made minus the penalties it caused and an even part of the fixed
+    cost; the shares sum to the reward).
 
     **Rewards.** By default every agent gets the shared station reward ``r``. The optional
     per-agent shaping ``local_reward_weight=w`` in ``[0, 1]`` gives agent ``i`` the reward
@@ -353,57 +380,45 @@ class ChargaxMARL(MultiAgentEnv):
         state = simulator.empty_state(jnp.asarray(day, jnp.int32), self.params)
         return self.get_obs(state), state
 
-    def step_env(self, key: jax.Array, state: EnvState, actions: Mapping[str, jax.Array]):
-        """One transition without auto-reset: ``(obs, state, rewards, dones, infos)``."""
-        indices = self.stack_actions(actions)
-        levels = actions_to_levels(indices, self.params, self.action_offset)
-        new_state, core_info = simulator.step(key, state, levels, self.params)
-        done = simulator.is_done(new_state, self.params)
-        obs, rewards, dones, infos = self._outputs(new_state, new_state, core_info, done)
-        return obs, new_state, rewards, dones, infos
+    def step_env(self, key: jax.Array, state: EnvState, actions: Mapping[str, Any]):
+        """One transition without auto-reset: ``(obs, state, rewards, dones, infos)``.
 
-    def step(self, key: jax.Array, state: EnvState, actions: Mapping[str, Any], reset_state: EnvState | None = None):
+        Raises:
+            ValueError: a bad action dict (:meth:`validate_actions`).
+        """
+        return self._dict_step(key, state, self.stack_actions(actions), None, auto_reset=False)
+
+    def step(self, key: jax.Array, state: EnvState, actions: Mapping[str, Any],
+             reset_state: EnvState | None = None):
         """JaxMARL's auto-resetting step: ``(obs, state, rewards, dones, infos)``; at the end of
         the day the returned state and observations are those of a fresh day (``reset_state``
         when given, else a random one) while rewards, dones and infos are the last step's.
 
-        Host actions (numpy, Python numbers) are checked and clipped into int32 before they
-        enter ``jit`` (:func:`chargax_marl.core.actions.host_array`), so a large host integer
-        clips instead of wrapping and a string raises ``ValueError``."""
-        if isinstance(actions, Mapping):
-            actions = {a: core_actions.host_array(v, None, f"actions[{a!r}]") for a, v in actions.items()}
-        return self._step(key, state, actions, reset_state)
+        The action dict is checked here, once, before it enters ``jit``
+        (:meth:`validate_actions`: host integers are clipped into int32, so a large one clips
+        instead of wrapping); the transition is :func:`step_arrays`'s.
+
+        Raises:
+            ValueError: a bad action dict (:meth:`validate_actions`).
+        """
+        return self._step(key, state, tuple(self.validate_actions(actions)), reset_state)
 
     @functools.partial(jax.jit, static_argnums=(0,))
-    def _step(self, key: jax.Array, state: EnvState, actions: Mapping[str, Any], reset_state: EnvState | None = None):
-        """The auto-resetting step with the state selected first and the observations built
-        once from the selected state (JaxMARL's base class builds the stepped and the reset
-        observations and selects between them). The key is not split: the step's cars and
-        the reset's day come from separate streams of it (:mod:`chargax_marl.core.rng`)."""
-        indices = self.stack_actions(actions)
-        levels = actions_to_levels(indices, self.params, self.action_offset)
-        new_state, core_info = simulator.step(key, state, levels, self.params)
-        done = simulator.is_done(new_state, self.params)
-        fresh = simulator.reset(key, self.params) if reset_state is None else reset_state
-        out_state = jax.tree.map(lambda x, y: jax.lax.select(done, x, y), fresh, new_state)
-        obs, rewards, dones, infos = self._outputs(out_state, new_state, core_info, done)
-        return obs, out_state, rewards, dones, infos
+    def _step(self, key: jax.Array, state: EnvState, parts: tuple, reset_state: EnvState | None):
+        return self._dict_step(key, state, self._stack(parts), reset_state, auto_reset=True)
 
-    def _outputs(self, obs_state: EnvState, stepped: EnvState, core_info: StepInfo, done):
-        """The dicts of a step: observations of ``obs_state``; rewards, dones and infos of the
-        step that produced ``stepped``."""
-        n = self.num_agents
-        rows = agent_observation_rows(obs_state, self.params, self._layout)
-        obs_dict = dict(zip(self.agents, rows))
-        info = info_scalars(core_info, stepped)
-        info["agent_energy_kwh"] = core_info.leaf_energy_kwh.astype(jnp.float32)
-        info["agent_reward_share"] = core_info.leaf_reward.astype(jnp.float32)
-        per_agent = agent_rewards(core_info.reward, info["agent_reward_share"], self.local_reward_weight)
-        rewards = {a: per_agent[i] for i, a in enumerate(self.agents)}
+    def _dict_step(self, key: jax.Array, state: EnvState, indices: jax.Array,
+                   reset_state: EnvState | None, *, auto_reset: bool):
+        """The dict view of :func:`step_arrays`: observation rows built per agent (no matrix),
+        scalar infos broadcast to ``(num_agents,)``."""
+        next_state, rewards, done, info = _transition(
+            key, state, indices, self.params, self.action_offset, self._layout,
+            self.local_reward_weight, auto_reset, reset_state)
         dones = {a: done for a in self.agents}
         dones["__all__"] = done
-        infos = {k: jnp.broadcast_to(v, (n,)) for k, v in info.items()}
-        return obs_dict, rewards, dones, infos
+        n = self.num_agents
+        infos = {k: v if jnp.ndim(v) else jnp.broadcast_to(v, (n,)) for k, v in info.items()}
+        return self.get_obs(next_state), next_state, dict(zip(self.agents, rewards)), dones, infos
 
     def get_obs(self, state: EnvState) -> dict:
         """Observations keyed by agent (see the class docstring for the layout)."""
@@ -443,73 +458,91 @@ class ChargaxMARL(MultiAgentEnv):
         return "ChargaxMARL"
 
     # ------------------------------------------------------------------ actions
-    def _missing_and_unknown(self, actions: Mapping[str, Any]) -> tuple[list[str], list[str]]:
-        """Agents without an action, and action keys that name no agent."""
-        return [a for a in self.agents if a not in actions], [a for a in actions if a not in self.agent_index]
+    def validate_actions(self, actions: Mapping[str, Any], strict: bool = False) -> list:
+        """The one check of an action dict; returns the agents' actions in agent order.
 
-    def stack_actions(self, actions: Mapping[str, jax.Array]) -> jnp.ndarray:
-        """The action dict as an int32 vector ``(num_agents,)`` in agent order (works under jit).
+        Every entry point goes through it: :meth:`stack_actions` (``step``, ``step_env``,
+        ``actions_to_levels``) with ``strict=False`` and :meth:`check_actions` (PettingZoo)
+        with ``strict=True``. Host values are converted by
+        :func:`chargax_marl.core.actions.host_array` (integers clipped into int32); traced
+        values get the structural checks only.
 
-        Raises ``KeyError`` naming a missing agent and ``ValueError`` for an unknown agent or an
-        action whose shape is not ``()`` or ``(1,)``; the values themselves are not checked.
-        """
-        missing, unknown = self._missing_and_unknown(actions)
-        if missing:
-            raise KeyError(f"actions has no entry for agent(s) {missing}; expected one per agent in {self.agents}")
-        if unknown:
-            raise ValueError(f"actions has entries for unknown agent(s) {unknown}; agents are {self.agents}")
-        parts = []
-        for a in self.agents:
-            x = jnp.asarray(core_actions.host_array(actions[a], None, f"actions[{a!r}]"))
-            if x.shape not in ((), (1,)):
-                raise ValueError(f"action of agent {a!r} must have shape () or (1,), got {x.shape}")
-            core_actions.check_dtype(x, f"actions[{a!r}]")
-            parts.append(core_actions.to_int32(x.reshape(()), 0, self.num_actions - 1, self.action_offset))
-        return jnp.stack(parts)
+        Args:
+            actions: ``{agent: index}`` with one entry per agent.
+            strict: also require integer indices in ``[0, n)`` (else values outside are
+                clipped later and floats truncated, NaN idle).
 
-    def check_actions(self, actions: Mapping[str, Any]) -> np.ndarray:
-        """Validate an action dict outside ``jit``; return the int32 index vector in agent order.
+        Returns:
+            The actions, one array of shape ``()`` or ``(1,)`` per agent, in agent order.
 
-        Raises ``ValueError`` naming the agent and the allowed range for a missing or unknown
-        agent, a non-integer action (float, bool, string, ...), a shape other than ``()`` or
-        ``(1,)``, or an index outside ``[0, n)``. Masked actions are accepted (they fall back
-        to idle). Traced values (inside ``jit``) get the structural checks only.
+        Raises:
+            ValueError: ``actions`` is not a dict, an agent is missing or unknown, an action is
+                not a number or has a shape other than ``()`` or ``(1,)``; with ``strict``, an
+                action is not an integer in ``[0, n)``. The message names the agent, the value
+                and what is allowed.
         """
         n = self.num_actions
         allowed = f"an integer in [0, {n - 1}] (Discrete({n}))"
         if not isinstance(actions, Mapping):
-            raise ValueError(f"actions must be a dict {{agent: {allowed}}}, got {type(actions).__name__}")
-        missing, unknown = self._missing_and_unknown(actions)
-        if missing:
-            raise ValueError(f"missing action for agent(s) {missing}: every agent needs {allowed}")
-        if unknown:
-            raise ValueError(f"unknown agent(s) {unknown} in actions; agents are {self.agents}")
-        out = np.empty(self.num_agents, np.int32)
-        for i, a in enumerate(self.agents):
-            v = actions[a]
-            if isinstance(v, jax.core.Tracer):
-                if v.shape not in ((), (1,)) or not jnp.issubdtype(v.dtype, jnp.integer):
-                    raise ValueError(f"action of agent {a!r} must be {allowed} with shape () or (1,), "
-                                     f"got a traced {v.dtype} of shape {v.shape}")
-                out[i] = 0
-                continue
-            if isinstance(v, (bool, np.bool_)):
-                raise ValueError(f"action of agent {a!r} must be {allowed}, got the bool {v!r}")
-            if isinstance(v, (int, np.integer)):
-                k = int(v)
-            else:
-                try:
-                    arr = np.asarray(v)
-                except Exception:  # noqa: BLE001 - anything that is not array-like is a bad action
-                    raise ValueError(f"action of agent {a!r} must be {allowed}, got {v!r}") from None
-                if arr.shape not in ((), (1,)) or arr.dtype == np.bool_ or not np.issubdtype(arr.dtype, np.integer):
-                    raise ValueError(f"action of agent {a!r} must be {allowed} with shape () or (1,), "
-                                     f"got {v!r} (dtype {arr.dtype}, shape {arr.shape})")
-                k = int(arr.reshape(()))
-            if not 0 <= k < n:
-                raise ValueError(f"action of agent {a!r} must be {allowed}, got {k}")
-            out[i] = k
+            raise ValueError(f"actions must be a dict {{agent: {allowed}}}, "
+                             f"got {type(actions).__name__}")
+        missing = [a for a in self.agents if a not in actions]
+        unknown = [a for a in actions if a not in self.agent_index]
+        if missing or unknown:
+            raise ValueError(f"actions must have one entry per agent: missing agent(s) {missing}, "
+                             f"unknown agent(s) {unknown}; agents are {self.agents}, "
+                             f"each taking {allowed}")
+        out = []
+        for a in self.agents:
+            value = actions[a]
+            try:
+                x = core_actions.host_array(value, None, f"actions[{a!r}]")
+            except ValueError as exc:
+                raise ValueError(f"action of agent {a!r} must be {allowed}, "
+                                 f"got {value!r} ({exc})") from None
+            if np.shape(x) not in ((), (1,)):
+                raise ValueError(f"action of agent {a!r} must be {allowed} with shape () or (1,), "
+                                 f"got shape {np.shape(x)}")
+            traced = isinstance(x, jax.core.Tracer)
+            raw = x if traced else np.asarray(value)
+            if strict and not np.issubdtype(raw.dtype, np.integer):
+                raise ValueError(f"action of agent {a!r} must be {allowed}, "
+                                 f"got {value!r} (dtype {raw.dtype})")
+            if strict and not traced and not 0 <= int(raw.reshape(())) < n:
+                raise ValueError(f"action of agent {a!r} must be {allowed}, "
+                                 f"got {int(raw.reshape(()))}")
+            out.append(x)
         return out
+
+    def stack_actions(self, actions: Mapping[str, Any]) -> jnp.ndarray:
+        """The action dict as an int32 vector ``(num_agents,)`` in agent order (works under jit).
+
+        Indices outside ``[0, n)`` are clipped into it (in their own dtype), floats truncated,
+        NaN and +-inf idle.
+
+        Raises:
+            ValueError: as :meth:`validate_actions` (``strict=False``).
+        """
+        return self._stack(self.validate_actions(actions))
+
+    def _stack(self, parts) -> jnp.ndarray:
+        """Validated per-agent actions as clipped int32 indices ``(num_agents,)`` (traceable)."""
+        top = self.num_actions - 1
+        offset = self.action_offset
+        return jnp.stack([core_actions.to_int32(jnp.asarray(x).reshape(()), 0, top, offset)
+                          for x in parts])
+
+    def check_actions(self, actions: Mapping[str, Any]) -> np.ndarray:
+        """The action dict as a numpy int32 index vector, every index required valid (PettingZoo).
+
+        Masked actions are accepted (they fall back to idle). Traced values (inside ``jit``)
+        get the structural checks only and give 0.
+
+        Raises:
+            ValueError: as :meth:`validate_actions` (``strict=True``).
+        """
+        return np.array([0 if isinstance(x, jax.core.Tracer) else int(np.reshape(x, ()))
+                         for x in self.validate_actions(actions, strict=True)], np.int32)
 
     def actions_to_levels(self, actions: Mapping[str, jax.Array] | jax.Array) -> jnp.ndarray:
         """The core's signed levels ``(num_agents,)`` for an action dict or index vector."""

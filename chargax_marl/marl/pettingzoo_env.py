@@ -45,10 +45,11 @@ def _reset_day(day: jax.Array, params: EnvParams, layout: marl_env.ObsLayout):
 @jax.jit(static_argnames=("offset",))
 def _step(key: jax.Array, state, indices: jax.Array, params: EnvParams, layout: marl_env.ObsLayout, offset: int):
     key, sub = jax.random.split(key)
-    obs, state, reward, done, info = marl_env.step_arrays(sub, state, indices, params, offset, layout)
-    # One float vector for the host (one transfer instead of one per info key):
-    # [reward, done, info scalars in INFO_KEYS order, energy per agent, reward share per agent]
-    packed = jnp.concatenate([jnp.stack([reward.astype(jnp.float32), done.astype(jnp.float32)]
+    obs, state, _, done, info = marl_env.step_arrays(sub, state, indices, params, offset, layout)
+    # One float vector for the host (one transfer instead of one per info key): [station
+    # reward, done, info scalars in INFO_KEYS order, energy per agent, reward share per agent].
+    # The per-agent rewards are mixed on the host (ChargaxParallelEnv.step).
+    packed = jnp.concatenate([jnp.stack([info["reward"], done.astype(jnp.float32)]
                                         + [info[k] for k in marl_env.INFO_KEYS]),
                               info["agent_energy_kwh"], info["agent_reward_share"]])
     return key, state, obs, packed

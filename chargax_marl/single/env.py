@@ -2,9 +2,10 @@
 
 ``reset(key, params) -> (obs, state)`` and
 ``step(key, state, action, params) -> (obs, state, reward, terminated, truncated, info)``
-come from :class:`gymnax.environments.environment.Environment`, which auto-resets at the end
-of the day. This file only maps actions and builds observations; the transition is
-:func:`chargax_marl.core.simulator.step`.
+follow :class:`gymnax.environments.environment.Environment` and auto-reset at the end of the
+day. This file only maps actions and builds observations; the transition is
+:func:`chargax_marl.core.simulator.step` (``step_env``) and
+:func:`chargax_marl.core.simulator.step_auto_reset` (``step``), as in the multi-agent view.
 
 Action (discrete modes): a ``MultiDiscrete`` vector with one entry per leaf (ports, then
 batteries). Entry ``k`` of leaf ``i`` means level ``k + min_level_i`` where
@@ -27,8 +28,7 @@ from chargax_marl import bounds
 from chargax_marl.lifecycle import check_day
 from chargax_marl.core import actions, observation, physics, simulator
 from chargax_marl.core.params import make_params
-from chargax_marl.core.station import KIND_BATTERY
-from chargax_marl.core.types import PENALTY_TERMS, EnvParams, EnvState, EpisodeTotals
+from chargax_marl.core.types import EnvParams, EnvState
 
 
 class MultiDiscrete(spaces.Space):
@@ -54,35 +54,30 @@ class MultiDiscrete(spaces.Space):
         return (x.shape == self.shape) & jnp.all((x >= 0) & (x < self.nvec))
 
 
-def step_info(info, state: EnvState, params: EnvParams) -> dict:
-    """Flatten a core :class:`StepInfo` and the episode totals into a dict of scalars, plus
-    ``leaf_energy_kwh`` ``(L,)``, the energy into each car and battery this step (terminal
-    side, negative when discharging); ``battery_reward_eur`` is the batteries' share of the
-    step's reward (their leaves' shares, :func:`chargax_marl.core.reward.leaf_reward_shares`;
-    with the ports' it sums to the reward)."""
-    is_battery = params.station.leaf_kind == KIND_BATTERY
-    out = {
-        "profit_eur": info.profit_eur,
-        "energy_charged_kwh": info.energy_charged_kwh,
-        "energy_discharged_kwh": info.energy_discharged_kwh,
-        "energy_delivered_kwh": info.energy_delivered_kwh,
-        "battery_net_kwh": info.battery_net_kwh,
-        "grid_net_kwh": info.grid_net_kwh,
-        "losses_kwh": info.losses_kwh,
-        "price_buy_eur_kwh": info.price_buy_eur_kwh,
-        "cars_arrived": info.cars_arrived,
-        "cars_departed": info.cars_departed,
-        "cars_rejected": info.cars_rejected,
-        "constraint_excess_kw": info.constraint_excess_kw,
-        "requested_excess_kw": info.requested_excess_kw,
-        "battery_terminal_value_eur": info.battery_terminal_value_eur,
-        "peak_demand_charge_eur": info.peak_demand_charge_eur,
-        "battery_reward_eur": jnp.sum(jnp.where(is_battery, info.leaf_reward, 0.0)),
-        "leaf_energy_kwh": info.leaf_energy_kwh,
-    }
-    out.update({f"penalty_{k}": info.penalties[k] for k in PENALTY_TERMS})
-    out.update({f"episode_{k}": getattr(state.totals, k) for k in EpisodeTotals.__dataclass_fields__})
-    return out
+def action_levels(action: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
+    """The core's per-leaf levels (or fractions) of an action array of the single-agent space.
+
+    Traceable and array-only (host input goes through :meth:`Chargax.action_to_levels`).
+    Indices outside the space are clipped into it; NaN and +-inf entries are the index of
+    idle (level 0).
+
+    Args:
+        action: ``(num_leaves,)`` indices of the ``MultiDiscrete`` space, or fractions in
+            ``[-1, 1]`` in continuous mode.
+        params: the environment parameters.
+
+    Returns:
+        The ``(num_leaves,)`` int32 levels (float32 fractions in continuous mode).
+    """
+    n = params.station.num_leaves
+    action = jnp.reshape(jnp.asarray(action), (n,))
+    if params.action_mode == "continuous":
+        return actions.to_fraction(action)
+    if params.action_mode == "delta":
+        idle = params.num_levels
+        return actions.to_int32(action, 0, 2 * params.num_levels, idle) - params.num_levels
+    min_level = physics.leaf_min_level(params.station, params.num_levels, params.v2g)
+    return actions.to_int32(action, 0, params.num_levels - min_level, -min_level) + min_level
 
 
 class Chargax(environment.Environment[EnvState, EnvParams]):
@@ -110,22 +105,15 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
         return physics.leaf_min_level(params.station, params.num_levels, params.v2g)
 
     def action_to_levels(self, action: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
-        """Map an action of this env's space to the core's per-leaf levels (or fractions).
+        """Map an action of this env's space (host or jax values) to the core's per-leaf levels.
 
-        Indices outside the space are clipped into it; NaN and +-inf entries are the index of
-        idle (level 0); an action without one entry per leaf raises ``ValueError`` (see
-        :mod:`chargax_marl.core.actions`).
+        The host action is checked and clipped into int32 / float32 first
+        (:func:`chargax_marl.core.actions.host_array`), then mapped by :func:`action_levels`.
+
+        Raises:
+            ValueError: the action does not have one entry per leaf or is not numeric.
         """
-        n = params.station.num_leaves
-        action = actions.host_array(action, n)
-        action = jnp.reshape(jnp.asarray(action), (n,))
-        if params.action_mode == "continuous":
-            return actions.to_fraction(action)
-        if params.action_mode == "delta":
-            idle = params.num_levels
-            return actions.to_int32(action, 0, 2 * params.num_levels, idle) - params.num_levels
-        min_level = self.min_level(params)
-        return actions.to_int32(action, 0, params.num_levels - min_level, -min_level) + min_level
+        return action_levels(actions.host_array(action, params.station.num_leaves), params)
 
     def levels_to_action(self, levels: jnp.ndarray, params: EnvParams | None = None) -> jnp.ndarray:
         """Inverse of :meth:`action_to_levels` (for rule-based policies written in levels)."""
@@ -140,43 +128,37 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
     def step_env(self, key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams):
         new_state, info = simulator.step(key, state, self.action_to_levels(action, params), params)
         obs = self.get_obs(new_state, params)
-        return obs, new_state, info.reward, jnp.asarray(False), step_info(info, new_state, params)
+        info_dict = simulator.info_dict(info, new_state, params)
+        return obs, new_state, info.reward, jnp.asarray(False), info_dict
 
     def step(self, key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams | None = None):
-        """gymnax's auto-resetting step, building the observation once (see :meth:`_step`).
+        """gymnax's auto-resetting step: ``(obs, state, reward, terminated, truncated, info)``.
 
-        A host action (numpy, list, Python numbers) is checked and clipped into int32 / float32
-        before it enters ``jit`` (:func:`chargax_marl.core.actions.host_array`), so a large
-        host integer clips instead of wrapping.
+        The host action (numpy, list, Python numbers) is checked and clipped into int32 /
+        float32 here, once, before it enters ``jit``
+        (:func:`chargax_marl.core.actions.host_array`), so a large host integer clips instead
+        of wrapping. The transition is :func:`chargax_marl.core.simulator.step_auto_reset`;
+        the observation is built once, from the state it returns. ``info`` is
+        :func:`chargax_marl.core.simulator.info_dict` plus gymnax's ``terminated``,
+        ``truncated`` and ``final_observation`` (the observation before the reset, computed
+        only when a caller uses it).
+
+        Raises:
+            ValueError: the action does not have one entry per leaf or is not numeric.
         """
         n = (params or self.default_params).station.num_leaves
         return self._step(key, state, actions.host_array(action, n), params)
 
     @functools.partial(jax.jit, static_argnames=("self",))
     def _step(self, key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams | None = None):
-        """gymnax's auto-resetting step, building the observation once.
-
-        Same semantics as :meth:`gymnax.environments.environment.Environment.step`, with two
-        savings: the state is selected first and the observation is built once from the
-        selected state (instead of building the step's and the reset's observation and
-        selecting between them), and the key is not split (the step's cars and the reset's
-        day come from separate streams of the same key, :mod:`chargax_marl.core.rng`). ``info["final_observation"]`` (the observation before the
-        reset) is only computed when a caller uses it.
-        """
-        if params is None:
-            params = self.default_params
-        # One key serves both: the step's cars and the reset draw from distinct streams of it
-        # (:mod:`chargax_marl.core.rng`), so no split is needed.
-        key_reset = key
-        new_state, core_info = simulator.step(key, state, self.action_to_levels(action, params), params)
+        params = self.default_params if params is None else params
+        levels = action_levels(action, params)
+        next_state, stepped, core_info, done = simulator.step_auto_reset(key, state, levels, params)
         terminated = jnp.asarray(False)
-        truncated = self.is_truncated(new_state, params)
-        done = jnp.logical_or(terminated, truncated)
-        reset_state = simulator.reset(key_reset, params)
-        out_state = jax.tree.map(lambda x, y: jax.lax.select(done, x, y), reset_state, new_state)
-        info = {**step_info(core_info, new_state, params), "terminated": terminated, "truncated": truncated,
-                "final_observation": self.get_obs(new_state, params)}
-        return self.get_obs(out_state, params), out_state, core_info.reward, terminated, truncated, info
+        info = {**simulator.info_dict(core_info, stepped, params), "terminated": terminated,
+                "truncated": done, "final_observation": self.get_obs(stepped, params)}
+        obs = self.get_obs(next_state, params)
+        return obs, next_state, core_info.reward, terminated, done, info
 
     def reset_env(self, key: jax.Array, params: EnvParams):
         state = simulator.reset(key, params)

@@ -16,7 +16,7 @@ from gymnax.environments import spaces as gx_spaces
 from chargax_marl import bounds, lifecycle, rendering
 from chargax_marl.core import observation, simulator
 from chargax_marl.core.types import EnvParams, EnvState, EpisodeTotals
-from chargax_marl.single.env import Chargax, step_info
+from chargax_marl.single.env import Chargax, action_levels
 
 
 @struct.dataclass
@@ -150,9 +150,8 @@ class FlatDiscrete:
 
 # Module-level jitted functions with ``params`` as a traced argument: every GymnasiumEnv of
 # a plain Chargax with the same station layout and static settings shares one compilation
-# (and the wrapper holds no jitted attribute, so it pickles).
-_PROTO = Chargax.__new__(Chargax)  # a stateless Chargax: its methods only read the params passed in
-_PROTO._params = None
+# (and the wrapper holds no jitted attribute, so it pickles). They take arrays only:
+# GymnasiumEnv.step checks the host action against the space first.
 
 
 @jax.jit
@@ -171,9 +170,9 @@ def _shared_reset_day(day: jax.Array, params: EnvParams):
 @jax.jit
 def _shared_step(key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams):
     key, sub = jax.random.split(key)
-    new_state, info = simulator.step(sub, state, _PROTO.action_to_levels(action, params), params)
+    new_state, info = simulator.step(sub, state, action_levels(action, params), params)
     return (key, observation.flat_obs(new_state, params), new_state, info.reward,
-            simulator.is_done(new_state, params), step_info(info, new_state, params))
+            simulator.is_done(new_state, params), simulator.info_dict(info, new_state, params))
 
 
 def compile_count() -> int:
