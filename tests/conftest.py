@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import os
 
-import numpy as np
 import pytest
 from hypothesis import settings
 
-from chargax_marl.core import Battery, Port, Splitter, make_params
+from chargax_marl.core import make_params
+from tests.helpers import mixed_station, three_level_station  # noqa: F401
 
 # CI runs the property tests on a fixed example sequence, so a red CI is reproducible;
 # locally they explore new examples on every run.
@@ -18,20 +18,6 @@ if os.environ.get("CI"):
 
 
 
-def three_level_station(ac_discharge_current_a: float = 16.0) -> Splitter:
-    """grid -> {dc splitter -> 2 EVSE groups of 2 DC ports, ac splitter -> 2 AC ports, battery}."""
-    dc = [Port(f"dc{i}", "DC", 500.0, 200.0, 200.0, 0.95) for i in range(4)]
-    ac = [Port(f"ac{i}", "AC", 400.0, 32.0, ac_discharge_current_a, 0.97) for i in range(2)]
-    evse = [Splitter("evse0", 150.0, tuple(dc[:2]), 0.99), Splitter("evse1", 150.0, tuple(dc[2:]), 0.99)]
-    return Splitter(
-        "grid",
-        220.0,
-        (
-            Splitter("dc_split", 200.0, tuple(evse), 0.98),
-            Splitter("ac_split", 20.0, tuple(ac), 0.99),
-            Battery("bat", capacity_kwh=100.0, max_kw=50.0, efficiency=0.95, tau=0.8, initial_soc=0.5),
-        ),
-    )
 
 
 @pytest.fixture(scope="session")
@@ -45,10 +31,5 @@ def default_params():
     return make_params()
 
 
-def rng(seed: int) -> np.random.Generator:
-    return np.random.default_rng(seed)
 
 
-def mixed_station() -> Splitter:
-    """The three-level station with AC ports that cannot discharge (no V2G): masks matter."""
-    return three_level_station(ac_discharge_current_a=0.0)

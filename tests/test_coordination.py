@@ -5,17 +5,19 @@ both views, and the node-binding table."""
 
 from __future__ import annotations
 
-from baselines.config import build_env_params, resolve
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from chargax_marl import binding, optimal, policies, trace as trace_lib
-from chargax_marl.core import observation, reward as reward_lib, simulator, tariffs
+from baselines.config import build_env_params, resolve
+from chargax_marl import binding, optimal, policies
+from chargax_marl import trace as trace_lib
+from chargax_marl.core import observation, simulator, tariffs
+from chargax_marl.core import reward as reward_lib
 from chargax_marl.core.params import make_params
 from chargax_marl.core.scenarios import COORDINATION_SCENARIOS, SCENARIOS
-from chargax_marl.core.station import Battery, Port, Splitter
+from chargax_marl.core.station import Port, Splitter
 from chargax_marl.marl import ChargaxMARL
 from chargax_marl.optimal.model import Economics, Sessions, StationLimits, build_and_solve
 from chargax_marl.single import make

@@ -10,10 +10,15 @@ import pytest
 from chargax_marl.core import make_params, simulator
 from chargax_marl.core.physics import leaf_min_level, node_flows_kw
 from chargax_marl.evaluation import evaluate_policy, run_days, split_days, summarize, write_json
-from chargax_marl.policies import POLICIES, for_single, get_policy, minimum_power_kw, price_threshold
+from chargax_marl.policies import (
+    POLICIES,
+    for_single,
+    get_policy,
+    minimum_power_kw,
+    price_threshold,
+)
 from chargax_marl.single import Chargax
-from tests.conftest import three_level_station
-from tests.helpers import no_arrivals, place_car, start
+from tests.helpers import no_arrivals, place_car, start, three_level_station
 
 
 @pytest.fixture(scope="module")

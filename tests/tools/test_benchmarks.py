@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 BENCH = ROOT / "benchmarks"
 
 
@@ -125,3 +125,15 @@ def test_peers_driver_protocol_with_fake_peer(tmp_path):
     for spec in peers.PEERS.values():
         assert (BENCH / "peer_drivers" / spec["driver"]).exists()
         assert "==" in spec["nodeps"][0]
+
+
+def test_train_speed_counts_network_work_and_rounds_to_whole_updates():
+    from benchmarks import train_speed
+
+    assert train_speed._steps_for(16, 100_000, 300) == 21 * 4800
+    assert train_speed.mlp_macs([4, 8, 2]) == 4 * 8 + 8 * 2
+    ppo_m, ippo_m, mappo_m = (train_speed.network_macs(a) for a in ("ppo", "ippo", "mappo"))
+    assert ippo_m["rows"] == mappo_m["rows"] == 17 and ppo_m["rows"] == 1
+    # 17 agents through 2 x 256 MLPs: about 9 x PPO's work per env-step; MAPPO's shared critic less
+    assert 8 < ippo_m["total_macs"] / ppo_m["total_macs"] < 10
+    assert ppo_m["total_macs"] < mappo_m["total_macs"] < ippo_m["total_macs"]

@@ -10,8 +10,7 @@ import pytest
 from chargax_marl.core import Battery, Port, Splitter, make_params, simulator
 from chargax_marl.core.observation import PRICE_SCALE_EUR_KWH, context_features
 from chargax_marl.core.physics import discharge_curve_kw, rate_curve_kw
-from tests.conftest import three_level_station
-from tests.helpers import no_arrivals, place_car, start
+from tests.helpers import no_arrivals, place_car, start, three_level_station
 
 KEY = jax.random.PRNGKey(0)
 DT_H = 5.0 / 60.0

@@ -5,8 +5,8 @@ forked workers, and the single-agent env's spaces for gymnax code."""
 from __future__ import annotations
 
 import functools
-import os
 import multiprocessing
+import os
 import pickle
 import warnings
 

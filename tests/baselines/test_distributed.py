@@ -22,7 +22,7 @@ import jax
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 ARGS = ["--config", "cpu", "ALGO=ppo", f"TOTAL_TIMESTEPS={2 * 4 * 24}", "SEEDS=2", "SEED=3", "NUM_ENVS=4",
         "NUM_STEPS=24", "HIDDEN=16", "NUM_MINIBATCHES=2", "UPDATE_EPOCHS=1", "CHUNKS=1", "NUM_EVAL_DAYS=4",

@@ -17,9 +17,9 @@ from chargax_marl.marl import ChargaxMARL, LogWrapper, WorldStateWrapper
 from chargax_marl.marl.env import ancestor_loads, ancestor_table
 from chargax_marl.policies import always_max
 from chargax_marl.single import Chargax
-from tests.conftest import mixed_station, three_level_station
-from tests.helpers import no_arrivals, place_car, start
-ROOT = Path(__file__).resolve().parents[1]
+from tests.helpers import mixed_station, no_arrivals, place_car, start, three_level_station
+
+ROOT = Path(__file__).resolve().parents[2]
 KEY = jax.random.PRNGKey(0)
 L = 10
 

@@ -12,9 +12,7 @@ from hypothesis import HealthCheck, Phase, given, settings
 
 from chargax_marl.core import make_params, multiple_splitters, single_type
 from chargax_marl.single import SCENARIOS, Chargax, GymnasiumEnv, LogWrapper, make
-from tests.conftest import three_level_station
-from tests.helpers import random_rollout
-from tests.test_station import trees
+from tests.helpers import random_rollout, three_level_station, trees
 
 
 def tree_equal(a, b):

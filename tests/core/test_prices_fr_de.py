@@ -20,7 +20,7 @@ import pytest
 
 from chargax_marl.core import datasets as ds
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SHARED = ROOT.parent / "shared" / "data" / "entsoe-day-ahead"
 ZONE_FILE = {"FR": "FR", "DE": "DE-LU"}
 NAMES = tuple(f"{z}-{y}" for z in ("FR", "DE") for y in range(2020, 2025))

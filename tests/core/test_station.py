@@ -5,12 +5,21 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
-from chargax_marl.core import Battery, Port, Splitter, compile_station, multiple_splitters, multiple_types, single_type
+from chargax_marl.core import (
+    Battery,
+    Port,
+    Splitter,
+    compile_station,
+    multiple_splitters,
+    multiple_types,
+    single_type,
+)
 from chargax_marl.core.physics import node_flows_kw, rescale_to_limits
 from chargax_marl.core.station import KIND_AC, KIND_BATTERY, KIND_DC, build_station
-from tests.conftest import three_level_station
+from tests.helpers import three_level_station, trees
 
 
 def test_default_station_is_the_papers():
@@ -85,27 +94,6 @@ def test_validation_errors_name_the_field(make, match):
 # ----------------------------------------------------------------- hypothesis: random trees
 
 
-@st.composite
-def trees(draw, max_depth=3):
-    counter = iter(range(10_000))
-
-    def node(depth):
-        if depth >= max_depth or draw(st.booleans()) and depth > 0:
-            if draw(st.integers(0, 5)) == 0:
-                return Battery(f"b{next(counter)}", capacity_kwh=draw(st.floats(10, 300)),
-                               max_kw=draw(st.floats(5, 200)), efficiency=draw(st.floats(0.8, 1.0)))
-            v = draw(st.sampled_from([230.0, 400.0, 500.0, 800.0]))
-            i = draw(st.floats(10.0, 400.0))
-            return Port(f"p{next(counter)}", draw(st.sampled_from(["AC", "DC"])), v, i,
-                        draw(st.sampled_from([0.0, i / 2, i])), draw(st.floats(0.8, 1.0)))
-        kids = tuple(node(depth + 1) for _ in range(draw(st.integers(1, 3))))
-        return Splitter(f"s{next(counter)}", draw(st.floats(1.0, 500.0)), kids, draw(st.floats(0.8, 1.0)))
-
-    root = node(0)
-    if not isinstance(root, Splitter):
-        root = Splitter("root", 100.0, (root,))
-    root = Splitter("grid", draw(st.floats(1.0, 800.0)), (root, Port("always_port")))
-    return root
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 
 from chargax_marl import optimal, policies, trace
-from chargax_marl.core import datasets, physics, reward as reward_lib, simulator
+from chargax_marl.core import datasets, physics, simulator
+from chargax_marl.core import reward as reward_lib
 from chargax_marl.core.params import make_params
 from chargax_marl.core.station import Battery, Port, Splitter
 from chargax_marl.optimal.mpc import MPC

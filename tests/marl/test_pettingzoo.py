@@ -13,8 +13,9 @@ from pettingzoo.test import parallel_api_test, parallel_seed_test
 
 from chargax_marl.core import make_params, observation
 from chargax_marl.marl import ChargaxParallelEnv, parallel_env
-from tests.conftest import mixed_station
-ROOT = Path(__file__).resolve().parents[1]
+from tests.helpers import mixed_station
+
+ROOT = Path(__file__).resolve().parents[2]
 L = 10
 
 

@@ -21,10 +21,18 @@ import numpy as np
 import pytest
 
 from chargax_marl.core import (
-    Battery, PenaltyWeights, Port, Splitter, actions, datasets, make_params, multiple_splitters,
-    multiple_types, simulator, single_type,
+    Battery,
+    PenaltyWeights,
+    Port,
+    Splitter,
+    actions,
+    datasets,
+    make_params,
+    multiple_splitters,
+    multiple_types,
+    simulator,
+    single_type,
 )
-from chargax_marl.core.station import compile_station
 from tests.helpers import place_car, start
 
 KEY = jax.random.PRNGKey(0)
@@ -336,7 +344,7 @@ X64_SCRIPT = textwrap.dedent("""
 
 def test_state_dtypes_fixed_under_x64():
     env = {**os.environ, "JAX_ENABLE_X64": "1", "JAX_PLATFORMS": "cpu"}
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     out = subprocess.run([sys.executable, "-c", X64_SCRIPT], env=env, cwd=root, capture_output=True, text=True,
                          timeout=600)
     assert out.returncode == 0 and "X64 OK" in out.stdout, out.stderr[-3000:]
@@ -361,7 +369,7 @@ def _grid_side_node_flows_kw(leaf_power_kw: np.ndarray, station) -> np.ndarray:
 
 @pytest.mark.parametrize("action_mode", ["absolute", "delta", "continuous"])
 def test_long_run_with_nan_inf_and_out_of_range_actions_keeps_every_invariant(action_mode):
-    from tests.conftest import three_level_station
+    from tests.helpers import three_level_station
 
     p = make_params(station=three_level_station(), traffic=200.0, action_mode=action_mode)
     n, days = p.station.num_leaves, 3

@@ -13,7 +13,7 @@ import pytest
 
 from chargax_marl.core import datasets as ds
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 # --------------------------------------------------------------------------------------

@@ -6,13 +6,13 @@ runner compiles several programs (minutes on 2 cores), so it is not part of the 
 
 from __future__ import annotations
 
-from baselines.config import build_env_params, resolve
-from baselines import runs
 import json
 import re
 
 import numpy as np
 
+from baselines import runs
+from baselines.config import build_env_params, resolve
 from baselines.experiments import cross_market as cm
 
 EXPERIMENTS = {"NL-2023": ("NL-2023", "DE-2023", "FR-2023")}
@@ -110,7 +110,7 @@ def test_the_makefile_s_training_targets_name_a_config_and_nothing_else():
     from baselines.config import load
     from baselines.experiments import _common
 
-    text = Path(__file__).resolve().parents[1].joinpath("Makefile").read_text()
+    text = Path(__file__).resolve().parents[2].joinpath("Makefile").read_text()
     for target, name in (("train", "ippo"), ("train-ppo", "ppo"), ("train-mappo", "mappo")):
         line = re.search(rf"^{target}:.*\n\t(.*)$", text, flags=re.M).group(1)
         assert line == f"$(PY) -m baselines.train --config {name}", (target, line)

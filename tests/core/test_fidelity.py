@@ -11,14 +11,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
-from chargax_marl.core import Battery, Port, Splitter, make_params, simulator
-from chargax_marl.core import datasets, traffic
+from chargax_marl.core import Battery, Port, Splitter, datasets, make_params, simulator, traffic
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.policies import always_max
-from tests.helpers import no_arrivals, place_car, start
-from tests.test_station import trees
+from tests.helpers import no_arrivals, place_car, start, trees
 
 KEY = jax.random.PRNGKey(0)
 DT_H = 5.0 / 60.0

@@ -1,0 +1,121 @@
+"""``baselines.eval``: the rules on the held-out days, common random numbers, paired statistics."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from baselines.config import build_env_params, resolve
+from baselines.eval import heldout, stats
+from chargax_marl.core.station import KIND_BATTERY
+from chargax_marl.teachers import car_plan, storage_value
+from tests.helpers import TINY, TINY_ENV
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_battery_programme_rule_is_always_max_ports_and_the_programme_s_battery():
+    """The ``battery_programme`` baseline: every occupied port at full power, the battery at the
+    programme's full-power action; ``plan_programme``: the ports on the plan's advice, the
+    same battery. Refused, naming the policy, on a station without a battery, where the
+    baselines leave them out."""
+    from baselines.eval.heldout import baseline_results
+    from baselines.eval.rules import PLAN_PROGRAMME, PROGRAMME, evaluate_rules, rule_policy
+    from chargax_marl.core import make_params, simulator
+    from chargax_marl.policies import always_max
+
+    params = make_params(**TINY_ENV)
+    act, dp = rule_policy(PROGRAMME, params), storage_value.dp_battery_action(params)
+    plan, advice = rule_policy(PLAN_PROGRAMME, params), car_plan.plan_advice(params)
+    is_bat = np.asarray(params.station.leaf_kind) == KIND_BATTERY
+    state = simulator.reset(jax.random.PRNGKey(1), params)
+    state = state.replace(occupied=jnp.ones_like(state.occupied))  # a car at every port (an empty one's level acts on nothing)
+    seen = set()
+    for t in range(int(params.num_steps)):
+        s = state.replace(timestep=jnp.int32(t))
+        levels, ref = np.asarray(act(s, None, params)), np.asarray(always_max(s, None, params))
+        np.testing.assert_array_equal(levels[~is_bat], ref[~is_bat])
+        assert np.all(levels[is_bat] == int(dp(s)[0]) * int(params.num_levels))
+        planned = np.asarray(plan(s, None, params))
+        np.testing.assert_array_equal(planned[~is_bat], (np.asarray(advice(s))[~is_bat] > 0.5) * int(params.num_levels))
+        np.testing.assert_array_equal(planned[is_bat], levels[is_bat])
+        seen.add(int(dp(s)[0]))
+    assert len(seen) > 1  # the battery trades on this day
+    bare = make_params(**{**TINY_ENV, "station_kwargs": {"num_ports": 4, "battery": False}})
+    for name in (PROGRAMME, PLAN_PROGRAMME):
+        with pytest.raises(ValueError, match=name):
+            evaluate_rules(bare, np.arange(2), (name,))
+    assert not {PROGRAMME, PLAN_PROGRAMME} & set(baseline_results(bare, np.arange(2)))
+
+
+def test_grid_programme_holds_the_battery_s_charge_while_the_ports_alone_overload_the_connection():
+    """``grid_programme``: always-max ports and the programme's battery, except a charge while
+    the ports' full-power draw exceeds the grid connection (a 25 % connection with every port
+    taken); with the full connection it is ``battery_programme`` at every step."""
+    from baselines.eval.rules import GRID_PROGRAMME, PROGRAMME, evaluate_rules, rule_policy
+    from chargax_marl.core import make_params, simulator
+
+    seen = {}
+    for fraction in (0.25, None):
+        params = make_params(**TINY_ENV, grid_fraction=fraction)
+        act, prog, dp = rule_policy(GRID_PROGRAMME, params), rule_policy(PROGRAMME, params), \
+            storage_value.dp_battery_action(params)
+        is_bat = np.asarray(params.station.leaf_kind) == KIND_BATTERY
+        state = simulator.reset(jax.random.PRNGKey(1), params)
+        car = lambda field, value: jnp.where(jnp.asarray(is_bat), getattr(state, field), value)  # noqa: E731
+        # a 100 kWh car taking 150 kW at every port: 600 kW of ports against a 175 kW connection at 25 %
+        state = state.replace(occupied=jnp.ones_like(state.occupied), soc=car("soc", 0.1),
+                              target_soc=car("target_soc", 1.0), capacity_kwh=car("capacity_kwh", 100.0),
+                              max_rate_kw=car("max_rate_kw", 150.0), tau=car("tau", 0.8))
+        for t in range(int(params.num_steps)):
+            s = state.replace(timestep=jnp.int32(t))
+            levels, ref = np.asarray(act(s, None, params)), np.asarray(prog(s, None, params))
+            np.testing.assert_array_equal(levels[~is_bat], ref[~is_bat])  # always-max ports
+            want = int(dp(s)[0])
+            want = 0 if (fraction is not None and want > 0) else want  # every step overloads the 25 % connection
+            assert np.all(levels[is_bat] == want * int(params.num_levels)), (fraction, t)
+            seen.setdefault(fraction, set()).add(int(dp(s)[0]))
+    assert 1 in seen[0.25]  # the programme charges at some step, where the rule holds the battery
+    bare = make_params(**{**TINY_ENV, "station_kwargs": {"num_ports": 4, "battery": False}})
+    with pytest.raises(ValueError, match=GRID_PROGRAMME):
+        evaluate_rules(bare, np.arange(2), (GRID_PROGRAMME,))
+
+
+def test_held_out_evaluation_uses_common_random_numbers():
+    """Every seed, and the rule-based baselines, meet the same drawn cars: a 'network' that
+    ignores its parameters and plays always-max scores exactly always-max's daily profits,
+    for every seed, and a paired difference of zero."""
+    from baselines.eval.heldout import baseline_results
+    from chargax_marl.evaluation import evaluate_policy
+    from chargax_marl.policies import always_max
+
+    _, full, _, days = build_env_params(resolve(TINY))
+    days = days[:8]
+    base = baseline_results(full, days)
+
+    def make_act(p):
+        return lambda s, k: always_max(s, k, full) + 0 * p.astype(np.int32)
+
+    ev = heldout.evaluate_batched(make_act, np.zeros((3,), np.float32), full, days,
+                                 reference_profit=base["always_max"]["daily_profit"])
+    ref = evaluate_policy("always_max", full, days)["metrics"]["daily_profit_eur"]["mean"]
+    np.testing.assert_allclose(ev["per_seed_profit"], [ref] * 3, rtol=1e-6)
+    np.testing.assert_allclose(ev["daily_profit"], np.broadcast_to(base["always_max"]["daily_profit"], (3, 8)),
+                               rtol=1e-6)
+    assert ev["paired_diff"]["mean"] == pytest.approx(0.0, abs=1e-3)
+    d = stats.paired_difference(np.array([[2.0, 4.0]]), np.array([1.0, 1.0]))
+    assert d["mean"] == 2.0 and d["per_seed_mean"] == [2.0] and d["stderr"] == pytest.approx(1.0)
+
+
+def test_redraw_clusters_the_draws_of_a_day_before_the_standard_error():
+    """Two days, two draws each: the per-day means 2 and 4 give mean 3 and s.e. 1 (not the
+    s.e. of four independent numbers), and 3 > 2 x 1 beats."""
+    from baselines.eval.stats import day_clustered
+
+    d = day_clustered(np.array([[1.0, 3.0], [3.0, 5.0]]))  # (draws, days)
+    assert d == {"mean": 3.0, "stderr": pytest.approx(1.0), "beats": True}
+    assert day_clustered(np.array([[1.0, -3.0], [3.0, 1.0]]))["beats"] is False  # per day 2, -1: 0.5 < 2 x 1.5
