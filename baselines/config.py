@@ -66,7 +66,9 @@ SCHEMA: dict[str, Field] = {
     "HIDDEN": Field(256, (int,), doc="hidden units per layer"),
     "NUM_LAYERS": Field(2, (int,), doc="hidden layers"),
     "ACTIVATION": Field("tanh", (str,), ("tanh", "relu")),
-    "REWARD_SCALE": Field(1.0, _NUM, doc="rewards (EUR per step) are multiplied by this before GAE"),
+    "REWARD_SCALE": Field(
+        1.0, _NUM, doc="rewards (EUR per step) are multiplied by this before GAE"
+    ),
     "ALWAYS_MAX_PRIOR": Field(0.0, _NUM, doc="logit offset >= 0 on each port's full-power action"),
     "BATTERY_IDLE_PRIOR": Field(0.0, _NUM, doc="logit offset >= 0 on each battery's idle action"),
     # learning aids: the teachers' shaping and observation features
@@ -76,7 +78,9 @@ SCHEMA: dict[str, Field] = {
         _BATTERY_SHAPING,
         "value the batteries' energy as it moves: True = day_mean; storage_value; dp",
     ),
-    "PORT_SHAPING": Field("off", (str,), ("off", "plan"), "each parked car's plan value as a potential"),
+    "PORT_SHAPING": Field(
+        "off", (str,), ("off", "plan"), "each parked car's plan value as a potential"
+    ),
     "PLAN_OBS": Field(False, (bool,), doc="each agent also observes its port's plan advice"),
     "RELATIVE_PRICES": Field(False, (bool,), doc="the networks also read relative prices"),
     # multi-agent (IPPO / MAPPO)
@@ -118,7 +122,9 @@ def _check(key: str, value: Any, field: Field) -> Any:
     """``value`` for ``key`` coerced to its kind, or :class:`ConfigError`."""
     if value is None and field.default is None:
         return None
-    ok = isinstance(value, field.kinds) and not (isinstance(value, bool) and bool not in field.kinds)
+    ok = isinstance(value, field.kinds) and not (
+        isinstance(value, bool) and bool not in field.kinds
+    )
     if field.kinds == (int,) and isinstance(value, float) and value.is_integer():
         value, ok = int(value), True
     if ok and isinstance(value, float) and not math.isfinite(value):
@@ -126,8 +132,10 @@ def _check(key: str, value: Any, field: Field) -> Any:
     if ok and field.choices and value not in field.choices:
         ok = False
     if not ok:
-        allowed = f"one of {list(field.choices)}" if field.choices else " or ".join(
-            k.__name__ for k in field.kinds
+        allowed = (
+            f"one of {list(field.choices)}"
+            if field.choices
+            else " or ".join(k.__name__ for k in field.kinds)
         )
         raise ConfigError(f"config key {key}={value!r} is not allowed: expected {allowed}")
     return value

@@ -45,10 +45,23 @@ def chunked_updates(config: dict, chunks: int) -> tuple[int, int]:
     return chunks, (n_upd // chunks) * chunks
 
 
-def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path | None = None, chunks: int = 10,
-        evaluate_every_chunk: bool = True, baselines: dict | None = None, eval_params=None, eval_days=None,
-        env_params=None, title: str | None = None, quiet: bool = False, optimal: str = "off",
-        references_dir=None) -> RunOutput:
+def run(
+    algo: str,
+    config: dict,
+    seeds: int = 1,
+    seed: int = 0,
+    out: str | Path | None = None,
+    chunks: int = 10,
+    evaluate_every_chunk: bool = True,
+    baselines: dict | None = None,
+    eval_params=None,
+    eval_days=None,
+    env_params=None,
+    title: str | None = None,
+    quiet: bool = False,
+    optimal: str = "off",
+    references_dir=None,
+) -> RunOutput:
     """Train ``seeds`` seeds of ``algo`` and evaluate them; returns the results dict (and
     writes the outputs when ``out`` is given). ``eval_params`` / ``env_params`` override the
     evaluation and training parameters (e.g. another price year). ``optimal`` adds the LP
@@ -76,57 +89,103 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
     am = baselines["always_max"]["metrics"]["daily_profit_eur"]["mean"]
     am_daily = baselines["always_max"].get("daily_profit")
     rule_daily = baselines.get("battery_rule", {}).get("daily_profit")
-    teachers = [name for name in heldout.REFERENCES[2:] if name in baselines]  # the teachers' rules (a station with a battery)
+    teachers = [
+        name for name in heldout.REFERENCES[2:] if name in baselines
+    ]  # the teachers' rules (a station with a battery)
     evals = []
 
     def vs_rule(ev):
-        return None if rule_daily is None else stats.paired_difference(ev["daily_profit"], rule_daily)
+        return (
+            None if rule_daily is None else stats.paired_difference(ev["daily_profit"], rule_daily)
+        )
 
     def vs_programme(ev):
-        return {f"vs_{name}": stats.paired_difference(ev["daily_profit"], baselines[name]["daily_profit"])
-                for name in teachers}
+        return {
+            f"vs_{name}": stats.paired_difference(
+                ev["daily_profit"], baselines[name]["daily_profit"]
+            )
+            for name in teachers
+        }
 
     def on_chunk(i, rs, m, steps, seconds):
         if not evaluate_every_chunk and i < chunks - 1:
             return
-        ev = heldout.evaluate_batched(make_act, host(rs.params), eval_params, eval_days, reference_profit=am_daily,
-                                     draws=draws)
+        ev = heldout.evaluate_batched(
+            make_act,
+            host(rs.params),
+            eval_params,
+            eval_days,
+            reference_profit=am_daily,
+            draws=draws,
+        )
         teacher_diffs = vs_programme(ev)
-        evals.append({"timesteps": int(steps), "train_seconds": seconds, "per_seed_profit": ev["per_seed_profit"],
-                      "mean_profit": float(np.mean(ev["per_seed_profit"])),
-                      "vs_always_max": ev.get("paired_diff"), "vs_battery_rule": vs_rule(ev), **teacher_diffs})
+        evals.append(
+            {
+                "timesteps": int(steps),
+                "train_seconds": seconds,
+                "per_seed_profit": ev["per_seed_profit"],
+                "mean_profit": float(np.mean(ev["per_seed_profit"])),
+                "vs_always_max": ev.get("paired_diff"),
+                "vs_battery_rule": vs_rule(ev),
+                **teacher_diffs,
+            }
+        )
         if not quiet:
             diff, rule = ev.get("paired_diff"), vs_rule(ev)
             vs = f"; vs always-max {diff['mean']:+.2f} ± {diff['stderr']:.2f}" if diff else ""
             vs += f", vs battery rule {rule['mean']:+.2f} ± {rule['stderr']:.2f}" if rule else ""
-            vs += "".join(f", vs {k[3:].replace('_', ' ')} {d['mean']:+.2f} ± {d['stderr']:.2f}"
-                          for k, d in teacher_diffs.items())
-            tqdm.write(f"  held-out greedy daily profit: {np.mean(ev['per_seed_profit']):.1f} EUR "
-                       f"(per seed {np.round(ev['per_seed_profit'], 1).tolist()}; always-max {am:.1f}{vs})")
+            vs += "".join(
+                f", vs {k[3:].replace('_', ' ')} {d['mean']:+.2f} ± {d['stderr']:.2f}"
+                for k, d in teacher_diffs.items()
+            )
+            tqdm.write(
+                f"  held-out greedy daily profit: {np.mean(ev['per_seed_profit']):.1f} EUR "
+                f"(per seed {np.round(ev['per_seed_profit'], 1).tolist()}; always-max {am:.1f}{vs})"
+            )
 
     keys = jax.random.split(jax.random.PRNGKey(seed), seeds)
     if multi:  # inputs of a program over every process's devices must be global arrays
         keys = distributed.replicate(keys)
     rs, metrics, train_seconds = runner.run_in_chunks(train, keys, chunks, on_chunk, desc=algo)
     params = host(rs.params)
-    final = heldout.evaluate_batched(make_act, params, eval_params, eval_days, reference_profit=am_daily, draws=draws)
+    final = heldout.evaluate_batched(
+        make_act, params, eval_params, eval_days, reference_profit=am_daily, draws=draws
+    )
     wall = time.time() - t_start
-    first_beat = next((e for e in evals if e["vs_always_max"] is not None and stats.beats(e["vs_always_max"])), None)
-    first_beat_rule = next((e for e in evals if e["vs_battery_rule"] is not None and stats.beats(e["vs_battery_rule"])), None)
+    first_beat = next(
+        (e for e in evals if e["vs_always_max"] is not None and stats.beats(e["vs_always_max"])),
+        None,
+    )
+    first_beat_rule = next(
+        (
+            e
+            for e in evals
+            if e["vs_battery_rule"] is not None and stats.beats(e["vs_battery_rule"])
+        ),
+        None,
+    )
     heldout.add_headroom({"final": final}, baselines)
     table = {**baselines, algo: final}
     if not quiet:
         print(format_table(table))
     timesteps = (np.arange(n_upd) + 1) * steps_per_update
     per_seed = heldout.per_seed_results(final, evals, baselines, seed)
-    summary = {f"vs_{k}": stats.over_seeds([p[f"vs_{k}"]["mean"] for p in per_seed]) for k in heldout.REFERENCES
-               if all(p.get(f"vs_{k}") is not None for p in per_seed)}
+    summary = {
+        f"vs_{k}": stats.over_seeds([p[f"vs_{k}"]["mean"] for p in per_seed])
+        for k in heldout.REFERENCES
+        if all(p.get(f"vs_{k}") is not None for p in per_seed)
+    }
     if all(p["headroom_fraction"] is not None for p in per_seed):
         summary["headroom_fraction"] = stats.over_seeds([p["headroom_fraction"] for p in per_seed])
     results = {
         "algo": algo,
-        "scenario": {"name": config["SCENARIO"], "traffic": config["TRAFFIC"], "env_kwargs": config["ENV_KWARGS"],
-                     "held_out_days": int(np.size(eval_days)), "car_draws_per_day": draws},
+        "scenario": {
+            "name": config["SCENARIO"],
+            "traffic": config["TRAFFIC"],
+            "env_kwargs": config["ENV_KWARGS"],
+            "held_out_days": int(np.size(eval_days)),
+            "car_draws_per_day": draws,
+        },
         "per_seed": per_seed,
         "over_seeds": summary,
         "config": config,
@@ -138,43 +197,78 @@ def run(algo: str, config: dict, seeds: int = 1, seed: int = 0, out: str | Path 
         "timesteps": int(config["TOTAL_TIMESTEPS"]),
         "wall_seconds": wall,
         "train_seconds_incl_compile": train_seconds,
-        "evaluation": {"policy": "greedy (argmax per head)",
-                       "key": ("PRNGKey(0) for every policy and seed (common random numbers)" if draws == 1 else
-                               f"PRNGKey(0) ... PRNGKey({draws - 1}) for every policy and seed (common random "
-                               f"numbers), each day's totals the mean over the {draws} car draws"),
-                       "draws": draws, "num_days": int(np.size(eval_days)),
-                       "days": [int(d) for d in np.asarray(eval_days)], "table": table},
+        "evaluation": {
+            "policy": "greedy (argmax per head)",
+            "key": (
+                "PRNGKey(0) for every policy and seed (common random numbers)"
+                if draws == 1
+                else f"PRNGKey(0) ... PRNGKey({draws - 1}) for every policy and seed (common random "
+                f"numbers), each day's totals the mean over the {draws} car draws"
+            ),
+            "draws": draws,
+            "num_days": int(np.size(eval_days)),
+            "days": [int(d) for d in np.asarray(eval_days)],
+            "table": table,
+        },
         "vs_always_max": final.get("paired_diff"),
         "vs_battery_rule": vs_rule(final),
         **vs_programme(final),
         "headroom": final.get("headroom"),
         "first_beats_always_max": first_beat,
         "first_beats_battery_rule": first_beat_rule,
-        **{f"first_beats_{name}": next((e for e in evals if stats.beats(e[f"vs_{name}"])), None) for name in teachers},
+        **{
+            f"first_beats_{name}": next((e for e in evals if stats.beats(e[f"vs_{name}"])), None)
+            for name in teachers
+        },
         "eval_curve": evals,
-        "curve": {"timesteps": timesteps,
-                  **{k: np.asarray(metrics[k]) for k in ("episode_profit_eur", "episode_return", "entropy",
-                                                           "value_loss", "actor_loss")}},
+        "curve": {
+            "timesteps": timesteps,
+            **{
+                k: np.asarray(metrics[k])
+                for k in (
+                    "episode_profit_eur",
+                    "episode_return",
+                    "entropy",
+                    "value_loss",
+                    "actor_loss",
+                )
+            },
+        },
     }
     if not quiet:
         for p_ in per_seed:
             rule, hf = p_["vs_battery_rule"], p_["headroom_fraction"]
-            print(f"seed {p_['seed_index']}: vs always-max {p_['vs_always_max']['mean']:+.2f} ± "
-                  f"{p_['vs_always_max']['stderr']:.2f}" + (f", vs battery rule {rule['mean']:+.2f} ± "
-                                                            f"{rule['stderr']:.2f}" if rule else "")
-                  + "".join(f", vs {name.replace('_', ' ')} {p_[f'vs_{name}']['mean']:+.2f} ± "
-                            f"{p_[f'vs_{name}']['stderr']:.2f}" for name in teachers)
-                  + (f", headroom {hf:.2f}" if hf is not None else "")
-                  + f"; first beats the battery rule: {p_['first_beats_battery_rule']}")
+            print(
+                f"seed {p_['seed_index']}: vs always-max {p_['vs_always_max']['mean']:+.2f} ± "
+                f"{p_['vs_always_max']['stderr']:.2f}"
+                + (f", vs battery rule {rule['mean']:+.2f} ± {rule['stderr']:.2f}" if rule else "")
+                + "".join(
+                    f", vs {name.replace('_', ' ')} {p_[f'vs_{name}']['mean']:+.2f} ± "
+                    f"{p_[f'vs_{name}']['stderr']:.2f}"
+                    for name in teachers
+                )
+                + (f", headroom {hf:.2f}" if hf is not None else "")
+                + f"; first beats the battery rule: {p_['first_beats_battery_rule']}"
+            )
         for k, v in summary.items():
-            print(f"over seeds, {k}: {v['mean']:+.3f} ± {v['stderr']:.3f} (min {v['min']:+.3f}, max {v['max']:+.3f})")
+            print(
+                f"over seeds, {k}: {v['mean']:+.3f} ± {v['stderr']:.3f} (min {v['min']:+.3f}, max {v['max']:+.3f})"
+            )
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         runs.save_params(params, out / "params.msgpack")
-        runs.plot_curve(out / "curve.png", algo, timesteps, metrics["episode_profit_eur"], baselines, evals,
-                   title or f"{algo.upper()} {config['SCENARIO']} / {config['TRAFFIC']}: {seeds} seeds"
-                   + (f", held-out days x {draws} car draws" if draws > 1 else ""))
+        runs.plot_curve(
+            out / "curve.png",
+            algo,
+            timesteps,
+            metrics["episode_profit_eur"],
+            baselines,
+            evals,
+            title
+            or f"{algo.upper()} {config['SCENARIO']} / {config['TRAFFIC']}: {seeds} seeds"
+            + (f", held-out days x {draws} car draws" if draws > 1 else ""),
+        )
         runs.write_json(results, out / "results.json")
         if not quiet:
             print(f"wrote {out / 'curve.png'}, {out / 'results.json'}, {out / 'params.msgpack'}")
@@ -206,23 +300,45 @@ def add_stored_mpc(run_dir, references_dir) -> dict:
     _, eval_params, _, days = build_env_params(config)
     days = results["evaluation"]["days"] if results["evaluation"].get("days") else days
     if int(config["EVAL_DRAWS"]) != 1:
-        raise LookupError(f"{run_dir}: evaluated on {config['EVAL_DRAWS']} car draws per day; the stored MPC "
-                          "is one draw (PRNGKey(0)), so it does not pair with this run")
+        raise LookupError(
+            f"{run_dir}: evaluated on {config['EVAL_DRAWS']} car draws per day; the stored MPC "
+            "is one draw (PRNGKey(0)), so it does not pair with this run"
+        )
     stored = references.cached(eval_params, days, references_dir)
     if stored is None or "mpc" not in stored["policies"]:
-        raise LookupError(f"{run_dir}: no stored MPC for its params and {len(days)} held-out days in "
-                          f"{references_dir} (run `python -m baselines.analysis.references` for this scenario)")
+        raise LookupError(
+            f"{run_dir}: no stored MPC for its params and {len(days)} held-out days in "
+            f"{references_dir} (run `python -m baselines.analysis.references` for this scenario)"
+        )
     table = results["evaluation"]["table"]
     mpc_daily = np.asarray(stored["policies"]["mpc"]["daily_profit"])
-    table["mpc"] = {"daily_profit": mpc_daily.tolist(), "metrics": summarize_profit(mpc_daily),
-                    "source": f"{references_dir} (same params and days)"}
-    heldout.add_headroom({"mpc": table["mpc"]}, {k: {"daily_profit": np.asarray(v["daily_profit"])} for k, v in table.items()
-                                          if isinstance(v, dict) and "daily_profit" in v})
+    table["mpc"] = {
+        "daily_profit": mpc_daily.tolist(),
+        "metrics": summarize_profit(mpc_daily),
+        "source": f"{references_dir} (same params and days)",
+    }
+    heldout.add_headroom(
+        {"mpc": table["mpc"]},
+        {
+            k: {"daily_profit": np.asarray(v["daily_profit"])}
+            for k, v in table.items()
+            if isinstance(v, dict) and "daily_profit" in v
+        },
+    )
     algo = results["algo"]
-    results["vs_mpc"] = stats.paired_difference(table[algo]["daily_profit"], mpc_daily)  # (seeds, days) - (days,)
+    results["vs_mpc"] = stats.paired_difference(
+        table[algo]["daily_profit"], mpc_daily
+    )  # (seeds, days) - (days,)
     runs.write_json(results, run_dir / "results.json")
     curve = results["curve"]
     title = f"{algo.upper()} {config['SCENARIO']} / {config['TRAFFIC']}: {results['seeds']} seeds"
-    runs.plot_curve(run_dir / "curve.png", algo, curve["timesteps"], curve["episode_profit_eur"], table,
-               results["eval_curve"], title)
+    runs.plot_curve(
+        run_dir / "curve.png",
+        algo,
+        curve["timesteps"],
+        curve["episode_profit_eur"],
+        table,
+        results["eval_curve"],
+        title,
+    )
     return results

@@ -90,8 +90,15 @@ def seed_mean_std(curves) -> tuple[np.ndarray, np.ndarray]:
         return np.nanmean(y, 0), np.nanstd(y, 0)
 
 
-def plot_learning_curve(path, timesteps, curves: dict[str, np.ndarray], baselines: dict[str, float],
-                        title: str, eval_points=None, ylabel="daily profit (EUR)"):
+def plot_learning_curve(
+    path,
+    timesteps,
+    curves: dict[str, np.ndarray],
+    baselines: dict[str, float],
+    title: str,
+    eval_points=None,
+    ylabel="daily profit (EUR)",
+):
     """Mean ± std over seeds of each curve ``(seeds, points)``; baselines as horizontal lines;
     ``eval_points``: optional ``{label: (timesteps, (seeds, n) array)}`` drawn with markers."""
     matplotlib.use("Agg")
@@ -119,13 +126,20 @@ def plot_learning_curve(path, timesteps, curves: dict[str, np.ndarray], baseline
     return path
 
 
-LINES = (("battery_rule", "always-max + battery rule"), ("battery_programme", "always-max + battery programme"),
-         ("plan_programme", "plan + battery programme"), ("price_threshold", "price-threshold"),
-         ("mpc", "MPC, 4 h horizon"), ("lp_bound", "LP hindsight bound"))
+LINES = (
+    ("battery_rule", "always-max + battery rule"),
+    ("battery_programme", "always-max + battery programme"),
+    ("plan_programme", "plan + battery programme"),
+    ("price_threshold", "price-threshold"),
+    ("mpc", "MPC, 4 h horizon"),
+    ("lp_bound", "LP hindsight bound"),
+)
 """The reference policies drawn as horizontal lines on a learning curve (after always-max)."""
 
 
-def plot_curve(path, algo: str, timesteps, episode_profit, baselines: dict, evals: list, title: str):
+def plot_curve(
+    path, algo: str, timesteps, episode_profit, baselines: dict, evals: list, title: str
+):
     """A run's learning curve: the sampled training-episode profit over seeds, the held-out
     greedy evaluations, and every reference of ``baselines`` present (:data:`LINES`) as a line."""
     am = baselines["always_max"]["metrics"]["daily_profit_eur"]["mean"]
@@ -135,10 +149,20 @@ def plot_curve(path, algo: str, timesteps, episode_profit, baselines: dict, eval
             v = baselines[key]["metrics"]["daily_profit_eur"]["mean"]
             lines[f"{label} (held-out) {v:.0f}"] = v
     runs.plot_learning_curve(
-        path, timesteps, {f"{algo} training episodes (sampled)": np.asarray(episode_profit)}, lines, title,
-        eval_points={f"{algo} held-out (greedy)": ([e["timesteps"] for e in evals],
-                                                    np.asarray([e["per_seed_profit"] for e in evals]).T)}
-        if evals else None)
+        path,
+        timesteps,
+        {f"{algo} training episodes (sampled)": np.asarray(episode_profit)},
+        lines,
+        title,
+        eval_points={
+            f"{algo} held-out (greedy)": (
+                [e["timesteps"] for e in evals],
+                np.asarray([e["per_seed_profit"] for e in evals]).T,
+            )
+        }
+        if evals
+        else None,
+    )
 
 
 def load_run(run_dir: str | Path):
@@ -148,5 +172,7 @@ def load_run(run_dir: str | Path):
     run_dir = Path(run_dir)
     results = json.loads((run_dir / "results.json").read_text())
     train = registry.make_train(results["algo"], results["config"])
-    template = jax.vmap(train.policy.init)(jax.random.split(jax.random.PRNGKey(0), int(results["seeds"])))
+    template = jax.vmap(train.policy.init)(
+        jax.random.split(jax.random.PRNGKey(0), int(results["seeds"]))
+    )
     return results, train, runs.load_params(template, run_dir / "params.msgpack")

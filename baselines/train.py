@@ -40,15 +40,28 @@ from baselines.config import DEFAULT_CONFIG, load  # noqa: E402
 def parser() -> argparse.ArgumentParser:
     """The command line: ``--config``, ``KEY=value`` overrides, ``--replot`` and the
     multi-process flags."""
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--config", default=DEFAULT_CONFIG,
-                   help=f"a config of baselines/configs/ or a path to a TOML file (default {DEFAULT_CONFIG})")
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument(
+        "--config",
+        default=DEFAULT_CONFIG,
+        help=f"a config of baselines/configs/ or a path to a TOML file (default {DEFAULT_CONFIG})",
+    )
     p.add_argument("overrides", nargs="*", metavar="KEY=value", help="config keys to override")
-    p.add_argument("--replot", nargs="+", default=None, metavar="RUN_DIR",
-                   help="train nothing: add the MPC stored in --references for each run's params and days "
-                        "to its results.json and redraw its curve.png")
-    p.add_argument("--references", default="results/optimal",
-                   help="with --replot: the directory `make optimal` wrote (default results/optimal)")
+    p.add_argument(
+        "--replot",
+        nargs="+",
+        default=None,
+        metavar="RUN_DIR",
+        help="train nothing: add the MPC stored in --references for each run's params and days "
+        "to its results.json and redraw its curve.png",
+    )
+    p.add_argument(
+        "--references",
+        default="results/optimal",
+        help="with --replot: the directory `make optimal` wrote (default results/optimal)",
+    )
     distributed.add_arguments(p)
     return p
 
@@ -67,18 +80,30 @@ def main(argv=None) -> dict:
         for run_dir in a.replot:
             r = pipeline.add_stored_mpc(run_dir, a.references)
             mpc = r["evaluation"]["table"]["mpc"]["metrics"]["daily_profit_eur"]["mean"]
-            print(f"{run_dir}: MPC {mpc:.2f} EUR/day added; {r['algo']} vs MPC {r['vs_mpc']['mean']:+.2f} ± "
-                  f"{r['vs_mpc']['stderr']:.2f}")
+            print(
+                f"{run_dir}: MPC {mpc:.2f} EUR/day added; {r['algo']} vs MPC {r['vs_mpc']['mean']:+.2f} ± "
+                f"{r['vs_mpc']['stderr']:.2f}"
+            )
         return {}
     # `python -m baselines.train` has initialised before its imports; a caller of main() must have
     # called distributed.initialize() before importing baselines.train
     distributed.initialize_from_argv(argv)
     config, run = load(a.config, a.overrides)
     if jax.process_index() == 0:
-        print(f"processes: {jax.process_count()}  devices: {jax.devices()}  run: {json.dumps(run)}  "
-              f"config: {json.dumps(config, default=str)}")
-    out = pipeline.run(run["ALGO"], config, seeds=run["SEEDS"], seed=run["SEED"], out=run["OUT"],
-                       chunks=run["CHUNKS"], optimal=run["OPTIMAL"], references_dir=run["REFERENCES_DIR"] or None)
+        print(
+            f"processes: {jax.process_count()}  devices: {jax.devices()}  run: {json.dumps(run)}  "
+            f"config: {json.dumps(config, default=str)}"
+        )
+    out = pipeline.run(
+        run["ALGO"],
+        config,
+        seeds=run["SEEDS"],
+        seed=run["SEED"],
+        out=run["OUT"],
+        chunks=run["CHUNKS"],
+        optimal=run["OPTIMAL"],
+        references_dir=run["REFERENCES_DIR"] or None,
+    )
     return out.results
 
 

@@ -98,7 +98,9 @@ def rollout_fn(view: str, env, params, num_envs: int, num_steps: int):
             obs, state, reward = jax.vmap(step)(_hash_keys(seed, t + 1, num_envs), state, actions)
             return (state, acc + reward.sum() + consume(obs)), None
 
-        (_, acc), _ = jax.lax.scan(body, (state, jnp.zeros((), jnp.float32)), jnp.arange(num_steps, dtype=jnp.uint32))
+        (_, acc), _ = jax.lax.scan(
+            body, (state, jnp.zeros((), jnp.float32)), jnp.arange(num_steps, dtype=jnp.uint32)
+        )
         return acc
 
     return run
@@ -121,8 +123,15 @@ def compiled_rollout(view: str, env, params, num_envs: int, num_steps: int):
         def per_device(seeds):
             return local(seeds[0])[None]
 
-        sharded = jax.jit(jax.shard_map(per_device, mesh=mesh, in_specs=PartitionSpec("envs"),
-                                        out_specs=PartitionSpec("envs"), check_vma=False))
+        sharded = jax.jit(
+            jax.shard_map(
+                per_device,
+                mesh=mesh,
+                in_specs=PartitionSpec("envs"),
+                out_specs=PartitionSpec("envs"),
+                check_vma=False,
+            )
+        )
 
         def fn(seed: int):
             seeds = jnp.arange(nd, dtype=jnp.uint32) * np.uint32(0x9E3779B9) + np.uint32(seed)
@@ -150,7 +159,7 @@ def time_interleaved(fns: dict, repeats: int) -> tuple[dict, dict]:
     return compile_s, best
 
 
-def steps_for(num_envs: int, total: int = 2 ** 19, minimum: int = 96, maximum: int = 8192) -> int:
+def steps_for(num_envs: int, total: int = 2**19, minimum: int = 96, maximum: int = 8192) -> int:
     """Scan length so that one timed call does about ``total`` env-steps, within
     ``[minimum, maximum]`` steps (small batches run fewer env-steps per call)."""
     return min(max(total // num_envs, minimum), maximum)

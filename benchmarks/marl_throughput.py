@@ -54,7 +54,8 @@ def _single_runner(env: Chargax, num_envs: int, num_steps: int):
             key, k_act, k_step = jax.random.split(key, 3)
             actions = jax.random.randint(k_act, (num_envs, nvec.shape[0]), 0, nvec)
             obs, state, reward, _, _, _ = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
-                jax.random.split(k_step, num_envs), state, actions, params)
+                jax.random.split(k_step, num_envs), state, actions, params
+            )
             return (obs, state, key), reward.sum()
 
         (obs, _, _), rewards = jax.lax.scan(body, (obs, state, keys[0]), None, length=num_steps)
@@ -77,7 +78,9 @@ def _marl_runner(env: ChargaxMARL, num_envs: int, num_steps: int):
             # agent-major, as JaxMARL's IPPO unbatchifies its (num_agents * num_envs,) actions
             idx = jax.random.randint(k_act, (len(agents), num_envs), 0, n)
             actions = {a: idx[i] for i, a in enumerate(agents)}
-            obs, state, rewards, _, _ = jax.vmap(env.step)(jax.random.split(k_step, num_envs), state, actions)
+            obs, state, rewards, _, _ = jax.vmap(env.step)(
+                jax.random.split(k_step, num_envs), state, actions
+            )
             return (obs, state, key), rewards[agents[0]].sum()
 
         (obs, _, _), rewards = jax.lax.scan(body, (obs, state, keys[0]), None, length=num_steps)
@@ -86,8 +89,14 @@ def _marl_runner(env: ChargaxMARL, num_envs: int, num_steps: int):
     return run
 
 
-def marl_throughput(num_envs=(1, 16, 256, 1024), num_steps: int = 288, repeats: int = 5,
-                    pettingzoo_steps: int = 288, seed: int = 0, **make_params_kwargs) -> dict:
+def marl_throughput(
+    num_envs=(1, 16, 256, 1024),
+    num_steps: int = 288,
+    repeats: int = 5,
+    pettingzoo_steps: int = 288,
+    seed: int = 0,
+    **make_params_kwargs,
+) -> dict:
     """Measure and print env-steps/s of both views; return the numbers as a dict.
 
     ``make_params_kwargs`` select the scenario (default: the paper's 16-port station).
@@ -96,15 +105,26 @@ def marl_throughput(num_envs=(1, 16, 256, 1024), num_steps: int = 288, repeats: 
     marl = ChargaxMARL(params=single.default_params)
     key = jax.random.PRNGKey(seed)
     rows = []
-    print(f"default station: {marl.num_agents} agents, {num_steps} steps per run, best of {repeats}, "
-          f"compile excluded, backend {jax.default_backend()}")
+    print(
+        f"default station: {marl.num_agents} agents, {num_steps} steps per run, best of {repeats}, "
+        f"compile excluded, backend {jax.default_backend()}"
+    )
     print(f"{'envs':>6} {'single steps/s':>16} {'MARL steps/s':>14} {'MARL/single':>12}")
     for b in num_envs:
-        t_single, t_marl = _time_best([_single_runner(single, b, num_steps), _marl_runner(marl, b, num_steps)], key,
-                                      repeats=repeats)
+        t_single, t_marl = _time_best(
+            [_single_runner(single, b, num_steps), _marl_runner(marl, b, num_steps)],
+            key,
+            repeats=repeats,
+        )
         s_single, s_marl = b * num_steps / t_single, b * num_steps / t_marl
-        rows.append({"num_envs": b, "single_steps_per_s": s_single, "marl_steps_per_s": s_marl,
-                     "ratio": s_marl / s_single})
+        rows.append(
+            {
+                "num_envs": b,
+                "single_steps_per_s": s_single,
+                "marl_steps_per_s": s_marl,
+                "ratio": s_marl / s_single,
+            }
+        )
         print(f"{b:>6} {s_single:>16,.0f} {s_marl:>14,.0f} {s_marl / s_single:>12.2f}")
 
     # Bare jitted single-agent step on one env, called from Python.
@@ -141,13 +161,17 @@ def marl_throughput(num_envs=(1, 16, 256, 1024), num_steps: int = 288, repeats: 
             done_steps += 1
         best = min(best, time.perf_counter() - start)
     pz_sps = pettingzoo_steps / best
-    print(f"one env from Python: bare jitted single step {bare_sps:,.0f} steps/s, "
-          f"PettingZoo wrapper {pz_sps:,.0f} steps/s (bare/PettingZoo = {bare_sps / pz_sps:.2f}x)")
+    print(
+        f"one env from Python: bare jitted single step {bare_sps:,.0f} steps/s, "
+        f"PettingZoo wrapper {pz_sps:,.0f} steps/s (bare/PettingZoo = {bare_sps / pz_sps:.2f}x)"
+    )
     return {"vmapped": rows, "bare_single_steps_per_s": bare_sps, "pettingzoo_steps_per_s": pz_sps}
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--num-envs", type=int, nargs="+", default=[1, 16, 256, 1024])
     parser.add_argument("--num-steps", type=int, default=288)
     parser.add_argument("--repeats", type=int, default=5)

@@ -49,20 +49,29 @@ def fusion_sizes(hlo_text: str) -> dict:
         called = re.search(r"calls=%([\w.\-]+)", line)
         body = bodies.get(called.group(1), []) if called else []
         ops = [re.search(r"= \S+ ([\w-]+)\(", b) for b in body]
-        ops = [o.group(1) for o in ops if o and o.group(1) not in ("parameter", "constant", "broadcast", "bitcast")]
+        ops = [
+            o.group(1)
+            for o in ops
+            if o and o.group(1) not in ("parameter", "constant", "broadcast", "bitcast")
+        ]
         out[m.group(1)] = (m.group(2), len(ops), sum(" parameter(" in b for b in body))
     return out
 
 
 def main(argv=None) -> list[dict]:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--view", choices=["single", "marl"], default="single")
     parser.add_argument("--envs", type=int, default=4096)
     parser.add_argument("--steps", type=int, default=32, help="scan length of the traced call")
     parser.add_argument("--top", type=int, default=25)
     parser.add_argument("--scenario", default="shopping")
-    parser.add_argument("--chargax-root", default=None,
-                        help="import chargax_marl from this checkout (e.g. an older commit, for a before/after)")
+    parser.add_argument(
+        "--chargax-root",
+        default=None,
+        help="import chargax_marl from this checkout (e.g. an older commit, for a before/after)",
+    )
     args = parser.parse_args(argv)
 
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -70,9 +79,8 @@ def main(argv=None) -> list[dict]:
         sys.path.insert(0, os.path.abspath(args.chargax_root))
     import jax
     import jax.numpy as jnp
-    from jax._src.profiler import ProfileData
-
     from envbench import rollout_fn
+    from jax._src.profiler import ProfileData
     from throughput import _views
 
     env, params = _views("chargax_marl", args.scenario, "onehot")[args.view]
@@ -95,15 +103,27 @@ def main(argv=None) -> list[dict]:
     summed = sum(total_ns.values())
     import chargax_marl
 
-    print(f"profile_kernels | {os.path.dirname(os.path.dirname(chargax_marl.__file__))} | view={args.view} envs={args.envs} | {len(total_ns)} kernels, summed kernel time "
-          f"{summed / env_steps:.0f} ns per env-step")
+    print(
+        f"profile_kernels | {os.path.dirname(os.path.dirname(chargax_marl.__file__))} | view={args.view} envs={args.envs} | {len(total_ns)} kernels, summed kernel time "
+        f"{summed / env_steps:.0f} ns per env-step"
+    )
     rows = []
     for name, ns in total_ns.most_common(args.top):
         shape, ops, inputs = sizes[name]
-        rows.append({"kernel": name, "ns_per_env_step": ns / env_steps, "share": ns / summed, "shape": shape,
-                     "ops": ops, "inputs": inputs})
-        print(f"{ns / env_steps:9.1f} ns {100 * ns / summed:5.1f} %  {name:<32} {shape[:34]:<34} "
-              f"{ops:>4} ops {inputs:>3} inputs")
+        rows.append(
+            {
+                "kernel": name,
+                "ns_per_env_step": ns / env_steps,
+                "share": ns / summed,
+                "shape": shape,
+                "ops": ops,
+                "inputs": inputs,
+            }
+        )
+        print(
+            f"{ns / env_steps:9.1f} ns {100 * ns / summed:5.1f} %  {name:<32} {shape[:34]:<34} "
+            f"{ops:>4} ops {inputs:>3} inputs"
+        )
     return rows
 
 

@@ -54,7 +54,8 @@ def make_runner(env, params, num_envs: int, num_steps: int):
             ka, ks = jax.random.split(k)
             actions = jax.vmap(space.sample)(jax.random.split(ka, num_envs))
             obs, states, reward, _, _, _ = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
-                jax.random.split(ks, num_envs), states, actions, params)
+                jax.random.split(ks, num_envs), states, actions, params
+            )
             # use the observation (as a policy would), so XLA cannot drop its computation
             return states, reward.sum() + obs[..., 0].sum()
 
@@ -95,8 +96,9 @@ def _base_package(rev: str) -> str:
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
-    blob = subprocess.run(["git", "-C", str(root), "archive", rev, "chargax_marl"], check=True,
-                          capture_output=True).stdout
+    blob = subprocess.run(
+        ["git", "-C", str(root), "archive", rev, "chargax_marl"], check=True, capture_output=True
+    ).stdout
     tmp = Path(tempfile.mkdtemp(prefix="chargax_ab_"))
     with tarfile.open(fileobj=BytesIO(blob)) as tar:
         tar.extractall(tmp)
@@ -113,24 +115,47 @@ def _views(package: str, scenario: str, agent_id: str):
     single = importlib.import_module(f"{package}.single")
     marl = importlib.import_module(f"{package}.marl")
     env, params = single.make(scenario)
-    return {"single": (env, params), "marl": (marl.ChargaxMARL(params=params, agent_id=agent_id), params)}
+    return {
+        "single": (env, params),
+        "marl": (marl.ChargaxMARL(params=params, agent_id=agent_id), params),
+    }
 
 
 def main(argv=None) -> list[dict]:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--envs", type=int, nargs="+", default=[1, 16, 256, 1024, 4096])
-    parser.add_argument("--total", type=int, default=2 ** 19, help="env-steps per timed call (default 2^19)")
-    parser.add_argument("--min-steps", type=int, default=96, help="shortest scan per call (default 96)")
+    parser.add_argument(
+        "--total", type=int, default=2**19, help="env-steps per timed call (default 2^19)"
+    )
+    parser.add_argument(
+        "--min-steps", type=int, default=96, help="shortest scan per call (default 96)"
+    )
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--scenario", default="shopping")
-    parser.add_argument("--agent-id", default="onehot", choices=["onehot", "scalar"],
-                        help="agent-index feature of the multi-agent view (default: its default, one-hot)")
-    parser.add_argument("--devices", type=int, default=os.cpu_count() or 1,
-                        help="host devices to split the env batch over (default: one per core)")
-    parser.add_argument("--base", default=None,
-                        help="also time the env of this git revision, interleaved in the same run (A/B)")
-    parser.add_argument("--train", action="store_true",
-                        help="also time PPO / IPPO / MAPPO training (benchmarks/train_speed.py)")
+    parser.add_argument(
+        "--agent-id",
+        default="onehot",
+        choices=["onehot", "scalar"],
+        help="agent-index feature of the multi-agent view (default: its default, one-hot)",
+    )
+    parser.add_argument(
+        "--devices",
+        type=int,
+        default=os.cpu_count() or 1,
+        help="host devices to split the env batch over (default: one per core)",
+    )
+    parser.add_argument(
+        "--base",
+        default=None,
+        help="also time the env of this git revision, interleaved in the same run (A/B)",
+    )
+    parser.add_argument(
+        "--train",
+        action="store_true",
+        help="also time PPO / IPPO / MAPPO training (benchmarks/train_speed.py)",
+    )
     parser.add_argument("--csv", default=None, help="also write the rows to this CSV file")
     args = parser.parse_args(argv)
 
@@ -141,7 +166,8 @@ def main(argv=None) -> list[dict]:
         raise RuntimeError(
             f"--devices {args.devices}: JAX sees {len(jax.devices())} device(s) because its backend started "
             "before the host device count was set (something imported chargax_marl's views, gymnax or jaxmarl first); run "
-            "this script as its own process, or pass --devices equal to the devices JAX already has")
+            "this script as its own process, or pass --devices equal to the devices JAX already has"
+        )
     from envbench import compiled_rollout, steps_for, time_interleaved
 
     packages = {"": "chargax_marl"}
@@ -150,16 +176,24 @@ def main(argv=None) -> list[dict]:
     views = {label: _views(pkg, args.scenario, args.agent_id) for label, pkg in packages.items()}
     env, params = views[""]["single"]
     info = machine_info()
-    print(f"chargax_marl throughput | scenario={args.scenario} ports={params.station.num_ports} "
-          f"batteries={params.station.num_batteries} | MARL agent_id={args.agent_id} | jax {info['jax']} on "
-          f"{info['backend']} ({info['device']}) x{len(jax.devices())} devices | {info['cpu']} x{info['cores']} cores | "
-          f"{load_info()}")
-    print("random actions, auto-reset, every observation element consumed, compile excluded, best of "
-          f"{args.repeats} interleaved calls of ~{args.total:,} env-steps")
+    print(
+        f"chargax_marl throughput | scenario={args.scenario} ports={params.station.num_ports} "
+        f"batteries={params.station.num_batteries} | MARL agent_id={args.agent_id} | jax {info['jax']} on "
+        f"{info['backend']} ({info['device']}) x{len(jax.devices())} devices | {info['cpu']} x{info['cores']} cores | "
+        f"{load_info()}"
+    )
+    print(
+        "random actions, auto-reset, every observation element consumed, compile excluded, best of "
+        f"{args.repeats} interleaved calls of ~{args.total:,} env-steps"
+    )
     names = [f"{label}{view}" for label in views for view in ("single", "marl")]
-    print(f"{'envs':>6} {'dev':>4} " + " ".join(f"{n + ' steps/s':>20}" for n in names)
-          + f" {'marl/single':>12}" + (f" {'single new/base':>16} {'marl new/base':>14}" if args.base else "")
-          + f" {'single s/100k':>14} {'compile s':>10}")
+    print(
+        f"{'envs':>6} {'dev':>4} "
+        + " ".join(f"{n + ' steps/s':>20}" for n in names)
+        + f" {'marl/single':>12}"
+        + (f" {'single new/base':>16} {'marl new/base':>14}" if args.base else "")
+        + f" {'single s/100k':>14} {'compile s':>10}"
+    )
     rows = []
     for n in args.envs:
         steps = steps_for(n, args.total, args.min_steps)
@@ -169,19 +203,34 @@ def main(argv=None) -> list[dict]:
                 fns[f"{label}{view}"], used = compiled_rollout(view, e, p, n, steps)
         compile_s, best = time_interleaved(fns, args.repeats)
         sps = {k: n * steps / v for k, v in best.items()}
-        row = {"envs": n, "devices": used, "steps": steps, **{f"{k.replace(' ', '_')}_steps_per_s": v for k, v in sps.items()},
-               "marl_over_single": sps["marl"] / sps["single"], "compile_s_max": max(compile_s.values())}
-        line = f"{n:>6} {used:>4} " + " ".join(f"{sps[k]:>20,.0f}" for k in names) + f" {row['marl_over_single']:>12.2f}"
+        row = {
+            "envs": n,
+            "devices": used,
+            "steps": steps,
+            **{f"{k.replace(' ', '_')}_steps_per_s": v for k, v in sps.items()},
+            "marl_over_single": sps["marl"] / sps["single"],
+            "compile_s_max": max(compile_s.values()),
+        }
+        line = (
+            f"{n:>6} {used:>4} "
+            + " ".join(f"{sps[k]:>20,.0f}" for k in names)
+            + f" {row['marl_over_single']:>12.2f}"
+        )
         if args.base:
             row["single_new_over_base"] = sps["single"] / sps["base single"]
             row["marl_new_over_base"] = sps["marl"] / sps["base marl"]
             line += f" {row['single_new_over_base']:>16.2f} {row['marl_new_over_base']:>14.2f}"
         row["single_s_per_100k"] = 1e5 / sps["single"]
-        print(line + f" {row['single_s_per_100k']:>14.3f} {max(compile_s.values()):>10.2f}", flush=True)
+        print(
+            line + f" {row['single_s_per_100k']:>14.3f} {max(compile_s.values()):>10.2f}",
+            flush=True,
+        )
         rows.append(row)
     print(load_info())
-    print(f"memory per env: state {state_bytes(env, params):,} bytes (the pytree a rollout carries per env; "
-          "the compiled step's temporaries scale with the batch as well, see scaling.py's peak RSS)")
+    print(
+        f"memory per env: state {state_bytes(env, params):,} bytes (the pytree a rollout carries per env; "
+        "the compiled step's temporaries scale with the batch as well, see scaling.py's peak RSS)"
+    )
     if args.train:
         # Its own process: this one exposes --devices host devices, and the trainers would
         # shard their 16 envs over them; `make train` runs on JAX's default single CPU device.
@@ -190,8 +239,14 @@ def main(argv=None) -> list[dict]:
         from envbench import without_host_devices
 
         env = {**os.environ, "XLA_FLAGS": without_host_devices(os.environ.get("XLA_FLAGS", ""))}
-        subprocess.run([sys.executable, os.path.join(os.path.dirname(os.path.abspath(__file__)), "train_speed.py")],
-                       check=True, env=env)
+        subprocess.run(
+            [
+                sys.executable,
+                os.path.join(os.path.dirname(os.path.abspath(__file__)), "train_speed.py"),
+            ],
+            check=True,
+            env=env,
+        )
     if args.csv:
         with open(args.csv, "w", newline="") as f:
             writer = csv.DictWriter(f, fieldnames=list(rows[0]))

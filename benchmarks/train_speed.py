@@ -48,8 +48,14 @@ def build(algo: str, num_envs: int, timesteps: int, overrides: dict | None = Non
     return jax.jit(train), train.config
 
 
-def measure_training(algos=("ppo", "ippo", "mappo"), num_envs: int = 16, timesteps: int = STEPS_100K,
-                     repeats: int = 3, overrides: dict | None = None, verbose: bool = True) -> list[dict]:
+def measure_training(
+    algos=("ppo", "ippo", "mappo"),
+    num_envs: int = 16,
+    timesteps: int = STEPS_100K,
+    repeats: int = 3,
+    overrides: dict | None = None,
+    verbose: bool = True,
+) -> list[dict]:
     """Compile each algorithm once, then time ``repeats`` interleaved rounds; one row per algorithm.
 
     Row keys: ``algo``, ``envs``, ``steps`` (env-steps per run, whole updates), ``compile_s``,
@@ -63,15 +69,26 @@ def measure_training(algos=("ppo", "ippo", "mappo"), num_envs: int = 16, timeste
     compiled, rows = {}, {}
     for algo in algos:
         mine = {k: v for k, v in (overrides or {}).items() if "." not in k}
-        mine.update({k.split(".", 1)[1]: v for k, v in (overrides or {}).items() if k.startswith(algo + ".")})
+        mine.update(
+            {
+                k.split(".", 1)[1]: v
+                for k, v in (overrides or {}).items()
+                if k.startswith(algo + ".")
+            }
+        )
         train, config = build(algo, num_envs, timesteps, mine)
         t0 = time.perf_counter()
         fn = train.lower(key).compile()
         compile_s = time.perf_counter() - t0
         compiled[algo] = fn
-        rows[algo] = {"algo": algo, "envs": int(num_envs), "steps": int(config["TOTAL_TIMESTEPS"]),
-                      "compile_s": compile_s, "runs_s": [],
-                      "overrides": mine}
+        rows[algo] = {
+            "algo": algo,
+            "envs": int(num_envs),
+            "steps": int(config["TOTAL_TIMESTEPS"]),
+            "compile_s": compile_s,
+            "runs_s": [],
+            "overrides": mine,
+        }
         if verbose:
             print(f"  compiled {algo:<6} {num_envs:>5} envs in {compile_s:6.1f} s", flush=True)
     for algo in algos:  # one untimed warm-up run each (allocations, thread pools)
@@ -118,18 +135,26 @@ def network_macs(algo: str, overrides: dict | None = None) -> dict:
         n = train.env.num_agents
         actor = mlp_macs([pol.obs_dim] + [h] * layers + [pol.k])
         critic = mlp_macs([pol.critic_dim] + [h] * layers + [1])
-        shared = algo == "mappo"  # one critic row per env (baselines.algos.ippo.DEDUP_CENTRAL_CRITIC)
+        shared = (
+            algo == "mappo"
+        )  # one critic row per env (baselines.algos.ippo.DEDUP_CENTRAL_CRITIC)
         rows = n
         rollout = n * actor + (1 if shared else n) * critic
         # MAPPO's update evaluates the critic on the whole rollout once per minibatch
         mb = int(config["NUM_MINIBATCHES"])
         update = epochs * 3 * (n * actor + ((mb if mb < n else n) if shared else n) * critic)
-    return {"algo": algo, "rows": rows, "rollout_macs": rollout, "update_macs": update,
-            "total_macs": rollout + update}
+    return {
+        "algo": algo,
+        "rows": rows,
+        "rollout_macs": rollout,
+        "update_macs": update,
+        "total_macs": rollout + update,
+    }
 
 
-def profile_phases(algo: str, num_envs: int = 16, updates: int = 2, repeats: int = 2,
-                   overrides: dict | None = None) -> dict:
+def profile_phases(
+    algo: str, num_envs: int = 16, updates: int = 2, repeats: int = 2, overrides: dict | None = None
+) -> dict:
     """Seconds per update split into rollout (+ GAE) and one update epoch, from timing the
     program with ``UPDATE_EPOCHS`` 1 and 4: ``epoch = (t4 - t1) / 3``, ``rollout = t1 - epoch``."""
 
@@ -146,17 +171,27 @@ def profile_phases(algo: str, num_envs: int = 16, updates: int = 2, repeats: int
             best = min(best, time.perf_counter() - t0)
         t[ep] = best / updates
     epoch = (t[4] - t[1]) / 3
-    return {"algo": algo, "envs": num_envs, "update_s": t[4], "rollout_s": t[1] - epoch, "epoch_s": epoch,
-            "load": os.getloadavg()[0]}
+    return {
+        "algo": algo,
+        "envs": num_envs,
+        "update_s": t[4],
+        "rollout_s": t[1] - epoch,
+        "epoch_s": epoch,
+        "load": os.getloadavg()[0],
+    }
 
 
 def format_rows(rows: list[dict]) -> str:
-    lines = [f"{'algo':<6} {'envs':>5} {'steps':>9} {'compile s':>9} {'s/100k':>8} {'steps/s':>10} "
-             f"{'vs PPO':>7}  load 1-min (before, after)  overrides"]
+    lines = [
+        f"{'algo':<6} {'envs':>5} {'steps':>9} {'compile s':>9} {'s/100k':>8} {'steps/s':>10} "
+        f"{'vs PPO':>7}  load 1-min (before, after)  overrides"
+    ]
     for r in rows:
         ratio = f"{r['ratio_vs_ppo']:.2f}" if "ratio_vs_ppo" in r else "-"
-        lines.append(f"{r['algo']:<6} {r['envs']:>5} {r['steps']:>9,} {r['compile_s']:>9.1f} {r['s_per_100k']:>8.2f} "
-                     f"{r['steps_per_s']:>10,.0f} {ratio:>7}  {r['load'][0]:.2f}, {r['load'][1]:.2f}  {r.get('overrides') or ''}")
+        lines.append(
+            f"{r['algo']:<6} {r['envs']:>5} {r['steps']:>9,} {r['compile_s']:>9.1f} {r['s_per_100k']:>8.2f} "
+            f"{r['steps_per_s']:>10,.0f} {ratio:>7}  {r['load'][0]:.2f}, {r['load'][1]:.2f}  {r.get('overrides') or ''}"
+        )
     return "\n".join(lines)
 
 
@@ -175,25 +210,43 @@ def main(argv=None) -> list[dict]:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--algos", nargs="+", default=["ppo", "ippo", "mappo"])
     p.add_argument("--envs", nargs="+", type=int, default=[16])
-    p.add_argument("--timesteps", type=int, default=STEPS_100K, help="env-steps per run (rounded up to whole updates)")
+    p.add_argument(
+        "--timesteps",
+        type=int,
+        default=STEPS_100K,
+        help="env-steps per run (rounded up to whole updates)",
+    )
     p.add_argument("--repeats", type=int, default=3)
-    p.add_argument("--set", nargs="*", metavar="KEY=VALUE", help="config overrides (JSON values), e.g. HIDDEN=64")
+    p.add_argument(
+        "--set",
+        nargs="*",
+        metavar="KEY=VALUE",
+        help="config overrides (JSON values), e.g. HIDDEN=64",
+    )
     p.add_argument("--json", type=Path, help="also write the rows here")
-    p.add_argument("--phases", action="store_true",
-                   help="instead: split an update into rollout and epochs, with the networks' multiply-adds")
+    p.add_argument(
+        "--phases",
+        action="store_true",
+        help="instead: split an update into rollout and epochs, with the networks' multiply-adds",
+    )
     args = p.parse_args(argv)
 
-    print(f"jax {jax.__version__} on {jax.devices()[0].platform} x{len(jax.devices())}, {os.cpu_count()} CPUs, "
-          f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
+    print(
+        f"jax {jax.__version__} on {jax.devices()[0].platform} x{len(jax.devices())}, {os.cpu_count()} CPUs, "
+        f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}",
+        flush=True,
+    )
     if args.phases:
         for algo in args.algos:
             m = network_macs(algo, _parse_set(args.set))
             for n in args.envs:
                 ph = profile_phases(algo, n, overrides=_parse_set(args.set))
-                print(f"{algo:<6} {n:>5} envs: update {ph['update_s']:.3f} s = rollout {ph['rollout_s']:.3f} "
-                      f"+ 4 x epoch {ph['epoch_s']:.3f}; network MACs per env-step: rollout "
-                      f"{m['rollout_macs'] / 1e6:.2f} M, update {m['update_macs'] / 1e6:.2f} M; load {ph['load']:.1f}",
-                      flush=True)
+                print(
+                    f"{algo:<6} {n:>5} envs: update {ph['update_s']:.3f} s = rollout {ph['rollout_s']:.3f} "
+                    f"+ 4 x epoch {ph['epoch_s']:.3f}; network MACs per env-step: rollout "
+                    f"{m['rollout_macs'] / 1e6:.2f} M, update {m['update_macs'] / 1e6:.2f} M; load {ph['load']:.1f}",
+                    flush=True,
+                )
         return []
     rows = []
     for n in args.envs:

@@ -31,7 +31,9 @@ BIND_TOLERANCE = 1e-4
 """A node binds when the requested flow is at least ``(1 - BIND_TOLERANCE)`` of its limit."""
 
 
-def node_binding(params: EnvParams, days, key: jax.Array | None = None, policy=always_max) -> np.ndarray:
+def node_binding(
+    params: EnvParams, days, key: jax.Array | None = None, policy=always_max
+) -> np.ndarray:
     """Fraction of steps ``(H,)`` in which each inner node binds under ``policy``, over one
     whole day per entry of ``days`` with the cars that evaluation draws with ``key``
     (default ``PRNGKey(0)``, as :func:`chargax_marl.evaluation.evaluate_policy`)."""
@@ -51,7 +53,9 @@ def node_binding(params: EnvParams, days, key: jax.Array | None = None, policy=a
             state, _ = simulator.step(k_step, state, levels, params)
             return state, flows >= limit
 
-        _, binds = jax.lax.scan(body, simulator.empty_state(day, params, battery_key), (act_keys, step_keys))
+        _, binds = jax.lax.scan(
+            body, simulator.empty_state(day, params, battery_key), (act_keys, step_keys)
+        )
         return jnp.mean(binds.astype(jnp.float32), axis=0)
 
     per_day = jax.jit(jax.vmap(one_day))(days, jax.random.split(key, days.shape[0]))
@@ -62,8 +66,12 @@ def _kind(name: str) -> str:
     """Node groups of the bundled architectures: the grid connection, cables, EVSE pairs."""
     if name == "grid":
         return "grid connection"
-    for prefix, label in (("dc_evse", "DC EVSE pairs"), ("ac_evse", "AC EVSE pairs"), ("dc_", "DC cable"),
-                          ("ac_", "AC cable")):
+    for prefix, label in (
+        ("dc_evse", "DC EVSE pairs"),
+        ("ac_evse", "AC EVSE pairs"),
+        ("dc_", "DC cable"),
+        ("ac_", "AC cable"),
+    ):
         if name.startswith(prefix):
             return label
     return name
@@ -88,13 +96,20 @@ def table(scenarios=("shopping",) + COORDINATION_SCENARIOS, num_days: int = 100)
         params = make_params(**scenario_kwargs(name))
         _, days = split_days(params.num_days, num_days, seed=0)
         fractions = node_binding(params, days)
-        rows.append({"scenario": name, "grid_kw": float(params.station.node_max_kw[0]),
-                     **{g: 100.0 * v for g, v in grouped(params, fractions).items()}})
+        rows.append(
+            {
+                "scenario": name,
+                "grid_kw": float(params.station.node_max_kw[0]),
+                **{g: 100.0 * v for g, v in grouped(params, fractions).items()},
+            }
+        )
     return rows
 
 
 def format_table(rows: list[dict]) -> str:
-    head = "| scenario | grid connection kW | " + " | ".join(f"{g} % of steps" for g in GROUPS) + " |"
+    head = (
+        "| scenario | grid connection kW | " + " | ".join(f"{g} % of steps" for g in GROUPS) + " |"
+    )
     lines = [head, "|" + "---|" * (len(GROUPS) + 2)]
     for r in rows:
         cells = " | ".join(f"{r[g]:.1f}" if g in r else "–" for g in GROUPS)
@@ -103,12 +118,26 @@ def format_table(rows: list[dict]) -> str:
 
 
 def main(argv=None) -> list[dict]:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--days", type=int, default=100, help="held-out days per scenario (default 100)")
-    parser.add_argument("--scenarios", nargs="+", default=None, help="default: shopping and every coordination scenario")
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--days", type=int, default=100, help="held-out days per scenario (default 100)"
+    )
+    parser.add_argument(
+        "--scenarios",
+        nargs="+",
+        default=None,
+        help="default: shopping and every coordination scenario",
+    )
     args = parser.parse_args(argv)
-    rows = table(tuple(args.scenarios) if args.scenarios else ("shopping",) + COORDINATION_SCENARIOS, args.days)
-    print(f"always-max, {args.days} held-out days (split_days seed 0), key 0: % of steps in which a node binds")
+    rows = table(
+        tuple(args.scenarios) if args.scenarios else ("shopping",) + COORDINATION_SCENARIOS,
+        args.days,
+    )
+    print(
+        f"always-max, {args.days} held-out days (split_days seed 0), key 0: % of steps in which a node binds"
+    )
     print(format_table(rows))
     return rows
 

@@ -44,6 +44,7 @@ def _eager(fn):
     def wrapper(*args, **kwargs):
         with jax.ensure_compile_time_eval():
             return fn(*args, **kwargs)
+
     return wrapper
 
 
@@ -67,8 +68,11 @@ def leaf_feature_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
     bat_cap = np.zeros(n)
     bat_cap[is_bat] = np.asarray(st.battery_capacity_kwh, np.float64)
     cap = np.where(is_bat, bat_cap, fleet_cap) / observation.ENERGY_SCALE_KWH
-    car_rate = np.where(kinds == KIND_AC, float(np.max(np.asarray(params.fleet_ac_kw))),
-                        float(np.max(np.asarray(params.fleet_dc_kw))))
+    car_rate = np.where(
+        kinds == KIND_AC,
+        float(np.max(np.asarray(params.fleet_ac_kw))),
+        float(np.max(np.asarray(params.fleet_dc_kw))),
+    )
     rate = np.where(is_bat, 1.0, car_rate / np.maximum(leaf_max_kw, 1e-12))
     low = np.zeros((n, len(_PORT_FEATURES)))
     high = np.ones((n, len(_PORT_FEATURES)))
@@ -87,9 +91,13 @@ def _full_power_loads(params: EnvParams) -> np.ndarray:
     margin: the largest load any mix of charging and discharging leaves can put on it."""
     st = params.station
     volts = np.asarray(st.leaf_voltage_v, np.float64)
-    amps = np.maximum(np.asarray(st.leaf_max_current_a, np.float64),
-                      np.asarray(st.leaf_max_discharge_current_a, np.float64))
-    flows = np.asarray(physics.node_flows_kw(np.asarray(volts * amps / 1000.0, np.float32), st), np.float64)
+    amps = np.maximum(
+        np.asarray(st.leaf_max_current_a, np.float64),
+        np.asarray(st.leaf_max_discharge_current_a, np.float64),
+    )
+    flows = np.asarray(
+        physics.node_flows_kw(np.asarray(volts * amps / 1000.0, np.float32), st), np.float64
+    )
     return flows * (1.0 + 1e-4) / np.maximum(np.asarray(st.node_max_kw, np.float64), 1e-12)
 
 
@@ -98,13 +106,35 @@ def context_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
     """``(low, high)`` of :func:`observation.context_features` (no margin)."""
     tou = np.asarray(params.tou_fee_eur_kwh, np.float64)
     spot = np.asarray(params.prices_eur_kwh, np.float64)
-    prices = np.array([spot.min() + tou.min(), spot.max() + tou.max()]) / observation.PRICE_SCALE_EUR_KWH
+    prices = (
+        np.array([spot.min() + tou.min(), spot.max() + tou.max()]) / observation.PRICE_SCALE_EUR_KWH
+    )
     h = params.price_horizon_hours + 1
     q = len(observation.PRICE_QUANTILES)
     customer = float(np.asarray(params.customer_price_eur_kwh)) / observation.PRICE_SCALE_EUR_KWH
     root = float(_full_power_loads(params)[0])  # node 0 is the grid connection
-    low = [np.full(h, prices[0]), [customer], [-1.0, -1.0], [0.0], [0.0], [0.0], np.full(q, prices[0]), [-root], [0.0]]
-    high = [np.full(h, prices[1]), [customer], [1.0, 1.0], [1.0], [1.0], [1.0], np.full(q, prices[1]), [root], [root]]
+    low = [
+        np.full(h, prices[0]),
+        [customer],
+        [-1.0, -1.0],
+        [0.0],
+        [0.0],
+        [0.0],
+        np.full(q, prices[0]),
+        [-root],
+        [0.0],
+    ]
+    high = [
+        np.full(h, prices[1]),
+        [customer],
+        [1.0, 1.0],
+        [1.0],
+        [1.0],
+        [1.0],
+        np.full(q, prices[1]),
+        [root],
+        [root],
+    ]
     if params.observe_moer:
         moer = np.asarray(params.moer_kg_per_kwh, np.float64) / observation.MOER_SCALE_KG_KWH
         low.append([moer.min()])
@@ -134,15 +164,33 @@ def ancestor_load_bounds(params: EnvParams, ancestors: np.ndarray) -> np.ndarray
 
 
 @_eager
-def agent_obs_bounds(params: EnvParams, ancestors: np.ndarray, agent_id_width: int) -> tuple[np.ndarray, np.ndarray]:
+def agent_obs_bounds(
+    params: EnvParams, ancestors: np.ndarray, agent_id_width: int
+) -> tuple[np.ndarray, np.ndarray]:
     """``(low, high)`` float32 ``(obs_size,)`` shared by every agent of the multi-agent view
     (the elementwise min and max over the agents' rows)."""
     low, high = leaf_feature_bounds(params)
     n = low.shape[0]
     clow, chigh = context_bounds(params)
     anc_hi = ancestor_load_bounds(params, ancestors)
-    lo = np.concatenate([low, np.zeros((n, 3)), np.zeros_like(anc_hi), np.broadcast_to(clow, (n, clow.size)),
-                         np.zeros((n, agent_id_width))], axis=1)
-    hi = np.concatenate([high, np.ones((n, 3)), anc_hi, np.broadcast_to(chigh, (n, chigh.size)),
-                         np.ones((n, agent_id_width))], axis=1)
+    lo = np.concatenate(
+        [
+            low,
+            np.zeros((n, 3)),
+            np.zeros_like(anc_hi),
+            np.broadcast_to(clow, (n, clow.size)),
+            np.zeros((n, agent_id_width)),
+        ],
+        axis=1,
+    )
+    hi = np.concatenate(
+        [
+            high,
+            np.ones((n, 3)),
+            anc_hi,
+            np.broadcast_to(chigh, (n, chigh.size)),
+            np.ones((n, agent_id_width)),
+        ],
+        axis=1,
+    )
     return _margin(lo.min(axis=0), hi.max(axis=0))

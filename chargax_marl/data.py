@@ -35,7 +35,10 @@ def _price_row(name: str) -> dict[str, Any]:
         source, licence = "Ember / ENTSO-E day-ahead via " + _EV2GYM, "MIT (via ev2gym)"
     elif name in ds.ENTSOE_PRICE_DATASETS:
         zone = "FR" if name.startswith("FR-") else "DE-LU"
-        source, licence = f"ENTSO-E Transparency Platform day-ahead ({zone}) via {_GREEN_DCC}", "MIT (via green-dcc)"
+        source, licence = (
+            f"ENTSO-E Transparency Platform day-ahead ({zone}) via {_GREEN_DCC}",
+            "MIT (via green-dcc)",
+        )
     else:
         source = _SMARD + (" (DE-AT-LU until 2018-09-30, DE-LU after)" if name == "DE-2018" else "")
         licence = "CC BY 4.0"
@@ -53,8 +56,15 @@ def _price_row(name: str) -> dict[str, Any]:
 def _profile_row(name: str) -> dict[str, Any]:
     p = ds.load_user_profile(name)
     us = name in ds.US_USER_PROFILES
-    src = ("ACN-Data sessions (" + name.rsplit("-", 1)[-1] + ") via " + _SGYM) if us else (
-        "synthetic (documented assumptions)" if name == "highway" else "ElaadNL statistics via " + _EV2GYM)
+    src = (
+        ("ACN-Data sessions (" + name.rsplit("-", 1)[-1] + ") via " + _SGYM)
+        if us
+        else (
+            "synthetic (documented assumptions)"
+            if name == "highway"
+            else "ElaadNL statistics via " + _EV2GYM
+        )
+    )
     return {
         "name": name,
         "kind": "user profile",
@@ -75,7 +85,9 @@ def _fleet_row(name: str) -> dict[str, Any]:
         "shape": (f.num_models,),
         "resolution": "per model",
         "years": "as shipped" if eu else "2024 sales",
-        "source": ("ev_specs.json via " + _EV2GYM) if eu else "hand-compiled public sales reports and spec sheets (approximate; see file header)",
+        "source": ("ev_specs.json via " + _EV2GYM)
+        if eu
+        else "hand-compiled public sales reports and spec sheets (approximate; see file header)",
         "licence": "MIT (via ev2gym)" if eu else "compiled facts",
     }
 
@@ -127,7 +139,10 @@ def format_summary(rows: list[dict[str, Any]] | None = None) -> str:
     cols = ("name", "kind", "shape", "resolution", "licence", "source")
     cells = [[str(r[c]) for c in cols] for r in rows]
     widths = [max(len(c), *(len(row[i]) for row in cells)) for i, c in enumerate(cols)]
-    line = lambda vals: "  ".join(v.ljust(w) for v, w in zip(vals, widths)).rstrip()
+
+    def line(vals):
+        return "  ".join(v.ljust(w) for v, w in zip(vals, widths)).rstrip()
+
     return "\n".join([line(cols), line(["-" * w for w in widths])] + [line(r) for r in cells])
 
 
@@ -143,23 +158,37 @@ def describe(name: str) -> str:
     kind = row["kind"]
     if kind == "prices":
         a = ds.load_prices(name).prices_eur_kwh
-        lines.append(f"{'stats':10s}: mean {a.mean():.4f}, min {a.min():.4f}, max {a.max():.4f} EUR/kWh; {int((a < 0).sum())} negative hours")
+        lines.append(
+            f"{'stats':10s}: mean {a.mean():.4f}, min {a.min():.4f}, max {a.max():.4f} EUR/kWh; {int((a < 0).sum())} negative hours"
+        )
     elif kind == "user profile":
         p = ds.load_user_profile(name)
-        lines.append(f"{'stats':10s}: median stay {p.stay_quantiles_min[50]:.0f} min, median demand {p.demand_quantiles_kwh[50]:.1f} kWh, "
-                     f"weekend volume x{p.weekend_volume_factor:.2f}, SoC on arrival U{p.arrival_soc_range}, P(charge-sensitive) {p.charge_sensitive_prob}")
+        lines.append(
+            f"{'stats':10s}: median stay {p.stay_quantiles_min[50]:.0f} min, median demand {p.demand_quantiles_kwh[50]:.1f} kWh, "
+            f"weekend volume x{p.weekend_volume_factor:.2f}, SoC on arrival U{p.arrival_soc_range}, P(charge-sensitive) {p.charge_sensitive_prob}"
+        )
     elif kind == "fleet":
         f = ds.load_fleet(name)
-        lines.append(f"{'stats':10s}: {f.num_models} models, share-weighted capacity {float(np.dot(f.share, f.capacity_kwh)):.1f} kWh, "
-                     f"AC {float(np.dot(f.share, f.max_ac_kw)):.1f} kW, DC {float(np.dot(f.share, f.max_dc_kw)):.0f} kW")
+        lines.append(
+            f"{'stats':10s}: {f.num_models} models, share-weighted capacity {float(np.dot(f.share, f.capacity_kwh)):.1f} kWh, "
+            f"AC {float(np.dot(f.share, f.max_ac_kw)):.1f} kW, DC {float(np.dot(f.share, f.max_dc_kw)):.0f} kW"
+        )
     elif kind == "moer":
         m = ds.load_moer(name).moer_kg_per_kwh
-        lines.append(f"{'stats':10s}: mean {m.mean():.3f}, min {m.min():.3f}, max {m.max():.3f} kg CO2/kWh")
+        lines.append(
+            f"{'stats':10s}: mean {m.mean():.3f}, min {m.min():.3f}, max {m.max():.3f} kg CO2/kWh"
+        )
     return "\n".join(lines)
 
 
-def plot_profiles(prices: Any = "NL-2023", user_profile: Any = "shopping", fleet: Any = "EU", path: str | Path = "profiles.png",
-                  *, dpi: int = 80) -> Path:
+def plot_profiles(
+    prices: Any = "NL-2023",
+    user_profile: Any = "shopping",
+    fleet: Any = "EU",
+    path: str | Path = "profiles.png",
+    *,
+    dpi: int = 80,
+) -> Path:
     """Write one PNG with the scenario's exogenous data and return its path.
 
     Panels: prices by hour of day (mean, 10-90 % band, min-max) over the year;
@@ -178,7 +207,14 @@ def plot_profiles(prices: Any = "NL-2023", user_profile: Any = "shopping", fleet
         pd_ = ds.load_prices(prices)
         a = pd_.prices_eur_kwh
         ax_p.fill_between(hours, a.min(0), a.max(0), color="C0", alpha=0.12, label="min-max")
-        ax_p.fill_between(hours, np.percentile(a, 10, axis=0), np.percentile(a, 90, axis=0), color="C0", alpha=0.3, label="10-90 %")
+        ax_p.fill_between(
+            hours,
+            np.percentile(a, 10, axis=0),
+            np.percentile(a, 90, axis=0),
+            color="C0",
+            alpha=0.3,
+            label="10-90 %",
+        )
         ax_p.plot(hours, a.mean(0), color="C0", label="mean")
         ax_p.axhline(0, color="k", lw=0.5)
         ax_p.set_title(f"prices {pd_.name} ({a.shape[0]} days)")
@@ -189,7 +225,12 @@ def plot_profiles(prices: Any = "NL-2023", user_profile: Any = "shopping", fleet
         up = ds.load_user_profile(user_profile)
         w = up.arrival_weights.reshape(2, 24, -1).sum(axis=2)
         ax_a.step(hours, w[0], where="post", label="workday")
-        ax_a.step(hours, w[1] * up.weekend_volume_factor, where="post", label=f"weekend (x{up.weekend_volume_factor:.2f})")
+        ax_a.step(
+            hours,
+            w[1] * up.weekend_volume_factor,
+            where="post",
+            label=f"weekend (x{up.weekend_volume_factor:.2f})",
+        )
         ax_a.set_title(f"arrivals {up.name}")
         ax_a.set_xlabel("local hour")
         ax_a.set_ylabel("share of a workday's arrivals")
@@ -204,13 +245,22 @@ def plot_profiles(prices: Any = "NL-2023", user_profile: Any = "shopping", fleet
         ax_d.set_xlabel("kWh")
         ax_d.set_ylabel("P(demand <= x)")
         ax_txt.axis("off")
-        ax_txt.text(0.0, 0.9, "\n".join([
-            f"profile: {up.name}",
-            f"median stay: {up.stay_quantiles_min[50]:.0f} min",
-            f"median demand: {up.demand_quantiles_kwh[50]:.1f} kWh",
-            f"arrival SoC ~ U{tuple(round(x, 2) for x in up.arrival_soc_range)}",
-            f"P(charge-sensitive): {up.charge_sensitive_prob:g}",
-        ]), va="top", fontsize=9, family="monospace")
+        ax_txt.text(
+            0.0,
+            0.9,
+            "\n".join(
+                [
+                    f"profile: {up.name}",
+                    f"median stay: {up.stay_quantiles_min[50]:.0f} min",
+                    f"median demand: {up.demand_quantiles_kwh[50]:.1f} kWh",
+                    f"arrival SoC ~ U{tuple(round(x, 2) for x in up.arrival_soc_range)}",
+                    f"P(charge-sensitive): {up.charge_sensitive_prob:g}",
+                ]
+            ),
+            va="top",
+            fontsize=9,
+            family="monospace",
+        )
     else:
         ax_txt.axis("off")
     if fleet is not None:

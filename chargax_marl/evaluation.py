@@ -8,8 +8,8 @@ by reading the observation from the state (see ``baselines/``).
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import jax
 import jax.numpy as jnp
@@ -75,7 +75,12 @@ def summarize(totals) -> dict:
     out = {}
     for name, field in METRICS.items():
         x = np.asarray(getattr(totals, field), dtype=np.float64)
-        out[name] = {"mean": float(x.mean()), "std": float(x.std()), "min": float(x.min()), "max": float(x.max())}
+        out[name] = {
+            "mean": float(x.mean()),
+            "std": float(x.std()),
+            "min": float(x.min()),
+            "max": float(x.max()),
+        }
     return out
 
 
@@ -83,8 +88,14 @@ def summarize_profit(daily_profit) -> dict:
     """``{"daily_profit_eur": {mean, std, min, max}}`` of per-day profits alone (for entries,
     such as the LP bound, that have no other metrics)."""
     x = np.asarray(daily_profit, np.float64)
-    return {"daily_profit_eur": {"mean": float(x.mean()), "std": float(x.std()), "min": float(x.min()),
-                                 "max": float(x.max())}}
+    return {
+        "daily_profit_eur": {
+            "mean": float(x.mean()),
+            "std": float(x.std()),
+            "min": float(x.min()),
+            "max": float(x.max()),
+        }
+    }
 
 
 def evaluate(act: Act, params: EnvParams, days, key: jax.Array | None = None) -> dict:
@@ -96,7 +107,11 @@ def evaluate(act: Act, params: EnvParams, days, key: jax.Array | None = None) ->
     """
     key = jax.random.PRNGKey(0) if key is None else key
     totals = jax.jit(lambda d, k: run_days(act, params, d, k))(jnp.asarray(days), key)
-    return {"num_days": int(np.size(days)), "days": [int(d) for d in np.asarray(days)], "metrics": summarize(totals)}
+    return {
+        "num_days": int(np.size(days)),
+        "days": [int(d) for d in np.asarray(days)],
+        "metrics": summarize(totals),
+    }
 
 
 def evaluate_policy(policy, params: EnvParams, days, key: jax.Array | None = None) -> dict:
@@ -105,17 +120,25 @@ def evaluate_policy(policy, params: EnvParams, days, key: jax.Array | None = Non
     return evaluate(lambda s, k: policy(s, k, params), params, days, key)
 
 
-def hindsight_bound(params: EnvParams, days, key: jax.Array | None = None, reference: str = "always_max",
-                    time_limit_s: float | None = 60.0) -> dict:
+def hindsight_bound(
+    params: EnvParams,
+    days,
+    key: jax.Array | None = None,
+    reference: str = "always_max",
+    time_limit_s: float | None = 60.0,
+) -> dict:
     """The LP hindsight bound (:mod:`chargax_marl.optimal.bound`) of each of ``days`` over
     ``reference``'s port occupancy, with the cars :func:`evaluate` draws with ``key``:
     ``{"daily_profit", "reference_daily_profit", "solve_s", "status"}`` (arrays over days)."""
 
     bounds = bound_days(params, days, key, get_policy(reference, params), time_limit_s=time_limit_s)
-    return {"daily_profit": np.array([b.profit_eur for b in bounds]),
-            "reference_daily_profit": np.array([b.reference_profit_eur for b in bounds]),
-            "solve_s": np.array([b.solve_s for b in bounds]), "status": [b.status for b in bounds],
-            "reference": reference}
+    return {
+        "daily_profit": np.array([b.profit_eur for b in bounds]),
+        "reference_daily_profit": np.array([b.reference_profit_eur for b in bounds]),
+        "solve_s": np.array([b.solve_s for b in bounds]),
+        "status": [b.status for b in bounds],
+        "reference": reference,
+    }
 
 
 def headroom_captured(daily_profit, always_max_daily, bound_daily) -> dict:
@@ -131,9 +154,13 @@ def headroom_captured(daily_profit, always_max_daily, bound_daily) -> dict:
         return float(np.std(x, ddof=1) / np.sqrt(x.size)) if x.size > 1 else float("nan")
 
     mean_headroom = float(headroom.mean())
-    return {"fraction": float(captured.mean() / mean_headroom) if mean_headroom > 0 else float("nan"),
-            "captured_eur": float(captured.mean()), "captured_stderr": se(captured),
-            "headroom_eur": mean_headroom, "headroom_stderr": se(headroom)}
+    return {
+        "fraction": float(captured.mean() / mean_headroom) if mean_headroom > 0 else float("nan"),
+        "captured_eur": float(captured.mean()),
+        "captured_stderr": se(captured),
+        "headroom_eur": mean_headroom,
+        "headroom_stderr": se(headroom),
+    }
 
 
 def write_json(results: dict, path: str | Path) -> Path:
@@ -159,7 +186,11 @@ def format_table(results: dict[str, dict]) -> str:
     for m in metrics:
         lines.append(f"{m:<{width}}" + "".join(cell(n, m) for n in names))
     if any("headroom" in results[n] for n in names):
-        row = "".join(f"{results[n]['headroom']['fraction']:>14.2f}   {'':<7}" if "headroom" in results[n]
-                      else f"{'-':>14}   {'':<7}" for n in names)
+        row = "".join(
+            f"{results[n]['headroom']['fraction']:>14.2f}   {'':<7}"
+            if "headroom" in results[n]
+            else f"{'-':>14}   {'':<7}"
+            for n in names
+        )
         lines.append(f"{'headroom_captured':<{width}}{row}")
     return "\n".join(lines)

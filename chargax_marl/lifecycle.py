@@ -95,15 +95,23 @@ def key_from_seed(seed: Any, where: str) -> jax.Array:
 def check_day(day, num_days: int) -> int:
     """``day`` as an int in ``[0, num_days)``, or ``ValueError`` naming it and the range."""
     try:
-        value = int(np.asarray(day).item()) if np.ndim(day) == 0 and not isinstance(day, (str, bytes)) else None
+        value = (
+            int(np.asarray(day).item())
+            if np.ndim(day) == 0 and not isinstance(day, (str, bytes))
+            else None
+        )
         if value is not None and value != np.asarray(day).item():
             value = None
     except (TypeError, ValueError):
         value = None
     if value is None or isinstance(day, (bool, np.bool_)):
-        raise ValueError(f"day must be an integer in [0, {num_days - 1}] (the days of the price data), got {day!r}")
+        raise ValueError(
+            f"day must be an integer in [0, {num_days - 1}] (the days of the price data), got {day!r}"
+        )
     if not 0 <= value < num_days:
-        raise ValueError(f"day must be in [0, {num_days - 1}] (the days of the price data), got {value}")
+        raise ValueError(
+            f"day must be in [0, {num_days - 1}] (the days of the price data), got {value}"
+        )
     return value
 
 
@@ -122,6 +130,8 @@ def reset_day(options: dict | None, num_days: int, where: str) -> int | None:
     day = options["day"]
     ok = isinstance(day, (int, np.integer)) and not isinstance(day, (bool, np.bool_))
     if not ok or not 0 <= int(day) < num_days:
-        raise ValueError(f"{where}: options['day'] must be an integer in [0, {num_days - 1}] "
-                         f"(a day of the price data), got {day!r}")
+        raise ValueError(
+            f"{where}: options['day'] must be an integer in [0, {num_days - 1}] "
+            f"(a day of the price data), got {day!r}"
+        )
     return int(day)

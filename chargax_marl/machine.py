@@ -23,8 +23,14 @@ def machine_info() -> dict:
     except (OSError, subprocess.SubprocessError):
         pass
     dev = jax.devices()[0]
-    return {"cpu": model, "cores": os.cpu_count(), "jax": jax.__version__, "backend": dev.platform,
-            "device": dev.device_kind, "python": platform.python_version()}
+    return {
+        "cpu": model,
+        "cores": os.cpu_count(),
+        "jax": jax.__version__,
+        "backend": dev.platform,
+        "device": dev.device_kind,
+        "python": platform.python_version(),
+    }
 
 
 def code_version(root=None) -> dict:
@@ -32,10 +38,20 @@ def code_version(root=None) -> dict:
     uncommitted changes, for result files; ``commit`` is ``None`` outside a git checkout."""
     root = root or os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     try:
+
         def git(*args):
-            return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, timeout=10,
-                                  check=True).stdout.strip()
-        return {"commit": git("rev-parse", "HEAD"), "dirty": bool(git("status", "--porcelain", "--untracked-files=no"))}
+            return subprocess.run(
+                ["git", "-C", str(root), *args],
+                capture_output=True,
+                text=True,
+                timeout=10,
+                check=True,
+            ).stdout.strip()
+
+        return {
+            "commit": git("rev-parse", "HEAD"),
+            "dirty": bool(git("status", "--porcelain", "--untracked-files=no")),
+        }
     except (OSError, subprocess.SubprocessError):
         return {"commit": None, "dirty": None}
 

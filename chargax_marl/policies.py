@@ -18,7 +18,7 @@ they are built for given params: ``get_policy("battery_programme", params)``.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -51,10 +51,14 @@ def _cheap_or_dear_hour(state: EnvState, params: EnvParams, quantile: float):
     cheapest / dearest ``quantile`` of the day's hours."""
     day_prices = params.prices_eur_kwh[state.day] + params.tou_fee_eur_kwh
     now = day_prices[hour_of_step(state.timestep, params)]
-    return now <= jnp.quantile(day_prices, quantile), now >= jnp.quantile(day_prices, 1.0 - quantile)
+    return now <= jnp.quantile(day_prices, quantile), now >= jnp.quantile(
+        day_prices, 1.0 - quantile
+    )
 
 
-def battery_rule(state: EnvState, key: jax.Array, params: EnvParams, quantile: float = 0.2) -> jnp.ndarray:
+def battery_rule(
+    state: EnvState, key: jax.Array, params: EnvParams, quantile: float = 0.2
+) -> jnp.ndarray:
     """Always-max for the ports plus a price rule for the batteries: charge fully in the
     cheapest ``quantile`` (20 %) of the day's hours, discharge fully in the dearest
     ``quantile``, idle otherwise. The strong two-line heuristic a learned agent must beat.
@@ -65,7 +69,9 @@ def battery_rule(state: EnvState, key: jax.Array, params: EnvParams, quantile: f
     return jnp.where(_is_battery(params), battery, params.num_levels).astype(jnp.int32)
 
 
-def discharge_departing(state: EnvState, key: jax.Array, params: EnvParams, steps_before: int = 2) -> jnp.ndarray:
+def discharge_departing(
+    state: EnvState, key: jax.Array, params: EnvParams, steps_before: int = 2
+) -> jnp.ndarray:
     """Always-max, except that a time-sensitive car whose planned departure is within the
     next ``steps_before`` (2) steps discharges at full power (where its port and the car may
     discharge); batteries idle.
@@ -79,9 +85,15 @@ def discharge_departing(state: EnvState, key: jax.Array, params: EnvParams, step
     """
     del key
     is_battery = _is_battery(params)
-    can_discharge = (physics.leaf_min_level(params.station, params.num_levels, params.v2g) < 0) & ~is_battery
-    departing = (state.occupied & ~state.charge_sensitive & (state.max_discharge_rate_kw > 0)
-                 & (state.time_remaining_min <= steps_before * params.step_minutes))
+    can_discharge = (
+        physics.leaf_min_level(params.station, params.num_levels, params.v2g) < 0
+    ) & ~is_battery
+    departing = (
+        state.occupied
+        & ~state.charge_sensitive
+        & (state.max_discharge_rate_kw > 0)
+        & (state.time_remaining_min <= steps_before * params.step_minutes)
+    )
     ports = jnp.where(departing & can_discharge, -params.num_levels, params.num_levels)
     return jnp.where(is_battery, 0, ports).astype(jnp.int32)
 
@@ -95,24 +107,32 @@ def random_policy(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.nda
 
 def _levels_for_power(power_kw: jnp.ndarray, params: EnvParams, *, round_up: bool) -> jnp.ndarray:
     """The charging level whose current gives ``power_kw`` at each leaf (clipped to [0, L])."""
-    return _level_of(power_kw / params.station.leaf_max_kw * params.num_levels, round_up, params.num_levels)
+    return _level_of(
+        power_kw / params.station.leaf_max_kw * params.num_levels, round_up, params.num_levels
+    )
 
 
 def _level_of(frac, round_up, num_levels) -> jnp.ndarray:
     """``frac`` (levels, fractional) rounded up where ``round_up`` (a bool or bool array) else
     down, clipped to [0, ``num_levels``]."""
-    return jnp.clip(jnp.where(round_up, jnp.ceil(frac - 1e-6), jnp.floor(frac + 1e-6)), 0, num_levels).astype(jnp.int32)
+    return jnp.clip(
+        jnp.where(round_up, jnp.ceil(frac - 1e-6), jnp.floor(frac + 1e-6)), 0, num_levels
+    ).astype(jnp.int32)
 
 
 def minimum_power_kw(state: EnvState, params: EnvParams) -> jnp.ndarray:
     """Per leaf, the constant power that delivers the remaining demand one step before the
     planned departure (0 for empty ports, batteries and cars already satisfied)."""
-    hours_left = jnp.maximum(state.time_remaining_min - params.step_minutes, params.step_minutes) / 60.0
+    hours_left = (
+        jnp.maximum(state.time_remaining_min - params.step_minutes, params.step_minutes) / 60.0
+    )
     need = jnp.maximum(state.energy_remaining_kwh, 0.0) / hours_left
     return jnp.where(state.occupied & ~_is_battery(params), need, 0.0)
 
 
-def price_threshold(state: EnvState, key: jax.Array, params: EnvParams, quantile: float = 0.3) -> jnp.ndarray:
+def price_threshold(
+    state: EnvState, key: jax.Array, params: EnvParams, quantile: float = 0.3
+) -> jnp.ndarray:
     """Charge fully while the buy price is in the cheapest ``quantile`` of the day's hours;
     otherwise charge each car at the lowest level that still meets its demand by its
     planned departure. Batteries charge fully in cheap hours, discharge fully in the
@@ -136,12 +156,18 @@ def _greedy_under_limits(priority: jnp.ndarray, state: EnvState, params: EnvPara
     will draw at its level, not its unrounded grant: with few levels (``num_levels`` 1) a
     node-bound car rounds to idle, and the power it does not draw stays for the cars after it."""
     st = params.station
-    want_kw = jnp.minimum(st.leaf_max_kw, physics.rate_curve_kw(state.soc, state.max_rate_kw, state.tau))
-    room_kw = jnp.maximum((state.target_soc - state.soc) * state.capacity_kwh, 0.0) / params.step_hours
+    want_kw = jnp.minimum(
+        st.leaf_max_kw, physics.rate_curve_kw(state.soc, state.max_rate_kw, state.tau)
+    )
+    room_kw = (
+        jnp.maximum((state.target_soc - state.soc) * state.capacity_kwh, 0.0) / params.step_hours
+    )
     want_kw = jnp.where(state.occupied & ~_is_battery(params), jnp.minimum(want_kw, room_kw), 0.0)
     headroom = st.node_max_kw  # grid-side kW each node may still pass
     ancestors = st.node_of_leaf_at_depth.T  # (L, D), -1 = none
-    path_eff = st.leaf_efficiency_at_depth.T  # (L, D): leaf kW = grid-side kW * efficiency up to the node
+    path_eff = (
+        st.leaf_efficiency_at_depth.T
+    )  # (L, D): leaf kW = grid-side kW * efficiency up to the node
     levels = params.num_levels
 
     def give(headroom, leaf):
@@ -214,8 +240,10 @@ def get_policy(name: str, params: EnvParams | None = None) -> Policy:
     """
     if name in RULE_BUILDERS:
         if params is None:
-            raise ValueError(f"policy {name!r} is built for a station and its prices: "
-                             f"call get_policy({name!r}, params)")
+            raise ValueError(
+                f"policy {name!r} is built for a station and its prices: "
+                f"call get_policy({name!r}, params)"
+            )
         return RULE_BUILDERS[name](params)
     if name not in POLICIES:
         allowed = sorted(POLICIES) + sorted(TEACHER_RULES)

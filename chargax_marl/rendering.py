@@ -20,7 +20,9 @@ RENDER_MODES = ["ansi", "human", "rgb_array"]
 
 def check_render_mode(render_mode: str | None, where: str) -> None:
     if render_mode is not None and render_mode not in RENDER_MODES:
-        raise ValueError(f"{where}: render_mode must be one of {RENDER_MODES} or None, got {render_mode!r}")
+        raise ValueError(
+            f"{where}: render_mode must be one of {RENDER_MODES} or None, got {render_mode!r}"
+        )
 
 
 def price_now(state, params: EnvParams) -> float:
@@ -46,8 +48,10 @@ def ansi_table(state, params: EnvParams, names: list[str]) -> str:
         occ = bool(state.occupied[i])
         soc = f"{float(state.soc[i]):.2f}" if occ else "-"
         cur = float(state.current_a[i]) + 0.0  # no "-0.0"
-        lines.append(f"{a:<12}{KIND_NAMES[int(kinds[i])]:<9}{('yes' if occ else 'no'):>9}{soc:>7}"
-                     f"{cur:>11.1f}{cur * float(volts[i]) / 1000.0:>10.1f}")
+        lines.append(
+            f"{a:<12}{KIND_NAMES[int(kinds[i])]:<9}{('yes' if occ else 'no'):>9}{soc:>7}"
+            f"{cur:>11.1f}{cur * float(volts[i]) / 1000.0:>10.1f}"
+        )
     return "\n".join(lines)
 
 
@@ -74,8 +78,10 @@ def rgb_plot(history: list[tuple[float, float, float]], state, params: EnvParams
 def render(mode: str | None, state, params: EnvParams, names: list[str], history, where: str):
     """Dispatch on ``mode``; ``None`` warns (Gymnasium's convention) and returns None."""
     if mode is None:
-        gymnasium.logger.warn(f"{where}.render() called without a render_mode; pass render_mode='ansi', "
-                              "'human' or 'rgb_array' when constructing the env")
+        gymnasium.logger.warn(
+            f"{where}.render() called without a render_mode; pass render_mode='ansi', "
+            "'human' or 'rgb_array' when constructing the env"
+        )
         return None
     if state is None:
         raise RuntimeError(f"{where}.render() called before reset()")

@@ -37,13 +37,16 @@ def rollout_days(policy, params: EnvParams, keys: jax.Array):
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--policy", default="always_max", choices=sorted(POLICIES))
-    parser.add_argument("--scenario", default="shopping", help="named scenario, e.g. shopping, workplace-high")
+    parser.add_argument(
+        "--scenario", default="shopping", help="named scenario, e.g. shopping, workplace-high"
+    )
     parser.add_argument("--days", type=int, default=1, help="number of random days to average over")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
-
 
     _, params = make(args.scenario)
     keys = jax.random.split(jax.random.PRNGKey(args.seed), args.days)
@@ -56,12 +59,16 @@ def main(argv=None) -> None:
     delivered = np.asarray(totals.energy_delivered_kwh)
     served = np.asarray(totals.cars_served)
     rejected = np.asarray(totals.cars_rejected)
-    print(f"policy={args.policy} scenario={args.scenario} days={args.days} seed={args.seed} "
-          f"({elapsed:.1f} s incl. compile)")
+    print(
+        f"policy={args.policy} scenario={args.scenario} days={args.days} seed={args.seed} "
+        f"({elapsed:.1f} s incl. compile)"
+    )
     if args.days == 1:
         print(f"day index        : {int(days[0])}")
+
     def fmt(x, unit):
         return f"{x.mean():10.2f} {unit}" + (f"  (std {x.std():.2f})" if x.size > 1 else "")
+
     print(f"daily profit     : {fmt(profit, 'EUR')}")
     print(f"energy delivered : {fmt(delivered, 'kWh')}")
     print(f"cars served      : {fmt(served, '')}")

@@ -15,7 +15,7 @@ baselines (:mod:`chargax_marl.optimal`) read their cars and prices from traces.
 from __future__ import annotations
 
 import hashlib
-from typing import Callable
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -45,8 +45,16 @@ def station_fingerprint(params: EnvParams) -> str:
     station are refused by another."""
     st = params.station
     h = hashlib.sha1()
-    for a in (st.leaf_kind, st.leaf_voltage_v, st.leaf_max_current_a, st.leaf_max_discharge_current_a,
-              st.node_max_kw, st.node_of_leaf_at_depth, st.leaf_efficiency_at_depth, st.battery_capacity_kwh):
+    for a in (
+        st.leaf_kind,
+        st.leaf_voltage_v,
+        st.leaf_max_current_a,
+        st.leaf_max_discharge_current_a,
+        st.node_max_kw,
+        st.node_of_leaf_at_depth,
+        st.leaf_efficiency_at_depth,
+        st.battery_capacity_kwh,
+    ):
         h.update(np.asarray(a).tobytes())
     return h.hexdigest()[:16]
 
@@ -79,7 +87,9 @@ class DayTrace:
     battery_soc0: jnp.ndarray  # (B,) initial SoC of each station battery
     price_buy_eur_kwh: jnp.ndarray  # (num_steps,)
     price_sell_grid_eur_kwh: jnp.ndarray  # (num_steps,)
-    battery_value_eur_kwh: jnp.ndarray  # () price of the batteries' net energy change at the day's end
+    battery_value_eur_kwh: (
+        jnp.ndarray
+    )  # () price of the batteries' net energy change at the day's end
     step_minutes: float = struct.field(pytree_node=False, default=5.0)
     num_steps: int = struct.field(pytree_node=False, default=288)
     station: str = struct.field(pytree_node=False, default="")
@@ -96,7 +106,9 @@ def _make_trace(params: EnvParams, day, day_key) -> DayTrace:
     return DayTrace(
         day=day,
         arrivals=arrivals,
-        battery_soc0=simulator.battery_initial_soc(params, battery_key) if nb else jnp.zeros((0,), jnp.float32),
+        battery_soc0=simulator.battery_initial_soc(params, battery_key)
+        if nb
+        else jnp.zeros((0,), jnp.float32),
         price_buy_eur_kwh=buy,
         price_sell_grid_eur_kwh=sell,
         battery_value_eur_kwh=reward_lib.battery_terminal_value_eur(jnp.float32(1.0), day, params),
@@ -112,16 +124,30 @@ def make_traces(params: EnvParams, days, key: jax.Array | None = None) -> DayTra
     key = jax.random.PRNGKey(0) if key is None else key
     days = jnp.atleast_1d(jnp.asarray(days, jnp.int32))
     fingerprint = station_fingerprint(params)
-    traces = jax.jit(jax.vmap(lambda d, k: _make_trace(params, d, k)))(days, jax.random.split(key, days.shape[0]))
+    traces = jax.jit(jax.vmap(lambda d, k: _make_trace(params, d, k)))(
+        days, jax.random.split(key, days.shape[0])
+    )
     return traces.replace(station=fingerprint)
 
 
-CAR_DEFAULTS = {"capacity_kwh": 60.0, "ac_kw": 11.0, "dc_kw": 50.0, "ac_discharge_kw": 0.0, "dc_discharge_kw": 0.0,
-                "tau": 0.8, "arrival_soc": 0.2, "target_soc": 0.8, "stay_min": 60.0, "charge_sensitive": False}
+CAR_DEFAULTS = {
+    "capacity_kwh": 60.0,
+    "ac_kw": 11.0,
+    "dc_kw": 50.0,
+    "ac_discharge_kw": 0.0,
+    "dc_discharge_kw": 0.0,
+    "tau": 0.8,
+    "arrival_soc": 0.2,
+    "target_soc": 0.8,
+    "stay_min": 60.0,
+    "charge_sensitive": False,
+}
 """Defaults of :func:`trace_from_cars` for fields a car leaves out."""
 
 
-def trace_from_cars(params: EnvParams, cars: list[dict], day: int = 0, battery_soc0=None) -> DayTrace:
+def trace_from_cars(
+    params: EnvParams, cars: list[dict], day: int = 0, battery_soc0=None
+) -> DayTrace:
     """A hand-made day: ``cars`` is a list of dicts with ``arrival_step`` (the step at whose
     end the car arrives; it charges from the next step) and any fields of
     :data:`CAR_DEFAULTS`; cars of one step fill its slots in list order (at most one per
@@ -134,27 +160,51 @@ def trace_from_cars(params: EnvParams, cars: list[dict], day: int = 0, battery_s
     for i, car in enumerate(cars):
         unknown = set(car) - set(CAR_DEFAULTS) - {"arrival_step"}
         if unknown:
-            raise ValueError(f"car {i}: unknown field(s) {sorted(unknown)}; allowed: arrival_step, {sorted(CAR_DEFAULTS)}")
+            raise ValueError(
+                f"car {i}: unknown field(s) {sorted(unknown)}; allowed: arrival_step, {sorted(CAR_DEFAULTS)}"
+            )
         t = int(car.get("arrival_step", -1))
         if not 0 <= t < n:
-            raise ValueError(f"car {i}: field 'arrival_step' must lie in [0, {n - 1}], got {car.get('arrival_step')!r}")
+            raise ValueError(
+                f"car {i}: field 'arrival_step' must lie in [0, {n - 1}], got {car.get('arrival_step')!r}"
+            )
         k = requested[t]
         if k >= slots:
-            raise ValueError(f"car {i}: more than {slots} cars (the number of ports) arrive in step {t}")
+            raise ValueError(
+                f"car {i}: more than {slots} cars (the number of ports) arrive in step {t}"
+            )
         for f, default in CAR_DEFAULTS.items():
             fields[f][t, k] = car.get(f, default)
         requested[t] += 1
     arrivals = traffic.Arrivals(
-        requested=jnp.asarray(requested), model=jnp.full((n, slots), -1, jnp.int32),
-        **{f: jnp.asarray(v, bool if f == "charge_sensitive" else jnp.float32) for f, v in fields.items()})
+        requested=jnp.asarray(requested),
+        model=jnp.full((n, slots), -1, jnp.int32),
+        **{
+            f: jnp.asarray(v, bool if f == "charge_sensitive" else jnp.float32)
+            for f, v in fields.items()
+        },
+    )
     day_arr = jnp.asarray(day, jnp.int32)
     steps = jnp.arange(n, dtype=jnp.int32)
     buy, sell = jax.vmap(lambda t: reward_lib.grid_prices(day_arr, t, params))(steps)
-    soc0 = simulator.battery_initial_soc(params) if battery_soc0 is None else jnp.asarray(battery_soc0, jnp.float32)
-    return DayTrace(day=day_arr, arrivals=arrivals, battery_soc0=jnp.atleast_1d(soc0)[:st.num_batteries],
-                    price_buy_eur_kwh=buy, price_sell_grid_eur_kwh=sell,
-                    battery_value_eur_kwh=reward_lib.battery_terminal_value_eur(jnp.float32(1.0), day_arr, params),
-                    step_minutes=params.step_minutes, num_steps=n, station=station_fingerprint(params))
+    soc0 = (
+        simulator.battery_initial_soc(params)
+        if battery_soc0 is None
+        else jnp.asarray(battery_soc0, jnp.float32)
+    )
+    return DayTrace(
+        day=day_arr,
+        arrivals=arrivals,
+        battery_soc0=jnp.atleast_1d(soc0)[: st.num_batteries],
+        price_buy_eur_kwh=buy,
+        price_sell_grid_eur_kwh=sell,
+        battery_value_eur_kwh=reward_lib.battery_terminal_value_eur(
+            jnp.float32(1.0), day_arr, params
+        ),
+        step_minutes=params.step_minutes,
+        num_steps=n,
+        station=station_fingerprint(params),
+    )
 
 
 def day_of(traces: DayTrace, i: int) -> DayTrace:
@@ -166,21 +216,29 @@ def check_trace(trace: DayTrace, params: EnvParams) -> None:
     """Raise ``ValueError`` when ``trace`` was not made for ``params`` (another station,
     step length or day length)."""
     if trace.step_minutes != params.step_minutes:
-        raise ValueError(f"trace field 'step_minutes' is {trace.step_minutes!r} but params have "
-                         f"step_minutes={params.step_minutes!r}: make the trace with the same params")
+        raise ValueError(
+            f"trace field 'step_minutes' is {trace.step_minutes!r} but params have "
+            f"step_minutes={params.step_minutes!r}: make the trace with the same params"
+        )
     if trace.num_steps != params.num_steps:
-        raise ValueError(f"trace field 'num_steps' is {trace.num_steps!r} but params have "
-                         f"num_steps={params.num_steps!r}: make the trace with the same params")
+        raise ValueError(
+            f"trace field 'num_steps' is {trace.num_steps!r} but params have "
+            f"num_steps={params.num_steps!r}: make the trace with the same params"
+        )
     if isinstance(params.station.leaf_voltage_v, jax.core.Tracer):
         return  # params traced: only the static fields above can be checked
     fingerprint = station_fingerprint(params)
     if trace.station != fingerprint:
-        raise ValueError(f"trace field 'station' is {trace.station!r} but the params' station is {fingerprint!r}: "
-                         "the trace was made for another station (ports, limits or efficiencies differ)")
+        raise ValueError(
+            f"trace field 'station' is {trace.station!r} but the params' station is {fingerprint!r}: "
+            "the trace was made for another station (ports, limits or efficiencies differ)"
+        )
     slots = np.shape(trace.arrivals.model)[-1]
     if slots != params.station.num_ports:
-        raise ValueError(f"trace has {slots} arrival slots per step but the station has "
-                         f"{params.station.num_ports} ports")
+        raise ValueError(
+            f"trace has {slots} arrival slots per step but the station has "
+            f"{params.station.num_ports} ports"
+        )
 
 
 def replay(act: Act, params: EnvParams, trace: DayTrace, day_key: jax.Array):
@@ -195,8 +253,11 @@ def replay(act: Act, params: EnvParams, trace: DayTrace, day_key: jax.Array):
     act_keys, _, _ = day_keys(day_key, params.num_steps)
     start = simulator.empty_state(trace.day, params)
     if params.station.num_batteries:
-        start = start.replace(soc=start.soc.at[params.station.num_ports:].set(
-            jnp.asarray(trace.battery_soc0, jnp.float32)))
+        start = start.replace(
+            soc=start.soc.at[params.station.num_ports :].set(
+                jnp.asarray(trace.battery_soc0, jnp.float32)
+            )
+        )
 
     def body(state, xs):
         k_act, arrivals = xs
@@ -214,7 +275,20 @@ def replay_days(act: Act, params: EnvParams, traces: DayTrace, key: jax.Array | 
     equal to ``run_days(act, params, traces.day, key)``. Jittable."""
     key = jax.random.PRNGKey(0) if key is None else key
     num_days = traces.day.shape[0]
-    return jax.vmap(lambda t, k: replay(act, params, t, k)[2].totals)(traces, jax.random.split(key, num_days))
+    return jax.vmap(lambda t, k: replay(act, params, t, k)[2].totals)(
+        traces, jax.random.split(key, num_days)
+    )
 
 
-__all__ = ["DayTrace", "check_trace", "day_keys", "day_of", "make_traces", "params_fingerprint", "replay", "replay_days", "trace_from_cars", "station_fingerprint"]
+__all__ = [
+    "DayTrace",
+    "check_trace",
+    "day_keys",
+    "day_of",
+    "make_traces",
+    "params_fingerprint",
+    "replay",
+    "replay_days",
+    "trace_from_cars",
+    "station_fingerprint",
+]

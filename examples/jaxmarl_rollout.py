@@ -26,8 +26,10 @@ def make_rollout(env: ChargaxMARL, num_envs: int):
     def sample_actions(key, avail):
         # Uniform over the valid actions: a categorical with -inf logits on the masked ones.
         keys = jax.random.split(key, env.num_agents)
-        return {a: jax.random.categorical(keys[i], jnp.where(avail[a], 0.0, -jnp.inf))
-                for i, a in enumerate(env.agents)}
+        return {
+            a: jax.random.categorical(keys[i], jnp.where(avail[a], 0.0, -jnp.inf))
+            for i, a in enumerate(env.agents)
+        }
 
     def one_env(key):
         key, k_reset = jax.random.split(key)
@@ -38,19 +40,31 @@ def make_rollout(env: ChargaxMARL, num_envs: int):
             key, k_act, k_step = jax.random.split(key, 3)
             actions = sample_actions(k_act, env.get_avail_actions(state.env_state))
             obs, state, rewards, dones, infos = log_env.step(k_step, state, actions)
-            return (obs, state, key), (rewards[env.agents[0]], infos["returned_episode_profit_eur"][0])
+            return (obs, state, key), (
+                rewards[env.agents[0]],
+                infos["returned_episode_profit_eur"][0],
+            )
 
-        _, (rewards, returned_profit) = jax.lax.scan(body, (obs, state, key), None, length=num_steps)
+        _, (rewards, returned_profit) = jax.lax.scan(
+            body, (obs, state, key), None, length=num_steps
+        )
         return rewards.sum(), returned_profit[-1]
 
     return jax.jit(lambda key: jax.vmap(one_env)(jax.random.split(key, num_envs)))
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--num-envs", type=int, default=64)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--step-minutes", type=float, default=5.0, help="minutes per step (5 = the paper's 288 steps)")
+    parser.add_argument(
+        "--step-minutes",
+        type=float,
+        default=5.0,
+        help="minutes per step (5 = the paper's 288 steps)",
+    )
     args = parser.parse_args(argv)
 
     env = ChargaxMARL(step_minutes=args.step_minutes)

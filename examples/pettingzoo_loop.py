@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 
-
 from chargax_marl.marl import parallel_env
 from chargax_marl.policies import always_max
 
@@ -23,7 +22,9 @@ def run_day(env, policy, seed: int) -> float:
     while env.agents:
         actions = policy(env, obs, infos)
         obs, rewards, terminations, truncations, infos = env.step(actions)
-        profit += rewards[env.possible_agents[0]]  # the shared station reward, the same for every agent
+        profit += rewards[
+            env.possible_agents[0]
+        ]  # the shared station reward, the same for every agent
     return profit
 
 
@@ -39,9 +40,16 @@ def always_max_policy(env, obs, infos):
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--step-minutes", type=float, default=5.0, help="minutes per step (5 = the paper's 288 steps)")
+    parser.add_argument(
+        "--step-minutes",
+        type=float,
+        default=5.0,
+        help="minutes per step (5 = the paper's 288 steps)",
+    )
     args = parser.parse_args(argv)
 
     env = parallel_env(step_minutes=args.step_minutes)

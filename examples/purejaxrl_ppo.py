@@ -72,8 +72,9 @@ def make_train(config: dict):
         params = network.init(k_init, jnp.zeros(obs_shape))
         tx = optax.chain(optax.clip_by_global_norm(0.5), optax.adam(config["LR"], eps=1e-5))
         state = TrainState.create(apply_fn=network.apply, params=params, tx=tx)
-        obs, env_state = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(k_reset, config["NUM_ENVS"]),
-                                                                env_params)
+        obs, env_state = jax.vmap(env.reset, in_axes=(0, None))(
+            jax.random.split(k_reset, config["NUM_ENVS"]), env_params
+        )
 
         def update(runner, _):
             def env_step(runner, _):
@@ -83,8 +84,8 @@ def make_train(config: dict):
                 action = pi.sample(seed=k_act)
                 log_prob = pi.log_prob(action)
                 obs2, env_state, reward, terminated, truncated, info = jax.vmap(
-                    env.step, in_axes=(0, 0, 0, None))(jax.random.split(k_step, config["NUM_ENVS"]), env_state,
-                                                       action, env_params)
+                    env.step, in_axes=(0, 0, 0, None)
+                )(jax.random.split(k_step, config["NUM_ENVS"]), env_state, action, env_params)
                 done = jnp.logical_or(terminated, truncated)
                 info = {k: info[k] for k in ("returned_episode", "returned_episode_returns")}
                 t = Transition(done, action, value, reward * reward_scale, log_prob, obs, info)
@@ -100,7 +101,9 @@ def make_train(config: dict):
                 adv = delta + config["GAMMA"] * config["GAE_LAMBDA"] * (1 - t.done) * adv
                 return (adv, t.value), adv
 
-            _, advantages = jax.lax.scan(gae, (jnp.zeros_like(last_value), last_value), traj, reverse=True)
+            _, advantages = jax.lax.scan(
+                gae, (jnp.zeros_like(last_value), last_value), traj, reverse=True
+            )
             targets = advantages + traj.value
 
             def epoch(carry, _):
@@ -109,7 +112,9 @@ def make_train(config: dict):
                 batch = (traj, advantages, targets)
                 batch = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), batch)
                 perm = jax.random.permutation(k_perm, minibatch * config["NUM_MINIBATCHES"])
-                batch = jax.tree.map(lambda x: x[perm].reshape((config["NUM_MINIBATCHES"], -1) + x.shape[1:]), batch)
+                batch = jax.tree.map(
+                    lambda x: x[perm].reshape((config["NUM_MINIBATCHES"], -1) + x.shape[1:]), batch
+                )
 
                 def minibatch_step(state, mb):
                     t, adv, tgt = mb
@@ -119,10 +124,18 @@ def make_train(config: dict):
                         ratio = jnp.exp(pi.log_prob(t.action) - t.log_prob)
                         a = (adv - adv.mean()) / (adv.std() + 1e-8)
                         clip = config["CLIP_EPS"]
-                        actor = -jnp.minimum(ratio * a, jnp.clip(ratio, 1 - clip, 1 + clip) * a).mean()
+                        actor = -jnp.minimum(
+                            ratio * a, jnp.clip(ratio, 1 - clip, 1 + clip) * a
+                        ).mean()
                         v_clipped = t.value + jnp.clip(value - t.value, -clip, clip)
-                        critic = 0.5 * jnp.maximum((value - tgt) ** 2, (v_clipped - tgt) ** 2).mean()
-                        return actor + config["VF_COEF"] * critic - config["ENT_COEF"] * pi.entropy().mean()
+                        critic = (
+                            0.5 * jnp.maximum((value - tgt) ** 2, (v_clipped - tgt) ** 2).mean()
+                        )
+                        return (
+                            actor
+                            + config["VF_COEF"] * critic
+                            - config["ENT_COEF"] * pi.entropy().mean()
+                        )
 
                     grads = jax.grad(loss_fn)(state.params)
                     return state.apply_gradients(grads=grads), None
@@ -132,7 +145,9 @@ def make_train(config: dict):
 
             (state, key), _ = jax.lax.scan(epoch, (state, key), None, config["UPDATE_EPOCHS"])
             done = traj.info["returned_episode"]
-            mean_return = jnp.sum(traj.info["returned_episode_returns"] * done) / jnp.maximum(done.sum(), 1)
+            mean_return = jnp.sum(traj.info["returned_episode_returns"] * done) / jnp.maximum(
+                done.sum(), 1
+            )
             return (state, env_state, obs, key), (mean_return, done.sum())
 
         runner = (state, env_state, obs, key)
@@ -143,23 +158,44 @@ def make_train(config: dict):
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--timesteps", type=float, default=2e5)
     parser.add_argument("--num-envs", type=int, default=16)
     parser.add_argument("--num-steps", type=int, default=128)
-    parser.add_argument("--step-minutes", type=float, default=5.0, help="minutes per step (5 = the paper's 288 steps)")
+    parser.add_argument(
+        "--step-minutes",
+        type=float,
+        default=5.0,
+        help="minutes per step (5 = the paper's 288 steps)",
+    )
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
-    config = {"LR": 3e-4, "NUM_ENVS": args.num_envs, "NUM_STEPS": args.num_steps, "TOTAL_TIMESTEPS": args.timesteps,
-              "UPDATE_EPOCHS": 4, "NUM_MINIBATCHES": 4, "GAMMA": 0.99, "GAE_LAMBDA": 0.95, "CLIP_EPS": 0.2,
-              "ENT_COEF": 0.01, "VF_COEF": 0.5, "STEP_MINUTES": args.step_minutes, "REWARD_SCALE": 0.1}
+    config = {
+        "LR": 3e-4,
+        "NUM_ENVS": args.num_envs,
+        "NUM_STEPS": args.num_steps,
+        "TOTAL_TIMESTEPS": args.timesteps,
+        "UPDATE_EPOCHS": 4,
+        "NUM_MINIBATCHES": 4,
+        "GAMMA": 0.99,
+        "GAE_LAMBDA": 0.95,
+        "CLIP_EPS": 0.2,
+        "ENT_COEF": 0.01,
+        "VF_COEF": 0.5,
+        "STEP_MINUTES": args.step_minutes,
+        "REWARD_SCALE": 0.1,
+    }
     out = jax.jit(make_train(config))(jax.random.PRNGKey(args.seed))
     returns, episodes = np.asarray(out["returns"]), np.asarray(out["episodes"])
     finished = returns[episodes > 0]
     first = float(finished[0]) if finished.size else float("nan")
     last = float(finished[-1]) if finished.size else float("nan")
-    print(f"{len(returns)} updates, {int(episodes.sum())} episodes finished; mean episode return "
-          f"(EUR, one day) first {first:.2f}, last {last:.2f}")
+    print(
+        f"{len(returns)} updates, {int(episodes.sum())} episodes finished; mean episode return "
+        f"(EUR, one day) first {first:.2f}, last {last:.2f}"
+    )
     return {"returns": returns, "episodes": episodes, "first": first, "last": last}
 
 

@@ -20,11 +20,22 @@ import multiprocessing
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--timesteps", type=int, default=2048, help="agent-steps of PPO training")
-    parser.add_argument("--num-envs", type=int, default=2, help="stations (each contributes one entry per agent)")
-    parser.add_argument("--num-cpus", type=int, default=2, help="worker processes (0: all in this process)")
-    parser.add_argument("--step-minutes", type=float, default=60.0, help="minutes per step (5 = the paper's 288 steps)")
+    parser.add_argument(
+        "--num-envs", type=int, default=2, help="stations (each contributes one entry per agent)"
+    )
+    parser.add_argument(
+        "--num-cpus", type=int, default=2, help="worker processes (0: all in this process)"
+    )
+    parser.add_argument(
+        "--step-minutes",
+        type=float,
+        default=60.0,
+        help="minutes per step (5 = the paper's 288 steps)",
+    )
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
 
@@ -37,20 +48,35 @@ def main(argv=None) -> dict:
 
     env = parallel_env(step_minutes=args.step_minutes)
     vec = ss.pettingzoo_env_to_vec_env_v1(env)
-    vec = ss.concat_vec_envs_v1(vec, args.num_envs, num_cpus=args.num_cpus, base_class="stable_baselines3")
+    vec = ss.concat_vec_envs_v1(
+        vec, args.num_envs, num_cpus=args.num_cpus, base_class="stable_baselines3"
+    )
     try:
         set_random_seed(args.seed)  # torch and numpy; SuperSuit's process vector env has no seed()
         n_steps = max(8, args.timesteps // vec.num_envs // 2)
-        model = PPO("MlpPolicy", vec, n_steps=n_steps, batch_size=n_steps * vec.num_envs // 2, n_epochs=2,
-                    verbose=0, device="cpu")
+        model = PPO(
+            "MlpPolicy",
+            vec,
+            n_steps=n_steps,
+            batch_size=n_steps * vec.num_envs // 2,
+            n_epochs=2,
+            verbose=0,
+            device="cpu",
+        )
         model.learn(total_timesteps=args.timesteps)
         rewards = model.rollout_buffer.rewards
     finally:
         vec.close()  # stops the worker processes, also on an error
-    out = {"agent_steps": int(model.num_timesteps), "mean_reward": float(rewards.mean()),
-           "num_workers": args.num_cpus, "vector_entries": int(vec.num_envs)}
-    print(f"PPO on {out['vector_entries']} agent entries ({args.num_envs} stations, {args.num_cpus} worker processes): "
-          f"{out['agent_steps']} agent-steps, mean reward per agent-step in the last rollout {out['mean_reward']:.4f}")
+    out = {
+        "agent_steps": int(model.num_timesteps),
+        "mean_reward": float(rewards.mean()),
+        "num_workers": args.num_cpus,
+        "vector_entries": int(vec.num_envs),
+    }
+    print(
+        f"PPO on {out['vector_entries']} agent entries ({args.num_envs} stations, {args.num_cpus} worker processes): "
+        f"{out['agent_steps']} agent-steps, mean reward per agent-step in the last rollout {out['mean_reward']:.4f}"
+    )
     return out
 
 

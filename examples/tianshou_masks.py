@@ -20,9 +20,13 @@ import numpy as np
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--episodes", type=int, default=2)
-    parser.add_argument("--max-cycles", type=int, default=24, help="steps per episode (288 = a whole 5-minute day)")
+    parser.add_argument(
+        "--max-cycles", type=int, default=24, help="steps per episode (288 = a whole 5-minute day)"
+    )
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
 
@@ -35,7 +39,9 @@ def main(argv=None) -> dict:
     from chargax_marl.marl import aec_env
 
     def make():
-        return PettingZooEnv(aec_env(action_mask_in_obs=True, v2g=False, max_cycles=args.max_cycles))
+        return PettingZooEnv(
+            aec_env(action_mask_in_obs=True, v2g=False, max_cycles=args.max_cycles)
+        )
 
     env = make()
     algorithms = [MARLRandomDiscreteMaskedOffPolicyAlgorithm(env.action_space) for _ in env.agents]
@@ -53,10 +59,16 @@ def main(argv=None) -> dict:
     masks = np.asarray(data.obs.mask, bool)
     chosen_valid = masks[np.arange(len(acts)), acts]
     masked_share = float(1.0 - masks.mean())
-    out = {"episodes": int(stats.n_collected_episodes), "agent_steps": int(len(acts)),
-           "masked_actions_chosen": int((~chosen_valid).sum()), "masked_share": masked_share}
-    print(f"{out['episodes']} episodes, {out['agent_steps']} agent-steps; {masked_share:.0%} of the actions "
-          f"were masked; masked actions chosen: {out['masked_actions_chosen']}")
+    out = {
+        "episodes": int(stats.n_collected_episodes),
+        "agent_steps": int(len(acts)),
+        "masked_actions_chosen": int((~chosen_valid).sum()),
+        "masked_share": masked_share,
+    }
+    print(
+        f"{out['episodes']} episodes, {out['agent_steps']} agent-steps; {masked_share:.0%} of the actions "
+        f"were masked; masked actions chosen: {out['masked_actions_chosen']}"
+    )
     return out
 
 

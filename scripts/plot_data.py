@@ -26,12 +26,28 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     written = []
     for name in ds.PRICE_DATASETS:
-        written.append(data.plot_profiles(prices=name, user_profile="shopping", fleet="EU", path=args.out / f"prices_{name}.png"))
+        written.append(
+            data.plot_profiles(
+                prices=name,
+                user_profile="shopping",
+                fleet="EU",
+                path=args.out / f"prices_{name}.png",
+            )
+        )
     for name in ds.ALL_USER_PROFILES:
         fleet = "US" if name in ds.US_USER_PROFILES else "EU"
-        written.append(data.plot_profiles(prices="NL-2023", user_profile=name, fleet=fleet, path=args.out / f"profile_{name}.png"))
+        written.append(
+            data.plot_profiles(
+                prices="NL-2023",
+                user_profile=name,
+                fleet=fleet,
+                path=args.out / f"profile_{name}.png",
+            )
+        )
     for p in written:
-        print(f"{p.relative_to(ROOT) if p.is_relative_to(ROOT) else p}  {p.stat().st_size // 1024} KB")
+        print(
+            f"{p.relative_to(ROOT) if p.is_relative_to(ROOT) else p}  {p.stat().st_size // 1024} KB"
+        )
     return 0
 
 

@@ -17,9 +17,6 @@ if os.environ.get("CI"):
     settings.load_profile("ci")
 
 
-
-
-
 @pytest.fixture(scope="session")
 def small_params():
     """A 6-port, 3-level station with a battery, busy traffic so cars come and go."""
@@ -29,7 +26,3 @@ def small_params():
 @pytest.fixture(scope="session")
 def default_params():
     return make_params()
-
-
-
-

@@ -12,9 +12,23 @@ from hypothesis import strategies as st
 from chargax_marl.core import Battery, Port, Splitter, simulator
 
 
-def place_car(state, i, *, soc=0.3, capacity_kwh=60.0, max_rate_kw=100.0, tau=0.8, remaining_kwh=20.0,
-              time_min=60.0, charge_sensitive=False, arrival_soc=None, current_a=0.0, target_soc=1.0,
-              max_discharge_rate_kw=None, earliest_min=0.0):
+def place_car(
+    state,
+    i,
+    *,
+    soc=0.3,
+    capacity_kwh=60.0,
+    max_rate_kw=100.0,
+    tau=0.8,
+    remaining_kwh=20.0,
+    time_min=60.0,
+    charge_sensitive=False,
+    arrival_soc=None,
+    current_a=0.0,
+    target_soc=1.0,
+    max_discharge_rate_kw=None,
+    earliest_min=0.0,
+):
     """Return ``state`` with a car parked at leaf ``i`` (by default it may charge to full and
     discharge at its charging rate)."""
     arrival_soc = soc if arrival_soc is None else arrival_soc
@@ -67,14 +81,19 @@ def three_level_station(ac_discharge_current_a: float = 16.0) -> Splitter:
     """grid -> {dc splitter -> 2 EVSE groups of 2 DC ports, ac splitter -> 2 AC ports, battery}."""
     dc = [Port(f"dc{i}", "DC", 500.0, 200.0, 200.0, 0.95) for i in range(4)]
     ac = [Port(f"ac{i}", "AC", 400.0, 32.0, ac_discharge_current_a, 0.97) for i in range(2)]
-    evse = [Splitter("evse0", 150.0, tuple(dc[:2]), 0.99), Splitter("evse1", 150.0, tuple(dc[2:]), 0.99)]
+    evse = [
+        Splitter("evse0", 150.0, tuple(dc[:2]), 0.99),
+        Splitter("evse1", 150.0, tuple(dc[2:]), 0.99),
+    ]
     return Splitter(
         "grid",
         220.0,
         (
             Splitter("dc_split", 200.0, tuple(evse), 0.98),
             Splitter("ac_split", 20.0, tuple(ac), 0.99),
-            Battery("bat", capacity_kwh=100.0, max_kw=50.0, efficiency=0.95, tau=0.8, initial_soc=0.5),
+            Battery(
+                "bat", capacity_kwh=100.0, max_kw=50.0, efficiency=0.95, tau=0.8, initial_soc=0.5
+            ),
         ),
     )
 
@@ -95,14 +114,26 @@ def trees(draw, max_depth=3):
     def node(depth):
         if depth >= max_depth or draw(st.booleans()) and depth > 0:
             if draw(st.integers(0, 5)) == 0:
-                return Battery(f"b{next(counter)}", capacity_kwh=draw(st.floats(10, 300)),
-                               max_kw=draw(st.floats(5, 200)), efficiency=draw(st.floats(0.8, 1.0)))
+                return Battery(
+                    f"b{next(counter)}",
+                    capacity_kwh=draw(st.floats(10, 300)),
+                    max_kw=draw(st.floats(5, 200)),
+                    efficiency=draw(st.floats(0.8, 1.0)),
+                )
             v = draw(st.sampled_from([230.0, 400.0, 500.0, 800.0]))
             i = draw(st.floats(10.0, 400.0))
-            return Port(f"p{next(counter)}", draw(st.sampled_from(["AC", "DC"])), v, i,
-                        draw(st.sampled_from([0.0, i / 2, i])), draw(st.floats(0.8, 1.0)))
+            return Port(
+                f"p{next(counter)}",
+                draw(st.sampled_from(["AC", "DC"])),
+                v,
+                i,
+                draw(st.sampled_from([0.0, i / 2, i])),
+                draw(st.floats(0.8, 1.0)),
+            )
         kids = tuple(node(depth + 1) for _ in range(draw(st.integers(1, 3))))
-        return Splitter(f"s{next(counter)}", draw(st.floats(1.0, 500.0)), kids, draw(st.floats(0.8, 1.0)))
+        return Splitter(
+            f"s{next(counter)}", draw(st.floats(1.0, 500.0)), kids, draw(st.floats(0.8, 1.0))
+        )
 
     root = node(0)
     if not isinstance(root, Splitter):
@@ -111,11 +142,23 @@ def trees(draw, max_depth=3):
     return root
 
 
-TINY_ENV = {"station": "single_type", "station_kwargs": {"num_ports": 4, "battery": True}, "step_minutes": 60.0}
+TINY_ENV = {
+    "station": "single_type",
+    "station_kwargs": {"num_ports": 4, "battery": True},
+    "step_minutes": 60.0,
+}
 
 
-TINY = {"NUM_ENVS": 4, "NUM_STEPS": 24, "NUM_MINIBATCHES": 2, "UPDATE_EPOCHS": 2, "HIDDEN": 32,
-        "TOTAL_TIMESTEPS": 4 * 24, "ENV_KWARGS": TINY_ENV, "REWARD_SCALE": 0.1}
+TINY = {
+    "NUM_ENVS": 4,
+    "NUM_STEPS": 24,
+    "NUM_MINIBATCHES": 2,
+    "UPDATE_EPOCHS": 2,
+    "HIDDEN": 32,
+    "TOTAL_TIMESTEPS": 4 * 24,
+    "ENV_KWARGS": TINY_ENV,
+    "REWARD_SCALE": 0.1,
+}
 
 
 def toml_inline(value) -> str:
@@ -127,7 +170,15 @@ def toml_inline(value) -> str:
     return json.dumps(value)
 
 
-TINY_CLI = ["--config", "cpu", "SEEDS=2", "NUM_ENVS=4", "NUM_STEPS=24", "HIDDEN=16", f"ENV_KWARGS={toml_inline(TINY_ENV)}"]
+TINY_CLI = [
+    "--config",
+    "cpu",
+    "SEEDS=2",
+    "NUM_ENVS=4",
+    "NUM_STEPS=24",
+    "HIDDEN=16",
+    f"ENV_KWARGS={toml_inline(TINY_ENV)}",
+]
 """The command line of a tiny run (add ``ALGO=``, ``TOTAL_TIMESTEPS=``, ``CHUNKS=``, ``OUT=``)."""
 
 

@@ -46,7 +46,9 @@ def _imports(name: str, path: Path, modules: dict) -> list[tuple[str, int, bool,
 
     def visit(node, in_function: bool):
         for child in ast.iter_child_nodes(node):
-            inner = in_function or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda))
+            inner = in_function or isinstance(
+                child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)
+            )
             targets = []
             if isinstance(child, ast.Import):
                 targets = [a.name for a in child.names]
@@ -56,7 +58,10 @@ def _imports(name: str, path: Path, modules: dict) -> list[tuple[str, int, bool,
                     anchor = package.split(".")[: len(package.split(".")) - child.level + 1]
                     base = ".".join(anchor + ([base] if base else []))
                 # `from pkg import module` is an edge to the module, not to the package
-                targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base for a in child.names]
+                targets = [
+                    f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base
+                    for a in child.names
+                ]
             for target in targets:
                 while target and target not in modules and "." in target:
                     target = target.rpartition(".")[0]
@@ -112,7 +117,9 @@ def _cycles(edges: dict[str, set[str]]) -> list[list[str]]:
     return out
 
 
-def _violations(graph, importer: str, forbidden: tuple[str, ...], allowed: tuple[str, ...] = ()) -> list[str]:
+def _violations(
+    graph, importer: str, forbidden: tuple[str, ...], allowed: tuple[str, ...] = ()
+) -> list[str]:
     bad = []
     for mod, imps in graph.items():
         if not (mod == importer or mod.startswith(importer + ".")):
@@ -134,11 +141,21 @@ def test_the_library_imports_nothing_from_baselines(graph):
 
 
 def test_the_trainers_import_only_config_and_the_library(graph):
-    assert _violations(graph, "baselines.algos", ("baselines",), ("baselines.algos", "baselines.config")) == []
+    assert (
+        _violations(
+            graph, "baselines.algos", ("baselines",), ("baselines.algos", "baselines.config")
+        )
+        == []
+    )
 
 
 def test_evaluation_imports_no_pipeline_cli_analysis_or_experiments(graph):
-    forbidden = ("baselines.pipeline", "baselines.train", "baselines.analysis", "baselines.experiments")
+    forbidden = (
+        "baselines.pipeline",
+        "baselines.train",
+        "baselines.analysis",
+        "baselines.experiments",
+    )
     assert _violations(graph, "baselines.eval", forbidden) == []
 
 
@@ -153,8 +170,12 @@ def test_analysis_and_experiments_are_leaves(graph):
 
 
 def test_imports_sit_at_module_level(graph):
-    deferred = [f"{mod}:{line}: {text.strip()}" for mod, imps in graph.items()
-                for _, line, inside, text in imps if inside and "optional" not in text]
+    deferred = [
+        f"{mod}:{line}: {text.strip()}"
+        for mod, imps in graph.items()
+        for _, line, inside, text in imps
+        if inside and "optional" not in text
+    ]
     assert deferred == []
 
 

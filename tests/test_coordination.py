@@ -28,23 +28,36 @@ DEFAULT_ROOT_CHILDREN_KW = 750.0 + 34.5 + 100.0  # DC cable + AC cable + battery
 
 
 def one_port_station(port_kw=50.0, root_kw=1000.0):
-    port = Port("p0", kind="DC", voltage_v=500.0, max_current_a=port_kw * 2.0, max_discharge_current_a=0.0)
+    port = Port(
+        "p0", kind="DC", voltage_v=500.0, max_current_a=port_kw * 2.0, max_discharge_current_a=0.0
+    )
     return Splitter("grid", max_kw=root_kw, children=(port,), efficiency=1.0)
 
 
 def flat_params(station, price=0.10, **kw):
     prices = np.full((2, 24), price, np.float32)
-    return make_params(station=station, prices=prices, grid_fee_eur_kwh=0.0, fixed_cost_eur=0.0,
-                       customer_price_eur_kwh=0.75, **kw)
+    return make_params(
+        station=station,
+        prices=prices,
+        grid_fee_eur_kwh=0.0,
+        fixed_cost_eur=0.0,
+        customer_price_eur_kwh=0.75,
+        **kw,
+    )
 
 
 # --------------------------------------------------------------------------- grid fraction
 
+
 def test_grid_fraction_sets_the_root_to_a_fraction_of_its_children():
     for f in (0.1, 0.25, 1.0):
         p = make_params(grid_fraction=f)
-        assert float(p.station.node_max_kw[0]) == pytest.approx(f * DEFAULT_ROOT_CHILDREN_KW, rel=1e-6)
-        np.testing.assert_array_equal(np.asarray(p.station.node_max_kw[1:]), np.asarray(make_params().station.node_max_kw[1:]))
+        assert float(p.station.node_max_kw[0]) == pytest.approx(
+            f * DEFAULT_ROOT_CHILDREN_KW, rel=1e-6
+        )
+        np.testing.assert_array_equal(
+            np.asarray(p.station.node_max_kw[1:]), np.asarray(make_params().station.node_max_kw[1:])
+        )
     # a custom tree: the root's children are one 50 kW port
     p = make_params(station=one_port_station(), grid_fraction=0.5)
     assert float(p.station.node_max_kw[0]) == pytest.approx(25.0)
@@ -67,6 +80,7 @@ def test_grid_fraction_and_grid_kw_together_are_refused():
 
 # --------------------------------------------------------------------------- time of use
 
+
 def test_tou_surcharge_is_added_to_the_buy_price_by_hour():
     p = make_params(tou_fee_eur_kwh="evening-peak")
     spot = np.asarray(p.prices_eur_kwh)
@@ -77,16 +91,26 @@ def test_tou_surcharge_is_added_to_the_buy_price_by_hour():
         assert float(buy) == pytest.approx(spot[3, hour] + fee + extra, rel=1e-6)
         assert float(sell) == pytest.approx(spot[3, hour], rel=1e-6)  # feed-in is not surcharged
     # the observed prices are the buy-side prices less the flat grid fee
-    ctx = np.asarray(observation.context_features(start(p, day=3).replace(timestep=jnp.int32(16 * 12)), p))
+    ctx = np.asarray(
+        observation.context_features(start(p, day=3).replace(timestep=jnp.int32(16 * 12)), p)
+    )
     assert ctx[1] * observation.PRICE_SCALE_EUR_KWH == pytest.approx(spot[3, 17] + 0.12, rel=1e-5)
     # the battery's terminal value includes the day's mean surcharge
     mean_buy = spot[3].mean() + fee + 4 * 0.12 / 24
-    assert float(reward_lib.day_mean_buy_price(jnp.int32(3), p)) == pytest.approx(mean_buy, rel=1e-5)
+    assert float(reward_lib.day_mean_buy_price(jnp.int32(3), p)) == pytest.approx(
+        mean_buy, rel=1e-5
+    )
 
 
-@pytest.mark.parametrize("bad, match", [("rush-hour", "evening-peak"), (np.zeros(23), r"shape \(24,\)"),
-                                         ([0.0] * 23 + [float("nan")], r"tou_fee_eur_kwh\[23\]"),
-                                         ([0.0] * 23 + [5e3], r"tou_fee_eur_kwh\[23\]")])
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        ("rush-hour", "evening-peak"),
+        (np.zeros(23), r"shape \(24,\)"),
+        ([0.0] * 23 + [float("nan")], r"tou_fee_eur_kwh\[23\]"),
+        ([0.0] * 23 + [5e3], r"tou_fee_eur_kwh\[23\]"),
+    ],
+)
 def test_bad_tou_surcharge_names_the_field(bad, match):
     with pytest.raises(ValueError, match=match):
         make_params(tou_fee_eur_kwh=bad)
@@ -94,12 +118,21 @@ def test_bad_tou_surcharge_names_the_field(bad, match):
 
 # --------------------------------------------------------------------------- peak demand
 
+
 def test_peak_charge_by_hand_booked_at_the_end_of_the_day():
     rate = 0.5
     p = no_arrivals(flat_params(one_port_station(), step_minutes=360.0, peak_demand_eur_kw=rate))
     assert p.num_steps == 4
-    s = place_car(start(p), 0, soc=0.0, capacity_kwh=1000.0, max_rate_kw=50.0, tau=1.0, remaining_kwh=1000.0,
-                  time_min=1440.0)
+    s = place_car(
+        start(p),
+        0,
+        soc=0.0,
+        capacity_kwh=1000.0,
+        max_rate_kw=50.0,
+        tau=1.0,
+        remaining_kwh=1000.0,
+        time_min=1440.0,
+    )
     levels = [10, 4, 0, 2]  # 50 kW, 20 kW, idle, 10 kW for 6 hours each
     charges, profits = [], []
     for t, lv in enumerate(levels):
@@ -122,9 +155,14 @@ def test_incremental_booking_has_the_same_daily_total_and_shares_add_up():
         def body(s, k):
             s, info = simulator.step(k, s, policies.battery_rule(s, None, p), p)
             return s, info
-        return jax.lax.scan(body, simulator.empty_state(jnp.int32(10), p), jax.random.split(KEY, p.num_steps))
 
-    (end_b, info_b), (end_i, info_i), (end_f, _) = jax.jit(lambda: (day(base), day(inc), day(free)))()
+        return jax.lax.scan(
+            body, simulator.empty_state(jnp.int32(10), p), jax.random.split(KEY, p.num_steps)
+        )
+
+    (end_b, info_b), (end_i, info_i), (end_f, _) = jax.jit(
+        lambda: (day(base), day(inc), day(free))
+    )()
     peak = float(np.max(np.maximum(np.asarray(info_b.grid_net_kwh), 0.0)) / base.step_hours)
     assert float(end_b.totals.peak_grid_kw) == pytest.approx(peak, rel=1e-5)
     assert float(end_b.totals.peak_demand_charge_eur) == pytest.approx(0.2 * peak, rel=1e-5)
@@ -133,14 +171,22 @@ def test_incremental_booking_has_the_same_daily_total_and_shares_add_up():
     assert np.all(np.asarray(info_i.peak_demand_charge_eur) >= 0.0)
     assert np.count_nonzero(np.asarray(info_i.peak_demand_charge_eur)) > 1
     # the same cars and actions: the charge is the only difference in profit
-    assert float(end_f.totals.profit_eur - end_b.totals.profit_eur) == pytest.approx(0.2 * peak, rel=1e-4)
-    np.testing.assert_allclose(np.asarray(info_i.leaf_reward).sum(axis=1), np.asarray(info_i.reward),
-                               rtol=1e-5, atol=1e-3)
+    assert float(end_f.totals.profit_eur - end_b.totals.profit_eur) == pytest.approx(
+        0.2 * peak, rel=1e-4
+    )
+    np.testing.assert_allclose(
+        np.asarray(info_i.leaf_reward).sum(axis=1), np.asarray(info_i.reward), rtol=1e-5, atol=1e-3
+    )
 
 
-@pytest.mark.parametrize("rate, booking, match", [(-1.0, "end_of_day", "peak_demand_eur_kw"),
-                                                  (float("inf"), "end_of_day", "peak_demand_eur_kw"),
-                                                  (0.1, "monthly", "peak_demand_booking")])
+@pytest.mark.parametrize(
+    "rate, booking, match",
+    [
+        (-1.0, "end_of_day", "peak_demand_eur_kw"),
+        (float("inf"), "end_of_day", "peak_demand_eur_kw"),
+        (0.1, "monthly", "peak_demand_booking"),
+    ],
+)
 def test_bad_peak_settings_name_the_field(rate, booking, match):
     with pytest.raises(ValueError, match=match):
         make_params(peak_demand_eur_kw=rate, peak_demand_booking=booking)
@@ -151,25 +197,49 @@ def test_lp_prices_the_peak_by_hand():
     # charge to the lowest peak, 30 kW; the peak already paid for today is sunk
     p = flat_params(one_port_station())
     one = lambda v: np.asarray([v])  # noqa: E731
-    sessions = Sessions(leaf=one(0), first=one(0), last=one(11), soc0=one(0.2), reserve_soc=one(0.2),
-                        target_soc=one(0.5), capacity_kwh=one(100.0), max_rate_kw=one(50.0),
-                        max_discharge_rate_kw=one(0.0), tau=one(1.0), must_reach=one(True),
-                        charge_sensitive=one(False))
+    sessions = Sessions(
+        leaf=one(0),
+        first=one(0),
+        last=one(11),
+        soc0=one(0.2),
+        reserve_soc=one(0.2),
+        target_soc=one(0.5),
+        capacity_kwh=one(100.0),
+        max_rate_kw=one(50.0),
+        max_discharge_rate_kw=one(0.0),
+        tau=one(1.0),
+        must_reach=one(True),
+        charge_sensitive=one(False),
+    )
     limits = StationLimits.of(p)
 
     def value(**peak):
-        econ = Economics(buy=np.full(12, 0.10), sell=np.full(12, 0.10), customer=0.75, battery_value=0.0,
-                         step_hours=p.step_hours, **peak)
+        econ = Economics(
+            buy=np.full(12, 0.10),
+            sell=np.full(12, 0.10),
+            customer=0.75,
+            battery_value=0.0,
+            step_hours=p.step_hours,
+            **peak,
+        )
         return build_and_solve(sessions, 12, limits, econ).value_eur
 
     assert value() == pytest.approx(0.65 * 30.0, rel=1e-3)
     assert value(peak_eur_kw=0.5) == pytest.approx(0.65 * 30.0 - 0.5 * 30.0, rel=1e-3)
-    assert value(peak_eur_kw=0.5, peak_so_far_kw=40.0) == pytest.approx(0.65 * 30.0 - 0.5 * 40.0, rel=1e-3)
+    assert value(peak_eur_kw=0.5, peak_so_far_kw=40.0) == pytest.approx(
+        0.65 * 30.0 - 0.5 * 40.0, rel=1e-3
+    )
 
 
 def test_bound_is_above_the_policies_with_tou_and_peak_charge():
-    p = make_params(station="multiple_types", station_kwargs={"num_dc": 4, "num_ac": 2}, traffic="high",
-                    tou_fee_eur_kwh="evening-peak", peak_demand_eur_kw=0.3, grid_fraction=0.5)
+    p = make_params(
+        station="multiple_types",
+        station_kwargs={"num_dc": 4, "num_ac": 2},
+        traffic="high",
+        tou_fee_eur_kwh="evening-peak",
+        peak_demand_eur_kw=0.3,
+        grid_fraction=0.5,
+    )
     traces = trace_lib.make_traces(p, np.array([4, 40]), KEY)
     for i in range(2):
         tr = trace_lib.day_of(traces, i)
@@ -181,6 +251,7 @@ def test_bound_is_above_the_policies_with_tou_and_peak_charge():
 
 # --------------------------------------------------------------------------- observations
 
+
 def test_context_features_for_coordination():
     p = make_params(tou_fee_eur_kwh="day-night", grid_fraction=0.5)
     h = p.price_horizon_hours + 1
@@ -189,8 +260,13 @@ def test_context_features_for_coordination():
     ctx = lambda st: np.asarray(observation.context_features(st, p))  # noqa: E731
     assert ctx(s)[base] == pytest.approx(1.0)  # a whole hour before the price changes
     assert ctx(s.replace(timestep=jnp.int32(6)))[base] == pytest.approx(0.5)
-    q = np.quantile(np.asarray(p.prices_eur_kwh[7], np.float64) + np.asarray(p.tou_fee_eur_kwh), observation.PRICE_QUANTILES)
-    np.testing.assert_allclose(ctx(s)[base + 1:base + 6] * observation.PRICE_SCALE_EUR_KWH, q, rtol=1e-5)
+    q = np.quantile(
+        np.asarray(p.prices_eur_kwh[7], np.float64) + np.asarray(p.tou_fee_eur_kwh),
+        observation.PRICE_QUANTILES,
+    )
+    np.testing.assert_allclose(
+        ctx(s)[base + 1 : base + 6] * observation.PRICE_SCALE_EUR_KWH, q, rtol=1e-5
+    )
     # grid-connection load from the currents, and the day's peak so far, over the root's limit
     root = float(p.station.node_max_kw[0])
     s2 = place_car(s, 0, current_a=200.0)  # 100 kW at 500 V
@@ -219,6 +295,7 @@ def test_observations_stay_in_their_bounds_on_a_peak_scenario():
 
 # --------------------------------------------------------------------------- named scenarios
 
+
 def test_named_scenarios_in_both_views():
     for name in COORDINATION_SCENARIOS:  # each makes the ports share a scarce or priced resource
         kw = SCENARIOS[name]
@@ -230,7 +307,9 @@ def test_named_scenarios_in_both_views():
     _, peak = make("shopping-peak")
     assert float(peak.peak_demand_eur_kw) == pytest.approx(tariffs.DEFAULT_PEAK_DEMAND_EUR_KW)
     assert float(np.max(peak.tou_fee_eur_kwh)) == pytest.approx(0.12)
-    over = ChargaxMARL(scenario="shopping-peak", peak_demand_eur_kw=0.3)  # keywords override the scenario
+    over = ChargaxMARL(
+        scenario="shopping-peak", peak_demand_eur_kw=0.3
+    )  # keywords override the scenario
     assert float(over.params.peak_demand_eur_kw) == pytest.approx(0.3)
     with pytest.raises(KeyError, match="unknown scenario 'shopping-grid5'"):
         ChargaxMARL(scenario="shopping-grid5")
@@ -258,7 +337,9 @@ def test_fingerprint_changes_with_the_random_stream(monkeypatch):
     before = trace_lib.params_fingerprint(p)
     monkeypatch.setattr(rng, "STREAM_VERSION", rng.STREAM_VERSION + 1)
     assert trace_lib.params_fingerprint(p) != before
-    assert trace_lib.params_fingerprint(make_params(peak_demand_eur_kw=0.1)) != trace_lib.params_fingerprint(p)
+    assert trace_lib.params_fingerprint(
+        make_params(peak_demand_eur_kw=0.1)
+    ) != trace_lib.params_fingerprint(p)
 
 
 def test_baselines_keep_a_named_scenarios_traffic():
@@ -268,7 +349,9 @@ def test_baselines_keep_a_named_scenarios_traffic():
 
     config = resolve({"SCENARIO": "shopping-grid10-high"})
     _, full, _, _ = build_env_params(config)
-    assert float(full.arrival_rate.sum()) == pytest.approx(float(make_params(traffic="high").arrival_rate.sum()))
+    assert float(full.arrival_rate.sum()) == pytest.approx(
+        float(make_params(traffic="high").arrival_rate.sum())
+    )
     params, _ = scenario_params("grid10_high")
     assert float(params.arrival_rate.sum()) == pytest.approx(float(full.arrival_rate.sum()))
     medium = build_env_params(resolve({"SCENARIO": "shopping-grid10-high", "TRAFFIC": "medium"}))[1]

@@ -31,13 +31,18 @@ def trajectories(params):
     """One day per policy: the levels chosen and the leaf energies that flowed."""
     out = {}
     for name, policy in POLICIES.items():
+
         def body(state, k, policy=policy):
             k1, k2 = jax.random.split(k)
             levels = policy(state, k1, params)
             new, info = simulator.step(k2, state, levels, params)
             return new, (levels, info.leaf_energy_kwh, info.requested_excess_kw)
-        _, out[name] = jax.jit(lambda k: jax.lax.scan(body, simulator.empty_state(jnp.asarray(3), params),
-                                                         jax.random.split(k, 288)))(jax.random.PRNGKey(0))
+
+        _, out[name] = jax.jit(
+            lambda k: jax.lax.scan(
+                body, simulator.empty_state(jnp.asarray(3), params), jax.random.split(k, 288)
+            )
+        )(jax.random.PRNGKey(0))
     return out
 
 
@@ -46,10 +51,16 @@ def test_policies_choose_valid_levels_and_hold_node_limits(name, params, traject
     levels, energy, excess = (np.asarray(x) for x in trajectories[name])
     low = np.asarray(leaf_min_level(params.station, params.num_levels, params.v2g))
     assert np.all(levels >= low) and np.all(levels <= params.num_levels)
-    flows = np.asarray(jax.vmap(lambda e: node_flows_kw(e / params.step_hours, params.station))(jnp.asarray(energy)))
+    flows = np.asarray(
+        jax.vmap(lambda e: node_flows_kw(e / params.step_hours, params.station))(
+            jnp.asarray(energy)
+        )
+    )
     assert np.all(flows <= np.asarray(params.station.node_max_kw) * (1 + 1e-4) + 1e-3)
     if name in ("edf", "llf"):
-        assert np.all(excess <= 1e-3), "deadline policies plan within the grid-side node limits: nothing to rescale"
+        assert np.all(excess <= 1e-3), (
+            "deadline policies plan within the grid-side node limits: nothing to rescale"
+        )
     if name == "always_max":
         assert np.all(levels[:, :6] == 10) and np.all(levels[:, 6] == 0)
 
@@ -59,19 +70,36 @@ def test_deadline_policies_bring_a_car_close_to_its_target_home(name, params):
     """A car 1 kWh short of its target needs less than one level for a step: the level is
     rounded up (the car's target clips it), so it finishes and leaves instead of stalling."""
     p = no_arrivals(params)
-    s = place_car(start(p), 0, soc=0.49, capacity_kwh=100.0, max_rate_kw=50.0, target_soc=0.5,
-                  remaining_kwh=1.0, time_min=600.0, charge_sensitive=True)
+    s = place_car(
+        start(p),
+        0,
+        soc=0.49,
+        capacity_kwh=100.0,
+        max_rate_kw=50.0,
+        target_soc=0.5,
+        remaining_kwh=1.0,
+        time_min=600.0,
+        charge_sensitive=True,
+    )
     lv = get_policy(name)(s, None, p)
     assert int(lv[0]) >= 1
     _, info = simulator.step(jax.random.PRNGKey(0), s, lv, p)
-    assert float(info.cars_departed) == 1 and float(info.energy_delivered_kwh) == pytest.approx(1.0, rel=1e-4)
+    assert float(info.cars_departed) == 1 and float(info.energy_delivered_kwh) == pytest.approx(
+        1.0, rel=1e-4
+    )
 
 
 def test_battery_rule_is_always_max_plus_a_price_rule_for_the_battery():
-    p = make_params(station=three_level_station(), prices=np.tile(np.arange(24.0) / 100.0, (3, 1)), first_weekday=0)
+    p = make_params(
+        station=three_level_station(),
+        prices=np.tile(np.arange(24.0) / 100.0, (3, 1)),
+        first_weekday=0,
+    )
     s = start(p)
-    night, noon, evening = (np.asarray(get_policy("battery_rule")(s.replace(timestep=jnp.asarray(t)), None, p))
-                            for t in (12, 144, 276))  # hours 1, 12, 23
+    night, noon, evening = (
+        np.asarray(get_policy("battery_rule")(s.replace(timestep=jnp.asarray(t)), None, p))
+        for t in (12, 144, 276)
+    )  # hours 1, 12, 23
     for lv in (night, noon, evening):
         assert np.all(lv[:6] == 10)
     assert night[6] == 10 and noon[6] == 0 and evening[6] == -10
@@ -89,7 +117,15 @@ def test_price_threshold_charges_fully_when_cheap_and_minimally_otherwise():
     p = no_arrivals(make_params(station=three_level_station()))
     prices = np.tile(np.arange(24, dtype=np.float32) / 100.0, (p.num_days, 1))  # cheapest at night
     p = p.replace(prices_eur_kwh=jnp.asarray(prices))
-    s = place_car(start(p), 0, soc=0.2, capacity_kwh=100.0, max_rate_kw=150.0, remaining_kwh=20.0, time_min=245.0)
+    s = place_car(
+        start(p),
+        0,
+        soc=0.2,
+        capacity_kwh=100.0,
+        max_rate_kw=150.0,
+        remaining_kwh=20.0,
+        time_min=245.0,
+    )
     cheap = np.asarray(price_threshold(s.replace(timestep=jnp.asarray(12)), None, p))  # 01:00
     dear = np.asarray(price_threshold(s.replace(timestep=jnp.asarray(240)), None, p))  # 20:00
     assert cheap[0] == 10 and cheap[6] == 10  # car and battery charge fully
@@ -102,8 +138,12 @@ def test_edf_serves_the_earliest_deadline_first_on_a_tight_node():
     p = no_arrivals(make_params(station=three_level_station()))
     s = start(p)
     # evse0 (150 kW / 0.99) holds dc0 and dc1: dc1 leaves first and gets its full 100 kW.
-    s = place_car(s, 0, soc=0.2, capacity_kwh=100.0, max_rate_kw=150.0, remaining_kwh=50.0, time_min=300.0)
-    s = place_car(s, 1, soc=0.2, capacity_kwh=100.0, max_rate_kw=150.0, remaining_kwh=50.0, time_min=30.0)
+    s = place_car(
+        s, 0, soc=0.2, capacity_kwh=100.0, max_rate_kw=150.0, remaining_kwh=50.0, time_min=300.0
+    )
+    s = place_car(
+        s, 1, soc=0.2, capacity_kwh=100.0, max_rate_kw=150.0, remaining_kwh=50.0, time_min=30.0
+    )
     lv = np.asarray(get_policy("edf")(s, None, p))
     assert lv[1] == 10 and lv[0] == 4  # 150*0.99 - 100 = 48.5 kW left -> 4 levels of 10 kW
 
@@ -118,10 +158,16 @@ def test_evaluation_of_always_max_equals_a_hand_rolled_rollout(params):
         state = simulator.empty_state(jnp.asarray(d), params)
         for kk in jax.random.split(k, params.num_steps):
             k_act, k_step = jax.random.split(kk)
-            state, info = jax.jit(simulator.step)(k_step, state, POLICIES["always_max"](state, k_act, params), params)
+            state, info = jax.jit(simulator.step)(
+                k_step, state, POLICIES["always_max"](state, k_act, params), params
+            )
         profits.append(float(state.totals.profit_eur))
-    assert result["metrics"]["daily_profit_eur"]["mean"] == pytest.approx(np.mean(profits), rel=1e-5)
-    assert result["metrics"]["daily_profit_eur"]["std"] == pytest.approx(np.std(profits), rel=1e-4, abs=1e-3)
+    assert result["metrics"]["daily_profit_eur"]["mean"] == pytest.approx(
+        np.mean(profits), rel=1e-5
+    )
+    assert result["metrics"]["daily_profit_eur"]["std"] == pytest.approx(
+        np.std(profits), rel=1e-4, abs=1e-3
+    )
     assert result["days"] == [0, 5, 17]
 
 
@@ -136,7 +182,12 @@ def test_split_days_and_json(tmp_path, params):
     assert set(days) <= set(train.tolist())
     with pytest.raises(ValueError, match="reset_days"):
         make_params(reset_days=[400])
-    totals = run_days(lambda s, k: POLICIES["always_max"](s, k, params), params, jnp.array([1, 2]), jax.random.PRNGKey(0))
+    totals = run_days(
+        lambda s, k: POLICIES["always_max"](s, k, params),
+        params,
+        jnp.array([1, 2]),
+        jax.random.PRNGKey(0),
+    )
     path = write_json({"always_max": summarize(totals)}, tmp_path / "out" / "eval.json")
     assert "daily_profit_eur" in path.read_text()
 
@@ -148,7 +199,9 @@ def test_for_single_maps_levels_to_env_actions():
     _, state = env.reset(jax.random.PRNGKey(0), p)
     a = np.asarray(act(state, jax.random.PRNGKey(1)))
     assert bool(env.action_space(p).contains(jnp.asarray(a)))
-    np.testing.assert_array_equal(np.asarray(env.action_to_levels(jnp.asarray(a), p)), [10] * 6 + [0])
+    np.testing.assert_array_equal(
+        np.asarray(env.action_to_levels(jnp.asarray(a), p)), [10] * 6 + [0]
+    )
 
 
 def test_a_node_bound_car_that_rounds_to_idle_leaves_its_power_to_the_next():
@@ -158,11 +211,19 @@ def test_a_node_bound_car_that_rounds_to_idle_leaves_its_power_to_the_next():
     on evse1) then still fits under dc_split, which dc0's unused grant had used up before."""
     p = no_arrivals(make_params(station=three_level_station(), num_levels=1))
     s = start(p)
-    s = place_car(s, 1, soc=0.2, capacity_kwh=100.0, max_rate_kw=150.0, remaining_kwh=50.0, time_min=30.0)
-    s = place_car(s, 0, soc=0.2, capacity_kwh=100.0, max_rate_kw=150.0, remaining_kwh=50.0, time_min=60.0)
-    s = place_car(s, 2, soc=0.2, capacity_kwh=100.0, max_rate_kw=50.0, remaining_kwh=50.0, time_min=300.0)
+    s = place_car(
+        s, 1, soc=0.2, capacity_kwh=100.0, max_rate_kw=150.0, remaining_kwh=50.0, time_min=30.0
+    )
+    s = place_car(
+        s, 0, soc=0.2, capacity_kwh=100.0, max_rate_kw=150.0, remaining_kwh=50.0, time_min=60.0
+    )
+    s = place_car(
+        s, 2, soc=0.2, capacity_kwh=100.0, max_rate_kw=50.0, remaining_kwh=50.0, time_min=300.0
+    )
     for name in ("edf", "llf"):
         lv = np.asarray(get_policy(name)(s, None, p))
         assert lv[1] == 1 and lv[0] == 0 and lv[2] == 1, (name, lv)
         _, info = simulator.step(jax.random.PRNGKey(0), s, jnp.asarray(lv), p)
-        assert float(info.requested_excess_kw) <= 1e-3  # planned within the limits: nothing to rescale
+        assert (
+            float(info.requested_excess_kw) <= 1e-3
+        )  # planned within the limits: nothing to rescale

@@ -31,13 +31,16 @@ def marl(params):
 def tree_equal(a, b) -> bool:
     """Same structure and values: integer and bool leaves exactly, floats to float32 rounding
     (eager and jitted runs of the same computation may differ in the last bit)."""
+
     def same(x, y):
         x, y = np.asarray(x), np.asarray(y)
         if np.issubdtype(x.dtype, np.floating):
             return x.dtype == y.dtype and np.allclose(x, y, rtol=1e-6, atol=1e-6)
         return np.array_equal(x, y)
+
     return jax.tree.structure(a) == jax.tree.structure(b) and all(
-        same(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)))
+        same(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b))
+    )
 
 
 def assert_close(x, y, msg=""):
@@ -135,8 +138,9 @@ def test_step_arrays_is_the_dict_step(params, marl):
     state = last_step_state(params)
     acts = {a: i % marl.num_actions for i, a in enumerate(marl.agents)}
     indices = marl.stack_actions(acts)
-    obs, got, rewards, done, info = marl_env.step_arrays(KEY, state, indices, params,
-                                                        marl.action_offset, auto_reset=True)
+    obs, got, rewards, done, info = marl_env.step_arrays(
+        KEY, state, indices, params, marl.action_offset, auto_reset=True
+    )
     d_obs, d_state, d_rewards, d_dones, d_infos = marl.step(KEY, state, acts)
     assert tree_equal(got, d_state) and bool(done) == bool(d_dones["__all__"])
     assert_close(obs, jnp.stack([d_obs[a] for a in marl.agents]))
@@ -173,9 +177,13 @@ def test_missing_or_unknown_agent_is_one_value_error_everywhere(params, marl):
             assert exc.type is ValueError, name  # not a KeyError, whichever the entry point
 
 
-@pytest.mark.parametrize("value, pattern", [
-    ("2", r"port_1.*'2'.*numbers"), (np.zeros(2, np.int32), r"port_1.*shape \(2,\)"),
-])
+@pytest.mark.parametrize(
+    "value, pattern",
+    [
+        ("2", r"port_1.*'2'.*numbers"),
+        (np.zeros(2, np.int32), r"port_1.*shape \(2,\)"),
+    ],
+)
 def test_bad_values_are_value_errors_in_both_modes(marl, value, pattern):
     acts = dict({a: 0 for a in marl.agents}, port_1=value)
     for strict in (False, True):

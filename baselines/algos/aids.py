@@ -18,7 +18,9 @@ def port_shaping_mode(config: dict) -> str:
     mode = config.get("PORT_SHAPING", "off")
     mode = "off" if mode in (None, False) else mode
     if mode not in PORT_SHAPING_MODES:
-        raise ValueError(f"PORT_SHAPING must be one of {PORT_SHAPING_MODES}, got {config.get('PORT_SHAPING')!r}")
+        raise ValueError(
+            f"PORT_SHAPING must be one of {PORT_SHAPING_MODES}, got {config.get('PORT_SHAPING')!r}"
+        )
     return mode
 
 
@@ -37,7 +39,11 @@ def shaping_mode(config: dict) -> str:
     """``BATTERY_SHAPING`` as one of :data:`SHAPING_MODES` (``False`` / ``True`` are ``"off"`` /
     ``"day_mean"``)."""
     v = config.get("BATTERY_SHAPING", False)
-    mode = {False: "off", True: "day_mean", None: "off"}.get(v, v) if isinstance(v, (bool, type(None))) else v
+    mode = (
+        {False: "off", True: "day_mean", None: "off"}.get(v, v)
+        if isinstance(v, (bool, type(None)))
+        else v
+    )
     if mode not in SHAPING_MODES:
         raise ValueError(f"BATTERY_SHAPING must be a bool or one of {SHAPING_MODES}, got {v!r}")
     return mode

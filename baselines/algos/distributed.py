@@ -30,12 +30,19 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The command-line flags of a multi-process run (``--distributed``, ``--coordinator``,
     ``--num-processes``, ``--process-id``)."""
-    d = parser.add_argument_group("multi-process (multi-host) training, see baselines/algos/distributed.py")
-    d.add_argument("--distributed", action="store_true",
-                   help="call jax.distributed.initialize() first (implied by --coordinator); without "
-                        "--coordinator JAX detects the cluster (SLURM, Open MPI, ...). Every process runs "
-                        "the same command; only process 0 writes --out")
-    d.add_argument("--coordinator", default=None, help="HOST:PORT of process 0's coordinator service")
+    d = parser.add_argument_group(
+        "multi-process (multi-host) training, see baselines/algos/distributed.py"
+    )
+    d.add_argument(
+        "--distributed",
+        action="store_true",
+        help="call jax.distributed.initialize() first (implied by --coordinator); without "
+        "--coordinator JAX detects the cluster (SLURM, Open MPI, ...). Every process runs "
+        "the same command; only process 0 writes --out",
+    )
+    d.add_argument(
+        "--coordinator", default=None, help="HOST:PORT of process 0's coordinator service"
+    )
     d.add_argument("--num-processes", type=int, default=None)
     d.add_argument("--process-id", type=int, default=None)
 
@@ -55,16 +62,20 @@ def initialize_from_argv(argv=None) -> bool:
     return True
 
 
-def initialize(coordinator_address: str | None = None, num_processes: int | None = None,
-               process_id: int | None = None) -> None:
+def initialize(
+    coordinator_address: str | None = None,
+    num_processes: int | None = None,
+    process_id: int | None = None,
+) -> None:
     """``jax.distributed.initialize`` with CPU collectives switched on (gloo) so that CPU-only
     processes can run cross-process programs. With no arguments JAX detects the cluster
     (SLURM, Open MPI, Kubernetes, Cloud TPU, ...). Must run before any JAX computation,
     which includes importing :mod:`baselines.common` (gymnax builds arrays at import)."""
     if jax.config.jax_cpu_collectives_implementation in (None, "", "none"):
         jax.config.update("jax_cpu_collectives_implementation", "gloo")
-    jax.distributed.initialize(coordinator_address=coordinator_address, num_processes=num_processes,
-                               process_id=process_id)
+    jax.distributed.initialize(
+        coordinator_address=coordinator_address, num_processes=num_processes, process_id=process_id
+    )
 
 
 def is_main() -> bool:
@@ -81,7 +92,9 @@ def replicate(x, mesh=None):
     mesh = Mesh(np.asarray(jax.devices()), ("all",)) if mesh is None else mesh
     typed = jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
     local = np.asarray(jax.random.key_data(x) if typed else x)
-    out = jax.make_array_from_process_local_data(NamedSharding(mesh, PartitionSpec()), local, local.shape)
+    out = jax.make_array_from_process_local_data(
+        NamedSharding(mesh, PartitionSpec()), local, local.shape
+    )
     return jax.random.wrap_key_data(out) if typed else out
 
 
@@ -89,6 +102,7 @@ def to_host(tree):
     """Every array leaf as a NumPy array on this process: a replicated leaf from this process's
     own copy, a leaf split across processes gathered from all of them (a collective: every
     process must call it)."""
+
     def leaf(x):
         if not isinstance(x, jax.Array) or x.is_fully_addressable:
             return np.asarray(x)

@@ -62,8 +62,12 @@ class RunnerState(NamedTuple):
     update: jnp.ndarray
 
 
-INFO_KEYS = ("returned_episode", "returned_episode_returns", "returned_episode_profit_eur",
-             "returned_episode_energy_delivered_kwh")
+INFO_KEYS = (
+    "returned_episode",
+    "returned_episode_returns",
+    "returned_episode_profit_eur",
+    "returned_episode_energy_delivered_kwh",
+)
 
 # MAPPO: every agent of an env sees the same world state, so the centralised critic runs once
 # per (step, env) and its value is shared by the env's agents, in the rollout and in the
@@ -112,10 +116,10 @@ class SharedPolicy:
         # day's range, (p - median) / (q80 - q20), appended to the actor's and the critic's input.
         self.relative = None
         if config["RELATIVE_PRICES"]:  # the context sits just before the agent index
-
             id_width = int(np.shape(env._layout.agent_id)[1])
-            self.relative = prices.relative_price_columns(env.params, env.obs_size - id_width
-                                                          - context_size(env.params))
+            self.relative = prices.relative_price_columns(
+                env.params, env.obs_size - id_width - context_size(env.params)
+            )
         # the critic reads the same features when it reads the agent's own observation (IPPO)
         self.critic_features = self.relative is not None and not centralised_critic
         # PLAN_OBS: each agent's observation ends with its leaf's plan advice
@@ -136,15 +140,19 @@ class SharedPolicy:
         core state ``core`` appended; unchanged when ``PLAN_OBS`` is off."""
         if self.plan is None:
             return obs_matrix
-        return jnp.concatenate([obs_matrix, car_plan.batched(self.plan, core)(core)[..., None]], axis=-1)
+        return jnp.concatenate(
+            [obs_matrix, car_plan.batched(self.plan, core)(core)[..., None]], axis=-1
+        )
 
     def features(self, obs):
         return prices.with_relative_prices(obs, self.relative)
 
     def init(self, key):
         ka, kc, kba, kbc = jax.random.split(key, 4)
-        params = {"actor": self.actor.init(ka, jnp.zeros((self.obs_dim,))),
-                  "critic": self.critic.init(kc, jnp.zeros((self.critic_dim,)))}
+        params = {
+            "actor": self.actor.init(ka, jnp.zeros((self.obs_dim,))),
+            "critic": self.critic.init(kc, jnp.zeros((self.critic_dim,))),
+        }
         if self.battery_net:
             params["battery_actor"] = self.actor.init(kba, jnp.zeros((self.obs_dim,)))
         if self.battery_critic:
@@ -152,24 +160,31 @@ class SharedPolicy:
         return params
 
     def is_battery(self, obs):
-        return obs[..., self.battery_col:self.battery_col + 1]
+        return obs[..., self.battery_col : self.battery_col + 1]
 
     def logits(self, params, obs, avail):
         x = self.features(obs)
         logits = self.actor.apply(params["actor"], x)
         if self.battery_net:
-            logits = jnp.where(self.is_battery(obs) > 0.5, self.actor.apply(params["battery_actor"], x), logits)
+            logits = jnp.where(
+                self.is_battery(obs) > 0.5, self.actor.apply(params["battery_actor"], x), logits
+            )
         if self.port_offset.any() or self.battery_offset.any():
             is_battery = self.is_battery(obs)
-            logits = logits + (1.0 - is_battery) * self.port_offset + is_battery * self.battery_offset
+            logits = (
+                logits + (1.0 - is_battery) * self.port_offset + is_battery * self.battery_offset
+            )
         return networks.masked_logits(logits, avail)
 
     def value(self, params, critic_in):
         x = self.features(critic_in) if self.critic_features else critic_in
         v = self.critic.apply(params["critic"], x)[..., 0]
         if self.battery_critic:  # critic_in is the agent's own observation
-            v = jnp.where(self.is_battery(critic_in)[..., 0] > 0.5,
-                          self.critic.apply(params["battery_critic"], x)[..., 0], v)
+            v = jnp.where(
+                self.is_battery(critic_in)[..., 0] > 0.5,
+                self.critic.apply(params["battery_critic"], x)[..., 0],
+                v,
+            )
         return v
 
 
@@ -180,28 +195,48 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
     (``onehot``/``scalar``, the agent-index encoding). ``TOTAL_TIMESTEPS`` counts env steps
     (one step moves every agent).
     """
-    config = resolve({**{"AGENT_ID": "onehot", "AGENT_ADV_NORM": False, "BATTERY_NET": False,
-                                  "BATTERY_GAMMA": None, "BATTERY_ENT_COEF": None,
-                                  "RELATIVE_PRICES": False, "PLAN_OBS": False}, **(config or {})})
+    config = resolve(
+        {
+            **{
+                "AGENT_ID": "onehot",
+                "AGENT_ADV_NORM": False,
+                "BATTERY_NET": False,
+                "BATTERY_GAMMA": None,
+                "BATTERY_ENT_COEF": None,
+                "RELATIVE_PRICES": False,
+                "PLAN_OBS": False,
+            },
+            **(config or {}),
+        }
+    )
     if env_params is None:
         env_params = build_env_params(config)[0]
-    base_env = ChargaxMARL(params=env_params, agent_id=config["AGENT_ID"],
-                           local_reward_weight=config["LOCAL_REWARD_WEIGHT"])
+    base_env = ChargaxMARL(
+        params=env_params,
+        agent_id=config["AGENT_ID"],
+        local_reward_weight=config["LOCAL_REWARD_WEIGHT"],
+    )
     env = LogWrapper(WorldStateWrapper(base_env) if centralised_critic else base_env)
     agents = base_env.agents
     policy = SharedPolicy(config, base_env, centralised_critic)
     n_envs, n_steps, n_agents = config["NUM_ENVS"], config["NUM_STEPS"], base_env.num_agents
     n_actors = n_agents * n_envs
     total_updates = ppo_core.num_updates(config)
-    if (n_envs * n_steps) % config["NUM_MINIBATCHES"]:  # minibatches hold whole env-steps (ppo_core.shuffled_rows)
-        raise ValueError(f"NUM_ENVS*NUM_STEPS={n_envs * n_steps} must be divisible by "
-                         f"NUM_MINIBATCHES={config['NUM_MINIBATCHES']}")
+    if (n_envs * n_steps) % config[
+        "NUM_MINIBATCHES"
+    ]:  # minibatches hold whole env-steps (ppo_core.shuffled_rows)
+        raise ValueError(
+            f"NUM_ENVS*NUM_STEPS={n_envs * n_steps} must be divisible by "
+            f"NUM_MINIBATCHES={config['NUM_MINIBATCHES']}"
+        )
     mesh = runner.env_mesh(n_envs)
     tx = ppo_core.make_optimizer(config, total_updates)
 
     # ``get_avail_actions`` depends only on the station: one constant (actors, K) mask, agent-major.
     avail_agents = base_env.get_avail_actions(None)
-    avail_b = jnp.asarray(np.repeat(np.stack([np.asarray(avail_agents[a]) for a in agents]), n_envs, axis=0))
+    avail_b = jnp.asarray(
+        np.repeat(np.stack([np.asarray(avail_agents[a]) for a in agents]), n_envs, axis=0)
+    )
     dedup = centralised_critic and DEDUP_CENTRAL_CRITIC
     # In the update the deduplicated critic runs on the whole rollout's world states
     # (n_steps * n_envs rows) for every minibatch: cheaper than one row per agent row while
@@ -214,37 +249,52 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
     def rollout_value(params, obs, obs_b):
         """``(critic_in, value (actors,))`` of the step's observations."""
         if not centralised_critic:
-            return jnp.zeros((n_actors,), jnp.int8), policy.value(params, obs_b)  # unused placeholder
+            return jnp.zeros((n_actors,), jnp.int8), policy.value(
+                params, obs_b
+            )  # unused placeholder
         ws = world_state(obs)
         if dedup:
             return ws, jnp.tile(policy.value(params, ws), n_agents)  # agent-major rows
-        ws_b = jnp.swapaxes(obs["world_state"], 0, 1).reshape((n_actors, -1))  # (agents * envs, state)
+        ws_b = jnp.swapaxes(obs["world_state"], 0, 1).reshape(
+            (n_actors, -1)
+        )  # (agents * envs, state)
         return ws, policy.value(params, ws_b)
 
     # BATTERY_SHAPING (shaping.battery_potential, per agent as teacher_shaping.agent_potential_shaping).
     is_bat = np.asarray(env_params.station.leaf_kind) == KIND_BATTERY
 
     potential = aids.battery_potential(config, env_params)
-    car_potential = aids.car_potential(config, env_params)  # PORT_SHAPING, each port its own car's term
+    car_potential = aids.car_potential(
+        config, env_params
+    )  # PORT_SHAPING, each port its own car's term
 
     def battery_term(pot, info):
         """Per-actor ``(agents * envs,)`` shaping term of a step (info leaves ``(envs, agents)``)."""
-        per_agent = teacher_shaping.agent_potential_shaping(pot, info, is_bat, config["LOCAL_REWARD_WEIGHT"])
+        per_agent = teacher_shaping.agent_potential_shaping(
+            pot, info, is_bat, config["LOCAL_REWARD_WEIGHT"]
+        )
         return per_agent.T.reshape((n_actors,))  # agent-major, as batchify
 
     # BATTERY_GAMMA: the battery agents' own discount (None: GAMMA). A port's decisions pay off
     # within minutes; a battery's charge pays off hours later, when it is discharged.
-    battery_gamma = config["GAMMA"] if config["BATTERY_GAMMA"] is None else float(config["BATTERY_GAMMA"])
+    battery_gamma = (
+        config["GAMMA"] if config["BATTERY_GAMMA"] is None else float(config["BATTERY_GAMMA"])
+    )
     if not 0.0 <= battery_gamma <= 1.0:
         raise ValueError(f"BATTERY_GAMMA={battery_gamma} must be in [0, 1] (or None: GAMMA)")
     # BATTERY_ENT_COEF: the battery agents' own entropy bonus (None: ENT_COEF). Early on a
     # random battery discharges at the wrong hours and its discharge probability collapses
     # before it has learned when discharging pays; the ports want little entropy.
-    if config["BATTERY_ENT_COEF"] is not None and not (np.isfinite(float(config["BATTERY_ENT_COEF"]))
-                                                       and float(config["BATTERY_ENT_COEF"]) >= 0):
-        raise ValueError(f"BATTERY_ENT_COEF={config['BATTERY_ENT_COEF']} must be a finite number >= 0 "
-                         "(or None: ENT_COEF)")
-    gamma_b = jnp.asarray(np.repeat(np.where(is_bat, battery_gamma, config["GAMMA"]), n_envs), jnp.float32)
+    if config["BATTERY_ENT_COEF"] is not None and not (
+        np.isfinite(float(config["BATTERY_ENT_COEF"])) and float(config["BATTERY_ENT_COEF"]) >= 0
+    ):
+        raise ValueError(
+            f"BATTERY_ENT_COEF={config['BATTERY_ENT_COEF']} must be a finite number >= 0 "
+            "(or None: ENT_COEF)"
+        )
+    gamma_b = jnp.asarray(
+        np.repeat(np.where(is_bat, battery_gamma, config["GAMMA"]), n_envs), jnp.float32
+    )
 
     def per_agent_normalised(adv):
         """AGENT_ADV_NORM: each agent's advantages ``(steps, agents * envs)`` scaled to mean 0 and
@@ -269,7 +319,9 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         advice of ``env_state`` when ``PLAN_OBS`` is on."""
         if policy.plan is None:
             return batchify(obs, agents, n_actors)
-        per_env = policy.with_plan(jnp.stack([obs[a] for a in agents], axis=1), teacher_shaping.core_state(env_state))
+        per_env = policy.with_plan(
+            jnp.stack([obs[a] for a in agents], axis=1), teacher_shaping.core_state(env_state)
+        )
         return jnp.swapaxes(per_env, 0, 1).reshape((n_actors, -1))
 
     def env_step(carry, _):
@@ -281,20 +333,33 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         action, logp = networks.sample_categorical(k_act, logits)
         cin, value = rollout_value(params, obs, obs_b)
         actions = unbatchify(action, agents, n_envs)
-        pot = None if potential is None else potential(env_state)  # before the (auto-resetting) step
+        pot = (
+            None if potential is None else potential(env_state)
+        )  # before the (auto-resetting) step
         car_pot = None if car_potential is None else car_potential(env_state)
-        next_obs, env_state, reward, done, info = jax.vmap(env.step)(jax.random.split(k_step, n_envs), env_state,
-                                                                    actions)
+        next_obs, env_state, reward, done, info = jax.vmap(env.step)(
+            jax.random.split(k_step, n_envs), env_state, actions
+        )
         reward_b = batchify(reward, agents, n_actors)
         if pot is not None:
             reward_b = reward_b + battery_term(pot, info)
         if car_pot is not None:
-            own = teacher_shaping.mix_own_terms(car_pot(info["agent_energy_kwh"]), config["LOCAL_REWARD_WEIGHT"])
+            own = teacher_shaping.mix_own_terms(
+                car_pot(info["agent_energy_kwh"]), config["LOCAL_REWARD_WEIGHT"]
+            )
             reward_b = reward_b + own.T.reshape((n_actors,))
         next_obs, env_state = runner.shard_envs((next_obs, env_state), mesh)
-        tr = Transition(obs_b, cin, avail, action, logp, value, reward_b * config["REWARD_SCALE"],
-                        batchify(done, agents, n_actors).astype(jnp.float32),
-                        {k: info[k] for k in INFO_KEYS})  # each (envs, agents)
+        tr = Transition(
+            obs_b,
+            cin,
+            avail,
+            action,
+            logp,
+            value,
+            reward_b * config["REWARD_SCALE"],
+            batchify(done, agents, n_actors).astype(jnp.float32),
+            {k: info[k] for k in INFO_KEYS},
+        )  # each (envs, agents)
         return (params, env_state, next_obs, key), tr
 
     def make_loss(ws_table):
@@ -310,42 +375,70 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
                 values = policy.value(params, tr.critic_in)
             ent_coef = None
             if config["BATTERY_ENT_COEF"] is not None:  # the battery rows' own entropy coefficient
-                ent_coef = jnp.where(policy.is_battery(tr.obs)[..., 0] > 0.5, float(config["BATTERY_ENT_COEF"]),
-                                     float(config["ENT_COEF"]))
-            return ppo_core.ppo_loss(new_logp, tr.log_prob, adv, values, tr.value, targets, networks.entropy(logits),
-                                   config, ent_coef)
+                ent_coef = jnp.where(
+                    policy.is_battery(tr.obs)[..., 0] > 0.5,
+                    float(config["BATTERY_ENT_COEF"]),
+                    float(config["ENT_COEF"]),
+                )
+            return ppo_core.ppo_loss(
+                new_logp,
+                tr.log_prob,
+                adv,
+                values,
+                tr.value,
+                targets,
+                networks.entropy(logits),
+                config,
+                ent_coef,
+            )
 
         return loss_fn
 
     def update(rs: RunnerState, _):
         (params, env_state, obs, key), traj = jax.lax.scan(
-            env_step, (rs.params, rs.env_state, rs.obs, rs.key), None, n_steps)
+            env_step, (rs.params, rs.env_state, rs.obs, rs.key), None, n_steps
+        )
         last_value = rollout_value(params, obs, agent_rows(obs, env_state))[1]
         ws_table = None
         if centralised_critic:
             ws_table = traj.critic_in.reshape((n_steps * n_envs, -1))  # (step, env) world states
             # row (t, agent * n_envs + e) reads world state t * n_envs + e
-            idx = (jnp.arange(n_steps)[:, None] * n_envs + jnp.arange(n_actors)[None, :] % n_envs).astype(jnp.int32)
+            idx = (
+                jnp.arange(n_steps)[:, None] * n_envs + jnp.arange(n_actors)[None, :] % n_envs
+            ).astype(jnp.int32)
             traj = traj._replace(critic_in=idx if dedup_update else ws_table[idx])
         loss_fn = make_loss(ws_table)
-        adv, targets = ppo_core.gae(traj.reward, traj.value, traj.done, last_value, gamma_b, config["GAE_LAMBDA"])
+        adv, targets = ppo_core.gae(
+            traj.reward, traj.value, traj.done, last_value, gamma_b, config["GAE_LAMBDA"]
+        )
         if config["AGENT_ADV_NORM"]:
             adv = per_agent_normalised(adv)
 
-        params, opt_state, key, parts = ppo_core.ppo_epochs(loss_fn, tx, params, rs.opt_state, key, traj, adv,
-                                                          targets, config, agents=n_agents)
+        params, opt_state, key, parts = ppo_core.ppo_epochs(
+            loss_fn, tx, params, rs.opt_state, key, traj, adv, targets, config, agents=n_agents
+        )
         metrics = {k: v.mean() for k, v in parts.items()}
         # Every agent logs the same episode: use agent 0's column.
-        metrics.update(ppo_core.episode_metrics(traj.info["returned_episode"][..., 0],
-                                              {k: v[..., 0] for k, v in traj.info.items()}))
+        metrics.update(
+            ppo_core.episode_metrics(
+                traj.info["returned_episode"][..., 0], {k: v[..., 0] for k, v in traj.info.items()}
+            )
+        )
         return RunnerState(params, opt_state, env_state, obs, key, rs.update + 1), metrics
 
     def run_updates(rs: RunnerState, n: int):
         return jax.lax.scan(update, rs, None, n)
 
-    return Trainer(init=init, run_updates=run_updates, num_updates=total_updates, config=config,
-                   policy=policy, env=base_env, env_params=env_params,
-                   make_act=make_act_builder(policy, config["AGENT_ID"]))
+    return Trainer(
+        init=init,
+        run_updates=run_updates,
+        num_updates=total_updates,
+        config=config,
+        policy=policy,
+        env=base_env,
+        env_params=env_params,
+        make_act=make_act_builder(policy, config["AGENT_ID"]),
+    )
 
 
 def make_act_builder(policy: SharedPolicy, agent_id: str):

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import flax.linen as nn
 import jax
@@ -39,13 +39,18 @@ class MLP(nn.Module):
     @nn.compact
     def __call__(self, x):
         for _ in range(self.layers):
-            x = _act(self.activation)(nn.Dense(self.hidden, kernel_init=_init(np.sqrt(2)),
-                                               bias_init=constant(0.0))(x))
+            x = _act(self.activation)(
+                nn.Dense(self.hidden, kernel_init=_init(np.sqrt(2)), bias_init=constant(0.0))(x)
+            )
         return nn.Dense(self.out, kernel_init=_init(self.head_scale), bias_init=constant(0.0))(x)
 
 
 def actor_critic(config: dict, num_logits: int, num_values: int = 1):
-    kw = dict(hidden=int(config["HIDDEN"]), layers=int(config["NUM_LAYERS"]), activation=config["ACTIVATION"])
+    kw = dict(
+        hidden=int(config["HIDDEN"]),
+        layers=int(config["NUM_LAYERS"]),
+        activation=config["ACTIVATION"],
+    )
     return MLP(num_logits, head_scale=0.01, **kw), MLP(num_values, head_scale=1.0, **kw)
 
 
@@ -78,7 +83,7 @@ def log_prob(logits: jnp.ndarray, action: jnp.ndarray) -> jnp.ndarray:
 
 # t = u * total is shrunk by this relative margin so that rounding can never push it to the
 # total, where the inversion would fall through to the masked (zero-probability) tail.
-_INVERSION_MARGIN = np.float32(1.0 - 2.0 ** -22)
+_INVERSION_MARGIN = np.float32(1.0 - 2.0**-22)
 
 
 def categorical_from_uniform(u: jnp.ndarray, logits: jnp.ndarray):

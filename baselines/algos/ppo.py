@@ -51,8 +51,12 @@ class RunnerState(NamedTuple):
     update: jnp.ndarray
 
 
-INFO_KEYS = ("returned_episode", "returned_episode_returns", "returned_episode_profit_eur",
-             "returned_episode_energy_delivered_kwh")
+INFO_KEYS = (
+    "returned_episode",
+    "returned_episode_returns",
+    "returned_episode_profit_eur",
+    "returned_episode_energy_delivered_kwh",
+)
 
 
 class Policy:
@@ -69,8 +73,12 @@ class Policy:
         self.is_battery = np.asarray(env_params.station.leaf_kind) == KIND_BATTERY
         self.split = bool(config["SPLIT_CREDIT"])
         if self.split and not self.is_battery.any():
-            raise ValueError("SPLIT_CREDIT=True needs a station with a battery; this station has none")
-        self.actor, self.critic = networks.actor_critic(config, self.num_leaves * self.k, 2 if self.split else 1)
+            raise ValueError(
+                "SPLIT_CREDIT=True needs a station with a battery; this station has none"
+            )
+        self.actor, self.critic = networks.actor_critic(
+            config, self.num_leaves * self.k, 2 if self.split else 1
+        )
         # ALWAYS_MAX_PRIOR / BATTERY_IDLE_PRIOR: fixed offsets on the index of the always-max
         # baseline's action of every head (ports: full power; batteries: idle).
         baseline = np.asarray(env.levels_to_action(always_max(None, None, env_params), env_params))
@@ -82,12 +90,17 @@ class Policy:
         # (chargax_marl.teachers.prices.relative_prices); the observation ends with the shared context.
         self.relative = None
         if config["RELATIVE_PRICES"]:
-            self.relative = prices.relative_price_columns(env_params, self.obs_dim - context_size(env_params))
+            self.relative = prices.relative_price_columns(
+                env_params, self.obs_dim - context_size(env_params)
+            )
         # PLAN_OBS: the observation also ends with every leaf's plan advice
         # (car_plan.plan_advice), before the relative prices.
         self.plan = car_plan.plan_advice(env_params) if config["PLAN_OBS"] else None
-        self.input_dim = (self.obs_dim + (0 if self.plan is None else self.num_leaves)
-                          + (0 if self.relative is None else len(self.relative[0])))
+        self.input_dim = (
+            self.obs_dim
+            + (0 if self.plan is None else self.num_leaves)
+            + (0 if self.relative is None else len(self.relative[0]))
+        )
 
     def with_plan(self, obs, core):
         """``obs (..., obs_dim)`` with the plan advice of the (batched) core state ``core``
@@ -106,7 +119,9 @@ class Policy:
 
     def logits(self, params, obs):
         raw = self.actor.apply(params["actor"], self.features(obs))
-        return networks.masked_logits(raw.reshape(raw.shape[:-1] + (self.num_leaves, self.k)) + self.offset, self.mask)
+        return networks.masked_logits(
+            raw.reshape(raw.shape[:-1] + (self.num_leaves, self.k)) + self.offset, self.mask
+        )
 
     def value(self, params, obs):
         """``(...)``, or ``(..., 2)`` (ports, batteries) with ``SPLIT_CREDIT``."""
@@ -119,7 +134,9 @@ class Policy:
         if not self.split:
             return head_logp.sum(-1)
         bat = jnp.asarray(self.is_battery)
-        return jnp.stack([jnp.where(bat, 0.0, head_logp).sum(-1), jnp.where(bat, head_logp, 0.0).sum(-1)], -1)
+        return jnp.stack(
+            [jnp.where(bat, 0.0, head_logp).sum(-1), jnp.where(bat, head_logp, 0.0).sum(-1)], -1
+        )
 
 
 def make_train(config: dict | None = None, env_params=None):
@@ -127,10 +144,14 @@ def make_train(config: dict | None = None, env_params=None):
 
     ``env_params`` defaults to the config's scenario restricted to its training days.
     """
-    config = resolve({**{"RELATIVE_PRICES": False, "SPLIT_CREDIT": False, "PLAN_OBS": False}, **(config or {})})
+    config = resolve(
+        {**{"RELATIVE_PRICES": False, "SPLIT_CREDIT": False, "PLAN_OBS": False}, **(config or {})}
+    )
     if config["LOCAL_REWARD_WEIGHT"]:
-        raise ValueError(f"LOCAL_REWARD_WEIGHT={config['LOCAL_REWARD_WEIGHT']} applies to the multi-agent "
-                         "trainers (ippo, mappo) only; single-agent PPO learns from the station reward (use 0)")
+        raise ValueError(
+            f"LOCAL_REWARD_WEIGHT={config['LOCAL_REWARD_WEIGHT']} applies to the multi-agent "
+            "trainers (ippo, mappo) only; single-agent PPO learns from the station reward (use 0)"
+        )
     if env_params is None:
         env_params = build_env_params(config)[0]
     base_env = Chargax(params=env_params)
@@ -140,7 +161,9 @@ def make_train(config: dict | None = None, env_params=None):
     total_updates = ppo_core.num_updates(config)
     batch = n_envs * n_steps
     if batch % config["NUM_MINIBATCHES"]:
-        raise ValueError(f"NUM_ENVS*NUM_STEPS={batch} must be divisible by NUM_MINIBATCHES={config['NUM_MINIBATCHES']}")
+        raise ValueError(
+            f"NUM_ENVS*NUM_STEPS={batch} must be divisible by NUM_MINIBATCHES={config['NUM_MINIBATCHES']}"
+        )
     mesh = runner.env_mesh(n_envs)
     tx = ppo_core.make_optimizer(config, total_updates)
     potential = aids.battery_potential(config, env_params)  # BATTERY_SHAPING
@@ -163,22 +186,46 @@ def make_train(config: dict | None = None, env_params=None):
         action, head_logp = networks.sample_categorical(k_act, logits)  # (envs, leaves)
         logp = policy.credit_logp(head_logp)
         value = policy.value(params, obs)
-        pot = None if potential is None else potential(env_state)  # before the (auto-resetting) step
+        pot = (
+            None if potential is None else potential(env_state)
+        )  # before the (auto-resetting) step
         car_pot = None if car_potential is None else car_potential(env_state)
-        next_obs, env_state, reward, term, trunc, info = v_step(jax.random.split(k_step, n_envs), env_state,
-                                                                action, env_params)
-        battery_term = 0.0 if pot is None else teacher_shaping.battery_shaping(pot(info["battery_net_kwh"]),
-                                                                      info["battery_terminal_value_eur"])
-        port_shaping = 0.0 if car_pot is None else jnp.sum(car_pot(info["leaf_energy_kwh"]), axis=-1)
-        if policy.split:  # (envs, 2): the ports' share and their shaping, the batteries' share and theirs
-            reward = jnp.stack([reward - info["battery_reward_eur"] + port_shaping,
-                                info["battery_reward_eur"] + battery_term], -1)
+        next_obs, env_state, reward, term, trunc, info = v_step(
+            jax.random.split(k_step, n_envs), env_state, action, env_params
+        )
+        battery_term = (
+            0.0
+            if pot is None
+            else teacher_shaping.battery_shaping(
+                pot(info["battery_net_kwh"]), info["battery_terminal_value_eur"]
+            )
+        )
+        port_shaping = (
+            0.0 if car_pot is None else jnp.sum(car_pot(info["leaf_energy_kwh"]), axis=-1)
+        )
+        if (
+            policy.split
+        ):  # (envs, 2): the ports' share and their shaping, the batteries' share and theirs
+            reward = jnp.stack(
+                [
+                    reward - info["battery_reward_eur"] + port_shaping,
+                    info["battery_reward_eur"] + battery_term,
+                ],
+                -1,
+            )
         else:
             reward = reward + battery_term + port_shaping
         next_obs, env_state = runner.shard_envs((next_obs, env_state), mesh)
         done = jnp.logical_or(term, trunc)
-        tr = Transition(obs, action, logp, value, reward * config["REWARD_SCALE"], done.astype(jnp.float32),
-                        {k: info[k] for k in INFO_KEYS})
+        tr = Transition(
+            obs,
+            action,
+            logp,
+            value,
+            reward * config["REWARD_SCALE"],
+            done.astype(jnp.float32),
+            {k: info[k] for k in INFO_KEYS},
+        )
         return (params, env_state, next_obs, key), tr
 
     def loss_fn(params, mb):
@@ -187,20 +234,27 @@ def make_train(config: dict | None = None, env_params=None):
         head_logp = networks.log_prob(logits, tr.action)  # (batch, heads)
         ent = networks.entropy(logits).sum(-1)
         values = policy.value(params, tr.obs)
-        return ppo_core.ppo_loss(policy.credit_logp(head_logp), tr.log_prob, adv, values, tr.value, targets, ent,
-                               config)
+        return ppo_core.ppo_loss(
+            policy.credit_logp(head_logp), tr.log_prob, adv, values, tr.value, targets, ent, config
+        )
 
     def update(rs: RunnerState, _):
         (params, env_state, obs, key), traj = jax.lax.scan(
-            env_step, (rs.params, rs.env_state, rs.obs, rs.key), None, n_steps)
-        last_value = policy.value(params, policy.with_plan(obs, teacher_shaping.core_state(env_state)))
+            env_step, (rs.params, rs.env_state, rs.obs, rs.key), None, n_steps
+        )
+        last_value = policy.value(
+            params, policy.with_plan(obs, teacher_shaping.core_state(env_state))
+        )
         done = traj.done[..., None] if policy.split else traj.done
-        adv, targets = ppo_core.gae(traj.reward, traj.value, done, last_value, config["GAMMA"], config["GAE_LAMBDA"])
+        adv, targets = ppo_core.gae(
+            traj.reward, traj.value, done, last_value, config["GAMMA"], config["GAE_LAMBDA"]
+        )
         if policy.split:  # each part's advantages to mean 0 and std 1 over the rollout
             adv = (adv - adv.mean(axis=(0, 1))) / (adv.std(axis=(0, 1)) + 1e-8)
 
-        params, opt_state, key, parts = ppo_core.ppo_epochs(loss_fn, tx, params, rs.opt_state, key, traj, adv,
-                                                          targets, config)
+        params, opt_state, key, parts = ppo_core.ppo_epochs(
+            loss_fn, tx, params, rs.opt_state, key, traj, adv, targets, config
+        )
         metrics = {k: v.mean() for k, v in parts.items()}
         metrics.update(ppo_core.episode_metrics(traj.info["returned_episode"], traj.info))
         return RunnerState(params, opt_state, env_state, obs, key, rs.update + 1), metrics
@@ -208,9 +262,16 @@ def make_train(config: dict | None = None, env_params=None):
     def run_updates(rs: RunnerState, n: int):
         return jax.lax.scan(update, rs, None, n)
 
-    return Trainer(init=init, run_updates=run_updates, num_updates=total_updates, config=config,
-                   policy=policy, env=base_env, env_params=env_params,
-                   make_act=make_act_builder(policy, base_env))
+    return Trainer(
+        init=init,
+        run_updates=run_updates,
+        num_updates=total_updates,
+        config=config,
+        policy=policy,
+        env=base_env,
+        env_params=env_params,
+        make_act=make_act_builder(policy, base_env),
+    )
 
 
 def make_act_builder(policy: Policy, env: Chargax):

@@ -19,11 +19,15 @@ def gae(rewards, values, dones, last_value, gamma: float, lam: float):
         adv = delta + gamma * lam * (1.0 - d) * next_adv
         return (adv, v), adv
 
-    _, adv = jax.lax.scan(body, (jnp.zeros_like(last_value), last_value), (rewards, values, dones), reverse=True)
+    _, adv = jax.lax.scan(
+        body, (jnp.zeros_like(last_value), last_value), (rewards, values, dones), reverse=True
+    )
     return adv, adv + values
 
 
-def ppo_loss(new_logp, old_logp, advantages, values, old_values, targets, ent, config, ent_coef=None):
+def ppo_loss(
+    new_logp, old_logp, advantages, values, old_values, targets, ent, config, ent_coef=None
+):
     """Clipped surrogate + clipped value loss - entropy bonus. Returns ``(total, parts)``.
 
     ``ent_coef``: the entropy coefficient of each row (default ``config["ENT_COEF"]`` for all)."""
@@ -37,7 +41,12 @@ def ppo_loss(new_logp, old_logp, advantages, values, old_values, targets, ent, c
     ent = ent.mean()
     total = actor_loss + config["VF_COEF"] * value_loss - bonus.mean()
     approx_kl = ((ratio - 1) - (new_logp - old_logp)).mean()
-    return total, {"actor_loss": actor_loss, "value_loss": value_loss, "entropy": ent, "approx_kl": approx_kl}
+    return total, {
+        "actor_loss": actor_loss,
+        "value_loss": value_loss,
+        "entropy": ent,
+        "approx_kl": approx_kl,
+    }
 
 
 def shuffled_rows(key: jax.Array, steps: int, actors: int, agents: int = 1) -> jnp.ndarray:
@@ -60,7 +69,9 @@ def shuffled_rows(key: jax.Array, steps: int, actors: int, agents: int = 1) -> j
     return rows.reshape(-1)
 
 
-def ppo_epochs(loss_fn, tx, params, opt_state, key, traj, adv, targets, config: dict, agents: int = 1):
+def ppo_epochs(
+    loss_fn, tx, params, opt_state, key, traj, adv, targets, config: dict, agents: int = 1
+):
     """``UPDATE_EPOCHS`` passes over the rollout in ``NUM_MINIBATCHES`` shuffled minibatches.
 
     ``traj`` is the rollout (a NamedTuple with an ``info`` field, dropped here) with leading
@@ -78,7 +89,9 @@ def ppo_epochs(loss_fn, tx, params, opt_state, key, traj, adv, targets, config: 
         data = (traj._replace(info={}), adv, targets)
         flat = jax.tree.map(lambda x: x.reshape((batch,) + x.shape[2:]), data)
         perm = shuffled_rows(k_perm, steps, actors, agents)
-        mbs = jax.tree.map(lambda x: x[perm].reshape((config["NUM_MINIBATCHES"], -1) + x.shape[1:]), flat)
+        mbs = jax.tree.map(
+            lambda x: x[perm].reshape((config["NUM_MINIBATCHES"], -1) + x.shape[1:]), flat
+        )
 
         def minibatch(carry, mb):
             params, opt_state = carry
@@ -89,7 +102,9 @@ def ppo_epochs(loss_fn, tx, params, opt_state, key, traj, adv, targets, config: 
         (params, opt_state), parts = jax.lax.scan(minibatch, (params, opt_state), mbs)
         return (params, opt_state, key), parts
 
-    (params, opt_state, key), parts = jax.lax.scan(epoch, (params, opt_state, key), None, config["UPDATE_EPOCHS"])
+    (params, opt_state, key), parts = jax.lax.scan(
+        epoch, (params, opt_state, key), None, config["UPDATE_EPOCHS"]
+    )
     return params, opt_state, key, parts
 
 
@@ -107,8 +122,10 @@ def make_optimizer(config: dict, num_updates: int):
 def num_updates(config: dict) -> int:
     n = int(config["TOTAL_TIMESTEPS"]) // (int(config["NUM_ENVS"]) * int(config["NUM_STEPS"]))
     if n < 1:
-        raise ValueError(f"TOTAL_TIMESTEPS={config['TOTAL_TIMESTEPS']} is less than one rollout "
-                         f"(NUM_ENVS*NUM_STEPS={config['NUM_ENVS'] * config['NUM_STEPS']})")
+        raise ValueError(
+            f"TOTAL_TIMESTEPS={config['TOTAL_TIMESTEPS']} is less than one rollout "
+            f"(NUM_ENVS*NUM_STEPS={config['NUM_ENVS'] * config['NUM_STEPS']})"
+        )
     return n
 
 

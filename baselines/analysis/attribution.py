@@ -35,16 +35,17 @@ from chargax_marl.evaluation import run_days
 MIXES = ("learned", "learned_ports_rule_battery", "always_max_ports_learned_battery")
 
 
-
-
 def mixed_policies(act, params) -> dict:
     """The :data:`MIXES` as ``policy(state, key) -> levels`` from a trained ``act``."""
     is_battery = policies._is_battery(params)
     return {
         "learned": act,
-        "learned_ports_rule_battery": lambda s, k: jnp.where(is_battery, policies.battery_rule(s, k, params), act(s, k)),
-        "always_max_ports_learned_battery": lambda s, k: jnp.where(is_battery, act(s, k),
-                                                                   policies.always_max(s, k, params)),
+        "learned_ports_rule_battery": lambda s, k: jnp.where(
+            is_battery, policies.battery_rule(s, k, params), act(s, k)
+        ),
+        "always_max_ports_learned_battery": lambda s, k: jnp.where(
+            is_battery, act(s, k), policies.always_max(s, k, params)
+        ),
     }
 
 
@@ -54,34 +55,54 @@ def attribute(run_dir: str | Path) -> dict:
     results, train, all_params = runs.load_run(run_dir)
     _, eval_params, _, days = build_env_params(train.config)
     days = np.asarray(days)
-    key = jax.random.PRNGKey(0)  # the evaluation key of baselines.train: the same cars for every policy
+    key = jax.random.PRNGKey(
+        0
+    )  # the evaluation key of baselines.train: the same cars for every policy
     rules = evaluate_rules(eval_params, days, ("always_max", "battery_rule"), key=key)
     am = rules["always_max"]["daily_profit"]
     make_act = train.make_act(eval_params)
     # One program per mix, the seed's parameters an argument (not a constant): compiled once, run per seed.
-    score = {name: jax.jit(lambda p, d, k, name=name: run_days(mixed_policies(make_act(p), eval_params)[name],
-                                                                eval_params, d, k))
-             for name in MIXES}
+    score = {
+        name: jax.jit(
+            lambda p, d, k, name=name: run_days(
+                mixed_policies(make_act(p), eval_params)[name], eval_params, d, k
+            )
+        )
+        for name in MIXES
+    }
     per_seed = {m: [] for m in MIXES}
     for i in range(int(results["seeds"])):
         seed_params = jax.tree.map(lambda x: x[i], all_params)
         for name in MIXES:
             totals = score[name](seed_params, days, key)
-            per_seed[name].append(stats.paired_difference(np.asarray(totals.profit_eur, np.float64), am))
-    out = {"run": str(run_dir), "algo": results["algo"], "num_days": int(days.size), "seeds": int(results["seeds"]),
-           "battery_rule_vs_always_max": stats.paired_difference(rules["battery_rule"]["daily_profit"], am),
-           "mixes": {}}
+            per_seed[name].append(
+                stats.paired_difference(np.asarray(totals.profit_eur, np.float64), am)
+            )
+    out = {
+        "run": str(run_dir),
+        "algo": results["algo"],
+        "num_days": int(days.size),
+        "seeds": int(results["seeds"]),
+        "battery_rule_vs_always_max": stats.paired_difference(
+            rules["battery_rule"]["daily_profit"], am
+        ),
+        "mixes": {},
+    }
     for name, diffs in per_seed.items():
-        out["mixes"][name] = {"per_seed": [{"mean": d["mean"], "stderr": d["stderr"]} for d in diffs],
-                              "over_seeds": over_seeds([d["mean"] for d in diffs])}
+        out["mixes"][name] = {
+            "per_seed": [{"mean": d["mean"], "stderr": d["stderr"]} for d in diffs],
+            "over_seeds": over_seeds([d["mean"] for d in diffs]),
+        }
     return out
 
 
 def format_attribution(out: dict) -> str:
     rule = out["battery_rule_vs_always_max"]
-    lines = [f"{out['algo']} run {out['run']}: paired difference to always-max, EUR/day, {out['num_days']} held-out "
-             f"days, {out['seeds']} seeds (mean ± s.e. over seeds; per seed)",
-             f"  {'battery rule':34s} {rule['mean']:+7.2f} ± {rule['stderr']:.2f} (over days)"]
+    lines = [
+        f"{out['algo']} run {out['run']}: paired difference to always-max, EUR/day, {out['num_days']} held-out "
+        f"days, {out['seeds']} seeds (mean ± s.e. over seeds; per seed)",
+        f"  {'battery rule':34s} {rule['mean']:+7.2f} ± {rule['stderr']:.2f} (over days)",
+    ]
     for name, m in out["mixes"].items():
         o = m["over_seeds"]
         seeds = " ".join(f"{s['mean']:+.2f}" for s in m["per_seed"])
@@ -90,8 +111,13 @@ def format_attribution(out: dict) -> str:
 
 
 def main(argv=None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("run_dir", help="an output directory of python -m baselines.train (results.json, params.msgpack)")
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument(
+        "run_dir",
+        help="an output directory of python -m baselines.train (results.json, params.msgpack)",
+    )
     p.add_argument("--out", default=None, help="write the JSON here")
     a = p.parse_args(argv)
     out = attribute(a.run_dir)

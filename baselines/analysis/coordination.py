@@ -19,8 +19,14 @@ from chargax_marl.core.params import make_params
 from chargax_marl.core.scenarios import scenario_kwargs
 from chargax_marl.evaluation import hindsight_bound, split_days
 
-SCENARIOS = ("shopping", "shopping-grid10-high", "shopping-grid25-high", "shopping-peak", "shopping-peak-high",
-             "shopping-grid50-peak-high")
+SCENARIOS = (
+    "shopping",
+    "shopping-grid10-high",
+    "shopping-grid25-high",
+    "shopping-peak",
+    "shopping-peak-high",
+    "shopping-grid50-peak-high",
+)
 OUT = Path("outputs/coordination/table.json")  # copy to results/ to commit
 
 
@@ -32,8 +38,10 @@ def main() -> dict:
     _, days = split_days(365, 100, seed=0)
     key = jax.random.PRNGKey(0)
     out = {"days": [int(d) for d in days], "key": 0, "scenarios": {}}
-    print("| scenario | always-max EUR/day | battery rule EUR/day | battery rule − always-max | LP bound − always-max "
-          "| always-max peak kW | always-max peak charge EUR/day |")
+    print(
+        "| scenario | always-max EUR/day | battery rule EUR/day | battery rule − always-max | LP bound − always-max "
+        "| always-max peak kW | always-max peak charge EUR/day |"
+    )
     for name in SCENARIOS:
         t0 = time.perf_counter()
         params = make_params(**scenario_kwargs(name))
@@ -41,19 +49,27 @@ def main() -> dict:
         am, br = rules["always_max"]["daily_profit"], rules["battery_rule"]["daily_profit"]
         am_metrics = rules["always_max"]["metrics"]
         bound = hindsight_bound(params, days, key)
-        row = {"always_max": float(am.mean()), "battery_rule": float(br.mean()),
-               "battery_rule_vs_always_max": paired(br - am),
-               "bound": float(bound["daily_profit"].mean()),
-               "bound_vs_always_max": paired(bound["daily_profit"] - am),
-               "bound_reference_matches": bool(np.allclose(bound["reference_daily_profit"], am, atol=0.05)),
-               "always_max_peak_kw": am_metrics["peak_grid_kw"]["mean"],
-               "always_max_peak_charge_eur": am_metrics["peak_demand_charge_eur"]["mean"],
-               "lp_solve_s_mean": float(bound["solve_s"].mean()), "wall_s": time.perf_counter() - t0}
+        row = {
+            "always_max": float(am.mean()),
+            "battery_rule": float(br.mean()),
+            "battery_rule_vs_always_max": paired(br - am),
+            "bound": float(bound["daily_profit"].mean()),
+            "bound_vs_always_max": paired(bound["daily_profit"] - am),
+            "bound_reference_matches": bool(
+                np.allclose(bound["reference_daily_profit"], am, atol=0.05)
+            ),
+            "always_max_peak_kw": am_metrics["peak_grid_kw"]["mean"],
+            "always_max_peak_charge_eur": am_metrics["peak_demand_charge_eur"]["mean"],
+            "lp_solve_s_mean": float(bound["solve_s"].mean()),
+            "wall_s": time.perf_counter() - t0,
+        }
         out["scenarios"][name] = row
         d, b = row["battery_rule_vs_always_max"], row["bound_vs_always_max"]
-        print(f"| `{name}` | {row['always_max']:.1f} | {row['battery_rule']:.1f} | {d[0]:+.2f} ± {d[1]:.2f} | "
-              f"{b[0]:+.2f} ± {b[1]:.2f} | {row['always_max_peak_kw']:.0f} | {row['always_max_peak_charge_eur']:.1f} |",
-              flush=True)
+        print(
+            f"| `{name}` | {row['always_max']:.1f} | {row['battery_rule']:.1f} | {d[0]:+.2f} ± {d[1]:.2f} | "
+            f"{b[0]:+.2f} ± {b[1]:.2f} | {row['always_max_peak_kw']:.0f} | {row['always_max_peak_charge_eur']:.1f} |",
+            flush=True,
+        )
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(out, indent=1))
     return out

@@ -30,33 +30,52 @@ def main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=main.__doc__)
     p.add_argument("--scenario", default="default", choices=sorted(SCENARIOS))
     p.add_argument("--fractions", default="0.2,0.5,1.0")
-    p.add_argument("--references", default=str(RESULTS_DIR), help="the directory `make optimal` wrote")
+    p.add_argument(
+        "--references", default=str(RESULTS_DIR), help="the directory `make optimal` wrote"
+    )
     a = p.parse_args(argv)
     config = resolve({**SCENARIOS[a.scenario], "ENV_KWARGS": {"num_levels": 1}})
     _, params, _, days = build_env_params(config)
     rules = evaluate_rules(params, days, policies=("always_max", "battery_rule"))
     am, rule = rules["always_max"]["daily_profit"], rules["battery_rule"]["daily_profit"]
-    bound = json.loads((Path(a.references) / f"{a.scenario}.json").read_text())["policies"]["lp_bound"]
+    bound = json.loads((Path(a.references) / f"{a.scenario}.json").read_text())["policies"][
+        "lp_bound"
+    ]
     headroom = float(np.mean(bound["daily_profit"]) - np.mean(am))
     key = jax.random.PRNGKey(0)
-    out = {"scenario": a.scenario, "always_max_eur": float(am.mean()), "headroom_eur": headroom, "rows": []}
-    print(f"{a.scenario}: always-max {am.mean():.2f} EUR/day, battery rule {rule.mean() - am.mean():+.2f}, "
-          f"bound headroom {headroom:.2f}; {len(days)} held-out days, key 0")
+    out = {
+        "scenario": a.scenario,
+        "always_max_eur": float(am.mean()),
+        "headroom_eur": headroom,
+        "rows": [],
+    }
+    print(
+        f"{a.scenario}: always-max {am.mean():.2f} EUR/day, battery rule {rule.mean() - am.mean():+.2f}, "
+        f"bound headroom {headroom:.2f}; {len(days)} held-out days, key 0"
+    )
     for battery in ("idle", "dp"):
         for frac in [None] * (battery == "dp") + [float(x) for x in a.fractions.split(",")]:
             act = plan_action(params, battery, frac)
-            totals = jax.jit(lambda d, k: run_days(lambda s, kk: act(s, kk, params), params, d, k))(np.asarray(days), key)
+            totals = jax.jit(lambda d, k: run_days(lambda s, kk: act(s, kk, params), params, d, k))(
+                np.asarray(days), key
+            )
             profit = np.asarray(totals.profit_eur, np.float64)
-            row = {"battery": battery, "power_fraction": frac, "vs_always_max": stats.paired_difference(profit, am),
-                   "vs_battery_rule": stats.paired_difference(profit, rule),
-                   "headroom_fraction": float((profit.mean() - am.mean()) / headroom),
-                   "energy_delivered_kwh": float(np.mean(totals.energy_delivered_kwh))}
+            row = {
+                "battery": battery,
+                "power_fraction": frac,
+                "vs_always_max": stats.paired_difference(profit, am),
+                "vs_battery_rule": stats.paired_difference(profit, rule),
+                "headroom_fraction": float((profit.mean() - am.mean()) / headroom),
+                "energy_delivered_kwh": float(np.mean(totals.energy_delivered_kwh)),
+            }
             out["rows"].append(row)
             ports = "always-max" if frac is None else f"plan {frac:.1f}"
-            print(f"  ports {ports:<10}, battery {battery:<4}: vs always-max {row['vs_always_max']['mean']:+6.2f} "
-                  f"± {row['vs_always_max']['stderr']:.2f}, vs battery rule {row['vs_battery_rule']['mean']:+6.2f} "
-                  f"± {row['vs_battery_rule']['stderr']:.2f}, headroom {row['headroom_fraction']:.3f}, "
-                  f"delivered {row['energy_delivered_kwh']:.1f} kWh")
+            print(
+                f"  ports {ports:<10}, battery {battery:<4}: vs always-max {row['vs_always_max']['mean']:+6.2f} "
+                f"± {row['vs_always_max']['stderr']:.2f}, vs battery rule {row['vs_battery_rule']['mean']:+6.2f} "
+                f"± {row['vs_battery_rule']['stderr']:.2f}, headroom {row['headroom_fraction']:.3f}, "
+                f"delivered {row['energy_delivered_kwh']:.1f} kWh"
+            )
     return out
 
 

@@ -52,7 +52,8 @@ def read(run_dir: str | Path, num_days: int | None = None) -> dict:
             bat = jnp.sign(jnp.sum(jnp.where(is_battery, levels, 0)))
             dp, strict = dp_act(state)
             soc = jnp.sum(jnp.where(is_battery, state.soc * state.capacity_kwh, 0.0)) / jnp.maximum(
-                jnp.sum(jnp.where(is_battery, state.capacity_kwh, 0.0)), 1e-6)
+                jnp.sum(jnp.where(is_battery, state.capacity_kwh, 0.0)), 1e-6
+            )
             parked = state.occupied & ~jnp.asarray(is_battery)
             full = jnp.sum(parked & (levels == top)), jnp.sum(parked)
             follows = jnp.sum(parked & ((levels == top) == (advice(state) > 0.5)))
@@ -67,19 +68,31 @@ def read(run_dir: str | Path, num_days: int | None = None) -> dict:
     out = {"run": str(run_dir), "algo": results["algo"], "num_days": int(days.size), "per_seed": []}
     for i in range(int(results["seeds"])):
         seed_params = jax.tree.map(lambda x: x[i], all_params)
-        bat, dp, strict, soc, full, parked, follows = (np.asarray(x) for x in run_days(seed_params, jnp.asarray(days),
-                                                                                          key))
+        bat, dp, strict, soc, full, parked, follows = (
+            np.asarray(x) for x in run_days(seed_params, jnp.asarray(days), key)
+        )
         hours = bat.shape[1] // steps_per_hour
-        by_hour = lambda x: x[:, :hours * steps_per_hour].reshape(x.shape[0], hours, steps_per_hour).mean(axis=(0, 2))
-        out["per_seed"].append({
-            "battery_share": {name: float((bat == v).mean()) for name, v in (("discharge", -1), ("idle", 0),
-                                                                             ("charge", 1))},
-            "hourly_action": [round(float(x), 3) for x in by_hour(bat.astype(np.float64))],
-            "hourly_soc": [round(float(x), 3) for x in by_hour(soc)],
-            "agrees_with_dp": float((bat == dp)[strict].mean()) if strict.any() else None,
-            "ports_full_power_share": float(full.sum() / max(parked.sum(), 1)),
-            "ports_follow_plan_share": float(follows.sum() / max(parked.sum(), 1)),
-        })
+
+        def by_hour(x):
+            return (
+                x[:, : hours * steps_per_hour]
+                .reshape(x.shape[0], hours, steps_per_hour)
+                .mean(axis=(0, 2))
+            )
+
+        out["per_seed"].append(
+            {
+                "battery_share": {
+                    name: float((bat == v).mean())
+                    for name, v in (("discharge", -1), ("idle", 0), ("charge", 1))
+                },
+                "hourly_action": [round(float(x), 3) for x in by_hour(bat.astype(np.float64))],
+                "hourly_soc": [round(float(x), 3) for x in by_hour(soc)],
+                "agrees_with_dp": float((bat == dp)[strict].mean()) if strict.any() else None,
+                "ports_full_power_share": float(full.sum() / max(parked.sum(), 1)),
+                "ports_follow_plan_share": float(follows.sum() / max(parked.sum(), 1)),
+            }
+        )
     return out
 
 
@@ -87,16 +100,20 @@ def format_reading(out: dict) -> str:
     lines = [f"{out['algo']} run {out['run']}, {out['num_days']} held-out days"]
     for i, s in enumerate(out["per_seed"]):
         share = ", ".join(f"{k} {v:.2f}" for k, v in s["battery_share"].items())
-        lines.append(f"seed {i}: battery {share}; agrees with the programme where it has a strict best "
-                     f"action {s['agrees_with_dp']:.2f}; ports at full power {s['ports_full_power_share']:.3f}, "
-                     f"as the plan advises (plan_advice) {s['ports_follow_plan_share']:.3f}")
+        lines.append(
+            f"seed {i}: battery {share}; agrees with the programme where it has a strict best "
+            f"action {s['agrees_with_dp']:.2f}; ports at full power {s['ports_full_power_share']:.3f}, "
+            f"as the plan advises (plan_advice) {s['ports_follow_plan_share']:.3f}"
+        )
         lines.append("  hourly action " + " ".join(f"{a:+.2f}" for a in s["hourly_action"]))
         lines.append("  hourly SoC    " + " ".join(f"{a:.2f}" for a in s["hourly_soc"]))
     return "\n".join(lines)
 
 
 def main(argv=None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("run_dir")
     p.add_argument("--days", type=int, default=None, help="the first N held-out days (default all)")
     p.add_argument("--out", default=None, help="write the JSON here")

@@ -47,12 +47,12 @@ from chargax_marl.trace import params_fingerprint
 RULES = ("always_max", "battery_rule")
 
 
-
-
 _REFERENCES: dict = {}
 
 
-def references(eval_params, days, draws: int, bound: bool, mpc_draws: int = 0, references_dir=None) -> dict:
+def references(
+    eval_params, days, draws: int, bound: bool, mpc_draws: int = 0, references_dir=None
+) -> dict:
     """``{name: (draws, days) daily profits}`` of the rules (and ``lp_bound``, the LP hindsight
     bound over always-max's occupancy, with ``bound``) under keys ``PRNGKey(0 .. draws - 1)``,
     and ``mpc`` (``(mpc_draws, days)``: the MPC of ``make optimal`` on the first ``mpc_draws``
@@ -60,7 +60,13 @@ def references(eval_params, days, draws: int, bound: bool, mpc_draws: int = 0, r
     computed once per params, days and draws in a process, so several runs of one scenario
     share them."""
 
-    cache_key = (params_fingerprint(eval_params), tuple(int(d) for d in days), int(draws), bool(bound), int(mpc_draws))
+    cache_key = (
+        params_fingerprint(eval_params),
+        tuple(int(d) for d in days),
+        int(draws),
+        bool(bound),
+        int(mpc_draws),
+    )
     if cache_key not in _REFERENCES:
         names = RULES + BATTERY_RULES * has_battery(eval_params)
         out = {n: [] for n in names + ("lp_bound",) * bool(bound) + ("mpc",) * bool(mpc_draws)}
@@ -69,17 +75,28 @@ def references(eval_params, days, draws: int, bound: bool, mpc_draws: int = 0, r
             for name, r in evaluate_rules(eval_params, days, names, key=key).items():
                 out[name].append(r["daily_profit"])
             if bound:
-                out["lp_bound"].append(np.asarray(hindsight_bound(eval_params, days, key)["daily_profit"], np.float64))
+                out["lp_bound"].append(
+                    np.asarray(hindsight_bound(eval_params, days, key)["daily_profit"], np.float64)
+                )
             if k < mpc_draws:
                 from_store = k == 0 and stored is not None and "mpc" in stored["policies"]
-                out["mpc"].append(np.asarray(stored["policies"]["mpc"]["daily_profit"], np.float64) if from_store
-                                  else evaluate_mpc(eval_params, days, key)["daily_profit"])
+                out["mpc"].append(
+                    np.asarray(stored["policies"]["mpc"]["daily_profit"], np.float64)
+                    if from_store
+                    else evaluate_mpc(eval_params, days, key)["daily_profit"]
+                )
         _REFERENCES[cache_key] = {n: np.stack(v) for n, v in out.items()}
     return _REFERENCES[cache_key]
 
 
-def redraw(run_dir: str | Path, draws: int = 8, bound: bool = True, mpc_draws: int = 0,
-           check_tolerance_eur: float = 1e-2, references_dir=None) -> dict:
+def redraw(
+    run_dir: str | Path,
+    draws: int = 8,
+    bound: bool = True,
+    mpc_draws: int = 0,
+    check_tolerance_eur: float = 1e-2,
+    references_dir=None,
+) -> dict:
     """Replay a run on ``draws`` car draws per held-out day; see the module docstring. With
     ``bound``, also the LP hindsight bound of every draw and each seed's fraction of the
     headroom (bound - always-max) over all draws; with ``mpc_draws``, the MPC on the first
@@ -89,7 +106,11 @@ def redraw(run_dir: str | Path, draws: int = 8, bound: bool = True, mpc_draws: i
     if isinstance(draws, bool) or not isinstance(draws, (int, np.integer)) or int(draws) < 1:
         raise ValueError(f"draws must be a positive integer, got {draws!r}")
     keys = heldout.draw_keys(draws)
-    if isinstance(mpc_draws, bool) or not isinstance(mpc_draws, (int, np.integer)) or not 0 <= mpc_draws <= draws:
+    if (
+        isinstance(mpc_draws, bool)
+        or not isinstance(mpc_draws, (int, np.integer))
+        or not 0 <= mpc_draws <= draws
+    ):
         raise ValueError(f"mpc_draws must be an integer in [0, draws={draws}], got {mpc_draws!r}")
     results, train, all_params = load_run(run_dir)
     _, eval_params, _, days = build_env_params(train.config)
@@ -97,98 +118,169 @@ def redraw(run_dir: str | Path, draws: int = 8, bound: bool = True, mpc_draws: i
     score = heldout._eval_fn(train.make_act(eval_params), eval_params)
     run_draws = int(train.config.get("EVAL_DRAWS", 1))
     if draws < run_draws:
-        raise ValueError(f"{run_dir} was evaluated on {run_draws} car draws per day; redraw it with draws >= {run_draws}, "
-                         f"got {draws}")
-    learned = np.stack([np.asarray(score(all_params, days, k).profit_eur, np.float64) for k in keys],
-                       axis=1)  # (seeds, draws, days)
+        raise ValueError(
+            f"{run_dir} was evaluated on {run_draws} car draws per day; redraw it with draws >= {run_draws}, "
+            f"got {draws}"
+        )
+    learned = np.stack(
+        [np.asarray(score(all_params, days, k).profit_eur, np.float64) for k in keys], axis=1
+    )  # (seeds, draws, days)
     stored = np.asarray([s["mean_profit_eur"] for s in results["per_seed"]], np.float64)
     worst = float(np.max(np.abs(learned[:, :run_draws].mean(axis=(1, 2)) - stored)))
     if worst > check_tolerance_eur:
-        raise ValueError(f"{run_dir}: its {run_draws} evaluation draw(s) replayed on this code differ from results.json "
-                         f"by up to {worst:.3f} EUR/day per seed: the run was made on another model; re-run it instead")
+        raise ValueError(
+            f"{run_dir}: its {run_draws} evaluation draw(s) replayed on this code differ from results.json "
+            f"by up to {worst:.3f} EUR/day per seed: the run was made on another model; re-run it instead"
+        )
     refs = references(eval_params, days, draws, bound, int(mpc_draws), references_dir)
     am = refs["always_max"]
     scenario = results.get("scenario")
-    out = {"run": str(run_dir), "algo": results["algo"],
-           "scenario": scenario.get("name") if isinstance(scenario, dict) else scenario,
-           "num_days": int(days.size), "draws": int(draws), "seeds": int(learned.shape[0]),
-           "keys": f"PRNGKey(0) ... PRNGKey({int(draws) - 1})", "replay_check_max_abs_eur": worst,
-           "references_mean_profit_eur": {n: float(v.mean()) for n, v in refs.items()},
-           "references_vs_always_max": {n: stats.day_clustered(v - am[:len(v)]) for n, v in refs.items()
-                                        if n != "always_max"},
-           "per_draw_vs_always_max": {"learned_per_seed": [[float(x) for x in (learned[i] - am).mean(axis=1)]
-                                                            for i in range(learned.shape[0])],
-                                      **{n: [float(x) for x in (v - am[:len(v)]).mean(axis=1)]
-                                         for n, v in refs.items() if n != "always_max"}},
-           "mpc_draws": int(mpc_draws), "vs": {}}
+    out = {
+        "run": str(run_dir),
+        "algo": results["algo"],
+        "scenario": scenario.get("name") if isinstance(scenario, dict) else scenario,
+        "num_days": int(days.size),
+        "draws": int(draws),
+        "seeds": int(learned.shape[0]),
+        "keys": f"PRNGKey(0) ... PRNGKey({int(draws) - 1})",
+        "replay_check_max_abs_eur": worst,
+        "references_mean_profit_eur": {n: float(v.mean()) for n, v in refs.items()},
+        "references_vs_always_max": {
+            n: stats.day_clustered(v - am[: len(v)]) for n, v in refs.items() if n != "always_max"
+        },
+        "per_draw_vs_always_max": {
+            "learned_per_seed": [
+                [float(x) for x in (learned[i] - am).mean(axis=1)] for i in range(learned.shape[0])
+            ],
+            **{
+                n: [float(x) for x in (v - am[: len(v)]).mean(axis=1)]
+                for n, v in refs.items()
+                if n != "always_max"
+            },
+        },
+        "mpc_draws": int(mpc_draws),
+        "vs": {},
+    }
     if bound:
         headroom = float((refs["lp_bound"] - am).mean())
         out["headroom_eur"] = headroom
         out["headroom_eur_per_draw"] = [float(x) for x in (refs["lp_bound"] - am).mean(axis=1)]
         out["headroom_fraction"] = {
-            "per_seed": [float((learned[i] - am).mean() / headroom) for i in range(learned.shape[0])],
-            "references": {n: float((v - am).mean() / headroom) for n, v in refs.items() if n != "mpc"}}
+            "per_seed": [
+                float((learned[i] - am).mean() / headroom) for i in range(learned.shape[0])
+            ],
+            "references": {
+                n: float((v - am).mean() / headroom) for n, v in refs.items() if n != "mpc"
+            },
+        }
         if mpc_draws:  # the MPC's fraction on its own draws, against the bound on the same draws
             n = int(mpc_draws)
             out["headroom_fraction"]["mpc_on_its_draws"] = {
-                "mpc": float((refs["mpc"] - am[:n]).mean() / (refs["lp_bound"][:n] - am[:n]).mean()),
-                "per_seed": [float((learned[i, :n] - am[:n]).mean() / (refs["lp_bound"][:n] - am[:n]).mean())
-                             for i in range(learned.shape[0])]}
+                "mpc": float(
+                    (refs["mpc"] - am[:n]).mean() / (refs["lp_bound"][:n] - am[:n]).mean()
+                ),
+                "per_seed": [
+                    float((learned[i, :n] - am[:n]).mean() / (refs["lp_bound"][:n] - am[:n]).mean())
+                    for i in range(learned.shape[0])
+                ],
+            }
         out["headroom_fraction"]["over_seeds"] = over_seeds(out["headroom_fraction"]["per_seed"])
     for name in (n for n in refs if n != "lp_bound"):
         n = len(refs[name])  # the MPC's draws are the first mpc_draws
-        per_seed = [stats.day_clustered(learned[i, :n] - refs[name]) for i in range(learned.shape[0])]
-        first_draw = [stats.day_clustered(learned[i, :1] - refs[name][:1]) for i in range(learned.shape[0])]
-        out["vs"][name] = {"per_seed": per_seed, "over_seeds": over_seeds([d["mean"] for d in per_seed]),
-                           "seeds_above": int(sum(d["mean"] > 0 for d in per_seed)),
-                           "seeds_beating": int(sum(d["beats"] for d in per_seed)),
-                           "draw0_per_seed": first_draw}
+        per_seed = [
+            stats.day_clustered(learned[i, :n] - refs[name]) for i in range(learned.shape[0])
+        ]
+        first_draw = [
+            stats.day_clustered(learned[i, :1] - refs[name][:1]) for i in range(learned.shape[0])
+        ]
+        out["vs"][name] = {
+            "per_seed": per_seed,
+            "over_seeds": over_seeds([d["mean"] for d in per_seed]),
+            "seeds_above": int(sum(d["mean"] > 0 for d in per_seed)),
+            "seeds_beating": int(sum(d["beats"] for d in per_seed)),
+            "draw0_per_seed": first_draw,
+        }
     return out
 
 
 def format_redraw(out: dict) -> str:
-    lines = [f"{out['algo']} run {out['run']} ({out['scenario']}): {out['num_days']} held-out days x "
-             f"{out['draws']} car draws, {out['seeds']} seeds; EUR/day, per seed mean ± s.e. over days "
-             f"(draw 0 alone in brackets)"]
+    lines = [
+        f"{out['algo']} run {out['run']} ({out['scenario']}): {out['num_days']} held-out days x "
+        f"{out['draws']} car draws, {out['seeds']} seeds; EUR/day, per seed mean ± s.e. over days "
+        f"(draw 0 alone in brackets)"
+    ]
     for name, r in out["references_vs_always_max"].items():
         frac = out.get("headroom_fraction", {}).get("references", {}).get(name)
-        lines.append(f"  {name:<21} vs always-max {r['mean']:+7.2f} ± {r['stderr']:.2f}"
-                     + ("" if frac is None else f", headroom {frac:.3f}"))
+        lines.append(
+            f"  {name:<21} vs always-max {r['mean']:+7.2f} ± {r['stderr']:.2f}"
+            + ("" if frac is None else f", headroom {frac:.3f}")
+        )
     if "headroom_fraction" in out:
         h = out["headroom_fraction"]
-        lines.append(f"  learned headroom fraction {h['over_seeds']['mean']:.3f} ± {h['over_seeds']['stderr']:.3f} "
-                     f"over seeds ({', '.join(f'{x:.3f}' for x in h['per_seed'])}) of {out['headroom_eur']:.2f} EUR/day")
+        lines.append(
+            f"  learned headroom fraction {h['over_seeds']['mean']:.3f} ± {h['over_seeds']['stderr']:.3f} "
+            f"over seeds ({', '.join(f'{x:.3f}' for x in h['per_seed'])}) of {out['headroom_eur']:.2f} EUR/day"
+        )
         if "mpc_on_its_draws" in h:
             m = h["mpc_on_its_draws"]
-            lines.append(f"  on the MPC's {out['mpc_draws']} draws: MPC headroom {m['mpc']:.3f}, learned "
-                         f"{', '.join(f'{x:.3f}' for x in m['per_seed'])}")
+            lines.append(
+                f"  on the MPC's {out['mpc_draws']} draws: MPC headroom {m['mpc']:.3f}, learned "
+                f"{', '.join(f'{x:.3f}' for x in m['per_seed'])}"
+            )
     for name, v in out["vs"].items():
         o = v["over_seeds"]
-        seeds = ", ".join(f"{d['mean']:+.2f} ± {d['stderr']:.2f} [{d0['stderr']:.2f}]"
-                          for d, d0 in zip(v["per_seed"], v["draw0_per_seed"]))
-        lines.append(f"  vs {name:<18} {o['mean']:+7.2f} ± {o['stderr']:.2f} over seeds; "
-                     f"{v['seeds_above']} above, {v['seeds_beating']} by 2 s.e.: {seeds}")
+        seeds = ", ".join(
+            f"{d['mean']:+.2f} ± {d['stderr']:.2f} [{d0['stderr']:.2f}]"
+            for d, d0 in zip(v["per_seed"], v["draw0_per_seed"])
+        )
+        lines.append(
+            f"  vs {name:<18} {o['mean']:+7.2f} ± {o['stderr']:.2f} over seeds; "
+            f"{v['seeds_above']} above, {v['seeds_beating']} by 2 s.e.: {seeds}"
+        )
     return "\n".join(lines)
 
 
 def main(argv=None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("run_dirs", nargs="+", metavar="RUN_DIR",
-                   help="output directories of python -m baselines.train (results.json, params.msgpack)")
-    p.add_argument("--draws", type=int, default=8, help="car draws (evaluation keys) per held-out day")
-    p.add_argument("--bound", choices=("on", "off"), default="on",
-                   help="the LP hindsight bound of every draw and the headroom fractions (about 18 s per draw "
-                        "of 100 days on shopping-grid25-high)")
-    p.add_argument("--mpc-draws", type=int, default=0,
-                   help="run the MPC of make optimal on the first N draws too (about 5 min per draw of 100 days "
-                        "at full power on 2 cores; draw 0 comes from --references when stored there)")
-    p.add_argument("--references", default=None, help="a directory `make optimal` wrote (e.g. results/optimal)")
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument(
+        "run_dirs",
+        nargs="+",
+        metavar="RUN_DIR",
+        help="output directories of python -m baselines.train (results.json, params.msgpack)",
+    )
+    p.add_argument(
+        "--draws", type=int, default=8, help="car draws (evaluation keys) per held-out day"
+    )
+    p.add_argument(
+        "--bound",
+        choices=("on", "off"),
+        default="on",
+        help="the LP hindsight bound of every draw and the headroom fractions (about 18 s per draw "
+        "of 100 days on shopping-grid25-high)",
+    )
+    p.add_argument(
+        "--mpc-draws",
+        type=int,
+        default=0,
+        help="run the MPC of make optimal on the first N draws too (about 5 min per draw of 100 days "
+        "at full power on 2 cores; draw 0 comes from --references when stored there)",
+    )
+    p.add_argument(
+        "--references", default=None, help="a directory `make optimal` wrote (e.g. results/optimal)"
+    )
     p.add_argument("--out-dir", default=None, help="write RUN_NAME.json for every run here")
     a = p.parse_args(argv)
     outs = {}
     for run_dir in a.run_dirs:
-        out = outs[run_dir] = redraw(run_dir, a.draws, bound=a.bound == "on", mpc_draws=a.mpc_draws,
-                                        references_dir=a.references)
+        out = outs[run_dir] = redraw(
+            run_dir,
+            a.draws,
+            bound=a.bound == "on",
+            mpc_draws=a.mpc_draws,
+            references_dir=a.references,
+        )
         print(format_redraw(out), flush=True)
         if a.out_dir:
             runs.write_json(out, Path(a.out_dir) / f"{Path(run_dir).name}.json")

@@ -47,7 +47,9 @@ from chargax_marl.trace import params_fingerprint
 
 RESULTS_DIR = Path("results/optimal")  # relative to the working directory: the repository root
 RULES = ("always_max", "battery_rule", "edf", "llf", "price_threshold")
-DEFAULT_ROOT_KW = 884.5  # sum of the default station's root children: 750 (DC) + 34.5 (AC) + 100 (battery)
+DEFAULT_ROOT_KW = (
+    884.5  # sum of the default station's root children: 750 (DC) + 34.5 (AC) + 100 (battery)
+)
 
 SCENARIOS = {
     "default": {"SCENARIO": "shopping", "TRAFFIC": "medium"},
@@ -56,10 +58,16 @@ SCENARIOS = {
     "peak": {"SCENARIO": "shopping-peak"},
     # make train's action space (full power, idle or full discharge per leaf): the MPC rounds
     # its plan to these levels, so this is the MPC line of make train's learning curves.
-    "default_full_power": {"SCENARIO": "shopping", "TRAFFIC": "medium", "ENV_KWARGS": {"num_levels": 1}},
+    "default_full_power": {
+        "SCENARIO": "shopping",
+        "TRAFFIC": "medium",
+        "ENV_KWARGS": {"num_levels": 1},
+    },
     "grid25_high_full_power": {"SCENARIO": "shopping-grid25-high", "ENV_KWARGS": {"num_levels": 1}},
-    "peak_full_power": {"SCENARIO": "shopping-peak",
-                        "ENV_KWARGS": {"num_levels": 1, "peak_demand_booking": "incremental"}},
+    "peak_full_power": {
+        "SCENARIO": "shopping-peak",
+        "ENV_KWARGS": {"num_levels": 1, "peak_demand_booking": "incremental"},
+    },
 }
 
 
@@ -70,16 +78,18 @@ def scenario_params(name: str):
     return full, days
 
 
-
-
-
-
 def run_scenario(name: str, mpc_kwargs: dict | None = None, num_days: int | None = None) -> dict:
     params, days = scenario_params(name)
     days = days if num_days is None else days[:num_days]
-    out = {"scenario": name, "config": SCENARIOS[name], "days": [int(d) for d in days],
-           "params_fingerprint": params_fingerprint(params), "key": "PRNGKey(0)",
-           "root_kw": float(params.station.node_max_kw[0]), "policies": {}}
+    out = {
+        "scenario": name,
+        "config": SCENARIOS[name],
+        "days": [int(d) for d in days],
+        "params_fingerprint": params_fingerprint(params),
+        "key": "PRNGKey(0)",
+        "root_kw": float(params.station.node_max_kw[0]),
+        "policies": {},
+    }
     t0 = time.perf_counter()
     rules = evaluate_rules(params, days, RULES)
     rules_s = time.perf_counter() - t0
@@ -88,14 +98,26 @@ def run_scenario(name: str, mpc_kwargs: dict | None = None, num_days: int | None
     bound = hindsight_bound(params, days)
     bound_wall = time.perf_counter() - t0
     mpc = references.evaluate_mpc(params, days, **(mpc_kwargs or {}))
-    entries = {k: {"daily_profit": v["daily_profit"], "metrics": v["metrics"]} for k, v in rules.items()}
-    entries["mpc"] = {"daily_profit": mpc["daily_profit"], "metrics": mpc["metrics"],
-                      "timing": {k: mpc[k] for k in ("wall_s", "solves", "failures", "solve_s_total", "ms_per_step")},
-                      "settings": mpc["settings"]}
-    entries["lp_bound"] = {"daily_profit": bound["daily_profit"],
-                           "timing": {"wall_s": bound_wall, "solve_s_mean": float(np.mean(bound["solve_s"])),
-                                      "solve_s_max": float(np.max(bound["solve_s"]))},
-                           "status": sorted(set(bound["status"]))}
+    entries = {
+        k: {"daily_profit": v["daily_profit"], "metrics": v["metrics"]} for k, v in rules.items()
+    }
+    entries["mpc"] = {
+        "daily_profit": mpc["daily_profit"],
+        "metrics": mpc["metrics"],
+        "timing": {
+            k: mpc[k] for k in ("wall_s", "solves", "failures", "solve_s_total", "ms_per_step")
+        },
+        "settings": mpc["settings"],
+    }
+    entries["lp_bound"] = {
+        "daily_profit": bound["daily_profit"],
+        "timing": {
+            "wall_s": bound_wall,
+            "solve_s_mean": float(np.mean(bound["solve_s"])),
+            "solve_s_max": float(np.max(bound["solve_s"])),
+        },
+        "status": sorted(set(bound["status"])),
+    }
     for key, e in entries.items():
         p = e["daily_profit"]
         e["mean_eur"] = float(np.mean(p))
@@ -115,9 +137,13 @@ def refresh_rules(name: str, out_dir: Path = RESULTS_DIR) -> dict:
     path = Path(out_dir) / f"{name}.json"
     stored = json.loads(path.read_text())
     params, days = scenario_params(name)
-    days = np.asarray(days)[:len(stored["days"])]
-    if stored["params_fingerprint"] != params_fingerprint(params) or stored["days"] != [int(d) for d in days]:
-        raise ValueError(f"{path}: made for other params or days than scenario {name!r} builds now; re-run it")
+    days = np.asarray(days)[: len(stored["days"])]
+    if stored["params_fingerprint"] != params_fingerprint(params) or stored["days"] != [
+        int(d) for d in days
+    ]:
+        raise ValueError(
+            f"{path}: made for other params or days than scenario {name!r} builds now; re-run it"
+        )
     t0 = time.perf_counter()
     rules = evaluate_rules(params, days, RULES)
     rules_s = time.perf_counter() - t0
@@ -126,16 +152,24 @@ def refresh_rules(name: str, out_dir: Path = RESULTS_DIR) -> dict:
     bound = np.asarray(stored["policies"]["lp_bound"]["daily_profit"], np.float64)
     for key, v in rules.items():
         p = v["daily_profit"]
-        stored["policies"][key] = {"daily_profit": [float(x) for x in p], "metrics": v["metrics"],
-                                   "mean_eur": float(np.mean(p)), "vs_always_max": stats.paired_difference(p, am),
-                                   "headroom": headroom_captured(p, am, bound)}
+        stored["policies"][key] = {
+            "daily_profit": [float(x) for x in p],
+            "metrics": v["metrics"],
+            "mean_eur": float(np.mean(p)),
+            "vs_always_max": stats.paired_difference(p, am),
+            "headroom": headroom_captured(p, am, bound),
+        }
     stored["rules_wall_s"] = rules_s
     write_json(stored, path)
     plot(stored, Path(out_dir) / f"{name}.png")
     return stored
 
 
-MILP_SCENARIO = {"SCENARIO": "shopping", "TRAFFIC": "high", "ENV_KWARGS": {"station_kwargs": {"num_dc": 2, "num_ac": 2}}}
+MILP_SCENARIO = {
+    "SCENARIO": "shopping",
+    "TRAFFIC": "high",
+    "ENV_KWARGS": {"station_kwargs": {"num_dc": 2, "num_ac": 2}},
+}
 """Where the MILP runs: a 4-port station (2 DC, 2 AC, the battery), high traffic."""
 
 
@@ -152,30 +186,51 @@ def run_milp(num_days: int = 10, num_steps: int = 36) -> dict:
     rows = []
     for i, day in enumerate(days):
         r = milp.compare(params, trace_lib.day_of(traces, i), keys[i], num_steps)
-        rows.append({"day": int(day), "milp_eur": r.milp_eur, "lp_eur": r.lp_eur, "always_max_eur": r.reference_eur,
-                     "cars": r.num_candidates, "binaries": r.num_binaries, "milp_solve_s": r.milp_solve_s,
-                     "lp_solve_s": r.lp_solve_s})
+        rows.append(
+            {
+                "day": int(day),
+                "milp_eur": r.milp_eur,
+                "lp_eur": r.lp_eur,
+                "always_max_eur": r.reference_eur,
+                "cars": r.num_candidates,
+                "binaries": r.num_binaries,
+                "milp_solve_s": r.milp_solve_s,
+                "lp_solve_s": r.lp_solve_s,
+            }
+        )
     arr = {k: np.array([row[k] for row in rows]) for k in rows[0]}
     gap = arr["milp_eur"] - arr["lp_eur"]
-    return {"scenario": MILP_SCENARIO, "num_steps": num_steps, "days": [int(d) for d in days], "rows": rows,
-            "mean": {k: float(np.mean(v)) for k, v in arr.items() if k != "day"},
-            "milp_minus_lp": {"mean": float(gap.mean()), "stderr": float(gap.std(ddof=1) / np.sqrt(gap.size)),
-                              "max": float(gap.max())}}
+    return {
+        "scenario": MILP_SCENARIO,
+        "num_steps": num_steps,
+        "days": [int(d) for d in days],
+        "rows": rows,
+        "mean": {k: float(np.mean(v)) for k, v in arr.items() if k != "day"},
+        "milp_minus_lp": {
+            "mean": float(gap.mean()),
+            "stderr": float(gap.std(ddof=1) / np.sqrt(gap.size)),
+            "max": float(gap.max()),
+        },
+    }
 
 
 def format_milp(r: dict) -> str:
     m, g = r["mean"], r["milp_minus_lp"]
-    return (f"MILP vs LP, 4-port station, high traffic, first {r['num_steps']} steps of {len(r['days'])} held-out days "
-            f"(window profit, EUR): always-max {m['always_max_eur']:.2f}, LP bound (always-max occupancy) "
-            f"{m['lp_eur']:.2f}, MILP (admissions free) {m['milp_eur']:.2f}; MILP - LP {g['mean']:+.2f} ± "
-            f"{g['stderr']:.2f} (max {g['max']:.2f}); {m['cars']:.1f} cars and {m['binaries']:.0f} binaries per "
-            f"window; solve {m['milp_solve_s']:.1f} s MILP, {m['lp_solve_s']:.3f} s LP")
+    return (
+        f"MILP vs LP, 4-port station, high traffic, first {r['num_steps']} steps of {len(r['days'])} held-out days "
+        f"(window profit, EUR): always-max {m['always_max_eur']:.2f}, LP bound (always-max occupancy) "
+        f"{m['lp_eur']:.2f}, MILP (admissions free) {m['milp_eur']:.2f}; MILP - LP {g['mean']:+.2f} ± "
+        f"{g['stderr']:.2f} (max {g['max']:.2f}); {m['cars']:.1f} cars and {m['binaries']:.0f} binaries per "
+        f"window; solve {m['milp_solve_s']:.1f} s MILP, {m['lp_solve_s']:.3f} s LP"
+    )
 
 
 def format_optimal(result: dict) -> str:
-    lines = [f"{result['scenario']}: {len(result['days'])} held-out days, key 0, same cars for all; "
-             f"grid connection {result['root_kw']:.1f} kW",
-             f"{'policy':<16}{'EUR/day':>10}{'vs always-max':>18}{'headroom':>10}{'time':>22}"]
+    lines = [
+        f"{result['scenario']}: {len(result['days'])} held-out days, key 0, same cars for all; "
+        f"grid connection {result['root_kw']:.1f} kW",
+        f"{'policy':<16}{'EUR/day':>10}{'vs always-max':>18}{'headroom':>10}{'time':>22}",
+    ]
     for name, e in result["policies"].items():
         d = e["vs_always_max"]
         t = e.get("timing")
@@ -185,8 +240,10 @@ def format_optimal(result: dict) -> str:
             timing = f"{t['solve_s_mean']:.2f} s/day LP"
         else:
             timing = ""
-        lines.append(f"{name:<16}{e['mean_eur']:>10.1f}{d['mean']:>+11.2f} ± {d['stderr']:<5.2f}"
-                     f"{e['headroom']['fraction']:>10.2f}{timing:>22}")
+        lines.append(
+            f"{name:<16}{e['mean_eur']:>10.1f}{d['mean']:>+11.2f} ± {d['stderr']:<5.2f}"
+            f"{e['headroom']['fraction']:>10.2f}{timing:>22}"
+        )
     return "\n".join(lines)
 
 
@@ -201,7 +258,9 @@ def plot(result: dict, path: Path) -> Path:
     ax.bar(names, diffs, yerr=errs, capsize=3, color=colors)
     ax.axhline(0.0, color="k", lw=0.8)
     ax.set_ylabel("EUR/day vs always-max (paired)")
-    ax.set_title(f"{result['scenario']}: {len(result['days'])} held-out days; grid {result['root_kw']:.0f} kW")
+    ax.set_title(
+        f"{result['scenario']}: {len(result['days'])} held-out days; grid {result['root_kw']:.0f} kW"
+    )
     ax.grid(axis="y", alpha=0.3)
     plt.setp(ax.get_xticklabels(), rotation=20)
     fig.tight_layout()
@@ -212,16 +271,33 @@ def plot(result: dict, path: Path) -> Path:
 
 
 def main(argv=None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), choices=list(SCENARIOS))
     p.add_argument("--horizon-hours", type=float, default=4.0)
     p.add_argument("--resolve-every", type=int, default=1)
-    p.add_argument("--num-days", type=int, default=None, help="only the first N held-out days (a quick look)")
+    p.add_argument(
+        "--num-days", type=int, default=None, help="only the first N held-out days (a quick look)"
+    )
     p.add_argument("--out", default=str(RESULTS_DIR))
-    p.add_argument("--milp-days", type=int, default=10, help="held-out days of the MILP comparison (0: skip it)")
-    p.add_argument("--milp-steps", type=int, default=36, help="window of the MILP comparison, steps from midnight")
-    p.add_argument("--rules-only", action="store_true",
-                   help="re-evaluate only the rules of the stored results of --scenarios (refresh_rules)")
+    p.add_argument(
+        "--milp-days",
+        type=int,
+        default=10,
+        help="held-out days of the MILP comparison (0: skip it)",
+    )
+    p.add_argument(
+        "--milp-steps",
+        type=int,
+        default=36,
+        help="window of the MILP comparison, steps from midnight",
+    )
+    p.add_argument(
+        "--rules-only",
+        action="store_true",
+        help="re-evaluate only the rules of the stored results of --scenarios (refresh_rules)",
+    )
     args = p.parse_args(argv)
     results = {}
     if args.rules_only:
@@ -237,8 +313,11 @@ def main(argv=None) -> dict:
         results["milp"] = r
     for name in args.scenarios:
         t0 = time.perf_counter()
-        r = run_scenario(name, {"horizon_hours": args.horizon_hours, "resolve_every": args.resolve_every},
-                         args.num_days)
+        r = run_scenario(
+            name,
+            {"horizon_hours": args.horizon_hours, "resolve_every": args.resolve_every},
+            args.num_days,
+        )
         r["wall_s"] = time.perf_counter() - t0
         print(format_optimal(r))
         print(f"({r['wall_s']:.0f} s)")

@@ -25,20 +25,35 @@ from chargax_marl.teachers.rules import has_battery
 
 
 def main(argv=None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("--scenario", default="shopping")
     p.add_argument("--traffic", default="medium")
     p.add_argument("--out", default=None, help="write the results JSON here")
     args = p.parse_args(argv)
-    _, full, _, days = build_env_params(resolve({"SCENARIO": args.scenario, "TRAFFIC": args.traffic}))
+    _, full, _, days = build_env_params(
+        resolve({"SCENARIO": args.scenario, "TRAFFIC": args.traffic})
+    )
     names = POLICIES + BATTERY_RULES * has_battery(full)
     results = add_paired_differences(evaluate_rules(full, days, names))
-    print(f"{args.scenario} / {args.traffic}: {len(days)} held-out days (split_days(seed=0)), key 0, same cars for all")
+    print(
+        f"{args.scenario} / {args.traffic}: {len(days)} held-out days (split_days(seed=0)), key 0, same cars for all"
+    )
     print(format_rules(results))
     if args.out:
-        write_json({"scenario": args.scenario, "traffic": args.traffic, "days": [int(d) for d in days],
-                    "results": {k: {kk: vv for kk, vv in v.items() if kk not in ("daily_profit", "days")}
-                                for k, v in results.items()}}, args.out)
+        write_json(
+            {
+                "scenario": args.scenario,
+                "traffic": args.traffic,
+                "days": [int(d) for d in days],
+                "results": {
+                    k: {kk: vv for kk, vv in v.items() if kk not in ("daily_profit", "days")}
+                    for k, v in results.items()
+                },
+            },
+            args.out,
+        )
     return results
 
 

@@ -32,7 +32,13 @@ from chargax_marl.core.scenarios import scenario_kwargs
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.evaluation import run_days, split_days
 
-SCENARIOS = ("shopping", "shopping-grid25-medium", "shopping-grid50-high", "shopping-grid25-high", "shopping-peak-high")
+SCENARIOS = (
+    "shopping",
+    "shopping-grid25-medium",
+    "shopping-grid50-high",
+    "shopping-grid25-high",
+    "shopping-peak-high",
+)
 PERTURBATIONS = ("battery_charges", "port_idles")
 OUT = Path("outputs/sensitivity.json")  # copy to results/ to commit
 
@@ -51,7 +57,9 @@ def perturbed_always_max(params, perturbation: str, step: int):
     def act(state, key):
         del key
         levels = jnp.where(is_battery, 0, params.num_levels)
-        return jnp.where(changed & (state.timestep == step), changed_level, levels).astype(jnp.int32)
+        return jnp.where(changed & (state.timestep == step), changed_level, levels).astype(
+            jnp.int32
+        )
 
     return act
 
@@ -72,22 +80,31 @@ def sensitivity(params, days, key=None, step: int | None = None) -> dict:
         tot = daily_totals(perturbed_always_max(params, name, step), params, days, key)
         d = np.asarray(tot.profit_eur, np.float64) - np.asarray(base.profit_eur, np.float64)
         served = np.asarray(tot.cars_served) != np.asarray(base.cars_served)
-        out[name] = {"daily_difference_eur": d.tolist(), "mean": float(d.mean()), "std": float(d.std(ddof=1)),
-                     "max_abs": float(np.abs(d).max()), "days_over_1_eur": int(np.sum(np.abs(d) > 1.0)),
-                     "days_served_cars_differ": int(served.sum())}
+        out[name] = {
+            "daily_difference_eur": d.tolist(),
+            "mean": float(d.mean()),
+            "std": float(d.std(ddof=1)),
+            "max_abs": float(np.abs(d).max()),
+            "days_over_1_eur": int(np.sum(np.abs(d) > 1.0)),
+            "days_served_cars_differ": int(served.sum()),
+        }
     return out
 
 
 def main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
-    p.add_argument("--hour", type=float, default=10.0, help="the hour of the day of the changed step")
+    p.add_argument(
+        "--hour", type=float, default=10.0, help="the hour of the day of the changed step"
+    )
     p.add_argument("--out", default=str(OUT))
     a = p.parse_args(argv)
     _, days = split_days(365, 100, seed=0)
     out = {"days": [int(d) for d in days], "key": 0, "hour": a.hour, "scenarios": {}}
-    print("| scenario | change at the step | mean EUR/day | std over days | days moved > 1 EUR | largest move EUR "
-          "| days the served-car count differs |")
+    print(
+        "| scenario | change at the step | mean EUR/day | std over days | days moved > 1 EUR | largest move EUR "
+        "| days the served-car count differs |"
+    )
     print("|---|---|---|---|---|---|---|")
     for name in a.scenarios:
         t0 = time.perf_counter()
@@ -95,10 +112,16 @@ def main(argv=None) -> dict:
         row = sensitivity(params, days, step=int(round(a.hour * 60 / float(params.step_minutes))))
         row["wall_s"] = time.perf_counter() - t0
         out["scenarios"][name] = row
-        for pert, label in (("battery_charges", "battery charges"), ("port_idles", "one port idles")):
+        for pert, label in (
+            ("battery_charges", "battery charges"),
+            ("port_idles", "one port idles"),
+        ):
             r = row[pert]
-            print(f"| `{name}` | {label} | {r['mean']:+.2f} | {r['std']:.2f} | {r['days_over_1_eur']} | "
-                  f"{r['max_abs']:.1f} | {r['days_served_cars_differ']} |", flush=True)
+            print(
+                f"| `{name}` | {label} | {r['mean']:+.2f} | {r['std']:.2f} | {r['days_over_1_eur']} | "
+                f"{r['max_abs']:.1f} | {r['days_served_cars_differ']} |",
+                flush=True,
+            )
     if a.out:
         Path(a.out).parent.mkdir(parents=True, exist_ok=True)
         Path(a.out).write_text(json.dumps(out, indent=1))

@@ -19,7 +19,9 @@ from chargax_marl.evaluation import (
 from chargax_marl.teachers.rules import has_battery
 
 
-def evaluate_batched(make_act, net_params, eval_params, days, key=None, reference_profit=None, draws: int = 1) -> dict:
+def evaluate_batched(
+    make_act, net_params, eval_params, days, key=None, reference_profit=None, draws: int = 1
+) -> dict:
     """Greedy held-out evaluation of every seed's parameters (leading axis) with
     :func:`chargax_marl.evaluation.run_days`.
 
@@ -35,7 +37,9 @@ def evaluate_batched(make_act, net_params, eval_params, days, key=None, referenc
     mean and standard error over days of (policy − reference) profit.
     """
     if key is not None and draws != 1:
-        raise ValueError(f"evaluate_batched: give either a key or draws > 1, not both (draws={draws!r})")
+        raise ValueError(
+            f"evaluate_batched: give either a key or draws > 1, not both (draws={draws!r})"
+        )
     keys = [key] if key is not None else protocol.draw_keys(draws)
     days = jnp.asarray(days, jnp.int32)
     seeds = jax.tree.leaves(net_params)[0].shape[0]
@@ -43,10 +47,17 @@ def evaluate_batched(make_act, net_params, eval_params, days, key=None, referenc
     totals = protocol.mean_over_draws(lambda k: fn(net_params, days, k), keys)
     flat = jax.tree.map(lambda x: np.asarray(x).reshape(-1), totals)
     profit = np.asarray(totals.profit_eur, np.float64)
-    out = {"num_days": int(days.shape[0]), "num_seeds": int(seeds), "metrics": summarize(flat),
-           "per_seed_profit": [float(x) for x in profit.mean(axis=1)], "daily_profit": profit,
-           "per_seed_metrics": {name: [float(x) for x in np.asarray(getattr(totals, field), np.float64).mean(axis=1)]
-                                for name, field in METRICS.items()}}
+    out = {
+        "num_days": int(days.shape[0]),
+        "num_seeds": int(seeds),
+        "metrics": summarize(flat),
+        "per_seed_profit": [float(x) for x in profit.mean(axis=1)],
+        "daily_profit": profit,
+        "per_seed_metrics": {
+            name: [float(x) for x in np.asarray(getattr(totals, field), np.float64).mean(axis=1)]
+            for name, field in METRICS.items()
+        },
+    }
     if reference_profit is not None:
         out["paired_diff"] = stats.paired_difference(profit, reference_profit)
     return out
@@ -58,8 +69,11 @@ _EVAL_CACHE: dict = {}
 def _eval_fn(make_act, eval_params):
     k = (make_act, id(eval_params))
     if k not in _EVAL_CACHE:
-        _EVAL_CACHE[k] = jax.jit(jax.vmap(lambda p, d, kk: run_days(make_act(p), eval_params, d, kk),
-                                          in_axes=(0, None, None)))
+        _EVAL_CACHE[k] = jax.jit(
+            jax.vmap(
+                lambda p, d, kk: run_days(make_act(p), eval_params, d, kk), in_axes=(0, None, None)
+            )
+        )
     return _EVAL_CACHE[k]
 
 
@@ -78,8 +92,9 @@ REFERENCES = ("always_max", "battery_rule", "battery_programme", "plan_programme
 OPTIMAL_CHOICES = ("off", "bound", "mpc")
 
 
-def baseline_results(eval_params, eval_days, optimal: str = "off", draws: int = 1,
-                     references_dir=None) -> dict:
+def baseline_results(
+    eval_params, eval_days, optimal: str = "off", draws: int = 1, references_dir=None
+) -> dict:
     """The :data:`BASELINES` (and, on a station with a battery, the teachers' rules) on the
     held-out days, with the evaluation's default key (the same
     drawn cars that :func:`evaluate_batched` gives the agents). Each keeps its
@@ -101,12 +116,14 @@ def baseline_results(eval_params, eval_days, optimal: str = "off", draws: int = 
     out = rules.evaluate_rules(eval_params, eval_days, names, draws=draws)
     for name in REFERENCES[1:]:
         if name in out:
-            out[name]["vs_always_max"] = stats.paired_difference(out[name]["daily_profit"],
-                                                                  out["always_max"]["daily_profit"])
+            out[name]["vs_always_max"] = stats.paired_difference(
+                out[name]["daily_profit"], out["always_max"]["daily_profit"]
+            )
     for name in rules.TEACHER_RULES:
         if name in out:
-            out[name]["vs_battery_rule"] = stats.paired_difference(out[name]["daily_profit"],
-                                                                    out["battery_rule"]["daily_profit"])
+            out[name]["vs_battery_rule"] = stats.paired_difference(
+                out[name]["daily_profit"], out["battery_rule"]["daily_profit"]
+            )
     if optimal == "off":
         return out
     stored = None
@@ -118,13 +135,28 @@ def baseline_results(eval_params, eval_days, optimal: str = "off", draws: int = 
         source = f"{references_dir} (same params and days)"
     else:
         keys = protocol.draw_keys(draws)
-        bound_daily = protocol.mean_over_draws(lambda k: hindsight_bound(eval_params, eval_days, k)["daily_profit"], keys)
-        mpc_daily = (protocol.mean_over_draws(lambda k: references.evaluate_mpc(eval_params, eval_days, k)["daily_profit"], keys)
-                     if optimal == "mpc" else None)
+        bound_daily = protocol.mean_over_draws(
+            lambda k: hindsight_bound(eval_params, eval_days, k)["daily_profit"], keys
+        )
+        mpc_daily = (
+            protocol.mean_over_draws(
+                lambda k: references.evaluate_mpc(eval_params, eval_days, k)["daily_profit"], keys
+            )
+            if optimal == "mpc"
+            else None
+        )
         source = "computed" if draws == 1 else f"computed, mean over {draws} car draws per day"
-    out["lp_bound"] = {"daily_profit": bound_daily, "metrics": summarize_profit(bound_daily), "source": source}
+    out["lp_bound"] = {
+        "daily_profit": bound_daily,
+        "metrics": summarize_profit(bound_daily),
+        "source": source,
+    }
     if mpc_daily is not None:
-        out["mpc"] = {"daily_profit": mpc_daily, "metrics": summarize_profit(mpc_daily), "source": source}
+        out["mpc"] = {
+            "daily_profit": mpc_daily,
+            "metrics": summarize_profit(mpc_daily),
+            "source": source,
+        }
     add_headroom(out, out)
     return out
 
@@ -153,19 +185,41 @@ def per_seed_results(final: dict, evals: list, baselines: dict, seed: int) -> li
     profit = np.atleast_2d(np.asarray(final["daily_profit"], np.float64))
     am = np.asarray(baselines["always_max"]["daily_profit"], np.float64)
     bound = baselines.get("lp_bound", {}).get("daily_profit")
-    vs = {name: stats.paired_difference(profit, baselines[name]["daily_profit"])
-          for name in REFERENCES if name in baselines}
+    vs = {
+        name: stats.paired_difference(profit, baselines[name]["daily_profit"])
+        for name in REFERENCES
+        if name in baselines
+    }
     out = []
     for i in range(profit.shape[0]):
-        def first(key):
-            e = next((e for e in evals if e.get(key) is not None and stats.seed_beats(e[key], i)), None)
-            return None if e is None else {"timesteps": e["timesteps"], "wall_minutes": e["train_seconds"] / 60.0}
 
-        entry = {"seed_index": i, "key": f"split(PRNGKey({seed}), seeds)[{i}]", "mean_profit_eur": float(profit[i].mean())}
-        for name in (n for n in REFERENCES if n in vs or n == "battery_rule"):  # battery_rule: None when absent
+        def first(key):
+            e = next(
+                (e for e in evals if e.get(key) is not None and stats.seed_beats(e[key], i)), None
+            )
+            return (
+                None
+                if e is None
+                else {"timesteps": e["timesteps"], "wall_minutes": e["train_seconds"] / 60.0}
+            )
+
+        entry = {
+            "seed_index": i,
+            "key": f"split(PRNGKey({seed}), seeds)[{i}]",
+            "mean_profit_eur": float(profit[i].mean()),
+        }
+        for name in (
+            n for n in REFERENCES if n in vs or n == "battery_rule"
+        ):  # battery_rule: None when absent
             d = vs.get(name)
-            entry[f"vs_{name}"] = None if d is None else {"mean": d["per_seed_mean"][i], "stderr": d["per_seed_stderr"][i]}
-        entry["headroom_fraction"] = None if bound is None else headroom_captured(profit[i], am, bound)["fraction"]
+            entry[f"vs_{name}"] = (
+                None
+                if d is None
+                else {"mean": d["per_seed_mean"][i], "stderr": d["per_seed_stderr"][i]}
+            )
+        entry["headroom_fraction"] = (
+            None if bound is None else headroom_captured(profit[i], am, bound)["fraction"]
+        )
         for name in REFERENCES:
             if f"vs_{name}" in entry:
                 entry[f"first_beats_{name}"] = first(f"vs_{name}")

@@ -13,11 +13,15 @@ def draw_keys(draws: int = 1) -> list:
     not the draws, as the independent units (the draws of one day share its prices). Draw 0
     is the single-draw evaluation's key."""
     if isinstance(draws, bool) or not isinstance(draws, (int, np.integer)) or int(draws) < 1:
-        raise ValueError(f"field 'EVAL_DRAWS' (car draws per held-out day) must be a positive integer, got {draws!r}")
+        raise ValueError(
+            f"field 'EVAL_DRAWS' (car draws per held-out day) must be a positive integer, got {draws!r}"
+        )
     return [jax.random.PRNGKey(k) for k in range(int(draws))]
 
 
 def mean_over_draws(evaluate, keys):
     """``evaluate(key) -> pytree of arrays`` averaged leaf by leaf over ``keys`` (one call per key)."""
     outs = [jax.device_get(evaluate(k)) for k in keys]
-    return jax.tree.map(lambda *x: np.mean(np.stack([np.asarray(v, np.float64) for v in x]), axis=0), *outs)
+    return jax.tree.map(
+        lambda *x: np.mean(np.stack([np.asarray(v, np.float64) for v in x]), axis=0), *outs
+    )

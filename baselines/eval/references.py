@@ -20,15 +20,26 @@ def evaluate_mpc(params, days, key=None, **mpc_kwargs) -> dict:
     key = jax.random.PRNGKey(0) if key is None else key
     mpc = MPC(params, **mpc_kwargs)
     t0 = time.perf_counter()
-    totals = jax.jit(lambda d, k: run_days(lambda s, kk: mpc(s, kk, params), params, d, k))(np.asarray(days), key)
+    totals = jax.jit(lambda d, k: run_days(lambda s, kk: mpc(s, kk, params), params, d, k))(
+        np.asarray(days), key
+    )
     wall = time.perf_counter() - t0
     steps = int(np.size(days)) * params.num_steps
-    return {"daily_profit": np.asarray(totals.profit_eur, np.float64), "metrics": summarize(totals),
-            "wall_s": wall, "solves": mpc.solves, "failures": mpc.failures, "solve_s_total": mpc.solve_s,
-            "ms_per_step": 1000.0 * wall / steps,
-            "settings": {"horizon_steps": mpc.horizon_steps, "resolve_every": mpc.resolve_every,
-                         "urgency_eur_kwh_h": mpc.urgency_eur_kwh_h,
-                         "deadline_margin_steps": mpc.deadline_margin_steps}}
+    return {
+        "daily_profit": np.asarray(totals.profit_eur, np.float64),
+        "metrics": summarize(totals),
+        "wall_s": wall,
+        "solves": mpc.solves,
+        "failures": mpc.failures,
+        "solve_s_total": mpc.solve_s,
+        "ms_per_step": 1000.0 * wall / steps,
+        "settings": {
+            "horizon_steps": mpc.horizon_steps,
+            "resolve_every": mpc.resolve_every,
+            "urgency_eur_kwh_h": mpc.urgency_eur_kwh_h,
+            "deadline_margin_steps": mpc.deadline_margin_steps,
+        },
+    }
 
 
 def cached(params, days, directory: str | Path) -> dict | None:
@@ -47,6 +58,8 @@ def cached(params, days, directory: str | Path) -> dict | None:
     fingerprint = params_fingerprint(params)
     for path in sorted(Path(directory).glob("*.json")):
         data = json.loads(path.read_text())
-        if data.get("params_fingerprint") == fingerprint and data.get("days") == [int(d) for d in days]:
+        if data.get("params_fingerprint") == fingerprint and data.get("days") == [
+            int(d) for d in days
+        ]:
             return data
     return None

@@ -68,8 +68,10 @@ def check_replay(replayed: dict, stored: dict, names, where: str) -> None:
         ref = np.asarray(stored[name]["daily_profit"], np.float64)
         if not np.allclose(replayed[name]["daily_profit"], ref, rtol=1e-5, atol=1e-3):
             worst = float(np.max(np.abs(replayed[name]["daily_profit"] - ref)))
-            raise ValueError(f"{where}: {name} replayed on this code differs from the stored run by up to "
-                             f"{worst:.3f} EUR/day: the run was made on another model; re-run it instead")
+            raise ValueError(
+                f"{where}: {name} replayed on this code differs from the stored run by up to "
+                f"{worst:.3f} EUR/day: the run was made on another model; re-run it instead"
+            )
 
 
 def evaluate_rules(params, days, policies=POLICIES, key=None, draws: int = 1) -> dict:
@@ -79,15 +81,21 @@ def evaluate_rules(params, days, policies=POLICIES, key=None, draws: int = 1) ->
     :data:`TEACHER_RULES`. With ``draws`` > 1 (and no ``key``), every day is played under the
     keys of :func:`baselines.eval.protocol.draw_keys` and its totals are the means over the draws."""
     if key is not None and draws != 1:
-        raise ValueError(f"evaluate_rules: give either a key or draws > 1, not both (draws={draws!r})")
+        raise ValueError(
+            f"evaluate_rules: give either a key or draws > 1, not both (draws={draws!r})"
+        )
     keys = [key] if key is not None else protocol.draw_keys(draws)
     out = {}
     for name in policies:
         policy = rule_policy(name, params)
         fn = jax.jit(lambda d, k: run_days(lambda s, kk: policy(s, kk, params), params, d, k))
         totals = protocol.mean_over_draws(lambda k: fn(np.asarray(days), k), keys)
-        out[name] = {"num_days": int(np.size(days)), "days": [int(d) for d in np.asarray(days)],
-                     "metrics": summarize(totals), "daily_profit": np.asarray(totals.profit_eur, np.float64)}
+        out[name] = {
+            "num_days": int(np.size(days)),
+            "days": [int(d) for d in np.asarray(days)],
+            "metrics": summarize(totals),
+            "daily_profit": np.asarray(totals.profit_eur, np.float64),
+        }
     return out
 
 
@@ -96,13 +104,17 @@ def add_paired_differences(results: dict, references=("always_max", "battery_rul
     for r in results.values():
         for ref in references:
             if ref in results:
-                r[f"vs_{ref}"] = stats.paired_difference(r["daily_profit"], results[ref]["daily_profit"])
+                r[f"vs_{ref}"] = stats.paired_difference(
+                    r["daily_profit"], results[ref]["daily_profit"]
+                )
     return results
 
 
 def format_rules(results: dict) -> str:
-    lines = [f"{'policy':<18}{'EUR/day':>10}{'vs always-max':>20}{'vs battery rule':>20}"
-             f"{'delivered kWh':>15}{'missing kWh':>13}{'battery V EUR':>15}"]
+    lines = [
+        f"{'policy':<18}{'EUR/day':>10}{'vs always-max':>20}{'vs battery rule':>20}"
+        f"{'delivered kWh':>15}{'missing kWh':>13}{'battery V EUR':>15}"
+    ]
     for name, r in results.items():
         m = r["metrics"]
 
@@ -110,7 +122,9 @@ def format_rules(results: dict) -> str:
             d = r.get(f"vs_{ref}")
             return f"{d['mean']:+.2f} ± {d['stderr']:.2f}" if d else "-"
 
-        lines.append(f"{name:<18}{m['daily_profit_eur']['mean']:>10.1f}{diff('always_max'):>20}{diff('battery_rule'):>20}"
-                     f"{m['energy_delivered_kwh']['mean']:>15.0f}{m['missing_kwh_at_departure']['mean']:>13.1f}"
-                     f"{m['battery_terminal_value_eur']['mean']:>15.2f}")
+        lines.append(
+            f"{name:<18}{m['daily_profit_eur']['mean']:>10.1f}{diff('always_max'):>20}{diff('battery_rule'):>20}"
+            f"{m['energy_delivered_kwh']['mean']:>15.0f}{m['missing_kwh_at_departure']['mean']:>13.1f}"
+            f"{m['battery_terminal_value_eur']['mean']:>15.2f}"
+        )
     return "\n".join(lines)

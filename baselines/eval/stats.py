@@ -8,11 +8,17 @@ import numpy as np
 def paired_difference(profit, reference_profit) -> dict:
     """Per seed, mean and standard error over days of ``profit (seeds, days) - reference (days,)``;
     and the mean over seeds with the standard error of that mean over seeds × days."""
-    d = np.atleast_2d(np.asarray(profit, np.float64)) - np.asarray(reference_profit, np.float64)[None, :]
+    d = (
+        np.atleast_2d(np.asarray(profit, np.float64))
+        - np.asarray(reference_profit, np.float64)[None, :]
+    )
     n = d.shape[1]
-    return {"per_seed_mean": [float(x) for x in d.mean(axis=1)],
-            "per_seed_stderr": [float(x) for x in d.std(axis=1, ddof=1) / np.sqrt(n)],
-            "mean": float(d.mean()), "stderr": float(d.std(ddof=1) / np.sqrt(d.size))}
+    return {
+        "per_seed_mean": [float(x) for x in d.mean(axis=1)],
+        "per_seed_stderr": [float(x) for x in d.std(axis=1, ddof=1) / np.sqrt(n)],
+        "mean": float(d.mean()),
+        "stderr": float(d.std(ddof=1) / np.sqrt(d.size)),
+    }
 
 
 def beats(paired: dict) -> bool:
@@ -30,8 +36,13 @@ def seed_beats(paired: dict, i: int) -> bool:
 def over_seeds(values) -> dict:
     """Mean and standard error over seeds of per-seed numbers (``stderr`` is NaN for one seed)."""
     v = np.asarray(values, np.float64)
-    return {"mean": float(v.mean()), "stderr": float(v.std(ddof=1) / np.sqrt(v.size)) if v.size > 1 else float("nan"),
-            "min": float(v.min()), "max": float(v.max()), "all_seeds_positive": bool(np.all(v > 0))}
+    return {
+        "mean": float(v.mean()),
+        "stderr": float(v.std(ddof=1) / np.sqrt(v.size)) if v.size > 1 else float("nan"),
+        "min": float(v.min()),
+        "max": float(v.max()),
+        "all_seeds_positive": bool(np.all(v > 0)),
+    }
 
 
 def day_clustered(diff: np.ndarray) -> dict:

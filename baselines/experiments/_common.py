@@ -25,8 +25,14 @@ from chargax_marl.machine import machine_info
 
 PAPER_TIMESTEPS = int(1e7)  # Table 3: 1e7 env-steps per seed
 
-TUNED = {algo: {k: v for k, v in settings(algo).items() if k not in ("SCENARIO", "TRAFFIC", "TOTAL_TIMESTEPS")}
-         for algo in ("ppo", "ippo", "mappo")}
+TUNED = {
+    algo: {
+        k: v
+        for k, v in settings(algo).items()
+        if k not in ("SCENARIO", "TRAFFIC", "TOTAL_TIMESTEPS")
+    }
+    for algo in ("ppo", "ippo", "mappo")
+}
 """The ``tuned`` learning settings per algorithm: those of ``baselines/configs/<algo>.toml``
 (``make train-ppo``, ``make train``, ``make train-mappo``) without their scenario and budget.
 The result files committed before these settings record the ones they ran with (``config``)."""
@@ -35,18 +41,34 @@ DEFAULT_TIMESTEPS = 2e6
 DEFAULT_SEEDS = 4
 
 
-def parser(doc: str, full_seeds: int, timesteps: float = DEFAULT_TIMESTEPS,
-           seeds: int = DEFAULT_SEEDS) -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+def parser(
+    doc: str, full_seeds: int, timesteps: float = DEFAULT_TIMESTEPS, seeds: int = DEFAULT_SEEDS
+) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        description=doc, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("--algo", choices=("ppo", "ippo", "mappo"), default="ppo")
-    p.add_argument("--full", action="store_true",
-                   help=f"the paper's budget: {PAPER_TIMESTEPS:.0e} env-steps per seed, {full_seeds} seeds")
-    p.add_argument("--timesteps", type=float, default=timesteps, help="env-steps per seed (without --full)")
+    p.add_argument(
+        "--full",
+        action="store_true",
+        help=f"the paper's budget: {PAPER_TIMESTEPS:.0e} env-steps per seed, {full_seeds} seeds",
+    )
+    p.add_argument(
+        "--timesteps", type=float, default=timesteps, help="env-steps per seed (without --full)"
+    )
     p.add_argument("--seeds", type=int, default=seeds, help="seeds (without --full)")
-    p.add_argument("--settings", choices=("tuned", "table3"), default="tuned",
-                   help="learning settings: the learned-agents ones (tuned) or the paper's Table 3 (table3)")
-    p.add_argument("--optimal", choices=OPTIMAL_CHOICES, default="bound",
-                   help="add the LP hindsight bound (bound, default), also the MPC (mpc), or neither (off)")
+    p.add_argument(
+        "--settings",
+        choices=("tuned", "table3"),
+        default="tuned",
+        help="learning settings: the learned-agents ones (tuned) or the paper's Table 3 (table3)",
+    )
+    p.add_argument(
+        "--optimal",
+        choices=OPTIMAL_CHOICES,
+        default="bound",
+        help="add the LP hindsight bound (bound, default), also the MPC (mpc), or neither (off)",
+    )
     p.set_defaults(full_seeds=full_seeds)
     return p
 
@@ -83,8 +105,15 @@ def eval_setup(base: dict, prices: str, optimal: str = "off") -> tuple:
 
 def train_on(algo: str, base: dict, prices: str, seeds: int, baselines: dict) -> RunOutput:
     """Train ``seeds`` seeds on ``prices`` (2 chunks, evaluated once at the end on its own held-out days)."""
-    return run(algo, with_prices(base, prices), seeds=seeds, chunks=2, evaluate_every_chunk=False,
-               baselines=baselines, quiet=True)
+    return run(
+        algo,
+        with_prices(base, prices),
+        seeds=seeds,
+        chunks=2,
+        evaluate_every_chunk=False,
+        baselines=baselines,
+        quiet=True,
+    )
 
 
 def profit_curve(curve: dict) -> dict:
@@ -92,8 +121,6 @@ def profit_curve(curve: dict) -> dict:
     episode profit per seed. The loss and entropy curves of every cell made the result files
     tens of MB; a run's own ``results.json`` (``baselines.train --out``) keeps them."""
     return {k: curve[k] for k in ("timesteps", "episode_profit_eur")}
-
-
 
 
 def reused_run(path, algo: str, config: dict, seeds: int, chunks: int) -> dict:
@@ -111,27 +138,47 @@ def reused_run(path, algo: str, config: dict, seeds: int, chunks: int) -> dict:
         res = json.load(f)
     config = resolve(config)
     _, n_upd = chunked_updates(config, chunks)
-    want = {"algo": algo, "seeds": seeds, "seed": 0,
-            "timesteps": n_upd * config["NUM_ENVS"] * config["NUM_STEPS"]}
+    want = {
+        "algo": algo,
+        "seeds": seeds,
+        "seed": 0,
+        "timesteps": n_upd * config["NUM_ENVS"] * config["NUM_STEPS"],
+    }
     diffs = [f"{k}={res.get(k)!r} (this run: {v!r})" for k, v in want.items() if res.get(k) != v]
     theirs = res.get("config", {})
     # an option the stored run predates is taken at its default: options are added off by default
-    absent = sorted(k for k in config if k not in theirs and config[k] == (SCHEMA[k].default if k in SCHEMA else object()))
+    absent = sorted(
+        k
+        for k in config
+        if k not in theirs and config[k] == (SCHEMA[k].default if k in SCHEMA else object())
+    )
     theirs = {**{k: config[k] for k in absent}, **theirs}
-    diffs += [f"config {k}={theirs.get(k)!r} (this run: {config.get(k)!r})"
-              for k in sorted(set(config) | set(theirs)) if k not in ("TOTAL_TIMESTEPS", "ENV_KWARGS")
-              and theirs.get(k) != config.get(k)]
+    diffs += [
+        f"config {k}={theirs.get(k)!r} (this run: {config.get(k)!r})"
+        for k in sorted(set(config) | set(theirs))
+        if k not in ("TOTAL_TIMESTEPS", "ENV_KWARGS") and theirs.get(k) != config.get(k)
+    ]
     if not diffs:  # ENV_KWARGS may spell the same station differently (a default given or not)
         mine, other = (build_env_params(resolve(c)) for c in (config, theirs))
-        same = all(jax.tree_util.tree_structure(a) == jax.tree_util.tree_structure(b) and
-                   all(np.array_equal(x, y) for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)))
-                   for a, b in zip(mine, other))
+        same = all(
+            jax.tree_util.tree_structure(a) == jax.tree_util.tree_structure(b)
+            and all(
+                np.array_equal(x, y)
+                for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b))
+            )
+            for a, b in zip(mine, other)
+        )
         if not same:
-            diffs.append(f"config ENV_KWARGS={theirs.get('ENV_KWARGS')!r} builds another station, "
-                         f"prices or days than {config['ENV_KWARGS']!r}")
+            diffs.append(
+                f"config ENV_KWARGS={theirs.get('ENV_KWARGS')!r} builds another station, "
+                f"prices or days than {config['ENV_KWARGS']!r}"
+            )
     if diffs:
         raise ValueError(f"{path} is not this run: " + "; ".join(diffs))
-    return {**res, "reused_from": {"path": str(path), "code": res.get("code"), "options_added_since": absent}}
+    return {
+        **res,
+        "reused_from": {"path": str(path), "code": res.get("code"), "options_added_since": absent},
+    }
 
 
 class Record:
@@ -140,7 +187,13 @@ class Record:
 
     def __init__(self, args, seeds: int, base: dict, paper_seeds: int | None, figure: str):
         """``paper_seeds``: the paper's seed count for this figure (``None``: no paper counterpart)."""
-        self.args, self.seeds, self.base, self.paper_seeds, self.figure = args, seeds, base, paper_seeds, figure
+        self.args, self.seeds, self.base, self.paper_seeds, self.figure = (
+            args,
+            seeds,
+            base,
+            paper_seeds,
+            figure,
+        )
         self.t0 = time.time()
 
     def as_dict(self) -> dict:
@@ -155,12 +208,18 @@ class Record:
             "settings": self.args.settings,
             "seeds": self.seeds,
             "timesteps_per_seed": timesteps,
-            "paper": {"timesteps_per_seed": PAPER_TIMESTEPS, "seeds": self.paper_seeds} if paper else None,
+            "paper": {"timesteps_per_seed": PAPER_TIMESTEPS, "seeds": self.paper_seeds}
+            if paper
+            else None,
             "cut": cut,
-            "cut_note": (f"cut from the paper's scale: {self.seeds} seeds x {timesteps:.2g} env-steps per seed "
-                         f"(the paper: {self.paper_seeds} x {PAPER_TIMESTEPS:.0e})") if cut else
-                        "the paper's scale" if paper else
-                        f"no paper counterpart: {self.seeds} seeds x {timesteps:.2g} env-steps per seed",
+            "cut_note": (
+                f"cut from the paper's scale: {self.seeds} seeds x {timesteps:.2g} env-steps per seed "
+                f"(the paper: {self.paper_seeds} x {PAPER_TIMESTEPS:.0e})"
+            )
+            if cut
+            else "the paper's scale"
+            if paper
+            else f"no paper counterpart: {self.seeds} seeds x {timesteps:.2g} env-steps per seed",
             "wall_seconds": time.time() - self.t0,
             "machine": info,
         }
@@ -169,5 +228,7 @@ class Record:
     def summary(d: dict) -> str:
         """One line of an :meth:`as_dict` result, for the log."""
         m = d["machine"]
-        return (f"{d['figure']}: {d['cut_note']}; {d['wall_seconds'] / 60:.1f} min on {m['cpu']} x{m['cores']} "
-                f"({m['backend']})")
+        return (
+            f"{d['figure']}: {d['cut_note']}; {d['wall_seconds'] / 60:.1f} min on {m['cpu']} x{m['cores']} "
+            f"({m['backend']})"
+        )

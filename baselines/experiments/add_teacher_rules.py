@@ -91,8 +91,11 @@ def add_to_result(res: dict, where: str = "") -> bool:
         return False
     table, algo = res["evaluation"]["table"], res["algo"]
     rules = teacher_entries(params, days, table, where)
-    res["evaluation"]["table"] = {**{k: v for k, v in table.items() if k not in rules and k != algo}, **rules,
-                                  algo: table[algo]}
+    res["evaluation"]["table"] = {
+        **{k: v for k, v in table.items() if k not in rules and k != algo},
+        **rules,
+        algo: table[algo],
+    }
     learned = np.atleast_2d(np.asarray(table[algo]["daily_profit"], np.float64))
     summary = res.get("over_seeds", {})
     for name, rule in rules.items():
@@ -100,11 +103,15 @@ def add_to_result(res: dict, where: str = "") -> bool:
         for i, seed in enumerate(res["per_seed"]):
             items = [(k, v) for k, v in seed.items() if k != key]
             at = next(j for j, (k, _) in enumerate(items) if k == "headroom_fraction")
-            items.insert(at, (key, {"mean": vs["per_seed_mean"][i], "stderr": vs["per_seed_stderr"][i]}))
+            items.insert(
+                at, (key, {"mean": vs["per_seed_mean"][i], "stderr": vs["per_seed_stderr"][i]})
+            )
             res["per_seed"][i] = dict(items)
-        summary = {**{k: v for k, v in summary.items() if k.startswith("vs_") and k != key},
-                   key: over_seeds([s[key]["mean"] for s in res["per_seed"]]),
-                   **{k: v for k, v in summary.items() if not k.startswith("vs_")}}
+        summary = {
+            **{k: v for k, v in summary.items() if k.startswith("vs_") and k != key},
+            key: over_seeds([s[key]["mean"] for s in res["per_seed"]]),
+            **{k: v for k, v in summary.items() if not k.startswith("vs_")},
+        }
         res[key] = vs
     res["over_seeds"] = summary
     return True
@@ -115,7 +122,9 @@ def add_to_price_shift(d: dict, where: str = "") -> dict:
     ``baselines`` per eval year) in place: per eval year the rules' entries, checked as in
     :func:`teacher_entries`, and per cell ``vs_<rule>``. Returns ``{cell: {key: difference}}``."""
     if d.get("settings") != "tuned":
-        raise ValueError(f"{where}: settings {d.get('settings')!r}; only the tuned settings' params are rebuilt here")
+        raise ValueError(
+            f"{where}: settings {d.get('settings')!r}; only the tuned settings' params are rebuilt here"
+        )
     for year, bl in d["baselines"].items():
         _, params, _, days = build_env_params(resolve(with_prices(TUNED[d["algo"]], year)))
         bl.update(teacher_entries(params, days, bl, f"{where} {year}"))
@@ -124,8 +133,12 @@ def add_to_price_shift(d: dict, where: str = "") -> dict:
         for eval_year, ev in row.items():
             bl = d["baselines"][eval_year]
             for name in (n for n in bl if n.endswith("_programme")):
-                ev[f"vs_{name}"] = stats.paired_difference(ev["daily_profit"], bl[name]["daily_profit"])
-            rows[f"{train_year} -> {eval_year}"] = {k: v for k, v in ev.items() if k.endswith("_programme")}
+                ev[f"vs_{name}"] = stats.paired_difference(
+                    ev["daily_profit"], bl[name]["daily_profit"]
+                )
+            rows[f"{train_year} -> {eval_year}"] = {
+                k: v for k, v in ev.items() if k.endswith("_programme")
+            }
     return rows
 
 
@@ -134,8 +147,12 @@ def _line(diffs: dict) -> str:
 
 
 def main(argv=None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("files", nargs="+", help="result files of baselines.train or of the experiment runners")
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument(
+        "files", nargs="+", help="result files of baselines.train or of the experiment runners"
+    )
     args = p.parse_args(argv)
     out = {}
     for f in args.files:
@@ -154,8 +171,10 @@ def main(argv=None) -> dict:
                     print(f"{f}{where}: no battery, nothing added")
                     continue
                 rows[where] = {k: v for k, v in res["over_seeds"].items() if k.startswith("vs_")}
-                print(f"{f}{where}: {res['algo']} − {_line(rows[where])} (over {len(res['per_seed'])} seeds)",
-                      flush=True)
+                print(
+                    f"{f}{where}: {res['algo']} − {_line(rows[where])} (over {len(res['per_seed'])} seeds)",
+                    flush=True,
+                )
         runs.write_json(d, f)
         out[f] = rows
     return out

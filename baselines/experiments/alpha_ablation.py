@@ -33,7 +33,10 @@ from baselines.experiments._common import (
 from baselines.pipeline import run
 
 SMALL = {"satisfaction_time": (0.0, 0.5, 2.0), "satisfaction_charge": (0.0, 0.05, 0.5)}
-FULL = {"satisfaction_time": (0.0, 0.1, 0.5, 1.0, 2.0, 5.0), "satisfaction_charge": (0.0, 0.01, 0.05, 0.1, 0.5, 1.0)}
+FULL = {
+    "satisfaction_time": (0.0, 0.1, 0.5, 1.0, 2.0, 5.0),
+    "satisfaction_charge": (0.0, 0.01, 0.05, 0.1, 0.5, 1.0),
+}
 METRIC = {"satisfaction_time": "missing_kwh_at_departure", "satisfaction_charge": "overtime_min"}
 
 
@@ -54,25 +57,49 @@ def main(argv=None, out="outputs/alpha_ablation"):
                 continue
             cfg = with_env_kwargs(base, alpha={term: alpha})
             # evaluation reports the raw terms (profit, missing kWh, overtime) on the held-out days
-            res = run(args.algo, cfg, seeds=seeds, chunks=2, evaluate_every_chunk=False, baselines=baselines,
-                      quiet=True).results
+            res = run(
+                args.algo,
+                cfg,
+                seeds=seeds,
+                chunks=2,
+                evaluate_every_chunk=False,
+                baselines=baselines,
+                quiet=True,
+            ).results
             ev = res["evaluation"]["table"][args.algo]
-            row = {"alpha": alpha, "metrics": ev["metrics"], "per_seed_profit": ev["per_seed_profit"],
-                   "per_seed": {k: ev["per_seed_metrics"][k] for k in TERMS},
-                   "vs_always_max": res["vs_always_max"], "wall_seconds": res["wall_seconds"],
-                   "timesteps": res["timesteps"]}
+            row = {
+                "alpha": alpha,
+                "metrics": ev["metrics"],
+                "per_seed_profit": ev["per_seed_profit"],
+                "per_seed": {k: ev["per_seed_metrics"][k] for k in TERMS},
+                "vs_always_max": res["vs_always_max"],
+                "wall_seconds": res["wall_seconds"],
+                "timesteps": res["timesteps"],
+            }
             results[term][alpha] = row
             if alpha == 0.0:
                 zero = row
             m = row["metrics"]
-            print(f"{term} alpha={alpha:g}: {METRIC[term]} {m[METRIC[term]]['mean']:.2f} ± {m[METRIC[term]]['std']:.2f}, "
-                  f"profit {m['daily_profit_eur']['mean']:.1f} ({res['wall_seconds']:.0f} s)", flush=True)
+            print(
+                f"{term} alpha={alpha:g}: {METRIC[term]} {m[METRIC[term]]['mean']:.2f} ± {m[METRIC[term]]['std']:.2f}, "
+                f"profit {m['daily_profit_eur']['mean']:.1f} ({res['wall_seconds']:.0f} s)",
+                flush=True,
+            )
     for term, rows in results.items():
         for row in rows.values():
-            row["vs_alpha0"] = {k: paired_over_seeds(row["per_seed"][k], zero["per_seed"][k]) for k in row["per_seed"]}
+            row["vs_alpha0"] = {
+                k: paired_over_seeds(row["per_seed"][k], zero["per_seed"][k])
+                for k in row["per_seed"]
+            }
     meta = record.as_dict()
-    runs.write_json({**meta, "baselines": baselines,
-                       "results": {t: list(r.values()) for t, r in results.items()}}, out + ".json")
+    runs.write_json(
+        {
+            **meta,
+            "baselines": baselines,
+            "results": {t: list(r.values()) for t, r in results.items()},
+        },
+        out + ".json",
+    )
     plot(results, baselines, out + ".png")
     print(f"wrote {out}.png, {out}.json")
     print(Record.summary(meta))
@@ -93,12 +120,20 @@ def plot(results, baselines, path):
     matplotlib.use("Agg")
 
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
-    labels = {"missing_kwh_at_departure": "kWh missing at departure", "overtime_min": "overtime (min per day)"}
+    labels = {
+        "missing_kwh_at_departure": "kWh missing at departure",
+        "overtime_min": "overtime (min per day)",
+    }
     for ax, term in zip(axes[:2], results):
         rows = list(results[term].values())
         x = np.arange(len(rows))
         key = METRIC[term]
-        ax.bar(x, [r["metrics"][key]["mean"] for r in rows], yerr=[_se(r["per_seed"][key]) for r in rows], capsize=3)
+        ax.bar(
+            x,
+            [r["metrics"][key]["mean"] for r in rows],
+            yerr=[_se(r["per_seed"][key]) for r in rows],
+            capsize=3,
+        )
         am = baselines["always_max"]["metrics"][key]["mean"]
         ax.axhline(am, ls="--", color="C3", label=f"always-max {am:.1f}")
         ax.set_xticks(x, [f"{r['alpha']:g}" for r in rows])
@@ -109,8 +144,14 @@ def plot(results, baselines, path):
     ax = axes[2]
     for i, term in enumerate(results):
         rows = list(results[term].values())
-        ax.errorbar(np.arange(len(rows)) + 0.1 * i, [r["metrics"]["daily_profit_eur"]["mean"] for r in rows],
-                    yerr=[_se(r["per_seed"]["daily_profit_eur"]) for r in rows], marker="o", capsize=3, label=term)
+        ax.errorbar(
+            np.arange(len(rows)) + 0.1 * i,
+            [r["metrics"]["daily_profit_eur"]["mean"] for r in rows],
+            yerr=[_se(r["per_seed"]["daily_profit_eur"]) for r in rows],
+            marker="o",
+            capsize=3,
+            label=term,
+        )
     for i, name in enumerate(("always_max", "battery_rule", "lp_bound")):
         if name in baselines:
             v = baselines[name]["metrics"]["daily_profit_eur"]["mean"]

@@ -46,7 +46,9 @@ def main(argv=None, out="outputs/cross_market", *, experiments=None, overrides=N
     """``experiments`` ({source: targets}) and ``overrides`` (merged into the training config)
     are for tests; the command line runs :data:`EXPERIMENTS`."""
     p = parser(__doc__, full_seeds=5)
-    p.add_argument("--no-reference", action="store_true", help="do not train the in-market reference agents")
+    p.add_argument(
+        "--no-reference", action="store_true", help="do not train the in-market reference agents"
+    )
     args = p.parse_args(argv)
     out = output(out)
     base, seeds = config_of(args)
@@ -54,10 +56,14 @@ def main(argv=None, out="outputs/cross_market", *, experiments=None, overrides=N
     experiments = EXPERIMENTS if experiments is None else experiments
     t0 = time.time()
     record = Record(args, seeds, base, paper_seeds=5, figure="cross-market (beside Fig. 5)")
-    markets = list(dict.fromkeys([m for src, targets in experiments.items() for m in (src, *targets)]))
+    markets = list(
+        dict.fromkeys([m for src, targets in experiments.items() for m in (src, *targets)])
+    )
     evals = {m: eval_setup(base, m, args.optimal) for m in markets}
     baselines = {m: e[2] for m, e in evals.items()}
-    trained = list(experiments) + ([] if args.no_reference else [m for m in markets if m not in experiments])
+    trained = list(experiments) + (
+        [] if args.no_reference else [m for m in markets if m not in experiments]
+    )
     matrix, runs = {}, {}
     for src in trained:
         out = train_on(args.algo, base, src, seeds, baselines[src])
@@ -65,22 +71,43 @@ def main(argv=None, out="outputs/cross_market", *, experiments=None, overrides=N
         matrix[src] = {}
         for tgt in experiments.get(src, (src,)):
             full, days, _ = evals[tgt]
-            ev = heldout.evaluate_batched(act(full), out.params, full, days,
-                                         reference_profit=baselines[tgt]["always_max"]["daily_profit"])
+            ev = heldout.evaluate_batched(
+                act(full),
+                out.params,
+                full,
+                days,
+                reference_profit=baselines[tgt]["always_max"]["daily_profit"],
+            )
             matrix[src][tgt] = ev
             m, d = ev["metrics"]["daily_profit_eur"], ev["paired_diff"]
-            print(f"train {src} -> eval {tgt}: {m['mean']:.1f} ± {m['std']:.1f} EUR/day "
-                  f"(vs always-max {d['mean']:+.1f} ± {d['stderr']:.1f})", flush=True)
-        runs[src] = {"wall_seconds": res["wall_seconds"], "timesteps": res["timesteps"], "curve": profit_curve(res["curve"])}
+            print(
+                f"train {src} -> eval {tgt}: {m['mean']:.1f} ± {m['std']:.1f} EUR/day "
+                f"(vs always-max {d['mean']:+.1f} ± {d['stderr']:.1f})",
+                flush=True,
+            )
+        runs[src] = {
+            "wall_seconds": res["wall_seconds"],
+            "timesteps": res["timesteps"],
+            "curve": profit_curve(res["curve"]),
+        }
     gaps = transfer_gaps(matrix, experiments)
     wall = time.time() - t0
     plot(matrix, baselines, experiments, args.algo, out + ".png")
     meta = record.as_dict()
-    runs.write_json({**meta, "timesteps": runs[trained[0]]["timesteps"],
-                       "experiments": {s: list(t) for s, t in experiments.items()},
-                       "evaluation": "greedy, held-out days of each target, PRNGKey(0) for every policy (common random numbers)",
-                       "wall_seconds_total": wall, "matrix": matrix, "transfer_gap_vs_in_market": gaps,
-                       "baselines": baselines, "runs": runs}, out + ".json")
+    runs.write_json(
+        {
+            **meta,
+            "timesteps": runs[trained[0]]["timesteps"],
+            "experiments": {s: list(t) for s, t in experiments.items()},
+            "evaluation": "greedy, held-out days of each target, PRNGKey(0) for every policy (common random numbers)",
+            "wall_seconds_total": wall,
+            "matrix": matrix,
+            "transfer_gap_vs_in_market": gaps,
+            "baselines": baselines,
+            "runs": runs,
+        },
+        out + ".json",
+    )
     print(summary(matrix, baselines, gaps, experiments))
     print(f"wrote {out}.png, {out}.json ({wall:.0f} s wall)")
     return matrix
@@ -94,41 +121,81 @@ def transfer_gaps(matrix: dict, experiments: dict) -> dict:
         for tgt in targets:
             if tgt != src and tgt in matrix and tgt in matrix[tgt]:
                 ref = np.asarray(matrix[tgt][tgt]["daily_profit"]).mean(axis=0)
-                gaps.setdefault(src, {})[tgt] = stats.paired_difference(matrix[src][tgt]["daily_profit"], ref)
+                gaps.setdefault(src, {})[tgt] = stats.paired_difference(
+                    matrix[src][tgt]["daily_profit"], ref
+                )
     return gaps
 
 
 def summary(matrix: dict, baselines: dict, gaps: dict, experiments: dict) -> str:
-    lines = ["source -> target: source-trained | in-market | always-max | price-threshold EUR/day; gap to in-market"]
+    lines = [
+        "source -> target: source-trained | in-market | always-max | price-threshold EUR/day; gap to in-market"
+    ]
     for src, targets in experiments.items():
         for tgt in targets:
-            mean = lambda r: r["metrics"]["daily_profit_eur"]["mean"]
-            ref = f"{mean(matrix[tgt][tgt]):7.1f}" if tgt in matrix and tgt in matrix[tgt] else "      -"
+
+            def mean(r):
+                return r["metrics"]["daily_profit_eur"]["mean"]
+
+            ref = (
+                f"{mean(matrix[tgt][tgt]):7.1f}"
+                if tgt in matrix and tgt in matrix[tgt]
+                else "      -"
+            )
             gap = gaps.get(src, {}).get(tgt)
-            lines.append(f"  {src} -> {tgt}: {mean(matrix[src][tgt]):7.1f} | {ref} | {mean(baselines[tgt]['always_max']):7.1f}"
-                         f" | {mean(baselines[tgt]['price_threshold']):7.1f}"
-                         + (f"; {gap['mean']:+.1f} ± {gap['stderr']:.1f}" if gap else ""))
+            lines.append(
+                f"  {src} -> {tgt}: {mean(matrix[src][tgt]):7.1f} | {ref} | {mean(baselines[tgt]['always_max']):7.1f}"
+                f" | {mean(baselines[tgt]['price_threshold']):7.1f}"
+                + (f"; {gap['mean']:+.1f} ± {gap['stderr']:.1f}" if gap else "")
+            )
     return "\n".join(lines)
 
 
 def plot(matrix, baselines, experiments, algo, path):
     matplotlib.use("Agg")
 
-    fig, axes = plt.subplots(1, len(experiments), figsize=(5.5 * len(experiments), 4), squeeze=False)
+    fig, axes = plt.subplots(
+        1, len(experiments), figsize=(5.5 * len(experiments), 4), squeeze=False
+    )
     w = 0.2
     for ax, (src, targets) in zip(axes[0], experiments.items()):
         x = np.arange(len(targets))
-        prof = lambda r: r["metrics"]["daily_profit_eur"]
+
+        def prof(r):
+            return r["metrics"]["daily_profit_eur"]
+
         cross = [prof(matrix[src][t]) for t in targets]
-        ax.bar(x - 1.5 * w, [c["mean"] for c in cross], w, yerr=[c["std"] for c in cross], capsize=2,
-               label=f"{algo} trained on {src}")
+        ax.bar(
+            x - 1.5 * w,
+            [c["mean"] for c in cross],
+            w,
+            yerr=[c["std"] for c in cross],
+            capsize=2,
+            label=f"{algo} trained on {src}",
+        )
         ref = [prof(matrix[t][t]) if t in matrix and t in matrix[t] else None for t in targets]
-        ax.bar(x - 0.5 * w, [r["mean"] if r else np.nan for r in ref], w,
-               yerr=[r["std"] if r else 0.0 for r in ref], capsize=2, label=f"{algo} trained on the target")
-        ax.bar(x + 0.5 * w, [prof(baselines[t]["always_max"])["mean"] for t in targets], w, color="grey",
-               label="always-max")
-        ax.bar(x + 1.5 * w, [prof(baselines[t]["price_threshold"])["mean"] for t in targets], w, color="silver",
-               label="price-threshold")
+        ax.bar(
+            x - 0.5 * w,
+            [r["mean"] if r else np.nan for r in ref],
+            w,
+            yerr=[r["std"] if r else 0.0 for r in ref],
+            capsize=2,
+            label=f"{algo} trained on the target",
+        )
+        ax.bar(
+            x + 0.5 * w,
+            [prof(baselines[t]["always_max"])["mean"] for t in targets],
+            w,
+            color="grey",
+            label="always-max",
+        )
+        ax.bar(
+            x + 1.5 * w,
+            [prof(baselines[t]["price_threshold"])["mean"] for t in targets],
+            w,
+            color="silver",
+            label="price-threshold",
+        )
         ax.set_xticks(x, [f"eval {t}" for t in targets], fontsize=8)
         ax.set_title(f"trained on {src}", fontsize=10)
         ax.set_ylabel("held-out daily profit (EUR)")

@@ -47,19 +47,36 @@ def main(argv=None, out="outputs/price_shift"):
         train, res = out.trainer, out.results
         matrix[train_year] = {}
         for eval_year, (full, days, bl) in evals.items():
-            ev = heldout.evaluate_batched(train.make_act(full), out.params, full, days,
-                                         reference_profit=bl["always_max"]["daily_profit"])
-            ev["vs_battery_rule"] = stats.paired_difference(ev["daily_profit"], bl["battery_rule"]["daily_profit"])
-            for name in (n for n in ("battery_programme", "plan_programme") if n in bl):  # the teachers' rules
-                ev[f"vs_{name}"] = stats.paired_difference(ev["daily_profit"], bl[name]["daily_profit"])
+            ev = heldout.evaluate_batched(
+                train.make_act(full),
+                out.params,
+                full,
+                days,
+                reference_profit=bl["always_max"]["daily_profit"],
+            )
+            ev["vs_battery_rule"] = stats.paired_difference(
+                ev["daily_profit"], bl["battery_rule"]["daily_profit"]
+            )
+            for name in (
+                n for n in ("battery_programme", "plan_programme") if n in bl
+            ):  # the teachers' rules
+                ev[f"vs_{name}"] = stats.paired_difference(
+                    ev["daily_profit"], bl[name]["daily_profit"]
+                )
             add_headroom({"agent": ev}, bl)
             matrix[train_year][eval_year] = ev
             d, r = ev["paired_diff"], ev["vs_battery_rule"]
-            print(f"train {train_year} -> eval {eval_year}: {ev['metrics']['daily_profit_eur']['mean']:.1f} EUR/day; "
-                  f"vs always-max {d['mean']:+.2f} ± {d['stderr']:.2f}, vs battery rule {r['mean']:+.2f} ± "
-                  f"{r['stderr']:.2f}", flush=True)
-        rows[train_year] = {"wall_seconds": res["wall_seconds"], "timesteps": res["timesteps"],
-                            "curve": profit_curve(res["curve"])}
+            print(
+                f"train {train_year} -> eval {eval_year}: {ev['metrics']['daily_profit_eur']['mean']:.1f} EUR/day; "
+                f"vs always-max {d['mean']:+.2f} ± {d['stderr']:.2f}, vs battery rule {r['mean']:+.2f} ± "
+                f"{r['stderr']:.2f}",
+                flush=True,
+            )
+        rows[train_year] = {
+            "wall_seconds": res["wall_seconds"],
+            "timesteps": res["timesteps"],
+            "curve": profit_curve(res["curve"]),
+        }
     baselines = {y: e[2] for y, e in evals.items()}
     meta = record.as_dict()
     runs.write_json({**meta, "matrix": matrix, "baselines": baselines, "runs": rows}, out + ".json")
@@ -74,18 +91,37 @@ def plot(matrix, baselines, algo, path):
 
     fig, ax = plt.subplots(figsize=(7.5, 4))
     x = np.arange(len(YEARS))
-    refs = [(n, c) for n, c in (("always_max", "grey"), ("battery_rule", "dimgrey"), ("battery_programme", "tan"),
-                                ("plan_programme", "peru"), ("lp_bound", "black"))
-            if all(n in baselines[ey] for ey in YEARS)]
+    refs = [
+        (n, c)
+        for n, c in (
+            ("always_max", "grey"),
+            ("battery_rule", "dimgrey"),
+            ("battery_programme", "tan"),
+            ("plan_programme", "peru"),
+            ("lp_bound", "black"),
+        )
+        if all(n in baselines[ey] for ey in YEARS)
+    ]
     w = 0.8 / (len(YEARS) + len(refs))
     for i, ty in enumerate(YEARS):
         ys = [matrix[ty][ey]["metrics"]["daily_profit_eur"] for ey in YEARS]
-        ax.bar(x + (i - (len(YEARS) + len(refs) - 1) / 2) * w, [y["mean"] for y in ys], w,
-               yerr=[np.std(matrix[ty][ey]["per_seed_profit"]) for ey in YEARS], capsize=2,
-               label=f"{algo} trained on {ty}")
+        ax.bar(
+            x + (i - (len(YEARS) + len(refs) - 1) / 2) * w,
+            [y["mean"] for y in ys],
+            w,
+            yerr=[np.std(matrix[ty][ey]["per_seed_profit"]) for ey in YEARS],
+            capsize=2,
+            label=f"{algo} trained on {ty}",
+        )
     for j, (name, color) in enumerate(refs):
         v = [baselines[ey][name]["metrics"]["daily_profit_eur"]["mean"] for ey in YEARS]
-        ax.bar(x + (len(YEARS) + j - (len(YEARS) + len(refs) - 1) / 2) * w, v, w, color=color, label=name)
+        ax.bar(
+            x + (len(YEARS) + j - (len(YEARS) + len(refs) - 1) / 2) * w,
+            v,
+            w,
+            color=color,
+            label=name,
+        )
     ax.set_xticks(x, [f"eval {y}" for y in YEARS])
     ax.set_ylabel("held-out daily profit (EUR)")
     ax.legend(fontsize=8)

@@ -37,14 +37,19 @@ def all_v2g(fleet="EU") -> datasets.FleetData:
     return dataclasses.replace(f, max_ac_discharge_kw=f.max_ac_kw, max_dc_discharge_kw=f.max_dc_kw)
 
 
-def daily_profits(scenario: str = "shopping", rules=RULES, num_eval: int = 100, key=None, **overrides) -> dict:
+def daily_profits(
+    scenario: str = "shopping", rules=RULES, num_eval: int = 100, key=None, **overrides
+) -> dict:
     """``{(rule, refund): daily profit (days,)}`` on the held-out days, refund in (True, False);
     ``overrides`` go to ``make_params`` on top of the scenario."""
     kwargs = scenario_kwargs(scenario, **overrides)
     base = make_params(**kwargs)
     _, days = split_days(int(base.num_days), num_eval, seed=0)
     out = {}
-    for refund, prm in ((True, base), (False, make_params(**kwargs, refund_discharged_energy=False))):
+    for refund, prm in (
+        (True, base),
+        (False, make_params(**kwargs, refund_discharged_energy=False)),
+    ):
         for name, r in evaluate_rules(prm, days, rules, key=key).items():
             out[(name, refund)] = r["daily_profit"]
     return out
@@ -58,26 +63,36 @@ def format_table(profits: dict, rules=RULES) -> str:
         d = paired_difference(a, b)
         return f"{d['mean']:+.2f} ± {d['stderr']:.2f}"
 
-    lines = [f"{'rule':<22}{'refund on EUR/day':>20}{'vs always-max':>16}{'refund off EUR/day':>20}"
-             f"{'vs always-max':>16}{'off - on':>16}"]
+    lines = [
+        f"{'rule':<22}{'refund on EUR/day':>20}{'vs always-max':>16}{'refund off EUR/day':>20}"
+        f"{'vs always-max':>16}{'off - on':>16}"
+    ]
     for name in rules:
         on, off = profits[(name, True)], profits[(name, False)]
-        lines.append(f"{name:<22}{mean_se(on):>20}{diff(on, profits[('always_max', True)]):>16}{mean_se(off):>20}"
-                     f"{diff(off, profits[('always_max', False)]):>16}{diff(off, on):>16}")
+        lines.append(
+            f"{name:<22}{mean_se(on):>20}{diff(on, profits[('always_max', True)]):>16}{mean_se(off):>20}"
+            f"{diff(off, profits[('always_max', False)]):>16}{diff(off, on):>16}"
+        )
     return "\n".join(lines)
 
 
 def main(argv=None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("--scenario", default="shopping")
-    p.add_argument("--all-v2g", action="store_true", help="every car model of the fleet may discharge")
+    p.add_argument(
+        "--all-v2g", action="store_true", help="every car model of the fleet may discharge"
+    )
     args = p.parse_args(argv)
     t0 = time.perf_counter()
     profits = daily_profits(args.scenario, **({"fleet": all_v2g()} if args.all_v2g else {}))
     n = profits[(RULES[0], True)].size
     fleet = "EU fleet, every model may discharge" if args.all_v2g else "EU fleet"
-    print(f"{args.scenario} ({fleet}): {n} held-out days (split_days(seed=0)), key 0, same cars for all; "
-          f"daily profit mean ± standard error, paired differences ({time.perf_counter() - t0:.0f} s)")
+    print(
+        f"{args.scenario} ({fleet}): {n} held-out days (split_days(seed=0)), key 0, same cars for all; "
+        f"daily profit mean ± standard error, paired differences ({time.perf_counter() - t0:.0f} s)"
+    )
     print(format_table(profits))
     return profits
 

@@ -56,7 +56,9 @@ def main(argv=None, out="outputs/refund_effect"):
     args = p.parse_args(argv)
     out = output(out)
     base, seeds = config_of(args)
-    record = Record(args, seeds, base, paper_seeds=None, figure="refund effect (the original's accounting)")
+    record = Record(
+        args, seeds, base, paper_seeds=None, figure="refund effect (the original's accounting)"
+    )
     results = {}
     for fleet in args.fleets:
         setups = {}
@@ -64,27 +66,60 @@ def main(argv=None, out="outputs/refund_effect"):
             cfg = with_env_kwargs(base, fleet=fleet_of(fleet), refund_discharged_energy=refund)
             _, full, _, days = build_env_params(resolve(cfg))
             setups[refund] = (cfg, full, days, references(full, days, args.optimal))
-        results[fleet] = {"references": {ACCOUNTS[r]: s[3] for r, s in setups.items()}, "agents": {}}
+        results[fleet] = {
+            "references": {ACCOUNTS[r]: s[3] for r, s in setups.items()},
+            "agents": {},
+        }
         for train_refund, (cfg, *_rest) in setups.items():
-            out = run(args.algo, cfg, seeds=seeds, chunks=2, evaluate_every_chunk=False,
-                      baselines=setups[train_refund][3], quiet=True)
+            out = run(
+                args.algo,
+                cfg,
+                seeds=seeds,
+                chunks=2,
+                evaluate_every_chunk=False,
+                baselines=setups[train_refund][3],
+                quiet=True,
+            )
             res = out.results
             row = {"wall_seconds": res["wall_seconds"], "timesteps": res["timesteps"]}
             for eval_refund, (_, full, days, refs) in setups.items():
-                ev = heldout.evaluate_batched(out.trainer.make_act(full), out.params, full, days,
-                                             reference_profit=refs["always_max"]["daily_profit"])
+                ev = heldout.evaluate_batched(
+                    out.trainer.make_act(full),
+                    out.params,
+                    full,
+                    days,
+                    reference_profit=refs["always_max"]["daily_profit"],
+                )
                 row[ACCOUNTS[eval_refund]] = ev
-            row["off_minus_on"] = paired_over_seeds(row["no_refund"]["daily_profit"], row["refund"]["daily_profit"])
+            row["off_minus_on"] = paired_over_seeds(
+                row["no_refund"]["daily_profit"], row["refund"]["daily_profit"]
+            )
             results[fleet]["agents"][f"trained_{ACCOUNTS[train_refund]}"] = row
-            print(f"{fleet}, trained with {ACCOUNTS[train_refund]}: " + "; ".join(
-                f"evaluated with {ACCOUNTS[e]} {row[ACCOUNTS[e]]['metrics']['daily_profit_eur']['mean']:.1f} EUR/day "
-                f"(vs always-max {row[ACCOUNTS[e]]['paired_diff']['mean']:+.2f} ± "
-                f"{row[ACCOUNTS[e]]['paired_diff']['stderr']:.2f})" for e in (True, False))
-                + f"; off - on {row['off_minus_on']['mean']:+.2f} ({res['wall_seconds']:.0f} s)", flush=True)
+            print(
+                f"{fleet}, trained with {ACCOUNTS[train_refund]}: "
+                + "; ".join(
+                    f"evaluated with {ACCOUNTS[e]} {row[ACCOUNTS[e]]['metrics']['daily_profit_eur']['mean']:.1f} EUR/day "
+                    f"(vs always-max {row[ACCOUNTS[e]]['paired_diff']['mean']:+.2f} ± "
+                    f"{row[ACCOUNTS[e]]['paired_diff']['stderr']:.2f})"
+                    for e in (True, False)
+                )
+                + f"; off - on {row['off_minus_on']['mean']:+.2f} ({res['wall_seconds']:.0f} s)",
+                flush=True,
+            )
     meta = record.as_dict()
-    runs.write_json({**meta, "fleets": {f: "bundled EU fleet" if f == "EU" else
-                                                      "EU fleet, every model may discharge at its charging limit"
-                                                      for f in args.fleets}, "results": results}, out + ".json")
+    runs.write_json(
+        {
+            **meta,
+            "fleets": {
+                f: "bundled EU fleet"
+                if f == "EU"
+                else "EU fleet, every model may discharge at its charging limit"
+                for f in args.fleets
+            },
+            "results": results,
+        },
+        out + ".json",
+    )
     plot(results, args.algo, out + ".png")
     print(f"wrote {out}.png, {out}.json")
     print(Record.summary(meta))
@@ -121,10 +156,18 @@ def plot(results: dict, algo: str, path):
             for acc, vals, errs in (("refund", on, on_err), ("no_refund", off, off_err)):
                 per_seed = np.asarray(row[acc]["paired_diff"]["per_seed_mean"])
                 vals.append(float(per_seed.mean()))
-                errs.append(float(per_seed.std(ddof=1) / np.sqrt(per_seed.size)) if per_seed.size > 1 else 0.0)
+                errs.append(
+                    float(per_seed.std(ddof=1) / np.sqrt(per_seed.size))
+                    if per_seed.size > 1
+                    else 0.0
+                )
         x = np.arange(len(labels))
-        ax.bar(x - 0.2, on, 0.4, yerr=on_err, capsize=2, label="evaluated with the refund (default)")
-        ax.bar(x + 0.2, off, 0.4, yerr=off_err, capsize=2, label="evaluated without it (the original)")
+        ax.bar(
+            x - 0.2, on, 0.4, yerr=on_err, capsize=2, label="evaluated with the refund (default)"
+        )
+        ax.bar(
+            x + 0.2, off, 0.4, yerr=off_err, capsize=2, label="evaluated without it (the original)"
+        )
         ax.axhline(0, color="black", lw=0.8)
         ax.set_yscale("symlog", linthresh=10)  # the bound without the refund is two orders larger
         ax.set_xticks(x, labels, rotation=20, ha="right", fontsize=8)

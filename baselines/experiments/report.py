@@ -38,11 +38,18 @@ def provenance(d: dict) -> str:
     m = d.get("machine") or {}
     wall = d.get("wall_seconds_with_reused", d.get("wall_seconds"))
     reused = d.get("reused") or {}
-    return (f"{d.get('cut_note', '')}; settings `{d.get('settings', '?')}`; "
-            + (f"{wall / 60:.0f} min wall" if wall else "wall time not recorded")
-            + (" (with the reused " + ", ".join(f"{k} cell ({v['path']})" for k, v in reused.items()) + ")"
-               if reused else "")
-            + (f" on {m.get('cpu')} ×{m.get('cores')} ({m.get('backend')})" if m else ""))
+    return (
+        f"{d.get('cut_note', '')}; settings `{d.get('settings', '?')}`; "
+        + (f"{wall / 60:.0f} min wall" if wall else "wall time not recorded")
+        + (
+            " (with the reused "
+            + ", ".join(f"{k} cell ({v['path']})" for k, v in reused.items())
+            + ")"
+            if reused
+            else ""
+        )
+        + (f" on {m.get('cpu')} ×{m.get('cores')} ({m.get('backend')})" if m else "")
+    )
 
 
 def _profit(table: dict, name: str) -> str:
@@ -66,15 +73,19 @@ def _cell_row(label: str, res: dict, algo: str) -> str:
     t = res["evaluation"]["table"]
     per_seed = res.get("per_seed") or []
     hf = res.get("over_seeds", {}).get("headroom_fraction")
-    return (f"| {label} | {_profit(t, algo)} | {_profit(t, 'always_max')} | {_profit(t, 'battery_rule')} | "
-            f"{_profit(t, 'lp_bound')} | "
-            + " | ".join(_vs_seeds(per_seed, n) for n in ("always_max", "battery_rule") + TEACHERS)
-            + f" | {pm(hf, 3) if hf else '–'} | {res['wall_seconds'] / 60:.1f} |")
+    return (
+        f"| {label} | {_profit(t, algo)} | {_profit(t, 'always_max')} | {_profit(t, 'battery_rule')} | "
+        f"{_profit(t, 'lp_bound')} | "
+        + " | ".join(_vs_seeds(per_seed, n) for n in ("always_max", "battery_rule") + TEACHERS)
+        + f" | {pm(hf, 3) if hf else '–'} | {res['wall_seconds'] / 60:.1f} |"
+    )
 
 
-CELL_HEADER = ("| {what} | {algo} EUR/day | always-max | battery rule | LP bound | {algo} − always-max (seeds above) | "
-               "{algo} − battery rule | {algo} − battery programme | {algo} − plan programme | headroom fraction | "
-               "wall min |\n|---|---|---|---|---|---|---|---|---|---|---|")
+CELL_HEADER = (
+    "| {what} | {algo} EUR/day | always-max | battery rule | LP bound | {algo} − always-max (seeds above) | "
+    "{algo} − battery rule | {algo} − battery programme | {algo} − plan programme | headroom fraction | "
+    "wall min |\n|---|---|---|---|---|---|---|---|---|---|---|"
+)
 
 
 def teacher_rules(cells: list[tuple[str, dict]]) -> str:
@@ -83,31 +94,63 @@ def teacher_rules(cells: list[tuple[str, dict]]) -> str:
     for label, res in cells:
         t = res["evaluation"]["table"]
         if all(n in t for n in TEACHERS):
-            rows.append(f"| {label} | " + " | ".join(f"{pm(t[n]['vs_always_max'])} ({t[n]['headroom']['fraction']:.3f})"
-                                                    if "headroom" in t[n] else pm(t[n]["vs_always_max"])
-                                                    for n in TEACHERS) + " |")
+            rows.append(
+                f"| {label} | "
+                + " | ".join(
+                    f"{pm(t[n]['vs_always_max'])} ({t[n]['headroom']['fraction']:.3f})"
+                    if "headroom" in t[n]
+                    else pm(t[n]["vs_always_max"])
+                    for n in TEACHERS
+                )
+                + " |"
+            )
     if not rows:
         return ""
-    return "\n".join(["", "The teachers' rules (no learning) − always-max, mean ± s.e. over the held-out days "
-                           "(headroom fraction):", "",
-                       "| cell | battery programme (always-max ports) | plan programme (the ports' plans) |",
-                       "|---|---|---|", *rows])
+    return "\n".join(
+        [
+            "",
+            "The teachers' rules (no learning) − always-max, mean ± s.e. over the held-out days "
+            "(headroom fraction):",
+            "",
+            "| cell | battery programme (always-max ports) | plan programme (the ports' plans) |",
+            "|---|---|---|",
+            *rows,
+        ]
+    )
 
 
 def traffic_sweep(d: dict) -> str:
     algo = d["algo"]
     cells = list(d["results"].items())
     rows = [_cell_row(traffic, res, algo) for traffic, res in cells]
-    return "\n".join([provenance(d), "", CELL_HEADER.format(what="traffic", algo=algo.upper()), *rows,
-                      teacher_rules(cells)])
+    return "\n".join(
+        [
+            provenance(d),
+            "",
+            CELL_HEADER.format(what="traffic", algo=algo.upper()),
+            *rows,
+            teacher_rules(cells),
+        ]
+    )
 
 
 def appendix(d: dict) -> str:
     algo = d["algo"]
-    cells = [(f"{cond} {traffic}", res) for cond, sweep in d["results"].items() for traffic, res in sweep.items()]
+    cells = [
+        (f"{cond} {traffic}", res)
+        for cond, sweep in d["results"].items()
+        for traffic, res in sweep.items()
+    ]
     rows = [_cell_row(label, res, algo) for label, res in cells]
-    return "\n".join([provenance(d), "", CELL_HEADER.format(what="profile/fleet traffic", algo=algo.upper()), *rows,
-                      teacher_rules(cells)])
+    return "\n".join(
+        [
+            provenance(d),
+            "",
+            CELL_HEADER.format(what="profile/fleet traffic", algo=algo.upper()),
+            *rows,
+            teacher_rules(cells),
+        ]
+    )
 
 
 METRIC = {"satisfaction_time": "missing_kwh_at_departure", "satisfaction_charge": "overtime_min"}
@@ -115,9 +158,13 @@ METRIC = {"satisfaction_time": "missing_kwh_at_departure", "satisfaction_charge"
 
 def alpha_ablation(d: dict) -> str:
     am = d["baselines"]["always_max"]["metrics"]
-    lines = [provenance(d), "",
-             "| term | α | its metric (mean over seeds × days) | metric − α 0 (seeds below) | profit EUR/day | "
-             "profit − α 0 | wall min |", "|---|---|---|---|---|---|---|"]
+    lines = [
+        provenance(d),
+        "",
+        "| term | α | its metric (mean over seeds × days) | metric − α 0 (seeds below) | profit EUR/day | "
+        "profit − α 0 | wall min |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for term, rows in d["results"].items():
         key = METRIC[term]
         for r in rows:
@@ -127,38 +174,63 @@ def alpha_ablation(d: dict) -> str:
             if dm and r["alpha"]:
                 change = f"{pm(dm)} ({sum(x < 0 for x in dm['per_seed'])}/{len(dm['per_seed'])})"
             unit = "kWh" if "kwh" in key else "min"
-            lines.append(f"| {term} | {r['alpha']:g} | {r['metrics'][key]['mean']:.1f} {unit} | {change} | "
-                         f"{r['metrics']['daily_profit_eur']['mean']:.1f} | {pm(dp) if r['alpha'] else '–'} | "
-                         f"{r['wall_seconds'] / 60:.1f} |")
+            lines.append(
+                f"| {term} | {r['alpha']:g} | {r['metrics'][key]['mean']:.1f} {unit} | {change} | "
+                f"{r['metrics']['daily_profit_eur']['mean']:.1f} | {pm(dp) if r['alpha'] else '–'} | "
+                f"{r['wall_seconds'] / 60:.1f} |"
+            )
     lines.append("")
-    lines.append(f"Always-max: {am['missing_kwh_at_departure']['mean']:.1f} kWh missing, "
-                 f"{am['overtime_min']['mean']:.1f} min overtime, {am['daily_profit_eur']['mean']:.1f} EUR/day"
-                 + "".join(f"; {n.replace('_', ' ')} {_profit(d['baselines'], n)} EUR/day"
-                           for n in ("battery_rule", "lp_bound") if n in d["baselines"]) + ".")
+    lines.append(
+        f"Always-max: {am['missing_kwh_at_departure']['mean']:.1f} kWh missing, "
+        f"{am['overtime_min']['mean']:.1f} min overtime, {am['daily_profit_eur']['mean']:.1f} EUR/day"
+        + "".join(
+            f"; {n.replace('_', ' ')} {_profit(d['baselines'], n)} EUR/day"
+            for n in ("battery_rule", "lp_bound")
+            if n in d["baselines"]
+        )
+        + "."
+    )
     return "\n".join(lines)
 
 
 def price_shift(d: dict) -> str:
     years = list(d["matrix"])
-    lines = [provenance(d), "",
-             "Held-out daily profit EUR (train year × eval year), then the paired difference to always-max of the eval "
-             "year (mean ± s.e. over seeds, seeds above):", "",
-             "| train \\ eval | " + " | ".join(years) + " |", "|---|" + "---|" * len(years)]
+    lines = [
+        provenance(d),
+        "",
+        "Held-out daily profit EUR (train year × eval year), then the paired difference to always-max of the eval "
+        "year (mean ± s.e. over seeds, seeds above):",
+        "",
+        "| train \\ eval | " + " | ".join(years) + " |",
+        "|---|" + "---|" * len(years),
+    ]
     for ty, row in d["matrix"].items():
         cells = []
         for ey in years:
             ev = row[ey]
             s = seeds_stat(ev["paired_diff"]["per_seed_mean"])
-            cells.append(f"{ev['metrics']['daily_profit_eur']['mean']:.1f} ({pm(s)}, {s['above']}/{s['n']})")
+            cells.append(
+                f"{ev['metrics']['daily_profit_eur']['mean']:.1f} ({pm(s)}, {s['above']}/{s['n']})"
+            )
         lines.append(f"| {ty} | " + " | ".join(cells) + " |")
     for name in ("always_max", "battery_rule", *TEACHERS, "lp_bound"):
         if all(name in d["baselines"][ey] for ey in years):
-            lines.append(f"| {name.replace('_', ' ')} | " + " | ".join(_profit(d["baselines"][ey], name) for ey in years) + " |")
+            lines.append(
+                f"| {name.replace('_', ' ')} | "
+                + " | ".join(_profit(d["baselines"][ey], name) for ey in years)
+                + " |"
+            )
     for name in TEACHERS:
         if not all(f"vs_{name}" in ev for row in d["matrix"].values() for ev in row.values()):
             continue
-        lines += ["", f"The same agents − {name.replace('_', ' ')} of the eval year (mean ± s.e. over seeds, "
-                  "seeds above):", "", "| train \\ eval | " + " | ".join(years) + " |", "|---|" + "---|" * len(years)]
+        lines += [
+            "",
+            f"The same agents − {name.replace('_', ' ')} of the eval year (mean ± s.e. over seeds, "
+            "seeds above):",
+            "",
+            "| train \\ eval | " + " | ".join(years) + " |",
+            "|---|" + "---|" * len(years),
+        ]
         for ty, row in d["matrix"].items():
             cells = []
             for ey in years:
@@ -172,29 +244,43 @@ def refund_effect(d: dict) -> str:
     lines = [provenance(d), ""]
     for fleet, res in d["results"].items():
         refs = res["references"]
-        lines += [f"**{fleet}** ({d.get('fleets', {}).get(fleet, '')}): daily profit EUR and − always-max under the same "
-                  "accounting", "",
-                  "| policy | with the refund (default) | − always-max | without (the original's) | − always-max | "
-                  "without − with |", "|---|---|---|---|---|---|"]
+        lines += [
+            f"**{fleet}** ({d.get('fleets', {}).get(fleet, '')}): daily profit EUR and − always-max under the same "
+            "accounting",
+            "",
+            "| policy | with the refund (default) | − always-max | without (the original's) | − always-max | "
+            "without − with |",
+            "|---|---|---|---|---|---|",
+        ]
         for name in refs["refund"]:
             on, off = refs["refund"][name], refs["no_refund"][name]
             diff = paired_difference(off["daily_profit"], on["daily_profit"])
-            lines.append(f"| {name.replace('_', ' ')} | {_profit(refs['refund'], name)} | {pm(on['vs_always_max'])} | "
-                         f"{_profit(refs['no_refund'], name)} | {pm(off['vs_always_max'])} | {pm(diff)} |")
+            lines.append(
+                f"| {name.replace('_', ' ')} | {_profit(refs['refund'], name)} | {pm(on['vs_always_max'])} | "
+                f"{_profit(refs['no_refund'], name)} | {pm(off['vs_always_max'])} | {pm(diff)} |"
+            )
         for trained, row in res["agents"].items():
             on = seeds_stat(row["refund"]["paired_diff"]["per_seed_mean"])
             off = seeds_stat(row["no_refund"]["paired_diff"]["per_seed_mean"])
-            lines.append(f"| {d['algo'].upper()} {trained.replace('_', ' ')} | "
-                         f"{row['refund']['metrics']['daily_profit_eur']['mean']:.1f} | {pm(on)} ({on['above']}/{on['n']}) | "
-                         f"{row['no_refund']['metrics']['daily_profit_eur']['mean']:.1f} | {pm(off)} ({off['above']}/{off['n']}) | "
-                         f"{pm(row['off_minus_on'])} |")
+            lines.append(
+                f"| {d['algo'].upper()} {trained.replace('_', ' ')} | "
+                f"{row['refund']['metrics']['daily_profit_eur']['mean']:.1f} | {pm(on)} ({on['above']}/{on['n']}) | "
+                f"{row['no_refund']['metrics']['daily_profit_eur']['mean']:.1f} | {pm(off)} ({off['above']}/{off['n']}) | "
+                f"{pm(row['off_minus_on'])} |"
+            )
         lines.append("")
     return "\n".join(lines)
 
 
-REPORTS = {"traffic_sweep": traffic_sweep, "traffic_sweep_5e6_appendix": appendix, "traffic_sweep_5e6_fleets": appendix,
-           "traffic_sweep_appendix": appendix,
-           "alpha_ablation": alpha_ablation, "price_shift": price_shift, "refund_effect": refund_effect}
+REPORTS = {
+    "traffic_sweep": traffic_sweep,
+    "traffic_sweep_5e6_appendix": appendix,
+    "traffic_sweep_5e6_fleets": appendix,
+    "traffic_sweep_appendix": appendix,
+    "alpha_ablation": alpha_ablation,
+    "price_shift": price_shift,
+    "refund_effect": refund_effect,
+}
 """The result files (``<name>.json`` under ``--results``) and their tables: Fig. 4a at the paper's
 scale, the appendix's profiles and fleets with the tuned settings (``traffic_sweep --timesteps
 5e6 --profiles ... --out results/traffic_sweep_5e6``, then ``--fleets ...``, the
@@ -203,7 +289,9 @@ the earlier settings, Fig. 4b-c, Fig. 5, the refund."""
 
 
 def main(argv=None) -> str:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("--results", default="results")
     args = p.parse_args(argv)
     parts = []

@@ -67,13 +67,26 @@ def condition_config(base: dict, profile: str, fleet: str, traffic: str) -> dict
 
 def main(argv=None, out="outputs/traffic_sweep"):
     p = parser(__doc__, full_seeds=20)
-    p.add_argument("--appendix", action="store_true", help="every bundled profile (EU fleet) and fleet (shopping)")
+    p.add_argument(
+        "--appendix",
+        action="store_true",
+        help="every bundled profile (EU fleet) and fleet (shopping)",
+    )
     p.add_argument("--profiles", nargs="+", choices=PROFILES, default=None)
     p.add_argument("--fleets", nargs="+", choices=FLEETS, default=None)
-    p.add_argument("--traffic", nargs="+", choices=TRAFFIC, default=list(TRAFFIC), help="traffic levels")
-    p.add_argument("--reuse", nargs="+", default=[], metavar="[PROFILE/FLEET/]TRAFFIC=RESULTS_JSON",
-                   help="cells already trained by baselines.train with these settings (default condition shopping/EU)")
-    p.add_argument("--out", default=out, help="path prefix of the result files (.json, .png, _appendix.*)")
+    p.add_argument(
+        "--traffic", nargs="+", choices=TRAFFIC, default=list(TRAFFIC), help="traffic levels"
+    )
+    p.add_argument(
+        "--reuse",
+        nargs="+",
+        default=[],
+        metavar="[PROFILE/FLEET/]TRAFFIC=RESULTS_JSON",
+        help="cells already trained by baselines.train with these settings (default condition shopping/EU)",
+    )
+    p.add_argument(
+        "--out", default=out, help="path prefix of the result files (.json, .png, _appendix.*)"
+    )
     args = p.parse_args(argv)
     base, seeds = config_of(args)
     profiles = args.profiles or (PROFILES if args.appendix else ("shopping",))
@@ -81,20 +94,40 @@ def main(argv=None, out="outputs/traffic_sweep"):
     cells = conditions(tuple(profiles), tuple(fleets))
     reuse = parse_reuse(p, args.reuse, cells, args.traffic)
     out = output(args.out)
-    record = Record(args, seeds, base, paper_seeds=20, figure="Fig. 4a" + (" and appendix" if len(cells) > 1 else ""))
-    sweeps = {f"{profile}/{fleet}": _sweep(args, base, seeds, profile, fleet, reuse) for profile, fleet in cells}
+    record = Record(
+        args,
+        seeds,
+        base,
+        paper_seeds=20,
+        figure="Fig. 4a" + (" and appendix" if len(cells) > 1 else ""),
+    )
+    sweeps = {
+        f"{profile}/{fleet}": _sweep(args, base, seeds, profile, fleet, reuse)
+        for profile, fleet in cells
+    }
     meta = record.as_dict()
     if reuse:
-        meta["reused"] = {key: {"path": path, "wall_seconds": sweeps[key.rsplit("/", 1)[0]][key.rsplit("/", 1)[1]]
-                                ["wall_seconds"]} for key, path in reuse.items()}
-        meta["wall_seconds_with_reused"] = meta["wall_seconds"] + sum(r["wall_seconds"] for r in meta["reused"].values())
+        meta["reused"] = {
+            key: {
+                "path": path,
+                "wall_seconds": sweeps[key.rsplit("/", 1)[0]][key.rsplit("/", 1)[1]][
+                    "wall_seconds"
+                ],
+            }
+            for key, path in reuse.items()
+        }
+        meta["wall_seconds_with_reused"] = meta["wall_seconds"] + sum(
+            r["wall_seconds"] for r in meta["reused"].values()
+        )
     if "shopping/EU" in sweeps:  # the main figure: {traffic: result}
         runs.write_json({**meta, "results": sweeps["shopping/EU"]}, out + ".json")
         plot(sweeps["shopping/EU"], args.algo, out + ".png")
         print(f"wrote {out}.png, {out}.json")
     if len(cells) > 1:
-        runs.write_json({**meta, "conditions": [list(c) for c in cells], "results": sweeps},
-                          out + "_appendix.json")
+        runs.write_json(
+            {**meta, "conditions": [list(c) for c in cells], "results": sweeps},
+            out + "_appendix.json",
+        )
         plot_grid(sweeps, args.algo, out + "_appendix.png")
         print(f"wrote {out}_appendix.png, {out}_appendix.json")
     print(Record.summary(meta))
@@ -104,7 +137,9 @@ def main(argv=None, out="outputs/traffic_sweep"):
 CHUNKS = 4  # a cell trains in 4 chunks (its env-steps rounded to them), evaluated once at the end
 
 
-def parse_reuse(p, items: list[str], cells: list[tuple[str, str]], traffic: list[str]) -> dict[str, str]:
+def parse_reuse(
+    p, items: list[str], cells: list[tuple[str, str]], traffic: list[str]
+) -> dict[str, str]:
     """``{"profile/fleet/traffic": results.json path}`` of ``--reuse [PROFILE/FLEET/]TRAFFIC=PATH``
     items; a bare traffic level means shopping/EU. A cell that this sweep does not train is an
     error (through ``p``)."""
@@ -114,8 +149,10 @@ def parse_reuse(p, items: list[str], cells: list[tuple[str, str]], traffic: list
         cell, sep, path = item.partition("=")
         key = f"shopping/EU/{cell}" if "/" not in cell else cell
         if not sep or not path or key not in valid:
-            p.error(f"--reuse {item!r}: expected [PROFILE/FLEET/]TRAFFIC=RESULTS_JSON with a cell of this sweep "
-                    f"({', '.join(valid)})")
+            p.error(
+                f"--reuse {item!r}: expected [PROFILE/FLEET/]TRAFFIC=RESULTS_JSON with a cell of this sweep "
+                f"({', '.join(valid)})"
+            )
         reuse[key] = path
     return reuse
 
@@ -128,21 +165,42 @@ def _sweep(args, base, seeds, profile, fleet, reuse: dict) -> dict:
         if stored:
             res = reused_run(stored, args.algo, cfg, seeds, CHUNKS)
         else:
-            res = run(args.algo, cfg, seeds=seeds, chunks=CHUNKS, evaluate_every_chunk=False, quiet=True,
-                      optimal=args.optimal).results
-        results[traffic] = {**{k: v for k, v in res.items() if not k.startswith("_")}, "curve": profit_curve(res["curve"])}
+            res = run(
+                args.algo,
+                cfg,
+                seeds=seeds,
+                chunks=CHUNKS,
+                evaluate_every_chunk=False,
+                quiet=True,
+                optimal=args.optimal,
+            ).results
+        results[traffic] = {
+            **{k: v for k, v in res.items() if not k.startswith("_")},
+            "curve": profit_curve(res["curve"]),
+        }
         how = f"reused {stored}, " if stored else ""
-        print(f"{profile}/{fleet} {traffic:>6}: {line(res, args.algo)} ({how}{res['wall_seconds']:.0f} s)", flush=True)
+        print(
+            f"{profile}/{fleet} {traffic:>6}: {line(res, args.algo)} ({how}{res['wall_seconds']:.0f} s)",
+            flush=True,
+        )
     return results
-
 
 
 def line(res: dict, algo: str) -> str:
     """One cell's held-out profits and paired differences, for the log."""
     t = res["evaluation"]["table"]
-    out = " | ".join(f"{name} {t[name]['metrics']['daily_profit_eur']['mean']:.1f}"
-                     for name in (algo, "always_max", "battery_rule", "battery_programme", "price_threshold", "lp_bound")
-                     if name in t)
+    out = " | ".join(
+        f"{name} {t[name]['metrics']['daily_profit_eur']['mean']:.1f}"
+        for name in (
+            algo,
+            "always_max",
+            "battery_rule",
+            "battery_programme",
+            "price_threshold",
+            "lp_bound",
+        )
+        if name in t
+    )
     for key in ("vs_always_max", "vs_battery_rule", "vs_battery_programme", "vs_plan_programme"):
         if res.get(key):
             out += f" | {algo} {key} {res[key]['mean']:+.2f} ± {res[key]['stderr']:.2f}"
@@ -159,14 +217,27 @@ def plot_grid(results: dict, algo: str, path):
     fig, axes = plt.subplots(1, len(results), figsize=(3.6 * len(results), 3.4), squeeze=False)
     for ax, (cond, sweep) in zip(axes[0], results.items()):
         x = np.arange(len(sweep))
-        am = [sweep[t]["evaluation"]["table"]["always_max"]["metrics"]["daily_profit_eur"]["mean"] for t in sweep]
-        for i, name in enumerate((algo, "battery_rule", "lp_bound", "battery_programme", "plan_programme")):
+        am = [
+            sweep[t]["evaluation"]["table"]["always_max"]["metrics"]["daily_profit_eur"]["mean"]
+            for t in sweep
+        ]
+        for i, name in enumerate(
+            (algo, "battery_rule", "lp_bound", "battery_programme", "plan_programme")
+        ):
             if any(name not in sweep[t]["evaluation"]["table"] for t in sweep):
                 continue
             table = [sweep[t]["evaluation"]["table"][name] for t in sweep]
             m = [e["metrics"]["daily_profit_eur"]["mean"] - a for e, a in zip(table, am)]
             s = [np.std(e["per_seed_profit"]) if "per_seed_profit" in e else 0.0 for e in table]
-            ax.errorbar(x, m, yerr=s, fmt="o-" if i == 0 else "s--", label=name, color=f"C{i if i < 3 else i + 1}", capsize=3)
+            ax.errorbar(
+                x,
+                m,
+                yerr=s,
+                fmt="o-" if i == 0 else "s--",
+                label=name,
+                color=f"C{i if i < 3 else i + 1}",
+                capsize=3,
+            )
         ax.axhline(0.0, color="C3", ls=":", label="always_max")
         ax.set_xticks(x, list(sweep))
         ax.set_title(cond)
@@ -189,14 +260,31 @@ def plot(results, algo, path):
         ax.fill_between(t, m - s, m + s, alpha=0.25)
         table = res["evaluation"]["table"]
         ev = table[algo]["metrics"]["daily_profit_eur"]
-        ax.errorbar([t[-1]], [ev["mean"]], yerr=[np.std(table[algo]["per_seed_profit"])], fmt="o",
-                    label=f"{algo} held-out greedy {ev['mean']:.0f}")
-        for i, name in enumerate(("always_max", "battery_rule", "price_threshold", "lp_bound", "battery_programme",
-                                  "plan_programme")):
+        ax.errorbar(
+            [t[-1]],
+            [ev["mean"]],
+            yerr=[np.std(table[algo]["per_seed_profit"])],
+            fmt="o",
+            label=f"{algo} held-out greedy {ev['mean']:.0f}",
+        )
+        for i, name in enumerate(
+            (
+                "always_max",
+                "battery_rule",
+                "price_threshold",
+                "lp_bound",
+                "battery_programme",
+                "plan_programme",
+            )
+        ):
             if name in table:
                 v = table[name]["metrics"]["daily_profit_eur"]["mean"]
-                ax.axhline(v, ls=("--", "-.", ":", "-", (0, (5, 1, 1, 1)), (0, (3, 1, 1, 1, 1, 1)))[i], color=f"C{i + 3}",
-                           label=f"{name} {v:.0f}")
+                ax.axhline(
+                    v,
+                    ls=("--", "-.", ":", "-", (0, (5, 1, 1, 1)), (0, (3, 1, 1, 1, 1, 1)))[i],
+                    color=f"C{i + 3}",
+                    label=f"{name} {v:.0f}",
+                )
         ax.set_title(f"shopping, {traffic} traffic")
         ax.set_xlabel("environment steps")
         ax.grid(alpha=0.3)

@@ -36,14 +36,31 @@ for _ in range(steps):
 elapsed = time.perf_counter() - start
 try:
     import cvxpy
+
     solvers = cvxpy.installed_solvers()
 except Exception:  # noqa: BLE001
     solvers = []
-print("RESULT " + json.dumps({
-    "peer": "SustainGym", "package": "sustaingym", "version": metadata.version("sustaingym"), "steps": steps,
-    "seconds": elapsed, "init_s": init_s, "resets": resets,
-    "scenario": {"env": "EVChargingEnv", "generator": f"GMMsTraceGenerator({site!r}, {period!r})",
-                 "stations": int(env.num_stations), "project_action_in_env": bool(env.project_action_in_env),
-                 "step_minutes": 5, "max_timestep": int(env.max_timestep), "cvxpy_solvers": solvers,
-                 "acnportal": metadata.version("acnportal")},
-}))
+print(
+    "RESULT "
+    + json.dumps(
+        {
+            "peer": "SustainGym",
+            "package": "sustaingym",
+            "version": metadata.version("sustaingym"),
+            "steps": steps,
+            "seconds": elapsed,
+            "init_s": init_s,
+            "resets": resets,
+            "scenario": {
+                "env": "EVChargingEnv",
+                "generator": f"GMMsTraceGenerator({site!r}, {period!r})",
+                "stations": int(env.num_stations),
+                "project_action_in_env": bool(env.project_action_in_env),
+                "step_minutes": 5,
+                "max_timestep": int(env.max_timestep),
+                "cvxpy_solvers": solvers,
+                "acnportal": metadata.version("acnportal"),
+            },
+        }
+    )
+)

@@ -28,10 +28,34 @@ from chargax_marl.core.station import (
     multiple_types,
     single_type,
 )
-from chargax_marl.core.types import PENALTY_TERMS, EnvParams, EnvState, EpisodeTotals, PenaltyWeights, StepInfo
+from chargax_marl.core.types import (
+    PENALTY_TERMS,
+    EnvParams,
+    EnvState,
+    EpisodeTotals,
+    PenaltyWeights,
+    StepInfo,
+)
 
 __all__ = [
-    "Battery", "EnvParams", "EnvState", "EpisodeTotals", "PENALTY_TERMS", "PenaltyWeights", "Port", "Splitter",
-    "StationArrays", "StepInfo", "build_station", "compile_station", "empty_state", "is_done", "make_params",
-    "multiple_splitters", "multiple_types", "reset", "single_type", "step",
+    "Battery",
+    "EnvParams",
+    "EnvState",
+    "EpisodeTotals",
+    "PENALTY_TERMS",
+    "PenaltyWeights",
+    "Port",
+    "Splitter",
+    "StationArrays",
+    "StepInfo",
+    "build_station",
+    "compile_station",
+    "empty_state",
+    "is_done",
+    "make_params",
+    "multiple_splitters",
+    "multiple_types",
+    "reset",
+    "single_type",
+    "step",
 ]

@@ -39,18 +39,25 @@ def _short(value: Any) -> str:
 def check_dtype(action: Any, field: str = "action") -> None:
     """Raise ``ValueError`` unless ``action`` (array or tracer) holds real numbers or bools."""
     dtype = getattr(action, "dtype", None)
-    if dtype is None or not (np.issubdtype(dtype, np.integer) or np.issubdtype(dtype, np.floating)
-                             or np.issubdtype(dtype, np.bool_)):
-        raise ValueError(f"field '{field}' must hold numbers (integer levels or indices, or float fractions), "
-                         f"got {_short(action)} of dtype {dtype}")
+    if dtype is None or not (
+        np.issubdtype(dtype, np.integer)
+        or np.issubdtype(dtype, np.floating)
+        or np.issubdtype(dtype, np.bool_)
+    ):
+        raise ValueError(
+            f"field '{field}' must hold numbers (integer levels or indices, or float fractions), "
+            f"got {_short(action)} of dtype {dtype}"
+        )
 
 
 def check_size(action: Any, num_leaves: int, field: str = "action") -> None:
     """Raise ``ValueError`` unless ``action`` has exactly ``num_leaves`` entries (static shapes only)."""
     size = int(np.prod(np.shape(action), dtype=np.int64))
     if size != num_leaves:
-        raise ValueError(f"field '{field}' must have one entry per leaf (ports, then batteries): shape "
-                         f"({num_leaves},), got shape {tuple(np.shape(action))}")
+        raise ValueError(
+            f"field '{field}' must have one entry per leaf (ports, then batteries): shape "
+            f"({num_leaves},), got shape {tuple(np.shape(action))}"
+        )
 
 
 def to_int32(x: jnp.ndarray, low, high, idle) -> jnp.ndarray:
@@ -60,7 +67,9 @@ def to_int32(x: jnp.ndarray, low, high, idle) -> jnp.ndarray:
     if jnp.issubdtype(x.dtype, jnp.floating):
         low_f = jnp.asarray(low).astype(x.dtype)
         high_f = jnp.asarray(high).astype(x.dtype)
-        x = jnp.where(jnp.isfinite(x), jnp.clip(x, low_f, high_f), jnp.asarray(idle).astype(x.dtype))
+        x = jnp.where(
+            jnp.isfinite(x), jnp.clip(x, low_f, high_f), jnp.asarray(idle).astype(x.dtype)
+        )
         return x.astype(jnp.int32)
     if x.dtype == jnp.bool_:
         x = x.astype(jnp.int32)
@@ -94,12 +103,16 @@ def host_array(action: Any, num_leaves: int | None = None, field: str = "action"
             check_size(action, num_leaves, field)
         return action
     if isinstance(action, (str, bytes)):
-        raise ValueError(f"field '{field}' must hold numbers (integer levels or indices, or float fractions), "
-                         f"got the string {_short(action)}")
+        raise ValueError(
+            f"field '{field}' must hold numbers (integer levels or indices, or float fractions), "
+            f"got the string {_short(action)}"
+        )
     try:
         arr = np.asarray(action)
     except (TypeError, ValueError, OverflowError) as exc:
-        raise ValueError(f"field '{field}' must be an array of numbers, got {_short(action)} ({exc})") from None
+        raise ValueError(
+            f"field '{field}' must be an array of numbers, got {_short(action)} ({exc})"
+        ) from None
     if arr.dtype == object:
         try:  # Python ints beyond int64
             arr = np.asarray([float(v) for v in arr.reshape(-1)]).reshape(arr.shape)
@@ -116,5 +129,6 @@ def host_array(action: Any, num_leaves: int | None = None, field: str = "action"
         return np.clip(arr, INT32_MIN, INT32_MAX).astype(np.int32)
     arr = arr.astype(np.float64)
     finite = np.isfinite(arr)
-    return np.where(finite, np.clip(np.where(finite, arr, 0.0), -HOST_FLOAT_BOUND, HOST_FLOAT_BOUND),
-                    arr).astype(np.float32)
+    return np.where(
+        finite, np.clip(np.where(finite, arr, 0.0), -HOST_FLOAT_BOUND, HOST_FLOAT_BOUND), arr
+    ).astype(np.float32)

@@ -32,7 +32,9 @@ MIN_CAPACITY_KWH = 1e-3
 MAX_CAPACITY_KWH = 1e7
 MIN_EFFICIENCY = 1e-3
 # Exogenous data and economics.
-MAX_PRICE_EUR_KWH = 1e3  # |day-ahead price|, customer price, grid fee, battery terminal price (1e6 EUR/MWh)
+MAX_PRICE_EUR_KWH = (
+    1e3  # |day-ahead price|, customer price, grid fee, battery terminal price (1e6 EUR/MWh)
+)
 MAX_FACTOR = 1e3  # feed-in factor, weekend volume factor, hourly scale factors
 MAX_FIXED_COST_EUR = 1e6  # per step
 MAX_WEIGHT = 1e6  # |alpha_c| and beta
@@ -47,7 +49,9 @@ MAX_NUM_LEVELS = 10_000  # discrete levels per direction; action indices stay fa
 _F32 = np.finfo(np.float32)
 
 
-def _range_text(low: float | None, high: float | None, low_open: bool, high_open: bool, unit: str) -> str:
+def _range_text(
+    low: float | None, high: float | None, low_open: bool, high_open: bool, unit: str
+) -> str:
     u = f" {unit}" if unit else ""
     if low is not None and high is not None:
         return f"in {'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}{u}"
@@ -58,9 +62,18 @@ def _range_text(low: float | None, high: float | None, low_open: bool, high_open
     return "finite"
 
 
-def number(field: str, value: Any, *, low: float | None = None, high: float | None = None,
-           low_open: bool = False, high_open: bool = False, unit: str = "", owner: str = "",
-           integer: bool = False) -> float:
+def number(
+    field: str,
+    value: Any,
+    *,
+    low: float | None = None,
+    high: float | None = None,
+    low_open: bool = False,
+    high_open: bool = False,
+    unit: str = "",
+    owner: str = "",
+    integer: bool = False,
+) -> float:
     """``value`` as a float that is finite, in range and representable in float32.
 
     ``owner`` prefixes the message (e.g. ``"Port 'p'"``). Bools and strings are rejected.
@@ -69,28 +82,47 @@ def number(field: str, value: Any, *, low: float | None = None, high: float | No
     allowed = _range_text(low, high, low_open, high_open, unit)
     kind = "an integer" if integer else "a finite number"
     ok_type = isinstance(value, numbers.Integral if integer else numbers.Real)
-    if not ok_type and not isinstance(value, (str, bytes)) and hasattr(value, "dtype") and hasattr(value, "ndim"):
+    if (
+        not ok_type
+        and not isinstance(value, (str, bytes))
+        and hasattr(value, "dtype")
+        and hasattr(value, "ndim")
+    ):
         # 0-d numpy or jax arrays
-        ok_type = value.ndim == 0 and np.issubdtype(value.dtype, np.integer if integer else np.number) \
+        ok_type = (
+            value.ndim == 0
+            and np.issubdtype(value.dtype, np.integer if integer else np.number)
             and not np.issubdtype(value.dtype, np.complexfloating)
+        )
     if isinstance(value, (bool, np.bool_)) or not ok_type:
         raise ValueError(f"{who}field '{field}' must be {kind} {allowed}, got {value!r}")
     x = float(value)
     if not math.isfinite(x):
         raise ValueError(f"{who}field '{field}' must be {kind} {allowed}, got {value!r}")
     bad = (low is not None and (x <= low if low_open else x < low)) or (
-        high is not None and (x >= high if high_open else x > high))
+        high is not None and (x >= high if high_open else x > high)
+    )
     if bad:
         raise ValueError(f"{who}field '{field}' must be {kind} {allowed}, got {value!r}")
     x32 = float(np.float32(x))
     if not math.isfinite(x32) or (x != 0.0 and abs(x32) < _F32.tiny):
-        raise ValueError(f"{who}field '{field}' must be {kind} {allowed} that float32 can represent "
-                         f"(it underflows to 0 or overflows), got {value!r}")
+        raise ValueError(
+            f"{who}field '{field}' must be {kind} {allowed} that float32 can represent "
+            f"(it underflows to 0 or overflows), got {value!r}"
+        )
     return x
 
 
-def array(field: str, value: Any, *, low: float | None = None, high: float | None = None,
-          low_open: bool = False, high_open: bool = False, unit: str = "") -> np.ndarray:
+def array(
+    field: str,
+    value: Any,
+    *,
+    low: float | None = None,
+    high: float | None = None,
+    low_open: bool = False,
+    high_open: bool = False,
+    unit: str = "",
+) -> np.ndarray:
     """``value`` as a float64 array whose entries are finite and in range (checked as :func:`number`).
 
     The message names the first offending entry and its index.
@@ -98,7 +130,9 @@ def array(field: str, value: Any, *, low: float | None = None, high: float | Non
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"field '{field}' must be an array of numbers, got {type(value).__name__} ({exc})") from None
+        raise ValueError(
+            f"field '{field}' must be an array of numbers, got {type(value).__name__} ({exc})"
+        ) from None
     allowed = _range_text(low, high, low_open, high_open, unit)
     bad = ~np.isfinite(arr)
     if low is not None:
@@ -111,7 +145,9 @@ def array(field: str, value: Any, *, low: float | None = None, high: float | Non
     if bad.any():
         idx = tuple(int(i) for i in np.argwhere(bad)[0])
         where = idx[0] if len(idx) == 1 else idx
-        raise ValueError(f"field '{field}' must hold finite numbers {allowed}, got {float(arr[idx])!r} at index {where}")
+        raise ValueError(
+            f"field '{field}' must hold finite numbers {allowed}, got {float(arr[idx])!r} at index {where}"
+        )
     return arr
 
 
@@ -119,7 +155,9 @@ def keywords(owner: str, given: dict, allowed: tuple | list) -> None:
     """Raise ``TypeError`` naming unknown keyword arguments and the allowed names."""
     unknown = sorted(set(given) - set(allowed))
     if unknown:
-        raise TypeError(f"{owner}: unknown keyword argument(s) {unknown}; allowed: {sorted(allowed)}")
+        raise TypeError(
+            f"{owner}: unknown keyword argument(s) {unknown}; allowed: {sorted(allowed)}"
+        )
 
 
 def known_keywords(fn):
@@ -131,8 +169,11 @@ def known_keywords(fn):
     sig = inspect.signature(fn)
     if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in sig.parameters.values()):
         return fn
-    allowed = tuple(n for n, p in sig.parameters.items()
-                    if p.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY))
+    allowed = tuple(
+        n
+        for n, p in sig.parameters.items()
+        if p.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+    )
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):

@@ -20,12 +20,13 @@ import numpy as np
 
 from chargax_marl.core import checks
 
-
 DATA_DIR: Path = Path(__file__).resolve().parent / "data"
 NL_PRICE_DATASETS: tuple[str, ...] = tuple(f"NL-{year}" for year in range(2015, 2025))
 SMARD_PRICE_DATASETS: tuple[str, ...] = ("FR-2015", "FR-2018", "DE-2015", "DE-2018")
 # FR and DE-LU 2020-2024: ENTSO-E day-ahead prices (via HewlettPackard/green-dcc, MIT; see data/README.md).
-ENTSOE_PRICE_DATASETS: tuple[str, ...] = tuple(f"{zone}-{year}" for zone in ("FR", "DE") for year in range(2020, 2025))
+ENTSOE_PRICE_DATASETS: tuple[str, ...] = tuple(
+    f"{zone}-{year}" for zone in ("FR", "DE") for year in range(2020, 2025)
+)
 PRICE_DATASETS: tuple[str, ...] = NL_PRICE_DATASETS + SMARD_PRICE_DATASETS + ENTSOE_PRICE_DATASETS
 # The four profiles of the paper (scenario names are built from these; keep it that way).
 USER_PROFILES: tuple[str, ...] = ("residential", "shopping", "workplace", "highway")
@@ -44,10 +45,18 @@ HOURS_PER_DAY: int = 24
 PRICE_INDEX_FILE = "prices_NL.json"
 SMARD_PRICE_INDEX_FILE = "prices_SMARD.json"
 ENTSOE_PRICE_INDEX_FILE = "prices_ENTSOE.json"
-PRICE_INDEX_FILES: tuple[str, ...] = (PRICE_INDEX_FILE, SMARD_PRICE_INDEX_FILE, ENTSOE_PRICE_INDEX_FILE)
+PRICE_INDEX_FILES: tuple[str, ...] = (
+    PRICE_INDEX_FILE,
+    SMARD_PRICE_INDEX_FILE,
+    ENTSOE_PRICE_INDEX_FILE,
+)
 USER_PROFILES_FILE = "user_profiles.json"
 US_USER_PROFILES_FILE = "user_profiles_US.json"
-FLEET_FILES: dict[str, str] = {"EU": "fleet_EU.csv", "US": "fleet_US.csv", "World": "fleet_World.csv"}
+FLEET_FILES: dict[str, str] = {
+    "EU": "fleet_EU.csv",
+    "US": "fleet_US.csv",
+    "World": "fleet_World.csv",
+}
 # Written by hand (public facts, sources in the file header); scripts/build_data.py never touches them.
 HAND_COMPILED_FILES: tuple[str, ...] = ("fleet_US.csv", "fleet_World.csv")
 MOER_INDEX_FILE = "moer.json"
@@ -68,7 +77,9 @@ def _as_float_array(value: Any, field: str) -> np.ndarray:
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{field}: expected an array of numbers, got {type(value).__name__} ({exc})") from None
+        raise ValueError(
+            f"{field}: expected an array of numbers, got {type(value).__name__} ({exc})"
+        ) from None
     return arr
 
 
@@ -81,8 +92,14 @@ def _check_finite(arr: np.ndarray, field: str) -> None:
         )
 
 
-def _check_bounds(arr: np.ndarray, field: str, low: float | None, high: float | None, unit: str = "",
-                  low_open: bool = False) -> None:
+def _check_bounds(
+    arr: np.ndarray,
+    field: str,
+    low: float | None,
+    high: float | None,
+    unit: str = "",
+    low_open: bool = False,
+) -> None:
     """Every entry within ``[low, high]`` and representable in float32 (after :func:`_check_finite`)."""
     checks.array(field, arr, low=low, high=high, low_open=low_open, unit=unit)
 
@@ -108,18 +125,31 @@ def _read_text(path: str | os.PathLike) -> str:
     try:
         return p.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as exc:
-        raise ValueError(f"{str(p)!r} is not UTF-8 text (byte {exc.start}: {exc.object[exc.start:exc.start + 1]!r}); "
-                         "save the CSV as UTF-8") from None
+        raise ValueError(
+            f"{str(p)!r} is not UTF-8 text (byte {exc.start}: {exc.object[exc.start : exc.start + 1]!r}); "
+            "save the CSV as UTF-8"
+        ) from None
 
 
 def _check_weekday(first_weekday: Any) -> int:
-    if isinstance(first_weekday, bool) or not isinstance(first_weekday, numbers.Integral) or not 0 <= int(first_weekday) <= 6:
-        raise ValueError(f"first_weekday: expected an integer in 0..6 (0 = Monday), got {first_weekday!r}")
+    if (
+        isinstance(first_weekday, bool)
+        or not isinstance(first_weekday, numbers.Integral)
+        or not 0 <= int(first_weekday) <= 6
+    ):
+        raise ValueError(
+            f"first_weekday: expected an integer in 0..6 (0 = Monday), got {first_weekday!r}"
+        )
     return int(first_weekday)
 
 
 def _looks_like_path(source: str) -> bool:
-    return source.lower().endswith(".csv") or os.sep in source or "/" in source or Path(source).is_file()
+    return (
+        source.lower().endswith(".csv")
+        or os.sep in source
+        or "/" in source
+        or Path(source).is_file()
+    )
 
 
 def _parse_float(text: str, field: str, where: str) -> float:
@@ -136,16 +166,27 @@ def _parse_date(text: str, field: str, where: str) -> _dt.date:
     try:
         return _dt.date.fromisoformat(text.strip())
     except ValueError:
-        raise ValueError(f"{field}: {where}: expected an ISO date YYYY-MM-DD, got {text!r}") from None
+        raise ValueError(
+            f"{field}: {where}: expected an ISO date YYYY-MM-DD, got {text!r}"
+        ) from None
 
 
 def _check_consecutive(dates: list[_dt.date], field: str, source: str) -> None:
     for prev, cur in zip(dates, dates[1:]):
         if cur - prev != _dt.timedelta(days=1):
-            raise ValueError(f"{field}: {source}: days must be consecutive, got {cur.isoformat()} after {prev.isoformat()}")
+            raise ValueError(
+                f"{field}: {source}: days must be consecutive, got {cur.isoformat()} after {prev.isoformat()}"
+            )
 
 
-def _validate_unit_scalar(value: Any, field: str, *, lo_open: bool = False, upper: float | None = 1.0, hi_open: bool = False) -> float:
+def _validate_unit_scalar(
+    value: Any,
+    field: str,
+    *,
+    lo_open: bool = False,
+    upper: float | None = 1.0,
+    hi_open: bool = False,
+) -> float:
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise ValueError(f"{field}: expected a number, got {value!r}")
     v = float(value)

@@ -15,10 +15,10 @@ import numpy as np
 from chargax_marl.core import checks
 from chargax_marl.core.data_io import (
     DATA_DIR,
-    FLEETS,
     FLEET_COLUMNS,
     FLEET_DISCHARGE_COLUMNS,
     FLEET_FILES,
+    FLEETS,
     _as_float_array,
     _check_bounds,
     _check_finite,
@@ -58,8 +58,17 @@ class FleetData:
         return len(self.models)
 
 
-def _make_fleet(name: str, models: Any, share: Any, capacity_kwh: Any, max_ac_kw: Any, max_dc_kw: Any, tau: Any,
-                max_ac_discharge_kw: Any = None, max_dc_discharge_kw: Any = None) -> FleetData:
+def _make_fleet(
+    name: str,
+    models: Any,
+    share: Any,
+    capacity_kwh: Any,
+    max_ac_kw: Any,
+    max_dc_kw: Any,
+    tau: Any,
+    max_ac_discharge_kw: Any = None,
+    max_dc_discharge_kw: Any = None,
+) -> FleetData:
     models = tuple(models)
     k = len(models)
     if k == 0:
@@ -68,12 +77,20 @@ def _make_fleet(name: str, models: Any, share: Any, capacity_kwh: Any, max_ac_kw
         _validate_name(m, "models")
     cols = {}
     zeros = np.zeros(k)
-    for field, value in (("share", share), ("capacity_kwh", capacity_kwh), ("max_ac_kw", max_ac_kw), ("max_dc_kw", max_dc_kw), ("tau", tau),
-                         ("max_ac_discharge_kw", zeros if max_ac_discharge_kw is None else max_ac_discharge_kw),
-                         ("max_dc_discharge_kw", zeros if max_dc_discharge_kw is None else max_dc_discharge_kw)):
+    for field, value in (
+        ("share", share),
+        ("capacity_kwh", capacity_kwh),
+        ("max_ac_kw", max_ac_kw),
+        ("max_dc_kw", max_dc_kw),
+        ("tau", tau),
+        ("max_ac_discharge_kw", zeros if max_ac_discharge_kw is None else max_ac_discharge_kw),
+        ("max_dc_discharge_kw", zeros if max_dc_discharge_kw is None else max_dc_discharge_kw),
+    ):
         arr = _as_float_array(value, field)
         if arr.shape != (k,):
-            raise ValueError(f"{field}: expected shape ({k},) (one per model), got {tuple(arr.shape)}")
+            raise ValueError(
+                f"{field}: expected shape ({k},) (one per model), got {tuple(arr.shape)}"
+            )
         _check_finite(arr, field)
         cols[field] = arr
     if (cols["share"] < 0).any():
@@ -83,21 +100,34 @@ def _make_fleet(name: str, models: Any, share: Any, capacity_kwh: Any, max_ac_kw
     for field in ("capacity_kwh", "max_ac_kw", "max_dc_kw"):
         if (cols[field] <= 0).any():
             i = int(np.argmax(cols[field] <= 0))
-            raise ValueError(f"{field}: must be > 0, got {float(cols[field][i])!r} for model {models[i]!r}")
-    for field, high, unit in (("capacity_kwh", checks.MAX_CAPACITY_KWH, "kWh"), ("max_ac_kw", checks.MAX_POWER_KW, "kW"),
-                              ("max_dc_kw", checks.MAX_POWER_KW, "kW"), ("max_ac_discharge_kw", checks.MAX_POWER_KW, "kW"),
-                              ("max_dc_discharge_kw", checks.MAX_POWER_KW, "kW"), ("share", None, "")):
+            raise ValueError(
+                f"{field}: must be > 0, got {float(cols[field][i])!r} for model {models[i]!r}"
+            )
+    for field, high, unit in (
+        ("capacity_kwh", checks.MAX_CAPACITY_KWH, "kWh"),
+        ("max_ac_kw", checks.MAX_POWER_KW, "kW"),
+        ("max_dc_kw", checks.MAX_POWER_KW, "kW"),
+        ("max_ac_discharge_kw", checks.MAX_POWER_KW, "kW"),
+        ("max_dc_discharge_kw", checks.MAX_POWER_KW, "kW"),
+        ("share", None, ""),
+    ):
         _check_bounds(cols[field], field, None, high, unit)
     for field in FLEET_DISCHARGE_COLUMNS:
         if (cols[field] < 0).any():
             i = int(np.argmax(cols[field] < 0))
-            raise ValueError(f"{field}: must be >= 0 (0 = cannot discharge), got {float(cols[field][i])!r} for model {models[i]!r}")
+            raise ValueError(
+                f"{field}: must be >= 0 (0 = cannot discharge), got {float(cols[field][i])!r} for model {models[i]!r}"
+            )
     t = cols["tau"]
     if ((t <= 0) | (t >= 1)).any():
         i = int(np.argmax((t <= 0) | (t >= 1)))
         raise ValueError(f"tau: must be in (0, 1), got {float(t[i])!r} for model {models[i]!r}")
     cols["share"] = cols["share"] / cols["share"].sum()
-    return FleetData(name=_validate_name(name), models=models, **{f: _readonly(a.astype(np.float32)) for f, a in cols.items()})
+    return FleetData(
+        name=_validate_name(name),
+        models=models,
+        **{f: _readonly(a.astype(np.float32)) for f, a in cols.items()},
+    )
 
 
 def read_fleet_csv(path: str | os.PathLike, name: str | None = None) -> FleetData:
@@ -115,7 +145,9 @@ def parse_fleet_csv_text(text: str, name: str = "custom", source: str = "<csv>")
     header = [c.strip().lower() for c in rows[0]]
     missing = [c for c in FLEET_COLUMNS if c not in header]
     if missing:
-        raise ValueError(f"fleet: {source} lacks column(s) {missing}; expected columns {list(FLEET_COLUMNS)}")
+        raise ValueError(
+            f"fleet: {source} lacks column(s) {missing}; expected columns {list(FLEET_COLUMNS)}"
+        )
     numeric = FLEET_COLUMNS[1:] + tuple(c for c in FLEET_DISCHARGE_COLUMNS if c in header)
     idx = {c: header.index(c) for c in ("model",) + numeric}
     body = rows[1:]
@@ -135,17 +167,30 @@ def parse_fleet_csv_text(text: str, name: str = "custom", source: str = "<csv>")
 def load_fleet(source: Any = "EU") -> FleetData:
     """A bundled fleet by name (:data:`FLEETS`), a :class:`FleetData`, or a CSV path."""
     if isinstance(source, FleetData):
-        return _make_fleet(source.name, source.models, source.share, source.capacity_kwh, source.max_ac_kw, source.max_dc_kw,
-                           source.tau, source.max_ac_discharge_kw, source.max_dc_discharge_kw)
+        return _make_fleet(
+            source.name,
+            source.models,
+            source.share,
+            source.capacity_kwh,
+            source.max_ac_kw,
+            source.max_dc_kw,
+            source.tau,
+            source.max_ac_discharge_kw,
+            source.max_dc_discharge_kw,
+        )
     if isinstance(source, str) and source in FLEETS:
         return _load_bundled_fleet(source)
     if isinstance(source, (str, os.PathLike)):
         if isinstance(source, str) and not _looks_like_path(source):
-            raise KeyError(f"fleet: unknown fleet {source!r}; valid names are {list(FLEETS)} (or pass a CSV path)")
+            raise KeyError(
+                f"fleet: unknown fleet {source!r}; valid names are {list(FLEETS)} (or pass a CSV path)"
+            )
         return read_fleet_csv(source)
-    raise ValueError(f"fleet: expected one of {list(FLEETS)}, a FleetData or a CSV path, got {type(source).__name__}")
+    raise ValueError(
+        f"fleet: expected one of {list(FLEETS)}, a FleetData or a CSV path, got {type(source).__name__}"
+    )
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _load_bundled_fleet(name: str) -> FleetData:
     return read_fleet_csv(DATA_DIR / FLEET_FILES[name], name=name)

@@ -18,8 +18,16 @@ MINUTES_PER_DAY = 1440.0
 PRICE_SCALE_EUR_KWH = 0.25
 MOER_SCALE_KG_KWH = 1.0
 
-PORT_FEATURES = ("occupied", "soc", "energy_remaining", "time_remaining", "rate_now", "capacity",
-                 "charge_sensitive", "current")
+PORT_FEATURES = (
+    "occupied",
+    "soc",
+    "energy_remaining",
+    "time_remaining",
+    "rate_now",
+    "capacity",
+    "charge_sensitive",
+    "current",
+)
 BATTERY_FEATURES = ("soc", "current")
 PRICE_QUANTILES = (0.0, 0.2, 0.5, 0.8, 1.0)
 """Quantiles of the day's 24 hourly buy-side prices in the context (min, 20 %, median, 80 %, max)."""
@@ -31,8 +39,11 @@ def leaf_features(state: EnvState, params: EnvParams) -> jnp.ndarray:
     """Per-leaf features ``(L, len(PORT_FEATURES))`` in the order of :data:`PORT_FEATURES`."""
     st = params.station
     rate_kw = physics.rate_curve_kw(state.soc, state.max_rate_kw, state.tau)
-    signed_max = jnp.where(state.current_a >= 0, st.leaf_max_current_a,
-                           jnp.maximum(st.leaf_max_discharge_current_a, 1e-6))
+    signed_max = jnp.where(
+        state.current_a >= 0,
+        st.leaf_max_current_a,
+        jnp.maximum(st.leaf_max_discharge_current_a, 1e-6),
+    )
     # Stacked feature-major, then transposed. Stacked on the last axis, XLA fused every
     # feature's producers (the whole state update of the step) into an interleaving
     # concatenate that it evaluates element by element without SIMD: at 4096 envs that
@@ -55,7 +66,10 @@ def root_load(state: EnvState, params: EnvParams) -> jnp.ndarray:
     leaf's ``V * I`` over its path efficiency when charging, times it when feeding in) as a
     fraction of the connection's limit: 1 = the grid connection binds, negative = feed-in."""
     st = params.station
-    return jnp.sum(physics.path_grid_side(state.current_a * st.leaf_voltage_v / 1000.0, st)) / st.node_max_kw[0]
+    return (
+        jnp.sum(physics.path_grid_side(state.current_a * st.leaf_voltage_v / 1000.0, st))
+        / st.node_max_kw[0]
+    )
 
 
 def context_features(state: EnvState, params: EnvParams) -> jnp.ndarray:
@@ -66,7 +80,9 @@ def context_features(state: EnvState, params: EnvParams) -> jnp.ndarray:
     (:func:`root_load`), the day's peak draw so far over the connection's limit, and MOER now
     when ``params.observe_moer``."""
     ahead = jnp.arange(params.price_horizon_hours + 1)  # one gather per table, not one per hour
-    prices = day_ahead_price(state.day, state.timestep, params, ahead) + tou_fee(state.timestep, params, ahead)
+    prices = day_ahead_price(state.day, state.timestep, params, ahead) + tou_fee(
+        state.timestep, params, ahead
+    )
     angle = 2.0 * jnp.pi * state.timestep / params.num_steps
     minute_of_hour = jnp.mod(state.timestep * params.step_minutes, 60.0)
     root_kw = params.station.node_max_kw[0]
@@ -82,7 +98,9 @@ def context_features(state: EnvState, params: EnvParams) -> jnp.ndarray:
         jnp.atleast_1d(state.totals.peak_grid_kw / root_kw),
     ]
     if params.observe_moer:
-        parts.append(jnp.atleast_1d(moer_now(state.day, state.timestep, params) / MOER_SCALE_KG_KWH))
+        parts.append(
+            jnp.atleast_1d(moer_now(state.day, state.timestep, params) / MOER_SCALE_KG_KWH)
+        )
     return jnp.concatenate(parts).astype(jnp.float32)
 
 
@@ -101,14 +119,25 @@ def obs_dict(state: EnvState, params: EnvParams) -> dict:
 def flat_obs(state: EnvState, params: EnvParams) -> jnp.ndarray:
     """The single-agent observation: ports, then batteries, then context, as one float32 vector."""
     parts = obs_dict(state, params)
-    return jnp.concatenate([parts["ports"].reshape(-1), parts["batteries"].reshape(-1), parts["context"]])
+    return jnp.concatenate(
+        [parts["ports"].reshape(-1), parts["batteries"].reshape(-1), parts["context"]]
+    )
 
 
 def context_parts(params: EnvParams) -> tuple[tuple[str, int], ...]:
     """``(name, width)`` of each part of :func:`context_features`, in order."""
-    return (("prices", int(params.price_horizon_hours) + 1), ("customer_price", 1), ("time_of_day", 2),
-            ("workday", 1), ("day", 1), ("hour_left", 1), ("price_quantiles", len(PRICE_QUANTILES)),
-            ("grid_load", 1), ("peak_so_far", 1), ("moer", int(bool(params.observe_moer))))
+    return (
+        ("prices", int(params.price_horizon_hours) + 1),
+        ("customer_price", 1),
+        ("time_of_day", 2),
+        ("workday", 1),
+        ("day", 1),
+        ("hour_left", 1),
+        ("price_quantiles", len(PRICE_QUANTILES)),
+        ("grid_load", 1),
+        ("peak_so_far", 1),
+        ("moer", int(bool(params.observe_moer))),
+    )
 
 
 def context_size(params: EnvParams) -> int:

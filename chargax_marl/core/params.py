@@ -6,7 +6,6 @@ and what is allowed; the jitted step never sees a bad value.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import jax.numpy as jnp
@@ -15,7 +14,13 @@ import numpy as np
 from chargax_marl.core import checks, datasets, tariffs
 from chargax_marl.core.observation import PRICE_QUANTILES
 from chargax_marl.core.station import Splitter, StationArrays, build_station
-from chargax_marl.core.types import ACTION_MODES, CONSTRAINT_MODES, PENALTY_TERMS, EnvParams, PenaltyWeights
+from chargax_marl.core.types import (
+    ACTION_MODES,
+    CONSTRAINT_MODES,
+    PENALTY_TERMS,
+    EnvParams,
+    PenaltyWeights,
+)
 
 MINUTES_PER_DAY = 1440
 
@@ -27,8 +32,15 @@ FIXED_COST_EUR_PER_STEP = 0.35
 connection charges of a ~900 kW grid connection, an estimate (see the data README)."""
 
 
-def _finite(field: str, value: Any, *, minimum: float | None = None, strict: bool = False,
-            maximum: float | None = None, unit: str = "") -> float:
+def _finite(
+    field: str,
+    value: Any,
+    *,
+    minimum: float | None = None,
+    strict: bool = False,
+    maximum: float | None = None,
+    unit: str = "",
+) -> float:
     """A finite scalar in range and representable in float32 (:func:`checks.number`)."""
     return checks.number(field, value, low=minimum, high=maximum, low_open=strict, unit=unit)
 
@@ -41,7 +53,9 @@ def resample_day(weights_5min: np.ndarray, num_steps: int) -> np.ndarray:
     edges_src = np.linspace(0.0, 1.0, w.shape[-1] + 1)
     edges_dst = np.linspace(0.0, 1.0, num_steps + 1)
     cum = np.concatenate([np.zeros(w.shape[:-1] + (1,)), np.cumsum(w, axis=-1)], axis=-1)
-    cum_dst = np.stack([np.interp(edges_dst, edges_src, row) for row in cum.reshape(-1, cum.shape[-1])])
+    cum_dst = np.stack(
+        [np.interp(edges_dst, edges_src, row) for row in cum.reshape(-1, cum.shape[-1])]
+    )
     return np.diff(cum_dst, axis=-1).reshape(w.shape[:-1] + (num_steps,))
 
 
@@ -52,13 +66,17 @@ def _battery_initial_soc(value: Any, station: StationArrays) -> tuple[np.ndarray
         return own, own
     if isinstance(value, (tuple, list, np.ndarray)) and np.ndim(value) == 1:
         if len(value) != 2:
-            raise ValueError(f"field 'battery_initial_soc' must be a SoC in [0, 1] or a (low, high) pair, got {value!r}")
+            raise ValueError(
+                f"field 'battery_initial_soc' must be a SoC in [0, 1] or a (low, high) pair, got {value!r}"
+            )
         lo = _finite("battery_initial_soc[0]", value[0])
         hi = _finite("battery_initial_soc[1]", value[1])
     else:
         lo = hi = _finite("battery_initial_soc", value)
     if not 0.0 <= lo <= hi <= 1.0:
-        raise ValueError(f"field 'battery_initial_soc' must satisfy 0 <= low <= high <= 1, got {value!r}")
+        raise ValueError(
+            f"field 'battery_initial_soc' must satisfy 0 <= low <= high <= 1, got {value!r}"
+        )
     return np.full_like(own, lo), np.full_like(own, hi)
 
 
@@ -72,12 +90,20 @@ def penalty_weights(alpha: PenaltyWeights | dict | None) -> PenaltyWeights:
     elif isinstance(alpha, dict):
         unknown = set(alpha) - set(PENALTY_TERMS)
         if unknown:
-            raise KeyError(f"unknown penalty term(s) {sorted(unknown)} in 'alpha'; allowed: {list(PENALTY_TERMS)}")
+            raise KeyError(
+                f"unknown penalty term(s) {sorted(unknown)} in 'alpha'; allowed: {list(PENALTY_TERMS)}"
+            )
         values = dict(alpha)
     else:
-        raise ValueError(f"field 'alpha' must be a dict {{term: weight}} or a PenaltyWeights, got {type(alpha).__name__}")
-    return PenaltyWeights(**{k: checks.number(f"alpha.{k}", v, low=-checks.MAX_WEIGHT, high=checks.MAX_WEIGHT)
-                             for k, v in values.items()})
+        raise ValueError(
+            f"field 'alpha' must be a dict {{term: weight}} or a PenaltyWeights, got {type(alpha).__name__}"
+        )
+    return PenaltyWeights(
+        **{
+            k: checks.number(f"alpha.{k}", v, low=-checks.MAX_WEIGHT, high=checks.MAX_WEIGHT)
+            for k, v in values.items()
+        }
+    )
 
 
 @checks.known_keywords
@@ -157,22 +183,40 @@ def make_params(
     default (see :func:`chargax_marl.core.traffic.depart`).
     """
     if not isinstance(refund_discharged_energy, (bool, np.bool_)):
-        raise ValueError(f"field 'refund_discharged_energy' must be a bool (True: refund car owners for energy "
-                         f"discharged from their car; False: no refund), got {refund_discharged_energy!r}")
+        raise ValueError(
+            f"field 'refund_discharged_energy' must be a bool (True: refund car owners for energy "
+            f"discharged from their car; False: no refund), got {refund_discharged_energy!r}"
+        )
     if action_mode not in ACTION_MODES:
         raise ValueError(f"field 'action_mode' must be one of {ACTION_MODES}, got {action_mode!r}")
     if constraint_mode not in CONSTRAINT_MODES:
-        raise ValueError(f"field 'constraint_mode' must be one of {CONSTRAINT_MODES}, got {constraint_mode!r}")
-    if isinstance(num_levels, (bool, np.bool_)) or not isinstance(num_levels, (int, np.integer)) \
-            or not 1 <= num_levels <= checks.MAX_NUM_LEVELS:
-        raise ValueError(f"field 'num_levels' must be an integer in [1, {checks.MAX_NUM_LEVELS}], got {num_levels!r}")
+        raise ValueError(
+            f"field 'constraint_mode' must be one of {CONSTRAINT_MODES}, got {constraint_mode!r}"
+        )
+    if (
+        isinstance(num_levels, (bool, np.bool_))
+        or not isinstance(num_levels, (int, np.integer))
+        or not 1 <= num_levels <= checks.MAX_NUM_LEVELS
+    ):
+        raise ValueError(
+            f"field 'num_levels' must be an integer in [1, {checks.MAX_NUM_LEVELS}], got {num_levels!r}"
+        )
     if not isinstance(price_horizon_hours, (int, np.integer)) or not 0 <= price_horizon_hours <= 48:
-        raise ValueError(f"field 'price_horizon_hours' must be an integer in [0, 48], got {price_horizon_hours!r}")
-    step_minutes = _finite("step_minutes", step_minutes, minimum=MINUTES_PER_DAY / checks.MAX_STEPS_PER_DAY,
-                           maximum=MINUTES_PER_DAY, unit="min")
+        raise ValueError(
+            f"field 'price_horizon_hours' must be an integer in [0, 48], got {price_horizon_hours!r}"
+        )
+    step_minutes = _finite(
+        "step_minutes",
+        step_minutes,
+        minimum=MINUTES_PER_DAY / checks.MAX_STEPS_PER_DAY,
+        maximum=MINUTES_PER_DAY,
+        unit="min",
+    )
     num_steps = MINUTES_PER_DAY / step_minutes
     if abs(num_steps - round(num_steps)) > 1e-9:
-        raise ValueError(f"field 'step_minutes' must divide a day (1440 min) evenly, got {step_minutes!r}")
+        raise ValueError(
+            f"field 'step_minutes' must divide a day (1440 min) evenly, got {step_minutes!r}"
+        )
     num_steps = int(round(num_steps))
 
     stations = build_station(station, grid_fraction=grid_fraction, **(station_kwargs or {}))
@@ -185,9 +229,11 @@ def make_params(
 
     weekend_cars = cars_per_day * profile.weekend_volume_factor
     if weekend_cars > checks.MAX_CARS_PER_DAY:
-        raise ValueError(f"field 'traffic' ({cars_per_day:g} cars per day) times the profile's weekend_volume_factor "
-                         f"({profile.weekend_volume_factor:g}) must be <= {checks.MAX_CARS_PER_DAY:g} cars per day, "
-                         f"got {weekend_cars:g}")
+        raise ValueError(
+            f"field 'traffic' ({cars_per_day:g} cars per day) times the profile's weekend_volume_factor "
+            f"({profile.weekend_volume_factor:g}) must be <= {checks.MAX_CARS_PER_DAY:g} cars per day, "
+            f"got {weekend_cars:g}"
+        )
     weights = resample_day(profile.arrival_weights, num_steps)
     rate = weights * cars_per_day
     rate[1] *= profile.weekend_volume_factor
@@ -196,9 +242,13 @@ def make_params(
     if moer_kg_per_kwh is None:
         moer = np.zeros((1, num_steps), np.float32)
         observe_moer = bool(observe_moer)
-    elif isinstance(moer_kg_per_kwh, (str, datasets.MoerData)) or hasattr(moer_kg_per_kwh, "__fspath__"):
+    elif isinstance(moer_kg_per_kwh, (str, datasets.MoerData)) or hasattr(
+        moer_kg_per_kwh, "__fspath__"
+    ):
         moer_data = datasets.load_moer(moer_kg_per_kwh)
-        moer = datasets.validate_moer(datasets.resample_moer(moer_data.moer_kg_per_kwh, num_steps), check_resolution=False)
+        moer = datasets.validate_moer(
+            datasets.resample_moer(moer_data.moer_kg_per_kwh, num_steps), check_resolution=False
+        )
         observe_moer = True if observe_moer is None else bool(observe_moer)
     else:
         moer = np.asarray(moer_kg_per_kwh, dtype=np.float64)
@@ -207,10 +257,13 @@ def make_params(
             raise ValueError(
                 f"field 'moer_kg_per_kwh' has {moer.shape[1]} columns per day ({MINUTES_PER_DAY / moer.shape[1]:g}-minute "
                 f"resolution) but the simulator runs {num_steps} steps per day ({step_minutes:g}-minute resolution); "
-                f"pass shape (days, {num_steps}) or ({num_steps},), or resample with datasets.resample_moer")
+                f"pass shape (days, {num_steps}) or ({num_steps},), or resample with datasets.resample_moer"
+            )
         if moer.ndim != 2 or moer.shape[1] != num_steps or moer.shape[0] == 0:
-            raise ValueError(f"field 'moer_kg_per_kwh' must have shape (days, {num_steps}) or ({num_steps},), "
-                             f"got {np.shape(moer_kg_per_kwh)}")
+            raise ValueError(
+                f"field 'moer_kg_per_kwh' must have shape (days, {num_steps}) or ({num_steps},), "
+                f"got {np.shape(moer_kg_per_kwh)}"
+            )
         moer = datasets.validate_moer(moer, check_resolution=False)
         observe_moer = True if observe_moer is None else bool(observe_moer)
     # grid demand: a bundled shape name (generated at num_steps), a CSV path, or an array (num_steps,).
@@ -223,7 +276,8 @@ def make_params(
         if arr.ndim == 1 and arr.shape[0] != num_steps and arr.shape[0] > 0:
             raise ValueError(
                 f"field 'grid_demand_kwh' has {arr.shape[0]} steps per day ({MINUTES_PER_DAY / arr.shape[0]:g}-minute "
-                f"resolution) but the simulator runs {num_steps} steps per day ({step_minutes:g}-minute resolution)")
+                f"resolution) but the simulator runs {num_steps} steps per day ({step_minutes:g}-minute resolution)"
+            )
         demand = datasets.validate_grid_demand(grid_demand_kwh, num_steps)
 
     days_all = price.prices_eur_kwh.shape[0]
@@ -232,10 +286,14 @@ def make_params(
     else:
         days = np.asarray(reset_days)
         if days.ndim != 1 or days.size == 0 or not np.issubdtype(days.dtype, np.integer):
-            raise ValueError(f"field 'reset_days' must be a non-empty 1-D array of day indices, got {reset_days!r}")
+            raise ValueError(
+                f"field 'reset_days' must be a non-empty 1-D array of day indices, got {reset_days!r}"
+            )
         if days.min() < 0 or days.max() >= days_all:
-            raise ValueError(f"field 'reset_days' must lie in [0, {days_all - 1}] (days of the price data), "
-                             f"got values from {days.min()} to {days.max()}")
+            raise ValueError(
+                f"field 'reset_days' must lie in [0, {days_all - 1}] (days of the price data), "
+                f"got values from {days.min()} to {days.max()}"
+            )
         days = days.astype(np.int32)
 
     def scalar(name, value, **kw):
@@ -248,21 +306,34 @@ def make_params(
     soc0_low, soc0_high = _battery_initial_soc(battery_initial_soc, stations)
     if isinstance(battery_terminal_price, str):
         if battery_terminal_price != "day_mean_buy":
-            raise ValueError(f"field 'battery_terminal_price' must be 'day_mean_buy', a price in EUR/kWh or None, "
-                             f"got {battery_terminal_price!r}")
+            raise ValueError(
+                f"field 'battery_terminal_price' must be 'day_mean_buy', a price in EUR/kWh or None, "
+                f"got {battery_terminal_price!r}"
+            )
         value_day_mean, value_price = True, 0.0
     elif battery_terminal_price is None:
         value_day_mean, value_price = False, 0.0
     else:
-        value_day_mean, value_price = False, _finite("battery_terminal_price", battery_terminal_price, minimum=0.0,
-                                                        maximum=price_max, unit="EUR/kWh")
+        value_day_mean, value_price = (
+            False,
+            _finite(
+                "battery_terminal_price",
+                battery_terminal_price,
+                minimum=0.0,
+                maximum=price_max,
+                unit="EUR/kWh",
+            ),
+        )
 
     return EnvParams(
         station=stations,
         prices_eur_kwh=jnp.asarray(price.prices_eur_kwh, jnp.float32),
         day_price_quantiles_eur_kwh=jnp.asarray(
-            np.quantile(np.asarray(price.prices_eur_kwh, np.float64) + tou[None, :], PRICE_QUANTILES, axis=1).T,
-            jnp.float32),
+            np.quantile(
+                np.asarray(price.prices_eur_kwh, np.float64) + tou[None, :], PRICE_QUANTILES, axis=1
+            ).T,
+            jnp.float32,
+        ),
         first_weekday=jnp.asarray(price.first_weekday, jnp.int32),
         arrival_rate=jnp.asarray(rate, jnp.float32),
         stay_quantiles_min=jnp.asarray(profile.stay_quantiles_min, jnp.float32),
@@ -283,22 +354,42 @@ def make_params(
         reset_days=jnp.asarray(days),
         battery_soc0_low=jnp.asarray(soc0_low, jnp.float32),
         battery_soc0_high=jnp.asarray(soc0_high, jnp.float32),
-        customer_price_eur_kwh=scalar("customer_price_eur_kwh", customer_price_eur_kwh, minimum=0.0,
-                                      maximum=price_max, unit="EUR/kWh"),
+        customer_price_eur_kwh=scalar(
+            "customer_price_eur_kwh",
+            customer_price_eur_kwh,
+            minimum=0.0,
+            maximum=price_max,
+            unit="EUR/kWh",
+        ),
         refund_discharged_energy=jnp.asarray(bool(refund_discharged_energy)),
-        grid_fee_eur_kwh=scalar("grid_fee_eur_kwh", grid_fee_eur_kwh, minimum=0.0, maximum=price_max, unit="EUR/kWh"),
+        grid_fee_eur_kwh=scalar(
+            "grid_fee_eur_kwh", grid_fee_eur_kwh, minimum=0.0, maximum=price_max, unit="EUR/kWh"
+        ),
         tou_fee_eur_kwh=jnp.asarray(tou, jnp.float32),
         peak_demand_eur_kw=jnp.asarray(peak_rate, jnp.float32),
         peak_demand_incremental=jnp.asarray(peak_incremental),
-        feed_in_factor=scalar("feed_in_factor", feed_in_factor, minimum=0.0, maximum=checks.MAX_FACTOR),
-        fixed_cost_eur=scalar("fixed_cost_eur", fixed_cost_eur, minimum=0.0, maximum=checks.MAX_FIXED_COST_EUR,
-                              unit="EUR per step"),
+        feed_in_factor=scalar(
+            "feed_in_factor", feed_in_factor, minimum=0.0, maximum=checks.MAX_FACTOR
+        ),
+        fixed_cost_eur=scalar(
+            "fixed_cost_eur",
+            fixed_cost_eur,
+            minimum=0.0,
+            maximum=checks.MAX_FIXED_COST_EUR,
+            unit="EUR per step",
+        ),
         alpha=penalty_weights(alpha),
         battery_value_day_mean=jnp.asarray(value_day_mean),
         battery_value_eur_kwh=jnp.asarray(value_price, jnp.float32),
         beta=scalar("beta", beta, minimum=0.0, maximum=checks.MAX_WEIGHT),
-        charged_tolerance_kwh=scalar("charged_tolerance_kwh", charged_tolerance_kwh, minimum=0.0, strict=True,
-                                     maximum=checks.MAX_TOLERANCE_KWH, unit="kWh"),
+        charged_tolerance_kwh=scalar(
+            "charged_tolerance_kwh",
+            charged_tolerance_kwh,
+            minimum=0.0,
+            strict=True,
+            maximum=checks.MAX_TOLERANCE_KWH,
+            unit="kWh",
+        ),
         step_minutes=step_minutes,
         num_steps=num_steps,
         num_levels=int(num_levels),

@@ -56,9 +56,13 @@ def target_current(action: jnp.ndarray, state: EnvState, params: EnvParams) -> j
         # The paper's formal action: a change of current in steps of max_current / L. Any leaf
         # may step down; whether it may go below zero is decided by clip_to_car.
         levels = actions.to_int32(action, -params.num_levels, params.num_levels, 0)
-        return state.current_a + levels.astype(jnp.float32) / params.num_levels * st.leaf_max_current_a
+        return (
+            state.current_a + levels.astype(jnp.float32) / params.num_levels * st.leaf_max_current_a
+        )
     else:
-        levels = actions.to_int32(action, leaf_min_level(st, params.num_levels, params.v2g), params.num_levels, 0)
+        levels = actions.to_int32(
+            action, leaf_min_level(st, params.num_levels, params.v2g), params.num_levels, 0
+        )
         frac = levels.astype(jnp.float32) / params.num_levels
     return frac * jnp.where(frac >= 0, st.leaf_max_current_a, st.leaf_max_discharge_current_a)
 
@@ -82,11 +86,19 @@ def clip_to_car(current_a: jnp.ndarray, state: EnvState, params: EnvParams) -> j
     to_amps = 1000.0 / (v * params.step_hours)  # kWh moved in one step -> A
     room_a = jnp.maximum((state.target_soc - state.soc) * state.capacity_kwh, 0.0) * to_amps
     reserve_a = jnp.maximum((state.soc - state.arrival_soc) * state.capacity_kwh, 0.0) * to_amps
-    dis_limit = jnp.where(st.leaf_kind == KIND_BATTERY, st.leaf_max_discharge_current_a,
-                          st.leaf_max_discharge_current_a * params.v2g)
-    charge_a = jnp.minimum(st.leaf_max_current_a, rate_curve_kw(state.soc, state.max_rate_kw, state.tau) * 1000.0 / v)
+    dis_limit = jnp.where(
+        st.leaf_kind == KIND_BATTERY,
+        st.leaf_max_discharge_current_a,
+        st.leaf_max_discharge_current_a * params.v2g,
+    )
+    charge_a = jnp.minimum(
+        st.leaf_max_current_a, rate_curve_kw(state.soc, state.max_rate_kw, state.tau) * 1000.0 / v
+    )
     charge_a = jnp.minimum(charge_a, room_a)
-    dis_a = jnp.minimum(dis_limit, discharge_curve_kw(state.soc, state.max_discharge_rate_kw, state.tau) * 1000.0 / v)
+    dis_a = jnp.minimum(
+        dis_limit,
+        discharge_curve_kw(state.soc, state.max_discharge_rate_kw, state.tau) * 1000.0 / v,
+    )
     dis_a = jnp.minimum(dis_a, reserve_a)
     clipped = jnp.clip(current_a, -dis_a, charge_a)
     return jnp.where(state.occupied, clipped, 0.0)
@@ -94,7 +106,9 @@ def clip_to_car(current_a: jnp.ndarray, state: EnvState, params: EnvParams) -> j
 
 def _grid_side(leaf_power_kw: jnp.ndarray, eff: jnp.ndarray, has_node: jnp.ndarray) -> jnp.ndarray:
     """A leaf's flow on the grid side of a node: power / eff charging, power * eff discharging."""
-    return jnp.where(has_node, jnp.where(leaf_power_kw > 0, leaf_power_kw / eff, leaf_power_kw * eff), 0.0)
+    return jnp.where(
+        has_node, jnp.where(leaf_power_kw > 0, leaf_power_kw / eff, leaf_power_kw * eff), 0.0
+    )
 
 
 def path_grid_side(leaf_values: jnp.ndarray, station: StationArrays) -> jnp.ndarray:
@@ -108,7 +122,9 @@ def grid_side_kw(leaf_power_kw: jnp.ndarray, station: StationArrays) -> jnp.ndar
     """``(D, L)`` the flow each leaf causes on the grid side of its ancestor at depth ``d``:
     its power divided by the efficiency of the path up to and including that node when it
     charges, multiplied by it when it discharges (0 where the leaf has no such ancestor)."""
-    return _grid_side(leaf_power_kw[None, :], station.leaf_efficiency_at_depth, station.node_of_leaf_at_depth >= 0)
+    return _grid_side(
+        leaf_power_kw[None, :], station.leaf_efficiency_at_depth, station.node_of_leaf_at_depth >= 0
+    )
 
 
 def node_flows_kw(leaf_power_kw: jnp.ndarray, station: StationArrays) -> jnp.ndarray:
@@ -121,7 +137,9 @@ def node_flows_kw(leaf_power_kw: jnp.ndarray, station: StationArrays) -> jnp.nda
     flows = jnp.zeros((station.num_nodes,), jnp.float32)
     for d in range(station.depth):
         idx = station.node_of_leaf_at_depth[d]
-        flows = flows + jax.ops.segment_sum(side[d], jnp.maximum(idx, 0), num_segments=station.num_nodes)
+        flows = flows + jax.ops.segment_sum(
+            side[d], jnp.maximum(idx, 0), num_segments=station.num_nodes
+        )
     return jnp.abs(flows)
 
 
@@ -144,10 +162,15 @@ def rescale_to_limits(current_a: jnp.ndarray, station: StationArrays) -> jnp.nda
     for d in reversed(range(station.depth)):
         idx = station.node_of_leaf_at_depth[d]
         side = _grid_side(current_a * v / 1000.0, station.leaf_efficiency_at_depth[d], idx >= 0)
-        flow = jnp.abs(jax.ops.segment_sum(side, jnp.maximum(idx, 0), num_segments=station.num_nodes))
+        flow = jnp.abs(
+            jax.ops.segment_sum(side, jnp.maximum(idx, 0), num_segments=station.num_nodes)
+        )
         # A small safety margin keeps float32 round-off from leaving a flow a hair above its limit.
-        factor = jnp.where(flow > station.node_max_kw,
-                           station.node_max_kw / jnp.maximum(flow, 1e-12) * (1.0 - 1e-6), 1.0)
+        factor = jnp.where(
+            flow > station.node_max_kw,
+            station.node_max_kw / jnp.maximum(flow, 1e-12) * (1.0 - 1e-6),
+            1.0,
+        )
         leaf_factor = jnp.where(idx >= 0, factor[jnp.maximum(idx, 0)], 1.0)
         current_a = current_a * leaf_factor
     return current_a
@@ -172,7 +195,11 @@ def apply_actions(action: jnp.ndarray, state: EnvState, params: EnvParams):
     requested_excess = constraint_excess_kw(requested * volts / 1000.0, params.station)
     if params.constraint_mode == "hard":
         current = rescale_to_limits(requested, params.station)
-        return current, constraint_excess_kw(current * volts / 1000.0, params.station), requested_excess
+        return (
+            current,
+            constraint_excess_kw(current * volts / 1000.0, params.station),
+            requested_excess,
+        )
     return requested, requested_excess, requested_excess
 
 
@@ -195,9 +222,15 @@ def charge(current_a: jnp.ndarray, state: EnvState, params: EnvParams):
     is_port = st.leaf_kind != KIND_BATTERY
     parked = state.occupied & is_port
     remaining = jnp.where(parked, jnp.maximum(state.energy_remaining_kwh - energy, 0.0), 0.0)
-    time_left = jnp.where(parked, state.time_remaining_min - params.step_minutes, state.time_remaining_min)
-    new_state = state.replace(current_a=actual_current, soc=soc, energy_remaining_kwh=remaining,
-                              time_remaining_min=time_left)
+    time_left = jnp.where(
+        parked, state.time_remaining_min - params.step_minutes, state.time_remaining_min
+    )
+    new_state = state.replace(
+        current_a=actual_current,
+        soc=soc,
+        energy_remaining_kwh=remaining,
+        time_remaining_min=time_left,
+    )
     return new_state, energy
 
 

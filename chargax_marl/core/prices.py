@@ -70,7 +70,9 @@ def _validate_prices(value: Any, field: str = "prices") -> np.ndarray:
     if arr.ndim == 1:
         arr = arr[None, :]
     if arr.ndim != 2 or arr.shape[1] != HOURS_PER_DAY:
-        raise ValueError(f"{field}: expected shape (days, 24) or (24,), got {tuple(np.shape(value))}")
+        raise ValueError(
+            f"{field}: expected shape (days, 24) or (24,), got {tuple(np.shape(value))}"
+        )
     if arr.shape[0] == 0:
         raise ValueError(f"{field}: expected at least one day, got shape {tuple(arr.shape)}")
     _check_finite(arr, field)
@@ -88,12 +90,18 @@ def load_prices(source: Any = "NL-2023", *, first_weekday: int | None = None) ->
     is the dataset's own (a CSV: the weekday of its first date; an array: 0).
     """
     if isinstance(source, PriceData):
-        data = PriceData(source.name, _readonly(_validate_prices(source.prices_eur_kwh, "prices_eur_kwh")), _check_weekday(source.first_weekday))
+        data = PriceData(
+            source.name,
+            _readonly(_validate_prices(source.prices_eur_kwh, "prices_eur_kwh")),
+            _check_weekday(source.first_weekday),
+        )
     elif isinstance(source, str) and source in PRICE_DATASETS:
         data = _load_bundled_prices(source)
     elif isinstance(source, (str, os.PathLike)):
         if isinstance(source, str) and not _looks_like_path(source):
-            raise KeyError(f"prices: unknown dataset {source!r}; valid names are {list(PRICE_DATASETS)} (or pass an array or a CSV path)")
+            raise KeyError(
+                f"prices: unknown dataset {source!r}; valid names are {list(PRICE_DATASETS)} (or pass an array or a CSV path)"
+            )
         prices, fw = read_prices_csv(source)
         data = PriceData(Path(source).stem, _readonly(prices), fw)
     elif isinstance(source, (np.ndarray, list, tuple)) or hasattr(source, "__array__"):
@@ -120,7 +128,9 @@ def _load_bundled_prices(name: str) -> PriceData:
     entry = _price_index()[name]
     prices, first_weekday = read_prices_csv(DATA_DIR / entry["file"])
     if first_weekday != entry["first_weekday"] or prices.shape[0] != entry["days"]:
-        raise RuntimeError(f"bundled price file {entry['file']} disagrees with its index ({PRICE_INDEX_FILES}); run `make data`")
+        raise RuntimeError(
+            f"bundled price file {entry['file']} disagrees with its index ({PRICE_INDEX_FILES}); run `make data`"
+        )
     return PriceData(name, _readonly(prices), first_weekday)
 
 
@@ -145,7 +155,9 @@ def parse_prices_csv_text(text: str, source: str = "<csv>") -> tuple[np.ndarray,
     """As :func:`read_prices_csv`, for CSV text."""
     rows = _data_rows(text)
     if not rows:
-        raise ValueError(f"prices: {source} is empty; expected a header {','.join(PRICE_LONG_COLUMNS)} or date,h0..h23")
+        raise ValueError(
+            f"prices: {source} is empty; expected a header {','.join(PRICE_LONG_COLUMNS)} or date,h0..h23"
+        )
     header = tuple(c.strip().lower() for c in rows[0])
     body = rows[1:]
     if header == PRICE_WIDE_COLUMNS:
@@ -168,7 +180,9 @@ def _parse_wide_prices(body: list[list[str]], source: str) -> tuple[np.ndarray, 
     for i, row in enumerate(body):
         where = f"{source} data row {i + 1}"
         if len(row) != 1 + HOURS_PER_DAY:
-            raise ValueError(f"prices: {where}: expected 25 fields (date + 24 hours), got {len(row)}")
+            raise ValueError(
+                f"prices: {where}: expected 25 fields (date + 24 hours), got {len(row)}"
+            )
         dates.append(_parse_date(row[0], "date", where))
         for h in range(HOURS_PER_DAY):
             values[i, h] = _parse_float(row[1 + h], f"h{h}", where)
@@ -183,13 +197,19 @@ def _parse_long_prices(body: list[list[str]], source: str) -> tuple[np.ndarray, 
     for i, row in enumerate(body):
         where = f"{source} data row {i + 1}"
         if len(row) != 2:
-            raise ValueError(f"prices: {where}: expected 2 fields (timestamp, price_eur_mwh), got {len(row)}")
+            raise ValueError(
+                f"prices: {where}: expected 2 fields (timestamp, price_eur_mwh), got {len(row)}"
+            )
         try:
             ts = _dt.datetime.fromisoformat(row[0].strip())
         except ValueError:
-            raise ValueError(f"timestamp: {where}: expected an ISO timestamp like 2023-01-01 13:00, got {row[0]!r}") from None
+            raise ValueError(
+                f"timestamp: {where}: expected an ISO timestamp like 2023-01-01 13:00, got {row[0]!r}"
+            ) from None
         if ts.tzinfo is not None:
-            raise ValueError(f"timestamp: {where}: give local wall-clock times without a UTC offset, got {row[0]!r}")
+            raise ValueError(
+                f"timestamp: {where}: give local wall-clock times without a UTC offset, got {row[0]!r}"
+            )
         if ts.minute or ts.second or ts.microsecond:
             raise ValueError(f"timestamp: {where}: expected whole hours, got {row[0]!r}")
         price = _parse_float(row[1], "price_eur_mwh", where)
@@ -232,7 +252,9 @@ def _find_column(header: list[str], *needles: str) -> int:
     for i, h in enumerate(low):
         if all(n in h for n in needles):
             return i
-    raise ValueError(f"day-ahead CSV: no column containing {' and '.join(repr(n) for n in needles)} in header {header!r}")
+    raise ValueError(
+        f"day-ahead CSV: no column containing {' and '.join(repr(n) for n in needles)} in header {header!r}"
+    )
 
 
 def _slash_order(stamps: list[str]) -> bool:
@@ -246,7 +268,9 @@ def _slash_order(stamps: list[str]) -> bool:
         day_first_evidence += a > 12
         month_first_evidence += b > 12
     if day_first_evidence and month_first_evidence:
-        raise ValueError("day-ahead CSV: slash dates are inconsistent (some need dd/mm, others mm/dd)")
+        raise ValueError(
+            "day-ahead CSV: slash dates are inconsistent (some need dd/mm, others mm/dd)"
+        )
     return not month_first_evidence  # ambiguous (no field > 12): European day-first
 
 
@@ -358,7 +382,9 @@ def parse_day_ahead_csv(
     if dates:
         flat = np.full(len(dates) * HOURS_PER_DAY, np.nan)
         pos = np.empty(len(dates) * HOURS_PER_DAY)
-        kind = np.zeros(len(dates) * HOURS_PER_DAY, dtype=np.int8)  # 1 = DST gap, 2 = other gap, 3 = averaged
+        kind = np.zeros(
+            len(dates) * HOURS_PER_DAY, dtype=np.int8
+        )  # 1 = DST gap, 2 = other gap, 3 = averaged
         for i, day in enumerate(dates):
             for h in range(HOURS_PER_DAY):
                 j = i * HOURS_PER_DAY + h

@@ -24,9 +24,9 @@ from chargax_marl.core.data_io import (
     QUANTILE_PROBS,
     SLOTS_PER_DAY,
     TRAFFIC_LEVELS,
-    USER_PROFILES_FILE,
     US_USER_PROFILES,
     US_USER_PROFILES_FILE,
+    USER_PROFILES_FILE,
     _as_float_array,
     _check_bounds,
     _check_finite,
@@ -40,7 +40,9 @@ def traffic_cars_per_day(traffic: str | float) -> float:
     """Mean number of arriving cars per day: a level name or a positive number."""
     if isinstance(traffic, str):
         if traffic not in TRAFFIC_LEVELS:
-            raise KeyError(f"traffic: unknown level {traffic!r}; valid levels are {sorted(TRAFFIC_LEVELS)} or a positive number")
+            raise KeyError(
+                f"traffic: unknown level {traffic!r}; valid levels are {sorted(TRAFFIC_LEVELS)} or a positive number"
+            )
         return float(TRAFFIC_LEVELS[traffic])
     if isinstance(traffic, bool) or not isinstance(traffic, numbers.Real):
         raise ValueError(
@@ -48,11 +50,15 @@ def traffic_cars_per_day(traffic: str | float) -> float:
         )
     value = float(traffic)
     if not math.isfinite(value) or value <= 0.0:
-        raise ValueError(f"traffic: cars per day must be a finite number > 0 (at most {checks.MAX_CARS_PER_DAY:g}), "
-                         f"got {traffic!r}")
+        raise ValueError(
+            f"traffic: cars per day must be a finite number > 0 (at most {checks.MAX_CARS_PER_DAY:g}), "
+            f"got {traffic!r}"
+        )
     if value > checks.MAX_CARS_PER_DAY:
-        raise ValueError(f"traffic: cars per day must be <= {checks.MAX_CARS_PER_DAY:g} (the per-step arrival draw is "
-                         f"int32), got {traffic!r}")
+        raise ValueError(
+            f"traffic: cars per day must be <= {checks.MAX_CARS_PER_DAY:g} (the per-step arrival draw is "
+            f"int32), got {traffic!r}"
+        )
     return value
 
 
@@ -100,21 +106,29 @@ def _validate_weights(value: Any, field: str = "arrival_weights") -> np.ndarray:
     sums = arr.sum(axis=1)
     for r, s in enumerate(sums):
         if not s > 0:
-            raise ValueError(f"{field}: row {r} ({'workday' if r == 0 else 'weekend'}) must have a positive sum, got {float(s)!r}")
+            raise ValueError(
+                f"{field}: row {r} ({'workday' if r == 0 else 'weekend'}) must have a positive sum, got {float(s)!r}"
+            )
     return (arr / sums[:, None]).astype(np.float32)
 
 
 def _validate_quantiles(value: Any, field: str) -> np.ndarray:
     arr = _as_float_array(value, field)
     if arr.ndim != 1 or arr.shape[0] < 2:
-        raise ValueError(f"{field}: expected a 1-D quantile table ({NUM_QUANTILES},) (or >= 2 evenly spaced quantiles), got shape {tuple(arr.shape)}")
+        raise ValueError(
+            f"{field}: expected a 1-D quantile table ({NUM_QUANTILES},) (or >= 2 evenly spaced quantiles), got shape {tuple(arr.shape)}"
+        )
     _check_finite(arr, field)
     if (arr < 0).any():
         raise ValueError(f"{field}: quantiles must be >= 0, got {float(arr.min())!r}")
     if (np.diff(arr) < 0).any():
         i = int(np.argmax(np.diff(arr) < 0))
-        raise ValueError(f"{field}: quantiles must be non-decreasing, got {float(arr[i])!r} then {float(arr[i + 1])!r} at index {i + 1}")
-    high, unit = (checks.MAX_STAY_MIN, "min") if field.endswith("_min") else (checks.MAX_DEMAND_KWH, "kWh")
+        raise ValueError(
+            f"{field}: quantiles must be non-decreasing, got {float(arr[i])!r} then {float(arr[i + 1])!r} at index {i + 1}"
+        )
+    high, unit = (
+        (checks.MAX_STAY_MIN, "min") if field.endswith("_min") else (checks.MAX_DEMAND_KWH, "kWh")
+    )
     _check_bounds(arr, field, 0.0, high, unit)
     if arr.shape[0] != NUM_QUANTILES:
         arr = np.interp(QUANTILE_PROBS, np.linspace(0.0, 1.0, arr.shape[0]), arr)
@@ -137,7 +151,9 @@ def _validate_scale(value: Any, field: str) -> np.ndarray:
 def _validate_weekend_factor(value: Any) -> float:
     v = _validate_unit_scalar(value, "weekend_volume_factor", upper=None)
     if v > checks.MAX_FACTOR:
-        raise ValueError(f"weekend_volume_factor: expected a value in [0, {checks.MAX_FACTOR:g}], got {value!r}")
+        raise ValueError(
+            f"weekend_volume_factor: expected a value in [0, {checks.MAX_FACTOR:g}], got {value!r}"
+        )
     return v
 
 
@@ -146,7 +162,9 @@ def _validate_soc_range(value: Any) -> tuple[float, float]:
     try:
         lo, hi = value
     except (TypeError, ValueError):
-        raise ValueError(f"{field}: expected a pair (lo, hi) with 0 <= lo <= hi < 1, got {value!r}") from None
+        raise ValueError(
+            f"{field}: expected a pair (lo, hi) with 0 <= lo <= hi < 1, got {value!r}"
+        ) from None
     lo = _validate_unit_scalar(lo, field, hi_open=True)
     hi = _validate_unit_scalar(hi, field, hi_open=True)
     if lo > hi:
@@ -182,8 +200,12 @@ def make_user_profile(
         weekend_volume_factor=_validate_weekend_factor(weekend_volume_factor),
         stay_quantiles_min=_readonly(_validate_quantiles(stay_quantiles_min, "stay_quantiles_min")),
         stay_scale_by_hour=_readonly(_validate_scale(stay_scale_by_hour, "stay_scale_by_hour")),
-        demand_quantiles_kwh=_readonly(_validate_quantiles(demand_quantiles_kwh, "demand_quantiles_kwh")),
-        demand_scale_by_hour=_readonly(_validate_scale(demand_scale_by_hour, "demand_scale_by_hour")),
+        demand_quantiles_kwh=_readonly(
+            _validate_quantiles(demand_quantiles_kwh, "demand_quantiles_kwh")
+        ),
+        demand_scale_by_hour=_readonly(
+            _validate_scale(demand_scale_by_hour, "demand_scale_by_hour")
+        ),
         arrival_soc_range=_validate_soc_range(arrival_soc_range),
         charge_sensitive_prob=_validate_unit_scalar(charge_sensitive_prob, "charge_sensitive_prob"),
     )
@@ -192,7 +214,13 @@ def make_user_profile(
 def _profile_from_fields(fields: dict[str, Any]) -> UserProfileData:
     f = dict(fields)
     name = f.pop("name")
-    return make_user_profile(name, f.pop("arrival_weights"), f.pop("stay_quantiles_min"), f.pop("demand_quantiles_kwh"), **f)
+    return make_user_profile(
+        name,
+        f.pop("arrival_weights"),
+        f.pop("stay_quantiles_min"),
+        f.pop("demand_quantiles_kwh"),
+        **f,
+    )
 
 
 def load_user_profile(source: Any = "shopping", **overrides: Any) -> UserProfileData:
@@ -203,28 +231,34 @@ def load_user_profile(source: Any = "shopping", **overrides: Any) -> UserProfile
     """
     unknown = sorted(set(overrides) - set(_PROFILE_FIELDS))
     if unknown:
-        raise ValueError(f"user profile: unknown field(s) {unknown}; valid fields are {list(_PROFILE_FIELDS)}")
+        raise ValueError(
+            f"user profile: unknown field(s) {unknown}; valid fields are {list(_PROFILE_FIELDS)}"
+        )
     if isinstance(source, UserProfileData):
         base = source
     elif isinstance(source, str):
         if source not in ALL_USER_PROFILES:
-            raise KeyError(f"user profile: unknown profile {source!r}; valid names are {list(ALL_USER_PROFILES)}")
+            raise KeyError(
+                f"user profile: unknown profile {source!r}; valid names are {list(ALL_USER_PROFILES)}"
+            )
         base = _load_bundled_profile(source)
         if not overrides:
             return base
     else:
-        raise ValueError(f"user profile: expected one of {list(ALL_USER_PROFILES)} or a UserProfileData, got {type(source).__name__}")
+        raise ValueError(
+            f"user profile: expected one of {list(ALL_USER_PROFILES)} or a UserProfileData, got {type(source).__name__}"
+        )
     fields = {k: getattr(base, k) for k in _PROFILE_FIELDS}
     fields.update(overrides)
     return _profile_from_fields(fields)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _profiles_json() -> dict[str, Any]:
     return json.loads((DATA_DIR / USER_PROFILES_FILE).read_text(encoding="utf-8"))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _us_profiles_json() -> dict[str, Any]:
     return json.loads((DATA_DIR / US_USER_PROFILES_FILE).read_text(encoding="utf-8"))
 
@@ -234,7 +268,7 @@ def list_user_profiles() -> list[str]:
     return list(ALL_USER_PROFILES)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _load_bundled_profile(name: str) -> UserProfileData:
     doc = _us_profiles_json() if name in US_USER_PROFILES else _profiles_json()
     return profile_from_dict(name, doc["profiles"][name])

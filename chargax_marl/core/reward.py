@@ -17,7 +17,9 @@ def hour_of_step(timestep: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
     return jnp.clip((timestep * params.step_minutes / 60.0).astype(jnp.int32), 0, 23)
 
 
-def day_ahead_price(day: jnp.ndarray, timestep: jnp.ndarray, params: EnvParams, ahead_hours=0) -> jnp.ndarray:
+def day_ahead_price(
+    day: jnp.ndarray, timestep: jnp.ndarray, params: EnvParams, ahead_hours=0
+) -> jnp.ndarray:
     """Day-ahead price (EUR/kWh) ``ahead_hours`` (an int or an array of them) after the hour of ``timestep``.
 
     Hours past midnight read the next day's prices (the year wraps to its first day).
@@ -70,8 +72,11 @@ def peak_demand_charge(grid_net_kwh, peak_before_kw, last, params: EnvParams):
     running peak in every step with incremental booking (the same daily total)."""
     draw_kw = jnp.maximum(grid_net_kwh, 0.0) / params.step_hours
     peak_after = jnp.maximum(peak_before_kw, draw_kw)
-    booked_kw = jnp.where(params.peak_demand_incremental, peak_after - peak_before_kw,
-                          jnp.where(last, peak_after, 0.0))
+    booked_kw = jnp.where(
+        params.peak_demand_incremental,
+        peak_after - peak_before_kw,
+        jnp.where(last, peak_after, 0.0),
+    )
     return peak_after, params.peak_demand_eur_kw * booked_kw
 
 
@@ -99,8 +104,10 @@ def billed_car_kwh(flows: dict, params: EnvParams) -> tuple[jnp.ndarray, jnp.nda
     """
     refund = params.refund_discharged_energy
     car = flows["leaf_car_kwh"]
-    return (jnp.where(refund, car, jnp.maximum(car, 0.0)),
-            jnp.where(refund, flows["delivered_kwh"], flows["charged_kwh"]))
+    return (
+        jnp.where(refund, car, jnp.maximum(car, 0.0)),
+        jnp.where(refund, flows["delivered_kwh"], flows["charged_kwh"]),
+    )
 
 
 def profit_eur(flows: dict, p_buy, p_sell_grid, params: EnvParams) -> jnp.ndarray:
@@ -109,8 +116,11 @@ def profit_eur(flows: dict, p_buy, p_sell_grid, params: EnvParams) -> jnp.ndarra
     net draw or pays p_sell,grid for a net feed-in; minus the fixed cost per step."""
     grid_price = station_grid_price(flows, p_buy, p_sell_grid)
     _, billed = billed_car_kwh(flows, params)
-    return (params.customer_price_eur_kwh * billed - grid_price * flows["grid_net_kwh"]
-            - params.fixed_cost_eur)
+    return (
+        params.customer_price_eur_kwh * billed
+        - grid_price * flows["grid_net_kwh"]
+        - params.fixed_cost_eur
+    )
 
 
 def battery_terminal_value_eur(battery_day_kwh, day, params: EnvParams) -> jnp.ndarray:
@@ -122,7 +132,9 @@ def battery_terminal_value_eur(battery_day_kwh, day, params: EnvParams) -> jnp.n
     term off). Emptying the battery thus earns only what its energy fetched above the price
     it would cost to buy back, and a battery that ends fuller is credited for what it holds.
     """
-    price = jnp.where(params.battery_value_day_mean, day_mean_buy_price(day, params), params.battery_value_eur_kwh)
+    price = jnp.where(
+        params.battery_value_day_mean, day_mean_buy_price(day, params), params.battery_value_eur_kwh
+    )
     return price * battery_day_kwh
 
 
@@ -169,8 +181,18 @@ def leaf_penalty_terms(flows: dict, departures: dict, terms: dict, moer, station
     return out
 
 
-def leaf_reward_shares(flows: dict, departures: dict, terms: dict, moer, terminal_eur, p_buy, p_sell_grid, r,
-                       params: EnvParams, peak_charge_eur=0.0) -> jnp.ndarray:
+def leaf_reward_shares(
+    flows: dict,
+    departures: dict,
+    terms: dict,
+    moer,
+    terminal_eur,
+    p_buy,
+    p_sell_grid,
+    r,
+    params: EnvParams,
+    peak_charge_eur=0.0,
+) -> jnp.ndarray:
     """Each leaf's share ``(L,)`` of the step reward ``r``; the shares sum to ``r``.
 
     A leaf's share is the money its own energy made minus the penalties it caused: what its
@@ -193,7 +215,9 @@ def leaf_reward_shares(flows: dict, departures: dict, terms: dict, moer, termina
     return shares + (r - jnp.sum(shares)) / num_leaves
 
 
-def penalty_terms(flows: dict, departures: dict, arrivals: dict, excess_kw, moer, grid_demand_kwh) -> dict:
+def penalty_terms(
+    flows: dict, departures: dict, arrivals: dict, excess_kw, moer, grid_demand_kwh
+) -> dict:
     """The unweighted penalty terms c of Appendix A.3, keyed as :data:`PENALTY_TERMS`."""
     terms = {
         "constraint": excess_kw,
@@ -223,5 +247,7 @@ def weighted_penalty(alpha, terms: dict):
     does not allow (``0 * inf`` is NaN): with the default all-zero weights a step was 1.2-1.3x
     slower (``benchmarks/README.md``).
     """
-    return sum(jnp.where(getattr(alpha, name) != 0, getattr(alpha, name) * terms[name], 0.0)
-               for name in PENALTY_TERMS)
+    return sum(
+        jnp.where(getattr(alpha, name) != 0, getattr(alpha, name) * terms[name], 0.0)
+        for name in PENALTY_TERMS
+    )

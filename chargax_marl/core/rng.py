@@ -95,7 +95,7 @@ def materialize(x: jnp.ndarray) -> jnp.ndarray:
 
 def uniform(seed: jnp.ndarray, stream: int, shape: tuple[int, ...]) -> jnp.ndarray:
     """Float32 uniforms in ``[0, 1)`` (24 random bits each), computed once (:func:`materialize`)."""
-    return materialize((bits(seed, stream, shape) >> 8).astype(jnp.float32) * np.float32(2.0 ** -24))
+    return materialize((bits(seed, stream, shape) >> 8).astype(jnp.float32) * np.float32(2.0**-24))
 
 
 POISSON_TERMS = 48

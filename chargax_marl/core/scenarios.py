@@ -35,14 +35,25 @@ for _profile in datasets.USER_PROFILES:
     for _traffic in datasets.TRAFFIC_LEVELS:
         SCENARIOS[f"{_profile}-{_traffic}"] = {"user_profile": _profile, "traffic": _traffic}
 
-_PEAK = {"tou_fee_eur_kwh": "evening-peak", "peak_demand_eur_kw": tariffs.DEFAULT_PEAK_DEMAND_EUR_KW}
+_PEAK = {
+    "tou_fee_eur_kwh": "evening-peak",
+    "peak_demand_eur_kw": tariffs.DEFAULT_PEAK_DEMAND_EUR_KW,
+}
 for _fraction in (10, 25, 50):
     for _traffic in datasets.TRAFFIC_LEVELS:
-        SCENARIOS[f"shopping-grid{_fraction}-{_traffic}"] = {"user_profile": "shopping", "traffic": _traffic,
-                                                             "grid_fraction": _fraction / 100.0}
+        SCENARIOS[f"shopping-grid{_fraction}-{_traffic}"] = {
+            "user_profile": "shopping",
+            "traffic": _traffic,
+            "grid_fraction": _fraction / 100.0,
+        }
 SCENARIOS["shopping-peak"] = {"user_profile": "shopping", "traffic": "medium", **_PEAK}
 SCENARIOS["shopping-peak-high"] = {"user_profile": "shopping", "traffic": "high", **_PEAK}
-SCENARIOS["shopping-grid50-peak-high"] = {"user_profile": "shopping", "traffic": "high", "grid_fraction": 0.5, **_PEAK}
+SCENARIOS["shopping-grid50-peak-high"] = {
+    "user_profile": "shopping",
+    "traffic": "high",
+    "grid_fraction": 0.5,
+    **_PEAK,
+}
 
 COORDINATION_SCENARIOS = tuple(n for n in SCENARIOS if "grid" in n or "peak" in n)
 """The scenarios built to make the agents coordinate (grid-constrained and/or peak-priced)."""

@@ -66,10 +66,14 @@ MOER_MAX_KG_KWH = 5.0  # sanity bound for custom data (coal-only grids are ~1 kg
 
 def _check_resolution(n: int, field: str) -> None:
     if n <= 0 or MINUTES_PER_DAY % n:
-        raise ValueError(f"{field}: the number of slots per day must divide 1440 minutes evenly, got {n}")
+        raise ValueError(
+            f"{field}: the number of slots per day must divide 1440 minutes evenly, got {n}"
+        )
 
 
-def validate_moer(value: Any, field: str = "moer_kg_per_kwh", *, check_resolution: bool = True) -> np.ndarray:
+def validate_moer(
+    value: Any, field: str = "moer_kg_per_kwh", *, check_resolution: bool = True
+) -> np.ndarray:
     """The one validator of MOER rates (kg CO2/kWh), whatever the path (bundled, CSV, array,
     :class:`MoerData`, ``make_params``): shape ``(days, slots)`` or ``(slots,)``, finite, in
     ``[0, MOER_MAX_KG_KWH]``. ``check_resolution``: slots must divide 1440 minutes (off for
@@ -78,7 +82,9 @@ def validate_moer(value: Any, field: str = "moer_kg_per_kwh", *, check_resolutio
     if arr.ndim == 1:
         arr = arr[None, :]
     if arr.ndim != 2 or arr.shape[0] == 0:
-        raise ValueError(f"{field}: expected shape (days, slots) or (slots,), got {tuple(np.shape(value))}")
+        raise ValueError(
+            f"{field}: expected shape (days, slots) or (slots,), got {tuple(np.shape(value))}"
+        )
     if check_resolution:
         _check_resolution(arr.shape[1], field)
     _check_finite(arr, field)
@@ -131,7 +137,9 @@ def read_moer_csv(path: str | os.PathLike, *, unit: str = "kg_per_kwh") -> tuple
     header = [c.strip().lower() for c in rows[0]]
     n = len(header) - 1
     if header[0] != "date" or n < 1 or header[1:] != [f"m{i}" for i in range(n)]:
-        raise ValueError(f"moer: {source}: unrecognised header {','.join(rows[0])[:80]!r}; expected 'date,m0,...,m<N-1>'")
+        raise ValueError(
+            f"moer: {source}: unrecognised header {','.join(rows[0])[:80]!r}; expected 'date,m0,...,m<N-1>'"
+        )
     _check_resolution(n, f"moer: {source}")
     body = rows[1:]
     if not body:
@@ -140,7 +148,9 @@ def read_moer_csv(path: str | os.PathLike, *, unit: str = "kg_per_kwh") -> tuple
     for i, row in enumerate(body):
         where = f"{source} data row {i + 1}"
         if len(row) != n + 1:
-            raise ValueError(f"moer: {where}: expected {n + 1} fields (date + {n} slots), got {len(row)}")
+            raise ValueError(
+                f"moer: {where}: expected {n + 1} fields (date + {n} slots), got {len(row)}"
+            )
         dates.append(_parse_date(row[0], "date", where))
         for j in range(n):
             values[i, j] = _parse_float(row[1 + j], f"m{j}", where)
@@ -148,17 +158,19 @@ def read_moer_csv(path: str | os.PathLike, *, unit: str = "kg_per_kwh") -> tuple
     return validate_moer(values * factors[unit], f"moer: {source}"), dates[0].weekday()
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _moer_index() -> dict[str, dict[str, Any]]:
     return json.loads((DATA_DIR / MOER_INDEX_FILE).read_text(encoding="utf-8"))["datasets"]
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _load_bundled_moer(name: str) -> MoerData:
     entry = _moer_index()[name]
     arr, fw = read_moer_csv(DATA_DIR / entry["file"], unit=entry["unit"])
     if fw != entry["first_weekday"] or arr.shape[0] != entry["days"]:
-        raise RuntimeError(f"bundled MOER file {entry['file']} disagrees with {MOER_INDEX_FILE}; run `make data`")
+        raise RuntimeError(
+            f"bundled MOER file {entry['file']} disagrees with {MOER_INDEX_FILE}; run `make data`"
+        )
     return MoerData(name, _readonly(arr), fw, int(entry["year"]))
 
 
@@ -167,23 +179,35 @@ def load_moer(source: Any = "CAISO-SCE-2020") -> MoerData:
     array in kg CO2/kWh ``(days, slots)`` or ``(slots,)``, or a CSV path (kg/kWh;
     see :func:`read_moer_csv`)."""
     if isinstance(source, MoerData):
-        return MoerData(source.name, _readonly(validate_moer(source.moer_kg_per_kwh)), _check_weekday(source.first_weekday), source.year)
+        return MoerData(
+            source.name,
+            _readonly(validate_moer(source.moer_kg_per_kwh)),
+            _check_weekday(source.first_weekday),
+            source.year,
+        )
     if isinstance(source, str) and source in MOER_DATASETS:
         return _load_bundled_moer(source)
     if isinstance(source, (str, os.PathLike)):
         if isinstance(source, str) and not _looks_like_path(source):
-            raise KeyError(f"moer: unknown dataset {source!r}; valid names are {list(MOER_DATASETS)} (or pass an array or a CSV path)")
+            raise KeyError(
+                f"moer: unknown dataset {source!r}; valid names are {list(MOER_DATASETS)} (or pass an array or a CSV path)"
+            )
         arr, fw = read_moer_csv(source)
         return MoerData(Path(source).stem, _readonly(arr), fw, None)
     if isinstance(source, (np.ndarray, list, tuple)) or hasattr(source, "__array__"):
         return MoerData("custom", _readonly(validate_moer(source)), 0, None)
-    raise ValueError(f"moer: expected a dataset name {list(MOER_DATASETS)}, an array (days, slots) or a CSV path, got {type(source).__name__}")
+    raise ValueError(
+        f"moer: expected a dataset name {list(MOER_DATASETS)}, an array (days, slots) or a CSV path, got {type(source).__name__}"
+    )
 
 
 # Synthetic residential load (no source data; see data/README.md): a night base
 # plus a morning and an evening Gaussian peak, by local hour.
 # (centre hour, sd hours, relative height); base level 1.
-GRID_DEMAND_RESIDENTIAL_PEAKS: tuple[tuple[float, float, float], ...] = ((7.5, 1.25, 0.8), (19.0, 2.0, 1.5))
+GRID_DEMAND_RESIDENTIAL_PEAKS: tuple[tuple[float, float, float], ...] = (
+    (7.5, 1.25, 0.8),
+    (19.0, 2.0, 1.5),
+)
 GRID_DEMAND_DEFAULT_SCALE_KWH: float = 5.0  # daily mean kWh per 5-minute step of the default shape
 
 
@@ -202,7 +226,9 @@ def validate_grid_demand(value: Any, num_steps: int, field: str = "grid_demand_k
     ``make_params``): shape ``(num_steps,)``, finite, in ``[0, checks.MAX_GRID_DEMAND_KWH]``."""
     arr = _as_float_array(value, field)
     if arr.ndim != 1:
-        raise ValueError(f"{field}: expected a 1-D array of kWh per step ({num_steps},), got shape {tuple(arr.shape)}")
+        raise ValueError(
+            f"{field}: expected a 1-D array of kWh per step ({num_steps},), got shape {tuple(arr.shape)}"
+        )
     if arr.shape[0] != num_steps:
         raise ValueError(
             f"{field}: got {arr.shape[0]} steps per day ({MINUTES_PER_DAY / max(arr.shape[0], 1):g}-minute resolution) "
@@ -224,10 +250,14 @@ def read_grid_demand_csv(path: str | os.PathLike) -> np.ndarray:
     source = str(path)
     rows = _data_rows(_read_text(path))
     if not rows:
-        raise ValueError(f"grid demand: {source} is empty; expected a header with a column grid_demand_kwh")
+        raise ValueError(
+            f"grid demand: {source} is empty; expected a header with a column grid_demand_kwh"
+        )
     header = [c.strip().lower() for c in rows[0]]
     if "grid_demand_kwh" not in header:
-        raise ValueError(f"grid demand: {source}: no column 'grid_demand_kwh' in header {rows[0]!r}")
+        raise ValueError(
+            f"grid demand: {source}: no column 'grid_demand_kwh' in header {rows[0]!r}"
+        )
     j = header.index("grid_demand_kwh")
     body = rows[1:]
     if not body:
@@ -241,7 +271,11 @@ def read_grid_demand_csv(path: str | os.PathLike) -> np.ndarray:
     return np.asarray(out)
 
 
-def load_grid_demand(source: Any = "synthetic-residential", num_steps: int = SLOTS_PER_DAY, scale_kwh: float | None = None) -> np.ndarray:
+def load_grid_demand(
+    source: Any = "synthetic-residential",
+    num_steps: int = SLOTS_PER_DAY,
+    scale_kwh: float | None = None,
+) -> np.ndarray:
     """Grid demand per step of the day in kWh, float32 ``(num_steps,)``.
 
     ``source``: a shape name (:data:`GRID_DEMAND_SHAPES`), scaled so its daily
@@ -263,12 +297,18 @@ def load_grid_demand(source: Any = "synthetic-residential", num_steps: int = SLO
         return (_residential_shape(num_steps) * scale_kwh).astype(np.float32)
     if isinstance(source, (str, os.PathLike)):
         if isinstance(source, str) and not _looks_like_path(source):
-            raise KeyError(f"grid demand: unknown shape {source!r}; valid names are {list(GRID_DEMAND_SHAPES)} (or pass an array or a CSV path)")
-        arr = validate_grid_demand(read_grid_demand_csv(source), num_steps, f"grid_demand_kwh ({source})")
+            raise KeyError(
+                f"grid demand: unknown shape {source!r}; valid names are {list(GRID_DEMAND_SHAPES)} (or pass an array or a CSV path)"
+            )
+        arr = validate_grid_demand(
+            read_grid_demand_csv(source), num_steps, f"grid_demand_kwh ({source})"
+        )
     elif isinstance(source, (np.ndarray, list, tuple)) or hasattr(source, "__array__"):
         arr = validate_grid_demand(source, num_steps)
     else:
-        raise ValueError(f"grid demand: expected a shape name {list(GRID_DEMAND_SHAPES)}, an array or a CSV path, got {type(source).__name__}")
+        raise ValueError(
+            f"grid demand: expected a shape name {list(GRID_DEMAND_SHAPES)}, an array or a CSV path, got {type(source).__name__}"
+        )
     if scale_kwh is not None:
         mean = float(arr.mean())
         if not mean > 0:

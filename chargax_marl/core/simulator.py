@@ -16,7 +16,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from chargax_marl.core import physics, reward as reward_lib, rng, traffic
+from chargax_marl.core import physics, rng, traffic
+from chargax_marl.core import reward as reward_lib
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import PENALTY_TERMS, EnvParams, EnvState, EpisodeTotals, StepInfo
 
@@ -47,7 +48,9 @@ def empty_state(day: jnp.ndarray, params: EnvParams, key: jax.Array | None = Non
 
     def bat(values, default=0.0):
         # Place per-battery values in the battery slots (the last nb leaves).
-        padded = jnp.concatenate([jnp.full((num_leaves - nb,), default, jnp.float32), values.astype(jnp.float32)])
+        padded = jnp.concatenate(
+            [jnp.full((num_leaves - nb,), default, jnp.float32), values.astype(jnp.float32)]
+        )
         return jnp.where(is_bat, padded, 0.0)
 
     day = jnp.asarray(day, jnp.int32)
@@ -99,11 +102,14 @@ def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams
     The step's cars are drawn from ``key`` (:func:`traffic.draw_arrivals`), independently of
     the state; :func:`step_with_arrivals` takes them as given (to replay a recorded day).
     """
-    return step_with_arrivals(state, action, traffic.draw_arrivals(key, state.timestep, state.is_workday, params),
-                              params)
+    return step_with_arrivals(
+        state, action, traffic.draw_arrivals(key, state.timestep, state.is_workday, params), params
+    )
 
 
-def step_with_arrivals(state: EnvState, action: jnp.ndarray, arrivals: traffic.Arrivals, params: EnvParams):
+def step_with_arrivals(
+    state: EnvState, action: jnp.ndarray, arrivals: traffic.Arrivals, params: EnvParams
+):
     """:func:`step` with the step's arriving cars given (:class:`traffic.Arrivals`); the rest
     of the transition is deterministic. Returns ``(new_state, StepInfo)``.
 
@@ -112,8 +118,10 @@ def step_with_arrivals(state: EnvState, action: jnp.ndarray, arrivals: traffic.A
     """
     num_leaves = params.station.num_leaves
     if jnp.size(action) != num_leaves:
-        raise ValueError(f"field 'action' must have one entry per leaf (ports, then batteries): "
-                         f"shape ({num_leaves},), got shape {jnp.shape(action)}")
+        raise ValueError(
+            f"field 'action' must have one entry per leaf (ports, then batteries): "
+            f"shape ({num_leaves},), got shape {jnp.shape(action)}"
+        )
     action = jnp.reshape(action, (num_leaves,))
     current, excess_kw, requested_kw = physics.apply_actions(action, state, params)
     charged_state, leaf_energy = physics.charge(current, state, params)
@@ -124,11 +132,17 @@ def step_with_arrivals(state: EnvState, action: jnp.ndarray, arrivals: traffic.A
     p_buy, p_sell_grid = reward_lib.grid_prices(state.day, state.timestep, params)
     last = state.timestep + 1 >= params.num_steps
     battery_day_kwh = state.totals.battery_net_kwh + flows["battery_net_kwh"]
-    terminal = jnp.where(last, reward_lib.battery_terminal_value_eur(battery_day_kwh, state.day, params), 0.0)
-    peak_kw, peak_charge = reward_lib.peak_demand_charge(flows["grid_net_kwh"], state.totals.peak_grid_kw, last, params)
+    terminal = jnp.where(
+        last, reward_lib.battery_terminal_value_eur(battery_day_kwh, state.day, params), 0.0
+    )
+    peak_kw, peak_charge = reward_lib.peak_demand_charge(
+        flows["grid_net_kwh"], state.totals.peak_grid_kw, last, params
+    )
     profit = reward_lib.profit_eur(flows, p_buy, p_sell_grid, params) + terminal - peak_charge
     moer = reward_lib.moer_now(state.day, state.timestep, params)
-    demand = params.grid_demand_kwh[jnp.clip(state.timestep, 0, params.grid_demand_kwh.shape[0] - 1)]
+    demand = params.grid_demand_kwh[
+        jnp.clip(state.timestep, 0, params.grid_demand_kwh.shape[0] - 1)
+    ]
     terms = reward_lib.penalty_terms(flows, dep, arr, excess_kw, moer, demand)
     r = reward_lib.reward(profit, terms, params)
 
@@ -179,8 +193,9 @@ def step_with_arrivals(state: EnvState, action: jnp.ndarray, arrivals: traffic.A
         peak_demand_charge_eur=peak_charge,
         leaf_energy_kwh=leaf_energy,
         leaf_arrived=arr["leaf_arrived"],
-        leaf_reward=reward_lib.leaf_reward_shares(flows, dep, terms, moer, terminal, p_buy, p_sell_grid, r, params,
-                                                  peak_charge),
+        leaf_reward=reward_lib.leaf_reward_shares(
+            flows, dep, terms, moer, terminal, p_buy, p_sell_grid, r, params, peak_charge
+        ),
     )
     return keep_dtypes(new_state, state), as_float32(info)
 
@@ -193,9 +208,11 @@ def keep_dtypes(new, like):
 
 def as_float32(tree):
     """Floating leaves of ``tree`` as float32 (no-op without x64)."""
+
     def cast(x):
         x = jnp.asarray(x)
         return x.astype(jnp.float32) if jnp.issubdtype(x.dtype, jnp.floating) else x
+
     return jax.tree.map(cast, tree)
 
 
@@ -204,8 +221,13 @@ def is_done(state: EnvState, params: EnvParams) -> jnp.ndarray:
     return state.timestep >= params.num_steps
 
 
-def step_auto_reset(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams,
-                    reset_state: EnvState | None = None):
+def step_auto_reset(
+    key: jax.Array,
+    state: EnvState,
+    action: jnp.ndarray,
+    params: EnvParams,
+    reset_state: EnvState | None = None,
+):
     """:func:`step`, then a fresh day where the step ended one: the auto-reset of both views.
 
     As gymnax's ``Environment.step``: step, reset, and select the reset state where done
@@ -233,16 +255,34 @@ def step_auto_reset(key: jax.Array, state: EnvState, action: jnp.ndarray, params
 
 
 STEP_INFO_KEYS = (
-    "reward", "profit_eur", "energy_charged_kwh", "energy_discharged_kwh", "energy_delivered_kwh",
-    "battery_net_kwh", "grid_net_kwh", "losses_kwh", "price_buy_eur_kwh", "price_sell_grid_eur_kwh",
-    "cars_arrived", "cars_departed", "cars_rejected", "missing_kwh", "overtime_min",
-    "constraint_excess_kw", "requested_excess_kw", "battery_terminal_value_eur",
+    "reward",
+    "profit_eur",
+    "energy_charged_kwh",
+    "energy_discharged_kwh",
+    "energy_delivered_kwh",
+    "battery_net_kwh",
+    "grid_net_kwh",
+    "losses_kwh",
+    "price_buy_eur_kwh",
+    "price_sell_grid_eur_kwh",
+    "cars_arrived",
+    "cars_departed",
+    "cars_rejected",
+    "missing_kwh",
+    "overtime_min",
+    "constraint_excess_kw",
+    "requested_excess_kw",
+    "battery_terminal_value_eur",
     "peak_demand_charge_eur",
 )
 """Scalar fields of :class:`StepInfo` reported in the infos under their own names."""
 
-INFO_KEYS = (STEP_INFO_KEYS + ("battery_reward_eur",) + tuple(f"penalty_{k}" for k in PENALTY_TERMS)
-             + tuple(f"episode_{k}" for k in EpisodeTotals.__dataclass_fields__))
+INFO_KEYS = (
+    STEP_INFO_KEYS
+    + ("battery_reward_eur",)
+    + tuple(f"penalty_{k}" for k in PENALTY_TERMS)
+    + tuple(f"episode_{k}" for k in EpisodeTotals.__dataclass_fields__)
+)
 """Every scalar key of :func:`info_dict`, in order: the step's report, ``battery_reward_eur``,
 ``penalty_<term>``, ``episode_<total>``."""
 
@@ -269,8 +309,9 @@ def info_dict(info: StepInfo, state: EnvState, params: EnvParams) -> dict:
     out = {k: getattr(info, k) for k in STEP_INFO_KEYS}
     out["battery_reward_eur"] = jnp.sum(jnp.where(is_battery, info.leaf_reward, 0.0))
     out.update({f"penalty_{k}": info.penalties[k] for k in PENALTY_TERMS})
-    out.update({f"episode_{k}": getattr(state.totals, k)
-                for k in EpisodeTotals.__dataclass_fields__})
+    out.update(
+        {f"episode_{k}": getattr(state.totals, k) for k in EpisodeTotals.__dataclass_fields__}
+    )
     out = {k: jnp.asarray(out[k], jnp.float32) for k in INFO_KEYS}
     out["leaf_energy_kwh"] = info.leaf_energy_kwh.astype(jnp.float32)
     return out

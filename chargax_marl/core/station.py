@@ -16,7 +16,8 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import math
-from typing import Sequence, Union
+from collections.abc import Sequence
+from typing import Union
 
 import jax.numpy as jnp
 import numpy as np
@@ -30,37 +31,62 @@ KIND_BATTERY = 2
 KIND_NAMES = ("AC", "DC", "battery")
 
 
-def _check_positive(owner: str, field: str, value: float, low: float, high: float, unit: str) -> None:
+def _check_positive(
+    owner: str, field: str, value: float, low: float, high: float, unit: str
+) -> None:
     """A finite number > 0 within ``[low, high]`` after the float32 cast (see :mod:`checks`)."""
-    if isinstance(value, (int, float, np.floating, np.integer)) and math.isfinite(value) and value <= 0:
-        raise ValueError(f"{owner}: field '{field}' must be a finite number > 0 (in [{low:g}, {high:g}] {unit}), "
-                         f"got {value!r}")
+    if (
+        isinstance(value, (int, float, np.floating, np.integer))
+        and math.isfinite(value)
+        and value <= 0
+    ):
+        raise ValueError(
+            f"{owner}: field '{field}' must be a finite number > 0 (in [{low:g}, {high:g}] {unit}), "
+            f"got {value!r}"
+        )
     checks.number(field, value, low=low, high=high, unit=unit, owner=owner)
 
 
 def _check_non_negative(owner: str, field: str, value: float, high: float, unit: str) -> None:
-    if isinstance(value, (int, float, np.floating, np.integer)) and math.isfinite(value) and value < 0:
-        raise ValueError(f"{owner}: field '{field}' must be a finite number >= 0 (in [0, {high:g}] {unit}), "
-                         f"got {value!r}")
+    if (
+        isinstance(value, (int, float, np.floating, np.integer))
+        and math.isfinite(value)
+        and value < 0
+    ):
+        raise ValueError(
+            f"{owner}: field '{field}' must be a finite number >= 0 (in [0, {high:g}] {unit}), "
+            f"got {value!r}"
+        )
     checks.number(field, value, low=0.0, high=high, unit=unit, owner=owner)
 
 
 def _check_efficiency(owner: str, value: float) -> None:
-    if not (isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, (bool, np.bool_))
-            and checks.MIN_EFFICIENCY <= value <= 1.0):
-        raise ValueError(f"{owner}: field 'efficiency' must lie in (0, 1] (at least {checks.MIN_EFFICIENCY:g}), "
-                         f"got {value!r}")
+    if not (
+        isinstance(value, (int, float, np.floating, np.integer))
+        and not isinstance(value, (bool, np.bool_))
+        and checks.MIN_EFFICIENCY <= value <= 1.0
+    ):
+        raise ValueError(
+            f"{owner}: field 'efficiency' must lie in (0, 1] (at least {checks.MIN_EFFICIENCY:g}), "
+            f"got {value!r}"
+        )
 
 
-def _check_unit_interval(owner: str, field: str, value: float, *, open_low: bool, open_high: bool) -> None:
-    ok_type = isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, (bool, np.bool_))
+def _check_unit_interval(
+    owner: str, field: str, value: float, *, open_low: bool, open_high: bool
+) -> None:
+    ok_type = isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(
+        value, (bool, np.bool_)
+    )
     ok_low = ok_type and (value > 0 if open_low else value >= 0)
     ok_high = ok_type and (value < 1 if open_high else value <= 1)
     if not (ok_low and ok_high):
         lo = "(" if open_low else "["
         hi = ")" if open_high else "]"
         raise ValueError(f"{owner}: field '{field}' must lie in {lo}0, 1{hi}, got {value!r}")
-    checks.number(field, value, low=0.0, high=1.0, low_open=open_low, high_open=open_high, owner=owner)
+    checks.number(
+        field, value, low=0.0, high=1.0, low_open=open_low, high_open=open_high, owner=owner
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -83,9 +109,24 @@ class Port:
         owner = f"Port '{self.name}'"
         if self.kind not in ("AC", "DC"):
             raise ValueError(f"{owner}: field 'kind' must be 'AC' or 'DC', got {self.kind!r}")
-        _check_positive(owner, "voltage_v", self.voltage_v, checks.MIN_VOLTAGE_V, checks.MAX_VOLTAGE_V, "V")
-        _check_positive(owner, "max_current_a", self.max_current_a, checks.MIN_CURRENT_A, checks.MAX_CURRENT_A, "A")
-        _check_non_negative(owner, "max_discharge_current_a", self.max_discharge_current_a, checks.MAX_CURRENT_A, "A")
+        _check_positive(
+            owner, "voltage_v", self.voltage_v, checks.MIN_VOLTAGE_V, checks.MAX_VOLTAGE_V, "V"
+        )
+        _check_positive(
+            owner,
+            "max_current_a",
+            self.max_current_a,
+            checks.MIN_CURRENT_A,
+            checks.MAX_CURRENT_A,
+            "A",
+        )
+        _check_non_negative(
+            owner,
+            "max_discharge_current_a",
+            self.max_discharge_current_a,
+            checks.MAX_CURRENT_A,
+            "A",
+        )
         _check_efficiency(owner, self.efficiency)
 
     @property
@@ -111,13 +152,25 @@ class Battery:
 
     def __post_init__(self) -> None:
         owner = f"Battery '{self.name}'"
-        _check_positive(owner, "capacity_kwh", self.capacity_kwh, checks.MIN_CAPACITY_KWH, checks.MAX_CAPACITY_KWH,
-                        "kWh")
-        _check_positive(owner, "max_kw", self.max_kw, checks.MIN_POWER_KW, checks.MAX_POWER_KW, "kW")
-        _check_positive(owner, "voltage_v", self.voltage_v, checks.MIN_VOLTAGE_V, checks.MAX_VOLTAGE_V, "V")
+        _check_positive(
+            owner,
+            "capacity_kwh",
+            self.capacity_kwh,
+            checks.MIN_CAPACITY_KWH,
+            checks.MAX_CAPACITY_KWH,
+            "kWh",
+        )
+        _check_positive(
+            owner, "max_kw", self.max_kw, checks.MIN_POWER_KW, checks.MAX_POWER_KW, "kW"
+        )
+        _check_positive(
+            owner, "voltage_v", self.voltage_v, checks.MIN_VOLTAGE_V, checks.MAX_VOLTAGE_V, "V"
+        )
         _check_efficiency(owner, self.efficiency)
         _check_unit_interval(owner, "tau", self.tau, open_low=True, open_high=True)
-        _check_unit_interval(owner, "initial_soc", self.initial_soc, open_low=False, open_high=False)
+        _check_unit_interval(
+            owner, "initial_soc", self.initial_soc, open_low=False, open_high=False
+        )
 
     @property
     def max_current_a(self) -> float:
@@ -144,11 +197,15 @@ class Splitter:
 
     def __post_init__(self) -> None:
         owner = f"Splitter '{self.name}'"
-        _check_positive(owner, "max_kw", self.max_kw, checks.MIN_POWER_KW, checks.MAX_POWER_KW, "kW")
+        _check_positive(
+            owner, "max_kw", self.max_kw, checks.MIN_POWER_KW, checks.MAX_POWER_KW, "kW"
+        )
         _check_efficiency(owner, self.efficiency)
         object.__setattr__(self, "children", tuple(self.children))
         if len(self.children) == 0:
-            raise ValueError(f"{owner}: field 'children' must hold at least one node, got an empty tree")
+            raise ValueError(
+                f"{owner}: field 'children' must hold at least one node, got an empty tree"
+            )
         for child in self.children:
             if not isinstance(child, (Splitter, Port, Battery)):
                 raise ValueError(
@@ -173,13 +230,17 @@ class StationArrays:
     leaf_max_discharge_current_a: jnp.ndarray  # (L,) 0 where no V2G
     leaf_efficiency: jnp.ndarray  # (L,) own efficiency
     leaf_path_efficiency: jnp.ndarray  # (L,) product of efficiencies from the root to the leaf
-    leaf_efficiency_at_depth: jnp.ndarray  # (D, L) product of the efficiencies from the leaf up to and
+    leaf_efficiency_at_depth: (
+        jnp.ndarray
+    )  # (D, L) product of the efficiencies from the leaf up to and
     #   including its ancestor at depth d (its own efficiency included; 1 where it has none)
     leaf_kind: jnp.ndarray  # (L,) int32: 0 AC, 1 DC, 2 battery
     battery_capacity_kwh: jnp.ndarray  # (B,)
     battery_tau: jnp.ndarray  # (B,)
     battery_initial_soc: jnp.ndarray  # (B,)
-    leaf_solo_max_kw: jnp.ndarray  # (L,) most power a leaf can take alone: its rating and every ancestor's
+    leaf_solo_max_kw: (
+        jnp.ndarray
+    )  # (L,) most power a leaf can take alone: its rating and every ancestor's
     #   limit divided by the efficiency of the path up to that ancestor
     node_max_kw: jnp.ndarray  # (H,)
     node_efficiency: jnp.ndarray  # (H,)
@@ -209,7 +270,9 @@ def compile_station(root: Splitter) -> StationArrays:
     not a :class:`Splitter`, no ports, duplicate names.
     """
     if not isinstance(root, Splitter):
-        raise ValueError(f"station root must be a Splitter (the grid connection), got {type(root).__name__}")
+        raise ValueError(
+            f"station root must be a Splitter (the grid connection), got {type(root).__name__}"
+        )
 
     ports: list[tuple[Port, list[int]]] = []
     batteries: list[tuple[Battery, list[int]]] = []
@@ -219,7 +282,9 @@ def compile_station(root: Splitter) -> StationArrays:
 
     def visit(node: Node, ancestors: list[int], depth: int) -> None:
         if node.name in names:
-            raise ValueError(f"station: duplicate node name {node.name!r}; every node needs a unique 'name'")
+            raise ValueError(
+                f"station: duplicate node name {node.name!r}; every node needs a unique 'name'"
+            )
         names.add(node.name)
         if isinstance(node, Splitter):
             idx = len(nodes)
@@ -234,7 +299,9 @@ def compile_station(root: Splitter) -> StationArrays:
 
     visit(root, [], 0)
     if not ports:
-        raise ValueError(f"station '{root.name}': the tree must contain at least one Port, found none")
+        raise ValueError(
+            f"station '{root.name}': the tree must contain at least one Port, found none"
+        )
 
     leaves = [p for p, _ in ports] + [b for b, _ in batteries]
     leaf_anc = [a for _, a in ports] + [a for _, a in batteries]
@@ -246,40 +313,49 @@ def compile_station(root: Splitter) -> StationArrays:
     at_depth = -np.ones((depth, num_leaves), dtype=np.int32)
     path_eff = np.ones(num_leaves, dtype=np.float64)
     eff_at_depth = np.ones((depth, num_leaves), dtype=np.float64)
-    for l, anc in enumerate(leaf_anc):
+    for leaf, anc in enumerate(leaf_anc):
         for h in anc:
-            incidence[h, l] = 1.0
-            at_depth[depths[h], l] = h
+            incidence[h, leaf] = 1.0
+            at_depth[depths[h], leaf] = h
             # ancestors below h (deeper) and h itself, plus the leaf's own efficiency
             below = [a for a in anc if depths[a] >= depths[h]]
-            eff_at_depth[depths[h], l] = leaves[l].efficiency * float(np.prod(node_eff[below]))
-        path_eff[l] = leaves[l].efficiency * float(np.prod(node_eff[anc]))
+            eff_at_depth[depths[h], leaf] = leaves[leaf].efficiency * float(
+                np.prod(node_eff[below])
+            )
+        path_eff[leaf] = leaves[leaf].efficiency * float(np.prod(node_eff[anc]))
 
     def leaf_attr(fn):
         return np.array([fn(x) for x in leaves], dtype=np.float32)
 
     kind = np.array(
-        [KIND_BATTERY if isinstance(x, Battery) else (KIND_AC if x.kind == "AC" else KIND_DC) for x in leaves],
+        [
+            KIND_BATTERY if isinstance(x, Battery) else (KIND_AC if x.kind == "AC" else KIND_DC)
+            for x in leaves
+        ],
         dtype=np.int32,
     )
     bats = [b for b, _ in batteries]
     leaf_kw = leaf_attr(lambda x: x.voltage_v * x.max_current_a / 1000.0).astype(np.float64)
     node_kw = np.array([n.max_kw for n in nodes], dtype=np.float64)
     solo = leaf_kw.copy()
-    for l, anc in enumerate(leaf_anc):
+    for leaf, anc in enumerate(leaf_anc):
         for h in anc:
-            solo[l] = min(solo[l], node_kw[h] * eff_at_depth[depths[h], l])
+            solo[leaf] = min(solo[leaf], node_kw[h] * eff_at_depth[depths[h], leaf])
     return StationArrays(
         leaf_voltage_v=jnp.asarray(leaf_attr(lambda x: x.voltage_v)),
         leaf_max_current_a=jnp.asarray(leaf_attr(lambda x: x.max_current_a)),
         leaf_max_discharge_current_a=jnp.asarray(
-            leaf_attr(lambda x: x.max_current_a if isinstance(x, Battery) else x.max_discharge_current_a)
+            leaf_attr(
+                lambda x: x.max_current_a if isinstance(x, Battery) else x.max_discharge_current_a
+            )
         ),
         leaf_efficiency=jnp.asarray(leaf_attr(lambda x: x.efficiency)),
         leaf_path_efficiency=jnp.asarray(path_eff.astype(np.float32)),
         leaf_efficiency_at_depth=jnp.asarray(eff_at_depth.astype(np.float32)),
         leaf_kind=jnp.asarray(kind),
-        battery_capacity_kwh=jnp.asarray(np.array([b.capacity_kwh for b in bats], dtype=np.float32)),
+        battery_capacity_kwh=jnp.asarray(
+            np.array([b.capacity_kwh for b in bats], dtype=np.float32)
+        ),
         battery_tau=jnp.asarray(np.array([b.tau for b in bats], dtype=np.float32)),
         battery_initial_soc=jnp.asarray(np.array([b.initial_soc for b in bats], dtype=np.float32)),
         leaf_solo_max_kw=jnp.asarray(solo.astype(np.float32)),
@@ -308,8 +384,16 @@ DC_GROUP_KW = 150.0
 AC_GROUP_KW = 11.5
 
 
-def _ports(prefix: str, n: int, kind: str, voltage_v: float, max_current_a: float, v2g: bool,
-           efficiency: float, start: int) -> list[Port]:
+def _ports(
+    prefix: str,
+    n: int,
+    kind: str,
+    voltage_v: float,
+    max_current_a: float,
+    v2g: bool,
+    efficiency: float,
+    start: int,
+) -> list[Port]:
     return [
         Port(
             name=f"{prefix}{start + i}",
@@ -323,12 +407,19 @@ def _ports(prefix: str, n: int, kind: str, voltage_v: float, max_current_a: floa
     ]
 
 
-def _groups(ports: Sequence[Port], per_group: int, group_kw: float, prefix: str, efficiency: float) -> list[Node]:
+def _groups(
+    ports: Sequence[Port], per_group: int, group_kw: float, prefix: str, efficiency: float
+) -> list[Node]:
     """Wrap consecutive ports in EVSE splitters of ``per_group`` connectors sharing ``group_kw``."""
     if per_group <= 1:
         return list(ports)
     return [
-        Splitter(f"{prefix}{g}", max_kw=group_kw, children=tuple(ports[i:i + per_group]), efficiency=efficiency)
+        Splitter(
+            f"{prefix}{g}",
+            max_kw=group_kw,
+            children=tuple(ports[i : i + per_group]),
+            efficiency=efficiency,
+        )
         for g, i in enumerate(range(0, len(ports), per_group))
     ]
 
@@ -343,13 +434,22 @@ def _root_children(children: list[Node], battery: Battery | bool | None) -> list
 
 def _check_count(builder: str, field: str, value: int, minimum: int) -> None:
     if not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ValueError(f"{builder}: field '{field}' must be an integer >= {minimum}, got {value!r}")
+        raise ValueError(
+            f"{builder}: field '{field}' must be an integer >= {minimum}, got {value!r}"
+        )
 
 
 def _check_grid_kw(builder: str, grid_kw: float | None) -> None:
     """``grid_kw`` is None (the sum of the root's children) or a rating in kW; 0 is not "default"."""
     if grid_kw is not None:
-        checks.number("grid_kw", grid_kw, low=checks.MIN_POWER_KW, high=checks.MAX_POWER_KW, unit="kW", owner=builder)
+        checks.number(
+            "grid_kw",
+            grid_kw,
+            low=checks.MIN_POWER_KW,
+            high=checks.MAX_POWER_KW,
+            unit="kW",
+            owner=builder,
+        )
 
 
 @checks.known_keywords
@@ -376,15 +476,29 @@ def single_type(
         voltage_v = DC_VOLTAGE_V if kind == "DC" else AC_VOLTAGE_V
     if max_current_a is None:
         max_current_a = DC_GROUP_KW * 1000 / DC_VOLTAGE_V if kind == "DC" else AC_MAX_CURRENT_A
-    checks.number("voltage_v", voltage_v, low=checks.MIN_VOLTAGE_V, high=checks.MAX_VOLTAGE_V, unit="V",
-                  owner="single_type")
-    checks.number("max_current_a", max_current_a, low=checks.MIN_CURRENT_A, high=checks.MAX_CURRENT_A, unit="A",
-                  owner="single_type")
+    checks.number(
+        "voltage_v",
+        voltage_v,
+        low=checks.MIN_VOLTAGE_V,
+        high=checks.MAX_VOLTAGE_V,
+        unit="V",
+        owner="single_type",
+    )
+    checks.number(
+        "max_current_a",
+        max_current_a,
+        low=checks.MIN_CURRENT_A,
+        high=checks.MAX_CURRENT_A,
+        unit="A",
+        owner="single_type",
+    )
     _check_grid_kw("single_type", grid_kw)
     ports = _ports("port_", num_ports, kind, voltage_v, max_current_a, v2g, efficiency, 0)
     children = _root_children(list(ports), battery)
     if grid_kw is None:
-        grid_kw = sum(p.max_kw for p in ports) + (children[-1].max_kw if len(children) > len(ports) else 0.0)
+        grid_kw = sum(p.max_kw for p in ports) + (
+            children[-1].max_kw if len(children) > len(ports) else 0.0
+        )
     root_kw = grid_kw
     return Splitter("grid", max_kw=root_kw, children=tuple(children))
 
@@ -417,18 +531,48 @@ def multiple_types(
     if num_dc + num_ac < 1:
         raise ValueError("multiple_types: fields 'num_dc' + 'num_ac' must be >= 1, got 0 ports")
     for field, value in (("dc_evse_kw", dc_evse_kw), ("ac_evse_kw", ac_evse_kw)):
-        checks.number(field, value, low=checks.MIN_POWER_KW, high=checks.MAX_POWER_KW, unit="kW", owner="multiple_types")
+        checks.number(
+            field,
+            value,
+            low=checks.MIN_POWER_KW,
+            high=checks.MAX_POWER_KW,
+            unit="kW",
+            owner="multiple_types",
+        )
     _check_grid_kw("multiple_types", grid_kw)
     children: list[Node] = []
-    dc_ports = _ports("port_", num_dc, "DC", DC_VOLTAGE_V, dc_evse_kw * 1000 / DC_VOLTAGE_V, v2g, port_efficiency, 0)
-    ac_ports = _ports("port_", num_ac, "AC", AC_VOLTAGE_V, ac_evse_kw * 1000 / AC_VOLTAGE_V, v2g, port_efficiency, num_dc)
+    dc_ports = _ports(
+        "port_",
+        num_dc,
+        "DC",
+        DC_VOLTAGE_V,
+        dc_evse_kw * 1000 / DC_VOLTAGE_V,
+        v2g,
+        port_efficiency,
+        0,
+    )
+    ac_ports = _ports(
+        "port_",
+        num_ac,
+        "AC",
+        AC_VOLTAGE_V,
+        ac_evse_kw * 1000 / AC_VOLTAGE_V,
+        v2g,
+        port_efficiency,
+        num_dc,
+    )
     for ports, evse_kw, tag in ((dc_ports, dc_evse_kw, "dc"), (ac_ports, ac_evse_kw, "ac")):
         if not ports:
             continue
         groups = _groups(ports, ports_per_evse, evse_kw, f"{tag}_evse_", splitter_efficiency)
         n_groups = math.ceil(len(ports) / ports_per_evse)
         children.append(
-            Splitter(f"{tag}_splitter", max_kw=evse_kw * n_groups, children=tuple(groups), efficiency=splitter_efficiency)
+            Splitter(
+                f"{tag}_splitter",
+                max_kw=evse_kw * n_groups,
+                children=tuple(groups),
+                efficiency=splitter_efficiency,
+            )
         )
     children = _root_children(children, battery)
     root_kw = sum(c.max_kw for c in children) if grid_kw is None else grid_kw
@@ -459,10 +603,19 @@ def multiple_splitters(
     """
     _check_count("multiple_splitters", "splitters_per_kind", splitters_per_kind, 1)
     _check_grid_kw("multiple_splitters", grid_kw)
-    _check_unit_interval("multiple_splitters", "splitter_fraction", splitter_fraction, open_low=True, open_high=False)
+    _check_unit_interval(
+        "multiple_splitters", "splitter_fraction", splitter_fraction, open_low=True, open_high=False
+    )
     base = multiple_types(
-        num_dc, num_ac, ports_per_evse=ports_per_evse, dc_evse_kw=dc_evse_kw, ac_evse_kw=ac_evse_kw, v2g=v2g,
-        port_efficiency=port_efficiency, splitter_efficiency=splitter_efficiency, battery=None,
+        num_dc,
+        num_ac,
+        ports_per_evse=ports_per_evse,
+        dc_evse_kw=dc_evse_kw,
+        ac_evse_kw=ac_evse_kw,
+        v2g=v2g,
+        port_efficiency=port_efficiency,
+        splitter_efficiency=splitter_efficiency,
+        battery=None,
     )
     kinds: list[Node] = []
     for kind_node in base.children:
@@ -478,8 +631,14 @@ def multiple_splitters(
             )
             for j, chunk in enumerate(chunks)
         )
-        kinds.append(Splitter(kind_node.name, max_kw=sum(s.max_kw for s in subs), children=subs,
-                              efficiency=splitter_efficiency))
+        kinds.append(
+            Splitter(
+                kind_node.name,
+                max_kw=sum(s.max_kw for s in subs),
+                children=subs,
+                efficiency=splitter_efficiency,
+            )
+        )
     kinds = _root_children(kinds, battery)
     root_kw = sum(c.max_kw for c in kinds) if grid_kw is None else grid_kw
     return Splitter("grid", max_kw=root_kw, children=tuple(kinds))
@@ -501,29 +660,44 @@ def with_grid_fraction(root: Splitter, grid_fraction: float) -> Splitter:
     return dataclasses.replace(root, max_kw=f * children_kw)
 
 
-def build_station(architecture: str | Splitter | StationArrays = "multiple_types", *,
-                  grid_fraction: float | None = None, **kwargs) -> StationArrays:
+def build_station(
+    architecture: str | Splitter | StationArrays = "multiple_types",
+    *,
+    grid_fraction: float | None = None,
+    **kwargs,
+) -> StationArrays:
     """Compile a named architecture (with builder keyword arguments), a custom tree, or pass
     through arrays. ``grid_fraction`` (in (0, 1]) sets the root's limit to that fraction of the
     sum of its children's limits (:func:`with_grid_fraction`)."""
     if isinstance(architecture, StationArrays):
         if grid_fraction is not None:
-            raise ValueError("build_station: field 'grid_fraction' needs a named architecture or a Splitter tree, "
-                             "not compiled StationArrays")
+            raise ValueError(
+                "build_station: field 'grid_fraction' needs a named architecture or a Splitter tree, "
+                "not compiled StationArrays"
+            )
         return architecture
     if isinstance(architecture, Splitter):
         if kwargs:
-            raise ValueError(f"build_station: keyword arguments {sorted(kwargs)} only apply to named architectures")
+            raise ValueError(
+                f"build_station: keyword arguments {sorted(kwargs)} only apply to named architectures"
+            )
         root = architecture
     else:
         if architecture not in ARCHITECTURES:
-            raise KeyError(f"unknown architecture {architecture!r}; allowed: {sorted(ARCHITECTURES)} or a Splitter tree")
+            raise KeyError(
+                f"unknown architecture {architecture!r}; allowed: {sorted(ARCHITECTURES)} or a Splitter tree"
+            )
         builder = ARCHITECTURES[architecture]
-        checks.keywords(f"station_kwargs of {architecture!r}", kwargs,
-                        tuple(inspect.signature(builder).parameters))
+        checks.keywords(
+            f"station_kwargs of {architecture!r}",
+            kwargs,
+            tuple(inspect.signature(builder).parameters),
+        )
         if grid_fraction is not None and kwargs.get("grid_kw") is not None:
-            raise ValueError(f"give either 'grid_fraction' ({grid_fraction!r}) or station_kwargs 'grid_kw' "
-                             f"({kwargs['grid_kw']!r}), not both: both set the grid connection's limit")
+            raise ValueError(
+                f"give either 'grid_fraction' ({grid_fraction!r}) or station_kwargs 'grid_kw' "
+                f"({kwargs['grid_kw']!r}), not both: both set the grid connection's limit"
+            )
         root = builder(**kwargs)
     if grid_fraction is not None:
         root = with_grid_fraction(root, grid_fraction)

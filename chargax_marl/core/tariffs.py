@@ -30,7 +30,9 @@ HOURS_PER_DAY = 24
 
 def _hours(surcharge_eur_kwh: float, first_hour: int, last_hour: int) -> tuple[float, ...]:
     """A 24-hour surcharge of ``surcharge_eur_kwh`` in hours ``first_hour..last_hour - 1``."""
-    return tuple(surcharge_eur_kwh if first_hour <= h < last_hour else 0.0 for h in range(HOURS_PER_DAY))
+    return tuple(
+        surcharge_eur_kwh if first_hour <= h < last_hour else 0.0 for h in range(HOURS_PER_DAY)
+    )
 
 
 TOU_PRESETS: dict[str, tuple[float, ...]] = {
@@ -56,26 +58,44 @@ def tou_fee(value: Any) -> np.ndarray:
         return np.zeros(HOURS_PER_DAY, np.float32)
     if isinstance(value, str):
         if value not in TOU_PRESETS:
-            raise ValueError(f"field 'tou_fee_eur_kwh' must be one of {sorted(TOU_PRESETS)} or 24 hourly "
-                             f"surcharges in EUR/kWh, got {value!r}")
+            raise ValueError(
+                f"field 'tou_fee_eur_kwh' must be one of {sorted(TOU_PRESETS)} or 24 hourly "
+                f"surcharges in EUR/kWh, got {value!r}"
+            )
         return np.asarray(TOU_PRESETS[value], np.float32)
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError(f"field 'tou_fee_eur_kwh' must be 24 hourly surcharges in EUR/kWh, got {value!r}") from None
+        raise ValueError(
+            f"field 'tou_fee_eur_kwh' must be 24 hourly surcharges in EUR/kWh, got {value!r}"
+        ) from None
     if arr.shape != (HOURS_PER_DAY,):
-        raise ValueError(f"field 'tou_fee_eur_kwh' must have shape ({HOURS_PER_DAY},) (one surcharge per local hour), "
-                         f"got shape {arr.shape}")
+        raise ValueError(
+            f"field 'tou_fee_eur_kwh' must have shape ({HOURS_PER_DAY},) (one surcharge per local hour), "
+            f"got shape {arr.shape}"
+        )
     for h, v in enumerate(arr):
-        checks.number(f"tou_fee_eur_kwh[{h}]", float(v), low=-checks.MAX_PRICE_EUR_KWH,
-                      high=checks.MAX_PRICE_EUR_KWH, unit="EUR/kWh")
+        checks.number(
+            f"tou_fee_eur_kwh[{h}]",
+            float(v),
+            low=-checks.MAX_PRICE_EUR_KWH,
+            high=checks.MAX_PRICE_EUR_KWH,
+            unit="EUR/kWh",
+        )
     return arr.astype(np.float32)
 
 
 def peak_demand(rate_eur_kw: Any, booking: Any) -> tuple[float, bool]:
     """Validated ``(rate in EUR per kW of the day's peak, incremental booking?)``."""
-    rate = checks.number("peak_demand_eur_kw", rate_eur_kw, low=0.0, high=checks.MAX_PRICE_EUR_KWH * 24.0,
-                         unit="EUR/kW")
+    rate = checks.number(
+        "peak_demand_eur_kw",
+        rate_eur_kw,
+        low=0.0,
+        high=checks.MAX_PRICE_EUR_KWH * 24.0,
+        unit="EUR/kW",
+    )
     if booking not in PEAK_BOOKINGS:
-        raise ValueError(f"field 'peak_demand_booking' must be one of {PEAK_BOOKINGS}, got {booking!r}")
+        raise ValueError(
+            f"field 'peak_demand_booking' must be one of {PEAK_BOOKINGS}, got {booking!r}"
+        )
     return rate, booking == "incremental"

@@ -20,8 +20,19 @@ from chargax_marl.core import rng
 from chargax_marl.core.station import KIND_AC, KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState
 
-CAR_FIELDS = ("current_a", "soc", "energy_remaining_kwh", "time_remaining_min", "slack_min",
-              "capacity_kwh", "max_rate_kw", "max_discharge_rate_kw", "target_soc", "tau", "arrival_soc")
+CAR_FIELDS = (
+    "current_a",
+    "soc",
+    "energy_remaining_kwh",
+    "time_remaining_min",
+    "slack_min",
+    "capacity_kwh",
+    "max_rate_kw",
+    "max_discharge_rate_kw",
+    "target_soc",
+    "tau",
+    "arrival_soc",
+)
 
 
 def depart(state: EnvState, params: EnvParams):
@@ -52,14 +63,23 @@ def depart(state: EnvState, params: EnvParams):
     is_port = params.station.leaf_kind != KIND_BATTERY
     active = state.occupied & is_port
     time_up = active & ~state.charge_sensitive & (state.time_remaining_min <= 0.0)
-    charged = active & state.charge_sensitive & (state.energy_remaining_kwh <= params.charged_tolerance_kwh)
+    charged = (
+        active
+        & state.charge_sensitive
+        & (state.energy_remaining_kwh <= params.charged_tolerance_kwh)
+    )
     leaving = rng.materialize(time_up | charged)
     leaf_missing = jnp.where(time_up, jnp.maximum(state.energy_remaining_kwh, 0.0), 0.0)
     # this step's minutes past the plan (physics has already taken the step off the clock)
-    leaf_over = jnp.where(active & state.charge_sensitive,
-                          jnp.clip(-state.time_remaining_min, 0.0, params.step_minutes), 0.0)
+    leaf_over = jnp.where(
+        active & state.charge_sensitive,
+        jnp.clip(-state.time_remaining_min, 0.0, params.step_minutes),
+        0.0,
+    )
     slack = jnp.maximum(state.slack_min, 0.0)  # planned stay - earliest finish
-    delay = jnp.maximum(state.slack_min - state.time_remaining_min, 0.0)  # minutes parked beyond the earliest finish
+    delay = jnp.maximum(
+        state.slack_min - state.time_remaining_min, 0.0
+    )  # minutes parked beyond the earliest finish
     leaf_under = jnp.where(charged, -jnp.minimum(delay, slack), 0.0)
     leaf_charge_term = leaf_over - params.beta * leaf_under
     cleared = {f: jnp.where(leaving, 0.0, getattr(state, f)) for f in CAR_FIELDS}
@@ -80,7 +100,9 @@ def depart(state: EnvState, params: EnvParams):
     return new_state, report
 
 
-def earliest_finish_min(soc0, target_soc, capacity_kwh, max_rate_kw, tau, solo_max_kw, params: EnvParams):
+def earliest_finish_min(
+    soc0, target_soc, capacity_kwh, max_rate_kw, tau, solo_max_kw, params: EnvParams
+):
     """Minutes a car needs to reach its target (within ``charged_tolerance_kwh``) when it
     charges as fast as its rate curve and its port allow, alone on its path.
 
@@ -97,8 +119,14 @@ def earliest_finish_min(soc0, target_soc, capacity_kwh, max_rate_kw, tau, solo_m
     knee = jnp.clip(1.0 - power * (1.0 - tau) / rbar, tau, 1.0)  # where the taper falls below P
     bulk_h = cap * jnp.maximum(jnp.minimum(goal, knee) - soc0, 0.0) / power
     a = jnp.maximum(soc0, knee)
-    taper_h = jnp.where(goal > a, (1.0 - tau) * cap / rbar * jnp.log(jnp.maximum(1.0 - a, 1e-9) / jnp.maximum(1.0 - goal, 1e-9)),
-                        0.0)
+    taper_h = jnp.where(
+        goal > a,
+        (1.0 - tau)
+        * cap
+        / rbar
+        * jnp.log(jnp.maximum(1.0 - a, 1e-9) / jnp.maximum(1.0 - goal, 1e-9)),
+        0.0,
+    )
     steps = jnp.maximum(jnp.ceil((bulk_h + taper_h) * 60.0 / params.step_minutes - 1e-4), 1.0)
     return steps * params.step_minutes
 
@@ -144,12 +172,25 @@ class Arrivals:
     charge_sensitive: jnp.ndarray  # (P,) bool, u = 1
 
 
-SLOT_FIELDS = ("model", "capacity_kwh", "ac_kw", "dc_kw", "ac_discharge_kw", "dc_discharge_kw", "tau",
-               "arrival_soc", "target_soc", "stay_min", "charge_sensitive")
+SLOT_FIELDS = (
+    "model",
+    "capacity_kwh",
+    "ac_kw",
+    "dc_kw",
+    "ac_discharge_kw",
+    "dc_discharge_kw",
+    "tau",
+    "arrival_soc",
+    "target_soc",
+    "stay_min",
+    "charge_sensitive",
+)
 """The per-slot fields of :class:`Arrivals` (every field but ``requested``)."""
 
 
-def draw_arrivals(key: jax.Array, timestep: jnp.ndarray, is_workday: jnp.ndarray, params: EnvParams) -> Arrivals:
+def draw_arrivals(
+    key: jax.Array, timestep: jnp.ndarray, is_workday: jnp.ndarray, params: EnvParams
+) -> Arrivals:
     """The step's arriving cars (:class:`Arrivals`): a Poisson count with the rate of the day
     type and step, and one car profile (fleet) and user profile (stay, demand, arrival SoC,
     user type) per slot. All of them come from ``key`` through :mod:`chargax_marl.core.rng`
@@ -165,8 +206,11 @@ def draw_arrivals(key: jax.Array, timestep: jnp.ndarray, is_workday: jnp.ndarray
     cdf = jnp.cumsum(params.fleet_share)
     # searchsorted by comparing with every entry (a fleet has tens of models): one fused
     # op, where the default binary search is a loop that costs a dispatch per iteration.
-    model = jnp.clip(jnp.searchsorted(cdf / cdf[-1], u[0], side="right", method="compare_all"),
-                     0, cdf.shape[0] - 1).astype(jnp.int32)
+    model = jnp.clip(
+        jnp.searchsorted(cdf / cdf[-1], u[0], side="right", method="compare_all"),
+        0,
+        cdf.shape[0] - 1,
+    ).astype(jnp.int32)
     capacity = params.fleet_capacity_kwh[model]
     # User profile: stay and demand scaled by the arrival hour, user type.
     hour = jnp.clip((timestep * params.step_minutes / 60.0).astype(jnp.int32), 0, 23)
@@ -219,8 +263,15 @@ def place_arrivals(state: EnvState, arrivals: Arrivals, params: EnvParams):
     max_rate = jnp.where(is_ac, car.ac_kw, car.dc_kw)
     max_dis = jnp.where(is_ac, car.ac_discharge_kw, car.dc_discharge_kw)
     demand = (car.target_soc - car.arrival_soc) * car.capacity_kwh
-    earliest = earliest_finish_min(car.arrival_soc, car.target_soc, car.capacity_kwh, max_rate, car.tau,
-                                   st.leaf_solo_max_kw, params)
+    earliest = earliest_finish_min(
+        car.arrival_soc,
+        car.target_soc,
+        car.capacity_kwh,
+        max_rate,
+        car.tau,
+        st.leaf_solo_max_kw,
+        params,
+    )
 
     def put(new, old):
         return jnp.where(new_car, new, old)
@@ -252,4 +303,6 @@ def place_arrivals(state: EnvState, arrivals: Arrivals, params: EnvParams):
 def arrive(key: jax.Array, state: EnvState, params: EnvParams):
     """Step 4: draw the step's cars (:func:`draw_arrivals`) and park them
     (:func:`place_arrivals`). ``state.timestep`` is the step in which the cars arrive."""
-    return place_arrivals(state, draw_arrivals(key, state.timestep, state.is_workday, params), params)
+    return place_arrivals(
+        state, draw_arrivals(key, state.timestep, state.is_workday, params), params
+    )

@@ -63,7 +63,9 @@ class EnvParams:
     station: StationArrays
     # --- exogenous data
     prices_eur_kwh: jnp.ndarray  # (D, 24) day-ahead price per local hour
-    day_price_quantiles_eur_kwh: jnp.ndarray  # (D, Q) quantiles (observation.PRICE_QUANTILES) of each day's
+    day_price_quantiles_eur_kwh: (
+        jnp.ndarray
+    )  # (D, Q) quantiles (observation.PRICE_QUANTILES) of each day's
     #   hourly day-ahead price plus time-of-use surcharge; derived by make_params (rebuild params to change prices)
     first_weekday: jnp.ndarray  # () int32, weekday of day 0 (0 = Monday)
     arrival_rate: jnp.ndarray  # (2, T) expected arrivals per step; row 0 workday, row 1 weekend
@@ -78,27 +80,45 @@ class EnvParams:
     fleet_ac_kw: jnp.ndarray  # (K,)
     fleet_dc_kw: jnp.ndarray  # (K,)
     fleet_tau: jnp.ndarray  # (K,)
-    fleet_ac_discharge_kw: jnp.ndarray  # (K,) discharge (V2G) limit at AC ports, 0 = cannot discharge
+    fleet_ac_discharge_kw: (
+        jnp.ndarray
+    )  # (K,) discharge (V2G) limit at AC ports, 0 = cannot discharge
     fleet_dc_discharge_kw: jnp.ndarray  # (K,) discharge (V2G) limit at DC ports
     moer_kg_per_kwh: jnp.ndarray  # (Dm, T) marginal emission rate; zeros when no MOER data
     grid_demand_kwh: jnp.ndarray  # (T,) grid demand signal per step for the grid-demand penalty
     reset_days: jnp.ndarray  # (R,) int32 day indices reset() draws from (all days by default)
-    battery_soc0_low: jnp.ndarray  # (B,) initial SoC of each station battery is uniform in [low, high]
+    battery_soc0_low: (
+        jnp.ndarray
+    )  # (B,) initial SoC of each station battery is uniform in [low, high]
     battery_soc0_high: jnp.ndarray  # (B,)
     # --- economics
     customer_price_eur_kwh: jnp.ndarray  # () p_sell, price charged to (and refunded to) car owners
-    refund_discharged_energy: jnp.ndarray  # () bool: car owners get p_sell back for energy taken out of
+    refund_discharged_energy: (
+        jnp.ndarray
+    )  # () bool: car owners get p_sell back for energy taken out of
     #   their car (default); False: they pay for energy put in and get nothing back (the original Chargax)
     grid_fee_eur_kwh: jnp.ndarray  # () added to the day-ahead price when buying
-    tou_fee_eur_kwh: jnp.ndarray  # (24,) time-of-use surcharge on the buy price per local hour (zeros: none)
-    peak_demand_eur_kw: jnp.ndarray  # () EUR per kW of the day's highest net grid draw (0: no peak charge)
-    peak_demand_incremental: jnp.ndarray  # () bool: book the peak charge as the running peak rises, else at the last step
+    tou_fee_eur_kwh: (
+        jnp.ndarray
+    )  # (24,) time-of-use surcharge on the buy price per local hour (zeros: none)
+    peak_demand_eur_kw: (
+        jnp.ndarray
+    )  # () EUR per kW of the day's highest net grid draw (0: no peak charge)
+    peak_demand_incremental: (
+        jnp.ndarray
+    )  # () bool: book the peak charge as the running peak rises, else at the last step
     feed_in_factor: jnp.ndarray  # () p_sell,grid = factor * day-ahead price
     fixed_cost_eur: jnp.ndarray  # () c_dt, per step
     alpha: PenaltyWeights
-    battery_value_day_mean: jnp.ndarray  # () bool: value the batteries' energy change at the day's mean buy price
-    battery_value_eur_kwh: jnp.ndarray  # () fixed price of that energy change when the flag is off (0 = no value)
-    beta: jnp.ndarray  # () weight of undertime in the charge-sensitive satisfaction term (default 0)
+    battery_value_day_mean: (
+        jnp.ndarray
+    )  # () bool: value the batteries' energy change at the day's mean buy price
+    battery_value_eur_kwh: (
+        jnp.ndarray
+    )  # () fixed price of that energy change when the flag is off (0 = no value)
+    beta: (
+        jnp.ndarray
+    )  # () weight of undertime in the charge-sensitive satisfaction term (default 0)
     charged_tolerance_kwh: jnp.ndarray  # () a charge-sensitive car leaves when remaining <= this
     # --- static settings
     step_minutes: float = struct.field(pytree_node=False, default=5.0)
@@ -136,15 +156,25 @@ class EpisodeTotals:
     cars_served: jnp.ndarray  # departed cars
     cars_rejected: jnp.ndarray
     missing_kwh: jnp.ndarray  # energy still wanted by time-sensitive cars at departure
-    overtime_min: jnp.ndarray  # minutes this step that parked charge-sensitive cars spent beyond their plan
-    constraint_excess_kw: jnp.ndarray  # summed over steps of the excess that flowed (max over nodes; 0 in hard mode)
+    overtime_min: (
+        jnp.ndarray
+    )  # minutes this step that parked charge-sensitive cars spent beyond their plan
+    constraint_excess_kw: (
+        jnp.ndarray
+    )  # summed over steps of the excess that flowed (max over nodes; 0 in hard mode)
     requested_excess_kw: jnp.ndarray  # summed over steps of the excess the controller asked for
-    battery_terminal_value_eur: jnp.ndarray  # value of the batteries' energy change, booked at the last step
-    peak_grid_kw: jnp.ndarray  # running maximum of the net grid draw (kW, step average) so far today
-    peak_demand_charge_eur: jnp.ndarray  # peak-demand charge booked so far (part of profit_eur, positive = paid)
+    battery_terminal_value_eur: (
+        jnp.ndarray
+    )  # value of the batteries' energy change, booked at the last step
+    peak_grid_kw: (
+        jnp.ndarray
+    )  # running maximum of the net grid draw (kW, step average) so far today
+    peak_demand_charge_eur: (
+        jnp.ndarray
+    )  # peak-demand charge booked so far (part of profit_eur, positive = paid)
 
     @classmethod
-    def zeros(cls) -> "EpisodeTotals":
+    def zeros(cls) -> EpisodeTotals:
         z = jnp.zeros((), jnp.float32)
         return cls(**{f: z for f in cls.__dataclass_fields__})
 
@@ -160,13 +190,21 @@ class EnvState:
     current_a: jnp.ndarray  # signed current set at the leaf, A (negative = discharging)
     occupied: jnp.ndarray  # bool
     soc: jnp.ndarray  # state of charge in [0, 1]
-    energy_remaining_kwh: jnp.ndarray  # energy the user still wants, (target_soc - soc) * capacity (>= 0)
+    energy_remaining_kwh: (
+        jnp.ndarray
+    )  # energy the user still wants, (target_soc - soc) * capacity (>= 0)
     time_remaining_min: jnp.ndarray  # minutes until the planned departure (may go negative)
-    slack_min: jnp.ndarray  # planned stay minus the earliest finish the car's curve allows at its port (set at arrival)
+    slack_min: (
+        jnp.ndarray
+    )  # planned stay minus the earliest finish the car's curve allows at its port (set at arrival)
     capacity_kwh: jnp.ndarray  # battery capacity C of the car
     max_rate_kw: jnp.ndarray  # r-bar of the car for this port's kind
-    max_discharge_rate_kw: jnp.ndarray  # the car's discharge limit for this port's kind (0 = cannot discharge)
-    target_soc: jnp.ndarray  # SoC at which the car stops charging: arrival SoC + demand / capacity (<= 1)
+    max_discharge_rate_kw: (
+        jnp.ndarray
+    )  # the car's discharge limit for this port's kind (0 = cannot discharge)
+    target_soc: (
+        jnp.ndarray
+    )  # SoC at which the car stops charging: arrival SoC + demand / capacity (<= 1)
     tau: jnp.ndarray  # bulk/absorption transition SoC
     charge_sensitive: jnp.ndarray  # bool, u = 1
     arrival_soc: jnp.ndarray  # SoC at arrival: discharging never goes below it
@@ -204,7 +242,13 @@ class StepInfo:
     constraint_excess_kw: jnp.ndarray  # grid-side excess that flowed (0 in hard mode)
     requested_excess_kw: jnp.ndarray  # grid-side excess of the currents the controller asked for
     battery_terminal_value_eur: jnp.ndarray  # nonzero at the last step only; included in profit_eur
-    peak_demand_charge_eur: jnp.ndarray  # peak-demand charge booked this step (subtracted in profit_eur)
+    peak_demand_charge_eur: (
+        jnp.ndarray
+    )  # peak-demand charge booked this step (subtracted in profit_eur)
     leaf_energy_kwh: jnp.ndarray  # (L,) energy into each car / battery this step (terminal side)
-    leaf_arrived: jnp.ndarray  # (L,) bool, the ports that received a new car at the end of this step
-    leaf_reward: jnp.ndarray  # (L,) each leaf's share of reward (reward.leaf_reward_shares); sums to reward
+    leaf_arrived: (
+        jnp.ndarray
+    )  # (L,) bool, the ports that received a new car at the end of this step
+    leaf_reward: (
+        jnp.ndarray
+    )  # (L,) each leaf's share of reward (reward.leaf_reward_shares); sums to reward

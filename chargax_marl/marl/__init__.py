@@ -33,9 +33,18 @@ finally:
     _builtins.print = _original_print
     _sys.stdout, _sys.stderr = _streams
 
-from chargax_marl.marl.env import ChargaxMARL
-from chargax_marl.marl.pettingzoo_env import ChargaxParallelEnv, parallel_env
-from chargax_marl.marl.pettingzoo_env import env as aec_env
-from chargax_marl.marl.wrappers import LogEnvState, LogWrapper, WorldStateWrapper
+# after the quiet JaxMARL import above
+from chargax_marl.marl.env import ChargaxMARL  # noqa: E402
+from chargax_marl.marl.pettingzoo_env import ChargaxParallelEnv, parallel_env  # noqa: E402
+from chargax_marl.marl.pettingzoo_env import env as aec_env  # noqa: E402
+from chargax_marl.marl.wrappers import LogEnvState, LogWrapper, WorldStateWrapper  # noqa: E402
 
-__all__ = ["ChargaxMARL", "ChargaxParallelEnv", "aec_env", "LogEnvState", "LogWrapper", "WorldStateWrapper", "parallel_env"]
+__all__ = [
+    "ChargaxMARL",
+    "ChargaxParallelEnv",
+    "aec_env",
+    "LogEnvState",
+    "LogWrapper",
+    "WorldStateWrapper",
+    "parallel_env",
+]

@@ -14,7 +14,8 @@ environments do.
 from __future__ import annotations
 
 import functools
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -24,11 +25,12 @@ from jaxmarl.environments import spaces
 from jaxmarl.environments.multi_agent_env import MultiAgentEnv
 
 from chargax_marl import bounds
-from chargax_marl.core import actions as core_actions, observation, physics, simulator
+from chargax_marl.core import actions as core_actions
+from chargax_marl.core import observation, physics, simulator
 from chargax_marl.core.params import make_params
+from chargax_marl.core.rng import materialize
 from chargax_marl.core.scenarios import scenario_kwargs
 from chargax_marl.core.station import KIND_AC, KIND_BATTERY, KIND_DC
-from chargax_marl.core.rng import materialize
 from chargax_marl.core.types import EnvParams, EnvState
 from chargax_marl.lifecycle import check_day
 
@@ -42,7 +44,9 @@ assert (KIND_AC, KIND_DC, KIND_BATTERY) == (0, 1, 2)
 def agent_names(params: EnvParams) -> list[str]:
     """``port_0 .. port_{P-1}`` then ``battery_0 ..``, in leaf order."""
     st = params.station
-    return [f"port_{i}" for i in range(st.num_ports)] + [f"battery_{j}" for j in range(st.num_batteries)]
+    return [f"port_{i}" for i in range(st.num_ports)] + [
+        f"battery_{j}" for j in range(st.num_batteries)
+    ]
 
 
 def action_offset(params: EnvParams) -> int:
@@ -122,8 +126,11 @@ def obs_layout(params: EnvParams, agent_id: str = "onehot") -> ObsLayout:
         raise ValueError(f"field 'agent_id' must be one of {AGENT_ID_ENCODINGS}, got {agent_id!r}")
     st = params.station
     n = st.num_leaves
-    ids = (jnp.eye(n, dtype=jnp.float32) if agent_id == "onehot"
-           else (jnp.arange(n, dtype=jnp.float32) / max(n - 1, 1))[:, None])
+    ids = (
+        jnp.eye(n, dtype=jnp.float32)
+        if agent_id == "onehot"
+        else (jnp.arange(n, dtype=jnp.float32) / max(n - 1, 1))[:, None]
+    )
     layout = ObsLayout(
         kind_onehot=jax.nn.one_hot(st.leaf_kind, NUM_KINDS, dtype=jnp.float32),
         ancestors=ancestor_table(params).astype(jnp.int32),
@@ -134,7 +141,9 @@ def obs_layout(params: EnvParams, agent_id: str = "onehot") -> ObsLayout:
     return layout
 
 
-def ancestor_loads(state: EnvState, params: EnvParams, layout: ObsLayout | None = None) -> jnp.ndarray:
+def ancestor_loads(
+    state: EnvState, params: EnvParams, layout: ObsLayout | None = None
+) -> jnp.ndarray:
     """``(N, D)`` load fraction of each agent's ancestor nodes, deepest first, zero-padded.
 
     The load of node ``H`` is its grid-side net flow
@@ -147,7 +156,10 @@ def ancestor_loads(state: EnvState, params: EnvParams, layout: ObsLayout | None 
     st = params.station
     # current_a stored once (rng.materialize): the node sums' transposes otherwise recompute
     # the step's whole current chain, once per tree level.
-    load = physics.node_flows_kw(materialize(state.current_a) * st.leaf_voltage_v / 1000.0, st) / st.node_max_kw
+    load = (
+        physics.node_flows_kw(materialize(state.current_a) * st.leaf_voltage_v / 1000.0, st)
+        / st.node_max_kw
+    )
     anc = layout.ancestors
     return jnp.where(anc >= 0, load[jnp.maximum(anc, 0)], 0.0)
 
@@ -157,10 +169,18 @@ def _observation_parts(state: EnvState, params: EnvParams, layout: ObsLayout):
     shared context ``(C,)``."""
     leaf = observation.leaf_features(state, params).astype(jnp.float32)
     loads = ancestor_loads(state, params, layout).astype(jnp.float32)
-    return leaf, layout.kind_onehot, loads, observation.context_features(state, params), layout.agent_id
+    return (
+        leaf,
+        layout.kind_onehot,
+        loads,
+        observation.context_features(state, params),
+        layout.agent_id,
+    )
 
 
-def agent_observations(state: EnvState, params: EnvParams, layout: ObsLayout | None = None) -> jnp.ndarray:
+def agent_observations(
+    state: EnvState, params: EnvParams, layout: ObsLayout | None = None
+) -> jnp.ndarray:
     """Every agent's observation as one float32 matrix ``(N, obs_size)``, rows in agent order.
 
     Columns: the 8 leaf features of :func:`observation.leaf_features`; kind one-hot (AC, DC,
@@ -171,17 +191,24 @@ def agent_observations(state: EnvState, params: EnvParams, layout: ObsLayout | N
     layout = obs_layout(params) if layout is None else layout
     leaf, kind, loads, ctx, agent_id = _observation_parts(state, params, layout)
     n = params.station.num_leaves
-    return jnp.concatenate([leaf, kind, loads, jnp.broadcast_to(ctx, (n, ctx.shape[0])), agent_id], axis=1)
+    return jnp.concatenate(
+        [leaf, kind, loads, jnp.broadcast_to(ctx, (n, ctx.shape[0])), agent_id], axis=1
+    )
 
 
-def agent_observation_rows(state: EnvState, params: EnvParams, layout: ObsLayout | None = None) -> list:
+def agent_observation_rows(
+    state: EnvState, params: EnvParams, layout: ObsLayout | None = None
+) -> list:
     """The rows of :func:`agent_observations` as a list of ``(obs_size,)`` arrays, each built
     on its own (the same values bit for bit). The dict API hands out one array per agent:
     slicing the matrix made XLA write the ``(N, obs_size)`` matrix and then copy every row
     out of it; built per agent, each row is written once (or fused into its reader)."""
     layout = obs_layout(params) if layout is None else layout
     leaf, kind, loads, ctx, agent_id = _observation_parts(state, params, layout)
-    return [jnp.concatenate([leaf[i], kind[i], loads[i], ctx, agent_id[i]]) for i in range(leaf.shape[0])]
+    return [
+        jnp.concatenate([leaf[i], kind[i], loads[i], ctx, agent_id[i]])
+        for i in range(leaf.shape[0])
+    ]
 
 
 STEP_INFO_KEYS = simulator.STEP_INFO_KEYS
@@ -192,9 +219,18 @@ AGENT_INFO_KEYS = ("agent_energy_kwh", "agent_reward_share")
 """The per-agent info entries this view adds to the single-agent view's keys."""
 
 
-def step_arrays(key: jax.Array, state: EnvState, indices: jnp.ndarray, params: EnvParams,
-                offset: int, layout: ObsLayout | None = None, *, local_reward_weight: float = 0.0,
-                auto_reset: bool = False, reset_state: EnvState | None = None):
+def step_arrays(
+    key: jax.Array,
+    state: EnvState,
+    indices: jnp.ndarray,
+    params: EnvParams,
+    offset: int,
+    layout: ObsLayout | None = None,
+    *,
+    local_reward_weight: float = 0.0,
+    auto_reset: bool = False,
+    reset_state: EnvState | None = None,
+):
     """The multi-agent transition on arrays; ``ChargaxMARL.step`` / ``step_env`` are views of it.
 
     Args:
@@ -219,18 +255,21 @@ def step_arrays(key: jax.Array, state: EnvState, indices: jnp.ndarray, params: E
         with ``auto_reset`` also ``terminated``, ``truncated`` and ``final_observation``
         (the observation matrix before the reset).
     """
-    next_state, rewards, done, info = _transition(key, state, indices, params, offset, layout,
-                                                  local_reward_weight, auto_reset, reset_state)
+    next_state, rewards, done, info = _transition(
+        key, state, indices, params, offset, layout, local_reward_weight, auto_reset, reset_state
+    )
     return agent_observations(next_state, params, layout), next_state, rewards, done, info
 
 
-def _transition(key, state, indices, params, offset, layout, local_reward_weight, auto_reset,
-                reset_state):
+def _transition(
+    key, state, indices, params, offset, layout, local_reward_weight, auto_reset, reset_state
+):
     """:func:`step_arrays` without the observation: ``(next_state, rewards, done, info)``."""
     levels = actions_to_levels(indices, params, offset)
     if auto_reset:
-        next_state, stepped, core_info, done = simulator.step_auto_reset(key, state, levels, params,
-                                                                         reset_state)
+        next_state, stepped, core_info, done = simulator.step_auto_reset(
+            key, state, levels, params, reset_state
+        )
     else:
         stepped, core_info = simulator.step(key, state, levels, params)
         next_state, done = stepped, simulator.is_done(stepped, params)
@@ -238,8 +277,11 @@ def _transition(key, state, indices, params, offset, layout, local_reward_weight
     info["agent_energy_kwh"] = info["leaf_energy_kwh"]
     info["agent_reward_share"] = core_info.leaf_reward.astype(jnp.float32)
     if auto_reset:
-        info.update(terminated=jnp.asarray(False), truncated=done,
-                    final_observation=agent_observations(stepped, params, layout))
+        info.update(
+            terminated=jnp.asarray(False),
+            truncated=done,
+            final_observation=agent_observations(stepped, params, layout),
+        )
     rewards = agent_rewards(core_info.reward, info["agent_reward_share"], local_reward_weight)
     return next_state, rewards, done, info
 
@@ -327,16 +369,27 @@ class ChargaxMARL(MultiAgentEnv):
     station's reward and profit whatever ``w`` is, so evaluations stay comparable.
     """
 
-    def __init__(self, params: EnvParams | None = None, *, scenario: str | None = None, agent_id: str = "onehot",
-                 local_reward_weight: float = 0.0, **make_params_kwargs: Any):
+    def __init__(
+        self,
+        params: EnvParams | None = None,
+        *,
+        scenario: str | None = None,
+        agent_id: str = "onehot",
+        local_reward_weight: float = 0.0,
+        **make_params_kwargs: Any,
+    ):
         w = float(local_reward_weight)
         if not 0.0 <= w <= 1.0:  # also rejects NaN
-            raise ValueError(f"ChargaxMARL: field 'local_reward_weight' must be in [0, 1] "
-                             f"(0: the shared station reward), got {local_reward_weight!r}")
+            raise ValueError(
+                f"ChargaxMARL: field 'local_reward_weight' must be in [0, 1] "
+                f"(0: the shared station reward), got {local_reward_weight!r}"
+            )
         self.local_reward_weight = w
         if params is not None and (make_params_kwargs or scenario is not None):
-            raise ValueError("ChargaxMARL: pass either 'params' or a scenario / keyword arguments of make_params, "
-                             "not both")
+            raise ValueError(
+                "ChargaxMARL: pass either 'params' or a scenario / keyword arguments of make_params, "
+                "not both"
+            )
         if scenario is not None:
             make_params_kwargs = scenario_kwargs(scenario, **make_params_kwargs)
         params = params if params is not None else make_params(**make_params_kwargs)
@@ -355,12 +408,16 @@ class ChargaxMARL(MultiAgentEnv):
         self.num_actions = params.num_levels + 1 + self.action_offset
         self._avail_np = np.asarray(avail_actions(params, self.action_offset))
         self._layout = obs_layout(params, agent_id)
-        obs_shape = jax.eval_shape(lambda s: agent_observations(s, params, self._layout),
-                                   simulator.empty_state(0, params)).shape
+        obs_shape = jax.eval_shape(
+            lambda s: agent_observations(s, params, self._layout), simulator.empty_state(0, params)
+        ).shape
         self.obs_size = int(obs_shape[1])
-        low, high = bounds.agent_obs_bounds(params, np.asarray(self._layout.ancestors),
-                                            int(np.shape(self._layout.agent_id)[1]))
-        obs_space = spaces.Box(low, high, (self.obs_size,), jnp.float32)  # finite: chargax_marl.bounds
+        low, high = bounds.agent_obs_bounds(
+            params, np.asarray(self._layout.ancestors), int(np.shape(self._layout.agent_id)[1])
+        )
+        obs_space = spaces.Box(
+            low, high, (self.obs_size,), jnp.float32
+        )  # finite: chargax_marl.bounds
         act_space = spaces.Discrete(self.num_actions)
         self.observation_spaces = {a: obs_space for a in self.agents}
         self.action_spaces = {a: act_space for a in self.agents}
@@ -388,8 +445,13 @@ class ChargaxMARL(MultiAgentEnv):
         """
         return self._dict_step(key, state, self.stack_actions(actions), None, auto_reset=False)
 
-    def step(self, key: jax.Array, state: EnvState, actions: Mapping[str, Any],
-             reset_state: EnvState | None = None):
+    def step(
+        self,
+        key: jax.Array,
+        state: EnvState,
+        actions: Mapping[str, Any],
+        reset_state: EnvState | None = None,
+    ):
         """JaxMARL's auto-resetting step: ``(obs, state, rewards, dones, infos)``; at the end of
         the day the returned state and observations are those of a fresh day (``reset_state``
         when given, else a random one) while rewards, dones and infos are the last step's.
@@ -407,13 +469,28 @@ class ChargaxMARL(MultiAgentEnv):
     def _step(self, key: jax.Array, state: EnvState, parts: tuple, reset_state: EnvState | None):
         return self._dict_step(key, state, self._stack(parts), reset_state, auto_reset=True)
 
-    def _dict_step(self, key: jax.Array, state: EnvState, indices: jax.Array,
-                   reset_state: EnvState | None, *, auto_reset: bool):
+    def _dict_step(
+        self,
+        key: jax.Array,
+        state: EnvState,
+        indices: jax.Array,
+        reset_state: EnvState | None,
+        *,
+        auto_reset: bool,
+    ):
         """The dict view of :func:`step_arrays`: observation rows built per agent (no matrix),
         scalar infos broadcast to ``(num_agents,)``."""
         next_state, rewards, done, info = _transition(
-            key, state, indices, self.params, self.action_offset, self._layout,
-            self.local_reward_weight, auto_reset, reset_state)
+            key,
+            state,
+            indices,
+            self.params,
+            self.action_offset,
+            self._layout,
+            self.local_reward_weight,
+            auto_reset,
+            reset_state,
+        )
         dones = {a: done for a in self.agents}
         dones["__all__"] = done
         n = self.num_agents
@@ -484,33 +561,41 @@ class ChargaxMARL(MultiAgentEnv):
         n = self.num_actions
         allowed = f"an integer in [0, {n - 1}] (Discrete({n}))"
         if not isinstance(actions, Mapping):
-            raise ValueError(f"actions must be a dict {{agent: {allowed}}}, "
-                             f"got {type(actions).__name__}")
+            raise ValueError(
+                f"actions must be a dict {{agent: {allowed}}}, got {type(actions).__name__}"
+            )
         missing = [a for a in self.agents if a not in actions]
         unknown = [a for a in actions if a not in self.agent_index]
         if missing or unknown:
-            raise ValueError(f"actions must have one entry per agent: missing agent(s) {missing}, "
-                             f"unknown agent(s) {unknown}; agents are {self.agents}, "
-                             f"each taking {allowed}")
+            raise ValueError(
+                f"actions must have one entry per agent: missing agent(s) {missing}, "
+                f"unknown agent(s) {unknown}; agents are {self.agents}, "
+                f"each taking {allowed}"
+            )
         out = []
         for a in self.agents:
             value = actions[a]
             try:
                 x = core_actions.host_array(value, None, f"actions[{a!r}]")
             except ValueError as exc:
-                raise ValueError(f"action of agent {a!r} must be {allowed}, "
-                                 f"got {value!r} ({exc})") from None
+                raise ValueError(
+                    f"action of agent {a!r} must be {allowed}, got {value!r} ({exc})"
+                ) from None
             if np.shape(x) not in ((), (1,)):
-                raise ValueError(f"action of agent {a!r} must be {allowed} with shape () or (1,), "
-                                 f"got shape {np.shape(x)}")
+                raise ValueError(
+                    f"action of agent {a!r} must be {allowed} with shape () or (1,), "
+                    f"got shape {np.shape(x)}"
+                )
             traced = isinstance(x, jax.core.Tracer)
             raw = x if traced else np.asarray(value)
             if strict and not np.issubdtype(raw.dtype, np.integer):
-                raise ValueError(f"action of agent {a!r} must be {allowed}, "
-                                 f"got {value!r} (dtype {raw.dtype})")
+                raise ValueError(
+                    f"action of agent {a!r} must be {allowed}, got {value!r} (dtype {raw.dtype})"
+                )
             if strict and not traced and not 0 <= int(raw.reshape(())) < n:
-                raise ValueError(f"action of agent {a!r} must be {allowed}, "
-                                 f"got {int(raw.reshape(()))}")
+                raise ValueError(
+                    f"action of agent {a!r} must be {allowed}, got {int(raw.reshape(()))}"
+                )
             out.append(x)
         return out
 
@@ -529,8 +614,9 @@ class ChargaxMARL(MultiAgentEnv):
         """Validated per-agent actions as clipped int32 indices ``(num_agents,)`` (traceable)."""
         top = self.num_actions - 1
         offset = self.action_offset
-        return jnp.stack([core_actions.to_int32(jnp.asarray(x).reshape(()), 0, top, offset)
-                          for x in parts])
+        return jnp.stack(
+            [core_actions.to_int32(jnp.asarray(x).reshape(()), 0, top, offset) for x in parts]
+        )
 
     def check_actions(self, actions: Mapping[str, Any]) -> np.ndarray:
         """The action dict as a numpy int32 index vector, every index required valid (PettingZoo).
@@ -541,12 +627,19 @@ class ChargaxMARL(MultiAgentEnv):
         Raises:
             ValueError: as :meth:`validate_actions` (``strict=True``).
         """
-        return np.array([0 if isinstance(x, jax.core.Tracer) else int(np.reshape(x, ()))
-                         for x in self.validate_actions(actions, strict=True)], np.int32)
+        return np.array(
+            [
+                0 if isinstance(x, jax.core.Tracer) else int(np.reshape(x, ()))
+                for x in self.validate_actions(actions, strict=True)
+            ],
+            np.int32,
+        )
 
     def actions_to_levels(self, actions: Mapping[str, jax.Array] | jax.Array) -> jnp.ndarray:
         """The core's signed levels ``(num_agents,)`` for an action dict or index vector."""
-        indices = self.stack_actions(actions) if isinstance(actions, Mapping) else jnp.asarray(actions)
+        indices = (
+            self.stack_actions(actions) if isinstance(actions, Mapping) else jnp.asarray(actions)
+        )
         return actions_to_levels(indices, self.params, self.action_offset)
 
     def levels_to_actions(self, levels: jax.Array) -> dict:

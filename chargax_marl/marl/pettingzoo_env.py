@@ -43,15 +43,28 @@ def _reset_day(day: jax.Array, params: EnvParams, layout: marl_env.ObsLayout):
 
 
 @jax.jit(static_argnames=("offset",))
-def _step(key: jax.Array, state, indices: jax.Array, params: EnvParams, layout: marl_env.ObsLayout, offset: int):
+def _step(
+    key: jax.Array,
+    state,
+    indices: jax.Array,
+    params: EnvParams,
+    layout: marl_env.ObsLayout,
+    offset: int,
+):
     key, sub = jax.random.split(key)
     obs, state, _, done, info = marl_env.step_arrays(sub, state, indices, params, offset, layout)
     # One float vector for the host (one transfer instead of one per info key): [station
     # reward, done, info scalars in INFO_KEYS order, energy per agent, reward share per agent].
     # The per-agent rewards are mixed on the host (ChargaxParallelEnv.step).
-    packed = jnp.concatenate([jnp.stack([info["reward"], done.astype(jnp.float32)]
-                                        + [info[k] for k in marl_env.INFO_KEYS]),
-                              info["agent_energy_kwh"], info["agent_reward_share"]])
+    packed = jnp.concatenate(
+        [
+            jnp.stack(
+                [info["reward"], done.astype(jnp.float32)] + [info[k] for k in marl_env.INFO_KEYS]
+            ),
+            info["agent_energy_kwh"],
+            info["agent_reward_share"],
+        ]
+    )
     return key, state, obs, packed
 
 
@@ -91,21 +104,39 @@ class ChargaxParallelEnv(ParallelEnv):
       :class:`chargax_marl.lifecycle.ForkedProcessError` (use the ``spawn`` start method).
     """
 
-    metadata = {"name": "chargax_v0", "render_modes": rendering.RENDER_MODES, "is_parallelizable": True,
-                "render_fps": 4}
+    metadata = {
+        "name": "chargax_v0",
+        "render_modes": rendering.RENDER_MODES,
+        "is_parallelizable": True,
+        "render_fps": 4,
+    }
 
-    def __init__(self, params: EnvParams | None = None, render_mode: str | None = None, *,
-                 max_cycles: int | None = None, action_mask_in_obs: bool = False, **make_params_kwargs: Any):
+    def __init__(
+        self,
+        params: EnvParams | None = None,
+        render_mode: str | None = None,
+        *,
+        max_cycles: int | None = None,
+        action_mask_in_obs: bool = False,
+        **make_params_kwargs: Any,
+    ):
         lifecycle.check_not_forked("ChargaxParallelEnv")
         rendering.check_render_mode(render_mode, "ChargaxParallelEnv")
-        if max_cycles is not None and (isinstance(max_cycles, bool) or not isinstance(max_cycles, (int, np.integer))
-                                       or max_cycles < 1):
-            raise ValueError(f"ChargaxParallelEnv: max_cycles must be a positive integer or None, got {max_cycles!r}")
+        if max_cycles is not None and (
+            isinstance(max_cycles, bool)
+            or not isinstance(max_cycles, (int, np.integer))
+            or max_cycles < 1
+        ):
+            raise ValueError(
+                f"ChargaxParallelEnv: max_cycles must be a positive integer or None, got {max_cycles!r}"
+            )
         self.max_cycles = None if max_cycles is None else int(max_cycles)
         self.action_mask_in_obs = bool(action_mask_in_obs)
         self.env = ChargaxMARL(params=params, **make_params_kwargs)
         self.params = self.env.params
-        self._layout = jax.tree.map(jnp.asarray, self.env._layout)  # on the device once, not per call
+        self._layout = jax.tree.map(
+            jnp.asarray, self.env._layout
+        )  # on the device once, not per call
         self.render_mode = render_mode
         self.possible_agents = list(self.env.agents)
         self.agents: list[str] = []
@@ -114,8 +145,12 @@ class ChargaxParallelEnv(ParallelEnv):
         low, high = np.asarray(jax_space.low, np.float32), np.asarray(jax_space.high, np.float32)
         box = gymnasium.spaces.Box(low, high, (n_obs,), np.float32)
         if self.action_mask_in_obs:
-            self.observation_spaces = {a: gymnasium.spaces.Dict({
-                "observation": box, "action_mask": gymnasium.spaces.MultiBinary(n_act)}) for a in self.possible_agents}
+            self.observation_spaces = {
+                a: gymnasium.spaces.Dict(
+                    {"observation": box, "action_mask": gymnasium.spaces.MultiBinary(n_act)}
+                )
+                for a in self.possible_agents
+            }
         else:
             self.observation_spaces = {a: box for a in self.possible_agents}
         self.action_spaces = {a: gymnasium.spaces.Discrete(n_act) for a in self.possible_agents}
@@ -154,8 +189,10 @@ class ChargaxParallelEnv(ParallelEnv):
         self._steps = 0
         self.agents = list(self.possible_agents)
         obs = np.array(obs, dtype=np.float32)
-        return ({a: self._observation(a, obs[i]) for i, a in enumerate(self.agents)},
-                {a: {"action_mask": self._masks[a].copy()} for a in self.agents})
+        return (
+            {a: self._observation(a, obs[i]) for i, a in enumerate(self.agents)},
+            {a: {"action_mask": self._masks[a].copy()} for a in self.agents},
+        )
 
     def _observation(self, agent: str, row: np.ndarray):
         if self.action_mask_in_obs:
@@ -165,13 +202,18 @@ class ChargaxParallelEnv(ParallelEnv):
     def step(self, actions: dict):
         lifecycle.check_not_forked("ChargaxParallelEnv.step")
         if self._state is None:
-            raise RuntimeError("ChargaxParallelEnv.step() called before reset(); call reset() to start a day")
+            raise RuntimeError(
+                "ChargaxParallelEnv.step() called before reset(); call reset() to start a day"
+            )
         if not self.agents:
-            raise RuntimeError("ChargaxParallelEnv.step() called after the episode ended (the day is over and "
-                               "every agent is truncated); call reset() to start a new day")
+            raise RuntimeError(
+                "ChargaxParallelEnv.step() called after the episode ended (the day is over and "
+                "every agent is truncated); call reset() to start a new day"
+            )
         indices = self.env.check_actions(actions)
-        self._key, self._state, obs, packed = _step(self._key, self._state, indices, self.params, self._layout,
-                                                    self.env.action_offset)
+        self._key, self._state, obs, packed = _step(
+            self._key, self._state, indices, self.params, self._layout, self.env.action_offset
+        )
         obs, packed = jax.device_get((obs, packed))
         self._host_state = None
         obs = np.array(obs, dtype=np.float32)
@@ -181,21 +223,32 @@ class ChargaxParallelEnv(ParallelEnv):
         if self.max_cycles is not None and self._steps >= self.max_cycles:
             done = True
         k = len(marl_env.INFO_KEYS)
-        shared = dict(zip(marl_env.INFO_KEYS, values[2:2 + k]))
+        shared = dict(zip(marl_env.INFO_KEYS, values[2 : 2 + k]))
         n = len(self.possible_agents)
-        energy = values[2 + k:2 + k + n]
-        shares = values[2 + k + n:]
+        energy = values[2 + k : 2 + k + n]
+        shares = values[2 + k + n :]
         per_agent = marl_env.agent_rewards(reward, np.asarray(shares), self.env.local_reward_weight)
-        self._history.append((self._hours_now(), shared["price_buy_eur_kwh"],
-                              shared["grid_net_kwh"] / self.params.step_hours))
+        self._history.append(
+            (
+                self._hours_now(),
+                shared["price_buy_eur_kwh"],
+                shared["grid_net_kwh"] / self.params.step_hours,
+            )
+        )
         agents = self.agents
         observations = {a: self._observation(a, obs[i]) for i, a in enumerate(agents)}
         rewards = {a: float(per_agent[i]) for i, a in enumerate(agents)}
         terminations = {a: False for a in agents}
         truncations = {a: done for a in agents}
-        infos = {a: {**shared, "energy_kwh": energy[i], "reward_share": shares[i],
-                     "action_mask": self._masks[a].copy()}
-                 for i, a in enumerate(agents)}
+        infos = {
+            a: {
+                **shared,
+                "energy_kwh": energy[i],
+                "reward_share": shares[i],
+                "action_mask": self._masks[a].copy(),
+            }
+            for i, a in enumerate(agents)
+        }
         if done:
             self.agents = []
         if self.render_mode == "human":
@@ -219,8 +272,14 @@ class ChargaxParallelEnv(ParallelEnv):
 
     def render(self):
         state = None if self._state is None else self._host()
-        return rendering.render(self.render_mode, state, self.params, self.possible_agents, self._history,
-                                "ChargaxParallelEnv")
+        return rendering.render(
+            self.render_mode,
+            state,
+            self.params,
+            self.possible_agents,
+            self._history,
+            "ChargaxParallelEnv",
+        )
 
     def close(self) -> None:
         self._state = None

@@ -69,8 +69,14 @@ class LogWrapper(_Wrapper):
         obs, env_state = self._env.reset(key)
         n = self._env.num_agents
         zeros = jnp.zeros((n,), jnp.float32)
-        state = LogEnvState(env_state, zeros, jnp.zeros((n,), jnp.int32), zeros, jnp.zeros((n,), jnp.int32),
-                            EpisodeTotals.zeros())
+        state = LogEnvState(
+            env_state,
+            zeros,
+            jnp.zeros((n,), jnp.int32),
+            zeros,
+            jnp.zeros((n,), jnp.int32),
+            EpisodeTotals.zeros(),
+        )
         return obs, state
 
     @functools.partial(jax.jit, static_argnums=(0,))
@@ -78,14 +84,20 @@ class LogWrapper(_Wrapper):
         if reset_state is None:
             obs, env_state, reward, done, info = self._env.step(key, state.env_state, actions)
         else:
-            obs, env_state, reward, done, info = self._env.step(key, state.env_state, actions, reset_state)
+            obs, env_state, reward, done, info = self._env.step(
+                key, state.env_state, actions, reset_state
+            )
         n = self._env.num_agents
         ep_done = done["__all__"]
         new_return = state.episode_returns + self.stack_agent_values(reward).astype(jnp.float32)
         new_length = state.episode_lengths + 1
         # The env auto-resets on done, so the finished episode's totals come from the info.
-        finished = EpisodeTotals(**{k: info[f"episode_{k}"][0] for k in EpisodeTotals.__dataclass_fields__})
-        totals = jax.tree.map(lambda new, old: jnp.where(ep_done, new, old), finished, state.returned_totals)
+        finished = EpisodeTotals(
+            **{k: info[f"episode_{k}"][0] for k in EpisodeTotals.__dataclass_fields__}
+        )
+        totals = jax.tree.map(
+            lambda new, old: jnp.where(ep_done, new, old), finished, state.returned_totals
+        )
         state = LogEnvState(
             env_state=env_state,
             episode_returns=jnp.where(ep_done, 0.0, new_return),

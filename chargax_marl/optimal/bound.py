@@ -47,8 +47,18 @@ def sessions_from_rollout(states, infos, params: EnvParams) -> Sessions:
     occ = np.asarray(states.occupied)
     arrived = np.asarray(infos.leaf_arrived)
     num_steps = occ.shape[0]
-    fields = {f: np.asarray(getattr(states, f), np.float64) for f in
-              ("soc", "arrival_soc", "target_soc", "capacity_kwh", "max_rate_kw", "max_discharge_rate_kw", "tau")}
+    fields = {
+        f: np.asarray(getattr(states, f), np.float64)
+        for f in (
+            "soc",
+            "arrival_soc",
+            "target_soc",
+            "capacity_kwh",
+            "max_rate_kw",
+            "max_discharge_rate_kw",
+            "tau",
+        )
+    }
     sensitive = np.asarray(states.charge_sensitive)
     rows = []
     for port in range(params.station.num_ports):
@@ -66,15 +76,23 @@ def sessions_from_rollout(states, infos, params: EnvParams) -> Sessions:
             rows.append((port, start, t - 1, start, bool(sensitive[start, port]) and t < num_steps))
     if not rows:
         empty = np.zeros(0)
-        return Sessions(*(empty.astype(int),) * 3, *(empty,) * 7, empty.astype(bool), empty.astype(bool))
+        return Sessions(
+            *(empty.astype(int),) * 3, *(empty,) * 7, empty.astype(bool), empty.astype(bool)
+        )
     r = np.array([row[:4] for row in rows], dtype=np.int64)
     port, first, last, at = r.T
     return Sessions(
-        leaf=port, first=first, last=last,
-        soc0=fields["soc"][at, port], reserve_soc=fields["arrival_soc"][at, port],
-        target_soc=fields["target_soc"][at, port], capacity_kwh=fields["capacity_kwh"][at, port],
-        max_rate_kw=fields["max_rate_kw"][at, port], max_discharge_rate_kw=fields["max_discharge_rate_kw"][at, port],
-        tau=fields["tau"][at, port], must_reach=np.array([row[4] for row in rows], bool),
+        leaf=port,
+        first=first,
+        last=last,
+        soc0=fields["soc"][at, port],
+        reserve_soc=fields["arrival_soc"][at, port],
+        target_soc=fields["target_soc"][at, port],
+        capacity_kwh=fields["capacity_kwh"][at, port],
+        max_rate_kw=fields["max_rate_kw"][at, port],
+        max_discharge_rate_kw=fields["max_discharge_rate_kw"][at, port],
+        tau=fields["tau"][at, port],
+        must_reach=np.array([row[4] for row in rows], bool),
         charge_sensitive=sensitive[at, port],
     )
 
@@ -83,45 +101,65 @@ def battery_sessions(params: EnvParams, soc0, first: int, last: int) -> Sessions
     """The station batteries as sessions over steps ``first..last`` (always present)."""
     st = params.station
     nb = st.num_batteries
-    kw = np.asarray(st.leaf_voltage_v * st.leaf_max_current_a / 1000.0, np.float64)[st.num_ports:]
+    kw = np.asarray(st.leaf_voltage_v * st.leaf_max_current_a / 1000.0, np.float64)[st.num_ports :]
     one = np.ones(nb)
     return Sessions(
-        leaf=np.arange(st.num_ports, st.num_ports + nb), first=np.full(nb, first), last=np.full(nb, last),
-        soc0=np.asarray(soc0, np.float64).reshape(nb), reserve_soc=0 * one, target_soc=one,
-        capacity_kwh=np.asarray(st.battery_capacity_kwh, np.float64), max_rate_kw=kw, max_discharge_rate_kw=kw,
-        tau=np.asarray(st.battery_tau, np.float64), must_reach=np.zeros(nb, bool), charge_sensitive=np.zeros(nb, bool),
+        leaf=np.arange(st.num_ports, st.num_ports + nb),
+        first=np.full(nb, first),
+        last=np.full(nb, last),
+        soc0=np.asarray(soc0, np.float64).reshape(nb),
+        reserve_soc=0 * one,
+        target_soc=one,
+        capacity_kwh=np.asarray(st.battery_capacity_kwh, np.float64),
+        max_rate_kw=kw,
+        max_discharge_rate_kw=kw,
+        tau=np.asarray(st.battery_tau, np.float64),
+        must_reach=np.zeros(nb, bool),
+        charge_sensitive=np.zeros(nb, bool),
     )
 
 
-def economics(params: EnvParams, trace: trace_lib.DayTrace, first: int = 0, last: int | None = None) -> Economics:
+def economics(
+    params: EnvParams, trace: trace_lib.DayTrace, first: int = 0, last: int | None = None
+) -> Economics:
     """The trace's prices for steps ``first..last`` and the params' customer price (and
     whether discharged car energy is refunded)."""
     last = trace.num_steps - 1 if last is None else last
     sl = slice(first, last + 1)
-    return Economics(buy=np.asarray(trace.price_buy_eur_kwh, np.float64)[sl],
-                     sell=np.asarray(trace.price_sell_grid_eur_kwh, np.float64)[sl],
-                     customer=float(params.customer_price_eur_kwh),
-                     battery_value=float(trace.battery_value_eur_kwh), step_hours=params.step_hours,
-                     peak_eur_kw=float(params.peak_demand_eur_kw),
-                     refund_discharged=bool(params.refund_discharged_energy))
+    return Economics(
+        buy=np.asarray(trace.price_buy_eur_kwh, np.float64)[sl],
+        sell=np.asarray(trace.price_sell_grid_eur_kwh, np.float64)[sl],
+        customer=float(params.customer_price_eur_kwh),
+        battery_value=float(trace.battery_value_eur_kwh),
+        step_hours=params.step_hours,
+        peak_eur_kw=float(params.peak_demand_eur_kw),
+        refund_discharged=bool(params.refund_discharged_energy),
+    )
 
 
 _REPLAY_CACHE: dict = {}
 
 
-def occupancy(params: EnvParams, trace: trace_lib.DayTrace, day_key: jax.Array, reference=always_max) -> Occupancy:
+def occupancy(
+    params: EnvParams, trace: trace_lib.DayTrace, day_key: jax.Array, reference=always_max
+) -> Occupancy:
     """Replay ``reference(state, key, params)`` on one day's ``trace`` (with the policy keys of
     ``day_key``, as in evaluation) and record its car sessions."""
     trace_lib.check_trace(trace, params)
     cache_key = (id(params), reference)
     fn = _REPLAY_CACHE.get(cache_key)
     if fn is None:
-        fn = jax.jit(lambda t, k: trace_lib.replay(lambda s, kk: reference(s, kk, params), params, t, k))
+        fn = jax.jit(
+            lambda t, k: trace_lib.replay(lambda s, kk: reference(s, kk, params), params, t, k)
+        )
         _REPLAY_CACHE.clear()
         _REPLAY_CACHE[cache_key] = fn
     states, infos, final = fn(trace, day_key)
-    return Occupancy(sessions=sessions_from_rollout(states, infos, params),
-                     reference_profit_eur=float(final.totals.profit_eur), day=int(trace.day))
+    return Occupancy(
+        sessions=sessions_from_rollout(states, infos, params),
+        reference_profit_eur=float(final.totals.profit_eur),
+        day=int(trace.day),
+    )
 
 
 @dataclass
@@ -139,27 +177,55 @@ class Bound:
     solution: Solution
 
 
-def hindsight_bound(params: EnvParams, trace: trace_lib.DayTrace, occ: Occupancy, *,
-                    time_limit_s: float | None = 60.0) -> Bound:
+def hindsight_bound(
+    params: EnvParams,
+    trace: trace_lib.DayTrace,
+    occ: Occupancy,
+    *,
+    time_limit_s: float | None = 60.0,
+) -> Bound:
     """Solve the LP over ``occ``'s sessions and the station batteries for the whole day of
     ``trace``. See the module docstring for what the value bounds. Raises
     :class:`chargax_marl.optimal.model.SolverError` when HiGHS finds no optimum (e.g. the
     time limit)."""
     trace_lib.check_trace(trace, params)
     if occ.day != int(trace.day):
-        raise ValueError(f"occupancy field 'day' is {occ.day} but the trace is day {int(trace.day)}")
+        raise ValueError(
+            f"occupancy field 'day' is {occ.day} but the trace is day {int(trace.day)}"
+        )
     n = trace.num_steps
-    sessions = Sessions.concat([occ.sessions, battery_sessions(params, trace.battery_soc0, 0, n - 1)])
-    sol = build_and_solve(sessions, n, StationLimits.of(params), economics(params, trace),
-                          charged_tolerance_kwh=float(params.charged_tolerance_kwh), time_limit_s=time_limit_s)
+    sessions = Sessions.concat(
+        [occ.sessions, battery_sessions(params, trace.battery_soc0, 0, n - 1)]
+    )
+    sol = build_and_solve(
+        sessions,
+        n,
+        StationLimits.of(params),
+        economics(params, trace),
+        charged_tolerance_kwh=float(params.charged_tolerance_kwh),
+        time_limit_s=time_limit_s,
+    )
     fixed = float(params.fixed_cost_eur) * n
-    return Bound(profit_eur=sol.value_eur - fixed, reference_profit_eur=occ.reference_profit_eur, status=sol.status,
-                 solve_s=sol.solve_s, num_vars=sol.num_vars, num_rows=sol.num_rows, num_cars=occ.sessions.size,
-                 solution=sol)
+    return Bound(
+        profit_eur=sol.value_eur - fixed,
+        reference_profit_eur=occ.reference_profit_eur,
+        status=sol.status,
+        solve_s=sol.solve_s,
+        num_vars=sol.num_vars,
+        num_rows=sol.num_rows,
+        num_cars=occ.sessions.size,
+        solution=sol,
+    )
 
 
-def bound_days(params: EnvParams, days, key: jax.Array | None = None, reference=always_max, *,
-               time_limit_s: float | None = 60.0) -> list[Bound]:
+def bound_days(
+    params: EnvParams,
+    days,
+    key: jax.Array | None = None,
+    reference=always_max,
+    *,
+    time_limit_s: float | None = 60.0,
+) -> list[Bound]:
     """:func:`hindsight_bound` for each of ``days`` with the cars that evaluation draws with
     ``key`` (default ``PRNGKey(0)``) and ``reference``'s occupancy."""
     key = jax.random.PRNGKey(0) if key is None else key
@@ -173,5 +239,13 @@ def bound_days(params: EnvParams, days, key: jax.Array | None = None, reference=
     return out
 
 
-__all__ = ["Bound", "Occupancy", "battery_sessions", "bound_days", "economics", "hindsight_bound", "occupancy",
-           "sessions_from_rollout"]
+__all__ = [
+    "Bound",
+    "Occupancy",
+    "battery_sessions",
+    "bound_days",
+    "economics",
+    "hindsight_bound",
+    "occupancy",
+    "sessions_from_rollout",
+]

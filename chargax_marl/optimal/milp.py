@@ -55,45 +55,80 @@ def _one(**fields) -> Sessions:
 
 def candidate_sessions(params: EnvParams, trace: trace_lib.DayTrace, num_steps: int):
     """The (car, port[, departure]) sessions of the window and the car each belongs to."""
-    a = {k: np.asarray(getattr(trace.arrivals, k)) for k in
-         ("requested", "capacity_kwh", "ac_kw", "dc_kw", "ac_discharge_kw", "dc_discharge_kw", "tau", "arrival_soc",
-          "target_soc", "stay_min", "charge_sensitive")}
+    a = {
+        k: np.asarray(getattr(trace.arrivals, k))
+        for k in (
+            "requested",
+            "capacity_kwh",
+            "ac_kw",
+            "dc_kw",
+            "ac_discharge_kw",
+            "dc_discharge_kw",
+            "tau",
+            "arrival_soc",
+            "target_soc",
+            "stay_min",
+            "charge_sensitive",
+        )
+    }
     st = params.station
     kind = np.asarray(st.leaf_kind)
     parts, owner = [], []
     car = 0
     for t in range(num_steps - 1):
         for k in range(min(int(a["requested"][t]), st.num_ports)):
-            stay_steps = max(1, int(math.ceil(float(a["stay_min"][t, k]) / params.step_minutes - 1e-6)))
+            stay_steps = max(
+                1, int(math.ceil(float(a["stay_min"][t, k]) / params.step_minutes - 1e-6))
+            )
             sensitive = bool(a["charge_sensitive"][t, k])
             for port in range(st.num_ports):
                 ac = kind[port] == 0
-                common = dict(leaf=port, first=t + 1, soc0=a["arrival_soc"][t, k], reserve_soc=a["arrival_soc"][t, k],
-                              target_soc=a["target_soc"][t, k], capacity_kwh=a["capacity_kwh"][t, k],
-                              max_rate_kw=a["ac_kw"][t, k] if ac else a["dc_kw"][t, k],
-                              max_discharge_rate_kw=a["ac_discharge_kw"][t, k] if ac else a["dc_discharge_kw"][t, k],
-                              tau=a["tau"][t, k], charge_sensitive=sensitive)
+                common = dict(
+                    leaf=port,
+                    first=t + 1,
+                    soc0=a["arrival_soc"][t, k],
+                    reserve_soc=a["arrival_soc"][t, k],
+                    target_soc=a["target_soc"][t, k],
+                    capacity_kwh=a["capacity_kwh"][t, k],
+                    max_rate_kw=a["ac_kw"][t, k] if ac else a["dc_kw"][t, k],
+                    max_discharge_rate_kw=a["ac_discharge_kw"][t, k]
+                    if ac
+                    else a["dc_discharge_kw"][t, k],
+                    tau=a["tau"][t, k],
+                    charge_sensitive=sensitive,
+                )
                 if not sensitive:
-                    parts.append(_one(last=min(t + stay_steps, num_steps - 1), must_reach=False, **common))
+                    parts.append(
+                        _one(last=min(t + stay_steps, num_steps - 1), must_reach=False, **common)
+                    )
                     owner.append(car)
                     continue
                 for d in range(t + 1, num_steps - 1):  # leaves after step d, charged
                     parts.append(_one(last=d, must_reach=True, **common))
                     owner.append(car)
-                parts.append(_one(last=num_steps - 1, must_reach=False, **common))  # still there at the end
+                parts.append(
+                    _one(last=num_steps - 1, must_reach=False, **common)
+                )  # still there at the end
                 owner.append(car)
             car += 1
     return parts, np.asarray(owner, int), car
 
 
-def admission_bound(params: EnvParams, trace: trace_lib.DayTrace, num_steps: int, *,
-                    time_limit_s: float | None = 120.0):
+def admission_bound(
+    params: EnvParams,
+    trace: trace_lib.DayTrace,
+    num_steps: int,
+    *,
+    time_limit_s: float | None = 120.0,
+):
     """Solve the MILP of the module docstring over the window's first ``num_steps`` steps.
     Returns :class:`chargax_marl.optimal.model.Solution` (value without the fixed cost).
     Raises :class:`chargax_marl.optimal.model.SolverError` when HiGHS finds no optimum."""
     trace_lib.check_trace(trace, params)
     if not 2 <= num_steps <= params.num_steps:
-        raise ValueError(f"field 'num_steps' must lie in [2, {params.num_steps}], got {num_steps!r}")
+        raise ValueError(
+            f"field 'num_steps' must lie in [2, {params.num_steps}], got {num_steps!r}"
+        )
     parts, owner, num_cars = candidate_sessions(params, trace, num_steps)
     bats = battery_sessions(params, trace.battery_soc0, 0, num_steps - 1)
     sessions = Sessions.concat(parts + [bats]) if parts else bats
@@ -109,15 +144,24 @@ def admission_bound(params: EnvParams, trace: trace_lib.DayTrace, num_steps: int
         for i in range(len(parts)):
             steps = np.arange(int(sessions.first[i]), int(sessions.last[i]) + 1)
             b.coef(port_rows[int(sessions.leaf[i]) * num_steps + steps], z[i], 1.0)
-    sol = build_and_solve(sessions, num_steps, StationLimits.of(params), economics(params, trace, 0, num_steps - 1),
-                          charged_tolerance_kwh=float(params.charged_tolerance_kwh), time_limit_s=time_limit_s,
-                          occupancy_vars=occ, builder=b)
+    sol = build_and_solve(
+        sessions,
+        num_steps,
+        StationLimits.of(params),
+        economics(params, trace, 0, num_steps - 1),
+        charged_tolerance_kwh=float(params.charged_tolerance_kwh),
+        time_limit_s=time_limit_s,
+        occupancy_vars=occ,
+        builder=b,
+    )
     sol.num_binaries = len(parts)
     sol.num_candidates = num_cars
     return sol
 
 
-def window_profit(params: EnvParams, trace: trace_lib.DayTrace, day_key: jax.Array, policy, num_steps: int) -> float:
+def window_profit(
+    params: EnvParams, trace: trace_lib.DayTrace, day_key: jax.Array, policy, num_steps: int
+) -> float:
     """A policy's window profit (see the module docstring) on the trace's first ``num_steps``."""
     act = lambda s, k: policy(s, k, params)  # noqa: E731
     _, infos, _ = jax.jit(lambda t, k: trace_lib.replay(act, params, t, k))(trace, day_key)
@@ -131,28 +175,53 @@ def restrict(sessions: Sessions, num_steps: int) -> Sessions:
     """The sessions of a reference occupancy cut to the window's first ``num_steps`` steps (a
     charge-sensitive car keeps its target only if it left within the window)."""
     keep = sessions.first <= num_steps - 1
-    out = Sessions(**{k: np.asarray(getattr(sessions, k))[keep] for k in Sessions.__dataclass_fields__})
+    out = Sessions(
+        **{k: np.asarray(getattr(sessions, k))[keep] for k in Sessions.__dataclass_fields__}
+    )
     cut = out.last > num_steps - 1
     out.must_reach = out.must_reach & ~cut
     out.last = np.minimum(out.last, num_steps - 1)
     return out
 
 
-def compare(params: EnvParams, trace: trace_lib.DayTrace, day_key: jax.Array, num_steps: int, reference=always_max,
-            time_limit_s: float | None = 120.0) -> WindowBounds:
+def compare(
+    params: EnvParams,
+    trace: trace_lib.DayTrace,
+    day_key: jax.Array,
+    num_steps: int,
+    reference=always_max,
+    time_limit_s: float | None = 120.0,
+) -> WindowBounds:
     """MILP bound, LP bound over ``reference``'s occupancy and ``reference``'s own profit, all
     on the same window (EUR, fixed cost included)."""
     fixed = float(params.fixed_cost_eur) * num_steps
     milp = admission_bound(params, trace, num_steps, time_limit_s=time_limit_s)
     occ = occupancy(params, trace, day_key, reference)
-    lp_sessions = Sessions.concat([restrict(occ.sessions, num_steps),
-                                   battery_sessions(params, trace.battery_soc0, 0, num_steps - 1)])
-    lp = build_and_solve(lp_sessions, num_steps, StationLimits.of(params), economics(params, trace, 0, num_steps - 1),
-                         charged_tolerance_kwh=float(params.charged_tolerance_kwh), time_limit_s=time_limit_s)
+    lp_sessions = Sessions.concat(
+        [
+            restrict(occ.sessions, num_steps),
+            battery_sessions(params, trace.battery_soc0, 0, num_steps - 1),
+        ]
+    )
+    lp = build_and_solve(
+        lp_sessions,
+        num_steps,
+        StationLimits.of(params),
+        economics(params, trace, 0, num_steps - 1),
+        charged_tolerance_kwh=float(params.charged_tolerance_kwh),
+        time_limit_s=time_limit_s,
+    )
     ref = window_profit(params, trace, day_key, reference, num_steps)
-    return WindowBounds(milp_eur=milp.value_eur - fixed, lp_eur=lp.value_eur - fixed, reference_eur=ref,
-                        num_steps=num_steps, num_candidates=milp.num_candidates, num_binaries=milp.num_binaries,
-                        milp_solve_s=milp.solve_s, lp_solve_s=lp.solve_s)
+    return WindowBounds(
+        milp_eur=milp.value_eur - fixed,
+        lp_eur=lp.value_eur - fixed,
+        reference_eur=ref,
+        num_steps=num_steps,
+        num_candidates=milp.num_candidates,
+        num_binaries=milp.num_binaries,
+        milp_solve_s=milp.solve_s,
+        lp_solve_s=lp.solve_s,
+    )
 
 
 __all__ = ["WindowBounds", "admission_bound", "compare", "restrict", "window_profit"]

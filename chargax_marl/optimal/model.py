@@ -45,7 +45,13 @@ from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import EnvParams
 
 # SciPy's milp status codes (HiGHS underneath)
-STATUS = {0: "optimal", 1: "time or iteration limit", 2: "infeasible", 3: "unbounded", 4: "other solver error"}
+STATUS = {
+    0: "optimal",
+    1: "time or iteration limit",
+    2: "infeasible",
+    3: "unbounded",
+    4: "other solver error",
+}
 
 
 class SolverError(RuntimeError):
@@ -75,9 +81,11 @@ class Sessions:
         return int(self.leaf.shape[0])
 
     @staticmethod
-    def concat(parts: list["Sessions"]) -> "Sessions":
+    def concat(parts: list[Sessions]) -> Sessions:
         names = Sessions.__dataclass_fields__
-        return Sessions(**{n: np.concatenate([np.asarray(getattr(p, n)) for p in parts]) for n in names})
+        return Sessions(
+            **{n: np.concatenate([np.asarray(getattr(p, n)) for p in parts]) for n in names}
+        )
 
 
 @dataclass
@@ -95,12 +103,14 @@ class StationLimits:
     root_kw: float
 
     @staticmethod
-    def of(params: EnvParams) -> "StationLimits":
+    def of(params: EnvParams) -> StationLimits:
         st = params.station
         kind = np.asarray(st.leaf_kind)
         is_bat = kind == KIND_BATTERY
         volts = np.asarray(st.leaf_voltage_v, np.float64)
-        dis_a = np.asarray(st.leaf_max_discharge_current_a, np.float64) * np.where(is_bat, 1.0, float(params.v2g))
+        dis_a = np.asarray(st.leaf_max_discharge_current_a, np.float64) * np.where(
+            is_bat, 1.0, float(params.v2g)
+        )
         node_max = np.asarray(st.node_max_kw, np.float64)
         return StationLimits(
             charge_kw=volts * np.asarray(st.leaf_max_current_a, np.float64) / 1000.0,
@@ -126,7 +136,9 @@ class Economics:
     step_hours: float
     peak_eur_kw: float = 0.0  # peak-demand charge per kW of the highest net draw (step average)
     peak_so_far_kw: float = 0.0  # the day's peak before the problem's first step (already paid for)
-    refund_discharged: bool = True  # car owners get ``customer`` back per kWh taken out of their car
+    refund_discharged: bool = (
+        True  # car owners get ``customer`` back per kWh taken out of their car
+    )
 
 
 @dataclass
@@ -180,22 +192,37 @@ class _Builder:
     def solve(self, maximise: bool = True, time_limit_s: float | None = None):
         cat = lambda parts: np.concatenate(parts) if parts else np.zeros(0)  # noqa: E731
         c = cat(self.cost)
-        a = sp.csr_array((cat(self.vals), (cat(self.rows).astype(np.int64), cat(self.cols).astype(np.int64))),
-                         shape=(self.m, self.n))
+        a = sp.csr_array(
+            (cat(self.vals), (cat(self.rows).astype(np.int64), cat(self.cols).astype(np.int64))),
+            shape=(self.m, self.n),
+        )
         options = {"presolve": True}
         if time_limit_s is not None:
             options["time_limit"] = float(time_limit_s)
         constraints = [LinearConstraint(a, cat(self.row_lb), cat(self.row_ub))] if self.m else []
         t0 = time.perf_counter()
-        res = milp(-c if maximise else c, integrality=cat(self.integer), bounds=Bounds(cat(self.lb), cat(self.ub)),
-                   constraints=constraints, options=options)
+        res = milp(
+            -c if maximise else c,
+            integrality=cat(self.integer),
+            bounds=Bounds(cat(self.lb), cat(self.ub)),
+            constraints=constraints,
+            options=options,
+        )
         return res, time.perf_counter() - t0
 
 
-def build_and_solve(sessions: Sessions, num_steps: int, limits: StationLimits, econ: Economics, *,
-                    charged_tolerance_kwh: float = 0.0, time_limit_s: float | None = 60.0,
-                    occupancy_vars: dict | None = None, builder: _Builder | None = None,
-                    urgency_eur_kwh_h: np.ndarray | None = None) -> Solution:
+def build_and_solve(
+    sessions: Sessions,
+    num_steps: int,
+    limits: StationLimits,
+    econ: Economics,
+    *,
+    charged_tolerance_kwh: float = 0.0,
+    time_limit_s: float | None = 60.0,
+    occupancy_vars: dict | None = None,
+    builder: _Builder | None = None,
+    urgency_eur_kwh_h: np.ndarray | None = None,
+) -> Solution:
     """Build the LP of the module docstring for ``sessions`` and solve it with HiGHS.
 
     ``occupancy_vars`` (used by the MILP) maps a session index to a binary variable that
@@ -210,7 +237,11 @@ def build_and_solve(sessions: Sessions, num_steps: int, limits: StationLimits, e
     n = num_steps
     num_nodes = limits.node_max_kw.shape[0]
     # grid import / export per step, kWh
-    cap = limits.root_kw * dt if limits.hard else float(np.sum(limits.charge_kw / limits.path_eff)) * dt
+    cap = (
+        limits.root_kw * dt
+        if limits.hard
+        else float(np.sum(limits.charge_kw / limits.path_eff)) * dt
+    )
     g_imp = b.vars(n, 0.0, cap, cost=-econ.buy)
     g_exp = b.vars(n, 0.0, cap, cost=econ.sell)
     grid_rows = b.new_rows(n, 0.0, 0.0)  # g_imp - g_exp - sum(grid side) = 0
@@ -225,7 +256,9 @@ def build_and_solve(sessions: Sessions, num_steps: int, limits: StationLimits, e
         b.coef(peak_rows, np.repeat(peak, n), -1.0)
     node_rows = None
     if limits.hard:
-        node_rows = b.new_rows(n * num_nodes, -np.tile(limits.node_max_kw, n), np.tile(limits.node_max_kw, n))
+        node_rows = b.new_rows(
+            n * num_nodes, -np.tile(limits.node_max_kw, n), np.tile(limits.node_max_kw, n)
+        )
 
     net_index, soc_end_index = [], []
     for s in range(sessions.size):
@@ -255,7 +288,9 @@ def build_and_solve(sessions: Sessions, num_steps: int, limits: StationLimits, e
         # SoC x_0..x_m: x_0 fixed at the start SoC; the end may be forced to the target
         x_lo, x_hi = np.full(m + 1, lo), np.full(m + 1, hi)
         x_lo[0] = x_hi[0] = float(sessions.soc0[s])
-        goal = max(lo, min(hi, float(sessions.target_soc[s]) - charged_tolerance_kwh / cap_kwh - 1e-5))
+        goal = max(
+            lo, min(hi, float(sessions.target_soc[s]) - charged_tolerance_kwh / cap_kwh - 1e-5)
+        )
         conditional = occupancy_vars is not None and s in occupancy_vars
         if sessions.must_reach[s] and not conditional:
             x_lo[m] = goal
@@ -263,7 +298,7 @@ def build_and_solve(sessions: Sessions, num_steps: int, limits: StationLimits, e
         if sessions.must_reach[s] and conditional:
             # only when the session exists: x_end - (goal - lo) z >= lo
             row = b.new_rows(1, lo, np.inf)
-            b.coef(row, x[m:m + 1], 1.0)
+            b.coef(row, x[m : m + 1], 1.0)
             b.coef(row, occupancy_vars[s][None], -(goal - lo))
         # SoC dynamics: x_{k+1} - x_k - (p+ - p-) dt / C = 0
         dyn = b.new_rows(m, 0.0, 0.0)
@@ -313,10 +348,20 @@ def build_and_solve(sessions: Sessions, num_steps: int, limits: StationLimits, e
     res, solve_s = b.solve(time_limit_s=time_limit_s)
     status = STATUS.get(res.status, f"status {res.status}")
     if res.status != 0 or res.x is None:
-        raise SolverError(f"HiGHS did not solve the problem: {status} ({res.message}); "
-                          f"{b.n} variables, {b.m} rows")
+        raise SolverError(
+            f"HiGHS did not solve the problem: {status} ({res.message}); "
+            f"{b.n} variables, {b.m} rows"
+        )
     xs = res.x
     net = [None if pp is None else xs[pp] - xs[pm] for pp, pm in net_index]
     soc_end = np.array([np.nan if i is None else xs[i] for i in soc_end_index])
-    return Solution(value_eur=float(-res.fun), status=status, solve_s=solve_s, num_vars=b.n, num_rows=b.m,
-                    net_kw=net, soc_end=soc_end, x=xs)
+    return Solution(
+        value_eur=float(-res.fun),
+        status=status,
+        solve_s=solve_s,
+        num_vars=b.n,
+        num_rows=b.m,
+        net_kw=net,
+        soc_end=soc_end,
+        x=xs,
+    )

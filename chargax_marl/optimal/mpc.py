@@ -30,8 +30,21 @@ from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState
 from chargax_marl.optimal.model import Economics, Sessions, StationLimits, build_and_solve
 
-_FIELDS = ("day", "timestep", "occupied", "soc", "arrival_soc", "target_soc", "capacity_kwh", "max_rate_kw",
-           "max_discharge_rate_kw", "tau", "charge_sensitive", "time_remaining_min", "peak_grid_kw")
+_FIELDS = (
+    "day",
+    "timestep",
+    "occupied",
+    "soc",
+    "arrival_soc",
+    "target_soc",
+    "capacity_kwh",
+    "max_rate_kw",
+    "max_discharge_rate_kw",
+    "tau",
+    "charge_sensitive",
+    "time_remaining_min",
+    "peak_grid_kw",
+)
 
 
 class MPC:
@@ -50,17 +63,30 @@ class MPC:
     plans each car to be done that many steps before its planned departure.
     """
 
-    def __init__(self, params: EnvParams, horizon_hours: float = 4.0, resolve_every: int = 1,
-                 time_limit_s: float = 10.0, urgency_eur_kwh_h: float = 0.1, deadline_margin_steps: int = 1):
+    def __init__(
+        self,
+        params: EnvParams,
+        horizon_hours: float = 4.0,
+        resolve_every: int = 1,
+        time_limit_s: float = 10.0,
+        urgency_eur_kwh_h: float = 0.1,
+        deadline_margin_steps: int = 1,
+    ):
         if not horizon_hours > 0:
             raise ValueError(f"field 'horizon_hours' must be > 0, got {horizon_hours!r}")
         if int(resolve_every) < 1:
-            raise ValueError(f"field 'resolve_every' must be an integer >= 1, got {resolve_every!r}")
-        self.horizon_steps = max(1, int(math.ceil(horizon_hours * 60.0 / params.step_minutes - 1e-9)))
+            raise ValueError(
+                f"field 'resolve_every' must be an integer >= 1, got {resolve_every!r}"
+            )
+        self.horizon_steps = max(
+            1, int(math.ceil(horizon_hours * 60.0 / params.step_minutes - 1e-9))
+        )
         self.resolve_every = int(resolve_every)
         self.urgency_eur_kwh_h = float(urgency_eur_kwh_h)
         if int(deadline_margin_steps) < 0:
-            raise ValueError(f"field 'deadline_margin_steps' must be an integer >= 0, got {deadline_margin_steps!r}")
+            raise ValueError(
+                f"field 'deadline_margin_steps' must be an integer >= 0, got {deadline_margin_steps!r}"
+            )
         self.deadline_margin_steps = int(deadline_margin_steps)
         self.time_limit_s = time_limit_s
         self.limits = StationLimits.of(params)
@@ -79,8 +105,12 @@ class MPC:
         days = jnp.arange(params.num_days, dtype=jnp.int32)
         buy, sell = reward_lib.price_tables(params)
         self.buy, self.sell = np.asarray(buy, np.float64), np.asarray(sell, np.float64)  # (D, T)
-        self.battery_value = np.asarray(jax.vmap(
-            lambda d: reward_lib.battery_terminal_value_eur(jnp.float32(1.0), d, params))(days), np.float64)
+        self.battery_value = np.asarray(
+            jax.vmap(lambda d: reward_lib.battery_terminal_value_eur(jnp.float32(1.0), d, params))(
+                days
+            ),
+            np.float64,
+        )
         self.peak_eur_kw = float(params.peak_demand_eur_kw)
         self.customer = float(params.customer_price_eur_kwh)
         self.refund_discharged = bool(params.refund_discharged_energy)
@@ -95,7 +125,9 @@ class MPC:
         occ = s["occupied"].astype(bool)
         leaves = np.nonzero(occ)[0]
         dt = self.step_minutes
-        steps_left = np.ceil(np.maximum(s["time_remaining_min"][leaves], 0.0) / dt - 1e-6).astype(int)
+        steps_left = np.ceil(np.maximum(s["time_remaining_min"][leaves], 0.0) / dt - 1e-6).astype(
+            int
+        )
         bat = self.is_battery[leaves]
         # Cars are planned to be done ``deadline_margin_steps`` (1) before their planned
         # departure (a margin against the rounding to levels and the hard rescale, which may
@@ -103,14 +135,23 @@ class MPC:
         # charge-sensitive car past its plan (it stays until charged) is planned for this step
         # only: with a longer window the LP would defer it at every re-solve and the car would
         # block its port for the rest of the day.
-        last = np.where(bat, n - 1, np.maximum(np.minimum(steps_left - self.deadline_margin_steps, n) - 1, 0))
+        last = np.where(
+            bat, n - 1, np.maximum(np.minimum(steps_left - self.deadline_margin_steps, n) - 1, 0)
+        )
         return Sessions(
-            leaf=leaves, first=np.zeros(leaves.shape[0], int), last=last,
-            soc0=s["soc"][leaves], reserve_soc=np.where(bat, 0.0, s["arrival_soc"][leaves]),
-            target_soc=np.where(bat, 1.0, s["target_soc"][leaves]), capacity_kwh=s["capacity_kwh"][leaves],
-            max_rate_kw=s["max_rate_kw"][leaves], max_discharge_rate_kw=s["max_discharge_rate_kw"][leaves],
-            tau=s["tau"][leaves], must_reach=np.zeros(leaves.shape[0], bool),
-            charge_sensitive=s["charge_sensitive"][leaves].astype(bool))
+            leaf=leaves,
+            first=np.zeros(leaves.shape[0], int),
+            last=last,
+            soc0=s["soc"][leaves],
+            reserve_soc=np.where(bat, 0.0, s["arrival_soc"][leaves]),
+            target_soc=np.where(bat, 1.0, s["target_soc"][leaves]),
+            capacity_kwh=s["capacity_kwh"][leaves],
+            max_rate_kw=s["max_rate_kw"][leaves],
+            max_discharge_rate_kw=s["max_discharge_rate_kw"][leaves],
+            tau=s["tau"][leaves],
+            must_reach=np.zeros(leaves.shape[0], bool),
+            charge_sensitive=s["charge_sensitive"][leaves].astype(bool),
+        )
 
     def plan(self, s: dict) -> np.ndarray:
         """Net power per leaf and step ``(n, L)`` (kW, car side) for the host state ``s``."""
@@ -118,10 +159,16 @@ class MPC:
         n = max(1, min(self.horizon_steps, self.num_steps - t))
         d = day % self.buy.shape[0]
         sl = slice(t, t + n)
-        econ = Economics(buy=self.buy[d, sl], sell=self.sell[d, sl], customer=self.customer,
-                         battery_value=float(self.battery_value[d]), step_hours=self.step_hours,
-                         peak_eur_kw=self.peak_eur_kw, peak_so_far_kw=float(s["peak_grid_kw"]),
-                         refund_discharged=self.refund_discharged)
+        econ = Economics(
+            buy=self.buy[d, sl],
+            sell=self.sell[d, sl],
+            customer=self.customer,
+            battery_value=float(self.battery_value[d]),
+            step_hours=self.step_hours,
+            peak_eur_kw=self.peak_eur_kw,
+            peak_so_far_kw=float(s["peak_grid_kw"]),
+            refund_discharged=self.refund_discharged,
+        )
         sessions = self._sessions(s, n)
         out = np.zeros((n, self.num_leaves))
         if sessions.size == 0:
@@ -129,8 +176,14 @@ class MPC:
         self.solves += 1
         try:
             urgency = np.where(sessions.charge_sensitive, self.urgency_eur_kwh_h, 0.0)
-            sol = build_and_solve(sessions, n, self.limits, econ, time_limit_s=self.time_limit_s,
-                                  urgency_eur_kwh_h=urgency)
+            sol = build_and_solve(
+                sessions,
+                n,
+                self.limits,
+                econ,
+                time_limit_s=self.time_limit_s,
+                urgency_eur_kwh_h=urgency,
+            )
         except RuntimeError:
             self.failures += 1
             out[:, ~self.is_battery] = self.limits.charge_kw[~self.is_battery]
@@ -139,7 +192,7 @@ class MPC:
         for i, leaf in enumerate(sessions.leaf):
             net = sol.net_kw[i]
             if net is not None:
-                out[:net.shape[0], leaf] = net
+                out[: net.shape[0], leaf] = net
         return out
 
     def _levels(self, net_kw: np.ndarray) -> np.ndarray:
@@ -163,8 +216,11 @@ class MPC:
         if cached is not None and self.resolve_every > 1:
             t0, occ, socs, plan = cached
             k = t - t0
-            if 0 < k < min(self.resolve_every, plan.shape[0]) and np.array_equal(occ, s["occupied"]) and \
-                    np.allclose(socs[k], s["soc"], atol=1e-4):
+            if (
+                0 < k < min(self.resolve_every, plan.shape[0])
+                and np.array_equal(occ, s["occupied"])
+                and np.allclose(socs[k], s["soc"], atol=1e-4)
+            ):
                 return self._levels(plan[k])
         plan = self.plan(s)
         if self.resolve_every > 1:
@@ -181,7 +237,9 @@ class MPC:
         del key, params
         dtype = jnp.float32 if self.continuous else jnp.int32
         out = jax.ShapeDtypeStruct((self.num_leaves,), dtype)
-        args = [state.totals.peak_grid_kw if f == "peak_grid_kw" else getattr(state, f) for f in _FIELDS]
+        args = [
+            state.totals.peak_grid_kw if f == "peak_grid_kw" else getattr(state, f) for f in _FIELDS
+        ]
         return jax.pure_callback(self.host_act, out, *args, vmap_method="sequential")
 
 

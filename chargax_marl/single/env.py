@@ -25,10 +25,10 @@ import numpy as np
 from gymnax.environments import environment, spaces
 
 from chargax_marl import bounds
-from chargax_marl.lifecycle import check_day
 from chargax_marl.core import actions, observation, physics, simulator
 from chargax_marl.core.params import make_params
 from chargax_marl.core.types import EnvParams, EnvState
+from chargax_marl.lifecycle import check_day
 
 
 class MultiDiscrete(spaces.Space):
@@ -131,7 +131,9 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
         info_dict = simulator.info_dict(info, new_state, params)
         return obs, new_state, info.reward, jnp.asarray(False), info_dict
 
-    def step(self, key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams | None = None):
+    def step(
+        self, key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams | None = None
+    ):
         """gymnax's auto-resetting step: ``(obs, state, reward, terminated, truncated, info)``.
 
         The host action (numpy, list, Python numbers) is checked and clipped into int32 /
@@ -150,13 +152,19 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
         return self._step(key, state, actions.host_array(action, n), params)
 
     @functools.partial(jax.jit, static_argnames=("self",))
-    def _step(self, key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams | None = None):
+    def _step(
+        self, key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams | None = None
+    ):
         params = self.default_params if params is None else params
         levels = action_levels(action, params)
         next_state, stepped, core_info, done = simulator.step_auto_reset(key, state, levels, params)
         terminated = jnp.asarray(False)
-        info = {**simulator.info_dict(core_info, stepped, params), "terminated": terminated,
-                "truncated": done, "final_observation": self.get_obs(stepped, params)}
+        info = {
+            **simulator.info_dict(core_info, stepped, params),
+            "terminated": terminated,
+            "truncated": done,
+            "final_observation": self.get_obs(stepped, params),
+        }
         obs = self.get_obs(next_state, params)
         return obs, next_state, core_info.reward, terminated, done, info
 

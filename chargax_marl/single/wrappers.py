@@ -10,7 +10,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
-
 from gymnax.environments import spaces as gx_spaces
 
 from chargax_marl import bounds, lifecycle, rendering
@@ -47,17 +46,29 @@ class LogWrapper:
     def reset(self, key: jax.Array, params: EnvParams | None = None):
         obs, env_state = self._env.reset(key, params)
         zero = jnp.zeros((), jnp.float32)
-        state = LogState(env_state, zero, jnp.zeros((), jnp.int32), zero, jnp.zeros((), jnp.int32),
-                         EpisodeTotals.zeros())
+        state = LogState(
+            env_state,
+            zero,
+            jnp.zeros((), jnp.int32),
+            zero,
+            jnp.zeros((), jnp.int32),
+            EpisodeTotals.zeros(),
+        )
         return obs, state
 
     def step(self, key: jax.Array, state: LogState, action, params: EnvParams | None = None):
-        obs, env_state, reward, terminated, truncated, info = self._env.step(key, state.env_state, action, params)
+        obs, env_state, reward, terminated, truncated, info = self._env.step(
+            key, state.env_state, action, params
+        )
         done = jnp.logical_or(terminated, truncated)
         ep_return = state.episode_return + reward
         ep_length = state.episode_length + 1
-        finished = EpisodeTotals(**{k: info[f"episode_{k}"] for k in EpisodeTotals.__dataclass_fields__})
-        totals = jax.tree.map(lambda new, old: jnp.where(done, new, old), finished, state.returned_totals)
+        finished = EpisodeTotals(
+            **{k: info[f"episode_{k}"] for k in EpisodeTotals.__dataclass_fields__}
+        )
+        totals = jax.tree.map(
+            lambda new, old: jnp.where(done, new, old), finished, state.returned_totals
+        )
         new_state = LogState(
             env_state=env_state,
             episode_return=ep_return * (1 - done),
@@ -70,7 +81,12 @@ class LogWrapper:
         info["returned_episode_returns"] = new_state.returned_episode_return
         info["returned_episode_lengths"] = new_state.returned_episode_length
         info["returned_episode"] = done
-        info.update({f"returned_episode_{k}": getattr(totals, k) for k in EpisodeTotals.__dataclass_fields__})
+        info.update(
+            {
+                f"returned_episode_{k}": getattr(totals, k)
+                for k in EpisodeTotals.__dataclass_fields__
+            }
+        )
         return obs, new_state, reward, terminated, truncated, info
 
 
@@ -98,7 +114,9 @@ class FlatDiscrete:
         self._env = env
         params = env.default_params
         if params.action_mode != "absolute":
-            raise ValueError(f"FlatDiscrete: field 'action_mode' must be 'absolute', got {params.action_mode!r}")
+            raise ValueError(
+                f"FlatDiscrete: field 'action_mode' must be 'absolute', got {params.action_mode!r}"
+            )
         st = params.station
         with jax.ensure_compile_time_eval():
             self._min_level = np.asarray(env.min_level(params), np.int32)
@@ -171,8 +189,14 @@ def _shared_reset_day(day: jax.Array, params: EnvParams):
 def _shared_step(key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams):
     key, sub = jax.random.split(key)
     new_state, info = simulator.step(sub, state, action_levels(action, params), params)
-    return (key, observation.flat_obs(new_state, params), new_state, info.reward,
-            simulator.is_done(new_state, params), simulator.info_dict(info, new_state, params))
+    return (
+        key,
+        observation.flat_obs(new_state, params),
+        new_state,
+        info.reward,
+        simulator.is_done(new_state, params),
+        simulator.info_dict(info, new_state, params),
+    )
 
 
 def compile_count() -> int:
@@ -201,14 +225,21 @@ class GymnasiumEnv(gymnasium.Env):
 
     metadata = {"render_modes": rendering.RENDER_MODES, "render_fps": 4}
 
-    def __init__(self, env: Chargax | None = None, params: EnvParams | None = None,
-                 render_mode: str | None = None, **overrides: Any):
+    def __init__(
+        self,
+        env: Chargax | None = None,
+        params: EnvParams | None = None,
+        render_mode: str | None = None,
+        **overrides: Any,
+    ):
         lifecycle.check_not_forked("GymnasiumEnv")
         rendering.check_render_mode(render_mode, "GymnasiumEnv")
         if env is None:
             env = Chargax(params=params, **overrides)
         elif overrides:
-            raise ValueError(f"GymnasiumEnv: pass either 'env' or keyword overrides, not both (got {sorted(overrides)})")
+            raise ValueError(
+                f"GymnasiumEnv: pass either 'env' or keyword overrides, not both (got {sorted(overrides)})"
+            )
         self.env = env
         self.params = params if params is not None else env.default_params
         self.render_mode = render_mode
@@ -223,7 +254,9 @@ class GymnasiumEnv(gymnasium.Env):
         if self.params.action_mode == "continuous":
             self.action_space = gymnasium.spaces.Box(-1.0, 1.0, space.shape, np.float32)
         else:
-            self.action_space = gymnasium.spaces.MultiDiscrete(np.asarray(space.nvec, dtype=np.int64))
+            self.action_space = gymnasium.spaces.MultiDiscrete(
+                np.asarray(space.nvec, dtype=np.int64)
+            )
         low, high = bounds.flat_obs_bounds(self.params)
         self.observation_space = gymnasium.spaces.Box(low, high, low.shape, np.float32)
         if type(self.env) is Chargax:
@@ -279,22 +312,36 @@ class GymnasiumEnv(gymnasium.Env):
     def step(self, action):
         lifecycle.check_not_forked("GymnasiumEnv.step")
         if self._state is None:
-            raise RuntimeError("GymnasiumEnv.step() called before reset(); call reset() to start a day")
+            raise RuntimeError(
+                "GymnasiumEnv.step() called before reset(); call reset() to start a day"
+            )
         action = np.asarray(action)
         if not self.action_space.contains(action.astype(self.action_space.dtype)):
-            raise ValueError(f"action {action.tolist()} is outside the action space {self.action_space}")
+            raise ValueError(
+                f"action {action.tolist()} is outside the action space {self.action_space}"
+            )
         if self._done:
-            raise RuntimeError("GymnasiumEnv.step() called after the episode ended (truncated=True at the end "
-                               "of the day); call reset() to start a new day")
-        self._key, obs, state, reward, done, info = self._step_fn(self._key, self._state, jnp.asarray(action),
-                                                                  self.params)
+            raise RuntimeError(
+                "GymnasiumEnv.step() called after the episode ended (truncated=True at the end "
+                "of the day); call reset() to start a new day"
+            )
+        self._key, obs, state, reward, done, info = self._step_fn(
+            self._key, self._state, jnp.asarray(action), self.params
+        )
         self._state = state
         obs, reward, done, info = jax.device_get((obs, reward, done, info))
         # scalars as floats; per-leaf entries (``leaf_energy_kwh``) as float32 arrays
-        info = {k: float(v) if np.ndim(v) == 0 else np.asarray(v, np.float32) for k, v in info.items()}
+        info = {
+            k: float(v) if np.ndim(v) == 0 else np.asarray(v, np.float32) for k, v in info.items()
+        }
         self._done = bool(done)
-        self._history.append((len(self._history) * self.params.step_minutes / 60.0, info["price_buy_eur_kwh"],
-                              info["grid_net_kwh"] / self.params.step_hours))
+        self._history.append(
+            (
+                len(self._history) * self.params.step_minutes / 60.0,
+                info["price_buy_eur_kwh"],
+                info["grid_net_kwh"] / self.params.step_hours,
+            )
+        )
         if self.render_mode == "human":
             self.render()
         return np.array(obs, dtype=np.float32), float(reward), False, self._done, info
@@ -302,5 +349,9 @@ class GymnasiumEnv(gymnasium.Env):
     def render(self):
         state = None if self._state is None else jax.device_get(self._state)
         st = self.params.station
-        names = [f"port_{i}" for i in range(st.num_ports)] + [f"battery_{j}" for j in range(st.num_batteries)]
-        return rendering.render(self.render_mode, state, self.params, names, self._history, "GymnasiumEnv")
+        names = [f"port_{i}" for i in range(st.num_ports)] + [
+            f"battery_{j}" for j in range(st.num_batteries)
+        ]
+        return rendering.render(
+            self.render_mode, state, self.params, names, self._history, "GymnasiumEnv"
+        )

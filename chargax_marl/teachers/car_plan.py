@@ -64,20 +64,26 @@ def plan_energy(sorted_steps, t, steps_left, need_kwh, step_kwh) -> jnp.ndarray:
     """``(L, T)``: the kWh each car's plan charges at each of ``sorted_steps`` (one day's row of
     :func:`price_order`): ``step_kwh`` at the stay's cheapest steps (from step ``t``, ``steps_left``
     of them) until ``need_kwh`` is met."""
-    steps_left, need_kwh, step_kwh = (jnp.asarray(x, jnp.float32)[:, None] for x in (steps_left, need_kwh, step_kwh))
+    steps_left, need_kwh, step_kwh = (
+        jnp.asarray(x, jnp.float32)[:, None] for x in (steps_left, need_kwh, step_kwh)
+    )
     in_stay = (sorted_steps[None, :] >= t) & (sorted_steps[None, :] < t + steps_left)
     rank = jnp.cumsum(in_stay, axis=1) - 1  # 0 for the stay's cheapest step
     return jnp.where(in_stay, jnp.clip(need_kwh - step_kwh * rank, 0.0, step_kwh), 0.0)
 
 
-def plan_value(sorted_steps, sorted_prices, t, steps_left, need_kwh, step_kwh, efficiency, customer_price):
+def plan_value(
+    sorted_steps, sorted_prices, t, steps_left, need_kwh, step_kwh, efficiency, customer_price
+):
     """``V`` (EUR) of the module docstring for each car ``(L,)``: ``sorted_steps`` /
     ``sorted_prices`` ``(T,)`` one day's row of :func:`price_order`, ``t`` the current step,
     ``steps_left`` the steps the car still charges (``<= 0``: none), ``need_kwh`` its
     remaining demand, ``step_kwh`` what the plan charges per step, ``efficiency`` its port's
     path efficiency, ``customer_price`` what a delivered kWh sells for."""
     energy = plan_energy(sorted_steps, t, steps_left, need_kwh, step_kwh)
-    margin = jnp.maximum(customer_price - sorted_prices[None, :] / jnp.asarray(efficiency)[:, None], 0.0)
+    margin = jnp.maximum(
+        customer_price - sorted_prices[None, :] / jnp.asarray(efficiency)[:, None], 0.0
+    )
     return jnp.sum(margin * energy, axis=1)
 
 
@@ -101,10 +107,16 @@ def plan_constants(env_params):
     the customer price."""
     order_np, sorted_np = price_order(env_params)
     st = env_params.station
-    return (jnp.asarray(order_np), jnp.asarray(sorted_np), jnp.asarray(np.asarray(st.leaf_kind) != KIND_BATTERY),
-            jnp.asarray(st.leaf_path_efficiency, jnp.float32), jnp.asarray(st.leaf_max_kw, jnp.float32),
-            float(env_params.step_minutes), float(env_params.step_hours),
-            jnp.asarray(env_params.customer_price_eur_kwh, jnp.float32))
+    return (
+        jnp.asarray(order_np),
+        jnp.asarray(sorted_np),
+        jnp.asarray(np.asarray(st.leaf_kind) != KIND_BATTERY),
+        jnp.asarray(st.leaf_path_efficiency, jnp.float32),
+        jnp.asarray(st.leaf_max_kw, jnp.float32),
+        float(env_params.step_minutes),
+        float(env_params.step_hours),
+        jnp.asarray(env_params.customer_price_eur_kwh, jnp.float32),
+    )
 
 
 def car_values(env_params):
@@ -113,14 +125,24 @@ def car_values(env_params):
     ``need_kwh`` still wanted (``(L,)`` each; 0 for batteries, empty ports and charge-sensitive
     cars). ``values(core, core.timestep, core.time_remaining_min, core.energy_remaining_kwh)``
     is the potential of ``core``."""
-    order, sorted_prices, is_port, eff, leaf_max_kw, step_min, step_h, customer = plan_constants(env_params)
+    order, sorted_prices, is_port, eff, leaf_max_kw, step_min, step_h, customer = plan_constants(
+        env_params
+    )
 
     def values(core, timestep, minutes_left, need_kwh):
         planned = core.occupied & is_port & ~core.charge_sensitive
         q = PLAN_POWER_FRACTION * jnp.minimum(leaf_max_kw, core.max_rate_kw) * step_h
         need = jnp.where(planned, jnp.maximum(need_kwh, 0.0), 0.0)
-        v = plan_value(order[core.day], sorted_prices[core.day], timestep, steps_of(minutes_left, step_min), need,
-                       q, eff, customer)
+        v = plan_value(
+            order[core.day],
+            sorted_prices[core.day],
+            timestep,
+            steps_of(minutes_left, step_min),
+            need,
+            q,
+            eff,
+            customer,
+        )
         return jnp.where(planned, v, 0.0)
 
     return values
@@ -145,8 +167,12 @@ def car_potential(env_params):
 
     def one(core, leaf_energy_kwh):
         before = values(core, core.timestep, core.time_remaining_min, core.energy_remaining_kwh)
-        after = values(core, core.timestep + 1, core.time_remaining_min - step_min,
-                       jnp.maximum(core.energy_remaining_kwh, 0.0) - leaf_energy_kwh)
+        after = values(
+            core,
+            core.timestep + 1,
+            core.time_remaining_min - step_min,
+            jnp.maximum(core.energy_remaining_kwh, 0.0) - leaf_energy_kwh,
+        )
         return after - before
 
     def potential(env_state):
@@ -166,14 +192,21 @@ def plan_advice(env_params, power_fraction: float | None = PLAN_POWER_FRACTION):
     charge-sensitive car), 0 for idle, empty ports and batteries. ``power_fraction=None``:
     1 for every occupied port (always-max). The plan advice observation feature and the
     ports of :func:`plan_action`."""
-    order, sorted_prices, is_port, eff, leaf_max_kw, step_min, step_h, customer = plan_constants(env_params)
+    order, sorted_prices, is_port, eff, leaf_max_kw, step_min, step_h, customer = plan_constants(
+        env_params
+    )
 
     def advice(core):
         t = core.timestep
         steps, prices = order[core.day], sorted_prices[core.day]
         q = (power_fraction or 0.0) * jnp.minimum(leaf_max_kw, core.max_rate_kw) * step_h
-        energy = plan_energy(steps, t, steps_of(core.time_remaining_min, step_min),
-                             jnp.maximum(core.energy_remaining_kwh, 0.0), q)
+        energy = plan_energy(
+            steps,
+            t,
+            steps_of(core.time_remaining_min, step_min),
+            jnp.maximum(core.energy_remaining_kwh, 0.0),
+            q,
+        )
         margin_ok = customer - prices[None, :] / eff[:, None] > 0
         now = jnp.any((energy > 0) & margin_ok & (steps[None, :] == t), axis=1)
         charge = now | core.charge_sensitive | (power_fraction is None)
@@ -182,7 +215,9 @@ def plan_advice(env_params, power_fraction: float | None = PLAN_POWER_FRACTION):
     return advice
 
 
-def plan_action(env_params, battery: str = "dp", power_fraction: float | None = PLAN_POWER_FRACTION):
+def plan_action(
+    env_params, battery: str = "dp", power_fraction: float | None = PLAN_POWER_FRACTION
+):
     """``act(state, key, params) -> levels`` (the :mod:`chargax_marl.policies` signature): each
     port charges its car at full power where :func:`plan_advice` says so and idles otherwise;
     the batteries follow the battery-only programme's best action (``battery="dp"``) or idle

@@ -54,12 +54,17 @@ def battery_constants(params) -> tuple[float, float, float, float]:
     st = params.station
     kind = np.asarray(st.leaf_kind)
     if int(np.sum(kind == KIND_BATTERY)) == 0:
-        raise ValueError("the battery teachers (storage value, dynamic programme) need a station with a battery; "
-                         "this station has none")
+        raise ValueError(
+            "the battery teachers (storage value, dynamic programme) need a station with a battery; "
+            "this station has none"
+        )
     eta = float(np.mean(np.asarray(st.leaf_path_efficiency)[kind == KIND_BATTERY]))
     power_kw = float(np.sum(np.asarray(st.leaf_max_kw)[kind == KIND_BATTERY]))
     capacity_kwh = float(np.sum(np.asarray(st.battery_capacity_kwh)))
-    soc0 = 0.5 * (np.asarray(params.battery_soc0_low, np.float64) + np.asarray(params.battery_soc0_high, np.float64))
+    soc0 = 0.5 * (
+        np.asarray(params.battery_soc0_low, np.float64)
+        + np.asarray(params.battery_soc0_high, np.float64)
+    )
     e0 = float(np.sum(soc0 * np.asarray(st.battery_capacity_kwh)))
     return eta, power_kw, capacity_kwh, e0
 
@@ -74,11 +79,21 @@ def terminal_prices(params) -> np.ndarray:
     """``(days,)`` the env's terminal price of every day (EUR/kWh): what a stored kWh is credited
     at the day's end (:func:`chargax_marl.core.reward.battery_terminal_value_eur`)."""
     days = jnp.arange(np.asarray(params.prices_eur_kwh).shape[0], dtype=jnp.int32)
-    return np.asarray(jax.vmap(lambda d: battery_terminal_value_eur(jnp.float32(1.0), d, params))(days), np.float64)
+    return np.asarray(
+        jax.vmap(lambda d: battery_terminal_value_eur(jnp.float32(1.0), d, params))(days),
+        np.float64,
+    )
 
 
-def day_values(prices, terminal_price: float, eta: float, power_kw: float, capacity_kwh: float, e0: float,
-               step_hours: float) -> np.ndarray:
+def day_values(
+    prices,
+    terminal_price: float,
+    eta: float,
+    power_kw: float,
+    capacity_kwh: float,
+    e0: float,
+    step_hours: float,
+) -> np.ndarray:
     """``(T + 1,)`` value of a stored kWh at the start of each step of one day, the last entry
     the terminal price: the duals of
 
@@ -117,7 +132,9 @@ def storage_values(params) -> np.ndarray:
     terminal = terminal_prices(params)
     out = np.zeros((prices.shape[0], prices.shape[1] + 1), np.float64)
     for day in range(prices.shape[0]):
-        out[day] = day_values(prices[day], terminal[day], eta, power_kw, capacity_kwh, e0, float(params.step_hours))
+        out[day] = day_values(
+            prices[day], terminal[day], eta, power_kw, capacity_kwh, e0, float(params.step_hours)
+        )
     return out.astype(np.float32)
 
 
@@ -141,32 +158,59 @@ def dp_values(params, points_per_step: int = 4) -> tuple[np.ndarray, np.ndarray]
     indifferent. The learner's policy still sees only its observation, not this table.
     """
     eta, power_kw, capacity_kwh, _ = battery_constants(params)
-    grid, value = level_values(step_buy_prices(params), terminal_prices(params), eta, power_kw * float(params.step_hours), capacity_kwh,
-                               points_per_step)
+    grid, value = level_values(
+        step_buy_prices(params),
+        terminal_prices(params),
+        eta,
+        power_kw * float(params.step_hours),
+        capacity_kwh,
+        points_per_step,
+    )
     return grid.astype(np.float32), value.astype(np.float32)
 
 
-def level_values(prices, terminal_price, eta: float, step_kwh: float, capacity_kwh: float,
-                 points_per_step: int = 4) -> tuple[np.ndarray, np.ndarray]:
+def level_values(
+    prices,
+    terminal_price,
+    eta: float,
+    step_kwh: float,
+    capacity_kwh: float,
+    points_per_step: int = 4,
+) -> tuple[np.ndarray, np.ndarray]:
     """``(grid (K,), value (days, steps + 1, K))`` of :func:`dp_values` for buy prices ``(days,
     steps)`` and terminal prices ``(days,)``: per step, the best of discharging ``step_kwh``
     (earns ``eta * p`` per kWh taken out), idling and charging ``step_kwh`` (costs ``p /
     eta`` per kWh stored), each cut at the empty and the full battery."""
-    if isinstance(points_per_step, bool) or int(points_per_step) != points_per_step or points_per_step < 1:
+    if (
+        isinstance(points_per_step, bool)
+        or int(points_per_step) != points_per_step
+        or points_per_step < 1
+    ):
         raise ValueError(f"points_per_step must be an integer >= 1, got {points_per_step!r}")
     if not (step_kwh > 0 and capacity_kwh > 0 and 0 < eta <= 1):
-        raise ValueError(f"need step_kwh > 0, capacity_kwh > 0 and 0 < eta <= 1, got {step_kwh!r}, "
-                         f"{capacity_kwh!r}, {eta!r}")
+        raise ValueError(
+            f"need step_kwh > 0, capacity_kwh > 0 and 0 < eta <= 1, got {step_kwh!r}, "
+            f"{capacity_kwh!r}, {eta!r}"
+        )
     prices = np.atleast_2d(np.asarray(prices, np.float64))
     days, steps = prices.shape
     num = max(int(np.ceil(capacity_kwh / step_kwh * int(points_per_step) - 1e-9)), 1)
     grid = np.linspace(0.0, capacity_kwh, num + 1)
     value = np.zeros((days, steps + 1, grid.size), np.float64)
-    value[:, steps] = np.broadcast_to(np.asarray(terminal_price, np.float64), (days,))[:, None] * grid[None, :]
+    value[:, steps] = (
+        np.broadcast_to(np.asarray(terminal_price, np.float64), (days,))[:, None] * grid[None, :]
+    )
     for t in range(steps - 1, -1, -1):
         nxt = value[:, t + 1]
-        q = action_values(np, lambda e: _interp_rows(nxt, grid, e), grid, prices[:, t, None], eta, step_kwh,
-                          capacity_kwh)
+        q = action_values(
+            np,
+            lambda e: _interp_rows(nxt, grid, e),
+            grid,
+            prices[:, t, None],
+            eta,
+            step_kwh,
+            capacity_kwh,
+        )
         value[:, t] = np.maximum(np.maximum(q[0], q[1]), q[2])
     return grid, value
 
@@ -178,8 +222,11 @@ def action_values(xp, value_after, energy, price, eta: float, step_kwh: float, c
     out, charging costs ``p / eta`` per kWh stored, each cut at the empty and the full battery."""
     full = xp.minimum(energy + step_kwh, capacity_kwh)
     empty = xp.maximum(energy - step_kwh, 0.0)
-    return (eta * price * (energy - empty) + value_after(empty), value_after(energy),
-            -price * (full - energy) / eta + value_after(full))
+    return (
+        eta * price * (energy - empty) + value_after(empty),
+        value_after(energy),
+        -price * (full - energy) / eta + value_after(full),
+    )
 
 
 def level_value(rows, energy, step_kwh: float):
@@ -226,8 +273,17 @@ def dp_battery_action(params):
     def act(state):
         e = jnp.sum(jnp.where(is_battery, state.soc * state.capacity_kwh, 0.0))
         nxt = table[state.day, state.timestep + 1]
-        q = jnp.stack(action_values(jnp, lambda x: level_value(nxt, x, grid_kwh), e, prices[state.day, state.timestep],
-                                    eta, step_kwh, capacity_kwh))
+        q = jnp.stack(
+            action_values(
+                jnp,
+                lambda x: level_value(nxt, x, grid_kwh),
+                e,
+                prices[state.day, state.timestep],
+                eta,
+                step_kwh,
+                capacity_kwh,
+            )
+        )
         best = jnp.argmax(q)
         strict = jnp.sort(q)[-1] - jnp.sort(q)[-2] > 1e-4
         return best - 1, strict

@@ -21,5 +21,10 @@ from chargax_marl.wrappers.observations import (
 )
 from chargax_marl.wrappers.shaping import BatteryShaping, CarPlanShaping
 
-__all__ = ["BatteryShaping", "CarPlanShaping", "ObservationFeatures", "PlanAdviceObservation",
-           "RelativePriceObservation"]
+__all__ = [
+    "BatteryShaping",
+    "CarPlanShaping",
+    "ObservationFeatures",
+    "PlanAdviceObservation",
+    "RelativePriceObservation",
+]

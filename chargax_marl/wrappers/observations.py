@@ -39,8 +39,10 @@ class ObservationFeatures(TeacherWrapper):
             self.observation_spaces = {a: self._grown(env.observation_space(a)) for a in env.agents}
 
     def _grown(self, space):
-        low, high = (np.concatenate([np.broadcast_to(np.asarray(b, np.float32), space.shape), x])
-                     for b, x in ((space.low, self._low), (space.high, self._high)))
+        low, high = (
+            np.concatenate([np.broadcast_to(np.asarray(b, np.float32), space.shape), x])
+            for b, x in ((space.low, self._low), (space.high, self._high))
+        )
         return type(space)(low, high, (space.shape[0] + self.width,), space.dtype)
 
     def features(self, obs, state):
@@ -111,8 +113,11 @@ class RelativePriceObservation(ObservationFeatures):
         params = env.params if hasattr(env, "agents") else env.default_params
         super().__init__(env, int(params.price_horizon_hours) + 1, -5.0, 5.0)
         inner = base_env(env)
-        end = (inner.obs_size - int(np.shape(inner._layout.agent_id)[1]) if self.is_marl
-               else observation.obs_size(params))
+        end = (
+            inner.obs_size - int(np.shape(inner._layout.agent_id)[1])
+            if self.is_marl
+            else observation.obs_size(params)
+        )
         self.columns = relative_price_columns(params, end - observation.context_size(params))
 
     def features(self, obs, state):

@@ -25,13 +25,6 @@ from tests.helpers import TINY, TINY_ENV, finite_losses
 ROOT = Path(__file__).resolve().parents[2]
 
 
-
-
-
-
-
-
-
 def test_mappo_update_runs_with_finite_losses():
     train = mappo.make_train(TINY)
     assert train.policy.critic_dim == train.env.state_size  # centralised critic on the world state
@@ -40,7 +33,9 @@ def test_mappo_update_runs_with_finite_losses():
     assert np.all(np.asarray(out["metrics"]["episodes"]) == 4)
 
 
-@pytest.mark.parametrize("minibatches", [2, 8])  # 2 < 5 agents: the update gathers from the table; 8: it does not
+@pytest.mark.parametrize(
+    "minibatches", [2, 8]
+)  # 2 < 5 agents: the update gathers from the table; 8: it does not
 def test_mappo_shared_critic_matches_per_agent_critic(monkeypatch, minibatches):
     """The centralised critic run once per (step, env) gives the training of one run per agent row."""
     config = {**TINY, "NUM_MINIBATCHES": minibatches, "TOTAL_TIMESTEPS": 2 * 4 * 24}
@@ -50,8 +45,12 @@ def test_mappo_shared_critic_matches_per_agent_critic(monkeypatch, minibatches):
         outs.append(jax.device_get(jax.jit(mappo.make_train(config))(jax.random.PRNGKey(3))))
     ref, new = outs
     for k in ("actor_loss", "value_loss", "entropy", "approx_kl", "episode_return"):
-        np.testing.assert_allclose(new["metrics"][k], ref["metrics"][k], rtol=1e-4, atol=1e-6, err_msg=k)
-    for a, b in zip(jax.tree.leaves(new["runner_state"].params), jax.tree.leaves(ref["runner_state"].params)):
+        np.testing.assert_allclose(
+            new["metrics"][k], ref["metrics"][k], rtol=1e-4, atol=1e-6, err_msg=k
+        )
+    for a, b in zip(
+        jax.tree.leaves(new["runner_state"].params), jax.tree.leaves(ref["runner_state"].params)
+    ):
         np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6)
 
 
@@ -81,8 +80,11 @@ def test_ippo_update_finite_and_masks_unavailable_actions():
 
     levels = act(simulator.empty_state(0, full), None)
     assert np.all(np.asarray(levels)[:4] >= 0)
-    logits = train.policy.logits(params, np.zeros((5, train.policy.obs_dim), np.float32),
-                                 np.asarray(train.env.get_avail_actions(None)["port_0"])[None].repeat(5, 0))
+    logits = train.policy.logits(
+        params,
+        np.zeros((5, train.policy.obs_dim), np.float32),
+        np.asarray(train.env.get_avail_actions(None)["port_0"])[None].repeat(5, 0),
+    )
     probs = np.asarray(jax.nn.softmax(logits))
     assert probs[:, :10].max() < 1e-6  # discharge indices of a no-V2G port have zero probability
 
@@ -91,8 +93,13 @@ def test_inverse_cdf_sampler_matches_the_softmax_and_never_picks_a_masked_action
     """The rollouts' sampler: frequencies match softmax(logits) (chi-square), masked indices
     (first, middle, last) are never drawn, even at u = 0 and the largest float32 u < 1, and
     the returned log-probability is the chosen index's."""
-    logits = jnp.asarray([[0.3, -1.0, 2.0, 0.0, 0.7],
-                          [networks.NEG_INF, 1.0, networks.NEG_INF, 0.5, networks.NEG_INF]], jnp.float32)
+    logits = jnp.asarray(
+        [
+            [0.3, -1.0, 2.0, 0.0, 0.7],
+            [networks.NEG_INF, 1.0, networks.NEG_INF, 0.5, networks.NEG_INF],
+        ],
+        jnp.float32,
+    )
     probs = np.asarray(jax.nn.softmax(logits, axis=-1), np.float64)
     n = 40_000
     draw = jax.jit(jax.vmap(lambda k: networks.sample_categorical(k, logits)))
@@ -105,8 +112,10 @@ def test_inverse_cdf_sampler_matches_the_softmax_and_never_picks_a_masked_action
         assert counts[~valid].sum() == 0
         chi2 = float((((counts - expected) ** 2)[valid] / expected[valid]).sum())
         assert chi2 < 20.0, (h, counts, expected)  # 4 or 1 dof; p < 1e-3
-    np.testing.assert_allclose(logp, np.log(probs)[np.arange(2)[None, :], action], rtol=1e-5, atol=1e-6)
-    edges = jnp.asarray([0.0, 1.0 - 2.0 ** -24, 0.5], jnp.float32)
+    np.testing.assert_allclose(
+        logp, np.log(probs)[np.arange(2)[None, :], action], rtol=1e-5, atol=1e-6
+    )
+    edges = jnp.asarray([0.0, 1.0 - 2.0**-24, 0.5], jnp.float32)
     a, lp = jax.vmap(lambda u: networks.categorical_from_uniform(jnp.full((2,), u), logits))(edges)
     a = np.asarray(a)
     assert a[0, 0] == 0 and a[1, 0] == 4 and set(a[:, 1]) <= {1, 3}
@@ -133,7 +142,11 @@ def test_multi_agent_shuffle_keeps_each_env_step_whole():
 
 def test_gae_matches_reference():
     rng = np.random.default_rng(0)
-    r, v, d = rng.normal(size=(6, 2)), rng.normal(size=(6, 2)), (rng.random((6, 2)) < 0.3).astype(np.float32)
+    r, v, d = (
+        rng.normal(size=(6, 2)),
+        rng.normal(size=(6, 2)),
+        (rng.random((6, 2)) < 0.3).astype(np.float32),
+    )
     last = rng.normal(size=2)
     adv, tgt = ppo_core.gae(r, v, d, last, 0.9, 0.8)
     ref = np.zeros((6, 2))
@@ -150,8 +163,15 @@ def test_gae_matches_reference():
 def test_ppo_update_finite_and_short_training_improves_return():
     """From a near-uniform policy, a few dozen updates learn to charge the tiny station's cars
     (two vmapped seeds, both must improve over their own first iteration)."""
-    config = {**TINY, "NUM_ENVS": 8, "TOTAL_TIMESTEPS": 8 * 24 * 40, "LR": 3e-3, "ENT_COEF": 0.0,
-              "UPDATE_EPOCHS": 4, "NUM_MINIBATCHES": 4}
+    config = {
+        **TINY,
+        "NUM_ENVS": 8,
+        "TOTAL_TIMESTEPS": 8 * 24 * 40,
+        "LR": 3e-3,
+        "ENT_COEF": 0.0,
+        "UPDATE_EPOCHS": 4,
+        "NUM_MINIBATCHES": 4,
+    }
     train = ppo.make_train(config)
     out = finite_losses(train)
     ret = np.asarray(out["metrics"]["episode_return"])  # (seeds, updates)
@@ -196,19 +216,21 @@ print("SHARDED_OK")
 
 
 def test_sharded_training_on_two_host_devices():
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu",
-           "PYTHONPATH": str(ROOT)}
-    res = subprocess.run([sys.executable, "-c", _SHARDED], cwd=ROOT, env=env, capture_output=True, text=True,
-                         timeout=300)
+    env = {
+        **os.environ,
+        "XLA_FLAGS": "--xla_force_host_platform_device_count=2",
+        "JAX_PLATFORMS": "cpu",
+        "PYTHONPATH": str(ROOT),
+    }
+    res = subprocess.run(
+        [sys.executable, "-c", _SHARDED],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert "SHARDED_OK" in res.stdout, res.stdout[-2000:] + res.stderr[-4000:]
-
-
-
-
-
-
-
-
 
 
 @pytest.mark.parametrize("mod", [ppo, ippo])
@@ -251,8 +273,6 @@ def test_always_max_prior_must_be_non_negative():
                 ppo.make_train({**TINY, name: bad})
 
 
-
-
 def test_ippo_learns_from_the_local_reward_weight_and_ppo_refuses_it():
     train = ippo.make_train({**TINY, "LOCAL_REWARD_WEIGHT": 1.0})
     assert train.env.local_reward_weight == 1.0
@@ -264,8 +284,6 @@ def test_ippo_learns_from_the_local_reward_weight_and_ppo_refuses_it():
         ppo.make_train({**TINY, "LOCAL_REWARD_WEIGHT": 0.5})
     with pytest.raises(ValueError, match="local_reward_weight"):
         ippo.make_train({**TINY, "LOCAL_REWARD_WEIGHT": 2.0})
-
-
 
 
 def _tiny_day(rewards_of, w):
@@ -280,7 +298,9 @@ def _tiny_day(rewards_of, w):
     for _ in range(int(env.params.num_steps)):
         key, k_act, k_step = jax.random.split(key, 3)
         idx = jax.random.randint(k_act, (env.num_agents,), 0, env.num_actions)
-        idx = jnp.where(jnp.asarray(env._avail_np)[jnp.arange(env.num_agents), idx], idx, env.action_offset)
+        idx = jnp.where(
+            jnp.asarray(env._avail_np)[jnp.arange(env.num_agents), idx], idx, env.action_offset
+        )
         actions = {a: idx[i] for i, a in enumerate(env.agents)}
         _, new_state, rewards, _, info = env.step_env(k_step, state, actions)
         r = np.stack([np.asarray(rewards[a]) for a in env.agents])
@@ -309,11 +329,20 @@ def test_battery_shaping_moves_the_battery_value_but_keeps_the_days_reward(w):
     np.testing.assert_allclose(shaped, raw, atol=1e-3)  # per agent, w = 0 and w = 1
     assert np.abs(first).max() > 1e-3  # the battery's first step is valued at once
     if w == 0.0:
-        np.testing.assert_allclose(raw, profit, rtol=1e-5)  # the shared reward is the station's profit
+        np.testing.assert_allclose(
+            raw, profit, rtol=1e-5
+        )  # the shared reward is the station's profit
     # the single-agent form is the station's term (w = 0)
-    info_like = {"battery_net_kwh": np.ones(3), "battery_terminal_value_eur": np.array([0.0, 0.0, 5.0])}
-    np.testing.assert_allclose(teacher_shaping.battery_shaping(2.0 * info_like["battery_net_kwh"],
-                                                      info_like["battery_terminal_value_eur"]), [2.0, 2.0, -3.0])
+    info_like = {
+        "battery_net_kwh": np.ones(3),
+        "battery_terminal_value_eur": np.array([0.0, 0.0, 5.0]),
+    }
+    np.testing.assert_allclose(
+        teacher_shaping.battery_shaping(
+            2.0 * info_like["battery_net_kwh"], info_like["battery_terminal_value_eur"]
+        ),
+        [2.0, 2.0, -3.0],
+    )
 
 
 def test_split_credit_gives_port_and_battery_heads_their_own_log_probability_and_value():
@@ -323,7 +352,9 @@ def test_split_credit_gives_port_and_battery_heads_their_own_log_probability_and
 
     train = ppo.make_train({**TINY, "SPLIT_CREDIT": True, "BATTERY_SHAPING": "dp"})
     policy = train.policy
-    head_logp = jnp.asarray(np.random.default_rng(0).normal(size=(3, policy.num_leaves)), jnp.float32)
+    head_logp = jnp.asarray(
+        np.random.default_rng(0).normal(size=(3, policy.num_leaves)), jnp.float32
+    )
     parts = np.asarray(policy.credit_logp(head_logp))
     bat = policy.is_battery
     assert bat.sum() == 1 and parts.shape == (3, 2)
@@ -334,7 +365,13 @@ def test_split_credit_gives_port_and_battery_heads_their_own_log_probability_and
     out = finite_losses(train)
     assert np.all(np.isfinite(out["metrics"]["value_loss"]))
     with pytest.raises(ValueError, match="SPLIT_CREDIT"):
-        ppo.make_train({**TINY, "SPLIT_CREDIT": True, "ENV_KWARGS": {**TINY_ENV, "station_kwargs": {"num_ports": 4}}})
+        ppo.make_train(
+            {
+                **TINY,
+                "SPLIT_CREDIT": True,
+                "ENV_KWARGS": {**TINY_ENV, "station_kwargs": {"num_ports": 4}},
+            }
+        )
 
 
 def test_single_env_reports_the_batteries_share_of_the_reward():
@@ -345,7 +382,9 @@ def test_single_env_reports_the_batteries_share_of_the_reward():
     from chargax_marl.single.env import Chargax
 
     for with_battery in (True, False):
-        params = make_params(station="single_type", station_kwargs={"num_ports": 4, "battery": with_battery})
+        params = make_params(
+            station="single_type", station_kwargs={"num_ports": 4, "battery": with_battery}
+        )
         env = Chargax(params=params)
         key = jax.random.PRNGKey(3)
         obs, state = env.reset(key, params)
@@ -357,7 +396,9 @@ def test_single_env_reports_the_batteries_share_of_the_reward():
             _, core_info = simulator.step(k_s, state, env.action_to_levels(action, params), params)
             obs, state, reward, _, info = env.step_env(k_s, state, action, params)
             expected = float(np.asarray(core_info.leaf_reward)[is_bat].sum())
-            np.testing.assert_allclose(float(info["battery_reward_eur"]), expected, rtol=1e-5, atol=1e-5)
+            np.testing.assert_allclose(
+                float(info["battery_reward_eur"]), expected, rtol=1e-5, atol=1e-5
+            )
             seen.append(expected)
         assert (np.abs(seen).max() > 1e-4) == with_battery
 
@@ -369,14 +410,23 @@ def test_battery_shaping_trains_and_changes_the_return_not_the_profit(mod):
         train = mod.make_train({**TINY, "BATTERY_SHAPING": on})
         outs[on] = jax.device_get(finite_losses(train)["metrics"])
     # same seeds, same first rollout: the logged profit is the station's in both runs
-    np.testing.assert_allclose(outs[True]["episode_profit_eur"][:, 0], outs[False]["episode_profit_eur"][:, 0],
-                               rtol=1e-5)
+    np.testing.assert_allclose(
+        outs[True]["episode_profit_eur"][:, 0], outs[False]["episode_profit_eur"][:, 0], rtol=1e-5
+    )
 
 
 @pytest.mark.parametrize("mod", [ippo, mappo])
 def test_battery_net_and_agent_advantage_normalisation_train(mod):
-    train = mod.make_train({**TINY, "AGENT_ADV_NORM": True, "BATTERY_SHAPING": True, "LOCAL_REWARD_WEIGHT": 1.0,
-                            "BATTERY_NET": True, "ENV_KWARGS": {**TINY_ENV, "num_levels": 1}})
+    train = mod.make_train(
+        {
+            **TINY,
+            "AGENT_ADV_NORM": True,
+            "BATTERY_SHAPING": True,
+            "LOCAL_REWARD_WEIGHT": 1.0,
+            "BATTERY_NET": True,
+            "ENV_KWARGS": {**TINY_ENV, "num_levels": 1},
+        }
+    )
     out = finite_losses(train)
     params = out["runner_state"].params
     assert "battery_actor" in params
@@ -387,7 +437,9 @@ def test_battery_net_and_agent_advantage_normalisation_train(mod):
     obs = env.get_obs_matrix(env.reset_to_day(0)[1])
     avail = jnp.asarray(env._avail_np)
     p1 = {**p0, "battery_actor": jax.tree.map(lambda x: x + 1.0, p0["battery_actor"])}
-    moved = np.abs(np.asarray(policy.logits(p1, obs, avail) - policy.logits(p0, obs, avail))).max(axis=1)
+    moved = np.abs(np.asarray(policy.logits(p1, obs, avail) - policy.logits(p0, obs, avail))).max(
+        axis=1
+    )
     assert moved[-1] > 0 and np.all(moved[:-1] == 0)
 
 
@@ -400,7 +452,9 @@ def test_battery_gamma_discounts_the_battery_rows_only():
     gammas = jnp.asarray([0.9, 0.9, 0.99])
     adv, tgt = ppo_core.gae(r, v, d, last, gammas, 0.95)
     for i, g in enumerate((0.9, 0.9, 0.99)):
-        a_i, t_i = ppo_core.gae(r[:, i:i + 1], v[:, i:i + 1], d[:, i:i + 1], last[i:i + 1], g, 0.95)
+        a_i, t_i = ppo_core.gae(
+            r[:, i : i + 1], v[:, i : i + 1], d[:, i : i + 1], last[i : i + 1], g, 0.95
+        )
         np.testing.assert_allclose(adv[:, i], a_i[:, 0], rtol=1e-6)
         np.testing.assert_allclose(tgt[:, i], t_i[:, 0], rtol=1e-6)
     assert not np.allclose(adv[:, 2], ppo_core.gae(r, v, d, last, 0.9, 0.95)[0][:, 2])
@@ -414,7 +468,9 @@ def test_battery_ent_coef_weighs_the_battery_rows_entropy_only():
     """``BATTERY_ENT_COEF``: the loss's entropy bonus is each row's coefficient times its
     entropy, averaged; without it every row has ``ENT_COEF``."""
     rng = np.random.default_rng(1)
-    logp, old, adv, val, oldv, tgt, ent = (jnp.asarray(rng.normal(size=6), jnp.float32) for _ in range(7))
+    logp, old, adv, val, oldv, tgt, ent = (
+        jnp.asarray(rng.normal(size=6), jnp.float32) for _ in range(7)
+    )
     config = {"CLIP_EPS": 0.2, "VF_CLIP": 10.0, "VF_COEF": 0.5, "ENT_COEF": 0.01}
     coef = jnp.asarray([0.01] * 5 + [0.2])
     base, _ = ppo_core.ppo_loss(logp, old, adv, val, oldv, tgt, ent, config)
@@ -437,36 +493,42 @@ def test_relative_prices_read_the_observed_prices_and_quantiles():
         env = ChargaxMARL(agent_id=agent_id, **TINY_ENV)
         state = env.reset_to_day(3)[1]
         obs = np.asarray(env.get_obs_matrix(state))
-        ctx = np.asarray(observation.context_features(teacher_shaping.core_state(state), env.params))
-        ctx0 = env.obs_size - np.shape(env._layout.agent_id)[1] - observation.context_size(env.params)
+        ctx = np.asarray(
+            observation.context_features(teacher_shaping.core_state(state), env.params)
+        )
+        ctx0 = (
+            env.obs_size - np.shape(env._layout.agent_id)[1] - observation.context_size(env.params)
+        )
         price_cols, q20, q50, q80 = teacher_prices.relative_price_columns(env.params, ctx0)
         i = observation.context_index(env.params, "price_quantiles")
-        np.testing.assert_array_equal(obs[0, price_cols], ctx[:env.params.price_horizon_hours + 1])
-        np.testing.assert_array_equal(obs[0, [q20, q50, q80]], ctx[i + 1:i + 4])
-        rel = np.asarray(teacher_prices.relative_prices(jnp.asarray(obs), price_cols, q20, q50, q80))
-        np.testing.assert_allclose(rel[1], np.clip((obs[1, price_cols] - obs[1, q50]) / (obs[1, q80] - obs[1, q20]), -5, 5),
-                                   rtol=1e-5)
+        np.testing.assert_array_equal(obs[0, price_cols], ctx[: env.params.price_horizon_hours + 1])
+        np.testing.assert_array_equal(obs[0, [q20, q50, q80]], ctx[i + 1 : i + 4])
+        rel = np.asarray(
+            teacher_prices.relative_prices(jnp.asarray(obs), price_cols, q20, q50, q80)
+        )
+        np.testing.assert_allclose(
+            rel[1],
+            np.clip((obs[1, price_cols] - obs[1, q50]) / (obs[1, q80] - obs[1, q20]), -5, 5),
+            rtol=1e-5,
+        )
     assert observation.context_size(env.params) == ctx.shape[0]
     train = ippo.make_train({**TINY, "RELATIVE_PRICES": True})
     assert train.policy.obs_dim == train.env.obs_size + len(price_cols)
     finite_losses(train)
-    assert mappo.make_train({**TINY, "RELATIVE_PRICES": True}).policy.critic_dim == train.env.state_size
+    assert (
+        mappo.make_train({**TINY, "RELATIVE_PRICES": True}).policy.critic_dim
+        == train.env.state_size
+    )
     # single-agent PPO: the same features from the flat observation, which ends with the context
     ppo_train = ppo.make_train({**TINY, "RELATIVE_PRICES": True})
     flat = np.asarray(observation.flat_obs(teacher_shaping.core_state(state), ppo_train.env_params))
     cols = teacher_prices.relative_price_columns(ppo_train.env_params, flat.shape[0] - ctx.shape[0])
-    np.testing.assert_array_equal(flat[cols[0]], ctx[:env.params.price_horizon_hours + 1])
-    np.testing.assert_allclose(np.asarray(teacher_prices.relative_prices(jnp.asarray(flat), *cols)), rel[0], rtol=1e-5)
+    np.testing.assert_array_equal(flat[cols[0]], ctx[: env.params.price_horizon_hours + 1])
+    np.testing.assert_allclose(
+        np.asarray(teacher_prices.relative_prices(jnp.asarray(flat), *cols)), rel[0], rtol=1e-5
+    )
     assert ppo_train.policy.input_dim == ppo_train.policy.obs_dim + len(price_cols)
     finite_losses(ppo_train)
-
-
-
-
-
-
-
-
 
 
 @pytest.mark.parametrize("w", [0.0, 1.0])
@@ -486,7 +548,9 @@ def test_storage_value_shaping_changes_the_day_by_a_constant_of_its_first_state(
     def rewards_of(env, state, info):
         if not start:
             e0 = float(np.sum(np.asarray(state.soc * state.capacity_kwh)[is_bat]))
-            start.update(v0=float(table[int(state.day), int(state.timestep)]), e0=e0, day=int(state.day))
+            start.update(
+                v0=float(table[int(state.day), int(state.timestep)]), e0=e0, day=int(state.day)
+            )
         return teacher_shaping.agent_potential_shaping(potential(state), info, is_bat, w)
 
     raw, shaped, first, _ = _tiny_day(rewards_of, w)
@@ -501,10 +565,6 @@ def test_storage_value_shaping_changes_the_day_by_a_constant_of_its_first_state(
     finite_losses(ppo.make_train({**TINY, "BATTERY_SHAPING": "storage_value"}))
     with pytest.raises(ValueError, match="BATTERY_SHAPING"):
         aids.shaping_mode({"BATTERY_SHAPING": "hourly"})
-
-
-
-
 
 
 @pytest.mark.parametrize("w", [0.0, 1.0])
@@ -523,23 +583,21 @@ def test_dp_shaping_changes_the_day_by_a_constant_of_its_first_state(w):
     def rewards_of(env, state, info):
         if not start:
             e0 = float(np.sum(np.asarray(state.soc * state.capacity_kwh)[is_bat]))
-            start.update(phi0=float(np.interp(e0, grid, table[int(state.day), int(state.timestep)])), e0=e0,
-                         day=int(state.day))
+            start.update(
+                phi0=float(np.interp(e0, grid, table[int(state.day), int(state.timestep)])),
+                e0=e0,
+                day=int(state.day),
+            )
         return teacher_shaping.agent_potential_shaping(potential(state), info, is_bat, w)
 
     raw, shaped, first, _ = _tiny_day(rewards_of, w)
-    const = float(storage_value.terminal_prices(env0.params)[start["day"]]) * start["e0"] - start["phi0"]
+    const = (
+        float(storage_value.terminal_prices(env0.params)[start["day"]]) * start["e0"]
+        - start["phi0"]
+    )
     expected = raw + np.where(is_bat, w * const, 0.0) + (1.0 - w) * const
     np.testing.assert_allclose(shaped, expected, atol=2e-3)
     assert abs(const) > 1e-3  # the case is not trivial
     out = finite_losses(ippo.make_train({**TINY, "BATTERY_SHAPING": "dp"}))
     assert np.all(np.isfinite(out["metrics"]["episode_return"]))
     finite_losses(ppo.make_train({**TINY, "BATTERY_SHAPING": "dp"}))
-
-
-
-
-
-
-
-

@@ -26,34 +26,62 @@ def test_attribution_scores_the_run_and_swaps_ports_and_battery(tmp_path, monkey
     from chargax_marl.core import make_params
 
     out = tmp_path / "run"
-    cli.main([*TINY_CLI, "ALGO=ippo", f"TOTAL_TIMESTEPS={4 * 24}", "CHUNKS=1", "OPTIMAL=off", f"OUT={toml_inline(str(out))}"])
+    cli.main(
+        [
+            *TINY_CLI,
+            "ALGO=ippo",
+            f"TOTAL_TIMESTEPS={4 * 24}",
+            "CHUNKS=1",
+            "OPTIMAL=off",
+            f"OUT={toml_inline(str(out))}",
+        ]
+    )
     res = json.loads((out / "results.json").read_text())
     att = attribution.attribute(out)
     learned = [s["mean"] for s in att["mixes"]["learned"]["per_seed"]]
-    np.testing.assert_allclose(learned, [p["vs_always_max"]["mean"] for p in res["per_seed"]], rtol=1e-6, atol=1e-6)
-    assert set(att["mixes"]) == set(attribution.MIXES) and "learned" in attribution.format_attribution(att)
+    np.testing.assert_allclose(
+        learned, [p["vs_always_max"]["mean"] for p in res["per_seed"]], rtol=1e-6, atol=1e-6
+    )
+    assert set(att["mixes"]) == set(
+        attribution.MIXES
+    ) and "learned" in attribution.format_attribution(att)
     from chargax_marl.core import simulator
 
     params = make_params(**TINY_ENV)
     key = jax.random.PRNGKey(0)
     start = simulator.reset(key, params)
     # an hour (60-minute steps) in which the battery rule charges or discharges, so the mixes differ
-    state = next(s for s in (start.replace(timestep=jnp.int32(h)) for h in range(24))
-                 if int(policies.battery_rule(s, key, params)[-1]) != 0)
+    state = next(
+        s
+        for s in (start.replace(timestep=jnp.int32(h)) for h in range(24))
+        if int(policies.battery_rule(s, key, params)[-1]) != 0
+    )
     mixes = attribution.mixed_policies(lambda s, k: policies.always_max(s, k, params), params)
-    np.testing.assert_array_equal(mixes["learned_ports_rule_battery"](state, key), policies.battery_rule(state, key, params))
-    np.testing.assert_array_equal(mixes["always_max_ports_learned_battery"](state, key),
-                                  policies.always_max(state, key, params))
+    np.testing.assert_array_equal(
+        mixes["learned_ports_rule_battery"](state, key), policies.battery_rule(state, key, params)
+    )
+    np.testing.assert_array_equal(
+        mixes["always_max_ports_learned_battery"](state, key),
+        policies.always_max(state, key, params),
+    )
     rule_act = lambda s, k: policies.battery_rule(s, k, params)  # noqa: E731
-    ports_from_rule = attribution.mixed_policies(rule_act, params)["always_max_ports_learned_battery"](state, key)
+    ports_from_rule = attribution.mixed_policies(rule_act, params)[
+        "always_max_ports_learned_battery"
+    ](state, key)
     np.testing.assert_array_equal(ports_from_rule, policies.battery_rule(state, key, params))
     # baselines.read_policy reads the same run: shares of the battery's actions, 24 hours
 
     reading = read_policy.read(out, num_days=3)
     assert reading["num_days"] == 3 and len(reading["per_seed"]) == 2
     for seed in reading["per_seed"]:
-        assert abs(sum(seed["battery_share"].values()) - 1.0) < 1e-6 and len(seed["hourly_action"]) == 24
-        assert all(-1.0 <= a <= 1.0 for a in seed["hourly_action"]) and 0.0 <= seed["ports_full_power_share"] <= 1.0
+        assert (
+            abs(sum(seed["battery_share"].values()) - 1.0) < 1e-6
+            and len(seed["hourly_action"]) == 24
+        )
+        assert (
+            all(-1.0 <= a <= 1.0 for a in seed["hourly_action"])
+            and 0.0 <= seed["ports_full_power_share"] <= 1.0
+        )
         assert 0.0 <= seed["ports_follow_plan_share"] <= 1.0
     assert "hourly SoC" in read_policy.format_reading(reading)
     # baselines.analysis.redraw scores the same run on more cars: draw 0 is the run's own evaluation,
@@ -64,31 +92,58 @@ def test_attribution_scores_the_run_and_swaps_ports_and_battery(tmp_path, monkey
     two = redraw.redraw(out, draws=2, bound=False)
     assert two["draws"] == 2 and two["seeds"] == 2 and two["replay_check_max_abs_eur"] < 1e-3
     for i, p in enumerate(res["per_seed"]):
-        assert two["vs"]["always_max"]["draw0_per_seed"][i]["mean"] == pytest.approx(p["vs_always_max"]["mean"], abs=1e-4)
-        assert two["vs"]["always_max"]["draw0_per_seed"][i]["stderr"] == pytest.approx(p["vs_always_max"]["stderr"],
-                                                                                      rel=1e-4)
-    _, eval_params, _, days = build_env_params(json.loads((out / "results.json").read_text())["config"])
-    by_key = [evaluate_rules(eval_params, days, ("always_max", "battery_rule"), key=jax.random.PRNGKey(k)) for k in (0, 1)]
-    rule_gain = np.mean([r["battery_rule"]["daily_profit"] - r["always_max"]["daily_profit"] for r in by_key])
-    assert two["references_vs_always_max"]["battery_rule"]["mean"] == pytest.approx(rule_gain, abs=1e-4)
-    assert not np.allclose(by_key[0]["always_max"]["daily_profit"], by_key[1]["always_max"]["daily_profit"])
+        assert two["vs"]["always_max"]["draw0_per_seed"][i]["mean"] == pytest.approx(
+            p["vs_always_max"]["mean"], abs=1e-4
+        )
+        assert two["vs"]["always_max"]["draw0_per_seed"][i]["stderr"] == pytest.approx(
+            p["vs_always_max"]["stderr"], rel=1e-4
+        )
+    _, eval_params, _, days = build_env_params(
+        json.loads((out / "results.json").read_text())["config"]
+    )
+    by_key = [
+        evaluate_rules(eval_params, days, ("always_max", "battery_rule"), key=jax.random.PRNGKey(k))
+        for k in (0, 1)
+    ]
+    rule_gain = np.mean(
+        [r["battery_rule"]["daily_profit"] - r["always_max"]["daily_profit"] for r in by_key]
+    )
+    assert two["references_vs_always_max"]["battery_rule"]["mean"] == pytest.approx(
+        rule_gain, abs=1e-4
+    )
+    assert not np.allclose(
+        by_key[0]["always_max"]["daily_profit"], by_key[1]["always_max"]["daily_profit"]
+    )
     assert "2 car draws" in redraw.format_redraw(two)
     # the MPC's draws (a stand-in that earns always-max + 1 EUR/day here, so the wiring shows):
     # paired on the first mpc_draws draws only, with the bound's headroom on the same draws
     import baselines.analysis.references
 
     def fake_mpc(params, days, key):
-        return {"daily_profit": evaluate_rules(params, days, ("always_max",), key=key)["always_max"]["daily_profit"] + 1.0}
+        return {
+            "daily_profit": evaluate_rules(params, days, ("always_max",), key=key)["always_max"][
+                "daily_profit"
+            ]
+            + 1.0
+        }
 
     monkeypatch.setattr(baselines.analysis.references, "evaluate_mpc", fake_mpc)
     with_mpc = redraw.redraw(out, draws=2, bound=True, mpc_draws=1)
-    vs_am, vs_mpc = with_mpc["vs"]["always_max"]["draw0_per_seed"], with_mpc["vs"]["mpc"]["per_seed"]
+    vs_am, vs_mpc = (
+        with_mpc["vs"]["always_max"]["draw0_per_seed"],
+        with_mpc["vs"]["mpc"]["per_seed"],
+    )
     for i in range(2):
         assert vs_mpc[i]["mean"] == pytest.approx(vs_am[i]["mean"] - 1.0, abs=1e-4)
     assert with_mpc["references_vs_always_max"]["mpc"]["mean"] == pytest.approx(1.0, abs=1e-4)
     frac = with_mpc["headroom_fraction"]
-    assert frac["references"]["lp_bound"] == pytest.approx(1.0) and frac["references"]["always_max"] == 0.0
-    assert frac["mpc_on_its_draws"]["mpc"] == pytest.approx(1.0 / with_mpc["headroom_eur_per_draw"][0], rel=1e-5)
+    assert (
+        frac["references"]["lp_bound"] == pytest.approx(1.0)
+        and frac["references"]["always_max"] == 0.0
+    )
+    assert frac["mpc_on_its_draws"]["mpc"] == pytest.approx(
+        1.0 / with_mpc["headroom_eur_per_draw"][0], rel=1e-5
+    )
     assert with_mpc["headroom_eur"] == pytest.approx(np.mean(with_mpc["headroom_eur_per_draw"]))
     with pytest.raises(ValueError, match="mpc_draws must be an integer in"):
         redraw.redraw(out, draws=1, mpc_draws=2)
@@ -113,14 +168,21 @@ def test_sensitivity_battery_step_on_an_empty_station_is_the_hand_computed_trade
     days, step = np.array([3, 40, 200]), 30
     out = sensitivity.sensitivity(params, days, step=step)
     eta, power_kw, capacity_kwh, e0 = storage_value.battery_constants(params)
-    assert e0 + power_kw * float(params.step_hours) < 0.8 * capacity_kwh  # below the taper: the full charge
+    assert (
+        e0 + power_kw * float(params.step_hours) < 0.8 * capacity_kwh
+    )  # below the taper: the full charge
     stored = power_kw * float(params.step_hours)
     prices = storage_value.step_buy_prices(params)[days, step]
     expected = -prices * stored / eta + storage_value.terminal_prices(params)[days] * stored
-    np.testing.assert_allclose(out["battery_charges"]["daily_difference_eur"], expected, rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(
+        out["battery_charges"]["daily_difference_eur"], expected, rtol=1e-4, atol=1e-4
+    )
     assert np.all(np.asarray(out["port_idles"]["daily_difference_eur"]) == 0.0)
     assert out["battery_charges"]["days_served_cars_differ"] == 0
     outside = sensitivity.sensitivity(params, days, step=-5)
-    assert all(np.all(np.asarray(outside[p]["daily_difference_eur"]) == 0.0) for p in sensitivity.PERTURBATIONS)
+    assert all(
+        np.all(np.asarray(outside[p]["daily_difference_eur"]) == 0.0)
+        for p in sensitivity.PERTURBATIONS
+    )
     with pytest.raises(ValueError, match="perturbation"):
         sensitivity.perturbed_always_max(params, "battery_discharges", 0)

@@ -24,10 +24,23 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 
-ARGS = ["--config", "cpu", "ALGO=ppo", f"TOTAL_TIMESTEPS={2 * 4 * 24}", "SEEDS=2", "SEED=3", "NUM_ENVS=4",
-        "NUM_STEPS=24", "HIDDEN=16", "NUM_MINIBATCHES=2", "UPDATE_EPOCHS=1", "CHUNKS=1", "NUM_EVAL_DAYS=4",
-        "OPTIMAL=off",
-        'ENV_KWARGS={ station = "single_type", station_kwargs = { num_ports = 4, battery = true }, step_minutes = 60.0 }']
+ARGS = [
+    "--config",
+    "cpu",
+    "ALGO=ppo",
+    f"TOTAL_TIMESTEPS={2 * 4 * 24}",
+    "SEEDS=2",
+    "SEED=3",
+    "NUM_ENVS=4",
+    "NUM_STEPS=24",
+    "HIDDEN=16",
+    "NUM_MINIBATCHES=2",
+    "UPDATE_EPOCHS=1",
+    "CHUNKS=1",
+    "NUM_EVAL_DAYS=4",
+    "OPTIMAL=off",
+    'ENV_KWARGS={ station = "single_type", station_kwargs = { num_ports = 4, battery = true }, step_minutes = 60.0 }',
+]
 TIMEOUT_S = 480  # three compiles on 2 shared cores
 FAST_COMPILE = "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
 
@@ -41,10 +54,22 @@ def _free_port() -> int:
 def _launch(args, devices: int, log: Path) -> subprocess.Popen:
     # compile time dominates: the cheap LLVM pipeline halves it (the same flags in all three runs)
     flags = f"--xla_force_host_platform_device_count={devices} {FAST_COMPILE}"
-    env = {**os.environ, "JAX_PLATFORMS": "cpu", "XLA_FLAGS": flags, "PYTHONPATH": str(ROOT), "TQDM_DISABLE": "1"}
+    env = {
+        **os.environ,
+        "JAX_PLATFORMS": "cpu",
+        "XLA_FLAGS": flags,
+        "PYTHONPATH": str(ROOT),
+        "TQDM_DISABLE": "1",
+    }
     env.pop("JAX_ENABLE_X64", None)
-    return subprocess.Popen([sys.executable, "-m", "baselines.train", *ARGS, *args], cwd=ROOT, env=env,
-                            stdout=log.open("w"), stderr=subprocess.STDOUT, text=True)
+    return subprocess.Popen(
+        [sys.executable, "-m", "baselines.train", *ARGS, *args],
+        cwd=ROOT,
+        env=env,
+        stdout=log.open("w"),
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
 
 
 def _wait_all(procs: dict, logs: dict) -> None:
@@ -62,8 +87,10 @@ def _wait_all(procs: dict, logs: dict) -> None:
                 p.wait()
     codes = {name: p.returncode for name, p in procs.items()}
     if any(codes.values()):
-        pytest.fail(f"exit codes {codes} (a negative code: killed after {TIMEOUT_S} s)\n" + "\n".join(
-            f"----- {name} -----\n{logs[name].read_text()[-4000:]}" for name in procs))
+        pytest.fail(
+            f"exit codes {codes} (a negative code: killed after {TIMEOUT_S} s)\n"
+            + "\n".join(f"----- {name} -----\n{logs[name].read_text()[-4000:]}" for name in procs)
+        )
 
 
 def _params(path: Path):
@@ -75,13 +102,21 @@ def test_two_process_training_matches_one_process_with_two_devices(tmp_path):
     outs = {name: tmp_path / name for name in ("proc0", "proc1", "single")}
     logs = {name: tmp_path / f"{name}.log" for name in outs}
     dist = ["--coordinator", f"127.0.0.1:{port}", "--num-processes", "2"]
-    procs = {f"proc{i}": _launch([*dist, "--process-id", str(i), f"OUT='{outs[f'proc{i}']}'"], 1,
-                                 logs[f"proc{i}"]) for i in range(2)}
+    procs = {
+        f"proc{i}": _launch(
+            [*dist, "--process-id", str(i), f"OUT='{outs[f'proc{i}']}'"], 1, logs[f"proc{i}"]
+        )
+        for i in range(2)
+    }
     procs["single"] = _launch([f"OUT='{outs['single']}'"], 2, logs["single"])
     _wait_all(procs, logs)
 
     # only process 0 wrote outputs (process 1 got its own --out, which must not exist) and printed
-    assert {p.name for p in outs["proc0"].iterdir()} == {"curve.png", "results.json", "params.msgpack"}
+    assert {p.name for p in outs["proc0"].iterdir()} == {
+        "curve.png",
+        "results.json",
+        "params.msgpack",
+    }
     assert not outs["proc1"].exists()
     assert "wrote" in logs["proc0"].read_text() and "wrote" not in logs["proc1"].read_text()
 
@@ -93,10 +128,19 @@ def test_two_process_training_matches_one_process_with_two_devices(tmp_path):
 
     # the same sharded program over 2 processes or 2 local devices: same training, same policy
     for k in ("episode_return", "value_loss", "actor_loss", "entropy"):
-        np.testing.assert_allclose(dist_res["curve"][k], single["curve"][k], rtol=1e-4, atol=1e-5, err_msg=k)
-    for a, b in zip(_params(outs["proc0"] / "params.msgpack"), _params(outs["single"] / "params.msgpack"),
-                    strict=True):
+        np.testing.assert_allclose(
+            dist_res["curve"][k], single["curve"][k], rtol=1e-4, atol=1e-5, err_msg=k
+        )
+    for a, b in zip(
+        _params(outs["proc0"] / "params.msgpack"),
+        _params(outs["single"] / "params.msgpack"),
+        strict=True,
+    ):
         np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
-    np.testing.assert_allclose(dist_res["eval_curve"][-1]["per_seed_profit"],
-                               single["eval_curve"][-1]["per_seed_profit"], rtol=1e-4, atol=1e-3)
+    np.testing.assert_allclose(
+        dist_res["eval_curve"][-1]["per_seed_profit"],
+        single["eval_curve"][-1]["per_seed_profit"],
+        rtol=1e-4,
+        atol=1e-3,
+    )
     assert dist_res["evaluation"]["num_days"] == 4 and dist_res["timesteps"] == 2 * 4 * 24

@@ -33,7 +33,9 @@ def test_battery_programme_rule_is_always_max_ports_and_the_programme_s_battery(
     plan, advice = rule_policy(PLAN_PROGRAMME, params), car_plan.plan_advice(params)
     is_bat = np.asarray(params.station.leaf_kind) == KIND_BATTERY
     state = simulator.reset(jax.random.PRNGKey(1), params)
-    state = state.replace(occupied=jnp.ones_like(state.occupied))  # a car at every port (an empty one's level acts on nothing)
+    state = state.replace(
+        occupied=jnp.ones_like(state.occupied)
+    )  # a car at every port (an empty one's level acts on nothing)
     seen = set()
     for t in range(int(params.num_steps)):
         s = state.replace(timestep=jnp.int32(t))
@@ -41,7 +43,9 @@ def test_battery_programme_rule_is_always_max_ports_and_the_programme_s_battery(
         np.testing.assert_array_equal(levels[~is_bat], ref[~is_bat])
         assert np.all(levels[is_bat] == int(dp(s)[0]) * int(params.num_levels))
         planned = np.asarray(plan(s, None, params))
-        np.testing.assert_array_equal(planned[~is_bat], (np.asarray(advice(s))[~is_bat] > 0.5) * int(params.num_levels))
+        np.testing.assert_array_equal(
+            planned[~is_bat], (np.asarray(advice(s))[~is_bat] > 0.5) * int(params.num_levels)
+        )
         np.testing.assert_array_equal(planned[is_bat], levels[is_bat])
         seen.add(int(dp(s)[0]))
     assert len(seen) > 1  # the battery trades on this day
@@ -62,21 +66,31 @@ def test_grid_programme_holds_the_battery_s_charge_while_the_ports_alone_overloa
     seen = {}
     for fraction in (0.25, None):
         params = make_params(**TINY_ENV, grid_fraction=fraction)
-        act, prog, dp = rule_policy(GRID_PROGRAMME, params), rule_policy(PROGRAMME, params), \
-            storage_value.dp_battery_action(params)
+        act, prog, dp = (
+            rule_policy(GRID_PROGRAMME, params),
+            rule_policy(PROGRAMME, params),
+            storage_value.dp_battery_action(params),
+        )
         is_bat = np.asarray(params.station.leaf_kind) == KIND_BATTERY
         state = simulator.reset(jax.random.PRNGKey(1), params)
         car = lambda field, value: jnp.where(jnp.asarray(is_bat), getattr(state, field), value)  # noqa: E731
         # a 100 kWh car taking 150 kW at every port: 600 kW of ports against a 175 kW connection at 25 %
-        state = state.replace(occupied=jnp.ones_like(state.occupied), soc=car("soc", 0.1),
-                              target_soc=car("target_soc", 1.0), capacity_kwh=car("capacity_kwh", 100.0),
-                              max_rate_kw=car("max_rate_kw", 150.0), tau=car("tau", 0.8))
+        state = state.replace(
+            occupied=jnp.ones_like(state.occupied),
+            soc=car("soc", 0.1),
+            target_soc=car("target_soc", 1.0),
+            capacity_kwh=car("capacity_kwh", 100.0),
+            max_rate_kw=car("max_rate_kw", 150.0),
+            tau=car("tau", 0.8),
+        )
         for t in range(int(params.num_steps)):
             s = state.replace(timestep=jnp.int32(t))
             levels, ref = np.asarray(act(s, None, params)), np.asarray(prog(s, None, params))
             np.testing.assert_array_equal(levels[~is_bat], ref[~is_bat])  # always-max ports
             want = int(dp(s)[0])
-            want = 0 if (fraction is not None and want > 0) else want  # every step overloads the 25 % connection
+            want = (
+                0 if (fraction is not None and want > 0) else want
+            )  # every step overloads the 25 % connection
             assert np.all(levels[is_bat] == want * int(params.num_levels)), (fraction, t)
             seen.setdefault(fraction, set()).add(int(dp(s)[0]))
     assert 1 in seen[0.25]  # the programme charges at some step, where the rule holds the battery
@@ -100,12 +114,18 @@ def test_held_out_evaluation_uses_common_random_numbers():
     def make_act(p):
         return lambda s, k: always_max(s, k, full) + 0 * p.astype(np.int32)
 
-    ev = heldout.evaluate_batched(make_act, np.zeros((3,), np.float32), full, days,
-                                 reference_profit=base["always_max"]["daily_profit"])
+    ev = heldout.evaluate_batched(
+        make_act,
+        np.zeros((3,), np.float32),
+        full,
+        days,
+        reference_profit=base["always_max"]["daily_profit"],
+    )
     ref = evaluate_policy("always_max", full, days)["metrics"]["daily_profit_eur"]["mean"]
     np.testing.assert_allclose(ev["per_seed_profit"], [ref] * 3, rtol=1e-6)
-    np.testing.assert_allclose(ev["daily_profit"], np.broadcast_to(base["always_max"]["daily_profit"], (3, 8)),
-                               rtol=1e-6)
+    np.testing.assert_allclose(
+        ev["daily_profit"], np.broadcast_to(base["always_max"]["daily_profit"], (3, 8)), rtol=1e-6
+    )
     assert ev["paired_diff"]["mean"] == pytest.approx(0.0, abs=1e-3)
     d = stats.paired_difference(np.array([[2.0, 4.0]]), np.array([1.0, 1.0]))
     assert d["mean"] == 2.0 and d["per_seed_mean"] == [2.0] and d["stderr"] == pytest.approx(1.0)
@@ -118,4 +138,6 @@ def test_redraw_clusters_the_draws_of_a_day_before_the_standard_error():
 
     d = day_clustered(np.array([[1.0, 3.0], [3.0, 5.0]]))  # (draws, days)
     assert d == {"mean": 3.0, "stderr": pytest.approx(1.0), "beats": True}
-    assert day_clustered(np.array([[1.0, -3.0], [3.0, 1.0]]))["beats"] is False  # per day 2, -1: 0.5 < 2 x 1.5
+    assert (
+        day_clustered(np.array([[1.0, -3.0], [3.0, 1.0]]))["beats"] is False
+    )  # per day 2, -1: 0.5 < 2 x 1.5

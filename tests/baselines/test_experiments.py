@@ -20,29 +20,43 @@ EXPERIMENTS = {"NL-2023": ("NL-2023", "DE-2023", "FR-2023")}
 
 def _ev(daily):
     daily = np.asarray(daily, np.float64)
-    return {"metrics": {"daily_profit_eur": {"mean": float(daily.mean()), "std": float(daily.std())}}, "daily_profit": daily}
+    return {
+        "metrics": {"daily_profit_eur": {"mean": float(daily.mean()), "std": float(daily.std())}},
+        "daily_profit": daily,
+    }
 
 
 def _fake():
     rng = np.random.default_rng(0)
     ref = {m: rng.normal(1000, 100, size=(2, 6)) for m in ("NL-2023", "DE-2023", "FR-2023")}
-    matrix = {"NL-2023": {m: _ev(ref[m] - 10.0 * (m != "NL-2023")) for m in ref},
-              "DE-2023": {"DE-2023": _ev(ref["DE-2023"])}}  # FR-2023 has no in-market agent (--no-reference)
-    baselines = {m: {"always_max": _ev(ref[m][0]), "price_threshold": _ev(ref[m][1] - 300)} for m in ref}
+    matrix = {
+        "NL-2023": {m: _ev(ref[m] - 10.0 * (m != "NL-2023")) for m in ref},
+        "DE-2023": {"DE-2023": _ev(ref["DE-2023"])},
+    }  # FR-2023 has no in-market agent (--no-reference)
+    baselines = {
+        m: {"always_max": _ev(ref[m][0]), "price_threshold": _ev(ref[m][1] - 300)} for m in ref
+    }
     return matrix, baselines
 
 
 def test_default_pairs_are_the_issue_s():
-    assert cm.EXPERIMENTS == {"NL-2023": ("NL-2023", "DE-2023", "FR-2023"),
-                              "NL-2021": ("NL-2021", "NL-2022", "DE-2022", "FR-2022")}
+    assert cm.EXPERIMENTS == {
+        "NL-2023": ("NL-2023", "DE-2023", "FR-2023"),
+        "NL-2021": ("NL-2021", "NL-2022", "DE-2022", "FR-2022"),
+    }
 
 
 def test_transfer_gap_is_the_paired_difference_to_the_in_market_agent():
     matrix, _ = _fake()
     gaps = cm.transfer_gaps(matrix, EXPERIMENTS)
-    assert set(gaps) == {"NL-2023"} and set(gaps["NL-2023"]) == {"DE-2023"}  # no self-gap, no missing reference
+    assert set(gaps) == {"NL-2023"} and set(gaps["NL-2023"]) == {
+        "DE-2023"
+    }  # no self-gap, no missing reference
     g = gaps["NL-2023"]["DE-2023"]
-    cross, ref = matrix["NL-2023"]["DE-2023"]["daily_profit"], matrix["DE-2023"]["DE-2023"]["daily_profit"]
+    cross, ref = (
+        matrix["NL-2023"]["DE-2023"]["daily_profit"],
+        matrix["DE-2023"]["DE-2023"]["daily_profit"],
+    )
     assert np.isclose(g["mean"], (cross - ref.mean(axis=0)).mean())
     assert len(g["per_seed_mean"]) == 2 and g["stderr"] > 0
 
@@ -63,11 +77,19 @@ def test_traffic_sweep_appendix_conditions_build_valid_params():
 
     assert ts.conditions() == [("shopping", "EU")]
     cells = ts.conditions(ts.PROFILES, ts.FLEETS)
-    assert cells == [("shopping", "EU"), ("residential", "EU"), ("workplace", "EU"), ("highway", "EU"),
-                     ("shopping", "US"), ("shopping", "World")]
+    assert cells == [
+        ("shopping", "EU"),
+        ("residential", "EU"),
+        ("workplace", "EU"),
+        ("highway", "EU"),
+        ("shopping", "US"),
+        ("shopping", "World"),
+    ]
     shares = {}
     for profile, fleet in cells:
-        cfg = resolve(ts.condition_config({"ENV_KWARGS": {"num_levels": 1}}, profile, fleet, "high"))
+        cfg = resolve(
+            ts.condition_config({"ENV_KWARGS": {"num_levels": 1}}, profile, fleet, "high")
+        )
         train_params, full, _, days = build_env_params(cfg)
         assert cfg["ENV_KWARGS"] == {"num_levels": 1, "fleet": fleet} and np.size(days) == 100
         shares[fleet] = np.asarray(full.fleet_capacity_kwh)
@@ -87,8 +109,16 @@ def test_runner_defaults_are_the_tuned_settings_and_full_is_the_paper_s_budget()
     cpu = settings("cpu")
     base, seeds = _common.config_of(_args([]))
     assert seeds == 4 and base["TOTAL_TIMESTEPS"] == 2_000_000
-    assert base["GAMMA"] == 0.95 and base["RELATIVE_PRICES"] is True and base["ENV_KWARGS"] == {"num_levels": 1}
-    assert all(base[k] == v for k, v in cpu.items() if k not in ("BATTERY_SHAPING", "TOTAL_TIMESTEPS", "ALGO", "OUT"))
+    assert (
+        base["GAMMA"] == 0.95
+        and base["RELATIVE_PRICES"] is True
+        and base["ENV_KWARGS"] == {"num_levels": 1}
+    )
+    assert all(
+        base[k] == v
+        for k, v in cpu.items()
+        if k not in ("BATTERY_SHAPING", "TOTAL_TIMESTEPS", "ALGO", "OUT")
+    )
     assert base["BATTERY_SHAPING"] == "dp" and base["SPLIT_CREDIT"] is True
     multi, _ = _common.config_of(_args(["--algo", "ippo"]))
     assert multi["LOCAL_REWARD_WEIGHT"] == 1.0 and multi["BATTERY_NET"] and multi["GAMMA"] == 0.9
@@ -98,7 +128,9 @@ def test_runner_defaults_are_the_tuned_settings_and_full_is_the_paper_s_budget()
     assert table3 == {"ENV_KWARGS": {}, "TOTAL_TIMESTEPS": 10_000_000}  # resolve() fills in Table 3
     # the tuned settings are not shared mutable state: a runner adding env kwargs leaves them alone
     again = _common.with_env_kwargs(base, fleet="US")
-    assert again["ENV_KWARGS"] == {"num_levels": 1, "fleet": "US"} and _common.TUNED["ppo"]["ENV_KWARGS"] == {"num_levels": 1}
+    assert again["ENV_KWARGS"] == {"num_levels": 1, "fleet": "US"} and _common.TUNED["ppo"][
+        "ENV_KWARGS"
+    ] == {"num_levels": 1}
 
 
 def test_the_makefile_s_training_targets_name_a_config_and_nothing_else():
@@ -125,26 +157,47 @@ def test_the_record_says_when_a_run_is_cut_from_the_paper_s_scale():
     args = _args(["--seeds", "3", "--timesteps", "5e5"])
     base, seeds = _common.config_of(args)
     rec = _common.Record(args, seeds, base, paper_seeds=20, figure="Fig. 4a").as_dict()
-    assert rec["cut"] is True and "3 seeds x 5e+05" in rec["cut_note"] and "20 x 1e+07" in rec["cut_note"]
+    assert (
+        rec["cut"] is True
+        and "3 seeds x 5e+05" in rec["cut_note"]
+        and "20 x 1e+07" in rec["cut_note"]
+    )
     assert rec["paper"] == {"timesteps_per_seed": 10_000_000, "seeds": 20}
-    assert rec["machine"]["cores"] >= 1 and rec["wall_seconds"] >= 0 and rec["timesteps_per_seed"] == 500_000
+    assert (
+        rec["machine"]["cores"] >= 1
+        and rec["wall_seconds"] >= 0
+        and rec["timesteps_per_seed"] == 500_000
+    )
     full = _args(["--full"])
     base, seeds = _common.config_of(full)
-    assert _common.Record(full, seeds, base, paper_seeds=20, figure="Fig. 4a").as_dict()["cut"] is False
+    assert (
+        _common.Record(full, seeds, base, paper_seeds=20, figure="Fig. 4a").as_dict()["cut"]
+        is False
+    )
     # fewer seeds than the paper's at the paper's steps is still cut
     assert _common.Record(full, 5, base, paper_seeds=20, figure="Fig. 4a").as_dict()["cut"] is True
     none = _common.Record(args, seeds, base, paper_seeds=None, figure="refund").as_dict()
-    assert none["cut"] is False and none["paper"] is None and none["cut_note"].startswith("no paper counterpart")
+    assert (
+        none["cut"] is False
+        and none["paper"] is None
+        and none["cut_note"].startswith("no paper counterpart")
+    )
 
 
 def test_paired_differences_over_seeds():
     from baselines.eval.stats import paired_over_seeds
 
     d = paired_over_seeds([3.0, 5.0, 7.0], [1.0, 1.0, 1.0])
-    assert d["per_seed"] == [2.0, 4.0, 6.0] and np.isclose(d["mean"], 4.0) and np.isclose(d["stderr"], 2.0 / np.sqrt(3))
+    assert (
+        d["per_seed"] == [2.0, 4.0, 6.0]
+        and np.isclose(d["mean"], 4.0)
+        and np.isclose(d["stderr"], 2.0 / np.sqrt(3))
+    )
     a = np.array([[1.0, 3.0], [2.0, 6.0]])  # seeds x days
     r = paired_over_seeds(a, np.zeros_like(a))
-    assert r["per_seed"] == [2.0, 4.0] and np.isclose(r["mean"], 3.0) and np.isclose(r["stderr"], 1.0)
+    assert (
+        r["per_seed"] == [2.0, 4.0] and np.isclose(r["mean"], 3.0) and np.isclose(r["stderr"], 1.0)
+    )
 
 
 def _cell(agent, am, rule, bound, seeds=2, days=5):
@@ -153,16 +206,30 @@ def _cell(agent, am, rule, bound, seeds=2, days=5):
 
     def entry(v, per_seed=False):
         daily = np.full((seeds, days), v) + noise if per_seed else v + noise
-        e = {"metrics": {"daily_profit_eur": {"mean": float(np.mean(daily)), "std": 1.0}}, "daily_profit": daily}
+        e = {
+            "metrics": {"daily_profit_eur": {"mean": float(np.mean(daily)), "std": 1.0}},
+            "daily_profit": daily,
+        }
         if per_seed:
             e["per_seed_profit"] = list(np.mean(daily, axis=1))
         return e
 
-    return {"evaluation": {"table": {"ppo": entry(agent, True), "always_max": entry(am), "battery_rule": entry(rule),
-                                     "lp_bound": entry(bound)}},
-            "curve": {"timesteps": np.array([1, 2]), "episode_profit_eur": np.array([[1.0, 2.0], [1.5, 2.5]])},
-            "vs_always_max": {"mean": agent - am, "stderr": 0.1},
-            "over_seeds": {"headroom_fraction": {"mean": (agent - am) / (bound - am), "stderr": 0.01}}}
+    return {
+        "evaluation": {
+            "table": {
+                "ppo": entry(agent, True),
+                "always_max": entry(am),
+                "battery_rule": entry(rule),
+                "lp_bound": entry(bound),
+            }
+        },
+        "curve": {
+            "timesteps": np.array([1, 2]),
+            "episode_profit_eur": np.array([[1.0, 2.0], [1.5, 2.5]]),
+        },
+        "vs_always_max": {"mean": agent - am, "stderr": 0.1},
+        "over_seeds": {"headroom_fraction": {"mean": (agent - am) / (bound - am), "stderr": 0.01}},
+    }
 
 
 def test_traffic_sweep_log_line_and_plots(tmp_path):
@@ -173,7 +240,9 @@ def test_traffic_sweep_log_line_and_plots(tmp_path):
     assert "lp_bound 12.0" in text and "vs_always_max +1.00" in text and "headroom +0.333" in text
     ts.plot(sweep, "ppo", tmp_path / "main.png")
     ts.plot_grid({"shopping/EU": sweep, "highway/EU": sweep}, "ppo", tmp_path / "grid.png")
-    assert (tmp_path / "main.png").read_bytes()[:4] == b"\x89PNG" and (tmp_path / "grid.png").stat().st_size > 0
+    assert (tmp_path / "main.png").read_bytes()[:4] == b"\x89PNG" and (
+        tmp_path / "grid.png"
+    ).stat().st_size > 0
 
 
 def _stored_run(tmp_path, config, **overrides):
@@ -182,9 +251,15 @@ def _stored_run(tmp_path, config, **overrides):
 
     parsed = resolve(config)
     _, n_upd = chunked_updates(parsed, 4)
-    res = {"algo": "ppo", "seeds": 2, "seed": 0, "timesteps": n_upd * parsed["NUM_ENVS"] * parsed["NUM_STEPS"],
-           "config": {**parsed, "TOTAL_TIMESTEPS": n_upd * parsed["NUM_ENVS"] * parsed["NUM_STEPS"]},
-           "wall_seconds": 12.5, **overrides}
+    res = {
+        "algo": "ppo",
+        "seeds": 2,
+        "seed": 0,
+        "timesteps": n_upd * parsed["NUM_ENVS"] * parsed["NUM_STEPS"],
+        "config": {**parsed, "TOTAL_TIMESTEPS": n_upd * parsed["NUM_ENVS"] * parsed["NUM_STEPS"]},
+        "wall_seconds": 12.5,
+        **overrides,
+    }
     path = tmp_path / "results.json"
     path.write_text(json.dumps(res))
     return str(path)
@@ -200,7 +275,9 @@ def test_a_reused_cell_must_be_the_run_the_runner_would_make(tmp_path):
     from baselines.experiments._common import reused_run
 
     base, _ = _common_config(["--timesteps", "1e5"])
-    cell = ts.condition_config(base, "shopping", "EU", "medium")  # ENV_KWARGS with fleet "EU" (the default)
+    cell = ts.condition_config(
+        base, "shopping", "EU", "medium"
+    )  # ENV_KWARGS with fleet "EU" (the default)
     stored = {**cell, "ENV_KWARGS": {"num_levels": 1}}
     got = reused_run(_stored_run(tmp_path, stored), "ppo", cell, 2, 4)
     assert got["wall_seconds"] == 12.5 and got["reused_from"]["options_added_since"] == []
@@ -209,15 +286,25 @@ def test_a_reused_cell_must_be_the_run_the_runner_would_make(tmp_path):
     res = json.loads(open(older).read())
     del res["config"]["PORT_SHAPING"]
     open(older, "w").write(json.dumps(res))
-    assert reused_run(older, "ppo", cell, 2, 4)["reused_from"]["options_added_since"] == ["PORT_SHAPING"]
+    assert reused_run(older, "ppo", cell, 2, 4)["reused_from"]["options_added_since"] == [
+        "PORT_SHAPING"
+    ]
     with pytest.raises(ValueError, match=re.escape("config PORT_SHAPING=None (this run: 'plan')")):
         reused_run(older, "ppo", {**cell, "PORT_SHAPING": "plan"}, 2, 4)
     for kwargs, (algo, seeds, config), needle in [
         ({}, ("ppo", 4, cell), "seeds=2 (this run: 4)"),
         ({}, ("ippo", 2, cell), "algo='ppo'"),
         ({}, ("ppo", 2, {**cell, "LR": 1e-4}), "config LR="),
-        ({}, ("ppo", 2, ts.condition_config(base, "shopping", "EU", "high")), "config TRAFFIC='medium'"),
-        ({}, ("ppo", 2, ts.condition_config(base, "shopping", "US", "medium")), "builds another station"),
+        (
+            {},
+            ("ppo", 2, ts.condition_config(base, "shopping", "EU", "high")),
+            "config TRAFFIC='medium'",
+        ),
+        (
+            {},
+            ("ppo", 2, ts.condition_config(base, "shopping", "US", "medium")),
+            "builds another station",
+        ),
         ({"timesteps": 3600}, ("ppo", 2, cell), "timesteps=3600"),
     ]:
         with pytest.raises(ValueError, match=re.escape(needle)):
@@ -232,12 +319,25 @@ def test_the_sweep_reads_reused_cells_and_refuses_cells_it_does_not_train(tmp_pa
     from baselines.experiments import traffic_sweep as ts
 
     cells = ts.conditions(ts.PROFILES, ts.FLEETS)
-    got = ts.parse_reuse(argparse.ArgumentParser(), ["medium=a.json", "highway/EU/high=b.json", "shopping/US/low=c"],
-                         cells, list(ts.TRAFFIC))
-    assert got == {"shopping/EU/medium": "a.json", "highway/EU/high": "b.json", "shopping/US/low": "c"}
-    for argv in (["--reuse", "medium"], ["--reuse", "peak=x.json"], ["--traffic", "low", "--reuse", "high=x.json"],
-                 ["--reuse", "highway/EU/high=x.json"],  # not in the main figure's sweep without --appendix
-                 ["--appendix", "--reuse", "highway/US/high=x.json"], ["--reuse", "medium="]):
+    got = ts.parse_reuse(
+        argparse.ArgumentParser(),
+        ["medium=a.json", "highway/EU/high=b.json", "shopping/US/low=c"],
+        cells,
+        list(ts.TRAFFIC),
+    )
+    assert got == {
+        "shopping/EU/medium": "a.json",
+        "highway/EU/high": "b.json",
+        "shopping/US/low": "c",
+    }
+    for argv in (
+        ["--reuse", "medium"],
+        ["--reuse", "peak=x.json"],
+        ["--traffic", "low", "--reuse", "high=x.json"],
+        ["--reuse", "highway/EU/high=x.json"],  # not in the main figure's sweep without --appendix
+        ["--appendix", "--reuse", "highway/US/high=x.json"],
+        ["--reuse", "medium="],
+    ):
         with pytest.raises(SystemExit):
             ts.main(argv + ["--out", str(tmp_path / "never" / "sweep")])
     assert not (tmp_path / "never").exists()  # refused before anything is written
@@ -253,12 +353,22 @@ def test_the_report_counts_a_reused_cell_s_wall_time():
     from baselines.experiments.report import provenance
 
     machine = {"cpu": "Xeon", "cores": 2, "backend": "cpu"}
-    plain = {"cut_note": "the paper's scale", "settings": "tuned", "wall_seconds": 600.0, "machine": machine}
+    plain = {
+        "cut_note": "the paper's scale",
+        "settings": "tuned",
+        "wall_seconds": 600.0,
+        "machine": machine,
+    }
     assert provenance(plain) == "the paper's scale; settings `tuned`; 10 min wall on Xeon ×2 (cpu)"
-    reused = {**plain, "wall_seconds_with_reused": 3000.0,
-              "reused": {"medium": {"path": "runs/medium/results.json", "wall_seconds": 2400.0}}}
-    assert provenance(reused) == ("the paper's scale; settings `tuned`; 50 min wall (with the reused medium cell "
-                                  "(runs/medium/results.json)) on Xeon ×2 (cpu)")
+    reused = {
+        **plain,
+        "wall_seconds_with_reused": 3000.0,
+        "reused": {"medium": {"path": "runs/medium/results.json", "wall_seconds": 2400.0}},
+    }
+    assert provenance(reused) == (
+        "the paper's scale; settings `tuned`; 50 min wall (with the reused medium cell "
+        "(runs/medium/results.json)) on Xeon ×2 (cpu)"
+    )
 
 
 def test_code_version_names_the_checkout_s_commit(tmp_path):
@@ -275,21 +385,33 @@ def test_result_files_keep_float32_values_exactly_and_number_lists_on_one_line(t
     to the same float32; float64 statistics are kept as they are; number lists take one line."""
 
     metric = np.float32([340.23096, -0.0112, 1e-7])
-    obj = {"curve": {"profit": metric, "seeds": [[1.5, 2.5], [3.5, 4.5]]}, "mean": 10.358861465454103,
-           "missing": float("nan"), "empty": {}, "names": ["a", "b"]}
+    obj = {
+        "curve": {"profit": metric, "seeds": [[1.5, 2.5], [3.5, 4.5]]},
+        "mean": 10.358861465454103,
+        "missing": float("nan"),
+        "empty": {},
+        "names": ["a", "b"],
+    }
     path = runs.write_json(obj, tmp_path / "r.json")
     back = json.loads(path.read_text())
     np.testing.assert_array_equal(np.float32(back["curve"]["profit"]), metric)
     assert back["mean"] == 10.358861465454103 and back["missing"] is None and back["empty"] == {}
     assert back["curve"]["seeds"] == [[1.5, 2.5], [3.5, 4.5]]
     lines = path.read_text().splitlines()
-    assert '    "profit": [340.23096, -0.0112, 1e-07],' in lines and '  "names": ["a", "b"]' in lines
+    assert (
+        '    "profit": [340.23096, -0.0112, 1e-07],' in lines and '  "names": ["a", "b"]' in lines
+    )
 
 
 def test_runner_files_keep_only_the_profit_curve():
     from baselines.experiments._common import profit_curve
 
-    curve = {"timesteps": [1, 2], "episode_profit_eur": [[1.0, 2.0]], "entropy": [[0.5, 0.4]], "value_loss": [[1.0, 0.9]]}
+    curve = {
+        "timesteps": [1, 2],
+        "episode_profit_eur": [[1.0, 2.0]],
+        "entropy": [[0.5, 0.4]],
+        "value_loss": [[1.0, 0.9]],
+    }
     assert profit_curve(curve) == {"timesteps": [1, 2], "episode_profit_eur": [[1.0, 2.0]]}
 
 
@@ -314,7 +436,9 @@ def test_the_report_shows_the_teachers_rules_where_a_run_holds_them():
     assert report.CELL_HEADER.count("|") == 2 * 12 and "plan programme" in report.CELL_HEADER
     assert report.teacher_rules([("low", old)]) == ""
     for name, d in (("battery_programme", 1.0), ("plan_programme", 3.0)):
-        cell["evaluation"]["table"][name] = {"vs_always_max": {"mean": d, "stderr": 0.5},
-                                             "headroom": {"fraction": d / 3.0}}
+        cell["evaluation"]["table"][name] = {
+            "vs_always_max": {"mean": d, "stderr": 0.5},
+            "headroom": {"fraction": d / 3.0},
+        }
     text = report.teacher_rules([("low", cell)])
     assert "| low | +1.00 ± 0.50 (0.333) | +3.00 ± 0.50 (1.000) |" in text

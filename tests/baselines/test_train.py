@@ -21,7 +21,16 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def test_cli_smoke_writes_png_json_checkpoint(tmp_path):
     out = tmp_path / "run"
-    cli.main([*TINY_CLI, "ALGO=ppo", f"TOTAL_TIMESTEPS={4 * 24 * 2}", "CHUNKS=2", "SEED=1", f"OUT={toml_inline(str(out))}"])
+    cli.main(
+        [
+            *TINY_CLI,
+            "ALGO=ppo",
+            f"TOTAL_TIMESTEPS={4 * 24 * 2}",
+            "CHUNKS=2",
+            "SEED=1",
+            f"OUT={toml_inline(str(out))}",
+        ]
+    )
     for name in ("curve.png", "results.json", "params.msgpack"):
         assert (out / name).stat().st_size > 0, name
     res = json.loads((out / "results.json").read_text())
@@ -29,9 +38,19 @@ def test_cli_smoke_writes_png_json_checkpoint(tmp_path):
     # the LP hindsight bound is a baseline by default (--optimal bound), and every policy,
     # the agent included, carries its fraction of the headroom between always-max and it
     # on a station with a battery, the battery shaping's teacher played as a rule is a baseline too
-    assert set(table) == {"always_max", "battery_rule", "price_threshold", "battery_programme", "plan_programme",
-                          "lp_bound", "ppo"}
-    bound, am = np.asarray(table["lp_bound"]["daily_profit"]), np.asarray(table["always_max"]["daily_profit"])
+    assert set(table) == {
+        "always_max",
+        "battery_rule",
+        "price_threshold",
+        "battery_programme",
+        "plan_programme",
+        "lp_bound",
+        "ppo",
+    }
+    bound, am = (
+        np.asarray(table["lp_bound"]["daily_profit"]),
+        np.asarray(table["always_max"]["daily_profit"]),
+    )
     assert np.all(bound >= am - 1e-3)
     assert table["lp_bound"]["headroom"]["fraction"] == pytest.approx(1.0)
     assert np.isfinite(res["headroom"]["fraction"]) and res["headroom"]["headroom_eur"] > 0
@@ -55,15 +74,22 @@ def test_cli_smoke_writes_png_json_checkpoint(tmp_path):
         for k in ("first_beats_always_max", "first_beats_battery_rule"):
             assert p[k] is None or (p[k]["timesteps"] > 0 and p[k]["wall_minutes"] > 0)
     assert res["over_seeds"]["vs_always_max"]["mean"] == pytest.approx(vs["mean"])
-    assert list(res["over_seeds"]) == ["vs_always_max", "vs_battery_rule", "vs_battery_programme", "vs_plan_programme",
-                                       "headroom_fraction"]
+    assert list(res["over_seeds"]) == [
+        "vs_always_max",
+        "vs_battery_rule",
+        "vs_battery_programme",
+        "vs_plan_programme",
+        "headroom_fraction",
+    ]
     for name in ("battery_programme", "plan_programme"):
         gap = np.mean(table[name]["daily_profit"]) - np.mean(table["always_max"]["daily_profit"])
         assert table[name]["vs_always_max"]["mean"] == pytest.approx(gap, abs=1e-3)
         for i, p in enumerate(res["per_seed"]):
             assert p[f"vs_{name}"]["mean"] == pytest.approx(res[f"vs_{name}"]["per_seed_mean"][i])
             # a seed's differences agree with the references' own profits
-            assert p["vs_always_max"]["mean"] - p[f"vs_{name}"]["mean"] == pytest.approx(gap, abs=1e-3)
+            assert p["vs_always_max"]["mean"] - p[f"vs_{name}"]["mean"] == pytest.approx(
+                gap, abs=1e-3
+            )
     _check_add_teacher_rules_reproduces(out / "results.json", res)
     # the checkpoint restores into the parameter pytree (leading axis = seed)
     train = ppo.make_train({**TINY, "HIDDEN": 16})
@@ -92,19 +118,26 @@ def _check_add_teacher_rules_reproduces(path, res):
     assert list(new["over_seeds"]) == list(res["over_seeds"])
     for name in rules:
         fresh = res["evaluation"]["table"][name]
-        np.testing.assert_allclose(new["evaluation"]["table"][name]["daily_profit"], fresh["daily_profit"], rtol=1e-6)
+        np.testing.assert_allclose(
+            new["evaluation"]["table"][name]["daily_profit"], fresh["daily_profit"], rtol=1e-6
+        )
         assert new["evaluation"]["table"][name]["headroom"]["fraction"] == pytest.approx(
-            fresh["headroom"]["fraction"], rel=1e-5)
+            fresh["headroom"]["fraction"], rel=1e-5
+        )
         for a, b in zip(new["per_seed"], res["per_seed"]):
             assert a[f"vs_{name}"] == pytest.approx(b[f"vs_{name}"], rel=1e-5)
             assert list(a).index(f"vs_{name}") < list(a).index("headroom_fraction")
-        assert new["over_seeds"][f"vs_{name}"]["mean"] == pytest.approx(res["over_seeds"][f"vs_{name}"]["mean"], rel=1e-5)
+        assert new["over_seeds"][f"vs_{name}"]["mean"] == pytest.approx(
+            res["over_seeds"][f"vs_{name}"]["mean"], rel=1e-5
+        )
         assert new[f"vs_{name}"]["mean"] == pytest.approx(res[f"vs_{name}"]["mean"], rel=1e-5)
     # another model's always-max: refused, nothing written
     bad = json.loads(path.read_text())
     bad["evaluation"]["table"]["always_max"]["daily_profit"][3] += 1.0
     path.write_text(json.dumps(bad))
-    with pytest.raises(ValueError, match="always_max replayed on this code differs .* by up to 1.000"):
+    with pytest.raises(
+        ValueError, match="always_max replayed on this code differs .* by up to 1.000"
+    ):
         add_teacher_rules.main([str(path)])
     assert json.loads(path.read_text()) == bad
 
@@ -115,12 +148,31 @@ def test_cli_overrides_reach_the_config_and_unknown_keys_raise(monkeypatch):
     from baselines import pipeline
 
     seen = {}
-    monkeypatch.setattr(pipeline, "run", lambda algo, config, **kw: seen.update(config, ALGO=algo, **kw)
-                        or pipeline.RunOutput({}, None, None))
-    cli.main(["RELATIVE_PRICES=true", "BATTERY_NET=false", "BATTERY_GAMMA=0.95", "BATTERY_SHAPING=dp",
-              "PORT_SHAPING=plan", "TOTAL_TIMESTEPS=100"])
-    assert seen["RELATIVE_PRICES"] is True and seen["BATTERY_NET"] is False and seen["ALGO"] == "ippo"
-    assert seen["BATTERY_GAMMA"] == 0.95 and seen["BATTERY_SHAPING"] == "dp" and seen["PORT_SHAPING"] == "plan"
+    monkeypatch.setattr(
+        pipeline,
+        "run",
+        lambda algo, config, **kw: (
+            seen.update(config, ALGO=algo, **kw) or pipeline.RunOutput({}, None, None)
+        ),
+    )
+    cli.main(
+        [
+            "RELATIVE_PRICES=true",
+            "BATTERY_NET=false",
+            "BATTERY_GAMMA=0.95",
+            "BATTERY_SHAPING=dp",
+            "PORT_SHAPING=plan",
+            "TOTAL_TIMESTEPS=100",
+        ]
+    )
+    assert (
+        seen["RELATIVE_PRICES"] is True and seen["BATTERY_NET"] is False and seen["ALGO"] == "ippo"
+    )
+    assert (
+        seen["BATTERY_GAMMA"] == 0.95
+        and seen["BATTERY_SHAPING"] == "dp"
+        and seen["PORT_SHAPING"] == "plan"
+    )
     assert seen["TOTAL_TIMESTEPS"] == 100 and seen["out"] == "outputs/train_ippo"
     with pytest.raises(ConfigError, match="BATTERY_NETT.*allowed.*BATTERY_NET"):
         cli.main(["BATTERY_NETT=true"])
@@ -135,7 +187,16 @@ def test_replot_adds_the_stored_mpc_for_exactly_the_runs_params(tmp_path, monkey
     from chargax_marl.trace import params_fingerprint
 
     out = tmp_path / "run"
-    cli.main([*TINY_CLI, "ALGO=ippo", f"TOTAL_TIMESTEPS={4 * 24}", "CHUNKS=1", "OPTIMAL=off", f"OUT={toml_inline(str(out))}"])
+    cli.main(
+        [
+            *TINY_CLI,
+            "ALGO=ippo",
+            f"TOTAL_TIMESTEPS={4 * 24}",
+            "CHUNKS=1",
+            "OPTIMAL=off",
+            f"OUT={toml_inline(str(out))}",
+        ]
+    )
     res = json.loads((out / "results.json").read_text())
     (tmp_path / "optimal").mkdir()
     with pytest.raises(LookupError, match="no stored MPC"):
@@ -144,9 +205,14 @@ def test_replot_adds_the_stored_mpc_for_exactly_the_runs_params(tmp_path, monkey
     _, eval_params, _, days = build_env_params(config)
     days = [int(d) for d in days]
     mpc_daily = np.linspace(10.0, 20.0, len(days))
-    stored = {"params_fingerprint": params_fingerprint(eval_params), "days": days,
-              "policies": {"mpc": {"daily_profit": mpc_daily.tolist()}}}
-    (tmp_path / "optimal" / "other.json").write_text(json.dumps({**stored, "params_fingerprint": "0" * 16}))
+    stored = {
+        "params_fingerprint": params_fingerprint(eval_params),
+        "days": days,
+        "policies": {"mpc": {"daily_profit": mpc_daily.tolist()}},
+    }
+    (tmp_path / "optimal" / "other.json").write_text(
+        json.dumps({**stored, "params_fingerprint": "0" * 16})
+    )
     (tmp_path / "optimal" / "tiny.json").write_text(json.dumps(stored))
     before = (out / "curve.png").stat().st_mtime_ns
     cli.main(["--replot", str(out), "--references", str(tmp_path / "optimal")])
@@ -169,17 +235,35 @@ def test_eval_draws_score_every_policy_on_the_mean_over_car_draws_of_each_day(tm
     from baselines.eval.rules import evaluate_rules
 
     out = tmp_path / "run"
-    cli.main([*TINY_CLI, "ALGO=ppo", f"TOTAL_TIMESTEPS={4 * 24}", "CHUNKS=1", "EVAL_DRAWS=2", f"OUT={toml_inline(str(out))}"])
+    cli.main(
+        [
+            *TINY_CLI,
+            "ALGO=ppo",
+            f"TOTAL_TIMESTEPS={4 * 24}",
+            "CHUNKS=1",
+            "EVAL_DRAWS=2",
+            f"OUT={toml_inline(str(out))}",
+        ]
+    )
     res = json.loads((out / "results.json").read_text())
     assert res["evaluation"]["draws"] == 2 and res["scenario"]["car_draws_per_day"] == 2
     assert "PRNGKey(1)" in res["evaluation"]["key"]
     table = res["evaluation"]["table"]
     _, eval_params, _, days = build_env_params(res["config"])
-    by_key = [evaluate_rules(eval_params, days, ("always_max",), key=jax.random.PRNGKey(k))["always_max"]["daily_profit"]
-              for k in (0, 1)]
+    by_key = [
+        evaluate_rules(eval_params, days, ("always_max",), key=jax.random.PRNGKey(k))["always_max"][
+            "daily_profit"
+        ]
+        for k in (0, 1)
+    ]
     assert not np.allclose(by_key[0], by_key[1])  # the draws differ ...
-    np.testing.assert_allclose(table["always_max"]["daily_profit"], np.mean(by_key, axis=0), rtol=1e-6, atol=1e-4)
-    assert np.all(np.asarray(table["lp_bound"]["daily_profit"]) >= np.asarray(table["always_max"]["daily_profit"]) - 1e-3)
+    np.testing.assert_allclose(
+        table["always_max"]["daily_profit"], np.mean(by_key, axis=0), rtol=1e-6, atol=1e-4
+    )
+    assert np.all(
+        np.asarray(table["lp_bound"]["daily_profit"])
+        >= np.asarray(table["always_max"]["daily_profit"]) - 1e-3
+    )
     assert "2 car draws" in table["lp_bound"]["source"]
     # ... and the agent's stored score is the mean over the same two draws (redraw's replay check)
     again = redraw.redraw(out, draws=2, bound=False)

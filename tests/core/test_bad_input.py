@@ -62,35 +62,57 @@ def marl_env(params):
 # ----------------------------------------------------------------- 1. float32 overflow
 
 
-@pytest.mark.parametrize("make, field", [
-    (lambda: Port("p", voltage_v=1e300), "voltage_v"),
-    (lambda: Port("p", voltage_v=1e-50), "voltage_v"),
-    (lambda: Port("p", max_current_a=1e39), "max_current_a"),
-    (lambda: Port("p", max_discharge_current_a=1e300), "max_discharge_current_a"),
-    (lambda: Port("p", efficiency=1e-50), "efficiency"),
-    (lambda: Battery(capacity_kwh=1e300), "capacity_kwh"),
-    (lambda: Battery(max_kw=1e-45), "max_kw"),
-    (lambda: Splitter("s", 1e39, (Port("p"),)), "max_kw"),
-    (lambda: make_params(customer_price_eur_kwh=1e40), "customer_price_eur_kwh"),
-    (lambda: make_params(grid_fee_eur_kwh=1e39), "grid_fee_eur_kwh"),
-    (lambda: make_params(feed_in_factor=1e39), "feed_in_factor"),
-    (lambda: make_params(fixed_cost_eur=1e39), "fixed_cost_eur"),
-    (lambda: make_params(battery_terminal_price=1e39), "battery_terminal_price"),
-    (lambda: make_params(beta=1e39), "beta"),
-    (lambda: make_params(charged_tolerance_kwh=1e-50), "charged_tolerance_kwh"),
-    (lambda: make_params(prices=np.full((2, 24), 1e39)), "prices"),
-    (lambda: make_params(prices=np.full(24, -1e39)), "prices"),
-    (lambda: make_params(alpha={"rejected": 1e40}), "alpha.rejected"),
-    (lambda: make_params(traffic=1e40), "traffic"),
-    (lambda: make_params(grid_demand_kwh=np.full(288, 1e39)), "grid_demand_kwh"),
-    (lambda: datasets.make_user_profile("x", np.ones(288), np.linspace(0, 1e39, 101), np.linspace(0, 50, 101)),
-     "stay_quantiles_min"),
-    (lambda: datasets.load_user_profile("shopping", weekend_volume_factor=1e39), "weekend_volume_factor"),
-    (lambda: datasets.load_fleet(datasets.FleetData("f", ("a",), np.ones(1), np.full(1, 1e39), np.ones(1) * 11,
-                                                    np.ones(1) * 50, np.full(1, 0.8))), "capacity_kwh"),
-    (lambda: datasets.load_grid_demand("synthetic-residential", scale_kwh=1e39), "scale_kwh"),
-    (lambda: make_params(num_levels=2**40), "num_levels"),
-])
+@pytest.mark.parametrize(
+    "make, field",
+    [
+        (lambda: Port("p", voltage_v=1e300), "voltage_v"),
+        (lambda: Port("p", voltage_v=1e-50), "voltage_v"),
+        (lambda: Port("p", max_current_a=1e39), "max_current_a"),
+        (lambda: Port("p", max_discharge_current_a=1e300), "max_discharge_current_a"),
+        (lambda: Port("p", efficiency=1e-50), "efficiency"),
+        (lambda: Battery(capacity_kwh=1e300), "capacity_kwh"),
+        (lambda: Battery(max_kw=1e-45), "max_kw"),
+        (lambda: Splitter("s", 1e39, (Port("p"),)), "max_kw"),
+        (lambda: make_params(customer_price_eur_kwh=1e40), "customer_price_eur_kwh"),
+        (lambda: make_params(grid_fee_eur_kwh=1e39), "grid_fee_eur_kwh"),
+        (lambda: make_params(feed_in_factor=1e39), "feed_in_factor"),
+        (lambda: make_params(fixed_cost_eur=1e39), "fixed_cost_eur"),
+        (lambda: make_params(battery_terminal_price=1e39), "battery_terminal_price"),
+        (lambda: make_params(beta=1e39), "beta"),
+        (lambda: make_params(charged_tolerance_kwh=1e-50), "charged_tolerance_kwh"),
+        (lambda: make_params(prices=np.full((2, 24), 1e39)), "prices"),
+        (lambda: make_params(prices=np.full(24, -1e39)), "prices"),
+        (lambda: make_params(alpha={"rejected": 1e40}), "alpha.rejected"),
+        (lambda: make_params(traffic=1e40), "traffic"),
+        (lambda: make_params(grid_demand_kwh=np.full(288, 1e39)), "grid_demand_kwh"),
+        (
+            lambda: datasets.make_user_profile(
+                "x", np.ones(288), np.linspace(0, 1e39, 101), np.linspace(0, 50, 101)
+            ),
+            "stay_quantiles_min",
+        ),
+        (
+            lambda: datasets.load_user_profile("shopping", weekend_volume_factor=1e39),
+            "weekend_volume_factor",
+        ),
+        (
+            lambda: datasets.load_fleet(
+                datasets.FleetData(
+                    "f",
+                    ("a",),
+                    np.ones(1),
+                    np.full(1, 1e39),
+                    np.ones(1) * 11,
+                    np.ones(1) * 50,
+                    np.full(1, 0.8),
+                )
+            ),
+            "capacity_kwh",
+        ),
+        (lambda: datasets.load_grid_demand("synthetic-residential", scale_kwh=1e39), "scale_kwh"),
+        (lambda: make_params(num_levels=2**40), "num_levels"),
+    ],
+)
 def test_values_that_overflow_float32_are_rejected(make, field):
     with pytest.raises(ValueError, match=field) as exc:
         make()
@@ -134,14 +156,17 @@ def test_moer_array_in_wrong_unit_rejected_like_the_loader():
 # ----------------------------------------------------------------- 3. zero is not "default"
 
 
-@pytest.mark.parametrize("make, field", [
-    (lambda: multiple_types(grid_kw=0.0), "grid_kw"),
-    (lambda: multiple_splitters(grid_kw=0.0), "grid_kw"),
-    (lambda: single_type(grid_kw=0.0), "grid_kw"),
-    (lambda: single_type(voltage_v=0), "voltage_v"),
-    (lambda: single_type(max_current_a=0), "max_current_a"),
-    (lambda: multiple_types(dc_evse_kw=0.0), "dc_evse_kw"),
-])
+@pytest.mark.parametrize(
+    "make, field",
+    [
+        (lambda: multiple_types(grid_kw=0.0), "grid_kw"),
+        (lambda: multiple_splitters(grid_kw=0.0), "grid_kw"),
+        (lambda: single_type(grid_kw=0.0), "grid_kw"),
+        (lambda: single_type(voltage_v=0), "voltage_v"),
+        (lambda: single_type(max_current_a=0), "max_current_a"),
+        (lambda: multiple_types(dc_evse_kw=0.0), "dc_evse_kw"),
+    ],
+)
 def test_builders_reject_zero(make, field):
     with pytest.raises(ValueError, match=f"{field}.*got 0"):
         make()
@@ -278,14 +303,17 @@ def test_string_marl_action_names_the_agent(marl_env):
 # ----------------------------------------------------------------- unclear errors
 
 
-@pytest.mark.parametrize("make, bad", [
-    (lambda: make_params(num_port=4), "num_port"),
-    (lambda: make_params(station_kwargs={"num_dcc": 4}), "num_dcc"),
-    (lambda: make_params(station="single_type", station_kwargs={"num_port": 4}), "num_port"),
-    (lambda: multiple_types(num_port=4), "num_port"),
-    (lambda: single_type(num_dc=4), "num_dc"),
-    (lambda: multiple_splitters(grid=5), "grid"),
-])
+@pytest.mark.parametrize(
+    "make, bad",
+    [
+        (lambda: make_params(num_port=4), "num_port"),
+        (lambda: make_params(station_kwargs={"num_dcc": 4}), "num_dcc"),
+        (lambda: make_params(station="single_type", station_kwargs={"num_port": 4}), "num_port"),
+        (lambda: multiple_types(num_port=4), "num_port"),
+        (lambda: single_type(num_dc=4), "num_dc"),
+        (lambda: multiple_splitters(grid=5), "grid"),
+    ],
+)
 def test_unknown_keywords_list_the_allowed_names(make, bad):
     with pytest.raises(TypeError, match=f"unknown keyword argument.*'{bad}'.*allowed: .*'") as exc:
         make()
@@ -298,12 +326,15 @@ def test_step_length_is_bounded(step_minutes):
         make_params(step_minutes=step_minutes)
 
 
-@pytest.mark.parametrize("load", [
-    lambda p: datasets.load_prices(p),
-    lambda p: datasets.load_fleet(p),
-    lambda p: datasets.load_moer(p),
-    lambda p: datasets.load_grid_demand(p),
-])
+@pytest.mark.parametrize(
+    "load",
+    [
+        lambda p: datasets.load_prices(p),
+        lambda p: datasets.load_fleet(p),
+        lambda p: datasets.load_moer(p),
+        lambda p: datasets.load_grid_demand(p),
+    ],
+)
 def test_non_utf8_csv_names_the_file(tmp_path, load):
     path = tmp_path / "latin1.csv"
     path.write_bytes("timestamp,price_eur_mwh\n2024-01-01 00:00,1\n# caf\xe9\n".encode("latin-1"))
@@ -345,8 +376,14 @@ X64_SCRIPT = textwrap.dedent("""
 def test_state_dtypes_fixed_under_x64():
     env = {**os.environ, "JAX_ENABLE_X64": "1", "JAX_PLATFORMS": "cpu"}
     root = Path(__file__).resolve().parents[2]
-    out = subprocess.run([sys.executable, "-c", X64_SCRIPT], env=env, cwd=root, capture_output=True, text=True,
-                         timeout=600)
+    out = subprocess.run(
+        [sys.executable, "-c", X64_SCRIPT],
+        env=env,
+        cwd=root,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert out.returncode == 0 and "X64 OK" in out.stdout, out.stderr[-3000:]
 
 
@@ -373,7 +410,9 @@ def test_long_run_with_nan_inf_and_out_of_range_actions_keeps_every_invariant(ac
 
     p = make_params(station=three_level_station(), traffic=200.0, action_mode=action_mode)
     n, days = p.station.num_leaves, 3
-    pool = jnp.asarray([NAN, INF, -INF, 1e30, -1e30, 2.5, -0.7, 0.3] + list(range(-25, 26)), jnp.float32)
+    pool = jnp.asarray(
+        [NAN, INF, -INF, 1e30, -1e30, 2.5, -0.7, 0.3] + list(range(-25, 26)), jnp.float32
+    )
 
     def day(key):
         k_reset, k_steps = jax.random.split(key)
@@ -384,7 +423,9 @@ def test_long_run_with_nan_inf_and_out_of_range_actions_keeps_every_invariant(ac
             new, info = simulator.step(k_step, s, action, p)
             return new, (s, new, info)
 
-        return jax.lax.scan(body, simulator.reset(k_reset, p), jax.random.split(k_steps, p.num_steps))[1]
+        return jax.lax.scan(
+            body, simulator.reset(k_reset, p), jax.random.split(k_steps, p.num_steps)
+        )[1]
 
     before, after, info = jax.jit(jax.vmap(day))(jax.random.split(KEY, days))
     # no NaN or inf anywhere in the state or the report
@@ -395,15 +436,24 @@ def test_long_run_with_nan_inf_and_out_of_range_actions_keeps_every_invariant(ac
     assert (np.asarray(after.energy_remaining_kwh) >= 0).all()
     # energy closure, per step: grid = cars + batteries + losses, losses >= 0
     e = np.asarray(info.leaf_energy_kwh, np.float64).reshape(-1, n)
-    grid, cars, bats, losses = (np.asarray(x, np.float64).reshape(-1) for x in (
-        info.grid_net_kwh, info.energy_delivered_kwh, info.battery_net_kwh, info.losses_kwh))
+    grid, cars, bats, losses = (
+        np.asarray(x, np.float64).reshape(-1)
+        for x in (
+            info.grid_net_kwh,
+            info.energy_delivered_kwh,
+            info.battery_net_kwh,
+            info.losses_kwh,
+        )
+    )
     np.testing.assert_allclose(grid, cars + bats + losses, atol=1e-3)
     np.testing.assert_allclose(e.sum(axis=1), cars + bats, atol=1e-3)
     assert (losses >= -1e-4).all()
     # the batteries (never depart) hold exactly what flowed into them
     b = slice(p.station.num_ports, n)
     cap = np.asarray(p.station.battery_capacity_kwh, np.float64)
-    stored = (np.asarray(after.soc, np.float64)[..., b] - np.asarray(before.soc, np.float64)[..., b]) * cap
+    stored = (
+        np.asarray(after.soc, np.float64)[..., b] - np.asarray(before.soc, np.float64)[..., b]
+    ) * cap
     np.testing.assert_allclose(stored.reshape(-1, cap.shape[0]), e[:, b], atol=1e-3)
     # grid-side node limits hold in hard mode
     flows = _grid_side_node_flows_kw(e / p.step_hours, p.station)

@@ -23,7 +23,12 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def test_price_dataset_names():
     assert ds.NL_PRICE_DATASETS == tuple(f"NL-{y}" for y in range(2015, 2025))
-    assert ds.PRICE_DATASETS == ds.NL_PRICE_DATASETS + ("FR-2015", "FR-2018", "DE-2015", "DE-2018") + ds.ENTSOE_PRICE_DATASETS
+    assert (
+        ds.PRICE_DATASETS
+        == ds.NL_PRICE_DATASETS
+        + ("FR-2015", "FR-2018", "DE-2015", "DE-2018")
+        + ds.ENTSOE_PRICE_DATASETS
+    )
     assert ds.list_price_datasets() == list(ds.PRICE_DATASETS)
     assert ds.load_prices().name == "NL-2023"
 
@@ -38,7 +43,9 @@ def test_bundled_price_years(name):
     assert p.prices_eur_kwh.dtype == np.float32
     assert np.isfinite(p.prices_eur_kwh).all()
     # FR-2022 peaks at 2.99 EUR/kWh (4 April 2022); the EU day-ahead price cap is 4 EUR/kWh
-    assert p.prices_eur_kwh.min() >= -0.5 and p.prices_eur_kwh.max() <= (4.0 if name in ds.ENTSOE_PRICE_DATASETS else 1.0)
+    assert p.prices_eur_kwh.min() >= -0.5 and p.prices_eur_kwh.max() <= (
+        4.0 if name in ds.ENTSOE_PRICE_DATASETS else 1.0
+    )
     assert p.first_weekday == dt.date(year, 1, 1).weekday()
     assert not p.prices_eur_kwh.flags.writeable
     assert ds.load_prices(name) is p  # cached
@@ -143,7 +150,11 @@ def test_prices_name_and_weekday_errors():
 def _wide_csv(days, start=dt.date(2024, 3, 4)):
     lines = ["date," + ",".join(f"h{h}" for h in range(24))]
     for d in range(days):
-        lines.append((start + dt.timedelta(days=d)).isoformat() + "," + ",".join(str(10.0 * h - 50 + d) for h in range(24)))
+        lines.append(
+            (start + dt.timedelta(days=d)).isoformat()
+            + ","
+            + ",".join(str(10.0 * h - 50 + d) for h in range(24))
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -172,7 +183,11 @@ def test_prices_long_csv_with_dst(tmp_path):
     assert p.first_weekday == 6
     assert p.prices_eur_kwh[0, 2] == pytest.approx(0.102)  # interpolated
     # autumn: repeated hour averaged
-    rows = ["timestamp,price_eur_mwh"] + [f"2024-10-27 {h:02d}:00:00,{h}" for h in range(24)] + ["2024-10-27 02:00:00,4"]
+    rows = (
+        ["timestamp,price_eur_mwh"]
+        + [f"2024-10-27 {h:02d}:00:00,{h}" for h in range(24)]
+        + ["2024-10-27 02:00:00,4"]
+    )
     f.write_text("\n".join(rows))
     p = ds.load_prices(f)
     assert p.prices_eur_kwh[0, 2] == pytest.approx(0.003)
@@ -189,7 +204,10 @@ def test_prices_long_csv_with_dst(tmp_path):
         (_wide_csv(1).replace("2024-03-04", "04/03/2024"), r"date: .*ISO date"),
         (_wide_csv(1).rsplit(",", 1)[0] + "\n", r"expected 25 fields"),
         (_wide_csv(3).replace("2024-03-05", "2024-03-09"), r"date: .*consecutive"),
-        ("timestamp,price_eur_mwh\n2024-01-01 00:00,1\n2024-01-01 01:00,2\n", r"timestamp: .*lacks hours"),
+        (
+            "timestamp,price_eur_mwh\n2024-01-01 00:00,1\n2024-01-01 01:00,2\n",
+            r"timestamp: .*lacks hours",
+        ),
         ("timestamp,price_eur_mwh\n2024-01-01 00:30,1\n", r"timestamp: .*whole hours"),
         ("timestamp,price_eur_mwh\n2024-01-01T00:00+01:00,1\n", r"timestamp: .*UTC offset"),
         ("timestamp,price_eur_mwh\nyesterday,1\n", r"timestamp: .*ISO timestamp"),
@@ -256,12 +274,16 @@ def test_parse_day_ahead_pipeline():
     # spring: local 00:00/01:00 = UTC 23:00 (25th) / 00:00; 03:00 = UTC 01:00; 02:00 interpolated
     assert spring[0] == _price_of(dt.datetime(2023, 3, 25, 23))
     assert spring[1] == _price_of(dt.datetime(2023, 3, 26, 0))
-    assert spring[3] == _price_of(dt.datetime(2023, 3, 26, 1))  # first value kept, not the 999 duplicate
+    assert spring[3] == _price_of(
+        dt.datetime(2023, 3, 26, 1)
+    )  # first value kept, not the 999 duplicate
     assert spring[2] == pytest.approx((spring[1] + spring[3]) / 2)
     assert spring[23] == _price_of(dt.datetime(2023, 3, 26, 21))
     # autumn: local 02:00 twice = UTC 00:00 and 01:00 -> mean
     assert autumn[0] == _price_of(dt.datetime(2023, 10, 28, 22))
-    assert autumn[2] == pytest.approx((_price_of(dt.datetime(2023, 10, 29, 0)) + _price_of(dt.datetime(2023, 10, 29, 1))) / 2)
+    assert autumn[2] == pytest.approx(
+        (_price_of(dt.datetime(2023, 10, 29, 0)) + _price_of(dt.datetime(2023, 10, 29, 1))) / 2
+    )
     assert autumn[3] == _price_of(dt.datetime(2023, 10, 29, 2))
     # local 16:00 CET = UTC 15:00 missing -> interpolated between 15:00 and 17:00 local
     assert autumn[16] == pytest.approx((autumn[15] + autumn[17]) / 2)
@@ -269,7 +291,9 @@ def test_parse_day_ahead_pipeline():
 
 
 def test_parse_day_ahead_month_first_detected():
-    text = "Datetime (UTC),Price (EUR/MWhe)\n" + "\n".join(f"01/13/2021 {h:02d}:00,{h}" for h in range(23, 24))
+    text = "Datetime (UTC),Price (EUR/MWhe)\n" + "\n".join(
+        f"01/13/2021 {h:02d}:00,{h}" for h in range(23, 24)
+    )
     text += "\n" + "\n".join(f"01/14/2021 {h:02d}:00,{h}" for h in range(23))
     stats = {}
     years = ds.parse_day_ahead_csv(text, stats=stats)
@@ -285,7 +309,12 @@ def test_parse_day_ahead_month_first_detected():
 # user profiles
 # --------------------------------------------------------------------------------------
 
-STAY_MEDIAN_RANGE_MIN = {"residential": (240, 960), "shopping": (60, 480), "workplace": (120, 600), "highway": (15, 45)}
+STAY_MEDIAN_RANGE_MIN = {
+    "residential": (240, 960),
+    "shopping": (60, 480),
+    "workplace": (120, 600),
+    "highway": (15, 45),
+}
 
 
 @pytest.mark.parametrize("name", ds.USER_PROFILES)
@@ -318,8 +347,12 @@ def test_profile_shapes_make_sense():
     assert 15 <= int(np.argmax(hour(res.arrival_weights[0]))) <= 20  # evening arrivals
     hw = ds.load_user_profile("highway")
     np.testing.assert_array_equal(hw.stay_scale_by_hour, np.ones(24, np.float32))
-    assert hw.stay_quantiles_min[0] == pytest.approx(10) and hw.stay_quantiles_min[-1] == pytest.approx(60)
-    assert hw.demand_quantiles_kwh[0] == pytest.approx(15) and hw.demand_quantiles_kwh[-1] == pytest.approx(60)
+    assert hw.stay_quantiles_min[0] == pytest.approx(10) and hw.stay_quantiles_min[
+        -1
+    ] == pytest.approx(60)
+    assert hw.demand_quantiles_kwh[0] == pytest.approx(15) and hw.demand_quantiles_kwh[
+        -1
+    ] == pytest.approx(60)
     # arrival-weighted mean of the hour scales is 1
     for name in ("residential", "shopping", "workplace"):
         p = ds.load_user_profile(name)
@@ -333,7 +366,9 @@ def test_profile_overrides():
     assert p.charge_sensitive_prob == 0.0 and p.arrival_soc_range == (0.1, 0.3)
     q = ds.load_user_profile(p, name="mine", weekend_volume_factor=0.5)
     assert q.name == "mine" and q.weekend_volume_factor == 0.5
-    np.testing.assert_array_equal(q.stay_quantiles_min, ds.load_user_profile("shopping").stay_quantiles_min)
+    np.testing.assert_array_equal(
+        q.stay_quantiles_min, ds.load_user_profile("shopping").stay_quantiles_min
+    )
 
 
 def test_make_user_profile_resamples():
@@ -353,7 +388,11 @@ def test_make_user_profile_resamples():
     np.testing.assert_allclose(two_hourly.arrival_weights, 1 / 288, rtol=1e-6)
 
 
-_GOOD = dict(arrival_weights=np.ones(288), stay_quantiles_min=np.linspace(5, 60, 101), demand_quantiles_kwh=np.linspace(1, 30, 101))
+_GOOD = dict(
+    arrival_weights=np.ones(288),
+    stay_quantiles_min=np.linspace(5, 60, 101),
+    demand_quantiles_kwh=np.linspace(1, 30, 101),
+)
 
 
 @pytest.mark.parametrize(
@@ -363,19 +402,37 @@ _GOOD = dict(arrival_weights=np.ones(288), stay_quantiles_min=np.linspace(5, 60,
         (dict(arrival_weights=-np.ones(288)), r"arrival_weights: weights must be >= 0"),
         (dict(arrival_weights=np.zeros((2, 288))), r"arrival_weights: row 0 .*positive sum"),
         (dict(arrival_weights=np.full(288, np.nan)), r"arrival_weights: all values must be finite"),
-        (dict(stay_quantiles_min=np.linspace(60, 5, 101)), r"stay_quantiles_min: quantiles must be non-decreasing"),
-        (dict(stay_quantiles_min=np.linspace(-5, 60, 101)), r"stay_quantiles_min: quantiles must be >= 0"),
-        (dict(stay_quantiles_min=np.ones((2, 101))), r"stay_quantiles_min: expected a 1-D quantile table"),
-        (dict(demand_quantiles_kwh=[1.0, np.inf]), r"demand_quantiles_kwh: all values must be finite"),
+        (
+            dict(stay_quantiles_min=np.linspace(60, 5, 101)),
+            r"stay_quantiles_min: quantiles must be non-decreasing",
+        ),
+        (
+            dict(stay_quantiles_min=np.linspace(-5, 60, 101)),
+            r"stay_quantiles_min: quantiles must be >= 0",
+        ),
+        (
+            dict(stay_quantiles_min=np.ones((2, 101))),
+            r"stay_quantiles_min: expected a 1-D quantile table",
+        ),
+        (
+            dict(demand_quantiles_kwh=[1.0, np.inf]),
+            r"demand_quantiles_kwh: all values must be finite",
+        ),
         (dict(demand_quantiles_kwh=[3.0]), r"demand_quantiles_kwh: expected a 1-D"),
         (dict(stay_scale_by_hour=np.ones(12)), r"stay_scale_by_hour: expected shape \(24,\)"),
         (dict(demand_scale_by_hour=np.zeros(24)), r"demand_scale_by_hour: factors must be > 0"),
         (dict(arrival_soc_range=(0.6, 0.2)), r"arrival_soc_range: expected lo <= hi"),
         (dict(arrival_soc_range=(0.2, 1.0)), r"arrival_soc_range: expected a value in \[0, 1\)"),
         (dict(arrival_soc_range=0.5), r"arrival_soc_range: expected a pair"),
-        (dict(charge_sensitive_prob=1.5), r"charge_sensitive_prob: expected a value in \[0, 1\], got 1.5"),
+        (
+            dict(charge_sensitive_prob=1.5),
+            r"charge_sensitive_prob: expected a value in \[0, 1\], got 1.5",
+        ),
         (dict(charge_sensitive_prob="high"), r"charge_sensitive_prob: expected a number"),
-        (dict(weekend_volume_factor=-1.0), r"weekend_volume_factor: expected a value in \[0, inf\)"),
+        (
+            dict(weekend_volume_factor=-1.0),
+            r"weekend_volume_factor: expected a value in \[0, inf\)",
+        ),
         (dict(name=""), r"name: expected a non-empty string"),
     ],
 )
@@ -415,7 +472,10 @@ def test_bundled_fleet():
     assert 40 < float(np.dot(f.share, f.capacity_kwh)) < 80
     np.testing.assert_array_equal(f.tau, np.full(k, 0.8, np.float32))
     header = (ds.DATA_DIR / "fleet_EU.csv").read_text().splitlines()[0]
-    assert header == "model,share,capacity_kwh,max_ac_kw,max_dc_kw,tau,max_ac_discharge_kw,max_dc_discharge_kw"
+    assert (
+        header
+        == "model,share,capacity_kwh,max_ac_kw,max_dc_kw,tau,max_ac_discharge_kw,max_dc_discharge_kw"
+    )
     assert ds.load_fleet("EU") is f
 
 
@@ -430,7 +490,11 @@ def test_fleet_csv(tmp_path):
     assert fleet.models == ("A", "B") and fleet.name == "fleet"
     np.testing.assert_allclose(fleet.share, [0.75, 0.25])
     # columns in another order, extra columns ignored
-    f.write_text(_fleet_csv(["0.8,A,1,50,11,100,x"], header="tau,model,share,capacity_kwh,max_ac_kw,max_dc_kw,note"))
+    f.write_text(
+        _fleet_csv(
+            ["0.8,A,1,50,11,100,x"], header="tau,model,share,capacity_kwh,max_ac_kw,max_dc_kw,note"
+        )
+    )
     assert ds.load_fleet(str(f)).capacity_kwh[0] == pytest.approx(50)
     same = ds.load_fleet(fleet)
     np.testing.assert_array_equal(same.share, fleet.share)
@@ -439,8 +503,14 @@ def test_fleet_csv(tmp_path):
 @pytest.mark.parametrize(
     "text, match",
     [
-        (_fleet_csv(["A,1,50,11,100"], header="model,share,capacity_kwh,max_ac_kw,max_dc_kw"), r"lacks column\(s\) \['tau'\]"),
-        (_fleet_csv(["A,1,50,11,100,0.8"], header="model,capacity_kwh,max_ac_kw,tau,share,x"), r"lacks column\(s\) \['max_dc_kw'\]"),
+        (
+            _fleet_csv(["A,1,50,11,100"], header="model,share,capacity_kwh,max_ac_kw,max_dc_kw"),
+            r"lacks column\(s\) \['tau'\]",
+        ),
+        (
+            _fleet_csv(["A,1,50,11,100,0.8"], header="model,capacity_kwh,max_ac_kw,tau,share,x"),
+            r"lacks column\(s\) \['max_dc_kw'\]",
+        ),
         (_fleet_csv([]), r"no car models"),
         (_fleet_csv(["A,1,0,11,100,0.8"]), r"capacity_kwh: must be > 0, got 0.0 for model 'A'"),
         (_fleet_csv(["A,1,50,-11,100,0.8"]), r"max_ac_kw: must be > 0"),
@@ -512,7 +582,9 @@ def test_build_data_check():
         cwd=ROOT,
     )
     if proc.returncode == 2:
-        pytest.skip(f"a source is unavailable (a wheel, or ../shared/data/entsoe-day-ahead): {proc.stderr.strip()[-300:]}")
+        pytest.skip(
+            f"a source is unavailable (a wheel, or ../shared/data/entsoe-day-ahead): {proc.stderr.strip()[-300:]}"
+        )
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "data check OK" in proc.stdout
 
@@ -592,7 +664,10 @@ def test_smard_spot_values_dst():
     for r in lines[1:]:
         c = r.split(";")
         vals.setdefault((c[0], c[1]), []).append(float(c[i_fr]))
-    d = lambda m, dd: (dt.date(2018, m, dd) - dt.date(2018, 1, 1)).days
+
+    def d(m, dd):
+        return (dt.date(2018, m, dd) - dt.date(2018, 1, 1)).days
+
     # spring DST (25 March): 02:00 does not exist -> mean of 01:00 and 03:00
     exp = (vals[("Mar 25, 2018", "1:00 AM")][0] + vals[("Mar 25, 2018", "3:00 AM")][0]) / 2
     assert a[d(3, 25), 2] == pytest.approx(exp / 1000, abs=1e-6)
@@ -616,14 +691,23 @@ def test_hand_compiled_fleets(name):
     assert (3 <= f.max_ac_kw).all() and (f.max_ac_kw <= 22).all()
     assert (f.max_dc_kw > f.max_ac_kw).all() and (f.max_dc_kw <= 400).all()
     text = (ds.DATA_DIR / ds.FLEET_FILES[name]).read_text()
-    assert text.startswith("# ") and "HAND-COMPILED" in text and "Sources" in text and "APPROXIMATE" in text
+    assert (
+        text.startswith("# ")
+        and "HAND-COMPILED" in text
+        and "Sources" in text
+        and "APPROXIMATE" in text
+    )
     assert f.models[int(np.argmax(f.share))].startswith("Tesla Model Y")
     assert ds.FLEET_FILES[name] in ds.HAND_COMPILED_FILES
 
 
 def test_fleet_csv_comments(tmp_path):
     f = tmp_path / "fleet.csv"
-    f.write_text("# a comment\n# another, with a comma\n" + _fleet_csv(["A,1,50,11,100,0.8"]) + "# trailing comment\n")
+    f.write_text(
+        "# a comment\n# another, with a comma\n"
+        + _fleet_csv(["A,1,50,11,100,0.8"])
+        + "# trailing comment\n"
+    )
     assert ds.load_fleet(f).models == ("A",)
 
 
@@ -657,8 +741,16 @@ def test_moer_custom_and_resample(tmp_path):
     np.testing.assert_allclose(ds.resample_moer(np.ones((2, 24)), 288), np.ones((2, 288)))
     np.testing.assert_allclose(ds.resample_moer(np.ones((1, 288)), 160).mean(), 1.0, rtol=1e-6)
     f = tmp_path / "moer.csv"
-    f.write_text("# comment\ndate," + ",".join(f"m{i}" for i in range(24)) + "\n"
-                 + "2021-01-01," + ",".join(["0.3"] * 24) + "\n2021-01-02," + ",".join(["0.2"] * 24) + "\n")
+    f.write_text(
+        "# comment\ndate,"
+        + ",".join(f"m{i}" for i in range(24))
+        + "\n"
+        + "2021-01-01,"
+        + ",".join(["0.3"] * 24)
+        + "\n2021-01-02,"
+        + ",".join(["0.2"] * 24)
+        + "\n"
+    )
     m = ds.load_moer(f)
     assert m.moer_kg_per_kwh.shape == (2, 24) and m.first_weekday == 4
     g, _ = ds.read_moer_csv(f, unit="g_per_kwh")
@@ -746,7 +838,9 @@ def test_grid_demand_custom(tmp_path):
     f = tmp_path / "g.csv"
     f.write_text("step,grid_demand_kwh\n" + "\n".join(f"{i},2.5" for i in range(96)) + "\n")
     np.testing.assert_allclose(ds.load_grid_demand(f, num_steps=96), 2.5)
-    with pytest.raises(ValueError, match=r"96 steps per day \(15-minute resolution\).*288 steps per day \(5-minute"):
+    with pytest.raises(
+        ValueError, match=r"96 steps per day \(15-minute resolution\).*288 steps per day \(5-minute"
+    ):
         ds.load_grid_demand(f)
     with pytest.raises(ValueError, match=r"grid_demand_kwh: demand must be >= 0"):
         ds.load_grid_demand(-np.ones(288))
@@ -770,14 +864,24 @@ def test_make_params_moer_and_demand_names():
     p = make_params(moer_kg_per_kwh="CAISO-SCE-2020", grid_demand_kwh="synthetic-residential")
     assert p.moer_kg_per_kwh.shape == (366, 288) and p.observe_moer
     np.testing.assert_allclose(np.asarray(p.moer_kg_per_kwh), ds.load_moer().moer_kg_per_kwh)
-    p15 = make_params(moer_kg_per_kwh="CAISO-SCE-2020", grid_demand_kwh="synthetic-residential", step_minutes=15, observe_moer=False)
+    p15 = make_params(
+        moer_kg_per_kwh="CAISO-SCE-2020",
+        grid_demand_kwh="synthetic-residential",
+        step_minutes=15,
+        observe_moer=False,
+    )
     assert p15.moer_kg_per_kwh.shape == (366, 96) and not p15.observe_moer
-    np.testing.assert_allclose(np.asarray(p15.moer_kg_per_kwh).mean(), ds.load_moer().moer_kg_per_kwh.mean(), rtol=1e-4)
+    np.testing.assert_allclose(
+        np.asarray(p15.moer_kg_per_kwh).mean(), ds.load_moer().moer_kg_per_kwh.mean(), rtol=1e-4
+    )
     assert p15.grid_demand_kwh.shape == (96,)
     # arrays keep working
     p = make_params(moer_kg_per_kwh=np.full(288, 0.3), grid_demand_kwh=np.ones(288))
     assert p.moer_kg_per_kwh.shape == (1, 288) and p.observe_moer
-    with pytest.raises(ValueError, match=r"'moer_kg_per_kwh' has 96 columns per day \(15-minute resolution\).*288 steps per day \(5-minute"):
+    with pytest.raises(
+        ValueError,
+        match=r"'moer_kg_per_kwh' has 96 columns per day \(15-minute resolution\).*288 steps per day \(5-minute",
+    ):
         make_params(moer_kg_per_kwh=np.ones((3, 96)))
     with pytest.raises(ValueError, match=r"'grid_demand_kwh' has 96 steps per day"):
         make_params(grid_demand_kwh=np.ones(96))
@@ -807,7 +911,9 @@ def test_summary_and_describe():
 
     rows = data.summary()
     names = [r["name"] for r in rows]
-    assert set(ds.PRICE_DATASETS) | set(ds.ALL_USER_PROFILES) | set(ds.FLEETS) | set(ds.MOER_DATASETS) <= set(names)
+    assert set(ds.PRICE_DATASETS) | set(ds.ALL_USER_PROFILES) | set(ds.FLEETS) | set(
+        ds.MOER_DATASETS
+    ) <= set(names)
     for r in rows:
         assert set(r) == {"name", "kind", "shape", "resolution", "years", "source", "licence"}
     by = {r["name"]: r for r in rows}
@@ -823,6 +929,11 @@ def test_summary_and_describe():
 def test_plot_profiles(tmp_path):
     from chargax_marl import data
 
-    out = data.plot_profiles(prices="DE-2018", user_profile="workplace-us-caltech", fleet="World", path=tmp_path / "x" / "p.png")
+    out = data.plot_profiles(
+        prices="DE-2018",
+        user_profile="workplace-us-caltech",
+        fleet="World",
+        path=tmp_path / "x" / "p.png",
+    )
     assert out.is_file() and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert 10_000 < out.stat().st_size < 200_000

@@ -89,7 +89,9 @@ def test_default_root_never_exceeds_its_rating_with_every_leaf_at_full_power():
     s = s.replace(soc=s.soc.at[-1].set(0.2))
     _, info = step(KEY, s, jnp.full((p.station.num_leaves,), 10, jnp.int32), p)
     root = p.station.node_names.index("grid")
-    assert float(info.grid_net_kwh) / DT_H == pytest.approx(float(p.station.node_max_kw[root]), rel=1e-4)
+    assert float(info.grid_net_kwh) / DT_H == pytest.approx(
+        float(p.station.node_max_kw[root]), rel=1e-4
+    )
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -100,13 +102,25 @@ def test_grid_side_energy_through_every_node_within_its_limit(tree, seed):
     s = start(p)
     for i in range(p.station.num_ports):
         if rng.random() < 0.8:
-            s = place_car(s, i, soc=float(rng.uniform(0.1, 0.6)), arrival_soc=0.0, capacity_kwh=1000.0,
-                          max_rate_kw=1000.0)
+            s = place_car(
+                s,
+                i,
+                soc=float(rng.uniform(0.1, 0.6)),
+                arrival_soc=0.0,
+                capacity_kwh=1000.0,
+                max_rate_kw=1000.0,
+            )
     levels = jnp.asarray(rng.integers(-10, 11, p.station.num_leaves), jnp.int32)
     _, info = step(KEY, s, levels, p)
-    through = _grid_side_node_energy(tree, np.asarray(info.leaf_energy_kwh, np.float64), p.station.leaf_names)
+    through = _grid_side_node_energy(
+        tree, np.asarray(info.leaf_energy_kwh, np.float64), p.station.leaf_names
+    )
     for name, limit in _limits(tree).items():
-        assert abs(through[name]) <= limit * DT_H * (1 + 1e-4) + 1e-6, (name, through[name] / DT_H, limit)
+        assert abs(through[name]) <= limit * DT_H * (1 + 1e-4) + 1e-6, (
+            name,
+            through[name] / DT_H,
+            limit,
+        )
     # hard mode: what flows is within every limit up to float32 rounding, whose size follows
     # the leaf powers that cancel in a node's net flow (a 1 kW root over ~200 kW leaves left
     # 2.3e-6 kW, hypothesis seed 216238), not the limit
@@ -127,8 +141,14 @@ def test_soft_mode_reports_what_flows():
 
 
 def _battery_station():
-    return Splitter("grid", 500.0, (Port("p", "DC", 500.0, 200.0, 0.0, 0.95),
-                                    Battery("b", capacity_kwh=200.0, max_kw=100.0, efficiency=0.95)))
+    return Splitter(
+        "grid",
+        500.0,
+        (
+            Port("p", "DC", 500.0, 200.0, 0.0, 0.95),
+            Battery("b", capacity_kwh=200.0, max_kw=100.0, efficiency=0.95),
+        ),
+    )
 
 
 def _day_profit(p, battery_level: int, day: int = 0):
@@ -137,23 +157,34 @@ def _day_profit(p, battery_level: int, day: int = 0):
         new, info = simulator.step(k, state, lv, p)
         return new, info.battery_terminal_value_eur
 
-    final, term = jax.lax.scan(body, simulator.empty_state(day, p), jax.random.split(KEY, p.num_steps))
+    final, term = jax.lax.scan(
+        body, simulator.empty_state(day, p), jax.random.split(KEY, p.num_steps)
+    )
     return final.totals, term
 
 
 def test_dumping_the_battery_on_a_flat_price_day_loses_its_losses():
     # no grid fee and feed-in at the day-ahead price: buying and selling cost the same, so the
     # only difference the battery makes is its own loss
-    p = make_params(station=_battery_station(), prices=_flat_prices(0.10), first_weekday=0, traffic=100.0,
-                    grid_fee_eur_kwh=0.0)
+    p = make_params(
+        station=_battery_station(),
+        prices=_flat_prices(0.10),
+        first_weekday=0,
+        traffic=100.0,
+        grid_fee_eur_kwh=0.0,
+    )
     idle, _ = _day_profit(p, 0)
     dump, term = _day_profit(p, -10)
     gain = float(dump.profit_eur - idle.profit_eur)
     assert float(dump.battery_net_kwh) < -50.0  # it did empty the battery
     # the terminal value is booked once, at the last step, and is in the profit
     term = np.asarray(term)
-    assert np.count_nonzero(term) == 1 and term[-1] == pytest.approx(float(dump.battery_terminal_value_eur))
-    assert float(dump.battery_terminal_value_eur) == pytest.approx(0.10 * float(dump.battery_net_kwh), rel=1e-5)
+    assert np.count_nonzero(term) == 1 and term[-1] == pytest.approx(
+        float(dump.battery_terminal_value_eur)
+    )
+    assert float(dump.battery_terminal_value_eur) == pytest.approx(
+        0.10 * float(dump.battery_net_kwh), rel=1e-5
+    )
     # what it dumped reached the grid side times its efficiency, but is valued whole:
     assert gain < 0.0
     assert gain == pytest.approx(-0.10 * (1 - 0.95) * -float(dump.battery_net_kwh), rel=1e-3)
@@ -163,13 +194,19 @@ def test_dumping_the_battery_on_a_flat_price_day_loses_its_losses():
 
 
 def test_battery_terminal_value_can_be_turned_off_or_fixed():
-    off = make_params(station=_battery_station(), prices=_flat_prices(0.10), first_weekday=0,
-                      battery_terminal_price=None)
+    off = make_params(
+        station=_battery_station(),
+        prices=_flat_prices(0.10),
+        first_weekday=0,
+        battery_terminal_price=None,
+    )
     fixed = off.replace(battery_value_eur_kwh=jnp.float32(0.3))
     t_off, _ = _day_profit(off, -10)
     t_fixed, _ = _day_profit(fixed, -10)
     assert float(t_off.battery_terminal_value_eur) == 0.0
-    assert float(t_fixed.battery_terminal_value_eur) == pytest.approx(0.3 * float(t_fixed.battery_net_kwh), rel=1e-5)
+    assert float(t_fixed.battery_terminal_value_eur) == pytest.approx(
+        0.3 * float(t_fixed.battery_net_kwh), rel=1e-5
+    )
     with pytest.raises(ValueError, match="battery_terminal_price"):
         make_params(battery_terminal_price="free")
 
@@ -185,11 +222,15 @@ def test_battery_initial_soc_fixed_or_drawn():
     from chargax_marl.evaluation import run_days
 
     def day_totals(p):
-        return jax.jit(lambda d, k: run_days(lambda s, kk: always_max(s, kk, p), p, d, k))(np.arange(2), KEY)
+        return jax.jit(lambda d, k: run_days(lambda s, kk: always_max(s, kk, p), p, d, k))(
+            np.arange(2), KEY
+        )
 
     a, b = day_totals(make_params(battery_initial_soc=0.5)), day_totals(ranged)
     np.testing.assert_array_equal(np.asarray(a.cars_arrived), np.asarray(b.cars_arrived))
-    np.testing.assert_array_equal(np.asarray(a.energy_delivered_kwh), np.asarray(b.energy_delivered_kwh))
+    np.testing.assert_array_equal(
+        np.asarray(a.energy_delivered_kwh), np.asarray(b.energy_delivered_kwh)
+    )
     with pytest.raises(ValueError, match="battery_initial_soc"):
         make_params(battery_initial_soc=(0.8, 0.2))
     with pytest.raises(ValueError, match="battery_initial_soc"):
@@ -207,19 +248,39 @@ def test_default_beta_is_zero_so_the_term_is_the_overtime():
         new, info = simulator.step(k, state, always_max(state, k, p), p)
         return new, (info.penalties["satisfaction_charge"], info.overtime_min)
 
-    _, (term, over) = jax.jit(lambda k: jax.lax.scan(body, simulator.reset(k, p), jax.random.split(k, 288)))(KEY)
+    _, (term, over) = jax.jit(
+        lambda k: jax.lax.scan(body, simulator.reset(k, p), jax.random.split(k, 288))
+    )(KEY)
     np.testing.assert_allclose(np.asarray(term), np.asarray(over))
     assert np.all(np.asarray(term) >= 0.0)
 
 
 def _charge_sensitive_car(p, level: int, *, stay_min: float = 600.0):
     soc0, target, cap, rbar, tau = 0.2, 0.9, 60.0, 50.0, 0.8
-    earliest = float(traffic.earliest_finish_min(jnp.float32(soc0), jnp.float32(target), jnp.float32(cap),
-                                                 jnp.float32(rbar), jnp.float32(tau),
-                                                 p.station.leaf_solo_max_kw[0], p))
-    s = place_car(start(p), 0, soc=soc0, capacity_kwh=cap, max_rate_kw=rbar, tau=tau, target_soc=target,
-                  remaining_kwh=(target - soc0) * cap, time_min=stay_min, charge_sensitive=True,
-                  earliest_min=earliest)
+    earliest = float(
+        traffic.earliest_finish_min(
+            jnp.float32(soc0),
+            jnp.float32(target),
+            jnp.float32(cap),
+            jnp.float32(rbar),
+            jnp.float32(tau),
+            p.station.leaf_solo_max_kw[0],
+            p,
+        )
+    )
+    s = place_car(
+        start(p),
+        0,
+        soc=soc0,
+        capacity_kwh=cap,
+        max_rate_kw=rbar,
+        tau=tau,
+        target_soc=target,
+        remaining_kwh=(target - soc0) * cap,
+        time_min=stay_min,
+        charge_sensitive=True,
+        earliest_min=earliest,
+    )
     lv = jnp.array([level])
     overtime = 0.0
     for n in range(1, 300):
@@ -240,7 +301,9 @@ def test_undertime_is_measured_against_the_earliest_finish():
     assert float(fast.penalties["satisfaction_charge"]) == pytest.approx(0.0, abs=1e-6)
     # at 30 % it leaves later, within its plan: beta * the avoidable minutes
     assert slow_min > fast_min + 20
-    assert float(slow.penalties["satisfaction_charge"]) == pytest.approx(0.5 * (slow_min - earliest), abs=1e-3)
+    assert float(slow.penalties["satisfaction_charge"]) == pytest.approx(
+        0.5 * (slow_min - earliest), abs=1e-3
+    )
     # past the plan: every minute past the plan counts fully on top
     late_min, _, late, late_over = _charge_sensitive_car(p, 3, stay_min=fast_min + 10.0)
     over = late_min - (fast_min + 10.0)
@@ -248,8 +311,9 @@ def test_undertime_is_measured_against_the_earliest_finish():
     # undertime credit at departure
     assert over > 5 and late_over == pytest.approx(over, abs=1e-3)
     assert float(late.overtime_min) == pytest.approx(5.0, abs=1e-3)
-    assert float(late.penalties["satisfaction_charge"]) == pytest.approx(5.0 + 0.5 * (fast_min + 10.0 - earliest),
-                                                                       abs=1e-3)
+    assert float(late.penalties["satisfaction_charge"]) == pytest.approx(
+        5.0 + 0.5 * (fast_min + 10.0 - earliest), abs=1e-3
+    )
 
 
 # ------------------------------------------------------------------ 4. per-car targets
@@ -258,8 +322,16 @@ def test_undertime_is_measured_against_the_earliest_finish():
 def test_a_car_stops_at_its_target_and_leaves_there():
     tree = Splitter("grid", 500.0, (Port("p", "DC", 500.0, 200.0, 0.0, 1.0),))
     p = no_arrivals(make_params(station=tree))
-    s = place_car(start(p), 0, soc=0.3, capacity_kwh=60.0, max_rate_kw=50.0, target_soc=0.5,
-                  remaining_kwh=12.0, time_min=120.0)
+    s = place_car(
+        start(p),
+        0,
+        soc=0.3,
+        capacity_kwh=60.0,
+        max_rate_kw=50.0,
+        target_soc=0.5,
+        remaining_kwh=12.0,
+        time_min=120.0,
+    )
     delivered = 0.0
     for _ in range(23):
         s, info = step(KEY, s, jnp.array([10]), p)
@@ -268,12 +340,25 @@ def test_a_car_stops_at_its_target_and_leaves_there():
     assert float(s.soc[0]) == pytest.approx(0.5, abs=1e-5)
     assert float(s.energy_remaining_kwh[0]) == pytest.approx(0.0, abs=1e-4)
     s, info = step(KEY, s, jnp.array([10]), p)  # the 24th step ends the 120-minute stay
-    assert float(info.cars_departed) == 1 and float(info.missing_kwh) == pytest.approx(0.0, abs=1e-4)
+    assert float(info.cars_departed) == 1 and float(info.missing_kwh) == pytest.approx(
+        0.0, abs=1e-4
+    )
     # a charge-sensitive car leaves as soon as it reaches its target (3 kWh: within the first step)
-    s = place_car(start(p), 0, soc=0.3, capacity_kwh=60.0, max_rate_kw=50.0, target_soc=0.35,
-                  remaining_kwh=3.0, time_min=120.0, charge_sensitive=True)
+    s = place_car(
+        start(p),
+        0,
+        soc=0.3,
+        capacity_kwh=60.0,
+        max_rate_kw=50.0,
+        target_soc=0.35,
+        remaining_kwh=3.0,
+        time_min=120.0,
+        charge_sensitive=True,
+    )
     s, info = step(KEY, s, jnp.array([10]), p)
-    assert float(info.cars_departed) == 1 and float(info.energy_delivered_kwh) == pytest.approx(3.0, rel=1e-4)
+    assert float(info.cars_departed) == 1 and float(info.energy_delivered_kwh) == pytest.approx(
+        3.0, rel=1e-4
+    )
 
 
 @pytest.fixture(scope="module")
@@ -286,7 +371,9 @@ def busy_day():
         new, _ = simulator.step(k, state, always_max(state, k, p), p)
         return new, new
 
-    _, states = jax.jit(lambda k: jax.lax.scan(body, simulator.reset(k, p), jax.random.split(k, 288)))(KEY)
+    _, states = jax.jit(
+        lambda k: jax.lax.scan(body, simulator.reset(k, p), jax.random.split(k, 288))
+    )(KEY)
     return p, states
 
 
@@ -294,7 +381,10 @@ def test_arriving_cars_have_targets_that_match_their_demand(busy_day):
     p, states = busy_day
     parked = np.asarray(states.occupied) & (np.asarray(p.station.leaf_kind) != KIND_BATTERY)
     target, soc = np.asarray(states.target_soc)[parked], np.asarray(states.soc)[parked]
-    cap, remaining = np.asarray(states.capacity_kwh)[parked], np.asarray(states.energy_remaining_kwh)[parked]
+    cap, remaining = (
+        np.asarray(states.capacity_kwh)[parked],
+        np.asarray(states.energy_remaining_kwh)[parked],
+    )
     arrival = np.asarray(states.arrival_soc)[parked]
     assert parked.sum() > 1000
     assert np.all(target <= 1.0 + 1e-6) and np.all(soc <= target + 1e-5) and np.all(arrival >= 0.0)
@@ -311,7 +401,9 @@ def test_default_economics_are_a_real_stations():
     assert float(p.grid_fee_eur_kwh) == pytest.approx(0.04)
     assert float(p.fixed_cost_eur) * 288 == pytest.approx(100.8, rel=1e-5)
     # the fixed cost is per step, so it scales with the step length
-    assert float(make_params(step_minutes=15.0).fixed_cost_eur) == pytest.approx(3 * float(p.fixed_cost_eur))
+    assert float(make_params(step_minutes=15.0).fixed_cost_eur) == pytest.approx(
+        3 * float(p.fixed_cost_eur)
+    )
     assert float(make_params(fixed_cost_eur=0.0, grid_fee_eur_kwh=0.0).grid_fee_eur_kwh) == 0.0
 
 
@@ -319,14 +411,25 @@ def test_default_economics_are_a_real_stations():
 
 
 def _share_station():
-    return Splitter("grid", 1000.0, (Port("p0", "DC", 500.0, 200.0, 0.0, 0.95), Port("p1", "DC", 500.0, 200.0, 0.0, 0.95),
-                                     Battery("b", capacity_kwh=200.0, max_kw=100.0, efficiency=0.95)))
+    return Splitter(
+        "grid",
+        1000.0,
+        (
+            Port("p0", "DC", 500.0, 200.0, 0.0, 0.95),
+            Port("p1", "DC", 500.0, 200.0, 0.0, 0.95),
+            Battery("b", capacity_kwh=200.0, max_kw=100.0, efficiency=0.95),
+        ),
+    )
 
 
 def test_departure_penalty_goes_to_the_departing_cars_port():
     p = no_arrivals(make_params(station=_share_station(), alpha={"satisfaction_time": 2.0}))
-    s = place_car(start(p), 0, soc=0.2, capacity_kwh=100.0, remaining_kwh=30.0, time_min=5.0, target_soc=0.5)
-    s = place_car(s, 1, soc=0.2, capacity_kwh=100.0, remaining_kwh=30.0, time_min=600.0, target_soc=0.5)
+    s = place_car(
+        start(p), 0, soc=0.2, capacity_kwh=100.0, remaining_kwh=30.0, time_min=5.0, target_soc=0.5
+    )
+    s = place_car(
+        s, 1, soc=0.2, capacity_kwh=100.0, remaining_kwh=30.0, time_min=600.0, target_soc=0.5
+    )
     _, info = step(KEY, s, jnp.array([0, 0, 0]), p)
     shares = np.asarray(info.leaf_reward)
     assert float(info.missing_kwh) == pytest.approx(30.0)
@@ -347,7 +450,9 @@ def test_a_ports_share_does_not_move_with_the_battery():
     np.testing.assert_allclose(shares[-10][:2], shares[0][:2], atol=1e-5)
     np.testing.assert_allclose(shares[10][:2], shares[0][:2], atol=1e-5)
     # the battery's degradation penalty is its own
-    assert shares[-10][2] < shares[0][2]  # its feed-in income here is less than its degradation penalty
+    assert (
+        shares[-10][2] < shares[0][2]
+    )  # its feed-in income here is less than its degradation penalty
     _, info = step(KEY, s, jnp.array([10, 10, -10]), p)
     assert float(info.penalties["battery_degradation"]) > 0
 
@@ -363,7 +468,9 @@ def test_netting_gain_goes_to_the_leaves_that_feed_in():
     spot = float(p.prices_eur_kwh[0, 0])
     car_kwh = float(info.leaf_energy_kwh[0])
     fixed = float(p.fixed_cost_eur) / 3
-    assert shares[0] == pytest.approx(0.75 * car_kwh - (spot + 0.1) * car_kwh / 0.95 - fixed, abs=1e-4)
+    assert shares[0] == pytest.approx(
+        0.75 * car_kwh - (spot + 0.1) * car_kwh / 0.95 - fixed, abs=1e-4
+    )
 
 
 # ------------------------------------------------------------------ 7. per-model discharge limits
@@ -377,16 +484,25 @@ def test_fleet_carries_discharge_limits():
     us = datasets.load_fleet("US")
     assert float(us.max_dc_discharge_kw.max()) == 0.0  # no discharge columns: no model discharges
     with pytest.raises(ValueError, match="max_dc_discharge_kw"):
-        datasets.parse_fleet_csv_text("model,share,capacity_kwh,max_ac_kw,max_dc_kw,tau,max_dc_discharge_kw\n"
-                                      "a,1,50,11,100,0.8,-1\n")
+        datasets.parse_fleet_csv_text(
+            "model,share,capacity_kwh,max_ac_kw,max_dc_kw,tau,max_dc_discharge_kw\n"
+            "a,1,50,11,100,0.8,-1\n"
+        )
 
 
 def test_a_car_discharges_at_most_its_own_limit():
     tree = Splitter("grid", 500.0, (Port("p", "DC", 500.0, 200.0, 200.0, 1.0),))
     p = no_arrivals(make_params(station=tree))
     for limit_kw in (0.0, 7.0):
-        s = place_car(start(p), 0, soc=0.6, arrival_soc=0.1, capacity_kwh=60.0, max_rate_kw=100.0,
-                      max_discharge_rate_kw=limit_kw)
+        s = place_car(
+            start(p),
+            0,
+            soc=0.6,
+            arrival_soc=0.1,
+            capacity_kwh=60.0,
+            max_rate_kw=100.0,
+            max_discharge_rate_kw=limit_kw,
+        )
         _, info = step(KEY, s, jnp.array([-10]), p)
         assert float(info.leaf_energy_kwh[0]) == pytest.approx(-limit_kw * DT_H, abs=1e-5)
 

@@ -34,9 +34,13 @@ def levels(params, **by_leaf):
 
 
 def test_rate_curve_values():
-    r = np.asarray(rate_curve_kw(jnp.array([0.0, 0.5, 0.8, 0.9, 1.0]), jnp.float32(40.0), jnp.float32(0.8)))
+    r = np.asarray(
+        rate_curve_kw(jnp.array([0.0, 0.5, 0.8, 0.9, 1.0]), jnp.float32(40.0), jnp.float32(0.8))
+    )
     np.testing.assert_allclose(r, [40.0, 40.0, 40.0, 20.0, 0.0], rtol=1e-5, atol=1e-5)
-    d = np.asarray(discharge_curve_kw(jnp.array([1.0, 0.5, 0.15, 0.0]), jnp.float32(40.0), jnp.float32(0.8)))
+    d = np.asarray(
+        discharge_curve_kw(jnp.array([1.0, 0.5, 0.15, 0.0]), jnp.float32(40.0), jnp.float32(0.8))
+    )
     np.testing.assert_allclose(d, [40.0, 40.0, 30.0, 0.0], rtol=1e-5, atol=1e-5)
 
 
@@ -84,7 +88,9 @@ def test_discharge_never_below_arrival_soc(params):
 
 def test_mirrored_discharge_curve_limits_current(params):
     # SoC 0.15 -> mirrored SoC 0.85 > tau: 0.15 * 40 / 0.2 = 30 kW
-    s = place_car(start(params), 0, soc=0.15, arrival_soc=0.0, capacity_kwh=1000.0, max_rate_kw=40.0, tau=0.8)
+    s = place_car(
+        start(params), 0, soc=0.15, arrival_soc=0.0, capacity_kwh=1000.0, max_rate_kw=40.0, tau=0.8
+    )
     _, info = step(KEY, s, levels(params, dc0=-10), params)
     assert float(info.leaf_energy_kwh[0]) == pytest.approx(-30.0 * DT_H, rel=1e-5)
 
@@ -104,8 +110,14 @@ def test_capacity_clip_and_totals_use_energy_actually_moved(params):
 
 
 def test_battery_counts_against_node_limits_and_is_priced():
-    tree = Splitter("grid", 60.0, (Port("p", "DC", 500.0, 100.0, 100.0, 0.9),
-                                   Battery("b", capacity_kwh=500.0, max_kw=50.0, voltage_v=500.0, efficiency=0.8)))
+    tree = Splitter(
+        "grid",
+        60.0,
+        (
+            Port("p", "DC", 500.0, 100.0, 100.0, 0.9),
+            Battery("b", capacity_kwh=500.0, max_kw=50.0, voltage_v=500.0, efficiency=0.8),
+        ),
+    )
     p = no_arrivals(make_params(station=tree, grid_fee_eur_kwh=0.1))
     s = place_car(start(p), 0, soc=0.2, capacity_kwh=1000.0, max_rate_kw=1000.0)
     s1, info = step(KEY, s, jnp.array([10, 10]), p)
@@ -117,11 +129,14 @@ def test_battery_counts_against_node_limits_and_is_priced():
     assert float(info.grid_net_kwh) == pytest.approx(grid, rel=1e-4)
     assert float(info.battery_net_kwh) == pytest.approx(50.0 * k * DT_H, rel=1e-4)
     spot = float(p.prices_eur_kwh[0, 0])
-    assert float(info.profit_eur) == pytest.approx(0.75 * 50.0 * k * DT_H - (spot + 0.1) * grid - float(p.fixed_cost_eur),
-                                                   rel=1e-4, abs=1e-5)
+    assert float(info.profit_eur) == pytest.approx(
+        0.75 * 50.0 * k * DT_H - (spot + 0.1) * grid - float(p.fixed_cost_eur), rel=1e-4, abs=1e-5
+    )
     # Net flow: the battery discharging feeds the port, so nothing is rescaled.
     _, info2 = step(KEY, s, jnp.array([10, -10]), p)
-    np.testing.assert_allclose(np.asarray(info2.leaf_energy_kwh), [50.0 * DT_H, -50.0 * DT_H], rtol=1e-4)
+    np.testing.assert_allclose(
+        np.asarray(info2.leaf_energy_kwh), [50.0 * DT_H, -50.0 * DT_H], rtol=1e-4
+    )
     assert float(info2.constraint_excess_kw) == 0.0
 
 
@@ -157,12 +172,36 @@ def test_time_sensitive_departure_at_the_right_step(params):
 
 def test_charge_sensitive_departure_records_over_and_undertime(params):
     beta = float(params.beta)
-    s = place_car(start(params), 0, soc=0.2, capacity_kwh=100.0, max_rate_kw=100.0, remaining_kwh=1.0,
-                  time_min=30.0, charge_sensitive=True)
-    s = place_car(s, 2, soc=0.2, capacity_kwh=100.0, max_rate_kw=100.0, remaining_kwh=1.0, time_min=0.0,
-                  charge_sensitive=True)
-    s = place_car(s, 3, soc=0.2, capacity_kwh=100.0, max_rate_kw=100.0, remaining_kwh=1.0, time_min=0.0,
-                  charge_sensitive=True)  # not charged: stays although its time is over
+    s = place_car(
+        start(params),
+        0,
+        soc=0.2,
+        capacity_kwh=100.0,
+        max_rate_kw=100.0,
+        remaining_kwh=1.0,
+        time_min=30.0,
+        charge_sensitive=True,
+    )
+    s = place_car(
+        s,
+        2,
+        soc=0.2,
+        capacity_kwh=100.0,
+        max_rate_kw=100.0,
+        remaining_kwh=1.0,
+        time_min=0.0,
+        charge_sensitive=True,
+    )
+    s = place_car(
+        s,
+        3,
+        soc=0.2,
+        capacity_kwh=100.0,
+        max_rate_kw=100.0,
+        remaining_kwh=1.0,
+        time_min=0.0,
+        charge_sensitive=True,
+    )  # not charged: stays although its time is over
     s1, info = step(KEY, s, levels(params, dc0=10, dc2=10), params)
     assert not bool(s1.occupied[0]) and not bool(s1.occupied[2]) and bool(s1.occupied[3])
     assert float(info.cars_departed) == 2
@@ -175,8 +214,16 @@ def test_charge_sensitive_departure_records_over_and_undertime(params):
 def test_a_late_charge_sensitive_car_that_is_never_charged_still_costs_its_overtime(params):
     """Overtime accrues while the car is parked past its plan: a policy that keeps a late car
     from its target (so it never leaves) pays every step of it, not nothing."""
-    s = place_car(start(params), 3, soc=0.2, capacity_kwh=100.0, max_rate_kw=100.0, remaining_kwh=10.0,
-                  time_min=7.0, charge_sensitive=True)
+    s = place_car(
+        start(params),
+        3,
+        soc=0.2,
+        capacity_kwh=100.0,
+        max_rate_kw=100.0,
+        remaining_kwh=10.0,
+        time_min=7.0,
+        charge_sensitive=True,
+    )
     over = []
     for _ in range(6):
         s, info = step(KEY, s, levels(params), params)  # idle: the car never reaches its target
@@ -212,6 +259,7 @@ def test_arrivals_fill_first_free_ports_and_count_rejections(params):
 def test_arrived_cars_follow_profile_and_fleet(params):
     flood = params.replace(arrival_rate=jnp.full_like(params.arrival_rate, 50.0))
     s1, _ = step(KEY, start(flood), levels(flood), flood)
+
     def member(x, table):
         return bool(np.any(np.isclose(np.asarray(table), float(x), rtol=1e-6)))
 
@@ -219,7 +267,10 @@ def test_arrived_cars_follow_profile_and_fleet(params):
         assert member(s1.capacity_kwh[i], flood.fleet_capacity_kwh)
         lo, hi = np.asarray(flood.arrival_soc_range)
         assert lo - 1e-6 <= float(s1.soc[i]) <= hi + 1e-6
-        assert float(s1.energy_remaining_kwh[i]) <= (1 - float(s1.soc[i])) * float(s1.capacity_kwh[i]) + 1e-4
+        assert (
+            float(s1.energy_remaining_kwh[i])
+            <= (1 - float(s1.soc[i])) * float(s1.capacity_kwh[i]) + 1e-4
+        )
         assert float(s1.time_remaining_min[i]) >= 5.0
     # DC ports get the DC rate, AC ports the AC rate of the drawn model.
     assert all(member(s1.max_rate_kw[i], flood.fleet_dc_kw) for i in range(4))
@@ -239,6 +290,7 @@ def test_weekend_days_use_the_weekend_profile():
         def body(s, k):
             s, info = simulator.step(k, s, jnp.zeros(7, jnp.int32), p)
             return s, info.cars_arrived + info.cars_rejected
+
         _, n = jax.lax.scan(body, start(p, day), jax.random.split(KEY, 288))
         return float(n.sum())
 
@@ -251,19 +303,36 @@ def test_weekend_days_use_the_weekend_profile():
 
 def test_profit_uses_buy_price_on_draw_and_sell_price_on_feed_in():
     tree = Splitter("grid", 500.0, (Port("p", "DC", 500.0, 200.0, 200.0, 0.9),))
-    p = no_arrivals(make_params(station=tree, grid_fee_eur_kwh=0.1, feed_in_factor=0.5, fixed_cost_eur=0.01,
-                                customer_price_eur_kwh=0.6))
+    p = no_arrivals(
+        make_params(
+            station=tree,
+            grid_fee_eur_kwh=0.1,
+            feed_in_factor=0.5,
+            fixed_cost_eur=0.01,
+            customer_price_eur_kwh=0.6,
+        )
+    )
     day, t = 10, 100  # hour 8
     spot = float(p.prices_eur_kwh[day, 8])
-    s = place_car(start(p, day).replace(timestep=jnp.asarray(t)), 0, soc=0.5, arrival_soc=0.1,
-                  capacity_kwh=1000.0, max_rate_kw=1000.0)
+    s = place_car(
+        start(p, day).replace(timestep=jnp.asarray(t)),
+        0,
+        soc=0.5,
+        arrival_soc=0.1,
+        capacity_kwh=1000.0,
+        max_rate_kw=1000.0,
+    )
     _, buy = step(KEY, s, jnp.array([10]), p)
     e = 100.0 * DT_H
     assert float(buy.grid_net_kwh) == pytest.approx(e / 0.9, rel=1e-5)
-    assert float(buy.profit_eur) == pytest.approx(0.6 * e - (spot + 0.1) * e / 0.9 - 0.01, rel=1e-4, abs=1e-5)
+    assert float(buy.profit_eur) == pytest.approx(
+        0.6 * e - (spot + 0.1) * e / 0.9 - 0.01, rel=1e-4, abs=1e-5
+    )
     _, sell = step(KEY, s, jnp.array([-10]), p)
     assert float(sell.grid_net_kwh) == pytest.approx(-e * 0.9, rel=1e-5)
-    assert float(sell.profit_eur) == pytest.approx(0.6 * -e - 0.5 * spot * (-e * 0.9) - 0.01, rel=1e-4, abs=1e-5)
+    assert float(sell.profit_eur) == pytest.approx(
+        0.6 * -e - 0.5 * spot * (-e * 0.9) - 0.01, rel=1e-4, abs=1e-5
+    )
     assert float(buy.price_buy_eur_kwh) == pytest.approx(spot + 0.1)
 
 
@@ -271,23 +340,45 @@ def test_each_penalty_term_equals_a_hand_computation():
     tree = three_level_station()
     moer = np.full(288, 0.4, np.float32)
     demand = np.full(288, 3.0, np.float32)
-    alpha = {"constraint": 1.0, "satisfaction_time": 2.0, "satisfaction_charge": 0.5, "sustainability": 0.1,
-             "rejected": 3.0, "battery_degradation": 0.2, "car_degradation": 0.3, "grid_demand": 0.05}
-    p = make_params(station=tree, constraint_mode="soft", moer_kg_per_kwh=moer, grid_demand_kwh=demand,
-                    alpha=alpha, beta=0.5)
+    alpha = {
+        "constraint": 1.0,
+        "satisfaction_time": 2.0,
+        "satisfaction_charge": 0.5,
+        "sustainability": 0.1,
+        "rejected": 3.0,
+        "battery_degradation": 0.2,
+        "car_degradation": 0.3,
+        "grid_demand": 0.05,
+    }
+    p = make_params(
+        station=tree,
+        constraint_mode="soft",
+        moer_kg_per_kwh=moer,
+        grid_demand_kwh=demand,
+        alpha=alpha,
+        beta=0.5,
+    )
     p = p.replace(arrival_rate=jnp.full_like(p.arrival_rate, 40.0))
     s = start(p)
-    s = place_car(s, 0, soc=0.5, arrival_soc=0.2, capacity_kwh=1000.0, max_rate_kw=1000.0, time_min=600.0)
-    s = place_car(s, 1, soc=0.2, capacity_kwh=100.0, remaining_kwh=7.0, time_min=5.0)  # leaves, misses
+    s = place_car(
+        s, 0, soc=0.5, arrival_soc=0.2, capacity_kwh=1000.0, max_rate_kw=1000.0, time_min=600.0
+    )
+    s = place_car(
+        s, 1, soc=0.2, capacity_kwh=100.0, remaining_kwh=7.0, time_min=5.0
+    )  # leaves, misses
     s = place_car(s, 4, soc=0.2, capacity_kwh=1000.0, max_rate_kw=1000.0, time_min=600.0)
     s = place_car(s, 5, soc=0.2, capacity_kwh=1000.0, max_rate_kw=1000.0, time_min=600.0)
-    act = jnp.array([-5, 0, 0, 0, 10, 10, -10])  # dc0 discharges 50 A, AC both full, battery discharges
+    act = jnp.array(
+        [-5, 0, 0, 0, 10, 10, -10]
+    )  # dc0 discharges 50 A, AC both full, battery discharges
     s1, info = step(KEY, s, act, p)
     eta = np.asarray(p.station.leaf_path_efficiency)
     e_dc0 = -0.5 * 200 * 500 / 1000 * DT_H
     e_ac = 32 * 400 / 1000 * DT_H
     e_bat = -50.0 * DT_H
-    np.testing.assert_allclose(np.asarray(info.leaf_energy_kwh), [e_dc0, 0, 0, 0, e_ac, e_ac, e_bat], rtol=1e-5)
+    np.testing.assert_allclose(
+        np.asarray(info.leaf_energy_kwh), [e_dc0, 0, 0, 0, e_ac, e_ac, e_bat], rtol=1e-5
+    )
     grid = e_dc0 * eta[0] + e_ac / eta[4] + e_ac / eta[5] + e_bat * eta[6]
     delivered = e_dc0 + 2 * e_ac
     # Grid-side node flows: ac_split 25.6 / (0.97 * 0.99) kW vs 20 kW (the ports' losses count); the grid

@@ -51,10 +51,16 @@ def test_names_and_index():
     assert set(NAMES) <= set(ds.list_price_datasets())
     index = _index()
     assert tuple(index["datasets"]) == NAMES
-    assert "HewlettPackard/green-dcc" in index["source"] and "3f6ea95cb835b89ba50b0ef76d66d14b8037643e" in index["source"]
+    assert (
+        "HewlettPackard/green-dcc" in index["source"]
+        and "3f6ea95cb835b89ba50b0ef76d66d14b8037643e" in index["source"]
+    )
     assert "MIT" in index["licence"] and "ENTSO-E" in index["licence"]
     for name, e in index["datasets"].items():
-        assert e["file"] == f"prices_{name.replace('-', '_')}.csv" and (ds.DATA_DIR / e["file"]).is_file()
+        assert (
+            e["file"] == f"prices_{name.replace('-', '_')}.csv"
+            and (ds.DATA_DIR / e["file"]).is_file()
+        )
         assert e["dst_gap_filled"] == 1 and e["interpolated"] == 0
 
 
@@ -69,7 +75,11 @@ def test_dataset_shape_range_weekday(name):
     # EUR/kWh; negative prices are allowed, down to the -500 EUR/MWh floor; the day-ahead cap is 4000 EUR/MWh
     assert -0.5 <= a.min() and a.max() <= 4.0
     assert 0.02 < a.mean() < 0.3
-    assert p.first_weekday == dt.date(year, 1, 1).weekday() == _index()["datasets"][name]["first_weekday"]
+    assert (
+        p.first_weekday
+        == dt.date(year, 1, 1).weekday()
+        == _index()["datasets"][name]["first_weekday"]
+    )
     assert a[:, 18:20].mean() > a[:, 3:5].mean()  # evenings dearer than nights
 
 
@@ -134,8 +144,13 @@ def test_filled_days_are_the_documented_ones():
         "FR-2022": ["2022-09-03 <- 2022-09-10"],
         "FR-2023": ["2023-11-30 <- 2023-12-07"],
         "FR-2024": [],
-        "DE-2020": ["2020-09-26 <- 2020-10-03", "2020-11-01 <- 2020-11-08", "2020-11-16 <- 2020-11-23",
-                    "2020-11-17 <- 2020-11-24", "2020-11-19 <- 2020-11-26"],
+        "DE-2020": [
+            "2020-09-26 <- 2020-10-03",
+            "2020-11-01 <- 2020-11-08",
+            "2020-11-16 <- 2020-11-23",
+            "2020-11-17 <- 2020-11-24",
+            "2020-11-19 <- 2020-11-26",
+        ],
         "DE-2021": ["2021-04-30 <- 2021-05-07"],
         "DE-2022": ["2022-09-03 <- 2022-09-10"],
         "DE-2023": [],
@@ -149,7 +164,9 @@ def test_filled_days_are_the_documented_ones():
 
 
 def _build_module():
-    spec = importlib.util.spec_from_file_location("_build_data_for_tests", ROOT / "scripts" / "build_data.py")
+    spec = importlib.util.spec_from_file_location(
+        "_build_data_for_tests", ROOT / "scripts" / "build_data.py"
+    )
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module
     spec.loader.exec_module(module)
@@ -159,7 +176,9 @@ def _build_module():
 def test_missing_shared_folder_is_a_clear_error(tmp_path):
     bd = _build_module()
     assert bd.ENTSOE_DIR == ROOT.parent / "shared" / "data" / "entsoe-day-ahead"
-    with pytest.raises(bd.SharedDataUnavailable, match=r"not found: .*\.\./shared/data/entsoe-day-ahead"):
+    with pytest.raises(
+        bd.SharedDataUnavailable, match=r"not found: .*\.\./shared/data/entsoe-day-ahead"
+    ):
         bd.build_entsoe_prices(tmp_path / "out", src_dir=tmp_path / "nowhere")
 
 

@@ -22,12 +22,15 @@ def test_uniforms_are_uniform_and_in_range():
 
 def test_adjacent_keys_and_streams_are_uncorrelated():
     # raw keys that differ in one bit (PRNGKey(i) vs PRNGKey(i + 1)) must give unrelated draws
-    draws = jax.vmap(lambda i: rng.uniform(rng.key_seed(jax.random.PRNGKey(i)), rng.ARRIVALS, (4,)))(
-        jnp.arange(50_000))
+    draws = jax.vmap(
+        lambda i: rng.uniform(rng.key_seed(jax.random.PRNGKey(i)), rng.ARRIVALS, (4,))
+    )(jnp.arange(50_000))
     d = np.asarray(draws)
     assert abs(np.corrcoef(d[:-1, 0], d[1:, 0])[0, 1]) < 0.02
     assert abs(np.corrcoef(d[:, 0], d[:, 1])[0, 1]) < 0.02
-    other = jax.vmap(lambda i: rng.uniform(rng.key_seed(jax.random.PRNGKey(i)), rng.RESET, (1,)))(jnp.arange(50_000))
+    other = jax.vmap(lambda i: rng.uniform(rng.key_seed(jax.random.PRNGKey(i)), rng.RESET, (1,)))(
+        jnp.arange(50_000)
+    )
     assert abs(np.corrcoef(d[:, 0], np.asarray(other)[:, 0])[0, 1]) < 0.02
     assert stats.kstest(d[:, 0], "uniform").pvalue > 1e-3
 
@@ -37,10 +40,14 @@ def test_every_key_kind_is_accepted(impl):
     typed = jax.random.key(5, impl=impl)
     seed = rng.key_seed(typed)
     assert seed.shape == (2,) and seed.dtype == jnp.uint32
-    assert not np.array_equal(np.asarray(seed), np.asarray(rng.key_seed(jax.random.key(6, impl=impl))))
+    assert not np.array_equal(
+        np.asarray(seed), np.asarray(rng.key_seed(jax.random.key(6, impl=impl)))
+    )
     # a raw threefry key and its typed twin give the same draws
     if impl == "threefry2x32":
-        np.testing.assert_array_equal(np.asarray(seed), np.asarray(rng.key_seed(jax.random.PRNGKey(5))))
+        np.testing.assert_array_equal(
+            np.asarray(seed), np.asarray(rng.key_seed(jax.random.PRNGKey(5)))
+        )
 
 
 @pytest.mark.parametrize("rate", [0.05, 0.9, 2.34, 6.5, 15.0])
@@ -73,7 +80,7 @@ def test_poisson_large_rate_uses_the_normal_approximation():
 
 
 def test_materialize_is_bit_exact():
-    x = jnp.asarray([0.0, 1e-30, 0.3, 1.0 - 2 ** -24, 7.0], jnp.float32)
+    x = jnp.asarray([0.0, 1e-30, 0.3, 1.0 - 2**-24, 7.0], jnp.float32)
     np.testing.assert_array_equal(np.asarray(rng.materialize(x)), np.asarray(x))
     i = jnp.asarray([0, 1, 5, 40], jnp.int32)
     np.testing.assert_array_equal(np.asarray(rng.materialize(i)), np.asarray(i))
@@ -89,6 +96,10 @@ def test_the_draws_are_computed_once_in_the_compiled_step():
     _, state = env.reset(jax.random.PRNGKey(0), params)
     action = jnp.zeros((params.station.num_leaves,), jnp.int32)
     step = jax.vmap(lambda k, s: env.step(k, s, action, params)[:3], in_axes=(0, None))
-    text = jax.jit(step).lower(jax.random.split(jax.random.PRNGKey(0), 8), state).compile().as_text()
+    text = (
+        jax.jit(step).lower(jax.random.split(jax.random.PRNGKey(0), 8), state).compile().as_text()
+    )
     uses = text.count(str(int(rng._M1)))
-    assert 1 <= uses <= 6, f"fmix32's constant appears {uses} times: the hash is duplicated across fusions"
+    assert 1 <= uses <= 6, (
+        f"fmix32's constant appears {uses} times: the hash is duplicated across fusions"
+    )

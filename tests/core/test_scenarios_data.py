@@ -24,18 +24,24 @@ from chargax_marl.rollout import rollout_days
 KEY = jax.random.PRNGKey(0)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _runner():
     return jax.jit(lambda params, keys: rollout_days(always_max, params, keys))
 
 
 def _run_day(params, seed: int = 0):
     totals, day, ret = _runner()(params, jax.random.split(jax.random.PRNGKey(seed), 1))
-    return jax.tree_util.tree_map(lambda x: np.asarray(x)[0], totals), int(np.asarray(day)[0]), float(np.asarray(ret)[0])
+    return (
+        jax.tree_util.tree_map(lambda x: np.asarray(x)[0], totals),
+        int(np.asarray(day)[0]),
+        float(np.asarray(ret)[0]),
+    )
 
 
 def _check(totals, ret, *, expect_cars=True):
-    for name, value in vars(totals).items() if hasattr(totals, "__dict__") else totals._asdict().items():
+    for name, value in (
+        vars(totals).items() if hasattr(totals, "__dict__") else totals._asdict().items()
+    ):
         assert np.isfinite(value).all(), name
     assert np.isfinite(ret)
     if expect_cars:
@@ -69,7 +75,12 @@ def test_traffic_levels_order():
 
 
 def test_custom_number_traffic_and_moer_grid_names():
-    params = make_params(traffic=30.0, moer_kg_per_kwh="CAISO-SCE-2020", grid_demand_kwh="synthetic-residential", alpha={"sustainability": 1.0, "grid_demand": 0.01})
+    params = make_params(
+        traffic=30.0,
+        moer_kg_per_kwh="CAISO-SCE-2020",
+        grid_demand_kwh="synthetic-residential",
+        alpha={"sustainability": 1.0, "grid_demand": 0.01},
+    )
     assert params.observe_moer
     totals, _, ret = _run_day(params)
     _check(totals, ret)

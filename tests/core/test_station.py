@@ -26,14 +26,20 @@ def test_default_station_is_the_papers():
     st_ = compile_station(multiple_types())
     kinds = np.asarray(st_.leaf_kind)
     assert st_.num_ports == 16 and st_.num_batteries == 1
-    assert (kinds[:10] == KIND_DC).all() and (kinds[10:16] == KIND_AC).all() and kinds[16] == KIND_BATTERY
+    assert (
+        (kinds[:10] == KIND_DC).all()
+        and (kinds[10:16] == KIND_AC).all()
+        and kinds[16] == KIND_BATTERY
+    )
     names = st_.node_names
     caps = dict(zip(names, np.asarray(st_.node_max_kw)))
     assert sum(n.startswith("dc_evse_") for n in names) == 5
     assert sum(n.startswith("ac_evse_") for n in names) == 3
     assert all(caps[n] == pytest.approx(150.0) for n in names if n.startswith("dc_evse_"))
     assert all(caps[n] == pytest.approx(11.5) for n in names if n.startswith("ac_evse_"))
-    assert caps["dc_splitter"] == pytest.approx(750.0) and caps["ac_splitter"] == pytest.approx(34.5)
+    assert caps["dc_splitter"] == pytest.approx(750.0) and caps["ac_splitter"] == pytest.approx(
+        34.5
+    )
     assert caps["grid"] == pytest.approx(750.0 + 34.5 + 100.0)
     # Each DC connector alone may draw the whole 150 kW of its EVSE group.
     np.testing.assert_allclose(np.asarray(st_.leaf_max_kw)[:10], 150.0, rtol=1e-6)
@@ -58,7 +64,9 @@ def test_other_builders_and_custom_depth():
     assert compile_station(single_type(4)).num_ports == 4
     ms = compile_station(multiple_splitters())
     assert ms.depth == 4 and ms.num_ports == 16
-    deep = Splitter("a", 10.0, (Splitter("b", 9.0, (Splitter("c", 8.0, (Splitter("d", 7.0, (Port("p"),)),)),)),))
+    deep = Splitter(
+        "a", 10.0, (Splitter("b", 9.0, (Splitter("c", 8.0, (Splitter("d", 7.0, (Port("p"),)),)),)),)
+    )
     assert compile_station(deep).depth == 4
     with pytest.raises(KeyError, match="unknown architecture"):
         build_station("ring")
@@ -79,7 +87,10 @@ def test_other_builders_and_custom_depth():
         (lambda: Battery(capacity_kwh=0.0), "capacity_kwh"),
         (lambda: Battery(tau=1.0), "tau"),
         (lambda: Battery(initial_soc=1.5), "initial_soc"),
-        (lambda: compile_station(Splitter("g", 10.0, (Port("p"), Port("p")))), "duplicate node name 'p'"),
+        (
+            lambda: compile_station(Splitter("g", 10.0, (Port("p"), Port("p")))),
+            "duplicate node name 'p'",
+        ),
         (lambda: compile_station(Splitter("g", 10.0, (Battery("b"),))), "at least one Port"),
         (lambda: compile_station(Port("p")), "root must be a Splitter"),
         (lambda: multiple_types(num_dc=0, num_ac=0), "num_dc"),
@@ -92,8 +103,6 @@ def test_validation_errors_name_the_field(make, match):
 
 
 # ----------------------------------------------------------------- hypothesis: random trees
-
-
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -58,10 +58,16 @@ def idx_actions(env, **by_agent):
 def test_names_classes_and_spaces(small):
     assert small.agents == [f"port_{i}" for i in range(6)] + ["battery_0"]
     assert small.num_agents == 7
-    assert small.agent_classes == {"dc_ports": ["port_0", "port_1", "port_2", "port_3"],
-                                   "ac_ports": ["port_4", "port_5"], "batteries": ["battery_0"]}
+    assert small.agent_classes == {
+        "dc_ports": ["port_0", "port_1", "port_2", "port_3"],
+        "ac_ports": ["port_4", "port_5"],
+        "batteries": ["battery_0"],
+    }
     assert small.num_actions == 2 * L + 1
-    depth, context = 3, observation.context_features(simulator.empty_state(0, small.params), small.params).shape[0]
+    depth, context = (
+        3,
+        observation.context_features(simulator.empty_state(0, small.params), small.params).shape[0],
+    )
     assert small.obs_size == 8 + 3 + depth + context + 7
     for a in small.agents:
         assert isinstance(small.observation_space(a), jm_spaces.Box)
@@ -80,7 +86,10 @@ def test_default_station_base_api():
     for a in env.agents:
         assert bool(env.observation_space(a).contains(obs[a])), a
         assert obs[a].dtype == jnp.float32
-    actions = {a: env.action_space(a).sample(k) for a, k in zip(env.agents, jax.random.split(KEY, env.num_agents))}
+    actions = {
+        a: env.action_space(a).sample(k)
+        for a, k in zip(env.agents, jax.random.split(KEY, env.num_agents))
+    }
     out = env.step(jax.random.PRNGKey(1), state, actions)
     assert len(out) == 5
     obs, state, rewards, dones, infos = out
@@ -90,12 +99,20 @@ def test_default_station_base_api():
     for k, v in infos.items():  # one row per agent; the final observation is each agent's own
         want = (env.num_agents, env.obs_size) if k == "final_observation" else (env.num_agents,)
         assert v.shape == want, k
-    for k in ("profit_eur", "energy_delivered_kwh", "grid_net_kwh", "cars_arrived", "cars_rejected",
-              "agent_energy_kwh") + tuple(f"penalty_{t}" for t in ("constraint", "satisfaction_time", "rejected")):
+    for k in (
+        "profit_eur",
+        "energy_delivered_kwh",
+        "grid_net_kwh",
+        "cars_arrived",
+        "cars_rejected",
+        "agent_energy_kwh",
+    ) + tuple(f"penalty_{t}" for t in ("constraint", "satisfaction_time", "rejected")):
         assert k in infos, k
     avail = env.get_avail_actions(state)
     assert set(avail) == set(env.agents)
-    assert all(m.shape == (2 * L + 1,) and m.dtype == jnp.bool_ and bool(m.all()) for m in avail.values())
+    assert all(
+        m.shape == (2 * L + 1,) and m.dtype == jnp.bool_ and bool(m.all()) for m in avail.values()
+    )
     assert env.get_global_state(state).shape == (env.state_size,)
 
 
@@ -119,8 +136,13 @@ def test_observation_layout(small):
     dc_split = abs(dc0 / e_dc + dc1 * e_dc) / 200.0
     ac_split = ac0 / e_ac / 20.0
     grid = abs(dc0 / e_dc + dc1 * e_dc + ac0 / e_ac + bat / 0.95) / 220.0
-    loads = {0: [evse0, dc_split, grid], 1: [evse0, dc_split, grid], 2: [evse1, dc_split, grid],
-             4: [ac_split, grid, 0.0], 6: [grid, 0.0, 0.0]}
+    loads = {
+        0: [evse0, dc_split, grid],
+        1: [evse0, dc_split, grid],
+        2: [evse1, dc_split, grid],
+        4: [ac_split, grid, 0.0],
+        6: [grid, 0.0, 0.0],
+    }
     kinds = {0: [0, 1, 0], 4: [1, 0, 0], 6: [0, 0, 1]}
     for i, a in enumerate(env.agents):
         o = np.asarray(obs[a])
@@ -130,23 +152,31 @@ def test_observation_layout(small):
             np.testing.assert_array_equal(o[8:11], kinds[i])
         if i in loads:
             np.testing.assert_allclose(o[11:14], loads[i], rtol=1e-5, atol=1e-7)
-        np.testing.assert_array_equal(o[14:14 + ctx.shape[0]], ctx)
-        np.testing.assert_array_equal(o[14 + ctx.shape[0]:], np.eye(7)[i])
-    np.testing.assert_array_equal(np.asarray(ancestor_table(p))[6], [0, -1, -1])  # battery hangs under the grid
+        np.testing.assert_array_equal(o[14 : 14 + ctx.shape[0]], ctx)
+        np.testing.assert_array_equal(o[14 + ctx.shape[0] :], np.eye(7)[i])
+    np.testing.assert_array_equal(
+        np.asarray(ancestor_table(p))[6], [0, -1, -1]
+    )  # battery hangs under the grid
     np.testing.assert_array_equal(env.get_global_state(s), observation.flat_obs(s, p))
 
 
 def test_ancestor_loads_match_the_core_node_flows(default_params):
     st = default_params.station
-    frac = jax.random.uniform(KEY, (st.num_leaves,), minval=-1.0, maxval=1.0)  # mixed charging and V2G
+    frac = jax.random.uniform(
+        KEY, (st.num_leaves,), minval=-1.0, maxval=1.0
+    )  # mixed charging and V2G
     state = start(default_params).replace(current_a=frac * st.leaf_max_current_a)
     flows = physics.node_flows_kw(state.current_a * st.leaf_voltage_v / 1000.0, st) / st.node_max_kw
     anc = np.asarray(ancestor_table(default_params))
     expected = np.where(anc >= 0, np.asarray(flows)[np.maximum(anc, 0)], 0.0)
     assert expected.max() > 0.1
     env = ChargaxMARL(params=default_params)
-    np.testing.assert_allclose(ancestor_loads(state, default_params, env._layout), expected, rtol=1e-5, atol=1e-6)
-    traced = jax.jit(lambda s, p: ancestor_loads(s, p))(state, default_params)  # station constants traced
+    np.testing.assert_allclose(
+        ancestor_loads(state, default_params, env._layout), expected, rtol=1e-5, atol=1e-6
+    )
+    traced = jax.jit(lambda s, p: ancestor_loads(s, p))(
+        state, default_params
+    )  # station constants traced
     np.testing.assert_allclose(traced, expected, rtol=1e-5, atol=1e-6)
 
 
@@ -154,7 +184,10 @@ def test_ancestor_loads_match_the_core_node_flows(default_params):
 
 
 def test_masks_and_level_mapping(small):
-    avail = {a: np.asarray(m) for a, m in small.get_avail_actions(simulator.empty_state(0, small.params)).items()}
+    avail = {
+        a: np.asarray(m)
+        for a, m in small.get_avail_actions(simulator.empty_state(0, small.params)).items()
+    }
     for a in ("port_0", "port_3", "battery_0"):  # V2G ports and the battery: every level
         assert avail[a].all()
     for a in ("port_4", "port_5"):  # AC ports without V2G: discharging levels masked
@@ -162,15 +195,18 @@ def test_masks_and_level_mapping(small):
     idx = jnp.array([0, 5, 10, 15, 20, 0, 99, -3], jnp.int32)[:7]
     np.testing.assert_array_equal(small.actions_to_levels(idx), [-10, -5, 0, 5, 10, 0, 10])
     # masked (port_5 at index 0 = level -10 without V2G) -> idle; 99 clipped to 20 = full power
-    np.testing.assert_array_equal(small.actions_to_levels(jnp.array([-4, 0, 0, 0, 0, 3, 25])),
-                                  [-10, -10, -10, -10, 0, 0, 10])
+    np.testing.assert_array_equal(
+        small.actions_to_levels(jnp.array([-4, 0, 0, 0, 0, 3, 25])), [-10, -10, -10, -10, 0, 0, 10]
+    )
     levels = always_max(None, None, small.params)
     acts = small.levels_to_actions(levels)
     np.testing.assert_array_equal(small.actions_to_levels(acts), levels)
 
 
 def test_masked_action_falls_back_to_idle(quiet, quiet_step):
-    s = place_car(start(quiet.params), 4, soc=0.8, arrival_soc=0.1, capacity_kwh=100.0, max_rate_kw=50.0)
+    s = place_car(
+        start(quiet.params), 4, soc=0.8, arrival_soc=0.1, capacity_kwh=100.0, max_rate_kw=50.0
+    )
     s = place_car(s, 0, soc=0.8, arrival_soc=0.1, capacity_kwh=100.0, max_rate_kw=200.0)
     masked = quiet_step(KEY, s, idx_actions(quiet, port_4=0))  # discharge at an AC port without V2G
     idle = quiet_step(KEY, s, idx_actions(quiet))
@@ -198,7 +234,9 @@ def test_action_dtypes_clip_alike_stacked_or_mixed(small):
     raw = [-5, 3, 2 * L + 7, 0, 1, 99, 2]
     want = np.clip(raw, 0, small.num_actions - 1)
     same = {a: jnp.int32(v) for a, v in zip(small.agents, raw)}
-    mixed = dict(same, port_0=jnp.float32(-5.5), port_2=np.int64(2 * L + 7), port_4=jnp.asarray(True))
+    mixed = dict(
+        same, port_0=jnp.float32(-5.5), port_2=np.int64(2 * L + 7), port_4=jnp.asarray(True)
+    )
     want_mixed = want.copy()
     want_mixed[4] = 1
     for acts, expected in ((same, want), (mixed, want_mixed)):
@@ -210,7 +248,9 @@ def test_step_observations_are_the_matrix_rows(small, small_step):
     """The dict's rows (built per agent inside the jitted step) equal get_obs_matrix bit for bit."""
     _, s = small.reset(KEY)
     for t in range(3):
-        obs, s, _, _, _ = small_step(jax.random.fold_in(KEY, t), s, idx_actions(small, port_0=2 * L, battery_0=0))
+        obs, s, _, _, _ = small_step(
+            jax.random.fold_in(KEY, t), s, idx_actions(small, port_0=2 * L, battery_0=0)
+        )
         matrix = np.asarray(jax.jit(small.get_obs_matrix)(s))
         for i, a in enumerate(small.agents):
             np.testing.assert_array_equal(np.asarray(obs[a]), matrix[i])
@@ -219,7 +259,10 @@ def test_step_observations_are_the_matrix_rows(small, small_step):
 def test_delta_mode_and_no_discharge_station():
     delta = ChargaxMARL(station=mixed_station(), action_mode="delta")
     assert delta.num_actions == 2 * L + 1
-    assert all(bool(m.all()) for m in delta.get_avail_actions(simulator.empty_state(0, delta.params)).values())
+    assert all(
+        bool(m.all())
+        for m in delta.get_avail_actions(simulator.empty_state(0, delta.params)).values()
+    )
     np.testing.assert_array_equal(delta.actions_to_levels(jnp.arange(7) * 3), np.arange(7) * 3 - L)
     no_v2g = ChargaxMARL(station="single_type", station_kwargs={"num_ports": 3, "v2g": False})
     assert no_v2g.num_actions == L + 1 and no_v2g.action_offset == 0
@@ -248,6 +291,7 @@ def test_joint_action_equivalence_over_a_day(small):
             k, lv = x
             _, s, r, _, _ = single.step_env(k, s, single.levels_to_action(lv, p), p)
             return s, (s, r)
+
         return jax.lax.scan(body, s, (keys, levels))[1]
 
     @jax.jit
@@ -255,8 +299,11 @@ def test_joint_action_equivalence_over_a_day(small):
         def body(s, x):
             k, lv = x
             # the same levels as independent per-agent indices
-            _, s, r, d, _ = marl.step_env(k, s, {a: lv[i] + marl.action_offset for i, a in enumerate(marl.agents)})
+            _, s, r, d, _ = marl.step_env(
+                k, s, {a: lv[i] + marl.action_offset for i, a in enumerate(marl.agents)}
+            )
             return s, (s, r, d)
+
         return jax.lax.scan(body, s, (keys, levels))[1]
 
     states_s, r_s = run_single(s0)
@@ -277,8 +324,9 @@ def test_delta_and_absolute_mappings_match_the_single_agent_env(small):
         valid = np.asarray(jax.vmap(lambda i: marl.actions_to_levels(i))(idx))
         keep = np.all(np.asarray(marl._avail_np)[np.arange(7), np.asarray(idx)], axis=1)
         for row, lv in zip(np.asarray(idx)[keep], valid[keep]):
-            np.testing.assert_array_equal(single.action_to_levels(single.levels_to_action(lv, marl.params),
-                                                                  marl.params), lv)
+            np.testing.assert_array_equal(
+                single.action_to_levels(single.levels_to_action(lv, marl.params), marl.params), lv
+            )
             np.testing.assert_array_equal(lv, row - L)
 
 
@@ -291,16 +339,22 @@ def test_node_limits_rescale_every_agent(quiet, quiet_step):
     for i in range(4):
         s = place_car(s, i, soc=0.2, capacity_kwh=1000.0, max_rate_kw=1000.0)
     full = 2 * L
-    obs, s1, _, _, info = quiet_step(KEY, s, idx_actions(env, port_0=full, port_1=full, port_2=full, port_3=full))
+    obs, s1, _, _, info = quiet_step(
+        KEY, s, idx_actions(env, port_0=full, port_1=full, port_2=full, port_3=full)
+    )
     kw = np.asarray(info["agent_energy_kwh"])[:4] / (5.0 / 60.0)
     # Each port asks 100 kW. On the grid side of dc_split (200 kW) a port's kW count / (0.95 * 0.99 *
     # 0.98): four ports get 50 kW there each, 46.08 kW at the cars (less the core's 1e-6 margin).
     eta = 0.95 * 0.99 * 0.98
     np.testing.assert_allclose(kw, 50.0 * eta, rtol=1e-5)
-    assert float(info["penalty_constraint"][0]) == pytest.approx(0.0, abs=1e-4)  # nothing flowed over a limit
+    assert float(info["penalty_constraint"][0]) == pytest.approx(
+        0.0, abs=1e-4
+    )  # nothing flowed over a limit
     assert float(info["requested_excess_kw"][0]) == pytest.approx(400 / eta - 200, rel=1e-4)
     # the agents now see the coupling: deepest node first, grid side
-    np.testing.assert_allclose(np.asarray(obs["port_0"])[11:14], [100 * 0.98 / 150, 1.0, 200 / 220], rtol=1e-4)
+    np.testing.assert_allclose(
+        np.asarray(obs["port_0"])[11:14], [100 * 0.98 / 150, 1.0, 200 / 220], rtol=1e-4
+    )
 
 
 # ------------------------------------------------------------------ jit and vmap
@@ -308,14 +362,23 @@ def test_node_limits_rescale_every_agent(quiet, quiet_step):
 
 def test_vmap_reset_and_step_match_a_loop(small, small_step):
     keys = jax.random.split(jax.random.PRNGKey(5), 8)
-    actions = {a: jax.random.randint(k, (8, 1), 0, small.num_actions)  # (1,) per env, as IPPO passes them
-               for a, k in zip(small.agents, jax.random.split(KEY, small.num_agents))}
+    actions = {
+        a: jax.random.randint(k, (8, 1), 0, small.num_actions)  # (1,) per env, as IPPO passes them
+        for a, k in zip(small.agents, jax.random.split(KEY, small.num_agents))
+    }
     obs_b, states_b = jax.jit(jax.vmap(small.reset))(keys)
-    obs2_b, states2_b, rew_b, done_b, info_b = jax.jit(jax.vmap(small.step_env))(keys, states_b, actions)
-    assert obs2_b["port_0"].shape == (8, small.obs_size) and info_b["profit_eur"].shape == (8, small.num_agents)
+    obs2_b, states2_b, rew_b, done_b, info_b = jax.jit(jax.vmap(small.step_env))(
+        keys, states_b, actions
+    )
+    assert obs2_b["port_0"].shape == (8, small.obs_size) and info_b["profit_eur"].shape == (
+        8,
+        small.num_agents,
+    )
     for j in range(8):
         obs, state = small.reset(keys[j])
-        obs2, state2, rew, done, _ = small_step(keys[j], state, {a: v[j, 0] for a, v in actions.items()})
+        obs2, state2, rew, done, _ = small_step(
+            keys[j], state, {a: v[j, 0] for a, v in actions.items()}
+        )
         for a in small.agents:
             np.testing.assert_allclose(obs_b[a][j], obs[a], rtol=1e-6, atol=1e-6)
             np.testing.assert_allclose(obs2_b[a][j], obs2[a], rtol=1e-5, atol=1e-6)
@@ -340,7 +403,13 @@ def test_log_and_world_state_wrappers():
             obs, state = carry
             acts = {a: jnp.int32(2 * L) for a in base.agents}
             obs, state, rew, done, info = env.step(k, state, acts)
-            return (obs, state), (rew["port_0"], done["__all__"], info, obs["world_state"], state.env_state)
+            return (obs, state), (
+                rew["port_0"],
+                done["__all__"],
+                info,
+                obs["world_state"],
+                state.env_state,
+            )
 
         (obs, state), out = jax.lax.scan(body, (obs, state), jax.random.split(key, steps + 3))
         return obs, out
@@ -350,16 +419,26 @@ def test_log_and_world_state_wrappers():
     obs, (rew, done, info, ws, states) = run(KEY)
     done = np.asarray(done)
     assert done[steps - 1] and done.sum() == 1
-    for k in ("returned_episode_returns", "returned_episode_lengths", "returned_episode",
-              "returned_episode_profit_eur"):
+    for k in (
+        "returned_episode_returns",
+        "returned_episode_lengths",
+        "returned_episode",
+        "returned_episode_profit_eur",
+    ):
         assert info[k].shape == (steps + 3, n), k
     returned = np.asarray(info["returned_episode_returns"])
     np.testing.assert_allclose(returned[steps - 1], rew[:steps].sum(), rtol=1e-4)
-    np.testing.assert_allclose(returned[-1], returned[steps - 1])  # kept until the next episode ends
+    np.testing.assert_allclose(
+        returned[-1], returned[steps - 1]
+    )  # kept until the next episode ends
     assert np.asarray(info["returned_episode_lengths"])[steps - 1, 0] == steps
-    assert np.asarray(info["returned_episode"])[steps - 1].all() and not np.asarray(info["returned_episode"])[0].any()
-    np.testing.assert_allclose(np.asarray(info["returned_episode_profit_eur"])[steps - 1], rew[:steps].sum(),
-                               rtol=1e-4)
+    assert (
+        np.asarray(info["returned_episode"])[steps - 1].all()
+        and not np.asarray(info["returned_episode"])[0].any()
+    )
+    np.testing.assert_allclose(
+        np.asarray(info["returned_episode_profit_eur"])[steps - 1], rew[:steps].sum(), rtol=1e-4
+    )
     # the world state describes the returned (post-reset) state
     last = jax.tree.map(lambda x: x[steps - 1], states)
     assert int(last.timestep) == 0
@@ -373,7 +452,9 @@ def test_log_and_world_state_wrappers():
 def test_check_actions(small):
     good = {a: 10 for a in small.agents}
     np.testing.assert_array_equal(small.check_actions(good), np.full(7, 10))
-    mixed = dict(good, port_0=np.int64(3), port_1=np.array([4]), port_2=jnp.int32(5), port_3=jnp.array([6]))
+    mixed = dict(
+        good, port_0=np.int64(3), port_1=np.array([4]), port_2=jnp.int32(5), port_3=jnp.array([6])
+    )
     np.testing.assert_array_equal(small.check_actions(mixed)[:4], [3, 4, 5, 6])
     cases = [
         ({a: 10 for a in small.agents[1:]}, r"port_0.*\[0, 20\]"),
@@ -436,15 +517,25 @@ def _day_rewards(env, seed=21):
     day of random valid levels (the same levels and keys for every ``env``)."""
     p = env.params
     low = np.asarray(physics.leaf_min_level(p.station, L, p.v2g))
-    levels = jax.random.randint(jax.random.PRNGKey(seed), (p.num_steps, p.station.num_leaves), low, L + 1)
+    levels = jax.random.randint(
+        jax.random.PRNGKey(seed), (p.num_steps, p.station.num_leaves), low, L + 1
+    )
     keys = jax.random.split(jax.random.PRNGKey(seed + 1), p.num_steps)
 
     @jax.jit
     def run(s):
         def body(s, x):
             k, lv = x
-            _, s, r, _, info = env.step_env(k, s, {a: lv[i] + env.action_offset for i, a in enumerate(env.agents)})
-            return s, (jnp.stack([r[a] for a in env.agents], -1), info["reward"][0], info["agent_reward_share"], s)
+            _, s, r, _, info = env.step_env(
+                k, s, {a: lv[i] + env.action_offset for i, a in enumerate(env.agents)}
+            )
+            return s, (
+                jnp.stack([r[a] for a in env.agents], -1),
+                info["reward"][0],
+                info["agent_reward_share"],
+                s,
+            )
+
         return jax.lax.scan(body, s, (keys, levels))[1]
 
     return jax.device_get(run(start(p)))
@@ -458,14 +549,17 @@ def test_reward_shares_add_up_and_local_weight_mixes_them(small):
     np.testing.assert_allclose(share.sum(-1), station, rtol=1e-5, atol=1e-4)
     assert np.abs(share - share.mean(-1, keepdims=True)).max() > 0.1
     for w in (0.3, 1.0):
-        rw, station_w, share_w, states_w = _day_rewards(ChargaxMARL(params=small.params, local_reward_weight=w))
+        rw, station_w, share_w, states_w = _day_rewards(
+            ChargaxMARL(params=small.params, local_reward_weight=w)
+        )
         # the weight changes the rewards only, never the trajectory or what infos report
         for x, y in zip(jax.tree.leaves(states_w), jax.tree.leaves(states0)):
             np.testing.assert_array_equal(x, y)
         np.testing.assert_array_equal(station_w, station)
         np.testing.assert_allclose(rw, (1 - w) * station[:, None] + w * share, rtol=1e-6, atol=1e-6)
-        np.testing.assert_allclose(rw.sum(-1), (1 - w) * len(small.agents) * station + w * station,
-                                   rtol=1e-5, atol=1e-3)
+        np.testing.assert_allclose(
+            rw.sum(-1), (1 - w) * len(small.agents) * station + w * station, rtol=1e-5, atol=1e-3
+        )
     # without the refund of discharged car energy (the original Chargax's books) the shares still
     # add up; the same levels now earn what the discharging cars' owners are not refunded
     off = ChargaxMARL(station=mixed_station(), traffic=150.0, refund_discharged_energy=False)
@@ -481,7 +575,9 @@ def test_a_battery_share_is_the_money_its_own_energy_made(quiet, quiet_step):
     s = start(p)
     bat = quiet.agents.index("battery_0")
     assert float(s.soc[bat]) > 0.0
-    _, _, _, _, info = quiet_step(KEY, s, idx_actions(quiet, battery_0=0))  # full discharge, no cars
+    _, _, _, _, info = quiet_step(
+        KEY, s, idx_actions(quiet, battery_0=0)
+    )  # full discharge, no cars
     share = np.asarray(info["agent_reward_share"])
     assert float(info["agent_energy_kwh"][bat]) < 0.0
     # only the battery moved energy: its share exceeds an idle port's by its own money,
@@ -491,7 +587,9 @@ def test_a_battery_share_is_the_money_its_own_energy_made(quiet, quiet_step):
     grid = float(info["grid_net_kwh"][0])
     assert grid < 0.0  # a net feed-in, paid at the grid's sell price
     own = -float(info["price_sell_grid_eur_kwh"][0]) * grid
-    np.testing.assert_allclose(own, float(info["profit_eur"][0]) + float(p.fixed_cost_eur), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(
+        own, float(info["profit_eur"][0]) + float(p.fixed_cost_eur), rtol=1e-5, atol=1e-6
+    )
     np.testing.assert_allclose(share[bat] - ports[0], own, rtol=1e-5, atol=1e-6)
 
 

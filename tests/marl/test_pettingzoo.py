@@ -47,8 +47,12 @@ def play_day(env, seed, actions_fn):
 
 def test_parallel_api_default_station():
     env = parallel_env()
-    assert env.metadata == {"name": "chargax_v0", "render_modes": ["ansi", "human", "rgb_array"], "is_parallelizable": True,
-                            "render_fps": 4}
+    assert env.metadata == {
+        "name": "chargax_v0",
+        "render_modes": ["ansi", "human", "rgb_array"],
+        "is_parallelizable": True,
+        "render_fps": 4,
+    }
     assert len(env.possible_agents) == 17 and env.params.num_steps == 288
     parallel_api_test(env, num_cycles=1000)
     parallel_seed_test(lambda: parallel_env())
@@ -69,19 +73,30 @@ def test_spaces_masks_and_observations(small_env):
     for a in env.possible_agents:
         assert env.observation_space(a) is env.observation_space(a)
         assert env.action_space(a) is env.action_space(a)
-        assert isinstance(env.action_space(a), gymnasium.spaces.Discrete) and env.action_space(a).n == 2 * L + 1
+        assert (
+            isinstance(env.action_space(a), gymnasium.spaces.Discrete)
+            and env.action_space(a).n == 2 * L + 1
+        )
     obs, infos = env.reset(seed=3)
     assert env.agents == env.possible_agents
     for a in env.agents:
         assert obs[a].dtype == np.float32 and env.observation_space(a).contains(obs[a])
         mask = infos[a]["action_mask"]
         assert mask.dtype == np.int8 and mask.shape == (2 * L + 1,)
-    np.testing.assert_array_equal(infos["port_4"]["action_mask"], (np.arange(2 * L + 1) >= L).astype(np.int8))
+    np.testing.assert_array_equal(
+        infos["port_4"]["action_mask"], (np.arange(2 * L + 1) >= L).astype(np.int8)
+    )
     assert infos["port_0"]["action_mask"].all() and infos["battery_0"]["action_mask"].all()
     obs, rewards, terms, truncs, infos = env.step({a: L for a in env.agents})
     assert len(set(rewards.values())) == 1 and isinstance(rewards["port_0"], float)
     assert not any(terms.values()) and not any(truncs.values())
-    for key in ("profit_eur", "penalty_constraint", "energy_delivered_kwh", "cars_arrived", "energy_kwh"):
+    for key in (
+        "profit_eur",
+        "penalty_constraint",
+        "energy_delivered_kwh",
+        "cars_arrived",
+        "energy_kwh",
+    ):
         assert isinstance(infos["port_0"][key], float), key
     assert infos["port_0"]["action_mask"].dtype == np.int8
     state = env.state()
@@ -95,7 +110,9 @@ def test_masked_action_is_idle(small_env):
     env.reset(seed=5)
     idle = env.step(actions)
     env.reset(seed=5)
-    masked = env.step(dict(actions, port_4=0, port_5=3))  # discharge at AC ports without V2G -> idle
+    masked = env.step(
+        dict(actions, port_4=0, port_5=3)
+    )  # discharge at AC ports without V2G -> idle
     for x, y in zip(idle[:4], masked[:4]):
         for ag in env.possible_agents:
             np.testing.assert_array_equal(x[ag], y[ag])
@@ -161,7 +178,9 @@ def test_bad_actions_raise_clear_errors(small_env):
     for actions, pattern in cases:
         with pytest.raises(ValueError, match=pattern):
             env.step(actions)
-    env.step(dict(good, port_0=np.int64(3), port_1=np.array([4])))  # numpy integers of shape () or (1,) work
+    env.step(
+        dict(good, port_0=np.int64(3), port_1=np.array([4]))
+    )  # numpy integers of shape () or (1,) work
 
 
 def test_step_before_reset_and_after_the_day_ends(small_params):
@@ -182,7 +201,9 @@ def test_step_before_reset_and_after_the_day_ends(small_params):
 
 def test_invalid_render_mode():
     with pytest.raises(ValueError, match="render_mode"):
-        ChargaxParallelEnv(station=mixed_station(), render_mode="video")  # "human" is a supported mode
+        ChargaxParallelEnv(
+            station=mixed_station(), render_mode="video"
+        )  # "human" is a supported mode
 
 
 # ------------------------------------------------------------------ rendering
@@ -205,11 +226,17 @@ def test_render_ansi_and_rgb(small_params):
     for _ in range(8):
         rgb_env.step({a: 2 * L for a in rgb_env.agents})
     frame = rgb_env.render()
-    assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3 and frame.shape[0] > 100
-    assert frame.shape == blank.shape and not np.array_equal(frame, blank)  # the day so far is drawn
+    assert (
+        frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3 and frame.shape[0] > 100
+    )
+    assert frame.shape == blank.shape and not np.array_equal(
+        frame, blank
+    )  # the day so far is drawn
     rgb_env.close()
     with pytest.warns(UserWarning, match="render_mode"):
-        assert parallel_env(params=small_params).render() is None  # no render mode: warn and return None
+        assert (
+            parallel_env(params=small_params).render() is None
+        )  # no render mode: warn and return None
 
 
 # ------------------------------------------------------------------ example
@@ -220,18 +247,24 @@ def test_pettingzoo_example_runs(capsys):
     results = example["main"](["--step-minutes", "60"])
     printed = capsys.readouterr().out
     assert "random" in printed and "always_max" in printed and "profit" in printed
-    assert set(results) == {"random", "always_max"} and all(np.isfinite(v) for v in results.values())
+    assert set(results) == {"random", "always_max"} and all(
+        np.isfinite(v) for v in results.values()
+    )
 
 
 def test_local_reward_weight_gives_each_agent_its_share(small_params):
     env = parallel_env(params=small_params, local_reward_weight=1.0)
     rng = np.random.default_rng(0)
-    trajectory = play_day(env, 3, lambda e, t: {a: int(rng.integers(e.action_space(a).n)) for a in e.agents})
+    trajectory = play_day(
+        env, 3, lambda e, t: {a: int(rng.integers(e.action_space(a).n)) for a in e.agents}
+    )
     spread = 0.0
     for _, rewards, _, _, infos in trajectory[1:]:
         r = np.array([rewards[a] for a in env.possible_agents])
         station = infos[env.possible_agents[0]]["reward"]
         np.testing.assert_allclose(r.sum(), station, rtol=1e-5, atol=1e-4)
-        np.testing.assert_allclose(r, [infos[a]["reward_share"] for a in env.possible_agents], rtol=1e-6)
+        np.testing.assert_allclose(
+            r, [infos[a]["reward_share"] for a in env.possible_agents], rtol=1e-6
+        )
         spread = max(spread, float(r.max() - r.min()))
     assert spread > 0.1  # agents are rewarded differently

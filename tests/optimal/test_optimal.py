@@ -21,12 +21,21 @@ KEY = jax.random.PRNGKey(0)
 
 def hand_params(station, hourly_prices, **kw):
     prices = np.tile(np.asarray(hourly_prices, np.float32), (2, 1))
-    return make_params(station=station, prices=prices, grid_fee_eur_kwh=0.0, fixed_cost_eur=0.0, feed_in_factor=1.0,
-                       customer_price_eur_kwh=0.75, **kw)
+    return make_params(
+        station=station,
+        prices=prices,
+        grid_fee_eur_kwh=0.0,
+        fixed_cost_eur=0.0,
+        feed_in_factor=1.0,
+        customer_price_eur_kwh=0.75,
+        **kw,
+    )
 
 
 def run_on_trace(policy, params, tr):
-    _, _, final = jax.jit(lambda t, k: trace.replay(lambda s, kk: policy(s, kk, params), params, t, k))(tr, KEY)
+    _, _, final = jax.jit(
+        lambda t, k: trace.replay(lambda s, kk: policy(s, kk, params), params, t, k)
+    )(tr, KEY)
     return float(final.totals.profit_eur)
 
 
@@ -36,6 +45,7 @@ def bound_for(policy, params, tr):
 
 
 # --- exogenous traces -------------------------------------------------------------------
+
 
 @pytest.fixture(scope="module")
 def default_setup():
@@ -73,14 +83,17 @@ def test_the_cars_of_a_day_do_not_depend_on_the_policy(default_setup):
     empty = simulator.empty_state(jnp.int32(5), params)
     busy = empty.replace(occupied=empty.occupied.at[:3].set(True))
     arrivals = traffic.draw_arrivals(key, empty.timestep, empty.is_workday, params).replace(
-        requested=jnp.int32(1))
+        requested=jnp.int32(1)
+    )
     a, _ = traffic.place_arrivals(empty, arrivals, params)
     b, _ = traffic.place_arrivals(busy, arrivals, params)
     drawn_a, _ = traffic.arrive(key, empty.replace(timestep=jnp.int32(150)), params)
     drawn_b, _ = traffic.arrive(key, busy.replace(timestep=jnp.int32(150)), params)
     for field in ("soc", "target_soc", "capacity_kwh", "time_remaining_min"):
         assert float(getattr(a, field)[0]) == float(getattr(b, field)[3]) > 0, field
-        first_a = np.asarray(getattr(drawn_a, field))[np.asarray(drawn_a.occupied & ~empty.occupied)]
+        first_a = np.asarray(getattr(drawn_a, field))[
+            np.asarray(drawn_a.occupied & ~empty.occupied)
+        ]
         first_b = np.asarray(getattr(drawn_b, field))[np.asarray(drawn_b.occupied & ~busy.occupied)]
         n = min(first_a.size, first_b.size)
         np.testing.assert_array_equal(first_a[:n], first_b[:n])
@@ -106,8 +119,20 @@ def test_one_car_waits_for_the_cheap_hours():
     # dear (1.00 EUR/kWh) until 06:00, cheap (0.10) after; the car parks 04:05-08:05 and
     # wants 24 kWh: the best plan buys all of it at 0.10 -> 24 * (0.75 - 0.10) = 15.6 EUR
     params = hand_params(ONE_PORT, [1.0] * 6 + [0.1] * 18)
-    tr = trace.trace_from_cars(params, [dict(arrival_step=48, capacity_kwh=60.0, dc_kw=50.0, tau=0.99,
-                                             arrival_soc=0.2, target_soc=0.6, stay_min=240.0)])
+    tr = trace.trace_from_cars(
+        params,
+        [
+            dict(
+                arrival_step=48,
+                capacity_kwh=60.0,
+                dc_kw=50.0,
+                tau=0.99,
+                arrival_soc=0.2,
+                target_soc=0.6,
+                stay_min=240.0,
+            )
+        ],
+    )
     bound = bound_for(policies.always_max, params, tr)
     assert bound.status == "optimal"
     assert bound.profit_eur == pytest.approx(24 * (0.75 - 0.10), abs=1e-4)
@@ -121,8 +146,15 @@ def test_two_cars_share_a_constrained_evse():
     # a 30 kW EVSE feeds two 50 kW ports for one hour: 30 kWh in all, whatever the split
     evse = Splitter("evse", 30.0, (Port("p0", "DC", 500.0, 100.0), Port("p1", "DC", 500.0, 100.0)))
     params = hand_params(Splitter("grid", 1000.0, (evse,)), [0.1] * 24)
-    car = dict(arrival_step=0, capacity_kwh=100.0, dc_kw=50.0, tau=0.99, arrival_soc=0.2, target_soc=0.6,
-               stay_min=60.0)
+    car = dict(
+        arrival_step=0,
+        capacity_kwh=100.0,
+        dc_kw=50.0,
+        tau=0.99,
+        arrival_soc=0.2,
+        target_soc=0.6,
+        stay_min=60.0,
+    )
     tr = trace.trace_from_cars(params, [car, car])
     bound = bound_for(policies.always_max, params, tr)
     assert bound.profit_eur == pytest.approx(30 * (0.75 - 0.10), abs=1e-4)
@@ -136,20 +168,36 @@ def test_a_battery_on_a_two_price_day():
     # energy change is valued at the day's mean buy price 0.15. Best: fill (50 kWh at 0.05),
     # then empty (100 kWh at 0.25): -2.5 + 25 - 50 * 0.15 = 15 EUR.
     bat = Battery("bat", capacity_kwh=100.0, max_kw=50.0, efficiency=1.0, tau=0.99, initial_soc=0.5)
-    params = hand_params(Splitter("grid", 1000.0, (Port("p0", "DC", 500.0, 100.0), bat)), [0.05] * 12 + [0.25] * 12)
+    params = hand_params(
+        Splitter("grid", 1000.0, (Port("p0", "DC", 500.0, 100.0), bat)), [0.05] * 12 + [0.25] * 12
+    )
     tr = trace.trace_from_cars(params, [])
     bound = bound_for(policies.battery_rule, params, tr)
     assert bound.profit_eur == pytest.approx(15.0, abs=1e-4)
     # the two-line rule is optimal here (up to the discrete last steps of the rate curve)
     assert bound.reference_profit_eur == pytest.approx(15.0, abs=0.05)
     assert bound.reference_profit_eur <= bound.profit_eur + 1e-4
-    assert run_on_trace(MPC(params, horizon_hours=24.0), params, tr) == pytest.approx(15.0, abs=0.05)
+    assert run_on_trace(MPC(params, horizon_hours=24.0), params, tr) == pytest.approx(
+        15.0, abs=0.05
+    )
 
 
 def test_an_unreachable_target_is_missing_energy_not_an_infeasible_problem():
     params = hand_params(ONE_PORT, [0.1] * 24)
-    tr = trace.trace_from_cars(params, [dict(arrival_step=0, capacity_kwh=100.0, dc_kw=50.0, tau=0.99,
-                                             arrival_soc=0.0, target_soc=1.0, stay_min=5.0)])
+    tr = trace.trace_from_cars(
+        params,
+        [
+            dict(
+                arrival_step=0,
+                capacity_kwh=100.0,
+                dc_kw=50.0,
+                tau=0.99,
+                arrival_soc=0.0,
+                target_soc=1.0,
+                stay_min=5.0,
+            )
+        ],
+    )
     bound = bound_for(policies.always_max, params, tr)
     # one 5-minute step at 50 kW: 50/12 kWh of the 100 wanted
     assert bound.profit_eur == pytest.approx(50 / 12 * 0.65, abs=1e-4)
@@ -165,9 +213,12 @@ def test_a_solver_time_limit_is_an_error_not_a_number(default_setup):
 
 # --- properties on drawn days -----------------------------------------------------------
 
+
 @pytest.fixture(scope="module")
 def small_setup():
-    params = make_params(station_kwargs={"num_dc": 4, "num_ac": 2}, traffic="high", battery_initial_soc=(0.2, 0.8))
+    params = make_params(
+        station_kwargs={"num_dc": 4, "num_ac": 2}, traffic="high", battery_initial_soc=(0.2, 0.8)
+    )
     return params, trace.make_traces(params, np.array([10, 200]), KEY)
 
 
@@ -188,18 +239,43 @@ def test_the_bound_is_above_the_mpc_with_the_same_occupancy(small_setup):
 
 
 def _cars_at_dawn():
-    return [dict(arrival_step=0, capacity_kwh=60.0, dc_kw=100.0, tau=0.8, arrival_soc=0.1, target_soc=0.9,
-                 stay_min=600.0),
-            dict(arrival_step=0, capacity_kwh=80.0, dc_kw=150.0, tau=0.8, arrival_soc=0.3, target_soc=0.95,
-                 stay_min=900.0),
-            dict(arrival_step=0, capacity_kwh=40.0, ac_kw=11.0, tau=0.8, arrival_soc=0.2, target_soc=0.7,
-                 stay_min=1200.0)]
+    return [
+        dict(
+            arrival_step=0,
+            capacity_kwh=60.0,
+            dc_kw=100.0,
+            tau=0.8,
+            arrival_soc=0.1,
+            target_soc=0.9,
+            stay_min=600.0,
+        ),
+        dict(
+            arrival_step=0,
+            capacity_kwh=80.0,
+            dc_kw=150.0,
+            tau=0.8,
+            arrival_soc=0.3,
+            target_soc=0.95,
+            stay_min=900.0,
+        ),
+        dict(
+            arrival_step=0,
+            capacity_kwh=40.0,
+            ac_kw=11.0,
+            tau=0.8,
+            arrival_soc=0.2,
+            target_soc=0.7,
+            stay_min=1200.0,
+        ),
+    ]
 
 
 @pytest.mark.parametrize("action_mode,tol_eur", [("continuous", 0.02), ("absolute", 1.0)])
 def test_a_full_day_mpc_reaches_the_bound_when_no_car_arrives_later(action_mode, tol_eur):
     # 15-minute steps keep the host-side MPC loop short (96 solves)
-    params = make_params(station_kwargs={"num_dc": 2, "num_ac": 2}, action_mode=action_mode, step_minutes=15.0)
+    params = make_params(
+        station_kwargs={"num_dc": 2, "num_ac": 2}, action_mode=action_mode, step_minutes=15.0
+    )
     tr = trace.trace_from_cars(params, _cars_at_dawn())
     mpc = MPC(params, horizon_hours=24.0, deadline_margin_steps=0)
     profit = run_on_trace(mpc, params, tr)
@@ -209,6 +285,7 @@ def test_a_full_day_mpc_reaches_the_bound_when_no_car_arrives_later(action_mode,
 
 
 # --- reporting --------------------------------------------------------------------------
+
 
 def test_headroom_fraction_by_hand():
     am = np.array([100.0, 200.0])
@@ -238,6 +315,7 @@ def test_training_baselines_carry_the_bound_and_the_headroom(small_setup):
 
 # --- the MILP over admissions -----------------------------------------------------------
 
+
 def test_the_milp_turns_away_a_car_that_would_block_a_better_one():
     # one port; car A (5 kWh, stays 2 h) arrives first and, admitted first-free-port, blocks
     # car B (30 kWh, 1 h) ten minutes later. Always-max's occupancy: A only, 5 * 0.65 = 3.25
@@ -246,8 +324,13 @@ def test_the_milp_turns_away_a_car_that_would_block_a_better_one():
 
     params = hand_params(ONE_PORT, [0.1] * 24)
     car = dict(capacity_kwh=100.0, dc_kw=50.0, tau=0.99, arrival_soc=0.2)
-    tr = trace.trace_from_cars(params, [dict(car, arrival_step=0, target_soc=0.25, stay_min=120.0),
-                                        dict(car, arrival_step=2, target_soc=0.5, stay_min=60.0)])
+    tr = trace.trace_from_cars(
+        params,
+        [
+            dict(car, arrival_step=0, target_soc=0.25, stay_min=120.0),
+            dict(car, arrival_step=2, target_soc=0.5, stay_min=60.0),
+        ],
+    )
     r = milp.compare(params, tr, KEY, num_steps=36)
     assert r.reference_eur == pytest.approx(3.25, abs=1e-3)
     assert r.lp_eur == pytest.approx(3.25, abs=1e-4)
@@ -264,7 +347,9 @@ def test_the_milp_bounds_every_policy_and_the_lp_on_a_window(small_setup):
     assert r.num_candidates >= 2
     assert r.milp_eur >= r.lp_eur - 1e-4 >= r.reference_eur - 2e-3
     for name in ("battery_rule", "edf", "random"):
-        assert r.milp_eur >= milp.window_profit(params, tr, KEY, policies.get_policy(name), 24) - 1e-3
+        assert (
+            r.milp_eur >= milp.window_profit(params, tr, KEY, policies.get_policy(name), 24) - 1e-3
+        )
     with pytest.raises(ValueError, match="num_steps"):
         milp.admission_bound(params, tr, 1)
 
@@ -307,23 +392,42 @@ def test_refreshing_the_rules_keeps_the_bound_and_refuses_another_model(tmp_path
     fresh = evaluate_rules(params, days, ("always_max", "edf"))
     am = fresh["always_max"]["daily_profit"]
     bound = [float(x) + 10.0 for x in am]
-    shown = {"vs_always_max": {"mean": 4.0, "stderr": 0.0}, "headroom": {"fraction": 0.4}, "mean_eur": 1.0}
+    shown = {
+        "vs_always_max": {"mean": 4.0, "stderr": 0.0},
+        "headroom": {"fraction": 0.4},
+        "mean_eur": 1.0,
+    }
     mpc = {"daily_profit": [float(x) + 4.0 for x in am], "timing": {"wall_s": 99.0}, **shown}
-    stored = {"scenario": "default_full_power", "days": [int(d) for d in days], "root_kw": 100.0,
-              "params_fingerprint": trace.params_fingerprint(params), "policies": {
-                  "always_max": {"daily_profit": [float(x) for x in am], **shown},
-                  "edf": {"daily_profit": [-999.0, -999.0], **shown}, "mpc": mpc,
-                  "lp_bound": {"daily_profit": bound, **shown}}}
+    stored = {
+        "scenario": "default_full_power",
+        "days": [int(d) for d in days],
+        "root_kw": 100.0,
+        "params_fingerprint": trace.params_fingerprint(params),
+        "policies": {
+            "always_max": {"daily_profit": [float(x) for x in am], **shown},
+            "edf": {"daily_profit": [-999.0, -999.0], **shown},
+            "mpc": mpc,
+            "lp_bound": {"daily_profit": bound, **shown},
+        },
+    }
     path = tmp_path / "default_full_power.json"
     path.write_text(json.dumps(stored))
     out = opt.refresh_rules("default_full_power", tmp_path)
     edf = out["policies"]["edf"]
     np.testing.assert_allclose(edf["daily_profit"], fresh["edf"]["daily_profit"], rtol=1e-6)
-    assert edf["vs_always_max"]["mean"] == pytest.approx(float(np.mean(fresh["edf"]["daily_profit"] - am)), abs=1e-3)
-    assert edf["headroom"]["fraction"] == pytest.approx(float(np.mean(fresh["edf"]["daily_profit"] - am)) / 10.0,
-                                                        rel=1e-4)
-    assert out["policies"]["mpc"] == mpc and out["policies"]["lp_bound"] == {"daily_profit": bound, **shown}
-    assert json.loads(path.read_text())["policies"]["edf"]["mean_eur"] == pytest.approx(edf["mean_eur"])
+    assert edf["vs_always_max"]["mean"] == pytest.approx(
+        float(np.mean(fresh["edf"]["daily_profit"] - am)), abs=1e-3
+    )
+    assert edf["headroom"]["fraction"] == pytest.approx(
+        float(np.mean(fresh["edf"]["daily_profit"] - am)) / 10.0, rel=1e-4
+    )
+    assert out["policies"]["mpc"] == mpc and out["policies"]["lp_bound"] == {
+        "daily_profit": bound,
+        **shown,
+    }
+    assert json.loads(path.read_text())["policies"]["edf"]["mean_eur"] == pytest.approx(
+        edf["mean_eur"]
+    )
     assert (tmp_path / "default_full_power.png").stat().st_size > 0
     stored["policies"]["always_max"]["daily_profit"][0] += 5.0
     path.write_text(json.dumps(stored))

@@ -16,7 +16,11 @@ from tests.helpers import random_rollout, three_level_station, trees
 
 
 def tree_equal(a, b):
-    return all(jax.tree.leaves(jax.tree.map(lambda x, y: bool(np.array_equal(np.asarray(x), np.asarray(y))), a, b)))
+    return all(
+        jax.tree.leaves(
+            jax.tree.map(lambda x, y: bool(np.array_equal(np.asarray(x), np.asarray(y))), a, b)
+        )
+    )
 
 
 @pytest.fixture(scope="module")
@@ -49,22 +53,35 @@ def check_energy_closes(params, key, num_steps=288):
     is_port = np.asarray(st.leaf_kind) != 2
     grid_hand = np.where(e > 0, e / eta, e * eta).sum(axis=1)
     np.testing.assert_allclose(np.asarray(info.grid_net_kwh), grid_hand, rtol=1e-5, atol=1e-4)
-    np.testing.assert_allclose(np.asarray(info.energy_delivered_kwh), (e * is_port).sum(1), rtol=1e-5, atol=1e-4)
-    np.testing.assert_allclose(np.asarray(info.battery_net_kwh), (e * ~is_port).sum(1), rtol=1e-5, atol=1e-4)
-    closes = np.asarray(info.grid_net_kwh) - np.asarray(info.energy_delivered_kwh) - np.asarray(info.battery_net_kwh)
+    np.testing.assert_allclose(
+        np.asarray(info.energy_delivered_kwh), (e * is_port).sum(1), rtol=1e-5, atol=1e-4
+    )
+    np.testing.assert_allclose(
+        np.asarray(info.battery_net_kwh), (e * ~is_port).sum(1), rtol=1e-5, atol=1e-4
+    )
+    closes = (
+        np.asarray(info.grid_net_kwh)
+        - np.asarray(info.energy_delivered_kwh)
+        - np.asarray(info.battery_net_kwh)
+    )
     np.testing.assert_allclose(closes, np.asarray(info.losses_kwh), atol=1e-4)
     assert np.all(np.asarray(info.losses_kwh) >= -1e-5)
     # The energy each car received is its SoC change times capacity (cars that stayed the whole step:
     # parked before and after, and no new car placed at the port this step; comparing the cars'
     # arrival SoC and capacity instead took a leaver and a newcomer with equal ones for one car).
-    same_car = (np.asarray(before.occupied) & np.asarray(after.occupied) & ~np.asarray(info.leaf_arrived))
+    same_car = (
+        np.asarray(before.occupied) & np.asarray(after.occupied) & ~np.asarray(info.leaf_arrived)
+    )
     d_soc = (np.asarray(after.soc) - np.asarray(before.soc)) * np.asarray(before.capacity_kwh)
-    np.testing.assert_allclose(np.where(same_car, d_soc, 0.0), np.where(same_car, e, 0.0), atol=2e-3)
+    np.testing.assert_allclose(
+        np.where(same_car, d_soc, 0.0), np.where(same_car, e, 0.0), atol=2e-3
+    )
     # SoC windows: never above 1, never below the arrival SoC.
     soc, arr = np.asarray(after.soc), np.asarray(after.arrival_soc)
     assert np.all(soc <= 1.0 + 1e-6) and np.all(soc >= arr - 1e-6)
     # Every node limit holds after the hard rescale.
     from chargax_marl.core.physics import node_flows_kw
+
     power = e / params.step_hours
     flows = np.asarray(jax.vmap(lambda p: node_flows_kw(p, st))(jnp.asarray(power)))
     assert np.all(flows <= np.asarray(st.node_max_kw) * (1 + 1e-4) + 1e-3)
@@ -73,33 +90,45 @@ def check_energy_closes(params, key, num_steps=288):
 
 @pytest.mark.parametrize("builder", ["default", "three_level", "splitters", "single"])
 def test_energy_closes_on_random_rollouts(builder):
-    station = {"default": "multiple_types", "three_level": three_level_station(),
-               "splitters": multiple_splitters(), "single": single_type(4, battery=True)}[builder]
+    station = {
+        "default": "multiple_types",
+        "three_level": three_level_station(),
+        "splitters": multiple_splitters(),
+        "single": single_type(4, battery=True),
+    }[builder]
     params = make_params(station=station, traffic=200.0)
     info, after = check_energy_closes(params, jax.random.PRNGKey(3))
     assert float(info.cars_arrived.sum()) > 0 and float(np.abs(info.energy_delivered_kwh).sum()) > 0
 
 
 # Each example compiles a new station, so keep few and skip shrinking (a failure prints its tree).
-@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow],
-          phases=[Phase.explicit, Phase.reuse, Phase.generate])
+@settings(
+    max_examples=6,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow],
+    phases=[Phase.explicit, Phase.reuse, Phase.generate],
+)
 @given(tree=trees(max_depth=3))
 def test_energy_closes_on_generated_trees(tree):
-    check_energy_closes(make_params(station=tree, traffic=150.0, step_minutes=30.0), jax.random.PRNGKey(1))
+    check_energy_closes(
+        make_params(station=tree, traffic=150.0, step_minutes=30.0), jax.random.PRNGKey(1)
+    )
 
 
 def test_episode_totals_equal_the_sum_of_step_reports(small_params):
     _, _, after, info = random_rollout(small_params, jax.random.PRNGKey(5))
     totals = jax.tree.map(lambda x: x[-1], after.totals)
-    e = np.asarray(info.leaf_energy_kwh)[:, :small_params.station.num_ports]
+    e = np.asarray(info.leaf_energy_kwh)[:, : small_params.station.num_ports]
     assert float(totals.energy_charged_kwh) == pytest.approx(np.maximum(e, 0).sum(), rel=1e-4)
     assert float(totals.energy_discharged_kwh) == pytest.approx(-np.minimum(e, 0).sum(), rel=1e-4)
     assert float(totals.energy_delivered_kwh) == pytest.approx(e.sum(), rel=1e-4, abs=1e-3)
-    assert float(totals.profit_eur) == pytest.approx(float(np.asarray(info.profit_eur).sum()), rel=1e-4)
+    assert float(totals.profit_eur) == pytest.approx(
+        float(np.asarray(info.profit_eur).sum()), rel=1e-4
+    )
     assert float(totals.cars_served) == float(np.asarray(info.cars_departed).sum())
     assert float(totals.cars_arrived) == float(np.asarray(info.cars_arrived).sum())
     # Every car that arrived is parked, or has left.
-    parked = np.asarray(after.occupied)[-1, :small_params.station.num_ports].sum()
+    parked = np.asarray(after.occupied)[-1, : small_params.station.num_ports].sum()
     assert float(totals.cars_arrived) == float(totals.cars_served) + parked
 
 
@@ -112,8 +141,11 @@ def test_jit_equals_no_jit(env):
     jitted = jax.jit(run_env, static_argnums=(0, 3))(env, params, key, 12)
     with jax.disable_jit():
         eager = run_env(env, params, key, 12)
-    jax.tree.map(lambda a, b: np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-5),
-                 jitted, eager)
+    jax.tree.map(
+        lambda a, b: np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-5),
+        jitted,
+        eager,
+    )
 
 
 def test_vmap_over_keys_equals_a_loop(env):
@@ -123,8 +155,13 @@ def test_vmap_over_keys_equals_a_loop(env):
     batched = jax.vmap(fn)(keys)
     for i, k in enumerate(keys):
         single = fn(k)
-        jax.tree.map(lambda b, s: np.testing.assert_allclose(np.asarray(b)[i], np.asarray(s), rtol=1e-5, atol=1e-5),
-                     batched, single)
+        jax.tree.map(
+            lambda b, s: np.testing.assert_allclose(
+                np.asarray(b)[i], np.asarray(s), rtol=1e-5, atol=1e-5
+            ),
+            batched,
+            single,
+        )
 
 
 def test_same_key_same_trajectory_and_constructing_twice_is_identical(env):
@@ -149,11 +186,19 @@ def test_day_ends_with_truncation_and_auto_reset(env):
 
     def body(state, k):
         obs, state, r, term, trunc, info = wrapped.step(k, state, action, params)
-        return state, (r, term, trunc, info["returned_episode"], info["returned_episode_returns"],
-                       info["returned_episode_profit_eur"], state.env_state.timestep)
+        return state, (
+            r,
+            term,
+            trunc,
+            info["returned_episode"],
+            info["returned_episode_returns"],
+            info["returned_episode_profit_eur"],
+            state.env_state.timestep,
+        )
 
     state, (r, term, trunc, ret_ep, ret_r, ret_profit, t) = jax.jit(
-        lambda s: jax.lax.scan(body, s, jax.random.split(key, 290)))(state)
+        lambda s: jax.lax.scan(body, s, jax.random.split(key, 290))
+    )(state)
     trunc = np.asarray(trunc)
     assert not np.asarray(term).any()
     assert trunc[287] and trunc.sum() == 1 and np.asarray(ret_ep)[287]
@@ -161,7 +206,9 @@ def test_day_ends_with_truncation_and_auto_reset(env):
     day_return = float(np.asarray(r)[:288].sum())
     assert float(ret_r[287]) == pytest.approx(day_return, rel=1e-5)
     assert float(ret_r[289]) == pytest.approx(day_return, rel=1e-5)
-    assert float(ret_profit[287]) == pytest.approx(day_return, rel=1e-5)  # alpha = 0: reward = profit
+    assert float(ret_profit[287]) == pytest.approx(
+        day_return, rel=1e-5
+    )  # alpha = 0: reward = profit
 
 
 def test_action_space_and_level_mapping():
@@ -169,7 +216,9 @@ def test_action_space_and_level_mapping():
     space = env.action_space(params)
     assert space.shape == (17,) and int(space.nvec[0]) == 21
     levels = jnp.arange(-10, 7)
-    np.testing.assert_array_equal(np.asarray(env.action_to_levels(env.levels_to_action(levels), params)), levels)
+    np.testing.assert_array_equal(
+        np.asarray(env.action_to_levels(env.levels_to_action(levels), params)), levels
+    )
     no_v2g, p2 = make("shopping", v2g=False)
     nvec = np.asarray(no_v2g.action_space(p2).nvec)
     assert (nvec[:16] == 11).all() and nvec[16] == 21  # the battery may always discharge
@@ -246,7 +295,11 @@ def test_gymnasium_wrapper_passes_the_checker():
         obs, r, term, truncated, info = genv.step(genv.action_space.sample())
         total += r
         steps += 1
-    assert steps == 24 and not term and info["episode_profit_eur"] == pytest.approx(total, rel=1e-4, abs=1e-4)
+    assert (
+        steps == 24
+        and not term
+        and info["episode_profit_eur"] == pytest.approx(total, rel=1e-4, abs=1e-4)
+    )
     with pytest.raises(ValueError, match="outside the action space"):
         genv.step(np.full(7, 99))
     assert isinstance(genv.action_space, gymnasium.spaces.MultiDiscrete)

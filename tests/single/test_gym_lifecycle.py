@@ -41,8 +41,13 @@ def first_obs_and_reward(env, seed):
 
 
 def test_seeds_use_the_whole_integer(genv):
-    assert np.array_equal(np.asarray(key_from_seed(7, "t")), np.asarray(jax.random.PRNGKey(7)))  # old seeds kept
-    keys = {tuple(np.asarray(key_from_seed(s, "t")).tolist()) for s in (0, 2**32, 2**64, 2**64 + 1, 2**100)}
+    assert np.array_equal(
+        np.asarray(key_from_seed(7, "t")), np.asarray(jax.random.PRNGKey(7))
+    )  # old seeds kept
+    keys = {
+        tuple(np.asarray(key_from_seed(s, "t")).tolist())
+        for s in (0, 2**32, 2**64, 2**64 + 1, 2**100)
+    }
     assert len(keys) == 5  # 2**32 is not seed 0, 2**64 does not overflow
     day0, r0 = first_obs_and_reward(genv, 0)
     day32, r32 = first_obs_and_reward(genv, 2**32)
@@ -53,7 +58,9 @@ def test_seeds_use_the_whole_integer(genv):
 
 @pytest.mark.parametrize("seed", [-1, 1.5, "3", True])
 def test_bad_seeds_raise_naming_the_seed(genv, seed):
-    with pytest.raises(ValueError, match=r"seed must be a non-negative integer.*" + repr(seed).replace(".", r"\.")):
+    with pytest.raises(
+        ValueError, match=r"seed must be a non-negative integer.*" + repr(seed).replace(".", r"\.")
+    ):
         genv.reset(seed=seed)
 
 
@@ -78,7 +85,9 @@ def test_day_option_is_range_checked(genv, day):
     if day is None:  # None means "no day": a random one
         genv.reset(options={"day": None})
         return
-    with pytest.raises(ValueError, match=r"options\['day'\] must be an integer in \[0, 364\].*" + repr(day)):
+    with pytest.raises(
+        ValueError, match=r"options\['day'\] must be an integer in \[0, 364\].*" + repr(day)
+    ):
         genv.reset(options={"day": day})
 
 
@@ -151,7 +160,9 @@ def test_gymnasium_make_ids():
     obs, _ = env.reset(seed=0)
     assert env.observation_space.contains(obs)
     assert isinstance(env.render(), str)
-    env = gymnasium.make("chargax_marl:chargax_marl/Chargax-v0", **HOURLY)  # the module-prefixed form
+    env = gymnasium.make(
+        "chargax_marl:chargax_marl/Chargax-v0", **HOURLY
+    )  # the module-prefixed form
     env.reset(seed=0)
 
 
@@ -164,17 +175,22 @@ def test_importing_the_package_leaves_jax_unstarted():
     import subprocess
     import sys
 
-    code = ("import os, chargax_marl, chargax_marl.core, chargax_marl.evaluation, chargax_marl.policies, "
-            "chargax_marl.trace, chargax_marl.optimal\n"
-            "import gymnasium\n"
-            "assert 'chargax_marl/Chargax-v0' in gymnasium.registry\n"
-            "os.environ['XLA_FLAGS'] = '--xla_force_host_platform_device_count=3'\n"
-            "import jax\n"
-            "print(len(jax.devices('cpu')))\n")
+    code = (
+        "import os, chargax_marl, chargax_marl.core, chargax_marl.evaluation, chargax_marl.policies, "
+        "chargax_marl.trace, chargax_marl.optimal\n"
+        "import gymnasium\n"
+        "assert 'chargax_marl/Chargax-v0' in gymnasium.registry\n"
+        "os.environ['XLA_FLAGS'] = '--xla_force_host_platform_device_count=3'\n"
+        "import jax\n"
+        "print(len(jax.devices('cpu')))\n"
+    )
     env = {**os.environ, "JAX_PLATFORMS": "cpu", "XLA_FLAGS": ""}
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300
+    )
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split()[-1] == "3", out.stdout
+
 
 # ------------------------------------------------------------------ finite bounds
 
@@ -198,7 +214,9 @@ def _random_single_obs(env: Chargax, key, num_envs=4, num_steps=600):
     return obs.reshape(-1, obs.shape[-1])
 
 
-@pytest.mark.parametrize("overrides", [{}, dict(constraint_mode="soft", observe_moer=True, v2g=False)])
+@pytest.mark.parametrize(
+    "overrides", [{}, dict(constraint_mode="soft", observe_moer=True, v2g=False)]
+)
 def test_observations_respect_finite_bounds(overrides):
     env = Chargax(**overrides)
     space = env.observation_space()
@@ -206,7 +224,10 @@ def test_observations_respect_finite_bounds(overrides):
     obs = _random_single_obs(env, jax.random.PRNGKey(0))  # two days x 4 envs
     assert obs.std(axis=0).max() > 0.1
     below, above = obs < space.low, obs > space.high
-    assert not below.any() and not above.any(), (np.flatnonzero(below.any(0)), np.flatnonzero(above.any(0)))
+    assert not below.any() and not above.any(), (
+        np.flatnonzero(below.any(0)),
+        np.flatnonzero(above.any(0)),
+    )
     gspace = GymnasiumEnv(**overrides).observation_space
     np.testing.assert_array_equal(gspace.low, np.asarray(space.low))
 
@@ -227,7 +248,9 @@ def test_agent_observations_respect_finite_bounds():
 
         return jax.lax.scan(body, state, jax.random.split(key, 600))[1]
 
-    obs = np.asarray(jax.jit(jax.vmap(one))(jax.random.split(jax.random.PRNGKey(1), 2))).reshape(-1, env.obs_size)
+    obs = np.asarray(jax.jit(jax.vmap(one))(jax.random.split(jax.random.PRNGKey(1), 2))).reshape(
+        -1, env.obs_size
+    )
     assert np.all(np.isfinite(space.low)) and np.all(np.isfinite(space.high))
     assert not (obs < space.low).any() and not (obs > space.high).any()
 
@@ -295,7 +318,9 @@ def test_flat_discrete_through_gymnax_logwrapper():
     base = Chargax(**HOURLY)
     env = GymnaxLogWrapper(FlatDiscrete(base))
     flat = env._env
-    full = flat.action_index(base.default_params.num_levels, 0)  # every port at full power, battery idle
+    full = flat.action_index(
+        base.default_params.num_levels, 0
+    )  # every port at full power, battery idle
     np.testing.assert_array_equal(np.asarray(flat.levels(full)), [10] * 16 + [0])
     obs, state = env.reset(jax.random.PRNGKey(0))
 

@@ -14,10 +14,22 @@ from chargax_marl.core import make_params, simulator
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.teachers import car_plan, shaping
 
-TINY_ENV = {"station": "single_type", "station_kwargs": {"num_ports": 4, "battery": True}, "step_minutes": 60.0}
-TINY = {"NUM_ENVS": 4, "NUM_STEPS": 24, "NUM_MINIBATCHES": 2, "UPDATE_EPOCHS": 2, "HIDDEN": 32,
-        "TOTAL_TIMESTEPS": 4 * 24, "ENV_KWARGS": {**TINY_ENV, "num_levels": 1}, "REWARD_SCALE": 0.1,
-        "PORT_SHAPING": "plan"}
+TINY_ENV = {
+    "station": "single_type",
+    "station_kwargs": {"num_ports": 4, "battery": True},
+    "step_minutes": 60.0,
+}
+TINY = {
+    "NUM_ENVS": 4,
+    "NUM_STEPS": 24,
+    "NUM_MINIBATCHES": 2,
+    "UPDATE_EPOCHS": 2,
+    "HIDDEN": 32,
+    "TOTAL_TIMESTEPS": 4 * 24,
+    "ENV_KWARGS": {**TINY_ENV, "num_levels": 1},
+    "REWARD_SCALE": 0.1,
+    "PORT_SHAPING": "plan",
+}
 
 
 def test_plan_value_fills_the_cheapest_steps_of_the_stay_first():
@@ -29,14 +41,28 @@ def test_plan_value_fills_the_cheapest_steps_of_the_stay_first():
     and efficiency 1, only steps 4 and 5 count (10 kWh at 0.35 and 10 at 0.15)."""
     prices = np.array([0.3, 0.1, 0.5, 0.2, 0.4, 0.6], np.float32)
     order = np.argsort(prices, kind="stable").astype(np.int32)
-    got = car_plan.plan_value(jnp.asarray(order), jnp.asarray(prices[order]), 1,
-                               steps_left=[3, 3, 0, 1], need_kwh=[15.0, 2.0, 15.0, 15.0],
-                               step_kwh=[10.0, 10.0, 10.0, 10.0], efficiency=[0.5, 0.5, 0.5, 1.0],
-                               customer_price=0.75)
+    got = car_plan.plan_value(
+        jnp.asarray(order),
+        jnp.asarray(prices[order]),
+        1,
+        steps_left=[3, 3, 0, 1],
+        need_kwh=[15.0, 2.0, 15.0, 15.0],
+        step_kwh=[10.0, 10.0, 10.0, 10.0],
+        efficiency=[0.5, 0.5, 0.5, 1.0],
+        customer_price=0.75,
+    )
     # the last car: efficiency 1, one step (step 1): 10 kWh at 0.75 - 0.1
     np.testing.assert_allclose(np.asarray(got), [7.25, 1.10, 0.0, 6.5], rtol=1e-6)
-    late = car_plan.plan_value(jnp.asarray(order), jnp.asarray(prices[order]), 4, steps_left=[10], need_kwh=[30.0],
-                                step_kwh=[10.0], efficiency=[1.0], customer_price=0.75)
+    late = car_plan.plan_value(
+        jnp.asarray(order),
+        jnp.asarray(prices[order]),
+        4,
+        steps_left=[10],
+        need_kwh=[30.0],
+        step_kwh=[10.0],
+        efficiency=[1.0],
+        customer_price=0.75,
+    )
     # steps 4 and 5 only (the day ends): 10 kWh at 0.75 - 0.4 and 10 at 0.75 - 0.6
     np.testing.assert_allclose(np.asarray(late), [3.5 + 1.5], rtol=1e-6)
 
@@ -45,13 +71,17 @@ def _one_car_state(params, minutes_left, need_kwh, charge_sensitive=False):
     """An empty station at step 0 of day 0 with one car on port 0."""
     s = simulator.empty_state(0, params, jax.random.PRNGKey(0))
     port0 = jnp.arange(params.station.num_leaves) == 0
-    return s.replace(occupied=s.occupied | port0, soc=jnp.where(port0, 0.2, s.soc),
-                     energy_remaining_kwh=jnp.where(port0, need_kwh, s.energy_remaining_kwh),
-                     time_remaining_min=jnp.where(port0, minutes_left, s.time_remaining_min),
-                     capacity_kwh=jnp.where(port0, 100.0, s.capacity_kwh),
-                     max_rate_kw=jnp.where(port0, 1000.0, s.max_rate_kw),
-                     target_soc=jnp.where(port0, 0.8, s.target_soc), tau=jnp.where(port0, 0.8, s.tau),
-                     charge_sensitive=jnp.where(port0, charge_sensitive, s.charge_sensitive))
+    return s.replace(
+        occupied=s.occupied | port0,
+        soc=jnp.where(port0, 0.2, s.soc),
+        energy_remaining_kwh=jnp.where(port0, need_kwh, s.energy_remaining_kwh),
+        time_remaining_min=jnp.where(port0, minutes_left, s.time_remaining_min),
+        capacity_kwh=jnp.where(port0, 100.0, s.capacity_kwh),
+        max_rate_kw=jnp.where(port0, 1000.0, s.max_rate_kw),
+        target_soc=jnp.where(port0, 0.8, s.target_soc),
+        tau=jnp.where(port0, 0.8, s.tau),
+        charge_sensitive=jnp.where(port0, charge_sensitive, s.charge_sensitive),
+    )
 
 
 def test_shaped_step_scores_the_loss_against_the_plan():
@@ -65,7 +95,11 @@ def test_shaped_step_scores_the_loss_against_the_plan():
     buy[prices[0][0]] = prices[1][0]  # day 0's buy price of every step
     eff = float(params.station.leaf_path_efficiency[0])
     c = float(params.customer_price_eur_kwh)
-    q = car_plan.PLAN_POWER_FRACTION * float(params.station.leaf_max_kw[0]) * float(params.step_hours)
+    q = (
+        car_plan.PLAN_POWER_FRACTION
+        * float(params.station.leaf_max_kw[0])
+        * float(params.step_hours)
+    )
     state = _one_car_state(params, minutes_left=120.0, need_kwh=q)
     shift = pot(state)
     charge = np.zeros(params.station.num_leaves, np.float32)
@@ -75,7 +109,9 @@ def test_shaped_step_scores_the_loss_against_the_plan():
     shaped_idle = float(shift(jnp.zeros_like(jnp.asarray(charge)))[0])
     best_later = max(m_now, m_next) - m_now  # what charging now gives up against the plan
     np.testing.assert_allclose(shaped_charge, -best_later * q, rtol=1e-5, atol=1e-4)
-    np.testing.assert_allclose(shaped_idle, -(max(m_now, m_next) - m_next) * q, rtol=1e-5, atol=1e-4)
+    np.testing.assert_allclose(
+        shaped_idle, -(max(m_now, m_next) - m_next) * q, rtol=1e-5, atol=1e-4
+    )
     assert max(shaped_charge, shaped_idle) == pytest.approx(0.0, abs=1e-4)
     sensitive = pot(_one_car_state(params, minutes_left=120.0, need_kwh=q, charge_sensitive=True))
     assert float(jnp.abs(sensitive(jnp.asarray(charge))).max()) == 0.0
@@ -88,7 +124,9 @@ def test_car_potential_telescopes_over_a_day(policy):
     the state before it, is the value of the env's next state for every car that stays."""
     from chargax_marl import policies
 
-    params = make_params(station="single_type", station_kwargs={"num_ports": 6, "battery": True}, num_levels=1)
+    params = make_params(
+        station="single_type", station_kwargs={"num_ports": 6, "battery": True}, num_levels=1
+    )
     pot = car_plan.car_potential(params)
     values = car_plan.car_values(params)
     act = getattr(policies, policy)
@@ -98,11 +136,16 @@ def test_car_potential_telescopes_over_a_day(policy):
             shift = pot(s)
             s2, info = simulator.step(k, s, act(s, k, params), params)
             v_new = values(s2, s2.timestep, s2.time_remaining_min, s2.energy_remaining_kwh)
-            return s2, (shift(info.leaf_energy_kwh), jnp.where(info.leaf_arrived, v_new, 0.0),
-                        jnp.sum(info.leaf_arrived))
+            return s2, (
+                shift(info.leaf_energy_kwh),
+                jnp.where(info.leaf_arrived, v_new, 0.0),
+                jnp.sum(info.leaf_arrived),
+            )
 
         s0 = simulator.empty_state(5, params, key)
-        _, (terms, entered, arrived) = jax.lax.scan(body, s0, jax.random.split(key, int(params.num_steps)))
+        _, (terms, entered, arrived) = jax.lax.scan(
+            body, s0, jax.random.split(key, int(params.num_steps))
+        )
         return terms, entered, arrived
 
     terms, entered, arrived = jax.jit(day)(jax.random.PRNGKey(2))
@@ -134,8 +177,12 @@ def test_single_env_reports_each_leaf_s_energy():
         _, state, _, _, info = env.step_env(k_s, state, action, params)
         e = np.asarray(info["leaf_energy_kwh"])
         assert e.shape == (params.station.num_leaves,)
-        np.testing.assert_allclose(e[is_port].sum(), float(info["energy_charged_kwh"] - info["energy_discharged_kwh"]),
-                                   rtol=1e-5, atol=1e-4)
+        np.testing.assert_allclose(
+            e[is_port].sum(),
+            float(info["energy_charged_kwh"] - info["energy_discharged_kwh"]),
+            rtol=1e-5,
+            atol=1e-4,
+        )
         moved += np.abs(e).sum()
     assert moved > 0.1
 
@@ -155,8 +202,9 @@ def test_port_shaping_trains_and_keeps_the_logged_profit(mod):
         for k in ("actor_loss", "value_loss"):
             assert np.all(np.isfinite(m[k])), (k, m[k])
         outs[mode] = m
-    np.testing.assert_allclose(outs["plan"]["episode_profit_eur"][:, 0], outs["off"]["episode_profit_eur"][:, 0],
-                               rtol=1e-5)
+    np.testing.assert_allclose(
+        outs["plan"]["episode_profit_eur"][:, 0], outs["off"]["episode_profit_eur"][:, 0], rtol=1e-5
+    )
 
 
 def test_mix_own_terms_adds_up_like_the_rewards():
@@ -176,10 +224,16 @@ def test_plan_rule_charges_in_the_plan_s_step_only():
     order, sorted_prices = car_plan.price_order(params)
     buy = np.empty_like(sorted_prices[0])
     buy[order[0]] = sorted_prices[0]
-    q = car_plan.PLAN_POWER_FRACTION * float(params.station.leaf_max_kw[0]) * float(params.step_hours)
+    q = (
+        car_plan.PLAN_POWER_FRACTION
+        * float(params.station.leaf_max_kw[0])
+        * float(params.step_hours)
+    )
     is_bat = np.asarray(params.station.leaf_kind) == KIND_BATTERY
     for t in range(6):
-        state = _one_car_state(params, minutes_left=120.0, need_kwh=q).replace(timestep=jnp.int32(t))
+        state = _one_car_state(params, minutes_left=120.0, need_kwh=q).replace(
+            timestep=jnp.int32(t)
+        )
         levels = np.asarray(act(state, None, params))
         assert levels[0] == int(buy[t] <= buy[t + 1]), (t, buy[t], buy[t + 1])
         assert np.all(levels[1:][~is_bat[1:]] == 0) and np.all(levels[is_bat] == 0)
@@ -194,11 +248,19 @@ def test_plan_advice_is_the_rule_s_port_decision():
     advice = car_plan.plan_advice(params)
     act = car_plan.plan_action(params, battery="idle")
     is_bat = np.asarray(params.station.leaf_kind) == KIND_BATTERY
-    q = car_plan.PLAN_POWER_FRACTION * float(params.station.leaf_max_kw[0]) * float(params.step_hours)
+    q = (
+        car_plan.PLAN_POWER_FRACTION
+        * float(params.station.leaf_max_kw[0])
+        * float(params.step_hours)
+    )
     for t in range(6):
-        state = _one_car_state(params, minutes_left=120.0, need_kwh=q).replace(timestep=jnp.int32(t))
+        state = _one_car_state(params, minutes_left=120.0, need_kwh=q).replace(
+            timestep=jnp.int32(t)
+        )
         a = np.asarray(advice(state))
-        np.testing.assert_array_equal(a, (np.asarray(act(state, None, params)) > 0).astype(np.float32))
+        np.testing.assert_array_equal(
+            a, (np.asarray(act(state, None, params)) > 0).astype(np.float32)
+        )
         assert np.all(a[1:] == 0)
         sensitive = _one_car_state(params, minutes_left=120.0, need_kwh=q, charge_sensitive=True)
         assert float(advice(sensitive.replace(timestep=jnp.int32(t)))[0]) == 1.0
@@ -210,7 +272,9 @@ def test_ippo_plan_obs_appends_the_advice_to_every_agent_s_observation():
     rollout and in the greedy evaluation act."""
     from chargax_marl.marl.env import ChargaxMARL
 
-    train = ippo.make_train({**TINY, "PORT_SHAPING": "off", "PLAN_OBS": True, "LOCAL_REWARD_WEIGHT": 1.0})
+    train = ippo.make_train(
+        {**TINY, "PORT_SHAPING": "off", "PLAN_OBS": True, "LOCAL_REWARD_WEIGHT": 1.0}
+    )
     out = jax.jit(jax.vmap(train))(jax.random.split(jax.random.PRNGKey(0), 2))
     assert np.all(np.isfinite(np.asarray(out["metrics"]["actor_loss"])))
     env = ChargaxMARL(params=train.env_params)
@@ -218,7 +282,9 @@ def test_ippo_plan_obs_appends_the_advice_to_every_agent_s_observation():
     params = make_params(**TINY_ENV, num_levels=1)
     state = _one_car_state(params, minutes_left=120.0, need_kwh=5.0, charge_sensitive=True)
     rows = train.policy.with_plan(env.get_obs_matrix(state), state)
-    np.testing.assert_array_equal(np.asarray(rows[:, -1]), np.asarray(car_plan.plan_advice(params)(state)))
+    np.testing.assert_array_equal(
+        np.asarray(rows[:, -1]), np.asarray(car_plan.plan_advice(params)(state))
+    )
     assert float(rows[0, -1]) == 1.0
     seed0 = jax.tree.map(lambda x: x[0], out["runner_state"].params)
     levels = train.make_act(params)(seed0)(state, None)
@@ -235,6 +301,8 @@ def test_ppo_plan_obs_appends_every_leaf_s_advice():
     state = _one_car_state(params, minutes_left=120.0, need_kwh=5.0, charge_sensitive=True)
     obs = train.policy.with_plan(flat_obs(state, params), state)
     n = params.station.num_leaves
-    np.testing.assert_array_equal(np.asarray(obs[-n:]), np.asarray(car_plan.plan_advice(params)(state)))
+    np.testing.assert_array_equal(
+        np.asarray(obs[-n:]), np.asarray(car_plan.plan_advice(params)(state))
+    )
     seed0 = jax.tree.map(lambda x: x[0], out["runner_state"].params)
     assert np.asarray(train.make_act(params)(seed0)(state, None)).shape == (n,)

@@ -51,13 +51,15 @@ def test_storage_value_hand_case_and_bounds():
     value is the terminal price (energy moves freely through the day); with losses a kWh
     bought at ``p`` costs ``p / eta``, so the values stay within the day's prices scaled by eta."""
 
-    v = storage_value.day_values([0.1, 0.3, 0.2], 0.15, eta=1.0, power_kw=1.0, capacity_kwh=10.0, e0=5.0,
-                                 step_hours=1.0)
+    v = storage_value.day_values(
+        [0.1, 0.3, 0.2], 0.15, eta=1.0, power_kw=1.0, capacity_kwh=10.0, e0=5.0, step_hours=1.0
+    )
     np.testing.assert_allclose(v, [0.15, 0.15, 0.15, 0.15], atol=1e-9)
     # a small battery that starts empty: the first step's kWh is worth the dearest sale it
     # can still reach (0.3 at step 1); after that sale only step 2's 0.2 remains
-    v = storage_value.day_values([0.1, 0.3, 0.2], 0.0, eta=1.0, power_kw=1.0, capacity_kwh=1.0, e0=0.0,
-                                 step_hours=1.0)
+    v = storage_value.day_values(
+        [0.1, 0.3, 0.2], 0.0, eta=1.0, power_kw=1.0, capacity_kwh=1.0, e0=0.0, step_hours=1.0
+    )
     assert v[2] == pytest.approx(0.2) and v[3] == 0.0
     from chargax_marl.core import make_params
 
@@ -68,13 +70,18 @@ def test_storage_value_hand_case_and_bounds():
     assert table.shape == (prices.shape[0], prices.shape[1] + 1)
     from chargax_marl.core.reward import day_mean_buy_price
 
-    np.testing.assert_allclose(table[:, -1], [float(day_mean_buy_price(d, params)) for d in range(prices.shape[0])],
-                               rtol=1e-5)
+    np.testing.assert_allclose(
+        table[:, -1],
+        [float(day_mean_buy_price(d, params)) for d in range(prices.shape[0])],
+        rtol=1e-5,
+    )
     lo = np.minimum(prices.min(axis=1, keepdims=True) / eta, table[:, -1:])
     hi = np.maximum(prices.max(axis=1, keepdims=True) * eta, table[:, -1:])
     assert np.all(table >= lo - 1e-5) and np.all(table <= hi + 1e-5)
     with pytest.raises(ValueError, match="battery"):
-        storage_value.storage_values(make_params(station="single_type", station_kwargs={"num_ports": 2}))
+        storage_value.storage_values(
+            make_params(station="single_type", station_kwargs={"num_ports": 2})
+        )
 
 
 def test_dp_values_are_the_hand_computed_best_of_the_three_full_power_actions():
@@ -82,19 +89,22 @@ def test_dp_values_are_the_hand_computed_best_of_the_three_full_power_actions():
     empty at the start it buys at 0.1 and sells at 0.3 (0.2); full it sells at 0.3 (0.3). With
     a path efficiency of 0.5 buying at 0.1 costs 0.2 per stored kWh and selling at 0.3 earns
     0.15, so the empty battery idles and the full one earns 0.15 (selling at 0.3 or holding)."""
-    grid, v = storage_value.level_values([[0.1, 0.3, 0.2]], [0.15], eta=1.0, step_kwh=1.0, capacity_kwh=1.0,
-                                         points_per_step=1)
+    grid, v = storage_value.level_values(
+        [[0.1, 0.3, 0.2]], [0.15], eta=1.0, step_kwh=1.0, capacity_kwh=1.0, points_per_step=1
+    )
     np.testing.assert_allclose(grid, [0.0, 1.0])
     np.testing.assert_allclose(v[0], [[0.2, 0.3], [0.0, 0.3], [0.0, 0.2], [0.0, 0.15]], atol=1e-12)
-    _, v = storage_value.level_values([[0.1, 0.3, 0.2]], [0.15], eta=0.5, step_kwh=1.0, capacity_kwh=1.0,
-                                      points_per_step=1)
+    _, v = storage_value.level_values(
+        [[0.1, 0.3, 0.2]], [0.15], eta=0.5, step_kwh=1.0, capacity_kwh=1.0, points_per_step=1
+    )
     # full: sell at 0.3 for 0.15, at 0.2 for 0.1, or hold to the end for 0.15
     np.testing.assert_allclose(v[0, :, 0], 0.0, atol=1e-12)
     np.testing.assert_allclose(v[0, :, 1], [0.15, 0.15, 0.15, 0.15], atol=1e-12)
     # a finer grid interpolates half a kWh: buy 0.5 kWh at 0.1 is not possible (a full step is 1
     # kWh, cut at full), so from 0.5 kWh the best is to top up at 0.1 and sell 1 kWh at 0.3
-    grid, v = storage_value.level_values([[0.1, 0.3, 0.2]], [0.15], eta=1.0, step_kwh=1.0, capacity_kwh=1.0,
-                                         points_per_step=2)
+    grid, v = storage_value.level_values(
+        [[0.1, 0.3, 0.2]], [0.15], eta=1.0, step_kwh=1.0, capacity_kwh=1.0, points_per_step=2
+    )
     np.testing.assert_allclose(grid, [0.0, 0.5, 1.0])
     np.testing.assert_allclose(v[0, 0, 1], -0.05 + 0.3, atol=1e-12)
     for bad in (0, 1.5, True):

@@ -18,13 +18,19 @@ from chargax_marl.policies import TEACHER_RULES, for_marl, for_single, get_polic
 from chargax_marl.single import Chargax
 from chargax_marl.teachers import car_plan, prices, rules, storage_value
 
-TINY_ENV = {"station": "single_type", "station_kwargs": {"num_ports": 4, "battery": True},
-            "step_minutes": 60.0, "num_levels": 1}
+TINY_ENV = {
+    "station": "single_type",
+    "station_kwargs": {"num_ports": 4, "battery": True},
+    "step_minutes": 60.0,
+    "num_levels": 1,
+}
 
 
 def test_the_library_imports_nothing_from_baselines():
-    code = ("import sys, chargax_marl.teachers, chargax_marl.wrappers, chargax_marl.policies; "
-            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'baselines'))")
+    code = (
+        "import sys, chargax_marl.teachers, chargax_marl.wrappers, chargax_marl.policies; "
+        "print(sorted(m for m in sys.modules if m.split('.')[0] == 'baselines'))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
 
@@ -35,9 +41,11 @@ def test_teacher_rules_are_built_by_name_for_given_params():
     params = make_params(**TINY_ENV)
     assert set(TEACHER_RULES) == {"battery_programme", "plan_programme", "grid_programme"}
     state = simulator.reset(jax.random.PRNGKey(1), params).replace(timestep=jnp.int32(3))
-    expected = {"battery_programme": car_plan.plan_action(params, "dp", None),
-                "plan_programme": car_plan.plan_action(params, "dp", car_plan.PLAN_POWER_FRACTION),
-                "grid_programme": rules.grid_programme(params)}
+    expected = {
+        "battery_programme": car_plan.plan_action(params, "dp", None),
+        "plan_programme": car_plan.plan_action(params, "dp", car_plan.PLAN_POWER_FRACTION),
+        "grid_programme": rules.grid_programme(params),
+    }
     for name in TEACHER_RULES:
         levels = np.asarray(get_policy(name, params)(state, None, params))
         np.testing.assert_array_equal(levels, np.asarray(expected[name](state, None, params)))
@@ -50,8 +58,10 @@ def test_teacher_rules_are_built_by_name_for_given_params():
         get_policy("bogus")
     single = Chargax(params=params)
     levels = expected["battery_programme"](state, None, params)
-    np.testing.assert_array_equal(np.asarray(for_single("battery_programme", single)(state, None)),
-                                  np.asarray(single.levels_to_action(levels, params)))
+    np.testing.assert_array_equal(
+        np.asarray(for_single("battery_programme", single)(state, None)),
+        np.asarray(single.levels_to_action(levels, params)),
+    )
     marl = ChargaxMARL(params=params)
     assert set(for_marl("plan_programme", marl)(state, None)) == set(marl.agents)
 
@@ -70,9 +80,15 @@ def test_dp_battery_action_takes_the_best_of_the_three_actions_values():
         s = state.replace(timestep=jnp.int32(t), soc=jnp.where(jnp.asarray(is_bat), soc, state.soc))
         e = soc * capacity_kwh
         after = table[2, t + 1]
-        q = storage_value.action_values(np, lambda x, after=after: np.interp(x, grid, after), e,
-                                        price[2, t], eta, power_kw * float(params.step_hours),
-                                        capacity_kwh)
+        q = storage_value.action_values(
+            np,
+            lambda x, after=after: np.interp(x, grid, after),
+            e,
+            price[2, t],
+            eta,
+            power_kw * float(params.step_hours),
+            capacity_kwh,
+        )
         a, strict = act(s)
         if bool(strict):
             assert int(a) == int(np.argmax(q)) - 1

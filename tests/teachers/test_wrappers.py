@@ -22,8 +22,12 @@ from chargax_marl.wrappers import (
 )
 from tests.helpers import no_arrivals, place_car
 
-TINY_ENV = {"station": "single_type", "station_kwargs": {"num_ports": 4, "battery": True},
-            "step_minutes": 60.0, "num_levels": 1}
+TINY_ENV = {
+    "station": "single_type",
+    "station_kwargs": {"num_ports": 4, "battery": True},
+    "step_minutes": 60.0,
+    "num_levels": 1,
+}
 
 
 @pytest.fixture(scope="module")
@@ -60,8 +64,9 @@ def test_battery_shaping_adds_the_dp_potential_difference_on_a_constructed_state
     assert net > 1.0 and float(info["battery_terminal_value_eur"]) == 0.0
     expected = np.interp(e0 + net, grid, table[3, 6]) - np.interp(e0, grid, table[3, 5])
     np.testing.assert_allclose(float(shaped - raw), expected, rtol=1e-4, atol=1e-4)
-    np.testing.assert_allclose(float(shaped_info["battery_shaping_eur"]), float(shaped - raw),
-                               atol=1e-6)
+    np.testing.assert_allclose(
+        float(shaped_info["battery_shaping_eur"]), float(shaped - raw), atol=1e-6
+    )
     _, _, flat, _, _, _ = BatteryShaping(env, "day_mean").step(key, state, action, params)
     price = float(storage_value.terminal_prices(params)[3])
     np.testing.assert_allclose(float(flat - raw), price * net, rtol=1e-4, atol=1e-5)
@@ -106,8 +111,9 @@ def test_car_plan_shaping_over_a_day_sums_to_minus_the_car_s_first_plan_value(pa
     quiet = no_arrivals(params)
     env = Chargax(params=quiet)
     wrapped = CarPlanShaping(env)
-    s0 = place_car(simulator.empty_state(4, quiet), 0, time_min=300.0, remaining_kwh=30.0,
-                   capacity_kwh=60.0)
+    s0 = place_car(
+        simulator.empty_state(4, quiet), 0, time_min=300.0, remaining_kwh=30.0, capacity_kwh=60.0
+    )
 
     def body(s, k):
         a = env.action_space(quiet).sample(k)
@@ -142,8 +148,11 @@ def test_marl_shaping_adds_each_agent_s_term_and_passes_the_dict_api_through(par
     cars = np.asarray(infos["car_plan_shaping_eur"])
     np.testing.assert_allclose(diff, battery + cars, rtol=1e-5, atol=1e-5)
     is_bat = np.asarray(params.station.leaf_kind) == KIND_BATTERY
-    station_battery = float(shaping.battery_potential(params, "dp")(state)(
-        float(np.asarray(infos["agent_energy_kwh"])[is_bat].sum())))
+    station_battery = float(
+        shaping.battery_potential(params, "dp")(state)(
+            float(np.asarray(infos["agent_energy_kwh"])[is_bat].sum())
+        )
+    )
     own_cars = np.asarray(car_plan.car_potential(params)(state)(infos["agent_energy_kwh"]))
     if w == 1.0:
         want_battery, want_cars = np.where(is_bat, station_battery, 0.0), own_cars
@@ -171,8 +180,9 @@ def test_marl_observation_columns_are_the_teachers_and_the_spaces_grow(params):
     assert np.all(np.asarray(space.low)[-width:] >= -5.0)
     assert np.all(np.asarray(space.high)[-width:] <= 5.0)
     obs, log_state = env.reset(jax.random.PRNGKey(0))
-    state = place_car(log_state.env_state, 0, time_min=180.0, remaining_kwh=30.0,
-                      charge_sensitive=True)
+    state = place_car(
+        log_state.env_state, 0, time_min=180.0, remaining_kwh=30.0, charge_sensitive=True
+    )
     obs = env.get_obs(state)
     raw = base.get_obs(state)
     advice = np.asarray(car_plan.plan_advice(params)(state))
@@ -180,10 +190,12 @@ def test_marl_observation_columns_are_the_teachers_and_the_spaces_grow(params):
     cols = prices.relative_price_columns(params, ctx_start)
     for i, a in enumerate(base.agents):
         assert obs[a].shape == (base.obs_size + width,)
-        np.testing.assert_array_equal(np.asarray(obs[a][:base.obs_size]), np.asarray(raw[a]))
+        np.testing.assert_array_equal(np.asarray(obs[a][: base.obs_size]), np.asarray(raw[a]))
         assert float(obs[a][base.obs_size]) == advice[i]
-        np.testing.assert_array_equal(np.asarray(obs[a][base.obs_size + 1:]),
-                                      np.asarray(prices.relative_prices(raw[a], *cols)))
+        np.testing.assert_array_equal(
+            np.asarray(obs[a][base.obs_size + 1 :]),
+            np.asarray(prices.relative_prices(raw[a], *cols)),
+        )
     assert advice[0] == 1.0  # a charge-sensitive car always charges
     key = jax.random.PRNGKey(1)
     obs2, _, _, _, _ = env.step(key, log_state, {a: jnp.int32(1) for a in base.agents})

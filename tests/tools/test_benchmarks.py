@@ -27,14 +27,36 @@ def load(name: str):
 
 
 def test_throughput_main_smallest(tmp_path, capsys):
-    rows = load("throughput").main(["--envs", "1", "--total", "8", "--min-steps", "8", "--repeats", "1", "--devices", "1",
-                                    "--csv", str(tmp_path / "t.csv")])
-    assert [r["envs"] for r in rows] == [1] and rows[0]["single_steps_per_s"] > 0 and rows[0]["marl_steps_per_s"] > 0
-    assert rows[0]["marl_over_single"] == rows[0]["marl_steps_per_s"] / rows[0]["single_steps_per_s"]
+    rows = load("throughput").main(
+        [
+            "--envs",
+            "1",
+            "--total",
+            "8",
+            "--min-steps",
+            "8",
+            "--repeats",
+            "1",
+            "--devices",
+            "1",
+            "--csv",
+            str(tmp_path / "t.csv"),
+        ]
+    )
+    assert (
+        [r["envs"] for r in rows] == [1]
+        and rows[0]["single_steps_per_s"] > 0
+        and rows[0]["marl_steps_per_s"] > 0
+    )
+    assert (
+        rows[0]["marl_over_single"] == rows[0]["marl_steps_per_s"] / rows[0]["single_steps_per_s"]
+    )
     assert (tmp_path / "t.csv").read_text().startswith("envs,")
     out = capsys.readouterr().out
     assert "marl/single" in out and "single s/100k" in out
-    assert "memory per env: state 867 bytes" in out  # 17 leaves x (11 float32 + 2 bool fields), day, step, workday, 19 float32 totals
+    assert (
+        "memory per env: state 867 bytes" in out
+    )  # 17 leaves x (11 float32 + 2 bool fields), day, step, workday, 19 float32 totals
 
 
 def test_throughput_uses_the_requested_host_devices():
@@ -46,9 +68,26 @@ def test_throughput_uses_the_requested_host_devices():
 
     env = {**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONPATH": str(ROOT)}
     env.pop("XLA_FLAGS", None)
-    out = subprocess.run([sys.executable, str(BENCH / "throughput.py"), "--envs", "2", "--total", "8",
-                          "--min-steps", "8", "--repeats", "1", "--devices", "2"],
-                         env=env, capture_output=True, text=True, timeout=600)
+    out = subprocess.run(
+        [
+            sys.executable,
+            str(BENCH / "throughput.py"),
+            "--envs",
+            "2",
+            "--total",
+            "8",
+            "--min-steps",
+            "8",
+            "--repeats",
+            "1",
+            "--devices",
+            "2",
+        ],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert out.returncode == 0, out.stderr[-3000:]
     assert "x2 devices" in out.stdout
     row = next(line.split() for line in out.stdout.splitlines() if line.split()[:1] == ["2"])
@@ -64,19 +103,59 @@ def test_throughput_refuses_a_device_count_it_cannot_have():
 
 def test_scaling_main_smallest(tmp_path, capsys):
     scaling = load("scaling")
-    rows = scaling.main(["--ports", "16", "--envs", "1", "2", "--views", "single", "--work", "8", "--min-steps", "4",
-                         "--max-steps", "4", "--repeats", "1", "--max-port-envs", "16", "--out", str(tmp_path),
-                         "--no-plot"])
-    assert [(r["view"], r["envs"]) for r in rows] == [("single", 1)]  # envs=2 is over the budget of 16 port-envs
+    rows = scaling.main(
+        [
+            "--ports",
+            "16",
+            "--envs",
+            "1",
+            "2",
+            "--views",
+            "single",
+            "--work",
+            "8",
+            "--min-steps",
+            "4",
+            "--max-steps",
+            "4",
+            "--repeats",
+            "1",
+            "--max-port-envs",
+            "16",
+            "--out",
+            str(tmp_path),
+            "--no-plot",
+        ]
+    )
+    assert [(r["view"], r["envs"]) for r in rows] == [
+        ("single", 1)
+    ]  # envs=2 is over the budget of 16 port-envs
     assert rows[0]["peak_rss_mb"] > 0 and (tmp_path / "scaling.csv").exists()
     assert "skip single ports=16 envs=2" in capsys.readouterr().out
 
 
 def test_scaling_fit_and_plot(tmp_path):
     scaling = load("scaling")
-    rows = [{"view": "single", "ports": p, "envs": e, "env_steps_per_s": 1e6 / (p * e ** -0.5),
-             "us_per_env_step": p * e ** -0.5} for p in (16, 64, 256) for e in (1, 16)]
-    rows.append({"view": "pettingzoo", "ports": 16, "envs": 1, "env_steps_per_s": 3000.0, "us_per_env_step": 333.0})
+    rows = [
+        {
+            "view": "single",
+            "ports": p,
+            "envs": e,
+            "env_steps_per_s": 1e6 / (p * e**-0.5),
+            "us_per_env_step": p * e**-0.5,
+        }
+        for p in (16, 64, 256)
+        for e in (1, 16)
+    ]
+    rows.append(
+        {
+            "view": "pettingzoo",
+            "ports": 16,
+            "envs": 1,
+            "env_steps_per_s": 3000.0,
+            "us_per_env_step": 333.0,
+        }
+    )
     assert scaling.fit_exponent(rows, "single", 1) == pytest.approx(1.0)
     assert scaling.fit_exponent(rows, "marl-scalar", 1) is None
     scaling.plot(rows, tmp_path / "s.png")
@@ -85,18 +164,37 @@ def test_scaling_fit_and_plot(tmp_path):
 
 
 def test_profile_step_smallest(capsys):
-    table = load("profile_step").main(["--envs", "1", "--steps", "2", "--repeats", "1", "--warmup", "2",
-                                       "--only", "simulator.step", "poisson"])
+    table = load("profile_step").main(
+        [
+            "--envs",
+            "1",
+            "--steps",
+            "2",
+            "--repeats",
+            "1",
+            "--warmup",
+            "2",
+            "--only",
+            "simulator.step",
+            "poisson",
+        ]
+    )
     # the inverse-CDF draw of the current step, and 0.2's jax.random.poisson timed beside it
-    assert set(table[1]) == {"scaffold_us", "simulator.step", "    poisson draw (inverse CDF)",
-                             "    [0.2: jax.random.poisson]"}
+    assert set(table[1]) == {
+        "scaffold_us",
+        "simulator.step",
+        "    poisson draw (inverse CDF)",
+        "    [0.2: jax.random.poisson]",
+    }
     assert all(table[1][k] >= 0 for k in table[1])
     assert "poisson draw (inverse CDF)" in capsys.readouterr().out
 
 
 def test_peers_chargax_part(tmp_path, capsys):
     peers = load("peers")
-    results = peers.main(["--skip-peers", "--chargax-steps", "32", "--repeats", "1", "--out", str(tmp_path)])
+    results = peers.main(
+        ["--skip-peers", "--chargax-steps", "32", "--repeats", "1", "--out", str(tmp_path)]
+    )
     assert [r["envs"] for r in results["chargax"]] == [1, 16] and results["peers"] == []
     saved = json.loads((tmp_path / "peers.json").read_text())
     assert saved["paper_s_per_100k"]["SustainGym"] == 1554.57
@@ -111,7 +209,8 @@ def test_peers_driver_protocol_with_fake_peer(tmp_path):
         "steps = int(sys.argv[1])\n"
         "print('noise before the result')\n"
         "print('RESULT ' + json.dumps({'peer': 'Fake', 'version': '0.0', 'steps': steps, 'seconds': steps * 0.01,"
-        " 'resets': 0, 'scenario': {'arg': sys.argv[2:]}}))\n")
+        " 'resets': 0, 'scenario': {'arg': sys.argv[2:]}}))\n"
+    )
     res = peers.run_driver(sys.executable, driver, 500, ["x"])
     assert res["peer"] == "Fake" and res["scenario"] == {"arg": ["x"]}
     assert res["s_per_100k"] == pytest.approx(1000.0) and res["extrapolated"]
