@@ -2,7 +2,7 @@
 
 Every process runs the same program (SPMD). :func:`initialize` must run before anything
 asks JAX for its devices; afterwards ``jax.devices()`` lists the devices of all processes,
-:func:`baselines.common.env_mesh` spans them and the env batch is split across processes.
+:func:`baselines.algos.env_mesh` spans them and the env batch is split across processes.
 
 Two things differ from one process, and :mod:`baselines.train` handles both here:
 
@@ -70,7 +70,7 @@ def initialize(
     """``jax.distributed.initialize`` with CPU collectives switched on (gloo) so that CPU-only
     processes can run cross-process programs. With no arguments JAX detects the cluster
     (SLURM, Open MPI, Kubernetes, Cloud TPU, ...). Must run before any JAX computation,
-    which includes importing :mod:`baselines.common` (gymnax builds arrays at import)."""
+    which includes importing :mod:`baselines.algos` (gymnax builds arrays at import)."""
     if jax.config.jax_cpu_collectives_implementation in (None, "", "none"):
         jax.config.update("jax_cpu_collectives_implementation", "gloo")
     jax.distributed.initialize(

@@ -10,7 +10,7 @@ mix ``(1 - w) * r + w * share_i`` with their own share of it (see
 :class:`chargax_marl.marl.ChargaxMARL`; evaluation always scores the station's profit).
 Episodes are logged by :class:`chargax_marl.marl.wrappers.LogWrapper`.
 ``jax.vmap(train)(keys)`` trains several seeds at once; the env batch is sharded over all
-devices (:func:`baselines.common.shard_envs`).
+devices (:func:`baselines.algos.shard_envs`).
 
 :func:`make_train` with ``centralised_critic=True`` is MAPPO (see :mod:`baselines.algos.mappo`):
 the critic then reads the world state of
@@ -191,7 +191,7 @@ class SharedPolicy:
 def make_train(config: dict | None = None, env_params=None, centralised_critic: bool = False):
     """Build ``train(key)`` (IPPO; MAPPO with ``centralised_critic=True``).
 
-    ``config`` keys are those of :data:`baselines.common.PAPER_DEFAULTS` plus ``AGENT_ID``
+    ``config`` keys are those of :data:`baselines.algos.PAPER_DEFAULTS` plus ``AGENT_ID``
     (``onehot``/``scalar``, the agent-index encoding). ``TOTAL_TIMESTEPS`` counts env steps
     (one step moves every agent).
     """

@@ -140,7 +140,7 @@ class Policy:
 
 
 def make_train(config: dict | None = None, env_params=None):
-    """Build ``train(key)`` for a config (keys of :data:`baselines.common.PAPER_DEFAULTS`).
+    """Build ``train(key)`` for a config (keys of :data:`baselines.algos.PAPER_DEFAULTS`).
 
     ``env_params`` defaults to the config's scenario restricted to its training days.
     """

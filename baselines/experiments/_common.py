@@ -129,7 +129,7 @@ def reused_run(path, algo: str, config: dict, seeds: int, chunks: int) -> dict:
     would make: the same algorithm, seeds (from key 0), learning settings, env-steps, training
     and evaluation parameters and held-out days. Raises ``ValueError`` naming what differs.
 
-    A setting the stored run lacks is accepted at its default (:data:`baselines.common.PAPER_DEFAULTS`):
+    A setting the stored run lacks is accepted at its default (:data:`baselines.algos.PAPER_DEFAULTS`):
     options are added off by default, so the run predates it. The code's version is not
     checked; the result carries ``reused_from`` with the path, the stored run's ``code``
     (commit, where it was recorded) and those options, so a reader can see what was mixed."""

@@ -49,7 +49,7 @@ PLAN_POWER_FRACTION = 0.5
 """The plan counts on this fraction of a car's top power per step (the lower of the port's and
 the car's): the taper near full, a port sharing its EVSE and the station's limits cut what a
 car takes, and a plan that counts on more tells a port it can wait when it cannot. For the
-fractions compared as rules (``python -m baselines.car_value``) see ``baselines/README.md``."""
+fractions compared as rules (``python -m baselines.analysis.plan_rule``) see ``baselines/README.md``."""
 
 
 def price_order(params) -> tuple[np.ndarray, np.ndarray]:

@@ -69,7 +69,7 @@ def test_attribution_scores_the_run_and_swaps_ports_and_battery(tmp_path, monkey
         "always_max_ports_learned_battery"
     ](state, key)
     np.testing.assert_array_equal(ports_from_rule, policies.battery_rule(state, key, params))
-    # baselines.read_policy reads the same run: shares of the battery's actions, 24 hours
+    # baselines.analysis.read_policy reads the same run: shares of the battery's actions, 24 hours
 
     reading = read_policy.read(out, num_days=3)
     assert reading["num_days"] == 3 and len(reading["per_seed"]) == 2
