@@ -10,32 +10,21 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from baselines import train as cli
 from baselines.config import build_env_params
 from chargax_marl.teachers import storage_value
-from tests.helpers import TINY_CLI, TINY_ENV, toml_inline
+from tests.helpers import TINY_ENV
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_attribution_scores_the_run_and_swaps_ports_and_battery(tmp_path, monkeypatch):
+def test_attribution_scores_the_run_and_swaps_ports_and_battery(ippo_run, tmp_path, monkeypatch):
     """``baselines.analysis.attribution``: the ``learned`` row reproduces the run's own held-out score,
     and the mixes take the battery's levels from one policy and the ports' from the other."""
     from baselines.analysis import attribution, read_policy
     from chargax_marl import policies
     from chargax_marl.core import make_params
 
-    out = tmp_path / "run"
-    cli.main(
-        [
-            *TINY_CLI,
-            "ALGO=ippo",
-            f"TOTAL_TIMESTEPS={4 * 24}",
-            "CHUNKS=1",
-            "OPTIMAL=off",
-            f"OUT={toml_inline(str(out))}",
-        ]
-    )
+    out = ippo_run
     res = json.loads((out / "results.json").read_text())
     att = attribution.attribute(out)
     learned = [s["mean"] for s in att["mixes"]["learned"]["per_seed"]]

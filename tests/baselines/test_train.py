@@ -180,23 +180,13 @@ def test_cli_overrides_reach_the_config_and_unknown_keys_raise(monkeypatch):
         cli.main(["PORT_SHAPING=planned"])
 
 
-def test_replot_adds_the_stored_mpc_for_exactly_the_runs_params(tmp_path, monkeypatch):
+def test_replot_adds_the_stored_mpc_for_exactly_the_runs_params(ippo_run, tmp_path, monkeypatch):
     """``python -m baselines.train --replot RUN`` finds the MPC stored for the run's params and
     held-out days, adds it to the run's table with the paired difference, and redraws the
     curve; without a matching stored result it raises ``LookupError``."""
     from chargax_marl.trace import params_fingerprint
 
-    out = tmp_path / "run"
-    cli.main(
-        [
-            *TINY_CLI,
-            "ALGO=ippo",
-            f"TOTAL_TIMESTEPS={4 * 24}",
-            "CHUNKS=1",
-            "OPTIMAL=off",
-            f"OUT={toml_inline(str(out))}",
-        ]
-    )
+    out = ippo_run
     res = json.loads((out / "results.json").read_text())
     (tmp_path / "optimal").mkdir()
     with pytest.raises(LookupError, match="no stored MPC"):

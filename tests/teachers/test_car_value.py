@@ -13,23 +13,10 @@ from baselines.algos import aids, ippo, ppo
 from chargax_marl.core import make_params, simulator
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.teachers import car_plan, shaping
+from tests.helpers import TINY as HELPER_TINY
+from tests.helpers import TINY_ENV
 
-TINY_ENV = {
-    "station": "single_type",
-    "station_kwargs": {"num_ports": 4, "battery": True},
-    "step_minutes": 60.0,
-}
-TINY = {
-    "NUM_ENVS": 4,
-    "NUM_STEPS": 24,
-    "NUM_MINIBATCHES": 2,
-    "UPDATE_EPOCHS": 2,
-    "HIDDEN": 32,
-    "TOTAL_TIMESTEPS": 4 * 24,
-    "ENV_KWARGS": {**TINY_ENV, "num_levels": 1},
-    "REWARD_SCALE": 0.1,
-    "PORT_SHAPING": "plan",
-}
+TINY = {**HELPER_TINY, "ENV_KWARGS": {**TINY_ENV, "num_levels": 1}}
 
 
 def test_plan_value_fills_the_cheapest_steps_of_the_stay_first():
