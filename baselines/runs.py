@@ -13,7 +13,6 @@ import matplotlib
 import matplotlib.pyplot as plt
 import numpy as np
 
-from baselines import runs
 from baselines.algos import registry
 
 
@@ -148,7 +147,7 @@ def plot_curve(
         if key in baselines:
             v = baselines[key]["metrics"]["daily_profit_eur"]["mean"]
             lines[f"{label} (held-out) {v:.0f}"] = v
-    runs.plot_learning_curve(
+    plot_learning_curve(
         path,
         timesteps,
         {f"{algo} training episodes (sampled)": np.asarray(episode_profit)},
@@ -175,4 +174,4 @@ def load_run(run_dir: str | Path):
     template = jax.vmap(train.policy.init)(
         jax.random.split(jax.random.PRNGKey(0), int(results["seeds"]))
     )
-    return results, train, runs.load_params(template, run_dir / "params.msgpack")
+    return results, train, load_params(template, run_dir / "params.msgpack")

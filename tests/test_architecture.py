@@ -134,6 +134,7 @@ def _violations(
 
 def test_the_import_graph_has_no_cycle(graph):
     assert _cycles(_edges(graph)) == []
+    assert [m for m, imps in graph.items() if any(t == m for t, *_ in imps)] == []  # no self-import
 
 
 def test_the_library_imports_nothing_from_baselines(graph):
