@@ -11,11 +11,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 from pettingzoo.test import api_test, max_cycles_test, parallel_api_test, render_test
 
-from chargax_marl.marl import aec_env, parallel_env
+from chargax_marl.core import make_params
+from chargax_marl.evaluation import run_days
+from chargax_marl.marl import ChargaxMARL, aec_env, parallel_env
 from chargax_marl.marl import pettingzoo_env as pz_module
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -123,6 +126,25 @@ def test_purejaxrl_style_ppo_example_runs():
     out = example("purejaxrl_ppo.py")["main"](["--timesteps", "384", "--num-envs", "4", "--num-steps", "48",
                                                "--step-minutes", "60"])
     assert out["episodes"].sum() == 16 and np.isfinite(out["last"])
+
+
+def test_jaxmarl_style_ippo_example_trains_a_couple_of_updates():
+    """``examples/jaxmarl_ippo.py``'s ``make_train`` on a tiny hourly station: two updates of
+    two seeds, finite losses, observations grown by the teachers' columns, and a greedy
+    policy that plays whole days."""
+    ex = example("jaxmarl_ippo.py")
+    params = make_params(station="single_type", station_kwargs={"num_ports": 3, "battery": True}, num_levels=1,
+                         **HOURLY)
+    train = ex["make_train"]({"NUM_ENVS": 2, "NUM_STEPS": 24, "TOTAL_TIMESTEPS": 96, "HIDDEN": 8,
+                              "NUM_MINIBATCHES": 2, "UPDATE_EPOCHS": 1}, params)
+    out = jax.jit(jax.vmap(train))(jax.random.split(jax.random.PRNGKey(0), 2))
+    assert train.num_updates == 2 and out["metrics"]["total_loss"].shape == (2, 2)
+    assert all(np.all(np.isfinite(np.asarray(out["metrics"][k]))) for k in ("total_loss", "critic_loss", "entropy"))
+    width = 1 + int(params.price_horizon_hours) + 1  # plan advice, relative prices
+    assert train.env.observation_space(train.env.agents[0]).shape == (ChargaxMARL(params=params).obs_size + width,)
+    seed0 = jax.tree.map(lambda x: x[0], out["runner_state"][0].params)
+    totals = run_days(ex["greedy_act"](train.network, seed0, params), params, np.arange(2), jax.random.PRNGKey(0))
+    assert np.all(np.isfinite(np.asarray(totals.profit_eur))) and np.asarray(totals.profit_eur).shape == (2,)
 
 
 @pytest.mark.skipif(not CLIENT_EXAMPLES, reason="heavy (torch): run by `make examples`")
