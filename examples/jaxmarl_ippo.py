@@ -126,8 +126,9 @@ def unbatchify(x: jnp.ndarray, agent_list, num_envs):
 def env_params(config):
     """``(train_params, eval_params, eval_days)``: training resets draw the training days only."""
     full = make_params(**config["ENV_KWARGS"])
-    train_days, eval_days = split_days(int(full.num_days), config["NUM_EVAL_DAYS"],
-                                       seed=config["SPLIT_SEED"])
+    train_days, eval_days = split_days(
+        int(full.num_days), config["NUM_EVAL_DAYS"], seed=config["SPLIT_SEED"]
+    )
     return make_params(**config["ENV_KWARGS"], reset_days=train_days), full, eval_days
 
 
@@ -155,8 +156,11 @@ def make_train(config, train_params=None):
     num_actors = num_agents * num_envs
     num_updates = int(config["TOTAL_TIMESTEPS"]) // config["NUM_STEPS"] // num_envs
     masks = env.get_avail_actions(None)  # depends on the station only
-    avail_b = batchify({a: jnp.broadcast_to(m, (num_envs,) + m.shape) for a, m in masks.items()},
-                       agents, num_actors)
+    avail_b = batchify(
+        {a: jnp.broadcast_to(m, (num_envs,) + m.shape) for a, m in masks.items()},
+        agents,
+        num_actors,
+    )
     network = ActorCritic(env.action_space(agents[0]).n, config["HIDDEN"], config["ACTIVATION"])
 
     def linear_schedule(count):
@@ -166,11 +170,14 @@ def make_train(config, train_params=None):
     def train(rng):
         rng, k_ports, k_battery = jax.random.split(rng, 3)
         init_x = jnp.zeros(env.observation_space(agents[0]).shape)
-        params = {"ports": network.init(k_ports, init_x),
-                  "battery": network.init(k_battery, init_x)}
+        params = {
+            "ports": network.init(k_ports, init_x),
+            "battery": network.init(k_battery, init_x),
+        }
         lr = linear_schedule if config["ANNEAL_LR"] else config["LR"]
-        tx = optax.chain(optax.clip_by_global_norm(config["MAX_GRAD_NORM"]),
-                         optax.adam(lr, eps=1e-5))
+        tx = optax.chain(
+            optax.clip_by_global_norm(config["MAX_GRAD_NORM"]), optax.adam(lr, eps=1e-5)
+        )
         train_state = TrainState.create(apply_fn=network.apply, params=params, tx=tx)
         rng, _rng = jax.random.split(rng)
         obsv, env_state = jax.vmap(env.reset)(jax.random.split(_rng, num_envs))
@@ -187,17 +194,27 @@ def make_train(config, train_params=None):
                 env_act = unbatchify(action, agents, num_envs)
                 rng, _rng = jax.random.split(rng)
                 obsv, env_state, reward, done, info = jax.vmap(env.step)(
-                    jax.random.split(_rng, num_envs), env_state, env_act)
-                info = {k: info[k][:, 0]  # every agent logs the same episode
-                        for k in ("returned_episode", "returned_episode_profit_eur")}
+                    jax.random.split(_rng, num_envs), env_state, env_act
+                )
+                info = {
+                    k: info[k][:, 0]  # every agent logs the same episode
+                    for k in ("returned_episode", "returned_episode_profit_eur")
+                }
                 transition = Transition(
-                    batchify(done, agents, num_actors).squeeze(-1), action, value,
-                    batchify(reward, agents, num_actors).squeeze(-1), log_prob, obs_batch,
-                    avail_b, info)
+                    batchify(done, agents, num_actors).squeeze(-1),
+                    action,
+                    value,
+                    batchify(reward, agents, num_actors).squeeze(-1),
+                    log_prob,
+                    obs_batch,
+                    avail_b,
+                    info,
+                )
                 return (train_state, env_state, obsv, rng), transition
 
-            runner_state, traj_batch = jax.lax.scan(_env_step, runner_state, None,
-                                                    config["NUM_STEPS"])
+            runner_state, traj_batch = jax.lax.scan(
+                _env_step, runner_state, None, config["NUM_STEPS"]
+            )
             train_state, env_state, last_obs, rng = runner_state
             last_obs_batch = batchify(last_obs, agents, num_actors)
             _, last_val = apply_policy(network, train_state.params, last_obs_batch, avail_b)
@@ -206,13 +223,17 @@ def make_train(config, train_params=None):
                 def _get_advantages(gae_and_next_value, transition):
                     gae, next_value = gae_and_next_value
                     done = transition.done.astype(jnp.float32)
-                    delta = (transition.reward + config["GAMMA"] * next_value * (1 - done)
-                             - transition.value)
+                    delta = (
+                        transition.reward
+                        + config["GAMMA"] * next_value * (1 - done)
+                        - transition.value
+                    )
                     gae = delta + config["GAMMA"] * config["GAE_LAMBDA"] * (1 - done) * gae
                     return (gae, transition.value), gae
 
-                _, advantages = jax.lax.scan(_get_advantages, (jnp.zeros_like(last_val), last_val),
-                                             traj_batch, reverse=True)
+                _, advantages = jax.lax.scan(
+                    _get_advantages, (jnp.zeros_like(last_val), last_val), traj_batch, reverse=True
+                )
                 return advantages, advantages + traj_batch.value
 
             advantages, targets = _calculate_gae(traj_batch, last_val)
@@ -220,7 +241,8 @@ def make_train(config, train_params=None):
             # advantages (cents) would otherwise be scaled by the ports' spread (euros)
             per_agent = advantages.reshape((config["NUM_STEPS"], num_agents, num_envs))
             per_agent = (per_agent - per_agent.mean(axis=(0, 2), keepdims=True)) / (
-                per_agent.std(axis=(0, 2), keepdims=True) + 1e-8)
+                per_agent.std(axis=(0, 2), keepdims=True) + 1e-8
+            )
             advantages = per_agent.reshape(advantages.shape)
 
             def _update_epoch(update_state, unused):
@@ -228,12 +250,14 @@ def make_train(config, train_params=None):
                     traj_batch, advantages, targets = batch_info
 
                     def _loss_fn(params, traj_batch, gae, targets):
-                        logits, value = apply_policy(network, params, traj_batch.obs,
-                                                     traj_batch.avail)
+                        logits, value = apply_policy(
+                            network, params, traj_batch.obs, traj_batch.avail
+                        )
                         pi = distrax.Categorical(logits=logits)
                         log_prob = pi.log_prob(traj_batch.action)
                         value_pred_clipped = traj_batch.value + (value - traj_batch.value).clip(
-                            -config["VF_CLIP"], config["VF_CLIP"])
+                            -config["VF_CLIP"], config["VF_CLIP"]
+                        )
                         value_losses = jnp.square(value - targets)
                         value_losses_clipped = jnp.square(value_pred_clipped - targets)
                         value_loss = 0.5 * jnp.maximum(value_losses, value_losses_clipped).mean()
@@ -245,15 +269,22 @@ def make_train(config, train_params=None):
                         is_bat = traj_batch.obs[:, BATTERY_COL] > 0.5
                         ent_coef = jnp.where(is_bat, config["BATTERY_ENT_COEF"], config["ENT_COEF"])
                         entropy = pi.entropy()
-                        total_loss = (loss_actor + config["VF_COEF"] * value_loss
-                                      - (ent_coef * entropy).mean())
+                        total_loss = (
+                            loss_actor
+                            + config["VF_COEF"] * value_loss
+                            - (ent_coef * entropy).mean()
+                        )
                         return total_loss, (value_loss, loss_actor, entropy.mean())
 
                     grad_fn = jax.value_and_grad(_loss_fn, has_aux=True)
                     total_loss, grads = grad_fn(train_state.params, traj_batch, advantages, targets)
                     train_state = train_state.apply_gradients(grads=grads)
-                    loss_info = {"total_loss": total_loss[0], "critic_loss": total_loss[1][0],
-                                 "actor_loss": total_loss[1][1], "entropy": total_loss[1][2]}
+                    loss_info = {
+                        "total_loss": total_loss[0],
+                        "critic_loss": total_loss[1][0],
+                        "actor_loss": total_loss[1][1],
+                        "entropy": total_loss[1][2],
+                    }
                     return train_state, loss_info
 
                 train_state, traj_batch, advantages, targets, rng = update_state
@@ -263,27 +294,35 @@ def make_train(config, train_params=None):
                 # actors): a permutation num_agents times smaller than one over the rows
                 unit = jax.random.permutation(_rng, config["NUM_STEPS"] * num_envs)
                 step, env_i = unit // num_envs, unit % num_envs
-                permutation = (step[:, None] * num_actors
-                               + jnp.arange(num_agents)[None, :] * num_envs
-                               + env_i[:, None]).reshape(-1)
-                batch = jax.tree.map(lambda x: x.reshape((batch_size,) + x.shape[2:]),
-                                     (traj_batch._replace(info={}), advantages, targets))
+                permutation = (
+                    step[:, None] * num_actors
+                    + jnp.arange(num_agents)[None, :] * num_envs
+                    + env_i[:, None]
+                ).reshape(-1)
+                batch = jax.tree.map(
+                    lambda x: x.reshape((batch_size,) + x.shape[2:]),
+                    (traj_batch._replace(info={}), advantages, targets),
+                )
                 minibatches = jax.tree.map(
                     lambda x: jnp.take(x, permutation, axis=0).reshape(
-                        (config["NUM_MINIBATCHES"], -1) + x.shape[1:]),
-                    batch)
+                        (config["NUM_MINIBATCHES"], -1) + x.shape[1:]
+                    ),
+                    batch,
+                )
                 train_state, loss_info = jax.lax.scan(_update_minbatch, train_state, minibatches)
                 return (train_state, traj_batch, advantages, targets, rng), loss_info
 
             update_state = (train_state, traj_batch, advantages, targets, rng)
-            update_state, loss_info = jax.lax.scan(_update_epoch, update_state, None,
-                                                   config["UPDATE_EPOCHS"])
+            update_state, loss_info = jax.lax.scan(
+                _update_epoch, update_state, None, config["UPDATE_EPOCHS"]
+            )
             train_state, rng = update_state[0], update_state[-1]
             ended = traj_batch.info["returned_episode"]
             metric = {k: v.mean() for k, v in loss_info.items()}
             profit = traj_batch.info["returned_episode_profit_eur"]
             metric["episode_profit_eur"] = jnp.where(
-                ended.any(), (profit * ended).sum() / jnp.maximum(ended.sum(), 1), jnp.nan)
+                ended.any(), (profit * ended).sum() / jnp.maximum(ended.sum(), 1), jnp.nan
+            )
             return (train_state, env_state, last_obs, rng), metric
 
         rng, _rng = jax.random.split(rng)
@@ -313,14 +352,18 @@ def paired(profit, reference) -> dict:
     """Mean and standard error over days of ``profit - reference`` (EUR/day); ``profit`` may
     have a leading seed axis (then pooled over seeds and days, and per seed)."""
     d = np.atleast_2d(profit) - np.asarray(reference)[None, :]
-    return {"mean": float(d.mean()), "stderr": float(d.std(ddof=1) / np.sqrt(d.size)),
-            "per_seed_mean": [float(x) for x in d.mean(axis=1)],
-            "per_seed_stderr": [float(x) for x in d.std(axis=1, ddof=1) / np.sqrt(d.shape[1])]}
+    return {
+        "mean": float(d.mean()),
+        "stderr": float(d.std(ddof=1) / np.sqrt(d.size)),
+        "per_seed_mean": [float(x) for x in d.mean(axis=1)],
+        "per_seed_stderr": [float(x) for x in d.std(axis=1, ddof=1) / np.sqrt(d.shape[1])],
+    }
 
 
 def main(argv=None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("--seeds", type=int, default=2)
     p.add_argument("--timesteps", type=float, default=CONFIG["TOTAL_TIMESTEPS"])
     p.add_argument("--out", default=None, help="write the result as JSON here")
@@ -349,26 +392,44 @@ def main(argv=None) -> dict:
     ippo = np.stack(seeds)
     args = sys.argv[1:] if argv is None else list(argv)
     steps = train.num_updates * config["NUM_STEPS"] * config["NUM_ENVS"]
-    result = {"command": " ".join(["python", "examples/jaxmarl_ippo.py"] + args),
-              "seeds": a.seeds, "timesteps_per_seed": steps,
-              "train_wall_s": round(train_s, 1), "total_wall_s": round(time.time() - t0, 1),
-              "eval": {"days": len(eval_days), "key": 0,
-                       "always_max_eur_day": float(profit["always_max"].mean()),
-                       "ippo_eur_day": float(ippo.mean())},
-              "vs_battery_rule": paired(ippo, profit["battery_rule"]),
-              "vs_always_max": paired(ippo, profit["always_max"]),
-              "battery_rule_vs_always_max": paired(profit["battery_rule"], profit["always_max"]),
-              "battery_programme_vs_always_max": paired(profit["battery_programme"],
-                                                        profit["always_max"]),
-              "ippo_vs_battery_programme": paired(ippo, profit["battery_programme"]),
-              "config": config}
-    print(f"IPPO, {a.seeds} seeds x {steps:.3g} steps, trained in {train_s:.0f} s; "
-          f"{len(eval_days)} held-out days, key 0")
-    for name in ("vs_battery_rule", "vs_always_max", "battery_rule_vs_always_max",
-                 "battery_programme_vs_always_max", "ippo_vs_battery_programme"):
+    result = {
+        "command": " ".join(["python", "examples/jaxmarl_ippo.py"] + args),
+        "seeds": a.seeds,
+        "timesteps_per_seed": steps,
+        "train_wall_s": round(train_s, 1),
+        "total_wall_s": round(time.time() - t0, 1),
+        "eval": {
+            "days": len(eval_days),
+            "key": 0,
+            "always_max_eur_day": float(profit["always_max"].mean()),
+            "ippo_eur_day": float(ippo.mean()),
+        },
+        "vs_battery_rule": paired(ippo, profit["battery_rule"]),
+        "vs_always_max": paired(ippo, profit["always_max"]),
+        "battery_rule_vs_always_max": paired(profit["battery_rule"], profit["always_max"]),
+        "battery_programme_vs_always_max": paired(
+            profit["battery_programme"], profit["always_max"]
+        ),
+        "ippo_vs_battery_programme": paired(ippo, profit["battery_programme"]),
+        "config": config,
+    }
+    print(
+        f"IPPO, {a.seeds} seeds x {steps:.3g} steps, trained in {train_s:.0f} s; "
+        f"{len(eval_days)} held-out days, key 0"
+    )
+    for name in (
+        "vs_battery_rule",
+        "vs_always_max",
+        "battery_rule_vs_always_max",
+        "battery_programme_vs_always_max",
+        "ippo_vs_battery_programme",
+    ):
         r = result[name]
-        print(f"  {name:<32} {r['mean']:+7.2f} ± {r['stderr']:.2f} EUR/day (per seed "
-              + ", ".join(f"{m:+.2f}" for m in r["per_seed_mean"]) + ")")
+        print(
+            f"  {name:<32} {r['mean']:+7.2f} ± {r['stderr']:.2f} EUR/day (per seed "
+            + ", ".join(f"{m:+.2f}" for m in r["per_seed_mean"])
+            + ")"
+        )
     if a.out:
         Path(a.out).parent.mkdir(parents=True, exist_ok=True)
         Path(a.out).write_text(json.dumps(result, indent=1) + "\n")

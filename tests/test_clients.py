@@ -34,7 +34,9 @@ def example(name: str):
 
 
 def test_pettingzoo_max_cycles_test_on_the_module():
-    max_cycles_test(pz_module)  # calls pz_module.parallel_env(max_cycles=4) and pz_module.env(max_cycles=4)
+    max_cycles_test(
+        pz_module
+    )  # calls pz_module.parallel_env(max_cycles=4) and pz_module.env(max_cycles=4)
 
 
 def test_pettingzoo_render_test_on_the_aec_env(capsys):
@@ -51,7 +53,9 @@ def test_parallel_render_human_prints_and_returns_none(capsys):
 
 @pytest.mark.parametrize("bad", [0, -3, 2.5, True])
 def test_bad_max_cycles_names_the_value(bad):
-    with pytest.raises(ValueError, match=r"max_cycles must be a positive integer.*" + repr(bad).replace(".", r"\.")):
+    with pytest.raises(
+        ValueError, match=r"max_cycles must be a positive integer.*" + repr(bad).replace(".", r"\.")
+    ):
         parallel_env(max_cycles=bad, **HOURLY)
 
 
@@ -80,7 +84,10 @@ def test_masks_in_observations_pass_the_api_tests():
     mask[:] = 1  # writable, and a copy: the env's own masks are unchanged
     assert infos["port_0"]["action_mask"].flags.writeable
     obs2, _, _, _, infos2 = par.step({a: 10 for a in par.agents})
-    assert obs2["port_0"]["action_mask"][:10].sum() == 0 and infos2["port_0"]["action_mask"][:10].sum() == 0
+    assert (
+        obs2["port_0"]["action_mask"][:10].sum() == 0
+        and infos2["port_0"]["action_mask"][:10].sum() == 0
+    )
 
 
 def test_pettingzoo_seeds_and_day_option_errors():
@@ -97,14 +104,18 @@ def test_pettingzoo_seeds_and_day_option_errors():
 def test_import_is_silent_and_keeps_the_callers_streams():
     # A module in JaxMARL's import chain resets sys.stdout; the caller's capture (pytest's
     # capsys, a notebook, redirect_stdout) must survive our import of it.
-    code = ("import io, sys\n"
-            "mine_out, mine_err = io.StringIO(), io.StringIO()\n"
-            "sys.stdout, sys.stderr = mine_out, mine_err\n"
-            "import chargax_marl.marl\n"
-            "kept = sys.stdout is mine_out and sys.stderr is mine_err\n"
-            "sys.stdout, sys.stderr = sys.__stdout__, sys.__stderr__\n"
-            "print(kept, repr(mine_out.getvalue()))\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
+    code = (
+        "import io, sys\n"
+        "mine_out, mine_err = io.StringIO(), io.StringIO()\n"
+        "sys.stdout, sys.stderr = mine_out, mine_err\n"
+        "import chargax_marl.marl\n"
+        "kept = sys.stdout is mine_out and sys.stderr is mine_err\n"
+        "sys.stdout, sys.stderr = sys.__stdout__, sys.__stderr__\n"
+        "print(kept, repr(mine_out.getvalue()))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+    )
     assert out.stdout.strip() == "True ''"
 
 
@@ -123,8 +134,9 @@ def test_observation_and_state_spaces_are_finite():
 
 
 def test_purejaxrl_style_ppo_example_runs():
-    out = example("purejaxrl_ppo.py")["main"](["--timesteps", "384", "--num-envs", "4", "--num-steps", "48",
-                                               "--step-minutes", "60"])
+    out = example("purejaxrl_ppo.py")["main"](
+        ["--timesteps", "384", "--num-envs", "4", "--num-steps", "48", "--step-minutes", "60"]
+    )
     assert out["episodes"].sum() == 16 and np.isfinite(out["last"])
 
 
@@ -133,26 +145,52 @@ def test_jaxmarl_style_ippo_example_trains_a_couple_of_updates():
     two seeds, finite losses, observations grown by the teachers' columns, and a greedy
     policy that plays whole days."""
     ex = example("jaxmarl_ippo.py")
-    params = make_params(station="single_type", station_kwargs={"num_ports": 3, "battery": True}, num_levels=1,
-                         **HOURLY)
-    train = ex["make_train"]({"NUM_ENVS": 2, "NUM_STEPS": 24, "TOTAL_TIMESTEPS": 96, "HIDDEN": 8,
-                              "NUM_MINIBATCHES": 2, "UPDATE_EPOCHS": 1}, params)
+    params = make_params(
+        station="single_type",
+        station_kwargs={"num_ports": 3, "battery": True},
+        num_levels=1,
+        **HOURLY,
+    )
+    train = ex["make_train"](
+        {
+            "NUM_ENVS": 2,
+            "NUM_STEPS": 24,
+            "TOTAL_TIMESTEPS": 96,
+            "HIDDEN": 8,
+            "NUM_MINIBATCHES": 2,
+            "UPDATE_EPOCHS": 1,
+        },
+        params,
+    )
     out = jax.jit(jax.vmap(train))(jax.random.split(jax.random.PRNGKey(0), 2))
     assert train.num_updates == 2 and out["metrics"]["total_loss"].shape == (2, 2)
-    assert all(np.all(np.isfinite(np.asarray(out["metrics"][k]))) for k in ("total_loss", "critic_loss", "entropy"))
+    assert all(
+        np.all(np.isfinite(np.asarray(out["metrics"][k])))
+        for k in ("total_loss", "critic_loss", "entropy")
+    )
     width = 1 + int(params.price_horizon_hours) + 1  # plan advice, relative prices
-    assert train.env.observation_space(train.env.agents[0]).shape == (ChargaxMARL(params=params).obs_size + width,)
+    assert train.env.observation_space(train.env.agents[0]).shape == (
+        ChargaxMARL(params=params).obs_size + width,
+    )
     seed0 = jax.tree.map(lambda x: x[0], out["runner_state"][0].params)
-    totals = run_days(ex["greedy_act"](train.network, seed0, params), params, np.arange(2), jax.random.PRNGKey(0))
-    assert np.all(np.isfinite(np.asarray(totals.profit_eur))) and np.asarray(totals.profit_eur).shape == (2,)
+    totals = run_days(
+        ex["greedy_act"](train.network, seed0, params), params, np.arange(2), jax.random.PRNGKey(0)
+    )
+    assert np.all(np.isfinite(np.asarray(totals.profit_eur))) and np.asarray(
+        totals.profit_eur
+    ).shape == (2,)
 
 
 @pytest.mark.skipif(not CLIENT_EXAMPLES, reason="heavy (torch): run by `make examples`")
 def test_supersuit_sb3_multiprocess_example_runs():
     pytest.importorskip("stable_baselines3")
     pytest.importorskip("supersuit")
-    out = example("supersuit_sb3.py")["main"](["--timesteps", "2048", "--num-envs", "2", "--num-cpus", "2"])
-    assert out["agent_steps"] >= 2048 and out["num_workers"] == 2 and np.isfinite(out["mean_reward"])
+    out = example("supersuit_sb3.py")["main"](
+        ["--timesteps", "2048", "--num-envs", "2", "--num-cpus", "2"]
+    )
+    assert (
+        out["agent_steps"] >= 2048 and out["num_workers"] == 2 and np.isfinite(out["mean_reward"])
+    )
 
 
 @pytest.mark.skipif(not CLIENT_EXAMPLES, reason="heavy (torch): run by `make examples`")
@@ -178,8 +216,13 @@ def test_supersuit_forked_worker_raises_instead_of_hanging():
         "    vec.close()\n"
     )
     del ss
-    out = subprocess.run([sys.executable, "-W", "ignore", "-c", script], capture_output=True, text=True,
-                         timeout=300, cwd=ROOT)  # the timeout only guards against a hang
+    out = subprocess.run(
+        [sys.executable, "-W", "ignore", "-c", script],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=ROOT,
+    )  # the timeout only guards against a hang
     assert "ForkedProcessError" in out.stdout and "spawn" in out.stdout
 
 
@@ -191,9 +234,9 @@ def test_readme_jaxmarl_snippet():
 
     from chargax_marl.marl import ChargaxMARL, LogWrapper, WorldStateWrapper
 
-    env = LogWrapper(WorldStateWrapper(ChargaxMARL()))   # obs["world_state"] for the critic
+    env = LogWrapper(WorldStateWrapper(ChargaxMARL()))  # obs["world_state"] for the critic
     obs, state = env.reset(jax.random.PRNGKey(0))
-    actions = {a: env.num_actions - 1 for a in env.agents}   # everyone at full power
+    actions = {a: env.num_actions - 1 for a in env.agents}  # everyone at full power
     obs, state, rewards, dones, infos = env.step(jax.random.PRNGKey(1), state, actions)
     assert obs["world_state"].shape == (17, env.state_size) and "returned_episode_returns" in infos
 
@@ -206,6 +249,8 @@ def test_readme_sb3_single_process_snippet():
 
     import chargax_marl  # noqa: F401
 
-    env = gymnasium.make("chargax_marl/Chargax-highway-low-v0", render_mode="ansi", step_minutes=60.0)
+    env = gymnasium.make(
+        "chargax_marl/Chargax-highway-low-v0", render_mode="ansi", step_minutes=60.0
+    )
     model = PPO("MlpPolicy", env, n_steps=48, batch_size=24).learn(96)
     assert model.num_timesteps >= 96
