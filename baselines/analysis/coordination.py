@@ -15,6 +15,7 @@ import jax
 import numpy as np
 
 from baselines.eval.rules import evaluate_rules
+from baselines.eval.stats import mean_stderr
 from chargax_marl.core.params import make_params
 from chargax_marl.core.scenarios import scenario_kwargs
 from chargax_marl.evaluation import hindsight_bound, split_days
@@ -28,10 +29,6 @@ SCENARIOS = (
     "shopping-grid50-peak-high",
 )
 OUT = Path("outputs/coordination/table.json")  # copy to results/ to commit
-
-
-def paired(x: np.ndarray) -> tuple[float, float]:
-    return float(x.mean()), float(x.std(ddof=1) / np.sqrt(x.size))
 
 
 def main() -> dict:
@@ -52,9 +49,9 @@ def main() -> dict:
         row = {
             "always_max": float(am.mean()),
             "battery_rule": float(br.mean()),
-            "battery_rule_vs_always_max": paired(br - am),
+            "battery_rule_vs_always_max": mean_stderr(br - am),
             "bound": float(bound["daily_profit"].mean()),
-            "bound_vs_always_max": paired(bound["daily_profit"] - am),
+            "bound_vs_always_max": mean_stderr(bound["daily_profit"] - am),
             "bound_reference_matches": bool(
                 np.allclose(bound["reference_daily_profit"], am, atol=0.05)
             ),

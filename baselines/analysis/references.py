@@ -36,11 +36,11 @@ import numpy as np
 from baselines.config import build_env_params, resolve
 from baselines.eval import references, stats
 from baselines.eval.rules import check_replay, evaluate_rules
+from baselines.runs import write_json
 from chargax_marl import trace as trace_lib
 from chargax_marl.evaluation import (
     headroom_captured,
     hindsight_bound,
-    write_json,
 )
 from chargax_marl.optimal import milp
 from chargax_marl.trace import params_fingerprint

@@ -20,7 +20,7 @@ from baselines.eval.rules import (
     evaluate_rules,
     format_rules,
 )
-from chargax_marl.evaluation import write_json
+from baselines.runs import write_json
 from chargax_marl.teachers.rules import has_battery
 
 

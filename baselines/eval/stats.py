@@ -5,6 +5,19 @@ from __future__ import annotations
 import numpy as np
 
 
+def mean_stderr(x) -> tuple[float, float]:
+    """``(mean, standard error of the mean)`` of a sample.
+
+    Args:
+        x: the sample, e.g. per-day differences in EUR/day.
+
+    Returns:
+        The mean and ``std(ddof=1) / sqrt(n)``.
+    """
+    x = np.asarray(x, np.float64)
+    return float(x.mean()), float(x.std(ddof=1) / np.sqrt(x.size))
+
+
 def paired_difference(profit, reference_profit) -> dict:
     """Per seed, mean and standard error over days of ``profit (seeds, days) - reference (days,)``;
     and the mean over seeds with the standard error of that mean over seeds × days."""

@@ -22,7 +22,7 @@ import time
 import numpy as np
 
 from baselines.eval.rules import evaluate_rules
-from baselines.eval.stats import paired_difference
+from baselines.eval.stats import mean_stderr, paired_difference
 from chargax_marl.core import datasets
 from chargax_marl.core.params import make_params
 from chargax_marl.core.scenarios import scenario_kwargs
@@ -57,7 +57,7 @@ def daily_profits(
 
 def format_table(profits: dict, rules=RULES) -> str:
     def mean_se(x):
-        return f"{x.mean():.2f} ± {x.std(ddof=1) / np.sqrt(x.size):.2f}"
+        return "{:.2f} ± {:.2f}".format(*mean_stderr(x))
 
     def diff(a, b):
         d = paired_difference(a, b)
