@@ -19,8 +19,6 @@ import argparse
 import dataclasses
 import time
 
-import numpy as np
-
 from baselines.eval.rules import evaluate_rules
 from baselines.eval.stats import mean_stderr, paired_difference
 from chargax_marl.core import datasets
