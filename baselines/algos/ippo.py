@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from baselines.algos import aids, networks, ppo_core, runner
-from baselines.algos.trainer import Trainer
+from baselines.algos.trainer import IdentityCache, Trainer
 from baselines.config import build_env_params, resolve
 from chargax_marl.core.observation import PORT_FEATURES, context_size
 from chargax_marl.core.station import KIND_BATTERY
@@ -444,11 +444,9 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
 def make_act_builder(policy: SharedPolicy, agent_id: str):
     """``make_act_for(eval_params)(params) -> act(state, key) -> levels``: every agent takes the
     argmax of its masked logits (greedy), read from the simulator state."""
-    cache = {}
+    cache = IdentityCache()
 
-    def make_act_for(eval_params):
-        if id(eval_params) in cache:
-            return cache[id(eval_params)]
+    def build(eval_params):
         env = ChargaxMARL(params=eval_params, agent_id=agent_id)
         avail = jnp.asarray(env._avail_np)
 
@@ -461,7 +459,6 @@ def make_act_builder(policy: SharedPolicy, agent_id: str):
 
             return act
 
-        cache[id(eval_params)] = make_act
         return make_act
 
-    return make_act_for
+    return lambda eval_params: cache.get(eval_params, lambda: build(eval_params))

@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from baselines.algos import aids, networks, ppo_core, runner
-from baselines.algos.trainer import Trainer
+from baselines.algos.trainer import IdentityCache, Trainer
 from baselines.config import build_env_params, resolve
 from chargax_marl.core.observation import context_size, flat_obs
 from chargax_marl.core.station import KIND_BATTERY
@@ -277,12 +277,9 @@ def make_train(config: dict | None = None, env_params=None):
 def make_act_builder(policy: Policy, env: Chargax):
     """``make_act(params) -> act(state, key) -> levels``: the greedy (argmax per head) policy read
     from the simulator state, for :mod:`chargax_marl.evaluation`."""
-    cache = {}
+    cache = IdentityCache()
 
-    def make_act_for(eval_params):
-        if id(eval_params) in cache:
-            return cache[id(eval_params)]
-
+    def build(eval_params):
         def make_act(params):
             def act(state, key):
                 del key
@@ -292,7 +289,6 @@ def make_act_builder(policy: Policy, env: Chargax):
 
             return act
 
-        cache[id(eval_params)] = make_act
         return make_act
 
-    return make_act_for
+    return lambda eval_params: cache.get(eval_params, lambda: build(eval_params))

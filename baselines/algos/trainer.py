@@ -38,3 +38,31 @@ class Trainer:
         """Train one seed from ``key``; ``{"runner_state", "metrics"}``."""
         rs, metrics = self.run_updates(self.init(key), self.num_updates)
         return {"runner_state": rs, "metrics": metrics}
+
+
+class IdentityCache:
+    """Values built once per object, keyed by the object's identity.
+
+    For objects that cannot be hashed (an ``EnvParams`` pytree of arrays). Each entry keeps
+    its object alive, so the object's ``id`` cannot be reused by another while the entry
+    exists, and a hit is confirmed with ``is``.
+    """
+
+    def __init__(self):
+        self._entries: dict[int, tuple[Any, Any]] = {}
+
+    def get(self, obj, build: Callable[[], Any]):
+        """The value cached for ``obj``, or ``build()`` cached for it.
+
+        Args:
+            obj: the key object (compared by identity).
+            build: makes the value on a miss.
+
+        Returns:
+            The cached value.
+        """
+        entry = self._entries.get(id(obj))
+        if entry is None or entry[0] is not obj:
+            entry = (obj, build())
+            self._entries[id(obj)] = entry
+        return entry[1]

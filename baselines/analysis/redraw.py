@@ -35,8 +35,7 @@ import numpy as np
 
 from baselines import runs
 from baselines.config import build_env_params
-from baselines.eval import heldout, stats
-from baselines.eval.references import cached, evaluate_mpc
+from baselines.eval import heldout, protocol, references, stats
 from baselines.eval.rules import BATTERY_RULES, evaluate_rules
 from baselines.eval.stats import over_seeds
 from baselines.runs import load_run
@@ -50,7 +49,7 @@ RULES = ("always_max", "battery_rule")
 _REFERENCES: dict = {}
 
 
-def references(
+def reference_profits(
     eval_params, days, draws: int, bound: bool, mpc_draws: int = 0, references_dir=None
 ) -> dict:
     """``{name: (draws, days) daily profits}`` of the rules (and ``lp_bound``, the LP hindsight
@@ -70,8 +69,12 @@ def references(
     if cache_key not in _REFERENCES:
         names = RULES + BATTERY_RULES * has_battery(eval_params)
         out = {n: [] for n in names + ("lp_bound",) * bool(bound) + ("mpc",) * bool(mpc_draws)}
-        stored = cached(eval_params, days, references_dir) if mpc_draws and references_dir else None
-        for k, key in enumerate(heldout.draw_keys(draws)):
+        stored = (
+            references.cached(eval_params, days, references_dir)
+            if mpc_draws and references_dir
+            else None
+        )
+        for k, key in enumerate(protocol.draw_keys(draws)):
             for name, r in evaluate_rules(eval_params, days, names, key=key).items():
                 out[name].append(r["daily_profit"])
             if bound:
@@ -83,7 +86,7 @@ def references(
                 out["mpc"].append(
                     np.asarray(stored["policies"]["mpc"]["daily_profit"], np.float64)
                     if from_store
-                    else evaluate_mpc(eval_params, days, key)["daily_profit"]
+                    else references.evaluate_mpc(eval_params, days, key)["daily_profit"]
                 )
         _REFERENCES[cache_key] = {n: np.stack(v) for n, v in out.items()}
     return _REFERENCES[cache_key]
@@ -105,7 +108,7 @@ def redraw(
 
     if isinstance(draws, bool) or not isinstance(draws, (int, np.integer)) or int(draws) < 1:
         raise ValueError(f"draws must be a positive integer, got {draws!r}")
-    keys = heldout.draw_keys(draws)
+    keys = protocol.draw_keys(draws)
     if (
         isinstance(mpc_draws, bool)
         or not isinstance(mpc_draws, (int, np.integer))
@@ -115,7 +118,7 @@ def redraw(
     results, train, all_params = load_run(run_dir)
     _, eval_params, _, days = build_env_params(train.config)
     days = np.asarray(days)
-    score = heldout._eval_fn(train.make_act(eval_params), eval_params)
+    score = heldout.compiled_evaluation(train.make_act(eval_params), eval_params)
     run_draws = int(train.config.get("EVAL_DRAWS", 1))
     if draws < run_draws:
         raise ValueError(
@@ -132,7 +135,7 @@ def redraw(
             f"{run_dir}: its {run_draws} evaluation draw(s) replayed on this code differ from results.json "
             f"by up to {worst:.3f} EUR/day per seed: the run was made on another model; re-run it instead"
         )
-    refs = references(eval_params, days, draws, bound, int(mpc_draws), references_dir)
+    refs = reference_profits(eval_params, days, draws, bound, int(mpc_draws), references_dir)
     am = refs["always_max"]
     scenario = results.get("scenario")
     out = {

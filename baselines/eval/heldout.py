@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from baselines.algos.trainer import IdentityCache
 from baselines.eval import protocol, references, rules, stats
 from chargax_marl.evaluation import (
     METRICS,
@@ -43,7 +44,7 @@ def evaluate_batched(
     keys = [key] if key is not None else protocol.draw_keys(draws)
     days = jnp.asarray(days, jnp.int32)
     seeds = jax.tree.leaves(net_params)[0].shape[0]
-    fn = _eval_fn(make_act, eval_params)
+    fn = compiled_evaluation(make_act, eval_params)
     totals = protocol.mean_over_draws(lambda k: fn(net_params, days, k), keys)
     flat = jax.tree.map(lambda x: np.asarray(x).reshape(-1), totals)
     profit = np.asarray(totals.profit_eur, np.float64)
@@ -63,18 +64,30 @@ def evaluate_batched(
     return out
 
 
-_EVAL_CACHE: dict = {}
+_COMPILED = IdentityCache()
 
 
-def _eval_fn(make_act, eval_params):
-    k = (make_act, id(eval_params))
-    if k not in _EVAL_CACHE:
-        _EVAL_CACHE[k] = jax.jit(
+def compiled_evaluation(make_act, eval_params):
+    """The jitted evaluation of every seed's parameters on days, one per policy and params.
+
+    Args:
+        make_act: ``make_act(params) -> act(state, key) -> levels`` (a trainer's
+            ``make_act(eval_params)``).
+        eval_params: the evaluation env parameters.
+
+    Returns:
+        ``fn(net_params, days, key) -> totals`` with a leading seed axis on ``net_params`` and
+        on every total, compiled once for this ``make_act`` and ``eval_params``.
+    """
+    per_params = _COMPILED.get(make_act, IdentityCache)
+    return per_params.get(
+        eval_params,
+        lambda: jax.jit(
             jax.vmap(
                 lambda p, d, kk: run_days(make_act(p), eval_params, d, kk), in_axes=(0, None, None)
             )
-        )
-    return _EVAL_CACHE[k]
+        ),
+    )
 
 
 BASELINES = ("always_max", "battery_rule", "price_threshold")

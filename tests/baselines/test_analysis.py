@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from baselines.config import build_env_params
+from baselines.eval import references
 from chargax_marl.teachers import storage_value
 from tests.helpers import TINY_ENV
 
@@ -104,10 +105,9 @@ def test_attribution_scores_the_run_and_swaps_ports_and_battery(ippo_run, tmp_pa
         by_key[0]["always_max"]["daily_profit"], by_key[1]["always_max"]["daily_profit"]
     )
     assert "2 car draws" in redraw.format_redraw(two)
+
     # the MPC's draws (a stand-in that earns always-max + 1 EUR/day here, so the wiring shows):
     # paired on the first mpc_draws draws only, with the bound's headroom on the same draws
-    import baselines.analysis.references
-
     def fake_mpc(params, days, key):
         return {
             "daily_profit": evaluate_rules(params, days, ("always_max",), key=key)["always_max"][
@@ -116,7 +116,7 @@ def test_attribution_scores_the_run_and_swaps_ports_and_battery(ippo_run, tmp_pa
             + 1.0
         }
 
-    monkeypatch.setattr(baselines.analysis.references, "evaluate_mpc", fake_mpc)
+    monkeypatch.setattr(references, "evaluate_mpc", fake_mpc)
     with_mpc = redraw.redraw(out, draws=2, bound=True, mpc_draws=1)
     vs_am, vs_mpc = (
         with_mpc["vs"]["always_max"]["draw0_per_seed"],
