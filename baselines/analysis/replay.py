@@ -4,8 +4,9 @@
 
 Each run's trainer is rebuilt from its ``results.json`` config, its ``params.msgpack`` loaded,
 and every seed's greedy policy scored again on the run's held-out days with its car draws.
-The per-day profits are compared with the stored ones: ``identical`` when every value is
-equal to the last bit, else the largest absolute difference in EUR/day.
+The per-day profits are compared with the stored ones at the precision ``results.json`` keeps
+them (float32, the simulator's own): ``identical`` when every value is equal to the last bit
+there, and the largest absolute difference in EUR/day beside it.
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ def replay(run_dir: str | Path) -> dict:
         "seeds": int(replayed.shape[0]),
         "days": int(replayed.shape[1]),
         "draws": draws,
-        "identical": bool(np.array_equal(replayed, stored)),
+        "identical": bool(np.array_equal(replayed.astype(np.float32), stored.astype(np.float32))),
         "max_abs_eur": float(np.max(np.abs(replayed - stored))),
     }
 
