@@ -20,7 +20,7 @@ from chargax_marl.core.params import make_params
 from chargax_marl.core.scenarios import scenario_kwargs
 from chargax_marl.evaluation import hindsight_bound, split_days
 
-SCENARIOS = (
+SCENARIO_NAMES = (
     "shopping",
     "shopping-grid10-high",
     "shopping-grid25-high",
@@ -39,7 +39,7 @@ def main() -> dict:
         "| scenario | always-max EUR/day | battery rule EUR/day | battery rule − always-max | LP bound − always-max "
         "| always-max peak kW | always-max peak charge EUR/day |"
     )
-    for name in SCENARIOS:
+    for name in SCENARIO_NAMES:
         t0 = time.perf_counter()
         params = make_params(**scenario_kwargs(name))
         rules = evaluate_rules(params, days, ("always_max", "battery_rule"), key)

@@ -32,7 +32,7 @@ from chargax_marl.core.scenarios import scenario_kwargs
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.evaluation import run_days, split_days
 
-SCENARIOS = (
+SCENARIO_NAMES = (
     "shopping",
     "shopping-grid25-medium",
     "shopping-grid50-high",
@@ -93,7 +93,7 @@ def sensitivity(params, days, key=None, step: int | None = None) -> dict:
 
 def main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
+    p.add_argument("--scenarios", nargs="+", default=list(SCENARIO_NAMES))
     p.add_argument(
         "--hour", type=float, default=10.0, help="the hour of the day of the changed step"
     )
