@@ -1,4 +1,4 @@
-"""Training speed of the baselines: PPO, IPPO and MAPPO env-steps per second (issue 17).
+"""Training speed of the baselines: PPO, IPPO and MAPPO env-steps per second.
 
 Each algorithm's ``make_train`` is built with the paper defaults (:data:`baselines.config.SCHEMA`)
 except ``NUM_ENVS`` and ``TOTAL_TIMESTEPS``; its ``jax.jit(train)`` is compiled once (compile

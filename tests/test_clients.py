@@ -1,4 +1,4 @@
-"""Third-party clients used unmodified (issue 15): PettingZoo's render, max-cycles and API tests
+"""Third-party clients used unmodified: PettingZoo's render, max-cycles and API tests
 on the AEC and parallel envs, masks in observations, the silent import, a forked SuperSuit
 worker, and the examples (the PureJaxRL-style PPO always; SuperSuit + SB3 and Tianshou only
 under ``make examples``, which installs the ``clients`` extra and sets CHARGAX_CLIENT_EXAMPLES=1)."""

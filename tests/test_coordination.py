@@ -1,4 +1,4 @@
-"""Scenarios where the agents must coordinate (issue 13): a constrained grid connection
+"""Scenarios where the agents must coordinate: a constrained grid connection
 (``grid_fraction``), a time-of-use surcharge and a peak-demand charge in the profit, the LP
 bound and MPC pricing them, the context features the agents need, the named scenarios in
 both views, and the node-binding table."""

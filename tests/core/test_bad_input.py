@@ -1,4 +1,4 @@
-"""Bad input never becomes a wrong number (issue 16).
+"""Bad input never becomes a wrong number.
 
 One test per item of the issue: float64-valid values that overflow float32, checks that some
 paths skipped, builders that read 0 as "default", a price day given twice, NaN / huge / wrongly

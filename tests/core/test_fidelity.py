@@ -1,4 +1,4 @@
-"""Model fidelity 2 (issue 11): grid-side node limits, accountable battery energy, a
+"""Model fidelity: grid-side node limits, accountable battery energy, a
 satisfaction term the policy controls, per-car targets, realistic default economics,
 per-agent reward shares that follow their causes, and per-model discharge limits.
 

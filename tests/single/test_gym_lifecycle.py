@@ -1,4 +1,4 @@
-"""The Gymnasium adapter's lifecycle (issues 15 and 16): seeds, episode end, reset options,
+"""The Gymnasium adapter's lifecycle: seeds, episode end, reset options,
 rendering, pickling, shared compilation, gymnasium.make ids, finite observation bounds,
 forked workers, and the single-agent env's spaces for gymnax code."""
 
