@@ -8,7 +8,7 @@ problem falls apart into independent ones; the coordination scenarios of
 
 ``python -m chargax_marl.binding`` prints, for the default and every coordination scenario, the
 percentage of steps in which each kind of node binds under always-max on held-out days
-(the table in the README). The per-node figures come from :func:`node_binding`.
+(the table in docs/scenarios.md). The per-node figures come from :func:`node_binding`.
 """
 
 from __future__ import annotations

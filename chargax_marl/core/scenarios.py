@@ -12,14 +12,14 @@ single-agent ``make(name)`` and the multi-agent ``ChargaxMARL(scenario=name)``.
     (``grid_fraction``), so the ports and the battery share a scarce connection. Under
     always-max the default station's draw peaks at about 300-330 kW of its 884.5 kW, so 25 %
     (221 kW) binds in only 3-4 % of the steps and 50 % almost never; 10 % (88 kW) binds in
-    a third of them (table in the README);
+    a third of them (table in docs/scenarios.md);
   - ``shopping-peak`` / ``shopping-peak-high``: the full connection, with a time-of-use
     surcharge on the evening peak (``tou_fee_eur_kwh="evening-peak"``, +0.12 EUR/kWh
     17:00-21:00) and a peak-demand charge of 0.15 EUR per kW of the day's highest net grid
     draw, booked at the end of the day (:mod:`chargax_marl.core.tariffs`);
   - ``shopping-grid50-peak-high``: both at once.
 
-How often each node binds under always-max in each scenario is tabled in the README
+How often each node binds under always-max in each scenario is tabled in docs/scenarios.md
 (``python -m chargax_marl.binding``).
 """
 
