@@ -36,7 +36,9 @@ def _modules() -> dict[str, Path]:
     return {_module_name(p): p for pkg in PACKAGES for p in sorted((ROOT / pkg).rglob("*.py"))}
 
 
-def _imports(name: str, path: Path, modules: dict) -> list[tuple[str, int, bool, str]]:
+def _imports(
+    name: str, path: Path, modules: dict, packages: tuple[str, ...] = PACKAGES
+) -> list[tuple[str, int, bool, str]]:
     """``(imported project module, line, inside a function, source line)`` of a module."""
     source = path.read_text()
     lines = source.splitlines()
@@ -65,7 +67,7 @@ def _imports(name: str, path: Path, modules: dict) -> list[tuple[str, int, bool,
             for target in targets:
                 while target and target not in modules and "." in target:
                     target = target.rpartition(".")[0]
-                if target.split(".")[0] in PACKAGES and target in modules:
+                if target.split(".")[0] in packages and target in modules:
                     out.append((target, child.lineno, in_function, lines[child.lineno - 1]))
                 elif target and in_function:
                     out.append((target, child.lineno, in_function, lines[child.lineno - 1]))
@@ -188,12 +190,6 @@ def test_the_checks_catch_a_cycle_and_a_deferred_import(tmp_path):
     (pkg / "a.py").write_text("from pkg import b\n")
     (pkg / "b.py").write_text("def f():\n    from pkg import a\n    return a\n")
     modules = {"pkg": pkg / "__init__.py", "pkg.a": pkg / "a.py", "pkg.b": pkg / "b.py"}
-    global ROOT, PACKAGES
-    saved = ROOT, PACKAGES
-    ROOT, PACKAGES = tmp_path, ("pkg",)
-    try:
-        graph = {name: _imports(name, path, modules) for name, path in modules.items()}
-    finally:
-        ROOT, PACKAGES = saved
+    graph = {name: _imports(name, path, modules, ("pkg",)) for name, path in modules.items()}
     assert _cycles(_edges(graph)) == [["pkg.a", "pkg.b"]]
     assert [(t, inside) for t, _, inside, _ in graph["pkg.b"]] == [("pkg.a", True)]

@@ -4,7 +4,6 @@ progress bar with a callback after each."""
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
@@ -76,7 +75,3 @@ def run_in_chunks(train, keys, num_chunks: int, on_chunk=None, desc: str = "trai
                 on_chunk(i, rs, m, b * steps_per_update, time.time() - t0)
     metrics = {k: np.concatenate([c[k] for c in chunks], axis=1) for k in chunks[0]}
     return rs, metrics, time.time() - t0
-
-
-def stack_seeds(keys: Sequence) -> jnp.ndarray:
-    return jnp.stack(list(keys))

@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from baselines.algos.trainer import IdentityCache
+from baselines.config import RUN_SCHEMA
 from baselines.eval import protocol, references, rules, stats
 from chargax_marl.evaluation import (
     METRICS,
@@ -102,7 +103,7 @@ REFERENCES = ("always_max", "battery_rule", "battery_programme", "plan_programme
 """The baselines each trained seed gets a paired difference to (``vs_<name>``), where present."""
 
 
-OPTIMAL_CHOICES = ("off", "bound", "mpc")
+OPTIMAL_CHOICES = RUN_SCHEMA["OPTIMAL"].choices
 
 
 def baseline_results(
