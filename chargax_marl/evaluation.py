@@ -36,6 +36,7 @@ METRICS = {
     "battery_terminal_value_eur": "battery_terminal_value_eur",
     "peak_grid_kw": "peak_grid_kw",
     "peak_demand_charge_eur": "peak_demand_charge_eur",
+    "battery_wear_eur": "battery_wear_eur",
 }
 """Reported metric -> field of :class:`chargax_marl.core.types.EpisodeTotals`."""
 

@@ -37,6 +37,11 @@ MAX_PRICE_EUR_KWH = (
 )
 MAX_FACTOR = 1e3  # feed-in factor, weekend volume factor, hourly scale factors
 MAX_FIXED_COST_EUR = 1e6  # per step
+MAX_BATTERY_COST_EUR_KWH = 1e5  # installed cost of a station battery per kWh of capacity
+MIN_CYCLE_LIFE = 1.0  # full equivalent cycles
+MAX_CYCLE_LIFE = 1e7
+MIN_CALENDAR_LIFE_YEARS = 1e-2
+MAX_CALENDAR_LIFE_YEARS = 1e3
 MAX_WEIGHT = 1e6  # |alpha_c| and beta
 MAX_TOLERANCE_KWH = 1e3
 MAX_CARS_PER_DAY = 1e6  # keeps the int32 Poisson draw of arrivals per step far from saturating

@@ -13,7 +13,13 @@ import numpy as np
 
 from chargax_marl.core import checks, datasets, tariffs
 from chargax_marl.core.observation import PRICE_QUANTILES
-from chargax_marl.core.station import Splitter, StationArrays, build_station
+from chargax_marl.core.station import (
+    Splitter,
+    StationArrays,
+    battery_calendar_eur_day,
+    battery_wear_eur_kwh,
+    build_station,
+)
 from chargax_marl.core.types import (
     ACTION_MODES,
     CONSTRAINT_MODES,
@@ -43,6 +49,58 @@ def _finite(
 ) -> float:
     """A finite scalar in range and representable in float32 (:func:`checks.number`)."""
     return checks.number(field, value, low=minimum, high=maximum, low_open=strict, unit=unit)
+
+
+def _battery_wear(
+    station: StationArrays,
+    cost_eur_kwh: float | None,
+    cycle_life: float | None,
+    calendar_life_years: float | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(wear_eur_kwh (B,), calendar_eur_day (B,))`` of the station's batteries, each from its
+    own :class:`Battery` fields where the override is None."""
+
+    if cost_eur_kwh is not None:
+        _finite(
+            "battery_cost_eur_kwh",
+            cost_eur_kwh,
+            minimum=0.0,
+            maximum=checks.MAX_BATTERY_COST_EUR_KWH,
+            unit="EUR/kWh",
+        )
+    if cycle_life is not None:
+        _finite(
+            "battery_cycle_life",
+            cycle_life,
+            minimum=checks.MIN_CYCLE_LIFE,
+            maximum=checks.MAX_CYCLE_LIFE,
+            unit="cycles",
+        )
+    if calendar_life_years is not None and calendar_life_years != 0:
+        _finite(
+            "battery_calendar_life_years",
+            calendar_life_years,
+            minimum=checks.MIN_CALENDAR_LIFE_YEARS,
+            maximum=checks.MAX_CALENDAR_LIFE_YEARS,
+            unit="years (0: no calendar ageing)",
+        )
+
+    def field(own, value):
+        return np.asarray(own, np.float64) if value is None else np.full(len(own), value)
+
+    own = (station.battery_cost_eur_kwh, station.battery_cycle_life)
+    cost = field(own[0], cost_eur_kwh)
+    cycles = field(own[1], cycle_life)
+    years = field(station.battery_calendar_life_years, calendar_life_years)
+    capacity = np.asarray(station.battery_capacity_kwh, np.float64)
+    wear = np.array([battery_wear_eur_kwh(c, n) for c, n in zip(cost, cycles)])
+    calendar = np.array(
+        [
+            battery_calendar_eur_day(c, k, None if y == 0 else y)
+            for c, k, y in zip(cost, capacity, years)
+        ]
+    )
+    return wear.reshape(capacity.shape), calendar.reshape(capacity.shape)
 
 
 def resample_day(weights_5min: np.ndarray, num_steps: int) -> np.ndarray:
@@ -129,6 +187,9 @@ def make_params(
     fixed_cost_eur: float | None = None,
     battery_initial_soc: float | tuple | None = None,
     battery_terminal_price: str | float | None = "day_mean_buy",
+    battery_cost_eur_kwh: float | None = None,
+    battery_cycle_life: float | None = None,
+    battery_calendar_life_years: float | None = None,
     alpha: PenaltyWeights | dict | None = None,
     beta: float = 0.0,
     charged_tolerance_kwh: float = 0.05,
@@ -178,6 +239,12 @@ def make_params(
     ``battery_terminal_price`` values the batteries' energy change over the day at the last
     step: ``"day_mean_buy"`` (default: the day's mean day-ahead price plus the grid fee), a
     price in EUR/kWh, or None (no value, the paper's free battery energy).
+    ``battery_cost_eur_kwh``, ``battery_cycle_life`` and ``battery_calendar_life_years`` set
+    the wear of every battery (None: each :class:`Battery`'s own; ``battery_cost_eur_kwh=0``
+    makes cycling free; ``battery_calendar_life_years=0`` turns calendar ageing off): each kWh
+    into or out of the cells costs ``cost / (2 cycle_life)`` and a calendar life adds ``cost *
+    capacity / (365 years)`` per day, both booked in the profit
+    (:func:`chargax_marl.core.reward.battery_wear_eur`).
 
     ``beta`` weighs the undertime credit of the charge-sensitive satisfaction term, 0 by
     default (see :func:`chargax_marl.core.traffic.depart`).
@@ -304,6 +371,9 @@ def make_params(
     if fixed_cost_eur is None:
         fixed_cost_eur = FIXED_COST_EUR_PER_STEP * step_minutes / 5.0
     soc0_low, soc0_high = _battery_initial_soc(battery_initial_soc, stations)
+    wear_eur_kwh, calendar_eur_day = _battery_wear(
+        stations, battery_cost_eur_kwh, battery_cycle_life, battery_calendar_life_years
+    )
     if isinstance(battery_terminal_price, str):
         if battery_terminal_price != "day_mean_buy":
             raise ValueError(
@@ -354,6 +424,10 @@ def make_params(
         reset_days=jnp.asarray(days),
         battery_soc0_low=jnp.asarray(soc0_low, jnp.float32),
         battery_soc0_high=jnp.asarray(soc0_high, jnp.float32),
+        battery_wear_eur_kwh=jnp.asarray(wear_eur_kwh, jnp.float32),
+        battery_calendar_eur_step=jnp.asarray(
+            calendar_eur_day * step_minutes / MINUTES_PER_DAY, jnp.float32
+        ),
         customer_price_eur_kwh=scalar(
             "customer_price_eur_kwh",
             customer_price_eur_kwh,

@@ -138,6 +138,31 @@ def battery_terminal_value_eur(battery_day_kwh, day, params: EnvParams) -> jnp.n
     return price * battery_day_kwh
 
 
+def battery_wear_eur(leaf_energy_kwh, params: EnvParams) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """The step's battery wear: ``(per_leaf (L,), total ())`` in EUR, 0 at the ports.
+
+    Each battery pays its wear cost per kWh of cell throughput (the energy into or out of its
+    cells, :attr:`EnvParams.battery_wear_eur_kwh`) plus its calendar ageing per step, whatever
+    it does. Cycling one full equivalent cycle thus costs ``cost * capacity / cycle_life``.
+    Throughput rather than discharge alone: a day's wear then does not depend on where the
+    day ends, so charging the battery to end the day full is not free.
+
+    Args:
+        leaf_energy_kwh: ``(L,)`` energy into each leaf this step (kWh, terminal side,
+            negative when discharging; batteries are the last ``B`` leaves).
+        params: the environment parameters.
+
+    Returns:
+        ``(per_leaf, total)``: each leaf's wear (EUR) and their sum.
+    """
+    st = params.station
+    zeros = jnp.zeros((st.num_ports,), jnp.float32)
+    rate = jnp.concatenate([zeros, params.battery_wear_eur_kwh.astype(jnp.float32)])
+    calendar = jnp.concatenate([zeros, params.battery_calendar_eur_step.astype(jnp.float32)])
+    per_leaf = rate * jnp.abs(leaf_energy_kwh) + calendar
+    return per_leaf, jnp.sum(per_leaf)
+
+
 def leaf_grid_cost_eur(flows: dict, p_buy, p_sell_grid) -> jnp.ndarray:
     """Each leaf's grid cost ``(L,)``: its grid-side draw at ``p_buy``, its grid-side feed-in
     at ``p_sell_grid`` plus its pro-rata part of the netting gain. The costs sum to the
@@ -192,13 +217,15 @@ def leaf_reward_shares(
     r,
     params: EnvParams,
     peak_charge_eur=0.0,
+    leaf_wear_eur=0.0,
 ) -> jnp.ndarray:
     """Each leaf's share ``(L,)`` of the step reward ``r``; the shares sum to ``r``.
 
     A leaf's share is the money its own energy made minus the penalties it caused: what its
     car paid (``p_sell`` times the energy into the car, :func:`billed_car_kwh`) minus its grid cost
     (:func:`leaf_grid_cost_eur`, which does not move with other leaves' actions), the
-    batteries' terminal value to the batteries, and the weighted penalty terms split by
+    batteries' terminal value to the batteries, each battery's wear (``leaf_wear_eur``,
+    :func:`battery_wear_eur`) to that battery, and the weighted penalty terms split by
     :func:`leaf_penalty_terms`. The fixed cost and the peak-demand charge are split evenly. The multi-agent view mixes
     these shares into per-agent rewards when asked to (``ChargaxMARL(local_reward_weight=...)``).
     """
@@ -207,7 +234,7 @@ def leaf_reward_shares(
     is_bat = st.leaf_kind == KIND_BATTERY
     billed, _ = billed_car_kwh(flows, params)
     own = params.customer_price_eur_kwh * billed - leaf_grid_cost_eur(flows, p_buy, p_sell_grid)
-    own = own + jnp.where(is_bat, terminal_eur / max(st.num_batteries, 1), 0.0)
+    own = own + jnp.where(is_bat, terminal_eur / max(st.num_batteries, 1), 0.0) - leaf_wear_eur
     per_leaf = leaf_penalty_terms(flows, departures, terms, moer, st)
     penalty = weighted_penalty(params.alpha, per_leaf)
     shares = own - penalty - (params.fixed_cost_eur + peak_charge_eur) / num_leaves

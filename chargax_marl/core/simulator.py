@@ -138,7 +138,10 @@ def step_with_arrivals(
     peak_kw, peak_charge = reward_lib.peak_demand_charge(
         flows["grid_net_kwh"], state.totals.peak_grid_kw, last, params
     )
-    profit = reward_lib.profit_eur(flows, p_buy, p_sell_grid, params) + terminal - peak_charge
+    leaf_wear, wear = reward_lib.battery_wear_eur(leaf_energy, params)
+    profit = (
+        reward_lib.profit_eur(flows, p_buy, p_sell_grid, params) + terminal - peak_charge - wear
+    )
     moer = reward_lib.moer_now(state.day, state.timestep, params)
     demand = params.grid_demand_kwh[
         jnp.clip(state.timestep, 0, params.grid_demand_kwh.shape[0] - 1)
@@ -168,6 +171,7 @@ def step_with_arrivals(
         battery_terminal_value_eur=t.battery_terminal_value_eur + terminal,
         peak_grid_kw=peak_kw,
         peak_demand_charge_eur=t.peak_demand_charge_eur + peak_charge,
+        battery_wear_eur=t.battery_wear_eur + wear,
     )
     new_state = arrived_state.replace(timestep=state.timestep + 1, totals=totals)
     info = StepInfo(
@@ -191,10 +195,11 @@ def step_with_arrivals(
         requested_excess_kw=requested_kw,
         battery_terminal_value_eur=terminal,
         peak_demand_charge_eur=peak_charge,
+        battery_wear_eur=wear,
         leaf_energy_kwh=leaf_energy,
         leaf_arrived=arr["leaf_arrived"],
         leaf_reward=reward_lib.leaf_reward_shares(
-            flows, dep, terms, moer, terminal, p_buy, p_sell_grid, r, params, peak_charge
+            flows, dep, terms, moer, terminal, p_buy, p_sell_grid, r, params, peak_charge, leaf_wear
         ),
     )
     return keep_dtypes(new_state, state), as_float32(info)
@@ -274,6 +279,7 @@ STEP_INFO_KEYS = (
     "requested_excess_kw",
     "battery_terminal_value_eur",
     "peak_demand_charge_eur",
+    "battery_wear_eur",
 )
 """Scalar fields of :class:`StepInfo` reported in the infos under their own names."""
 

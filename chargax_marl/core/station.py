@@ -89,6 +89,67 @@ def _check_unit_interval(
     )
 
 
+BATTERY_COST_EUR_KWH = 150.0
+"""Default installed cost of a station battery (EUR per kWh of capacity): the global average
+turnkey price of a stationary storage system in 2024 (sources in the data README)."""
+BATTERY_CYCLE_LIFE = 6000.0
+"""Default cycle life of a station battery: full equivalent cycles of stationary LFP cells to
+80 % of their capacity (sources in the data README)."""
+DAYS_PER_YEAR = 365.0
+
+
+def battery_wear_eur_kwh(cost_eur_kwh: float, cycle_life: float) -> float:
+    """The wear cost per kWh of cell throughput (in or out), EUR/kWh.
+
+    A full equivalent cycle moves the capacity into and out of the cells, ``2 C`` kWh of
+    throughput, and uses up ``1 / cycle_life`` of the battery: ``cost * C / cycle_life`` EUR.
+
+    Args:
+        cost_eur_kwh: installed cost per kWh of capacity (EUR/kWh).
+        cycle_life: full equivalent cycles to the end of life.
+
+    Returns:
+        ``cost_eur_kwh / (2 cycle_life)`` (EUR per kWh of throughput).
+    """
+    return float(cost_eur_kwh) / (2.0 * float(cycle_life))
+
+
+def battery_calendar_eur_day(
+    cost_eur_kwh: float, capacity_kwh: float, calendar_life_years: float | None
+) -> float:
+    """The calendar ageing cost per day, EUR/day: the installed cost spread evenly over the
+    calendar life (0 when ``calendar_life_years`` is None)."""
+    if calendar_life_years is None:
+        return 0.0
+    return float(cost_eur_kwh) * float(capacity_kwh) / (float(calendar_life_years) * DAYS_PER_YEAR)
+
+
+def check_battery_wear(
+    owner: str, cost_eur_kwh: float, cycle_life: float, calendar_life_years: float | None
+) -> None:
+    """Validate the wear inputs of a battery.
+
+    Raises:
+        ValueError: ``cost_eur_kwh`` not finite and >= 0, ``cycle_life`` not finite and > 0,
+            ``calendar_life_years`` neither None nor finite and > 0.
+    """
+    _check_non_negative(
+        owner, "cost_eur_kwh", cost_eur_kwh, checks.MAX_BATTERY_COST_EUR_KWH, "EUR/kWh"
+    )
+    _check_positive(
+        owner, "cycle_life", cycle_life, checks.MIN_CYCLE_LIFE, checks.MAX_CYCLE_LIFE, "cycles"
+    )
+    if calendar_life_years is not None:
+        _check_positive(
+            owner,
+            "calendar_life_years",
+            calendar_life_years,
+            checks.MIN_CALENDAR_LIFE_YEARS,
+            checks.MAX_CALENDAR_LIFE_YEARS,
+            "years",
+        )
+
+
 @dataclasses.dataclass(frozen=True)
 class Port:
     """A charging port (one EVSE connector): a leaf of the station tree.
@@ -140,6 +201,13 @@ class Battery:
 
     It charges and discharges through the same rate curve as a car (``tau``), within
     ``[0, capacity_kwh]``, at up to ``max_kw`` in both directions.
+
+    Its cells wear with use: ``cost_eur_kwh`` (the installed cost per kWh of capacity) buys
+    ``cycle_life`` full equivalent cycles, so every kWh moved into or out of the cells costs
+    :attr:`wear_eur_kwh`, half a cycle's share of the cost; ``calendar_life_years`` (None: no
+    calendar ageing) adds :attr:`calendar_eur_day` per day whatever the battery does. Both are
+    part of the profit (:func:`chargax_marl.core.reward.battery_wear_eur`); the defaults and
+    their sources are in the data README. ``cost_eur_kwh=0`` makes cycling free.
     """
 
     name: str = "battery"
@@ -149,6 +217,9 @@ class Battery:
     efficiency: float = 0.95
     tau: float = 0.8
     initial_soc: float = 0.5
+    cost_eur_kwh: float = BATTERY_COST_EUR_KWH
+    cycle_life: float = BATTERY_CYCLE_LIFE
+    calendar_life_years: float | None = None
 
     def __post_init__(self) -> None:
         owner = f"Battery '{self.name}'"
@@ -171,10 +242,23 @@ class Battery:
         _check_unit_interval(
             owner, "initial_soc", self.initial_soc, open_low=False, open_high=False
         )
+        check_battery_wear(owner, self.cost_eur_kwh, self.cycle_life, self.calendar_life_years)
 
     @property
     def max_current_a(self) -> float:
         return self.max_kw * 1000.0 / self.voltage_v
+
+    @property
+    def wear_eur_kwh(self) -> float:
+        """The wear cost of one kWh into or out of the cells (EUR/kWh of throughput)."""
+        return battery_wear_eur_kwh(self.cost_eur_kwh, self.cycle_life)
+
+    @property
+    def calendar_eur_day(self) -> float:
+        """The calendar ageing cost per day (EUR/day; 0 without a calendar life)."""
+        return battery_calendar_eur_day(
+            self.cost_eur_kwh, self.capacity_kwh, self.calendar_life_years
+        )
 
 
 Node = Union["Splitter", Port, Battery]
@@ -238,6 +322,9 @@ class StationArrays:
     battery_capacity_kwh: jnp.ndarray  # (B,)
     battery_tau: jnp.ndarray  # (B,)
     battery_initial_soc: jnp.ndarray  # (B,)
+    battery_cost_eur_kwh: jnp.ndarray  # (B,) installed cost per kWh of capacity
+    battery_cycle_life: jnp.ndarray  # (B,) full equivalent cycles to the end of life
+    battery_calendar_life_years: jnp.ndarray  # (B,) calendar life, 0 = no calendar ageing
     leaf_solo_max_kw: (
         jnp.ndarray
     )  # (L,) most power a leaf can take alone: its rating and every ancestor's
@@ -358,6 +445,11 @@ def compile_station(root: Splitter) -> StationArrays:
         ),
         battery_tau=jnp.asarray(np.array([b.tau for b in bats], dtype=np.float32)),
         battery_initial_soc=jnp.asarray(np.array([b.initial_soc for b in bats], dtype=np.float32)),
+        battery_cost_eur_kwh=jnp.asarray(np.array([b.cost_eur_kwh for b in bats], np.float32)),
+        battery_cycle_life=jnp.asarray(np.array([b.cycle_life for b in bats], np.float32)),
+        battery_calendar_life_years=jnp.asarray(
+            np.array([b.calendar_life_years or 0.0 for b in bats], np.float32)
+        ),
         leaf_solo_max_kw=jnp.asarray(solo.astype(np.float32)),
         node_max_kw=jnp.asarray(node_kw.astype(np.float32)),
         node_efficiency=jnp.asarray(node_eff.astype(np.float32)),

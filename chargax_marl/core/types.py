@@ -91,6 +91,8 @@ class EnvParams:
         jnp.ndarray
     )  # (B,) initial SoC of each station battery is uniform in [low, high]
     battery_soc0_high: jnp.ndarray  # (B,)
+    battery_wear_eur_kwh: jnp.ndarray  # (B,) wear cost per kWh into or out of each battery's cells
+    battery_calendar_eur_step: jnp.ndarray  # (B,) calendar ageing cost of each battery per step
     # --- economics
     customer_price_eur_kwh: jnp.ndarray  # () p_sell, price charged to (and refunded to) car owners
     refund_discharged_energy: (
@@ -172,6 +174,9 @@ class EpisodeTotals:
     peak_demand_charge_eur: (
         jnp.ndarray
     )  # peak-demand charge booked so far (part of profit_eur, positive = paid)
+    battery_wear_eur: (
+        jnp.ndarray
+    )  # battery wear booked so far (part of profit_eur, positive = paid)
 
     @classmethod
     def zeros(cls) -> EpisodeTotals:
@@ -245,6 +250,9 @@ class StepInfo:
     peak_demand_charge_eur: (
         jnp.ndarray
     )  # peak-demand charge booked this step (subtracted in profit_eur)
+    battery_wear_eur: (
+        jnp.ndarray
+    )  # battery wear this step, cycling and calendar (subtracted in profit_eur)
     leaf_energy_kwh: jnp.ndarray  # (L,) energy into each car / battery this step (terminal side)
     leaf_arrived: (
         jnp.ndarray

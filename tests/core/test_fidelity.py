@@ -163,10 +163,12 @@ def _day_profit(p, battery_level: int, day: int = 0):
     return final.totals, term
 
 
-def test_dumping_the_battery_on_a_flat_price_day_loses_its_losses():
+@pytest.mark.parametrize("cost_eur_kwh", [0.0, 150.0, 400.0])
+def test_dumping_the_battery_on_a_flat_price_day_loses_its_losses_and_wear(cost_eur_kwh):
     # no grid fee and feed-in at the day-ahead price: buying and selling cost the same, so the
-    # only difference the battery makes is its own loss
+    # only differences the battery makes are its own loss and its wear
     p = make_params(
+        battery_cost_eur_kwh=cost_eur_kwh,
         station=_battery_station(),
         prices=_flat_prices(0.10),
         first_weekday=0,
@@ -185,11 +187,17 @@ def test_dumping_the_battery_on_a_flat_price_day_loses_its_losses():
     assert float(dump.battery_terminal_value_eur) == pytest.approx(
         0.10 * float(dump.battery_net_kwh), rel=1e-5
     )
-    # what it dumped reached the grid side times its efficiency, but is valued whole:
+    # what it dumped reached the grid side times its efficiency, but is valued whole, and every
+    # kWh out of the cells cost cost / (2 * 6000 cycles)
+    dumped_kwh = -float(dump.battery_net_kwh)
+    wear = cost_eur_kwh / (2 * 6000.0) * dumped_kwh
+    assert float(dump.battery_wear_eur) == pytest.approx(wear, rel=1e-4, abs=1e-6)
     assert gain < 0.0
-    assert gain == pytest.approx(-0.10 * (1 - 0.95) * -float(dump.battery_net_kwh), rel=1e-3)
-    # with the paper's free battery energy, the same dump was a gain
-    free = p.replace(battery_value_day_mean=jnp.asarray(False))
+    assert gain == pytest.approx(-0.10 * (1 - 0.95) * dumped_kwh - wear, rel=1e-3)
+    # with the paper's free battery energy and free cycling, the same dump was a gain
+    free = p.replace(
+        battery_value_day_mean=jnp.asarray(False), battery_wear_eur_kwh=jnp.zeros((1,))
+    )
     assert float(_day_profit(free, -10)[0].profit_eur - _day_profit(free, 0)[0].profit_eur) > 5.0
 
 

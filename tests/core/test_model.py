@@ -129,8 +129,13 @@ def test_battery_counts_against_node_limits_and_is_priced():
     assert float(info.grid_net_kwh) == pytest.approx(grid, rel=1e-4)
     assert float(info.battery_net_kwh) == pytest.approx(50.0 * k * DT_H, rel=1e-4)
     spot = float(p.prices_eur_kwh[0, 0])
+    # the battery's cells wear per kWh moved into them (default cost and cycle life)
+    wear = Battery().wear_eur_kwh * 50.0 * k * DT_H
+    assert float(info.battery_wear_eur) == pytest.approx(wear, rel=1e-4)
     assert float(info.profit_eur) == pytest.approx(
-        0.75 * 50.0 * k * DT_H - (spot + 0.1) * grid - float(p.fixed_cost_eur), rel=1e-4, abs=1e-5
+        0.75 * 50.0 * k * DT_H - (spot + 0.1) * grid - float(p.fixed_cost_eur) - wear,
+        rel=1e-4,
+        abs=1e-5,
     )
     # Net flow: the battery discharging feeds the port, so nothing is rescaled.
     _, info2 = step(KEY, s, jnp.array([10, -10]), p)
