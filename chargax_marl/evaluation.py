@@ -127,12 +127,22 @@ def hindsight_bound(
     key: jax.Array | None = None,
     reference: str = "always_max",
     time_limit_s: float | None = 60.0,
+    with_battery: bool = True,
 ) -> dict:
     """The LP hindsight bound (:mod:`chargax_marl.optimal.bound`) of each of ``days`` over
     ``reference``'s port occupancy, with the cars :func:`evaluate` draws with ``key``:
-    ``{"daily_profit", "reference_daily_profit", "solve_s", "status"}`` (arrays over days)."""
+    ``{"daily_profit", "reference_daily_profit", "solve_s", "status"}`` (arrays over days).
+    ``with_battery=False`` leaves the station's batteries out of the LP (the bound without
+    them; the difference is what the batteries are worth at best)."""
 
-    bounds = bound_days(params, days, key, get_policy(reference, params), time_limit_s=time_limit_s)
+    bounds = bound_days(
+        params,
+        days,
+        key,
+        get_policy(reference, params),
+        time_limit_s=time_limit_s,
+        with_battery=with_battery,
+    )
     return {
         "daily_profit": np.array([b.profit_eur for b in bounds]),
         "reference_daily_profit": np.array([b.reference_profit_eur for b in bounds]),

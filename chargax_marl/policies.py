@@ -46,6 +46,13 @@ def always_max(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarra
     return jnp.where(_is_battery(params), 0, params.num_levels).astype(jnp.int32)
 
 
+def _day_buy_prices(state: EnvState, params: EnvParams) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """``(day (24,), now ())``: the day's hourly buy prices (day-ahead, grid fee, time-of-use
+    surcharge; EUR/kWh) and the current hour's."""
+    day_prices = params.prices_eur_kwh[state.day] + params.grid_fee_eur_kwh + params.tou_fee_eur_kwh
+    return day_prices, day_prices[hour_of_step(state.timestep, params)]
+
+
 def _cheap_or_dear_hour(state: EnvState, params: EnvParams, quantile: float):
     """Whether the current hour's buy price (day-ahead plus the time-of-use surcharge) is in the
     cheapest / dearest ``quantile`` of the day's hours."""
@@ -56,13 +63,46 @@ def _cheap_or_dear_hour(state: EnvState, params: EnvParams, quantile: float):
     )
 
 
+def _battery_arbitrage_levels(state: EnvState, params: EnvParams, quantile: float) -> jnp.ndarray:
+    """Per-leaf battery levels of the price rule that pays for losses and wear: charge fully in
+    an hour of the cheapest ``quantile`` when a kWh bought now and sold back at the mean price
+    of the dearest ``quantile`` earns more than its losses and its wear in and out
+    (``eta p_dear - p_now / eta > 2 w``, ``eta`` each battery's path efficiency, ``w`` its
+    wear per kWh of throughput); discharge fully in an hour of the dearest ``quantile`` when
+    ``eta p_now - p_cheap / eta > 2 w`` against the mean price of the cheapest hours; idle
+    otherwise (a flat day, a narrow spread)."""
+    day_prices, now = _day_buy_prices(state, params)
+    lo, hi = jnp.quantile(day_prices, quantile), jnp.quantile(day_prices, 1.0 - quantile)
+    cheap_mean = jnp.sum(jnp.where(day_prices <= lo, day_prices, 0.0)) / jnp.sum(day_prices <= lo)
+    dear_mean = jnp.sum(jnp.where(day_prices >= hi, day_prices, 0.0)) / jnp.sum(day_prices >= hi)
+    st = params.station
+    eta = st.leaf_path_efficiency
+    wear = jnp.concatenate([jnp.zeros((st.num_ports,)), params.battery_wear_eur_kwh])
+    charge = (now <= lo) & (eta * dear_mean - now / eta > 2.0 * wear)
+    discharge = (now >= hi) & (eta * now - cheap_mean / eta > 2.0 * wear)
+    return jnp.where(charge, params.num_levels, jnp.where(discharge, -params.num_levels, 0))
+
+
 def battery_rule(
     state: EnvState, key: jax.Array, params: EnvParams, quantile: float = 0.2
 ) -> jnp.ndarray:
-    """Always-max for the ports plus a price rule for the batteries: charge fully in the
-    cheapest ``quantile`` (20 %) of the day's hours, discharge fully in the dearest
-    ``quantile``, idle otherwise. The strong two-line heuristic a learned agent must beat.
+    """Always-max for the ports plus a price rule for the batteries that pays for losses and
+    wear: charge fully in the cheapest ``quantile`` (20 %) of the day's hours and discharge
+    fully in the dearest ``quantile``, each only when the round trip against the mean price of
+    the other side of the day beats the battery's losses plus its wear in and out; idle
+    otherwise. The strong two-line heuristic a learned agent must beat.
     """
+    del key
+    battery = _battery_arbitrage_levels(state, params, quantile)
+    return jnp.where(_is_battery(params), battery, params.num_levels).astype(jnp.int32)
+
+
+def battery_rule_naive(
+    state: EnvState, key: jax.Array, params: EnvParams, quantile: float = 0.2
+) -> jnp.ndarray:
+    """:func:`battery_rule` blind to losses and wear: the batteries charge fully in the
+    cheapest ``quantile`` of the day's hours and discharge fully in the dearest, whatever the
+    spread (on a flat day they charge)."""
     del key
     cheap, dear = _cheap_or_dear_hour(state, params, quantile)
     battery = jnp.where(cheap, params.num_levels, jnp.where(dear, -params.num_levels, 0))
@@ -135,14 +175,14 @@ def price_threshold(
 ) -> jnp.ndarray:
     """Charge fully while the buy price is in the cheapest ``quantile`` of the day's hours;
     otherwise charge each car at the lowest level that still meets its demand by its
-    planned departure. Batteries charge fully in cheap hours, discharge fully in the
-    dearest ``quantile`` of hours (when the station may discharge), and idle otherwise.
+    planned departure. Batteries follow :func:`battery_rule`'s price rule at the same
+    ``quantile`` (cycling only where the spread beats losses plus wear).
     """
     del key
-    cheap, dear = _cheap_or_dear_hour(state, params, quantile)
+    cheap, _ = _cheap_or_dear_hour(state, params, quantile)
     lazy = _levels_for_power(minimum_power_kw(state, params), params, round_up=True)
     ports = jnp.where(cheap, params.num_levels, lazy)
-    battery = jnp.where(cheap, params.num_levels, jnp.where(dear, -params.num_levels, 0))
+    battery = _battery_arbitrage_levels(state, params, quantile)
     return jnp.where(_is_battery(params), battery, ports).astype(jnp.int32)
 
 
@@ -211,6 +251,7 @@ def least_laxity_first(state: EnvState, key: jax.Array, params: EnvParams) -> jn
 POLICIES: dict[str, Policy] = {
     "always_max": always_max,
     "battery_rule": battery_rule,
+    "battery_rule_naive": battery_rule_naive,
     "random": random_policy,
     "price_threshold": price_threshold,
     "edf": earliest_deadline_first,

@@ -10,10 +10,12 @@
 - ``peak``: the default station with the evening time-of-use surcharge and the peak-demand
   charge (``shopping-peak``);
 
-the rule-based policies (always-max, always-max + battery price rule, EDF, LLF,
-price-threshold), the MPC (:mod:`chargax_marl.optimal.mpc`, 4 h horizon, re-solved every
+the rule-based policies (always-max, always-max + the battery price rule that pays for wear
+and the one blind to it, EDF, LLF, price-threshold, the teachers' battery, plan and grid
+programmes), the MPC (:mod:`chargax_marl.optimal.mpc`, 4 h horizon, re-solved every
 step) and the LP hindsight bound over always-max's occupancy
-(:mod:`chargax_marl.optimal.bound`). For each it reports EUR/day, the paired difference to
+(:mod:`chargax_marl.optimal.bound`), and the same bound without the battery (the difference,
+``battery_worth``, is what the battery is worth at best). For each it reports EUR/day, the paired difference to
 always-max (mean ± standard error over days) and the fraction of the headroom captured,
 ``(policy - always-max) / (bound - always-max)``, with solve times. Writes
 ``results/optimal/<scenario>.json`` (with the per-day profits, which
@@ -46,7 +48,17 @@ from chargax_marl.optimal import milp
 from chargax_marl.trace import params_fingerprint
 
 RESULTS_DIR = Path("results/optimal")  # relative to the working directory: the repository root
-RULES = ("always_max", "battery_rule", "edf", "llf", "price_threshold")
+RULES = (
+    "always_max",
+    "battery_rule",
+    "battery_rule_naive",
+    "edf",
+    "llf",
+    "price_threshold",
+    "battery_programme",
+    "plan_programme",
+    "grid_programme",
+)
 DEFAULT_ROOT_KW = (
     884.5  # sum of the default station's root children: 750 (DC) + 34.5 (AC) + 100 (battery)
 )
@@ -97,6 +109,7 @@ def run_scenario(name: str, mpc_kwargs: dict | None = None, num_days: int | None
     t0 = time.perf_counter()
     bound = hindsight_bound(params, days)
     bound_wall = time.perf_counter() - t0
+    no_battery = hindsight_bound(params, days, with_battery=False)
     mpc = references.evaluate_mpc(params, days, **(mpc_kwargs or {}))
     entries = {
         k: {"daily_profit": v["daily_profit"], "metrics": v["metrics"]} for k, v in rules.items()
@@ -118,6 +131,11 @@ def run_scenario(name: str, mpc_kwargs: dict | None = None, num_days: int | None
         },
         "status": sorted(set(bound["status"])),
     }
+    # the same LP without the battery: the bound minus this is what the battery is worth
+    entries["lp_bound_no_battery"] = {
+        "daily_profit": no_battery["daily_profit"],
+        "status": sorted(set(no_battery["status"])),
+    }
     for key, e in entries.items():
         p = e["daily_profit"]
         e["mean_eur"] = float(np.mean(p))
@@ -125,6 +143,9 @@ def run_scenario(name: str, mpc_kwargs: dict | None = None, num_days: int | None
         e["headroom"] = headroom_captured(p, am, bound["daily_profit"])
         e["daily_profit"] = [float(x) for x in p]
     out["policies"] = entries
+    out["battery_worth"] = stats.paired_difference(
+        bound["daily_profit"], no_battery["daily_profit"]
+    )
     out["rules_wall_s"] = rules_s
     return out
 
@@ -229,7 +250,7 @@ def format_optimal(result: dict) -> str:
     lines = [
         f"{result['scenario']}: {len(result['days'])} held-out days, key 0, same cars for all; "
         f"grid connection {result['root_kw']:.1f} kW",
-        f"{'policy':<16}{'EUR/day':>10}{'vs always-max':>18}{'headroom':>10}{'time':>22}",
+        f"{'policy':<22}{'EUR/day':>10}{'vs always-max':>18}{'headroom':>10}{'time':>22}",
     ]
     for name, e in result["policies"].items():
         d = e["vs_always_max"]
@@ -241,8 +262,13 @@ def format_optimal(result: dict) -> str:
         else:
             timing = ""
         lines.append(
-            f"{name:<16}{e['mean_eur']:>10.1f}{d['mean']:>+11.2f} ± {d['stderr']:<5.2f}"
+            f"{name:<22}{e['mean_eur']:>10.1f}{d['mean']:>+11.2f} ± {d['stderr']:<5.2f}"
             f"{e['headroom']['fraction']:>10.2f}{timing:>22}"
+        )
+    if "battery_worth" in result:
+        w = result["battery_worth"]
+        lines.append(
+            f"battery worth (bound - bound without it): {w['mean']:+.2f} ± {w['stderr']:.2f}"
         )
     return "\n".join(lines)
 

@@ -163,6 +163,12 @@ def battery_wear_eur(leaf_energy_kwh, params: EnvParams) -> tuple[jnp.ndarray, j
     return per_leaf, jnp.sum(per_leaf)
 
 
+def fixed_cost_per_step_eur(params: EnvParams) -> jnp.ndarray:
+    """The cost booked every step whatever the actions (EUR): the fixed cost plus the
+    batteries' calendar ageing. Planners add it to the value of their plans."""
+    return params.fixed_cost_eur + jnp.sum(params.battery_calendar_eur_step)
+
+
 def leaf_grid_cost_eur(flows: dict, p_buy, p_sell_grid) -> jnp.ndarray:
     """Each leaf's grid cost ``(L,)``: its grid-side draw at ``p_buy``, its grid-side feed-in
     at ``p_sell_grid`` plus its pro-rata part of the netting gain. The costs sum to the

@@ -6,7 +6,7 @@
 over those sessions with the day's prices known in advance.
 
 **What it bounds.** The day's profit (:func:`chargax_marl.core.reward.profit_eur` summed over
-the day, terminal battery value and fixed cost included; not the reward, whose penalty
+the day, terminal battery value, battery wear and fixed cost included; not the reward, whose penalty
 weights do not change the profit) of every policy whose occupancy is the reference's: the
 same cars at the same ports for the same steps. For time-sensitive cars that is every
 policy (they leave on time whatever happens); a charge-sensitive car leaves when it reaches
@@ -26,6 +26,7 @@ import jax
 import numpy as np
 
 from chargax_marl import trace as trace_lib
+from chargax_marl.core import reward as reward_lib
 from chargax_marl.core.types import EnvParams
 from chargax_marl.optimal.model import Economics, Sessions, Solution, StationLimits, build_and_solve
 from chargax_marl.policies import always_max
@@ -183,20 +184,28 @@ def hindsight_bound(
     occ: Occupancy,
     *,
     time_limit_s: float | None = 60.0,
+    with_battery: bool = True,
 ) -> Bound:
     """Solve the LP over ``occ``'s sessions and the station batteries for the whole day of
-    ``trace``. See the module docstring for what the value bounds. Raises
-    :class:`chargax_marl.optimal.model.SolverError` when HiGHS finds no optimum (e.g. the
-    time limit)."""
+    ``trace``. See the module docstring for what the value bounds.
+
+    With ``with_battery=False`` the batteries are left out (no battery sessions, no calendar
+    ageing): the bound of the same station and cars without its battery, so that the
+    difference of the two is what the battery is worth at best.
+
+    Raises:
+        chargax_marl.optimal.model.SolverError: HiGHS finds no optimum (e.g. the time limit).
+    """
     trace_lib.check_trace(trace, params)
     if occ.day != int(trace.day):
         raise ValueError(
             f"occupancy field 'day' is {occ.day} but the trace is day {int(trace.day)}"
         )
     n = trace.num_steps
-    sessions = Sessions.concat(
-        [occ.sessions, battery_sessions(params, trace.battery_soc0, 0, n - 1)]
-    )
+    parts = [occ.sessions]
+    if with_battery:
+        parts.append(battery_sessions(params, trace.battery_soc0, 0, n - 1))
+    sessions = Sessions.concat(parts)
     sol = build_and_solve(
         sessions,
         n,
@@ -205,7 +214,8 @@ def hindsight_bound(
         charged_tolerance_kwh=float(params.charged_tolerance_kwh),
         time_limit_s=time_limit_s,
     )
-    fixed = float(params.fixed_cost_eur) * n
+    per_step = reward_lib.fixed_cost_per_step_eur(params) if with_battery else params.fixed_cost_eur
+    fixed = float(per_step) * n
     return Bound(
         profit_eur=sol.value_eur - fixed,
         reference_profit_eur=occ.reference_profit_eur,
@@ -225,9 +235,11 @@ def bound_days(
     reference=always_max,
     *,
     time_limit_s: float | None = 60.0,
+    with_battery: bool = True,
 ) -> list[Bound]:
     """:func:`hindsight_bound` for each of ``days`` with the cars that evaluation draws with
-    ``key`` (default ``PRNGKey(0)``) and ``reference``'s occupancy."""
+    ``key`` (default ``PRNGKey(0)``) and ``reference``'s occupancy (``with_battery``: see
+    :func:`hindsight_bound`)."""
     key = jax.random.PRNGKey(0) if key is None else key
     traces = trace_lib.make_traces(params, days, key)
     day_keys = jax.random.split(key, int(np.size(days)))
@@ -235,7 +247,9 @@ def bound_days(
     for i in range(int(np.size(days))):
         tr = trace_lib.day_of(traces, i)
         occ = occupancy(params, tr, day_keys[i], reference)
-        out.append(hindsight_bound(params, tr, occ, time_limit_s=time_limit_s))
+        out.append(
+            hindsight_bound(params, tr, occ, time_limit_s=time_limit_s, with_battery=with_battery)
+        )
     return out
 
 

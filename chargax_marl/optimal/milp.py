@@ -29,6 +29,7 @@ import jax
 import numpy as np
 
 from chargax_marl import trace as trace_lib
+from chargax_marl.core import reward as reward_lib
 from chargax_marl.core.types import EnvParams
 from chargax_marl.optimal.bound import battery_sessions, economics, occupancy
 from chargax_marl.optimal.model import Sessions, StationLimits, _Builder, build_and_solve
@@ -194,7 +195,7 @@ def compare(
 ) -> WindowBounds:
     """MILP bound, LP bound over ``reference``'s occupancy and ``reference``'s own profit, all
     on the same window (EUR, fixed cost included)."""
-    fixed = float(params.fixed_cost_eur) * num_steps
+    fixed = float(reward_lib.fixed_cost_per_step_eur(params)) * num_steps
     milp = admission_bound(params, trace, num_steps, time_limit_s=time_limit_s)
     occ = occupancy(params, trace, day_key, reference)
     lp_sessions = Sessions.concat(

@@ -23,7 +23,9 @@ would book, under every limit the simulator applies:
   ``Economics.refund_discharged`` is False (then a car charges or discharges in a step, not
   both: ``p+ / cmax + p- / dmax <= 1``);
 - the peak-demand charge on the highest net draw of the steps (when the params set one);
-- the batteries' net energy change valued at the day's terminal price.
+- the batteries' net energy change valued at the day's terminal price, and their wear per
+  kWh into or out of the cells (:func:`chargax_marl.core.reward.battery_wear_eur`; the
+  calendar ageing is a constant, booked with the fixed cost).
 
 Relaxations, so that the optimum bounds the simulator from above: currents are continuous
 (the simulator's discrete levels are a subset) and a leaf may charge and discharge in the
@@ -101,6 +103,7 @@ class StationLimits:
     is_battery: np.ndarray  # (L,)
     hard: bool
     root_kw: float
+    wear_eur_kwh: np.ndarray | None = None  # (L,) wear per kWh of cell throughput, 0 at ports
 
     @staticmethod
     def of(params: EnvParams) -> StationLimits:
@@ -122,6 +125,9 @@ class StationLimits:
             is_battery=is_bat,
             hard=params.constraint_mode == "hard",
             root_kw=float(node_max[0]),
+            wear_eur_kwh=np.concatenate(
+                [np.zeros(st.num_ports), np.asarray(params.battery_wear_eur_kwh, np.float64)]
+            ),
         )
 
 
@@ -283,8 +289,12 @@ def build_and_solve(
             value = value + float(urgency_eur_kwh_h[s]) * (n - steps) * dt
         # without the refund a car's discharge earns no customer price (the urgency bonus stays)
         refund = is_bat or econ.refund_discharged
-        pp = b.vars(m, 0.0, max(cmax, 0.0), cost=value * dt)
-        pm = b.vars(m, 0.0, max(dmax, 0.0), cost=-(value if refund else value - price) * dt)
+        # a battery's cells wear per kWh in and per kWh out (p+ and p- are cell side)
+        wear = 0.0 if limits.wear_eur_kwh is None else float(limits.wear_eur_kwh[leaf])
+        pp = b.vars(m, 0.0, max(cmax, 0.0), cost=(value - wear) * dt)
+        pm = b.vars(
+            m, 0.0, max(dmax, 0.0), cost=-((value if refund else value - price) + wear) * dt
+        )
         # SoC x_0..x_m: x_0 fixed at the start SoC; the end may be forced to the target
         x_lo, x_hi = np.full(m + 1, lo), np.full(m + 1, hi)
         x_lo[0] = x_hi[0] = float(sessions.soc0[s])

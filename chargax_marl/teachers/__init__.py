@@ -48,6 +48,7 @@ from chargax_marl.teachers.shaping import (
 from chargax_marl.teachers.storage_value import (
     action_values,
     battery_constants,
+    battery_wear_eur_kwh,
     dp_battery_action,
     dp_values,
     level_value,
@@ -64,6 +65,7 @@ __all__ = [
     "action_values",
     "agent_potential_shaping",
     "battery_constants",
+    "battery_wear_eur_kwh",
     "battery_potential",
     "battery_programme",
     "battery_shaping",

@@ -21,9 +21,10 @@ the LP (complementary slackness), instead of comparisons with the day's mean pri
 for cycling the battery at middling prices.
 
 The LP ignores the cars: the battery's energy is priced at the buy price both ways (what a
-discharged kWh saves while the station draws from the grid), and losses are the battery's
-path efficiency each way. It is a learning signal only; the evaluation scores the env's
-profit.
+discharged kWh saves while the station draws from the grid), losses are the battery's path
+efficiency each way, and every kWh into or out of the cells pays the battery's wear
+(:func:`battery_wear_eur_kwh`), so a cycle pays only where the spread beats both. It is a
+learning signal only; the evaluation scores the env's profit.
 """
 
 from __future__ import annotations
@@ -69,6 +70,13 @@ def battery_constants(params) -> tuple[float, float, float, float]:
     return eta, power_kw, capacity_kwh, e0
 
 
+def battery_wear_eur_kwh(params) -> float:
+    """The wear cost per kWh into or out of the batteries' cells (EUR/kWh), their mean
+    (:attr:`chargax_marl.core.types.EnvParams.battery_wear_eur_kwh`); 0 without a battery."""
+    wear = np.asarray(params.battery_wear_eur_kwh, np.float64)
+    return float(np.mean(wear)) if wear.size else 0.0
+
+
 def step_buy_prices(params) -> np.ndarray:
     """``(days, steps)`` float64 buy price (EUR/kWh) of every step, as the env prices it
     (:func:`chargax_marl.core.reward.price_tables`: day-ahead + grid fee + time-of-use)."""
@@ -93,17 +101,21 @@ def day_values(
     capacity_kwh: float,
     e0: float,
     step_hours: float,
+    wear_eur_kwh: float = 0.0,
 ) -> np.ndarray:
     """``(T + 1,)`` value of a stored kWh at the start of each step of one day, the last entry
     the terminal price: the duals of
 
-    max sum_t eta p_t d_t - p_t c_t / eta + terminal * E_T  s.t.
-    E_{t+1} = E_t + c_t - d_t,  0 <= E_t <= C,  0 <= c_t, d_t <= P dt,  E_0 = e0.
+    max sum_t (eta p_t - w) d_t - (p_t / eta + w) c_t + terminal * E_T  s.t.
+    E_{t+1} = E_t + c_t - d_t,  0 <= E_t <= C,  0 <= c_t, d_t <= P dt,  E_0 = e0,
+
+    ``w`` the wear per kWh into or out of the cells (``wear_eur_kwh``; 0: free cycling).
     """
     p = np.asarray(prices, np.float64)
     n = p.shape[0]
+    w = float(wear_eur_kwh)
     # variables [c (n), d (n), E_1..E_n (n)]; minimise the negated profit
-    cost = np.concatenate([p / eta, -eta * p, np.zeros(n)])
+    cost = np.concatenate([p / eta + w, -eta * p + w, np.zeros(n)])
     cost[3 * n - 1] = -terminal_price
     a = np.zeros((n, 3 * n))
     rows = np.arange(n)
@@ -130,10 +142,18 @@ def storage_values(params) -> np.ndarray:
     eta, power_kw, capacity_kwh, e0 = battery_constants(params)
     prices = step_buy_prices(params)
     terminal = terminal_prices(params)
+    wear = battery_wear_eur_kwh(params)
     out = np.zeros((prices.shape[0], prices.shape[1] + 1), np.float64)
     for day in range(prices.shape[0]):
         out[day] = day_values(
-            prices[day], terminal[day], eta, power_kw, capacity_kwh, e0, float(params.step_hours)
+            prices[day],
+            terminal[day],
+            eta,
+            power_kw,
+            capacity_kwh,
+            e0,
+            float(params.step_hours),
+            wear_eur_kwh=wear,
         )
     return out.astype(np.float32)
 
@@ -147,7 +167,8 @@ def dp_values(params, points_per_step: int = 4) -> tuple[np.ndarray, np.ndarray]
 
     The same battery-only model as :func:`day_values` (the batteries as one store of their
     summed capacity and power, energy priced at the buy price both ways, the path efficiency
-    each way), but with the discrete actions the ``num_levels=1`` agents choose among, and
+    each way, the wear per kWh in and out), but with the discrete actions the
+    ``num_levels=1`` agents choose among, and
     valued per energy level rather than per kWh. As a potential ``Phi_t = value[day, t](E_t)``
     (linear in between grid points, ``points_per_step`` of them per step's full-power energy)
     the shaping term of a step is ``Phi_{t+1}(E_{t+1}) - Phi_t(E_t)`` minus the env's terminal
@@ -165,6 +186,7 @@ def dp_values(params, points_per_step: int = 4) -> tuple[np.ndarray, np.ndarray]
         power_kw * float(params.step_hours),
         capacity_kwh,
         points_per_step,
+        wear_eur_kwh=battery_wear_eur_kwh(params),
     )
     return grid.astype(np.float32), value.astype(np.float32)
 
@@ -176,11 +198,13 @@ def level_values(
     step_kwh: float,
     capacity_kwh: float,
     points_per_step: int = 4,
+    wear_eur_kwh: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(grid (K,), value (days, steps + 1, K))`` of :func:`dp_values` for buy prices ``(days,
     steps)`` and terminal prices ``(days,)``: per step, the best of discharging ``step_kwh``
-    (earns ``eta * p`` per kWh taken out), idling and charging ``step_kwh`` (costs ``p /
-    eta`` per kWh stored), each cut at the empty and the full battery."""
+    (earns ``eta * p - w`` per kWh taken out), idling and charging ``step_kwh`` (costs ``p /
+    eta + w`` per kWh stored), each cut at the empty and the full battery; ``w`` is
+    ``wear_eur_kwh`` (0: free cycling)."""
     if (
         isinstance(points_per_step, bool)
         or int(points_per_step) != points_per_step
@@ -210,22 +234,33 @@ def level_values(
             eta,
             step_kwh,
             capacity_kwh,
+            wear_eur_kwh,
         )
         value[:, t] = np.maximum(np.maximum(q[0], q[1]), q[2])
     return grid, value
 
 
-def action_values(xp, value_after, energy, price, eta: float, step_kwh: float, capacity_kwh: float):
+def action_values(
+    xp,
+    value_after,
+    energy,
+    price,
+    eta: float,
+    step_kwh: float,
+    capacity_kwh: float,
+    wear_eur_kwh: float = 0.0,
+):
     """``(discharge, idle, charge)``: what each full-power action earns this step at ``price``
     from a stored ``energy`` plus ``value_after(energy after)``, the value of the level it
-    leaves (``xp``: ``numpy`` or ``jax.numpy``). Discharging earns ``eta * p`` per kWh taken
-    out, charging costs ``p / eta`` per kWh stored, each cut at the empty and the full battery."""
+    leaves (``xp``: ``numpy`` or ``jax.numpy``). Discharging earns ``eta * p - w`` per kWh
+    taken out, charging costs ``p / eta + w`` per kWh stored (``w = wear_eur_kwh``), each cut
+    at the empty and the full battery."""
     full = xp.minimum(energy + step_kwh, capacity_kwh)
     empty = xp.maximum(energy - step_kwh, 0.0)
     return (
-        eta * price * (energy - empty) + value_after(empty),
+        (eta * price - wear_eur_kwh) * (energy - empty) + value_after(empty),
         value_after(energy),
-        -price * (full - energy) / eta + value_after(full),
+        -(price / eta + wear_eur_kwh) * (full - energy) + value_after(full),
     )
 
 
@@ -267,6 +302,7 @@ def dp_battery_action(params):
     table, grid_kwh = jnp.asarray(table), float(grid[1] - grid[0])
     prices = jnp.asarray(step_buy_prices(params), jnp.float32)
     eta, power_kw, capacity_kwh, _ = battery_constants(params)
+    wear = battery_wear_eur_kwh(params)
     step_kwh = power_kw * float(params.step_hours)
     is_battery = params.station.leaf_kind == KIND_BATTERY
 
@@ -282,6 +318,7 @@ def dp_battery_action(params):
                 eta,
                 step_kwh,
                 capacity_kwh,
+                wear,
             )
         )
         best = jnp.argmax(q)

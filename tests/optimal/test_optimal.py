@@ -163,22 +163,45 @@ def test_two_cars_share_a_constrained_evse():
     assert bound.profit_eur >= bound.reference_profit_eur - 1e-4
 
 
-def test_a_battery_on_a_two_price_day():
+@pytest.mark.parametrize("wear_eur_kwh", [0.0, 0.0125, 0.09, 0.11, 0.2])
+def test_a_battery_on_a_two_price_day_pays_iff_the_spread_beats_losses_and_wear(wear_eur_kwh):
     # 100 kWh battery at 50 %, 50 kW, no losses; 0.05 EUR/kWh until noon, 0.25 after; the
-    # energy change is valued at the day's mean buy price 0.15. Best: fill (50 kWh at 0.05),
-    # then empty (100 kWh at 0.25): -2.5 + 25 - 50 * 0.15 = 15 EUR.
-    bat = Battery("bat", capacity_kwh=100.0, max_kw=50.0, efficiency=1.0, tau=0.99, initial_soc=0.5)
+    # energy change is valued at the day's mean buy price 0.15; each kWh into or out of the
+    # cells costs w. Filling (50 kWh at 0.05 + w) and emptying (100 kWh at 0.25 - w) earns
+    # -2.5 + 25 - 50 * 0.15 - 150 w = 15 - 150 w; every piece of it (buy cheap and sell dear,
+    # buy cheap and keep, sell what it held) pays iff the 0.20 spread beats 2 w, so the best
+    # is 15 - 150 w for w < 0.10 and idling (0) above.
+    best = max(15.0 - 150.0 * wear_eur_kwh, 0.0)
+    cycle_life = 6000.0
+    bat = Battery(
+        "bat",
+        capacity_kwh=100.0,
+        max_kw=50.0,
+        efficiency=1.0,
+        tau=0.99,
+        initial_soc=0.5,
+        cost_eur_kwh=2 * cycle_life * wear_eur_kwh,
+        cycle_life=cycle_life,
+    )
     params = hand_params(
         Splitter("grid", 1000.0, (Port("p0", "DC", 500.0, 100.0), bat)), [0.05] * 12 + [0.25] * 12
     )
+    assert float(params.battery_wear_eur_kwh[0]) == pytest.approx(wear_eur_kwh, rel=1e-6)
     tr = trace.trace_from_cars(params, [])
     bound = bound_for(policies.battery_rule, params, tr)
-    assert bound.profit_eur == pytest.approx(15.0, abs=1e-4)
-    # the two-line rule is optimal here (up to the discrete last steps of the rate curve)
-    assert bound.reference_profit_eur == pytest.approx(15.0, abs=0.05)
+    assert bound.profit_eur == pytest.approx(best, abs=1e-4)
+    # the two-line rule that prices wear and the battery-only programme reach it (up to the
+    # discrete last steps of the rate curve); the rule blind to wear cycles anyway
+    assert bound.reference_profit_eur == pytest.approx(best, abs=0.05)
     assert bound.reference_profit_eur <= bound.profit_eur + 1e-4
+    programme = policies.get_policy("battery_programme", params)
+    assert run_on_trace(programme, params, tr) == pytest.approx(best, abs=0.05)
+    naive = run_on_trace(policies.battery_rule_naive, params, tr)
+    assert naive == pytest.approx(15.0 - 150.0 * wear_eur_kwh, abs=0.05)
+    if wear_eur_kwh > 0.1:
+        assert naive < best - 1.0
     assert run_on_trace(MPC(params, horizon_hours=24.0), params, tr) == pytest.approx(
-        15.0, abs=0.05
+        best, abs=0.05
     )
 
 
