@@ -580,13 +580,16 @@ def test_a_battery_share_is_the_money_its_own_energy_made(quiet, quiet_step):
     )  # full discharge, no cars
     share = np.asarray(info["agent_reward_share"])
     assert float(info["agent_energy_kwh"][bat]) < 0.0
-    # only the battery moved energy: its share exceeds an idle port's by its own money,
-    # which is the whole profit before the fixed cost; idle ports share the rest evenly
+    # only the battery moved energy: its share exceeds an idle port's by its own money (its
+    # feed-in less its wear), which is the whole profit before the fixed cost; idle ports share
+    # the rest evenly
     ports = np.delete(share, bat)
     np.testing.assert_allclose(ports, ports[0], rtol=0, atol=1e-6)
     grid = float(info["grid_net_kwh"][0])
     assert grid < 0.0  # a net feed-in, paid at the grid's sell price
-    own = -float(info["price_sell_grid_eur_kwh"][0]) * grid
+    wear = float(info["battery_wear_eur"][0])
+    assert wear > 0.0
+    own = -float(info["price_sell_grid_eur_kwh"][0]) * grid - wear
     np.testing.assert_allclose(
         own, float(info["profit_eur"][0]) + float(p.fixed_cost_eur), rtol=1e-5, atol=1e-6
     )

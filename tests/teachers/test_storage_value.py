@@ -26,6 +26,8 @@ def test_dp_battery_action_earns_the_programme_s_value_in_its_own_model():
     grid, table = storage_value.dp_values(params)
     prices = storage_value.step_buy_prices(params)
     eta, power_kw, capacity_kwh, e0 = storage_value.battery_constants(params)
+    wear = storage_value.battery_wear_eur_kwh(params)
+    assert wear == pytest.approx(150.0 / (2 * 6000.0))
     step_kwh = power_kw * float(params.step_hours)
     act = jax.jit(storage_value.dp_battery_action(params))
     is_bat = np.asarray(params.station.leaf_kind) == KIND_BATTERY
@@ -40,6 +42,7 @@ def test_dp_battery_action_earns_the_programme_s_value_in_its_own_model():
             after = min(max(energy + a * step_kwh, 0.0), capacity_kwh)
             p = prices[day, t]
             earned += eta * p * (energy - after) if after < energy else -p * (after - energy) / eta
+            earned -= wear * abs(after - energy)
             energy = after
         earned += storage_value.terminal_prices(params)[day] * energy
         np.testing.assert_allclose(earned, np.interp(e0, grid, table[day, 0]), rtol=1e-4, atol=1e-3)
@@ -112,6 +115,43 @@ def test_dp_values_are_the_hand_computed_best_of_the_three_full_power_actions():
             storage_value.level_values([[0.1]], [0.1], 1.0, 1.0, 1.0, points_per_step=bad)
     with pytest.raises(ValueError, match="eta"):
         storage_value.level_values([[0.1]], [0.1], 1.5, 1.0, 1.0)
+
+
+def test_the_programme_and_the_lp_pay_for_wear():
+    """Prices 0.1, 0.3, 0.2, a 1 kWh battery moving 1 kWh per step, no losses, terminal 0.15,
+    wear w per kWh in and per kWh out: empty, buying at 0.1 and selling at 0.3 earns
+    0.2 - 2 w, so it trades for w < 0.1 and idles above; full, selling at 0.3 earns 0.3 - w
+    against 0.15 for holding."""
+    for w in (0.0, 0.05, 0.1, 0.12):
+        _, v = storage_value.level_values(
+            [[0.1, 0.3, 0.2]],
+            [0.15],
+            eta=1.0,
+            step_kwh=1.0,
+            capacity_kwh=1.0,
+            points_per_step=1,
+            wear_eur_kwh=w,
+        )
+        assert v[0, 0, 0] == pytest.approx(max(0.2 - 2 * w, 0.0), abs=1e-12)
+        assert v[0, 0, 1] == pytest.approx(max(0.3 - w, 0.15), abs=1e-12)
+
+
+def test_on_a_flat_price_day_any_cycle_loses_its_losses_and_wear():
+    """At one price all day, equal to the terminal price, every kWh is worth that price at
+    every step: the programme holds (a cycle would lose the losses plus 2 w per kWh)."""
+    grid, v = storage_value.level_values(
+        [[0.2] * 6], [0.2], eta=0.95, step_kwh=1.0, capacity_kwh=3.0, wear_eur_kwh=0.01
+    )
+    np.testing.assert_allclose(v[0], np.broadcast_to(0.2 * grid, v[0].shape), atol=1e-12)
+    q = storage_value.action_values(
+        np, lambda e: 0.2 * e, 1.0, 0.2, 0.95, 1.0, 3.0, wear_eur_kwh=0.01
+    )
+    # from 1 kWh: discharging it earns 0.95 * 0.2 - 0.01 and leaves nothing; holding keeps a kWh
+    # worth 0.2; charging one more costs 0.2 / 0.95 + 0.01 for a second kWh worth 0.2
+    assert q[0] == pytest.approx(0.95 * 0.2 - 0.01, abs=1e-12)
+    assert q[1] == pytest.approx(0.2, abs=1e-12)
+    assert q[2] == pytest.approx(0.4 - (0.2 / 0.95 + 0.01), abs=1e-12)
+    assert q[1] > max(q[0], q[2])
 
 
 def test_dp_values_never_lose_to_idling_and_end_at_the_terminal_booking():

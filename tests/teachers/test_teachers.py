@@ -88,6 +88,7 @@ def test_dp_battery_action_takes_the_best_of_the_three_actions_values():
             eta,
             power_kw * float(params.step_hours),
             capacity_kwh,
+            storage_value.battery_wear_eur_kwh(params),
         )
         a, strict = act(s)
         if bool(strict):
