@@ -305,13 +305,13 @@ def add_stored_mpc(run_dir, references_dir) -> dict:
             "is one draw (PRNGKey(0)), so it does not pair with this run"
         )
     stored = references.cached(eval_params, days, references_dir)
-    if stored is None or "mpc" not in stored["policies"]:
+    mpc_daily = references.stored_mpc(stored, days)
+    if mpc_daily is None:
         raise LookupError(
             f"{run_dir}: no stored MPC for its params and {len(days)} held-out days in "
             f"{references_dir} (run `python -m baselines.analysis.references` for this scenario)"
         )
     table = results["evaluation"]["table"]
-    mpc_daily = np.asarray(stored["policies"]["mpc"]["daily_profit"])
     table["mpc"] = {
         "daily_profit": mpc_daily.tolist(),
         "metrics": summarize_profit(mpc_daily),

@@ -145,7 +145,7 @@ def baseline_results(
         stored = references.cached(eval_params, eval_days, references_dir)
     if stored is not None:
         bound_daily = np.asarray(stored["policies"]["lp_bound"]["daily_profit"])
-        mpc_daily = np.asarray(stored["policies"]["mpc"]["daily_profit"])
+        mpc_daily = references.stored_mpc(stored, eval_days)
         source = f"{references_dir} (same params and days)"
     else:
         keys = protocol.draw_keys(draws)

@@ -63,3 +63,12 @@ def cached(params, days, directory: str | Path) -> dict | None:
         ]:
             return data
     return None
+
+
+def stored_mpc(stored: dict | None, days) -> np.ndarray | None:
+    """The MPC's per-day profits of a stored result when it ran on every one of ``days``
+    (``make optimal --mpc-days N`` stores it for the first N only); else ``None``."""
+    if stored is None or "mpc" not in stored["policies"]:
+        return None
+    daily = np.asarray(stored["policies"]["mpc"]["daily_profit"], np.float64)
+    return daily if daily.shape[0] == len(days) else None
