@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from baselines.config import build_env_params, resolve
-from baselines.eval import heldout, stats
+from baselines.eval import heldout, references, stats
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.teachers import car_plan, storage_value
 from tests.helpers import TINY, TINY_ENV
@@ -141,3 +141,13 @@ def test_redraw_clusters_the_draws_of_a_day_before_the_standard_error():
     assert (
         day_clustered(np.array([[1.0, -3.0], [3.0, 1.0]]))["beats"] is False
     )  # per day 2, -1: 0.5 < 2 x 1.5
+
+
+def test_a_stored_mpc_pairs_only_with_the_days_it_ran_on():
+    """``make optimal --mpc-days N`` stores the MPC for the first N days: the held-out
+    evaluation and ``--replot`` take it only when it covers all of their days."""
+    stored = {"policies": {"mpc": {"daily_profit": [1.0, 2.0]}}}
+    np.testing.assert_array_equal(references.stored_mpc(stored, [3, 5]), [1.0, 2.0])
+    assert references.stored_mpc(stored, [3, 5, 7]) is None
+    assert references.stored_mpc({"policies": {}}, [3]) is None
+    assert references.stored_mpc(None, [3]) is None

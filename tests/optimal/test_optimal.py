@@ -190,6 +190,11 @@ def test_a_battery_on_a_two_price_day_pays_iff_the_spread_beats_losses_and_wear(
     tr = trace.trace_from_cars(params, [])
     bound = bound_for(policies.battery_rule, params, tr)
     assert bound.profit_eur == pytest.approx(best, abs=1e-4)
+    # no cars and no fixed cost: without the battery the bound is 0, so the battery is worth
+    # the whole bound
+    occ = optimal.occupancy(params, tr, KEY, reference=policies.battery_rule)
+    alone = optimal.hindsight_bound(params, tr, occ, with_battery=False)
+    assert alone.profit_eur == pytest.approx(0.0, abs=1e-6)
     # the two-line rule that prices wear and the battery-only programme reach it (up to the
     # discrete last steps of the rate curve); the rule blind to wear cycles anyway
     assert bound.reference_profit_eur == pytest.approx(best, abs=0.05)
