@@ -105,6 +105,38 @@ def test_battery_rule_is_always_max_plus_a_price_rule_for_the_battery():
     assert night[6] == 10 and noon[6] == 0 and evening[6] == -10
 
 
+@pytest.mark.parametrize(
+    ("hourly", "cost_eur_kwh", "cycles"),
+    [
+        ([0.1] * 24, 0.0, False),  # a flat day: nothing to gain, only losses
+        ([0.1] * 12 + [0.13] * 12, 150.0, False),  # 0.03 spread < losses + 0.025 of wear
+        ([0.1] * 12 + [0.13] * 12, 0.0, True),  # the same spread pays when cycling is free
+        ([0.1] * 12 + [0.30] * 12, 150.0, True),  # a wide spread pays for both
+    ],
+)
+def test_battery_rule_cycles_only_where_the_spread_beats_losses_and_wear(
+    hourly, cost_eur_kwh, cycles
+):
+    p = make_params(
+        station=three_level_station(),
+        prices=np.tile(np.asarray(hourly), (3, 1)),
+        first_weekday=0,
+        battery_cost_eur_kwh=cost_eur_kwh,
+    )
+    s = start(p)
+    night, evening = (
+        np.asarray(get_policy(name)(s.replace(timestep=jnp.asarray(t)), None, p))
+        for name, t in (("battery_rule", 12), ("battery_rule", 276))
+    )
+    assert night[6] == (10 if cycles else 0) and evening[6] == (-10 if cycles else 0)
+    assert np.all(night[:6] == 10) and np.all(evening[:6] == 10)
+    # the rule blind to losses and wear charges at night whatever the spread
+    naive = np.asarray(
+        get_policy("battery_rule_naive")(s.replace(timestep=jnp.asarray(12)), None, p)
+    )
+    assert naive[6] == 10
+
+
 def test_policies_respect_masks_without_v2g():
     p = make_params(station=three_level_station(), v2g=False)
     s = start(p)
