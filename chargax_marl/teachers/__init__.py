@@ -4,7 +4,8 @@ Computed from the day's known prices (day-ahead prices are published the day bef
 simulator state, never from the future cars:
 
 - :mod:`~chargax_marl.teachers.storage_value`: the battery-only dynamic programme and LP over
-  the day's prices (the value of the stored energy; the programme's best action);
+  the day's prices, net of the battery's losses and wear (the value of the stored energy; the
+  programme's best action);
 - :mod:`~chargax_marl.teachers.car_plan`: each parked car's cheapest plan under the day's
   prices (its value, a potential per car, the plan advice and the plan as a rule);
 - :mod:`~chargax_marl.teachers.shaping`: the battery potentials and the per-agent terms of
