@@ -163,21 +163,35 @@ def test_two_cars_share_a_constrained_evse():
     assert bound.profit_eur >= bound.reference_profit_eur - 1e-4
 
 
-@pytest.mark.parametrize("wear_eur_kwh", [0.0, 0.0125, 0.09, 0.11, 0.2])
-def test_a_battery_on_a_two_price_day_pays_iff_the_spread_beats_losses_and_wear(wear_eur_kwh):
-    # 100 kWh battery at 50 %, 50 kW, no losses; 0.05 EUR/kWh until noon, 0.25 after; the
-    # energy change is valued at the day's mean buy price 0.15; each kWh into or out of the
-    # cells costs w. Filling (50 kWh at 0.05 + w) and emptying (100 kWh at 0.25 - w) earns
-    # -2.5 + 25 - 50 * 0.15 - 150 w = 15 - 150 w; every piece of it (buy cheap and sell dear,
-    # buy cheap and keep, sell what it held) pays iff the 0.20 spread beats 2 w, so the best
-    # is 15 - 150 w for w < 0.10 and idling (0) above.
-    best = max(15.0 - 150.0 * wear_eur_kwh, 0.0)
+def two_price_best_eur(efficiency, wear_eur_kwh):
+    """The best profit of a 100 kWh, 50 kW battery at 50 % on a day at 0.05 EUR/kWh until noon
+    and 0.25 after, its stored energy valued at the day's mean buy price 0.15 at the end, each
+    kWh into or out of the cells paying ``w``, ``eta`` each way (grid side): the 50 kWh bought
+    at night (``0.05 / eta + w`` per kWh) pays iff selling it by day (``0.25 eta - w``) or
+    keeping it (0.15) is worth more, and the 50 kWh held pay iff selling them beats keeping
+    them. With ``eta = 1`` every piece pays iff the 0.20 spread beats ``2 w``: ``15 - 150 w``
+    below ``w = 0.10``, 0 above."""
+    eta, w = efficiency, wear_eur_kwh
+    bought = max(0.0, max(0.25 * eta - w, 0.15) - 0.05 / eta - w)
+    held = max(0.0, 0.25 * eta - w - 0.15)
+    return 50.0 * bought + 50.0 * held
+
+
+@pytest.mark.parametrize(
+    ("efficiency", "wear_eur_kwh"),
+    [(1.0, 0.0), (1.0, 0.0125), (1.0, 0.09), (1.0, 0.11), (1.0, 0.2), (0.9, 0.0), (0.9, 0.0125)]
+    + [(0.9, 0.1)],
+)
+def test_a_battery_on_a_two_price_day_pays_iff_the_spread_beats_losses_and_wear(
+    efficiency, wear_eur_kwh
+):
+    best = two_price_best_eur(efficiency, wear_eur_kwh)
     cycle_life = 6000.0
     bat = Battery(
         "bat",
         capacity_kwh=100.0,
         max_kw=50.0,
-        efficiency=1.0,
+        efficiency=efficiency,
         tau=0.99,
         initial_soc=0.5,
         cost_eur_kwh=2 * cycle_life * wear_eur_kwh,
@@ -195,17 +209,19 @@ def test_a_battery_on_a_two_price_day_pays_iff_the_spread_beats_losses_and_wear(
     occ = optimal.occupancy(params, tr, KEY, reference=policies.battery_rule)
     alone = optimal.hindsight_bound(params, tr, occ, with_battery=False)
     assert alone.profit_eur == pytest.approx(0.0, abs=1e-6)
-    # the two-line rule that prices wear and the battery-only programme reach it (up to the
-    # discrete last steps of the rate curve); the rule blind to wear cycles anyway
+    # the two-line rule that prices losses and wear and the battery-only programme reach it (up
+    # to the discrete last steps of the rate curve); the rule blind to both cycles anyway: it
+    # buys the 50 kWh at night and sells all 100 by day
     assert bound.reference_profit_eur == pytest.approx(best, abs=0.05)
     assert bound.reference_profit_eur <= bound.profit_eur + 1e-4
     programme = policies.get_policy("battery_programme", params)
     assert run_on_trace(programme, params, tr) == pytest.approx(best, abs=0.05)
     naive = run_on_trace(policies.battery_rule_naive, params, tr)
-    assert naive == pytest.approx(15.0 - 150.0 * wear_eur_kwh, abs=0.05)
-    if wear_eur_kwh > 0.1:
-        assert naive < best - 1.0
-    if wear_eur_kwh in (0.0125, 0.11):  # the MPC on one side of the threshold and the other
+    cycle = -50.0 * 0.05 / efficiency + 100.0 * 0.25 * efficiency - 50.0 * 0.15
+    assert naive == pytest.approx(cycle - 150.0 * wear_eur_kwh, abs=0.05)
+    if best == 0.0:
+        assert naive < -1.0
+    if (efficiency, wear_eur_kwh) in ((1.0, 0.0125), (1.0, 0.11)):  # the MPC either side
         assert run_on_trace(MPC(params, horizon_hours=24.0), params, tr) == pytest.approx(
             best, abs=0.05
         )
