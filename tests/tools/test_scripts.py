@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import json
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -22,3 +23,44 @@ def test_rollout_prints_the_days_figures(capsys):
     out = capsys.readouterr().out
     for label in ("daily profit", "energy delivered", "cars served"):
         assert label in out
+
+
+def _run_results(profit_eur: float, always_max_eur: float) -> dict:
+    """A ``results.json`` of a two-seed run scored against always-max only."""
+    diff = profit_eur - always_max_eur
+    metrics = {"daily_profit_eur": {"mean": profit_eur}, "battery_wear_eur": {"mean": 1.5}}
+    return {
+        "algo": "ippo",
+        "scenario": {"name": "shopping", "car_draws_per_day": 8},
+        "timesteps": 600000,
+        "seeds": 2,
+        "wall_seconds": 90.0,
+        "over_seeds": {
+            "vs_always_max": {"mean": diff, "stderr": 0.5},
+            "headroom_fraction": {"mean": 0.25, "stderr": 0.01},
+        },
+        "per_seed": [
+            {"vs_always_max": {"mean": diff + 1.0, "stderr": 0.2}},
+            {"vs_always_max": {"mean": diff - 1.0, "stderr": 2.0}},
+        ],
+        "evaluation": {
+            "table": {
+                "always_max": {"metrics": {"daily_profit_eur": {"mean": always_max_eur}}},
+                "ippo": {"metrics": metrics},
+            }
+        },
+    }
+
+
+def test_training_table_prints_each_run_and_how_far_it_moved(tmp_path, capsys):
+    script = load("scripts/training_table.py")
+    for name, profit in (("run", 460.0), ("run_old", 464.0)):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "results.json").write_text(json.dumps(_run_results(profit, 455.0)))
+    script.main([str(tmp_path / "run"), "--compare", str(tmp_path), "--old-suffix", "_old"])
+    out = capsys.readouterr().out
+    # seed 0 is above always-max by two of its standard errors (6 > 0.4), seed 1 is not (4 < 4)
+    assert "| `run` | IPPO | `shopping` | 8 | 6e+05 × 2 | 1.5 min | +5.00 ± 0.50 (1/2) |" in out
+    assert "| — | — | — | 0.250 ± 0.010 |" in out
+    assert "| battery wear EUR/day | — | 1.50 |" in out
+    assert "profit 464.00 → 460.00 (−4.00); vs always-max +9.00 → +5.00 (−4.00)" in out
