@@ -315,11 +315,7 @@ class GymnasiumEnv(gymnasium.Env):
             raise RuntimeError(
                 "GymnasiumEnv.step() called before reset(); call reset() to start a day"
             )
-        action = np.asarray(action)
-        if not self.action_space.contains(action.astype(self.action_space.dtype)):
-            raise ValueError(
-                f"action {action.tolist()} is outside the action space {self.action_space}"
-            )
+        action = self._check_action(action)
         if self._done:
             raise RuntimeError(
                 "GymnasiumEnv.step() called after the episode ended (truncated=True at the end "
@@ -345,6 +341,35 @@ class GymnasiumEnv(gymnasium.Env):
         if self.render_mode == "human":
             self.render()
         return np.array(obs, dtype=np.float32), float(reward), False, self._done, info
+
+    def _check_action(self, action) -> np.ndarray:
+        """``action`` as a numpy array of this env's action space.
+
+        Raises:
+            ValueError: the action is not an array of numbers (strings, objects, complex
+                values) or lies outside the action space; the message names the action and
+                the space.
+        """
+        try:
+            arr = np.asarray(action)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(
+                f"action {action!r} is not an array of numbers of the action space "
+                f"{self.action_space} ({exc})"
+            ) from None
+        numeric = np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)
+        if not (numeric or np.issubdtype(arr.dtype, np.bool_)):
+            raise ValueError(
+                f"action {arr.tolist()!r} (dtype {arr.dtype}) is not in the action space "
+                f"{self.action_space}: it must hold numbers"
+            )
+        with np.errstate(invalid="ignore", over="ignore"):
+            cast = arr.astype(self.action_space.dtype)
+        if not self.action_space.contains(cast):
+            raise ValueError(
+                f"action {arr.tolist()} is outside the action space {self.action_space}"
+            )
+        return arr
 
     def render(self):
         state = None if self._state is None else jax.device_get(self._state)
