@@ -13,7 +13,7 @@ from flax import struct
 from gymnax.environments import spaces as gx_spaces
 
 from chargax_marl import bounds, lifecycle, rendering
-from chargax_marl.core import observation, simulator
+from chargax_marl.core import actions, observation, simulator
 from chargax_marl.core.types import EnvParams, EnvState, EpisodeTotals
 from chargax_marl.single.env import Chargax, action_levels
 
@@ -147,8 +147,14 @@ class FlatDiscrete:
         return i * self.battery_levels.size + j
 
     def levels(self, action) -> jnp.ndarray:
-        """The per-leaf levels ``(L,)`` of a flat action (works under jit)."""
-        a = jnp.clip(jnp.asarray(action).astype(jnp.int32).reshape(()), 0, self.n - 1)
+        """The per-leaf levels ``(L,)`` of a flat action (works under jit).
+
+        An index outside ``[0, n)`` is clipped into it in its own dtype (a host integer beyond
+        int32 on the host first, :func:`chargax_marl.core.actions.host_array`), so it never
+        wraps; NaN and +-inf are the index of every leaf idle.
+        """
+        idle = self.action_index(0, 0)
+        a = actions.to_int32(jnp.reshape(actions.host_array(action), ()), 0, self.n - 1, idle)
         nb = self.battery_levels.size
         port = jnp.asarray(self.port_levels)[a // nb]
         bat = jnp.asarray(self.battery_levels)[a % nb]

@@ -271,6 +271,48 @@ def test_huge_marl_index_clips(marl_env):
     assert float(nan.current_a[0]) == 0.0 and float(nan.current_a[-1]) == 0.0
 
 
+def test_host_integers_beyond_int32_clip_at_every_entry_point(params, single_env, marl_env):
+    """The core step, the traceable action maps, the flat Discrete view and the jitted JaxMARL
+    wrappers clip a host integer beyond int32 instead of letting it wrap to a small index."""
+    from chargax_marl.marl.wrappers import LogWrapper, WorldStateWrapper
+    from chargax_marl.single.env import action_levels
+    from chargax_marl.single.wrappers import FlatDiscrete
+
+    n = params.station.num_leaves
+    huge = np.full(n, 2**32 + 3, np.int64)  # wraps to 3 on an int32 cast
+    s = _with_car_and_battery(params)
+    top, _ = simulator.step(KEY, s, jnp.full(n, params.num_levels, jnp.int32), params)
+    clipped, _ = simulator.step(KEY, s, huge, params)
+    np.testing.assert_array_equal(np.asarray(clipped.current_a), np.asarray(top.current_a))
+
+    top_index = np.asarray(single_env.action_space(params).nvec - 1, np.int32)
+    np.testing.assert_array_equal(
+        np.asarray(action_levels(huge, params)), np.asarray(action_levels(top_index, params))
+    )
+    flat = FlatDiscrete(single_env)
+    for big in (np.int64(2**32 + 3), 2**40):
+        np.testing.assert_array_equal(
+            np.asarray(flat.levels(big)), np.asarray(flat.levels(flat.n - 1))
+        )
+
+    env = marl_env
+    top_dict = {a: env.num_actions - 1 for a in env.agents}
+    np.testing.assert_array_equal(
+        np.asarray(env.actions_to_levels(huge)), np.asarray(env.actions_to_levels(top_dict))
+    )
+    _, ms = env.reset_to_day(0)
+    ms = place_car(ms, 0, soc=0.5, arrival_soc=0.0)
+    for wrapped, state in ((LogWrapper(env), None), (WorldStateWrapper(env), ms)):
+        if state is None:
+            _, state = wrapped.reset(KEY)
+            state = state.replace(env_state=ms)
+        _, big, *_ = wrapped.step(KEY, state, {a: np.int64(2**32 + 3) for a in env.agents})
+        _, full, *_ = wrapped.step(KEY, state, top_dict)
+        big, full = (getattr(x, "env_state", x) for x in (big, full))
+        np.testing.assert_array_equal(np.asarray(big.current_a), np.asarray(full.current_a))
+        assert float(full.current_a[-1]) > 0  # the battery charges at full power
+
+
 @pytest.mark.parametrize("size", [0, 1, 16, 18])
 def test_action_of_the_wrong_size_is_an_error(params, single_env, size):
     s = start(params)
