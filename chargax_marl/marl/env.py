@@ -27,7 +27,7 @@ from jaxmarl.environments.multi_agent_env import MultiAgentEnv
 from chargax_marl import bounds
 from chargax_marl.core import actions as core_actions
 from chargax_marl.core import observation, physics, simulator
-from chargax_marl.core.params import make_params
+from chargax_marl.core.params import make_params, validate_params
 from chargax_marl.core.rng import materialize
 from chargax_marl.core.scenarios import scenario_kwargs
 from chargax_marl.core.station import KIND_AC, KIND_BATTERY, KIND_DC
@@ -394,7 +394,9 @@ class ChargaxMARL(MultiAgentEnv):
             )
         if scenario is not None:
             make_params_kwargs = scenario_kwargs(scenario, **make_params_kwargs)
-        params = params if params is not None else make_params(**make_params_kwargs)
+        params = (
+            validate_params(params) if params is not None else make_params(**make_params_kwargs)
+        )
         if params.action_mode == "continuous":
             raise ValueError(
                 "ChargaxMARL: action_mode 'continuous' is not supported by the multi-agent view "

@@ -26,7 +26,7 @@ from gymnax.environments import environment, spaces
 
 from chargax_marl import bounds
 from chargax_marl.core import actions, observation, physics, simulator
-from chargax_marl.core.params import make_params
+from chargax_marl.core.params import make_params, validate_params
 from chargax_marl.core.types import EnvParams, EnvState
 from chargax_marl.lifecycle import check_day
 
@@ -84,7 +84,8 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
     """The EV charging station as a gymnax environment.
 
     Construct with keyword overrides of :func:`chargax_marl.core.params.make_params`, or
-    pass ready ``params``. The defaults are the paper's: the 16-port ``multiple_types``
+    pass ready ``params`` (checked by :func:`chargax_marl.core.params.validate_params`, so
+    params derived with ``replace`` get the same checks; ``ValueError`` naming the field). The defaults are the paper's: the 16-port ``multiple_types``
     station, 5-minute steps over one day (288), 10 levels, V2G on, customer price
     0.75 EUR/kWh, all alpha 0, shopping users at medium traffic, EU fleet, NL-2023 prices.
     """
@@ -93,7 +94,7 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
         super().__init__()
         if params is not None and overrides:
             raise ValueError("Chargax: pass either 'params' or keyword overrides, not both")
-        self._params = params if params is not None else make_params(**overrides)
+        self._params = validate_params(params) if params is not None else make_params(**overrides)
 
     @property
     def default_params(self) -> EnvParams:

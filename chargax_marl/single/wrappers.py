@@ -14,6 +14,7 @@ from gymnax.environments import spaces as gx_spaces
 
 from chargax_marl import bounds, lifecycle, rendering
 from chargax_marl.core import actions, observation, simulator
+from chargax_marl.core.params import validate_params
 from chargax_marl.core.types import EnvParams, EnvState, EpisodeTotals
 from chargax_marl.single.env import Chargax, action_levels
 
@@ -247,7 +248,7 @@ class GymnasiumEnv(gymnasium.Env):
                 f"GymnasiumEnv: pass either 'env' or keyword overrides, not both (got {sorted(overrides)})"
             )
         self.env = env
-        self.params = params if params is not None else env.default_params
+        self.params = validate_params(params) if params is not None else env.default_params
         self.render_mode = render_mode
         self._build()
         self._key = jax.random.PRNGKey(0)

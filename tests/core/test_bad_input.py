@@ -32,6 +32,7 @@ from chargax_marl.core import (
     multiple_types,
     simulator,
     single_type,
+    validated_replace,
 )
 from tests.helpers import place_car, start
 
@@ -151,6 +152,38 @@ def test_moer_array_in_wrong_unit_rejected_like_the_loader():
         make_params(moer_kg_per_kwh=np.full(288, 400.0))
     with pytest.raises(ValueError, match="moer_kg_per_kwh.*above 5.0 kg CO2/kWh"):
         datasets.load_moer(np.full(288, 400.0))
+
+
+# ----------------------------------------------------------------- derived params are checked too
+
+
+def test_params_derived_with_replace_or_hand_made_arrays_are_checked_at_construction(params):
+    """``replace`` is unchecked; the views check the params they are given, ``make_params``
+    checks hand-made station arrays, and ``validated_replace`` checks what it derives."""
+    from chargax_marl.marl.env import ChargaxMARL
+    from chargax_marl.single.env import Chargax
+
+    nan_price = params.replace(customer_price_eur_kwh=jnp.float32(NAN))
+    with pytest.raises(ValueError, match=r"'customer_price_eur_kwh'.*\[0, 1000\].*nan"):
+        Chargax(nan_price)
+    st = params.station
+    negative_root = params.replace(station=st.replace(node_max_kw=-st.node_max_kw))
+    with pytest.raises(ValueError, match=r"'station.node_max_kw'.*\[0.001, .*got -"):
+        ChargaxMARL(params=negative_root)
+    lossy = st.replace(leaf_efficiency=st.leaf_efficiency.at[3].set(1.5))
+    with pytest.raises(ValueError, match=r"'station.leaf_efficiency'.*\[0.001, 1\].*1.5.*index 3"):
+        make_params(station=lossy)
+    with pytest.raises(ValueError, match=r"'fixed_cost_eur'.*\[0, .*got -1"):
+        validated_replace(params, fixed_cost_eur=jnp.float32(-1.0))
+    with pytest.raises(ValueError, match=r"'battery_soc0_low'.*\[0, 1\].*2"):
+        validated_replace(params, battery_soc0_low=jnp.full_like(params.battery_soc0_low, 2.0))
+    with pytest.raises(ValueError, match="'day_price_quantiles_eur_kwh'.*make_params"):
+        validated_replace(params, prices_eur_kwh=params.prices_eur_kwh + 1.0)
+    with pytest.raises(TypeError, match="validated_replace.*'no_such_field'"):
+        validated_replace(params, no_such_field=1)
+    cheaper = validated_replace(params, customer_price_eur_kwh=jnp.float32(0.5))
+    assert float(cheaper.customer_price_eur_kwh) == 0.5
+    assert Chargax(cheaper).default_params is cheaper
 
 
 # ----------------------------------------------------------------- 3. zero is not "default"
