@@ -16,7 +16,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from chargax_marl.core import actions, physics, rng, traffic
+from chargax_marl.core import physics, rng, traffic
 from chargax_marl.core import reward as reward_lib
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import PENALTY_TERMS, EnvParams, EnvState, EpisodeTotals, StepInfo
@@ -92,9 +92,9 @@ def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams
     then batteries): a signed level in ``[-L, L]`` for the discrete modes or a fraction in
     ``[-1, 1]`` for ``continuous``. Values outside the leaf's range are clipped and NaN or
     +-inf entries are idle; an action without exactly one entry per leaf raises
-    ``ValueError``. Host (numpy, Python) values are clipped into int32 / float32 before they
-    become jax arrays (:func:`chargax_marl.core.actions.host_array`), so a numpy ``int64``
-    beyond ``2**31`` clips instead of wrapping.
+    ``ValueError``. Host values that do not fit int32 / float32 (a numpy ``int64`` beyond
+    ``2**31``) are the caller's to clip first (:func:`chargax_marl.core.actions.host_array`,
+    which the views' ``step`` entry points apply).
 
     The new state keeps the dtypes of ``state`` (float32, int32, bool) and the report is
     float32, also under ``JAX_ENABLE_X64=1``.
@@ -117,7 +117,12 @@ def step_with_arrivals(
         ValueError: ``action`` does not have exactly one entry per leaf (a static shape check).
     """
     num_leaves = params.station.num_leaves
-    action = jnp.reshape(actions.host_array(action, num_leaves), (num_leaves,))
+    if jnp.size(action) != num_leaves:
+        raise ValueError(
+            f"field 'action' must have one entry per leaf (ports, then batteries): "
+            f"shape ({num_leaves},), got shape {jnp.shape(action)}"
+        )
+    action = jnp.reshape(action, (num_leaves,))
     current, excess_kw, requested_kw = physics.apply_actions(action, state, params)
     charged_state, leaf_energy = physics.charge(current, state, params)
     flows = physics.energy_flows(leaf_energy, params.station)
