@@ -71,32 +71,53 @@ def run_days(act: Act, params: EnvParams, days, key: jax.Array):
     return jax.vmap(one_day)(days, jax.random.split(key, days.shape[0]))
 
 
-def summarize(totals) -> dict:
-    """Mean, std, min and max over days of every metric in :data:`METRICS`."""
+def _stats(x: np.ndarray, scored: np.ndarray) -> dict:
+    """Mean, std, min and max of ``x[scored]`` (NaN when no day is scored); with days left
+    out, also ``days_scored`` and ``days_failed``."""
+    kept = x[scored]
+    nan = float("nan")
+    out = {
+        "mean": float(kept.mean()) if kept.size else nan,
+        "std": float(kept.std()) if kept.size else nan,
+        "min": float(kept.min()) if kept.size else nan,
+        "max": float(kept.max()) if kept.size else nan,
+    }
+    if not scored.all():
+        out["days_scored"] = int(scored.sum())
+        out["days_failed"] = int(scored.size - scored.sum())
+    return out
+
+
+def summarize(totals, failed=None) -> dict:
+    """Mean, std, min and max over days of every metric in :data:`METRICS`.
+
+    Args:
+        totals: :class:`EpisodeTotals` with a leading axis over days (:func:`run_days`).
+        failed: optional bool ``(days,)``, ``True`` for days whose result does not count (a
+            failed solve of a solver-based policy); they are left out of every statistic and
+            counted in ``days_failed``.
+
+    Returns:
+        ``{metric: {"mean", "std", "min", "max"}}`` (plus ``days_scored`` and ``days_failed``
+        when days were left out).
+    """
     out = {}
     for name, field in METRICS.items():
         x = np.asarray(getattr(totals, field), dtype=np.float64)
-        out[name] = {
-            "mean": float(x.mean()),
-            "std": float(x.std()),
-            "min": float(x.min()),
-            "max": float(x.max()),
-        }
+        scored = np.ones(x.shape, bool) if failed is None else ~np.asarray(failed, bool)
+        out[name] = _stats(x, scored)
     return out
 
 
 def summarize_profit(daily_profit) -> dict:
     """``{"daily_profit_eur": {mean, std, min, max}}`` of per-day profits alone (for entries,
-    such as the LP bound, that have no other metrics)."""
+    such as the LP bound, that have no other metrics).
+
+    A NaN profit marks a day whose solve failed (:func:`hindsight_bound`): it is left out of
+    every statistic and counted in ``days_failed`` (with ``days_scored``), never averaged in.
+    """
     x = np.asarray(daily_profit, np.float64)
-    return {
-        "daily_profit_eur": {
-            "mean": float(x.mean()),
-            "std": float(x.std()),
-            "min": float(x.min()),
-            "max": float(x.max()),
-        }
-    }
+    return {"daily_profit_eur": _stats(x, np.isfinite(x))}
 
 
 def evaluate(act: Act, params: EnvParams, days, key: jax.Array | None = None) -> dict:
@@ -131,9 +152,15 @@ def hindsight_bound(
 ) -> dict:
     """The LP hindsight bound (:mod:`chargax_marl.optimal.bound`) of each of ``days`` over
     ``reference``'s port occupancy, with the cars :func:`evaluate` draws with ``key``:
-    ``{"daily_profit", "reference_daily_profit", "solve_s", "status"}`` (arrays over days).
-    ``with_battery=False`` leaves the station's batteries out of the LP (the bound without
-    them; the difference is what the batteries are worth at best)."""
+    ``{"daily_profit", "reference_daily_profit", "solve_s", "status", "failed_days"}``
+    (arrays over days). ``with_battery=False`` leaves the station's batteries out of the LP
+    (the bound without them; the difference is what the batteries are worth at best).
+
+    A day whose LP fails or hits ``time_limit_s`` has a NaN ``daily_profit`` and its solver
+    status in ``status``, and is listed in ``failed_days`` (``{"day", "status"}`` each); the
+    other days are solved as usual. :func:`summarize_profit` and :func:`headroom_captured`
+    leave such days out.
+    """
 
     bounds = bound_days(
         params,
@@ -148,6 +175,11 @@ def hindsight_bound(
         "reference_daily_profit": np.array([b.reference_profit_eur for b in bounds]),
         "solve_s": np.array([b.solve_s for b in bounds]),
         "status": [b.status for b in bounds],
+        "failed_days": [
+            {"day": int(d), "status": b.status}
+            for d, b in zip(np.asarray(days).reshape(-1), bounds)
+            if not b.solved
+        ],
         "reference": reference,
     }
 
@@ -156,22 +188,33 @@ def headroom_captured(daily_profit, always_max_daily, bound_daily) -> dict:
     """The fraction of the hindsight headroom a policy captures on the same days and cars:
     ``mean(policy - always-max) / mean(bound - always-max)``, with both means (EUR/day) and
     their standard errors over days (and seeds, when ``daily_profit`` is ``(seeds, days)``).
-    1 means the bound, 0 always-max; negative is worse than always-max."""
+    1 means the bound, 0 always-max; negative is worse than always-max.
+
+    Days where any of the three is NaN (a failed solve of the bound or of a solver-based
+    policy) are left out of both means, so that the pairs stay on the same days, and counted
+    in ``days_excluded`` (present only when some are).
+    """
     a = np.asarray(always_max_daily, np.float64)
-    captured = np.atleast_2d(np.asarray(daily_profit, np.float64)) - a[None, :]
-    headroom = np.asarray(bound_daily, np.float64) - a
+    p = np.atleast_2d(np.asarray(daily_profit, np.float64))
+    b = np.asarray(bound_daily, np.float64)
+    keep = np.isfinite(a) & np.isfinite(b) & np.isfinite(p).all(axis=0)
+    captured = p[:, keep] - a[None, keep]
+    headroom = b[keep] - a[keep]
 
     def se(x):
         return float(np.std(x, ddof=1) / np.sqrt(x.size)) if x.size > 1 else float("nan")
 
-    mean_headroom = float(headroom.mean())
-    return {
+    mean_headroom = float(headroom.mean()) if headroom.size else float("nan")
+    out = {
         "fraction": float(captured.mean() / mean_headroom) if mean_headroom > 0 else float("nan"),
-        "captured_eur": float(captured.mean()),
+        "captured_eur": float(captured.mean()) if captured.size else float("nan"),
         "captured_stderr": se(captured),
         "headroom_eur": mean_headroom,
         "headroom_stderr": se(headroom),
     }
+    if not keep.all():
+        out["days_excluded"] = int(keep.size - keep.sum())
+    return out
 
 
 def write_json(results: dict, path: str | Path) -> Path:

@@ -132,24 +132,30 @@ def run_scenario(
         "settings": mpc["settings"],
         "num_days": mpc_n,
     }
+    if mpc["failed_days"]:
+        entries["mpc"]["failed_days"] = mpc["failed_days"]
     entries["lp_bound"] = {
         "daily_profit": bound["daily_profit"],
         "timing": {
             "wall_s": bound_wall,
-            "solve_s_mean": float(np.mean(bound["solve_s"])),
-            "solve_s_max": float(np.max(bound["solve_s"])),
+            "solve_s_mean": float(np.nanmean(bound["solve_s"])),
+            "solve_s_max": float(np.nanmax(bound["solve_s"])),
         },
         "status": sorted(set(bound["status"])),
     }
+    if bound["failed_days"]:
+        entries["lp_bound"]["failed_days"] = bound["failed_days"]
     # the same LP without the battery: the bound minus this is what the battery is worth
     entries["lp_bound_no_battery"] = {
         "daily_profit": no_battery["daily_profit"],
         "status": sorted(set(no_battery["status"])),
     }
+    if no_battery["failed_days"]:
+        entries["lp_bound_no_battery"]["failed_days"] = no_battery["failed_days"]
     for key, e in entries.items():
         p = np.asarray(e["daily_profit"])
         n = p.shape[0]  # the MPC may run on the first days only: compare on those
-        e["mean_eur"] = float(np.mean(p))
+        e["mean_eur"] = float(np.mean(p[np.isfinite(p)]))  # failed solves (NaN) left out
         e["vs_always_max"] = stats.paired_difference(p, am[:n])
         e["headroom"] = headroom_captured(p, am[:n], bound["daily_profit"][:n])
         e["daily_profit"] = [float(x) for x in p]

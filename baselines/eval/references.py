@@ -16,7 +16,17 @@ from chargax_marl.trace import params_fingerprint
 
 
 def evaluate_mpc(params, days, key=None, **mpc_kwargs) -> dict:
-    """The MPC on ``days`` with the evaluation's cars; per-day profits, metrics and timing."""
+    """The MPC on ``days`` with the evaluation's cars; per-day profits, metrics and timing.
+
+    A day on which any of the MPC's solves failed or hit its time limit is not scored: its
+    ``daily_profit`` is NaN, it is left out of ``metrics`` (``days_failed``) and listed in
+    ``failed_days`` with the steps and solver statuses of its failed solves
+    (:attr:`chargax_marl.optimal.mpc.MPC.failed_solves`).
+
+    Returns:
+        ``{"daily_profit", "metrics", "failed_days", "wall_s", "solves", "failures",
+        "solve_s_total", "ms_per_step", "settings"}``.
+    """
     key = jax.random.PRNGKey(0) if key is None else key
     mpc = MPC(params, **mpc_kwargs)
     t0 = time.perf_counter()
@@ -25,9 +35,19 @@ def evaluate_mpc(params, days, key=None, **mpc_kwargs) -> dict:
     )
     wall = time.perf_counter() - t0
     steps = int(np.size(days)) * params.num_steps
+    day_list = [int(d) for d in np.asarray(days).reshape(-1)]
+    failed = np.array([d in mpc.failed_solves for d in day_list], bool)
     return {
-        "daily_profit": np.asarray(totals.profit_eur, np.float64),
-        "metrics": summarize(totals),
+        "daily_profit": np.where(failed, np.nan, np.asarray(totals.profit_eur, np.float64)),
+        "metrics": summarize(totals, failed=failed),
+        "failed_days": [
+            {
+                "day": d,
+                "steps": [t for t, _ in mpc.failed_solves[d]],
+                "status": [s for _, s in mpc.failed_solves[d]],
+            }
+            for d in sorted(set(day_list) & set(mpc.failed_solves))
+        ],
         "wall_s": wall,
         "solves": mpc.solves,
         "failures": mpc.failures,

@@ -20,18 +20,27 @@ def mean_stderr(x) -> tuple[float, float]:
 
 def paired_difference(profit, reference_profit) -> dict:
     """Per seed, mean and standard error over days of ``profit (seeds, days) - reference (days,)``;
-    and the mean over seeds with the standard error of that mean over seeds × days."""
+    and the mean over seeds with the standard error of that mean over seeds × days.
+
+    A day with a NaN on either side (a failed solve of the LP bound or the MPC) is left out for
+    every seed, so the pairs stay on the same days, and counted in ``days_excluded`` (present
+    only when some are)."""
     d = (
         np.atleast_2d(np.asarray(profit, np.float64))
         - np.asarray(reference_profit, np.float64)[None, :]
     )
+    keep = np.isfinite(d).all(axis=0)
+    d = d[:, keep]
     n = d.shape[1]
-    return {
+    out = {
         "per_seed_mean": [float(x) for x in d.mean(axis=1)],
         "per_seed_stderr": [float(x) for x in d.std(axis=1, ddof=1) / np.sqrt(n)],
         "mean": float(d.mean()),
         "stderr": float(d.std(ddof=1) / np.sqrt(d.size)),
     }
+    if not keep.all():
+        out["days_excluded"] = int(keep.size - keep.sum())
+    return out
 
 
 def beats(paired: dict) -> bool:

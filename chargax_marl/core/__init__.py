@@ -15,7 +15,7 @@
 - :mod:`actions`: how NaN, huge, wrongly sized and non-numeric actions are handled.
 """
 
-from chargax_marl.core.params import make_params
+from chargax_marl.core.params import make_params, validate_params, validated_replace
 from chargax_marl.core.simulator import empty_state, is_done, reset, step
 from chargax_marl.core.station import (
     Battery,
@@ -58,4 +58,6 @@ __all__ = [
     "reset",
     "single_type",
     "step",
+    "validate_params",
+    "validated_replace",
 ]

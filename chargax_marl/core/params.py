@@ -1,17 +1,21 @@
 """Build and validate :class:`EnvParams` from named scenarios or custom data.
 
 All validation happens here, at construction, with errors that name the field, the value
-and what is allowed; the jitted step never sees a bad value.
+and what is allowed; the jitted step never sees a bad value. :func:`make_params` builds
+validated params; :func:`validate_params` re-runs the same checks on params made otherwise
+(``params.replace(...)``, hand-made :class:`StationArrays`), and both views call it on the
+params they are given; :func:`validated_replace` is ``replace`` with the checks.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
-from chargax_marl.core import checks, datasets, tariffs
+from chargax_marl.core import checks, datasets, fleets, prices, profiles, tariffs
 from chargax_marl.core.observation import PRICE_QUANTILES
 from chargax_marl.core.station import (
     Splitter,
@@ -19,6 +23,7 @@ from chargax_marl.core.station import (
     battery_calendar_eur_day,
     battery_wear_eur_kwh,
     build_station,
+    check_station_arrays,
 )
 from chargax_marl.core.types import (
     ACTION_MODES,
@@ -49,6 +54,87 @@ def _finite(
 ) -> float:
     """A finite scalar in range and representable in float32 (:func:`checks.number`)."""
     return checks.number(field, value, low=minimum, high=maximum, low_open=strict, unit=unit)
+
+
+_SCALARS = {
+    "customer_price_eur_kwh": dict(minimum=0.0, maximum=checks.MAX_PRICE_EUR_KWH, unit="EUR/kWh"),
+    "grid_fee_eur_kwh": dict(minimum=0.0, maximum=checks.MAX_PRICE_EUR_KWH, unit="EUR/kWh"),
+    "feed_in_factor": dict(minimum=0.0, maximum=checks.MAX_FACTOR),
+    "fixed_cost_eur": dict(minimum=0.0, maximum=checks.MAX_FIXED_COST_EUR, unit="EUR per step"),
+    "battery_value_eur_kwh": dict(minimum=0.0, maximum=checks.MAX_PRICE_EUR_KWH, unit="EUR/kWh"),
+    "beta": dict(minimum=0.0, maximum=checks.MAX_WEIGHT),
+    "charged_tolerance_kwh": dict(
+        minimum=0.0, strict=True, maximum=checks.MAX_TOLERANCE_KWH, unit="kWh"
+    ),
+}
+"""The range of every scalar float field of :class:`EnvParams` (keyword arguments of
+:func:`_finite`), for :func:`make_params` and :func:`validate_params` alike."""
+
+
+def _check_settings(
+    action_mode: Any,
+    constraint_mode: Any,
+    num_levels: Any,
+    price_horizon_hours: Any,
+    step_minutes: Any,
+) -> tuple[float, int]:
+    """Check the static settings; return ``(step_minutes, num_steps)``."""
+    if action_mode not in ACTION_MODES:
+        raise ValueError(f"field 'action_mode' must be one of {ACTION_MODES}, got {action_mode!r}")
+    if constraint_mode not in CONSTRAINT_MODES:
+        raise ValueError(
+            f"field 'constraint_mode' must be one of {CONSTRAINT_MODES}, got {constraint_mode!r}"
+        )
+    if (
+        isinstance(num_levels, (bool, np.bool_))
+        or not isinstance(num_levels, (int, np.integer))
+        or not 1 <= num_levels <= checks.MAX_NUM_LEVELS
+    ):
+        raise ValueError(
+            f"field 'num_levels' must be an integer in [1, {checks.MAX_NUM_LEVELS}], got {num_levels!r}"
+        )
+    if not isinstance(price_horizon_hours, (int, np.integer)) or not 0 <= price_horizon_hours <= 48:
+        raise ValueError(
+            f"field 'price_horizon_hours' must be an integer in [0, 48], got {price_horizon_hours!r}"
+        )
+    step_minutes = _finite(
+        "step_minutes",
+        step_minutes,
+        minimum=MINUTES_PER_DAY / checks.MAX_STEPS_PER_DAY,
+        maximum=MINUTES_PER_DAY,
+        unit="min",
+    )
+    num_steps = MINUTES_PER_DAY / step_minutes
+    if abs(num_steps - round(num_steps)) > 1e-9:
+        raise ValueError(
+            f"field 'step_minutes' must divide a day (1440 min) evenly, got {step_minutes!r}"
+        )
+    return step_minutes, int(round(num_steps))
+
+
+def _check_reset_days(reset_days: Any, days_all: int) -> np.ndarray:
+    """The days ``reset`` draws from as int32, each in ``[0, days_all)``."""
+    days = np.asarray(reset_days)
+    if days.ndim != 1 or days.size == 0 or not np.issubdtype(days.dtype, np.integer):
+        raise ValueError(
+            f"field 'reset_days' must be a non-empty 1-D array of day indices, got {reset_days!r}"
+        )
+    if days.min() < 0 or days.max() >= days_all:
+        raise ValueError(
+            f"field 'reset_days' must lie in [0, {days_all - 1}] (days of the price data), "
+            f"got values from {days.min()} to {days.max()}"
+        )
+    return days.astype(np.int32)
+
+
+def _day_price_quantiles(prices_eur_kwh: np.ndarray, tou: np.ndarray) -> np.ndarray:
+    """Quantiles (:data:`PRICE_QUANTILES`) of each day's hourly buy price plus surcharge, float32."""
+    return np.asarray(
+        np.quantile(
+            np.asarray(prices_eur_kwh, np.float64) + tou[None, :], PRICE_QUANTILES, axis=1
+        ).T,
+        np.float32,
+    )
 
 
 def _battery_wear(
@@ -254,37 +340,9 @@ def make_params(
             f"field 'refund_discharged_energy' must be a bool (True: refund car owners for energy "
             f"discharged from their car; False: no refund), got {refund_discharged_energy!r}"
         )
-    if action_mode not in ACTION_MODES:
-        raise ValueError(f"field 'action_mode' must be one of {ACTION_MODES}, got {action_mode!r}")
-    if constraint_mode not in CONSTRAINT_MODES:
-        raise ValueError(
-            f"field 'constraint_mode' must be one of {CONSTRAINT_MODES}, got {constraint_mode!r}"
-        )
-    if (
-        isinstance(num_levels, (bool, np.bool_))
-        or not isinstance(num_levels, (int, np.integer))
-        or not 1 <= num_levels <= checks.MAX_NUM_LEVELS
-    ):
-        raise ValueError(
-            f"field 'num_levels' must be an integer in [1, {checks.MAX_NUM_LEVELS}], got {num_levels!r}"
-        )
-    if not isinstance(price_horizon_hours, (int, np.integer)) or not 0 <= price_horizon_hours <= 48:
-        raise ValueError(
-            f"field 'price_horizon_hours' must be an integer in [0, 48], got {price_horizon_hours!r}"
-        )
-    step_minutes = _finite(
-        "step_minutes",
-        step_minutes,
-        minimum=MINUTES_PER_DAY / checks.MAX_STEPS_PER_DAY,
-        maximum=MINUTES_PER_DAY,
-        unit="min",
+    step_minutes, num_steps = _check_settings(
+        action_mode, constraint_mode, num_levels, price_horizon_hours, step_minutes
     )
-    num_steps = MINUTES_PER_DAY / step_minutes
-    if abs(num_steps - round(num_steps)) > 1e-9:
-        raise ValueError(
-            f"field 'step_minutes' must divide a day (1440 min) evenly, got {step_minutes!r}"
-        )
-    num_steps = int(round(num_steps))
 
     stations = build_station(station, grid_fraction=grid_fraction, **(station_kwargs or {}))
     tou = tariffs.tou_fee(tou_fee_eur_kwh)
@@ -351,22 +409,10 @@ def make_params(
     if reset_days is None:
         days = np.arange(days_all, dtype=np.int32)
     else:
-        days = np.asarray(reset_days)
-        if days.ndim != 1 or days.size == 0 or not np.issubdtype(days.dtype, np.integer):
-            raise ValueError(
-                f"field 'reset_days' must be a non-empty 1-D array of day indices, got {reset_days!r}"
-            )
-        if days.min() < 0 or days.max() >= days_all:
-            raise ValueError(
-                f"field 'reset_days' must lie in [0, {days_all - 1}] (days of the price data), "
-                f"got values from {days.min()} to {days.max()}"
-            )
-        days = days.astype(np.int32)
+        days = _check_reset_days(reset_days, days_all)
 
-    def scalar(name, value, **kw):
-        return jnp.asarray(_finite(name, value, **kw), jnp.float32)
-
-    price_max = checks.MAX_PRICE_EUR_KWH
+    def scalar(name, value):
+        return jnp.asarray(_finite(name, value, **_SCALARS[name]), jnp.float32)
 
     if fixed_cost_eur is None:
         fixed_cost_eur = FIXED_COST_EUR_PER_STEP * step_minutes / 5.0
@@ -389,21 +435,14 @@ def make_params(
             _finite(
                 "battery_terminal_price",
                 battery_terminal_price,
-                minimum=0.0,
-                maximum=price_max,
-                unit="EUR/kWh",
+                **_SCALARS["battery_value_eur_kwh"],
             ),
         )
 
     return EnvParams(
         station=stations,
         prices_eur_kwh=jnp.asarray(price.prices_eur_kwh, jnp.float32),
-        day_price_quantiles_eur_kwh=jnp.asarray(
-            np.quantile(
-                np.asarray(price.prices_eur_kwh, np.float64) + tou[None, :], PRICE_QUANTILES, axis=1
-            ).T,
-            jnp.float32,
-        ),
+        day_price_quantiles_eur_kwh=jnp.asarray(_day_price_quantiles(price.prices_eur_kwh, tou)),
         first_weekday=jnp.asarray(price.first_weekday, jnp.int32),
         arrival_rate=jnp.asarray(rate, jnp.float32),
         stay_quantiles_min=jnp.asarray(profile.stay_quantiles_min, jnp.float32),
@@ -428,42 +467,19 @@ def make_params(
         battery_calendar_eur_step=jnp.asarray(
             calendar_eur_day * step_minutes / MINUTES_PER_DAY, jnp.float32
         ),
-        customer_price_eur_kwh=scalar(
-            "customer_price_eur_kwh",
-            customer_price_eur_kwh,
-            minimum=0.0,
-            maximum=price_max,
-            unit="EUR/kWh",
-        ),
+        customer_price_eur_kwh=scalar("customer_price_eur_kwh", customer_price_eur_kwh),
         refund_discharged_energy=jnp.asarray(bool(refund_discharged_energy)),
-        grid_fee_eur_kwh=scalar(
-            "grid_fee_eur_kwh", grid_fee_eur_kwh, minimum=0.0, maximum=price_max, unit="EUR/kWh"
-        ),
+        grid_fee_eur_kwh=scalar("grid_fee_eur_kwh", grid_fee_eur_kwh),
         tou_fee_eur_kwh=jnp.asarray(tou, jnp.float32),
         peak_demand_eur_kw=jnp.asarray(peak_rate, jnp.float32),
         peak_demand_incremental=jnp.asarray(peak_incremental),
-        feed_in_factor=scalar(
-            "feed_in_factor", feed_in_factor, minimum=0.0, maximum=checks.MAX_FACTOR
-        ),
-        fixed_cost_eur=scalar(
-            "fixed_cost_eur",
-            fixed_cost_eur,
-            minimum=0.0,
-            maximum=checks.MAX_FIXED_COST_EUR,
-            unit="EUR per step",
-        ),
+        feed_in_factor=scalar("feed_in_factor", feed_in_factor),
+        fixed_cost_eur=scalar("fixed_cost_eur", fixed_cost_eur),
         alpha=penalty_weights(alpha),
         battery_value_day_mean=jnp.asarray(value_day_mean),
         battery_value_eur_kwh=jnp.asarray(value_price, jnp.float32),
-        beta=scalar("beta", beta, minimum=0.0, maximum=checks.MAX_WEIGHT),
-        charged_tolerance_kwh=scalar(
-            "charged_tolerance_kwh",
-            charged_tolerance_kwh,
-            minimum=0.0,
-            strict=True,
-            maximum=checks.MAX_TOLERANCE_KWH,
-            unit="kWh",
-        ),
+        beta=scalar("beta", beta),
+        charged_tolerance_kwh=scalar("charged_tolerance_kwh", charged_tolerance_kwh),
         step_minutes=step_minutes,
         num_steps=num_steps,
         num_levels=int(num_levels),
@@ -473,3 +489,163 @@ def make_params(
         price_horizon_hours=int(price_horizon_hours),
         observe_moer=observe_moer,
     )
+
+
+def _scalar(params: EnvParams, field: str, kind: str = "number") -> Any:
+    """The 0-d field ``field`` of ``params`` as a Python value (``kind``: number or bool)."""
+    x = np.asarray(getattr(params, field))
+    if x.shape != ():
+        raise ValueError(f"field '{field}' must be a scalar (shape ()), got shape {x.shape}")
+    if kind == "bool" and x.dtype != np.bool_:
+        raise ValueError(f"field '{field}' must be a bool, got {x.item()!r} of dtype {x.dtype}")
+    if kind == "number" and not (
+        np.issubdtype(x.dtype, np.floating) or np.issubdtype(x.dtype, np.integer)
+    ):
+        raise ValueError(f"field '{field}' must be a number, got {x.item()!r} of dtype {x.dtype}")
+    return x.item()
+
+
+def _shape(field: str, value: Any, shape: tuple, what: str) -> np.ndarray:
+    arr = np.asarray(value)
+    if arr.shape != shape:
+        raise ValueError(f"field '{field}' must have shape {shape} ({what}), got {arr.shape}")
+    return arr
+
+
+def validate_params(params: EnvParams) -> EnvParams:
+    """Re-run :func:`make_params`'s checks on params made some other way.
+
+    ``EnvParams.replace`` and hand-made :class:`StationArrays` skip every check of
+    :func:`make_params`; this applies them to the finished object (the same bounds, from
+    :mod:`chargax_marl.core.checks` and the data validators), so that a bad value is an error
+    at construction and never a NaN later. Both views call it on the params they are given.
+    Params with traced leaves (inside ``jit``) are returned unchecked.
+
+    Args:
+        params: the parameters to check.
+
+    Returns:
+        ``params`` unchanged.
+
+    Raises:
+        ValueError: a field outside its range or of the wrong shape or kind, or derived fields
+            that no longer match what they derive from (the day price quantiles); the message
+            names the field, the value and what is allowed.
+    """
+    if not isinstance(params, EnvParams):
+        raise ValueError(f"params must be an EnvParams, got {type(params).__name__}")
+    if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(params)):
+        return params
+    _, num_steps = _check_settings(
+        params.action_mode,
+        params.constraint_mode,
+        params.num_levels,
+        params.price_horizon_hours,
+        params.step_minutes,
+    )
+    if params.num_steps != num_steps:
+        raise ValueError(
+            f"field 'num_steps' must be 1440 / step_minutes = {num_steps}, got {params.num_steps!r}"
+        )
+    for field in ("v2g", "observe_moer"):
+        if not isinstance(getattr(params, field), (bool, np.bool_)):
+            raise ValueError(f"field '{field}' must be a bool, got {getattr(params, field)!r}")
+    st = check_station_arrays(params.station)
+    b = (st.num_batteries,)
+    for field, bounds in _SCALARS.items():
+        _finite(field, _scalar(params, field), **bounds)
+    for field in ("refund_discharged_energy", "peak_demand_incremental", "battery_value_day_mean"):
+        _scalar(params, field, "bool")
+    booking = "incremental" if _scalar(params, "peak_demand_incremental", "bool") else "end_of_day"
+    tariffs.peak_demand(_scalar(params, "peak_demand_eur_kw"), booking)
+    weekday = _scalar(params, "first_weekday")
+    if not (isinstance(weekday, int) and 0 <= weekday <= 6):
+        raise ValueError(f"field 'first_weekday' must be an integer in [0, 6], got {weekday!r}")
+    _finite(
+        "charge_sensitive_prob", _scalar(params, "charge_sensitive_prob"), minimum=0.0, maximum=1.0
+    )
+
+    price = np.asarray(params.prices_eur_kwh)
+    if price.ndim != 2:
+        raise ValueError(
+            f"field 'prices_eur_kwh' must have shape (days, 24), got shape {price.shape}"
+        )
+    prices._validate_prices(price, "prices_eur_kwh")
+    tou = tariffs.tou_fee(np.asarray(params.tou_fee_eur_kwh, np.float64))
+    quantiles = np.asarray(params.day_price_quantiles_eur_kwh)
+    if quantiles.shape != (price.shape[0], len(PRICE_QUANTILES)) or not np.allclose(
+        quantiles, _day_price_quantiles(price, tou), rtol=1e-5, atol=1e-6
+    ):
+        raise ValueError(
+            "field 'day_price_quantiles_eur_kwh' must be the quantiles of prices_eur_kwh plus "
+            "tou_fee_eur_kwh of each day (derived by make_params): build the params with "
+            "make_params(prices=..., tou_fee_eur_kwh=...) instead of replacing either"
+        )
+    rate = _shape("arrival_rate", params.arrival_rate, (2, num_steps), "workday and weekend rows")
+    checks.array("arrival_rate", rate, low=0.0, high=checks.MAX_CARS_PER_DAY, unit="cars per step")
+    profiles._validate_quantiles(np.asarray(params.stay_quantiles_min), "stay_quantiles_min")
+    profiles._validate_quantiles(np.asarray(params.demand_quantiles_kwh), "demand_quantiles_kwh")
+    profiles._validate_scale(np.asarray(params.stay_scale_by_hour), "stay_scale_by_hour")
+    profiles._validate_scale(np.asarray(params.demand_scale_by_hour), "demand_scale_by_hour")
+    soc_range = _shape("arrival_soc_range", params.arrival_soc_range, (2,), "low and high")
+    profiles._validate_soc_range(tuple(float(x) for x in soc_range))
+    share = np.asarray(params.fleet_share, np.float64)
+    fleet = fleets._make_fleet(
+        "params",
+        [f"model {i}" for i in range(share.size)],
+        share,
+        params.fleet_capacity_kwh,
+        params.fleet_ac_kw,
+        params.fleet_dc_kw,
+        params.fleet_tau,
+        params.fleet_ac_discharge_kw,
+        params.fleet_dc_discharge_kw,
+    )
+    if not np.allclose(share, fleet.share, rtol=0.0, atol=1e-5):
+        raise ValueError(f"field 'fleet_share' must sum to 1, got a sum of {share.sum()!r}")
+    moer = np.asarray(params.moer_kg_per_kwh)
+    if moer.ndim != 2 or moer.shape[0] == 0 or moer.shape[1] != num_steps:
+        raise ValueError(
+            f"field 'moer_kg_per_kwh' must have shape (days, {num_steps}), got shape {moer.shape}"
+        )
+    datasets.validate_moer(moer, check_resolution=False)
+    datasets.validate_grid_demand(np.asarray(params.grid_demand_kwh), num_steps)
+    _check_reset_days(params.reset_days, price.shape[0])
+    low = _shape("battery_soc0_low", params.battery_soc0_low, b, "one per battery")
+    high = _shape("battery_soc0_high", params.battery_soc0_high, b, "one per battery")
+    checks.array("battery_soc0_low", low, low=0.0, high=1.0)
+    checks.array("battery_soc0_high", high, low=0.0, high=1.0)
+    if (low > high).any():
+        i = int(np.argmax(low > high))
+        raise ValueError(
+            f"fields 'battery_soc0_low' and 'battery_soc0_high' must satisfy low <= high, got "
+            f"{float(low[i])!r} > {float(high[i])!r} for battery {i}"
+        )
+    for field in ("battery_wear_eur_kwh", "battery_calendar_eur_step"):
+        checks.array(
+            field, _shape(field, getattr(params, field), b, "one per battery"), low=0.0, unit="EUR"
+        )
+    penalty_weights(params.alpha)
+    return params
+
+
+def validated_replace(params: EnvParams, **changes: Any) -> EnvParams:
+    """``params.replace(**changes)`` with the checks of :func:`validate_params`.
+
+    ``EnvParams.replace`` itself is unchecked (a frozen-dataclass copy); derive params
+    through this function (or rebuild them with :func:`make_params`) so that a bad value is an
+    error here rather than a NaN in the step.
+
+    Args:
+        params: the parameters to derive from.
+        **changes: new values of :class:`EnvParams` fields.
+
+    Returns:
+        The derived, validated params.
+
+    Raises:
+        TypeError: an unknown field name (the message lists the allowed ones).
+        ValueError: as :func:`validate_params`.
+    """
+    checks.keywords("validated_replace", changes, tuple(EnvParams.__dataclass_fields__))
+    return validate_params(params.replace(**changes))

@@ -759,7 +759,7 @@ def build_station(
     **kwargs,
 ) -> StationArrays:
     """Compile a named architecture (with builder keyword arguments), a custom tree, or pass
-    through arrays. ``grid_fraction`` (in (0, 1]) sets the root's limit to that fraction of the
+    through arrays (checked by :func:`check_station_arrays`). ``grid_fraction`` (in (0, 1]) sets the root's limit to that fraction of the
     sum of its children's limits (:func:`with_grid_fraction`)."""
     if isinstance(architecture, StationArrays):
         if grid_fraction is not None:
@@ -767,7 +767,7 @@ def build_station(
                 "build_station: field 'grid_fraction' needs a named architecture or a Splitter tree, "
                 "not compiled StationArrays"
             )
-        return architecture
+        return check_station_arrays(architecture)
     if isinstance(architecture, Splitter):
         if kwargs:
             raise ValueError(
@@ -794,3 +794,132 @@ def build_station(
     if grid_fraction is not None:
         root = with_grid_fraction(root, grid_fraction)
     return compile_station(root)
+
+
+def _check_table(field: str, arr: np.ndarray, allowed: str, ok: np.ndarray) -> None:
+    """Raise naming the first entry of an integer table where ``ok`` is False."""
+    if not ok.all():
+        idx = tuple(int(i) for i in np.argwhere(~ok)[0])
+        where = idx[0] if len(idx) == 1 else idx
+        raise ValueError(
+            f"field 'station.{field}' must hold {allowed}, got {arr[idx]!r} at index {where}"
+        )
+
+
+def check_station_arrays(st: StationArrays) -> StationArrays:
+    """Check compiled station arrays made by hand or derived with ``replace``.
+
+    :func:`compile_station` builds arrays that pass; this re-applies the bounds that
+    :class:`Port`, :class:`Battery` and :class:`Splitter` enforce (:mod:`chargax_marl.core.checks`)
+    to the arrays themselves, with the shapes the static sizes imply.
+
+    Args:
+        st: the station arrays.
+
+    Returns:
+        ``st`` unchanged.
+
+    Raises:
+        ValueError: a shape that does not match ``num_ports``, ``num_batteries``, ``num_nodes``
+            and ``depth``, or an entry outside its range; the message names the field
+            (``station.<field>``), the value and what is allowed.
+    """
+    n_leaves, n_bat, n_nodes, depth = st.num_leaves, st.num_batteries, st.num_nodes, st.depth
+    if st.num_ports < 1 or n_nodes < 1 or depth < 1:
+        raise ValueError(
+            "field 'station' must have at least one port, one node and depth >= 1, got "
+            f"num_ports={st.num_ports}, num_nodes={n_nodes}, depth={depth}"
+        )
+    leaf, bat, node = (n_leaves,), (n_bat,), (n_nodes,)
+    eff = (checks.MIN_EFFICIENCY, 1.0, False, "")
+    fields = {  # field: (shape, low, high, low_open, unit)
+        "leaf_voltage_v": (leaf, checks.MIN_VOLTAGE_V, checks.MAX_VOLTAGE_V, False, "V"),
+        "leaf_max_current_a": (leaf, checks.MIN_CURRENT_A, checks.MAX_CURRENT_A, False, "A"),
+        "leaf_max_discharge_current_a": (leaf, 0.0, checks.MAX_CURRENT_A, False, "A"),
+        "leaf_efficiency": (leaf, *eff),
+        "leaf_path_efficiency": (leaf, *eff),
+        "leaf_efficiency_at_depth": ((depth, n_leaves), *eff),
+        "battery_capacity_kwh": (
+            bat,
+            checks.MIN_CAPACITY_KWH,
+            checks.MAX_CAPACITY_KWH,
+            False,
+            "kWh",
+        ),
+        "battery_tau": (bat, 0.0, 1.0, True, ""),
+        "battery_initial_soc": (bat, 0.0, 1.0, False, ""),
+        "battery_cost_eur_kwh": (bat, 0.0, checks.MAX_BATTERY_COST_EUR_KWH, False, "EUR/kWh"),
+        "battery_cycle_life": (
+            bat,
+            checks.MIN_CYCLE_LIFE,
+            checks.MAX_CYCLE_LIFE,
+            False,
+            "cycles",
+        ),
+        "battery_calendar_life_years": (
+            bat,
+            0.0,
+            checks.MAX_CALENDAR_LIFE_YEARS,
+            False,
+            "years",
+        ),
+        "leaf_solo_max_kw": (leaf, 0.0, None, True, "kW"),
+        "node_max_kw": (node, checks.MIN_POWER_KW, checks.MAX_POWER_KW, False, "kW"),
+        "node_efficiency": (node, *eff),
+        "incidence": ((n_nodes, n_leaves), 0.0, 1.0, False, ""),
+    }
+    shapes = {
+        **{f: spec[0] for f, spec in fields.items()},
+        "leaf_kind": leaf,
+        "node_depth": node,
+        "node_of_leaf_at_depth": (depth, n_leaves),
+    }
+    for field, shape in shapes.items():
+        got = tuple(np.shape(getattr(st, field)))
+        if got != shape:
+            raise ValueError(
+                f"field 'station.{field}' must have shape {shape} (num_ports={st.num_ports}, "
+                f"num_batteries={n_bat}, num_nodes={n_nodes}, depth={depth}), got {got}"
+            )
+    for field, (_, low, high, low_open, unit) in fields.items():
+        checks.array(
+            f"station.{field}",
+            np.asarray(getattr(st, field)),
+            low=low,
+            high=high,
+            low_open=low_open,
+            high_open=field == "battery_tau",
+            unit=unit,
+        )
+    calendar = np.asarray(st.battery_calendar_life_years, np.float64)
+    _check_table(
+        "battery_calendar_life_years",
+        calendar,
+        f"0 (no calendar ageing) or years in [{checks.MIN_CALENDAR_LIFE_YEARS:g}, "
+        f"{checks.MAX_CALENDAR_LIFE_YEARS:g}]",
+        (calendar == 0) | (calendar >= checks.MIN_CALENDAR_LIFE_YEARS),
+    )
+    kind = np.asarray(st.leaf_kind)
+    is_battery = np.arange(n_leaves) >= st.num_ports
+    _check_table(
+        "leaf_kind",
+        kind,
+        f"{KIND_AC} (AC) or {KIND_DC} (DC) for the {st.num_ports} ports, then {KIND_BATTERY} "
+        f"(battery) for the {n_bat} batteries",
+        np.where(is_battery, kind == KIND_BATTERY, (kind == KIND_AC) | (kind == KIND_DC)),
+    )
+    node_depth = np.asarray(st.node_depth)
+    _check_table(
+        "node_depth",
+        node_depth,
+        f"depths in [0, {depth - 1}]",
+        (node_depth >= 0) & (node_depth < depth),
+    )
+    table = np.asarray(st.node_of_leaf_at_depth)
+    _check_table(
+        "node_of_leaf_at_depth",
+        table,
+        f"node indices in [0, {n_nodes - 1}] or -1 (none)",
+        (table >= -1) & (table < n_nodes),
+    )
+    return st

@@ -58,6 +58,10 @@ class EnvParams:
     """Everything the step needs besides the state: station, exogenous data, economics, settings.
 
     Build it with :func:`chargax_marl.core.params.make_params`, which validates its inputs.
+    ``replace`` is unchecked: derive params with
+    :func:`chargax_marl.core.params.validated_replace` (or check them with
+    :func:`chargax_marl.core.params.validate_params`, which both views apply to the params
+    they are given).
     """
 
     station: StationArrays

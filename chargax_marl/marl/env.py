@@ -27,7 +27,7 @@ from jaxmarl.environments.multi_agent_env import MultiAgentEnv
 from chargax_marl import bounds
 from chargax_marl.core import actions as core_actions
 from chargax_marl.core import observation, physics, simulator
-from chargax_marl.core.params import make_params
+from chargax_marl.core.params import make_params, validate_params
 from chargax_marl.core.rng import materialize
 from chargax_marl.core.scenarios import scenario_kwargs
 from chargax_marl.core.station import KIND_AC, KIND_BATTERY, KIND_DC
@@ -72,10 +72,12 @@ def actions_to_levels(indices: jnp.ndarray, params: EnvParams, offset: int) -> j
     """Map per-agent action indices ``(N,)`` to the core's signed levels ``(N,)``.
 
     Indices outside ``[0, n)`` are clipped into it (in their own dtype, before any int32
-    cast); NaN and +-inf are idle; a masked (invalid) action falls back to idle, level 0.
+    cast; host integers beyond int32 are clipped on the host first,
+    :func:`chargax_marl.core.actions.host_array`); NaN and +-inf are idle; a masked (invalid)
+    action falls back to idle, level 0.
     """
     n = params.num_levels + 1 + offset
-    idx = core_actions.to_int32(indices, 0, n - 1, offset)
+    idx = core_actions.to_int32(core_actions.host_array(indices), 0, n - 1, offset)
     levels = idx - offset
     return jnp.where(levels < min_levels(params), 0, levels).astype(jnp.int32)
 
@@ -392,7 +394,9 @@ class ChargaxMARL(MultiAgentEnv):
             )
         if scenario is not None:
             make_params_kwargs = scenario_kwargs(scenario, **make_params_kwargs)
-        params = params if params is not None else make_params(**make_params_kwargs)
+        params = (
+            validate_params(params) if params is not None else make_params(**make_params_kwargs)
+        )
         if params.action_mode == "continuous":
             raise ValueError(
                 "ChargaxMARL: action_mode 'continuous' is not supported by the multi-agent view "
@@ -458,7 +462,12 @@ class ChargaxMARL(MultiAgentEnv):
 
         The action dict is checked here, once, before it enters ``jit``
         (:meth:`validate_actions`: host integers are clipped into int32, so a large one clips
-        instead of wrapping); the transition is :func:`step_arrays`'s.
+        instead of wrapping); the transition is :func:`step_arrays`'s. Under a caller's own
+        ``jax.jit`` of this method JAX converts the dict at the jit boundary, before this code
+        runs: with ``JAX_ENABLE_X64`` off a numpy ``int64`` beyond int32 wraps there and a
+        Python ``int`` beyond int32 raises JAX's ``OverflowError``; call ``step`` outside
+        ``jit`` (it jits itself) or clip with :func:`chargax_marl.core.actions.host_array`
+        first.
 
         Raises:
             ValueError: a bad action dict (:meth:`validate_actions`).
@@ -638,7 +647,9 @@ class ChargaxMARL(MultiAgentEnv):
     def actions_to_levels(self, actions: Mapping[str, jax.Array] | jax.Array) -> jnp.ndarray:
         """The core's signed levels ``(num_agents,)`` for an action dict or index vector."""
         indices = (
-            self.stack_actions(actions) if isinstance(actions, Mapping) else jnp.asarray(actions)
+            self.stack_actions(actions)
+            if isinstance(actions, Mapping)
+            else core_actions.host_array(actions, self.num_agents)
         )
         return actions_to_levels(indices, self.params, self.action_offset)
 

@@ -26,6 +26,16 @@ class _Wrapper:
             raise AttributeError(name)
         return getattr(self._env, name)
 
+    def host_actions(self, actions: dict) -> dict:
+        """The action dict checked on the host, before it enters ``jit``: the wrapped env's
+        ``validate_actions`` (host integers clipped into int32, so a large one clips instead of
+        wrapping at the jit boundary; traced values pass through).
+
+        Raises:
+            ValueError: a bad action dict (:meth:`chargax_marl.marl.ChargaxMARL.validate_actions`).
+        """
+        return dict(zip(self._env.agents, self._env.validate_actions(actions)))
+
     def stack_agent_values(self, x: dict) -> jnp.ndarray:
         """A per-agent dict as an array ``(num_agents, ...)`` in agent order."""
         return jnp.stack([x[a] for a in self._env.agents])
@@ -79,8 +89,17 @@ class LogWrapper(_Wrapper):
         )
         return obs, state
 
-    @functools.partial(jax.jit, static_argnums=(0,))
     def step(self, key: jax.Array, state: LogEnvState, actions: dict, reset_state=None):
+        """The wrapped env's ``step`` with the episode logging; ``actions`` is checked and its
+        host integers clipped before the jitted step (:meth:`host_actions`).
+
+        Raises:
+            ValueError: a bad action dict.
+        """
+        return self._step(key, state, self.host_actions(actions), reset_state)
+
+    @functools.partial(jax.jit, static_argnums=(0,))
+    def _step(self, key: jax.Array, state: LogEnvState, actions: dict, reset_state=None):
         if reset_state is None:
             obs, env_state, reward, done, info = self._env.step(key, state.env_state, actions)
         else:
@@ -129,8 +148,17 @@ class WorldStateWrapper(_Wrapper):
         obs["world_state"] = self.world_state(env_state)
         return obs, env_state
 
-    @functools.partial(jax.jit, static_argnums=(0,))
     def step(self, key: jax.Array, state, actions: dict, reset_state=None):
+        """The wrapped env's ``step`` with the world state added; ``actions`` is checked and its
+        host integers clipped before the jitted step (:meth:`host_actions`).
+
+        Raises:
+            ValueError: a bad action dict.
+        """
+        return self._step(key, state, self.host_actions(actions), reset_state)
+
+    @functools.partial(jax.jit, static_argnums=(0,))
+    def _step(self, key: jax.Array, state, actions: dict, reset_state=None):
         if reset_state is None:
             obs, env_state, reward, done, info = self._env.step(key, state, actions)
         else:

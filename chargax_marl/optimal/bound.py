@@ -28,7 +28,14 @@ import numpy as np
 from chargax_marl import trace as trace_lib
 from chargax_marl.core import reward as reward_lib
 from chargax_marl.core.types import EnvParams
-from chargax_marl.optimal.model import Economics, Sessions, Solution, StationLimits, build_and_solve
+from chargax_marl.optimal.model import (
+    Economics,
+    Sessions,
+    Solution,
+    SolverError,
+    StationLimits,
+    build_and_solve,
+)
 from chargax_marl.policies import always_max
 
 
@@ -166,7 +173,11 @@ def occupancy(
 @dataclass
 class Bound:
     """The hindsight bound of one day: ``profit_eur`` (EUR), the solver's status and time,
-    the reference's profit on the same day and the LP's size."""
+    the reference's profit on the same day and the LP's size.
+
+    A day whose solve failed (:func:`bound_days`) has ``status`` other than ``"optimal"``,
+    ``profit_eur`` and ``solve_s`` NaN, no ``solution`` and the solver's ``message``.
+    """
 
     profit_eur: float
     reference_profit_eur: float
@@ -175,7 +186,13 @@ class Bound:
     num_vars: int
     num_rows: int
     num_cars: int
-    solution: Solution
+    solution: Solution | None
+    message: str = ""
+
+    @property
+    def solved(self) -> bool:
+        """Whether HiGHS found the optimum (else ``profit_eur`` is NaN and no bound)."""
+        return self.status == "optimal"
 
 
 def hindsight_bound(
@@ -239,7 +256,16 @@ def bound_days(
 ) -> list[Bound]:
     """:func:`hindsight_bound` for each of ``days`` with the cars that evaluation draws with
     ``key`` (default ``PRNGKey(0)``) and ``reference``'s occupancy (``with_battery``: see
-    :func:`hindsight_bound`)."""
+    :func:`hindsight_bound`).
+
+    A day whose LP fails or hits ``time_limit_s`` does not stop the others: its
+    :class:`Bound` carries the solver's ``status`` and ``message`` and a NaN ``profit_eur``
+    (never a number), so that every mean over days can leave it out
+    (:func:`chargax_marl.evaluation.summarize_profit`).
+
+    Returns:
+        One :class:`Bound` per day, in the order of ``days``.
+    """
     key = jax.random.PRNGKey(0) if key is None else key
     traces = trace_lib.make_traces(params, days, key)
     day_keys = jax.random.split(key, int(np.size(days)))
@@ -247,9 +273,23 @@ def bound_days(
     for i in range(int(np.size(days))):
         tr = trace_lib.day_of(traces, i)
         occ = occupancy(params, tr, day_keys[i], reference)
-        out.append(
-            hindsight_bound(params, tr, occ, time_limit_s=time_limit_s, with_battery=with_battery)
-        )
+        try:
+            b = hindsight_bound(
+                params, tr, occ, time_limit_s=time_limit_s, with_battery=with_battery
+            )
+        except SolverError as exc:
+            b = Bound(
+                profit_eur=float("nan"),
+                reference_profit_eur=occ.reference_profit_eur,
+                status=exc.status,
+                solve_s=float("nan"),
+                num_vars=0,
+                num_rows=0,
+                num_cars=occ.sessions.size,
+                solution=None,
+                message=str(exc),
+            )
+        out.append(b)
     return out
 
 

@@ -57,7 +57,17 @@ STATUS = {
 
 
 class SolverError(RuntimeError):
-    """HiGHS did not return an optimal solution (infeasible, unbounded, time limit, failure)."""
+    """HiGHS did not return an optimal solution (infeasible, unbounded, time limit, failure).
+
+    Args:
+        message: what failed, with the problem's size.
+        status: the solver's status (a value of :data:`STATUS`, e.g. ``"time or iteration
+            limit"``), kept as ``.status`` so that callers can report it per day.
+    """
+
+    def __init__(self, message: str, status: str = STATUS[4]):
+        super().__init__(message)
+        self.status = status
 
 
 @dataclass
@@ -360,7 +370,8 @@ def build_and_solve(
     if res.status != 0 or res.x is None:
         raise SolverError(
             f"HiGHS did not solve the problem: {status} ({res.message}); "
-            f"{b.n} variables, {b.m} rows"
+            f"{b.n} variables, {b.m} rows",
+            status,
         )
     xs = res.x
     net = [None if pp is None else xs[pp] - xs[pm] for pp, pm in net_index]

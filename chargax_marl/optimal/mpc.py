@@ -28,7 +28,13 @@ import numpy as np
 from chargax_marl.core import reward as reward_lib
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState
-from chargax_marl.optimal.model import Economics, Sessions, StationLimits, build_and_solve
+from chargax_marl.optimal.model import (
+    STATUS,
+    Economics,
+    Sessions,
+    StationLimits,
+    build_and_solve,
+)
 
 _FIELDS = (
     "day",
@@ -53,8 +59,12 @@ class MPC:
     ``horizon_hours`` (default 4) sets the look-ahead; ``resolve_every`` re-solves every k
     steps and in between applies the stored plan as long as the cars and SoCs are those the
     plan predicted (any difference re-solves). ``time_limit_s`` bounds each solve; a solve
-    that fails falls back to charging every car at full power and idling the batteries, and
-    is counted in ``failures``.
+    that fails (or hits the limit) falls back to charging every car at full power and idling
+    the batteries for that step, is counted in ``failures`` and is recorded with its day, step
+    and solver status in ``failed_solves`` (``{day: [(step, status), ...]}``): a day with
+    one is not the MPC's result and is scored as failed, not as a profit
+    (``baselines.eval.references.evaluate_mpc``). Any other error of the host-side step is
+    raised through ``jax.pure_callback`` as a ``RuntimeError`` naming the day and the step.
 
     A charge-sensitive car frees its port when it is charged, which only matters for cars
     the controller cannot see yet; ``urgency_eur_kwh_h`` (default 0.1 EUR/kWh per hour)
@@ -117,6 +127,7 @@ class MPC:
         self.step_hours = params.step_hours
         self.solves = 0
         self.failures = 0
+        self.failed_solves: dict[int, list[tuple[int, str]]] = {}
         self.solve_s = 0.0
         self._plans: dict = {}
 
@@ -184,8 +195,10 @@ class MPC:
                 time_limit_s=self.time_limit_s,
                 urgency_eur_kwh_h=urgency,
             )
-        except RuntimeError:
+        except RuntimeError as exc:  # SolverError, or HiGHS failing inside SciPy
             self.failures += 1
+            status = getattr(exc, "status", STATUS[4])
+            self.failed_solves.setdefault(day, []).append((t, status))
             out[:, ~self.is_battery] = self.limits.charge_kw[~self.is_battery]
             return out
         self.solve_s += sol.solve_s
@@ -210,8 +223,22 @@ class MPC:
         return np.where(scaled > 0, np.ceil(scaled - 1e-6), np.trunc(scaled)).astype(np.int32)
 
     def host_act(self, *arrays) -> np.ndarray:
+        """The levels for one host state (the body of the ``pure_callback``).
+
+        Raises:
+            RuntimeError: the host-side step failed; the message names the day and the step
+                (the cause is chained).
+        """
         s = {k: np.asarray(v) for k, v in zip(_FIELDS, arrays)}
         day, t = int(s["day"]), int(s["timestep"])
+        try:
+            return self._act(s, day, t)
+        except Exception as exc:
+            raise RuntimeError(
+                f"MPC failed on day {day}, step {t}: {type(exc).__name__}: {exc}"
+            ) from exc
+
+    def _act(self, s: dict, day: int, t: int) -> np.ndarray:
         cached = self._plans.get(day)
         if cached is not None and self.resolve_every > 1:
             t0, occ, socs, plan = cached

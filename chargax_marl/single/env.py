@@ -26,7 +26,7 @@ from gymnax.environments import environment, spaces
 
 from chargax_marl import bounds
 from chargax_marl.core import actions, observation, physics, simulator
-from chargax_marl.core.params import make_params
+from chargax_marl.core.params import make_params, validate_params
 from chargax_marl.core.types import EnvParams, EnvState
 from chargax_marl.lifecycle import check_day
 
@@ -57,9 +57,9 @@ class MultiDiscrete(spaces.Space):
 def action_levels(action: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
     """The core's per-leaf levels (or fractions) of an action array of the single-agent space.
 
-    Traceable and array-only (host input goes through :meth:`Chargax.action_to_levels`).
-    Indices outside the space are clipped into it; NaN and +-inf entries are the index of
-    idle (level 0).
+    Traceable. Indices outside the space are clipped into it (host integers beyond int32 on
+    the host first, :func:`chargax_marl.core.actions.host_array`); NaN and +-inf entries are
+    the index of idle (level 0).
 
     Args:
         action: ``(num_leaves,)`` indices of the ``MultiDiscrete`` space, or fractions in
@@ -70,7 +70,7 @@ def action_levels(action: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
         The ``(num_leaves,)`` int32 levels (float32 fractions in continuous mode).
     """
     n = params.station.num_leaves
-    action = jnp.reshape(jnp.asarray(action), (n,))
+    action = jnp.reshape(jnp.asarray(actions.host_array(action, n)), (n,))
     if params.action_mode == "continuous":
         return actions.to_fraction(action)
     if params.action_mode == "delta":
@@ -84,7 +84,8 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
     """The EV charging station as a gymnax environment.
 
     Construct with keyword overrides of :func:`chargax_marl.core.params.make_params`, or
-    pass ready ``params``. The defaults are the paper's: the 16-port ``multiple_types``
+    pass ready ``params`` (checked by :func:`chargax_marl.core.params.validate_params`, so
+    params derived with ``replace`` get the same checks; ``ValueError`` naming the field). The defaults are the paper's: the 16-port ``multiple_types``
     station, 5-minute steps over one day (288), 10 levels, V2G on, customer price
     0.75 EUR/kWh, all alpha 0, shopping users at medium traffic, EU fleet, NL-2023 prices.
     """
@@ -93,7 +94,7 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
         super().__init__()
         if params is not None and overrides:
             raise ValueError("Chargax: pass either 'params' or keyword overrides, not both")
-        self._params = params if params is not None else make_params(**overrides)
+        self._params = validate_params(params) if params is not None else make_params(**overrides)
 
     @property
     def default_params(self) -> EnvParams:
@@ -139,7 +140,12 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
         The host action (numpy, list, Python numbers) is checked and clipped into int32 /
         float32 here, once, before it enters ``jit``
         (:func:`chargax_marl.core.actions.host_array`), so a large host integer clips instead
-        of wrapping. The transition is :func:`chargax_marl.core.simulator.step_auto_reset`;
+        of wrapping. Under a caller's own ``jax.jit`` of this method JAX converts the
+        arguments at the jit boundary, before this code runs: with ``JAX_ENABLE_X64`` off a
+        numpy ``int64`` beyond int32 wraps there and a Python ``int`` beyond int32 raises
+        JAX's ``OverflowError``; call ``step`` outside ``jit`` (it jits itself) or clip with
+        :func:`chargax_marl.core.actions.host_array` first. The transition is
+        :func:`chargax_marl.core.simulator.step_auto_reset`;
         the observation is built once, from the state it returns. ``info`` is
         :func:`chargax_marl.core.simulator.info_dict` plus gymnax's ``terminated``,
         ``truncated`` and ``final_observation`` (the observation before the reset, computed

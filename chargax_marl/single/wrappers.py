@@ -13,7 +13,8 @@ from flax import struct
 from gymnax.environments import spaces as gx_spaces
 
 from chargax_marl import bounds, lifecycle, rendering
-from chargax_marl.core import observation, simulator
+from chargax_marl.core import actions, observation, simulator
+from chargax_marl.core.params import validate_params
 from chargax_marl.core.types import EnvParams, EnvState, EpisodeTotals
 from chargax_marl.single.env import Chargax, action_levels
 
@@ -147,8 +148,14 @@ class FlatDiscrete:
         return i * self.battery_levels.size + j
 
     def levels(self, action) -> jnp.ndarray:
-        """The per-leaf levels ``(L,)`` of a flat action (works under jit)."""
-        a = jnp.clip(jnp.asarray(action).astype(jnp.int32).reshape(()), 0, self.n - 1)
+        """The per-leaf levels ``(L,)`` of a flat action (works under jit).
+
+        An index outside ``[0, n)`` is clipped into it in its own dtype (a host integer beyond
+        int32 on the host first, :func:`chargax_marl.core.actions.host_array`), so it never
+        wraps; NaN and +-inf are the index of every leaf idle.
+        """
+        idle = self.action_index(0, 0)
+        a = actions.to_int32(jnp.reshape(actions.host_array(action), ()), 0, self.n - 1, idle)
         nb = self.battery_levels.size
         port = jnp.asarray(self.port_levels)[a // nb]
         bat = jnp.asarray(self.battery_levels)[a % nb]
@@ -241,7 +248,7 @@ class GymnasiumEnv(gymnasium.Env):
                 f"GymnasiumEnv: pass either 'env' or keyword overrides, not both (got {sorted(overrides)})"
             )
         self.env = env
-        self.params = params if params is not None else env.default_params
+        self.params = validate_params(params) if params is not None else env.default_params
         self.render_mode = render_mode
         self._build()
         self._key = jax.random.PRNGKey(0)
@@ -315,11 +322,7 @@ class GymnasiumEnv(gymnasium.Env):
             raise RuntimeError(
                 "GymnasiumEnv.step() called before reset(); call reset() to start a day"
             )
-        action = np.asarray(action)
-        if not self.action_space.contains(action.astype(self.action_space.dtype)):
-            raise ValueError(
-                f"action {action.tolist()} is outside the action space {self.action_space}"
-            )
+        action = self._check_action(action)
         if self._done:
             raise RuntimeError(
                 "GymnasiumEnv.step() called after the episode ended (truncated=True at the end "
@@ -345,6 +348,35 @@ class GymnasiumEnv(gymnasium.Env):
         if self.render_mode == "human":
             self.render()
         return np.array(obs, dtype=np.float32), float(reward), False, self._done, info
+
+    def _check_action(self, action) -> np.ndarray:
+        """``action`` as a numpy array of this env's action space.
+
+        Raises:
+            ValueError: the action is not an array of numbers (strings, objects, complex
+                values) or lies outside the action space; the message names the action and
+                the space.
+        """
+        try:
+            arr = np.asarray(action)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(
+                f"action {action!r} is not an array of numbers of the action space "
+                f"{self.action_space} ({exc})"
+            ) from None
+        numeric = np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)
+        if not (numeric or np.issubdtype(arr.dtype, np.bool_)):
+            raise ValueError(
+                f"action {arr.tolist()!r} (dtype {arr.dtype}) is not in the action space "
+                f"{self.action_space}: it must hold numbers"
+            )
+        with np.errstate(invalid="ignore", over="ignore"):
+            cast = arr.astype(self.action_space.dtype)
+        if not self.action_space.contains(cast):
+            raise ValueError(
+                f"action {arr.tolist()} is outside the action space {self.action_space}"
+            )
+        return arr
 
     def render(self):
         state = None if self._state is None else jax.device_get(self._state)

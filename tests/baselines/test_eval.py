@@ -151,3 +151,39 @@ def test_a_stored_mpc_pairs_only_with_the_days_it_ran_on():
     assert references.stored_mpc(stored, [3, 5, 7]) is None
     assert references.stored_mpc({"policies": {}}, [3]) is None
     assert references.stored_mpc(None, [3]) is None
+
+
+def test_a_day_with_a_failed_mpc_solve_is_reported_and_kept_out_of_the_means(monkeypatch):
+    """The MPC's solves fail on one of two days: that day is listed with the steps and the
+    status, its profit is NaN and the metrics and the paired differences use the other day."""
+    from chargax_marl.core.params import make_params
+    from chargax_marl.optimal import SolverError
+    from chargax_marl.optimal import mpc as mpc_module
+
+    params = make_params(**{**TINY_ENV, "traffic": "low"})
+    days = np.array([3, 4])
+    limit = "time or iteration limit"
+    real_solve, real_plan, today = mpc_module.build_and_solve, mpc_module.MPC.plan, {}
+
+    def plan(self, s):
+        today["day"] = int(s["day"])
+        return real_plan(self, s)
+
+    def fails_on_day_4(*args, **kwargs):
+        if today["day"] == 4:
+            raise SolverError(f"HiGHS did not solve the problem: {limit}", limit)
+        return real_solve(*args, **kwargs)
+
+    monkeypatch.setattr(mpc_module.MPC, "plan", plan)
+    monkeypatch.setattr(mpc_module, "build_and_solve", fails_on_day_4)
+    res = references.evaluate_mpc(params, days, horizon_hours=2.0)
+    profit = res["daily_profit"]
+    assert np.isfinite(profit[0]) and np.isnan(profit[1])
+    [failed] = res["failed_days"]
+    assert failed["day"] == 4 and failed["steps"] and set(failed["status"]) == {limit}
+    assert res["failures"] == len(failed["steps"])
+    m = res["metrics"]["daily_profit_eur"]
+    assert m["mean"] == pytest.approx(profit[0]) and (m["days_scored"], m["days_failed"]) == (1, 1)
+    d = stats.paired_difference(np.append(profit, profit[0] + 2.0), np.ones(3))
+    assert d["mean"] == pytest.approx(profit[0]) and d["days_excluded"] == 1
+    assert d["stderr"] == pytest.approx(1.0)

@@ -32,6 +32,7 @@ from chargax_marl.core import (
     multiple_types,
     simulator,
     single_type,
+    validated_replace,
 )
 from tests.helpers import place_car, start
 
@@ -153,6 +154,38 @@ def test_moer_array_in_wrong_unit_rejected_like_the_loader():
         datasets.load_moer(np.full(288, 400.0))
 
 
+# ----------------------------------------------------------------- derived params are checked too
+
+
+def test_params_derived_with_replace_or_hand_made_arrays_are_checked_at_construction(params):
+    """``replace`` is unchecked; the views check the params they are given, ``make_params``
+    checks hand-made station arrays, and ``validated_replace`` checks what it derives."""
+    from chargax_marl.marl.env import ChargaxMARL
+    from chargax_marl.single.env import Chargax
+
+    nan_price = params.replace(customer_price_eur_kwh=jnp.float32(NAN))
+    with pytest.raises(ValueError, match=r"'customer_price_eur_kwh'.*\[0, 1000\].*nan"):
+        Chargax(nan_price)
+    st = params.station
+    negative_root = params.replace(station=st.replace(node_max_kw=-st.node_max_kw))
+    with pytest.raises(ValueError, match=r"'station.node_max_kw'.*\[0.001, .*got -"):
+        ChargaxMARL(params=negative_root)
+    lossy = st.replace(leaf_efficiency=st.leaf_efficiency.at[3].set(1.5))
+    with pytest.raises(ValueError, match=r"'station.leaf_efficiency'.*\[0.001, 1\].*1.5.*index 3"):
+        make_params(station=lossy)
+    with pytest.raises(ValueError, match=r"'fixed_cost_eur'.*\[0, .*got -1"):
+        validated_replace(params, fixed_cost_eur=jnp.float32(-1.0))
+    with pytest.raises(ValueError, match=r"'battery_soc0_low'.*\[0, 1\].*2"):
+        validated_replace(params, battery_soc0_low=jnp.full_like(params.battery_soc0_low, 2.0))
+    with pytest.raises(ValueError, match="'day_price_quantiles_eur_kwh'.*make_params"):
+        validated_replace(params, prices_eur_kwh=params.prices_eur_kwh + 1.0)
+    with pytest.raises(TypeError, match="validated_replace.*'no_such_field'"):
+        validated_replace(params, no_such_field=1)
+    cheaper = validated_replace(params, customer_price_eur_kwh=jnp.float32(0.5))
+    assert float(cheaper.customer_price_eur_kwh) == 0.5
+    assert Chargax(cheaper).default_params is cheaper
+
+
 # ----------------------------------------------------------------- 3. zero is not "default"
 
 
@@ -269,6 +302,44 @@ def test_huge_marl_index_clips(marl_env):
     np.testing.assert_array_equal(np.asarray(big.current_a), np.asarray(top.current_a))
     _, nan, *_ = env.step(KEY, s, {a: np.float32("nan") for a in env.agents})
     assert float(nan.current_a[0]) == 0.0 and float(nan.current_a[-1]) == 0.0
+
+
+def test_host_integers_beyond_int32_clip_at_every_entry_point(params, single_env, marl_env):
+    """The action maps, the flat Discrete view and the jitted JaxMARL wrappers clip a host
+    integer beyond int32 instead of letting it wrap to a small index (the core step takes
+    arrays only: the views clip before it, see ``test_huge_core_level_clips``)."""
+    from chargax_marl.marl.wrappers import LogWrapper, WorldStateWrapper
+    from chargax_marl.single.env import action_levels
+    from chargax_marl.single.wrappers import FlatDiscrete
+
+    n = params.station.num_leaves
+    huge = np.full(n, 2**32 + 3, np.int64)  # wraps to 3 on an int32 cast
+    top_index = np.asarray(single_env.action_space(params).nvec - 1, np.int32)
+    np.testing.assert_array_equal(
+        np.asarray(action_levels(huge, params)), np.asarray(action_levels(top_index, params))
+    )
+    flat = FlatDiscrete(single_env)
+    for big in (np.int64(2**32 + 3), 2**40):
+        np.testing.assert_array_equal(
+            np.asarray(flat.levels(big)), np.asarray(flat.levels(flat.n - 1))
+        )
+
+    env = marl_env
+    top_dict = {a: env.num_actions - 1 for a in env.agents}
+    np.testing.assert_array_equal(
+        np.asarray(env.actions_to_levels(huge)), np.asarray(env.actions_to_levels(top_dict))
+    )
+    _, ms = env.reset_to_day(0)
+    ms = place_car(ms, 0, soc=0.5, arrival_soc=0.0)
+    for wrapped, state in ((LogWrapper(env), None), (WorldStateWrapper(env), ms)):
+        if state is None:
+            _, state = wrapped.reset(KEY)
+            state = state.replace(env_state=ms)
+        _, big, *_ = wrapped.step(KEY, state, {a: np.int64(2**32 + 3) for a in env.agents})
+        _, full, *_ = wrapped.step(KEY, state, top_dict)
+        big, full = (getattr(x, "env_state", x) for x in (big, full))
+        np.testing.assert_array_equal(np.asarray(big.current_a), np.asarray(full.current_a))
+        assert float(full.current_a[-1]) > 0  # the battery charges at full power
 
 
 @pytest.mark.parametrize("size", [0, 1, 16, 18])

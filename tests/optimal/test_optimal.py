@@ -12,9 +12,13 @@ import numpy as np
 import pytest
 
 from chargax_marl import evaluation, optimal, policies, trace
+from chargax_marl.core import simulator
 from chargax_marl.core.params import make_params
 from chargax_marl.core.station import Battery, Port, Splitter
+from chargax_marl.optimal import bound as bound_module
+from chargax_marl.optimal import mpc as mpc_module
 from chargax_marl.optimal.mpc import MPC
+from tests.helpers import place_car
 
 KEY = jax.random.PRNGKey(0)
 
@@ -327,6 +331,66 @@ def test_a_full_day_mpc_reaches_the_bound_when_no_car_arrives_later(action_mode,
     bound = bound_for(mpc, params, tr).profit_eur
     assert profit <= bound + 1e-3
     assert bound - profit <= tol_eur
+
+
+# --- solver failures --------------------------------------------------------------------
+
+LIMIT = "time or iteration limit"
+
+
+def test_a_failed_lp_day_is_reported_and_kept_out_of_every_mean(monkeypatch):
+    # the second day's LP hits its time limit: it is reported with its status, its profit is
+    # NaN (not a number to average) and the means and the headroom use the first day only
+    params = hand_params(ONE_PORT, [0.2] * 24, step_minutes=60.0)
+    real, calls = bound_module.build_and_solve, []
+
+    def second_day_fails(*args, **kwargs):
+        calls.append(None)
+        if len(calls) == 2:
+            raise optimal.SolverError(f"HiGHS did not solve the problem: {LIMIT}", LIMIT)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(bound_module, "build_and_solve", second_day_fails)
+    res = evaluation.hindsight_bound(params, np.array([0, 1]))
+    bound, ref = res["daily_profit"], res["reference_daily_profit"]
+    assert res["status"] == ["optimal", LIMIT]
+    assert res["failed_days"] == [{"day": 1, "status": LIMIT}]
+    assert np.isfinite(bound[0]) and np.isnan(bound[1]) and np.isfinite(ref).all()
+    stats = evaluation.summarize_profit(bound)["daily_profit_eur"]
+    assert stats["mean"] == bound[0] and stats["max"] == bound[0]
+    assert (stats["days_scored"], stats["days_failed"]) == (1, 1)
+    h = evaluation.headroom_captured(ref, ref, bound)
+    assert h["days_excluded"] == 1 and h["headroom_eur"] == pytest.approx(bound[0] - ref[0])
+    assert h["captured_eur"] == 0.0
+
+
+def test_an_mpc_error_in_the_callback_names_the_day_and_the_step(monkeypatch):
+    params = hand_params(ONE_PORT, [0.2] * 24, step_minutes=60.0)
+    state = simulator.empty_state(jnp.asarray(1), params).replace(timestep=jnp.asarray(5))
+    state = place_car(state, 0, soc=0.2, remaining_kwh=20.0, time_min=180.0)
+
+    def broken(*args, **kwargs):
+        raise ValueError("a bug in the LP builder")
+
+    monkeypatch.setattr(mpc_module, "build_and_solve", broken)
+    mpc = MPC(params)
+    with pytest.raises(Exception, match=r"MPC failed on day 1, step 5: ValueError: a bug"):
+        jax.block_until_ready(jax.jit(lambda s: mpc(s, KEY, params))(state))
+
+
+def test_an_mpc_solve_that_fails_is_recorded_with_its_day_step_and_status(monkeypatch):
+    params = hand_params(ONE_PORT, [0.2] * 24, step_minutes=60.0)
+    state = simulator.empty_state(jnp.asarray(1), params).replace(timestep=jnp.asarray(5))
+    state = place_car(state, 0, soc=0.2, remaining_kwh=20.0, time_min=180.0)
+
+    def limit(*args, **kwargs):
+        raise optimal.SolverError(f"HiGHS did not solve the problem: {LIMIT}", LIMIT)
+
+    monkeypatch.setattr(mpc_module, "build_and_solve", limit)
+    mpc = MPC(params)
+    levels = jax.jit(lambda s: mpc(s, KEY, params))(state)
+    assert int(levels[0]) == params.num_levels  # the fallback: the car at full power
+    assert mpc.failures == 1 and mpc.failed_solves == {1: [(5, LIMIT)]}
 
 
 # --- reporting --------------------------------------------------------------------------

@@ -107,6 +107,13 @@ def test_reset_to_day_is_range_checked(day):
     jax.jit(marl.reset_to_day)(jnp.asarray(3))  # traced days are not checked
 
 
+@pytest.mark.parametrize("bad", [np.array(["a"] * 17), ["x"] * 17, [None] * 17, np.ones(17) * 1j])
+def test_a_non_numeric_action_names_the_action_and_the_space(genv, bad):
+    genv.reset(seed=0)
+    with pytest.raises(ValueError, match=r"action .*action space MultiDiscrete.*numbers"):
+        genv.step(bad)
+
+
 # ------------------------------------------------------------------ render and pickle
 
 
