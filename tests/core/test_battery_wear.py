@@ -125,3 +125,30 @@ def test_bad_battery_wear_inputs_name_the_field(kwargs, field):
         Battery(**kwargs)
     with pytest.raises(ValueError, match=f"field 'battery_{field}'"):
         make_params(**{f"battery_{k}": v for k, v in kwargs.items()})
+
+
+def test_on_a_flat_price_day_a_cycle_loses_exactly_its_losses_and_wear():
+    # one price all day, no cars, no fees: a full cycle of the empty battery buys E_in / eta
+    # from the grid and sells E_out * eta back at that price, and pays the wear on both ways
+    price, eta = 0.2, 0.9
+    p = no_arrivals(
+        make_params(
+            station=_station(initial_soc=0.0, efficiency=eta),
+            prices=np.full((2, 24), price, np.float32),
+            grid_fee_eur_kwh=0.0,
+            fixed_cost_eur=0.0,
+            feed_in_factor=1.0,
+            first_weekday=0,
+        )
+    )
+    cycled, info = _run(p, [10] * 60 + [-10] * 60 + [0] * 168)
+    idle, _ = _run(p, [0] * 288)
+    assert float(np.asarray(cycled.soc)[-1]) == pytest.approx(0.0, abs=1e-4)
+    moved = np.asarray(info.leaf_energy_kwh)[:, -1]
+    e_in, e_out = float(moved[moved > 0].sum()), float(-moved[moved < 0].sum())
+    assert e_in == pytest.approx(10.0, rel=1e-3) and e_out == pytest.approx(e_in, rel=1e-4)
+    losses = price * (e_in / eta - e_out * eta)
+    wear = 0.0125 * (e_in + e_out)
+    lost = float(idle.totals.profit_eur - cycled.totals.profit_eur)
+    assert lost == pytest.approx(losses + wear, rel=1e-3)
+    assert lost > wear > 0.0
