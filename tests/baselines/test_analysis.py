@@ -147,8 +147,9 @@ def test_attribution_scores_the_run_and_swaps_ports_and_battery(ippo_run, tmp_pa
 
 def test_sensitivity_battery_step_on_an_empty_station_is_the_hand_computed_trade():
     """With no cars, charging the battery for one step changes each day by exactly what the
-    step costs at that step's price plus what the stored energy is worth at the day's end; a
-    port idling changes nothing, and neither does a step outside the day."""
+    step costs at that step's price, plus what the stored energy is worth at the day's end,
+    minus the wear of the kWh into the cells; a port idling changes nothing, and neither does a
+    step outside the day."""
     from baselines.analysis import sensitivity
     from chargax_marl.core import make_params
     from tests.helpers import no_arrivals
@@ -162,7 +163,8 @@ def test_sensitivity_battery_step_on_an_empty_station_is_the_hand_computed_trade
     )  # below the taper: the full charge
     stored = power_kw * float(params.step_hours)
     prices = storage_value.step_buy_prices(params)[days, step]
-    expected = -prices * stored / eta + storage_value.terminal_prices(params)[days] * stored
+    wear = storage_value.battery_wear_eur_kwh(params) * stored
+    expected = -prices * stored / eta + storage_value.terminal_prices(params)[days] * stored - wear
     np.testing.assert_allclose(
         out["battery_charges"]["daily_difference_eur"], expected, rtol=1e-4, atol=1e-4
     )
