@@ -51,7 +51,25 @@ def split_days(num_days: int, num_eval: int = 100, seed: int = 0) -> tuple[np.nd
 
 def run_days(act: Act, params: EnvParams, days, key: jax.Array):
     """Run ``act`` for one whole day per entry of ``days`` (vmapped); return the final totals
-    (an :class:`EpisodeTotals` with a leading axis over days)."""
+    (an :class:`EpisodeTotals` with a leading axis over days). Day ``i`` draws its cars from
+    ``split(key, len(days))[i]`` (:func:`run_days_keyed`)."""
+    days = jnp.asarray(days, jnp.int32)
+    return run_days_keyed(act, params, days, jax.random.split(key, days.shape[0]))
+
+
+def run_days_keyed(act: Act, params: EnvParams, days, keys: jax.Array):
+    """:func:`run_days` with one key per day: the cars of day ``days[i]`` are drawn from
+    ``day_keys[i]`` alone, so a day's result does not depend on which other days run beside it.
+
+    Args:
+        act: ``act(state, key) -> levels``.
+        params: the environment parameters.
+        days: ``(n,)`` day indices of the price data.
+        keys: ``(n, 2)`` keys, one per day.
+
+    Returns:
+        The final :class:`EpisodeTotals` with a leading axis ``(n,)``.
+    """
     days = jnp.asarray(days, jnp.int32)
 
     def one_day(day, key):
@@ -68,7 +86,7 @@ def run_days(act: Act, params: EnvParams, days, key: jax.Array):
         state, _ = jax.lax.scan(body, start, (act_keys, step_keys))
         return state.totals
 
-    return jax.vmap(one_day)(days, jax.random.split(key, days.shape[0]))
+    return jax.vmap(one_day)(days, keys)
 
 
 def _stats(x: np.ndarray, scored: np.ndarray) -> dict:

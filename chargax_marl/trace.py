@@ -117,16 +117,29 @@ def _make_trace(params: EnvParams, day, day_key) -> DayTrace:
     )
 
 
-def make_traces(params: EnvParams, days, key: jax.Array | None = None) -> DayTrace:
+def make_traces(
+    params: EnvParams, days, key: jax.Array | None = None, *, day_keys: jax.Array | None = None
+) -> DayTrace:
     """The traces of ``days`` (a leading axis over days) for the cars that
     :func:`chargax_marl.evaluation.run_days` draws with the same ``key`` (default
-    ``PRNGKey(0)``, the evaluation default)."""
-    key = jax.random.PRNGKey(0) if key is None else key
+    ``PRNGKey(0)``, the evaluation default).
+
+    Args:
+        params: the environment parameters.
+        days: day indices of the price data.
+        key: the evaluation key; day ``i`` gets ``split(key, len(days))[i]``.
+        day_keys: ``(len(days), 2)`` keys, one per day, in place of ``key``'s split (the
+            cars :func:`chargax_marl.evaluation.run_days_keyed` draws with them).
+
+    Returns:
+        A :class:`DayTrace` with a leading axis over days.
+    """
     days = jnp.atleast_1d(jnp.asarray(days, jnp.int32))
+    if day_keys is None:
+        key = jax.random.PRNGKey(0) if key is None else key
+        day_keys = jax.random.split(key, days.shape[0])
     fingerprint = station_fingerprint(params)
-    traces = jax.jit(jax.vmap(lambda d, k: _make_trace(params, d, k)))(
-        days, jax.random.split(key, days.shape[0])
-    )
+    traces = jax.jit(jax.vmap(lambda d, k: _make_trace(params, d, k)))(days, day_keys)
     return traces.replace(station=fingerprint)
 
 

@@ -253,10 +253,12 @@ def bound_days(
     *,
     time_limit_s: float | None = 60.0,
     with_battery: bool = True,
+    day_keys: jax.Array | None = None,
 ) -> list[Bound]:
     """:func:`hindsight_bound` for each of ``days`` with the cars that evaluation draws with
     ``key`` (default ``PRNGKey(0)``) and ``reference``'s occupancy (``with_battery``: see
-    :func:`hindsight_bound`).
+    :func:`hindsight_bound`). ``day_keys`` (one key per day) replaces ``key``'s split, as in
+    :func:`chargax_marl.evaluation.run_days_keyed`.
 
     A day whose LP fails or hits ``time_limit_s`` does not stop the others: its
     :class:`Bound` carries the solver's ``status`` and ``message`` and a NaN ``profit_eur``
@@ -266,9 +268,10 @@ def bound_days(
     Returns:
         One :class:`Bound` per day, in the order of ``days``.
     """
-    key = jax.random.PRNGKey(0) if key is None else key
-    traces = trace_lib.make_traces(params, days, key)
-    day_keys = jax.random.split(key, int(np.size(days)))
+    if day_keys is None:
+        key = jax.random.PRNGKey(0) if key is None else key
+        day_keys = jax.random.split(key, int(np.size(days)))
+    traces = trace_lib.make_traces(params, days, day_keys=day_keys)
     out = []
     for i in range(int(np.size(days))):
         tr = trace_lib.day_of(traces, i)

@@ -1,0 +1,35 @@
+"""The benchmark: versioned tasks, shipped references, and scores against them.
+
+- :mod:`~chargax_marl.benchmark.tasks`: :data:`TASKS`, the registered :class:`Task` s (the
+  scenario, the held-out days, the car draws and their keys);
+- :mod:`~chargax_marl.benchmark.references`: always-max (score 0), the LP hindsight bound
+  (score 1) and the strongest rules per day and draw, shipped with the package;
+- :mod:`~chargax_marl.benchmark.scoring`: :func:`get_normalized_score` of per-day profits and
+  :func:`score` of a policy of any kind (:mod:`~chargax_marl.benchmark.protocol`);
+- :mod:`~chargax_marl.benchmark.scoreboard`: the table of every task and policy, from files.
+"""
+
+from chargax_marl.benchmark.protocol import KINDS, play
+from chargax_marl.benchmark.references import (
+    ReferenceMismatchError,
+    compute_references,
+    load_references,
+    save_references,
+)
+from chargax_marl.benchmark.scoring import compare, get_normalized_score, score
+from chargax_marl.benchmark.tasks import TASKS, Task, get_task
+
+__all__ = [
+    "KINDS",
+    "TASKS",
+    "ReferenceMismatchError",
+    "Task",
+    "compare",
+    "compute_references",
+    "get_normalized_score",
+    "get_task",
+    "load_references",
+    "play",
+    "save_references",
+    "score",
+]

@@ -1,0 +1,246 @@
+"""Play a policy on a task's held-out days and car draws, whatever kind of policy it is.
+
+Kinds of policy (``kind=``):
+
+- ``"core"``: ``policy(state, key, params) -> levels``, the core's signed level per leaf
+  (:mod:`chargax_marl.policies`); jitted;
+- ``"single"``: ``act(obs, key) -> action`` in the single-agent view's spaces
+  (:class:`chargax_marl.single.Chargax`); jitted;
+- ``"marl"``: ``act(obs_dict, key) -> action_dict`` in the multi-agent view's spaces
+  (:class:`chargax_marl.marl.ChargaxMARL`); jitted;
+- ``"gymnasium"``: ``act(obs) -> action`` with numpy arrays, the spaces of
+  :class:`chargax_marl.single.GymnasiumEnv` (an SB3 model's ``predict``); host loop;
+- ``"pettingzoo"``: ``act(obs_dict) -> action_dict`` with numpy arrays and integers, the
+  spaces of :class:`chargax_marl.marl.ChargaxParallelEnv`; host loop.
+
+Every kind meets the same cars: draw ``r`` of day ``days[i]`` steps the simulator with the keys
+of ``day_keys[i, r]`` (:func:`chargax_marl.trace.day_keys`), as
+:func:`chargax_marl.evaluation.run_days_keyed` does. The host kinds call the policy once per
+day, draw and step (all days and draws advance together, one jitted step per time step).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from chargax_marl.core import observation, simulator
+from chargax_marl.core.types import EnvParams, EpisodeTotals
+from chargax_marl.evaluation import run_days_keyed
+from chargax_marl.marl.env import ChargaxMARL
+from chargax_marl.single.env import Chargax, action_levels
+from chargax_marl.trace import day_keys as split_day_key
+
+JIT_KINDS = ("core", "single", "marl")
+HOST_KINDS = ("gymnasium", "pettingzoo")
+KINDS = JIT_KINDS + HOST_KINDS
+"""Every kind of policy :func:`play` accepts."""
+
+
+def _check_kind(kind: str) -> None:
+    if kind not in KINDS:
+        raise ValueError(f"field 'kind' must be one of {list(KINDS)}, got {kind!r}")
+
+
+def _single_space(params: EnvParams) -> tuple[tuple[int, ...], bool, np.ndarray | None]:
+    """``(shape, integer, nvec)`` of the single-agent action space."""
+    space = Chargax(params=params).action_space(params)
+    if params.action_mode == "continuous":
+        return tuple(space.shape), False, None
+    return tuple(space.shape), True, np.asarray(space.nvec)
+
+
+def _check_single_action(out: Any, params: EnvParams, where: str) -> None:
+    shape, integer, _ = _single_space(params)
+    got_shape = tuple(np.shape(out))
+    dtype = np.dtype(out.dtype) if hasattr(out, "dtype") else np.asarray(out).dtype
+    if got_shape != shape:
+        raise ValueError(
+            f"{where}: the policy's action has shape {got_shape}; the task's action space "
+            f"({params.action_mode}, one entry per port and battery) needs shape {shape}"
+        )
+    ok = np.issubdtype(dtype, np.integer) if integer else np.issubdtype(dtype, np.floating)
+    if not ok:
+        need = "integers (level indices)" if integer else "floats (current fractions)"
+        raise ValueError(
+            f"{where}: the policy's action has dtype {dtype}; the task's action space "
+            f"({params.action_mode}) takes {need}"
+        )
+
+
+def _check_marl_actions(out: Any, env: ChargaxMARL, where: str) -> None:
+    if not isinstance(out, dict) or set(out) != set(env.agents):
+        got = sorted(out) if isinstance(out, dict) else type(out).__name__
+        raise ValueError(
+            f"{where}: the policy must return one action per agent {env.agents}, got {got}"
+        )
+    for agent, a in out.items():
+        dtype = np.dtype(a.dtype) if hasattr(a, "dtype") else np.asarray(a).dtype
+        if np.shape(a) != () or not np.issubdtype(dtype, np.integer):
+            raise ValueError(
+                f"{where}: agent {agent!r}'s action must be one integer of "
+                f"Discrete({env.num_actions}), got shape {np.shape(a)} dtype {dtype}"
+            )
+
+
+def as_core(policy: Callable, kind: str, params: EnvParams) -> Callable:
+    """A jittable policy of kind ``"core"``, ``"single"`` or ``"marl"`` as
+    ``act(state, key) -> levels``, its action checked against the task's action space.
+
+    Args:
+        policy: the policy.
+        kind: one of :data:`JIT_KINDS`.
+        params: the task's env parameters.
+
+    Returns:
+        ``act(state, key) -> levels``.
+
+    Raises:
+        ValueError: an unknown kind, or an action of the wrong shape or dtype.
+    """
+    _check_kind(kind)
+    if kind not in JIT_KINDS:
+        raise ValueError(f"as_core: kind {kind!r} is played on the host, not jitted")
+    state0 = simulator.empty_state(0, params)
+    key0 = jax.random.PRNGKey(0)
+    if kind == "core":
+
+        def act(state, key):
+            return policy(state, key, params)
+
+        out = jax.eval_shape(act, state0, key0)
+        n = params.station.num_leaves
+        if tuple(out.shape) != (n,):
+            raise ValueError(
+                f"core policy: levels of shape {tuple(out.shape)}; the station has {n} leaves"
+            )
+        return act
+    if kind == "single":
+
+        def act(state, key):
+            return action_levels(policy(observation.flat_obs(state, params), key), params)
+
+        out = jax.eval_shape(lambda s, k: policy(observation.flat_obs(s, params), k), state0, key0)
+        _check_single_action(out, params, "single-agent policy")
+        return act
+    env = ChargaxMARL(params=params)
+
+    def act(state, key):
+        return env.actions_to_levels(policy(env.get_obs(state), key))
+
+    out = jax.eval_shape(lambda s, k: policy(env.get_obs(s), k), state0, key0)
+    _check_marl_actions(out, env, "multi-agent policy")
+    return act
+
+
+def _flat(days, day_keys) -> tuple[np.ndarray, jax.Array, int, int]:
+    days = np.asarray(days, np.int32).reshape(-1)
+    keys = jnp.asarray(day_keys)
+    if keys.ndim != 3 or keys.shape[0] != days.size:
+        raise ValueError(
+            f"day_keys must have shape (days={days.size}, draws, 2), got {tuple(keys.shape)}"
+        )
+    n, r = int(keys.shape[0]), int(keys.shape[1])
+    return np.repeat(days, r), keys.reshape(n * r, keys.shape[-1]), n, r
+
+
+def _unflat(totals: EpisodeTotals, n: int, r: int) -> EpisodeTotals:
+    return jax.tree.map(lambda x: np.asarray(x).reshape((n, r) + np.shape(x)[1:]), totals)
+
+
+def play(
+    policy: Callable, params: EnvParams, days, day_keys: jax.Array, kind: str = "core"
+) -> EpisodeTotals:
+    """Play ``policy`` for one whole day per held-out day and draw.
+
+    Args:
+        policy: a policy of ``kind`` (module docstring).
+        params: the env parameters.
+        days: ``(n,)`` day indices.
+        day_keys: ``(n, draws, 2)`` keys (:meth:`chargax_marl.benchmark.Task.day_keys`).
+        kind: one of :data:`KINDS`.
+
+    Returns:
+        The days' final :class:`EpisodeTotals`, numpy leaves with leading axes
+        ``(n, draws)``.
+
+    Raises:
+        ValueError: an unknown kind or an action that does not fit the action space.
+    """
+    _check_kind(kind)
+    flat_days, flat_keys, n, r = _flat(days, day_keys)
+    if kind in HOST_KINDS:
+        return _unflat(_play_host(policy, kind, params, flat_days, flat_keys), n, r)
+    act = as_core(policy, kind, params)
+    totals = jax.jit(lambda d, k: run_days_keyed(act, params, d, k))(flat_days, flat_keys)
+    return _unflat(jax.device_get(totals), n, r)
+
+
+def _play_host(policy, kind, params, days, keys) -> EpisodeTotals:
+    """The host loop: every day and draw one env, stepped together, the policy called per env."""
+    steps = int(params.num_steps)
+    _, step_keys, battery_keys = jax.vmap(lambda k: split_day_key(k, steps))(keys)
+    state = jax.jit(jax.vmap(lambda d, k: simulator.empty_state(d, params, k)))(
+        jnp.asarray(days), battery_keys
+    )
+    if kind == "gymnasium":
+        shape, integer, nvec = _single_space(params)
+
+        def obs_fn(s):
+            return observation.flat_obs(s, params)
+
+        def to_levels(a):
+            return action_levels(a, params)
+
+        def check(a):
+            return _host_single_action(a, shape, integer, nvec)
+
+    else:
+        env = ChargaxMARL(params=params)
+
+        def obs_fn(s):
+            return env.get_obs_matrix(s)
+
+        def to_levels(a):
+            return env.actions_to_levels(a)
+
+        def check(a):
+            return env.check_actions(a)
+
+    observe = jax.jit(jax.vmap(obs_fn))
+    advance = jax.jit(jax.vmap(lambda s, k, a: simulator.step(k, s, to_levels(a), params)[0]))
+    agents = None if kind == "gymnasium" else env.agents
+    for t in range(steps):
+        obs = np.asarray(observe(state))
+        if agents is None:
+            acts = [check(policy(o)) for o in obs]
+        else:
+            acts = [check(policy(dict(zip(agents, o)))) for o in obs]
+        state = advance(state, step_keys[:, t], jnp.asarray(np.stack(acts)))
+    return jax.device_get(state.totals)
+
+
+def _host_single_action(a, shape, integer, nvec) -> np.ndarray:
+    arr = np.asarray(a)
+    if arr.shape != shape:
+        raise ValueError(
+            f"Gymnasium policy: action of shape {arr.shape}; the task's action space needs {shape}"
+        )
+    if integer:
+        if not np.issubdtype(arr.dtype, np.integer):
+            raise ValueError(
+                f"Gymnasium policy: action of dtype {arr.dtype}; the task's MultiDiscrete "
+                "space takes integers"
+            )
+        if np.any(arr < 0) or np.any(arr >= nvec):
+            raise ValueError(
+                f"Gymnasium policy: action {arr.tolist()} is outside MultiDiscrete({nvec.tolist()})"
+            )
+        return arr.astype(np.int32)
+    if not np.issubdtype(arr.dtype, np.floating):
+        raise ValueError(f"Gymnasium policy: action of dtype {arr.dtype}; the Box takes floats")
+    return arr.astype(np.float32)

@@ -1,0 +1,281 @@
+"""The references of every task: always-max (score 0), the LP hindsight bound (score 1) and
+the strongest rules, per held-out day and car draw, shipped with the package.
+
+Each task's file ``references/<task id>.json`` holds the per-day-and-draw profits of every
+reference with the fingerprint of the parameters and the package version they were computed
+on. :func:`load_references` refuses a file whose fingerprint differs from the current code's
+parameters for the task. Rebuild with::
+
+    python -m chargax_marl.benchmark.references                 # every task
+    python -m chargax_marl.benchmark.references --task Chargax-shopping-v1
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import importlib.metadata
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from chargax_marl.benchmark import protocol
+from chargax_marl.benchmark.tasks import TASKS, Task, get_task
+from chargax_marl.evaluation import METRICS
+from chargax_marl.optimal import bound_days
+from chargax_marl.policies import get_policy
+from chargax_marl.trace import params_fingerprint
+
+REFERENCES_DIR = Path(__file__).parent / "references"
+"""Where the shipped references live."""
+
+ZERO = "always_max"
+"""The reference that scores 0."""
+
+BOUND = "lp_bound"
+"""The reference that scores 1: the LP hindsight bound over always-max's occupancy."""
+
+RULES = (
+    "always_max",
+    "random",
+    "battery_rule",
+    "edf",
+    "battery_programme",
+    "plan_programme",
+    "grid_programme",
+)
+"""The rules computed for every task (:func:`chargax_marl.policies.get_policy` names)."""
+
+SECONDARY = (
+    "energy_delivered_kwh",
+    "missing_kwh_at_departure",
+    "cars_rejected",
+    "overtime_min",
+    "peak_grid_kw",
+    "battery_wear_eur",
+)
+"""Metrics reported next to a score (:data:`chargax_marl.evaluation.METRICS` names)."""
+
+
+class ReferenceMismatchError(ValueError):
+    """Stored references that do not belong to the task on this code."""
+
+
+def package_version() -> str:
+    """The installed chargax_marl version (``"unknown"`` when not installed)."""
+    try:
+        return importlib.metadata.version("chargax_marl")
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def secondary_metrics(totals) -> dict[str, float]:
+    """The mean over days and draws of each of :data:`SECONDARY` (and the profit).
+
+    Args:
+        totals: :class:`chargax_marl.core.types.EpisodeTotals` with any leading axes.
+
+    Returns:
+        ``{metric: mean}``, plus ``daily_profit_eur``.
+    """
+    out = {"daily_profit_eur": float(np.mean(np.asarray(totals.profit_eur, np.float64)))}
+    for name in SECONDARY:
+        out[name] = float(np.mean(np.asarray(getattr(totals, METRICS[name]), np.float64)))
+    return out
+
+
+def compute_references(
+    task: str | Task,
+    *,
+    rules=RULES,
+    bound: bool = True,
+    day_index=None,
+    time_limit_s: float | None = 60.0,
+    reuse_dir: str | Path | None = None,
+    log=print,
+) -> dict:
+    """Compute a task's references.
+
+    Args:
+        task: a task id or :class:`Task`.
+        rules: rule names to play (:func:`chargax_marl.policies.get_policy`).
+        bound: whether to solve the LP bound (one LP per day and draw).
+        day_index: positions in the task's held-out days to compute (default: all); the keys
+            stay those of the full schedule, so a subset equals the same rows of the whole.
+        time_limit_s: the LP's time limit per day.
+        reuse_dir: a directory of ``make optimal`` results (``results/optimal``): where one
+            was computed for the same parameters and days with key 0, its LP bound is draw 0's.
+        log: called with a line of progress (``None``: silent).
+
+    Returns:
+        The references as stored (``policies``: ``{name: {"daily_profit", "metrics"}}`` with
+        ``daily_profit`` a ``(days, draws)`` list; ``lp_bound`` also has ``status``).
+    """
+    task = get_task(task)
+    log = log or (lambda _line: None)
+    params = task.make_params()
+    days = task.eval_days()
+    keys = task.day_keys()
+    if day_index is not None:
+        days, keys = days[np.asarray(day_index)], keys[np.asarray(day_index)]
+    out = {
+        "task": task.id,
+        "params_fingerprint": params_fingerprint(params),
+        "package_version": package_version(),
+        "days": [int(d) for d in days],
+        "draws": task.draws,
+        "policies": {},
+        "wall_s": {},
+    }
+    for name in rules:
+        t0 = time.perf_counter()
+        totals = protocol.play(get_policy(name, params), params, days, keys)
+        out["policies"][name] = {
+            "daily_profit": np.asarray(totals.profit_eur, np.float64).tolist(),
+            "metrics": secondary_metrics(totals),
+        }
+        out["wall_s"][name] = round(time.perf_counter() - t0, 2)
+        log(f"{task.id} {name}: {out['policies'][name]['metrics']['daily_profit_eur']:.2f} EUR/day")
+    if bound:
+        t0 = time.perf_counter()
+        profit = np.full(keys.shape[:2], np.nan)
+        status = np.full(keys.shape[:2], "", dtype=object)
+        stored = None if day_index is not None else _stored_bound(params, days, reuse_dir)
+        for r in range(task.draws):
+            if r == 0 and stored is not None:
+                profit[:, 0], status[:, 0] = stored, "optimal (make optimal)"
+                log(f"{task.id} {BOUND}: draw 1 from {reuse_dir}")
+                continue
+            for i, b in enumerate(
+                bound_days(
+                    params,
+                    days,
+                    day_keys=keys[:, r],
+                    reference=get_policy(ZERO, params),
+                    time_limit_s=time_limit_s,
+                )
+            ):
+                profit[i, r], status[i, r] = b.profit_eur, b.status
+            log(f"{task.id} {BOUND}: draw {r + 1}/{task.draws} in {time.perf_counter() - t0:.0f} s")
+        out["policies"][BOUND] = {
+            "daily_profit": [[None if np.isnan(x) else float(x) for x in row] for row in profit],
+            "status": status.tolist(),
+        }
+        out["wall_s"][BOUND] = round(time.perf_counter() - t0, 2)
+    return out
+
+
+def _stored_bound(params, days, directory) -> np.ndarray | None:
+    """Draw 0's LP bound from ``make optimal``'s results in ``directory``, if one of them was
+    computed for these parameters and days (with key 0, the schedule's draw 0)."""
+    if directory is None:
+        return None
+    fingerprint = params_fingerprint(params)
+    for path in sorted(Path(directory).glob("*.json")):
+        data = json.loads(path.read_text())
+        if (
+            data.get("params_fingerprint") == fingerprint
+            and data.get("days") == [int(d) for d in days]
+            and data.get("key", "PRNGKey(0)") in ("PRNGKey(0)", 0)
+            and BOUND in data.get("policies", {})
+        ):
+            daily = np.asarray(data["policies"][BOUND]["daily_profit"], np.float64)
+            if daily.shape == (len(days),) and np.isfinite(daily).all():
+                return daily
+    return None
+
+
+def reference_path(task: str | Task, directory: str | Path | None = None) -> Path:
+    """The file of a task's references (in ``directory``, default :data:`REFERENCES_DIR`)."""
+    task_id = task.id if isinstance(task, Task) else str(task)
+    return Path(directory or REFERENCES_DIR) / f"{task_id}.json"
+
+
+def save_references(refs: dict, directory: str | Path | None = None) -> Path:
+    """Write references as :func:`compute_references` returns them; returns the path."""
+    path = reference_path(refs["task"], directory)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(refs, indent=1, sort_keys=True) + "\n")
+    tmp.replace(path)
+    return path
+
+
+@functools.cache
+def _read(path: Path) -> dict:
+    return json.loads(path.read_text())
+
+
+def load_references(task: str | Task, directory: str | Path | None = None) -> dict:
+    """A task's references, checked against this code.
+
+    Args:
+        task: a task id or :class:`Task`.
+        directory: where the files live (default: the shipped :data:`REFERENCES_DIR`).
+
+    Returns:
+        The stored references, with every ``daily_profit`` a float64 ``(days, draws)`` array
+        (NaN where the bound's solve failed).
+
+    Raises:
+        KeyError: an unknown task.
+        ReferenceMismatchError: no file for the task, or one computed for other parameters, days or
+            draws than the task's on this code.
+    """
+    task = get_task(task)
+    path = reference_path(task, directory)
+    if not path.exists():
+        raise ReferenceMismatchError(
+            f"no references for task {task.id!r} in {path.parent}; build them with "
+            f"python -m chargax_marl.benchmark.references --task {task.id}"
+        )
+    data = _read(path.resolve())
+    current = params_fingerprint(task.make_params())
+    if data["params_fingerprint"] != current:
+        raise ReferenceMismatchError(
+            f"references of {task.id!r} were computed on parameters with fingerprint "
+            f"{data['params_fingerprint']} (package {data.get('package_version')}), but the "
+            f"task's parameters on this code have fingerprint {current}: the model changed; "
+            f"rebuild them (python -m chargax_marl.benchmark.references --task {task.id}) "
+            "and raise the task's version"
+        )
+    days = [int(d) for d in task.eval_days()]
+    if data["days"] != days or data["draws"] != task.draws:
+        raise ReferenceMismatchError(
+            f"references of {task.id!r} cover {len(data['days'])} days x {data['draws']} draws "
+            f"that are not the task's {len(days)} held-out days x {task.draws} draws"
+        )
+    out = dict(data)
+    out["policies"] = {
+        name: {
+            **entry,
+            "daily_profit": np.array(
+                [[np.nan if x is None else x for x in row] for row in entry["daily_profit"]],
+                np.float64,
+            ),
+        }
+        for name, entry in data["policies"].items()
+    }
+    return out
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--task", action="append", help="a task id (repeatable; default: all)")
+    parser.add_argument("--out", default=str(REFERENCES_DIR), help="directory of the files")
+    parser.add_argument("--no-bound", action="store_true", help="the rules only")
+    parser.add_argument(
+        "--reuse", default=None, help="make optimal's results directory (results/optimal)"
+    )
+    args = parser.parse_args(argv)
+    for task_id in args.task or list(TASKS):
+        t0 = time.perf_counter()
+        refs = compute_references(task_id, bound=not args.no_bound, reuse_dir=args.reuse)
+        path = save_references(refs, args.out)
+        print(f"{path}: {time.perf_counter() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,218 @@
+"""Versioned benchmark tasks: what a score is measured on.
+
+A task fixes everything a score depends on: the scenario's parameters, the held-out days, the
+number of car draws per day and the keys that draw them, and the action space the references
+were computed in. Two scores of one task id are comparable; a task's version increases
+whenever a change of the model moves its references (the shipped references carry the
+parameters' fingerprint, so a stale file is refused rather than used).
+
+Key schedule: draw ``r`` of held-out day ``days[i]`` draws its cars (and the policy's keys)
+from ``jax.random.split(jax.random.PRNGKey(r), len(days))[i]``: draw 0 is the evaluation of
+:func:`chargax_marl.evaluation.evaluate` with its default key.
+
+Distribution-shift tasks are scored on the held-out days of a test price year (or market)
+that their training data do not contain: :meth:`Task.train_params` gives the training env.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from chargax_marl.core import make_params
+from chargax_marl.core.params import validate_params
+from chargax_marl.core.prices import PriceData, load_prices
+from chargax_marl.core.scenarios import scenario_kwargs
+from chargax_marl.core.types import EnvParams
+from chargax_marl.evaluation import split_days
+
+NUM_EVAL_DAYS = 100
+"""Held-out days per task."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Task:
+    """A benchmark task.
+
+    Attributes:
+        name: the id's middle part (``Chargax-<name>-v<version>``).
+        version: increases whenever a model change moves the task's references.
+        scenario: a name of :data:`chargax_marl.core.scenarios.SCENARIOS`.
+        draws: car draws per held-out day; a policy's per-day profit is the mean over them.
+        description: one line for the task table.
+        prices: the price data the task is scored on (a bundled dataset name).
+        train_prices: price datasets a shift task trains on (empty: the training days of
+            ``prices``, the days that are not held out).
+        num_eval_days: held-out days, drawn by ``split_days(num_days, num_eval_days,
+            split_seed)``.
+        split_seed: seed of the held-out split.
+        params_fn: builds the scored env's parameters in place of ``scenario`` and
+            ``prices`` (a task on a station or prices of one's own; its references are
+            built with :func:`chargax_marl.benchmark.references.compute_references`).
+    """
+
+    name: str
+    version: int
+    scenario: str
+    draws: int
+    description: str
+    prices: str = "NL-2023"
+    train_prices: tuple[str, ...] = ()
+    num_eval_days: int = NUM_EVAL_DAYS
+    split_seed: int = 0
+    params_fn: Callable[[], EnvParams] | None = None
+
+    @property
+    def id(self) -> str:
+        """The task id, ``Chargax-<name>-v<version>``."""
+        return f"Chargax-{self.name}-v{self.version}"
+
+    @property
+    def is_shift(self) -> bool:
+        """Whether the task trains on other price data than it is scored on."""
+        return bool(self.train_prices)
+
+    def env_kwargs(self) -> dict[str, Any]:
+        if self.params_fn is not None:
+            raise ValueError(f"task {self.id!r} builds its params with params_fn, not keywords")
+        """The :func:`chargax_marl.core.make_params` keywords of the scored env."""
+        return scenario_kwargs(self.scenario, prices=self.prices)
+
+    def make_params(self) -> EnvParams:
+        """The env parameters the task is scored with (every day of ``prices``)."""
+        return _params(self)
+
+    def eval_days(self) -> np.ndarray:
+        """The held-out days, ``(num_eval_days,)`` int32 indices of ``prices``."""
+        return _days(self)[1]
+
+    def train_params(self) -> EnvParams:
+        """The env a policy for this task trains in: resets draw only days it is not scored
+        on (the training days of ``prices``, or every day of ``train_prices``)."""
+        if self.params_fn is not None:
+            train_days = jnp.asarray(_days(self)[0])
+            return validate_params(self.make_params().replace(reset_days=train_days))
+        if not self.train_prices:
+            return make_params(**self.env_kwargs(), reset_days=_days(self)[0])
+        data = [load_prices(p) for p in self.train_prices]
+        joined = PriceData(
+            "+".join(self.train_prices),
+            np.concatenate([d.prices_eur_kwh for d in data]),
+            data[0].first_weekday,
+        )
+        return make_params(**scenario_kwargs(self.scenario, prices=joined))
+
+    def day_keys(self) -> jax.Array:
+        """The cars' keys, ``(num_eval_days, draws, 2)`` (the module's key schedule)."""
+        n = self.num_eval_days
+        return jnp.stack(
+            [jax.random.split(jax.random.PRNGKey(r), n) for r in range(self.draws)], axis=1
+        )
+
+    def action_space(self) -> str:
+        """The action space the references were computed in, in words."""
+        p = self.make_params()
+        return f"{p.action_mode}, {int(p.num_levels)} levels, v2g={bool(p.v2g)}"
+
+
+@functools.cache
+def _params(task: Task) -> EnvParams:
+    if task.params_fn is not None:
+        return task.params_fn()
+    return make_params(**task.env_kwargs())
+
+
+@functools.cache
+def _days(task: Task) -> tuple[np.ndarray, np.ndarray]:
+    return split_days(int(_params(task).num_days), task.num_eval_days, seed=task.split_seed)
+
+
+_MEDIUM_DRAWS = 2
+_HIGH_DRAWS = 8
+
+TASKS: dict[str, Task] = {
+    t.id: t
+    for t in (
+        Task(
+            "shopping",
+            1,
+            "shopping",
+            _MEDIUM_DRAWS,
+            "the default: shopping users, medium traffic, NL 2023 prices",
+        ),
+        Task(
+            "shopping-grid25-high",
+            1,
+            "shopping-grid25-high",
+            _HIGH_DRAWS,
+            "high traffic, the grid connection at 25 % of what the station could draw",
+        ),
+        Task(
+            "shopping-grid10-high",
+            1,
+            "shopping-grid10-high",
+            _HIGH_DRAWS,
+            "high traffic, the grid connection at 10 %",
+        ),
+        Task(
+            "shopping-peak",
+            1,
+            "shopping-peak",
+            _MEDIUM_DRAWS,
+            "an evening time-of-use surcharge and a peak-demand charge",
+        ),
+        Task(
+            "workplace",
+            1,
+            "workplace",
+            _MEDIUM_DRAWS,
+            "workplace users (long morning stays), medium traffic",
+        ),
+        Task(
+            "shift-nl2023",
+            1,
+            "shopping",
+            _MEDIUM_DRAWS,
+            "train on NL 2021-2022 prices, score on NL 2023",
+            train_prices=("NL-2021", "NL-2022"),
+        ),
+        Task(
+            "shift-nl2024",
+            1,
+            "shopping",
+            _MEDIUM_DRAWS,
+            "train on NL 2021-2022 prices, score on NL 2024",
+            prices="NL-2024",
+            train_prices=("NL-2021", "NL-2022"),
+        ),
+        Task(
+            "shift-de2023",
+            1,
+            "shopping",
+            _MEDIUM_DRAWS,
+            "train on NL 2023 prices, score on DE 2023 (another market)",
+            prices="DE-2023",
+            train_prices=("NL-2023",),
+        ),
+    )
+}
+"""Every registered task by id."""
+
+
+def get_task(task: str | Task) -> Task:
+    """The task of an id (a :class:`Task` is returned as it is).
+
+    Raises:
+        KeyError: an unknown id; the message lists the registered ones.
+    """
+    if isinstance(task, Task):
+        return task
+    if not isinstance(task, str) or task not in TASKS:
+        raise KeyError(f"unknown task {task!r}; registered tasks: {sorted(TASKS)}")
+    return TASKS[task]

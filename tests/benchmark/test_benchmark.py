@@ -1,0 +1,245 @@
+"""The benchmark: tasks, shipped references, scores and the five kinds of policy."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from chargax_marl import policies
+from chargax_marl.benchmark import (
+    TASKS,
+    ReferenceMismatchError,
+    Task,
+    compute_references,
+    get_normalized_score,
+    load_references,
+    save_references,
+    score,
+)
+from chargax_marl.benchmark.references import BOUND, ZERO
+from chargax_marl.core import Battery, Port, Splitter, make_params
+from chargax_marl.core.observation import context_index, context_size, obs_size
+from chargax_marl.core.station import KIND_BATTERY
+from chargax_marl.marl import ChargaxMARL
+from chargax_marl.single import Chargax
+from tests.helpers import no_arrivals, three_level_station
+
+# --- the shipped references ------------------------------------------------------------
+
+
+@pytest.mark.parametrize("task_id", sorted(TASKS))
+def test_shipped_references_recompute_on_this_code(task_id):
+    """Two held-out days of every task: always-max and the grid programme bit for bit, the LP
+    bound (draw 2: never taken from make optimal's results) to solver tolerance."""
+    task = TASKS[task_id]
+    stored = load_references(task)
+    rows = [0, task.num_eval_days - 1]
+    fresh = compute_references(
+        task, rules=(ZERO, "grid_programme"), bound=False, day_index=rows, log=None
+    )
+    for name in (ZERO, "grid_programme"):
+        got = np.asarray(fresh["policies"][name]["daily_profit"])
+        np.testing.assert_array_equal(got, stored["policies"][name]["daily_profit"][rows])
+    lp = compute_references(
+        dataclasses.replace(task, draws=2), rules=(), day_index=rows[:1], log=None
+    )
+    np.testing.assert_allclose(
+        lp["policies"][BOUND]["daily_profit"][0][1],
+        stored["policies"][BOUND]["daily_profit"][0, 1],
+        rtol=1e-6,
+    )
+
+
+def test_every_task_has_its_references_and_the_bound_tops_every_rule():
+    for task in TASKS.values():
+        refs = load_references(task)
+        bound = refs["policies"][BOUND]["daily_profit"].mean(axis=1)
+        for name, entry in refs["policies"].items():
+            per_day = entry["daily_profit"].mean(axis=1)
+            assert per_day.shape == (task.num_eval_days,), (task.id, name)
+            assert np.nanmean(per_day) <= np.nanmean(bound) + 1e-6, (task.id, name)
+
+
+def test_always_max_scores_exactly_zero_and_the_bound_one():
+    task = TASKS["Chargax-shopping-v1"]
+    refs = load_references(task)
+    zero = refs["policies"][ZERO]["daily_profit"]
+    assert float(get_normalized_score(task.id, zero)) == 0.0
+    assert float(get_normalized_score(task.id, refs["policies"][BOUND]["daily_profit"])) == (
+        pytest.approx(1.0, abs=1e-12)
+    )
+    played = score(policies.always_max, task.id)
+    np.testing.assert_array_equal(played["daily_profit"], zero)
+    assert played["score"] == 0.0
+    assert played["vs"][ZERO] == {"mean": 0.0, "stderr": 0.0}
+    assert played["profit_ratio_to_always_max"] == 1.0
+    assert played["metrics"]["energy_delivered_kwh"] > 0
+
+
+def test_normalized_score_is_vectorised_over_leading_axes():
+    task = TASKS["Chargax-shopping-v1"]
+    refs = load_references(task)
+    zero = refs["policies"][ZERO]["daily_profit"]
+    bound = refs["policies"][BOUND]["daily_profit"]
+    stacked = np.stack([zero, bound, 0.5 * (zero + bound)])
+    np.testing.assert_allclose(get_normalized_score(task.id, stacked), [0.0, 1.0, 0.5])
+
+
+# --- hand-made tasks --------------------------------------------------------------------
+
+
+def two_price_params():
+    """A 100 kWh, 50 kW battery at 50 % beside one port that no car visits, at 0.05 EUR/kWh
+    until noon and 0.25 after, no losses, 0.0125 EUR/kWh of wear each way: the best day buys
+    50 kWh at night and sells 100 by day, 15 - 150 * 0.0125 = 13.125 EUR; always-max (the
+    battery idle) earns 0."""
+    bat = Battery(
+        "bat",
+        capacity_kwh=100.0,
+        max_kw=50.0,
+        efficiency=1.0,
+        tau=0.99,
+        initial_soc=0.5,
+        cost_eur_kwh=2 * 6000.0 * 0.0125,
+        cycle_life=6000.0,
+    )
+    prices = np.tile(np.asarray([0.05] * 12 + [0.25] * 12, np.float32), (2, 1))
+    params = make_params(
+        station=Splitter("grid", 1000.0, (Port("p0", "DC", 500.0, 100.0), bat)),
+        prices=prices,
+        grid_fee_eur_kwh=0.0,
+        fixed_cost_eur=0.0,
+        feed_in_factor=1.0,
+    )
+    return no_arrivals(params)
+
+
+def test_a_policy_that_reaches_the_bound_on_a_hand_made_day_scores_one(tmp_path):
+    task = Task("two-price", 1, "custom", 1, "", num_eval_days=1, params_fn=two_price_params)
+    refs = compute_references(task, rules=(ZERO,), log=None)
+    bound = refs["policies"][BOUND]["daily_profit"][0][0]
+    assert bound == pytest.approx(13.125, abs=1e-4)
+    assert refs["policies"][ZERO]["daily_profit"][0][0] == 0.0
+    save_references(refs, tmp_path)
+    programme = policies.get_policy("battery_programme", task.make_params())
+    result = score(programme, task, references_dir=tmp_path)
+    # the programme reaches the optimum up to the rate curve's last discrete steps
+    assert result["score"] == pytest.approx(1.0, abs=0.005)
+    assert result["over_always_max_eur"]["mean"] == pytest.approx(13.125, abs=0.05)
+
+
+def test_references_of_other_params_are_refused(tmp_path):
+    def params_075():
+        return make_params(station=three_level_station(), traffic=150.0)
+
+    def params_070():
+        return make_params(
+            station=three_level_station(), traffic=150.0, customer_price_eur_kwh=0.70
+        )
+
+    task = Task("small", 1, "custom", 1, "", num_eval_days=1, params_fn=params_075)
+    save_references(compute_references(task, rules=(ZERO,), bound=False, log=None), tmp_path)
+    load_references(task, tmp_path)  # the same params: accepted
+    changed = dataclasses.replace(task, params_fn=params_070)
+    with pytest.raises(ReferenceMismatchError, match="fingerprint"):
+        load_references(changed, tmp_path)
+    with pytest.raises(ReferenceMismatchError, match="days"):
+        load_references(dataclasses.replace(task, draws=2), tmp_path)
+    with pytest.raises(ReferenceMismatchError, match="no references"):
+        load_references(dataclasses.replace(task, name="other"), tmp_path)
+
+
+# --- five kinds of policy, one policy ---------------------------------------------------
+
+
+def small_params():
+    return make_params(station=three_level_station(), traffic=150.0)
+
+
+@pytest.fixture(scope="module")
+def small_task(tmp_path_factory):
+    directory = tmp_path_factory.mktemp("refs")
+    task = Task("small", 1, "custom", 2, "", num_eval_days=2, params_fn=small_params)
+    save_references(compute_references(task, rules=(ZERO,), log=None), directory)
+    return task, directory
+
+
+def half_day_levels(first_half, params):
+    """Ports at full power; the battery charges in the first half of the day (the sine of the
+    time of day above 0) and discharges in the second."""
+    top = params.num_levels
+    is_battery = params.station.leaf_kind == KIND_BATTERY
+    return jnp.where(is_battery, jnp.where(first_half, top, -top), top).astype(jnp.int32)
+
+
+def test_the_five_kinds_score_the_same_policy_identically(small_task):
+    task, directory = small_task
+    params = task.make_params()
+    single = Chargax(params=params)
+    marl = ChargaxMARL(params=params)
+    n = params.station.num_leaves
+    time_in_single = obs_size(params) - context_size(params) + context_index(params, "time_of_day")
+    time_in_marl = marl.obs_size - n - context_size(params) + context_index(params, "time_of_day")
+
+    def core(state, key, p):
+        angle = 2.0 * jnp.pi * state.timestep / p.num_steps
+        return half_day_levels(jnp.sin(angle) > 0, p)
+
+    def single_act(obs, key):
+        return single.levels_to_action(half_day_levels(obs[time_in_single] > 0, params), params)
+
+    def marl_act(obs, key):
+        first_half = next(iter(obs.values()))[time_in_marl] > 0
+        return marl.levels_to_actions(half_day_levels(first_half, params))
+
+    def gym_act(obs):
+        return np.asarray(single_act(jnp.asarray(obs), None)).astype(np.int64)
+
+    def pz_act(obs):
+        return {a: int(i) for a, i in marl_act(obs, None).items()}
+
+    results = {
+        kind: score(policy, task, kind=kind, references_dir=directory)
+        for kind, policy in (
+            ("core", core),
+            ("single", single_act),
+            ("marl", marl_act),
+            ("gymnasium", gym_act),
+            ("pettingzoo", pz_act),
+        )
+    }
+    base = results["core"]["daily_profit"]
+    assert base.shape == (2, 2)
+    always_max = load_references(task, directory)["policies"][ZERO]["daily_profit"]
+    assert not np.allclose(base, always_max)  # the battery moved: not always-max in disguise
+    for kind, result in results.items():
+        np.testing.assert_array_equal(result["daily_profit"], base, err_msg=kind)
+        assert result["score"] == results["core"]["score"], kind
+
+
+# --- bad input --------------------------------------------------------------------------
+
+
+def test_bad_input_gets_a_clear_error(small_task):
+    task, directory = small_task
+    params = task.make_params()
+    n = params.station.num_leaves
+    with pytest.raises(KeyError, match="unknown task 'Chargax-nope-v1'"):
+        get_normalized_score("Chargax-nope-v1", np.zeros((100, 2)))
+    with pytest.raises(ValueError, match=r"shape \(99, 2\) does not fit task"):
+        get_normalized_score("Chargax-shopping-v1", np.zeros((99, 2)))
+    with pytest.raises(ValueError, match="field 'kind'"):
+        score(policies.always_max, task, kind="sb3", references_dir=directory)
+    with pytest.raises(ValueError, match=rf"needs shape \({n},\)"):
+        score(lambda o, k: jnp.zeros(3, jnp.int32), task, kind="single", references_dir=directory)
+    with pytest.raises(ValueError, match="dtype float32"):
+        score(lambda o, k: jnp.zeros(n), task, kind="single", references_dir=directory)
+    with pytest.raises(ValueError, match="one action per agent"):
+        score(lambda o, k: {"port_0": 0}, task, kind="marl", references_dir=directory)
+    with pytest.raises(ValueError, match="outside MultiDiscrete"):
+        score(lambda o: np.full(n, 99), task, kind="gymnasium", references_dir=directory)
+    with pytest.raises(ValueError, match="levels of shape"):
+        score(lambda s, k, p: jnp.zeros(2, jnp.int32), task, references_dir=directory)
