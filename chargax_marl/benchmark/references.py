@@ -16,6 +16,7 @@ import argparse
 import functools
 import importlib.metadata
 import json
+import re
 import time
 from pathlib import Path
 
@@ -193,12 +194,20 @@ def reference_path(task: str | Task, directory: str | Path | None = None) -> Pat
     return Path(directory or REFERENCES_DIR) / f"{task_id}.json"
 
 
+def _dumps(refs: dict) -> str:
+    """JSON with every innermost list on one line (one line per day of a reference)."""
+    text = json.dumps(refs, indent=1, sort_keys=True)
+    return re.sub(
+        r"\[\s*([^\[\]{}]*?)\s*\]", lambda m: "[" + " ".join(m.group(1).split()) + "]", text
+    )
+
+
 def save_references(refs: dict, directory: str | Path | None = None) -> Path:
     """Write references as :func:`compute_references` returns them; returns the path."""
     path = reference_path(refs["task"], directory)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(refs, indent=1, sort_keys=True) + "\n")
+    tmp.write_text(_dumps(refs) + "\n")
     tmp.replace(path)
     return path
 
