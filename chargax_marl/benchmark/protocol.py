@@ -137,7 +137,8 @@ def as_core(policy: Callable, kind: str, params: EnvParams) -> Callable:
     return act
 
 
-def _flat(days, day_keys) -> tuple[np.ndarray, jax.Array, int, int]:
+def flatten_schedule(days, day_keys) -> tuple[np.ndarray, jax.Array, int, int]:
+    """``(days repeated per draw, keys (n * draws, 2), n, draws)``: one entry per played day."""
     days = np.asarray(days, np.int32).reshape(-1)
     keys = jnp.asarray(day_keys)
     if keys.ndim != 3 or keys.shape[0] != days.size:
@@ -148,8 +149,10 @@ def _flat(days, day_keys) -> tuple[np.ndarray, jax.Array, int, int]:
     return np.repeat(days, r), keys.reshape(n * r, keys.shape[-1]), n, r
 
 
-def _unflat(totals: EpisodeTotals, n: int, r: int) -> EpisodeTotals:
-    return jax.tree.map(lambda x: np.asarray(x).reshape((n, r) + np.shape(x)[1:]), totals)
+def unflatten_totals(totals: EpisodeTotals, n: int, r: int) -> EpisodeTotals:
+    """Per-day totals (scalars per day) over the flat schedule, with any leading axes before
+    it (seeds), as ``(..., n, draws)``."""
+    return jax.tree.map(lambda x: np.asarray(x).reshape(np.shape(x)[:-1] + (n, r)), totals)
 
 
 def play(
@@ -172,12 +175,12 @@ def play(
         ValueError: an unknown kind or an action that does not fit the action space.
     """
     _check_kind(kind)
-    flat_days, flat_keys, n, r = _flat(days, day_keys)
+    flat_days, flat_keys, n, r = flatten_schedule(days, day_keys)
     if kind in HOST_KINDS:
-        return _unflat(_play_host(policy, kind, params, flat_days, flat_keys), n, r)
+        return unflatten_totals(_play_host(policy, kind, params, flat_days, flat_keys), n, r)
     act = as_core(policy, kind, params)
     totals = jax.jit(lambda d, k: run_days_keyed(act, params, d, k))(flat_days, flat_keys)
-    return _unflat(jax.device_get(totals), n, r)
+    return unflatten_totals(jax.device_get(totals), n, r)
 
 
 def _play_host(policy, kind, params, days, keys) -> EpisodeTotals:

@@ -121,7 +121,12 @@ def compare(task_id: str | Task, daily_profit, references_dir=None) -> dict:
 
 
 def score(
-    policy: Callable, task_id: str | Task, *, kind: str = "core", references_dir=None
+    policy: Callable,
+    task_id: str | Task,
+    *,
+    kind: str = "core",
+    num_levels: int | None = None,
+    references_dir=None,
 ) -> dict:
     """Play a policy on a task's held-out days and draws and score it.
 
@@ -133,6 +138,9 @@ def score(
             numpy (host loops, slower).
         task_id: a task id or :class:`Task`.
         kind: the policy's kind.
+        num_levels: levels per direction of the policy's action space, where it was trained
+            with fewer than the task's (``ENV_KWARGS = { num_levels = 1 }``: discharge,
+            idle, charge at full power); default the task's (:meth:`Task.policy_params`).
         references_dir: where the references live (default: the shipped ones).
 
     Returns:
@@ -148,7 +156,7 @@ def score(
     """
     task = get_task(task_id)
     load_references(task, references_dir)  # refuse stale references before playing
-    params = task.make_params()
+    params = task.policy_params(num_levels)
     t0 = time.perf_counter()
     totals = protocol.play(policy, params, task.eval_days(), task.day_keys(), kind=kind)
     wall_s = time.perf_counter() - t0

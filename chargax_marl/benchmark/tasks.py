@@ -88,6 +88,22 @@ class Task:
         """The env parameters the task is scored with (every day of ``prices``)."""
         return _params(self)
 
+    def policy_params(self, num_levels: int | None = None) -> EnvParams:
+        """The scored env in a policy's own action space: the task's parameters with
+        ``num_levels`` levels per direction (default: the task's). The cars, prices and
+        station stay the task's, so the profits compare with the references; only what the
+        policy can choose differs.
+
+        Raises:
+            ValueError: ``num_levels`` not a positive integer.
+        """
+        params = self.make_params()
+        if num_levels is None or int(num_levels) == int(params.num_levels):
+            return params
+        if isinstance(num_levels, bool) or int(num_levels) != num_levels or num_levels < 1:
+            raise ValueError(f"field 'num_levels' must be a positive integer, got {num_levels!r}")
+        return validate_params(params.replace(num_levels=int(num_levels)))
+
     def eval_days(self) -> np.ndarray:
         """The held-out days, ``(num_eval_days,)`` int32 indices of ``prices``."""
         return _days(self)[1]

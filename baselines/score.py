@@ -1,0 +1,155 @@
+"""Score a trained run of ``baselines.train`` on a benchmark task, every seed.
+
+    python -m baselines.score outputs/train_ippo --task Chargax-shopping-v1
+    python -m baselines.score results/ippo_shopping_medium --task Chargax-shopping-v1 \\
+        --name IPPO --out results/scores/ippo_Chargax-shopping-v1.json
+
+The run's greedy policies are played on the task's held-out days and car draws
+(:mod:`chargax_marl.benchmark`) in the run's own action space (``num_levels``), and scored
+against the task's shipped references. The score file is what the scoreboard reads
+(``python -m chargax_marl.benchmark.scoreboard``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from baselines.config import build_env_params
+from baselines.runs import load_run
+from chargax_marl.benchmark import protocol
+from chargax_marl.benchmark.references import load_references, package_version
+from chargax_marl.benchmark.scoring import compare
+from chargax_marl.benchmark.tasks import get_task
+from chargax_marl.evaluation import METRICS, run_days_keyed
+from chargax_marl.trace import params_fingerprint, station_fingerprint
+
+
+class CheckpointMismatchError(ValueError):
+    """A checkpoint trained on another station or scenario than the task's."""
+
+
+def check_run_fits(run_params, task) -> None:
+    """Refuse a run whose env differs from the task's in more than its action space.
+
+    Args:
+        run_params: the run's held-out env parameters.
+        task: the benchmark task.
+
+    Raises:
+        CheckpointMismatchError: another action mode, another station, or (for a task that is
+            not a shift task) any other parameter: scenario, prices, economics.
+    """
+    mine = task.policy_params(int(run_params.num_levels))
+    if run_params.action_mode != mine.action_mode:
+        raise CheckpointMismatchError(
+            f"the run acts in action mode {run_params.action_mode!r}; task {task.id!r} is scored "
+            f"in {mine.action_mode!r}"
+        )
+    if station_fingerprint(run_params) != station_fingerprint(mine):
+        raise CheckpointMismatchError(
+            f"the run was trained on another station than task {task.id!r}'s (station "
+            f"fingerprint {station_fingerprint(run_params)}, the task's "
+            f"{station_fingerprint(mine)})"
+        )
+    if not task.is_shift and params_fingerprint(run_params) != params_fingerprint(mine):
+        raise CheckpointMismatchError(
+            f"the run was trained on other parameters than task {task.id!r} (scenario, prices "
+            f"or economics: params fingerprint {params_fingerprint(run_params)}, the task's "
+            f"{params_fingerprint(mine)} at num_levels={int(run_params.num_levels)}); score it "
+            "on the task of its scenario"
+        )
+
+
+def score_run(run_dir: str | Path, task_id: str, references_dir=None) -> dict:
+    """Every seed of a run on a task.
+
+    Args:
+        run_dir: a ``baselines.train`` output directory (``results.json``, ``params.msgpack``).
+        task_id: a benchmark task id.
+        references_dir: where the references live (default: the shipped ones).
+
+    Returns:
+        :func:`chargax_marl.benchmark.scoring.compare`'s result over the seeds, plus
+        ``daily_profit`` ``(seeds, days, draws)``, ``metrics`` (means), ``per_seed_metrics``,
+        the run's ``algo``, ``seeds``, ``config`` and ``wall_s``.
+
+    Raises:
+        CheckpointMismatchError: the run was trained on another station or scenario.
+    """
+    task = get_task(task_id)
+    load_references(task, references_dir)
+    results, train, seed_params = load_run(run_dir)
+    _, run_params, _, _ = build_env_params(train.config)
+    check_run_fits(run_params, task)
+    params = task.policy_params(int(run_params.num_levels))
+    make_act = train.make_act(params)
+    days, keys, n, r = protocol.flatten_schedule(task.eval_days(), task.day_keys())
+    t0 = time.perf_counter()
+    totals = jax.jit(
+        jax.vmap(lambda p, d, k: run_days_keyed(make_act(p), params, d, k), in_axes=(0, None, None))
+    )(seed_params, days, keys)
+    totals = protocol.unflatten_totals(jax.device_get(totals), n, r)
+    wall_s = time.perf_counter() - t0
+    daily = np.asarray(totals.profit_eur, np.float64)
+    per_seed = {
+        name: [
+            float(x) for x in np.asarray(getattr(totals, METRICS[name]), np.float64).mean((1, 2))
+        ]
+        for name in ("daily_profit_eur", "energy_delivered_kwh", "missing_kwh_at_departure")
+        + ("cars_rejected", "overtime_min", "peak_grid_kw", "battery_wear_eur")
+    }
+    return {
+        **compare(task, daily, references_dir),
+        "daily_profit": daily,
+        "metrics": {k: float(np.mean(v)) for k, v in per_seed.items()},
+        "per_seed_metrics": per_seed,
+        "algo": results["algo"],
+        "seeds": int(daily.shape[0]),
+        "num_levels": int(params.num_levels),
+        "config": results["config"],
+        "run_dir": str(run_dir),
+        "params_fingerprint": params_fingerprint(task.make_params()),
+        "package_version": package_version(),
+        "wall_s": wall_s,
+    }
+
+
+def write_score(result: dict, name: str, path: str | Path) -> Path:
+    """Write a score file for the scoreboard: ``name`` is its row label."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    out = {k: v for k, v in result.items() if k not in ("daily_profit", "config")}
+    out["name"] = name
+    out["daily_profit"] = np.asarray(result["daily_profit"]).tolist()
+    out["config"] = {k: result["config"][k] for k in ("TOTAL_TIMESTEPS", "SCENARIO", "TRAFFIC")}
+    path.write_text(json.dumps(out, indent=1, sort_keys=True) + "\n")
+    return path
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("run_dir")
+    parser.add_argument("--task", required=True, help="a benchmark task id")
+    parser.add_argument("--name", default=None, help="the row label (default: the algorithm)")
+    parser.add_argument("--out", default=None, help="write the score file here")
+    args = parser.parse_args(argv)
+    result = score_run(args.run_dir, args.task)
+    print(
+        f"{args.task}: score {result['score']:.3f} ± {result['score_stderr']:.3f} over "
+        f"{result['seeds']} seeds, {result['over_always_max_eur']['mean']:+.2f} ± "
+        f"{result['over_always_max_eur']['stderr']:.2f} EUR/day over always-max "
+        f"({result['wall_s']:.1f} s)"
+    )
+    if args.out:
+        write_score(result, args.name or result["algo"].upper(), args.out)
+    return result
+
+
+if __name__ == "__main__":
+    main()

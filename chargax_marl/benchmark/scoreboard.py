@@ -1,0 +1,142 @@
+"""The scoreboard: every task × policy, rendered as Markdown from files.
+
+    python -m chargax_marl.benchmark.scoreboard --scores results/scores
+    python -m chargax_marl.benchmark.scoreboard --scores results/scores --time results/scores/score_time.json
+
+Rows: the shipped references of every task (:mod:`chargax_marl.benchmark.references`) and one
+row per name found in the score files of ``--scores`` (written by ``python -m
+baselines.score``: a trained agent on a task). A cell is the score (the fraction of the
+hindsight headroom captured) ± its standard error over days, and the EUR/day over
+always-max. ``--time`` measures how long :func:`chargax_marl.benchmark.score` takes for a
+jitted policy (always-max, compile included) on each task and writes it to the given file;
+with an existing file, the table shows it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+from chargax_marl import policies
+from chargax_marl.benchmark.references import BOUND, load_references
+from chargax_marl.benchmark.scoring import compare, score
+from chargax_marl.benchmark.tasks import TASKS, get_task
+from chargax_marl.trace import params_fingerprint
+
+REFERENCE_LABELS = {
+    "random": "random",
+    "always_max": "always-max",
+    "battery_rule": "always-max + battery rule",
+    "edf": "EDF",
+    "battery_programme": "battery programme",
+    "plan_programme": "plan programme",
+    "grid_programme": "grid programme",
+    BOUND: "LP hindsight bound",
+}
+"""Row labels of the references, in the table's order."""
+
+
+def _cell(result: dict) -> str:
+    over = result["over_always_max_eur"]["mean"]
+    return f"{result['score']:.2f} ± {result['score_stderr']:.2f} ({over:+.1f})"
+
+
+def read_scores(directory: str | Path) -> list[dict]:
+    """The score files of ``directory`` (``*.json`` with ``name``, ``task`` and ``score``),
+    each checked against the current code's task parameters.
+
+    Raises:
+        ValueError: a score file computed on other parameters than its task's on this code.
+    """
+    out = []
+    for path in sorted(Path(directory).glob("*.json")):
+        data = json.loads(path.read_text())
+        if not {"name", "task", "score"} <= set(data):
+            continue
+        current = params_fingerprint(get_task(data["task"]).make_params())
+        if data.get("params_fingerprint") != current:
+            raise ValueError(
+                f"{path}: scored on parameters with fingerprint {data.get('params_fingerprint')}, "
+                f"but {data['task']} has {current} on this code: re-score the run"
+            )
+        out.append(data)
+    return out
+
+
+def render(
+    scores_dir: str | Path | None = None,
+    timings: str | Path | None = None,
+    references_dir: str | Path | None = None,
+) -> str:
+    """The scoreboard as a Markdown table.
+
+    Args:
+        scores_dir: a directory of score files (none: the references alone).
+        timings: a file written by ``--time`` (none: no timing row).
+        references_dir: where the references live (default: the shipped ones).
+
+    Returns:
+        The table, one row per policy and one column per task, with the days, draws and
+        seeds each row rests on.
+    """
+    tasks = list(TASKS)
+    rows: dict[str, dict[str, str]] = {}
+    for name, label in REFERENCE_LABELS.items():
+        rows[label] = {}
+    for task_id in tasks:
+        refs = load_references(task_id, references_dir)
+        for name, label in REFERENCE_LABELS.items():
+            if name in refs["policies"]:
+                rows[label][task_id] = _cell(
+                    compare(task_id, refs["policies"][name]["daily_profit"], references_dir)
+                )
+    for data in read_scores(scores_dir) if scores_dir else []:
+        label = f"{data['name']} ({data['seeds']} seeds)"
+        rows.setdefault(label, {})[data["task"]] = _cell(data)
+    short = [t.removeprefix("Chargax-") for t in tasks]
+    lines = [
+        "| policy | " + " | ".join(f"`{s}`" for s in short) + " |",
+        "|---|" + "---|" * len(tasks),
+    ]
+    for label, cells in rows.items():
+        lines.append(f"| {label} | " + " | ".join(cells.get(t, "–") for t in tasks) + " |")
+    lines.append(
+        "| days × draws | "
+        + " | ".join(f"{TASKS[t].num_eval_days} × {TASKS[t].draws}" for t in tasks)
+        + " |"
+    )
+    if timings:
+        seconds = json.loads(Path(timings).read_text())["score_s"]
+        lines.append("| `score` time, s | " + " | ".join(f"{seconds[t]:.0f}" for t in tasks) + " |")
+    return "\n".join(lines)
+
+
+def time_score(path: str | Path) -> dict:
+    """Time :func:`chargax_marl.benchmark.score` of always-max on every task (jit compile
+    included, the references already shipped) and write ``{"score_s": {task: seconds}}``."""
+    out = {"score_s": {}, "policy": "always_max"}
+    for task_id in TASKS:
+        t0 = time.perf_counter()
+        score(policies.always_max, task_id)
+        out["score_s"][task_id] = round(time.perf_counter() - t0, 1)
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Path(path).write_text(json.dumps(out, indent=1, sort_keys=True) + "\n")
+    return out
+
+
+def main(argv=None) -> str:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scores", default=None, help="a directory of score files")
+    parser.add_argument("--time", default=None, help="a timing file (measured if missing)")
+    args = parser.parse_args(argv)
+    if args.time and not Path(args.time).exists():
+        time_score(args.time)
+    table = render(args.scores, args.time)
+    print(table)
+    return table
+
+
+if __name__ == "__main__":
+    main()
