@@ -2,7 +2,8 @@
 
     python -m baselines.score outputs/train_ippo --task Chargax-shopping-v1
     python -m baselines.score results/ippo_shopping_medium --task Chargax-shopping-v1 \\
-        --name IPPO --out results/scores/ippo_Chargax-shopping-v1.json
+        --name IPPO --out results/scores/ippo_Chargax-shopping-v1.json \\
+        --picture docs/benchmark_day_ippo_shopping.png
 
 The run's greedy policies are played on the task's held-out days and car draws
 (:mod:`chargax_marl.benchmark`) in the run's own action space (``num_levels``), and scored
@@ -23,6 +24,7 @@ import numpy as np
 from baselines.config import build_env_params
 from baselines.runs import load_run
 from chargax_marl.benchmark import protocol
+from chargax_marl.benchmark.picture import day_picture
 from chargax_marl.benchmark.references import load_references, package_version
 from chargax_marl.benchmark.scoring import compare
 from chargax_marl.benchmark.tasks import get_task
@@ -120,6 +122,26 @@ def score_run(run_dir: str | Path, task_id: str, references_dir=None) -> dict:
     }
 
 
+def picture(run_dir, task_id: str, path, name: str | None = None, day_index: int = 0):
+    """Draw seed 0 of a run on a held-out day of a task beside always-max
+    (:func:`chargax_marl.benchmark.picture.day_picture`); returns the figure."""
+    task = get_task(task_id)
+    results, train, seed_params = load_run(run_dir)
+    _, run_params, _, _ = build_env_params(train.config)
+    check_run_fits(run_params, task)
+    params = task.policy_params(int(run_params.num_levels))
+    act = train.make_act(params)(jax.tree.map(lambda x: x[0], seed_params))
+    fig, _ = day_picture(
+        lambda s, k, p: act(s, k),
+        task,
+        day_index=day_index,
+        num_levels=int(run_params.num_levels),
+        label=f"{name or results['algo'].upper()} (seed 0)",
+        path=path,
+    )
+    return fig
+
+
 def write_score(result: dict, name: str, path: str | Path) -> Path:
     """Write a score file for the scoreboard: ``name`` is its row label."""
     path = Path(path)
@@ -138,7 +160,12 @@ def main(argv=None) -> dict:
     parser.add_argument("--task", required=True, help="a benchmark task id")
     parser.add_argument("--name", default=None, help="the row label (default: the algorithm)")
     parser.add_argument("--out", default=None, help="write the score file here")
+    parser.add_argument(
+        "--picture", default=None, help="draw seed 0's first held-out day beside always-max here"
+    )
     args = parser.parse_args(argv)
+    if args.picture:
+        picture(args.run_dir, args.task, args.picture, args.name)
     result = score_run(args.run_dir, args.task)
     print(
         f"{args.task}: score {result['score']:.3f} ± {result['score_stderr']:.3f} over "

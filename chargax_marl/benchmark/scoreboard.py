@@ -2,6 +2,8 @@
 
     python -m chargax_marl.benchmark.scoreboard --scores results/scores
     python -m chargax_marl.benchmark.scoreboard --scores results/scores --time results/scores/score_time.json
+    python -m chargax_marl.benchmark.scoreboard --scores results/scores \
+        --time results/scores/score_time.json --readme README.md   # the README's table
 
 Rows: the shipped references of every task (:mod:`chargax_marl.benchmark.references`) and one
 row per name found in the score files of ``--scores`` (written by ``python -m
@@ -126,15 +128,41 @@ def time_score(path: str | Path) -> dict:
     return out
 
 
+START, END = "<!-- scoreboard:start -->", "<!-- scoreboard:end -->"
+"""The markers around the scoreboard in a Markdown file."""
+
+
+def embedded(text: str) -> str:
+    """The table between :data:`START` and :data:`END` in ``text``.
+
+    Raises:
+        ValueError: the markers are missing.
+    """
+    if START not in text or END not in text:
+        raise ValueError(f"no {START} ... {END} block in the file")
+    return text.split(START, 1)[1].split(END, 1)[0].strip()
+
+
+def embed(text: str, table: str) -> str:
+    """``text`` with the block between the markers replaced by ``table``."""
+    embedded(text)
+    head, rest = text.split(START, 1)
+    return f"{head}{START}\n{table}\n{END}{rest.split(END, 1)[1]}"
+
+
 def main(argv=None) -> str:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scores", default=None, help="a directory of score files")
     parser.add_argument("--time", default=None, help="a timing file (measured if missing)")
+    parser.add_argument("--readme", default=None, help="write the table into this file's block")
     args = parser.parse_args(argv)
     if args.time and not Path(args.time).exists():
         time_score(args.time)
     table = render(args.scores, args.time)
     print(table)
+    if args.readme:
+        path = Path(args.readme)
+        path.write_text(embed(path.read_text(), table))
     return table
 
 

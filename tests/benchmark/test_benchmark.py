@@ -19,6 +19,7 @@ from chargax_marl.benchmark import (
     save_references,
     score,
 )
+from chargax_marl.benchmark.picture import day_picture
 from chargax_marl.benchmark.references import BOUND, ZERO
 from chargax_marl.core import Battery, Port, Splitter, make_params
 from chargax_marl.core.observation import context_index, context_size, obs_size
@@ -243,3 +244,27 @@ def test_bad_input_gets_a_clear_error(small_task):
         score(lambda o: np.full(n, 99), task, kind="gymnasium", references_dir=directory)
     with pytest.raises(ValueError, match="levels of shape"):
         score(lambda s, k, p: jnp.zeros(2, jnp.int32), task, references_dir=directory)
+
+
+# --- a picture of a day -----------------------------------------------------------------
+
+
+def test_the_picture_of_a_day_shows_the_scored_day(small_task, tmp_path):
+    task, directory = small_task
+    programme = policies.battery_rule
+    played = score(programme, task, references_dir=directory)
+    fig, data = day_picture(
+        programme,
+        task,
+        day_index=1,
+        draw=1,
+        label="battery rule",
+        path=tmp_path / "day.png",
+        references_dir=directory,
+    )
+    assert (tmp_path / "day.png").stat().st_size > 0
+    assert len(fig.axes) == 6  # five panels and the heat map's colour bar
+    assert data["policy"]["total_profit_eur"] == played["daily_profit"][1, 1]
+    assert data["policy"]["port_kw"].shape == (task.make_params().num_steps, 6)
+    with pytest.raises(ValueError, match="draw in"):
+        day_picture(programme, task, draw=2, references_dir=directory)

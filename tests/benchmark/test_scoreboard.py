@@ -1,0 +1,35 @@
+"""The scoreboard: the README shows what the files give."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from chargax_marl.benchmark import scoreboard
+
+ROOT = Path(__file__).resolve().parents[2]
+SCORES = ROOT / "results" / "scores"
+
+
+def test_the_readme_shows_the_generated_scoreboard():
+    table = scoreboard.render(SCORES, SCORES / "score_time.json")
+    assert scoreboard.embedded((ROOT / "README.md").read_text()) == table
+    assert "LP hindsight bound | 1.00 ± 0.00 (+" in table
+    assert "always-max | 0.00 ± 0.00 (+0.0)" in table
+
+
+def test_a_stale_score_file_is_refused(tmp_path):
+    stored = json.loads((SCORES / "ippo_Chargax-shopping-v1.json").read_text())
+    stored["params_fingerprint"] = "0" * 16
+    (tmp_path / "stale.json").write_text(json.dumps(stored))
+    with pytest.raises(ValueError, match="re-score the run"):
+        scoreboard.read_scores(tmp_path)
+
+
+def test_embed_replaces_only_the_block():
+    text = f"a\n{scoreboard.START}\nold\n{scoreboard.END}\nb\n"
+    assert scoreboard.embed(text, "new") == f"a\n{scoreboard.START}\nnew\n{scoreboard.END}\nb\n"
+    with pytest.raises(ValueError, match="no <!-- scoreboard:start -->"):
+        scoreboard.embedded("no block")
