@@ -21,6 +21,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from chargax_marl.benchmark.tasks import TASKS, get_task
 from chargax_marl.core.params import make_params
 from chargax_marl.evaluation import split_days
 from chargax_marl.single.scenarios import SCENARIOS
@@ -94,6 +97,12 @@ SCHEMA: dict[str, Field] = {
     "SPLIT_CREDIT": Field(False, (bool,), doc="port heads and battery heads learn from own shares"),
     # the scenario and the held-out protocol
     "SCENARIO": Field("shopping", (str,), tuple(SCENARIOS), "a named scenario"),
+    "TASK": Field(
+        "",
+        (str,),
+        ("",) + tuple(TASKS),
+        "a benchmark task: its scenario, training data and held-out days (empty: SCENARIO)",
+    ),
     "TRAFFIC": Field(None, (str, int, float), doc="low / medium / high or cars per day"),
     "ENV_KWARGS": Field({}, (dict,), doc="extra keyword arguments of make_params"),
     "NUM_EVAL_DAYS": Field(100, (int,), doc="held-out days"),
@@ -238,13 +247,20 @@ def build_env_params(config: dict):
 
     Args:
         config: a resolved config (``SCENARIO``, ``TRAFFIC``, ``ENV_KWARGS``,
-            ``NUM_EVAL_DAYS``, ``SPLIT_SEED``).
+            ``NUM_EVAL_DAYS``, ``SPLIT_SEED``, ``TASK``).
 
     Returns:
         ``(train_params, eval_params, train_days, eval_days)``: training resets draw from the
         training days only; the ``NUM_EVAL_DAYS`` held-out days
         (``split_days(num_days, NUM_EVAL_DAYS, seed=SPLIT_SEED)``) are kept for evaluation.
+        With ``TASK``, the task's: its scenario, its training data (a shift task's training
+        years: ``train_days`` then index them) and its held-out days.
+
+    Raises:
+        ConfigError: ``TASK`` with ``TRAFFIC`` or a held-out split other than the task's.
     """
+    if config.get("TASK"):
+        return _task_env_params(config)
     kwargs = dict(SCENARIOS[config["SCENARIO"]])
     if config.get("TRAFFIC") is not None:
         kwargs["traffic"] = config["TRAFFIC"]
@@ -254,3 +270,20 @@ def build_env_params(config: dict):
         int(full.num_days), int(config["NUM_EVAL_DAYS"]), seed=int(config["SPLIT_SEED"])
     )
     return make_params(**kwargs, reset_days=train_days), full, train_days, eval_days
+
+
+def _task_env_params(config: dict):
+    task = get_task(config["TASK"])
+    if config.get("TRAFFIC") is not None:
+        raise ConfigError(
+            f"TASK={task.id!r} fixes the traffic; leave TRAFFIC unset (got {config['TRAFFIC']!r})"
+        )
+    split = (int(config["NUM_EVAL_DAYS"]), int(config["SPLIT_SEED"]))
+    if split != (task.num_eval_days, task.split_seed):
+        raise ConfigError(
+            f"TASK={task.id!r} holds out split_days(..., {task.num_eval_days}, "
+            f"seed={task.split_seed}); got NUM_EVAL_DAYS={split[0]}, SPLIT_SEED={split[1]}"
+        )
+    overrides = dict(config.get("ENV_KWARGS") or {})
+    train = task.train_params(**overrides)
+    return train, task.scored_params(**overrides), np.asarray(train.reset_days), task.eval_days()

@@ -108,21 +108,37 @@ class Task:
         """The held-out days, ``(num_eval_days,)`` int32 indices of ``prices``."""
         return _days(self)[1]
 
-    def train_params(self) -> EnvParams:
+    def train_params(self, **overrides: Any) -> EnvParams:
         """The env a policy for this task trains in: resets draw only days it is not scored
-        on (the training days of ``prices``, or every day of ``train_prices``)."""
+        on (the training days of ``prices``, or every day of ``train_prices``).
+
+        Args:
+            **overrides: :func:`chargax_marl.core.make_params` keywords on top of the task's
+                (``num_levels=1``: a policy trained in fewer levels); not for ``params_fn``
+                tasks.
+        """
         if self.params_fn is not None:
+            if overrides:
+                raise ValueError(f"task {self.id!r} builds its params with params_fn: no overrides")
             train_days = jnp.asarray(_days(self)[0])
             return validate_params(self.make_params().replace(reset_days=train_days))
         if not self.train_prices:
-            return make_params(**self.env_kwargs(), reset_days=_days(self)[0])
+            return make_params(**self.env_kwargs(), **overrides, reset_days=_days(self)[0])
         data = [load_prices(p) for p in self.train_prices]
         joined = PriceData(
             "+".join(self.train_prices),
             np.concatenate([d.prices_eur_kwh for d in data]),
             data[0].first_weekday,
         )
-        return make_params(**scenario_kwargs(self.scenario, prices=joined))
+        return make_params(**{**self.env_kwargs(), **overrides, "prices": joined})
+
+    def scored_params(self, **overrides: Any) -> EnvParams:
+        """The scored env with ``overrides`` on top (:meth:`make_params` without them)."""
+        if not overrides:
+            return self.make_params()
+        if self.params_fn is not None:
+            raise ValueError(f"task {self.id!r} builds its params with params_fn: no overrides")
+        return make_params(**self.env_kwargs(), **overrides)
 
     def day_keys(self) -> jax.Array:
         """The cars' keys, ``(num_eval_days, draws, 2)`` (the module's key schedule)."""

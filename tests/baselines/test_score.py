@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from baselines import score as score_cli
-from baselines.config import build_env_params
+from baselines.config import ConfigError, build_env_params, resolve
 from baselines.runs import load_run
-from chargax_marl.benchmark import Task, compute_references, save_references, score
+from chargax_marl.benchmark import TASKS, Task, compute_references, save_references, score
+from chargax_marl.trace import params_fingerprint
 
 
 @pytest.fixture(scope="module")
@@ -45,3 +46,21 @@ def test_a_checkpoint_scores_as_its_greedy_policy_does(tiny_ippo_run, run_task, 
 def test_a_checkpoint_of_another_station_is_refused(tiny_ippo_run):
     with pytest.raises(score_cli.CheckpointMismatchError, match="another station"):
         score_cli.score_run(tiny_ippo_run, "Chargax-shopping-v1")
+
+
+def test_a_task_in_the_config_trains_on_its_training_data_and_holds_out_its_days():
+    task = TASKS["Chargax-shift-nl2024-v1"]
+    train, full, train_days, eval_days = build_env_params(
+        resolve({"TASK": task.id, "ENV_KWARGS": {"num_levels": 1}})
+    )
+    assert int(train.num_days) == 365 + 365  # NL 2021 and NL 2022
+    np.testing.assert_array_equal(train_days, np.arange(730))
+    np.testing.assert_array_equal(eval_days, task.eval_days())
+    assert int(full.num_days) == 366 and int(full.num_levels) == 1
+    assert params_fingerprint(full) == params_fingerprint(task.policy_params(1))
+    with pytest.raises(ConfigError, match="fixes the traffic"):
+        build_env_params(resolve({"TASK": task.id, "TRAFFIC": "high"}))
+    with pytest.raises(ConfigError, match="NUM_EVAL_DAYS=50"):
+        build_env_params(resolve({"TASK": task.id, "NUM_EVAL_DAYS": 50}))
+    with pytest.raises(ConfigError, match="TASK"):
+        resolve({"TASK": "Chargax-nope-v1"})
