@@ -276,12 +276,30 @@ def main(argv=None) -> None:
     parser.add_argument("--out", default=str(REFERENCES_DIR), help="directory of the files")
     parser.add_argument("--no-bound", action="store_true", help="the rules only")
     parser.add_argument(
+        "--keep-bound",
+        action="store_true",
+        help="replay the rules, keep the stored LP bound (it depends on always-max's occupancy "
+        "and the parameters, which must be unchanged)",
+    )
+    parser.add_argument(
         "--reuse", default=None, help="make optimal's results directory (results/optimal)"
     )
     args = parser.parse_args(argv)
     for task_id in args.task or list(TASKS):
         t0 = time.perf_counter()
-        refs = compute_references(task_id, bound=not args.no_bound, reuse_dir=args.reuse)
+        if args.keep_bound:
+            stored = json.loads(reference_path(task_id, args.out).read_text())
+            refs = compute_references(task_id, bound=False)
+            if refs["params_fingerprint"] != stored["params_fingerprint"] or (
+                refs["policies"][ZERO]["daily_profit"] != stored["policies"][ZERO]["daily_profit"]
+            ):
+                raise SystemExit(
+                    f"{task_id}: the parameters or always-max's days moved; rebuild the bound too"
+                )
+            refs["policies"][BOUND] = stored["policies"][BOUND]
+            refs["wall_s"][BOUND] = stored["wall_s"][BOUND]
+        else:
+            refs = compute_references(task_id, bound=not args.no_bound, reuse_dir=args.reuse)
         path = save_references(refs, args.out)
         print(f"{path}: {time.perf_counter() - t0:.0f} s")
 

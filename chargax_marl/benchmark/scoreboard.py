@@ -21,11 +21,16 @@ import json
 import time
 from pathlib import Path
 
+import numpy as np
+
 from chargax_marl import policies
 from chargax_marl.benchmark.references import BOUND, load_references
 from chargax_marl.benchmark.scoring import compare, score
 from chargax_marl.benchmark.tasks import TASKS, get_task
+from chargax_marl.single.env import Chargax
 from chargax_marl.trace import params_fingerprint
+
+DEFAULT_TASK = "Chargax-shopping-v1"
 
 REFERENCE_LABELS = {
     "random": "random",
@@ -110,19 +115,33 @@ def render(
         + " |"
     )
     if timings:
-        seconds = json.loads(Path(timings).read_text())["score_s"]
-        lines.append("| `score` time, s | " + " | ".join(f"{seconds[t]:.0f}" for t in tasks) + " |")
+        measured = json.loads(Path(timings).read_text())
+        for key, label in (
+            ("score_s", "`score` time, jitted policy, s"),
+            ("gymnasium_s", "`score` time, Gymnasium host policy, s"),
+        ):
+            seconds = measured.get(key, {})
+            cells = (f"{seconds[t]:.0f}" if t in seconds else "–" for t in tasks)
+            lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
 def time_score(path: str | Path) -> dict:
     """Time :func:`chargax_marl.benchmark.score` of always-max on every task (jit compile
-    included, the references already shipped) and write ``{"score_s": {task: seconds}}``."""
-    out = {"score_s": {}, "policy": "always_max"}
+    included, the references already shipped), and of always-max as a host Gymnasium policy
+    on the default task; write ``{"score_s": {task: seconds}, "gymnasium_s": {task: s}}``."""
+    out = {"score_s": {}, "gymnasium_s": {}, "policy": "always_max"}
     for task_id in TASKS:
         t0 = time.perf_counter()
         score(policies.always_max, task_id)
         out["score_s"][task_id] = round(time.perf_counter() - t0, 1)
+    task = get_task(DEFAULT_TASK)
+    env = Chargax(params=task.make_params())
+    levels = policies.always_max(None, None, task.make_params())
+    action = np.asarray(env.levels_to_action(levels, task.make_params()), np.int64)
+    t0 = time.perf_counter()
+    score(lambda obs: action, task, kind="gymnasium")
+    out["gymnasium_s"][task.id] = round(time.perf_counter() - t0, 1)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     Path(path).write_text(json.dumps(out, indent=1, sort_keys=True) + "\n")
     return out

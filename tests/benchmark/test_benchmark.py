@@ -48,9 +48,9 @@ def _distinct_tasks():
 
 @pytest.mark.parametrize("task_id", _distinct_tasks())
 def test_shipped_references_recompute_on_this_code(task_id):
-    """The first and last held-out days of every task: always-max bit for bit; on the
-    :data:`DEEP` tasks also the battery rule bit for bit and the first day's LP bound (draw
-    2, never taken from make optimal's results) to solver tolerance."""
+    """The first and last held-out days of every task: always-max to float32 rounding; on the
+    :data:`DEEP` tasks also the battery rule, and the first day's LP bound (draw 2, never
+    taken from make optimal's results) to solver tolerance."""
     task = TASKS[task_id]
     stored = load_references(task)
     rows = [0, task.num_eval_days - 1]
@@ -58,7 +58,9 @@ def test_shipped_references_recompute_on_this_code(task_id):
     fresh = compute_references(task, rules=rules, bound=False, day_index=rows, log=None)
     for name in rules:
         got = np.asarray(fresh["policies"][name]["daily_profit"])
-        np.testing.assert_array_equal(got, stored["policies"][name]["daily_profit"][rows])
+        # float32 profits: a batch of other size (here 2 days, there 100), or another CPU's
+        # vectorisation, may round a day's sum by an ulp or two where node limits bind
+        np.testing.assert_allclose(got, stored["policies"][name]["daily_profit"][rows], rtol=1e-6)
     if task_id in DEEP:
         lp = compute_references(
             dataclasses.replace(task, draws=2), rules=(), day_index=rows[:1], log=None
