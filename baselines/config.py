@@ -257,7 +257,7 @@ def build_env_params(config: dict):
         years: ``train_days`` then index them) and its held-out days.
 
     Raises:
-        ConfigError: ``TASK`` with ``TRAFFIC`` or a held-out split other than the task's.
+        ConfigError: ``TASK`` with a ``TRAFFIC`` or a held-out split other than the task's.
     """
     if config.get("TASK"):
         return _task_env_params(config)
@@ -274,9 +274,10 @@ def build_env_params(config: dict):
 
 def _task_env_params(config: dict):
     task = get_task(config["TASK"])
-    if config.get("TRAFFIC") is not None:
+    traffic = task.env_kwargs().get("traffic")
+    if config.get("TRAFFIC") is not None and config["TRAFFIC"] != traffic:
         raise ConfigError(
-            f"TASK={task.id!r} fixes the traffic; leave TRAFFIC unset (got {config['TRAFFIC']!r})"
+            f"TASK={task.id!r} fixes the traffic at {traffic!r}; got TRAFFIC={config['TRAFFIC']!r}"
         )
     split = (int(config["NUM_EVAL_DAYS"]), int(config["SPLIT_SEED"]))
     if split != (task.num_eval_days, task.split_seed):

@@ -58,7 +58,7 @@ def test_a_task_in_the_config_trains_on_its_training_data_and_holds_out_its_days
     np.testing.assert_array_equal(eval_days, task.eval_days())
     assert int(full.num_days) == 366 and int(full.num_levels) == 1
     assert params_fingerprint(full) == params_fingerprint(task.policy_params(1))
-    with pytest.raises(ConfigError, match="fixes the traffic"):
+    with pytest.raises(ConfigError, match="fixes the traffic at .medium."):
         build_env_params(resolve({"TASK": task.id, "TRAFFIC": "high"}))
     with pytest.raises(ConfigError, match="NUM_EVAL_DAYS=50"):
         build_env_params(resolve({"TASK": task.id, "NUM_EVAL_DAYS": 50}))
