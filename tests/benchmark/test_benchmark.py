@@ -175,7 +175,8 @@ def test_references_of_other_params_are_refused(tmp_path):
 
 
 def small_params():
-    return make_params(station=three_level_station(), traffic=150.0)
+    """The six-port station with a battery, busy, in hourly steps (the host loops stay short)."""
+    return make_params(station=three_level_station(), traffic=150.0, step_minutes=60.0)
 
 
 @pytest.fixture(scope="module")
