@@ -34,7 +34,7 @@ from chargax_marl.core import (
     single_type,
     validated_replace,
 )
-from tests.helpers import place_car, start
+from tests.helpers import grid_side_node_flows_kw, place_car, start
 
 KEY = jax.random.PRNGKey(0)
 NAN, INF = float("nan"), float("inf")
@@ -461,20 +461,6 @@ def test_state_dtypes_fixed_under_x64():
 # ----------------------------------------------------------------- long run with hostile actions (items 5 and 8)
 
 
-def _grid_side_node_flows_kw(leaf_power_kw: np.ndarray, station) -> np.ndarray:
-    """(T, H) net grid-side flow through every node, from the leaf powers (T, L), in numpy."""
-    depth = np.asarray(station.node_depth)
-    at_depth = np.asarray(station.node_of_leaf_at_depth)
-    eff = np.asarray(station.leaf_efficiency_at_depth, np.float64)
-    flows = np.zeros((leaf_power_kw.shape[0], depth.shape[0]))
-    for h, d in enumerate(depth):
-        below = at_depth[d] == h
-        e = eff[d][below]
-        p = leaf_power_kw[:, below]
-        flows[:, h] = np.abs(np.where(p > 0, p / e, p * e).sum(axis=1))
-    return flows
-
-
 @pytest.mark.parametrize("action_mode", ["absolute", "delta", "continuous"])
 def test_long_run_with_nan_inf_and_out_of_range_actions_keeps_every_invariant(action_mode):
     from tests.helpers import three_level_station
@@ -527,7 +513,7 @@ def test_long_run_with_nan_inf_and_out_of_range_actions_keeps_every_invariant(ac
     ) * cap
     np.testing.assert_allclose(stored.reshape(-1, cap.shape[0]), e[:, b], atol=1e-3)
     # grid-side node limits hold in hard mode
-    flows = _grid_side_node_flows_kw(e / p.step_hours, p.station)
+    flows = grid_side_node_flows_kw(e / p.step_hours, p.station)
     limits = np.asarray(p.station.node_max_kw, np.float64)
     assert (flows <= limits * (1 + 1e-4) + 1e-6).all()
     assert float(np.abs(np.asarray(info.constraint_excess_kw)).max()) == 0.0
