@@ -160,6 +160,20 @@ def trees(draw, max_depth=3, tiny_limits=False, max_leaves=None):
     return root
 
 
+def tiny_root_station() -> Splitter:
+    """Issue 40's station: a 0.001 kW root over a V2G port, a charging-only port (150 kW each)
+    and the default battery."""
+    return Splitter(
+        "grid",
+        0.001,
+        (
+            Port("p0", "DC", 500.0, 300.0, 300.0, 0.95),
+            Port("p1", "DC", 500.0, 300.0, 0.0, 0.95),
+            Battery(),
+        ),
+    )
+
+
 def grid_side_node_flows_kw(leaf_power_kw: np.ndarray, station) -> np.ndarray:
     """``(T, H)`` net grid-side flow through every node from the leaf powers ``(T, L)``, in
     float64: a leaf's power divided by the efficiency of its path up to and including the node

@@ -19,7 +19,7 @@ from chargax_marl.core import (
 )
 from chargax_marl.core.physics import node_flows_kw, rescale_to_limits
 from chargax_marl.core.station import KIND_AC, KIND_BATTERY, KIND_DC, build_station
-from tests.helpers import grid_side_node_flows_kw, three_level_station, trees
+from tests.helpers import grid_side_node_flows_kw, three_level_station, tiny_root_station, trees
 
 
 def test_default_station_is_the_papers():
@@ -131,20 +131,8 @@ def test_rescale_holds_every_limit_and_never_flips_or_grows(tree, seed):
     np.testing.assert_allclose(o_pos[untouched], np.asarray(charging)[untouched], rtol=1e-6)
 
 
-# The issue's station: a 0.001 kW root over a V2G port, a charging-only port and a battery.
-ISSUE_40_STATION = Splitter(
-    "grid",
-    0.001,
-    (
-        Port("p0", "DC", 500.0, 300.0, 300.0, 0.95),
-        Port("p1", "DC", 500.0, 300.0, 0.0, 0.95),
-        Battery(),
-    ),
-)
-
-
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@example(tree=ISSUE_40_STATION, seed=32, cancel=True)
+@example(tree=tiny_root_station(), seed=32, cancel=True)
 @given(
     tree=trees(max_depth=4, tiny_limits=True, max_leaves=64),
     seed=st.integers(0, 2**31 - 1),
