@@ -174,10 +174,11 @@ def run(
     metric_chunks: list = []
     start = None
     if resume:
-        start = _resume_from(checkpoint, record, train, keys, out, multi)
-        metric_chunks = start[2]
-        evals.extend(start[4])
-        start = start[:4]
+        next_chunk, state, metric_chunks, seconds, done = _resume_from(
+            checkpoint, record, train, keys, out, multi
+        )
+        evals.extend(done)
+        start = (next_chunk, state, metric_chunks, seconds)
 
     def on_chunk_and_save(i, rs, m, steps, seconds):
         on_chunk(i, rs, m, steps, seconds)
