@@ -34,7 +34,15 @@ def shard_envs(tree, mesh: Mesh):
 
 
 def chunk_bounds(total_updates: int, num_chunks: int) -> np.ndarray:
-    """The update index at which each of ``num_chunks`` chunks starts, then ``total_updates``."""
+    """Where the chunks of a run start and end.
+
+    Args:
+        total_updates: The PPO updates of the whole run.
+        num_chunks: How many chunks they are split into.
+
+    Returns:
+        ``(num_chunks + 1,)`` the update index at which each chunk starts, then ``total_updates``.
+    """
     return np.linspace(0, total_updates, num_chunks + 1).astype(int)
 
 
