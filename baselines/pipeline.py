@@ -61,11 +61,24 @@ def run(
     quiet: bool = False,
     optimal: str = "off",
     references_dir=None,
+    resume: bool = False,
 ) -> RunOutput:
     """Train ``seeds`` seeds of ``algo`` and evaluate them; returns the results dict (and
     writes the outputs when ``out`` is given). ``eval_params`` / ``env_params`` override the
     evaluation and training parameters (e.g. another price year). ``optimal`` adds the LP
-    bound (and the MPC) to the baselines, see :func:`baseline_results`."""
+    bound (and the MPC) to the baselines, see :func:`baseline_results`.
+
+    With ``out``, the whole training state (parameters, optimiser states, env states, keys,
+    the curves and the held-out evaluations so far) is written to ``out/checkpoint.msgpack``
+    (:func:`baselines.runs.save_checkpoint`, atomically) at the end of every chunk, on a single
+    process. ``resume=True`` continues from that checkpoint: the run ends with the parameters
+    and results it would have had without the interruption (the timings aside).
+
+    Raises:
+        ValueError: ``resume`` without ``out``, without a readable checkpoint there, with one
+            of another run (algorithm, config, seeds, chunks or references), or on several
+            processes.
+    """
 
     main_process = distributed.is_main()  # only process 0 writes and prints the evaluation
     quiet = quiet or not main_process
@@ -146,7 +159,37 @@ def run(
     keys = jax.random.split(jax.random.PRNGKey(seed), seeds)
     if multi:  # inputs of a program over every process's devices must be global arrays
         keys = distributed.replicate(keys)
-    rs, metrics, train_seconds = runner.run_in_chunks(train, keys, chunks, on_chunk, desc=algo)
+    record = runs.to_jsonable(
+        {
+            "algo": algo,
+            "config": config,
+            "seeds": seeds,
+            "seed": seed,
+            "chunks": chunks,
+            "optimal": optimal,
+            "references_dir": None if references_dir is None else str(references_dir),
+        }
+    )
+    checkpoint = None if out is None or multi else Path(out) / runs.CHECKPOINT
+    metric_chunks: list = []
+    start = None
+    if resume:
+        next_chunk, state, metric_chunks, seconds, done = _resume_from(
+            checkpoint, record, train, keys, out, multi
+        )
+        evals.extend(done)
+        start = (next_chunk, state, metric_chunks, seconds)
+
+    def on_chunk_and_save(i, rs, m, steps, seconds):
+        on_chunk(i, rs, m, steps, seconds)
+        metric_chunks.append(m)
+        if checkpoint is not None:
+            progress = {"metrics": metric_chunks, "evals": evals, "seconds": seconds}
+            runs.save_checkpoint(checkpoint, record, i + 1, rs, progress)
+
+    rs, metrics, train_seconds = runner.run_in_chunks(
+        train, keys, chunks, on_chunk_and_save, desc=algo, resume=start
+    )
     params = host(rs.params)
     final = heldout.evaluate_batched(
         make_act, params, eval_params, eval_days, reference_profit=am_daily, draws=draws
@@ -273,6 +316,56 @@ def run(
         if not quiet:
             print(f"wrote {out / 'curve.png'}, {out / 'results.json'}, {out / 'params.msgpack'}")
     return RunOutput(results=results, params=params, trainer=train)
+
+
+def _resume_from(checkpoint, record: dict, train: Trainer, keys, out, multi: bool):
+    """``(next_chunk, runner_state, metric_chunks, seconds, evals)`` of the checkpoint a
+    resumed :func:`run` continues from (see there for the errors)."""
+    if multi:
+        raise ValueError("resume: a run on several processes cannot be resumed (no checkpoint)")
+    if checkpoint is None:
+        raise ValueError("resume: give the run directory (out) whose checkpoint to continue")
+    if not checkpoint.exists():
+        raise ValueError(
+            f"resume: {checkpoint} does not exist (the run never finished a chunk in {out})"
+        )
+    template = jax.eval_shape(jax.vmap(train.init), keys)
+    state = runs.load_checkpoint(checkpoint, template)
+    stored = state["run"]
+    if stored != record:
+        changed = sorted(k for k in set(stored) | set(record) if stored.get(k) != record.get(k))
+        raise ValueError(
+            f"resume: {checkpoint} is a checkpoint of another run (differs in {changed}); "
+            "resume with the settings it was started with (`python -m baselines.train --resume "
+            f"{out}` reads them from the checkpoint)"
+        )
+    progress = state["progress"]
+    return (
+        state["next_chunk"],
+        state["runner_state"],
+        progress["metrics"],
+        float(progress["seconds"]),
+        progress["evals"],
+    )
+
+
+def resume_settings(out) -> dict:
+    """The settings a run was started with, from the checkpoint in its directory ``out``.
+
+    Args:
+        out: A run directory of ``python -m baselines.train``.
+
+    Returns:
+        ``{"algo", "config", "seeds", "seed", "chunks", "optimal", "references_dir"}``, the
+        keyword arguments of :func:`run` (with ``out`` and ``resume=True``) that continue it.
+
+    Raises:
+        ValueError: no readable checkpoint in ``out``.
+    """
+    path = Path(out) / runs.CHECKPOINT
+    if not path.exists():
+        raise ValueError(f"--resume: {path} does not exist (no chunk of that run finished)")
+    return runs.load_checkpoint(path)["run"]
 
 
 def add_stored_mpc(run_dir, references_dir) -> dict:

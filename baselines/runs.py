@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import warnings
 from pathlib import Path
 
@@ -15,12 +16,52 @@ import numpy as np
 
 from baselines.algos import registry
 
+CHECKPOINT = "checkpoint.msgpack"
+"""The file name of a run's checkpoint in its output directory."""
 
-def save_params(params, path: str | Path) -> Path:
+CHECKPOINT_FORMAT = 1
+"""The layout of :func:`save_checkpoint`'s file; a checkpoint of another layout is refused."""
+
+
+def atomic_write_bytes(data: bytes, path: str | Path) -> Path:
+    """Write ``data`` to ``path`` so that ``path`` holds either its old or its new content.
+
+    The bytes go to a temporary file in the same directory, are flushed to disk, and the file
+    is renamed over ``path`` (``os.replace``, atomic on POSIX): a process killed while writing
+    leaves the previous file whole (and at worst a stray ``.tmp`` file).
+
+    Args:
+        data: The file's new content.
+        path: The file to write.
+
+    Returns:
+        ``path``.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(flax.serialization.to_bytes(jax.device_get(params)))
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
     return path
+
+
+def save_params(params, path: str | Path) -> Path:
+    """Write ``params`` (any pytree of arrays) as flax msgpack, atomically.
+
+    Args:
+        params: The parameters (e.g. every seed's, leading axis = seed).
+        path: The file to write.
+
+    Returns:
+        ``path``.
+    """
+    return atomic_write_bytes(flax.serialization.to_bytes(jax.device_get(params)), path)
 
 
 def load_params(template, path: str | Path):
@@ -59,11 +100,107 @@ def _dumps(x, indent: int = 0) -> str:
 
 
 def write_json(obj: dict, path: str | Path) -> Path:
-    """Write ``obj`` (see :func:`to_jsonable`) as indented JSON whose number lists take one line each."""
+    """Write ``obj`` (see :func:`to_jsonable`) as indented JSON whose number lists take one line
+    each, atomically (:func:`atomic_write_bytes`)."""
+    return atomic_write_bytes((_dumps(to_jsonable(obj)) + "\n").encode(), path)
+
+
+def save_checkpoint(path: str | Path, run: dict, next_chunk: int, runner_state, progress) -> Path:
+    """Write the whole state of an unfinished training run, atomically.
+
+    Args:
+        path: The checkpoint file (:data:`CHECKPOINT` in the run directory).
+        run: What restarts the run: the algorithm, the resolved config and the run keys
+            (JSON values).
+        next_chunk: The index of the chunk to train next.
+        runner_state: The trainer's runner state after the chunks before ``next_chunk``
+            (parameters, optimiser state, env states, keys, update counter of every seed).
+        progress: What the run has recorded so far (the metrics of each chunk, the held-out
+            evaluations, the seconds spent), any mix of dicts, lists, arrays and numbers.
+
+    Returns:
+        ``path``.
+    """
+    leaves = [np.asarray(x) for x in jax.tree.leaves(jax.device_get(runner_state))]
+    payload = {
+        "format": CHECKPOINT_FORMAT,
+        "run": json.dumps(run, sort_keys=True),
+        "next_chunk": int(next_chunk),
+        "runner_state": {str(i): x for i, x in enumerate(leaves)},
+        "progress": _to_msgpack(progress),
+    }
+    return atomic_write_bytes(flax.serialization.msgpack_serialize(payload), path)
+
+
+def load_checkpoint(path: str | Path, runner_template=None) -> dict:
+    """Read a checkpoint of :func:`save_checkpoint`.
+
+    Args:
+        path: The checkpoint file.
+        runner_template: A pytree with the runner state's structure, shapes and dtypes (e.g.
+            ``jax.eval_shape`` of the trainer's init); None leaves ``runner_state`` a list of
+            its leaves.
+
+    Returns:
+        ``{"run", "next_chunk", "runner_state", "progress"}``.
+
+    Raises:
+        ValueError: The file is not a checkpoint of this layout, or its runner state does not
+            match ``runner_template`` (another algorithm, config or code version).
+    """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(_dumps(to_jsonable(obj)) + "\n")
-    return path
+    try:
+        payload = flax.serialization.msgpack_restore(path.read_bytes())
+    except Exception as e:  # msgpack raises several types on truncated or foreign bytes
+        raise ValueError(f"{path}: not a readable training checkpoint ({e})") from e
+    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(
+            f"{path}: not a training checkpoint of format {CHECKPOINT_FORMAT} "
+            f"(got {payload.get('format') if isinstance(payload, dict) else type(payload)})"
+        )
+    stored = payload["runner_state"]
+    leaves = [np.asarray(stored[str(i)]) for i in range(len(stored))]
+    runner_state = leaves
+    if runner_template is not None:
+        want, treedef = jax.tree.flatten(runner_template)
+        got = [(x.shape, x.dtype) for x in leaves]
+        if got != [(tuple(w.shape), np.dtype(w.dtype)) for w in want]:
+            raise ValueError(
+                f"{path}: the stored runner state ({len(leaves)} arrays) does not match this "
+                f"trainer's ({len(want)} arrays): another algorithm, config or code version"
+            )
+        runner_state = jax.tree.unflatten(treedef, [jnp.asarray(x) for x in leaves])
+    return {
+        "run": json.loads(payload["run"]),
+        "next_chunk": int(payload["next_chunk"]),
+        "runner_state": runner_state,
+        "progress": _from_msgpack(payload["progress"]),
+    }
+
+
+def _to_msgpack(x):
+    """``x`` with lists tagged (msgpack stores dicts with string keys, arrays and numbers)."""
+    if isinstance(x, dict):
+        return {"dict": {str(k): _to_msgpack(v) for k, v in x.items()}}
+    if isinstance(x, (list, tuple)):
+        return {"list": {str(i): _to_msgpack(v) for i, v in enumerate(x)}}
+    if x is None:
+        return {"none": 0}
+    if isinstance(x, (np.ndarray, jnp.ndarray)):
+        return {"array": np.asarray(x)}
+    return {"value": x}
+
+
+def _from_msgpack(x):
+    """The inverse of :func:`_to_msgpack`."""
+    ((tag, v),) = x.items()
+    if tag == "dict":
+        return {k: _from_msgpack(u) for k, u in v.items()}
+    if tag == "list":
+        return [_from_msgpack(v[str(i)]) for i in range(len(v))]
+    if tag == "none":
+        return None
+    return v
 
 
 def smooth_nan(x: np.ndarray) -> np.ndarray:

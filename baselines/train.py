@@ -4,6 +4,7 @@
     python -m baselines.train --config ppo TOTAL_TIMESTEPS=2e6 SEEDS=2 OUT=outputs/ppo_2e6
     python -m baselines.train --config my_settings.toml SCENARIO=shopping-grid25-high
     python -m baselines.train --replot outputs/train_ippo --references results/optimal
+    python -m baselines.train --resume outputs/train_ippo     # continue a killed run
 
 ``--config`` names a file of ``baselines/configs/`` (or a path); ``KEY=value`` arguments
 override its keys (:mod:`baselines.config` lists them all; an unknown key is an error). The
@@ -18,7 +19,10 @@ policies are scored on the held-out days (:mod:`baselines.pipeline`).
 
 Outputs in ``OUT``: ``curve.png``, ``results.json`` (config, curves, the evaluation table
 with every reference, paired differences, wall time) and ``params.msgpack`` (the final
-parameters of every seed; leading axis = seed).
+parameters of every seed; leading axis = seed), each written atomically, and
+``checkpoint.msgpack``, the whole training state after the last finished chunk. A run that was
+killed continues from it with ``--resume OUT`` (the settings come from the checkpoint) and
+ends with the parameters and results an uninterrupted run has (the timings aside).
 """
 
 from __future__ import annotations
@@ -34,7 +38,7 @@ if __name__ == "__main__":  # before the imports below: importing gymnax already
     distributed.initialize_from_argv()
 from baselines import pipeline  # noqa: E402
 from baselines.algos import distributed  # noqa: E402
-from baselines.config import DEFAULT_CONFIG, load  # noqa: E402
+from baselines.config import DEFAULT_CONFIG, ConfigError, load  # noqa: E402
 
 
 def parser() -> argparse.ArgumentParser:
@@ -62,6 +66,13 @@ def parser() -> argparse.ArgumentParser:
         default="results/optimal",
         help="with --replot: the directory `make optimal` wrote (default results/optimal)",
     )
+    p.add_argument(
+        "--resume",
+        default=None,
+        metavar="RUN_DIR",
+        help="continue the run whose directory this is from its checkpoint (after the last "
+        "finished chunk), with the settings it was started with; no --config or KEY=value",
+    )
     distributed.add_arguments(p)
     return p
 
@@ -73,7 +84,9 @@ def main(argv=None) -> dict:
         The run's results (what ``results.json`` holds), or ``{}`` for ``--replot``.
 
     Raises:
-        baselines.config.ConfigError: an unknown config, key or value.
+        baselines.config.ConfigError: an unknown config, key or value, or overrides with
+            ``--resume``.
+        ValueError: ``--resume`` of a directory without a readable checkpoint.
     """
     a = parser().parse_intermixed_args(argv)
     if a.replot:
@@ -88,6 +101,24 @@ def main(argv=None) -> dict:
     # `python -m baselines.train` has initialised before its imports; a caller of main() must have
     # called distributed.initialize() before importing baselines.train
     distributed.initialize_from_argv(argv)
+    if a.resume:
+        if a.overrides:
+            raise ConfigError(
+                f"--resume {a.resume}: the run continues with its own settings; drop {a.overrides}"
+            )
+        s = pipeline.resume_settings(a.resume)
+        out = pipeline.run(
+            s["algo"],
+            s["config"],
+            seeds=s["seeds"],
+            seed=s["seed"],
+            out=a.resume,
+            chunks=s["chunks"],
+            optimal=s["optimal"],
+            references_dir=s["references_dir"],
+            resume=True,
+        )
+        return out.results
     config, run = load(a.config, a.overrides)
     if jax.process_index() == 0:
         print(

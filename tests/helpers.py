@@ -108,11 +108,31 @@ def mixed_station() -> Splitter:
 
 
 @st.composite
-def trees(draw, max_depth=3):
+def trees(draw, max_depth=3, tiny_limits=False, max_leaves=None):
+    """A random station tree (hypothesis strategy).
+
+    Args:
+        draw: Hypothesis' draw function.
+        max_depth: The deepest level of a leaf below the grid connection's child.
+        tiny_limits: Draw every splitter's limit log-uniformly from 0.001 kW to 10 MW (else
+            from 1 to 500 kW, the root's from 1 to 800 kW).
+        max_leaves: At most this many leaves (ports and batteries) in the whole tree.
+
+    Returns:
+        The root :class:`Splitter`.
+    """
     counter = iter(range(10_000))
+    leaves = [1]  # the always-present port
+
+    def limit_kw(low, high):
+        if tiny_limits:
+            return 10.0 ** draw(st.floats(-3.0, 4.0))
+        return draw(st.floats(low, high))
 
     def node(depth):
-        if depth >= max_depth or draw(st.booleans()) and depth > 0:
+        full = max_leaves is not None and leaves[0] >= max_leaves - 1
+        if full or depth >= max_depth or draw(st.booleans()) and depth > 0:
+            leaves[0] += 1
             if draw(st.integers(0, 5)) == 0:
                 return Battery(
                     f"b{next(counter)}",
@@ -131,15 +151,44 @@ def trees(draw, max_depth=3):
                 draw(st.floats(0.8, 1.0)),
             )
         kids = tuple(node(depth + 1) for _ in range(draw(st.integers(1, 3))))
-        return Splitter(
-            f"s{next(counter)}", draw(st.floats(1.0, 500.0)), kids, draw(st.floats(0.8, 1.0))
-        )
+        return Splitter(f"s{next(counter)}", limit_kw(1.0, 500.0), kids, draw(st.floats(0.8, 1.0)))
 
     root = node(0)
     if not isinstance(root, Splitter):
         root = Splitter("root", 100.0, (root,))
-    root = Splitter("grid", draw(st.floats(1.0, 800.0)), (root, Port("always_port")))
+    root = Splitter("grid", limit_kw(1.0, 800.0), (root, Port("always_port")))
     return root
+
+
+def tiny_root_station() -> Splitter:
+    """Issue 40's station: a 0.001 kW root over a V2G port, a charging-only port (150 kW each)
+    and the default battery."""
+    return Splitter(
+        "grid",
+        0.001,
+        (
+            Port("p0", "DC", 500.0, 300.0, 300.0, 0.95),
+            Port("p1", "DC", 500.0, 300.0, 0.0, 0.95),
+            Battery(),
+        ),
+    )
+
+
+def grid_side_node_flows_kw(leaf_power_kw: np.ndarray, station) -> np.ndarray:
+    """``(T, H)`` net grid-side flow through every node from the leaf powers ``(T, L)``, in
+    float64: a leaf's power divided by the efficiency of its path up to and including the node
+    when it charges, multiplied by it when it discharges."""
+    leaf_power_kw = np.atleast_2d(np.asarray(leaf_power_kw, np.float64))
+    depth = np.asarray(station.node_depth)
+    at_depth = np.asarray(station.node_of_leaf_at_depth)
+    eff = np.asarray(station.leaf_efficiency_at_depth, np.float64)
+    flows = np.zeros((leaf_power_kw.shape[0], depth.shape[0]))
+    for h, d in enumerate(depth):
+        below = at_depth[d] == h
+        e = eff[d][below]
+        p = leaf_power_kw[:, below]
+        flows[:, h] = np.abs(np.where(p > 0, p / e, p * e).sum(axis=1))
+    return flows
 
 
 TINY_ENV = {

@@ -33,30 +33,66 @@ def shard_envs(tree, mesh: Mesh):
     )
 
 
-def run_in_chunks(train, keys, num_chunks: int, on_chunk=None, desc: str = "train"):
-    """Run ``train.init`` then ``train.run_updates`` in ``num_chunks`` jitted chunks over the
-    vmapped seeds, calling ``on_chunk(chunk_index, runner_state, metrics)`` after each (e.g.
-    held-out evaluation; the runner state is donated to the next chunk, so copy what you keep) under a tqdm progress bar. Returns ``(runner_state, metrics, seconds)``
-    where ``metrics`` holds arrays ``(seeds, updates)``."""
+def chunk_bounds(total_updates: int, num_chunks: int) -> np.ndarray:
+    """Where the chunks of a run start and end.
+
+    Args:
+        total_updates: The PPO updates of the whole run.
+        num_chunks: How many chunks they are split into.
+
+    Returns:
+        ``(num_chunks + 1,)`` the update index at which each chunk starts, then ``total_updates``.
+    """
+    return np.linspace(0, total_updates, num_chunks + 1).astype(int)
+
+
+def run_in_chunks(train, keys, num_chunks: int, on_chunk=None, desc: str = "train", resume=None):
+    """Run ``train.init`` then ``train.run_updates`` in ``num_chunks`` jitted chunks.
+
+    The seeds are vmapped. After each chunk ``on_chunk(chunk_index, runner_state, metrics,
+    steps, seconds)`` is called (e.g. held-out evaluation or a checkpoint; the runner state is
+    donated to the next chunk, so copy what you keep), under a tqdm progress bar.
+
+    Args:
+        train: A :class:`baselines.algos.trainer.Trainer`.
+        keys: ``(seeds, 2)`` the seeds' keys (unused when resuming).
+        num_chunks: How many chunks the updates are split into (:func:`chunk_bounds`).
+        on_chunk: The callback after each chunk, or None.
+        desc: The progress bar's label.
+        resume: None to start from ``train.init(keys)``, or ``(next_chunk, runner_state,
+            metric_chunks, seconds)`` from a checkpoint: the chunk to run next, the runner state
+            after the chunks before it, their metrics (one dict per chunk) and the seconds they
+            took; training continues exactly as it would have without the interruption.
+
+    Returns:
+        ``(runner_state, metrics, seconds)`` where ``metrics`` holds arrays ``(seeds, updates)``.
+    """
     total = train.num_updates
-    bounds = np.linspace(0, total, num_chunks + 1).astype(int)
+    bounds = chunk_bounds(total, num_chunks)
     sizes = sorted(set(int(b - a) for a, b in zip(bounds[:-1], bounds[1:]) if b > a))
-    init = jax.jit(jax.vmap(train.init))
     # The runner state is donated: each chunk updates it in place instead of copying the
     # parameters, optimiser moments and env states (``on_chunk`` must not keep its arrays).
     runs = {
         n: jax.jit(jax.vmap(lambda rs, n=n: train.run_updates(rs, n)), donate_argnums=0)
         for n in sizes
     }
-    t0 = time.time()
-    rs = init(keys)
-    chunks = []
     steps_per_update = train.config["NUM_ENVS"] * train.config["NUM_STEPS"]
+    if resume is None:
+        start, chunks, t0 = 0, [], time.time()
+        rs = jax.jit(jax.vmap(train.init))(keys)
+    else:
+        start, rs, chunks, seconds = resume
+        chunks, t0 = list(chunks), time.time() - seconds
     with tqdm(
-        total=total * steps_per_update, desc=desc, unit="step", unit_scale=True, dynamic_ncols=True
+        total=total * steps_per_update,
+        initial=int(bounds[start]) * steps_per_update,
+        desc=desc,
+        unit="step",
+        unit_scale=True,
+        dynamic_ncols=True,
     ) as bar:
         for i, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
-            if b <= a:
+            if b <= a or i < start:
                 continue
             rs, m = runs[int(b - a)](rs)
             m = jax.device_get(m)

@@ -14,6 +14,11 @@ from chargax_marl.core import actions, rng
 from chargax_marl.core.station import KIND_BATTERY, StationArrays
 from chargax_marl.core.types import EnvParams, EnvState
 
+CANCEL_MARGIN = 1e-5
+"""The share of a node's cancelling grid-side power (gross minus net flow) that the hard rescale
+adds to the net flow before comparing it with the limit: it covers the float32 rounding of the
+opposite leaf flows, which is relative to those flows and not to their small difference."""
+
 
 def rate_curve_kw(soc: jnp.ndarray, max_rate_kw: jnp.ndarray, tau: jnp.ndarray) -> jnp.ndarray:
     """Charging rate limit r-hat(SoC): ``r-bar`` up to ``tau``, then a linear taper to 0 at SoC 1."""
@@ -156,22 +161,37 @@ def rescale_to_limits(current_a: jnp.ndarray, station: StationArrays) -> jnp.nda
     power's sign only through the efficiency factor, so the node's grid-side net flow scales
     by the same factor: no sign flips, no magnitude grows, and deeper nodes stay within their
     limits when a shallower node rescales. After the pass every node limit holds on the grid
-    side.
+    side, also for the energies :func:`charge` then moves.
+
+    Where charging and discharging leaves meet under a node, their grid-side flows cancel and
+    the net flow is a small difference of large terms; float32 rounds each term (here, in the
+    energy and in the sums) by a fraction of the term, not of the net. The pass therefore
+    compares the limit with the net flow plus :data:`CANCEL_MARGIN` of the power that cancels
+    (gross minus net), so that a tiny limit under large opposite flows holds too. A node whose
+    leaves all flow one way has no such margin.
+
+    Args:
+        current_a: ``(L,)`` signed leaf currents (A), after the car and port limits.
+        station: The compiled station.
+
+    Returns:
+        ``(L,)`` the currents scaled so that every node's grid-side net flow is within its limit.
     """
     v = station.leaf_voltage_v
     for d in reversed(range(station.depth)):
         idx = station.node_of_leaf_at_depth[d]
+        seg = jnp.maximum(idx, 0)
         side = _grid_side(current_a * v / 1000.0, station.leaf_efficiency_at_depth[d], idx >= 0)
-        flow = jnp.abs(
-            jax.ops.segment_sum(side, jnp.maximum(idx, 0), num_segments=station.num_nodes)
-        )
+        flow_kw = jnp.abs(jax.ops.segment_sum(side, seg, num_segments=station.num_nodes))
+        gross_kw = jax.ops.segment_sum(jnp.abs(side), seg, num_segments=station.num_nodes)
+        bound_kw = flow_kw + CANCEL_MARGIN * jnp.maximum(gross_kw - flow_kw, 0.0)
         # A small safety margin keeps float32 round-off from leaving a flow a hair above its limit.
         factor = jnp.where(
-            flow > station.node_max_kw,
-            station.node_max_kw / jnp.maximum(flow, 1e-12) * (1.0 - 1e-6),
+            bound_kw > station.node_max_kw,
+            station.node_max_kw / jnp.maximum(bound_kw, 1e-12) * (1.0 - 1e-6),
             1.0,
         )
-        leaf_factor = jnp.where(idx >= 0, factor[jnp.maximum(idx, 0)], 1.0)
+        leaf_factor = jnp.where(idx >= 0, factor[seg], 1.0)
         current_a = current_a * leaf_factor
     return current_a
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from chargax_marl.core import (
@@ -19,7 +19,7 @@ from chargax_marl.core import (
 )
 from chargax_marl.core.physics import node_flows_kw, rescale_to_limits
 from chargax_marl.core.station import KIND_AC, KIND_BATTERY, KIND_DC, build_station
-from tests.helpers import three_level_station, trees
+from tests.helpers import grid_side_node_flows_kw, three_level_station, tiny_root_station, trees
 
 
 def test_default_station_is_the_papers():
@@ -129,3 +129,44 @@ def test_rescale_holds_every_limit_and_never_flips_or_grows(tree, seed):
     inc = np.asarray(station.incidence).astype(bool)
     untouched = ~np.any(inc[flows_before > caps], axis=0)
     np.testing.assert_allclose(o_pos[untouched], np.asarray(charging)[untouched], rtol=1e-6)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@example(tree=tiny_root_station(), seed=32, cancel=True)
+@given(
+    tree=trees(max_depth=4, tiny_limits=True, max_leaves=64),
+    seed=st.integers(0, 2**31 - 1),
+    cancel=st.booleans(),
+)
+def test_rescale_holds_tiny_limits_under_leaves_of_both_signs(tree, seed, cancel):
+    """Limits down to 0.001 kW over leaves that charge and discharge in the same step, up to
+    ones whose grid-side flows cancel at the root: the rescaled flows hold every limit up to a
+    relative float tolerance, with no absolute slack (issue 40, item 1)."""
+    station = compile_station(tree)
+    rng = np.random.default_rng(seed)
+    lo = -np.asarray(station.leaf_max_discharge_current_a, np.float64)
+    hi = np.asarray(station.leaf_max_current_a, np.float64)
+    # each leaf at full power or a random share of it, charging or discharging
+    share = np.where(rng.random(lo.shape) < 0.5, 1.0, rng.random(lo.shape))
+    current = np.where(rng.random(lo.shape) < 0.5, hi, lo) * share
+    volts = np.asarray(station.leaf_voltage_v, np.float64)
+    if cancel:
+        # one leaf nearly cancels the others' grid-side flow through the root: what is left is a
+        # few times the root's limit, a small difference of large flows
+        eta = np.asarray(station.leaf_path_efficiency, np.float64)
+        j = int(np.argmax(np.maximum(hi, -lo)))
+        others = current * volts / 1000.0
+        others[j] = 0.0
+        net_kw = float(np.where(others > 0, others / eta, others * eta).sum())
+        left_kw = float(station.node_max_kw[0]) * rng.uniform(0.5, 3.0) * rng.choice([-1, 1])
+        side_kw = left_kw - net_kw
+        p_kw = side_kw * eta[j] if side_kw > 0 else side_kw / eta[j]
+        current[j] = np.clip(p_kw * 1000.0 / volts[j], lo[j], hi[j])
+    out = rescale_to_limits(jnp.asarray(current.astype(np.float32)), station)
+    o = np.asarray(out, np.float64)
+    flows = grid_side_node_flows_kw(o * volts / 1000.0, station)[0]
+    caps = np.asarray(station.node_max_kw, np.float64)
+    assert np.all(flows <= caps * (1 + 1e-6)), (flows / caps).max()
+    c = current.astype(np.float32)
+    assert np.all(np.sign(o) * np.sign(c) >= 0), "a rescale flipped a sign"
+    assert np.all(np.abs(o) <= np.abs(c)), "a rescale raised a magnitude"
