@@ -161,7 +161,7 @@ def trees(draw, max_depth=3, tiny_limits=False, max_leaves=None):
 
 
 def tiny_root_station() -> Splitter:
-    """Issue 40's station: a 0.001 kW root over a V2G port, a charging-only port (150 kW each)
+    """The tiny-limit station: a 0.001 kW root over a V2G port, a charging-only port (150 kW each)
     and the default battery."""
     return Splitter(
         "grid",

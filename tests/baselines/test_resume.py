@@ -1,4 +1,4 @@
-"""A killed training run continues from its checkpoint (issue 40, item 6): SIGKILL at a random
+"""A killed training run continues from its checkpoint: SIGKILL at a random
 point after the first chunk, ``--resume``, and the run ends as an uninterrupted one does."""
 
 from __future__ import annotations

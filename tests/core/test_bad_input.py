@@ -562,7 +562,7 @@ def test_long_run_on_generated_stations_keeps_every_invariant(
 ):
     """Random stations (depth up to 4, up to 64 leaves, limits from 0.001 kW to 10 MW, ports
     with and without V2G, batteries) over several days of NaN, infinite and out-of-range
-    actions keep every invariant, the grid-side node limits included (issue 40)."""
+    actions keep every invariant, the grid-side node limits included."""
     p = make_params(
         station=tree, traffic=400.0, action_mode=action_mode, v2g=v2g, step_minutes=step_minutes
     )

@@ -536,7 +536,7 @@ def test_arrivals_take_the_models_discharge_limit(busy_day):
 def test_energy_identities_hold_on_a_1024_port_station_over_four_days():
     """The README's largest station (1,024 AC ports under one 20 MW connection, 5,000 cars a
     day): over four days the totals, the cars' SoC and their remaining energy all account for
-    the energy that moved, within 1e-6 of the day's energy (issue 40, item 2)."""
+    the energy that moved, within 1e-6 of the day's energy."""
     p = make_params(station=single_type(1024, kind="AC", grid_kw=20_000.0), traffic=5000.0)
     ports = p.station.num_ports
 

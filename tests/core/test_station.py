@@ -141,7 +141,7 @@ def test_rescale_holds_every_limit_and_never_flips_or_grows(tree, seed):
 def test_rescale_holds_tiny_limits_under_leaves_of_both_signs(tree, seed, cancel):
     """Limits down to 0.001 kW over leaves that charge and discharge in the same step, up to
     ones whose grid-side flows cancel at the root: the rescaled flows hold every limit up to a
-    relative float tolerance, with no absolute slack (issue 40, item 1)."""
+    relative float tolerance, with no absolute slack."""
     station = compile_station(tree)
     rng = np.random.default_rng(seed)
     lo = -np.asarray(station.leaf_max_discharge_current_a, np.float64)
