@@ -25,7 +25,7 @@ from baselines.config import build_env_params
 from baselines.runs import load_run
 from chargax_marl.benchmark import protocol
 from chargax_marl.benchmark.picture import day_picture
-from chargax_marl.benchmark.references import load_references, package_version
+from chargax_marl.benchmark.references import SECONDARY, load_references, package_version
 from chargax_marl.benchmark.scoring import compare
 from chargax_marl.benchmark.tasks import get_task
 from chargax_marl.evaluation import METRICS, run_days_keyed
@@ -103,8 +103,7 @@ def score_run(run_dir: str | Path, task_id: str, references_dir=None) -> dict:
         name: [
             float(x) for x in np.asarray(getattr(totals, METRICS[name]), np.float64).mean((1, 2))
         ]
-        for name in ("daily_profit_eur", "energy_delivered_kwh", "missing_kwh_at_departure")
-        + ("cars_rejected", "overtime_min", "peak_grid_kw", "battery_wear_eur")
+        for name in ("daily_profit_eur", *SECONDARY)
     }
     return {
         **compare(task, daily, references_dir),

@@ -54,8 +54,10 @@ def _single_space(params: EnvParams) -> tuple[tuple[int, ...], bool, np.ndarray 
     return tuple(space.shape), True, np.asarray(space.nvec)
 
 
-def _check_single_action(out: Any, params: EnvParams, where: str) -> None:
-    shape, integer, _ = _single_space(params)
+def _check_single_action(out: Any, params: EnvParams, where: str, space=None) -> None:
+    """Raise a ``ValueError`` for an action whose shape or dtype does not fit the single-agent
+    space (``space``: :func:`_single_space`, computed once by a caller that checks often)."""
+    shape, integer, _ = space or _single_space(params)
     got_shape = tuple(np.shape(out))
     dtype = np.dtype(out.dtype) if hasattr(out, "dtype") else np.asarray(out).dtype
     if got_shape != shape:
@@ -191,7 +193,7 @@ def _play_host(policy, kind, params, days, keys) -> EpisodeTotals:
         jnp.asarray(days), battery_keys
     )
     if kind == "gymnasium":
-        shape, integer, nvec = _single_space(params)
+        space = _single_space(params)
 
         def obs_fn(s):
             return observation.flat_obs(s, params)
@@ -200,7 +202,7 @@ def _play_host(policy, kind, params, days, keys) -> EpisodeTotals:
             return action_levels(a, params)
 
         def check(a):
-            return _host_single_action(a, shape, integer, nvec)
+            return _host_single_action(a, params, space)
 
     else:
         env = ChargaxMARL(params=params)
@@ -227,23 +229,14 @@ def _play_host(policy, kind, params, days, keys) -> EpisodeTotals:
     return jax.device_get(state.totals)
 
 
-def _host_single_action(a, shape, integer, nvec) -> np.ndarray:
+def _host_single_action(a, params, space) -> np.ndarray:
     arr = np.asarray(a)
-    if arr.shape != shape:
+    _check_single_action(arr, params, "Gymnasium policy", space)
+    _, integer, nvec = space
+    if not integer:
+        return arr.astype(np.float32)
+    if np.any(arr < 0) or np.any(arr >= nvec):
         raise ValueError(
-            f"Gymnasium policy: action of shape {arr.shape}; the task's action space needs {shape}"
+            f"Gymnasium policy: action {arr.tolist()} is outside MultiDiscrete({nvec.tolist()})"
         )
-    if integer:
-        if not np.issubdtype(arr.dtype, np.integer):
-            raise ValueError(
-                f"Gymnasium policy: action of dtype {arr.dtype}; the task's MultiDiscrete "
-                "space takes integers"
-            )
-        if np.any(arr < 0) or np.any(arr >= nvec):
-            raise ValueError(
-                f"Gymnasium policy: action {arr.tolist()} is outside MultiDiscrete({nvec.tolist()})"
-            )
-        return arr.astype(np.int32)
-    if not np.issubdtype(arr.dtype, np.floating):
-        raise ValueError(f"Gymnasium policy: action of dtype {arr.dtype}; the Box takes floats")
-    return arr.astype(np.float32)
+    return arr.astype(np.int32)
