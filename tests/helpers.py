@@ -227,6 +227,7 @@ TINY_CLI = [
     "NUM_STEPS=24",
     "HIDDEN=16",
     f"ENV_KWARGS={toml_inline(TINY_ENV)}",
+    "NUM_EVAL_DAYS=20",  # enough held-out days for every property; the default 100 for users
 ]
 """The command line of a tiny run (add ``ALGO=``, ``TOTAL_TIMESTEPS=``, ``CHUNKS=``, ``OUT=``)."""
 

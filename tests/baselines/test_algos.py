@@ -218,7 +218,7 @@ print("SHARDED_OK")
 def test_sharded_training_on_two_host_devices():
     env = {
         **os.environ,
-        "XLA_FLAGS": "--xla_force_host_platform_device_count=2",
+        "XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=2",
         "JAX_PLATFORMS": "cpu",
         "PYTHONPATH": str(ROOT),
     }
@@ -293,6 +293,7 @@ def _tiny_day(rewards_of, w):
 
     env = ChargaxMARL(local_reward_weight=w, **TINY_ENV)
     _, state = env.reset_to_day(3)
+    step = jax.jit(env.step_env)  # one program for the day's steps, not one per operation
     key = jax.random.PRNGKey(1)
     raw, shaped, shaped_first = 0.0, 0.0, None
     for _ in range(int(env.params.num_steps)):
@@ -302,7 +303,7 @@ def _tiny_day(rewards_of, w):
             jnp.asarray(env._avail_np)[jnp.arange(env.num_agents), idx], idx, env.action_offset
         )
         actions = {a: idx[i] for i, a in enumerate(env.agents)}
-        _, new_state, rewards, _, info = env.step_env(k_step, state, actions)
+        _, new_state, rewards, _, info = step(k_step, state, actions)
         r = np.stack([np.asarray(rewards[a]) for a in env.agents])
         s = r + np.asarray(rewards_of(env, state, info))
         raw, shaped = raw + r, shaped + s
@@ -560,9 +561,13 @@ def test_storage_value_shaping_changes_the_day_by_a_constant_of_its_first_state(
     expected = raw + np.where(is_bat, w * const, 0.0) + (1.0 - w) * const
     np.testing.assert_allclose(shaped, expected, atol=2e-3)
     assert abs(const) > 1e-3  # the case is not trivial
-    out = finite_losses(ippo.make_train({**TINY, "BATTERY_SHAPING": "storage_value"}))
+
+
+@pytest.mark.parametrize("mode", ["storage_value", "dp"])
+def test_potential_shapings_train_with_finite_losses(mode):
+    out = finite_losses(ippo.make_train({**TINY, "BATTERY_SHAPING": mode}))
     assert np.all(np.isfinite(out["metrics"]["episode_return"]))
-    finite_losses(ppo.make_train({**TINY, "BATTERY_SHAPING": "storage_value"}))
+    finite_losses(ppo.make_train({**TINY, "BATTERY_SHAPING": mode}))
     with pytest.raises(ValueError, match="BATTERY_SHAPING"):
         aids.shaping_mode({"BATTERY_SHAPING": "hourly"})
 
@@ -598,6 +603,3 @@ def test_dp_shaping_changes_the_day_by_a_constant_of_its_first_state(w):
     expected = raw + np.where(is_bat, w * const, 0.0) + (1.0 - w) * const
     np.testing.assert_allclose(shaped, expected, atol=2e-3)
     assert abs(const) > 1e-3  # the case is not trivial
-    out = finite_losses(ippo.make_train({**TINY, "BATTERY_SHAPING": "dp"}))
-    assert np.all(np.isfinite(out["metrics"]["episode_return"]))
-    finite_losses(ppo.make_train({**TINY, "BATTERY_SHAPING": "dp"}))

@@ -42,7 +42,6 @@ ARGS = [
     'ENV_KWARGS={ station = "single_type", station_kwargs = { num_ports = 4, battery = true }, step_minutes = 60.0 }',
 ]
 TIMEOUT_S = 480  # three compiles on 2 shared cores
-FAST_COMPILE = "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
 
 
 def _free_port() -> int:
@@ -52,8 +51,8 @@ def _free_port() -> int:
 
 
 def _launch(args, devices: int, log: Path) -> subprocess.Popen:
-    # compile time dominates: the cheap LLVM pipeline halves it (the same flags in all three runs)
-    flags = f"--xla_force_host_platform_device_count={devices} {FAST_COMPILE}"
+    # the session's flags (the cheap LLVM pipeline of tests/conftest.py) and the device count
+    flags = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={devices}"
     env = {
         **os.environ,
         "JAX_PLATFORMS": "cpu",

@@ -54,7 +54,7 @@ def test_cli_smoke_writes_png_json_checkpoint(tmp_path):
     assert np.all(bound >= am - 1e-3)
     assert table["lp_bound"]["headroom"]["fraction"] == pytest.approx(1.0)
     assert np.isfinite(res["headroom"]["fraction"]) and res["headroom"]["headroom_eur"] > 0
-    assert table["ppo"]["num_days"] == 100 and res["timesteps"] == 4 * 24 * 2
+    assert table["ppo"]["num_days"] == 20 and res["timesteps"] == 4 * 24 * 2
     assert len(res["eval_curve"]) == 2 and len(res["curve"]["timesteps"]) == 2
     # paired comparison with always-max on the same days and cars, per evaluation point
     vs = res["vs_always_max"]
@@ -65,7 +65,7 @@ def test_cli_smoke_writes_png_json_checkpoint(tmp_path):
     assert len(rule["per_seed_mean"]) == 2 and np.isfinite(rule["mean"])
     assert all(e["vs_battery_rule"] is not None for e in res["eval_curve"])
     # per seed: both paired differences, the headroom fraction and when it first beats each rule
-    assert res["scenario"]["name"] == "shopping" and res["scenario"]["held_out_days"] == 100
+    assert res["scenario"]["name"] == "shopping" and res["scenario"]["held_out_days"] == 20
     assert len(res["per_seed"]) == 2
     for i, p in enumerate(res["per_seed"]):
         assert p["vs_always_max"]["mean"] == pytest.approx(vs["per_seed_mean"][i])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -90,11 +91,14 @@ def test_always_max_scores_exactly_zero_and_the_bound_one():
     assert float(get_normalized_score(task.id, refs["policies"][BOUND]["daily_profit"])) == (
         pytest.approx(1.0, abs=1e-12)
     )
+    # Played again, always-max books the shipped profits to float32 rounding: another CPU or
+    # compiler pipeline (the tests compile with the cheap one) may round the day's sums apart
+    # in the last bit.
     played = score(policies.always_max, task.id)
-    np.testing.assert_array_equal(played["daily_profit"], zero)
-    assert played["score"] == 0.0
-    assert played["vs"][ZERO] == {"mean": 0.0, "stderr": 0.0}
-    assert played["profit_ratio_to_always_max"] == 1.0
+    np.testing.assert_allclose(played["daily_profit"], zero, rtol=1e-6)
+    assert played["score"] == pytest.approx(0.0, abs=1e-6)
+    assert played["vs"][ZERO]["mean"] == pytest.approx(0.0, abs=1e-3)
+    assert played["profit_ratio_to_always_max"] == pytest.approx(1.0, abs=1e-6)
     assert played["metrics"]["energy_delivered_kwh"] > 0
 
 
@@ -215,11 +219,14 @@ def test_the_five_kinds_score_the_same_policy_identically(small_task):
         first_half = next(iter(obs.values()))[time_in_marl] > 0
         return marl.levels_to_actions(half_day_levels(first_half, params))
 
+    # the host policies call the same functions, compiled once rather than run op by op
+    single_jit, marl_jit = jax.jit(single_act), jax.jit(marl_act)
+
     def gym_act(obs):
-        return np.asarray(single_act(jnp.asarray(obs), None)).astype(np.int64)
+        return np.asarray(single_jit(jnp.asarray(obs), None)).astype(np.int64)
 
     def pz_act(obs):
-        return {a: int(i) for a, i in marl_act(obs, None).items()}
+        return {a: int(i) for a, i in marl_jit(obs, None).items()}
 
     results = {
         kind: score(policy, task, kind=kind, references_dir=directory)

@@ -138,9 +138,9 @@ def test_episode_totals_equal_the_sum_of_step_reports(small_params):
 def test_jit_equals_no_jit(env):
     params = env.default_params
     key = jax.random.PRNGKey(7)
-    jitted = jax.jit(run_env, static_argnums=(0, 3))(env, params, key, 12)
+    jitted = jax.jit(run_env, static_argnums=(0, 3))(env, params, key, 6)
     with jax.disable_jit():
-        eager = run_env(env, params, key, 12)
+        eager = run_env(env, params, key, 6)
     jax.tree.map(
         lambda a, b: np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-5),
         jitted,
