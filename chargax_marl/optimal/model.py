@@ -171,6 +171,7 @@ class Solution:
     net_kw: list = field(default_factory=list)
     soc_end: np.ndarray | None = None
     x: np.ndarray | None = None
+    basis: Basis | None = None
 
 
 _MODEL_STATUS = {
@@ -203,7 +204,8 @@ def new_highs(time_limit_s: float | None = None) -> highspy.Highs:
     return h
 
 
-def csc_lp(
+def pass_model(
+    h: highspy.Highs,
     cost: np.ndarray,
     col_lb: np.ndarray,
     col_ub: np.ndarray,
@@ -213,11 +215,12 @@ def csc_lp(
     index: np.ndarray,
     value: np.ndarray,
     integer: np.ndarray | None = None,
-) -> highspy.HighsLp:
-    """A HiGHS LP ``min cost x`` s.t. ``row_lb <= A x <= row_ub``, ``col_lb <= x <= col_ub``,
-    with ``A`` given column-wise (CSC ``start``, ``index``, ``value``).
+) -> None:
+    """Hand HiGHS the problem ``min cost x`` s.t. ``row_lb <= A x <= row_ub``,
+    ``col_lb <= x <= col_ub``, with ``A`` given column-wise.
 
     Args:
+        h: the solver.
         cost: per column (minimised).
         col_lb: lower bound per column.
         col_ub: upper bound per column.
@@ -228,25 +231,32 @@ def csc_lp(
         value: CSC values.
         integer: bool per column, or None for an LP.
 
-    Returns:
-        The model, to pass to :meth:`highspy.Highs.passModel`.
+    Raises:
+        SolverError: HiGHS refuses the model.
     """
-    lp = highspy.HighsLp()
-    lp.num_col_ = int(cost.shape[0])
-    lp.num_row_ = int(row_lb.shape[0])
-    lp.col_cost_ = cost
-    lp.col_lower_ = col_lb
-    lp.col_upper_ = col_ub
-    lp.row_lower_ = row_lb
-    lp.row_upper_ = row_ub
-    lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
-    lp.a_matrix_.start_ = start
-    lp.a_matrix_.index_ = index
-    lp.a_matrix_.value_ = value
-    if integer is not None and np.any(integer):
-        kinds = (highspy.HighsVarType.kContinuous, highspy.HighsVarType.kInteger)
-        lp.integrality_ = [kinds[int(i)] for i in integer]
-    return lp
+    num_cols, num_rows = int(cost.shape[0]), int(row_lb.shape[0])
+    kind = np.zeros(num_cols, np.int32) if integer is None else np.asarray(integer, np.int32)
+    status = h.passModel(
+        num_cols,
+        num_rows,
+        int(value.shape[0]),
+        int(highspy.MatrixFormat.kColwise.value),
+        int(highspy.ObjSense.kMinimize.value),
+        0.0,
+        cost,
+        col_lb,
+        col_ub,
+        row_lb,
+        row_ub,
+        np.asarray(start, np.int32),
+        np.asarray(index, np.int32),
+        np.asarray(value, np.float64),
+        kind,
+    )
+    if status == highspy.HighsStatus.kError:
+        raise SolverError(
+            f"HiGHS refused the model: {num_cols} variables, {num_rows} rows", STATUS[4]
+        )
 
 
 def run_highs(h: highspy.Highs, num_cols: int, num_rows: int) -> tuple[str, np.ndarray, float]:
@@ -275,6 +285,71 @@ def run_highs(h: highspy.Highs, num_cols: int, num_rows: int) -> tuple[str, np.n
         )
     x = np.asarray(h.getSolution().col_value, np.float64)
     return status, x, float(h.getInfo().objective_function_value)
+
+
+# HiGHS's basis statuses by their integer value (kLower, kBasic, kUpper, kZero, kNonbasic)
+_BASIS_STATUS = np.array(
+    [
+        highspy.HighsBasisStatus.kLower,
+        highspy.HighsBasisStatus.kBasic,
+        highspy.HighsBasisStatus.kUpper,
+        highspy.HighsBasisStatus.kZero,
+        highspy.HighsBasisStatus.kNonbasic,
+    ],
+    dtype=object,
+)
+_LOWER, _BASIC, _UPPER = 0, 1, 2
+
+
+@dataclass
+class Basis:
+    """An optimal basis, each column and row named by a key (its kind, leaf or node, and the
+    day's step), so that a later problem over overlapping steps can start from it
+    (:func:`build_and_solve`'s ``warm_start``). Keys are sorted."""
+
+    col_key: np.ndarray  # (num_cols,) int64
+    col_status: np.ndarray  # (num_cols,) int8, HighsBasisStatus values
+    row_key: np.ndarray
+    row_status: np.ndarray
+
+    @staticmethod
+    def read(h: highspy.Highs, b: _Builder, col_key: np.ndarray, row_key: np.ndarray) -> Basis:
+        """The optimal basis of solver ``h`` (which solved ``b``'s problem, minimising) under
+        the keys of its columns and rows: its basic variables, and each nonbasic one at the
+        bound where the solution puts it."""
+        _, basic = h.getBasicVariables()
+        basic = np.asarray(basic, np.int64)
+        sol = h.getSolution()
+        x, r = np.asarray(sol.col_value), np.asarray(sol.row_value)
+        ub, row_ub = np.concatenate(b.ub), np.concatenate(b.row_ub)
+        lb, row_lb = np.concatenate(b.lb), np.concatenate(b.row_lb)
+        cs = np.where((x > lb + 1e-9) & (x >= ub - 1e-9), _UPPER, _LOWER).astype(np.int8)
+        rs = np.where((r > row_lb + 1e-9) & (r >= row_ub - 1e-9), _UPPER, _LOWER).astype(np.int8)
+        cs[basic[basic >= 0]] = _BASIC
+        rs[-1 - basic[basic < 0]] = _BASIC
+        ci, ri = np.argsort(col_key), np.argsort(row_key)
+        return Basis(col_key[ci], cs[ci], row_key[ri], rs[ri])
+
+    def guess(self, col_key: np.ndarray, row_key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Statuses for a problem with these keys: this basis's where a key is known, else a
+        column at its lower bound and a basic row."""
+        return (
+            _lookup(self.col_key, self.col_status, col_key, _LOWER),
+            _lookup(self.row_key, self.row_status, row_key, _BASIC),
+        )
+
+
+def _lookup(keys: np.ndarray, values: np.ndarray, query: np.ndarray, default: int) -> np.ndarray:
+    """``values`` at ``query`` in the sorted ``keys`` (``default`` where absent)."""
+    if keys.shape[0] == 0:
+        return np.full(query.shape[0], default, np.int8)
+    i = np.minimum(np.searchsorted(keys, query), keys.shape[0] - 1)
+    return np.where(keys[i] == query, values[i], default).astype(np.int8)
+
+
+def _key(kind: int, entity, step) -> np.ndarray:
+    """Keys of columns or rows: a kind, a leaf or node, and the day's step."""
+    return (np.int64(kind) << 40) + (np.asarray(entity, np.int64) << 20) + np.asarray(step)
 
 
 class _Builder:
@@ -311,13 +386,25 @@ class _Builder:
         self.vals.append(np.broadcast_to(np.asarray(vals, np.float64), rows.shape).ravel())
 
     def solve(
-        self, maximise: bool = True, time_limit_s: float | None = None
-    ) -> tuple[str, np.ndarray, float, float]:
-        """Solve with HiGHS (presolve on).
+        self,
+        maximise: bool = True,
+        time_limit_s: float | None = None,
+        col_status: np.ndarray | None = None,
+        row_status: np.ndarray | None = None,
+    ) -> tuple[str, np.ndarray, float, float, highspy.Highs]:
+        """Solve with HiGHS: from scratch (presolve on), or from a guessed basis.
+
+        Args:
+            maximise: maximise the cost (else minimise).
+            time_limit_s: HiGHS's wall-clock limit (seconds); None for none.
+            col_status: a guessed basis status per column (:class:`highspy.HighsBasisStatus`
+                values), or None for a solve from scratch.
+            row_status: the same per row (with ``col_status``).
 
         Returns:
-            ``(status, x, objective, solve_s)``: the objective in the direction asked for,
-            ``solve_s`` the seconds spent in HiGHS (the model's hand-over included).
+            ``(status, x, objective, solve_s, highs)``: the objective in the direction asked
+            for, ``solve_s`` the seconds spent in HiGHS (the model's hand-over included), and
+            the solver (to read its basis).
 
         Raises:
             SolverError: no optimum.
@@ -331,7 +418,10 @@ class _Builder:
             shape=(self.m, self.n),
         )
         a.sum_duplicates()
-        lp = csc_lp(
+        h = new_highs(time_limit_s)
+        t0 = time.perf_counter()
+        pass_model(
+            h,
             -c if maximise else c,
             cat(self.lb),
             cat(self.ub),
@@ -342,11 +432,16 @@ class _Builder:
             a.data,
             cat(self.integer, bool),
         )
-        h = new_highs(time_limit_s)
-        t0 = time.perf_counter()
-        h.passModel(lp)
+        if col_status is not None:
+            # an alien basis: HiGHS completes or repairs it, and skips presolve
+            h.setOptionValue("presolve", "off")
+            basis = highspy.HighsBasis()
+            basis.col_status = _BASIS_STATUS[col_status].tolist()
+            basis.row_status = _BASIS_STATUS[row_status].tolist()
+            basis.alien = True
+            h.setBasis(basis)
         status, x, obj = run_highs(h, self.n, self.m)
-        return status, x, (-obj if maximise else obj), time.perf_counter() - t0
+        return status, x, (-obj if maximise else obj), time.perf_counter() - t0, h
 
 
 @dataclass
@@ -438,6 +533,9 @@ def build_and_solve(
     occupancy_vars: dict | None = None,
     builder: _Builder | None = None,
     urgency_eur_kwh_h: np.ndarray | None = None,
+    step_offset: int = 0,
+    warm_start: Basis | None = None,
+    keep_basis: bool = False,
 ) -> Solution:
     """Build the LP of the module docstring for ``sessions`` and solve it with HiGHS.
 
@@ -460,6 +558,14 @@ def build_and_solve(
         urgency_eur_kwh_h: per session (used by the MPC): a bonus per kWh that falls by that
             much per hour of delay, so that the LP charges those sessions early among plans of
             (nearly) equal profit; None for the bound.
+        step_offset: the day's step of the problem's step 0 (names the columns and rows of
+            the basis).
+        warm_start: the basis of an earlier problem (e.g. the MPC's previous step): HiGHS
+            starts from it where the keys (kind, leaf or node, day's step) match, without
+            presolve. The optimum's value is the same; where several plans are optimal, the
+            plan may differ from a solve from scratch.
+        keep_basis: return the optimal basis in :attr:`Solution.basis` (not with
+            ``builder``).
 
     Returns:
         The optimum: its value, each session's net power per step and end SoC.
@@ -561,10 +667,46 @@ def build_and_solve(
     b.coef(mirror, xs[dc[mc]], -t.slope_d_kw[dcs[mc]])
     b.coef(grid_rows[step], pp, -dt / t.eta[cs])
     b.coef(grid_rows[step[dc]], pm, dt * t.eta[dcs])
+    node_keys = np.zeros(0, np.int64)
     if limits.hard:
-        _node_rows(b, limits, n, t, cs, step, pp, dc, pm)
+        node_keys = _node_rows(b, limits, n, t, cs, step, pp, dc, pm)
 
-    _, xsol, value_eur, solve_s = b.solve(time_limit_s=time_limit_s)
+    keyed = warm_start is not None or keep_basis
+    if keyed and (builder is not None or occupancy_vars):
+        raise ValueError(
+            "fields 'builder' and 'occupancy_vars' must be None with 'warm_start' or 'keep_basis'"
+        )
+    if keyed:
+        num_nodes = limits.node_max_kw.shape[0]
+        steps = step_offset + np.arange(n)
+        leaf_c, leaf_d = t.leaf[cs], t.leaf[dcs]
+        x_step = step_offset + np.repeat(first[valid], m + 1) + np.arange(num_cells + num_sess)
+        x_step -= np.repeat(x_first, m + 1)
+        col_key = np.concatenate(
+            [_key(0, 0, steps), _key(1, 0, steps)]
+            + ([_key(2, 0, [0])] if econ.peak_eur_kw > 0.0 else [])
+            + [
+                _key(3, leaf_c, step_offset + step),
+                _key(4, leaf_d, step_offset + step[dc]),
+                _key(5, np.repeat(t.leaf, m + 1), x_step),
+            ]
+        )
+        cell = step_offset + step
+        row_key = np.concatenate(
+            [_key(0, 0, steps)]
+            + ([_key(1, 0, steps)] if econ.peak_eur_kw > 0.0 else [])
+            + [
+                _key(4, leaf_c, cell),
+                _key(7, leaf_c[tc], cell[tc]),
+                _key(8, leaf_d[hc], cell[dc[hc]]),
+                _key(9, leaf_d[mc], cell[dc[mc]]),
+                _key(2, node_keys % num_nodes, step_offset + node_keys // num_nodes),
+            ]
+        )
+    guess = (None, None) if warm_start is None else warm_start.guess(col_key, row_key)
+    _, xsol, value_eur, solve_s, h = b.solve(
+        time_limit_s=time_limit_s, col_status=guess[0], row_status=guess[1]
+    )
     pm_full = np.zeros(num_cells)
     pm_full[dc] = xsol[pm]
     net_cells = np.split(xsol[pp] - pm_full, off[1:]) if num_sess else []
@@ -582,12 +724,19 @@ def build_and_solve(
         net_kw=net,
         soc_end=soc_end,
         x=xsol,
+        basis=Basis.read(h, b, col_key, row_key) if keep_basis else None,
     )
 
 
-def _node_rows(b: _Builder, limits: StationLimits, n: int, t: _Terms, cs, step, pp, dc, pm):
+def _node_rows(
+    b: _Builder, limits: StationLimits, n: int, t: _Terms, cs, step, pp, dc, pm
+) -> np.ndarray:
     """The node limits on the grid side, one row per (step, node) that the sessions under the
-    node could overload in that step (at every other one the bounds imply the limit)."""
+    node could overload in that step (at every other one the bounds imply the limit).
+
+    Returns:
+        The rows' keys ``step * num_nodes + node``, in row order.
+    """
     num_nodes = limits.node_max_kw.shape[0]
     leaf = t.leaf[cs]
     keys, cols, vals, load_c, load_d = [], [], [], [], []
@@ -617,3 +766,4 @@ def _node_rows(b: _Builder, limits: StationLimits, n: int, t: _Terms, cs, step, 
         r = row_of[key]
         on = r >= 0
         b.coef(r[on], col[on], val[on])
+    return keep

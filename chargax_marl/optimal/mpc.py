@@ -14,7 +14,8 @@ works inside ``jit``, ``scan`` and ``vmap`` (the calls are made one state at a t
 therefore in :func:`chargax_marl.evaluation.evaluate` and in both views
 (:func:`chargax_marl.policies.for_single`, :func:`chargax_marl.policies.for_marl`). It is
 slow next to the jitted policies: one HiGHS solve per step and state (see
-``baselines/README.md`` for measured times).
+``baselines/README.md`` for measured times), each started from the optimal basis of the same
+day's previous solve (``warm_start``).
 """
 
 from __future__ import annotations
@@ -71,6 +72,13 @@ class MPC:
     makes the LP charge such cars early (a bonus per kWh that falls with delay). It changes
     the plan, not the profit the simulator books. ``deadline_margin_steps`` (default 1)
     plans each car to be done that many steps before its planned departure.
+
+    ``warm_start`` (default True) starts each solve from the optimal basis of the same day's
+    previous solve (matched by leaf, row kind and step), without presolve; the optimum's
+    value is the same as a solve from scratch, but where the LP has several optimal plans it
+    may pick another one, so the levels (and the day's profit) can differ slightly from
+    ``warm_start=False``. The bases are kept per day, so a day's decisions do not depend on
+    which days run beside it.
     """
 
     def __init__(
@@ -81,6 +89,7 @@ class MPC:
         time_limit_s: float = 10.0,
         urgency_eur_kwh_h: float = 0.1,
         deadline_margin_steps: int = 1,
+        warm_start: bool = True,
     ):
         if not horizon_hours > 0:
             raise ValueError(f"field 'horizon_hours' must be > 0, got {horizon_hours!r}")
@@ -130,6 +139,8 @@ class MPC:
         self.failed_solves: dict[int, list[tuple[int, str]]] = {}
         self.solve_s = 0.0
         self._plans: dict = {}
+        self.warm_start = bool(warm_start)
+        self._bases: dict = {}  # day -> (step of the solve, its optimal Basis)
 
     # ---- host side
     def _sessions(self, s: dict, n: int) -> Sessions:
@@ -185,6 +196,9 @@ class MPC:
         if sessions.size == 0:
             return out
         self.solves += 1
+        warm = self._bases.pop(day, None)
+        if warm is not None and not 0 < t - warm[0] <= self.horizon_steps:
+            warm = None
         try:
             urgency = np.where(sessions.charge_sensitive, self.urgency_eur_kwh_h, 0.0)
             sol = build_and_solve(
@@ -194,14 +208,19 @@ class MPC:
                 econ,
                 time_limit_s=self.time_limit_s,
                 urgency_eur_kwh_h=urgency,
+                step_offset=t,
+                warm_start=None if warm is None else warm[1],
+                keep_basis=self.warm_start,
             )
-        except RuntimeError as exc:  # SolverError, or HiGHS failing inside SciPy
+        except RuntimeError as exc:  # SolverError
             self.failures += 1
             status = getattr(exc, "status", STATUS[4])
             self.failed_solves.setdefault(day, []).append((t, status))
             out[:, ~self.is_battery] = self.limits.charge_kw[~self.is_battery]
             return out
         self.solve_s += sol.solve_s
+        if sol.basis is not None:
+            self._bases[day] = (t, sol.basis)
         for i, leaf in enumerate(sessions.leaf):
             net = sol.net_kw[i]
             if net is not None:
