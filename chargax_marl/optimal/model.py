@@ -392,7 +392,11 @@ class _Builder:
         col_status: np.ndarray | None = None,
         row_status: np.ndarray | None = None,
     ) -> tuple[str, np.ndarray, float, float, highspy.Highs]:
-        """Solve with HiGHS: from scratch (presolve on), or from a guessed basis.
+        """Solve with HiGHS: from scratch, or from a guessed basis.
+
+        An LP goes to the dual simplex without presolve, with Devex pricing (on these
+        problems presolve costs more than it saves); a problem with integer columns keeps
+        HiGHS's defaults.
 
         Args:
             maximise: maximise the cost (else minimise).
@@ -418,7 +422,11 @@ class _Builder:
             shape=(self.m, self.n),
         )
         a.sum_duplicates()
+        integer = cat(self.integer, bool)
         h = new_highs(time_limit_s)
+        if not integer.any():
+            h.setOptionValue("presolve", "off")
+            h.setOptionValue("simplex_dual_edge_weight_strategy", 1)  # Devex
         t0 = time.perf_counter()
         pass_model(
             h,
@@ -430,10 +438,10 @@ class _Builder:
             a.indptr,
             a.indices,
             a.data,
-            cat(self.integer, bool),
+            integer,
         )
         if col_status is not None:
-            # an alien basis: HiGHS completes or repairs it, and skips presolve
+            # an alien basis: HiGHS completes or repairs it
             h.setOptionValue("presolve", "off")
             basis = highspy.HighsBasis()
             basis.col_status = _BASIS_STATUS[col_status].tolist()
