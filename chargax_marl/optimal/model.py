@@ -161,7 +161,8 @@ class Economics:
 class Solution:
     """A solved problem: ``value_eur`` is the money the LP books (the fixed cost excluded),
     ``net_kw[s, k]`` the net power of session ``s`` in its ``k``-th step (car side),
-    ``soc_end`` the SoC of each session after its last step."""
+    ``soc_end`` the SoC of each session after its last step, ``basis`` the optimal basis when
+    asked for (``keep_basis``)."""
 
     value_eur: float
     status: str
@@ -569,17 +570,18 @@ def build_and_solve(
         step_offset: the day's step of the problem's step 0 (names the columns and rows of
             the basis).
         warm_start: the basis of an earlier problem (e.g. the MPC's previous step): HiGHS
-            starts from it where the keys (kind, leaf or node, day's step) match, without
-            presolve. The optimum's value is the same; where several plans are optimal, the
-            plan may differ from a solve from scratch.
-        keep_basis: return the optimal basis in :attr:`Solution.basis` (not with
-            ``builder``).
+            starts from it where the keys (kind, leaf or node, day's step) match. The
+            optimum's value is the same; where several plans are optimal, the plan may differ
+            from a solve from scratch.
+        keep_basis: return the optimal basis in :attr:`Solution.basis`.
 
     Returns:
         The optimum: its value, each session's net power per step and end SoC.
 
     Raises:
         SolverError: HiGHS does not report an optimum.
+        ValueError: ``warm_start`` or ``keep_basis`` with ``builder`` or ``occupancy_vars``
+            (the MILP's columns and rows have no keys).
     """
     b = builder or _Builder()
     dt = econ.step_hours
