@@ -33,6 +33,7 @@ from chargax_marl.optimal.model import (
     STATUS,
     Economics,
     Sessions,
+    SolverError,
     StationLimits,
     build_and_solve,
 )
@@ -78,7 +79,8 @@ class MPC:
     value is the same as a solve from scratch, but where the LP has several optimal plans it
     may pick another one, so the levels (and the day's profit) can differ slightly from
     ``warm_start=False``. The bases are kept per day, so a day's decisions do not depend on
-    which days run beside it.
+    which days run beside it. A warm-started solve that fails is solved again from scratch
+    (counted in ``warm_retries``) before it counts as a failure.
     """
 
     def __init__(
@@ -140,6 +142,7 @@ class MPC:
         self.solve_s = 0.0
         self._plans: dict = {}
         self.warm_start = bool(warm_start)
+        self.warm_retries = 0
         self._bases: dict = {}  # day -> (step of the solve, its optimal Basis)
 
     # ---- host side
@@ -199,19 +202,26 @@ class MPC:
         warm = self._bases.pop(day, None)
         if warm is not None and not 0 < t - warm[0] <= self.horizon_steps:
             warm = None
+        urgency = np.where(sessions.charge_sensitive, self.urgency_eur_kwh_h, 0.0)
+        solve = lambda basis: build_and_solve(  # noqa: E731
+            sessions,
+            n,
+            self.limits,
+            econ,
+            time_limit_s=self.time_limit_s,
+            urgency_eur_kwh_h=urgency,
+            step_offset=t,
+            warm_start=basis,
+            keep_basis=self.warm_start,
+        )
         try:
-            urgency = np.where(sessions.charge_sensitive, self.urgency_eur_kwh_h, 0.0)
-            sol = build_and_solve(
-                sessions,
-                n,
-                self.limits,
-                econ,
-                time_limit_s=self.time_limit_s,
-                urgency_eur_kwh_h=urgency,
-                step_offset=t,
-                warm_start=None if warm is None else warm[1],
-                keep_basis=self.warm_start,
-            )
+            try:
+                sol = solve(None if warm is None else warm[1])
+            except SolverError:
+                if warm is None:
+                    raise
+                self.warm_retries += 1  # a failed warm start is solved again from scratch
+                sol = solve(None)
         except RuntimeError as exc:  # SolverError
             self.failures += 1
             status = getattr(exc, "status", STATUS[4])
@@ -219,7 +229,7 @@ class MPC:
             out[:, ~self.is_battery] = self.limits.charge_kw[~self.is_battery]
             return out
         self.solve_s += sol.solve_s
-        if sol.basis is not None:
+        if sol.basis is not None and t + 1 < self.num_steps:  # the day's last step keeps none
             self._bases[day] = (t, sol.basis)
         for i, leaf in enumerate(sessions.leaf):
             net = sol.net_kw[i]

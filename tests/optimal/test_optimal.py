@@ -396,6 +396,26 @@ def test_an_mpc_solve_that_fails_is_recorded_with_its_day_step_and_status(monkey
     assert mpc.failures == 1 and mpc.failed_solves == {1: [(5, LIMIT)]}
 
 
+def test_a_failed_warm_start_is_solved_again_from_scratch(monkeypatch):
+    # every warm-started solve fails: each is solved again cold, and no step falls back
+    params = hand_params(ONE_PORT, [0.2] * 24, step_minutes=60.0)
+    state = simulator.empty_state(jnp.asarray(1), params)
+    state = place_car(state, 0, soc=0.2, remaining_kwh=20.0, time_min=600.0)
+    real = mpc_module.build_and_solve
+
+    def warm_fails(*args, **kwargs):
+        if kwargs.get("warm_start") is not None:
+            raise optimal.SolverError(f"HiGHS did not solve the problem: {LIMIT}", LIMIT)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(mpc_module, "build_and_solve", warm_fails)
+    mpc = MPC(params)
+    act = jax.jit(lambda s: mpc(s, KEY, params))
+    for t in range(3):
+        jax.block_until_ready(act(state.replace(timestep=jnp.asarray(t))))
+    assert mpc.solves == 3 and mpc.warm_retries == 2 and mpc.failures == 0
+
+
 # --- reporting --------------------------------------------------------------------------
 
 
