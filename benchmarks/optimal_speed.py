@@ -1,8 +1,9 @@
 """How long the MPC's step and the LP hindsight bound's day take, on the default station and
 the 25 % grid station (``shopping-grid25-high``).
 
-The MPC runs ``--days`` held-out days through the jitted evaluation loop (host callback
-included): ms per step and s per day of the whole loop. The host states it saw are then
+The MPC runs ``--days`` days through the jitted evaluation loop (host callback included):
+ms per step and s per day of the whole loop; with ``--base DIR`` the other checkout's MPC
+(its ``optimal/model.py`` and ``optimal/mpc.py``) runs the same days in turn. The host states it saw are then
 replayed, and each step's LP is solved, interleaved step by step, from scratch and from the
 previous step's basis (as the MPC does) and, with ``--base DIR``, by the LP builder of another
 checkout (e.g. ``git worktree add /tmp/base main``). The bound solves ``--bound-days`` days'
@@ -40,43 +41,66 @@ STATIONS = {
 
 
 def load_base(root: str):
-    """``chargax_marl/optimal/model.py`` of the checkout at ``root``, as a separate module.
+    """``chargax_marl/optimal/model.py`` and ``mpc.py`` of the checkout at ``root``, as
+    separate modules (its MPC solves with its own model); the rest is this checkout's.
+
+    Returns:
+        ``(model_module, mpc_module)``.
 
     Raises:
-        ValueError: ``root`` holds no such file.
+        ValueError: ``root`` holds no such files.
     """
-    path = Path(root) / "chargax_marl" / "optimal" / "model.py"
-    if not path.is_file():
-        raise ValueError(f"field 'base' must be a checkout with {path.name}, got {root!r}")
-    spec = importlib.util.spec_from_file_location("base_optimal_model", path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    here = Path(root) / "chargax_marl" / "optimal"
+    mods = []
+    for name in ("model", "mpc"):
+        path = here / f"{name}.py"
+        if not path.is_file():
+            raise ValueError(f"field 'base' must be a checkout with {path}, got {root!r}")
+        spec = importlib.util.spec_from_file_location(f"base_optimal_{name}", path)
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = mod
+        # the base MPC imports the base model under the package's name while it loads
+        this_model = sys.modules["chargax_marl.optimal.model"]
+        if mods:
+            sys.modules["chargax_marl.optimal.model"] = mods[0]
+        try:
+            spec.loader.exec_module(mod)
+        finally:
+            sys.modules["chargax_marl.optimal.model"] = this_model
+        mods.append(mod)
+    return tuple(mods)
 
 
-def mpc_loop(params, days: np.ndarray) -> tuple[list[dict], float, float]:
-    """Run the MPC on ``days`` in the jitted loop; return the host states it saw, the loop's
-    ms per step and s per day (the first day's compile excluded by a warm-up day)."""
-    mpc = MPC(params)
+def mpc_loop(params, days: np.ndarray, base_mpc) -> tuple[list[dict], dict[str, float]]:
+    """Run the MPC on ``days`` in the jitted loop (and ``base_mpc``'s, day by day in turn);
+    return the host states this checkout's MPC saw and each loop's ms per step (a warm-up
+    day first excludes the compile)."""
     seen: list[dict] = []
-    act = mpc.host_act
+    loops = {}
+    for name, cls in [("this", MPC)] + ([("base", base_mpc.MPC)] if base_mpc else []):
+        mpc = cls(params)
+        if name == "this":
+            act = mpc.host_act
 
-    def record(*arrays):
-        seen.append({k: np.asarray(v).copy() for k, v in zip(_FIELDS, arrays)})
-        return act(*arrays)
+            def record(*arrays, act=act):
+                seen.append({k: np.asarray(v).copy() for k, v in zip(_FIELDS, arrays)})
+                return act(*arrays)
 
-    mpc.host_act = record
-    loop = jax.jit(lambda d, k: run_days(lambda s, kk: mpc(s, kk, params), params, d, k))
+            mpc.host_act = record
+        policy = lambda s, kk, mpc=mpc: mpc(s, kk, params)  # noqa: E731
+        loops[name] = jax.jit(lambda d, k, policy=policy: run_days(policy, params, d, k))
     key = jax.random.PRNGKey(0)
-    jax.block_until_ready(loop(days[:1], key))  # compile (one day)
+    for loop in loops.values():
+        jax.block_until_ready(loop(days[:1], key))  # compile (one day)
     seen.clear()
-    t0 = time.perf_counter()
+    wall = {name: 0.0 for name in loops}
     for d in days:
-        jax.block_until_ready(loop(np.array([d]), key))
-    wall = time.perf_counter() - t0
+        for name, loop in loops.items():
+            t0 = time.perf_counter()
+            jax.block_until_ready(loop(np.array([d]), key))
+            wall[name] += time.perf_counter() - t0
     steps = len(days) * params.num_steps
-    return seen, 1000.0 * wall / steps, wall / len(days)
+    return seen, {name: 1000.0 * w / steps for name, w in wall.items()}
 
 
 def replay_lps(params, states: list[dict], base) -> dict[str, float]:
@@ -171,12 +195,15 @@ def main() -> None:
         raise ValueError(
             f"--days and --bound-days must be >= 1, got {args.days}, {args.bound_days}"
         )
-    base = load_base(args.base) if args.base else None
+    base, base_mpc = load_base(args.base) if args.base else (None, None)
     print(f"load averages {os.getloadavg()}, {os.cpu_count()} cores, jax {jax.__version__}")
     for name in args.stations:
         params = STATIONS[name]()
-        states, ms_step, s_day = mpc_loop(params, np.arange(args.days) * 30 + 10)
-        print(f"{name}: MPC loop {ms_step:.2f} ms/step, {s_day:.1f} s/day (host callback included)")
+        states, ms = mpc_loop(params, np.arange(args.days) * 30 + 10, base_mpc)
+        line = f"{name}: MPC loop {ms['this']:.2f} ms/step, {ms['this'] * params.num_steps / 1000:.1f} s/day"
+        if base is not None:
+            line += f"; base {ms['base']:.2f} ms/step; base/this {ms['base'] / ms['this']:.2f}x"
+        print(line + " (jitted loop, host callback included; days in turn)")
         lp = replay_lps(params, states, base)
         line = f"{name}: MPC LP per step: warm {lp['warm']:.2f} ms, cold {lp['cold']:.2f} ms"
         if base is not None:
