@@ -25,7 +25,7 @@ def evaluate_mpc(params, days, key=None, **mpc_kwargs) -> dict:
 
     Returns:
         ``{"daily_profit", "metrics", "failed_days", "wall_s", "solves", "failures",
-        "solve_s_total", "ms_per_step", "settings"}``.
+        "warm_retries", "solve_s_total", "ms_per_step", "settings"}``.
     """
     key = jax.random.PRNGKey(0) if key is None else key
     mpc = MPC(params, **mpc_kwargs)
@@ -51,6 +51,7 @@ def evaluate_mpc(params, days, key=None, **mpc_kwargs) -> dict:
         "wall_s": wall,
         "solves": mpc.solves,
         "failures": mpc.failures,
+        "warm_retries": mpc.warm_retries,
         "solve_s_total": mpc.solve_s,
         "ms_per_step": 1000.0 * wall / steps,
         "settings": {

@@ -1,12 +1,12 @@
 """The station's day as a linear program: one builder shared by the hindsight bound and the MPC.
 
-Everything here is host-side numpy and SciPy's interface to the HiGHS solver
-(:func:`scipy.optimize.milp`). A problem is a set of *sessions* (a car at one port for a
-range of steps, or a station battery for the whole range) over ``num_steps`` steps of
-``step_hours``, with the station's limits and the steps' prices. The LP chooses, per session
-and step, a charging power ``p+ >= 0`` and a discharging power ``p- >= 0`` (kW, car side) and
-maximises the money the simulator's profit (:func:`chargax_marl.core.reward.profit_eur`)
-would book, under every limit the simulator applies:
+Everything here is host-side numpy and the HiGHS solver, called through ``highspy``. A
+problem is a set of *sessions* (a car at one port for a range of steps, or a station battery
+for the whole range) over ``num_steps`` steps of ``step_hours``, with the station's limits
+and the steps' prices. The LP chooses, per session and step, a charging power ``p+ >= 0`` and
+a discharging power ``p- >= 0`` (kW, car side) and maximises the money the simulator's
+profit (:func:`chargax_marl.core.reward.profit_eur`) would book, under every limit the
+simulator applies:
 
 - port ratings (``V * I_max``, ``V * I_dis`` with V2G, 0 discharge without), the car's
   ``r-bar`` and discharge limit;
@@ -39,14 +39,14 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
+import highspy
 import numpy as np
 import scipy.sparse as sp
-from scipy.optimize import Bounds, LinearConstraint, milp
 
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import EnvParams
 
-# SciPy's milp status codes (HiGHS underneath)
+# a solve's status by SciPy milp's status code
 STATUS = {
     0: "optimal",
     1: "time or iteration limit",
@@ -161,7 +161,8 @@ class Economics:
 class Solution:
     """A solved problem: ``value_eur`` is the money the LP books (the fixed cost excluded),
     ``net_kw[s, k]`` the net power of session ``s`` in its ``k``-th step (car side),
-    ``soc_end`` the SoC of each session after its last step."""
+    ``soc_end`` the SoC of each session after its last step, ``basis`` the optimal basis when
+    asked for (``keep_basis``)."""
 
     value_eur: float
     status: str
@@ -171,10 +172,190 @@ class Solution:
     net_kw: list = field(default_factory=list)
     soc_end: np.ndarray | None = None
     x: np.ndarray | None = None
+    basis: Basis | None = None
+
+
+_MODEL_STATUS = {
+    highspy.HighsModelStatus.kOptimal: STATUS[0],
+    highspy.HighsModelStatus.kTimeLimit: STATUS[1],
+    highspy.HighsModelStatus.kIterationLimit: STATUS[1],
+    highspy.HighsModelStatus.kInfeasible: STATUS[2],
+    highspy.HighsModelStatus.kUnboundedOrInfeasible: STATUS[2],
+    highspy.HighsModelStatus.kUnbounded: STATUS[3],
+}
+
+# the solver object without highspy.Highs's Python callbacks (unused here, and they print a
+# banner on the first instance); the public class where a highspy version lacks it
+_HIGHS = getattr(highspy, "_Highs", highspy.Highs)
+
+
+def new_highs(time_limit_s: float | None = None) -> highspy.Highs:
+    """A silent HiGHS instance with this module's options.
+
+    Args:
+        time_limit_s: the wall-clock limit of each solve (seconds); None for none.
+
+    Returns:
+        The solver, with no model yet.
+    """
+    h = _HIGHS()
+    h.setOptionValue("output_flag", False)
+    if time_limit_s is not None:
+        h.setOptionValue("time_limit", float(time_limit_s))
+    return h
+
+
+def pass_model(
+    h: highspy.Highs,
+    cost: np.ndarray,
+    col_lb: np.ndarray,
+    col_ub: np.ndarray,
+    row_lb: np.ndarray,
+    row_ub: np.ndarray,
+    start: np.ndarray,
+    index: np.ndarray,
+    value: np.ndarray,
+    integer: np.ndarray | None = None,
+) -> None:
+    """Hand HiGHS the problem ``min cost x`` s.t. ``row_lb <= A x <= row_ub``,
+    ``col_lb <= x <= col_ub``, with ``A`` given column-wise.
+
+    Args:
+        h: the solver.
+        cost: per column (minimised).
+        col_lb: lower bound per column.
+        col_ub: upper bound per column.
+        row_lb: lower bound per row (``-inf`` for none).
+        row_ub: upper bound per row (``inf`` for none).
+        start: CSC column pointers, ``(num_cols + 1,)``.
+        index: CSC row indices.
+        value: CSC values.
+        integer: bool per column, or None for an LP.
+
+    Raises:
+        SolverError: HiGHS refuses the model.
+    """
+    num_cols, num_rows = int(cost.shape[0]), int(row_lb.shape[0])
+    kind = np.zeros(num_cols, np.int32) if integer is None else np.asarray(integer, np.int32)
+    status = h.passModel(
+        num_cols,
+        num_rows,
+        int(value.shape[0]),
+        int(highspy.MatrixFormat.kColwise.value),
+        int(highspy.ObjSense.kMinimize.value),
+        0.0,
+        cost,
+        col_lb,
+        col_ub,
+        row_lb,
+        row_ub,
+        np.asarray(start, np.int32),
+        np.asarray(index, np.int32),
+        np.asarray(value, np.float64),
+        kind,
+    )
+    if status == highspy.HighsStatus.kError:
+        raise SolverError(
+            f"HiGHS refused the model: {num_cols} variables, {num_rows} rows", STATUS[4]
+        )
+
+
+def run_highs(h: highspy.Highs, num_cols: int, num_rows: int) -> tuple[str, np.ndarray, float]:
+    """Run ``h`` on its model and read the optimum.
+
+    Args:
+        h: a solver holding a model (minimisation).
+        num_cols: the model's columns (for the error message).
+        num_rows: the model's rows (for the error message).
+
+    Returns:
+        ``(status, x, objective)``: :data:`STATUS`'s ``"optimal"``, the primal solution and
+        the minimised objective.
+
+    Raises:
+        SolverError: HiGHS reports anything but an optimum (its status is kept).
+    """
+    h.run()
+    model_status = h.getModelStatus()
+    status = _MODEL_STATUS.get(model_status, STATUS[4])
+    if status != STATUS[0]:
+        raise SolverError(
+            f"HiGHS did not solve the problem: {status} ({h.modelStatusToString(model_status)}); "
+            f"{num_cols} variables, {num_rows} rows",
+            status,
+        )
+    x = np.asarray(h.getSolution().col_value, np.float64)
+    return status, x, float(h.getInfo().objective_function_value)
+
+
+# HiGHS's basis statuses by their integer value (kLower, kBasic, kUpper, kZero, kNonbasic)
+_BASIS_STATUS = np.array(
+    [
+        highspy.HighsBasisStatus.kLower,
+        highspy.HighsBasisStatus.kBasic,
+        highspy.HighsBasisStatus.kUpper,
+        highspy.HighsBasisStatus.kZero,
+        highspy.HighsBasisStatus.kNonbasic,
+    ],
+    dtype=object,
+)
+_LOWER, _BASIC, _UPPER = 0, 1, 2
+
+
+@dataclass
+class Basis:
+    """An optimal basis, each column and row named by a key (its kind, leaf or node, and the
+    day's step), so that a later problem over overlapping steps can start from it
+    (:func:`build_and_solve`'s ``warm_start``). Keys are sorted."""
+
+    col_key: np.ndarray  # (num_cols,) int64
+    col_status: np.ndarray  # (num_cols,) int8, HighsBasisStatus values
+    row_key: np.ndarray
+    row_status: np.ndarray
+
+    @staticmethod
+    def read(h: highspy.Highs, b: _Builder, col_key: np.ndarray, row_key: np.ndarray) -> Basis:
+        """The optimal basis of solver ``h`` (which solved ``b``'s problem, minimising) under
+        the keys of its columns and rows: its basic variables, and each nonbasic one at the
+        bound where the solution puts it."""
+        _, basic = h.getBasicVariables()
+        basic = np.asarray(basic, np.int64)
+        sol = h.getSolution()
+        x, r = np.asarray(sol.col_value), np.asarray(sol.row_value)
+        ub, row_ub = np.concatenate(b.ub), np.concatenate(b.row_ub)
+        lb, row_lb = np.concatenate(b.lb), np.concatenate(b.row_lb)
+        cs = np.where((x > lb + 1e-9) & (x >= ub - 1e-9), _UPPER, _LOWER).astype(np.int8)
+        rs = np.where((r > row_lb + 1e-9) & (r >= row_ub - 1e-9), _UPPER, _LOWER).astype(np.int8)
+        cs[basic[basic >= 0]] = _BASIC
+        rs[-1 - basic[basic < 0]] = _BASIC
+        ci, ri = np.argsort(col_key), np.argsort(row_key)
+        return Basis(col_key[ci], cs[ci], row_key[ri], rs[ri])
+
+    def guess(self, col_key: np.ndarray, row_key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Statuses for a problem with these keys: this basis's where a key is known, else a
+        column at its lower bound and a basic row."""
+        return (
+            _lookup(self.col_key, self.col_status, col_key, _LOWER),
+            _lookup(self.row_key, self.row_status, row_key, _BASIC),
+        )
+
+
+def _lookup(keys: np.ndarray, values: np.ndarray, query: np.ndarray, default: int) -> np.ndarray:
+    """``values`` at ``query`` in the sorted ``keys`` (``default`` where absent)."""
+    if keys.shape[0] == 0:
+        return np.full(query.shape[0], default, np.int8)
+    i = np.minimum(np.searchsorted(keys, query), keys.shape[0] - 1)
+    return np.where(keys[i] == query, values[i], default).astype(np.int8)
+
+
+def _key(kind: int, entity, step) -> np.ndarray:
+    """Keys of columns or rows: a kind, a leaf or node, and the day's step."""
+    return (np.int64(kind) << 40) + (np.asarray(entity, np.int64) << 20) + np.asarray(step)
 
 
 class _Builder:
-    """Variables with bounds and costs, and sparse rows ``lb <= A x <= ub``."""
+    """Variables with bounds and costs, and sparse rows ``lb <= A x <= ub``, added in blocks
+    (each call takes whole arrays)."""
 
     def __init__(self):
         self.lb, self.ub, self.cost, self.integer = [], [], [], []
@@ -188,7 +369,7 @@ class _Builder:
         self.lb.append(np.broadcast_to(np.asarray(lb, np.float64), (count,)))
         self.ub.append(np.broadcast_to(np.asarray(ub, np.float64), (count,)))
         self.cost.append(np.broadcast_to(np.asarray(cost, np.float64), (count,)))
-        self.integer.append(np.full(count, int(integer)))
+        self.integer.append(np.full(count, bool(integer)))
         self.n += count
         return idx
 
@@ -205,26 +386,149 @@ class _Builder:
         self.cols.append(cols.ravel())
         self.vals.append(np.broadcast_to(np.asarray(vals, np.float64), rows.shape).ravel())
 
-    def solve(self, maximise: bool = True, time_limit_s: float | None = None):
-        cat = lambda parts: np.concatenate(parts) if parts else np.zeros(0)  # noqa: E731
+    def solve(
+        self,
+        maximise: bool = True,
+        time_limit_s: float | None = None,
+        col_status: np.ndarray | None = None,
+        row_status: np.ndarray | None = None,
+    ) -> tuple[str, np.ndarray, float, float, highspy.Highs]:
+        """Solve with HiGHS: from scratch, or from a guessed basis.
+
+        An LP goes to the dual simplex without presolve, with Devex pricing (on these
+        problems presolve costs more than it saves); a problem with integer columns keeps
+        HiGHS's defaults.
+
+        Args:
+            maximise: maximise the cost (else minimise).
+            time_limit_s: HiGHS's wall-clock limit (seconds); None for none.
+            col_status: a guessed basis status per column (:class:`highspy.HighsBasisStatus`
+                values), or None for a solve from scratch.
+            row_status: the same per row (with ``col_status``).
+
+        Returns:
+            ``(status, x, objective, solve_s, highs)``: the objective in the direction asked
+            for, ``solve_s`` the seconds spent in HiGHS (the model's hand-over included), and
+            the solver (to read its basis).
+
+        Raises:
+            SolverError: no optimum.
+        """
+        cat = lambda parts, dtype=np.float64: (  # noqa: E731
+            np.concatenate(parts) if parts else np.zeros(0, dtype)
+        )
         c = cat(self.cost)
-        a = sp.csr_array(
-            (cat(self.vals), (cat(self.rows).astype(np.int64), cat(self.cols).astype(np.int64))),
+        a = sp.csc_array(
+            (cat(self.vals), (cat(self.rows, np.int64), cat(self.cols, np.int64))),
             shape=(self.m, self.n),
         )
-        options = {"presolve": True}
-        if time_limit_s is not None:
-            options["time_limit"] = float(time_limit_s)
-        constraints = [LinearConstraint(a, cat(self.row_lb), cat(self.row_ub))] if self.m else []
+        a.sum_duplicates()
+        integer = cat(self.integer, bool)
+        h = new_highs(time_limit_s)
+        if not integer.any():
+            h.setOptionValue("presolve", "off")
+            h.setOptionValue("simplex_dual_edge_weight_strategy", 1)  # Devex
         t0 = time.perf_counter()
-        res = milp(
+        pass_model(
+            h,
             -c if maximise else c,
-            integrality=cat(self.integer),
-            bounds=Bounds(cat(self.lb), cat(self.ub)),
-            constraints=constraints,
-            options=options,
+            cat(self.lb),
+            cat(self.ub),
+            cat(self.row_lb),
+            cat(self.row_ub),
+            a.indptr,
+            a.indices,
+            a.data,
+            integer,
         )
-        return res, time.perf_counter() - t0
+        if col_status is not None:
+            # an alien basis: HiGHS completes or repairs it
+            h.setOptionValue("presolve", "off")
+            basis = highspy.HighsBasis()
+            basis.col_status = _BASIS_STATUS[col_status].tolist()
+            basis.row_status = _BASIS_STATUS[row_status].tolist()
+            basis.alien = True
+            h.setBasis(basis)
+        status, x, obj = run_highs(h, self.n, self.m)
+        return status, x, (-obj if maximise else obj), time.perf_counter() - t0, h
+
+
+@dataclass
+class _Terms:
+    """Per-session constants of the LP, arrays over sessions ``(S,)`` (float64)."""
+
+    leaf: np.ndarray
+    cap_kwh: np.ndarray  # capacity, at least 1e-6
+    pp_max_kw: np.ndarray  # the charging power's bound, >= 0
+    pm_max_kw: np.ndarray  # the discharging power's bound, >= 0 (0: no discharge variable)
+    soc_lo: np.ndarray
+    soc_hi: np.ndarray
+    goal_soc: np.ndarray  # the end SoC a must-reach session is held to
+    price_eur_kwh: np.ndarray  # customer price (cars) or terminal value (batteries)
+    refund: np.ndarray  # bool: a discharged kWh earns the price back
+    wear_eur_kwh: np.ndarray
+    eta: np.ndarray  # the leaf's path efficiency to the grid
+    taper: np.ndarray  # bool: the rate-curve row binds somewhere (else it is implied)
+    slope_kw: np.ndarray  # its slope (0 where no taper row)
+    hull: np.ndarray  # bool: the charge-or-discharge row (no refund, both directions)
+    mirror: np.ndarray  # bool: the discharge-curve row binds somewhere
+    slope_d_kw: np.ndarray
+
+
+def _terms(
+    sessions: Sessions, limits: StationLimits, econ: Economics, charged_tolerance_kwh: float
+) -> _Terms:
+    """The per-session constants of :func:`build_and_solve`'s LP, vectorised. Rows that the
+    variables' bounds already imply (the rate curve of a car that never passes ``tau``, the
+    discharge curve of one that never gets below its floor) are marked off."""
+    f64 = lambda a: np.asarray(a, np.float64)  # noqa: E731
+    leaf = np.asarray(sessions.leaf, np.int64)
+    cap = np.maximum(f64(sessions.capacity_kwh), 1e-6)
+    tau = f64(sessions.tau)
+    rate, rate_d = f64(sessions.max_rate_kw), f64(sessions.max_discharge_rate_kw)
+    soc0 = f64(sessions.soc0)
+    cmax = np.minimum(rate, limits.charge_kw[leaf])
+    dmax = np.minimum(rate_d, limits.discharge_kw[leaf])
+    lo = np.minimum(f64(sessions.reserve_soc), soc0)
+    target = f64(sessions.target_soc)
+    hi = np.maximum(target, soc0)
+    is_bat = limits.is_battery[leaf]
+    price = np.where(is_bat, float(econ.battery_value), float(econ.customer))
+    refund = is_bat | bool(econ.refund_discharged)
+    wear = np.zeros(leaf.shape) if limits.wear_eur_kwh is None else limits.wear_eur_kwh[leaf]
+    pp_max, pm_max = np.maximum(cmax, 0.0), np.maximum(dmax, 0.0)
+    taper = (tau < 1.0 - 1e-6) & (cmax > 0)
+    slope = np.where(taper, rate / np.where(taper, 1.0 - tau, 1.0), 0.0)
+    # p+ + slope x <= slope holds for every x <= hi once p+'s bound fits under the curve at hi
+    taper &= pp_max + slope * hi > slope
+    slope_d = rate_d / np.maximum(1.0 - tau, 1e-6)
+    # p- <= slope_d x holds for every x >= lo once p-'s bound does at lo
+    mirror = (dmax > 0) & (pm_max > slope_d * lo)
+    return _Terms(
+        leaf=leaf,
+        cap_kwh=cap,
+        pp_max_kw=pp_max,
+        pm_max_kw=pm_max,
+        soc_lo=lo,
+        soc_hi=hi,
+        goal_soc=np.maximum(lo, np.minimum(hi, target - charged_tolerance_kwh / cap - 1e-5)),
+        price_eur_kwh=price,
+        refund=refund,
+        wear_eur_kwh=wear,
+        eta=limits.path_eff[leaf],
+        taper=taper,
+        slope_kw=slope,
+        hull=~refund & (cmax > 0) & (dmax > 0),
+        mirror=mirror,
+        slope_d_kw=slope_d,
+    )
+
+
+def _grid_cap_kwh(limits: StationLimits, step_hours: float) -> float:
+    """The grid import / export bound per step (kWh)."""
+    if limits.hard:
+        return limits.root_kw * step_hours
+    return float(np.sum(limits.charge_kw / limits.path_eff)) * step_hours
 
 
 def build_and_solve(
@@ -238,26 +542,51 @@ def build_and_solve(
     occupancy_vars: dict | None = None,
     builder: _Builder | None = None,
     urgency_eur_kwh_h: np.ndarray | None = None,
+    step_offset: int = 0,
+    warm_start: Basis | None = None,
+    keep_basis: bool = False,
 ) -> Solution:
     """Build the LP of the module docstring for ``sessions`` and solve it with HiGHS.
 
-    ``occupancy_vars`` (used by the MILP) maps a session index to a binary variable that
-    multiplies its power limits (the session exists only when the binary is 1).
-    ``urgency_eur_kwh_h`` (per session, used by the MPC) adds to each kWh a bonus that falls
-    by that much per hour of delay, so the LP charges those sessions early among plans of
-    (nearly) equal profit; leave it None for the bound.
-    Raises :class:`SolverError` when HiGHS does not report an optimum.
+    The rows and columns of all sessions are built at once (arrays over session-steps); a
+    discharge variable whose bound is 0 and a row that the bounds imply (a node that its
+    sessions cannot overload in a step, a rate curve a car never reaches) are left out, which
+    does not change the LP's optimum.
+
+    Args:
+        sessions: the cars and batteries; a session with ``last < first`` is empty.
+        num_steps: the problem's steps.
+        limits: the station's limits.
+        econ: the steps' prices and the profit's constants.
+        charged_tolerance_kwh: how far below its target a must-reach session may end.
+        time_limit_s: HiGHS's wall-clock limit (seconds); None for none.
+        occupancy_vars: (used by the MILP) maps a session index to a binary variable of
+            ``builder`` that multiplies its power limits (the session exists only when the
+            binary is 1).
+        builder: a builder holding variables and rows already (the MILP's); None for a new one.
+        urgency_eur_kwh_h: per session (used by the MPC): a bonus per kWh that falls by that
+            much per hour of delay, so that the LP charges those sessions early among plans of
+            (nearly) equal profit; None for the bound.
+        step_offset: the day's step of the problem's step 0 (names the columns and rows of
+            the basis).
+        warm_start: the basis of an earlier problem (e.g. the MPC's previous step): HiGHS
+            starts from it where the keys (kind, leaf or node, day's step) match. The
+            optimum's value is the same; where several plans are optimal, the plan may differ
+            from a solve from scratch.
+        keep_basis: return the optimal basis in :attr:`Solution.basis`.
+
+    Returns:
+        The optimum: its value, each session's net power per step and end SoC.
+
+    Raises:
+        SolverError: HiGHS does not report an optimum.
+        ValueError: ``warm_start`` or ``keep_basis`` with ``builder`` or ``occupancy_vars``
+            (the MILP's columns and rows have no keys).
     """
     b = builder or _Builder()
     dt = econ.step_hours
     n = num_steps
-    num_nodes = limits.node_max_kw.shape[0]
-    # grid import / export per step, kWh
-    cap = (
-        limits.root_kw * dt
-        if limits.hard
-        else float(np.sum(limits.charge_kw / limits.path_eff)) * dt
-    )
+    cap = _grid_cap_kwh(limits, dt)
     g_imp = b.vars(n, 0.0, cap, cost=-econ.buy)
     g_exp = b.vars(n, 0.0, cap, cost=econ.sell)
     grid_rows = b.new_rows(n, 0.0, 0.0)  # g_imp - g_exp - sum(grid side) = 0
@@ -270,119 +599,181 @@ def build_and_solve(
         b.coef(peak_rows, g_imp, 1.0 / dt)
         b.coef(peak_rows, g_exp, -1.0 / dt)
         b.coef(peak_rows, np.repeat(peak, n), -1.0)
-    node_rows = None
+
+    first = np.asarray(sessions.first, np.int64)
+    last = np.asarray(sessions.last, np.int64)
+    valid = np.nonzero(last >= first)[0]
+    t = _terms(sessions, limits, econ, charged_tolerance_kwh)
+    t = _Terms(**{k: getattr(t, k)[valid] for k in _Terms.__dataclass_fields__})
+    soc0 = np.asarray(sessions.soc0, np.float64)[valid]
+    must = np.asarray(sessions.must_reach, bool)[valid]
+    cond_of = occupancy_vars or {}
+    z = np.array([cond_of.get(int(s), -1) for s in valid], np.int64)
+    cond = z >= 0
+    num_sess = valid.shape[0]
+    # session-steps ("cells"): session cs, local step k, problem step step
+    m = last[valid] - first[valid] + 1
+    num_cells = int(m.sum())
+    off = np.concatenate([[0], np.cumsum(m)[:-1]]).astype(np.int64)
+    cs = np.repeat(np.arange(num_sess), m)
+    k = np.arange(num_cells) - off[cs]
+    step = first[valid][cs] + k
+
+    value = t.price_eur_kwh[cs]
+    if urgency_eur_kwh_h is not None:
+        value = value + np.asarray(urgency_eur_kwh_h, np.float64)[valid][cs] * (n - step) * dt
+    wear = t.wear_eur_kwh[cs]
+    pp = b.vars(num_cells, 0.0, t.pp_max_kw[cs], cost=(value - wear) * dt)
+    # discharge only where its bound is positive; a car without the refund earns no price on it
+    dc = np.nonzero(t.pm_max_kw[cs] > 0)[0]
+    dcs = cs[dc]
+    refund_value = np.where(t.refund[dcs], value[dc], value[dc] - t.price_eur_kwh[dcs])
+    pm = b.vars(dc.shape[0], 0.0, t.pm_max_kw[dcs], cost=-(refund_value + wear[dc]) * dt)
+    # SoC x_0..x_m per session: x_0 fixed at the start SoC; the end may be forced to the goal
+    x_lo = np.repeat(t.soc_lo, m + 1)
+    x_hi = np.repeat(t.soc_hi, m + 1)
+    x_first = off + np.arange(num_sess)
+    x_end = x_first + m
+    x_lo[x_first] = x_hi[x_first] = soc0
+    x_lo[x_end[must & ~cond]] = t.goal_soc[must & ~cond]
+    x = b.vars(num_cells + num_sess, x_lo, x_hi)
+    xs = x[x_first[cs] + k]  # SoC at the start of each cell
+    xe = xs + 1
+    # only when the session exists: x_end - (goal - lo) z >= lo
+    mc = np.nonzero(must & cond)[0]
+    if mc.size:
+        row = b.new_rows(mc.size, t.soc_lo[mc], np.inf)
+        b.coef(row, x[x_end[mc]], 1.0)
+        b.coef(row, z[mc], -(t.goal_soc[mc] - t.soc_lo[mc]))
+    # SoC dynamics: x_{k+1} - x_k - (p+ - p-) dt / C = 0
+    dyn = b.new_rows(num_cells, 0.0, 0.0)
+    b.coef(dyn, xe, 1.0)
+    b.coef(dyn, xs, -1.0)
+    b.coef(dyn, pp, -dt / t.cap_kwh[cs])
+    b.coef(dyn[dc], pm, dt / t.cap_kwh[dcs])
+    cc = np.nonzero(cond[cs])[0]
+    if cc.size:  # p+ <= cmax z, p- <= dmax z
+        lim = b.new_rows(cc.size, -np.inf, 0.0)
+        b.coef(lim, pp[cc], 1.0)
+        b.coef(lim, z[cs[cc]], -t.pp_max_kw[cs[cc]])
+        cd = np.nonzero(cond[dcs])[0]
+        lim = b.new_rows(cd.size, -np.inf, 0.0)
+        b.coef(lim, pm[cd], 1.0)
+        b.coef(lim, z[dcs[cd]], -t.pm_max_kw[dcs[cd]])
+    tc = np.nonzero(t.taper[cs])[0]
+    taper = b.new_rows(tc.size, -np.inf, t.slope_kw[cs[tc]])  # p+ + slope x <= slope
+    b.coef(taper, pp[tc], 1.0)
+    b.coef(taper, xs[tc], t.slope_kw[cs[tc]])
+    # the simulator charges or discharges a car in a step, never both: p+ / cmax + p- / dmax
+    # <= 1 (the convex hull of the two). Without it, charging and discharging at once would
+    # bill the customer for energy that never stays in the car.
+    hc = np.nonzero(t.hull[dcs])[0]
+    hull = b.new_rows(hc.size, -np.inf, 1.0)
+    b.coef(hull, pp[dc[hc]], 1.0 / t.pp_max_kw[dcs[hc]])
+    b.coef(hull, pm[hc], 1.0 / t.pm_max_kw[dcs[hc]])
+    mc = np.nonzero(t.mirror[dcs])[0]
+    mirror = b.new_rows(mc.size, -np.inf, 0.0)  # p- - slope x <= 0
+    b.coef(mirror, pm[mc], 1.0)
+    b.coef(mirror, xs[dc[mc]], -t.slope_d_kw[dcs[mc]])
+    b.coef(grid_rows[step], pp, -dt / t.eta[cs])
+    b.coef(grid_rows[step[dc]], pm, dt * t.eta[dcs])
+    node_keys = np.zeros(0, np.int64)
     if limits.hard:
-        node_rows = b.new_rows(
-            n * num_nodes, -np.tile(limits.node_max_kw, n), np.tile(limits.node_max_kw, n)
-        )
+        node_keys = _node_rows(b, limits, n, t, cs, step, pp, dc, pm)
 
-    net_index, soc_end_index = [], []
-    for s in range(sessions.size):
-        leaf = int(sessions.leaf[s])
-        k0, k1 = int(sessions.first[s]), int(sessions.last[s])
-        if k1 < k0:
-            net_index.append((None, None))
-            soc_end_index.append(None)
-            continue
-        steps = np.arange(k0, k1 + 1)
-        m = steps.shape[0]
-        cap_kwh = max(float(sessions.capacity_kwh[s]), 1e-6)
-        tau = float(sessions.tau[s])
-        cmax = min(float(sessions.max_rate_kw[s]), float(limits.charge_kw[leaf]))
-        dmax = min(float(sessions.max_discharge_rate_kw[s]), float(limits.discharge_kw[leaf]))
-        lo = min(float(sessions.reserve_soc[s]), float(sessions.soc0[s]))
-        hi = max(float(sessions.target_soc[s]), float(sessions.soc0[s]))
-        is_bat = bool(limits.is_battery[leaf])
-        price = econ.battery_value if is_bat else econ.customer
-        value = np.full(m, price)
-        if urgency_eur_kwh_h is not None:
-            value = value + float(urgency_eur_kwh_h[s]) * (n - steps) * dt
-        # without the refund a car's discharge earns no customer price (the urgency bonus stays)
-        refund = is_bat or econ.refund_discharged
-        # a battery's cells wear per kWh in and per kWh out (p+ and p- are cell side)
-        wear = 0.0 if limits.wear_eur_kwh is None else float(limits.wear_eur_kwh[leaf])
-        pp = b.vars(m, 0.0, max(cmax, 0.0), cost=(value - wear) * dt)
-        pm = b.vars(
-            m, 0.0, max(dmax, 0.0), cost=-((value if refund else value - price) + wear) * dt
+    keyed = warm_start is not None or keep_basis
+    if keyed and (builder is not None or occupancy_vars):
+        raise ValueError(
+            "fields 'builder' and 'occupancy_vars' must be None with 'warm_start' or 'keep_basis'"
         )
-        # SoC x_0..x_m: x_0 fixed at the start SoC; the end may be forced to the target
-        x_lo, x_hi = np.full(m + 1, lo), np.full(m + 1, hi)
-        x_lo[0] = x_hi[0] = float(sessions.soc0[s])
-        goal = max(
-            lo, min(hi, float(sessions.target_soc[s]) - charged_tolerance_kwh / cap_kwh - 1e-5)
+    if keyed:
+        num_nodes = limits.node_max_kw.shape[0]
+        steps = step_offset + np.arange(n)
+        leaf_c, leaf_d = t.leaf[cs], t.leaf[dcs]
+        x_step = step_offset + np.repeat(first[valid], m + 1) + np.arange(num_cells + num_sess)
+        x_step -= np.repeat(x_first, m + 1)
+        col_key = np.concatenate(
+            [_key(0, 0, steps), _key(1, 0, steps)]
+            + ([_key(2, 0, [0])] if econ.peak_eur_kw > 0.0 else [])
+            + [
+                _key(3, leaf_c, step_offset + step),
+                _key(4, leaf_d, step_offset + step[dc]),
+                _key(5, np.repeat(t.leaf, m + 1), x_step),
+            ]
         )
-        conditional = occupancy_vars is not None and s in occupancy_vars
-        if sessions.must_reach[s] and not conditional:
-            x_lo[m] = goal
-        x = b.vars(m + 1, x_lo, x_hi)
-        if sessions.must_reach[s] and conditional:
-            # only when the session exists: x_end - (goal - lo) z >= lo
-            row = b.new_rows(1, lo, np.inf)
-            b.coef(row, x[m : m + 1], 1.0)
-            b.coef(row, occupancy_vars[s][None], -(goal - lo))
-        # SoC dynamics: x_{k+1} - x_k - (p+ - p-) dt / C = 0
-        dyn = b.new_rows(m, 0.0, 0.0)
-        b.coef(dyn, x[1:], 1.0)
-        b.coef(dyn, x[:-1], -1.0)
-        b.coef(dyn, pp, -dt / cap_kwh)
-        b.coef(dyn, pm, dt / cap_kwh)
-        if occupancy_vars is not None and s in occupancy_vars:
-            z = occupancy_vars[s]
-            lim = b.new_rows(2 * m, -np.inf, 0.0)  # p+ <= cmax z, p- <= dmax z
-            b.coef(lim[:m], pp, 1.0)
-            b.coef(lim[:m], z, -max(cmax, 0.0))
-            b.coef(lim[m:], pm, 1.0)
-            b.coef(lim[m:], z, -max(dmax, 0.0))
-        if tau < 1.0 - 1e-6 and cmax > 0:
-            slope = float(sessions.max_rate_kw[s]) / (1.0 - tau)
-            taper = b.new_rows(m, -np.inf, slope)  # p+ + slope x <= slope
-            b.coef(taper, pp, 1.0)
-            b.coef(taper, x[:-1], slope)
-        if not refund and cmax > 0 and dmax > 0:
-            # the simulator charges or discharges a car in a step, never both: p+ / cmax + p- / dmax
-            # <= 1 (the convex hull of the two). Without it, charging and discharging at once would
-            # bill the customer for energy that never stays in the car.
-            hull = b.new_rows(m, -np.inf, 1.0)
-            b.coef(hull, pp, 1.0 / cmax)
-            b.coef(hull, pm, 1.0 / dmax)
-        if dmax > 0:
-            slope_d = float(sessions.max_discharge_rate_kw[s]) / max(1.0 - tau, 1e-6)
-            mirror = b.new_rows(m, -np.inf, 0.0)  # p- - slope x <= 0
-            b.coef(mirror, pm, 1.0)
-            b.coef(mirror, x[:-1], -slope_d)
-        eta = float(limits.path_eff[leaf])
-        b.coef(grid_rows[steps], pp, -dt / eta)
-        b.coef(grid_rows[steps], pm, dt * eta)
-        if node_rows is not None:
-            for d in range(limits.node_at_depth.shape[0]):
-                node = int(limits.node_at_depth[d, leaf])
-                if node < 0:
-                    continue
-                e = float(limits.eff_at_depth[d, leaf])
-                rows = node_rows[steps * num_nodes + node]
-                b.coef(rows, pp, 1.0 / e)
-                b.coef(rows, pm, -e)
-        net_index.append((pp, pm))
-        soc_end_index.append(x[m])
-
-    res, solve_s = b.solve(time_limit_s=time_limit_s)
-    status = STATUS.get(res.status, f"status {res.status}")
-    if res.status != 0 or res.x is None:
-        raise SolverError(
-            f"HiGHS did not solve the problem: {status} ({res.message}); "
-            f"{b.n} variables, {b.m} rows",
-            status,
+        cell = step_offset + step
+        row_key = np.concatenate(
+            [_key(0, 0, steps)]
+            + ([_key(1, 0, steps)] if econ.peak_eur_kw > 0.0 else [])
+            + [
+                _key(4, leaf_c, cell),
+                _key(7, leaf_c[tc], cell[tc]),
+                _key(8, leaf_d[hc], cell[dc[hc]]),
+                _key(9, leaf_d[mc], cell[dc[mc]]),
+                _key(2, node_keys % num_nodes, step_offset + node_keys // num_nodes),
+            ]
         )
-    xs = res.x
-    net = [None if pp is None else xs[pp] - xs[pm] for pp, pm in net_index]
-    soc_end = np.array([np.nan if i is None else xs[i] for i in soc_end_index])
+    guess = (None, None) if warm_start is None else warm_start.guess(col_key, row_key)
+    _, xsol, value_eur, solve_s, h = b.solve(
+        time_limit_s=time_limit_s, col_status=guess[0], row_status=guess[1]
+    )
+    pm_full = np.zeros(num_cells)
+    pm_full[dc] = xsol[pm]
+    net_cells = np.split(xsol[pp] - pm_full, off[1:]) if num_sess else []
+    net: list = [None] * sessions.size
+    soc_end = np.full(sessions.size, np.nan)
+    for i, s in enumerate(valid):
+        net[s] = net_cells[i]
+    soc_end[valid] = xsol[x[x_end]]
     return Solution(
-        value_eur=float(-res.fun),
-        status=status,
+        value_eur=value_eur,
+        status=STATUS[0],
         solve_s=solve_s,
         num_vars=b.n,
         num_rows=b.m,
         net_kw=net,
         soc_end=soc_end,
-        x=xs,
+        x=xsol,
+        basis=Basis.read(h, b, col_key, row_key) if keep_basis else None,
     )
+
+
+def _node_rows(
+    b: _Builder, limits: StationLimits, n: int, t: _Terms, cs, step, pp, dc, pm
+) -> np.ndarray:
+    """The node limits on the grid side, one row per (step, node) that the sessions under the
+    node could overload in that step (at every other one the bounds imply the limit).
+
+    Returns:
+        The rows' keys ``step * num_nodes + node``, in row order.
+    """
+    num_nodes = limits.node_max_kw.shape[0]
+    leaf = t.leaf[cs]
+    keys, cols, vals, load_c, load_d = [], [], [], [], []
+    for d in range(limits.node_at_depth.shape[0]):
+        node = limits.node_at_depth[d, leaf]
+        e = limits.eff_at_depth[d, leaf]
+        on = np.nonzero(node >= 0)[0]
+        key = step[on] * num_nodes + node[on]
+        keys.append(key)
+        cols.append(pp[on])
+        vals.append(1.0 / e[on])
+        load_c.append((key, t.pp_max_kw[cs[on]] / e[on]))
+        on_d = np.nonzero(node[dc] >= 0)[0]
+        key_d = step[dc[on_d]] * num_nodes + node[dc[on_d]]
+        keys.append(key_d)
+        cols.append(pm[on_d])
+        vals.append(-e[dc[on_d]])
+        load_d.append((key_d, t.pm_max_kw[cs[dc[on_d]]] * e[dc[on_d]]))
+    size = n * num_nodes
+    worst_c = sum(np.bincount(kk, vv, size) for kk, vv in load_c)
+    worst_d = sum(np.bincount(kk, vv, size) for kk, vv in load_d)
+    node_max = np.tile(limits.node_max_kw, n)
+    keep = np.nonzero((worst_c > node_max) | (worst_d > node_max))[0]
+    row_of = np.full(size, -1, np.int64)
+    row_of[keep] = b.new_rows(keep.size, -node_max[keep], node_max[keep])
+    for key, col, val in zip(keys, cols, vals):
+        r = row_of[key]
+        on = r >= 0
+        b.coef(r[on], col[on], val[on])
+    return keep

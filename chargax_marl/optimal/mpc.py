@@ -14,7 +14,8 @@ works inside ``jit``, ``scan`` and ``vmap`` (the calls are made one state at a t
 therefore in :func:`chargax_marl.evaluation.evaluate` and in both views
 (:func:`chargax_marl.policies.for_single`, :func:`chargax_marl.policies.for_marl`). It is
 slow next to the jitted policies: one HiGHS solve per step and state (see
-``baselines/README.md`` for measured times).
+``baselines/README.md`` for measured times), each started from the optimal basis of the same
+day's previous solve (``warm_start``).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from chargax_marl.optimal.model import (
     STATUS,
     Economics,
     Sessions,
+    SolverError,
     StationLimits,
     build_and_solve,
 )
@@ -71,6 +73,14 @@ class MPC:
     makes the LP charge such cars early (a bonus per kWh that falls with delay). It changes
     the plan, not the profit the simulator books. ``deadline_margin_steps`` (default 1)
     plans each car to be done that many steps before its planned departure.
+
+    ``warm_start`` (default True) starts each solve from the optimal basis of the same day's
+    previous solve (matched by leaf, row kind and step), without presolve; the optimum's
+    value is the same as a solve from scratch, but where the LP has several optimal plans it
+    may pick another one, so the levels (and the day's profit) can differ slightly from
+    ``warm_start=False``. The bases are kept per day, so a day's decisions do not depend on
+    which days run beside it. A warm-started solve that fails is solved again from scratch
+    (counted in ``warm_retries``) before it counts as a failure.
     """
 
     def __init__(
@@ -81,6 +91,7 @@ class MPC:
         time_limit_s: float = 10.0,
         urgency_eur_kwh_h: float = 0.1,
         deadline_margin_steps: int = 1,
+        warm_start: bool = True,
     ):
         if not horizon_hours > 0:
             raise ValueError(f"field 'horizon_hours' must be > 0, got {horizon_hours!r}")
@@ -130,6 +141,9 @@ class MPC:
         self.failed_solves: dict[int, list[tuple[int, str]]] = {}
         self.solve_s = 0.0
         self._plans: dict = {}
+        self.warm_start = bool(warm_start)
+        self.warm_retries = 0
+        self._bases: dict = {}  # day -> (step of the solve, its optimal Basis)
 
     # ---- host side
     def _sessions(self, s: dict, n: int) -> Sessions:
@@ -185,23 +199,38 @@ class MPC:
         if sessions.size == 0:
             return out
         self.solves += 1
+        warm = self._bases.pop(day, None)
+        if warm is not None and not 0 < t - warm[0] <= self.horizon_steps:
+            warm = None
+        urgency = np.where(sessions.charge_sensitive, self.urgency_eur_kwh_h, 0.0)
+        solve = lambda basis: build_and_solve(  # noqa: E731
+            sessions,
+            n,
+            self.limits,
+            econ,
+            time_limit_s=self.time_limit_s,
+            urgency_eur_kwh_h=urgency,
+            step_offset=t,
+            warm_start=basis,
+            keep_basis=self.warm_start,
+        )
         try:
-            urgency = np.where(sessions.charge_sensitive, self.urgency_eur_kwh_h, 0.0)
-            sol = build_and_solve(
-                sessions,
-                n,
-                self.limits,
-                econ,
-                time_limit_s=self.time_limit_s,
-                urgency_eur_kwh_h=urgency,
-            )
-        except RuntimeError as exc:  # SolverError, or HiGHS failing inside SciPy
+            try:
+                sol = solve(None if warm is None else warm[1])
+            except SolverError:
+                if warm is None:
+                    raise
+                self.warm_retries += 1  # a failed warm start is solved again from scratch
+                sol = solve(None)
+        except RuntimeError as exc:  # SolverError
             self.failures += 1
             status = getattr(exc, "status", STATUS[4])
             self.failed_solves.setdefault(day, []).append((t, status))
             out[:, ~self.is_battery] = self.limits.charge_kw[~self.is_battery]
             return out
         self.solve_s += sol.solve_s
+        if sol.basis is not None and t + 1 < self.num_steps:  # the day's last step keeps none
+            self._bases[day] = (t, sol.basis)
         for i, leaf in enumerate(sessions.leaf):
             net = sol.net_kw[i]
             if net is not None:

@@ -16,9 +16,12 @@ from chargax_marl.core import simulator
 from chargax_marl.core.params import make_params
 from chargax_marl.core.station import Battery, Port, Splitter
 from chargax_marl.optimal import bound as bound_module
+from chargax_marl.optimal import milp as milp_module
+from chargax_marl.optimal import model as model_module
 from chargax_marl.optimal import mpc as mpc_module
 from chargax_marl.optimal.mpc import MPC
 from tests.helpers import place_car
+from tests.optimal.reference_lp import reference_value_eur
 
 KEY = jax.random.PRNGKey(0)
 
@@ -393,6 +396,26 @@ def test_an_mpc_solve_that_fails_is_recorded_with_its_day_step_and_status(monkey
     assert mpc.failures == 1 and mpc.failed_solves == {1: [(5, LIMIT)]}
 
 
+def test_a_failed_warm_start_is_solved_again_from_scratch(monkeypatch):
+    # every warm-started solve fails: each is solved again cold, and no step falls back
+    params = hand_params(ONE_PORT, [0.2] * 24, step_minutes=60.0)
+    state = simulator.empty_state(jnp.asarray(1), params)
+    state = place_car(state, 0, soc=0.2, remaining_kwh=20.0, time_min=600.0)
+    real = mpc_module.build_and_solve
+
+    def warm_fails(*args, **kwargs):
+        if kwargs.get("warm_start") is not None:
+            raise optimal.SolverError(f"HiGHS did not solve the problem: {LIMIT}", LIMIT)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(mpc_module, "build_and_solve", warm_fails)
+    mpc = MPC(params)
+    act = jax.jit(lambda s: mpc(s, KEY, params))
+    for t in range(3):
+        jax.block_until_ready(act(state.replace(timestep=jnp.asarray(t))))
+    assert mpc.solves == 3 and mpc.warm_retries == 2 and mpc.failures == 0
+
+
 # --- reporting --------------------------------------------------------------------------
 
 
@@ -545,3 +568,102 @@ def test_refreshing_the_rules_keeps_the_bound_and_refuses_another_model(tmp_path
     path.write_text(json.dumps({**stored, "params_fingerprint": "other"}))
     with pytest.raises(ValueError, match="other params or days"):
         opt.refresh_rules("default_full_power", tmp_path)
+
+
+# --- the vectorised builder and the warm start against straightforward solves -----------
+
+
+@pytest.mark.parametrize(
+    "kw",
+    [
+        {},
+        {"refund_discharged_energy": False},
+        {"constraint_mode": "soft"},
+        {"peak_demand_eur_kw": 0.2},
+    ],
+)
+def test_the_vectorised_lp_equals_a_straightforward_build(kw):
+    # the hindsight LP of a 3-hour window (V2G cars, a battery, shared EVSEs, cars that
+    # leave charged): the same optimum as every row written out one session and step at a
+    # time and solved by SciPy's linprog
+    params = make_params(
+        station_kwargs={"num_dc": 4, "num_ac": 2},
+        traffic="high",
+        battery_initial_soc=(0.2, 0.8),
+        v2g=True,
+        **kw,
+    )
+    tr = trace.make_traces(params, np.array([10]), KEY)
+    tr = trace.day_of(tr, 0)
+    occ = optimal.occupancy(params, tr, KEY)
+    num_steps = 36
+    sessions = model_module.Sessions.concat(
+        [
+            milp_module.restrict(occ.sessions, num_steps),
+            bound_module.battery_sessions(params, tr.battery_soc0, 0, num_steps - 1),
+        ]
+    )
+    limits = model_module.StationLimits.of(params)
+    econ = bound_module.economics(params, tr, 0, num_steps - 1)
+    tol = float(params.charged_tolerance_kwh)
+    urgency = np.where(sessions.charge_sensitive, 0.1, 0.0)
+    for urg in (None, urgency):
+        fast = model_module.build_and_solve(
+            sessions, num_steps, limits, econ, charged_tolerance_kwh=tol, urgency_eur_kwh_h=urg
+        )
+        ref = reference_value_eur(sessions, num_steps, limits, econ, tol, urg)
+        assert fast.value_eur == pytest.approx(ref, rel=1e-7, abs=1e-7)
+
+
+def test_a_warm_started_mpc_solve_has_the_value_of_a_cold_one(small_setup):
+    # the MPC's LPs along a day, each started from the previous step's basis, reach the
+    # optimum a solve from scratch reaches
+    params, traces = small_setup
+    mpc = MPC(params, horizon_hours=2.0)
+    seen = []
+    act = mpc.host_act
+
+    def record(*arrays):
+        seen.append({k: np.asarray(v).copy() for k, v in zip(mpc_module._FIELDS, arrays)})
+        return act(*arrays)
+
+    mpc.host_act = record
+    run_on_trace(mpc, params, trace.day_of(traces, 0))
+    basis, warm_solves = None, 0
+    for s in seen[60:160]:
+        t = int(s["timestep"])
+        n = min(mpc.horizon_steps, mpc.num_steps - t)
+        econ = model_module.Economics(
+            buy=mpc.buy[int(s["day"]), t : t + n],
+            sell=mpc.sell[int(s["day"]), t : t + n],
+            customer=mpc.customer,
+            battery_value=float(mpc.battery_value[int(s["day"])]),
+            step_hours=mpc.step_hours,
+            peak_so_far_kw=float(s["peak_grid_kw"]),
+        )
+        sessions = mpc._sessions(s, n)
+        urgency = np.where(sessions.charge_sensitive, mpc.urgency_eur_kwh_h, 0.0)
+        args = (sessions, n, mpc.limits, econ)
+        cold = model_module.build_and_solve(*args, urgency_eur_kwh_h=urgency)
+        warm = model_module.build_and_solve(
+            *args, urgency_eur_kwh_h=urgency, step_offset=t, warm_start=basis, keep_basis=True
+        )
+        warm_solves += basis is not None
+        basis = warm.basis
+        assert warm.value_eur == pytest.approx(cold.value_eur, rel=1e-7, abs=1e-7)
+    assert warm_solves >= 99
+
+
+def test_a_warm_start_with_a_foreign_builder_is_refused():
+    params = hand_params(ONE_PORT, [0.2] * 24, step_minutes=60.0)
+    with pytest.raises(ValueError, match="builder"):
+        model_module.build_and_solve(
+            bound_module.battery_sessions(params, np.zeros(0), 0, 1),
+            2,
+            model_module.StationLimits.of(params),
+            model_module.Economics(
+                buy=np.ones(2), sell=np.ones(2), customer=0.5, battery_value=0.1, step_hours=1.0
+            ),
+            builder=model_module._Builder(),
+            keep_basis=True,
+        )
