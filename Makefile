@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 venv: $(STAMP)
 
 # The core and view tests run a second time with JAX_ENABLE_X64=1: the state keeps its dtypes
-# whatever the flag (2.5 min of CPU; 3 min 14 s wall measured on 2 cores shared with other jobs).
+# whatever the flag.
 X64_TESTS := tests/core/test_model.py tests/core/test_bad_input.py
 
 test: $(STAMP)
