@@ -20,7 +20,7 @@ X64_TESTS := tests/core/test_model.py tests/core/test_bad_input.py
 test: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
-	$(PY) -m pytest -n 2 -q
+	$(PY) -m pytest -n 2 -q --durations=20
 	JAX_ENABLE_X64=1 $(PY) -m pytest -n 2 -q $(X64_TESTS) -k "not under_x64"
 
 # The client examples with heavy dependencies (stable-baselines3, supersuit, tianshou, torch:
