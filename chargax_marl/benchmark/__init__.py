@@ -3,7 +3,8 @@
 - :mod:`~chargax_marl.benchmark.tasks`: :data:`TASKS`, the registered :class:`Task` s (the
   scenario, the held-out days, the car draws and their keys);
 - :mod:`~chargax_marl.benchmark.references`: always-max (score 0), the LP hindsight bound
-  (score 1) and the strongest rules per day and draw, shipped with the package;
+  (score 1), the strongest rules and (where computed) the MPC per day and draw, shipped with
+  the package;
 - :mod:`~chargax_marl.benchmark.scoring`: :func:`get_normalized_score` of per-day profits and
   :func:`score` of a policy of any kind (:mod:`~chargax_marl.benchmark.protocol`);
 - :mod:`~chargax_marl.benchmark.scoreboard`: the table of every task and policy, from files.
@@ -12,6 +13,8 @@
 from chargax_marl.benchmark.protocol import KINDS, play
 from chargax_marl.benchmark.references import (
     ReferenceMismatchError,
+    add_mpc,
+    compute_mpc,
     compute_references,
     load_references,
     save_references,
@@ -24,7 +27,9 @@ __all__ = [
     "TASKS",
     "ReferenceMismatchError",
     "Task",
+    "add_mpc",
     "compare",
+    "compute_mpc",
     "compute_references",
     "get_normalized_score",
     "get_task",

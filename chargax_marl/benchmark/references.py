@@ -8,6 +8,10 @@ parameters for the task. Rebuild with::
 
     python -m chargax_marl.benchmark.references                 # every task
     python -m chargax_marl.benchmark.references --task Chargax-shopping-v1
+    python -m chargax_marl.benchmark.references --task Chargax-shopping-v1 --mpc   # add the MPC
+
+The MPC references (:data:`MPC_REFERENCES`) solve an LP per step and are added on request to
+a stored file of the same parameters.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ from chargax_marl.benchmark import protocol
 from chargax_marl.benchmark.tasks import TASKS, Task, get_task
 from chargax_marl.evaluation import METRICS
 from chargax_marl.optimal import bound_days
+from chargax_marl.optimal.mpc import MPC
 from chargax_marl.policies import get_policy
 from chargax_marl.trace import params_fingerprint
 
@@ -48,6 +53,10 @@ RULES = (
     "grid_programme",
 )
 """The rules computed for every task (:func:`chargax_marl.policies.get_policy` names)."""
+
+MPC_REFERENCES = {"mpc": None, "mpc_levels1": 1}
+"""The MPC references by name, with the ``num_levels`` they act in: the task's own action
+space (``None``) and the learned agents' (one level: each port off or at full power)."""
 
 SECONDARY = (
     "energy_delivered_kwh",
@@ -168,6 +177,68 @@ def compute_references(
     return out
 
 
+def compute_mpc(task: str | Task, num_levels: int | None = None, *, day_index=None) -> dict:
+    """The MPC (:class:`chargax_marl.optimal.mpc.MPC`, default settings) on a task's held-out
+    days and car draws.
+
+    Args:
+        task: a task id or :class:`Task`.
+        num_levels: the action space it acts in (``None``: the task's own; see
+            :meth:`Task.policy_params`).
+        day_index: positions in the task's held-out days to play (default: all).
+
+    Returns:
+        The reference as stored: ``daily_profit`` (a ``(days, draws)`` list, ``None`` on a day
+        where a solve failed: a day with a failed solve is not the MPC's result), ``metrics``
+        (over every day played), ``failed_days``, ``solves`` and ``num_levels``.
+    """
+    task = get_task(task)
+    params = task.make_params() if num_levels is None else task.policy_params(num_levels)
+    days, keys = task.eval_days(), task.day_keys()
+    if day_index is not None:
+        days, keys = days[np.asarray(day_index)], keys[np.asarray(day_index)]
+    controller = MPC(params)
+    totals = protocol.play(controller, params, days, keys)
+    profit = np.asarray(totals.profit_eur, np.float64)
+    failed = sorted(int(d) for d in controller.failed_solves)
+    profit[np.isin(days, failed)] = np.nan
+    return {
+        "daily_profit": [[None if np.isnan(x) else float(x) for x in row] for row in profit],
+        "metrics": secondary_metrics(totals),
+        "failed_days": failed,
+        "solves": int(controller.solves),
+        "num_levels": int(params.num_levels),
+    }
+
+
+def add_mpc(task: str | Task, directory: str | Path | None = None, log=print) -> Path:
+    """Add :data:`MPC_REFERENCES` to a task's stored references and write them back.
+
+    Args:
+        task: a task id or :class:`Task`.
+        directory: where the files live (default: the shipped :data:`REFERENCES_DIR`).
+        log: called with a line of progress (``None``: silent).
+
+    Returns:
+        The path written.
+
+    Raises:
+        ReferenceMismatchError: no stored file for the task, or one of other parameters.
+    """
+    task = get_task(task)
+    log = log or (lambda _line: None)
+    load_references(task, directory)  # checks the file belongs to the task on this code
+    refs = json.loads(reference_path(task, directory).read_text())
+    for name, num_levels in MPC_REFERENCES.items():
+        t0 = time.perf_counter()
+        refs["policies"][name] = compute_mpc(task, num_levels)
+        refs["wall_s"][name] = round(time.perf_counter() - t0, 2)
+        mean = refs["policies"][name]["metrics"]["daily_profit_eur"]
+        log(f"{task.id} {name}: {mean:.2f} EUR/day in {refs['wall_s'][name]:.0f} s")
+    _read.cache_clear()
+    return save_references(refs, directory)
+
+
 def _stored_bound(params, days, directory) -> np.ndarray | None:
     """Draw 0's LP bound from ``make optimal``'s results in ``directory``, if one of them was
     computed for these parameters and days (with key 0, the schedule's draw 0)."""
@@ -284,9 +355,18 @@ def main(argv=None) -> None:
     parser.add_argument(
         "--reuse", default=None, help="make optimal's results directory (results/optimal)"
     )
+    parser.add_argument(
+        "--mpc",
+        action="store_true",
+        help="add the MPC references to the stored files (an LP per step; nothing else moves)",
+    )
     args = parser.parse_args(argv)
     for task_id in args.task or list(TASKS):
         t0 = time.perf_counter()
+        if args.mpc:
+            path = add_mpc(task_id, args.out)
+            print(f"{path}: {time.perf_counter() - t0:.0f} s")
+            continue
         if args.keep_bound:
             stored = json.loads(reference_path(task_id, args.out).read_text())
             refs = compute_references(task_id, bound=False)
@@ -296,8 +376,10 @@ def main(argv=None) -> None:
                 raise SystemExit(
                     f"{task_id}: the parameters or always-max's days moved; rebuild the bound too"
                 )
-            refs["policies"][BOUND] = stored["policies"][BOUND]
-            refs["wall_s"][BOUND] = stored["wall_s"][BOUND]
+            for name in (BOUND, *MPC_REFERENCES):
+                if name in stored["policies"]:
+                    refs["policies"][name] = stored["policies"][name]
+                    refs["wall_s"][name] = stored["wall_s"][name]
         else:
             refs = compute_references(task_id, bound=not args.no_bound, reuse_dir=args.reuse)
         path = save_references(refs, args.out)

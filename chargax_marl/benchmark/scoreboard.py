@@ -40,6 +40,8 @@ REFERENCE_LABELS = {
     "battery_programme": "battery programme",
     "plan_programme": "plan programme",
     "grid_programme": "grid programme",
+    "mpc": "MPC (4 h look-ahead)",
+    "mpc_levels1": "MPC, learned agents' action space",
     BOUND: "LP hindsight bound",
 }
 """Row labels of the references, in the table's order."""

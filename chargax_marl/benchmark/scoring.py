@@ -98,13 +98,16 @@ def compare(task_id: str | Task, daily_profit, references_dir=None) -> dict:
     per_day = np.atleast_2d(_per_day(task, daily_profit))
     refs, zero, bound, keep = _refs_per_day(task, references_dir)
     headroom = float((bound - zero)[keep].mean())
+    # days a policy has no profit for (an MPC reference's failed solves) are left out
+    keep = keep & np.isfinite(per_day).all(axis=0)
     mine = per_day[:, keep].mean(axis=0)
     captured = _mean_stderr(mine - zero[keep])
     zero_mean = float(zero[keep].mean())
     vs = {}
     for name, entry in refs["policies"].items():
         other = entry["daily_profit"].mean(axis=1)[keep]
-        vs[name] = _mean_stderr(mine - other)
+        both = np.isfinite(other)  # a reference's failed days drop out of its comparison
+        vs[name] = _mean_stderr(mine[both] - other[both])
     return {
         "task": task.id,
         "score": captured["mean"] / headroom,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import shutil
 
 import jax
 import jax.numpy as jnp
@@ -14,6 +15,9 @@ from chargax_marl.benchmark import (
     TASKS,
     ReferenceMismatchError,
     Task,
+    add_mpc,
+    compare,
+    compute_mpc,
     compute_references,
     get_normalized_score,
     load_references,
@@ -21,11 +25,13 @@ from chargax_marl.benchmark import (
     score,
 )
 from chargax_marl.benchmark.picture import day_picture
-from chargax_marl.benchmark.references import BOUND, ZERO
+from chargax_marl.benchmark.references import BOUND, MPC_REFERENCES, ZERO
 from chargax_marl.core import Battery, Port, Splitter, make_params
 from chargax_marl.core.observation import context_index, context_size, obs_size
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.marl import ChargaxMARL
+from chargax_marl.optimal import SolverError
+from chargax_marl.optimal import mpc as mpc_module
 from chargax_marl.single import Chargax
 from tests.helpers import no_arrivals, three_level_station
 
@@ -189,6 +195,43 @@ def small_task(tmp_path_factory):
     task = Task("small", 1, "custom", 2, "", num_eval_days=2, params_fn=small_params)
     save_references(compute_references(task, rules=(ZERO,), log=None), directory)
     return task, directory
+
+
+def test_mpc_references_are_added_and_compared_on_the_days_they_have(small_task, tmp_path):
+    task, directory = small_task
+    work = tmp_path / "refs"
+    shutil.copytree(directory, work)
+    add_mpc(task, work, log=None)
+    refs = load_references(task, work)
+    for name, num_levels in MPC_REFERENCES.items():
+        entry = refs["policies"][name]
+        assert entry["daily_profit"].shape == (2, 2) and np.isfinite(entry["daily_profit"]).all()
+        assert entry["failed_days"] == [] and entry["solves"] > 0
+        expected = task.make_params().num_levels if num_levels is None else num_levels
+        assert entry["num_levels"] == expected
+    assert set(refs["policies"]) >= {ZERO, BOUND, *MPC_REFERENCES}  # nothing else dropped
+    mpc = refs["policies"]["mpc"]["daily_profit"]
+    assert compare(task, mpc, work)["vs"]["mpc"] == {"mean": 0.0, "stderr": 0.0}
+    # a day without a profit (a failed solve) drops out of the score and of the comparisons
+    holed = mpc.copy()
+    holed[1, 0] = np.nan
+    result = compare(task, holed, work)
+    zero = refs["policies"][ZERO]["daily_profit"].mean(axis=1)
+    assert result["days_scored"] == 1
+    assert result["score"] == pytest.approx((mpc[0].mean() - zero[0]) / result["headroom_eur"])
+    assert result["vs"]["mpc"]["mean"] == 0.0
+
+
+def test_an_mpc_day_with_a_failed_solve_is_stored_without_a_profit(small_task, monkeypatch):
+    task, _ = small_task
+
+    def fail(*args, **kwargs):
+        raise SolverError("HiGHS did not solve the problem: time or iteration limit")
+
+    monkeypatch.setattr(mpc_module, "build_and_solve", fail)
+    entry = compute_mpc(task, 1, day_index=[0])
+    assert entry["daily_profit"] == [[None, None]]
+    assert entry["failed_days"] == [int(task.eval_days()[0])]
 
 
 def half_day_levels(first_half, params):

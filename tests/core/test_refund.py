@@ -291,21 +291,38 @@ def test_the_bound_without_the_refund_is_above_the_bound_with_it_and_the_rules()
     assert dep.profit_eur >= dep.reference_profit_eur - 1e-3 * abs(dep.reference_profit_eur)
 
 
-def test_the_mpc_prices_the_refund_too():
-    # the hand case above: with the refund the MPC charges the 40 kWh (26 EUR); without it, it
-    # also takes energy back and charges it again, between that and the bound's 29.75
-    profit = {}
+def test_the_mpc_prices_the_refund_too(monkeypatch):
+    # the hand case above: with the refund the MPC's first plan is worth the 40 kWh charged (26
+    # EUR), and it books that; without it, the plan is worth more (taking energy back and
+    # charging it again bills the car twice). The LP has several optimal plans then, and which
+    # one the solver returns decides the booked profit, between the 26 EUR charge and the
+    # bound's 29.75.
+    from chargax_marl.optimal import mpc as mpc_module
+
+    solve = mpc_module.build_and_solve
+    values = []
+
+    def recording(*args, **kwargs):
+        solution = solve(*args, **kwargs)
+        values.append(solution.value_eur)
+        return solution
+
+    monkeypatch.setattr(mpc_module, "build_and_solve", recording)
+    profit, first_plan = {}, {}
     for refund in (True, False):
+        values.clear()
         p = flat_params(refund, station=ONE_PORT)
         tr = trace.trace_from_cars(p, [CAR])
         mpc = MPC(p)
         _, _, final = jax.jit(lambda t, k: trace.replay(lambda s, kk: mpc(s, kk, p), p, t, k))(
             tr, KEY
         )
-        profit[refund] = float(final.totals.profit_eur)
+        profit[refund], first_plan[refund] = float(final.totals.profit_eur), values[0]
         assert mpc.failures == 0
+    assert first_plan[True] == pytest.approx(26.0, abs=1e-3)
     assert profit[True] == pytest.approx(26.0, abs=0.05)
-    assert 26.5 < profit[False] <= 29.75 + 1e-3
+    assert first_plan[False] > first_plan[True] + 1.0
+    assert 26.0 - 0.05 <= profit[False] <= 29.75 + 1e-3
 
 
 def test_the_measurement_script_runs_on_a_few_days():
