@@ -111,19 +111,7 @@ def replay_lps(params, states: list[dict], base) -> dict[str, float]:
     basis, prev = None, None
     for s in states:
         day, t = int(s["day"]), int(s["timestep"])
-        n = max(1, min(mpc.horizon_steps, mpc.num_steps - t))
-        d = day % mpc.buy.shape[0]
-        econ = model.Economics(
-            buy=mpc.buy[d, t : t + n],
-            sell=mpc.sell[d, t : t + n],
-            customer=mpc.customer,
-            battery_value=float(mpc.battery_value[d]),
-            step_hours=mpc.step_hours,
-            peak_eur_kw=mpc.peak_eur_kw,
-            peak_so_far_kw=float(s["peak_grid_kw"]),
-            refund_discharged=mpc.refund_discharged,
-        )
-        sessions = mpc._sessions(s, n)
+        n, econ, sessions = mpc.problem(s)
         if sessions.size == 0:
             continue
         urgency = np.where(sessions.charge_sensitive, mpc.urgency_eur_kwh_h, 0.0)

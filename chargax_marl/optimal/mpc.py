@@ -178,8 +178,16 @@ class MPC:
             charge_sensitive=s["charge_sensitive"][leaves].astype(bool),
         )
 
-    def plan(self, s: dict) -> np.ndarray:
-        """Net power per leaf and step ``(n, L)`` (kW, car side) for the host state ``s``."""
+    def problem(self, s: dict) -> tuple[int, Economics, Sessions]:
+        """The LP of one step for the host state ``s``.
+
+        Args:
+            s: the host state (:data:`_FIELDS` as numpy arrays).
+
+        Returns:
+            The horizon in steps, the prices and economics of those steps, and the sessions
+            (the cars present and the batteries).
+        """
         day, t = int(s["day"]), int(s["timestep"])
         n = max(1, min(self.horizon_steps, self.num_steps - t))
         d = day % self.buy.shape[0]
@@ -194,7 +202,12 @@ class MPC:
             peak_so_far_kw=float(s["peak_grid_kw"]),
             refund_discharged=self.refund_discharged,
         )
-        sessions = self._sessions(s, n)
+        return n, econ, self._sessions(s, n)
+
+    def plan(self, s: dict) -> np.ndarray:
+        """Net power per leaf and step ``(n, L)`` (kW, car side) for the host state ``s``."""
+        day, t = int(s["day"]), int(s["timestep"])
+        n, econ, sessions = self.problem(s)
         out = np.zeros((n, self.num_leaves))
         if sessions.size == 0:
             return out
