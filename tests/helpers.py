@@ -191,6 +191,18 @@ def grid_side_node_flows_kw(leaf_power_kw: np.ndarray, station) -> np.ndarray:
     return flows
 
 
+# The test session compiles with XLA's elemental emitter (``tests/conftest.py``), which rounds
+# the same float32 arithmetic differently in differently fused programs. Two programs compared
+# bit for bit are compiled as users' programs are, with XLA's default fusion emitters.
+EXACT = {"xla_cpu_use_fusion_emitters": True}
+"""``compiler_options`` for a program whose outputs a test compares bit for bit with another's."""
+
+
+def exact_jit(fun):
+    """``jax.jit`` with the default fusion emitters, for programs compared bit for bit."""
+    return jax.jit(fun, compiler_options=EXACT)
+
+
 TINY_ENV = {
     "station": "single_type",
     "station_kwargs": {"num_ports": 4, "battery": True},

@@ -390,13 +390,19 @@ def test_single_env_reports_the_batteries_share_of_the_reward():
         key = jax.random.PRNGKey(3)
         obs, state = env.reset(key, params)
         is_bat = np.asarray(params.station.leaf_kind) == KIND_BATTERY
-        seen = []
-        for t in range(30):
+
+        @jax.jit
+        def step(key, state, env=env, params=params):
             key, k_a, k_s = jax.random.split(key, 3)
             action = env.action_space(params).sample(k_a)
             _, core_info = simulator.step(k_s, state, env.action_to_levels(action, params), params)
-            obs, state, reward, _, info = env.step_env(k_s, state, action, params)
-            expected = float(np.asarray(core_info.leaf_reward)[is_bat].sum())
+            _, state, _, _, info = env.step_env(k_s, state, action, params)
+            return key, state, core_info.leaf_reward, info
+
+        seen = []
+        for t in range(30):
+            key, state, leaf_reward, info = step(key, state)
+            expected = float(np.asarray(leaf_reward)[is_bat].sum())
             np.testing.assert_allclose(
                 float(info["battery_reward_eur"]), expected, rtol=1e-5, atol=1e-5
             )

@@ -10,7 +10,7 @@ import pytest
 from chargax_marl.core import Battery, Port, Splitter, make_params, simulator
 from chargax_marl.core.observation import PRICE_SCALE_EUR_KWH, context_features
 from chargax_marl.core.physics import discharge_curve_kw, rate_curve_kw
-from tests.helpers import no_arrivals, place_car, start, three_level_station
+from tests.helpers import exact_jit, no_arrivals, place_car, start, three_level_station
 
 KEY = jax.random.PRNGKey(0)
 DT_H = 5.0 / 60.0
@@ -427,7 +427,7 @@ def test_a_zero_weight_contributes_exactly_zero_and_its_term_is_not_computed():
     action = jnp.zeros((p0.station.num_leaves,), jnp.int32)
 
     def scatters(prm):
-        fn = jax.jit(lambda k, s_: simulator.step(k, s_, action, prm)[1].reward)
+        fn = exact_jit(lambda k, s_: simulator.step(k, s_, action, prm)[1].reward)
         return fn.lower(KEY, start(prm)).compile().as_text().count(" scatter(")
 
     weighted = make_params(station=three_level_station(), alpha={"constraint": 1.0})

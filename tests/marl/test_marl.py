@@ -17,7 +17,14 @@ from chargax_marl.marl import ChargaxMARL, LogWrapper, WorldStateWrapper
 from chargax_marl.marl.env import ancestor_loads, ancestor_table
 from chargax_marl.policies import always_max
 from chargax_marl.single import Chargax
-from tests.helpers import mixed_station, no_arrivals, place_car, start, three_level_station
+from tests.helpers import (
+    exact_jit,
+    mixed_station,
+    no_arrivals,
+    place_car,
+    start,
+    three_level_station,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 KEY = jax.random.PRNGKey(0)
@@ -285,7 +292,7 @@ def test_joint_action_equivalence_over_a_day(small):
     keys = jax.random.split(jax.random.PRNGKey(12), p.num_steps)
     _, s0 = single.reset_env(key, p)
 
-    @jax.jit
+    @exact_jit
     def run_single(s):
         def body(s, x):
             k, lv = x
@@ -294,7 +301,7 @@ def test_joint_action_equivalence_over_a_day(small):
 
         return jax.lax.scan(body, s, (keys, levels))[1]
 
-    @jax.jit
+    @exact_jit
     def run_marl(s):
         def body(s, x):
             k, lv = x

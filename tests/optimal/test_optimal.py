@@ -20,7 +20,7 @@ from chargax_marl.optimal import milp as milp_module
 from chargax_marl.optimal import model as model_module
 from chargax_marl.optimal import mpc as mpc_module
 from chargax_marl.optimal.mpc import MPC
-from tests.helpers import place_car
+from tests.helpers import exact_jit, place_car
 from tests.optimal.reference_lp import reference_value_eur
 
 KEY = jax.random.PRNGKey(0)
@@ -58,7 +58,7 @@ def bound_for(policy, params, tr):
 def default_setup():
     params = make_params(battery_initial_soc=(0.2, 0.8))
     days = np.array([5, 123])
-    return params, days, trace.make_traces(params, days, KEY)
+    return params, days, exact_jit(lambda k: trace.make_traces(params, days, k))(KEY)
 
 
 @pytest.mark.parametrize("name", ["random", "battery_rule"])
@@ -66,8 +66,8 @@ def test_replay_equals_the_keyed_rollout_bit_for_bit(default_setup, name):
     params, days, traces = default_setup
     pol = policies.get_policy(name)
     act = lambda s, k: pol(s, k, params)  # noqa: E731
-    keyed = jax.jit(lambda d, k: evaluation.run_days(act, params, d, k))(jnp.asarray(days), KEY)
-    replayed = jax.jit(lambda t, k: trace.replay_days(act, params, t, k))(traces, KEY)
+    keyed = exact_jit(lambda d, k: evaluation.run_days(act, params, d, k))(jnp.asarray(days), KEY)
+    replayed = exact_jit(lambda t, k: trace.replay_days(act, params, t, k))(traces, KEY)
     for field in keyed.__dataclass_fields__:
         a, b = np.asarray(getattr(keyed, field)), np.asarray(getattr(replayed, field))
         assert a.tobytes() == b.tobytes(), field
@@ -75,7 +75,7 @@ def test_replay_equals_the_keyed_rollout_bit_for_bit(default_setup, name):
 
 def test_the_cars_of_a_day_do_not_depend_on_the_policy(default_setup):
     params, days, traces = default_setup
-    again = trace.make_traces(params, days, KEY)
+    again = exact_jit(lambda k: trace.make_traces(params, days, k))(KEY)
     for a, b in zip(jax.tree_util.tree_leaves(traces), jax.tree_util.tree_leaves(again)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     # the slots hold the cars that ask to park, whichever ports are free: a policy that keeps
