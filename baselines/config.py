@@ -233,11 +233,19 @@ def load(name: str | Path = DEFAULT_CONFIG, overrides=()) -> tuple[dict, dict]:
         ``(config, run)``: the resolved trainer config (:data:`SCHEMA`) and run settings
         (:data:`RUN_SCHEMA`).
 
+    A ``TASK`` override sets the scenario and the traffic to the task's: the file's
+    ``SCENARIO`` and ``TRAFFIC`` give way to it (an override of either still must match it).
+
     Raises:
         ConfigError: no such file, an unknown key, or a value the key does not allow.
     """
     raw = tomllib.loads(config_path(name).read_text())
-    raw.update(dict(parse_override(o) for o in overrides))
+    given = dict(parse_override(o) for o in overrides)
+    if given.get("TASK"):
+        task = get_task(resolve({"TASK": given["TASK"]})["TASK"])
+        raw["SCENARIO"] = task.scenario
+        raw.pop("TRAFFIC", None)
+    raw.update(given)
     run = {k: raw.pop(k) for k in list(raw) if k in RUN_SCHEMA}
     return resolve(raw), resolve(run, RUN_SCHEMA)
 

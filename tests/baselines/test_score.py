@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from baselines import score as score_cli
-from baselines.config import ConfigError, build_env_params, resolve
+from baselines.config import ConfigError, build_env_params, load, resolve
 from baselines.runs import load_run
 from chargax_marl.benchmark import TASKS, Task, compute_references, save_references, score
 from chargax_marl.trace import params_fingerprint
@@ -64,3 +64,19 @@ def test_a_task_in_the_config_trains_on_its_training_data_and_holds_out_its_days
         build_env_params(resolve({"TASK": task.id, "NUM_EVAL_DAYS": 50}))
     with pytest.raises(ConfigError, match="TASK"):
         resolve({"TASK": "Chargax-nope-v1"})
+
+
+def test_a_task_on_the_command_line_overrides_the_files_scenario_and_traffic():
+    """``--config ippo TASK=<a high-traffic task>``: the file's medium traffic gives way to the
+    task's; a ``TRAFFIC`` override that contradicts the task is still refused."""
+    task = TASKS["Chargax-shopping-grid10-high-v1"]
+    assert load("ippo")[0]["TRAFFIC"] == "medium"
+    config, _ = load("ippo", [f"TASK={task.id}"])
+    assert config["SCENARIO"] == task.scenario and config["TRAFFIC"] is None
+    _, full, _, _ = build_env_params(config)
+    assert params_fingerprint(full) == params_fingerprint(task.policy_params(1))
+    assert load("ippo", [f"TASK={task.id}", "TRAFFIC=high"])[0]["TRAFFIC"] == "high"
+    with pytest.raises(ConfigError, match="fixes the traffic at .high."):
+        build_env_params(load("ippo", [f"TASK={task.id}", "TRAFFIC=medium"])[0])
+    with pytest.raises(ConfigError, match="TASK"):
+        load("ippo", ["TASK=Chargax-nope-v1"])
