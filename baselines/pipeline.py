@@ -97,7 +97,18 @@ def run(
     train = registry.make_train(algo, config, env_params)
     make_act = train.make_act(eval_params)
     draws = int(config["EVAL_DRAWS"])
+    held_out_desc = f"{np.size(eval_days)} held-out days x {draws} car draws"
+
+    def say(message: str) -> None:  # what the run is doing, between the progress bar's updates
+        if not quiet:
+            tqdm.write(message)
+
     if baselines is None:
+        say(
+            f"scoring the references on {held_out_desc}: always-max and the rules"
+            + ("" if optimal == "off" else ", the LP hindsight bound")
+            + (", the MPC" if optimal == "mpc" else "")
+        )
         baselines = heldout.baseline_results(eval_params, eval_days, optimal, draws, references_dir)
     am = baselines["always_max"]["metrics"]["daily_profit_eur"]["mean"]
     am_daily = baselines["always_max"].get("daily_profit")
@@ -123,6 +134,7 @@ def run(
     def on_chunk(i, rs, m, steps, seconds):
         if not evaluate_every_chunk and i < chunks - 1:
             return
+        say(f"  evaluating chunk {i + 1}/{chunks}'s greedy policy on {held_out_desc}")
         ev = heldout.evaluate_batched(
             make_act,
             host(rs.params),
@@ -191,6 +203,7 @@ def run(
         train, keys, chunks, on_chunk_and_save, desc=algo, resume=start
     )
     params = host(rs.params)
+    say(f"evaluating the trained greedy policy on {held_out_desc}")
     final = heldout.evaluate_batched(
         make_act, params, eval_params, eval_days, reference_profit=am_daily, draws=draws
     )
@@ -301,6 +314,7 @@ def run(
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         runs.save_params(params, out / "params.msgpack")
+        say(f"drawing {out / 'curve.png'}")
         runs.plot_curve(
             out / "curve.png",
             algo,

@@ -3,6 +3,7 @@ progress bar with a callback after each."""
 
 from __future__ import annotations
 
+import functools
 import time
 
 import jax
@@ -70,12 +71,6 @@ def run_in_chunks(train, keys, num_chunks: int, on_chunk=None, desc: str = "trai
     total = train.num_updates
     bounds = chunk_bounds(total, num_chunks)
     sizes = sorted(set(int(b - a) for a, b in zip(bounds[:-1], bounds[1:]) if b > a))
-    # The runner state is donated: each chunk updates it in place instead of copying the
-    # parameters, optimiser moments and env states (``on_chunk`` must not keep its arrays).
-    runs = {
-        n: jax.jit(jax.vmap(lambda rs, n=n: train.run_updates(rs, n)), donate_argnums=0)
-        for n in sizes
-    }
     steps_per_update = train.config["NUM_ENVS"] * train.config["NUM_STEPS"]
     if resume is None:
         start, chunks, t0 = 0, [], time.time()
@@ -91,13 +86,23 @@ def run_in_chunks(train, keys, num_chunks: int, on_chunk=None, desc: str = "trai
         unit_scale=True,
         dynamic_ncols=True,
     ) as bar:
+        progress = _Progress(bar, steps_per_update)
+        # The runner state is donated: each chunk updates it in place instead of copying the
+        # parameters, optimiser moments and env states (``on_chunk`` must not keep its arrays).
+        runs = {
+            n: jax.jit(functools.partial(_chunk, train, n, progress.update), donate_argnums=0)
+            for n in sizes
+        }
         for i, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
             if b <= a or i < start:
                 continue
+            if not progress.started:
+                bar.set_postfix_str("compiling the training program")
             rs, m = runs[int(b - a)](rs)
             m = jax.device_get(m)
             chunks.append(m)
-            bar.update((b - a) * steps_per_update)
+            bar.n = int(b) * steps_per_update  # the updates the callbacks counted, exactly
+            bar.refresh()
             last = slice(-min(4, b - a), None)  # not every update ends an episode (rollout < day)
             prof = np.nanmean(m["episode_profit_eur"][:, last])
             ret = np.nanmean(m["episode_return"][:, last])
@@ -111,3 +116,38 @@ def run_in_chunks(train, keys, num_chunks: int, on_chunk=None, desc: str = "trai
                 on_chunk(i, rs, m, b * steps_per_update, time.time() - t0)
     metrics = {k: np.concatenate([c[k] for c in chunks], axis=1) for k in chunks[0]}
     return rs, metrics, time.time() - t0
+
+
+def _chunk(train, n: int, report, rs):
+    """``n`` updates of every seed (vmapped), reporting each update's training return and
+    profit to the host (``report(returns, profits)``, arrays over the seeds) as it finishes.
+
+    Returns:
+        ``(runner_state, metrics)`` with metrics ``(seeds, n)``, as ``vmap(run_updates(., n))``.
+    """
+
+    def update(rs, _):
+        rs, m = jax.vmap(lambda r: train.run_updates(r, 1))(rs)
+        m = jax.tree.map(lambda x: x[:, 0], m)
+        jax.debug.callback(report, m["episode_return"], m["episode_profit_eur"])
+        return rs, m
+
+    rs, m = jax.lax.scan(update, rs, None, length=n)
+    return rs, jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), m)
+
+
+class _Progress:
+    """The progress bar's per-update callback: advances the bar by one update and shows the
+    latest finished episodes' training return and profit (means over the seeds)."""
+
+    def __init__(self, bar, steps_per_update: int):
+        self.bar, self.steps_per_update, self.started = bar, steps_per_update, False
+        self.ret = self.profit = float("nan")
+
+    def update(self, returns, profits) -> None:
+        self.started = True
+        returns, profits = np.asarray(returns), np.asarray(profits)
+        if np.isfinite(returns).any():  # not every update ends an episode (rollout < day)
+            self.ret, self.profit = float(np.nanmean(returns)), float(np.nanmean(profits))
+        self.bar.set_postfix(profit=f"{self.profit:.1f}", ret=f"{self.ret:.1f}", refresh=False)
+        self.bar.update(self.steps_per_update)

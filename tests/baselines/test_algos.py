@@ -5,6 +5,7 @@ Tiny budgets on a tiny station (4 DC ports + battery, 60-minute steps: 24 steps 
 
 from __future__ import annotations
 
+import functools
 import os
 import subprocess
 import sys
@@ -20,7 +21,7 @@ from baselines.config import build_env_params
 from chargax_marl.teachers import prices as teacher_prices
 from chargax_marl.teachers import shaping as teacher_shaping
 from chargax_marl.teachers import storage_value
-from tests.helpers import TINY, TINY_ENV, finite_losses
+from tests.helpers import TINY, TINY_ENV, exact_jit, finite_losses
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -609,3 +610,26 @@ def test_dp_shaping_changes_the_day_by_a_constant_of_its_first_state(w):
     expected = raw + np.where(is_bat, w * const, 0.0) + (1.0 - w) * const
     np.testing.assert_allclose(shaped, expected, atol=2e-3)
     assert abs(const) > 1e-3  # the case is not trivial
+
+
+def test_a_chunk_reports_every_update_to_the_host_and_trains_as_the_trainer_does():
+    """The progress bar moves once per update (a host callback inside the compiled chunk, with
+    the update's training return and profit per seed), and the chunk trains exactly as
+    ``vmap(run_updates(., n))``: the same parameters and metrics, bit for bit."""
+    train = ppo.make_train({**TINY, "TOTAL_TIMESTEPS": 3 * 4 * 24})
+    rs = jax.jit(jax.vmap(train.init))(jax.random.split(jax.random.PRNGKey(0), 2))
+    calls = []
+    chunk = functools.partial(
+        runner._chunk, train, 3, lambda r, p: calls.append((np.asarray(r), np.asarray(p)))
+    )
+    rs_c, m_c = exact_jit(chunk)(rs)
+    rs_t, m_t = exact_jit(jax.vmap(lambda r: train.run_updates(r, 3)))(rs)
+    assert len(calls) == 3 and all(r.shape == p.shape == (2,) for r, p in calls)
+    for k in m_t:
+        assert m_c[k].shape == (2, 3)
+        np.testing.assert_array_equal(np.asarray(m_c[k]), np.asarray(m_t[k]))
+    np.testing.assert_array_equal(
+        np.stack([r for r, _ in calls], 1), np.asarray(m_t["episode_return"])
+    )
+    for a, b in zip(jax.tree.leaves(rs_c.params), jax.tree.leaves(rs_t.params)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))

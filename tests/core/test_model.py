@@ -440,3 +440,32 @@ def test_price_lookahead_past_midnight_reads_next_day(params):
     prices = np.asarray(params.prices_eur_kwh)
     assert ctx[0] == pytest.approx(prices[5, 23], rel=1e-5)
     np.testing.assert_allclose(ctx[1:7], prices[6, 0:6], rtol=1e-5)
+
+
+def test_a_step_returns_a_state_of_the_reset_states_types():
+    """Every leaf of the reset state keeps its shape, dtype and (strong) type through a step and
+    an auto-reset, so a jitted loop that feeds the state back compiles once (a weakly typed leaf
+    made every trainer compile its training program twice)."""
+    from chargax_marl.marl import ChargaxMARL
+    from chargax_marl.single import Chargax
+
+    params = make_params(station=three_level_station())
+
+    def avals(tree):
+        return [
+            (jax.tree_util.keystr(p), x.shape, x.dtype, x.aval.weak_type)
+            for p, x in jax.tree_util.tree_leaves_with_path(tree)
+        ]
+
+    state = simulator.reset(KEY, params)
+    levels = jnp.zeros((params.station.num_leaves,), jnp.int32)
+    assert avals(jax.jit(simulator.step)(KEY, state, levels, params)[0]) == avals(state)
+    assert not any(weak for *_, weak in avals(state))
+    env = Chargax(params=params)
+    _, s = env.reset(KEY, params)
+    action = env.action_space(params).sample(KEY)
+    assert avals(jax.jit(env.step)(KEY, s, action, params)[1]) == avals(s)
+    marl = ChargaxMARL(params=params)
+    _, s = marl.reset(KEY)
+    acts = {a: jnp.int32(0) for a in marl.agents}
+    assert avals(jax.jit(marl.step)(KEY, s, acts)[1]) == avals(s)
