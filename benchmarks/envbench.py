@@ -57,7 +57,7 @@ def _hash_actions(seed, t, n, width, num_choices):
 
 
 def rollout_fn(view: str, env, params, num_envs: int, num_steps: int):
-    """``run(seed uint32) -> float32`` running one rollout of ``view`` (``single``/``marl``)
+    """``run(seed uint32) -> float32`` running one rollout of ``view`` (``single``, ``marl``: the dict API, ``marl_array``: its array path)
     on ``num_envs`` local envs; the result folds in every reward and observation."""
     import jax
     import jax.numpy as jnp
@@ -75,7 +75,7 @@ def rollout_fn(view: str, env, params, num_envs: int, num_steps: int):
 
         def consume(obs):
             return obs.sum()
-    else:
+    elif view == "marl":  # the JaxMARL dict API
         agents = env.agents
         width, choices = len(agents), int(env.num_actions)
 
@@ -88,6 +88,18 @@ def rollout_fn(view: str, env, params, num_envs: int, num_steps: int):
 
         def consume(obs):
             return sum(o.sum() for o in obs.values())
+    else:  # "marl_array": the multi-agent view's array path (ChargaxMARL.step_arrays)
+        width, choices = env.num_agents, int(env.num_actions)
+
+        def reset(k):
+            return env.reset(k)
+
+        def step(k, s, a):
+            obs, s, r, _, _ = env.step_arrays(k, s, a)
+            return obs, s, r[0]
+
+        def consume(obs):
+            return obs.sum()
 
     def run(seed):
         _, state = jax.vmap(reset)(_hash_keys(seed, jnp.uint32(0), num_envs))

@@ -115,10 +115,11 @@ def _views(package: str, scenario: str, agent_id: str):
     single = importlib.import_module(f"{package}.single")
     marl = importlib.import_module(f"{package}.marl")
     env, params = single.make(scenario)
-    return {
-        "single": (env, params),
-        "marl": (marl.ChargaxMARL(params=params, agent_id=agent_id), params),
-    }
+    multi = marl.ChargaxMARL(params=params, agent_id=agent_id)
+    views = {"single": (env, params), "marl": (multi, params)}
+    if hasattr(multi, "step_arrays"):  # the array path (a base revision may lack it)
+        views["marl_array"] = (multi, params)
+    return views
 
 
 def main(argv=None) -> list[dict]:
@@ -186,11 +187,13 @@ def main(argv=None) -> list[dict]:
         "random actions, auto-reset, every observation element consumed, compile excluded, best of "
         f"{args.repeats} interleaved calls of ~{args.total:,} env-steps"
     )
-    names = [f"{label}{view}" for label in views for view in ("single", "marl")]
+    names = [f"{label}{view}" for label, vs in views.items() for view in vs]
+    array = "marl_array" in views[""]
     print(
         f"{'envs':>6} {'dev':>4} "
         + " ".join(f"{n + ' steps/s':>20}" for n in names)
         + f" {'marl/single':>12}"
+        + (f" {'array/single':>12}" if array else "")
         + (f" {'single new/base':>16} {'marl new/base':>14}" if args.base else "")
         + f" {'single s/100k':>14} {'compile s':>10}"
     )
@@ -216,6 +219,9 @@ def main(argv=None) -> list[dict]:
             + " ".join(f"{sps[k]:>20,.0f}" for k in names)
             + f" {row['marl_over_single']:>12.2f}"
         )
+        if array:
+            row["marl_array_over_single"] = sps["marl_array"] / sps["single"]
+            line += f" {row['marl_array_over_single']:>12.2f}"
         if args.base:
             row["single_new_over_base"] = sps["single"] / sps["base single"]
             row["marl_new_over_base"] = sps["marl"] / sps["base marl"]

@@ -474,6 +474,40 @@ class ChargaxMARL(MultiAgentEnv):
         """
         return self._step(key, state, tuple(self.validate_actions(actions)), reset_state)
 
+    def step_arrays(
+        self,
+        key: jax.Array,
+        state: EnvState,
+        indices: jax.Array,
+        reset_state: EnvState | None = None,
+    ):
+        """The auto-resetting step on arrays, for trainers that batch the agents themselves:
+        the transition of :meth:`step` without the per-agent dicts.
+
+        Args:
+            key: the step's key.
+            state: the state to step.
+            indices: ``(num_agents,)`` action indices in :attr:`agents` order (clipped into
+                range, NaN idle, as :meth:`step`'s dict values; not validated on the host).
+            reset_state: the fresh day's state at the end of a day (``None``: a random one).
+
+        Returns:
+            ``(obs (num_agents, obs_size), state, rewards (num_agents,), done (), info)``, the
+            same values as :meth:`step`'s dicts (``obs`` stacked as :meth:`get_obs_matrix`);
+            ``info`` as :func:`step_arrays`'s with ``auto_reset``.
+        """
+        return step_arrays(
+            key,
+            state,
+            indices,
+            self.params,
+            self.action_offset,
+            self._layout,
+            local_reward_weight=self.local_reward_weight,
+            auto_reset=True,
+            reset_state=reset_state,
+        )
+
     @functools.partial(jax.jit, static_argnums=(0,))
     def _step(self, key: jax.Array, state: EnvState, parts: tuple, reset_state: EnvState | None):
         return self._dict_step(key, state, self._stack(parts), reset_state, auto_reset=True)

@@ -607,3 +607,34 @@ def test_a_battery_share_is_the_money_its_own_energy_made(quiet, quiet_step):
 def test_local_reward_weight_must_be_in_unit_interval(small, bad):
     with pytest.raises(ValueError, match="local_reward_weight.*\\[0, 1\\]"):
         ChargaxMARL(params=small.params, local_reward_weight=bad)
+
+
+def test_the_array_step_is_the_dict_step_stacked(small):
+    """``ChargaxMARL.step_arrays`` (actions ``(N,)`` in, observations ``(N, obs)`` and rewards
+    ``(N,)`` out) gives the dict step's values, through the end of a day and its auto-reset."""
+    params = small.params
+    env = ChargaxMARL(params=params, local_reward_weight=0.5)
+    key = jax.random.PRNGKey(5)
+    _, state = env.reset(key)
+    state = state.replace(timestep=jnp.asarray(params.num_steps - 3, jnp.int32))
+    fresh = env.reset(jax.random.PRNGKey(6))[1]
+
+    @exact_jit
+    def both(k, s, idx):
+        dict_out = env.step(k, s, {a: idx[i] for i, a in enumerate(env.agents)}, fresh)
+        return dict_out, env.step_arrays(k, s, idx, fresh)
+
+    ended = False
+    for t in range(4):
+        idx = jax.random.randint(jax.random.fold_in(key, t), (env.num_agents,), 0, env.num_actions)
+        (obs_d, s_d, r_d, d_d, _), (obs_a, s_a, r_a, d_a, _) = both(
+            jax.random.fold_in(key, 99 + t), state, idx
+        )
+        np.testing.assert_array_equal(np.stack([obs_d[a] for a in env.agents]), obs_a)
+        np.testing.assert_array_equal(np.stack([r_d[a] for a in env.agents]), r_a)
+        assert bool(d_d["__all__"]) == bool(d_a)
+        ended = ended or bool(d_a)
+        for x, y in zip(jax.tree.leaves(s_d), jax.tree.leaves(s_a)):
+            np.testing.assert_array_equal(x, y)
+        state = s_a
+    assert ended  # the day ended and the step reset it
