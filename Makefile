@@ -59,10 +59,11 @@ optimal: $(STAMP)
 rollout: $(STAMP)
 	$(PY) -m chargax_marl.rollout
 
-# Single and multi-agent env-steps/s at 1..4096 envs (one host device per core), then PPO /
-# IPPO / MAPPO training s per 100k steps, in one run (~15 min on 2 idle cores).
+# Single and multi-agent (dict API and array path) env-steps/s at 1..4096 envs (one host
+# device per core), then PPO / IPPO / MAPPO training s per 100k steps at make train's 2 x 64
+# networks, then the MPC's time per step and the LP bound's per day, in one run.
 bench: $(STAMP)
-	$(PY) benchmarks/throughput.py --train
+	$(PY) benchmarks/throughput.py --train --optimal
 
 # Installs EV2Gym and SustainGym into benchmarks/.peers/ and times them beside chargax_marl.
 bench-peers: $(STAMP)

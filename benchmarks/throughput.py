@@ -157,6 +157,18 @@ def main(argv=None) -> list[dict]:
         action="store_true",
         help="also time PPO / IPPO / MAPPO training (benchmarks/train_speed.py)",
     )
+    parser.add_argument(
+        "--train-set",
+        nargs="*",
+        default=["HIDDEN=64"],
+        metavar="KEY=VALUE",
+        help="config overrides of the training timings (default: make train's 2 x 64 networks)",
+    )
+    parser.add_argument(
+        "--optimal",
+        action="store_true",
+        help="also time the MPC per step and the LP bound per day (benchmarks/optimal_speed.py)",
+    )
     parser.add_argument("--csv", default=None, help="also write the rows to this CSV file")
     args = parser.parse_args(argv)
 
@@ -237,19 +249,24 @@ def main(argv=None) -> list[dict]:
         f"memory per env: state {state_bytes(env, params):,} bytes (the pytree a rollout carries per env; "
         "the compiled step's temporaries scale with the batch as well, see scaling.py's peak RSS)"
     )
+    # The training and MPC timings run in their own processes: this one exposes --devices host
+    # devices, and the trainers would shard their 16 envs over them; `make train` runs on
+    # JAX's default single CPU device.
+    import sys
+
+    from envbench import without_host_devices
+
+    here = os.path.dirname(os.path.abspath(__file__))
+    env = {**os.environ, "XLA_FLAGS": without_host_devices(os.environ.get("XLA_FLAGS", ""))}
     if args.train:
-        # Its own process: this one exposes --devices host devices, and the trainers would
-        # shard their 16 envs over them; `make train` runs on JAX's default single CPU device.
-        import sys
-
-        from envbench import without_host_devices
-
-        env = {**os.environ, "XLA_FLAGS": without_host_devices(os.environ.get("XLA_FLAGS", ""))}
         subprocess.run(
-            [
-                sys.executable,
-                os.path.join(os.path.dirname(os.path.abspath(__file__)), "train_speed.py"),
-            ],
+            [sys.executable, os.path.join(here, "train_speed.py"), "--set", *args.train_set],
+            check=True,
+            env=env,
+        )
+    if args.optimal:
+        subprocess.run(
+            [sys.executable, os.path.join(here, "optimal_speed.py"), "--days", "1"],
             check=True,
             env=env,
         )
