@@ -496,16 +496,22 @@ class ChargaxMARL(MultiAgentEnv):
             same values as :meth:`step`'s dicts (``obs`` stacked as :meth:`get_obs_matrix`);
             ``info`` as :func:`step_arrays`'s with ``auto_reset``.
         """
-        return step_arrays(
+        next_state, rewards, done, info = self._transition(key, state, indices, reset_state, True)
+        obs = agent_observations(next_state, self.params, self._layout)
+        return obs, next_state, rewards, done, info
+
+    def _transition(self, key, state, indices, reset_state, auto_reset: bool):
+        """This env's :func:`_transition`: ``(next_state, rewards, done, info)``."""
+        return _transition(
             key,
             state,
             indices,
             self.params,
             self.action_offset,
             self._layout,
-            local_reward_weight=self.local_reward_weight,
-            auto_reset=True,
-            reset_state=reset_state,
+            self.local_reward_weight,
+            auto_reset,
+            reset_state,
         )
 
     @functools.partial(jax.jit, static_argnums=(0,))
@@ -523,16 +529,8 @@ class ChargaxMARL(MultiAgentEnv):
     ):
         """The dict view of :func:`step_arrays`: observation rows built per agent (no matrix),
         scalar infos broadcast to ``(num_agents,)``."""
-        next_state, rewards, done, info = _transition(
-            key,
-            state,
-            indices,
-            self.params,
-            self.action_offset,
-            self._layout,
-            self.local_reward_weight,
-            auto_reset,
-            reset_state,
+        next_state, rewards, done, info = self._transition(
+            key, state, indices, reset_state, auto_reset
         )
         dones = {a: done for a in self.agents}
         dones["__all__"] = done
