@@ -27,7 +27,7 @@ import jax
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # baselines/ is not installed: run from a checkout
 from baselines.algos import registry  # noqa: E402
-from baselines.config import SCHEMA  # noqa: E402
+from baselines.config import SCHEMA, settings  # noqa: E402
 
 STEPS_100K = 100_000
 
@@ -123,7 +123,9 @@ def network_macs(algo: str, overrides: dict | None = None) -> dict:
     """Analytic multiply-adds of the networks per env-step: ``rollout`` (actor + critic forward
     for every actor row of a step) and ``update`` (``UPDATE_EPOCHS`` x forward + backward,
     counted as 3 forward passes, of every row); ``rows`` the network rows per env-step."""
-    train, config = build(algo, 1, 10**9, dict(overrides or {}))
+    overrides = dict(overrides or {})
+    envs = int(overrides.get("NUM_MINIBATCHES", SCHEMA["NUM_MINIBATCHES"].default))  # divisible
+    train, config = build(algo, envs, 10**9, overrides)
     pol, h, layers = train.policy, int(config["HIDDEN"]), int(config["NUM_LAYERS"])
     epochs = int(config["UPDATE_EPOCHS"])
     if algo == "ppo":
@@ -158,7 +160,8 @@ def profile_phases(
     """Seconds per update split into rollout (+ GAE) and one update epoch, from timing the
     program with ``UPDATE_EPOCHS`` 1 and 4: ``epoch = (t4 - t1) / 3``, ``rollout = t1 - epoch``."""
 
-    steps = updates * num_envs * SCHEMA["NUM_STEPS"].default
+    num_steps = int((overrides or {}).get("NUM_STEPS", SCHEMA["NUM_STEPS"].default))
+    steps = updates * num_envs * num_steps
     t = {}
     for ep in (1, 4):
         train, _ = build(algo, num_envs, steps, {**(overrides or {}), "UPDATE_EPOCHS": ep})
@@ -223,6 +226,12 @@ def main(argv=None) -> list[dict]:
         metavar="KEY=VALUE",
         help="config overrides (JSON values), e.g. HIDDEN=64",
     )
+    p.add_argument(
+        "--config",
+        default=None,
+        help="start from a bundled config's settings (e.g. ippo: make train's) instead of the "
+        "paper defaults; --set and --envs apply on top",
+    )
     p.add_argument("--json", type=Path, help="also write the rows here")
     p.add_argument(
         "--phases",
@@ -230,6 +239,10 @@ def main(argv=None) -> list[dict]:
         help="instead: split an update into rollout and epochs, with the networks' multiply-adds",
     )
     args = p.parse_args(argv)
+    overrides = _parse_set(args.set)
+    if args.config:
+        base = {k: v for k, v in settings(args.config).items() if k != "TOTAL_TIMESTEPS"}
+        overrides = {**base, **overrides}
 
     print(
         f"jax {jax.__version__} on {jax.devices()[0].platform} x{len(jax.devices())}, {os.cpu_count()} CPUs, "
@@ -238,9 +251,9 @@ def main(argv=None) -> list[dict]:
     )
     if args.phases:
         for algo in args.algos:
-            m = network_macs(algo, _parse_set(args.set))
+            m = network_macs(algo, overrides)
             for n in args.envs:
-                ph = profile_phases(algo, n, overrides=_parse_set(args.set))
+                ph = profile_phases(algo, n, overrides=overrides)
                 print(
                     f"{algo:<6} {n:>5} envs: update {ph['update_s']:.3f} s = rollout {ph['rollout_s']:.3f} "
                     f"+ 4 x epoch {ph['epoch_s']:.3f}; network MACs per env-step: rollout "
@@ -250,7 +263,7 @@ def main(argv=None) -> list[dict]:
         return []
     rows = []
     for n in args.envs:
-        rows += measure_training(args.algos, n, args.timesteps, args.repeats, _parse_set(args.set))
+        rows += measure_training(args.algos, n, args.timesteps, args.repeats, overrides)
     print(format_rows(rows))
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
