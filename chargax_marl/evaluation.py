@@ -86,7 +86,9 @@ def run_days_keyed(act: Act, params: EnvParams, days, keys: jax.Array):
         state, _ = jax.lax.scan(body, start, (act_keys, step_keys))
         return state.totals
 
-    return jax.vmap(one_day)(days, keys)
+    # compiled as one program: run eagerly, the vmapped scan is traced, batched and compiled
+    # piecewise, which costs more than the whole program (inside a caller's jit it is inlined)
+    return jax.jit(jax.vmap(one_day))(days, keys)
 
 
 def _stats(x: np.ndarray, scored: np.ndarray) -> dict:

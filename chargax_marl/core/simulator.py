@@ -37,6 +37,7 @@ def battery_initial_soc(params: EnvParams, key: jax.Array | None = None) -> jnp.
     return lo + (hi - lo) * rng.uniform(rng.key_seed(key), rng.RESET, (1 + lo.shape[0],))[1:]
 
 
+@jax.jit
 def empty_state(day: jnp.ndarray, params: EnvParams, key: jax.Array | None = None) -> EnvState:
     """A station with no cars at step 0 of ``day``; batteries at their initial SoC
     (:func:`battery_initial_soc`, drawn from ``key`` when the range is not a point)."""
@@ -75,6 +76,7 @@ def empty_state(day: jnp.ndarray, params: EnvParams, key: jax.Array | None = Non
     )
 
 
+@jax.jit
 def reset(key: jax.Array, params: EnvParams) -> EnvState:
     """Start an empty station on a uniformly random day of ``params.reset_days`` (exploring
     starts; all days of the price data unless training days were set)."""
@@ -85,6 +87,7 @@ def reset(key: jax.Array, params: EnvParams) -> EnvState:
     return empty_state(day, params, key)
 
 
+@jax.jit
 def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams):
     """One 5-minute (``params.step_minutes``) transition. Returns ``(new_state, StepInfo)``.
 
@@ -107,6 +110,7 @@ def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams
     )
 
 
+@jax.jit
 def step_with_arrivals(
     state: EnvState, action: jnp.ndarray, arrivals: traffic.Arrivals, params: EnvParams
 ):

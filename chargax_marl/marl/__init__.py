@@ -2,6 +2,8 @@
 
 - :class:`ChargaxMARL`: JaxMARL 0.2 ``MultiAgentEnv`` (``reset(key)``, ``step(key, state, actions)``).
 - :class:`LogWrapper`, :class:`WorldStateWrapper`: JaxMARL-style episode logging and MAPPO world state.
+- :class:`DelayedObservationWrapper`, :class:`ActionLossWrapper`: imperfect communication
+  (observations seen late, actions lost; :mod:`chargax_marl.marl.communication`).
 - :func:`parallel_env` / :class:`ChargaxParallelEnv`: PettingZoo ``ParallelEnv`` (numpy in and out);
   :func:`aec_env`: the same through PettingZoo's AEC API. The module
   :mod:`chargax_marl.marl.pettingzoo_env` has PettingZoo's usual ``env``, ``raw_env`` and
@@ -34,13 +36,19 @@ finally:
     _sys.stdout, _sys.stderr = _streams
 
 # after the quiet JaxMARL import above
+from chargax_marl.marl.communication import (  # noqa: E402
+    ActionLossWrapper,
+    DelayedObservationWrapper,
+)
 from chargax_marl.marl.env import ChargaxMARL  # noqa: E402
 from chargax_marl.marl.pettingzoo_env import ChargaxParallelEnv, parallel_env  # noqa: E402
 from chargax_marl.marl.pettingzoo_env import env as aec_env  # noqa: E402
 from chargax_marl.marl.wrappers import LogEnvState, LogWrapper, WorldStateWrapper  # noqa: E402
 
 __all__ = [
+    "ActionLossWrapper",
     "ChargaxMARL",
+    "DelayedObservationWrapper",
     "ChargaxParallelEnv",
     "aec_env",
     "LogEnvState",

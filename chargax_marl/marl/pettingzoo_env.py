@@ -23,6 +23,7 @@ from pettingzoo.utils.env import ParallelEnv
 from chargax_marl import bounds, lifecycle, rendering
 from chargax_marl.core import simulator
 from chargax_marl.core.types import EnvParams
+from chargax_marl.marl import communication
 from chargax_marl.marl import env as marl_env
 from chargax_marl.marl.env import ChargaxMARL
 
@@ -69,6 +70,10 @@ def _step(
 
 
 _world_state = jax.jit(marl_env.world_state)
+_lose_actions = jax.jit(
+    communication.lose_actions, static_argnames=("idle_index", "loss_prob", "lost_action")
+)
+_delay = jax.jit(communication.delay)
 
 
 class ChargaxParallelEnv(ParallelEnv):
@@ -100,6 +105,12 @@ class ChargaxParallelEnv(ParallelEnv):
     - ``state()`` is the single-agent observation (``state_space``). ``render()`` returns a
       text table (``render_mode="ansi"``), prints it (``"human"``) or returns an ``HxWx3``
       uint8 plot of the day so far (``"rgb_array"``).
+    - Imperfect communication (:mod:`chargax_marl.marl.communication`, the same functions as
+      its JaxMARL wrappers): ``observation_delay_steps=k`` shows each agent the shared context
+      and its nodes' loads of ``k`` steps before (its own port stays current);
+      ``action_loss_prob=p`` loses each agent's action with probability ``p``, the port then
+      applying its previous action (``lost_action="previous"``) or idling (``"idle"``);
+      ``infos[agent]["action_lost"]`` says whether it was. Both off by default.
     - In a process forked after JAX started, construction and every call raise
       :class:`chargax_marl.lifecycle.ForkedProcessError` (use the ``spawn`` start method).
     """
@@ -118,6 +129,9 @@ class ChargaxParallelEnv(ParallelEnv):
         *,
         max_cycles: int | None = None,
         action_mask_in_obs: bool = False,
+        observation_delay_steps: int = 0,
+        action_loss_prob: float = 0.0,
+        lost_action: str = "previous",
         **make_params_kwargs: Any,
     ):
         lifecycle.check_not_forked("ChargaxParallelEnv")
@@ -132,7 +146,15 @@ class ChargaxParallelEnv(ParallelEnv):
             )
         self.max_cycles = None if max_cycles is None else int(max_cycles)
         self.action_mask_in_obs = bool(action_mask_in_obs)
+        self.observation_delay_steps = communication.check_delay_steps(observation_delay_steps)
+        self.action_loss_prob, self.lost_action = communication.check_loss(
+            action_loss_prob, lost_action
+        )
         self.env = ChargaxMARL(params=params, **make_params_kwargs)
+        self._delayed_columns = communication.delayed_columns(self.env)
+        self._idle = np.full(self.env.num_agents, self.env.action_offset, np.int32)
+        self._delayed = None  # the delayed observations (communication.delay)
+        self._applied = self._idle  # the indices the ports applied last step
         self.params = self.env.params
         self._layout = jax.tree.map(
             jnp.asarray, self.env._layout
@@ -187,6 +209,8 @@ class ChargaxParallelEnv(ParallelEnv):
         self._host_state = None
         self._history = []
         self._steps = 0
+        self._delayed = communication.start_history(obs, self.observation_delay_steps)
+        self._applied = self._idle
         self.agents = list(self.possible_agents)
         obs = np.array(obs, dtype=np.float32)
         return (
@@ -211,9 +235,24 @@ class ChargaxParallelEnv(ParallelEnv):
                 "every agent is truncated); call reset() to start a new day"
             )
         indices = self.env.check_actions(actions)
+        lost = np.zeros(len(indices), bool)
+        if self.action_loss_prob > 0.0:
+            indices, lost = jax.device_get(
+                _lose_actions(
+                    self._key,
+                    indices,
+                    self._applied,
+                    idle_index=int(self.env.action_offset),
+                    loss_prob=self.action_loss_prob,
+                    lost_action=self.lost_action,
+                )
+            )
+            self._applied = np.asarray(indices, np.int32)
         self._key, self._state, obs, packed = _step(
             self._key, self._state, indices, self.params, self._layout, self.env.action_offset
         )
+        if self.observation_delay_steps:
+            obs, self._delayed = _delay(obs, self._delayed, self._delayed_columns, False)
         obs, packed = jax.device_get((obs, packed))
         self._host_state = None
         obs = np.array(obs, dtype=np.float32)
@@ -245,6 +284,7 @@ class ChargaxParallelEnv(ParallelEnv):
                 **shared,
                 "energy_kwh": energy[i],
                 "reward_share": shares[i],
+                "action_lost": bool(lost[i]),
                 "action_mask": self._masks[a].copy(),
             }
             for i, a in enumerate(agents)

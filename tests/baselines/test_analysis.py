@@ -10,22 +10,22 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from baselines.analysis import attribution, read_policy, redraw, sensitivity
 from baselines.config import build_env_params
 from baselines.eval import references
+from baselines.eval.rules import evaluate_rules
+from chargax_marl import policies
+from chargax_marl.core import make_params, simulator
 from chargax_marl.teachers import storage_value
-from tests.helpers import TINY_ENV
+from tests.helpers import TINY_ENV, no_arrivals
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_attribution_scores_the_run_and_swaps_ports_and_battery(ippo_run, tmp_path, monkeypatch):
+def test_attribution_scores_the_run_and_swaps_ports_and_battery(tiny_ippo_run):
     """``baselines.analysis.attribution``: the ``learned`` row reproduces the run's own held-out score,
     and the mixes take the battery's levels from one policy and the ports' from the other."""
-    from baselines.analysis import attribution, read_policy
-    from chargax_marl import policies
-    from chargax_marl.core import make_params
-
-    out = ippo_run
+    out = tiny_ippo_run
     res = json.loads((out / "results.json").read_text())
     att = attribution.attribute(out)
     learned = [s["mean"] for s in att["mixes"]["learned"]["per_seed"]]
@@ -35,8 +35,6 @@ def test_attribution_scores_the_run_and_swaps_ports_and_battery(ippo_run, tmp_pa
     assert set(att["mixes"]) == set(
         attribution.MIXES
     ) and "learned" in attribution.format_attribution(att)
-    from chargax_marl.core import simulator
-
     params = make_params(**TINY_ENV)
     key = jax.random.PRNGKey(0)
     start = simulator.reset(key, params)
@@ -59,9 +57,11 @@ def test_attribution_scores_the_run_and_swaps_ports_and_battery(ippo_run, tmp_pa
         "always_max_ports_learned_battery"
     ](state, key)
     np.testing.assert_array_equal(ports_from_rule, policies.battery_rule(state, key, params))
-    # baselines.analysis.read_policy reads the same run: shares of the battery's actions, 24 hours
 
-    reading = read_policy.read(out, num_days=3)
+
+def test_read_policy_gives_the_battery_s_action_shares_and_its_hourly_action(tiny_ippo_run):
+    """``baselines.analysis.read_policy`` reads a run: shares of the battery's actions, 24 hours."""
+    reading = read_policy.read(tiny_ippo_run, num_days=3)
     assert reading["num_days"] == 3 and len(reading["per_seed"]) == 2
     for seed in reading["per_seed"]:
         assert (
@@ -74,11 +74,15 @@ def test_attribution_scores_the_run_and_swaps_ports_and_battery(ippo_run, tmp_pa
         )
         assert 0.0 <= seed["ports_follow_plan_share"] <= 1.0
     assert "hourly SoC" in read_policy.format_reading(reading)
-    # baselines.analysis.redraw scores the same run on more cars: draw 0 is the run's own evaluation,
-    # draw 1 the rules' evaluation under PRNGKey(1), averaged per day
-    from baselines.analysis import redraw
-    from baselines.eval.rules import evaluate_rules
 
+
+def test_redraw_scores_the_run_on_more_cars_and_refuses_a_run_it_does_not_reproduce(
+    ippo_run, monkeypatch
+):
+    """``baselines.analysis.redraw`` scores a run on more cars: draw 0 is the run's own
+    evaluation, draw 1 the rules' evaluation under ``PRNGKey(1)``, averaged per day."""
+    out = ippo_run
+    res = json.loads((out / "results.json").read_text())
     two = redraw.redraw(out, draws=2, bound=False)
     assert two["draws"] == 2 and two["seeds"] == 2 and two["replay_check_max_abs_eur"] < 1e-3
     for i, p in enumerate(res["per_seed"]):
@@ -150,10 +154,6 @@ def test_sensitivity_battery_step_on_an_empty_station_is_the_hand_computed_trade
     step costs at that step's price, plus what the stored energy is worth at the day's end,
     minus the wear of the kWh into the cells; a port idling changes nothing, and neither does a
     step outside the day."""
-    from baselines.analysis import sensitivity
-    from chargax_marl.core import make_params
-    from tests.helpers import no_arrivals
-
     params = no_arrivals(make_params(**{**TINY_ENV, "step_minutes": 15.0}))
     days, step = np.array([3, 40, 200]), 30
     out = sensitivity.sensitivity(params, days, step=step)

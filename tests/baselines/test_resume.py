@@ -17,6 +17,8 @@ import numpy as np
 import pytest
 
 from baselines import runs
+from baselines import train as cli
+from baselines.config import ConfigError
 from tests.helpers import toml_inline
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -50,39 +52,30 @@ def _without_timings(x):
     return x
 
 
-def _train(args, cache: Path, **popen):
-    """``python -m baselines.train ARGS`` in a subprocess sharing a compilation cache, so the
-    second and third runs load the programs the first compiled."""
-    env = {
-        **os.environ,
-        "JAX_PLATFORMS": "cpu",
-        "JAX_COMPILATION_CACHE_DIR": str(cache),
-        "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
-        "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES": "0",
-    }
+def _train_in_a_subprocess(args):
+    """``python -m baselines.train ARGS`` in a subprocess, which inherits the session's
+    compilation cache (``tests/conftest.py``) and so loads the programs this process compiled."""
     cmd = [sys.executable, "-m", "baselines.train", *args]
+    env = {**os.environ, "JAX_PLATFORMS": "cpu"}
     return subprocess.Popen(
-        cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, **popen
+        cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT
     )
 
 
-def _finish(proc) -> str:
-    out, _ = proc.communicate(timeout=600)
-    assert proc.returncode == 0, out.decode()[-3000:]
-    return out.decode()
-
-
-def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
-    cache = tmp_path / "jax_cache"
+def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path, capsys):
+    """Only the run that is killed needs a process of its own: the uninterrupted run and the
+    resumption run in this one, through the same entry point (``baselines.train.main``)."""
     full, killed = tmp_path / "full", tmp_path / "killed"
-    _finish(_train([*RESUME_CLI, f"OUT={toml_inline(str(full))}"], cache))
+    cli.main([*RESUME_CLI, f"OUT={toml_inline(str(full))}"])
 
-    proc = _train([*RESUME_CLI, f"OUT={toml_inline(str(killed))}"], cache)
+    proc = _train_in_a_subprocess([*RESUME_CLI, f"OUT={toml_inline(str(killed))}"])
     checkpoint = killed / runs.CHECKPOINT
     deadline = time.time() + 600
     while not checkpoint.exists() and proc.poll() is None and time.time() < deadline:
         time.sleep(0.02)
-    assert checkpoint.exists(), "the run wrote no checkpoint after its first chunk"
+    assert checkpoint.exists(), "the run wrote no checkpoint after its first chunk: " + (
+        proc.communicate()[0].decode()[-3000:] if proc.poll() is not None else "still running"
+    )
     time.sleep(random.uniform(0.0, 0.5))  # a random point after the first chunk
     assert proc.poll() is None, "the run finished before it could be killed"
     proc.send_signal(signal.SIGKILL)
@@ -91,8 +84,9 @@ def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
     done = runs.load_checkpoint(checkpoint)["next_chunk"]
     assert 1 <= done <= 4
 
-    out = _finish(_train(["--resume", str(killed)], cache))
-    assert "wrote" in out
+    capsys.readouterr()
+    cli.main(["--resume", str(killed)])
+    assert "wrote" in capsys.readouterr().out
     assert (killed / "params.msgpack").read_bytes() == (full / "params.msgpack").read_bytes()
     a = json.loads((full / "results.json").read_text())
     b = json.loads((killed / "results.json").read_text())
@@ -101,9 +95,6 @@ def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
 
 
 def test_resume_refuses_overrides_and_a_missing_checkpoint(tmp_path):
-    from baselines import train as cli
-    from baselines.config import ConfigError
-
     with pytest.raises(ValueError, match="does not exist"):
         cli.main(["--resume", str(tmp_path)])
     with pytest.raises(ConfigError, match="own settings"):

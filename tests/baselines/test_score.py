@@ -36,8 +36,10 @@ def test_a_checkpoint_scores_as_its_greedy_policy_does(tiny_ippo_run, run_task, 
         one = jax.tree.map(lambda x, i=seed: x[i], seed_params)
         act = make_act(one)
         alone = score(lambda s, k, p, act=act: act(s, k), task, references_dir=directory)
-        np.testing.assert_array_equal(result["daily_profit"][seed], alone["daily_profit"])
-        assert result["per_seed_score"][seed] == pytest.approx(alone["score"], rel=1e-12)
+        # equal bit for bit under XLA's default flags; the tests' cheap compile pipeline
+        # (tests/conftest.py) may round the seed-batched program's float32 sums differently
+        np.testing.assert_allclose(result["daily_profit"][seed], alone["daily_profit"], rtol=1e-6)
+        assert result["per_seed_score"][seed] == pytest.approx(alone["score"], rel=1e-5)
     path = score_cli.write_score(result, "IPPO", tmp_path / "score.json")
     stored = json.loads(path.read_text())
     assert stored["name"] == "IPPO" and stored["seeds"] == 2 and stored["task"] == task.id

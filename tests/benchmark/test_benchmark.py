@@ -285,9 +285,14 @@ def test_the_five_kinds_score_the_same_policy_identically(small_task):
     assert base.shape == (2, 2)
     always_max = load_references(task, directory)["policies"][ZERO]["daily_profit"]
     assert not np.allclose(base, always_max)  # the battery moved: not always-max in disguise
-    for kind, result in results.items():
-        np.testing.assert_array_equal(result["daily_profit"], base, err_msg=kind)
-        assert result["score"] == results["core"]["score"], kind
+    for kind in ("single", "marl"):  # the same compiled day as the core kind: bit for bit
+        np.testing.assert_array_equal(results[kind]["daily_profit"], base, err_msg=kind)
+        assert results[kind]["score"] == results["core"]["score"], kind
+    # the host kinds compile the step on its own; equal bit for bit under XLA's default flags,
+    # but the tests' cheap compile pipeline (tests/conftest.py) may round float32 sums differently
+    for kind in ("gymnasium", "pettingzoo"):
+        np.testing.assert_allclose(results[kind]["daily_profit"], base, rtol=1e-6, err_msg=kind)
+        assert results[kind]["score"] == pytest.approx(results["core"]["score"], rel=1e-5), kind
 
 
 # --- bad input --------------------------------------------------------------------------
