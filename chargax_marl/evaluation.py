@@ -40,6 +40,62 @@ METRICS = {
 }
 """Reported metric -> field of :class:`chargax_marl.core.types.EpisodeTotals`."""
 
+SERVICE_METRICS = (
+    "mean_satisfaction",
+    "min_satisfaction",
+    "jain_index",
+    "rejected_share",
+    "satisfaction_gap",
+)
+"""How fairly a day serves its drivers (:func:`service_metrics`), reported beside
+:data:`METRICS`."""
+
+
+def service_metrics(totals) -> dict[str, np.ndarray]:
+    """The day's service and fairness metrics from its episode totals.
+
+    A departing car's satisfaction ``s`` is the energy delivered over the energy it requested,
+    1 when it reached its target (:func:`chargax_marl.core.traffic.satisfaction`); over the
+    ``n`` cars that left during the day:
+
+    - ``mean_satisfaction``: ``sum(s) / n``;
+    - ``min_satisfaction``: ``min(s)``;
+    - ``jain_index``: Jain's fairness index ``sum(s)^2 / (n * sum(s^2))``, in ``[1/n, 1]``,
+      1 when every car is served alike;
+    - ``rejected_share``: cars turned away for want of a free port over the cars that came;
+    - ``satisfaction_gap``: the mean satisfaction of the time-sensitive drivers (who leave at
+      their planned time) minus that of the charge-sensitive ones (who stay until charged).
+
+    A day on which no car left has mean, minimum and Jain 1 (no car was served less than
+    another) and a NaN gap, as has a day on which one user type had no departure; a day
+    with no car at all has a rejected share of 0. Cars still parked at the day's end are not
+    counted.
+
+    Args:
+        totals: :class:`chargax_marl.core.types.EpisodeTotals` with any leading axes.
+
+    Returns:
+        ``{name: float64 array}`` for each of :data:`SERVICE_METRICS`, shaped as the totals.
+    """
+
+    def f(name):
+        return np.asarray(getattr(totals, name), np.float64)
+
+    n, total, squares = f("cars_served"), f("satisfaction_sum"), f("satisfaction_sq_sum")
+    n0, total0 = f("cars_served_time_sensitive"), f("satisfaction_sum_time_sensitive")
+    n1, total1 = n - n0, total - total0
+    offered = f("cars_arrived") + f("cars_rejected")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return {
+            "mean_satisfaction": np.where(n > 0, total / n, 1.0),
+            "min_satisfaction": 1.0 - f("satisfaction_shortfall_max"),
+            "jain_index": np.where(squares > 0, total**2 / (n * squares), 1.0),
+            "rejected_share": np.where(offered > 0, f("cars_rejected") / offered, 0.0),
+            "satisfaction_gap": np.where(
+                (n0 > 0) & (n1 > 0), total0 / n0 - total1 / np.where(n1 > 0, n1, 1.0), np.nan
+            ),
+        }
+
 
 def split_days(num_days: int, num_eval: int = 100, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Split day indices into (training days, held-out evaluation days), reproducibly."""
@@ -118,14 +174,18 @@ def summarize(totals, failed=None) -> dict:
             counted in ``days_failed``.
 
     Returns:
-        ``{metric: {"mean", "std", "min", "max"}}`` (plus ``days_scored`` and ``days_failed``
-        when days were left out).
+        ``{metric: {"mean", "std", "min", "max"}}`` for :data:`METRICS` and
+        :data:`SERVICE_METRICS` (plus ``days_scored`` and ``days_failed`` when days were left
+        out; a NaN satisfaction gap counts as left out).
     """
     out = {}
     for name, field in METRICS.items():
         x = np.asarray(getattr(totals, field), dtype=np.float64)
         scored = np.ones(x.shape, bool) if failed is None else ~np.asarray(failed, bool)
         out[name] = _stats(x, scored)
+    for name, x in service_metrics(totals).items():
+        scored = np.ones(x.shape, bool) if failed is None else ~np.asarray(failed, bool)
+        out[name] = _stats(x, scored & np.isfinite(x))  # the gap is NaN on one-type days
     return out
 
 

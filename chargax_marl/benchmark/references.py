@@ -28,7 +28,7 @@ import numpy as np
 
 from chargax_marl.benchmark import protocol
 from chargax_marl.benchmark.tasks import TASKS, Task, get_task
-from chargax_marl.evaluation import METRICS
+from chargax_marl.evaluation import METRICS, service_metrics
 from chargax_marl.optimal import bound_days
 from chargax_marl.optimal.mpc import MPC
 from chargax_marl.policies import get_policy
@@ -82,17 +82,21 @@ def package_version() -> str:
 
 
 def secondary_metrics(totals) -> dict[str, float]:
-    """The mean over days and draws of each of :data:`SECONDARY` (and the profit).
+    """The mean over days and draws of each of :data:`SECONDARY`, of the service metrics
+    (:func:`chargax_marl.evaluation.service_metrics`) and of the profit.
 
     Args:
         totals: :class:`chargax_marl.core.types.EpisodeTotals` with any leading axes.
 
     Returns:
-        ``{metric: mean}``, plus ``daily_profit_eur``.
+        ``{metric: mean}``, plus ``daily_profit_eur`` and the service metrics (``None`` for a
+        gap no day has).
     """
     out = {"daily_profit_eur": float(np.mean(np.asarray(totals.profit_eur, np.float64)))}
     for name in SECONDARY:
         out[name] = float(np.mean(np.asarray(getattr(totals, METRICS[name]), np.float64)))
+    for name, x in service_metrics(totals).items():  # the gap over the days that have one
+        out[name] = float(np.nanmean(x)) if np.isfinite(x).any() else None
     return out
 
 

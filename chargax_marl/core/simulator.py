@@ -176,6 +176,14 @@ def step_with_arrivals(
         peak_grid_kw=peak_kw,
         peak_demand_charge_eur=t.peak_demand_charge_eur + peak_charge,
         battery_wear_eur=t.battery_wear_eur + wear,
+        satisfaction_sum=t.satisfaction_sum + dep["satisfaction_sum"],
+        satisfaction_sq_sum=t.satisfaction_sq_sum + dep["satisfaction_sq_sum"],
+        satisfaction_shortfall_max=jnp.maximum(
+            t.satisfaction_shortfall_max, 1.0 - dep["satisfaction_min"]
+        ),
+        cars_served_time_sensitive=t.cars_served_time_sensitive + dep["departed_time_sensitive"],
+        satisfaction_sum_time_sensitive=t.satisfaction_sum_time_sensitive
+        + dep["satisfaction_sum_time_sensitive"],
     )
     new_state = arrived_state.replace(timestep=state.timestep + 1, totals=totals)
     info = StepInfo(
@@ -200,6 +208,8 @@ def step_with_arrivals(
         battery_terminal_value_eur=terminal,
         peak_demand_charge_eur=peak_charge,
         battery_wear_eur=wear,
+        satisfaction_sum=dep["satisfaction_sum"],
+        satisfaction_min=dep["satisfaction_min"],
         leaf_energy_kwh=leaf_energy,
         leaf_arrived=arr["leaf_arrived"],
         leaf_reward=reward_lib.leaf_reward_shares(
@@ -284,6 +294,8 @@ STEP_INFO_KEYS = (
     "battery_terminal_value_eur",
     "peak_demand_charge_eur",
     "battery_wear_eur",
+    "satisfaction_sum",
+    "satisfaction_min",
 )
 """Scalar fields of :class:`StepInfo` reported in the infos under their own names."""
 

@@ -46,7 +46,10 @@ def depart(state: EnvState, params: EnvParams):
     c_satisfaction,0), ``overtime_min`` (minutes of this step that parked charge-sensitive
     cars spent beyond their planned stay), ``undertime_min`` and ``satisfaction_charge`` =
     overtime - beta * undertime (c_satisfaction,1), plus the per-leaf ``leaf_missing_kwh``
-    and ``leaf_satisfaction_charge`` (L,).
+    and ``leaf_satisfaction_charge`` (L,), and the service of the leaving cars
+    (:func:`satisfaction`): ``satisfaction_sum``, ``satisfaction_sq_sum``,
+    ``satisfaction_min`` (1 when no car leaves), ``departed_time_sensitive`` and
+    ``satisfaction_sum_time_sensitive`` (over the time-sensitive leavers, u = 0).
 
     Overtime accrues step by step while the car is parked past its plan, so over a stay it
     sums to the minutes the car overstayed. (Counting it only when the car left let a policy
@@ -82,6 +85,8 @@ def depart(state: EnvState, params: EnvParams):
     )  # minutes parked beyond the earliest finish
     leaf_under = jnp.where(charged, -jnp.minimum(delay, slack), 0.0)
     leaf_charge_term = leaf_over - params.beta * leaf_under
+    sat = jnp.where(leaving, satisfaction(state, params), 0.0)
+    time_sensitive = leaving & ~state.charge_sensitive
     cleared = {f: jnp.where(leaving, 0.0, getattr(state, f)) for f in CAR_FIELDS}
     new_state = state.replace(
         occupied=state.occupied & ~leaving,
@@ -96,8 +101,29 @@ def depart(state: EnvState, params: EnvParams):
         "satisfaction_charge": jnp.sum(leaf_charge_term),
         "leaf_missing_kwh": leaf_missing,
         "leaf_satisfaction_charge": leaf_charge_term,
+        "satisfaction_sum": jnp.sum(sat),
+        "satisfaction_sq_sum": jnp.sum(sat * sat),
+        "satisfaction_min": jnp.min(jnp.where(leaving, sat, 1.0)),
+        "departed_time_sensitive": jnp.sum(time_sensitive).astype(jnp.float32),
+        "satisfaction_sum_time_sensitive": jnp.sum(jnp.where(time_sensitive, sat, 0.0)),
     }
     return new_state, report
+
+
+def satisfaction(state: EnvState, params: EnvParams) -> jnp.ndarray:
+    """Each parked car's satisfaction if it left now, ``(L,)`` (0 where no car is parked).
+
+    The energy delivered over the energy requested: ``1 - remaining / requested`` with
+    ``requested = capacity * (target_soc - arrival_soc)`` and ``remaining`` the energy it still
+    wants, clipped to ``[0, 1]``; 1 when the car is within ``charged_tolerance_kwh`` of its
+    target (or requested no more than that).
+    """
+    is_car = state.occupied & (params.station.leaf_kind != KIND_BATTERY)
+    requested = state.capacity_kwh * (state.target_soc - state.arrival_soc)
+    remaining = jnp.maximum(state.energy_remaining_kwh, 0.0)
+    served = remaining <= params.charged_tolerance_kwh
+    share = jnp.clip(1.0 - remaining / jnp.maximum(requested, 1e-6), 0.0, 1.0)
+    return jnp.where(is_car, jnp.where(served, 1.0, share), 0.0)
 
 
 def earliest_finish_min(

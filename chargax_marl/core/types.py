@@ -181,6 +181,11 @@ class EpisodeTotals:
     battery_wear_eur: (
         jnp.ndarray
     )  # battery wear booked so far (part of profit_eur, positive = paid)
+    satisfaction_sum: jnp.ndarray  # sum over departed cars of their satisfaction in [0, 1]
+    satisfaction_sq_sum: jnp.ndarray  # sum over departed cars of their satisfaction squared
+    satisfaction_shortfall_max: jnp.ndarray  # max over departed cars of 1 - satisfaction
+    cars_served_time_sensitive: jnp.ndarray  # departed time-sensitive cars (u = 0)
+    satisfaction_sum_time_sensitive: jnp.ndarray  # their satisfaction summed
 
     @classmethod
     def zeros(cls) -> EpisodeTotals:
@@ -257,6 +262,8 @@ class StepInfo:
     battery_wear_eur: (
         jnp.ndarray
     )  # battery wear this step, cycling and calendar (subtracted in profit_eur)
+    satisfaction_sum: jnp.ndarray  # summed satisfaction of the cars that left this step
+    satisfaction_min: jnp.ndarray  # the least satisfied of them (1 when none left)
     leaf_energy_kwh: jnp.ndarray  # (L,) energy into each car / battery this step (terminal side)
     leaf_arrived: (
         jnp.ndarray
