@@ -6,7 +6,7 @@ call signatures, forwards every other attribute, and is jit and vmap friendly. T
 tables are built from the env's own params (its days and prices).
 
 Reward shaping (potential-based, Ng, Harada and Russell 1999): :class:`BatteryShaping`,
-:class:`CarPlanShaping`. Observation features: :class:`PlanAdviceObservation`,
+:class:`CarPlanShaping`. A fairness objective: :class:`FairnessReward`. Observation features: :class:`PlanAdviceObservation`,
 :class:`RelativePriceObservation`. A JaxMARL stack::
 
     env = ChargaxMARL(params=params, local_reward_weight=1.0)
@@ -14,6 +14,7 @@ Reward shaping (potential-based, Ng, Harada and Russell 1999): :class:`BatterySh
     env = LogWrapper(env)  # chargax_marl.marl.LogWrapper
 """
 
+from chargax_marl.wrappers.fairness import FairnessReward
 from chargax_marl.wrappers.observations import (
     ObservationFeatures,
     PlanAdviceObservation,
@@ -24,6 +25,7 @@ from chargax_marl.wrappers.shaping import BatteryShaping, CarPlanShaping
 __all__ = [
     "BatteryShaping",
     "CarPlanShaping",
+    "FairnessReward",
     "ObservationFeatures",
     "PlanAdviceObservation",
     "RelativePriceObservation",

@@ -529,7 +529,7 @@ def _day_rewards(env, seed=21):
     )
     keys = jax.random.split(jax.random.PRNGKey(seed + 1), p.num_steps)
 
-    @jax.jit
+    @exact_jit  # the agents' rewards are compared bit for bit with the station's
     def run(s):
         def body(s, x):
             k, lv = x

@@ -55,8 +55,8 @@ def test_throughput_main_smallest(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "marl/single" in out and "single s/100k" in out
     assert (
-        "memory per env: state 871 bytes" in out
-    )  # 17 leaves x (11 float32 + 2 bool fields), day, step, workday, 20 float32 totals
+        "memory per env: state 891 bytes" in out
+    )  # 17 leaves x (11 float32 + 2 bool fields), day, step, workday, 25 float32 totals
 
 
 def test_throughput_uses_the_requested_host_devices():

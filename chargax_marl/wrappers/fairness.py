@@ -1,0 +1,114 @@
+"""A fairness term in the reward: a weight on the day's Jain index or minimum satisfaction.
+
+The term of a step is ``weight * (F(after) - F(before))`` with ``F`` the metric of the day's
+departed cars so far (:func:`chargax_marl.evaluation.service_metrics`; 1 before any car
+leaves), so over a day the terms add up to ``weight * (F_day - 1)``: a penalty of ``weight``
+EUR per unit the day falls short of perfect fairness, booked as the cars leave. The profit,
+the infos' totals and the evaluation are unchanged: it steers learning only.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax.numpy as jnp
+
+from chargax_marl.core.types import EpisodeTotals
+from chargax_marl.wrappers.base import TeacherWrapper
+
+FAIRNESS_METRICS = ("jain_index", "min_satisfaction")
+"""The metrics the term can weigh (:data:`chargax_marl.evaluation.SERVICE_METRICS` names)."""
+
+
+def fairness_metric(totals: EpisodeTotals, metric: str) -> jnp.ndarray:
+    """The day's ``metric`` so far from its running totals (traceable; the values of
+    :func:`chargax_marl.evaluation.service_metrics`).
+
+    Raises:
+        ValueError: an unknown metric.
+    """
+    if metric == "jain_index":
+        total, squares = totals.satisfaction_sum, totals.satisfaction_sq_sum
+        safe = jnp.where(squares > 0, squares, 1.0)
+        return jnp.where(
+            squares > 0, total * total / (jnp.maximum(totals.cars_served, 1.0) * safe), 1.0
+        )
+    if metric == "min_satisfaction":
+        return 1.0 - totals.satisfaction_shortfall_max
+    raise ValueError(f"field 'metric' must be one of {FAIRNESS_METRICS}, got {metric!r}")
+
+
+def _core_totals(state) -> EpisodeTotals:
+    while not hasattr(state, "totals"):
+        state = state.env_state
+    return state.totals
+
+
+class FairnessReward(TeacherWrapper):
+    """Adds ``weight_eur * (F(after) - F(before))`` to each step's reward, ``F`` the day's
+    Jain index or minimum satisfaction of the departed cars so far.
+
+    Over a day the terms add up to ``weight_eur * (F_day - 1)``. Gymnax view: the station's
+    reward gains the term; JaxMARL view: every agent gains it (a shared objective).
+    ``info["fairness_reward_eur"]`` holds the term. ``weight_eur=0`` is the wrapped env bit for
+    bit.
+
+    Args:
+        env: either view, possibly wrapped.
+        weight_eur: EUR per unit of the metric (``>= 0``).
+        metric: ``"jain_index"`` or ``"min_satisfaction"``.
+
+    Raises:
+        ValueError: a negative or non-finite weight, or an unknown metric.
+    """
+
+    def __init__(self, env, weight_eur: float = 0.0, metric: str = "jain_index"):
+        super().__init__(env)
+        if (
+            isinstance(weight_eur, bool)
+            or not isinstance(weight_eur, (int, float))
+            or not math.isfinite(weight_eur)
+            or weight_eur < 0
+        ):
+            raise ValueError(f"field 'weight_eur' must be a finite number >= 0, got {weight_eur!r}")
+        if metric not in FAIRNESS_METRICS:
+            raise ValueError(f"field 'metric' must be one of {FAIRNESS_METRICS}, got {metric!r}")
+        self.weight_eur, self.metric = float(weight_eur), metric
+
+    def step(self, key, state, action, *args):
+        """The wrapped ``step`` (gymnax: ``params``; JaxMARL: ``reset_state`` in ``args``) with
+        the fairness term added to the reward(s)."""
+        before = fairness_metric(_core_totals(state), self.metric)
+        out = self._env.step(key, state, action, *args)
+        info = out[-1]
+        # the stepped day's totals (the returned state may be a fresh day's after an auto-reset)
+        after = fairness_metric(
+            EpisodeTotals(
+                **{
+                    k: jnp.reshape(info[f"episode_{k}"], (-1,))[0]
+                    for k in EpisodeTotals.__dataclass_fields__
+                }
+            ),
+            self.metric,
+        )
+        term = self.weight_eur * (after - before)
+        if self.is_marl:
+            obs, state, rewards, dones, infos = out
+            n = len(self._env.agents)
+            infos = {**infos, "fairness_reward_eur": jnp.broadcast_to(term, (n,))}
+            return (
+                obs,
+                state,
+                self.add_to_rewards(rewards, jnp.broadcast_to(term, (n,))),
+                dones,
+                infos,
+            )
+        obs, state, reward, terminated, truncated, info = out
+        return (
+            obs,
+            state,
+            reward + term,
+            terminated,
+            truncated,
+            {**info, "fairness_reward_eur": term},
+        )
