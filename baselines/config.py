@@ -86,6 +86,15 @@ SCHEMA: dict[str, Field] = {
     ),
     "PLAN_OBS": Field(False, (bool,), doc="each agent also observes its port's plan advice"),
     "RELATIVE_PRICES": Field(False, (bool,), doc="the networks also read relative prices"),
+    "FAIRNESS_WEIGHT": Field(
+        0.0, _NUM, doc="EUR per unit of the day's fairness metric in the reward (FairnessReward)"
+    ),
+    "FAIRNESS_METRIC": Field(
+        "jain_index",
+        (str,),
+        ("jain_index", "min_satisfaction"),
+        "the metric FAIRNESS_WEIGHT weighs",
+    ),
     # multi-agent (IPPO / MAPPO)
     "AGENT_ID": Field("onehot", (str,), ("onehot", "scalar"), "agent-index encoding"),
     "LOCAL_REWARD_WEIGHT": Field(0.0, _NUM, doc="weight in [0, 1] of each agent's own share"),

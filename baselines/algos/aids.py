@@ -1,16 +1,35 @@
 """The learning aids of the trainers' config mapped onto the library's teachers.
 
 ``BATTERY_SHAPING`` (:mod:`chargax_marl.teachers.shaping`: the batteries' stored energy
-valued as a potential) and ``PORT_SHAPING`` (:mod:`chargax_marl.teachers.car_plan`: each
-parked car's plan value as a potential).
+valued as a potential), ``PORT_SHAPING`` (:mod:`chargax_marl.teachers.car_plan`: each
+parked car's plan value as a potential) and ``FAIRNESS_WEIGHT`` / ``FAIRNESS_METRIC``
+(:class:`chargax_marl.wrappers.FairnessReward`: a weight on the day's fairness).
 """
 
 from __future__ import annotations
 
 from chargax_marl.teachers import car_plan
 from chargax_marl.teachers import shaping as teacher_shaping
+from chargax_marl.wrappers import FairnessReward
 
 PORT_SHAPING_MODES = ("off", "plan")
+
+
+def fairness(config: dict, env):
+    """``env`` wrapped in :class:`chargax_marl.wrappers.FairnessReward` with ``FAIRNESS_WEIGHT``
+    and ``FAIRNESS_METRIC``; ``env`` itself when the weight is 0 (the default).
+
+    Raises:
+        ValueError: a negative or non-finite weight, or an unknown metric.
+    """
+    weight = config.get("FAIRNESS_WEIGHT", 0.0)
+    metric = config.get("FAIRNESS_METRIC", "jain_index")
+    if weight == 0.0:
+        return env
+    try:
+        return FairnessReward(env, weight, metric)
+    except ValueError as exc:
+        raise ValueError(f"FAIRNESS_WEIGHT={weight!r}, FAIRNESS_METRIC={metric!r}: {exc}") from None
 
 
 def port_shaping_mode(config: dict) -> str:

@@ -216,7 +216,8 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         agent_id=config["AGENT_ID"],
         local_reward_weight=config["LOCAL_REWARD_WEIGHT"],
     )
-    env = LogWrapper(WorldStateWrapper(base_env) if centralised_critic else base_env)
+    env = aids.fairness(config, base_env)  # FAIRNESS_WEIGHT (off: the env itself)
+    env = LogWrapper(WorldStateWrapper(env) if centralised_critic else env)
     agents = base_env.agents
     policy = SharedPolicy(config, base_env, centralised_critic)
     n_envs, n_steps, n_agents = config["NUM_ENVS"], config["NUM_STEPS"], base_env.num_agents

@@ -155,7 +155,7 @@ def make_train(config: dict | None = None, env_params=None):
     if env_params is None:
         env_params = build_env_params(config)[0]
     base_env = Chargax(params=env_params)
-    env = LogWrapper(base_env)
+    env = LogWrapper(aids.fairness(config, base_env))  # FAIRNESS_WEIGHT (off: the env itself)
     policy = Policy(config, base_env, env_params)
     n_envs, n_steps = config["NUM_ENVS"], config["NUM_STEPS"]
     total_updates = ppo_core.num_updates(config)

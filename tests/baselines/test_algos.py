@@ -423,6 +423,20 @@ def test_battery_shaping_trains_and_changes_the_return_not_the_profit(mod):
     )
 
 
+def test_a_fairness_weight_trains_and_changes_the_return_not_the_profit():
+    outs = {}
+    for weight in (0.0, 50.0):
+        config = {**TINY, "FAIRNESS_WEIGHT": weight, "FAIRNESS_METRIC": "min_satisfaction"}
+        outs[weight] = jax.device_get(finite_losses(ippo.make_train(config))["metrics"])
+    # same seeds, same first rollout: the station's profit is the same, the return gains the term
+    np.testing.assert_allclose(
+        outs[50.0]["episode_profit_eur"][:, 0], outs[0.0]["episode_profit_eur"][:, 0], rtol=1e-5
+    )
+    assert np.all(outs[50.0]["episode_return"][:, 0] < outs[0.0]["episode_return"][:, 0])
+    with pytest.raises(ValueError, match="FAIRNESS_WEIGHT=-1.0"):
+        ippo.make_train({**TINY, "FAIRNESS_WEIGHT": -1.0})
+
+
 @pytest.mark.parametrize("mod", [ippo, mappo])
 def test_battery_net_and_agent_advantage_normalisation_train(mod):
     train = mod.make_train(
