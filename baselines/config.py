@@ -99,6 +99,13 @@ SCHEMA: dict[str, Field] = {
     "AGENT_ID": Field("onehot", (str,), ("onehot", "scalar"), "agent-index encoding"),
     "LOCAL_REWARD_WEIGHT": Field(0.0, _NUM, doc="weight in [0, 1] of each agent's own share"),
     "AGENT_ADV_NORM": Field(False, (bool,), doc="normalise the advantages per agent"),
+    "OBS_DELAY_STEPS": Field(
+        0, (int,), doc="the context and node loads seen this many steps late (training)"
+    ),
+    "ACTION_LOSS_PROB": Field(0.0, _NUM, doc="each agent's action lost with this probability"),
+    "LOST_ACTION": Field(
+        "previous", (str,), ("previous", "idle"), "what a port applies when its action is lost"
+    ),
     "BATTERY_NET": Field(False, (bool,), doc="a separate actor (and critic) for the batteries"),
     "BATTERY_GAMMA": Field(None, _NUM, doc="the battery agents' discount (None: GAMMA)"),
     "BATTERY_ENT_COEF": Field(None, _NUM, doc="the battery agents' entropy bonus (None: ENT_COEF)"),

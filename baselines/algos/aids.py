@@ -2,17 +2,43 @@
 
 ``BATTERY_SHAPING`` (:mod:`chargax_marl.teachers.shaping`: the batteries' stored energy
 valued as a potential), ``PORT_SHAPING`` (:mod:`chargax_marl.teachers.car_plan`: each
-parked car's plan value as a potential) and ``FAIRNESS_WEIGHT`` / ``FAIRNESS_METRIC``
-(:class:`chargax_marl.wrappers.FairnessReward`: a weight on the day's fairness).
+parked car's plan value as a potential), ``FAIRNESS_WEIGHT`` / ``FAIRNESS_METRIC``
+(:class:`chargax_marl.wrappers.FairnessReward`: a weight on the day's fairness) and the
+multi-agent trainers' imperfect communication, ``OBS_DELAY_STEPS``, ``ACTION_LOSS_PROB`` and
+``LOST_ACTION`` (:mod:`chargax_marl.marl.communication`).
 """
 
 from __future__ import annotations
 
+from chargax_marl.marl import ActionLossWrapper, DelayedObservationWrapper
 from chargax_marl.teachers import car_plan
 from chargax_marl.teachers import shaping as teacher_shaping
 from chargax_marl.wrappers import FairnessReward
 
 PORT_SHAPING_MODES = ("off", "plan")
+
+
+def communication(config: dict, env):
+    """``env`` seen through ``OBS_DELAY_STEPS`` and ``ACTION_LOSS_PROB`` / ``LOST_ACTION``
+    (:class:`chargax_marl.marl.DelayedObservationWrapper`, then
+    :class:`chargax_marl.marl.ActionLossWrapper`); ``env`` itself when both are off.
+
+    Raises:
+        ValueError: a bad delay, probability or lost action.
+    """
+    delay = config.get("OBS_DELAY_STEPS", 0)
+    loss = config.get("ACTION_LOSS_PROB", 0.0)
+    lost = config.get("LOST_ACTION", "previous")
+    try:
+        if delay != 0:
+            env = DelayedObservationWrapper(env, delay)
+        if loss != 0.0:
+            env = ActionLossWrapper(env, loss, lost)
+    except ValueError as exc:
+        raise ValueError(
+            f"OBS_DELAY_STEPS={delay!r}, ACTION_LOSS_PROB={loss!r}, LOST_ACTION={lost!r}: {exc}"
+        ) from None
+    return env
 
 
 def fairness(config: dict, env):

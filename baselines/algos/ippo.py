@@ -216,7 +216,8 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         agent_id=config["AGENT_ID"],
         local_reward_weight=config["LOCAL_REWARD_WEIGHT"],
     )
-    env = aids.fairness(config, base_env)  # FAIRNESS_WEIGHT (off: the env itself)
+    # FAIRNESS_WEIGHT, OBS_DELAY_STEPS, ACTION_LOSS_PROB (each off: the env itself)
+    env = aids.communication(config, aids.fairness(config, base_env))
     env = LogWrapper(WorldStateWrapper(env) if centralised_critic else env)
     agents = base_env.agents
     policy = SharedPolicy(config, base_env, centralised_critic)

@@ -152,6 +152,13 @@ def make_train(config: dict | None = None, env_params=None):
             f"LOCAL_REWARD_WEIGHT={config['LOCAL_REWARD_WEIGHT']} applies to the multi-agent "
             "trainers (ippo, mappo) only; single-agent PPO learns from the station reward (use 0)"
         )
+    for key, off in (("OBS_DELAY_STEPS", 0), ("ACTION_LOSS_PROB", 0.0)):
+        if config.get(key, off) != off:
+            raise ValueError(
+                f"{key}={config[key]} applies to the multi-agent trainers (ippo, mappo) only: "
+                "single-agent PPO has one controller and nothing to communicate (use "
+                f"{off})"
+            )
     if env_params is None:
         env_params = build_env_params(config)[0]
     base_env = Chargax(params=env_params)

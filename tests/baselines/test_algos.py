@@ -18,6 +18,7 @@ import pytest
 
 from baselines.algos import aids, ippo, mappo, networks, ppo, ppo_core, runner
 from baselines.config import build_env_params
+from chargax_marl.marl import ActionLossWrapper, DelayedObservationWrapper
 from chargax_marl.teachers import prices as teacher_prices
 from chargax_marl.teachers import shaping as teacher_shaping
 from chargax_marl.teachers import storage_value
@@ -435,6 +436,20 @@ def test_a_fairness_weight_trains_and_changes_the_return_not_the_profit():
     assert np.all(outs[50.0]["episode_return"][:, 0] < outs[0.0]["episode_return"][:, 0])
     with pytest.raises(ValueError, match="FAIRNESS_WEIGHT=-1.0"):
         ippo.make_train({**TINY, "FAIRNESS_WEIGHT": -1.0})
+
+
+def test_ippo_trains_through_delayed_observations_and_lost_actions_and_ppo_refuses_them():
+    config = {**TINY, "OBS_DELAY_STEPS": 2, "ACTION_LOSS_PROB": 0.3, "LOST_ACTION": "idle"}
+    train = ippo.make_train(config)
+    stack = aids.communication(config, train.env)  # what make_train puts under its LogWrapper
+    assert isinstance(stack, ActionLossWrapper) and stack.loss_prob == 0.3
+    assert isinstance(stack._env, DelayedObservationWrapper) and stack._env.delay_steps == 2
+    assert aids.communication(TINY, train.env) is train.env
+    finite_losses(train)
+    with pytest.raises(ValueError, match="ACTION_LOSS_PROB=1.5"):
+        ippo.make_train({**TINY, "ACTION_LOSS_PROB": 1.5})
+    with pytest.raises(ValueError, match="OBS_DELAY_STEPS=2 applies to the multi-agent"):
+        ppo.make_train({**TINY, "OBS_DELAY_STEPS": 2})
 
 
 @pytest.mark.parametrize("mod", [ippo, mappo])
