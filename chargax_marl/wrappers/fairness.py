@@ -14,6 +14,7 @@ import math
 import jax.numpy as jnp
 
 from chargax_marl.core.types import EpisodeTotals
+from chargax_marl.teachers.shaping import core_state
 from chargax_marl.wrappers.base import TeacherWrapper
 
 FAIRNESS_METRICS = ("jain_index", "min_satisfaction")
@@ -36,12 +37,6 @@ def fairness_metric(totals: EpisodeTotals, metric: str) -> jnp.ndarray:
     if metric == "min_satisfaction":
         return 1.0 - totals.satisfaction_shortfall_max
     raise ValueError(f"field 'metric' must be one of {FAIRNESS_METRICS}, got {metric!r}")
-
-
-def _core_totals(state) -> EpisodeTotals:
-    while not hasattr(state, "totals"):
-        state = state.env_state
-    return state.totals
 
 
 class FairnessReward(TeacherWrapper):
@@ -78,7 +73,7 @@ class FairnessReward(TeacherWrapper):
     def step(self, key, state, action, *args):
         """The wrapped ``step`` (gymnax: ``params``; JaxMARL: ``reset_state`` in ``args``) with
         the fairness term added to the reward(s)."""
-        before = fairness_metric(_core_totals(state), self.metric)
+        before = fairness_metric(core_state(state).totals, self.metric)
         out = self._env.step(key, state, action, *args)
         info = out[-1]
         # the stepped day's totals (the returned state may be a fresh day's after an auto-reset)

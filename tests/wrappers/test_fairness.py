@@ -67,8 +67,12 @@ def test_a_day_s_terms_add_up_to_the_weight_times_the_metric_s_shortfall(env, me
         np.sum(np.asarray(terms)[: end + 1]), weight * (day_metric - 1.0), rtol=1e-4, atol=1e-4
     )
     np.testing.assert_allclose(np.asarray(w_rewards) - np.asarray(rewards), terms, atol=1e-5)
-    # the next day starts afresh: its first steps add nothing until a car leaves unevenly
-    assert abs(float(np.asarray(terms)[end + 1])) <= weight
+    # the next day starts afresh: its first step's term is measured from 1, not from the last day
+    first = EpisodeTotals(
+        **{k: info[f"episode_{k}"][end + 1] for k in EpisodeTotals.__dataclass_fields__}
+    )
+    expected = weight * (float(service_metrics(first)[metric]) - 1.0)
+    assert float(np.asarray(terms)[end + 1]) == pytest.approx(expected, abs=1e-4)
 
 
 def test_the_multi_agent_view_gives_every_agent_the_station_s_term():
