@@ -236,3 +236,28 @@ def test_train_speed_counts_network_work_and_rounds_to_whole_updates():
     # 17 agents through 2 x 256 MLPs: about 9 x PPO's work per env-step; MAPPO's shared critic less
     assert 8 < ippo_m["total_macs"] / ppo_m["total_macs"] < 10
     assert ppo_m["total_macs"] < mappo_m["total_macs"] < ippo_m["total_macs"]
+
+
+def test_gpu_sweep_writes_a_row_per_measurement_and_stops_at_its_budget(tmp_path, capsys):
+    gpu = load("gpu")
+    out = tmp_path / "rows.jsonl"
+    common = ["--env-steps", "64", "--min-steps", "8", "--repeats", "1", "--algos"]
+    gpu.main(["--exponents", "2", "--views", "single", "marl_array", *common, "--out", str(out)])
+    rows = [json.loads(line) for line in out.read_text().splitlines()]
+    assert [r["kind"] for r in rows] == ["device", "state", "env", "env"]
+    assert [r["view"] for r in rows[2:]] == ["single", "marl_array"]
+    for r in rows[2:]:
+        assert r["envs"] == 4 and r["steps_per_env"] == 16
+        assert r["env_steps_per_s"] == pytest.approx(4 * 16 / r["run_s"])
+    # a spent budget starts nothing and says where it stopped
+    gpu.main(["--exponents", "2", *common, "--budget-s", "0", "--out", str(out)])
+    last = json.loads(out.read_text().splitlines()[-1])
+    assert last["kind"] == "stopped" and last["at"] == "single 2^2"
+
+
+def test_the_gpu_tables_of_the_docs_are_those_of_the_result_file():
+    gpu = load("gpu")
+    path = BENCH / "results" / "gpu_h100.jsonl"
+    table = gpu.tables([json.loads(line) for line in path.read_text().splitlines()])
+    assert table in (ROOT / "docs" / "performance.md").read_text()
+    assert "| 2^20 |" in table and "| IPPO | 1024 | 2 x 256 |" in table
