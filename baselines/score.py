@@ -28,7 +28,7 @@ from chargax_marl.benchmark.picture import day_picture
 from chargax_marl.benchmark.references import SECONDARY, load_references, package_version
 from chargax_marl.benchmark.scoring import compare
 from chargax_marl.benchmark.tasks import get_task
-from chargax_marl.evaluation import METRICS, run_days_keyed
+from chargax_marl.evaluation import METRICS, run_days_keyed, stateless
 from chargax_marl.trace import params_fingerprint, station_fingerprint
 
 
@@ -129,7 +129,7 @@ def picture(run_dir, task_id: str, path, name: str | None = None, day_index: int
     _, run_params, _, _ = build_env_params(train.config)
     check_run_fits(run_params, task)
     params = task.policy_params(int(run_params.num_levels))
-    act = train.make_act(params)(jax.tree.map(lambda x: x[0], seed_params))
+    act = stateless(train.make_act(params)(jax.tree.map(lambda x: x[0], seed_params)), "picture")
     fig, _ = day_picture(
         lambda s, k, p: act(s, k),
         task,

@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -22,6 +24,46 @@ from chargax_marl.policies import get_policy
 from chargax_marl.trace import day_keys
 
 Act = Callable[[EnvState, jax.Array], jnp.ndarray]
+
+
+@dataclass(frozen=True)
+class MemoryAct:
+    """A policy that carries a memory from step to step within a day, for the days that
+    :func:`run_days` plays: a controller that sees the station late, or whose commands can be
+    lost (:func:`chargax_marl.marl.communication.communicating_act`), remembers what it saw
+    and what the ports applied.
+
+    Attributes:
+        init: ``init(state) -> memory`` at the day's first state.
+        step: ``step(state, key, memory) -> (levels, memory)``; ``levels`` as an :data:`Act`
+            returns them.
+    """
+
+    init: Callable[[EnvState], Any]
+    step: Callable[[EnvState, jax.Array, Any], tuple[jnp.ndarray, Any]]
+
+
+def stateless(act: Act | MemoryAct, what: str) -> Act:
+    """``act`` itself when it needs no memory.
+
+    Raises:
+        ValueError: ``act`` is a :class:`MemoryAct`, which ``what`` cannot play.
+    """
+    if isinstance(act, MemoryAct):
+        raise ValueError(
+            f"{what} plays a policy step by step without memory, and this one carries a memory "
+            "(a policy trained with an observation delay or action loss: OBS_DELAY_STEPS, "
+            "ACTION_LOSS_PROB); score it with run_days"
+        )
+    return act
+
+
+def with_memory(act: Act | MemoryAct) -> MemoryAct:
+    """``act`` as a :class:`MemoryAct` (an :data:`Act` gets an empty memory)."""
+    if isinstance(act, MemoryAct):
+        return act
+    return MemoryAct(init=lambda state: (), step=lambda state, key, memory: (act(state, key), ()))
+
 
 METRICS = {
     "daily_profit_eur": "profit_eur",
@@ -105,7 +147,7 @@ def split_days(num_days: int, num_eval: int = 100, seed: int = 0) -> tuple[np.nd
     return np.sort(perm[num_eval:]).astype(np.int32), np.sort(perm[:num_eval]).astype(np.int32)
 
 
-def run_days(act: Act, params: EnvParams, days, key: jax.Array):
+def run_days(act: Act | MemoryAct, params: EnvParams, days, key: jax.Array):
     """Run ``act`` for one whole day per entry of ``days`` (vmapped); return the final totals
     (an :class:`EpisodeTotals` with a leading axis over days). Day ``i`` draws its cars from
     ``split(key, len(days))[i]`` (:func:`run_days_keyed`)."""
@@ -113,12 +155,13 @@ def run_days(act: Act, params: EnvParams, days, key: jax.Array):
     return run_days_keyed(act, params, days, jax.random.split(key, days.shape[0]))
 
 
-def run_days_keyed(act: Act, params: EnvParams, days, keys: jax.Array):
+def run_days_keyed(act: Act | MemoryAct, params: EnvParams, days, keys: jax.Array):
     """:func:`run_days` with one key per day: the cars of day ``days[i]`` are drawn from
     ``day_keys[i]`` alone, so a day's result does not depend on which other days run beside it.
 
     Args:
-        act: ``act(state, key) -> levels``.
+        act: ``act(state, key) -> levels``, or a :class:`MemoryAct` (its memory starts afresh
+            each day).
         params: the environment parameters.
         days: ``(n,)`` day indices of the price data.
         keys: ``(n, 2)`` keys, one per day.
@@ -127,19 +170,22 @@ def run_days_keyed(act: Act, params: EnvParams, days, keys: jax.Array):
         The final :class:`EpisodeTotals` with a leading axis ``(n,)``.
     """
     days = jnp.asarray(days, jnp.int32)
+    policy = with_memory(act)
 
     def one_day(day, key):
         act_keys, step_keys, battery_key = day_keys(key, params.num_steps)
 
-        def body(state, keys):
+        def body(carry, keys):
+            state, memory = carry
             k_act, k_step = keys
-            state, _ = simulator.step(k_step, state, act(state, k_act), params)
-            return state, None
+            levels, memory = policy.step(state, k_act, memory)
+            state, _ = simulator.step(k_step, state, levels, params)
+            return (state, memory), None
 
         # the batteries' initial SoC (when drawn from a range) from a key of its own, so the
         # cars drawn from ``key`` stay the same whatever the battery setting
         start = simulator.empty_state(day, params, battery_key)
-        state, _ = jax.lax.scan(body, start, (act_keys, step_keys))
+        (state, _), _ = jax.lax.scan(body, (start, policy.init(start)), (act_keys, step_keys))
         return state.totals
 
     # compiled as one program: run eagerly, the vmapped scan is traced, batched and compiled

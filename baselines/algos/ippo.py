@@ -31,6 +31,7 @@ from baselines.config import build_env_params, resolve
 from chargax_marl.core.observation import PORT_FEATURES, context_size
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.marl import env as marl_env
+from chargax_marl.marl.communication import communicating_act
 from chargax_marl.marl.env import ChargaxMARL
 from chargax_marl.marl.wrappers import LogWrapper, WorldStateWrapper
 from chargax_marl.teachers import car_plan, prices
@@ -439,13 +440,27 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         policy=policy,
         env=base_env,
         env_params=env_params,
-        make_act=make_act_builder(policy, config["AGENT_ID"]),
+        make_act=make_act_builder(
+            policy,
+            config["AGENT_ID"],
+            config.get("OBS_DELAY_STEPS", 0),
+            config.get("ACTION_LOSS_PROB", 0.0),
+            config.get("LOST_ACTION", "previous"),
+        ),
     )
 
 
-def make_act_builder(policy: SharedPolicy, agent_id: str):
-    """``make_act_for(eval_params)(params) -> act(state, key) -> levels``: every agent takes the
-    argmax of its masked logits (greedy), read from the simulator state."""
+def make_act_builder(
+    policy: SharedPolicy,
+    agent_id: str,
+    delay_steps: int = 0,
+    loss_prob: float = 0.0,
+    lost_action: str = "previous",
+):
+    """``make_act_for(eval_params)(params) -> act``: every agent takes the argmax of its masked
+    logits (greedy), read from the simulator state. With an observation delay or an action loss
+    (the config's ``OBS_DELAY_STEPS``, ``ACTION_LOSS_PROB``, ``LOST_ACTION``) the policy is
+    played under them (:func:`chargax_marl.marl.communicating_act`), as it was trained."""
     cache = IdentityCache()
 
     def build(eval_params):
@@ -453,10 +468,16 @@ def make_act_builder(policy: SharedPolicy, agent_id: str):
         avail = jnp.asarray(env._avail_np)
 
         def make_act(params):
-            def act(state, key):
+            def choose(obs, state, key):
                 del key
-                obs = policy.with_plan(env.get_obs_matrix(state), state)
-                idx = jnp.argmax(policy.logits(params, obs, avail), axis=-1)
+                obs = policy.with_plan(obs, state)
+                return jnp.argmax(policy.logits(params, obs, avail), axis=-1)
+
+            if delay_steps or loss_prob:
+                return communicating_act(env, choose, delay_steps, loss_prob, lost_action)
+
+            def act(state, key):
+                idx = choose(env.get_obs_matrix(state), state, key)
                 return marl_env.actions_to_levels(idx, eval_params, env.action_offset)
 
             return act

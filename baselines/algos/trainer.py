@@ -22,7 +22,8 @@ class Trainer:
         env_params: the training env parameters.
         make_act: ``make_act(eval_params)(params) -> act(state, key) -> levels``: the greedy
             policy of trained parameters as a rule :func:`chargax_marl.evaluation.run_days`
-            plays.
+            plays (a :class:`chargax_marl.evaluation.MemoryAct` when the multi-agent trainers
+            see the station through an observation delay or action loss).
     """
 
     init: Callable

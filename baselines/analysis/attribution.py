@@ -30,13 +30,14 @@ from baselines.eval import stats
 from baselines.eval.rules import evaluate_rules
 from baselines.eval.stats import over_seeds
 from chargax_marl import policies
-from chargax_marl.evaluation import run_days
+from chargax_marl.evaluation import run_days, stateless
 
 MIXES = ("learned", "learned_ports_rule_battery", "always_max_ports_learned_battery")
 
 
 def mixed_policies(act, params) -> dict:
     """The :data:`MIXES` as ``policy(state, key) -> levels`` from a trained ``act``."""
+    act = stateless(act, "the attribution's policy mixes")
     is_battery = policies._is_battery(params)
     return {
         "learned": act,

@@ -72,8 +72,8 @@ def compiled_evaluation(make_act, eval_params):
     """The jitted evaluation of every seed's parameters on days, one per policy and params.
 
     Args:
-        make_act: ``make_act(params) -> act(state, key) -> levels`` (a trainer's
-            ``make_act(eval_params)``).
+        make_act: ``make_act(params) -> act(state, key) -> levels`` or a
+            :class:`chargax_marl.evaluation.MemoryAct` (a trainer's ``make_act(eval_params)``).
         eval_params: the evaluation env parameters.
 
     Returns:

@@ -3,7 +3,8 @@
 - :class:`ChargaxMARL`: JaxMARL 0.2 ``MultiAgentEnv`` (``reset(key)``, ``step(key, state, actions)``).
 - :class:`LogWrapper`, :class:`WorldStateWrapper`: JaxMARL-style episode logging and MAPPO world state.
 - :class:`DelayedObservationWrapper`, :class:`ActionLossWrapper`: imperfect communication
-  (observations seen late, actions lost; :mod:`chargax_marl.marl.communication`).
+  (observations seen late, actions lost; :mod:`chargax_marl.marl.communication`), and
+  :func:`communicating_act`, a policy played on held-out days under the same communication.
 - :func:`parallel_env` / :class:`ChargaxParallelEnv`: PettingZoo ``ParallelEnv`` (numpy in and out);
   :func:`aec_env`: the same through PettingZoo's AEC API. The module
   :mod:`chargax_marl.marl.pettingzoo_env` has PettingZoo's usual ``env``, ``raw_env`` and
@@ -39,6 +40,7 @@ finally:
 from chargax_marl.marl.communication import (  # noqa: E402
     ActionLossWrapper,
     DelayedObservationWrapper,
+    communicating_act,
 )
 from chargax_marl.marl.env import ChargaxMARL  # noqa: E402
 from chargax_marl.marl.pettingzoo_env import ChargaxParallelEnv, parallel_env  # noqa: E402
@@ -54,5 +56,6 @@ __all__ = [
     "LogEnvState",
     "LogWrapper",
     "WorldStateWrapper",
+    "communicating_act",
     "parallel_env",
 ]

@@ -31,7 +31,8 @@ import numpy as np
 from flax import struct
 
 from chargax_marl.core.observation import PORT_FEATURES
-from chargax_marl.marl.env import NUM_KINDS, ChargaxMARL
+from chargax_marl.evaluation import MemoryAct
+from chargax_marl.marl.env import NUM_KINDS, ChargaxMARL, actions_to_levels
 from chargax_marl.marl.wrappers import _Wrapper
 
 LOST_ACTIONS = ("previous", "idle")
@@ -126,6 +127,59 @@ def lose_actions(
     lost = u < loss_prob
     fallback = previous if lost_action == "previous" else jnp.full_like(indices, idle_index)
     return jnp.where(lost, fallback, indices), lost
+
+
+def communicating_act(
+    env: ChargaxMARL,
+    choose,
+    delay_steps: int = 0,
+    loss_prob: float = 0.0,
+    lost_action: str = "previous",
+) -> MemoryAct:
+    """A multi-agent policy played on whole days as the wrappers play it: the agents see the
+    observations :class:`DelayedObservationWrapper` shows and their actions are lost as
+    :class:`ActionLossWrapper` loses them, so :func:`chargax_marl.evaluation.run_days` scores a
+    policy trained through them under the same communication.
+
+    The policy's memory is the history of the last ``delay_steps`` observations (the day's
+    first observation until then) and the action indices the ports applied last step (idle at
+    the day's start). The loss draws come from ``fold_in(key, LOSS_STREAM)`` of the policy's
+    step key, so ``choose`` sees the key itself; with ``delay_steps=0`` and ``loss_prob=0``
+    the policy is ``choose`` on the plain observations.
+
+    Args:
+        env: the multi-agent view of the station played (its observation layout and action
+            offset).
+        choose: ``choose(obs, state, key) -> (num_agents,)`` action indices, from the stacked
+            observations ``(num_agents, obs_size)`` the agents see and the simulator state.
+        delay_steps: ``k >= 0``, how many steps late the delayed columns are seen.
+        loss_prob: the probability in ``[0, 1]`` that an agent's action is lost.
+        lost_action: ``"previous"`` or ``"idle"``, what a port applies instead.
+
+    Returns:
+        A :class:`chargax_marl.evaluation.MemoryAct` giving the core's signed levels.
+
+    Raises:
+        ValueError: a bad delay, probability or lost action.
+    """
+    delay_steps = check_delay_steps(delay_steps)
+    loss_prob, lost_action = check_loss(loss_prob, lost_action)
+    columns = delayed_columns(env)
+    idle = int(env.action_offset)
+    params = env.params
+
+    def init(state):
+        history = start_history(env.get_obs_matrix(state), delay_steps)
+        return history, jnp.full((env.num_agents,), idle, jnp.int32)
+
+    def step(state, key, memory):
+        history, previous = memory
+        seen, history = delay(env.get_obs_matrix(state), history, columns, jnp.bool_(False))
+        sent = jnp.asarray(choose(seen, state, key)).astype(jnp.int32)
+        applied, _ = lose_actions(key, sent, previous, idle, loss_prob, lost_action)
+        return actions_to_levels(applied, params, idle), (history, applied)
+
+    return MemoryAct(init=init, step=step)
 
 
 def _stack(env, obs: dict) -> jax.Array:

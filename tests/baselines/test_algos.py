@@ -18,6 +18,7 @@ import pytest
 
 from baselines.algos import aids, ippo, mappo, networks, ppo, ppo_core, runner
 from baselines.config import build_env_params
+from chargax_marl.evaluation import MemoryAct, run_days
 from chargax_marl.marl import ActionLossWrapper, DelayedObservationWrapper
 from chargax_marl.teachers import prices as teacher_prices
 from chargax_marl.teachers import shaping as teacher_shaping
@@ -445,7 +446,14 @@ def test_ippo_trains_through_delayed_observations_and_lost_actions_and_ppo_refus
     assert isinstance(stack, ActionLossWrapper) and stack.loss_prob == 0.3
     assert isinstance(stack._env, DelayedObservationWrapper) and stack._env.delay_steps == 2
     assert aids.communication(TINY, train.env) is train.env
-    finite_losses(train)
+    out = finite_losses(train)
+    # the held-out evaluation plays the policy under the same delay and loss
+    seed0 = jax.tree.map(lambda x: x[0], out["runner_state"].params)
+    act = train.make_act(train.env_params)(seed0)
+    assert isinstance(act, MemoryAct)
+    totals = run_days(act, train.env_params, jnp.arange(2), jax.random.PRNGKey(0))
+    assert np.isfinite(np.asarray(totals.profit_eur)).all()
+    assert not isinstance(ippo.make_train(TINY).make_act(train.env_params)(seed0), MemoryAct)
     with pytest.raises(ValueError, match="ACTION_LOSS_PROB=1.5"):
         ippo.make_train({**TINY, "ACTION_LOSS_PROB": 1.5})
     with pytest.raises(ValueError, match="OBS_DELAY_STEPS=2 applies to the multi-agent"):

@@ -8,6 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from chargax_marl import evaluation
+from chargax_marl.core import simulator
 from chargax_marl.marl import (
     ActionLossWrapper,
     ChargaxMARL,
@@ -16,7 +18,14 @@ from chargax_marl.marl import (
     LogWrapper,
     WorldStateWrapper,
 )
-from chargax_marl.marl.communication import delayed_columns
+from chargax_marl.marl import env as marl_env
+from chargax_marl.marl.communication import (
+    LOSS_STREAM,
+    LOST_ACTIONS,
+    communicating_act,
+    delayed_columns,
+)
+from chargax_marl.trace import day_keys
 from tests.helpers import exact_jit, mixed_station
 
 STEPS = 30  # 24 one-hour steps a day: the rollouts cross an auto-reset
@@ -192,3 +201,83 @@ def test_the_pettingzoo_adapter_delays_and_loses_as_the_wrappers_do(env):
     np.testing.assert_array_equal(np.stack(seen["lossy"]), np.stack(seen["idle"]))
     with pytest.raises(ValueError, match="field 'loss_prob'"):
         ChargaxParallelEnv(params=params, action_loss_prob=-0.1)
+
+
+# ---- a policy played on held-out days under the same communication (communicating_act) ----
+
+
+def _play(env, policy, day: int = 3, steps: int = 10, key=jax.random.PRNGKey(7)):
+    """Play a MemoryAct step by step on a day from its first state, as ``run_days`` does;
+    returns the levels applied and the core states the policy met."""
+    params = env.params
+    act_keys, step_keys, battery_key = day_keys(key, params.num_steps)
+    state = simulator.empty_state(day, params, battery_key)
+    memory = policy.init(state)
+    levels, states = [], []
+    for t in range(steps):
+        states.append(state)
+        lv, memory = policy.step(state, act_keys[t], memory)
+        levels.append(np.asarray(lv))
+        state, _ = simulator.step(step_keys[t], state, lv, params)
+    return np.stack(levels), states, act_keys[:steps]
+
+
+def test_communicating_act_shows_the_observations_of_k_steps_before(env):
+    k, seen = 3, []
+
+    def choose(obs, state, key):
+        seen.append(np.asarray(obs))
+        return jnp.full((env.num_agents,), env.action_offset + 1, jnp.int32)  # charge fully
+
+    _, states, _ = _play(env, communicating_act(env, choose, delay_steps=k))
+    columns = delayed_columns(env)
+    assert columns.any() and not columns.all()
+    obs = [np.asarray(env.get_obs_matrix(s)) for s in states]
+    for t, got in enumerate(seen):
+        old = obs[max(t - k, 0)]  # the day's first observation until k steps have passed
+        np.testing.assert_array_equal(got, np.where(columns, old, obs[t]))
+    assert any(not np.array_equal(seen[t], obs[t]) for t in range(k, len(seen)))
+
+
+def test_communicating_act_loses_actions_as_the_wrapper_does(env):
+    p, charge = 0.5, env.action_offset + 1
+
+    def choose(obs, state, key):
+        return jnp.full((env.num_agents,), charge, jnp.int32)
+
+    for lost_action in LOST_ACTIONS:
+        policy = communicating_act(env, choose, loss_prob=p, lost_action=lost_action)
+        levels, _, keys = _play(env, policy)
+        applied = np.full(env.num_agents, env.action_offset)  # idle at the day's start
+        for t, key in enumerate(keys):
+            u = np.asarray(jax.random.uniform(jax.random.fold_in(key, LOSS_STREAM), applied.shape))
+            lost = u < p
+            fallback = applied if lost_action == "previous" else env.action_offset
+            applied = np.where(lost, fallback, charge)
+            expected = marl_env.actions_to_levels(
+                jnp.asarray(applied), env.params, env.action_offset
+            )
+            np.testing.assert_array_equal(levels[t], np.asarray(expected))
+        assert 0 < (levels == 0).sum() < levels.size  # some lost, some not
+
+
+def test_communicating_act_without_delay_or_loss_is_the_plain_policy_on_whole_days(env):
+    def choose(obs, state, key):  # depends on the observation and the key
+        score = obs.sum(axis=1) + jax.random.uniform(key, (env.num_agents,))
+        return (score * 7).astype(jnp.int32) % env.num_actions
+
+    def plain(state, key):
+        idx = choose(env.get_obs_matrix(state), state, key)
+        return marl_env.actions_to_levels(idx, env.params, env.action_offset)
+
+    days, key = jnp.arange(3), jax.random.PRNGKey(5)
+    a = evaluation.run_days(plain, env.params, days, key)
+    b = evaluation.run_days(communicating_act(env, choose), env.params, days, key)
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    delayed = evaluation.run_days(communicating_act(env, choose, 2, 0.2), env.params, days, key)
+    assert not np.array_equal(np.asarray(a.profit_eur), np.asarray(delayed.profit_eur))
+    with pytest.raises(ValueError, match="delay_steps"):
+        communicating_act(env, choose, delay_steps=-1)
+    with pytest.raises(ValueError, match="attribution"):
+        evaluation.stateless(communicating_act(env, choose, 1), "the attribution")
