@@ -1,7 +1,9 @@
-"""The cross-market runner's bookkeeping (``baselines/experiments/cross_market.py``), on made-up numbers.
+"""The experiment runners' bookkeeping: the cross-market runner's
+(``baselines/experiments/cross_market.py``) on made-up numbers, and the service-effects
+comparison on hand-computed numbers and on the session's tiny IPPO run.
 
-The training and evaluation it calls are tested in ``test_baselines.py``; an end-to-end run of a
-runner compiles several programs (minutes on 2 cores), so it is not part of the suite.
+The cross-market runner's training and evaluation are tested with the trainers; an end-to-end
+run of it compiles several programs (minutes on 2 cores), so it is not part of the suite.
 """
 
 from __future__ import annotations
@@ -10,10 +12,12 @@ import json
 import re
 
 import numpy as np
+import pytest
 
 from baselines import runs
 from baselines.config import build_env_params, resolve
 from baselines.experiments import cross_market as cm
+from baselines.experiments import service_effects
 
 EXPERIMENTS = {"NL-2023": ("NL-2023", "DE-2023", "FR-2023")}
 
@@ -442,3 +446,38 @@ def test_the_report_shows_the_teachers_rules_where_a_run_holds_them():
         }
     text = report.teacher_rules([("low", cell)])
     assert "| low | +1.00 ± 0.50 (0.333) | +3.00 ± 0.50 (1.000) |" in text
+
+
+def test_service_effects_paired_differences_by_hand():
+    a = np.array([[3.0, 5.0], [1.0, 3.0]])  # 2 seeds x 2 days
+    p = service_effects.paired(a, np.array([1.0, 2.0]))  # against one reference per day
+    assert p["per_seed"] == [2.5, 0.5] and p["mean"] == 1.5
+    assert p["stderr_seeds"] == pytest.approx(1.0)  # std(2.5, 0.5) = sqrt(2), over sqrt(2)
+    d = np.array([2.0, 3.0, 0.0, 1.0])
+    assert p["stderr_seed_days"] == pytest.approx(d.std(ddof=1) / 2.0)
+    one = service_effects.paired(a[:1], a[1:])  # one seed: no spread over seeds
+    assert one["mean"] == 2.0 and np.isnan(one["stderr_seeds"])
+
+
+def test_service_effects_compare_a_run_with_itself_and_with_always_max(tiny_ippo_run, tmp_path):
+    out = tmp_path / "effects.json"
+    run = str(tiny_ippo_run)
+    record = service_effects.main(["--compare", "self", run, run, "--out", str(out)])
+    (c,) = record["comparisons"]
+    assert c["seeds"] == 2 and c["draws"] == 1
+    for m in service_effects.METRICS:
+        assert c[m]["vs_reference"]["mean"] == 0.0 and c[m]["run"] == c[m]["reference"]
+        gap = c[m]["vs_always_max"]["mean"]
+        assert gap == pytest.approx(c[m]["run"] - c[m]["always_max"], abs=1e-9)
+    assert 0.0 < c["jain_index"]["always_max"] <= 1.0
+    # each seed's profit and its gap to always-max are those the trainer's evaluation reported
+    results = json.loads((tiny_ippo_run / "results.json").read_text())
+    vs_am = c["daily_profit_eur"]["vs_always_max"]["per_seed"]
+    for seed, reported in enumerate(results["per_seed"]):
+        assert vs_am[seed] == pytest.approx(reported["vs_always_max"]["mean"], rel=1e-5, abs=1e-3)
+    # a second comparison is added to the file; the table has a row per comparison and metric
+    service_effects.main(["--compare", "again", run, run, "--out", str(out)])
+    saved = json.loads(out.read_text())
+    assert [x["name"] for x in saved["comparisons"]] == ["self", "again"]
+    rows = service_effects.table(saved).splitlines()
+    assert len(rows) == 2 + 2 * len(service_effects.METRICS)
