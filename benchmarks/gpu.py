@@ -121,16 +121,19 @@ def tables(rows: list[dict]) -> str:
         )
     lines += [
         "",
-        "| algorithm | envs | networks | s / 100k env-steps | env-steps/s | compile s |",
-        "|---|---|---|---|---|---|",
+        "| algorithm | envs | networks | s / 100k env-steps | env-steps/s | / PPO's | compile s |",
+        "|---|---|---|---|---|---|---|",
     ]
     order = {"ppo": 0, "ippo": 1, "mappo": 2}
     train = [r for r in rows if r["kind"] == "train"]
+    ppo = {(_hidden(r), r["envs"]): r["steps_per_s"] for r in train if r["algo"] == "ppo"}
     for r in sorted(train, key=lambda r: (-_hidden(r), order.get(r["algo"], 9), r["envs"])):
         hidden = _hidden(r)
+        base = ppo.get((hidden, r["envs"]))
+        ratio = f"{r['steps_per_s'] / base:.2f}" if base else "-"
         lines.append(
             f"| {r['algo'].upper()} | {r['envs']} | 2 x {hidden} | {r['s_per_100k']:.3f} "
-            f"| {r['steps_per_s']:,.0f} | {r['compile_s']:.1f} |"
+            f"| {r['steps_per_s']:,.0f} | {ratio} | {r['compile_s']:.1f} |"
         )
     return "\n".join(lines)
 
