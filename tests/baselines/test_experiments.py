@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -481,3 +482,15 @@ def test_service_effects_compare_a_run_with_itself_and_with_always_max(tiny_ippo
     assert [x["name"] for x in saved["comparisons"]] == ["self", "again"]
     rows = service_effects.table(saved).splitlines()
     assert len(rows) == 2 + 2 * len(service_effects.METRICS)
+
+
+def test_the_measured_effects_in_the_docs_are_those_of_the_result_file():
+    root = Path(__file__).resolve().parents[2]
+    record = json.loads((root / "results" / "service_effects.json").read_text())
+    assert service_effects.table(record) in (root / "docs" / "training.md").read_text()
+    names = [c["name"] for c in record["comparisons"]]
+    for scenario in ("default", "grid25-high"):
+        for option in ("fairness weight", "delay k=1", "delay k=3", "action loss p=0.1"):
+            assert sum(n.startswith(f"{scenario}: {option}") for n in names) == 1
+    for c in record["comparisons"]:  # each paired on two seeds, the grid on four car draws
+        assert c["seeds"] == 2 and c["draws"] == (4 if c["name"].startswith("grid") else 1)
