@@ -31,7 +31,7 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent))
 
 import jax  # noqa: E402
-from envbench import compiled_rollout  # noqa: E402
+from envbench import compiled_rollout, steps_for  # noqa: E402
 from throughput import _views, state_bytes  # noqa: E402
 from train_speed import _parse_set, measure_training  # noqa: E402
 
@@ -55,11 +55,6 @@ def device_info() -> dict:
     except (OSError, subprocess.SubprocessError):
         info["nvidia_smi"] = ""
     return info
-
-
-def steps_per_call(num_envs: int, env_steps: int, minimum: int, maximum: int) -> int:
-    """Scan length so that one timed call does about ``env_steps`` env-steps."""
-    return min(max(env_steps // num_envs, minimum), maximum)
 
 
 def env_row(view: str, env, params, num_envs: int, num_steps: int, repeats: int) -> dict:
@@ -201,7 +196,7 @@ def main(argv=None) -> None:
                     env,
                     params,
                     n,
-                    steps_per_call(n, args.env_steps, args.min_steps, args.max_steps),
+                    steps_for(n, args.env_steps, args.min_steps, args.max_steps),
                     args.repeats,
                 )
                 emit(row)
