@@ -1,11 +1,12 @@
 """IPPO for :class:`chargax_marl.marl.ChargaxMARL`, in the JaxMARL style (shared parameters).
 
 One actor and one critic are shared by every agent (port or battery); the agent-index
-feature in each observation lets them tell agents apart. Observations come as a dict per
-agent; they are *batchified* into ``(num_agents * num_envs, obs_dim)`` (agent-major, as
+feature in each observation lets them tell agents apart. The env is stepped through its array
+path (``step_arrays``: observations ``(num_agents, obs_dim)`` per env, no per-agent dicts);
+the rows are *batchified* into ``(num_agents * num_envs, obs_dim)`` (agent-major, as
 JaxMARL's ``batchify``), actions are sampled from the logits masked by
-``get_avail_actions`` (invalid logits set to -1e9) and *unbatchified* back into a dict. All
-agents receive the shared station reward, or with ``LOCAL_REWARD_WEIGHT`` ``w > 0`` the
+``get_avail_actions`` (invalid logits set to -1e9) and handed back as ``(num_envs,
+num_agents)`` indices. All agents receive the shared station reward, or with ``LOCAL_REWARD_WEIGHT`` ``w > 0`` the
 mix ``(1 - w) * r + w * share_i`` with their own share of it (see
 :class:`chargax_marl.marl.ChargaxMARL`; evaluation always scores the station's profit).
 Episodes are logged by :class:`chargax_marl.marl.wrappers.LogWrapper`.
@@ -14,7 +15,8 @@ devices (:func:`baselines.algos.shard_envs`).
 
 :func:`make_train` with ``centralised_critic=True`` is MAPPO (see :mod:`baselines.algos.mappo`):
 the critic then reads the world state of
-:class:`chargax_marl.marl.wrappers.WorldStateWrapper` instead of the agent's observation.
+:class:`chargax_marl.marl.wrappers.WorldStateWrapper` (``global_state``, once per env) instead
+of the agent's observation.
 """
 
 from __future__ import annotations
@@ -58,7 +60,7 @@ class RunnerState(NamedTuple):
     params: dict
     opt_state: object
     env_state: object
-    obs: dict
+    obs: jnp.ndarray  # (envs, agents, obs_dim)
     key: jnp.ndarray
     update: jnp.ndarray
 
@@ -78,15 +80,16 @@ INFO_KEYS = (
 DEDUP_CENTRAL_CRITIC = True
 
 
-def batchify(x: dict, agents, num_actors: int) -> jnp.ndarray:
-    """``{agent: (envs, ...)}`` -> ``(agents * envs, ...)``, agent-major (JaxMARL)."""
-    x = jnp.stack([x[a] for a in agents])
-    return x.reshape((num_actors,) + x.shape[2:])
+def agent_major(x: jnp.ndarray) -> jnp.ndarray:
+    """``(envs, agents, ...)`` -> ``(agents * envs, ...)``, agent-major rows (JaxMARL's
+    ``batchify`` of a per-agent dict)."""
+    x = jnp.swapaxes(x, 0, 1)
+    return x.reshape((x.shape[0] * x.shape[1],) + x.shape[2:])
 
 
-def unbatchify(x: jnp.ndarray, agents, num_envs: int) -> dict:
-    x = x.reshape((len(agents), num_envs) + x.shape[1:])
-    return {a: x[i] for i, a in enumerate(agents)}
+def env_major(x: jnp.ndarray, num_agents: int, num_envs: int) -> jnp.ndarray:
+    """``(agents * envs, ...)`` agent-major rows -> ``(envs, agents, ...)``."""
+    return jnp.swapaxes(x.reshape((num_agents, num_envs) + x.shape[1:]), 0, 1)
 
 
 class SharedPolicy:
@@ -246,21 +249,17 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
     # a minibatch holds more rows than that, i.e. NUM_MINIBATCHES < num_agents.
     dedup_update = dedup and config["NUM_MINIBATCHES"] < n_agents
 
-    def world_state(obs):
-        return obs["world_state"][:, 0]  # (envs, state): the same row for every agent of an env
-
-    def rollout_value(params, obs, obs_b):
-        """``(critic_in, value (actors,))`` of the step's observations."""
+    def rollout_value(params, env_state, obs_b):
+        """``(critic_in, value (actors,))`` of the step's observations ``obs_b`` (IPPO) or the
+        world states of ``env_state`` (MAPPO)."""
         if not centralised_critic:
             return jnp.zeros((n_actors,), jnp.int8), policy.value(
                 params, obs_b
             )  # unused placeholder
-        ws = world_state(obs)
+        ws = jax.vmap(env.global_state)(env_state)  # (envs, state): one row per env
         if dedup:
             return ws, jnp.tile(policy.value(params, ws), n_agents)  # agent-major rows
-        ws_b = jnp.swapaxes(obs["world_state"], 0, 1).reshape(
-            (n_actors, -1)
-        )  # (agents * envs, state)
+        ws_b = jnp.tile(ws, (n_agents, 1))  # (agents * envs, state), agent-major
         return ws, policy.value(params, ws_b)
 
     # BATTERY_SHAPING (shaping.battery_potential, per agent as teacher_shaping.agent_potential_shaping).
@@ -271,12 +270,20 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         config, env_params
     )  # PORT_SHAPING, each port its own car's term
 
+    def per_agent_infos(info):
+        """The array step's infos with each env's scalars as ``(envs, agents)``, as the dict
+        view's."""
+        return {
+            k: jnp.broadcast_to(v[:, None], (n_envs, n_agents)) if v.ndim == 1 else v
+            for k, v in info.items()
+        }
+
     def battery_term(pot, info):
         """Per-actor ``(agents * envs,)`` shaping term of a step (info leaves ``(envs, agents)``)."""
         per_agent = teacher_shaping.agent_potential_shaping(
-            pot, info, is_bat, config["LOCAL_REWARD_WEIGHT"]
+            pot, per_agent_infos(info), is_bat, config["LOCAL_REWARD_WEIGHT"]
         )
-        return per_agent.T.reshape((n_actors,))  # agent-major, as batchify
+        return agent_major(per_agent)
 
     # BATTERY_GAMMA: the battery agents' own discount (None: GAMMA). A port's decisions pay off
     # within minutes; a battery's charge pays off hours later, when it is discharged.
@@ -314,18 +321,17 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         k_net, k_env, key = jax.random.split(key, 3)
         params = policy.init(k_net)
         obs, env_state = jax.vmap(env.reset)(jax.random.split(k_env, n_envs))
+        obs = jnp.stack([obs[a] for a in agents], axis=1)  # (envs, agents, obs)
         obs, env_state = runner.shard_envs((obs, env_state), mesh)
         return RunnerState(params, tx.init(params), env_state, obs, key, jnp.zeros((), jnp.int32))
 
     def agent_rows(obs, env_state):
-        """The actors' observations ``(agents * envs, obs)`` (agent-major), with the plan
-        advice of ``env_state`` when ``PLAN_OBS`` is on."""
-        if policy.plan is None:
-            return batchify(obs, agents, n_actors)
-        per_env = policy.with_plan(
-            jnp.stack([obs[a] for a in agents], axis=1), teacher_shaping.core_state(env_state)
-        )
-        return jnp.swapaxes(per_env, 0, 1).reshape((n_actors, -1))
+        """The actors' observations ``(agents * envs, obs)`` (agent-major) of the per-env
+        matrices ``obs (envs, agents, obs)``, with the plan advice of ``env_state`` when
+        ``PLAN_OBS`` is on."""
+        if policy.plan is not None:
+            obs = policy.with_plan(obs, teacher_shaping.core_state(env_state))
+        return agent_major(obs)
 
     def env_step(carry, _):
         params, env_state, obs, key = carry
@@ -334,23 +340,22 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         avail = avail_b
         logits = policy.logits(params, obs_b, avail)
         action, logp = networks.sample_categorical(k_act, logits)
-        cin, value = rollout_value(params, obs, obs_b)
-        actions = unbatchify(action, agents, n_envs)
+        cin, value = rollout_value(params, env_state, obs_b)
         pot = (
             None if potential is None else potential(env_state)
         )  # before the (auto-resetting) step
         car_pot = None if car_potential is None else car_potential(env_state)
-        next_obs, env_state, reward, done, info = jax.vmap(env.step)(
-            jax.random.split(k_step, n_envs), env_state, actions
+        next_obs, env_state, reward, done, info = jax.vmap(env.step_arrays)(
+            jax.random.split(k_step, n_envs), env_state, env_major(action, n_agents, n_envs)
         )
-        reward_b = batchify(reward, agents, n_actors)
+        reward_b = agent_major(reward)
         if pot is not None:
             reward_b = reward_b + battery_term(pot, info)
         if car_pot is not None:
             own = teacher_shaping.mix_own_terms(
                 car_pot(info["agent_energy_kwh"]), config["LOCAL_REWARD_WEIGHT"]
             )
-            reward_b = reward_b + own.T.reshape((n_actors,))
+            reward_b = reward_b + agent_major(own)
         next_obs, env_state = runner.shard_envs((next_obs, env_state), mesh)
         tr = Transition(
             obs_b,
@@ -360,7 +365,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
             logp,
             value,
             reward_b * config["REWARD_SCALE"],
-            batchify(done, agents, n_actors).astype(jnp.float32),
+            jnp.tile(done, n_agents).astype(jnp.float32),
             {k: info[k] for k in INFO_KEYS},
         )  # each (envs, agents)
         return (params, env_state, next_obs, key), tr
@@ -401,7 +406,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         (params, env_state, obs, key), traj = jax.lax.scan(
             env_step, (rs.params, rs.env_state, rs.obs, rs.key), None, n_steps
         )
-        last_value = rollout_value(params, obs, agent_rows(obs, env_state))[1]
+        last_value = rollout_value(params, env_state, agent_rows(obs, env_state))[1]
         ws_table = None
         if centralised_critic:
             ws_table = traj.critic_in.reshape((n_steps * n_envs, -1))  # (step, env) world states

@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from chargax_marl.core import actions as core_actions
 from chargax_marl.core.observation import PORT_FEATURES
 from chargax_marl.evaluation import MemoryAct
 from chargax_marl.marl.env import NUM_KINDS, ChargaxMARL, actions_to_levels
@@ -246,6 +247,26 @@ class DelayedObservationWrapper(_Wrapper):
         state = DelayState(env_state=env_state, history=history)
         return _unstack(self, obs, seen), state, reward, done, info
 
+    @functools.partial(jax.jit, static_argnums=(0,))
+    def step_arrays(self, key: jax.Array, state: DelayState, indices: jax.Array, reset_state=None):
+        """The wrapped env's ``step_arrays`` with the delayed observation matrix (the values
+        of :meth:`step`, stacked).
+
+        Args:
+            key: the step's key.
+            state: the wrapper's state.
+            indices: ``(num_agents,)`` action indices in agent order.
+            reset_state: the fresh day's state at the end of a day (``None``: a random one).
+
+        Returns:
+            ``(obs (num_agents, obs_size), state, rewards (num_agents,), done (), info)``.
+        """
+        obs, env_state, reward, done, info = self._env.step_arrays(
+            key, state.env_state, indices, reset_state
+        )
+        seen, history = delay(obs, state.history, self._columns, done)
+        return seen, DelayState(env_state=env_state, history=history), reward, done, info
+
 
 @struct.dataclass
 class ActionLossState:
@@ -304,6 +325,35 @@ class ActionLossWrapper(_Wrapper):
             key, state.env_state, dict(zip(self.agents, applied)), *extra
         )
         applied = jnp.where(done["__all__"], self._idle_indices(), applied)
+        info = {**info, "action_lost": lost}
+        return obs, ActionLossState(env_state=env_state, applied=applied), reward, done, info
+
+    @functools.partial(jax.jit, static_argnums=(0,))
+    def step_arrays(
+        self, key: jax.Array, state: ActionLossState, indices: jax.Array, reset_state=None
+    ):
+        """The wrapped env's ``step_arrays`` with each action lost with probability
+        ``loss_prob`` (the values of :meth:`step`, stacked).
+
+        Args:
+            key: the step's key.
+            state: the wrapper's state.
+            indices: ``(num_agents,)`` action indices in agent order (read as the env reads
+                them: clipped into range, NaN idle).
+            reset_state: the fresh day's state at the end of a day (``None``: a random one).
+
+        Returns:
+            ``(obs (num_agents, obs_size), state, rewards (num_agents,), done (), info)``.
+        """
+        base = _base(self._env)
+        sent = core_actions.to_int32(indices, 0, base.num_actions - 1, base.action_offset)
+        applied, lost = lose_actions(
+            key, sent, state.applied, self._idle, self.loss_prob, self.lost_action
+        )
+        obs, env_state, reward, done, info = self._env.step_arrays(
+            key, state.env_state, applied, reset_state
+        )
+        applied = jnp.where(done, self._idle_indices(), applied)
         info = {**info, "action_lost": lost}
         return obs, ActionLossState(env_state=env_state, applied=applied), reward, done, info
 

@@ -2,7 +2,11 @@
 
 Both keep JaxMARL's call signatures (``reset(key)``, ``step(key, state, actions)``) and
 forward every other attribute to the wrapped env, so they stack like JaxMARL's: the
-MAPPO order is ``LogWrapper(WorldStateWrapper(env))``.
+MAPPO order is ``LogWrapper(WorldStateWrapper(env))``. Each also has the array step of
+:meth:`chargax_marl.marl.ChargaxMARL.step_arrays` (``step_arrays(key, state, indices)``:
+actions ``(num_agents,)`` in, observations ``(num_agents, obs_size)`` and rewards
+``(num_agents,)`` out), the same transition without the per-agent dicts, which the trainers
+use.
 """
 
 from __future__ import annotations
@@ -106,13 +110,44 @@ class LogWrapper(_Wrapper):
             obs, env_state, reward, done, info = self._env.step(
                 key, state.env_state, actions, reset_state
             )
+        state, info = self._log(
+            state, env_state, self.stack_agent_values(reward), done["__all__"], info
+        )
+        return obs, state, reward, done, info
+
+    @functools.partial(jax.jit, static_argnums=(0,))
+    def step_arrays(self, key: jax.Array, state: LogEnvState, indices: jax.Array, reset_state=None):
+        """The wrapped env's ``step_arrays`` with the episode logging (the same state and
+        infos as :meth:`step`; the logged infos are ``(num_agents,)``).
+
+        Args:
+            key: the step's key.
+            state: the logged state.
+            indices: ``(num_agents,)`` action indices in agent order.
+            reset_state: the fresh day's state at the end of a day (``None``: a random one).
+
+        Returns:
+            ``(obs (num_agents, obs_size), state, rewards (num_agents,), done (), info)``.
+        """
+        obs, env_state, reward, done, info = self._env.step_arrays(
+            key, state.env_state, indices, reset_state
+        )
+        state, info = self._log(state, env_state, reward, done, info)
+        return obs, state, reward, done, info
+
+    def _log(self, state: LogEnvState, env_state, reward: jax.Array, ep_done: jax.Array, info):
+        """The logged state after a step with per-agent rewards ``reward (num_agents,)``, and
+        the infos with the logged entries."""
         n = self._env.num_agents
-        ep_done = done["__all__"]
-        new_return = state.episode_returns + self.stack_agent_values(reward).astype(jnp.float32)
+        new_return = state.episode_returns + reward.astype(jnp.float32)
         new_length = state.episode_lengths + 1
-        # The env auto-resets on done, so the finished episode's totals come from the info.
+        # The env auto-resets on done, so the finished episode's totals come from the info
+        # (per agent in the dict view, scalars in the array view).
         finished = EpisodeTotals(
-            **{k: info[f"episode_{k}"][0] for k in EpisodeTotals.__dataclass_fields__}
+            **{
+                k: jnp.reshape(info[f"episode_{k}"], (-1,))[0]
+                for k in EpisodeTotals.__dataclass_fields__
+            }
         )
         totals = jax.tree.map(
             lambda new, old: jnp.where(ep_done, new, old), finished, state.returned_totals
@@ -131,7 +166,7 @@ class LogWrapper(_Wrapper):
         info["returned_episode"] = jnp.full((n,), ep_done)
         for k in EpisodeTotals.__dataclass_fields__:
             info[f"returned_episode_{k}"] = jnp.broadcast_to(getattr(totals, k), (n,))
-        return obs, state, reward, done, info
+        return state, info
 
 
 class WorldStateWrapper(_Wrapper):
@@ -167,8 +202,21 @@ class WorldStateWrapper(_Wrapper):
         obs["world_state"] = self.world_state(env_state)
         return obs, env_state, reward, done, info
 
+    def step_arrays(self, key: jax.Array, state, indices: jax.Array, reset_state=None):
+        """The wrapped env's ``step_arrays``, unchanged: the observations are a matrix with no
+        room for an entry of its own, so an array-path trainer reads the world state of the
+        returned state with :meth:`global_state` (the same row :meth:`step` adds)."""
+        return self._env.step_arrays(key, state, indices, reset_state)
+
+    def global_state(self, state) -> jnp.ndarray:
+        """The world state ``(state_size,)`` of a (wrapped) state: one row of
+        :meth:`world_state`."""
+        return self._env.get_global_state(_core_state(state))
+
     def world_state(self, state) -> jnp.ndarray:
-        ws = self._env.get_global_state(_core_state(state))
+        """``obs["world_state"]``: :meth:`global_state` for every agent,
+        ``(num_agents, state_size)``."""
+        ws = self.global_state(state)
         return jnp.broadcast_to(ws, (self._env.num_agents, ws.shape[0]))
 
     def world_state_size(self) -> int:

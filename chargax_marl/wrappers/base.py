@@ -42,6 +42,16 @@ class TeacherWrapper:
             raise AttributeError(name)
         return getattr(self._env, name)
 
+    def step_arrays(self, key, state, indices, reset_state=None):
+        """The JaxMARL view's array step (:meth:`chargax_marl.marl.ChargaxMARL.step_arrays`)
+        through this wrapper. Each wrapper that changes the step defines its own; this one
+        refuses, so that an array step never passes a wrapper by unchanged.
+
+        Raises:
+            NotImplementedError: the wrapper has no array step.
+        """
+        raise NotImplementedError(f"{type(self).__name__} has no array step (step_arrays)")
+
     def add_to_rewards(self, rewards: dict, terms) -> dict:
         """``rewards[agent] + terms[i]`` for the agents in order (``terms (agents,)``)."""
         return {a: rewards[a] + terms[i] for i, a in enumerate(self._env.agents)}

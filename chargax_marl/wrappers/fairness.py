@@ -70,12 +70,9 @@ class FairnessReward(TeacherWrapper):
             raise ValueError(f"field 'metric' must be one of {FAIRNESS_METRICS}, got {metric!r}")
         self.weight_eur, self.metric = float(weight_eur), metric
 
-    def step(self, key, state, action, *args):
-        """The wrapped ``step`` (gymnax: ``params``; JaxMARL: ``reset_state`` in ``args``) with
-        the fairness term added to the reward(s)."""
+    def _term(self, state, info) -> jnp.ndarray:
+        """The step's term from the state before it and the step's infos."""
         before = fairness_metric(core_state(state).totals, self.metric)
-        out = self._env.step(key, state, action, *args)
-        info = out[-1]
         # the stepped day's totals (the returned state may be a fresh day's after an auto-reset)
         after = fairness_metric(
             EpisodeTotals(
@@ -86,7 +83,13 @@ class FairnessReward(TeacherWrapper):
             ),
             self.metric,
         )
-        term = self.weight_eur * (after - before)
+        return self.weight_eur * (after - before)
+
+    def step(self, key, state, action, *args):
+        """The wrapped ``step`` (gymnax: ``params``; JaxMARL: ``reset_state`` in ``args``) with
+        the fairness term added to the reward(s)."""
+        out = self._env.step(key, state, action, *args)
+        term = self._term(state, out[-1])
         if self.is_marl:
             obs, state, rewards, dones, infos = out
             n = len(self._env.agents)
@@ -107,3 +110,22 @@ class FairnessReward(TeacherWrapper):
             truncated,
             {**info, "fairness_reward_eur": term},
         )
+
+    def step_arrays(self, key, state, indices, reset_state=None):
+        """The JaxMARL view's ``step_arrays`` with the term added to every agent's reward
+        (the values of :meth:`step`, stacked; ``info["fairness_reward_eur"]`` a scalar).
+
+        Args:
+            key: the step's key.
+            state: the wrapped env's state.
+            indices: ``(num_agents,)`` action indices in agent order.
+            reset_state: the fresh day's state at the end of a day (``None``: a random one).
+
+        Returns:
+            ``(obs (num_agents, obs_size), state, rewards (num_agents,), done (), info)``.
+        """
+        obs, next_state, rewards, done, info = self._env.step_arrays(
+            key, state, indices, reset_state
+        )
+        term = self._term(state, info)
+        return obs, next_state, rewards + term, done, {**info, "fairness_reward_eur": term}

@@ -71,6 +71,23 @@ class ObservationFeatures(TeacherWrapper):
         obs, state, *rest = self._env.step(key, state, action, *args)
         return (self._append(obs, state), state, *rest)
 
+    def step_arrays(self, key, state, indices, reset_state=None):
+        """The JaxMARL view's ``step_arrays`` with the columns appended to every agent's row
+        (the values of :meth:`step`, stacked).
+
+        Args:
+            key: the step's key.
+            state: the wrapped env's state.
+            indices: ``(num_agents,)`` action indices in agent order.
+            reset_state: the fresh day's state at the end of a day (``None``: a random one).
+
+        Returns:
+            ``(obs (num_agents, obs_size), state, rewards (num_agents,), done (), info)``.
+        """
+        obs, state, *rest = self._env.step_arrays(key, state, indices, reset_state)
+        rows = dict(zip(self._env.agents, obs))
+        return (jnp.concatenate([obs, self.features(rows, state)], axis=-1), state, *rest)
+
     def get_obs(self, state, *args, **kwargs):
         """The wrapped env's observation of ``state`` with the columns appended."""
         return self._append(self._env.get_obs(state, *args, **kwargs), state)

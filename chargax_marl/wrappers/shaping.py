@@ -63,6 +63,31 @@ class BatteryShaping(TeacherWrapper):
         info = {**info, "battery_shaping_eur": term}
         return obs, state, reward + term, terminated, truncated, info
 
+    def step_arrays(self, key, state, indices, reset_state=None):
+        """The JaxMARL view's ``step_arrays`` with each agent's shaping term added (the values
+        of :meth:`step`, stacked).
+
+        Args:
+            key: the step's key.
+            state: the wrapped env's state.
+            indices: ``(num_agents,)`` action indices in agent order.
+            reset_state: the fresh day's state at the end of a day (``None``: a random one).
+
+        Returns:
+            ``(obs (num_agents, obs_size), state, rewards (num_agents,), done (), info)``.
+        """
+        shift = self._potential(state)  # before the (auto-resetting) step
+        obs, state, rewards, done, info = self._env.step_arrays(key, state, indices, reset_state)
+        n = rewards.shape[0]
+        per_agent = {
+            "agent_energy_kwh": info["agent_energy_kwh"],
+            "battery_terminal_value_eur": jnp.broadcast_to(
+                info["battery_terminal_value_eur"], (n,)
+            ),
+        }
+        terms = agent_potential_shaping(shift, per_agent, self.is_battery, self.local_reward_weight)
+        return obs, state, rewards + terms, done, {**info, "battery_shaping_eur": terms}
+
 
 class CarPlanShaping(TeacherWrapper):
     """Each parked car's plan value as a potential per port
@@ -96,3 +121,21 @@ class CarPlanShaping(TeacherWrapper):
         term = jnp.sum(shift(info["leaf_energy_kwh"]), axis=-1)
         info = {**info, "car_plan_shaping_eur": term}
         return obs, state, reward + term, terminated, truncated, info
+
+    def step_arrays(self, key, state, indices, reset_state=None):
+        """The JaxMARL view's ``step_arrays`` with each agent's plan shaping added (the values
+        of :meth:`step`, stacked).
+
+        Args:
+            key: the step's key.
+            state: the wrapped env's state.
+            indices: ``(num_agents,)`` action indices in agent order.
+            reset_state: the fresh day's state at the end of a day (``None``: a random one).
+
+        Returns:
+            ``(obs (num_agents, obs_size), state, rewards (num_agents,), done (), info)``.
+        """
+        shift = self._potential(state)  # before the (auto-resetting) step
+        obs, state, rewards, done, info = self._env.step_arrays(key, state, indices, reset_state)
+        terms = mix_own_terms(shift(info["agent_energy_kwh"]), self.local_reward_weight)
+        return obs, state, rewards + terms, done, {**info, "car_plan_shaping_eur": terms}
