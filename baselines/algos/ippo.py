@@ -116,6 +116,8 @@ class SharedPolicy:
         # which the 16 ports learn to avoid, and that carried over to the battery.
         self.battery_net = bool(config["BATTERY_NET"])
         self.battery_critic = self.battery_net and not centralised_critic
+        self.num_agents = env.num_agents
+        self.num_batteries = int(env.params.station.num_batteries)  # the last agents
         # RELATIVE_PRICES: each observed price (now and the next hours) also as its place in the
         # day's range, (p - median) / (q80 - q20), appended to the actor's and the critic's input.
         self.relative = None
@@ -166,13 +168,42 @@ class SharedPolicy:
     def is_battery(self, obs):
         return obs[..., self.battery_col : self.battery_col + 1]
 
-    def logits(self, params, obs, avail):
+    def _by_kind(self, port_net, battery_net, x, rows: str):
+        """``port_net`` on the ports' rows of ``x`` and ``battery_net`` on the batteries' rows
+        only, for rows laid out as ``rows``: ``"agent_major"`` (``agent * envs + env``, the
+        rollout) or ``"env_step_major"`` (``env_step * agents + agent``, a minibatch of
+        :func:`baselines.algos.ppo_core.shuffled_rows`)."""
+        n, ports = self.num_agents, self.num_agents - self.num_batteries
+        axis = 0 if rows == "agent_major" else 1
+        x3 = x.reshape(((n, -1) if axis == 0 else (-1, n)) + x.shape[1:])
+        p, b = jnp.split(x3, [ports], axis=axis)
+        out = jnp.concatenate([port_net(p), battery_net(b)], axis=axis)
+        return out.reshape((x.shape[0],) + out.shape[2:])
+
+    def _split(self, rows) -> bool:
+        if rows not in (None, "agent_major", "env_step_major"):
+            raise ValueError(f"rows must be None, 'agent_major' or 'env_step_major', got {rows!r}")
+        return rows is not None and self.num_batteries > 0
+
+    def logits(self, params, obs, avail, rows: str | None = None):
+        """Masked logits of the actor rows ``obs (rows, obs)``. With ``BATTERY_NET`` the
+        battery rows go through the battery's actor: with ``rows`` (the rows' layout, see
+        :meth:`_by_kind`) each actor runs on its own rows only, else both run on every row and
+        a ``where`` keeps each row's own."""
         x = self.features(obs)
-        logits = self.actor.apply(params["actor"], x)
-        if self.battery_net:
-            logits = jnp.where(
-                self.is_battery(obs) > 0.5, self.actor.apply(params["battery_actor"], x), logits
+        if self.battery_net and self._split(rows):
+            logits = self._by_kind(
+                lambda v: self.actor.apply(params["actor"], v),
+                lambda v: self.actor.apply(params["battery_actor"], v),
+                x,
+                rows,
             )
+        else:
+            logits = self.actor.apply(params["actor"], x)
+            if self.battery_net:
+                logits = jnp.where(
+                    self.is_battery(obs) > 0.5, self.actor.apply(params["battery_actor"], x), logits
+                )
         if self.port_offset.any() or self.battery_offset.any():
             is_battery = self.is_battery(obs)
             logits = (
@@ -180,8 +211,17 @@ class SharedPolicy:
             )
         return networks.masked_logits(logits, avail)
 
-    def value(self, params, critic_in):
+    def value(self, params, critic_in, rows: str | None = None):
+        """Values of the critic rows; ``rows`` as in :meth:`logits` (used with a battery
+        critic, which reads the agent's own observation)."""
         x = self.features(critic_in) if self.critic_features else critic_in
+        if self.battery_critic and self._split(rows):
+            return self._by_kind(
+                lambda v: self.critic.apply(params["critic"], v)[..., 0],
+                lambda v: self.critic.apply(params["battery_critic"], v)[..., 0],
+                x,
+                rows,
+            )
         v = self.critic.apply(params["critic"], x)[..., 0]
         if self.battery_critic:  # critic_in is the agent's own observation
             v = jnp.where(
@@ -254,7 +294,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         world states of ``env_state`` (MAPPO)."""
         if not centralised_critic:
             return jnp.zeros((n_actors,), jnp.int8), policy.value(
-                params, obs_b
+                params, obs_b, rows="agent_major"
             )  # unused placeholder
         ws = jax.vmap(env.global_state)(env_state)  # (envs, state): one row per env
         if dedup:
@@ -338,7 +378,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         key, k_act, k_step = jax.random.split(key, 3)
         obs_b = agent_rows(obs, env_state)
         avail = avail_b
-        logits = policy.logits(params, obs_b, avail)
+        logits = policy.logits(params, obs_b, avail, rows="agent_major")
         action, logp = networks.sample_categorical(k_act, logits)
         cin, value = rollout_value(params, env_state, obs_b)
         pot = (
@@ -373,10 +413,10 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
     def make_loss(ws_table):
         def loss_fn(params, mb):
             tr, adv, targets = mb
-            logits = policy.logits(params, tr.obs, tr.avail)
+            logits = policy.logits(params, tr.obs, tr.avail, rows="env_step_major")
             new_logp = networks.log_prob(logits, tr.action)
             if not centralised_critic:
-                values = policy.value(params, tr.obs)
+                values = policy.value(params, tr.obs, rows="env_step_major")
             elif dedup_update:
                 values = policy.value(params, ws_table)[tr.critic_in]
             else:

@@ -486,6 +486,25 @@ def test_battery_net_and_agent_advantage_normalisation_train(mod):
         axis=1
     )
     assert moved[-1] > 0 and np.all(moved[:-1] == 0)
+    # The trainers run each actor (and, in IPPO, each critic) on its own rows only: the same
+    # logits and values as both nets on every row, in both row layouts (3 env-steps here).
+    n = env.num_agents
+    x = jnp.concatenate([obs, obs * 1.1, obs * 0.9])  # env-step-major: step * agents + agent
+    x_agent_major = x.reshape((3, n, -1)).swapaxes(0, 1).reshape((3 * n, -1))
+    av = jnp.tile(avail, (3, 1))
+    for rows, rows_x in (("env_step_major", x), ("agent_major", x_agent_major)):
+        np.testing.assert_allclose(
+            policy.logits(p1, rows_x, av, rows=rows),
+            policy.logits(p1, rows_x, av),
+            rtol=1e-6,
+            atol=1e-6,
+        )
+        if mod is ippo:
+            np.testing.assert_allclose(
+                policy.value(p1, rows_x, rows=rows), policy.value(p1, rows_x), rtol=1e-6, atol=1e-6
+            )
+    with pytest.raises(ValueError, match="rows must be"):
+        policy.logits(p1, x, av, rows="by_agent")
 
 
 def test_battery_gamma_discounts_the_battery_rows_only():
