@@ -9,6 +9,12 @@ machine hits every algorithm alike. The 1-minute load average is printed beside 
     python benchmarks/train_speed.py                         # ppo ippo mappo, 16 envs, 100k steps
     python benchmarks/train_speed.py --envs 16 1024 --repeats 3
     python benchmarks/train_speed.py --algos ppo ippo --set ippo.HIDDEN=64   # an option for IPPO only
+    python benchmarks/train_speed.py --config ippo --algos ippo --base /tmp/base   # A/B
+
+``--base DIR`` also times the trainers of another checkout (``git worktree add /tmp/base REV``),
+interleaved in the same rounds as rows ``base:<algo>``: its ``baselines/algos/ppo.py`` and
+``ippo.py`` (MAPPO is its IPPO with the centralised critic) run on this checkout's library and
+other modules, so the A/B isolates a change of the trainers themselves.
 
 Importable: :func:`measure_training` returns the rows, :func:`format_rows` the table.
 """
@@ -16,6 +22,7 @@ Importable: :func:`measure_training` returns the rows, :func:`format_rows` the t
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import sys
@@ -38,13 +45,40 @@ def _steps_for(num_envs: int, timesteps: int, num_steps: int) -> int:
     return max(1, -(-int(timesteps) // per_update)) * per_update
 
 
+BASE_MAKERS: dict = {}
+"""``base:<algo>`` -> the base checkout's ``make_train`` (filled by :func:`load_base`)."""
+
+
+def load_base(root) -> list[str]:
+    """Register the trainers of the checkout at ``root`` as ``base:ppo``, ``base:ippo`` and
+    ``base:mappo`` (its ``ppo.py`` and ``ippo.py`` under private module names, importing this
+    checkout's other modules); returns those names."""
+    modules = {}
+    for name in ("ppo", "ippo"):
+        path = Path(root) / "baselines" / "algos" / f"{name}.py"
+        spec = importlib.util.spec_from_file_location(f"_base_{name}", path)
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        modules[name] = module
+    BASE_MAKERS["base:ppo"] = modules["ppo"].make_train
+    BASE_MAKERS["base:ippo"] = modules["ippo"].make_train
+    BASE_MAKERS["base:mappo"] = lambda config, env_params=None: modules["ippo"].make_train(
+        config, env_params, centralised_critic=True
+    )
+    return list(BASE_MAKERS)
+
+
 def build(algo: str, num_envs: int, timesteps: int, overrides: dict | None = None):
-    """``(jitted train, config)`` of ``baselines.<algo>`` with the paper defaults plus the overrides."""
+    """``(jitted train, config)`` of ``baselines.<algo>`` (or of a ``base:<algo>`` of
+    :func:`load_base`) with the paper defaults plus the overrides."""
     config = dict(overrides or {})
     num_steps = int(config.get("NUM_STEPS", SCHEMA["NUM_STEPS"].default))
     config["NUM_ENVS"] = int(num_envs)
     config["TOTAL_TIMESTEPS"] = _steps_for(num_envs, timesteps, num_steps)
-    train = registry.make_train(algo, config)
+    if algo in BASE_MAKERS:
+        train = BASE_MAKERS[algo](config)
+    else:
+        train = registry.make_train(algo, config)
     return jax.jit(train), train.config
 
 
@@ -69,11 +103,12 @@ def measure_training(
     compiled, rows = {}, {}
     for algo in algos:
         mine = {k: v for k, v in (overrides or {}).items() if "." not in k}
+        plain = algo.removeprefix("base:")
         mine.update(
             {
                 k.split(".", 1)[1]: v
                 for k, v in (overrides or {}).items()
-                if k.startswith(algo + ".")
+                if k.startswith(plain + ".")
             }
         )
         train, config = build(algo, num_envs, timesteps, mine)
@@ -108,9 +143,12 @@ def measure_training(
         row["steps_per_s"] = row["steps"] / row["run_s"]
         row["load"] = (load_before, load_after)
         out.append(row)
-    if "ppo" in rows:
-        for row in out:
-            row["ratio_vs_ppo"] = row["steps_per_s"] / rows["ppo"]["steps_per_s"]
+    for row in out:  # a base trainer over the base's PPO
+        ppo = "base:ppo" if row["algo"].startswith("base:") else "ppo"
+        if ppo in rows:
+            row["ratio_vs_ppo"] = row["steps_per_s"] / rows[ppo]["steps_per_s"]
+        if "base:" + row["algo"] in rows:
+            row["speedup_vs_base"] = rows["base:" + row["algo"]]["run_s"] / row["run_s"]
     return out
 
 
@@ -186,14 +224,15 @@ def profile_phases(
 
 def format_rows(rows: list[dict]) -> str:
     lines = [
-        f"{'algo':<6} {'envs':>5} {'steps':>9} {'compile s':>9} {'s/100k':>8} {'steps/s':>10} "
-        f"{'vs PPO':>7}  load 1-min (before, after)  overrides"
+        f"{'algo':<10} {'envs':>5} {'steps':>9} {'compile s':>9} {'s/100k':>8} {'steps/s':>10} "
+        f"{'vs PPO':>7} {'vs base':>7}  load 1-min (before, after)  overrides"
     ]
     for r in rows:
         ratio = f"{r['ratio_vs_ppo']:.2f}" if "ratio_vs_ppo" in r else "-"
+        speedup = f"{r['speedup_vs_base']:.2f}" if "speedup_vs_base" in r else "-"
         lines.append(
-            f"{r['algo']:<6} {r['envs']:>5} {r['steps']:>9,} {r['compile_s']:>9.1f} {r['s_per_100k']:>8.2f} "
-            f"{r['steps_per_s']:>10,.0f} {ratio:>7}  {r['load'][0]:.2f}, {r['load'][1]:.2f}  {r.get('overrides') or ''}"
+            f"{r['algo']:<10} {r['envs']:>5} {r['steps']:>9,} {r['compile_s']:>9.1f} {r['s_per_100k']:>8.2f} "
+            f"{r['steps_per_s']:>10,.0f} {ratio:>7} {speedup:>7}  {r['load'][0]:.2f}, {r['load'][1]:.2f}  {r.get('overrides') or ''}"
         )
     return "\n".join(lines)
 
@@ -234,6 +273,11 @@ def main(argv=None) -> list[dict]:
     )
     p.add_argument("--json", type=Path, help="also write the rows here")
     p.add_argument(
+        "--base",
+        default=None,
+        help="also time this checkout's trainers (base:<algo>), interleaved in the same rounds",
+    )
+    p.add_argument(
         "--phases",
         action="store_true",
         help="instead: split an update into rollout and epochs, with the networks' multiply-adds",
@@ -261,9 +305,13 @@ def main(argv=None) -> list[dict]:
                     flush=True,
                 )
         return []
+    algos = list(args.algos)
+    if args.base:
+        load_base(args.base)
+        algos += [f"base:{a}" for a in args.algos]
     rows = []
     for n in args.envs:
-        rows += measure_training(args.algos, n, args.timesteps, args.repeats, overrides)
+        rows += measure_training(algos, n, args.timesteps, args.repeats, overrides)
     print(format_rows(rows))
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))

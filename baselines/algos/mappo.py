@@ -1,10 +1,11 @@
 """MAPPO for :class:`chargax_marl.marl.ChargaxMARL`: IPPO's shared actor on each agent's own
 observation, with a *centralised* critic on the world state.
 
-The env is wrapped as in JaxMARL's MAPPO, ``LogWrapper(WorldStateWrapper(env))``; the critic
-reads ``obs["world_state"]`` (the env's ``get_global_state``, i.e. the single-agent
-observation of the whole station). All agents of an env share that world state, so the
-critic runs once per env and step and its value is shared by the env's agents (the same
+The env is wrapped as in JaxMARL's MAPPO, ``LogWrapper(WorldStateWrapper(env))``, and stepped
+through its array path; the critic reads the world state (``WorldStateWrapper.global_state``:
+the env's ``get_global_state``, i.e. the single-agent observation of the whole station, the
+row ``obs["world_state"]`` of the dict step). All agents of an env share that world state, so
+the critic runs once per env and step and its value is shared by the env's agents (the same
 values as one critic call per agent row; :data:`baselines.algos.ippo.DEDUP_CENTRAL_CRITIC`).
 The rest of the loop (masking, batchify, GAE, clipped PPO, sharding, vmapped seeds) is the
 one in :mod:`baselines.algos.ippo`, so that the two differ only in the critic's input.
