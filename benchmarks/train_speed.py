@@ -143,13 +143,21 @@ def measure_training(
         row["steps_per_s"] = row["steps"] / row["run_s"]
         row["load"] = (load_before, load_after)
         out.append(row)
-    for row in out:  # a base trainer over the base's PPO
+    return add_ratios(out)
+
+
+def add_ratios(rows: list[dict]) -> list[dict]:
+    """``rows`` with ``ratio_vs_ppo`` (env-steps/s over PPO's; a ``base:`` row over the base's
+    PPO) and, for a row whose ``base:`` twin was timed, ``speedup_vs_base`` (the twin's
+    seconds over this row's)."""
+    by_algo = {r["algo"]: r for r in rows}
+    for row in rows:
         ppo = "base:ppo" if row["algo"].startswith("base:") else "ppo"
-        if ppo in rows:
-            row["ratio_vs_ppo"] = row["steps_per_s"] / rows[ppo]["steps_per_s"]
-        if "base:" + row["algo"] in rows:
-            row["speedup_vs_base"] = rows["base:" + row["algo"]]["run_s"] / row["run_s"]
-    return out
+        if ppo in by_algo:
+            row["ratio_vs_ppo"] = row["steps_per_s"] / by_algo[ppo]["steps_per_s"]
+        if "base:" + row["algo"] in by_algo:
+            row["speedup_vs_base"] = by_algo["base:" + row["algo"]]["run_s"] / row["run_s"]
+    return rows
 
 
 def mlp_macs(sizes) -> int:

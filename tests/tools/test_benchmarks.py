@@ -238,6 +238,26 @@ def test_train_speed_counts_network_work_and_rounds_to_whole_updates():
     assert ppo_m["total_macs"] < mappo_m["total_macs"] < ippo_m["total_macs"]
 
 
+def test_train_speed_builds_a_base_checkout_s_trainers_beside_this_one_s():
+    from benchmarks import train_speed
+
+    names = train_speed.load_base(ROOT)  # this checkout as its own base
+    assert names == ["base:ppo", "base:ippo", "base:mappo"]
+    tiny = {"NUM_STEPS": 24, "HIDDEN": 16, "NUM_MINIBATCHES": 2}
+    for algo in ("ppo", "mappo"):
+        _, base_config = train_speed.build(f"base:{algo}", 2, 96, tiny)
+        _, config = train_speed.build(algo, 2, 96, tiny)
+        assert base_config == config
+    rows = train_speed.add_ratios(
+        [
+            {"algo": a, "run_s": t, "steps_per_s": 100.0 / t}
+            for a, t in (("ppo", 1.0), ("ippo", 2.0), ("base:ppo", 1.0), ("base:ippo", 3.0))
+        ]
+    )
+    assert [r.get("speedup_vs_base") for r in rows] == [1.0, 1.5, None, None]
+    assert [r["ratio_vs_ppo"] for r in rows] == [1.0, 0.5, 1.0, pytest.approx(1 / 3)]
+
+
 def test_gpu_sweep_writes_a_row_per_measurement_and_stops_at_its_budget(tmp_path, capsys):
     gpu = load("gpu")
     out = tmp_path / "rows.jsonl"
