@@ -36,10 +36,10 @@ STACKS = {
             )
         )
     ),
-    "loss_idle": lambda e: ActionLossWrapper(e, 0.5, "idle"),
-    "battery_shaping": lambda e: BatteryShaping(e, "dp"),
-    "car_plan_shaping": lambda e: CarPlanShaping(e),
-    "observations": lambda e: RelativePriceObservation(PlanAdviceObservation(e)),
+    # every teacher wrapper
+    "teachers": lambda e: RelativePriceObservation(
+        PlanAdviceObservation(CarPlanShaping(BatteryShaping(e, "dp")))
+    ),
 }
 
 
