@@ -251,15 +251,8 @@ class DelayedObservationWrapper(_Wrapper):
     def step_arrays(self, key: jax.Array, state: DelayState, indices: jax.Array, reset_state=None):
         """The wrapped env's ``step_arrays`` with the delayed observation matrix (the values
         of :meth:`step`, stacked).
-
-        Args:
-            key: the step's key.
-            state: the wrapper's state.
-            indices: ``(num_agents,)`` action indices in agent order.
-            reset_state: the fresh day's state at the end of a day (``None``: a random one).
-
-        Returns:
-            ``(obs (num_agents, obs_size), state, rewards (num_agents,), done (), info)``.
+        Arguments and returns as :meth:`chargax_marl.marl.ChargaxMARL.step_arrays`, with this
+        wrapper's state.
         """
         obs, env_state, reward, done, info = self._env.step_arrays(
             key, state.env_state, indices, reset_state
@@ -334,16 +327,8 @@ class ActionLossWrapper(_Wrapper):
     ):
         """The wrapped env's ``step_arrays`` with each action lost with probability
         ``loss_prob`` (the values of :meth:`step`, stacked).
-
-        Args:
-            key: the step's key.
-            state: the wrapper's state.
-            indices: ``(num_agents,)`` action indices in agent order (read as the env reads
-                them: clipped into range, NaN idle).
-            reset_state: the fresh day's state at the end of a day (``None``: a random one).
-
-        Returns:
-            ``(obs (num_agents, obs_size), state, rewards (num_agents,), done (), info)``.
+        Arguments and returns as :meth:`chargax_marl.marl.ChargaxMARL.step_arrays`, with this
+        wrapper's state.
         """
         base = _base(self._env)
         sent = core_actions.to_int32(indices, 0, base.num_actions - 1, base.action_offset)

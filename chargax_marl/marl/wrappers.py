@@ -119,15 +119,8 @@ class LogWrapper(_Wrapper):
     def step_arrays(self, key: jax.Array, state: LogEnvState, indices: jax.Array, reset_state=None):
         """The wrapped env's ``step_arrays`` with the episode logging (the same state and
         infos as :meth:`step`; the logged infos are ``(num_agents,)``).
-
-        Args:
-            key: the step's key.
-            state: the logged state.
-            indices: ``(num_agents,)`` action indices in agent order.
-            reset_state: the fresh day's state at the end of a day (``None``: a random one).
-
-        Returns:
-            ``(obs (num_agents, obs_size), state, rewards (num_agents,), done (), info)``.
+        Arguments and returns as :meth:`chargax_marl.marl.ChargaxMARL.step_arrays`, with this
+        wrapper's state.
         """
         obs, env_state, reward, done, info = self._env.step_arrays(
             key, state.env_state, indices, reset_state

@@ -114,15 +114,8 @@ class FairnessReward(TeacherWrapper):
     def step_arrays(self, key, state, indices, reset_state=None):
         """The JaxMARL view's ``step_arrays`` with the term added to every agent's reward
         (the values of :meth:`step`, stacked; ``info["fairness_reward_eur"]`` a scalar).
-
-        Args:
-            key: the step's key.
-            state: the wrapped env's state.
-            indices: ``(num_agents,)`` action indices in agent order.
-            reset_state: the fresh day's state at the end of a day (``None``: a random one).
-
-        Returns:
-            ``(obs (num_agents, obs_size), state, rewards (num_agents,), done (), info)``.
+        Arguments and returns as :meth:`chargax_marl.marl.ChargaxMARL.step_arrays`, with this
+        wrapper's state.
         """
         obs, next_state, rewards, done, info = self._env.step_arrays(
             key, state, indices, reset_state

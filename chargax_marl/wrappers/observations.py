@@ -74,15 +74,8 @@ class ObservationFeatures(TeacherWrapper):
     def step_arrays(self, key, state, indices, reset_state=None):
         """The JaxMARL view's ``step_arrays`` with the columns appended to every agent's row
         (the values of :meth:`step`, stacked).
-
-        Args:
-            key: the step's key.
-            state: the wrapped env's state.
-            indices: ``(num_agents,)`` action indices in agent order.
-            reset_state: the fresh day's state at the end of a day (``None``: a random one).
-
-        Returns:
-            ``(obs (num_agents, obs_size), state, rewards (num_agents,), done (), info)``.
+        Arguments and returns as :meth:`chargax_marl.marl.ChargaxMARL.step_arrays`, with this
+        wrapper's state.
         """
         obs, state, *rest = self._env.step_arrays(key, state, indices, reset_state)
         rows = dict(zip(self._env.agents, obs))

@@ -66,15 +66,8 @@ class BatteryShaping(TeacherWrapper):
     def step_arrays(self, key, state, indices, reset_state=None):
         """The JaxMARL view's ``step_arrays`` with each agent's shaping term added (the values
         of :meth:`step`, stacked).
-
-        Args:
-            key: the step's key.
-            state: the wrapped env's state.
-            indices: ``(num_agents,)`` action indices in agent order.
-            reset_state: the fresh day's state at the end of a day (``None``: a random one).
-
-        Returns:
-            ``(obs (num_agents, obs_size), state, rewards (num_agents,), done (), info)``.
+        Arguments and returns as :meth:`chargax_marl.marl.ChargaxMARL.step_arrays`, with this
+        wrapper's state.
         """
         shift = self._potential(state)  # before the (auto-resetting) step
         obs, state, rewards, done, info = self._env.step_arrays(key, state, indices, reset_state)
@@ -125,15 +118,8 @@ class CarPlanShaping(TeacherWrapper):
     def step_arrays(self, key, state, indices, reset_state=None):
         """The JaxMARL view's ``step_arrays`` with each agent's plan shaping added (the values
         of :meth:`step`, stacked).
-
-        Args:
-            key: the step's key.
-            state: the wrapped env's state.
-            indices: ``(num_agents,)`` action indices in agent order.
-            reset_state: the fresh day's state at the end of a day (``None``: a random one).
-
-        Returns:
-            ``(obs (num_agents, obs_size), state, rewards (num_agents,), done (), info)``.
+        Arguments and returns as :meth:`chargax_marl.marl.ChargaxMARL.step_arrays`, with this
+        wrapper's state.
         """
         shift = self._potential(state)  # before the (auto-resetting) step
         obs, state, rewards, done, info = self._env.step_arrays(key, state, indices, reset_state)
