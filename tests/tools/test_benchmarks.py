@@ -67,7 +67,7 @@ def test_throughput_uses_the_requested_host_devices():
     import subprocess
 
     env = {**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONPATH": str(ROOT)}
-    env.pop("XLA_FLAGS", None)
+    # the session's cheap compile flags stay (this checks the device count, not a speed)
     out = subprocess.run(
         [
             sys.executable,
