@@ -9,7 +9,8 @@ Rows: the shipped references of every task (:mod:`chargax_marl.benchmark.referen
 row per name found in the score files of ``--scores`` (written by ``python -m
 baselines.score``: a trained agent on a task). A cell is the score (the fraction of the
 hindsight headroom captured) ± its standard error over days, and the EUR/day over
-always-max. ``--time`` measures how long :func:`chargax_marl.benchmark.score` takes for a
+always-max; a reference with days left out (an MPC day with a failed solve) says on how many
+days its cell rests. ``--time`` measures how long :func:`chargax_marl.benchmark.score` takes for a
 jitted policy (always-max, compile included) on each task and writes it to the given file;
 with an existing file, the table shows it.
 """
@@ -47,9 +48,13 @@ REFERENCE_LABELS = {
 """Row labels of the references, in the table's order."""
 
 
-def _cell(result: dict) -> str:
+def _cell(result: dict, num_days: int) -> str:
+    """``score ± s.e. (EUR/day over always-max)``; where days were left out (a reference's
+    failed solves), the number of days the cell rests on."""
     over = result["over_always_max_eur"]["mean"]
-    return f"{result['score']:.2f} ± {result['score_stderr']:.2f} ({over:+.1f})"
+    days = result.get("days_scored", num_days)
+    rests = "" if days == num_days else f"; {days} of {num_days} days"
+    return f"{result['score']:.2f} ± {result['score_stderr']:.2f} ({over:+.1f}{rests})"
 
 
 def read_scores(directory: str | Path) -> list[dict]:
@@ -99,11 +104,12 @@ def render(
         for name, label in REFERENCE_LABELS.items():
             if name in refs["policies"]:
                 rows[label][task_id] = _cell(
-                    compare(task_id, refs["policies"][name]["daily_profit"], references_dir)
+                    compare(task_id, refs["policies"][name]["daily_profit"], references_dir),
+                    TASKS[task_id].num_eval_days,
                 )
     for data in read_scores(scores_dir) if scores_dir else []:
         label = f"{data['name']} ({data['seeds']} seeds)"
-        rows.setdefault(label, {})[data["task"]] = _cell(data)
+        rows.setdefault(label, {})[data["task"]] = _cell(data, TASKS[data["task"]].num_eval_days)
     short = [t.removeprefix("Chargax-") for t in tasks]
     lines = [
         "| policy | " + " | ".join(f"`{s}`" for s in short) + " |",

@@ -33,3 +33,11 @@ def test_embed_replaces_only_the_block():
     assert scoreboard.embed(text, "new") == f"a\n{scoreboard.START}\nnew\n{scoreboard.END}\nb\n"
     with pytest.raises(ValueError, match="no <!-- scoreboard:start -->"):
         scoreboard.embedded("no block")
+
+
+def test_a_cell_says_how_many_days_it_rests_on_when_days_were_left_out():
+    result = {"score": 0.5, "score_stderr": 0.1, "over_always_max_eur": {"mean": 3.0}}
+    assert scoreboard._cell({**result, "days_scored": 100}, 100) == "0.50 ± 0.10 (+3.0)"
+    assert (
+        scoreboard._cell({**result, "days_scored": 99}, 100) == "0.50 ± 0.10 (+3.0; 99 of 100 days)"
+    )
