@@ -32,7 +32,7 @@ $(CLIENTS_STAMP): $(STAMP)
 	touch $(CLIENTS_STAMP)
 
 examples: $(CLIENTS_STAMP)
-	CHARGAX_CLIENT_EXAMPLES=1 $(PY) -m pytest -q -s tests/test_clients.py -k "example or snippet"
+	CHARGAX_CLIENT_EXAMPLES=1 $(PY) -m pytest -q -s tests/test_clients.py tests/test_readme.py -k "example or readme"
 
 # Each training target names a config of baselines/configs/ (the settings and why, next to
 # their values); `python -m baselines.train --config NAME KEY=value ...` runs any other.

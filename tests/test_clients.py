@@ -224,33 +224,3 @@ def test_supersuit_forked_worker_raises_instead_of_hanging():
         cwd=ROOT,
     )  # the timeout only guards against a hang
     assert "ForkedProcessError" in out.stdout and "spawn" in out.stdout
-
-
-# ------------------------------------------------------------------ README snippets
-
-
-def test_readme_jaxmarl_snippet():
-    import jax
-
-    from chargax_marl.marl import ChargaxMARL, LogWrapper, WorldStateWrapper
-
-    env = LogWrapper(WorldStateWrapper(ChargaxMARL()))  # obs["world_state"] for the critic
-    obs, state = env.reset(jax.random.PRNGKey(0))
-    actions = {a: env.num_actions - 1 for a in env.agents}  # everyone at full power
-    obs, state, rewards, dones, infos = env.step(jax.random.PRNGKey(1), state, actions)
-    assert obs["world_state"].shape == (17, env.state_size) and "returned_episode_returns" in infos
-
-
-@pytest.mark.skipif(not CLIENT_EXAMPLES, reason="heavy (torch): run by `make examples`")
-def test_readme_sb3_single_process_snippet():
-    pytest.importorskip("stable_baselines3")
-    import gymnasium
-    from stable_baselines3 import PPO
-
-    import chargax_marl  # noqa: F401
-
-    env = gymnasium.make(
-        "chargax_marl/Chargax-highway-low-v0", render_mode="ansi", step_minutes=60.0
-    )
-    model = PPO("MlpPolicy", env, n_steps=48, batch_size=24).learn(96)
-    assert model.num_timesteps >= 96
