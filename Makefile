@@ -3,7 +3,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: test examples train train-ppo train-mappo optimal rollout bench bench-peers bench-scaling data data-check clean
+.PHONY: test docs examples train train-ppo train-mappo optimal rollout bench bench-peers bench-scaling data data-check clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -13,15 +13,28 @@ $(STAMP): pyproject.toml
 
 venv: $(STAMP)
 
+# The documentation site (mkdocs.yml: docs/ and the API reference from the docstrings), built
+# strictly: a broken link, a missing page or a docstring griffe cannot read fails the build,
+# and so `make test`. The `docs` extra is installed on top of `dev`.
+DOCS_STAMP := $(VENV)/.docs
+$(DOCS_STAMP): $(STAMP)
+	$(PY) -m pip install --quiet -e ".[dev,docs]"
+	touch $(DOCS_STAMP)
+
+# NO_MKDOCS_2_WARNING: mkdocs-material's banner on its own end of life, not about these docs.
+docs: $(DOCS_STAMP)
+	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs build --strict --site-dir site
+
 # The core and view tests run a second time with JAX_ENABLE_X64=1: the state keeps its dtypes
 # whatever the flag.
 X64_TESTS := tests/core/test_model.py tests/core/test_bad_input.py
 
-test: $(STAMP)
+test: $(STAMP) $(DOCS_STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 	$(PY) -m pytest -n 2 -q --durations=20
 	JAX_ENABLE_X64=1 $(PY) -m pytest -n 2 -q $(X64_TESTS) -k "not under_x64"
+	$(MAKE) docs
 
 # The client examples with heavy dependencies (stable-baselines3, supersuit, tianshou, torch:
 # the `clients` extra), each on a tiny budget; not part of `make test`. The dependency-light
@@ -79,4 +92,4 @@ data-check: $(STAMP)
 	$(PY) scripts/build_data.py --check
 
 clean:
-	rm -rf $(VENV) .pytest_cache .hypothesis
+	rm -rf $(VENV) .pytest_cache .hypothesis site

@@ -30,6 +30,7 @@ from typing import Any
 from chargax_marl.core import datasets, tariffs
 
 SCENARIOS: dict[str, dict[str, Any]] = {}
+"""Every named scenario: name -> its ``make_params`` keywords (filled in below)."""
 for _profile in datasets.USER_PROFILES:
     SCENARIOS[_profile] = {"user_profile": _profile, "traffic": "medium"}
     for _traffic in datasets.TRAFFIC_LEVELS:

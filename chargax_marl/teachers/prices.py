@@ -44,7 +44,10 @@ def relative_prices(obs, prices, q20, q50, q80) -> jnp.ndarray:
 
     Args:
         obs: ``(..., obs_size)`` observations.
-        prices, q20, q50, q80: the columns of :func:`relative_price_columns`.
+        prices: the observed buy prices' columns, from :func:`relative_price_columns`.
+        q20: the column of the day's 20 % price quantile (from the same).
+        q50: the column of the day's 50 % price quantile (from the same).
+        q80: the column of the day's 80 % price quantile (from the same).
 
     Returns:
         ``(..., H + 1)`` float32, the spread floored at 0.01 EUR/kWh and the result clipped

@@ -26,7 +26,8 @@ class ObservationFeatures(TeacherWrapper):
     Args:
         env: either view, possibly wrapped.
         width: columns appended per agent (JaxMARL) or to the flat observation (gymnax).
-        low, high: the appended columns' bounds, for the observation space.
+        low: the appended columns' lower bound, for the observation space.
+        high: the appended columns' upper bound, for the observation space.
     """
 
     def __init__(self, env, width: int, low: float, high: float):
