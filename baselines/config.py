@@ -1,16 +1,16 @@
 """One schema for every training setting, read from TOML files with ``KEY=value`` overrides.
 
-A config is a flat mapping of upper-case keys. :data:`SCHEMA` names every key the trainers,
+A config is a flat mapping of upper-case keys. `SCHEMA` names every key the trainers,
 the evaluation and the command line read, with its default and what it allows; a file in
 ``baselines/configs/`` (or any path) sets some of them, and ``KEY=value`` arguments set more::
 
     python -m baselines.train --config ippo TOTAL_TIMESTEPS=2e6 SEEDS=2
 
-The defaults of :data:`SCHEMA` are the paper's Table 3 with every learning aid off, so a
+The defaults of `SCHEMA` are the paper's Table 3 with every learning aid off, so a
 stored run's config, which lists the keys it ran with, resolves to the same settings; the
 best-known settings per algorithm are the files ``ppo.toml``, ``ippo.toml`` and
 ``mappo.toml``, and ``ippo`` is the command line's default. An unknown key, or a value of the
-wrong kind, raises :class:`ConfigError` naming the key, the value and what is allowed.
+wrong kind, raises `ConfigError` naming the key, the value and what is allowed.
 """
 
 from __future__ import annotations
@@ -144,7 +144,7 @@ _INTEGERS = tuple(k for k, f in {**SCHEMA, **RUN_SCHEMA}.items() if f.kinds == (
 
 
 def _check(key: str, value: Any, field: Field) -> Any:
-    """``value`` for ``key`` coerced to its kind, or :class:`ConfigError`."""
+    """``value`` for ``key`` coerced to its kind, or `ConfigError`."""
     if value is None and field.default is None:
         return None
     ok = isinstance(value, field.kinds) and not (
@@ -171,7 +171,7 @@ def resolve(config: dict | None = None, schema: dict[str, Field] = SCHEMA) -> di
 
     Args:
         config: keys to set (a stored run's ``config``, a file's, or overrides).
-        schema: the keys allowed (:data:`SCHEMA` for a trainer).
+        schema: the keys allowed (`SCHEMA` for a trainer).
 
     Returns:
         A new dict with every key of ``schema``; ``TOTAL_TIMESTEPS`` as an int.
@@ -232,7 +232,7 @@ def settings(name: str | Path) -> dict:
         name: a bundled config's name or a path to a TOML file.
 
     Returns:
-        The file's keys of :data:`SCHEMA` and their values.
+        The file's keys of `SCHEMA` and their values.
     """
     raw = tomllib.loads(config_path(name).read_text())
     return {k: v for k, v in raw.items() if k not in RUN_SCHEMA}
@@ -246,8 +246,8 @@ def load(name: str | Path = DEFAULT_CONFIG, overrides=()) -> tuple[dict, dict]:
         overrides: ``"KEY=value"`` strings, applied after the file.
 
     Returns:
-        ``(config, run)``: the resolved trainer config (:data:`SCHEMA`) and run settings
-        (:data:`RUN_SCHEMA`).
+        ``(config, run)``: the resolved trainer config (`SCHEMA`) and run settings
+        (`RUN_SCHEMA`).
 
     A ``TASK`` override sets the scenario and the traffic to the task's: the file's
     ``SCENARIO`` and ``TRAFFIC`` give way to it (an override of either still must match it).

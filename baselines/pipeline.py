@@ -24,12 +24,12 @@ from chargax_marl.machine import code_version
 
 @dataclass(frozen=True)
 class RunOutput:
-    """What :func:`run` returns.
+    """What `run` returns.
 
     Attributes:
         results: the run's record, as written to ``results.json``.
         params: the trained parameters of every seed (leading axis: seed).
-        trainer: the :class:`baselines.algos.trainer.Trainer` that trained them.
+        trainer: the `baselines.algos.trainer.Trainer` that trained them.
     """
 
     results: dict
@@ -38,7 +38,7 @@ class RunOutput:
 
 
 def chunked_updates(config: dict, chunks: int) -> tuple[int, int]:
-    """``(chunks, updates)`` that :func:`run` trains ``config`` with: the updates its
+    """``(chunks, updates)`` that `run` trains ``config`` with: the updates its
     ``TOTAL_TIMESTEPS`` holds, rounded down to equal chunks (one compiled program)."""
     n_upd = ppo_core.num_updates(config)
     chunks = max(1, min(chunks, n_upd))
@@ -66,11 +66,11 @@ def run(
     """Train ``seeds`` seeds of ``algo`` and evaluate them; returns the results dict (and
     writes the outputs when ``out`` is given). ``eval_params`` / ``env_params`` override the
     evaluation and training parameters (e.g. another price year). ``optimal`` adds the LP
-    bound (and the MPC) to the baselines, see :func:`baseline_results`.
+    bound (and the MPC) to the baselines, see `baseline_results`.
 
     With ``out``, the whole training state (parameters, optimiser states, env states, keys,
     the curves and the held-out evaluations so far) is written to ``out/checkpoint.msgpack``
-    (:func:`baselines.runs.save_checkpoint`, atomically) at the end of every chunk, on a single
+    (`baselines.runs.save_checkpoint`, atomically) at the end of every chunk, on a single
     process. ``resume=True`` continues from that checkpoint: the run ends with the parameters
     and results it would have had without the interruption (the timings aside).
 
@@ -334,7 +334,7 @@ def run(
 
 def _resume_from(checkpoint, record: dict, train: Trainer, keys, out, multi: bool):
     """``(next_chunk, runner_state, metric_chunks, seconds, evals)`` of the checkpoint a
-    resumed :func:`run` continues from (see there for the errors)."""
+    resumed `run` continues from (see there for the errors)."""
     if multi:
         raise ValueError("resume: a run on several processes cannot be resumed (no checkpoint)")
     if checkpoint is None:
@@ -371,7 +371,7 @@ def resume_settings(out) -> dict:
 
     Returns:
         ``{"algo", "config", "seeds", "seed", "chunks", "optimal", "references_dir"}``, the
-        keyword arguments of :func:`run` (with ``out`` and ``resume=True``) that continue it.
+        keyword arguments of `run` (with ``out`` and ``resume=True``) that continue it.
 
     Raises:
         ValueError: no readable checkpoint in ``out``.

@@ -20,7 +20,7 @@ CHECKPOINT = "checkpoint.msgpack"
 """The file name of a run's checkpoint in its output directory."""
 
 CHECKPOINT_FORMAT = 1
-"""The layout of :func:`save_checkpoint`'s file; a checkpoint of another layout is refused."""
+"""The layout of `save_checkpoint`'s file; a checkpoint of another layout is refused."""
 
 
 def atomic_write_bytes(data: bytes, path: str | Path) -> Path:
@@ -100,8 +100,8 @@ def _dumps(x, indent: int = 0) -> str:
 
 
 def write_json(obj: dict, path: str | Path) -> Path:
-    """Write ``obj`` (see :func:`to_jsonable`) as indented JSON whose number lists take one line
-    each, atomically (:func:`atomic_write_bytes`)."""
+    """Write ``obj`` (see `to_jsonable`) as indented JSON whose number lists take one line
+    each, atomically (`atomic_write_bytes`)."""
     return atomic_write_bytes((_dumps(to_jsonable(obj)) + "\n").encode(), path)
 
 
@@ -109,7 +109,7 @@ def save_checkpoint(path: str | Path, run: dict, next_chunk: int, runner_state, 
     """Write the whole state of an unfinished training run, atomically.
 
     Args:
-        path: The checkpoint file (:data:`CHECKPOINT` in the run directory).
+        path: The checkpoint file (`CHECKPOINT` in the run directory).
         run: What restarts the run: the algorithm, the resolved config and the run keys
             (JSON values).
         next_chunk: The index of the chunk to train next.
@@ -133,7 +133,7 @@ def save_checkpoint(path: str | Path, run: dict, next_chunk: int, runner_state, 
 
 
 def load_checkpoint(path: str | Path, runner_template=None) -> dict:
-    """Read a checkpoint of :func:`save_checkpoint`.
+    """Read a checkpoint of `save_checkpoint`.
 
     Args:
         path: The checkpoint file.
@@ -192,7 +192,7 @@ def _to_msgpack(x):
 
 
 def _from_msgpack(x):
-    """The inverse of :func:`_to_msgpack`."""
+    """The inverse of `_to_msgpack`."""
     ((tag, v),) = x.items()
     if tag == "dict":
         return {k: _from_msgpack(u) for k, u in v.items()}
@@ -218,7 +218,7 @@ def smooth_nan(x: np.ndarray) -> np.ndarray:
 
 
 def seed_mean_std(curves) -> tuple[np.ndarray, np.ndarray]:
-    """Mean and std over seeds of learning curves ``(seeds, points)`` after :func:`smooth_nan`;
+    """Mean and std over seeds of learning curves ``(seeds, points)`` after `smooth_nan`;
     points before any seed's first finished episode stay NaN (matplotlib leaves them out)."""
     y = smooth_nan(np.atleast_2d(np.asarray(curves, dtype=float)))
     with warnings.catch_warnings():  # all-NaN columns: NaN without "Mean of empty slice"
@@ -277,7 +277,7 @@ def plot_curve(
     path, algo: str, timesteps, episode_profit, baselines: dict, evals: list, title: str
 ):
     """A run's learning curve: the sampled training-episode profit over seeds, the held-out
-    greedy evaluations, and every reference of ``baselines`` present (:data:`LINES`) as a line."""
+    greedy evaluations, and every reference of ``baselines`` present (`LINES`) as a line."""
     am = baselines["always_max"]["metrics"]["daily_profit_eur"]["mean"]
     lines = {f"always-max (held-out) {am:.0f}": am}
     for key, label in LINES:

@@ -6,7 +6,7 @@
         --picture docs/benchmark_day_ippo_shopping.png
 
 The run's greedy policies are played on the task's held-out days and car draws
-(:mod:`chargax_marl.benchmark`) in the run's own action space (``num_levels``), and scored
+(`chargax_marl.benchmark`) in the run's own action space (``num_levels``), and scored
 against the task's shipped references. The score file is what the scoreboard reads
 (``python -m chargax_marl.benchmark.scoreboard``).
 """
@@ -77,7 +77,7 @@ def score_run(run_dir: str | Path, task_id: str, references_dir=None) -> dict:
         references_dir: where the references live (default: the shipped ones).
 
     Returns:
-        :func:`chargax_marl.benchmark.scoring.compare`'s result over the seeds, plus
+        `chargax_marl.benchmark.scoring.compare`'s result over the seeds, plus
         ``daily_profit`` ``(seeds, days, draws)``, ``metrics`` (means), ``per_seed_metrics``,
         the run's ``algo``, ``seeds``, ``config`` and ``wall_s``.
 
@@ -123,7 +123,7 @@ def score_run(run_dir: str | Path, task_id: str, references_dir=None) -> dict:
 
 def picture(run_dir, task_id: str, path, name: str | None = None, day_index: int = 0):
     """Draw seed 0 of a run on a held-out day of a task beside always-max
-    (:func:`chargax_marl.benchmark.picture.day_picture`); returns the figure."""
+    (`chargax_marl.benchmark.picture.day_picture`); returns the figure."""
     task = get_task(task_id)
     results, train, seed_params = load_run(run_dir)
     _, run_params, _, _ = build_env_params(train.config)

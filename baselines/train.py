@@ -7,7 +7,7 @@
     python -m baselines.train --resume outputs/train_ippo     # continue a killed run
 
 ``--config`` names a file of ``baselines/configs/`` (or a path); ``KEY=value`` arguments
-override its keys (:mod:`baselines.config` lists them all; an unknown key is an error). The
+override its keys (`baselines.config` lists them all; an unknown key is an error). The
 run keys say what to train and where to write: ``ALGO``, ``SEEDS``, ``SEED``, ``CHUNKS``,
 ``OUT`` (default under the git-ignored ``outputs/``), ``OPTIMAL`` and ``REFERENCES_DIR``.
 
@@ -15,7 +15,7 @@ Several seeds train in one compiled program (``jax.vmap``); the env batch is sha
 every device JAX sees: the local ones, or those of every process with ``--coordinator
 HOST:PORT --num-processes N --process-id i`` (``jax.distributed``; only process 0 writes).
 Training runs in ``CHUNKS`` jitted pieces under a progress bar; after each piece the greedy
-policies are scored on the held-out days (:mod:`baselines.pipeline`).
+policies are scored on the held-out days (`baselines.pipeline`).
 
 Outputs in ``OUT``: ``curve.png``, ``results.json`` (config, curves, the evaluation table
 with every reference, paired differences, wall time) and ``params.msgpack`` (the final

@@ -7,7 +7,7 @@ the same harness and the same random actions: the single-agent view gets the act
 ``a (L,)``, the multi-agent view the dict ``{agent_i: a[i]}``.
 
 The harness's own randomness (per-env step keys and the random actions) comes from the
-counter hash of :mod:`chargax_marl.core.rng` rather than ``jax.random``: a Threefry ``split``
+counter hash of `chargax_marl.core.rng` rather than ``jax.random``: a Threefry ``split``
 per env and a ``randint`` per action entry cost about 0.3 CPU-microseconds per env-step on
 this CPU, a third of the target's budget, and are the harness's cost, not the env's. The keys
 given to the env are raw ``uint32[2]`` keys, as ``jax.random.PRNGKey`` makes.

@@ -1,11 +1,11 @@
 """Speeds on one accelerator: env-steps/s of both views at 2^10 ... 2^20 envs, and PPO / IPPO
 training seconds per 100k env-steps at 1024 envs (the units of the paper's Table 4).
 
-The env rows use the ``make bench`` harness (:mod:`envbench`: random actions from a counter
+The env rows use the ``make bench`` harness (`envbench`: random actions from a counter
 hash, every observation read, auto-reset) on the default device, one jitted ``lax.scan`` per
 batch size and view (``single``, ``marl``: the JaxMARL dict API, ``marl_array``: the stacked
 path the trainers use). Compile time is reported apart; the rate is the best of ``--repeats``
-calls. The training rows are :func:`train_speed.measure_training` with the paper defaults plus
+calls. The training rows are `train_speed.measure_training` with the paper defaults plus
 ``--train-set``. Every row is printed and appended to ``--out`` as one JSON line as soon as it is
 measured, and nothing new starts after ``--budget-s`` seconds, so a run cut short still reports
 what it finished.

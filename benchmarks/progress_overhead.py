@@ -1,5 +1,5 @@
 """What the training progress bar costs: a chunk of updates with the per-update host callback
-that advances the bar (:func:`baselines.algos.runner.run_in_chunks`) against the same updates
+that advances the bar (`baselines.algos.runner.run_in_chunks`) against the same updates
 without it, compiled once each, then timed interleaved (round-robin, best of ``repeats``).
 
     python benchmarks/progress_overhead.py                     # make train's config, 4 updates

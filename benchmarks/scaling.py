@@ -5,7 +5,7 @@ proportion with 16, 64, 256 and 1024 ports (plus the default battery), run with 
 policy under ``jax.jit`` + ``jax.lax.scan`` for ``jax.vmap`` over 1, 16, 256, 1024 and 4096
 envs, for
 
-* ``single``: the single-agent env (:class:`chargax_marl.single.Chargax`);
+* ``single``: the single-agent env (`chargax_marl.single.Chargax`);
 * ``marl-scalar``: the JaxMARL view with ``agent_id="scalar"`` (observation linear in the
   number of agents; used for every size);
 * ``marl-onehot``: the JaxMARL view with the default one-hot agent id (16 ports only: its

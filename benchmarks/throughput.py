@@ -7,8 +7,8 @@ calls. The last column is the wall time of 100k env-steps at that rate (the unit
 paper's Table 4). Run: ``make bench`` or
 ``python benchmarks/throughput.py [--envs 1 16] [--steps 2880] [--csv out.csv]``.
 
-The helpers here (:func:`make_runner`, :func:`measure`, :func:`machine_info`,
-:func:`load_info`) are shared by ``peers.py``, ``scaling.py`` and ``profile_step.py``.
+The helpers here (`make_runner`, `measure`, `machine_info`,
+`load_info`) are shared by ``peers.py``, ``scaling.py`` and ``profile_step.py``.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Training speed of the baselines: PPO, IPPO and MAPPO env-steps per second.
 
-Each algorithm's ``make_train`` is built with the paper defaults (:data:`baselines.config.SCHEMA`)
+Each algorithm's ``make_train`` is built with the paper defaults (`baselines.config.SCHEMA`)
 except ``NUM_ENVS`` and ``TOTAL_TIMESTEPS``; its ``jax.jit(train)`` is compiled once (compile
 seconds are reported apart), then the compiled programs are timed *interleaved* (round-robin
 over the algorithms, ``repeats`` rounds, best of them) so that a load change on a shared
@@ -16,7 +16,7 @@ interleaved in the same rounds as rows ``base:<algo>``: its ``baselines/algos/pp
 ``ippo.py`` (MAPPO is its IPPO with the centralised critic) run on this checkout's library and
 other modules, so the A/B isolates a change of the trainers themselves.
 
-Importable: :func:`measure_training` returns the rows, :func:`format_rows` the table.
+Importable: `measure_training` returns the rows, `format_rows` the table.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ def _steps_for(num_envs: int, timesteps: int, num_steps: int) -> int:
 
 
 BASE_MAKERS: dict = {}
-"""``base:<algo>`` -> the base checkout's ``make_train`` (filled by :func:`load_base`)."""
+"""``base:<algo>`` -> the base checkout's ``make_train`` (filled by `load_base`)."""
 
 
 def load_base(root) -> list[str]:
@@ -70,7 +70,7 @@ def load_base(root) -> list[str]:
 
 def build(algo: str, num_envs: int, timesteps: int, overrides: dict | None = None):
     """``(jitted train, config)`` of ``baselines.<algo>`` (or of a ``base:<algo>`` of
-    :func:`load_base`) with the paper defaults plus the overrides."""
+    `load_base`) with the paper defaults plus the overrides."""
     config = dict(overrides or {})
     num_steps = int(config.get("NUM_STEPS", SCHEMA["NUM_STEPS"].default))
     config["NUM_ENVS"] = int(num_envs)

@@ -1,8 +1,8 @@
 """chargax_marl: a JAX simulator of EV charging stations for single- and multi-agent RL.
 
 Importing the package registers the Gymnasium ids ``chargax_marl/Chargax-v0`` and
-``chargax_marl/Chargax-<scenario>-v0`` (:mod:`chargax_marl.registration`) and the fork
-guard of :mod:`chargax_marl.lifecycle`.
+``chargax_marl/Chargax-<scenario>-v0`` (`chargax_marl.registration`) and the fork
+guard of `chargax_marl.lifecycle`.
 """
 
 from chargax_marl import lifecycle as _lifecycle  # noqa: F401  (registers the at-fork hook)

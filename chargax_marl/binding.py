@@ -1,14 +1,14 @@
 """How often each node of the station binds under a policy: where the agents are coupled.
 
 A node *binds* in a step when the grid-side flow of the currents the policy asks for (after
-the cars' own limits, before the hard rescale; :func:`chargax_marl.core.physics.apply_actions`)
+the cars' own limits, before the hard rescale; `chargax_marl.core.physics.apply_actions`)
 reaches the node's limit. Where no node binds, the ports do not interact and a multi-agent
 problem falls apart into independent ones; the coordination scenarios of
-:mod:`chargax_marl.core.scenarios` are built so that they do.
+`chargax_marl.core.scenarios` are built so that they do.
 
 ``python -m chargax_marl.binding`` prints, for the default and every coordination scenario, the
 percentage of steps in which each kind of node binds under always-max on held-out days
-(the table in docs/scenarios.md). The per-node figures come from :func:`node_binding`.
+(the table in docs/scenarios.md). The per-node figures come from `node_binding`.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ def node_binding(
 ) -> np.ndarray:
     """Fraction of steps ``(H,)`` in which each inner node binds under ``policy``, over one
     whole day per entry of ``days`` with the cars that evaluation draws with ``key``
-    (default ``PRNGKey(0)``, as :func:`chargax_marl.evaluation.evaluate_policy`)."""
+    (default ``PRNGKey(0)``, as `chargax_marl.evaluation.evaluate_policy`)."""
     key = jax.random.PRNGKey(0) if key is None else key
     days = jnp.asarray(days, jnp.int32)
     st = params.station
@@ -81,7 +81,7 @@ GROUPS = ("grid connection", "DC cable", "AC cable", "DC EVSE pairs", "AC EVSE p
 
 
 def grouped(params: EnvParams, fractions: np.ndarray) -> dict:
-    """Mean binding fraction per node group (:data:`GROUPS`) of the bundled architectures."""
+    """Mean binding fraction per node group (`GROUPS`) of the bundled architectures."""
     out: dict[str, list[float]] = {}
     for name, f in zip(params.station.node_names, fractions):
         out.setdefault(_kind(name), []).append(float(f))

@@ -1,6 +1,6 @@
 """Finite bounds of the observations, derived from the parameters (numpy, host side).
 
-Every bound follows from how :mod:`chargax_marl.core.observation` builds the feature and
+Every bound follows from how `chargax_marl.core.observation` builds the feature and
 what the parameters allow, so the observations stay inside them on any trajectory:
 
 - occupied, SoC, charge-sensitive flag, workday flag, day index: ``[0, 1]``;
@@ -10,7 +10,7 @@ what the parameters allow, so the observations stay inside them on any trajector
   the fleet (ports) or the battery's own capacity (batteries).
 - rate now over the leaf's max power: ``[0, r / P]`` with ``r`` the fleet's largest rate
   for the port's kind (AC or DC) and ``P`` the port's max power; 1 for batteries.
-- prices and the day's price quantiles over :data:`observation.PRICE_SCALE_EUR_KWH`: the min
+- prices and the day's price quantiles over `observation.PRICE_SCALE_EUR_KWH`: the min
   and max of the price data plus the min and max of the time-of-use surcharge; customer
   price: its value; MOER: the min and max of the MOER data; hour left until the price
   changes: ``[0, 1]``.
@@ -58,7 +58,7 @@ def _margin(low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 @_eager
 def leaf_feature_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
-    """``(low, high)`` of :func:`observation.leaf_features`, each ``(L, 8)`` (no margin)."""
+    """``(low, high)`` of `observation.leaf_features`, each ``(L, 8)`` (no margin)."""
     st = params.station
     kinds = np.asarray(st.leaf_kind)
     is_bat = kinds == KIND_BATTERY
@@ -103,7 +103,7 @@ def _full_power_loads(params: EnvParams) -> np.ndarray:
 
 @_eager
 def context_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
-    """``(low, high)`` of :func:`observation.context_features` (no margin)."""
+    """``(low, high)`` of `observation.context_features` (no margin)."""
     tou = np.asarray(params.tou_fee_eur_kwh, np.float64)
     spot = np.asarray(params.prices_eur_kwh, np.float64)
     prices = (
@@ -144,7 +144,7 @@ def context_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
 
 @_eager
 def flat_obs_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
-    """``(low, high)`` float32 of the single-agent observation :func:`observation.flat_obs`."""
+    """``(low, high)`` float32 of the single-agent observation `observation.flat_obs`."""
     low, high = leaf_feature_bounds(params)
     clow, chigh = context_bounds(params)
     p = params.station.num_ports
@@ -157,7 +157,7 @@ def flat_obs_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
 @_eager
 def ancestor_load_bounds(params: EnvParams, ancestors: np.ndarray) -> np.ndarray:
     """Upper bound ``(N, D)`` of each agent's ancestor loads (``ancestors``: the
-    ``(N, D)`` node table of :func:`chargax_marl.marl.env.ancestor_table`)."""
+    ``(N, D)`` node table of `chargax_marl.marl.env.ancestor_table`)."""
     load = _full_power_loads(params)
     anc = np.asarray(ancestors)
     return np.where(anc >= 0, load[np.maximum(anc, 0)], 0.0)

@@ -5,9 +5,9 @@
     >>> print(data.describe("DE-2018"))
     >>> data.plot_profiles(prices="NL-2023", user_profile="shopping", fleet="EU", path="scenario.png")
 
-Loaders live in :mod:`chargax_marl.core.datasets`; provenance and licences are
+Loaders live in `chargax_marl.core.datasets`; provenance and licences are
 in ``chargax_marl/core/data/README.md``. numpy + standard library (matplotlib
-only for :func:`plot_profiles`).
+only for `plot_profiles`).
 """
 
 from __future__ import annotations
@@ -134,7 +134,7 @@ def summary() -> list[dict[str, Any]]:
 
 
 def format_summary(rows: list[dict[str, Any]] | None = None) -> str:
-    """:func:`summary` as a fixed-width text table."""
+    """`summary` as a fixed-width text table."""
     rows = summary() if rows is None else rows
     cols = ("name", "kind", "shape", "resolution", "licence", "source")
     cells = [[str(r[c]) for c in cols] for r in rows]

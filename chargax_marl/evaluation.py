@@ -29,13 +29,13 @@ Act = Callable[[EnvState, jax.Array], jnp.ndarray]
 @dataclass(frozen=True)
 class MemoryAct:
     """A policy that carries a memory from step to step within a day, for the days that
-    :func:`run_days` plays: a controller that sees the station late, or whose commands can be
-    lost (:func:`chargax_marl.marl.communication.communicating_act`), remembers what it saw
+    `run_days` plays: a controller that sees the station late, or whose commands can be
+    lost (`chargax_marl.marl.communication.communicating_act`), remembers what it saw
     and what the ports applied.
 
     Attributes:
         init: ``init(state) -> memory`` at the day's first state.
-        step: ``step(state, key, memory) -> (levels, memory)``; ``levels`` as an :data:`Act`
+        step: ``step(state, key, memory) -> (levels, memory)``; ``levels`` as an `Act`
             returns them.
     """
 
@@ -47,7 +47,7 @@ def stateless(act: Act | MemoryAct, what: str) -> Act:
     """``act`` itself when it needs no memory.
 
     Raises:
-        ValueError: ``act`` is a :class:`MemoryAct`, which ``what`` cannot play.
+        ValueError: ``act`` is a `MemoryAct`, which ``what`` cannot play.
     """
     if isinstance(act, MemoryAct):
         raise ValueError(
@@ -59,7 +59,7 @@ def stateless(act: Act | MemoryAct, what: str) -> Act:
 
 
 def with_memory(act: Act | MemoryAct) -> MemoryAct:
-    """``act`` as a :class:`MemoryAct` (an :data:`Act` gets an empty memory)."""
+    """``act`` as a `MemoryAct` (an `Act` gets an empty memory)."""
     if isinstance(act, MemoryAct):
         return act
     return MemoryAct(init=lambda state: (), step=lambda state, key, memory: (act(state, key), ()))
@@ -80,7 +80,7 @@ METRICS = {
     "peak_demand_charge_eur": "peak_demand_charge_eur",
     "battery_wear_eur": "battery_wear_eur",
 }
-"""Reported metric -> field of :class:`chargax_marl.core.types.EpisodeTotals`."""
+"""Reported metric -> field of `chargax_marl.core.types.EpisodeTotals`."""
 
 SERVICE_METRICS = (
     "mean_satisfaction",
@@ -89,15 +89,15 @@ SERVICE_METRICS = (
     "rejected_share",
     "satisfaction_gap",
 )
-"""How fairly a day serves its drivers (:func:`service_metrics`), reported beside
-:data:`METRICS`."""
+"""How fairly a day serves its drivers (`service_metrics`), reported beside
+`METRICS`."""
 
 
 def service_metrics(totals) -> dict[str, np.ndarray]:
     """The day's service and fairness metrics from its episode totals.
 
     A departing car's satisfaction ``s`` is the energy delivered over the energy it requested,
-    1 when it reached its target (:func:`chargax_marl.core.traffic.satisfaction`); over the
+    1 when it reached its target (`chargax_marl.core.traffic.satisfaction`); over the
     ``n`` cars that left during the day:
 
     - ``mean_satisfaction``: ``sum(s) / n``;
@@ -114,10 +114,10 @@ def service_metrics(totals) -> dict[str, np.ndarray]:
     counted.
 
     Args:
-        totals: :class:`chargax_marl.core.types.EpisodeTotals` with any leading axes.
+        totals: `chargax_marl.core.types.EpisodeTotals` with any leading axes.
 
     Returns:
-        ``{name: float64 array}`` for each of :data:`SERVICE_METRICS`, shaped as the totals.
+        ``{name: float64 array}`` for each of `SERVICE_METRICS`, shaped as the totals.
     """
 
     def f(name):
@@ -149,25 +149,25 @@ def split_days(num_days: int, num_eval: int = 100, seed: int = 0) -> tuple[np.nd
 
 def run_days(act: Act | MemoryAct, params: EnvParams, days, key: jax.Array):
     """Run ``act`` for one whole day per entry of ``days`` (vmapped); return the final totals
-    (an :class:`EpisodeTotals` with a leading axis over days). Day ``i`` draws its cars from
-    ``split(key, len(days))[i]`` (:func:`run_days_keyed`)."""
+    (an `EpisodeTotals` with a leading axis over days). Day ``i`` draws its cars from
+    ``split(key, len(days))[i]`` (`run_days_keyed`)."""
     days = jnp.asarray(days, jnp.int32)
     return run_days_keyed(act, params, days, jax.random.split(key, days.shape[0]))
 
 
 def run_days_keyed(act: Act | MemoryAct, params: EnvParams, days, keys: jax.Array):
-    """:func:`run_days` with one key per day: the cars of day ``days[i]`` are drawn from
+    """`run_days` with one key per day: the cars of day ``days[i]`` are drawn from
     ``day_keys[i]`` alone, so a day's result does not depend on which other days run beside it.
 
     Args:
-        act: ``act(state, key) -> levels``, or a :class:`MemoryAct` (its memory starts afresh
+        act: ``act(state, key) -> levels``, or a `MemoryAct` (its memory starts afresh
             each day).
         params: the environment parameters.
         days: ``(n,)`` day indices of the price data.
         keys: ``(n, 2)`` keys, one per day.
 
     Returns:
-        The final :class:`EpisodeTotals` with a leading axis ``(n,)``.
+        The final `EpisodeTotals` with a leading axis ``(n,)``.
     """
     days = jnp.asarray(days, jnp.int32)
     policy = with_memory(act)
@@ -211,17 +211,17 @@ def _stats(x: np.ndarray, scored: np.ndarray) -> dict:
 
 
 def summarize(totals, failed=None) -> dict:
-    """Mean, std, min and max over days of every metric in :data:`METRICS`.
+    """Mean, std, min and max over days of every metric in `METRICS`.
 
     Args:
-        totals: :class:`EpisodeTotals` with a leading axis over days (:func:`run_days`).
+        totals: `EpisodeTotals` with a leading axis over days (`run_days`).
         failed: optional bool ``(days,)``, ``True`` for days whose result does not count (a
             failed solve of a solver-based policy); they are left out of every statistic and
             counted in ``days_failed``.
 
     Returns:
-        ``{metric: {"mean", "std", "min", "max"}}`` for :data:`METRICS` and
-        :data:`SERVICE_METRICS` (plus ``days_scored`` and ``days_failed`` when days were left
+        ``{metric: {"mean", "std", "min", "max"}}`` for `METRICS` and
+        `SERVICE_METRICS` (plus ``days_scored`` and ``days_failed`` when days were left
         out; a NaN satisfaction gap counts as left out).
     """
     out = {}
@@ -239,7 +239,7 @@ def summarize_profit(daily_profit) -> dict:
     """``{"daily_profit_eur": {mean, std, min, max}}`` of per-day profits alone (for entries,
     such as the LP bound, that have no other metrics).
 
-    A NaN profit marks a day whose solve failed (:func:`hindsight_bound`): it is left out of
+    A NaN profit marks a day whose solve failed (`hindsight_bound`): it is left out of
     every statistic and counted in ``days_failed`` (with ``days_scored``), never averaged in.
     """
     x = np.asarray(daily_profit, np.float64)
@@ -263,7 +263,7 @@ def evaluate(act: Act, params: EnvParams, days, key: jax.Array | None = None) ->
 
 
 def evaluate_policy(policy, params: EnvParams, days, key: jax.Array | None = None) -> dict:
-    """:func:`evaluate` for a rule-based ``policy(state, key, params)`` or its name."""
+    """`evaluate` for a rule-based ``policy(state, key, params)`` or its name."""
     policy = get_policy(policy, params) if isinstance(policy, str) else policy
     return evaluate(lambda s, k: policy(s, k, params), params, days, key)
 
@@ -276,15 +276,15 @@ def hindsight_bound(
     time_limit_s: float | None = 60.0,
     with_battery: bool = True,
 ) -> dict:
-    """The LP hindsight bound (:mod:`chargax_marl.optimal.bound`) of each of ``days`` over
-    ``reference``'s port occupancy, with the cars :func:`evaluate` draws with ``key``:
+    """The LP hindsight bound (`chargax_marl.optimal.bound`) of each of ``days`` over
+    ``reference``'s port occupancy, with the cars `evaluate` draws with ``key``:
     ``{"daily_profit", "reference_daily_profit", "solve_s", "status", "failed_days"}``
     (arrays over days). ``with_battery=False`` leaves the station's batteries out of the LP
     (the bound without them; the difference is what the batteries are worth at best).
 
     A day whose LP fails or hits ``time_limit_s`` has a NaN ``daily_profit`` and its solver
     status in ``status``, and is listed in ``failed_days`` (``{"day", "status"}`` each); the
-    other days are solved as usual. :func:`summarize_profit` and :func:`headroom_captured`
+    other days are solved as usual. `summarize_profit` and `headroom_captured`
     leave such days out.
     """
 

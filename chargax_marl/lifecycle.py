@@ -5,9 +5,9 @@ seeds and reset options.
 started JAX's runtime inherits its locks but not its threads, and its first JAX call can
 hang forever. ``gymnasium.vector.AsyncVectorEnv`` and SuperSuit's
 ``concat_vec_envs_v1(..., num_cpus=k)`` fork by default on Linux. Importing
-:mod:`chargax_marl` registers an ``os.register_at_fork`` hook; the wrappers call
-:func:`check_not_forked` before any JAX work, so such a child fails at once with
-:class:`ForkedProcessError` instead of hanging. Use the ``spawn`` (or ``forkserver``)
+`chargax_marl` registers an ``os.register_at_fork`` hook; the wrappers call
+`check_not_forked` before any JAX work, so such a child fails at once with
+`ForkedProcessError` instead of hanging. Use the ``spawn`` (or ``forkserver``)
 start method: ``AsyncVectorEnv(fns, context="spawn")``, or
 ``multiprocessing.set_start_method("spawn")`` before SuperSuit's ``concat_vec_envs_v1``.
 """
@@ -61,7 +61,7 @@ def forked_after_jax() -> bool:
 
 
 def check_not_forked(where: str) -> None:
-    """Raise :class:`ForkedProcessError` when JAX work here could deadlock (see the module doc)."""
+    """Raise `ForkedProcessError` when JAX work here could deadlock (see the module doc)."""
     if _FORKED_AFTER_JAX:
         raise ForkedProcessError(
             f"{where}: this process was forked (os.fork) after JAX started in its parent; JAX is "
@@ -77,7 +77,7 @@ def key_from_seed(seed: Any, where: str) -> jax.Array:
 
     Seeds below ``2**64`` give the key ``[seed >> 32, seed & 0xffffffff]``; for seeds below
     ``2**32`` that is ``jax.random.PRNGKey(seed)``, so existing seeds keep their trajectories.
-    Larger seeds are hashed to 64 bits with :class:`numpy.random.SeedSequence`, which reads
+    Larger seeds are hashed to 64 bits with `numpy.random.SeedSequence`, which reads
     the whole integer. Anything else raises ``ValueError`` naming the seed.
     """
     if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)):

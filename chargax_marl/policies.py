@@ -4,15 +4,15 @@ A policy is ``policy(state, key, params) -> levels`` with one signed level per l
 then batteries) in ``[-L, L]`` (absolute action mode). Rule-based policies read the
 simulator state, not the observation. To use one with a view:
 
-- single agent: :func:`for_single` gives ``fn(state, key) -> action`` for
-  :class:`chargax_marl.single.Chargax`;
-- multi agent: :func:`for_marl` gives ``fn(state, key) -> {agent: action}`` for
-  :class:`chargax_marl.marl.ChargaxMARL`.
+- single agent: `for_single` gives ``fn(state, key) -> action`` for
+  `chargax_marl.single.Chargax`;
+- multi agent: `for_marl` gives ``fn(state, key) -> {agent: action}`` for
+  `chargax_marl.marl.ChargaxMARL`.
 
 All policies are jittable and vmappable.
 
 The teachers' rules (``battery_programme``, ``plan_programme``, ``grid_programme``,
-:mod:`chargax_marl.teachers.rules`) read tables built for one station and price table, so
+`chargax_marl.teachers.rules`) read tables built for one station and price table, so
 they are built for given params: ``get_policy("battery_programme", params)``.
 """
 
@@ -100,7 +100,7 @@ def battery_rule(
 def battery_rule_naive(
     state: EnvState, key: jax.Array, params: EnvParams, quantile: float = 0.2
 ) -> jnp.ndarray:
-    """:func:`battery_rule` blind to losses and wear: the batteries charge fully in the
+    """`battery_rule` blind to losses and wear: the batteries charge fully in the
     cheapest ``quantile`` of the day's hours and discharge fully in the dearest, whatever the
     spread (on a flat day they charge)."""
     del key
@@ -175,7 +175,7 @@ def price_threshold(
 ) -> jnp.ndarray:
     """Charge fully while the buy price is in the cheapest ``quantile`` of the day's hours;
     otherwise charge each car at the lowest level that still meets its demand by its
-    planned departure. Batteries follow :func:`battery_rule`'s price rule at the same
+    planned departure. Batteries follow `battery_rule`'s price rule at the same
     ``quantile`` (cycling only where the spread beats losses plus wear).
     """
     del key
@@ -261,7 +261,7 @@ POLICIES: dict[str, Policy] = {
 
 
 TEACHER_RULES = tuple(RULE_BUILDERS)
-"""The teachers' rules (:mod:`chargax_marl.teachers.rules`): :func:`get_policy` builds them for
+"""The teachers' rules (`chargax_marl.teachers.rules`): `get_policy` builds them for
 given params; each needs a station with a battery."""
 
 
@@ -269,7 +269,7 @@ def get_policy(name: str, params: EnvParams | None = None) -> Policy:
     """The policy of a name.
 
     Args:
-        name: a key of :data:`POLICIES` or one of :data:`TEACHER_RULES`.
+        name: a key of `POLICIES` or one of `TEACHER_RULES`.
         params: concrete params to build a teacher's rule for (ignored by the other rules).
 
     Returns:

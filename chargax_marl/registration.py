@@ -6,10 +6,10 @@ it for you):
 
 - ``chargax_marl/Chargax-v0``: the paper's default (shopping users, medium traffic);
 - ``chargax_marl/Chargax-<scenario>-v0`` for every name of
-  :data:`chargax_marl.single.SCENARIOS` (``Chargax-workplace-high-v0``, ...).
+  `chargax_marl.single.SCENARIOS` (``Chargax-workplace-high-v0``, ...).
 
-Each makes a :class:`chargax_marl.single.GymnasiumEnv`; keyword arguments of
-``gymnasium.make`` (``render_mode``, any :func:`chargax_marl.core.make_params` override)
+Each makes a `chargax_marl.single.GymnasiumEnv`; keyword arguments of
+``gymnasium.make`` (``render_mode``, any `chargax_marl.core.make_params` override)
 reach it. The package also declares this function under the ``gymnasium.envs`` entry-point
 group for Gymnasium versions that load plugins.
 """
@@ -33,7 +33,7 @@ def env_ids() -> dict[str, dict]:
 
 
 def register_envs() -> None:
-    """Register the ids of :func:`env_ids` (again: a no-op)."""
+    """Register the ids of `env_ids` (again: a no-op)."""
     for env_id, kwargs in env_ids().items():
         if env_id not in gymnasium.registry:
             gymnasium.register(id=env_id, entry_point=ENTRY_POINT, kwargs=kwargs)

@@ -23,7 +23,7 @@ from chargax_marl.single import make
 def rollout_days(policy, params: EnvParams, keys: jax.Array):
     """Run ``policy(state, key, params)`` for one random day per key (vmapped).
 
-    Returns ``(totals, days, returns)``: the final :class:`EpisodeTotals` per day, the day
+    Returns ``(totals, days, returns)``: the final `EpisodeTotals` per day, the day
     indices drawn as ``reset`` draws them, and each day's summed reward.
     """
 

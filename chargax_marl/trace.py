@@ -3,13 +3,13 @@
 A day of the simulator is driven by two things: the policy's actions and the exogenous
 inputs (the day's prices, the batteries' initial SoC and, per step, the cars that ask to
 park). The cars of a step are drawn from the step's key without looking at the station
-(:func:`chargax_marl.core.traffic.draw_arrivals`), so for a given day and key they are the
+(`chargax_marl.core.traffic.draw_arrivals`), so for a given day and key they are the
 same whatever the policy does; only which of them find a free port depends on it.
 
-:func:`make_traces` records those inputs as a :class:`DayTrace` per day, with the same key
-derivation as :func:`chargax_marl.evaluation.run_days`; :func:`replay` runs a policy on a
+`make_traces` records those inputs as a `DayTrace` per day, with the same key
+derivation as `chargax_marl.evaluation.run_days`; `replay` runs a policy on a
 trace and gives, bit for bit, the day that ``run_days`` gives with the same key. The optimal
-baselines (:mod:`chargax_marl.optimal`) read their cars and prices from traces.
+baselines (`chargax_marl.optimal`) read their cars and prices from traces.
 """
 
 from __future__ import annotations
@@ -61,7 +61,7 @@ def station_fingerprint(params: EnvParams) -> str:
 
 def params_fingerprint(params: EnvParams) -> str:
     """A short hash of every array and setting of ``params`` (host side) and of the random
-    stream's version (:data:`chargax_marl.core.rng.STREAM_VERSION`), to tell whether stored
+    stream's version (`chargax_marl.core.rng.STREAM_VERSION`), to tell whether stored
     results were computed for the same scenario and cars."""
     h = hashlib.sha1()
     h.update(f"stream {rng.STREAM_VERSION}".encode())
@@ -76,7 +76,7 @@ def params_fingerprint(params: EnvParams) -> str:
 class DayTrace:
     """The exogenous inputs of one day (or, with a leading axis, of several days).
 
-    ``arrivals`` holds one :class:`chargax_marl.core.traffic.Arrivals` per step (leading axis
+    ``arrivals`` holds one `chargax_marl.core.traffic.Arrivals` per step (leading axis
     ``num_steps``): arrival step = index, and per slot the car model, capacity, r-bar for AC
     and DC ports, tau, arrival SoC, target SoC, planned stay and user type. Prices are per step
     in EUR/kWh: what the station pays for a net draw and earns for a net feed-in.
@@ -121,7 +121,7 @@ def make_traces(
     params: EnvParams, days, key: jax.Array | None = None, *, day_keys: jax.Array | None = None
 ) -> DayTrace:
     """The traces of ``days`` (a leading axis over days) for the cars that
-    :func:`chargax_marl.evaluation.run_days` draws with the same ``key`` (default
+    `chargax_marl.evaluation.run_days` draws with the same ``key`` (default
     ``PRNGKey(0)``, the evaluation default).
 
     Args:
@@ -129,10 +129,10 @@ def make_traces(
         days: day indices of the price data.
         key: the evaluation key; day ``i`` gets ``split(key, len(days))[i]``.
         day_keys: ``(len(days), 2)`` keys, one per day, in place of ``key``'s split (the
-            cars :func:`chargax_marl.evaluation.run_days_keyed` draws with them).
+            cars `chargax_marl.evaluation.run_days_keyed` draws with them).
 
     Returns:
-        A :class:`DayTrace` with a leading axis over days.
+        A `DayTrace` with a leading axis over days.
     """
     days = jnp.atleast_1d(jnp.asarray(days, jnp.int32))
     if day_keys is None:
@@ -155,7 +155,7 @@ CAR_DEFAULTS = {
     "stay_min": 60.0,
     "charge_sensitive": False,
 }
-"""Defaults of :func:`trace_from_cars` for fields a car leaves out."""
+"""Defaults of `trace_from_cars` for fields a car leaves out."""
 
 
 def trace_from_cars(
@@ -163,7 +163,7 @@ def trace_from_cars(
 ) -> DayTrace:
     """A hand-made day: ``cars`` is a list of dicts with ``arrival_step`` (the step at whose
     end the car arrives; it charges from the next step) and any fields of
-    :data:`CAR_DEFAULTS`; cars of one step fill its slots in list order (at most one per
+    `CAR_DEFAULTS`; cars of one step fill its slots in list order (at most one per
     port). Prices are the params' prices of ``day``; ``battery_soc0`` defaults to the middle
     of the params' range. For tests and worked examples."""
     st = params.station
@@ -257,10 +257,10 @@ def check_trace(trace: DayTrace, params: EnvParams) -> None:
 def replay(act: Act, params: EnvParams, trace: DayTrace, day_key: jax.Array):
     """Run ``act(state, key) -> levels`` for one day on ``trace`` (one day, no leading axis).
 
-    The policy receives the same keys as in :func:`chargax_marl.evaluation.run_days` with
+    The policy receives the same keys as in `chargax_marl.evaluation.run_days` with
     ``day_key``, so the result equals that day of ``run_days`` bit for bit. Returns
     ``(start_states, infos, final_state)``: the state at the start of every step and the
-    step's :class:`chargax_marl.core.types.StepInfo`, each with a leading ``(num_steps,)`` axis. Jittable.
+    step's `chargax_marl.core.types.StepInfo`, each with a leading ``(num_steps,)`` axis. Jittable.
     """
     check_trace(trace, params)
     act_keys, _, _ = day_keys(day_key, params.num_steps)
@@ -282,9 +282,9 @@ def replay(act: Act, params: EnvParams, trace: DayTrace, day_key: jax.Array):
 
 
 def replay_days(act: Act, params: EnvParams, traces: DayTrace, key: jax.Array | None = None):
-    """:func:`replay` over a batch of traces (vmapped), with the per-day keys that
-    :func:`chargax_marl.evaluation.run_days` derives from ``key`` (default ``PRNGKey(0)``).
-    Returns the final :class:`chargax_marl.core.types.EpisodeTotals` (leading axis over days),
+    """`replay` over a batch of traces (vmapped), with the per-day keys that
+    `chargax_marl.evaluation.run_days` derives from ``key`` (default ``PRNGKey(0)``).
+    Returns the final `chargax_marl.core.types.EpisodeTotals` (leading axis over days),
     equal to ``run_days(act, params, traces.day, key)``. Jittable."""
     key = jax.random.PRNGKey(0) if key is None else key
     num_days = traces.day.shape[0]

@@ -1,5 +1,5 @@
-"""IPPO on :class:`chargax_marl.marl.ChargaxMARL` in the shape of JaxMARL's ``ippo_ff_mpe.py``,
-with the teachers of :mod:`chargax_marl.wrappers` and nothing from the project's ``baselines/``.
+"""IPPO on `chargax_marl.marl.ChargaxMARL` in the shape of JaxMARL's ``ippo_ff_mpe.py``,
+with the teachers of `chargax_marl.wrappers` and nothing from the project's ``baselines/``.
 
 Run ``python examples/jaxmarl_ippo.py`` (``--seeds 2 --timesteps 6e5`` by default; ``--out
 FILE`` writes the result as JSON). It builds the default scenario (shopping users, medium
@@ -335,7 +335,7 @@ def make_train(config, train_params=None):
 
 
 def greedy_act(network, params, eval_params):
-    """``act(state, key) -> levels`` for :func:`chargax_marl.evaluation.run_days`: every agent takes
+    """``act(state, key) -> levels`` for `chargax_marl.evaluation.run_days`: every agent takes
     the argmax of its masked logits, on the observations the training env's wrappers build."""
     env = wrap(ChargaxMARL(params=eval_params))
     avail = jnp.stack([m for m in env.get_avail_actions(None).values()])

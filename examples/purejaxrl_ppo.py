@@ -1,7 +1,7 @@
 """A PureJaxRL-style single-file PPO on the single-agent station, through gymnax's own LogWrapper.
 
 ``python examples/purejaxrl_ppo.py --timesteps 2e5`` trains a categorical policy over the
-flat ``Discrete`` view :class:`chargax_marl.single.FlatDiscrete` (one shared level for every
+flat ``Discrete`` view `chargax_marl.single.FlatDiscrete` (one shared level for every
 port and one for the battery: 441 actions with the defaults) with the structure of
 PureJaxRL's ``ppo.py``: ``make_train(config)`` returns a function ``train(key)`` that is
 jitted whole, ``jax.vmap`` over envs, ``jax.lax.scan`` over rollout steps, epochs and

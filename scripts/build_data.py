@@ -781,7 +781,7 @@ def entsoe_prices(text: str, year: int, timezone: str) -> tuple[np.ndarray, dict
     of the source (the first of two autumn 02:00 rows) and is dropped. Then the project's
     rules apply: a repeated hour is the mean of its values; the spring DST gap is the linear
     interpolation of 01:00 and 03:00; a day without prices copies the same weekday of the
-    next week (:func:`fill_local_days`); any other missing hour is interpolated.
+    next week (`fill_local_days`); any other missing hour is interpolated.
     """
     from zoneinfo import ZoneInfo
 

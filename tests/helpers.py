@@ -119,7 +119,7 @@ def trees(draw, max_depth=3, tiny_limits=False, max_leaves=None):
         max_leaves: At most this many leaves (ports and batteries) in the whole tree.
 
     Returns:
-        The root :class:`Splitter`.
+        The root `Splitter`.
     """
     counter = iter(range(10_000))
     leaves = [1]  # the always-present port

@@ -1,11 +1,11 @@
 """The learning aids of the trainers' config mapped onto the library's teachers.
 
-``BATTERY_SHAPING`` (:mod:`chargax_marl.teachers.shaping`: the batteries' stored energy
-valued as a potential), ``PORT_SHAPING`` (:mod:`chargax_marl.teachers.car_plan`: each
+``BATTERY_SHAPING`` (`chargax_marl.teachers.shaping`: the batteries' stored energy
+valued as a potential), ``PORT_SHAPING`` (`chargax_marl.teachers.car_plan`: each
 parked car's plan value as a potential), ``FAIRNESS_WEIGHT`` / ``FAIRNESS_METRIC``
-(:class:`chargax_marl.wrappers.FairnessReward`: a weight on the day's fairness) and the
+(`chargax_marl.wrappers.FairnessReward`: a weight on the day's fairness) and the
 multi-agent trainers' imperfect communication, ``OBS_DELAY_STEPS``, ``ACTION_LOSS_PROB`` and
-``LOST_ACTION`` (:mod:`chargax_marl.marl.communication`).
+``LOST_ACTION`` (`chargax_marl.marl.communication`).
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ PORT_SHAPING_MODES = ("off", "plan")
 
 def communication(config: dict, env):
     """``env`` seen through ``OBS_DELAY_STEPS`` and ``ACTION_LOSS_PROB`` / ``LOST_ACTION``
-    (:class:`chargax_marl.marl.DelayedObservationWrapper`, then
-    :class:`chargax_marl.marl.ActionLossWrapper`); ``env`` itself when both are off.
+    (`chargax_marl.marl.DelayedObservationWrapper`, then
+    `chargax_marl.marl.ActionLossWrapper`); ``env`` itself when both are off.
 
     Raises:
         ValueError: a bad delay, probability or lost action.
@@ -42,7 +42,7 @@ def communication(config: dict, env):
 
 
 def fairness(config: dict, env):
-    """``env`` wrapped in :class:`chargax_marl.wrappers.FairnessReward` with ``FAIRNESS_WEIGHT``
+    """``env`` wrapped in `chargax_marl.wrappers.FairnessReward` with ``FAIRNESS_WEIGHT``
     and ``FAIRNESS_METRIC``; ``env`` itself when the weight is 0 (the default).
 
     Raises:
@@ -59,7 +59,7 @@ def fairness(config: dict, env):
 
 
 def port_shaping_mode(config: dict) -> str:
-    """``PORT_SHAPING`` as one of :data:`PORT_SHAPING_MODES`."""
+    """``PORT_SHAPING`` as one of `PORT_SHAPING_MODES`."""
     mode = config.get("PORT_SHAPING", "off")
     mode = "off" if mode in (None, False) else mode
     if mode not in PORT_SHAPING_MODES:
@@ -71,7 +71,7 @@ def port_shaping_mode(config: dict) -> str:
 
 def car_potential(config: dict, env_params):
     """``None`` when ``PORT_SHAPING`` is off, else the per-car potential of
-    :func:`chargax_marl.teachers.car_plan.car_potential`: ``potential(env_state) -> shift``."""
+    `chargax_marl.teachers.car_plan.car_potential`: ``potential(env_state) -> shift``."""
     if port_shaping_mode(config) == "off":
         return None
     return car_plan.car_potential(env_params)
@@ -81,7 +81,7 @@ SHAPING_MODES = ("off",) + teacher_shaping.BATTERY_POTENTIALS
 
 
 def shaping_mode(config: dict) -> str:
-    """``BATTERY_SHAPING`` as one of :data:`SHAPING_MODES` (``False`` / ``True`` are ``"off"`` /
+    """``BATTERY_SHAPING`` as one of `SHAPING_MODES` (``False`` / ``True`` are ``"off"`` /
     ``"day_mean"``)."""
     v = config.get("BATTERY_SHAPING", False)
     mode = (
@@ -96,7 +96,7 @@ def shaping_mode(config: dict) -> str:
 
 def battery_potential(config: dict, env_params):
     """``None`` when ``BATTERY_SHAPING`` is off, else the potential of
-    :func:`chargax_marl.teachers.shaping.battery_potential` of that mode:
+    `chargax_marl.teachers.shaping.battery_potential` of that mode:
     ``potential(env_state) -> shift(net_kwh)``."""
     mode = shaping_mode(config)
     if mode == "off":

@@ -1,18 +1,18 @@
 """Multi-process (multi-host) training with ``jax.distributed``.
 
-Every process runs the same program (SPMD). :func:`initialize` must run before anything
+Every process runs the same program (SPMD). `initialize` must run before anything
 asks JAX for its devices; afterwards ``jax.devices()`` lists the devices of all processes,
-:func:`baselines.algos.env_mesh` spans them and the env batch is split across processes.
+`baselines.algos.env_mesh` spans them and the env batch is split across processes.
 
-Two things differ from one process, and :mod:`baselines.train` handles both here:
+Two things differ from one process, and `baselines.train` handles both here:
 
 * inputs of a jitted program over the global mesh must be global arrays: the seed keys are
-  made one, replicated on every device (:func:`replicate`);
+  made one, replicated on every device (`replicate`);
 * an output that spans devices of other processes cannot be read with ``np.asarray``: the
-  trained parameters (replicated) are read from this process's copy (:func:`to_host`)
+  trained parameters (replicated) are read from this process's copy (`to_host`)
   before the held-out evaluation, which every process then runs on its own devices.
 
-Only process 0 writes outputs and prints the evaluation (:func:`is_main`). On CPU the processes exchange
+Only process 0 writes outputs and prints the evaluation (`is_main`). On CPU the processes exchange
 data through gloo (``jax_cpu_collectives_implementation``); ``tests/test_distributed.py``
 runs the training CLI as two processes on one machine this way.
 """
@@ -49,7 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def initialize_from_argv(argv=None) -> bool:
     """Initialise when the command line (default ``sys.argv[1:]``) asks for it
-    (:func:`add_arguments`); ignores every other flag. Returns whether it did.
+    (`add_arguments`); ignores every other flag. Returns whether it did.
 
     A command-line entry point calls this *before* importing the trainers: importing them
     (gymnax) already runs JAX computations, after which ``jax.distributed.initialize`` refuses."""
@@ -70,7 +70,7 @@ def initialize(
     """``jax.distributed.initialize`` with CPU collectives switched on (gloo) so that CPU-only
     processes can run cross-process programs. With no arguments JAX detects the cluster
     (SLURM, Open MPI, Kubernetes, Cloud TPU, ...). Must run before any JAX computation,
-    which includes importing :mod:`baselines.algos` (gymnax builds arrays at import)."""
+    which includes importing `baselines.algos` (gymnax builds arrays at import)."""
     if jax.config.jax_cpu_collectives_implementation in (None, "", "none"):
         jax.config.update("jax_cpu_collectives_implementation", "gloo")
     jax.distributed.initialize(

@@ -1,4 +1,4 @@
-"""IPPO for :class:`chargax_marl.marl.ChargaxMARL`, in the JaxMARL style (shared parameters).
+"""IPPO for `chargax_marl.marl.ChargaxMARL`, in the JaxMARL style (shared parameters).
 
 One actor and one critic are shared by every agent (port or battery); the agent-index
 feature in each observation lets them tell agents apart. The env is stepped through its array
@@ -8,14 +8,14 @@ JaxMARL's ``batchify``), actions are sampled from the logits masked by
 ``get_avail_actions`` (invalid logits set to -1e9) and handed back as ``(num_envs,
 num_agents)`` indices. All agents receive the shared station reward, or with ``LOCAL_REWARD_WEIGHT`` ``w > 0`` the
 mix ``(1 - w) * r + w * share_i`` with their own share of it (see
-:class:`chargax_marl.marl.ChargaxMARL`; evaluation always scores the station's profit).
-Episodes are logged by :class:`chargax_marl.marl.wrappers.LogWrapper`.
+`chargax_marl.marl.ChargaxMARL`; evaluation always scores the station's profit).
+Episodes are logged by `chargax_marl.marl.wrappers.LogWrapper`.
 ``jax.vmap(train)(keys)`` trains several seeds at once; the env batch is sharded over all
-devices (:func:`baselines.algos.shard_envs`).
+devices (`baselines.algos.shard_envs`).
 
-:func:`make_train` with ``centralised_critic=True`` is MAPPO (see :mod:`baselines.algos.mappo`):
+`make_train` with ``centralised_critic=True`` is MAPPO (see `baselines.algos.mappo`):
 the critic then reads the world state of
-:class:`chargax_marl.marl.wrappers.WorldStateWrapper` (``global_state``, once per env) instead
+`chargax_marl.marl.wrappers.WorldStateWrapper` (``global_state``, once per env) instead
 of the agent's observation.
 """
 
@@ -44,7 +44,7 @@ class Transition(NamedTuple):
     obs: jnp.ndarray  # (actors, obs_dim)
     # IPPO: a zero placeholder (actors,), the critic reads ``obs``. MAPPO: during the rollout the world state
     # (envs, state_dim), once per env; for the update the row's index into the rollout's
-    # table of world states (:func:`make_train`), or its world state (actors, state_dim)
+    # table of world states (`make_train`), or its world state (actors, state_dim)
     # when ``DEDUP_CENTRAL_CRITIC`` is off.
     critic_in: jnp.ndarray
     avail: jnp.ndarray
@@ -142,7 +142,7 @@ class SharedPolicy:
                 self.critic_dim += len(self.relative[0])
 
     def with_plan(self, obs_matrix, core):
-        """``obs_matrix (..., agents, obs)`` with the :data:`PLAN_OBS` column of the (batched)
+        """``obs_matrix (..., agents, obs)`` with the `PLAN_OBS` column of the (batched)
         core state ``core`` appended; unchanged when ``PLAN_OBS`` is off."""
         if self.plan is None:
             return obs_matrix
@@ -172,7 +172,7 @@ class SharedPolicy:
         """``port_net`` on the ports' rows of ``x`` and ``battery_net`` on the batteries' rows
         only, for rows laid out as ``rows``: ``"agent_major"`` (``agent * envs + env``, the
         rollout) or ``"env_step_major"`` (``env_step * agents + agent``, a minibatch of
-        :func:`baselines.algos.ppo_core.shuffled_rows`)."""
+        `baselines.algos.ppo_core.shuffled_rows`)."""
         n, ports = self.num_agents, self.num_agents - self.num_batteries
         axis = 0 if rows == "agent_major" else 1
         x3 = x.reshape(((n, -1) if axis == 0 else (-1, n)) + x.shape[1:])
@@ -188,7 +188,7 @@ class SharedPolicy:
     def logits(self, params, obs, avail, rows: str | None = None):
         """Masked logits of the actor rows ``obs (rows, obs)``. With ``BATTERY_NET`` the
         battery rows go through the battery's actor: with ``rows`` (the rows' layout, see
-        :meth:`_by_kind`) each actor runs on its own rows only, else both run on every row and
+        `_by_kind`) each actor runs on its own rows only, else both run on every row and
         a ``where`` keeps each row's own."""
         x = self.features(obs)
         if self.battery_net and self._split(rows):
@@ -212,7 +212,7 @@ class SharedPolicy:
         return networks.masked_logits(logits, avail)
 
     def value(self, params, critic_in, rows: str | None = None):
-        """Values of the critic rows; ``rows`` as in :meth:`logits` (used with a battery
+        """Values of the critic rows; ``rows`` as in `logits` (used with a battery
         critic, which reads the agent's own observation)."""
         x = self.features(critic_in) if self.critic_features else critic_in
         if self.battery_critic and self._split(rows):
@@ -235,7 +235,7 @@ class SharedPolicy:
 def make_train(config: dict | None = None, env_params=None, centralised_critic: bool = False):
     """Build ``train(key)`` (IPPO; MAPPO with ``centralised_critic=True``).
 
-    ``config`` keys are those of :data:`baselines.algos.PAPER_DEFAULTS` plus ``AGENT_ID``
+    ``config`` keys are those of `baselines.algos.PAPER_DEFAULTS` plus ``AGENT_ID``
     (``onehot``/``scalar``, the agent-index encoding). ``TOTAL_TIMESTEPS`` counts env steps
     (one step moves every agent).
     """
@@ -505,7 +505,7 @@ def make_act_builder(
     """``make_act_for(eval_params)(params) -> act``: every agent takes the argmax of its masked
     logits (greedy), read from the simulator state. With an observation delay or an action loss
     (the config's ``OBS_DELAY_STEPS``, ``ACTION_LOSS_PROB``, ``LOST_ACTION``) the policy is
-    played under them (:func:`chargax_marl.marl.communicating_act`), as it was trained."""
+    played under them (`chargax_marl.marl.communicating_act`), as it was trained."""
     cache = IdentityCache()
 
     def build(eval_params):

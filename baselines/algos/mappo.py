@@ -1,4 +1,4 @@
-"""MAPPO for :class:`chargax_marl.marl.ChargaxMARL`: IPPO's shared actor on each agent's own
+"""MAPPO for `chargax_marl.marl.ChargaxMARL`: IPPO's shared actor on each agent's own
 observation, with a *centralised* critic on the world state.
 
 The env is wrapped as in JaxMARL's MAPPO, ``LogWrapper(WorldStateWrapper(env))``, and stepped
@@ -6,9 +6,9 @@ through its array path; the critic reads the world state (``WorldStateWrapper.gl
 the env's ``get_global_state``, i.e. the single-agent observation of the whole station, the
 row ``obs["world_state"]`` of the dict step). All agents of an env share that world state, so
 the critic runs once per env and step and its value is shared by the env's agents (the same
-values as one critic call per agent row; :data:`baselines.algos.ippo.DEDUP_CENTRAL_CRITIC`).
+values as one critic call per agent row; `baselines.algos.ippo.DEDUP_CENTRAL_CRITIC`).
 The rest of the loop (masking, batchify, GAE, clipped PPO, sharding, vmapped seeds) is the
-one in :mod:`baselines.algos.ippo`, so that the two differ only in the critic's input.
+one in `baselines.algos.ippo`, so that the two differ only in the critic's input.
 """
 
 from __future__ import annotations
@@ -17,5 +17,5 @@ from baselines.algos import ippo
 
 
 def make_train(config: dict | None = None, env_params=None):
-    """Build MAPPO's jittable ``train(key)``; see :func:`baselines.algos.ippo.make_train`."""
+    """Build MAPPO's jittable ``train(key)``; see `baselines.algos.ippo.make_train`."""
     return ippo.make_train(config, env_params, centralised_critic=True)

@@ -106,7 +106,7 @@ def sample_categorical(key: jax.Array, logits: jnp.ndarray):
 
     Same distribution as ``jax.random.categorical`` (which adds Gumbel noise to every logit,
     ``K`` uniforms per head), from one uniform per head by inversion
-    (:func:`categorical_from_uniform`). On this project's 2-core CPU the Gumbel draw was about
+    (`categorical_from_uniform`). On this project's 2-core CPU the Gumbel draw was about
     two thirds of a PPO rollout step with 16 envs (140 of 215 us); this costs about a third of
     that (``benchmarks/README.md``, training speed).
     """

@@ -1,4 +1,4 @@
-"""Single-agent PPO for :class:`chargax_marl.single.Chargax`, in the PureJaxRL style.
+"""Single-agent PPO for `chargax_marl.single.Chargax`, in the PureJaxRL style.
 
 ``train = make_train(config)`` gives a jittable ``train(key)``; ``jax.jit(jax.vmap(train))(keys)``
 trains several seeds in one compiled program. The whole loop (rollout with ``jax.lax.scan``,
@@ -140,7 +140,7 @@ class Policy:
 
 
 def make_train(config: dict | None = None, env_params=None):
-    """Build ``train(key)`` for a config (keys of :data:`baselines.algos.PAPER_DEFAULTS`).
+    """Build ``train(key)`` for a config (keys of `baselines.algos.PAPER_DEFAULTS`).
 
     ``env_params`` defaults to the config's scenario restricted to its training days.
     """
@@ -283,7 +283,7 @@ def make_train(config: dict | None = None, env_params=None):
 
 def make_act_builder(policy: Policy, env: Chargax):
     """``make_act(params) -> act(state, key) -> levels``: the greedy (argmax per head) policy read
-    from the simulator state, for :mod:`chargax_marl.evaluation`."""
+    from the simulator state, for `chargax_marl.evaluation`."""
     cache = IdentityCache()
 
     def build(eval_params):

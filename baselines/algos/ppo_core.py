@@ -78,7 +78,7 @@ def ppo_epochs(
     axes ``(steps, actors)``; ``loss_fn(params, (traj, adv, targets))`` returns
     ``(loss, parts)``. Returns ``(params, opt_state, key, parts)`` with ``parts`` stacked over
     epochs and minibatches. ``agents > 1`` (IPPO, MAPPO: ``actors = agents * envs``,
-    agent-major) shuffles env-steps, each with all of its agents' rows (:func:`shuffled_rows`).
+    agent-major) shuffles env-steps, each with all of its agents' rows (`shuffled_rows`).
     """
     steps, actors = traj.reward.shape[:2]
     batch = steps * actors

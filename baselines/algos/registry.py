@@ -15,11 +15,11 @@ def make_train(algo: str, config: dict | None = None, env_params=None) -> Traine
 
     Args:
         algo: ``"ppo"``, ``"ippo"`` or ``"mappo"``.
-        config: trainer keys (:data:`baselines.config.SCHEMA`; the rest at their defaults).
+        config: trainer keys (`baselines.config.SCHEMA`; the rest at their defaults).
         env_params: training env parameters (default: the config's training days).
 
     Returns:
-        The built :class:`baselines.algos.trainer.Trainer`.
+        The built `baselines.algos.trainer.Trainer`.
 
     Raises:
         ValueError: an unknown ``algo``.

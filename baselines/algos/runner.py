@@ -55,9 +55,9 @@ def run_in_chunks(train, keys, num_chunks: int, on_chunk=None, desc: str = "trai
     donated to the next chunk, so copy what you keep), under a tqdm progress bar.
 
     Args:
-        train: A :class:`baselines.algos.trainer.Trainer`.
+        train: A `baselines.algos.trainer.Trainer`.
         keys: ``(seeds, 2)`` the seeds' keys (unused when resuming).
-        num_chunks: How many chunks the updates are split into (:func:`chunk_bounds`).
+        num_chunks: How many chunks the updates are split into (`chunk_bounds`).
         on_chunk: The callback after each chunk, or None.
         desc: The progress bar's label.
         resume: None to start from ``train.init(keys)``, or ``(next_chunk, runner_state,

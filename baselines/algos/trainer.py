@@ -16,13 +16,13 @@ class Trainer:
         run_updates: ``run_updates(runner_state, n) -> (runner_state, metrics)``: ``n``
             PPO updates (a ``jax.lax.scan``); metrics have a leading update axis.
         num_updates: the updates ``config["TOTAL_TIMESTEPS"]`` holds.
-        config: the resolved config (:data:`baselines.config.SCHEMA`).
+        config: the resolved config (`baselines.config.SCHEMA`).
         policy: the networks (``init``, ``logits``, ``value``).
         env: the unwrapped env view the trainer steps.
         env_params: the training env parameters.
         make_act: ``make_act(eval_params)(params) -> act(state, key) -> levels``: the greedy
-            policy of trained parameters as a rule :func:`chargax_marl.evaluation.run_days`
-            plays (a :class:`chargax_marl.evaluation.MemoryAct` when the multi-agent trainers
+            policy of trained parameters as a rule `chargax_marl.evaluation.run_days`
+            plays (a `chargax_marl.evaluation.MemoryAct` when the multi-agent trainers
             see the station through an observation delay or action loss).
     """
 

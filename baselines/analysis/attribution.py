@@ -36,7 +36,7 @@ MIXES = ("learned", "learned_ports_rule_battery", "always_max_ports_learned_batt
 
 
 def mixed_policies(act, params) -> dict:
-    """The :data:`MIXES` as ``policy(state, key) -> levels`` from a trained ``act``."""
+    """The `MIXES` as ``policy(state, key) -> levels`` from a trained ``act``."""
     act = stateless(act, "the attribution's policy mixes")
     is_battery = policies._is_battery(params)
     return {

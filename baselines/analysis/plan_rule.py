@@ -1,6 +1,6 @@
 """``python -m baselines.analysis.plan_rule``: the car plan teacher played as a rule.
 
-The teacher is :mod:`chargax_marl.teachers.car_plan`: each parked car's remaining demand
+The teacher is `chargax_marl.teachers.car_plan`: each parked car's remaining demand
 valued by its cheapest plan under the day's prices.
 """
 
@@ -22,8 +22,8 @@ from chargax_marl.teachers.car_plan import plan_action
 
 
 def main(argv=None) -> dict:
-    """``python -m baselines.analysis.plan_rule [--scenario default]``: the plan rule (:func:`plan_action`)
-    on the 100 held-out days of a scenario of :mod:`baselines.analysis.references`, with and without the
+    """``python -m baselines.analysis.plan_rule [--scenario default]``: the plan rule (`plan_action`)
+    on the 100 held-out days of a scenario of `baselines.analysis.references`, with and without the
     programme's battery, at several plan power fractions, against always-max and the battery
     rule (paired over days, the same cars), and the fraction of the LP bound's headroom from
     ``<references>/<scenario>.json``."""

@@ -1,5 +1,5 @@
 """Read a trained run's battery along the held-out days: what it does each hour, next to the
-battery-only dynamic programme (:func:`chargax_marl.teachers.storage_value.dp_values`) and the
+battery-only dynamic programme (`chargax_marl.teachers.storage_value.dp_values`) and the
 battery rule.
 
     python -m baselines.analysis.read_policy outputs/train_ippo            # a run directory of baselines.train

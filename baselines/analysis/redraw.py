@@ -12,7 +12,7 @@ about 3 EUR/day there, larger than the differences in question.
 This tool replays the run's trained seeds and the rules (always-max, the battery rule and,
 on a station with a battery, the teachers' rules and the node-aware programme,
 ``heuristics.BATTERY_RULES``) on the same held-out days with ``draws``
-keys, ``PRNGKey(0) ... PRNGKey(draws - 1)`` (:func:`baselines.algos.draw_keys`): the first
+keys, ``PRNGKey(0) ... PRNGKey(draws - 1)`` (`baselines.algos.draw_keys`): the first
 are the run's own evaluation draws (one unless it trained with ``--eval-draws``; the tool
 refuses a run whose replayed evaluation differs from its ``results.json``: it was trained on
 another model), and every policy meets the same cars in every draw. A seed's paired

@@ -12,14 +12,14 @@
 
 the rule-based policies (always-max, always-max + the battery price rule that pays for wear
 and the one blind to it, EDF, LLF, price-threshold, the teachers' battery, plan and grid
-programmes), the MPC (:mod:`chargax_marl.optimal.mpc`, 4 h horizon, re-solved every
+programmes), the MPC (`chargax_marl.optimal.mpc`, 4 h horizon, re-solved every
 step) and the LP hindsight bound over always-max's occupancy
-(:mod:`chargax_marl.optimal.bound`), and the same bound without the battery (the difference,
+(`chargax_marl.optimal.bound`), and the same bound without the battery (the difference,
 ``battery_worth``, is what the battery is worth at best). For each it reports EUR/day, the paired difference to
 always-max (mean ± standard error over days) and the fraction of the headroom captured,
 ``(policy - always-max) / (bound - always-max)``, with solve times. Writes
 ``results/optimal/<scenario>.json`` (with the per-day profits, which
-:mod:`baselines.train` reuses for the same params) and ``<scenario>.png``, and prints the
+`baselines.train` reuses for the same params) and ``<scenario>.png``, and prints the
 table.
 """
 
@@ -213,7 +213,7 @@ MILP_SCENARIO = {
 
 def run_milp(num_days: int = 10, num_steps: int = 36) -> dict:
     """MILP (admissions free) against the LP over always-max's occupancy and always-max itself,
-    on the first ``num_steps`` of the first ``num_days`` held-out days of :data:`MILP_SCENARIO`."""
+    on the first ``num_steps`` of the first ``num_days`` held-out days of `MILP_SCENARIO`."""
 
     config = resolve(MILP_SCENARIO)
     _, params, _, days = build_env_params(config)

@@ -2,7 +2,7 @@
 
 ``python -m baselines.analysis.rules`` evaluates always-max, always-max + battery price rule,
 price-threshold, EDF, LLF and (on a station with a battery) the two rules of the trainers'
-teachers (:data:`TEACHER_RULES`) on the 100 held-out days of a scenario
+teachers (`TEACHER_RULES`) on the 100 held-out days of a scenario
 (``split_days(365, 100, seed=0)``) with the evaluation key 0, so every policy meets the same
 cars, and prints each one's mean daily profit and its paired difference (mean ± standard
 error over days) to always-max and to the battery rule. ``--out`` writes the JSON.

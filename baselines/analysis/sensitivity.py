@@ -69,7 +69,7 @@ def daily_totals(act, params, days, key):
 
 
 def sensitivity(params, days, key=None, step: int | None = None) -> dict:
-    """Per perturbation (:data:`PERTURBATIONS`, at ``step``, default 10:00): the day-by-day
+    """Per perturbation (`PERTURBATIONS`, at ``step``, default 10:00): the day-by-day
     profit difference to the unperturbed policy (``perturbed_always_max`` at a step outside the
     day) and the days on which the served cars differ. ``key`` defaults to ``PRNGKey(0)``."""
     key = jax.random.PRNGKey(0) if key is None else key

@@ -25,13 +25,13 @@ def evaluate_batched(
     make_act, net_params, eval_params, days, key=None, reference_profit=None, draws: int = 1
 ) -> dict:
     """Greedy held-out evaluation of every seed's parameters (leading axis) with
-    :func:`chargax_marl.evaluation.run_days`.
+    `chargax_marl.evaluation.run_days`.
 
-    Every seed runs with the *same* key as :func:`chargax_marl.evaluation.evaluate` (default
+    Every seed runs with the *same* key as `chargax_marl.evaluation.evaluate` (default
     ``PRNGKey(0)``), so all policies meet the same drawn cars on the same days (common random
     numbers): differences between policies are then not masked by the day-to-day spread of
     traffic (about ±130 EUR/day on the default scenario). With ``draws`` > 1 (and no ``key``)
-    each day is played under the keys of :func:`draw_keys` and every per-day total is the mean
+    each day is played under the keys of `draw_keys` and every per-day total is the mean
     over the draws. Returns pooled mean ± std over seeds
     × days (``metrics``), each seed's mean daily profit (``per_seed_profit``) and mean of every
     metric over days (``per_seed_metrics``), and daily profits (``daily_profit``, seeds × days). With ``reference_profit`` (the daily profits of a
@@ -73,7 +73,7 @@ def compiled_evaluation(make_act, eval_params):
 
     Args:
         make_act: ``make_act(params) -> act(state, key) -> levels`` or a
-            :class:`chargax_marl.evaluation.MemoryAct` (a trainer's ``make_act(eval_params)``).
+            `chargax_marl.evaluation.MemoryAct` (a trainer's ``make_act(eval_params)``).
         eval_params: the evaluation env parameters.
 
     Returns:
@@ -96,7 +96,7 @@ BASELINES = ("always_max", "battery_rule", "price_threshold")
 always-max plus a battery that charges in the day's cheapest 20 % of hours and discharges in
 the dearest 20 %); on a station with a battery also the teachers' rules,
 ``battery_programme`` (always-max plus the battery-only programme) and ``plan_programme``
-(the ports' plans plus the programme), :data:`baselines.rules.TEACHER_RULES`."""
+(the ports' plans plus the programme), `baselines.rules.TEACHER_RULES`."""
 
 
 REFERENCES = ("always_max", "battery_rule", "battery_programme", "plan_programme")
@@ -109,19 +109,19 @@ OPTIMAL_CHOICES = RUN_SCHEMA["OPTIMAL"].choices
 def baseline_results(
     eval_params, eval_days, optimal: str = "off", draws: int = 1, references_dir=None
 ) -> dict:
-    """The :data:`BASELINES` (and, on a station with a battery, the teachers' rules) on the
+    """The `BASELINES` (and, on a station with a battery, the teachers' rules) on the
     held-out days, with the evaluation's default key (the same
-    drawn cars that :func:`evaluate_batched` gives the agents). Each keeps its
+    drawn cars that `evaluate_batched` gives the agents). Each keeps its
     daily profits (``daily_profit``) for paired comparisons.
 
     ``optimal``: ``"bound"`` adds ``lp_bound`` (the LP hindsight bound over always-max's
-    occupancy, :func:`chargax_marl.evaluation.hindsight_bound`) and, when ``references_dir``
+    occupancy, `chargax_marl.evaluation.hindsight_bound`) and, when ``references_dir``
     (a directory ``make optimal`` wrote) holds them for exactly these params and days, the
     stored bound and ``mpc``; ``"mpc"`` also runs the MPC when no
     stored result matches (about 10 min per 100 days on 2 cores); ``"off"`` adds neither.
-    Every entry then gets ``headroom`` (:func:`chargax_marl.evaluation.headroom_captured`).
+    Every entry then gets ``headroom`` (`chargax_marl.evaluation.headroom_captured`).
     With ``draws`` > 1 every rule and the bound are scored under the keys of
-    :func:`draw_keys`, each day's profit the mean over the draws; the stored
+    `draw_keys`, each day's profit the mean over the draws; the stored
     MPC (one draw) is then not used, and ``optimal="mpc"`` runs the MPC on every draw.
     """
     if optimal not in OPTIMAL_CHOICES:

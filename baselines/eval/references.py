@@ -21,7 +21,7 @@ def evaluate_mpc(params, days, key=None, **mpc_kwargs) -> dict:
     A day on which any of the MPC's solves failed or hit its time limit is not scored: its
     ``daily_profit`` is NaN, it is left out of ``metrics`` (``days_failed``) and listed in
     ``failed_days`` with the steps and solver statuses of its failed solves
-    (:attr:`chargax_marl.optimal.mpc.MPC.failed_solves`).
+    (`chargax_marl.optimal.mpc.MPC.failed_solves`).
 
     Returns:
         ``{"daily_profit", "metrics", "failed_days", "wall_s", "solves", "failures",

@@ -1,7 +1,7 @@
 """Rule-based policies on the held-out days: daily profit and paired differences.
 
-The rules are :mod:`chargax_marl.policies` (always-max, the battery rule, price-threshold,
-EDF, LLF) and the teachers' rules of :mod:`chargax_marl.teachers.rules`; every rule is played
+The rules are `chargax_marl.policies` (always-max, the battery rule, price-threshold,
+EDF, LLF) and the teachers' rules of `chargax_marl.teachers.rules`; every rule is played
 with the evaluation's keys, so every policy meets the same cars.
 """
 
@@ -20,15 +20,15 @@ POLICIES = ("always_max", "battery_rule", "price_threshold", "edf", "llf")
 PROGRAMME = "battery_programme"
 """Always-max ports with the batteries on the battery-only programme: at each step the
 best of discharge / idle / charge at full power for the stored energy, by backward induction
-over the day's known buy prices (:func:`chargax_marl.teachers.storage_value.dp_battery_action`). It is
+over the day's known buy prices (`chargax_marl.teachers.storage_value.dp_battery_action`). It is
 the battery shaping's teacher (``BATTERY_SHAPING="dp"``) played as a rule, no learning, and
 so the reference a learner trained with that shaping has to beat to show it learned more
 than its teacher."""
 
 
 PLAN_PROGRAMME = "plan_programme"
-"""The ports on their cars' plans (:func:`chargax_marl.teachers.car_plan.plan_action` at
-:data:`chargax_marl.teachers.car_plan.PLAN_POWER_FRACTION`: full power in the steps of each car's
+"""The ports on their cars' plans (`chargax_marl.teachers.car_plan.plan_action` at
+`chargax_marl.teachers.car_plan.PLAN_POWER_FRACTION`: full power in the steps of each car's
 cheapest plan, idle otherwise) with the batteries on the battery-only programme: both
 teachers of the multi-agent settings (``PORT_SHAPING="plan"``, ``PLAN_OBS``,
 ``BATTERY_SHAPING="dp"``) played as a rule."""
@@ -36,7 +36,7 @@ teachers of the multi-agent settings (``PORT_SHAPING="plan"``, ``PLAN_OBS``,
 
 TEACHER_RULES = (PROGRAMME, PLAN_PROGRAMME)
 """Rules built from the trainers' shaping teachers, per station and price table
-(:mod:`chargax_marl.teachers.rules`, built by :func:`chargax_marl.policies.get_policy` with
+(`chargax_marl.teachers.rules`, built by `chargax_marl.policies.get_policy` with
 params); each needs a battery."""
 
 
@@ -54,8 +54,8 @@ BATTERY_RULES = TEACHER_RULES + (GRID_PROGRAMME,)
 
 
 def rule_policy(name: str, params):
-    """The ``policy(state, key, params)`` of a rule name: a :mod:`chargax_marl.policies` rule, or
-    one of :data:`BATTERY_RULES` (built for ``params``; a ``ValueError`` on a station without
+    """The ``policy(state, key, params)`` of a rule name: a `chargax_marl.policies` rule, or
+    one of `BATTERY_RULES` (built for ``params``; a ``ValueError`` on a station without
     a battery)."""
     return get_policy(name, params)
 
@@ -78,8 +78,8 @@ def evaluate_rules(params, days, policies=POLICIES, key=None, draws: int = 1) ->
     """``{policy: {"num_days", "days", "metrics", "daily_profit"}}`` of each rule-based policy on
     ``days``, all with the same key (default ``PRNGKey(0)``, the trainers' evaluation key), so
     every policy meets the same cars and daily profits compare pairwise. ``policies`` may name
-    :data:`TEACHER_RULES`. With ``draws`` > 1 (and no ``key``), every day is played under the
-    keys of :func:`baselines.eval.protocol.draw_keys` and its totals are the means over the draws."""
+    `TEACHER_RULES`. With ``draws`` > 1 (and no ``key``), every day is played under the
+    keys of `baselines.eval.protocol.draw_keys` and its totals are the means over the draws."""
     if key is not None and draws != 1:
         raise ValueError(
             f"evaluate_rules: give either a key or draws > 1, not both (draws={draws!r})"

@@ -129,7 +129,7 @@ def reused_run(path, algo: str, config: dict, seeds: int, chunks: int) -> dict:
     would make: the same algorithm, seeds (from key 0), learning settings, env-steps, training
     and evaluation parameters and held-out days. Raises ``ValueError`` naming what differs.
 
-    A setting the stored run lacks is accepted at its default (:data:`baselines.algos.PAPER_DEFAULTS`):
+    A setting the stored run lacks is accepted at its default (`baselines.algos.PAPER_DEFAULTS`):
     options are added off by default, so the run predates it. The code's version is not
     checked; the result carries ``reused_from`` with the path, the stored run's ``code``
     (commit, where it was recorded) and those options, so a reader can see what was mixed."""
@@ -183,7 +183,7 @@ def reused_run(path, algo: str, config: dict, seeds: int, chunks: int) -> dict:
 
 class Record:
     """The budget and provenance every runner writes beside its results: start it before the
-    first training, call :meth:`as_dict` after the last."""
+    first training, call `as_dict` after the last."""
 
     def __init__(self, args, seeds: int, base: dict, paper_seeds: int | None, figure: str):
         """``paper_seeds``: the paper's seed count for this figure (``None``: no paper counterpart)."""
@@ -226,7 +226,7 @@ class Record:
 
     @staticmethod
     def summary(d: dict) -> str:
-        """One line of an :meth:`as_dict` result, for the log."""
+        """One line of an `as_dict` result, for the log."""
         m = d["machine"]
         return (
             f"{d['figure']}: {d['cut_note']}; {d['wall_seconds'] / 60:.1f} min on {m['cpu']} x{m['cores']} "

@@ -3,14 +3,14 @@
     python -m baselines.experiments.add_teacher_rules results/traffic_sweep.json ...
 
 The trainers' shaping teachers, played as rules with no learning
-(:data:`baselines.eval.rules.TEACHER_RULES`):
+(`baselines.eval.rules.TEACHER_RULES`):
 
 - ``battery_programme``: always-max ports, the batteries on the battery-only programme (the
   teacher of ``BATTERY_SHAPING="dp"``, PPO's and the multi-agent settings');
 - ``plan_programme``: the ports on their cars' plans, the batteries on the programme (also
   the teacher of ``PORT_SHAPING="plan"`` and ``PLAN_OBS``, the multi-agent settings').
 
-:func:`baselines.train.baseline_results` evaluates both on every station with a battery, so
+`baselines.train.baseline_results` evaluates both on every station with a battery, so
 each new run records its paired differences to them (``vs_battery_programme``,
 ``vs_plan_programme``). Runs made before that lack them; this adds to every training result
 in each file (a ``baselines.train`` result: ``config``, ``evaluation``, ``per_seed``) what a
@@ -120,7 +120,7 @@ def add_to_result(res: dict, where: str = "") -> bool:
 def add_to_price_shift(d: dict, where: str = "") -> dict:
     """Add the teachers' rules to a ``price_shift`` result (``matrix`` train year x eval year,
     ``baselines`` per eval year) in place: per eval year the rules' entries, checked as in
-    :func:`teacher_entries`, and per cell ``vs_<rule>``. Returns ``{cell: {key: difference}}``."""
+    `teacher_entries`, and per cell ``vs_<rule>``. Returns ``{cell: {key: difference}}``."""
     if d.get("settings") != "tuned":
         raise ValueError(
             f"{where}: settings {d.get('settings')!r}; only the tuned settings' params are rebuilt here"

@@ -44,7 +44,7 @@ EXPERIMENTS = {
 
 def main(argv=None, out="outputs/cross_market", *, experiments=None, overrides=None):
     """``experiments`` ({source: targets}) and ``overrides`` (merged into the training config)
-    are for tests; the command line runs :data:`EXPERIMENTS`."""
+    are for tests; the command line runs `EXPERIMENTS`."""
     p = parser(__doc__, full_seeds=5)
     p.add_argument(
         "--no-reference", action="store_true", help="do not train the in-market reference agents"

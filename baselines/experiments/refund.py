@@ -4,7 +4,7 @@ The original Chargax implementation never refunds energy discharged from a custo
 so taking energy back from a car before it leaves earns money there. This simulator refunds
 it by default (``make_params(refund_discharged_energy=True)``); ``False`` reproduces the
 original's accounting. ``python -m baselines.experiments.refund`` evaluates always-max, always-max + the
-battery price rule and "discharge departing cars" (:func:`chargax_marl.policies.discharge_departing`)
+battery price rule and "discharge departing cars" (`chargax_marl.policies.discharge_departing`)
 under both, on a scenario's 100 held-out days (``split_days(365, 100, seed=0)``) with the
 evaluation key 0, so every run meets the same cars; it prints each one's mean daily profit,
 its paired difference to always-max and the paired difference refund off - refund on (mean ±

@@ -46,7 +46,7 @@ ACCOUNTS = {True: "refund", False: "no_refund"}
 
 
 def fleet_of(name: str):
-    """The ``fleet`` argument of ``make_params`` for a fleet name of :data:`FLEETS`."""
+    """The ``fleet`` argument of ``make_params`` for a fleet name of `FLEETS`."""
     return all_v2g("EU") if name == "EU-all-v2g" else name
 
 

@@ -29,7 +29,7 @@ def pm(d: dict | None, digits: int = 2) -> str:
 
 
 def seeds_stat(per_seed) -> dict:
-    """:func:`baselines.train.over_seeds` of per-seed numbers, with how many are above zero."""
+    """`baselines.train.over_seeds` of per-seed numbers, with how many are above zero."""
     v = np.asarray(per_seed, np.float64)
     return {**over_seeds(v), "above": int((v > 0).sum()), "n": int(v.size)}
 
@@ -57,7 +57,7 @@ def _profit(table: dict, name: str) -> str:
 
 
 TEACHERS = ("battery_programme", "plan_programme")
-"""The teachers' rules (:data:`baselines.eval.rules.TEACHER_RULES`)."""
+"""The teachers' rules (`baselines.eval.rules.TEACHER_RULES`)."""
 
 
 def _vs_seeds(per_seed: list, name: str) -> str:

@@ -3,8 +3,8 @@ against a reference run, seed against seed, and against always-max, in profit an
 service metrics.
 
 Each run is scored as it was trained (a run trained through an observation delay or action
-loss plays under them: :func:`chargax_marl.marl.communicating_act`) on its config's held-out
-days, under ``--draws`` car draws per day (:func:`baselines.eval.protocol.draw_keys`); a day's
+loss plays under them: `chargax_marl.marl.communicating_act`) on its config's held-out
+days, under ``--draws`` car draws per day (`baselines.eval.protocol.draw_keys`); a day's
 figure is the mean over its draws of the day's metric. For every metric, the comparison gives
 the mean of each side over seeds x days and the paired difference ``run - reference``
 (seed ``i`` against seed ``i``, day against day) with two standard errors: over the seeds'
@@ -38,7 +38,7 @@ METRICS = ("daily_profit_eur", "jain_index", "min_satisfaction", "mean_satisfact
 
 
 def daily_metrics(totals) -> dict[str, np.ndarray]:
-    """:data:`METRICS` of episode totals with any leading axes (float64)."""
+    """`METRICS` of episode totals with any leading axes (float64)."""
     out = {"daily_profit_eur": np.asarray(totals.profit_eur, np.float64)}
     service = service_metrics(totals)
     out.update({m: service[m] for m in METRICS if m != "daily_profit_eur"})

@@ -1,13 +1,13 @@
 """The benchmark: versioned tasks, shipped references, and scores against them.
 
-- :mod:`~chargax_marl.benchmark.tasks`: :data:`TASKS`, the registered :class:`Task` s (the
+- `tasks`: `TASKS`, the registered `Task` s (the
   scenario, the held-out days, the car draws and their keys);
-- :mod:`~chargax_marl.benchmark.references`: always-max (score 0), the LP hindsight bound
+- `references`: always-max (score 0), the LP hindsight bound
   (score 1), the strongest rules and (where computed) the MPC per day and draw, shipped with
   the package;
-- :mod:`~chargax_marl.benchmark.scoring`: :func:`get_normalized_score` of per-day profits and
-  :func:`score` of a policy of any kind (:mod:`~chargax_marl.benchmark.protocol`);
-- :mod:`~chargax_marl.benchmark.scoreboard`: the table of every task and policy, from files.
+- `scoring`: `get_normalized_score` of per-day profits and
+  `score` of a policy of any kind (`protocol`);
+- `scoreboard`: the table of every task and policy, from files.
 """
 
 from chargax_marl.benchmark.protocol import KINDS, play

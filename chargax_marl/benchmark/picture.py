@@ -1,6 +1,6 @@
 """A picture of a policy's held-out day beside a reference, for an operator to look at.
 
-:func:`day_picture` plays one held-out day and draw of a task (the cars every policy meets on
+`day_picture` plays one held-out day and draw of a task (the cars every policy meets on
 it) and draws, over the hours of the day: the buy price; the grid draw of both against the
 connection's limit; each port's power under the policy as a heat map, with arrivals and
 departures marked; the station battery's state of charge; and the cumulative profit of both,
@@ -30,7 +30,7 @@ def play_day(act: Callable, params, day: int, key: jax.Array) -> dict:
         ``{"hours", "price_eur_kwh", "grid_kw", "port_kw" (steps, ports), "arrived"
         (steps, ports), "departed" (steps, ports), "battery_soc" (steps, batteries),
         "profit_eur" (steps,), "total_profit_eur"}``; the total equals the day's profit in
-        :func:`chargax_marl.benchmark.score` for the same day and draw.
+        `chargax_marl.benchmark.score` for the same day and draw.
     """
     trace = day_of(make_traces(params, [day], day_keys=key[None]), 0)
     states, infos, final = jax.jit(lambda t, k: replay(act, params, t, k))(trace, key)
@@ -70,12 +70,12 @@ def day_picture(
 
     Args:
         policy: a jittable policy of ``kind`` (``"core"``, ``"single"`` or ``"marl"``).
-        task: a task id or :class:`Task`.
+        task: a task id or `Task`.
         day_index: position in the task's held-out days.
         draw: the car draw.
-        kind: the policy's kind (:mod:`chargax_marl.benchmark.protocol`).
+        kind: the policy's kind (`chargax_marl.benchmark.protocol`).
         num_levels: the policy's levels per direction (default: the task's).
-        reference: a rule name (:func:`chargax_marl.policies.get_policy`).
+        reference: a rule name (`chargax_marl.policies.get_policy`).
         label: the policy's name in the legend.
         path: where to save the figure (PNG), if given.
         references_dir: where the references live (default: the shipped ones).

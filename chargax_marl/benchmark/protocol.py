@@ -3,19 +3,19 @@
 Kinds of policy (``kind=``):
 
 - ``"core"``: ``policy(state, key, params) -> levels``, the core's signed level per leaf
-  (:mod:`chargax_marl.policies`); jitted;
+  (`chargax_marl.policies`); jitted;
 - ``"single"``: ``act(obs, key) -> action`` in the single-agent view's spaces
-  (:class:`chargax_marl.single.Chargax`); jitted;
+  (`chargax_marl.single.Chargax`); jitted;
 - ``"marl"``: ``act(obs_dict, key) -> action_dict`` in the multi-agent view's spaces
-  (:class:`chargax_marl.marl.ChargaxMARL`); jitted;
+  (`chargax_marl.marl.ChargaxMARL`); jitted;
 - ``"gymnasium"``: ``act(obs) -> action`` with numpy arrays, the spaces of
-  :class:`chargax_marl.single.GymnasiumEnv` (an SB3 model's ``predict``); host loop;
+  `chargax_marl.single.GymnasiumEnv` (an SB3 model's ``predict``); host loop;
 - ``"pettingzoo"``: ``act(obs_dict) -> action_dict`` with numpy arrays and integers, the
-  spaces of :class:`chargax_marl.marl.ChargaxParallelEnv`; host loop.
+  spaces of `chargax_marl.marl.ChargaxParallelEnv`; host loop.
 
 Every kind meets the same cars: draw ``r`` of day ``days[i]`` steps the simulator with the keys
-of ``day_keys[i, r]`` (:func:`chargax_marl.trace.day_keys`), as
-:func:`chargax_marl.evaluation.run_days_keyed` does. The host kinds call the policy once per
+of ``day_keys[i, r]`` (`chargax_marl.trace.day_keys`), as
+`chargax_marl.evaluation.run_days_keyed` does. The host kinds call the policy once per
 day, draw and step (all days and draws advance together, one jitted step per time step).
 """
 
@@ -38,7 +38,7 @@ from chargax_marl.trace import day_keys as split_day_key
 JIT_KINDS = ("core", "single", "marl")
 HOST_KINDS = ("gymnasium", "pettingzoo")
 KINDS = JIT_KINDS + HOST_KINDS
-"""Every kind of policy :func:`play` accepts."""
+"""Every kind of policy `play` accepts."""
 
 
 def _check_kind(kind: str) -> None:
@@ -56,7 +56,7 @@ def _single_space(params: EnvParams) -> tuple[tuple[int, ...], bool, np.ndarray 
 
 def _check_single_action(out: Any, params: EnvParams, where: str, space=None) -> None:
     """Raise a ``ValueError`` for an action whose shape or dtype does not fit the single-agent
-    space (``space``: :func:`_single_space`, computed once by a caller that checks often)."""
+    space (``space``: `_single_space`, computed once by a caller that checks often)."""
     shape, integer, _ = space or _single_space(params)
     got_shape = tuple(np.shape(out))
     dtype = np.dtype(out.dtype) if hasattr(out, "dtype") else np.asarray(out).dtype
@@ -95,7 +95,7 @@ def as_core(policy: Callable, kind: str, params: EnvParams) -> Callable:
 
     Args:
         policy: the policy.
-        kind: one of :data:`JIT_KINDS`.
+        kind: one of `JIT_KINDS`.
         params: the task's env parameters.
 
     Returns:
@@ -166,11 +166,11 @@ def play(
         policy: a policy of ``kind`` (module docstring).
         params: the env parameters.
         days: ``(n,)`` day indices.
-        day_keys: ``(n, draws, 2)`` keys (:meth:`chargax_marl.benchmark.Task.day_keys`).
-        kind: one of :data:`KINDS`.
+        day_keys: ``(n, draws, 2)`` keys (`chargax_marl.benchmark.Task.day_keys`).
+        kind: one of `KINDS`.
 
     Returns:
-        The days' final :class:`EpisodeTotals`, numpy leaves with leading axes
+        The days' final `EpisodeTotals`, numpy leaves with leading axes
         ``(n, draws)``.
 
     Raises:

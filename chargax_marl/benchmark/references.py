@@ -3,14 +3,14 @@ the strongest rules, per held-out day and car draw, shipped with the package.
 
 Each task's file ``references/<task id>.json`` holds the per-day-and-draw profits of every
 reference with the fingerprint of the parameters and the package version they were computed
-on. :func:`load_references` refuses a file whose fingerprint differs from the current code's
+on. `load_references` refuses a file whose fingerprint differs from the current code's
 parameters for the task. Rebuild with::
 
     python -m chargax_marl.benchmark.references                 # every task
     python -m chargax_marl.benchmark.references --task Chargax-shopping-v1
     python -m chargax_marl.benchmark.references --task Chargax-shopping-v1 --mpc   # add the MPC
 
-The MPC references (:data:`MPC_REFERENCES`) solve an LP per step and are added on request to
+The MPC references (`MPC_REFERENCES`) solve an LP per step and are added on request to
 a stored file of the same parameters.
 """
 
@@ -52,7 +52,7 @@ RULES = (
     "plan_programme",
     "grid_programme",
 )
-"""The rules computed for every task (:func:`chargax_marl.policies.get_policy` names)."""
+"""The rules computed for every task (`chargax_marl.policies.get_policy` names)."""
 
 MPC_REFERENCES = {"mpc": None, "mpc_levels1": 1}
 """The MPC references by name, with the ``num_levels`` they act in: the task's own action
@@ -66,7 +66,7 @@ SECONDARY = (
     "peak_grid_kw",
     "battery_wear_eur",
 )
-"""Metrics reported next to a score (:data:`chargax_marl.evaluation.METRICS` names)."""
+"""Metrics reported next to a score (`chargax_marl.evaluation.METRICS` names)."""
 
 
 class ReferenceMismatchError(ValueError):
@@ -82,11 +82,11 @@ def package_version() -> str:
 
 
 def secondary_metrics(totals) -> dict[str, float]:
-    """The mean over days and draws of each of :data:`SECONDARY`, of the service metrics
-    (:func:`chargax_marl.evaluation.service_metrics`) and of the profit.
+    """The mean over days and draws of each of `SECONDARY`, of the service metrics
+    (`chargax_marl.evaluation.service_metrics`) and of the profit.
 
     Args:
-        totals: :class:`chargax_marl.core.types.EpisodeTotals` with any leading axes.
+        totals: `chargax_marl.core.types.EpisodeTotals` with any leading axes.
 
     Returns:
         ``{metric: mean}``, plus ``daily_profit_eur`` and the service metrics (``None`` for a
@@ -113,8 +113,8 @@ def compute_references(
     """Compute a task's references.
 
     Args:
-        task: a task id or :class:`Task`.
-        rules: rule names to play (:func:`chargax_marl.policies.get_policy`).
+        task: a task id or `Task`.
+        rules: rule names to play (`chargax_marl.policies.get_policy`).
         bound: whether to solve the LP bound (one LP per day and draw).
         day_index: positions in the task's held-out days to compute (default: all); the keys
             stay those of the full schedule, so a subset equals the same rows of the whole.
@@ -182,13 +182,13 @@ def compute_references(
 
 
 def compute_mpc(task: str | Task, num_levels: int | None = None, *, day_index=None) -> dict:
-    """The MPC (:class:`chargax_marl.optimal.mpc.MPC`, default settings) on a task's held-out
+    """The MPC (`chargax_marl.optimal.mpc.MPC`, default settings) on a task's held-out
     days and car draws.
 
     Args:
-        task: a task id or :class:`Task`.
+        task: a task id or `Task`.
         num_levels: the action space it acts in (``None``: the task's own; see
-            :meth:`Task.policy_params`).
+            `Task.policy_params`).
         day_index: positions in the task's held-out days to play (default: all).
 
     Returns:
@@ -216,11 +216,11 @@ def compute_mpc(task: str | Task, num_levels: int | None = None, *, day_index=No
 
 
 def add_mpc(task: str | Task, directory: str | Path | None = None, log=print) -> Path:
-    """Add :data:`MPC_REFERENCES` to a task's stored references and write them back.
+    """Add `MPC_REFERENCES` to a task's stored references and write them back.
 
     Args:
-        task: a task id or :class:`Task`.
-        directory: where the files live (default: the shipped :data:`REFERENCES_DIR`).
+        task: a task id or `Task`.
+        directory: where the files live (default: the shipped `REFERENCES_DIR`).
         log: called with a line of progress (``None``: silent).
 
     Returns:
@@ -264,7 +264,7 @@ def _stored_bound(params, days, directory) -> np.ndarray | None:
 
 
 def reference_path(task: str | Task, directory: str | Path | None = None) -> Path:
-    """The file of a task's references (in ``directory``, default :data:`REFERENCES_DIR`)."""
+    """The file of a task's references (in ``directory``, default `REFERENCES_DIR`)."""
     task_id = task.id if isinstance(task, Task) else str(task)
     return Path(directory or REFERENCES_DIR) / f"{task_id}.json"
 
@@ -278,7 +278,7 @@ def _dumps(refs: dict) -> str:
 
 
 def save_references(refs: dict, directory: str | Path | None = None) -> Path:
-    """Write references as :func:`compute_references` returns them; returns the path."""
+    """Write references as `compute_references` returns them; returns the path."""
     path = reference_path(refs["task"], directory)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".json.tmp")
@@ -296,8 +296,8 @@ def load_references(task: str | Task, directory: str | Path | None = None) -> di
     """A task's references, checked against this code.
 
     Args:
-        task: a task id or :class:`Task`.
-        directory: where the files live (default: the shipped :data:`REFERENCES_DIR`).
+        task: a task id or `Task`.
+        directory: where the files live (default: the shipped `REFERENCES_DIR`).
 
     Returns:
         The stored references, with every ``daily_profit`` a float64 ``(days, draws)`` array

@@ -5,12 +5,12 @@
     python -m chargax_marl.benchmark.scoreboard --scores results/scores \
         --time results/scores/score_time.json --readme README.md   # the README's table
 
-Rows: the shipped references of every task (:mod:`chargax_marl.benchmark.references`) and one
+Rows: the shipped references of every task (`chargax_marl.benchmark.references`) and one
 row per name found in the score files of ``--scores`` (written by ``python -m
 baselines.score``: a trained agent on a task). A cell is the score (the fraction of the
 hindsight headroom captured) ± its standard error over days, and the EUR/day over
 always-max; a reference with days left out (an MPC day with a failed solve) says on how many
-days its cell rests. ``--time`` measures how long :func:`chargax_marl.benchmark.score` takes for a
+days its cell rests. ``--time`` measures how long `chargax_marl.benchmark.score` takes for a
 jitted policy (always-max, compile included) on each task and writes it to the given file;
 with an existing file, the table shows it.
 """
@@ -135,7 +135,7 @@ def render(
 
 
 def time_score(path: str | Path) -> dict:
-    """Time :func:`chargax_marl.benchmark.score` of always-max on every task (jit compile
+    """Time `chargax_marl.benchmark.score` of always-max on every task (jit compile
     included, the references already shipped), and of always-max as a host Gymnasium policy
     on the default task; write ``{"score_s": {task: seconds}, "gymnasium_s": {task: s}}``."""
     out = {"score_s": {}, "gymnasium_s": {}, "policy": "always_max"}
@@ -160,7 +160,7 @@ START, END = "<!-- scoreboard:start -->", "<!-- scoreboard:end -->"
 
 
 def embedded(text: str) -> str:
-    """The table between :data:`START` and :data:`END` in ``text``.
+    """The table between `START` and `END` in ``text``.
 
     Raises:
         ValueError: the markers are missing.

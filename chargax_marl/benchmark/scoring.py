@@ -6,7 +6,7 @@ mean over the draws, and::
     score = mean_d(p_d - a_d) / mean_d(b_d - a_d)
 
 with ``a`` always-max's and ``b`` the LP hindsight bound's per-day profits on the same cars
-(shipped, :mod:`chargax_marl.benchmark.references`): 0 is always-max, 1 the bound, negative
+(shipped, `chargax_marl.benchmark.references`): 0 is always-max, 1 the bound, negative
 worse than always-max. Its standard error is over days (the days are the independent units;
 the draws of one day share its prices). Days where the bound's solve failed are left out.
 """
@@ -58,7 +58,7 @@ def get_normalized_score(task_id: str | Task, daily_profit, references_dir=None)
     benchmark): the fraction of the hindsight headroom captured.
 
     Args:
-        task_id: a task id (:data:`chargax_marl.benchmark.TASKS`) or :class:`Task`.
+        task_id: a task id (`chargax_marl.benchmark.TASKS`) or `Task`.
         daily_profit: EUR per held-out day and draw, ``(..., days, draws)`` (leading axes,
             e.g. seeds, are kept), in the order of ``Task.eval_days()`` and the draws of
             ``Task.day_keys()``; ``(..., days)`` also for a one-draw task.
@@ -83,9 +83,9 @@ def compare(task_id: str | Task, daily_profit, references_dir=None) -> dict:
     """A policy's per-day profits set against a task's references.
 
     Args:
-        task_id: a task id or :class:`Task`.
+        task_id: a task id or `Task`.
         daily_profit: ``(days, draws)`` or ``(seeds, days, draws)`` EUR (see
-            :func:`get_normalized_score`).
+            `get_normalized_score`).
         references_dir: where the references live (default: the shipped ones).
 
     Returns:
@@ -134,20 +134,20 @@ def score(
     """Play a policy on a task's held-out days and draws and score it.
 
     Args:
-        policy: a policy of ``kind`` (:mod:`chargax_marl.benchmark.protocol`): ``"core"``
+        policy: a policy of ``kind`` (`chargax_marl.benchmark.protocol`): ``"core"``
             ``policy(state, key, params) -> levels``; ``"single"`` ``act(obs, key) ->
             action``; ``"marl"`` ``act(obs_dict, key) -> action_dict``; ``"gymnasium"``
             ``act(obs) -> action`` and ``"pettingzoo"`` ``act(obs_dict) -> action_dict`` on
             numpy (host loops, slower).
-        task_id: a task id or :class:`Task`.
+        task_id: a task id or `Task`.
         kind: the policy's kind.
         num_levels: levels per direction of the policy's action space, where it was trained
             with fewer than the task's (``ENV_KWARGS = { num_levels = 1 }``: discharge,
-            idle, charge at full power); default the task's (:meth:`Task.policy_params`).
+            idle, charge at full power); default the task's (`Task.policy_params`).
         references_dir: where the references live (default: the shipped ones).
 
     Returns:
-        :func:`compare`'s result, plus ``daily_profit`` (``(days, draws)`` array),
+        `compare`'s result, plus ``daily_profit`` (``(days, draws)`` array),
         ``metrics`` (the secondary metrics, means over days and draws: energy delivered, kWh
         missing at departure, cars rejected, overtime, peak grid draw, battery wear) and
         ``wall_s``.

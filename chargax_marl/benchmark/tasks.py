@@ -8,10 +8,10 @@ parameters' fingerprint, so a stale file is refused rather than used).
 
 Key schedule: draw ``r`` of held-out day ``days[i]`` draws its cars (and the policy's keys)
 from ``jax.random.split(jax.random.PRNGKey(r), len(days))[i]``: draw 0 is the evaluation of
-:func:`chargax_marl.evaluation.evaluate` with its default key.
+`chargax_marl.evaluation.evaluate` with its default key.
 
 Distribution-shift tasks are scored on the held-out days of a test price year (or market)
-that their training data do not contain: :meth:`Task.train_params` gives the training env.
+that their training data do not contain: `Task.train_params` gives the training env.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ class Task:
     Attributes:
         name: the id's middle part (``Chargax-<name>-v<version>``).
         version: increases whenever a model change moves the task's references.
-        scenario: a name of :data:`chargax_marl.core.scenarios.SCENARIOS`.
+        scenario: a name of `chargax_marl.core.scenarios.SCENARIOS`.
         draws: car draws per held-out day; a policy's per-day profit is the mean over them.
         description: one line for the task table.
         prices: the price data the task is scored on (a bundled dataset name).
@@ -54,7 +54,7 @@ class Task:
         split_seed: seed of the held-out split.
         params_fn: builds the scored env's parameters in place of ``scenario`` and
             ``prices`` (a task on a station or prices of one's own; its references are
-            built with :func:`chargax_marl.benchmark.references.compute_references`).
+            built with `chargax_marl.benchmark.references.compute_references`).
     """
 
     name: str
@@ -81,7 +81,7 @@ class Task:
     def env_kwargs(self) -> dict[str, Any]:
         if self.params_fn is not None:
             raise ValueError(f"task {self.id!r} builds its params with params_fn, not keywords")
-        """The :func:`chargax_marl.core.make_params` keywords of the scored env."""
+        """The `chargax_marl.core.make_params` keywords of the scored env."""
         return scenario_kwargs(self.scenario, prices=self.prices)
 
     def make_params(self) -> EnvParams:
@@ -113,7 +113,7 @@ class Task:
         on (the training days of ``prices``, or every day of ``train_prices``).
 
         Args:
-            **overrides: :func:`chargax_marl.core.make_params` keywords on top of the task's
+            **overrides: `chargax_marl.core.make_params` keywords on top of the task's
                 (``num_levels=1``: a policy trained in fewer levels); not for ``params_fn``
                 tasks.
         """
@@ -133,7 +133,7 @@ class Task:
         return make_params(**{**self.env_kwargs(), **overrides, "prices": joined})
 
     def scored_params(self, **overrides: Any) -> EnvParams:
-        """The scored env with ``overrides`` on top (:meth:`make_params` without them)."""
+        """The scored env with ``overrides`` on top (`make_params` without them)."""
         if not overrides:
             return self.make_params()
         if self.params_fn is not None:
@@ -238,7 +238,7 @@ TASKS: dict[str, Task] = {
 
 
 def get_task(task: str | Task) -> Task:
-    """The task of an id (a :class:`Task` is returned as it is).
+    """The task of an id (a `Task` is returned as it is).
 
     Raises:
         KeyError: an unknown id; the message lists the registered ones.

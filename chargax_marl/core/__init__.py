@@ -1,18 +1,18 @@
 """The shared station simulator: pure functions over pytrees.
 
-- :mod:`station`: the station tree and its compiled arrays.
-- :mod:`types`: parameters, state and step report pytrees.
-- :mod:`params`: building validated parameters from scenario names or custom data.
-- :mod:`physics`: actions, rate curves, node limits, charging and energy flows.
-- :mod:`traffic`: departures and arrivals.
-- :mod:`reward`: prices, profit and penalty terms.
-- :mod:`simulator`: ``reset`` and ``step``.
-- :mod:`observation`: observation features.
-- :mod:`datasets`: bundled and custom exogenous data (a re-export of :mod:`prices`,
-  :mod:`profiles` (user profiles and traffic), :mod:`fleets` and :mod:`signals` (MOER, grid
-  demand), each with one validator per data kind; shared helpers in :mod:`data_io`).
-- :mod:`checks`: the bounds and the checker of every user-given number.
-- :mod:`actions`: how NaN, huge, wrongly sized and non-numeric actions are handled.
+- `station`: the station tree and its compiled arrays.
+- `types`: parameters, state and step report pytrees.
+- `params`: building validated parameters from scenario names or custom data.
+- `physics`: actions, rate curves, node limits, charging and energy flows.
+- `traffic`: departures and arrivals.
+- `reward`: prices, profit and penalty terms.
+- `simulator`: ``reset`` and ``step``.
+- `observation`: observation features.
+- `datasets`: bundled and custom exogenous data (a re-export of `prices`,
+  `profiles` (user profiles and traffic), `fleets` and `signals` (MOER, grid
+  demand), each with one validator per data kind; shared helpers in `data_io`).
+- `checks`: the bounds and the checker of every user-given number.
+- `actions`: how NaN, huge, wrongly sized and non-numeric actions are handled.
 """
 
 from chargax_marl.core.params import make_params, validate_params, validated_replace

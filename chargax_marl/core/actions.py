@@ -13,7 +13,7 @@ Rules (the same in every view):
   leaf (ports then batteries); a scalar is not broadcast. Strings, objects and complex
   numbers raise ``ValueError`` naming the field, the value and what is allowed.
 
-:func:`to_int32` and :func:`to_fraction` work under ``jit``; :func:`host_array` runs outside
+`to_int32` and `to_fraction` work under ``jit``; `host_array` runs outside
 ``jit`` on numpy / Python input (and passes jax arrays and tracers through).
 """
 
@@ -94,7 +94,7 @@ def host_array(action: Any, num_leaves: int | None = None, field: str = "action"
 
     Jax arrays and tracers pass through (only the dtype and, with ``num_leaves``, the size
     are checked). Anything else becomes a numpy array: integers are clipped to the int32
-    range and cast to int32; finite floats are clipped to +-:data:`HOST_FLOAT_BOUND` and
+    range and cast to int32; finite floats are clipped to +-`HOST_FLOAT_BOUND` and
     cast to float32 (NaN and +-inf are kept, the traced step reads them as idle).
     """
     if isinstance(action, (jax.Array, jax.core.Tracer)):

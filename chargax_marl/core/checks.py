@@ -4,7 +4,7 @@ The simulator runs in float32 (and draws arrivals as int32), but users pass Pyth
 (float64). A value can be finite in float64 and still overflow to inf, or underflow to 0,
 once cast, and products of two legal magnitudes can overflow too. So every number is checked
 *after* the cast and against a documented range that keeps the step's arithmetic finite:
-:func:`number` for scalars, :func:`array` for arrays. Errors are ``ValueError`` and name the
+`number` for scalars, `array` for arrays. Errors are ``ValueError`` and name the
 field, the value and what is allowed.
 
 The bounds (units in the names) are generous for real stations and data, and small enough
@@ -128,7 +128,7 @@ def array(
     high_open: bool = False,
     unit: str = "",
 ) -> np.ndarray:
-    """``value`` as a float64 array whose entries are finite and in range (checked as :func:`number`).
+    """``value`` as a float64 array whose entries are finite and in range (checked as `number`).
 
     The message names the first offending entry and its index.
     """

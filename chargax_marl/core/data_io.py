@@ -2,7 +2,7 @@
 units, and the small readers and checks every data kind uses (CSV rows, UTF-8 text, finite
 and bounded arrays, dates, weekdays).
 
-Units are described in :mod:`chargax_marl.core.datasets`.
+Units are described in `chargax_marl.core.datasets`.
 """
 
 from __future__ import annotations
@@ -100,7 +100,7 @@ def _check_bounds(
     unit: str = "",
     low_open: bool = False,
 ) -> None:
-    """Every entry within ``[low, high]`` and representable in float32 (after :func:`_check_finite`)."""
+    """Every entry within ``[low, high]`` and representable in float32 (after `_check_finite`)."""
     checks.array(field, arr, low=low, high=high, low_open=low_open, unit=unit)
 
 

@@ -1,9 +1,9 @@
 """Bundled exogenous data (prices, user profiles, car fleets, traffic, MOER, grid demand) and loaders.
 
 A thin re-export: each data kind lives in its own module with one validator that every
-path goes through: :mod:`chargax_marl.core.prices`, :mod:`chargax_marl.core.profiles`
-(user profiles and traffic), :mod:`chargax_marl.core.fleets`, :mod:`chargax_marl.core.signals`
-(MOER and grid demand); shared constants and CSV helpers in :mod:`chargax_marl.core.data_io`.
+path goes through: `chargax_marl.core.prices`, `chargax_marl.core.profiles`
+(user profiles and traffic), `chargax_marl.core.fleets`, `chargax_marl.core.signals`
+(MOER and grid demand); shared constants and CSV helpers in `chargax_marl.core.data_io`.
 
 Everything here is plain numpy and the standard library; nothing touches the
 network. The bundled files live in ``chargax_marl/core/data/`` and are derived
@@ -20,7 +20,7 @@ Units
 * User profiles: arrival weights per 5-minute slot (288 per day, row 0 = workday,
   row 1 = weekend), stay duration quantiles in **minutes**, energy demand
   quantiles in **kWh**, both at probabilities ``0, 0.01, ..., 1``
-  (:data:`QUANTILE_PROBS`). A sampled stay is
+  (`QUANTILE_PROBS`). A sampled stay is
   ``stay_quantiles_min[q] * stay_scale_by_hour[arrival_hour]`` (same for demand).
 * Fleets: ``capacity_kwh`` (kWh), ``max_ac_kw``/``max_dc_kw`` (kW), ``tau``
   (SoC above which the charge rate tapers linearly to 0), ``share`` (sums to 1).

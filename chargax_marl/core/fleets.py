@@ -1,5 +1,5 @@
 """Car fleets: bundled fleets and CSV files. Every path goes through one validator,
-:func:`_make_fleet`.
+`_make_fleet`.
 """
 
 from __future__ import annotations
@@ -165,7 +165,7 @@ def parse_fleet_csv_text(text: str, name: str = "custom", source: str = "<csv>")
 
 
 def load_fleet(source: Any = "EU") -> FleetData:
-    """A bundled fleet by name (:data:`FLEETS`), a :class:`FleetData`, or a CSV path."""
+    """A bundled fleet by name (`FLEETS`), a `FleetData`, or a CSV path."""
     if isinstance(source, FleetData):
         return _make_fleet(
             source.name,

@@ -36,7 +36,7 @@ EXTRA_CONTEXT = 1 + len(PRICE_QUANTILES) + 1 + 1
 
 
 def leaf_features(state: EnvState, params: EnvParams) -> jnp.ndarray:
-    """Per-leaf features ``(L, len(PORT_FEATURES))`` in the order of :data:`PORT_FEATURES`."""
+    """Per-leaf features ``(L, len(PORT_FEATURES))`` in the order of `PORT_FEATURES`."""
     st = params.station
     rate_kw = physics.rate_curve_kw(state.soc, state.max_rate_kw, state.tau)
     signed_max = jnp.where(
@@ -76,8 +76,8 @@ def context_features(state: EnvState, params: EnvParams) -> jnp.ndarray:
     """Shared context, in order: the buy-side price (day-ahead plus
     the time-of-use surcharge) now and the next H hours, customer price, time of day (sin, cos),
     workday flag, day of the data, the fraction of the hour left until the price changes, the
-    day's price quantiles (:data:`PRICE_QUANTILES`), the grid connection's load
-    (:func:`root_load`), the day's peak draw so far over the connection's limit, and MOER now
+    day's price quantiles (`PRICE_QUANTILES`), the grid connection's load
+    (`root_load`), the day's peak draw so far over the connection's limit, and MOER now
     when ``params.observe_moer``."""
     ahead = jnp.arange(params.price_horizon_hours + 1)  # one gather per table, not one per hour
     prices = day_ahead_price(state.day, state.timestep, params, ahead) + tou_fee(
@@ -125,7 +125,7 @@ def flat_obs(state: EnvState, params: EnvParams) -> jnp.ndarray:
 
 
 def context_parts(params: EnvParams) -> tuple[tuple[str, int], ...]:
-    """``(name, width)`` of each part of :func:`context_features`, in order."""
+    """``(name, width)`` of each part of `context_features`, in order."""
     return (
         ("prices", int(params.price_horizon_hours) + 1),
         ("customer_price", 1),
@@ -141,12 +141,12 @@ def context_parts(params: EnvParams) -> tuple[tuple[str, int], ...]:
 
 
 def context_size(params: EnvParams) -> int:
-    """Length of :func:`context_features`."""
+    """Length of `context_features`."""
     return sum(width for _, width in context_parts(params))
 
 
 def context_index(params: EnvParams, name: str) -> int:
-    """Where part ``name`` of :func:`context_parts` starts inside the context."""
+    """Where part ``name`` of `context_parts` starts inside the context."""
     start = 0
     for part, width in context_parts(params):
         if part == name:

@@ -1,10 +1,10 @@
-"""Build and validate :class:`EnvParams` from named scenarios or custom data.
+"""Build and validate `EnvParams` from named scenarios or custom data.
 
 All validation happens here, at construction, with errors that name the field, the value
-and what is allowed; the jitted step never sees a bad value. :func:`make_params` builds
-validated params; :func:`validate_params` re-runs the same checks on params made otherwise
-(``params.replace(...)``, hand-made :class:`StationArrays`), and both views call it on the
-params they are given; :func:`validated_replace` is ``replace`` with the checks.
+and what is allowed; the jitted step never sees a bad value. `make_params` builds
+validated params; `validate_params` re-runs the same checks on params made otherwise
+(``params.replace(...)``, hand-made `StationArrays`), and both views call it on the
+params they are given; `validated_replace` is ``replace`` with the checks.
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ def _finite(
     maximum: float | None = None,
     unit: str = "",
 ) -> float:
-    """A finite scalar in range and representable in float32 (:func:`checks.number`)."""
+    """A finite scalar in range and representable in float32 (`checks.number`)."""
     return checks.number(field, value, low=minimum, high=maximum, low_open=strict, unit=unit)
 
 
@@ -67,8 +67,8 @@ _SCALARS = {
         minimum=0.0, strict=True, maximum=checks.MAX_TOLERANCE_KWH, unit="kWh"
     ),
 }
-"""The range of every scalar float field of :class:`EnvParams` (keyword arguments of
-:func:`_finite`), for :func:`make_params` and :func:`validate_params` alike."""
+"""The range of every scalar float field of `EnvParams` (keyword arguments of
+`_finite`), for `make_params` and `validate_params` alike."""
 
 
 def _check_settings(
@@ -128,7 +128,7 @@ def _check_reset_days(reset_days: Any, days_all: int) -> np.ndarray:
 
 
 def _day_price_quantiles(prices_eur_kwh: np.ndarray, tou: np.ndarray) -> np.ndarray:
-    """Quantiles (:data:`PRICE_QUANTILES`) of each day's hourly buy price plus surcharge, float32."""
+    """Quantiles (`PRICE_QUANTILES`) of each day's hourly buy price plus surcharge, float32."""
     return np.asarray(
         np.quantile(
             np.asarray(prices_eur_kwh, np.float64) + tou[None, :], PRICE_QUANTILES, axis=1
@@ -144,7 +144,7 @@ def _battery_wear(
     calendar_life_years: float | None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(wear_eur_kwh (B,), calendar_eur_day (B,))`` of the station's batteries, each from its
-    own :class:`Battery` fields where the override is None."""
+    own `Battery` fields where the override is None."""
 
     if cost_eur_kwh is not None:
         _finite(
@@ -226,7 +226,7 @@ def _battery_initial_soc(value: Any, station: StationArrays) -> tuple[np.ndarray
 
 def penalty_weights(alpha: PenaltyWeights | dict | None) -> PenaltyWeights:
     """Validated weights: every term finite with ``|alpha_c| <= checks.MAX_WEIGHT``, whether
-    given as a dict or a :class:`PenaltyWeights`."""
+    given as a dict or a `PenaltyWeights`."""
     if alpha is None:
         return PenaltyWeights()
     if isinstance(alpha, PenaltyWeights):
@@ -292,18 +292,18 @@ def make_params(
 
     ``station`` is an architecture name (``single_type``, ``multiple_types``,
     ``multiple_splitters``) with ``station_kwargs`` for its builder, a custom
-    :class:`Splitter` tree, or compiled :class:`StationArrays`. ``grid_fraction`` in (0, 1]
+    `Splitter` tree, or compiled `StationArrays`. ``grid_fraction`` in (0, 1]
     sets the grid connection (the root) to that fraction of the sum of its children's limits
     (0.25: a quarter of what the EVSEs and the battery could draw together); it replaces the
     builder's ``grid_kw``. ``prices``, ``user_profile``
-    and ``fleet`` accept a bundled name or custom data (see :mod:`chargax_marl.core.datasets`).
+    and ``fleet`` accept a bundled name or custom data (see `chargax_marl.core.datasets`).
     ``traffic`` is ``low``/``medium``/``high`` (50/100/250 cars per day) or a number of cars
     per day. ``moer_kg_per_kwh`` is an array ``(days, steps)`` or ``(steps,)`` in kg CO2/kWh, or a
     bundled dataset name (``datasets.MOER_DATASETS``, 5-minute data resampled to the step); when
     given, MOER is observed unless ``observe_moer=False``. ``grid_demand_kwh`` is ``(steps,)`` kWh
     per step, a shape name (``datasets.GRID_DEMAND_SHAPES``) or a CSV path. ``reset_days``
     restricts the days ``reset`` draws from (e.g. training days, holding out evaluation days;
-    see :func:`chargax_marl.evaluation.split_days`); default all days of the price data.
+    see `chargax_marl.evaluation.split_days`); default all days of the price data.
 
     Economics: the station sells at ``customer_price_eur_kwh`` (the paper's 0.75), buys at
     the day-ahead price plus ``grid_fee_eur_kwh`` (default 0.04), feeds in at
@@ -313,27 +313,27 @@ def make_params(
     for every kWh discharged from their car (V2G), so customers pay for the net energy
     delivered; False bills only the energy put into each car and refunds nothing, the
     original Chargax implementation's accounting, under which discharging a car before it
-    leaves earns money (see :func:`chargax_marl.core.reward.billed_car_kwh`).
-    Network tariff terms (:mod:`chargax_marl.core.tariffs`): ``tou_fee_eur_kwh`` adds a
+    leaves earns money (see `chargax_marl.core.reward.billed_car_kwh`).
+    Network tariff terms (`chargax_marl.core.tariffs`): ``tou_fee_eur_kwh`` adds a
     time-of-use surcharge per local hour to the buy price (24 values or a preset such as
     ``"evening-peak"``); ``peak_demand_eur_kw`` charges EUR per kW of the day's highest net
     grid draw, booked at the day's last step (``peak_demand_booking="end_of_day"``) or as the
     running peak rises (``"incremental"``, same daily total). Both are part of the profit.
 
     Station batteries: ``battery_initial_soc`` is a fixed SoC, a ``(low, high)`` range drawn
-    uniformly at every reset, or None (each :class:`Battery`'s own ``initial_soc``).
+    uniformly at every reset, or None (each `Battery`'s own ``initial_soc``).
     ``battery_terminal_price`` values the batteries' energy change over the day at the last
     step: ``"day_mean_buy"`` (default: the day's mean day-ahead price plus the grid fee), a
     price in EUR/kWh, or None (no value, the paper's free battery energy).
     ``battery_cost_eur_kwh``, ``battery_cycle_life`` and ``battery_calendar_life_years`` set
-    the wear of every battery (None: each :class:`Battery`'s own; ``battery_cost_eur_kwh=0``
+    the wear of every battery (None: each `Battery`'s own; ``battery_cost_eur_kwh=0``
     makes cycling free; ``battery_calendar_life_years=0`` turns calendar ageing off): each kWh
     into or out of the cells costs ``cost / (2 cycle_life)`` and a calendar life adds ``cost *
     capacity / (365 years)`` per day, both booked in the profit
-    (:func:`chargax_marl.core.reward.battery_wear_eur`).
+    (`chargax_marl.core.reward.battery_wear_eur`).
 
     ``beta`` weighs the undertime credit of the charge-sensitive satisfaction term, 0 by
-    default (see :func:`chargax_marl.core.traffic.depart`).
+    default (see `chargax_marl.core.traffic.depart`).
     """
     if not isinstance(refund_discharged_energy, (bool, np.bool_)):
         raise ValueError(
@@ -513,11 +513,11 @@ def _shape(field: str, value: Any, shape: tuple, what: str) -> np.ndarray:
 
 
 def validate_params(params: EnvParams) -> EnvParams:
-    """Re-run :func:`make_params`'s checks on params made some other way.
+    """Re-run `make_params`'s checks on params made some other way.
 
-    ``EnvParams.replace`` and hand-made :class:`StationArrays` skip every check of
-    :func:`make_params`; this applies them to the finished object (the same bounds, from
-    :mod:`chargax_marl.core.checks` and the data validators), so that a bad value is an error
+    ``EnvParams.replace`` and hand-made `StationArrays` skip every check of
+    `make_params`; this applies them to the finished object (the same bounds, from
+    `chargax_marl.core.checks` and the data validators), so that a bad value is an error
     at construction and never a NaN later. Both views call it on the params they are given.
     Params with traced leaves (inside ``jit``) are returned unchecked.
 
@@ -630,22 +630,22 @@ def validate_params(params: EnvParams) -> EnvParams:
 
 
 def validated_replace(params: EnvParams, **changes: Any) -> EnvParams:
-    """``params.replace(**changes)`` with the checks of :func:`validate_params`.
+    """``params.replace(**changes)`` with the checks of `validate_params`.
 
     ``EnvParams.replace`` itself is unchecked (a frozen-dataclass copy); derive params
-    through this function (or rebuild them with :func:`make_params`) so that a bad value is an
+    through this function (or rebuild them with `make_params`) so that a bad value is an
     error here rather than a NaN in the step.
 
     Args:
         params: the parameters to derive from.
-        **changes: new values of :class:`EnvParams` fields.
+        **changes: new values of `EnvParams` fields.
 
     Returns:
         The derived, validated params.
 
     Raises:
         TypeError: an unknown field name (the message lists the allowed ones).
-        ValueError: as :func:`validate_params`.
+        ValueError: as `validate_params`.
     """
     checks.keywords("validated_replace", changes, tuple(EnvParams.__dataclass_fields__))
     return validate_params(params.replace(**changes))

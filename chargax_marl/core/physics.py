@@ -50,7 +50,7 @@ def target_current(action: jnp.ndarray, state: EnvState, params: EnvParams) -> j
     fraction in [-1, 1] (mode ``continuous``). Out-of-range values are clipped to the valid
     range of that leaf (levels ``[min_level, L]``, fractions ``[-1, 1]``, no discharge where
     the leaf cannot discharge); NaN and +-inf are idle (level 0, fraction 0; see
-    :mod:`chargax_marl.core.actions`).
+    `chargax_marl.core.actions`).
     """
     st = params.station
     if params.action_mode == "continuous":
@@ -84,7 +84,7 @@ def clip_to_car(current_a: jnp.ndarray, state: EnvState, params: EnvParams) -> j
 
     The capacity window is applied here, before the node limits, and not only when charging:
     with flows of both signs under one node, cutting one leaf after the rescale could raise
-    the node's net flow above its limit. :func:`charge` keeps the same clip as a guard.
+    the node's net flow above its limit. `charge` keeps the same clip as a guard.
     """
     st = params.station
     v = st.leaf_voltage_v
@@ -161,12 +161,12 @@ def rescale_to_limits(current_a: jnp.ndarray, station: StationArrays) -> jnp.nda
     power's sign only through the efficiency factor, so the node's grid-side net flow scales
     by the same factor: no sign flips, no magnitude grows, and deeper nodes stay within their
     limits when a shallower node rescales. After the pass every node limit holds on the grid
-    side, also for the energies :func:`charge` then moves.
+    side, also for the energies `charge` then moves.
 
     Where charging and discharging leaves meet under a node, their grid-side flows cancel and
     the net flow is a small difference of large terms; float32 rounds each term (here, in the
     energy and in the sums) by a fraction of the term, not of the net. The pass therefore
-    compares the limit with the net flow plus :data:`CANCEL_MARGIN` of the power that cancels
+    compares the limit with the net flow plus `CANCEL_MARGIN` of the power that cancels
     (gross minus net), so that a tiny limit under large opposite flows holds too. A node whose
     leaves all flow one way has no such margin.
 
@@ -198,7 +198,7 @@ def rescale_to_limits(current_a: jnp.ndarray, station: StationArrays) -> jnp.nda
 
 def requested_current(action: jnp.ndarray, state: EnvState, params: EnvParams) -> jnp.ndarray:
     """The currents the controller asks for: the action's target current within the car's and
-    the port's limits, before the node limits (what :func:`apply_actions` rescales)."""
+    the port's limits, before the node limits (what `apply_actions` rescales)."""
     return clip_to_car(target_current(action, state, params), state, params)
 
 

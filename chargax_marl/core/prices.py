@@ -1,5 +1,5 @@
 """Day-ahead prices: bundled datasets, arrays and CSV files, and the raw market exports the
-bundled files are built from. Every path goes through one validator, :func:`_validate_prices`
+bundled files are built from. Every path goes through one validator, `_validate_prices`
 (shape ``(days, 24)``, finite, within +-``checks.MAX_PRICE_EUR_KWH`` EUR/kWh).
 """
 
@@ -61,7 +61,7 @@ class PriceData:
 
 
 def list_price_datasets() -> list[str]:
-    """Names accepted by :func:`load_prices`."""
+    """Names accepted by `load_prices`."""
     return list(PRICE_DATASETS)
 
 
@@ -83,9 +83,9 @@ def _validate_prices(value: Any, field: str = "prices") -> np.ndarray:
 def load_prices(source: Any = "NL-2023", *, first_weekday: int | None = None) -> PriceData:
     """Load day-ahead prices.
 
-    ``source`` is a bundled dataset name (see :data:`PRICE_DATASETS`), a
-    :class:`PriceData`, a numpy array of EUR/kWh with shape ``(days, 24)`` or
-    ``(24,)``, or a path to a CSV in EUR/MWh (see :func:`read_prices_csv`).
+    ``source`` is a bundled dataset name (see `PRICE_DATASETS`), a
+    `PriceData`, a numpy array of EUR/kWh with shape ``(days, 24)`` or
+    ``(24,)``, or a path to a CSV in EUR/MWh (see `read_prices_csv`).
     ``first_weekday`` (0 = Monday) overrides the weekday of day 0; the default
     is the dataset's own (a CSV: the weekday of its first date; an array: 0).
     """
@@ -152,7 +152,7 @@ def read_prices_csv(path: str | os.PathLike) -> tuple[np.ndarray, int]:
 
 
 def parse_prices_csv_text(text: str, source: str = "<csv>") -> tuple[np.ndarray, int]:
-    """As :func:`read_prices_csv`, for CSV text."""
+    """As `read_prices_csv`, for CSV text."""
     rows = _data_rows(text)
     if not rows:
         raise ValueError(

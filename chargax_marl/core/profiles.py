@@ -1,6 +1,6 @@
 """User profiles (arrival weights, stay and demand quantiles) and traffic levels. Every path
-(bundled name, overrides, custom arrays) goes through :func:`make_user_profile`; traffic
-through :func:`traffic_cars_per_day`.
+(bundled name, overrides, custom arrays) goes through `make_user_profile`; traffic
+through `traffic_cars_per_day`.
 """
 
 from __future__ import annotations
@@ -224,10 +224,10 @@ def _profile_from_fields(fields: dict[str, Any]) -> UserProfileData:
 
 
 def load_user_profile(source: Any = "shopping", **overrides: Any) -> UserProfileData:
-    """A bundled profile by name (:data:`ALL_USER_PROFILES`) or a :class:`UserProfileData`.
+    """A bundled profile by name (`ALL_USER_PROFILES`) or a `UserProfileData`.
 
     Keyword overrides replace fields (e.g. ``charge_sensitive_prob=0.5``) and
-    are validated like :func:`make_user_profile` arguments.
+    are validated like `make_user_profile` arguments.
     """
     unknown = sorted(set(overrides) - set(_PROFILE_FIELDS))
     if unknown:
@@ -264,7 +264,7 @@ def _us_profiles_json() -> dict[str, Any]:
 
 
 def list_user_profiles() -> list[str]:
-    """Names accepted by :func:`load_user_profile` (the paper's four plus the US ACN-Data profiles)."""
+    """Names accepted by `load_user_profile` (the paper's four plus the US ACN-Data profiles)."""
     return list(ALL_USER_PROFILES)
 
 

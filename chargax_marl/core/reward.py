@@ -44,7 +44,7 @@ def grid_prices(day, timestep, params: EnvParams):
 
 
 def price_tables(params: EnvParams):
-    """``(buy, sell)``, each ``(days, steps)`` EUR/kWh: :func:`grid_prices` of every step of
+    """``(buy, sell)``, each ``(days, steps)`` EUR/kWh: `grid_prices` of every step of
     every day of the price data, for planners that read all of a day's prices at once (the
     MPC, the trainers' storage values)."""
     days = jnp.arange(params.num_days, dtype=jnp.int32)
@@ -54,7 +54,7 @@ def price_tables(params: EnvParams):
 
 def day_price_quantiles(day, params: EnvParams) -> jnp.ndarray:
     """The day's quantiles of the hourly buy-side price (day-ahead plus time-of-use surcharge),
-    EUR/kWh, precomputed by ``make_params`` (:data:`EnvParams.day_price_quantiles_eur_kwh`)."""
+    EUR/kWh, precomputed by ``make_params`` (`EnvParams.day_price_quantiles_eur_kwh`)."""
     q = params.day_price_quantiles_eur_kwh
     return q[jnp.mod(day, q.shape[0])]
 
@@ -93,7 +93,7 @@ def station_grid_price(flows: dict, p_buy, p_sell_grid) -> jnp.ndarray:
 
 def billed_car_kwh(flows: dict, params: EnvParams) -> tuple[jnp.ndarray, jnp.ndarray]:
     """``(per_leaf (L,), total ())``: the car energy (kWh) the customers pay ``p_sell`` for
-    in the step, the one rule behind :func:`profit_eur` and :func:`leaf_reward_shares`.
+    in the step, the one rule behind `profit_eur` and `leaf_reward_shares`.
 
     With ``params.refund_discharged_energy`` (the default) each car pays for its net energy
     (charged minus discharged: energy taken out of a car by V2G is refunded at ``p_sell``),
@@ -112,7 +112,7 @@ def billed_car_kwh(flows: dict, params: EnvParams) -> tuple[jnp.ndarray, jnp.nda
 
 def profit_eur(flows: dict, p_buy, p_sell_grid, params: EnvParams) -> jnp.ndarray:
     """Paper Eq. 2: customers pay p_sell for Delta E_net (for the energy charged alone when
-    discharged energy is not refunded, :func:`billed_car_kwh`); the grid is paid p_buy for a
+    discharged energy is not refunded, `billed_car_kwh`); the grid is paid p_buy for a
     net draw or pays p_sell,grid for a net feed-in; minus the fixed cost per step."""
     grid_price = station_grid_price(flows, p_buy, p_sell_grid)
     _, billed = billed_car_kwh(flows, params)
@@ -127,7 +127,7 @@ def battery_terminal_value_eur(battery_day_kwh, day, params: EnvParams) -> jnp.n
     """The value of the station batteries' energy change over the day, ``battery_day_kwh``
     (terminal side, net into the batteries), booked at the day's last step.
 
-    Priced at the day's mean buy price (:func:`day_mean_buy_price`) when
+    Priced at the day's mean buy price (`day_mean_buy_price`) when
     ``params.battery_value_day_mean``, else at ``params.battery_value_eur_kwh`` (0 turns the
     term off). Emptying the battery thus earns only what its energy fetched above the price
     it would cost to buy back, and a battery that ends fuller is credited for what it holds.
@@ -142,7 +142,7 @@ def battery_wear_eur(leaf_energy_kwh, params: EnvParams) -> tuple[jnp.ndarray, j
     """The step's battery wear: ``(per_leaf (L,), total ())`` in EUR, 0 at the ports.
 
     Each battery pays its wear cost per kWh of cell throughput (the energy into or out of its
-    cells, :attr:`EnvParams.battery_wear_eur_kwh`) plus its calendar ageing per step, whatever
+    cells, `EnvParams.battery_wear_eur_kwh`) plus its calendar ageing per step, whatever
     it does. Cycling one full equivalent cycle thus costs ``cost * capacity / cycle_life``.
     Throughput rather than discharge alone: a day's wear then does not depend on where the
     day ends, so charging the battery to end the day full is not free.
@@ -228,11 +228,11 @@ def leaf_reward_shares(
     """Each leaf's share ``(L,)`` of the step reward ``r``; the shares sum to ``r``.
 
     A leaf's share is the money its own energy made minus the penalties it caused: what its
-    car paid (``p_sell`` times the energy into the car, :func:`billed_car_kwh`) minus its grid cost
-    (:func:`leaf_grid_cost_eur`, which does not move with other leaves' actions), the
+    car paid (``p_sell`` times the energy into the car, `billed_car_kwh`) minus its grid cost
+    (`leaf_grid_cost_eur`, which does not move with other leaves' actions), the
     batteries' terminal value to the batteries, each battery's wear (``leaf_wear_eur``,
-    :func:`battery_wear_eur`) to that battery, and the weighted penalty terms split by
-    :func:`leaf_penalty_terms`. The fixed cost and the peak-demand charge are split evenly. The multi-agent view mixes
+    `battery_wear_eur`) to that battery, and the weighted penalty terms split by
+    `leaf_penalty_terms`. The fixed cost and the peak-demand charge are split evenly. The multi-agent view mixes
     these shares into per-agent rewards when asked to (``ChargaxMARL(local_reward_weight=...)``).
     """
     st = params.station
@@ -251,7 +251,7 @@ def leaf_reward_shares(
 def penalty_terms(
     flows: dict, departures: dict, arrivals: dict, excess_kw, moer, grid_demand_kwh
 ) -> dict:
-    """The unweighted penalty terms c of Appendix A.3, keyed as :data:`PENALTY_TERMS`."""
+    """The unweighted penalty terms c of Appendix A.3, keyed as `PENALTY_TERMS`."""
     terms = {
         "constraint": excess_kw,
         "satisfaction_time": departures["missing_kwh"],
@@ -272,7 +272,7 @@ def reward(profit, terms: dict, params: EnvParams) -> jnp.ndarray:
 
 
 def weighted_penalty(alpha, terms: dict):
-    """``sum_c alpha_c * terms[c]`` over :data:`PENALTY_TERMS` (scalars or per-leaf arrays).
+    """``sum_c alpha_c * terms[c]`` over `PENALTY_TERMS` (scalars or per-leaf arrays).
 
     A zero weight contributes exactly 0, whatever its term (also a non-finite one). With the
     weights known at compile time (params closed over, as in the trainers and benchmarks) XLA

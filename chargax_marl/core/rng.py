@@ -32,7 +32,7 @@ _STREAM = np.uint32(0x632BE5AB)
 STREAM_VERSION = 3
 """The version of the random stream: bumped whenever the same key draws other cars, days or
 SoCs (1: per-port draws of 0.1, 2: per-slot Threefry draws of 0.2, 3: this counter hash). It
-is part of :func:`chargax_marl.trace.params_fingerprint`, so results stored for one stream
+is part of `chargax_marl.trace.params_fingerprint`, so results stored for one stream
 are not read back as if they were another's."""
 
 # Stream ids: one per consumer, so that draws of different purposes never share a counter.
@@ -70,7 +70,7 @@ def _is_typed(key) -> bool:
 
 
 def bits(seed: jnp.ndarray, stream: int, shape: tuple[int, ...]) -> jnp.ndarray:
-    """``shape`` uint32 words of ``stream`` from ``seed`` (see :func:`key_seed`)."""
+    """``shape`` uint32 words of ``stream`` from ``seed`` (see `key_seed`)."""
     n = int(np.prod(shape, dtype=np.int64))
     counter = jnp.arange(n, dtype=jnp.uint32) + np.uint32((stream * int(_STREAM)) & 0xFFFFFFFF)
     x = fmix32(counter * _GOLDEN + seed[1])
@@ -94,7 +94,7 @@ def materialize(x: jnp.ndarray) -> jnp.ndarray:
 
 
 def uniform(seed: jnp.ndarray, stream: int, shape: tuple[int, ...]) -> jnp.ndarray:
-    """Float32 uniforms in ``[0, 1)`` (24 random bits each), computed once (:func:`materialize`)."""
+    """Float32 uniforms in ``[0, 1)`` (24 random bits each), computed once (`materialize`)."""
     return materialize((bits(seed, stream, shape) >> 8).astype(jnp.float32) * np.float32(2.0**-24))
 
 
@@ -108,7 +108,7 @@ def poisson(u: jnp.ndarray, rate: jnp.ndarray) -> jnp.ndarray:
 
     ``N = #{k : F(k) <= u}`` with the CDF summed term by term (``POISSON_TERMS`` terms,
     unrolled; no data-dependent loop, so ``vmap`` costs nothing extra). Exact for rates up to
-    :data:`POISSON_EXACT_MAX_RATE` (the truncated tail is below 1e-8); above it, the normal
+    `POISSON_EXACT_MAX_RATE` (the truncated tail is below 1e-8); above it, the normal
     approximation ``round(rate + sqrt(rate) z)`` with ``z`` from the same uniform (the rates
     of the bundled scenarios are at most about 6.5 cars per step).
     """

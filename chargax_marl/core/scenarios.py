@@ -1,4 +1,4 @@
-"""Named scenarios: keyword sets of :func:`chargax_marl.core.params.make_params`, shared by the
+"""Named scenarios: keyword sets of `chargax_marl.core.params.make_params`, shared by the
 single-agent ``make(name)`` and the multi-agent ``ChargaxMARL(scenario=name)``.
 
 - ``<profile>`` and ``<profile>-<traffic>``: the four user profiles of paper Table 2
@@ -16,7 +16,7 @@ single-agent ``make(name)`` and the multi-agent ``ChargaxMARL(scenario=name)``.
   - ``shopping-peak`` / ``shopping-peak-high``: the full connection, with a time-of-use
     surcharge on the evening peak (``tou_fee_eur_kwh="evening-peak"``, +0.12 EUR/kWh
     17:00-21:00) and a peak-demand charge of 0.15 EUR per kW of the day's highest net grid
-    draw, booked at the end of the day (:mod:`chargax_marl.core.tariffs`);
+    draw, booked at the end of the day (`chargax_marl.core.tariffs`);
   - ``shopping-grid50-peak-high``: both at once.
 
 How often each node binds under always-max in each scenario is tabled in docs/scenarios.md

@@ -1,6 +1,6 @@
 """Exogenous per-step signals: marginal emission rates (MOER) and grid demand. Every path
-(bundled name, array, CSV, ``make_params`` keyword) goes through :func:`validate_moer` or
-:func:`validate_grid_demand`.
+(bundled name, array, CSV, ``make_params`` keyword) goes through `validate_moer` or
+`validate_grid_demand`.
 """
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ def validate_moer(
     value: Any, field: str = "moer_kg_per_kwh", *, check_resolution: bool = True
 ) -> np.ndarray:
     """The one validator of MOER rates (kg CO2/kWh), whatever the path (bundled, CSV, array,
-    :class:`MoerData`, ``make_params``): shape ``(days, slots)`` or ``(slots,)``, finite, in
+    `MoerData`, ``make_params``): shape ``(days, slots)`` or ``(slots,)``, finite, in
     ``[0, MOER_MAX_KG_KWH]``. ``check_resolution``: slots must divide 1440 minutes (off for
     arrays already at the simulator's step). Returns float32 ``(days, slots)``."""
     arr = _as_float_array(value, field)
@@ -175,9 +175,9 @@ def _load_bundled_moer(name: str) -> MoerData:
 
 
 def load_moer(source: Any = "CAISO-SCE-2020") -> MoerData:
-    """MOER data: a bundled name (:data:`MOER_DATASETS`), a :class:`MoerData`, an
+    """MOER data: a bundled name (`MOER_DATASETS`), a `MoerData`, an
     array in kg CO2/kWh ``(days, slots)`` or ``(slots,)``, or a CSV path (kg/kWh;
-    see :func:`read_moer_csv`)."""
+    see `read_moer_csv`)."""
     if isinstance(source, MoerData):
         return MoerData(
             source.name,
@@ -278,11 +278,11 @@ def load_grid_demand(
 ) -> np.ndarray:
     """Grid demand per step of the day in kWh, float32 ``(num_steps,)``.
 
-    ``source``: a shape name (:data:`GRID_DEMAND_SHAPES`), scaled so its daily
+    ``source``: a shape name (`GRID_DEMAND_SHAPES`), scaled so its daily
     mean is ``scale_kwh`` kWh per step (default
-    :data:`GRID_DEMAND_DEFAULT_SCALE_KWH` times ``num_steps`` / 288, i.e. the
+    `GRID_DEMAND_DEFAULT_SCALE_KWH` times ``num_steps`` / 288, i.e. the
     same daily energy at any resolution); an array ``(num_steps,)``; or a CSV
-    path (:func:`read_grid_demand_csv`). For arrays and CSVs ``scale_kwh``, if
+    path (`read_grid_demand_csv`). For arrays and CSVs ``scale_kwh``, if
     given, rescales to that daily mean per step.
     """
     if isinstance(num_steps, bool) or not isinstance(num_steps, numbers.Integral) or num_steps < 1:

@@ -2,13 +2,13 @@
 
 ``step(key, state, levels, params)`` runs the four stages of paper Appendix A.2 in order
 (apply actions, charge, departures, arrivals), prices the step and updates the episode
-totals. :func:`step_auto_reset` adds the start of a fresh day at the end of one, and
-:func:`info_dict` flattens the step's report. Both the single-agent and the multi-agent view
+totals. `step_auto_reset` adds the start of a fresh day at the end of one, and
+`info_dict` flattens the step's report. Both the single-agent and the multi-agent view
 call exactly these functions.
 
 Everything here is traceable and takes arrays only: turning host input (numpy, Python
 numbers, strings) into arrays is the views' job, at their entry points
-(:mod:`chargax_marl.core.actions`).
+(`chargax_marl.core.actions`).
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ def battery_initial_soc(params: EnvParams, key: jax.Array | None = None) -> jnp.
 @jax.jit
 def empty_state(day: jnp.ndarray, params: EnvParams, key: jax.Array | None = None) -> EnvState:
     """A station with no cars at step 0 of ``day``; batteries at their initial SoC
-    (:func:`battery_initial_soc`, drawn from ``key`` when the range is not a point)."""
+    (`battery_initial_soc`, drawn from ``key`` when the range is not a point)."""
     st = params.station
     num_leaves = st.leaf_kind.shape[0]
     zeros = jnp.zeros((num_leaves,), jnp.float32)
@@ -80,7 +80,7 @@ def empty_state(day: jnp.ndarray, params: EnvParams, key: jax.Array | None = Non
 def reset(key: jax.Array, params: EnvParams) -> EnvState:
     """Start an empty station on a uniformly random day of ``params.reset_days`` (exploring
     starts; all days of the price data unless training days were set)."""
-    # The day and the batteries' SoC are draws 0 and 1.. of the key's reset stream (:mod:`rng`).
+    # The day and the batteries' SoC are draws 0 and 1.. of the key's reset stream (`rng`).
     n = params.reset_days.shape[0]
     u = rng.uniform(rng.key_seed(key), rng.RESET, (1,))[0]
     day = params.reset_days[jnp.minimum((u * n).astype(jnp.int32), n - 1)]
@@ -96,14 +96,14 @@ def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams
     ``[-1, 1]`` for ``continuous``. Values outside the leaf's range are clipped and NaN or
     +-inf entries are idle; an action without exactly one entry per leaf raises
     ``ValueError``. Host values that do not fit int32 / float32 (a numpy ``int64`` beyond
-    ``2**31``) are the caller's to clip first (:func:`chargax_marl.core.actions.host_array`,
+    ``2**31``) are the caller's to clip first (`chargax_marl.core.actions.host_array`,
     which the views' ``step`` entry points apply).
 
     The new state keeps the dtypes of ``state`` (float32, int32, bool) and the report is
     float32, also under ``JAX_ENABLE_X64=1``.
 
-    The step's cars are drawn from ``key`` (:func:`traffic.draw_arrivals`), independently of
-    the state; :func:`step_with_arrivals` takes them as given (to replay a recorded day).
+    The step's cars are drawn from ``key`` (`traffic.draw_arrivals`), independently of
+    the state; `step_with_arrivals` takes them as given (to replay a recorded day).
     """
     return step_with_arrivals(
         state, action, traffic.draw_arrivals(key, state.timestep, state.is_workday, params), params
@@ -114,7 +114,7 @@ def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams
 def step_with_arrivals(
     state: EnvState, action: jnp.ndarray, arrivals: traffic.Arrivals, params: EnvParams
 ):
-    """:func:`step` with the step's arriving cars given (:class:`traffic.Arrivals`); the rest
+    """`step` with the step's arriving cars given (`traffic.Arrivals`); the rest
     of the transition is deterministic. Returns ``(new_state, StepInfo)``.
 
     Raises:
@@ -247,23 +247,23 @@ def step_auto_reset(
     params: EnvParams,
     reset_state: EnvState | None = None,
 ):
-    """:func:`step`, then a fresh day where the step ended one: the auto-reset of both views.
+    """`step`, then a fresh day where the step ended one: the auto-reset of both views.
 
     As gymnax's ``Environment.step``: step, reset, and select the reset state where done
     (``lax.select`` per leaf). The key is not split: the step's cars and the reset's day come
-    from separate streams of the same key (:mod:`chargax_marl.core.rng`).
+    from separate streams of the same key (`chargax_marl.core.rng`).
 
     Args:
         key: the step's key (also the reset's).
         state: the state to step.
-        action: per-leaf levels or fractions, as for :func:`step`.
+        action: per-leaf levels or fractions, as for `step`.
         params: the environment parameters.
         reset_state: the state to start from at the end of the day; ``None`` draws one with
-            :func:`reset`.
+            `reset`.
 
     Returns:
         ``(next_state, stepped_state, info, done)``: the state to continue from (the reset
-        one where ``done``), the state the step reached, the step's :class:`StepInfo`, and
+        one where ``done``), the state the step reached, the step's `StepInfo`, and
         whether the step ended the day.
     """
     stepped, info = step(key, state, action, params)
@@ -297,7 +297,7 @@ STEP_INFO_KEYS = (
     "satisfaction_sum",
     "satisfaction_min",
 )
-"""Scalar fields of :class:`StepInfo` reported in the infos under their own names."""
+"""Scalar fields of `StepInfo` reported in the infos under their own names."""
 
 INFO_KEYS = (
     STEP_INFO_KEYS
@@ -305,25 +305,25 @@ INFO_KEYS = (
     + tuple(f"penalty_{k}" for k in PENALTY_TERMS)
     + tuple(f"episode_{k}" for k in EpisodeTotals.__dataclass_fields__)
 )
-"""Every scalar key of :func:`info_dict`, in order: the step's report, ``battery_reward_eur``,
+"""Every scalar key of `info_dict`, in order: the step's report, ``battery_reward_eur``,
 ``penalty_<term>``, ``episode_<total>``."""
 
 AUTO_RESET_INFO_KEYS = ("terminated", "truncated", "final_observation")
-"""The keys the views' auto-resetting ``step`` adds to :func:`info_dict` (gymnax's names)."""
+"""The keys the views' auto-resetting ``step`` adds to `info_dict` (gymnax's names)."""
 
 
 def info_dict(info: StepInfo, state: EnvState, params: EnvParams) -> dict:
-    """The step's report as the views' info dict: float32 scalars keyed as :data:`INFO_KEYS`
+    """The step's report as the views' info dict: float32 scalars keyed as `INFO_KEYS`
     and ``leaf_energy_kwh`` ``(L,)``.
 
     Args:
-        info: the report of :func:`step`.
+        info: the report of `step`.
         state: the stepped state, whose running totals become ``episode_<total>``.
         params: the environment parameters.
 
     Returns:
-        A dict with :data:`INFO_KEYS` (``battery_reward_eur`` is the batteries' leaves' share
-        of the reward, :func:`chargax_marl.core.reward.leaf_reward_shares`; with the ports'
+        A dict with `INFO_KEYS` (``battery_reward_eur`` is the batteries' leaves' share
+        of the reward, `chargax_marl.core.reward.leaf_reward_shares`; with the ports'
         it sums to the reward) and ``leaf_energy_kwh``, the energy into each car and battery
         this step (terminal side, negative when discharging).
     """

@@ -1,8 +1,8 @@
 """The station: a static tree of grid connection, splitters, charging ports and batteries.
 
-A station is described with plain Python objects (:class:`Port`, :class:`Battery`,
-:class:`Splitter`) and compiled once by :func:`compile_station` into
-:class:`StationArrays`, a pytree of fixed-shape arrays that the jitted step reads.
+A station is described with plain Python objects (`Port`, `Battery`,
+`Splitter`) and compiled once by `compile_station` into
+`StationArrays`, a pytree of fixed-shape arrays that the jitted step reads.
 The step never walks Python objects.
 
 Leaf order is the port order of the tree (depth-first, left to right) followed by the
@@ -34,7 +34,7 @@ KIND_NAMES = ("AC", "DC", "battery")
 def _check_positive(
     owner: str, field: str, value: float, low: float, high: float, unit: str
 ) -> None:
-    """A finite number > 0 within ``[low, high]`` after the float32 cast (see :mod:`checks`)."""
+    """A finite number > 0 within ``[low, high]`` after the float32 cast (see `checks`)."""
     if (
         isinstance(value, (int, float, np.floating, np.integer))
         and math.isfinite(value)
@@ -204,9 +204,9 @@ class Battery:
 
     Its cells wear with use: ``cost_eur_kwh`` (the installed cost per kWh of capacity) buys
     ``cycle_life`` full equivalent cycles, so every kWh moved into or out of the cells costs
-    :attr:`wear_eur_kwh`, half a cycle's share of the cost; ``calendar_life_years`` (None: no
-    calendar ageing) adds :attr:`calendar_eur_day` per day whatever the battery does. Both are
-    part of the profit (:func:`chargax_marl.core.reward.battery_wear_eur`); the defaults and
+    `wear_eur_kwh`, half a cycle's share of the cost; ``calendar_life_years`` (None: no
+    calendar ageing) adds `calendar_eur_day` per day whatever the battery does. Both are
+    part of the profit (`chargax_marl.core.reward.battery_wear_eur`); the defaults and
     their sources are in the data README. ``cost_eur_kwh=0`` makes cycling free.
     """
 
@@ -351,10 +351,10 @@ class StationArrays:
 
 
 def compile_station(root: Splitter) -> StationArrays:
-    """Validate a station tree and compile it to :class:`StationArrays`.
+    """Validate a station tree and compile it to `StationArrays`.
 
     Raises ``ValueError`` naming the node and field for an invalid tree: a root that is
-    not a :class:`Splitter`, no ports, duplicate names.
+    not a `Splitter`, no ports, duplicate names.
     """
     if not isinstance(root, Splitter):
         raise ValueError(
@@ -613,7 +613,7 @@ def multiple_types(
 
     Default: 16 ports, 10 DC in 2-port groups of 150 kW and 6 AC in 2-port groups of
     11.5 kW; each kind's splitter carries the sum of its groups. ``battery=True`` (default)
-    adds the default :class:`Battery` (200 kWh, 100 kW) under the grid connection, the
+    adds the default `Battery` (200 kWh, 100 kW) under the grid connection, the
     paper's (N+1)-th controllable leaf; pass ``battery=None`` for a station without one.
     The root carries the sum of its children.
     """
@@ -759,8 +759,8 @@ def build_station(
     **kwargs,
 ) -> StationArrays:
     """Compile a named architecture (with builder keyword arguments), a custom tree, or pass
-    through arrays (checked by :func:`check_station_arrays`). ``grid_fraction`` (in (0, 1]) sets the root's limit to that fraction of the
-    sum of its children's limits (:func:`with_grid_fraction`)."""
+    through arrays (checked by `check_station_arrays`). ``grid_fraction`` (in (0, 1]) sets the root's limit to that fraction of the
+    sum of its children's limits (`with_grid_fraction`)."""
     if isinstance(architecture, StationArrays):
         if grid_fraction is not None:
             raise ValueError(
@@ -809,8 +809,8 @@ def _check_table(field: str, arr: np.ndarray, allowed: str, ok: np.ndarray) -> N
 def check_station_arrays(st: StationArrays) -> StationArrays:
     """Check compiled station arrays made by hand or derived with ``replace``.
 
-    :func:`compile_station` builds arrays that pass; this re-applies the bounds that
-    :class:`Port`, :class:`Battery` and :class:`Splitter` enforce (:mod:`chargax_marl.core.checks`)
+    `compile_station` builds arrays that pass; this re-applies the bounds that
+    `Port`, `Battery` and `Splitter` enforce (`chargax_marl.core.checks`)
     to the arrays themselves, with the shapes the static sizes imply.
 
     Args:

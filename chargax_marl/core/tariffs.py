@@ -1,9 +1,9 @@
 """Network tariff terms on top of the day-ahead price: a time-of-use surcharge and a peak-demand
-charge. One validator per field, used by :func:`chargax_marl.core.params.make_params`.
+charge. One validator per field, used by `chargax_marl.core.params.make_params`.
 
 - **Time of use** (``tou_fee_eur_kwh``): EUR/kWh added to the buy price in each local hour,
-  an array of 24 values or a preset name from :data:`TOU_PRESETS`. The optimal-control LP and
-  the MPC read the same buy price (:func:`chargax_marl.core.reward.grid_prices`).
+  an array of 24 values or a preset name from `TOU_PRESETS`. The optimal-control LP and
+  the MPC read the same buy price (`chargax_marl.core.reward.grid_prices`).
 - **Peak demand** (``peak_demand_eur_kw``): EUR per kW of the day's highest grid draw (the
   station's net draw at the grid connection, averaged over a step), charged once per day.
   ``peak_demand_booking`` chooses when the money is booked: ``"end_of_day"`` (the whole
@@ -53,7 +53,7 @@ DEFAULT_PEAK_DEMAND_EUR_KW = 0.15
 
 def tou_fee(value: Any) -> np.ndarray:
     """Validated time-of-use surcharge ``(24,)`` float32 in EUR/kWh: None (no surcharge), a
-    preset name of :data:`TOU_PRESETS`, or 24 finite numbers within +-``checks.MAX_PRICE_EUR_KWH``."""
+    preset name of `TOU_PRESETS`, or 24 finite numbers within +-``checks.MAX_PRICE_EUR_KWH``."""
     if value is None:
         return np.zeros(HOURS_PER_DAY, np.float32)
     if isinstance(value, str):

@@ -6,8 +6,8 @@ carries a target SoC (arrival SoC + demand / capacity) and stops charging there.
 Poisson with the rate of the day type and step, clipped by the free ports (the surplus is
 rejected) and placed first-free-port in port order; each car draws a car profile from the
 fleet and a user profile from the location's distributions. The draw
-(:func:`draw_arrivals`) does not look at the station, so the cars of a day do not depend on
-the policy; :func:`place_arrivals` parks them.
+(`draw_arrivals`) does not look at the station, so the cars of a day do not depend on
+the policy; `place_arrivals` parks them.
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ def depart(state: EnvState, params: EnvParams):
     cars spent beyond their planned stay), ``undertime_min`` and ``satisfaction_charge`` =
     overtime - beta * undertime (c_satisfaction,1), plus the per-leaf ``leaf_missing_kwh``
     and ``leaf_satisfaction_charge`` (L,), and the service of the leaving cars
-    (:func:`satisfaction`): ``satisfaction_sum``, ``satisfaction_sq_sum``,
+    (`satisfaction`): ``satisfaction_sum``, ``satisfaction_sq_sum``,
     ``satisfaction_min`` (1 when no car leaves), ``departed_time_sensitive`` and
     ``satisfaction_sum_time_sensitive`` (over the time-sensitive leavers, u = 0).
 
@@ -57,7 +57,7 @@ def depart(state: EnvState, params: EnvParams):
     the episode ended and its overtime was never booked.)
 
     ``undertime_min`` is measured against the earliest finish the car's rate curve allows at
-    its port (alone on its path, see :func:`earliest_finish_min`), not against the drawn
+    its port (alone on its path, see `earliest_finish_min`), not against the drawn
     planned stay, which no policy controls: it is minus the minutes, within the planned
     stay, that the car stayed beyond that earliest finish (0 when it left as early as it
     could). So with ``beta > 0`` every avoidable minute costs ``beta`` up to the planned
@@ -180,7 +180,7 @@ class Arrivals:
     first ``min(requested, free ports)`` of them and parks car ``k`` at the ``k``-th free port
     in port order. Because the draw does not depend on the occupancy, the cars of a day are
     the same whatever the policy does (only which of them find a free port differs): this is
-    what makes a day replayable (:mod:`chargax_marl.trace`). Fields over slots have shape
+    what makes a day replayable (`chargax_marl.trace`). Fields over slots have shape
     ``(num_ports,)``; rates are given for both port kinds because the port is chosen later.
     """
 
@@ -211,20 +211,20 @@ SLOT_FIELDS = (
     "stay_min",
     "charge_sensitive",
 )
-"""The per-slot fields of :class:`Arrivals` (every field but ``requested``)."""
+"""The per-slot fields of `Arrivals` (every field but ``requested``)."""
 
 
 def draw_arrivals(
     key: jax.Array, timestep: jnp.ndarray, is_workday: jnp.ndarray, params: EnvParams
 ) -> Arrivals:
-    """The step's arriving cars (:class:`Arrivals`): a Poisson count with the rate of the day
+    """The step's arriving cars (`Arrivals`): a Poisson count with the rate of the day
     type and step, and one car profile (fleet) and user profile (stay, demand, arrival SoC,
-    user type) per slot. All of them come from ``key`` through :mod:`chargax_marl.core.rng`
+    user type) per slot. All of them come from ``key`` through `chargax_marl.core.rng`
     (one hash call; the count by inversion of the Poisson CDF). ``timestep`` is the step in which the cars arrive (its hour scales
     the stay and demand)."""
     st = params.station
     num_slots = st.num_ports
-    # One hash call gives the count's uniform and five uniforms per slot (see :mod:`rng`).
+    # One hash call gives the count's uniform and five uniforms per slot (see `rng`).
     draws = rng.uniform(rng.key_seed(key), rng.ARRIVALS, (1 + 5 * num_slots,))
     requested = rng.poisson(draws[0], arrival_rate(timestep, is_workday, params))
     u = draws[1:].reshape(5, num_slots)
@@ -327,8 +327,8 @@ def place_arrivals(state: EnvState, arrivals: Arrivals, params: EnvParams):
 
 
 def arrive(key: jax.Array, state: EnvState, params: EnvParams):
-    """Step 4: draw the step's cars (:func:`draw_arrivals`) and park them
-    (:func:`place_arrivals`). ``state.timestep`` is the step in which the cars arrive."""
+    """Step 4: draw the step's cars (`draw_arrivals`) and park them
+    (`place_arrivals`). ``state.timestep`` is the step in which the cars arrive."""
     return place_arrivals(
         state, draw_arrivals(key, state.timestep, state.is_workday, params), params
     )

@@ -24,7 +24,7 @@ PENALTY_TERMS = (
     "car_degradation",
     "grid_demand",
 )
-"""Names of the penalty terms c of paper Appendix A.3, in the order of :class:`PenaltyWeights`."""
+"""Names of the penalty terms c of paper Appendix A.3, in the order of `PenaltyWeights`."""
 
 ACTION_MODES = ("absolute", "delta", "continuous")
 CONSTRAINT_MODES = ("hard", "soft")
@@ -38,7 +38,7 @@ class PenaltyWeights:
     nodes; in hard mode the excess that flows after the rescale, so 0), satisfaction_time kWh
     missing at departure (against the car's target SoC), satisfaction_charge minutes
     (overtime minus beta * undertime, undertime measured against the earliest finish; see
-    :func:`chargax_marl.core.traffic.depart`), sustainability kg CO2 (MOER kg/kWh * grid kWh), rejected cars,
+    `chargax_marl.core.traffic.depart`), sustainability kg CO2 (MOER kg/kWh * grid kWh), rejected cars,
     battery_degradation kWh discharged from station batteries, car_degradation kWh fed to
     the grid from cars, grid_demand kWh of |delivered - demand|.
     """
@@ -57,10 +57,10 @@ class PenaltyWeights:
 class EnvParams:
     """Everything the step needs besides the state: station, exogenous data, economics, settings.
 
-    Build it with :func:`chargax_marl.core.params.make_params`, which validates its inputs.
+    Build it with `chargax_marl.core.params.make_params`, which validates its inputs.
     ``replace`` is unchecked: derive params with
-    :func:`chargax_marl.core.params.validated_replace` (or check them with
-    :func:`chargax_marl.core.params.validate_params`, which both views apply to the params
+    `chargax_marl.core.params.validated_replace` (or check them with
+    `chargax_marl.core.params.validate_params`, which both views apply to the params
     they are given).
     """
 

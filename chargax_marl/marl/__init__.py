@@ -1,13 +1,13 @@
 """Multi-agent view of the station: one agent per charging port and per station battery.
 
-- :class:`ChargaxMARL`: JaxMARL 0.2 ``MultiAgentEnv`` (``reset(key)``, ``step(key, state, actions)``).
-- :class:`LogWrapper`, :class:`WorldStateWrapper`: JaxMARL-style episode logging and MAPPO world state.
-- :class:`DelayedObservationWrapper`, :class:`ActionLossWrapper`: imperfect communication
-  (observations seen late, actions lost; :mod:`chargax_marl.marl.communication`), and
-  :func:`communicating_act`, a policy played on held-out days under the same communication.
-- :func:`parallel_env` / :class:`ChargaxParallelEnv`: PettingZoo ``ParallelEnv`` (numpy in and out);
-  :func:`aec_env`: the same through PettingZoo's AEC API. The module
-  :mod:`chargax_marl.marl.pettingzoo_env` has PettingZoo's usual ``env``, ``raw_env`` and
+- `ChargaxMARL`: JaxMARL 0.2 ``MultiAgentEnv`` (``reset(key)``, ``step(key, state, actions)``).
+- `LogWrapper`, `WorldStateWrapper`: JaxMARL-style episode logging and MAPPO world state.
+- `DelayedObservationWrapper`, `ActionLossWrapper`: imperfect communication
+  (observations seen late, actions lost; `chargax_marl.marl.communication`), and
+  `communicating_act`, a policy played on held-out days under the same communication.
+- `parallel_env` / `ChargaxParallelEnv`: PettingZoo ``ParallelEnv`` (numpy in and out);
+  `aec_env`: the same through PettingZoo's AEC API. The module
+  `chargax_marl.marl.pettingzoo_env` has PettingZoo's usual ``env``, ``raw_env`` and
   ``parallel_env`` constructors (pass it to PettingZoo's ``max_cycles_test``).
 """
 

@@ -2,9 +2,9 @@
 
 Two effects that a real station's controllers live with, as pure functions over the
 multi-agent view's stacked arrays (observations ``(num_agents, obs_size)``, action indices
-``(num_agents,)``), used by the JaxMARL wrappers :class:`DelayedObservationWrapper` and
-:class:`ActionLossWrapper` and by the PettingZoo adapter's ``observation_delay_steps`` and
-``action_loss_prob`` options (:class:`chargax_marl.marl.pettingzoo_env.ChargaxParallelEnv`).
+``(num_agents,)``), used by the JaxMARL wrappers `DelayedObservationWrapper` and
+`ActionLossWrapper` and by the PettingZoo adapter's ``observation_delay_steps`` and
+``action_loss_prob`` options (`chargax_marl.marl.pettingzoo_env.ChargaxParallelEnv`).
 
 - **Delayed observations** (SustainGym's ``periods_delay`` sense): each agent sees its own
   port as it is now (its leaf features, kind and index) but the shared context (prices, time,
@@ -65,7 +65,7 @@ def check_loss(loss_prob: Any, lost_action: Any) -> tuple[float, str]:
 
 def delayed_columns(env: ChargaxMARL) -> np.ndarray:
     """``(obs_size,)`` bool: the observation columns that a delay shows late, the ancestor
-    loads and the shared context (:class:`chargax_marl.marl.ChargaxMARL`'s layout: leaf
+    loads and the shared context (`chargax_marl.marl.ChargaxMARL`'s layout: leaf
     features, kind one-hot, ancestor loads, context, agent index)."""
     own = len(PORT_FEATURES) + NUM_KINDS
     id_width = np.asarray(env._layout.agent_id).shape[1]
@@ -88,7 +88,7 @@ def delay(obs: jax.Array, history: jax.Array, columns: np.ndarray, done: jax.Arr
             when ``done``).
         history: ``(delay_steps, num_agents, obs_size)`` the observations of the last
             ``delay_steps`` steps, oldest first.
-        columns: :func:`delayed_columns`.
+        columns: `delayed_columns`.
         done: whether the step ended the day (the env auto-reset).
 
     Returns:
@@ -138,8 +138,8 @@ def communicating_act(
     lost_action: str = "previous",
 ) -> MemoryAct:
     """A multi-agent policy played on whole days as the wrappers play it: the agents see the
-    observations :class:`DelayedObservationWrapper` shows and their actions are lost as
-    :class:`ActionLossWrapper` loses them, so :func:`chargax_marl.evaluation.run_days` scores a
+    observations `DelayedObservationWrapper` shows and their actions are lost as
+    `ActionLossWrapper` loses them, so `chargax_marl.evaluation.run_days` scores a
     policy trained through them under the same communication.
 
     The policy's memory is the history of the last ``delay_steps`` observations (the day's
@@ -158,7 +158,7 @@ def communicating_act(
         lost_action: ``"previous"`` or ``"idle"``, what a port applies instead.
 
     Returns:
-        A :class:`chargax_marl.evaluation.MemoryAct` giving the core's signed levels.
+        A `chargax_marl.evaluation.MemoryAct` giving the core's signed levels.
 
     Raises:
         ValueError: a bad delay, probability or lost action.
@@ -205,10 +205,10 @@ class DelayedObservationWrapper(_Wrapper):
     """Observations delayed by ``delay_steps`` steps for the context and the node loads.
 
     Each agent's own port features stay current; the shared context and its ancestor nodes'
-    loads (the columns of :func:`delayed_columns`) are those of ``delay_steps`` steps before
+    loads (the columns of `delayed_columns`) are those of ``delay_steps`` steps before
     (the day's first observation while fewer steps have passed). ``delay_steps=0`` is the
-    wrapped env bit for bit. Wrap :class:`chargax_marl.marl.ChargaxMARL` (or an
-    :class:`ActionLossWrapper` of it) and put the MAPPO or logging wrappers outside, whose
+    wrapped env bit for bit. Wrap `chargax_marl.marl.ChargaxMARL` (or an
+    `ActionLossWrapper` of it) and put the MAPPO or logging wrappers outside, whose
     centralised world state stays current.
 
     Args:
@@ -232,7 +232,7 @@ class DelayedObservationWrapper(_Wrapper):
 
     def step(self, key: jax.Array, state: DelayState, actions: dict, reset_state=None):
         """The wrapped env's ``step`` with the delayed observations; ``actions`` is checked
-        on the host first (:meth:`host_actions`).
+        on the host first (`host_actions`).
 
         Raises:
             ValueError: a bad action dict.
@@ -250,8 +250,8 @@ class DelayedObservationWrapper(_Wrapper):
     @functools.partial(jax.jit, static_argnums=(0,))
     def step_arrays(self, key: jax.Array, state: DelayState, indices: jax.Array, reset_state=None):
         """The wrapped env's ``step_arrays`` with the delayed observation matrix (the values
-        of :meth:`step`, stacked).
-        Arguments and returns as :meth:`chargax_marl.marl.ChargaxMARL.step_arrays`, with this
+        of `step`, stacked).
+        Arguments and returns as `chargax_marl.marl.ChargaxMARL.step_arrays`, with this
         wrapper's state.
         """
         obs, env_state, reward, done, info = self._env.step_arrays(
@@ -299,7 +299,7 @@ class ActionLossWrapper(_Wrapper):
 
     def step(self, key: jax.Array, state: ActionLossState, actions: dict, reset_state=None):
         """The wrapped env's ``step`` with each action lost with probability ``loss_prob``;
-        ``actions`` is checked on the host first (:meth:`host_actions`).
+        ``actions`` is checked on the host first (`host_actions`).
 
         Raises:
             ValueError: a bad action dict.
@@ -326,8 +326,8 @@ class ActionLossWrapper(_Wrapper):
         self, key: jax.Array, state: ActionLossState, indices: jax.Array, reset_state=None
     ):
         """The wrapped env's ``step_arrays`` with each action lost with probability
-        ``loss_prob`` (the values of :meth:`step`, stacked).
-        Arguments and returns as :meth:`chargax_marl.marl.ChargaxMARL.step_arrays`, with this
+        ``loss_prob`` (the values of `step`, stacked).
+        Arguments and returns as `chargax_marl.marl.ChargaxMARL.step_arrays`, with this
         wrapper's state.
         """
         base = _base(self._env)
@@ -344,7 +344,7 @@ class ActionLossWrapper(_Wrapper):
 
 
 def _base(env) -> ChargaxMARL:
-    """The :class:`ChargaxMARL` under any wrappers."""
+    """The `ChargaxMARL` under any wrappers."""
     while not isinstance(env, ChargaxMARL):
         env = env._env
     return env

@@ -1,13 +1,13 @@
 """Multi-agent view of the station: one agent per charging port and per station battery (JaxMARL 0.2 API).
 
-The transition is :func:`chargax_marl.core.simulator.step` (with
-:func:`chargax_marl.core.simulator.step_auto_reset`), the very functions the single-agent view
+The transition is `chargax_marl.core.simulator.step` (with
+`chargax_marl.core.simulator.step_auto_reset`), the very functions the single-agent view
 calls; this file only maps the agents' actions to the core's per-leaf levels and builds the
-per-agent observations. :func:`step_arrays` is the one array transition; the JaxMARL dict API
-(:meth:`ChargaxMARL.step`, ``step_env``) is a view of it, and
-:meth:`ChargaxMARL.validate_actions` is the one check of an action dict. The pure functions at
+per-agent observations. `step_arrays` is the one array transition; the JaxMARL dict API
+(`ChargaxMARL.step`, ``step_env``) is a view of it, and
+`ChargaxMARL.validate_actions` is the one check of an action dict. The pure functions at
 module level take ``params`` explicitly (so jitted callers may pass them as traced arguments
-and share compiled code); :class:`ChargaxMARL` binds them to ``self.params`` as JaxMARL
+and share compiled code); `ChargaxMARL` binds them to ``self.params`` as JaxMARL
 environments do.
 """
 
@@ -73,7 +73,7 @@ def actions_to_levels(indices: jnp.ndarray, params: EnvParams, offset: int) -> j
 
     Indices outside ``[0, n)`` are clipped into it (in their own dtype, before any int32
     cast; host integers beyond int32 are clipped on the host first,
-    :func:`chargax_marl.core.actions.host_array`); NaN and +-inf are idle; a masked (invalid)
+    `chargax_marl.core.actions.host_array`); NaN and +-inf are idle; a masked (invalid)
     action falls back to idle, level 0.
     """
     n = params.num_levels + 1 + offset
@@ -83,7 +83,7 @@ def actions_to_levels(indices: jnp.ndarray, params: EnvParams, offset: int) -> j
 
 
 def levels_to_indices(levels: jnp.ndarray, params: EnvParams, offset: int) -> jnp.ndarray:
-    """Inverse of :func:`actions_to_levels` for valid levels (e.g. from :mod:`chargax_marl.policies`)."""
+    """Inverse of `actions_to_levels` for valid levels (e.g. from `chargax_marl.policies`)."""
     return jnp.asarray(levels).astype(jnp.int32) + offset
 
 
@@ -106,10 +106,10 @@ def ancestor_table(params: EnvParams) -> jnp.ndarray:
 
 @struct.dataclass
 class ObsLayout:
-    """Station-dependent constants of the agent observations (see :func:`obs_layout`)."""
+    """Station-dependent constants of the agent observations (see `obs_layout`)."""
 
     kind_onehot: jnp.ndarray  # (N, 3) AC, DC, battery
-    ancestors: jnp.ndarray  # (N, D) int32, :func:`ancestor_table`
+    ancestors: jnp.ndarray  # (N, D) int32, `ancestor_table`
     agent_id: jnp.ndarray  # (N, N) one-hot, or (N, 1) index / (N - 1)
 
 
@@ -149,7 +149,7 @@ def ancestor_loads(
     """``(N, D)`` load fraction of each agent's ancestor nodes, deepest first, zero-padded.
 
     The load of node ``H`` is its grid-side net flow
-    :func:`chargax_marl.core.physics.node_flows_kw` (each leaf's ``V * I`` divided by the
+    `chargax_marl.core.physics.node_flows_kw` (each leaf's ``V * I`` divided by the
     efficiencies up to and including ``H`` when charging, multiplied when discharging, from
     the currents in ``state``) over its ``max_kw``: the same flow the hard rescale limits, so
     a load of 1 means the node binds. Linear in the number of ports.
@@ -167,7 +167,7 @@ def ancestor_loads(
 
 
 def _observation_parts(state: EnvState, params: EnvParams, layout: ObsLayout):
-    """The column blocks of :func:`agent_observations`: per-agent blocks ``(N, w)`` and the
+    """The column blocks of `agent_observations`: per-agent blocks ``(N, w)`` and the
     shared context ``(C,)``."""
     leaf = observation.leaf_features(state, params).astype(jnp.float32)
     loads = ancestor_loads(state, params, layout).astype(jnp.float32)
@@ -185,10 +185,10 @@ def agent_observations(
 ) -> jnp.ndarray:
     """Every agent's observation as one float32 matrix ``(N, obs_size)``, rows in agent order.
 
-    Columns: the 8 leaf features of :func:`observation.leaf_features`; kind one-hot (AC, DC,
+    Columns: the 8 leaf features of `observation.leaf_features`; kind one-hot (AC, DC,
     battery); load fraction ``|grid-side net flow| / max_kw`` of each ancestor node from the deepest to
     the root, zero-padded to the tree depth; the shared context; the agent index one-hot.
-    ``layout`` (from :func:`obs_layout`) saves recomputing the station constants.
+    ``layout`` (from `obs_layout`) saves recomputing the station constants.
     """
     layout = obs_layout(params) if layout is None else layout
     leaf, kind, loads, ctx, agent_id = _observation_parts(state, params, layout)
@@ -201,7 +201,7 @@ def agent_observations(
 def agent_observation_rows(
     state: EnvState, params: EnvParams, layout: ObsLayout | None = None
 ) -> list:
-    """The rows of :func:`agent_observations` as a list of ``(obs_size,)`` arrays, each built
+    """The rows of `agent_observations` as a list of ``(obs_size,)`` arrays, each built
     on its own (the same values bit for bit). The dict API hands out one array per agent:
     slicing the matrix made XLA write the ``(N, obs_size)`` matrix and then copy every row
     out of it; built per agent, each row is written once (or fused into its reader)."""
@@ -215,7 +215,7 @@ def agent_observation_rows(
 
 STEP_INFO_KEYS = simulator.STEP_INFO_KEYS
 INFO_KEYS = simulator.INFO_KEYS
-"""Every scalar info key (:func:`chargax_marl.core.simulator.info_dict`), in order."""
+"""Every scalar info key (`chargax_marl.core.simulator.info_dict`), in order."""
 
 AGENT_INFO_KEYS = ("agent_energy_kwh", "agent_reward_share")
 """The per-agent info entries this view adds to the single-agent view's keys."""
@@ -239,21 +239,21 @@ def step_arrays(
         key: the step's key.
         state: the state to step.
         indices: ``(N,)`` action indices in agent order (clipped into ``[0, n)``, NaN idle,
-            masked levels idle: :func:`actions_to_levels`).
+            masked levels idle: `actions_to_levels`).
         params: the environment parameters.
-        offset: :func:`action_offset` of ``params``.
-        layout: :func:`obs_layout` of ``params`` (built when ``None``).
-        local_reward_weight: ``w`` of :func:`agent_rewards` (concrete).
+        offset: `action_offset` of ``params``.
+        layout: `obs_layout` of ``params`` (built when ``None``).
+        local_reward_weight: ``w`` of `agent_rewards` (concrete).
         auto_reset: start a fresh day where the step ends one
-            (:func:`chargax_marl.core.simulator.step_auto_reset`).
+            (`chargax_marl.core.simulator.step_auto_reset`).
         reset_state: with ``auto_reset``, the fresh day's state (``None``: a random one).
 
     Returns:
         ``(obs (N, obs_size), next_state, rewards (N,), done (), info)``; ``obs`` is that of
-        ``next_state``. ``info`` holds :func:`chargax_marl.core.simulator.info_dict` (scalars
+        ``next_state``. ``info`` holds `chargax_marl.core.simulator.info_dict` (scalars
         and ``leaf_energy_kwh``), ``agent_energy_kwh`` ``(N,)`` (the same energies, named for
         agents) and ``agent_reward_share`` ``(N,)``, each agent's share of the reward
-        (:func:`chargax_marl.core.reward.leaf_reward_shares`; the shares sum to the reward);
+        (`chargax_marl.core.reward.leaf_reward_shares`; the shares sum to the reward);
         with ``auto_reset`` also ``terminated``, ``truncated`` and ``final_observation``
         (the observation matrix before the reset).
     """
@@ -266,7 +266,7 @@ def step_arrays(
 def _transition(
     key, state, indices, params, offset, layout, local_reward_weight, auto_reset, reset_state
 ):
-    """:func:`step_arrays` without the observation: ``(next_state, rewards, done, info)``."""
+    """`step_arrays` without the observation: ``(next_state, rewards, done, info)``."""
     levels = actions_to_levels(indices, params, offset)
     if auto_reset:
         next_state, stepped, core_info, done = simulator.step_auto_reset(
@@ -312,12 +312,12 @@ class ChargaxMARL(MultiAgentEnv):
 
     One agent per charging port (``port_0 .. port_{P-1}``, in port order) and per station
     battery (``battery_0 ..``); ``self.agents`` follows the core's leaf order. All agents step
-    together through :func:`chargax_marl.core.simulator.step`, the same function the
+    together through `chargax_marl.core.simulator.step`, the same function the
     single-agent env calls, and share the station reward (``rewards[a]`` is the same scalar
     for every agent). An episode is one day: ``dones[a]`` and ``dones["__all__"]`` turn true
-    at its end (truncation); :meth:`step` then auto-resets (JaxMARL's base class).
+    at its end (truncation); `step` then auto-resets (JaxMARL's base class).
 
-    Construct with keyword overrides of :func:`chargax_marl.core.make_params` or with ready
+    Construct with keyword overrides of `chargax_marl.core.make_params` or with ready
     ``params`` (kept as ``self.params``).
 
     **Actions.** Every agent has the same ``Discrete(n)`` space. With ``n = 2L+1`` (any leaf
@@ -326,40 +326,40 @@ class ChargaxMARL(MultiAgentEnv):
     means level ``k``. Level ``l`` targets ``l/L`` of the leaf's max (dis)charge current
     (``absolute`` mode) or changes the current by that much (``delta`` mode, always
     ``Discrete(2L+1)`` with every index valid). Discharging levels of a port without V2G are
-    *masked*: :meth:`get_avail_actions` returns ``False`` for them (the mask depends only on
+    *masked*: `get_avail_actions` returns ``False`` for them (the mask depends only on
     the station, not on the state) and, if chosen anyway, such an action falls back to idle
     (level 0). An action may have shape ``()`` or ``(1,)``. Indices outside ``[0, n)`` are
     clipped into it (as the single-agent env clips), then the mask rule applies;
-    :meth:`check_actions` refuses them instead (PettingZoo's strict check). A missing or
+    `check_actions` refuses them instead (PettingZoo's strict check). A missing or
     unknown agent, a non-number or a wrong shape raises ``ValueError`` at every entry point
-    (:meth:`validate_actions`). Action mode ``continuous`` is not supported here
+    (`validate_actions`). Action mode ``continuous`` is not supported here
     (``ValueError``): use the single-agent view.
 
     **Construction.** ``ChargaxMARL()`` is the paper default (``shopping``, medium traffic);
     ``ChargaxMARL(scenario="shopping-grid25-high")`` picks a named scenario of
-    :mod:`chargax_marl.core.scenarios` (also the coordination scenarios with a constrained
+    `chargax_marl.core.scenarios` (also the coordination scenarios with a constrained
     grid connection, a time-of-use surcharge and a peak-demand charge), keyword arguments of
-    :func:`chargax_marl.core.params.make_params` override it, and ``params=`` passes ready
+    `chargax_marl.core.params.make_params` override it, and ``params=`` passes ready
     parameters.
 
     **Observations.** Every agent gets a float32 vector of the same size
-    (:attr:`obs_size`): its own leaf features (8, :data:`observation.PORT_FEATURES`), its
+    (`obs_size`): its own leaf features (8, `observation.PORT_FEATURES`), its
     kind one-hot (AC, DC, battery), the load fraction ``|grid-side net flow| / max_kw`` of each
     ancestor node from the deepest to the root (zero-padded to the tree depth; the flow is
-    :func:`chargax_marl.core.physics.node_flows_kw` of the currents in the state), the shared
+    `chargax_marl.core.physics.node_flows_kw` of the currents in the state), the shared
     context (prices, time of day, ...), and the agent index (so a shared policy can tell
     agents apart): a one-hot by default, or with ``agent_id="scalar"`` one column
     ``index / (N - 1)``, which keeps the step linear in the number of agents for large
-    stations. :meth:`get_global_state` is the single-agent observation.
+    stations. `get_global_state` is the single-agent observation.
 
-    **Infos.** The single-agent view's keys (:func:`chargax_marl.core.simulator.info_dict`;
-    :meth:`step` adds ``terminated``, ``truncated`` and ``final_observation``, the
-    ``(num_agents, obs_size)`` observations before an auto-reset) plus :data:`AGENT_INFO_KEYS`.
+    **Infos.** The single-agent view's keys (`chargax_marl.core.simulator.info_dict`;
+    `step` adds ``terminated``, ``truncated`` and ``final_observation``, the
+    ``(num_agents, obs_size)`` observations before an auto-reset) plus `AGENT_INFO_KEYS`.
     Every leaf has leading axis ``num_agents``: the step's reward and profit, every penalty
     term as ``penalty_<name>``, energies, prices, car counts, the running episode totals as
     ``episode_<name>`` (scalars broadcast to every agent), ``leaf_energy_kwh`` and its alias
     ``agent_energy_kwh``, each agent's own energy this step, and ``agent_reward_share``, each
-    agent's share of the reward (:func:`chargax_marl.core.reward.leaf_reward_shares`: the
+    agent's share of the reward (`chargax_marl.core.reward.leaf_reward_shares`: the
     money its own energy made minus the penalties it caused and an even part of the fixed
     cost; the shares sum to the reward).
 
@@ -445,7 +445,7 @@ class ChargaxMARL(MultiAgentEnv):
         """One transition without auto-reset: ``(obs, state, rewards, dones, infos)``.
 
         Raises:
-            ValueError: a bad action dict (:meth:`validate_actions`).
+            ValueError: a bad action dict (`validate_actions`).
         """
         return self._dict_step(key, state, self.stack_actions(actions), None, auto_reset=False)
 
@@ -461,16 +461,16 @@ class ChargaxMARL(MultiAgentEnv):
         when given, else a random one) while rewards, dones and infos are the last step's.
 
         The action dict is checked here, once, before it enters ``jit``
-        (:meth:`validate_actions`: host integers are clipped into int32, so a large one clips
-        instead of wrapping); the transition is :func:`step_arrays`'s. Under a caller's own
+        (`validate_actions`: host integers are clipped into int32, so a large one clips
+        instead of wrapping); the transition is `step_arrays`'s. Under a caller's own
         ``jax.jit`` of this method JAX converts the dict at the jit boundary, before this code
         runs: with ``JAX_ENABLE_X64`` off a numpy ``int64`` beyond int32 wraps there and a
         Python ``int`` beyond int32 raises JAX's ``OverflowError``; call ``step`` outside
-        ``jit`` (it jits itself) or clip with :func:`chargax_marl.core.actions.host_array`
+        ``jit`` (it jits itself) or clip with `chargax_marl.core.actions.host_array`
         first.
 
         Raises:
-            ValueError: a bad action dict (:meth:`validate_actions`).
+            ValueError: a bad action dict (`validate_actions`).
         """
         return self._step(key, state, tuple(self.validate_actions(actions)), reset_state)
 
@@ -482,26 +482,26 @@ class ChargaxMARL(MultiAgentEnv):
         reset_state: EnvState | None = None,
     ):
         """The auto-resetting step on arrays, for trainers that batch the agents themselves:
-        the transition of :meth:`step` without the per-agent dicts.
+        the transition of `step` without the per-agent dicts.
 
         Args:
             key: the step's key.
             state: the state to step.
-            indices: ``(num_agents,)`` action indices in :attr:`agents` order (clipped into
-                range, NaN idle, as :meth:`step`'s dict values; not validated on the host).
+            indices: ``(num_agents,)`` action indices in `agents` order (clipped into
+                range, NaN idle, as `step`'s dict values; not validated on the host).
             reset_state: the fresh day's state at the end of a day (``None``: a random one).
 
         Returns:
             ``(obs (num_agents, obs_size), state, rewards (num_agents,), done (), info)``, the
-            same values as :meth:`step`'s dicts (``obs`` stacked as :meth:`get_obs_matrix`);
-            ``info`` as :func:`step_arrays`'s with ``auto_reset``.
+            same values as `step`'s dicts (``obs`` stacked as `get_obs_matrix`);
+            ``info`` as `step_arrays`'s with ``auto_reset``.
         """
         next_state, rewards, done, info = self._transition(key, state, indices, reset_state, True)
         obs = agent_observations(next_state, self.params, self._layout)
         return obs, next_state, rewards, done, info
 
     def _transition(self, key, state, indices, reset_state, auto_reset: bool):
-        """This env's :func:`_transition`: ``(next_state, rewards, done, info)``."""
+        """This env's `_transition`: ``(next_state, rewards, done, info)``."""
         return _transition(
             key,
             state,
@@ -527,7 +527,7 @@ class ChargaxMARL(MultiAgentEnv):
         *,
         auto_reset: bool,
     ):
-        """The dict view of :func:`step_arrays`: observation rows built per agent (no matrix),
+        """The dict view of `step_arrays`: observation rows built per agent (no matrix),
         scalar infos broadcast to ``(num_agents,)``."""
         next_state, rewards, done, info = self._transition(
             key, state, indices, reset_state, auto_reset
@@ -579,10 +579,10 @@ class ChargaxMARL(MultiAgentEnv):
     def validate_actions(self, actions: Mapping[str, Any], strict: bool = False) -> list:
         """The one check of an action dict; returns the agents' actions in agent order.
 
-        Every entry point goes through it: :meth:`stack_actions` (``step``, ``step_env``,
-        ``actions_to_levels``) with ``strict=False`` and :meth:`check_actions` (PettingZoo)
+        Every entry point goes through it: `stack_actions` (``step``, ``step_env``,
+        ``actions_to_levels``) with ``strict=False`` and `check_actions` (PettingZoo)
         with ``strict=True``. Host values are converted by
-        :func:`chargax_marl.core.actions.host_array` (integers clipped into int32); traced
+        `chargax_marl.core.actions.host_array` (integers clipped into int32); traced
         values get the structural checks only.
 
         Args:
@@ -647,7 +647,7 @@ class ChargaxMARL(MultiAgentEnv):
         NaN and +-inf idle.
 
         Raises:
-            ValueError: as :meth:`validate_actions` (``strict=False``).
+            ValueError: as `validate_actions` (``strict=False``).
         """
         return self._stack(self.validate_actions(actions))
 
@@ -666,7 +666,7 @@ class ChargaxMARL(MultiAgentEnv):
         get the structural checks only and give 0.
 
         Raises:
-            ValueError: as :meth:`validate_actions` (``strict=True``).
+            ValueError: as `validate_actions` (``strict=True``).
         """
         return np.array(
             [
@@ -687,6 +687,6 @@ class ChargaxMARL(MultiAgentEnv):
 
     def levels_to_actions(self, levels: jax.Array) -> dict:
         """Action dict for valid signed levels ``(num_agents,)`` (e.g. a rule-based policy of
-        :mod:`chargax_marl.policies`)."""
+        `chargax_marl.policies`)."""
         idx = levels_to_indices(levels, self.params, self.action_offset)
         return {a: idx[i] for i, a in enumerate(self.agents)}

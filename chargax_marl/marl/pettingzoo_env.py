@@ -1,6 +1,6 @@
-"""PettingZoo ``ParallelEnv`` adapter of :class:`ChargaxMARL`: numpy in and out, jitted JAX underneath.
+"""PettingZoo ``ParallelEnv`` adapter of `ChargaxMARL`: numpy in and out, jitted JAX underneath.
 
-``parallel_env(**kwargs)`` takes the keyword arguments of :func:`chargax_marl.core.make_params`
+``parallel_env(**kwargs)`` takes the keyword arguments of `chargax_marl.core.make_params`
 (or ``params=``) plus ``render_mode``, ``max_cycles``, ``action_mask_in_obs``,
 ``local_reward_weight`` and ``agent_id``. One episode is one day (or ``max_cycles`` steps);
 at its end every agent is truncated and ``agents`` becomes empty (no auto-reset): call
@@ -77,10 +77,10 @@ _delay = jax.jit(communication.delay)
 
 
 class ChargaxParallelEnv(ParallelEnv):
-    """The station as a PettingZoo ``ParallelEnv`` (see :class:`ChargaxMARL` for the model).
+    """The station as a PettingZoo ``ParallelEnv`` (see `ChargaxMARL` for the model).
 
     - Observations: ``float32`` vectors in ``Box(low, high, (obs_size,))`` with finite bounds
-      (:mod:`chargax_marl.bounds`), the same layout as :class:`ChargaxMARL`. Actions:
+      (`chargax_marl.bounds`), the same layout as `ChargaxMARL`. Actions:
       ``Discrete(n)`` per agent; ``infos[agent]["action_mask"]`` (a writable ``np.int8``
       copy) marks the valid ones; a masked action falls back to idle. With
       ``action_mask_in_obs=True`` each observation is instead
@@ -90,14 +90,14 @@ class ChargaxParallelEnv(ParallelEnv):
       unknown agent, an index outside the space or a non-integer action, and
       ``RuntimeError`` when called before ``reset`` or after the day ended.
     - Rewards are the shared station reward (EUR), or the per-agent mix of
-      ``local_reward_weight`` (see :class:`ChargaxMARL`); ``terminations`` are always ``False``;
+      ``local_reward_weight`` (see `ChargaxMARL`); ``terminations`` are always ``False``;
       ``truncations`` turn ``True`` for every agent at the end of the day, or after
       ``max_cycles`` steps when given (a shorter episode, for tests and tutorials). ``infos[agent]``
       also holds the step's report as floats (profit, penalties, energies, prices, car
       counts, episode totals), ``energy_kwh``, the agent's own energy this step, and
       ``reward_share``, its share of the reward.
     - Seeding: ``reset(seed=s)`` starts a JAX key from any non-negative integer ``s``
-      (:func:`chargax_marl.lifecycle.key_from_seed`), so the same seed and actions give the
+      (`chargax_marl.lifecycle.key_from_seed`), so the same seed and actions give the
       same trajectory. ``reset()`` without a seed continues the key sequence; the first key
       is ``PRNGKey(0)`` (as the single-agent Gymnasium wrapper).
       ``reset(options={"day": d})`` starts on day ``d`` in ``[0, num_days)`` of the price
@@ -105,14 +105,14 @@ class ChargaxParallelEnv(ParallelEnv):
     - ``state()`` is the single-agent observation (``state_space``). ``render()`` returns a
       text table (``render_mode="ansi"``), prints it (``"human"``) or returns an ``HxWx3``
       uint8 plot of the day so far (``"rgb_array"``).
-    - Imperfect communication (:mod:`chargax_marl.marl.communication`, the same functions as
+    - Imperfect communication (`chargax_marl.marl.communication`, the same functions as
       its JaxMARL wrappers): ``observation_delay_steps=k`` shows each agent the shared context
       and its nodes' loads of ``k`` steps before (its own port stays current);
       ``action_loss_prob=p`` loses each agent's action with probability ``p``, the port then
       applying its previous action (``lost_action="previous"``) or idling (``"idle"``);
       ``infos[agent]["action_lost"]`` says whether it was. Both off by default.
     - In a process forked after JAX started, construction and every call raise
-      :class:`chargax_marl.lifecycle.ForkedProcessError` (use the ``spawn`` start method).
+      `chargax_marl.lifecycle.ForkedProcessError` (use the ``spawn`` start method).
     """
 
     metadata = {
@@ -329,18 +329,18 @@ class ChargaxParallelEnv(ParallelEnv):
 
 
 def parallel_env(**kwargs: Any) -> ChargaxParallelEnv:
-    """Build a :class:`ChargaxParallelEnv` (``render_mode=``, ``max_cycles=``,
+    """Build a `ChargaxParallelEnv` (``render_mode=``, ``max_cycles=``,
     ``action_mask_in_obs=``, ``params=`` or ``make_params`` keywords)."""
     return ChargaxParallelEnv(**kwargs)
 
 
 def raw_env(**kwargs: Any):
-    """The AEC view of :func:`parallel_env` (PettingZoo's ``parallel_to_aec``)."""
+    """The AEC view of `parallel_env` (PettingZoo's ``parallel_to_aec``)."""
     return parallel_to_aec(ChargaxParallelEnv(**kwargs))
 
 
 def env(**kwargs: Any):
-    """PettingZoo's AEC constructor: :func:`raw_env` (same keywords as :func:`parallel_env`).
+    """PettingZoo's AEC constructor: `raw_env` (same keywords as `parallel_env`).
 
     Agents act one after another within a cycle; the station steps once all have acted.
     """

@@ -1,9 +1,9 @@
-"""JaxMARL-style wrappers of :class:`ChargaxMARL`: episode logging and MAPPO's world state.
+"""JaxMARL-style wrappers of `ChargaxMARL`: episode logging and MAPPO's world state.
 
 Both keep JaxMARL's call signatures (``reset(key)``, ``step(key, state, actions)``) and
 forward every other attribute to the wrapped env, so they stack like JaxMARL's: the
 MAPPO order is ``LogWrapper(WorldStateWrapper(env))``. Each also has the array step of
-:meth:`chargax_marl.marl.ChargaxMARL.step_arrays` (``step_arrays(key, state, indices)``:
+`chargax_marl.marl.ChargaxMARL.step_arrays` (``step_arrays(key, state, indices)``:
 actions ``(num_agents,)`` in, observations ``(num_agents, obs_size)`` and rewards
 ``(num_agents,)`` out), the same transition without the per-agent dicts, which the trainers
 use.
@@ -36,7 +36,7 @@ class _Wrapper:
         wrapping at the jit boundary; traced values pass through).
 
         Raises:
-            ValueError: a bad action dict (:meth:`chargax_marl.marl.ChargaxMARL.validate_actions`).
+            ValueError: a bad action dict (`chargax_marl.marl.ChargaxMARL.validate_actions`).
         """
         return dict(zip(self._env.agents, self._env.validate_actions(actions)))
 
@@ -46,7 +46,7 @@ class _Wrapper:
 
 
 def _core_state(state) -> EnvState:
-    """Unwrap wrapper states (``.env_state``) down to the core :class:`EnvState`."""
+    """Unwrap wrapper states (``.env_state``) down to the core `EnvState`."""
     while not isinstance(state, EnvState):
         state = state.env_state
     return state
@@ -70,7 +70,7 @@ class LogWrapper(_Wrapper):
     ``info`` gains ``returned_episode_returns``, ``returned_episode_lengths`` (the last
     finished episode's values), ``returned_episode`` (True on the step that ended an
     episode) and ``returned_episode_<total>`` for every field of
-    :class:`chargax_marl.core.EpisodeTotals` (profit, energies, cars served, ...), each of
+    `chargax_marl.core.EpisodeTotals` (profit, energies, cars served, ...), each of
     shape ``(num_agents,)``. With ``replace_info=True`` the env's own infos are dropped.
     """
 
@@ -95,7 +95,7 @@ class LogWrapper(_Wrapper):
 
     def step(self, key: jax.Array, state: LogEnvState, actions: dict, reset_state=None):
         """The wrapped env's ``step`` with the episode logging; ``actions`` is checked and its
-        host integers clipped before the jitted step (:meth:`host_actions`).
+        host integers clipped before the jitted step (`host_actions`).
 
         Raises:
             ValueError: a bad action dict.
@@ -118,8 +118,8 @@ class LogWrapper(_Wrapper):
     @functools.partial(jax.jit, static_argnums=(0,))
     def step_arrays(self, key: jax.Array, state: LogEnvState, indices: jax.Array, reset_state=None):
         """The wrapped env's ``step_arrays`` with the episode logging (the same state and
-        infos as :meth:`step`; the logged infos are ``(num_agents,)``).
-        Arguments and returns as :meth:`chargax_marl.marl.ChargaxMARL.step_arrays`, with this
+        infos as `step`; the logged infos are ``(num_agents,)``).
+        Arguments and returns as `chargax_marl.marl.ChargaxMARL.step_arrays`, with this
         wrapper's state.
         """
         obs, env_state, reward, done, info = self._env.step_arrays(
@@ -165,7 +165,7 @@ class LogWrapper(_Wrapper):
 class WorldStateWrapper(_Wrapper):
     """Add MAPPO's centralised input: ``obs["world_state"]`` of shape ``(num_agents, state_size)``.
 
-    Every row is the env's :meth:`get_global_state` (the single-agent observation) of the
+    Every row is the env's `get_global_state` (the single-agent observation) of the
     returned state, so after an auto-reset it describes the new day.
     """
 
@@ -178,7 +178,7 @@ class WorldStateWrapper(_Wrapper):
 
     def step(self, key: jax.Array, state, actions: dict, reset_state=None):
         """The wrapped env's ``step`` with the world state added; ``actions`` is checked and its
-        host integers clipped before the jitted step (:meth:`host_actions`).
+        host integers clipped before the jitted step (`host_actions`).
 
         Raises:
             ValueError: a bad action dict.
@@ -198,16 +198,16 @@ class WorldStateWrapper(_Wrapper):
     def step_arrays(self, key: jax.Array, state, indices: jax.Array, reset_state=None):
         """The wrapped env's ``step_arrays``, unchanged: the observations are a matrix with no
         room for an entry of its own, so an array-path trainer reads the world state of the
-        returned state with :meth:`global_state` (the same row :meth:`step` adds)."""
+        returned state with `global_state` (the same row `step` adds)."""
         return self._env.step_arrays(key, state, indices, reset_state)
 
     def global_state(self, state) -> jnp.ndarray:
         """The world state ``(state_size,)`` of a (wrapped) state: one row of
-        :meth:`world_state`."""
+        `world_state`."""
         return self._env.get_global_state(_core_state(state))
 
     def world_state(self, state) -> jnp.ndarray:
-        """``obs["world_state"]``: :meth:`global_state` for every agent,
+        """``obs["world_state"]``: `global_state` for every agent,
         ``(num_agents, state_size)``."""
         ws = self.global_state(state)
         return jnp.broadcast_to(ws, (self._env.num_agents, ws.shape[0]))

@@ -1,9 +1,9 @@
 """Optimal-control baselines solved with HiGHS: a hindsight bound, an MPC controller, a MILP.
 
-- :mod:`model`: the station's day as an LP (one builder for every solver here).
-- :mod:`bound`: the hindsight bound over a reference policy's port occupancy.
-- :mod:`mpc`: a receding-horizon controller usable as a policy in both views.
-- :mod:`milp`: the bound over admissions too (binary occupancy), for small problems.
+- `model`: the station's day as an LP (one builder for every solver here).
+- `bound`: the hindsight bound over a reference policy's port occupancy.
+- `mpc`: a receding-horizon controller usable as a policy in both views.
+- `milp`: the bound over admissions too (binary occupancy), for small problems.
 """
 
 from chargax_marl.optimal.bound import Bound, Occupancy, bound_days, hindsight_bound, occupancy

@@ -1,11 +1,11 @@
 """The hindsight bound: the best profit any policy with a given port occupancy could make on a day.
 
-:func:`occupancy` replays a reference policy (always-max by default) on a day's trace
-(:mod:`chargax_marl.trace`) and records which car sat at which port in which step.
-:func:`hindsight_bound` then solves, with HiGHS, the LP of :mod:`chargax_marl.optimal.model`
+`occupancy` replays a reference policy (always-max by default) on a day's trace
+(`chargax_marl.trace`) and records which car sat at which port in which step.
+`hindsight_bound` then solves, with HiGHS, the LP of `chargax_marl.optimal.model`
 over those sessions with the day's prices known in advance.
 
-**What it bounds.** The day's profit (:func:`chargax_marl.core.reward.profit_eur` summed over
+**What it bounds.** The day's profit (`chargax_marl.core.reward.profit_eur` summed over
 the day, terminal battery value, battery wear and fixed cost included; not the reward, whose penalty
 weights do not change the profit) of every policy whose occupancy is the reference's: the
 same cars at the same ports for the same steps. For time-sensitive cars that is every
@@ -13,7 +13,7 @@ policy (they leave on time whatever happens); a charge-sensitive car leaves when
 its target, so the class holds the policies that bring each such car to its target in the
 step the reference did (the LP asks the car to reach its target by then, and relaxes "not
 earlier"). A policy that frees ports earlier may admit cars the reference rejected and
-exceed the bound; :mod:`chargax_marl.optimal.milp` bounds over admissions as well on small
+exceed the bound; `chargax_marl.optimal.milp` bounds over admissions as well on small
 problems. Within the class the bound is an upper bound because currents are continuous (the
 discrete levels are a subset) and every limit the simulator applies is a constraint.
 """
@@ -49,7 +49,7 @@ class Occupancy:
 
 
 def sessions_from_rollout(states, infos, params: EnvParams) -> Sessions:
-    """The car sessions of one replayed day (:func:`chargax_marl.trace.replay`'s ``states``
+    """The car sessions of one replayed day (`chargax_marl.trace.replay`'s ``states``
     and ``infos``, leading axis = steps). A car present at the start of step ``t`` charges in
     ``t``; it is the same car as in ``t - 1`` unless the port received a new car in ``t - 1``."""
     occ = np.asarray(states.occupied)
@@ -175,7 +175,7 @@ class Bound:
     """The hindsight bound of one day: ``profit_eur`` (EUR), the solver's status and time,
     the reference's profit on the same day and the LP's size.
 
-    A day whose solve failed (:func:`bound_days`) has ``status`` other than ``"optimal"``,
+    A day whose solve failed (`bound_days`) has ``status`` other than ``"optimal"``,
     ``profit_eur`` and ``solve_s`` NaN, no ``solution`` and the solver's ``message``.
     """
 
@@ -255,18 +255,18 @@ def bound_days(
     with_battery: bool = True,
     day_keys: jax.Array | None = None,
 ) -> list[Bound]:
-    """:func:`hindsight_bound` for each of ``days`` with the cars that evaluation draws with
+    """`hindsight_bound` for each of ``days`` with the cars that evaluation draws with
     ``key`` (default ``PRNGKey(0)``) and ``reference``'s occupancy (``with_battery``: see
-    :func:`hindsight_bound`). ``day_keys`` (one key per day) replaces ``key``'s split, as in
-    :func:`chargax_marl.evaluation.run_days_keyed`.
+    `hindsight_bound`). ``day_keys`` (one key per day) replaces ``key``'s split, as in
+    `chargax_marl.evaluation.run_days_keyed`.
 
     A day whose LP fails or hits ``time_limit_s`` does not stop the others: its
-    :class:`Bound` carries the solver's ``status`` and ``message`` and a NaN ``profit_eur``
+    `Bound` carries the solver's ``status`` and ``message`` and a NaN ``profit_eur``
     (never a number), so that every mean over days can leave it out
-    (:func:`chargax_marl.evaluation.summarize_profit`).
+    (`chargax_marl.evaluation.summarize_profit`).
 
     Returns:
-        One :class:`Bound` per day, in the order of ``days``.
+        One `Bound` per day, in the order of ``days``.
     """
     if day_keys is None:
         key = jax.random.PRNGKey(0) if key is None else key

@@ -1,18 +1,18 @@
 """The bound over admissions too: a MILP that also chooses which cars park where, and when
 charge-sensitive cars leave. For small stations and short horizons.
 
-The LP bound (:mod:`chargax_marl.optimal.bound`) fixes the port occupancy of a reference
+The LP bound (`chargax_marl.optimal.bound`) fixes the port occupancy of a reference
 policy; a policy that frees ports sooner may admit other cars. This MILP drops that
 restriction on a *window* of the day's first ``num_steps`` steps (the station is empty at
 the day's start): every car of the trace that asks to park in the window may be admitted at
 any port or turned away (binary), a time-sensitive car then stays for its planned stay, and
 a charge-sensitive car leaves in a step of its choosing, but only once it has reached its
 target (or stays past the window's end). Everything else is the LP of
-:mod:`chargax_marl.optimal.model`.
+`chargax_marl.optimal.model`.
 
 **What it bounds.** The *window profit* of every policy: the profit booked in the window's
 steps (fixed cost included) plus the batteries' net energy change over the window at the
-day's terminal price (:func:`window_profit` computes it for a replayed policy). The
+day's terminal price (`window_profit` computes it for a replayed policy). The
 simulator admits cars first-free-port and never turns one away while a port is free; the
 MILP may, so its feasible set holds every policy's trajectory.
 
@@ -123,8 +123,8 @@ def admission_bound(
     time_limit_s: float | None = 120.0,
 ):
     """Solve the MILP of the module docstring over the window's first ``num_steps`` steps.
-    Returns :class:`chargax_marl.optimal.model.Solution` (value without the fixed cost).
-    Raises :class:`chargax_marl.optimal.model.SolverError` when HiGHS finds no optimum."""
+    Returns `chargax_marl.optimal.model.Solution` (value without the fixed cost).
+    Raises `chargax_marl.optimal.model.SolverError` when HiGHS finds no optimum."""
     trace_lib.check_trace(trace, params)
     if not 2 <= num_steps <= params.num_steps:
         raise ValueError(

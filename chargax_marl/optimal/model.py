@@ -5,14 +5,14 @@ problem is a set of *sessions* (a car at one port for a range of steps, or a sta
 for the whole range) over ``num_steps`` steps of ``step_hours``, with the station's limits
 and the steps' prices. The LP chooses, per session and step, a charging power ``p+ >= 0`` and
 a discharging power ``p- >= 0`` (kW, car side) and maximises the money the simulator's
-profit (:func:`chargax_marl.core.reward.profit_eur`) would book, under every limit the
+profit (`chargax_marl.core.reward.profit_eur`) would book, under every limit the
 simulator applies:
 
 - port ratings (``V * I_max``, ``V * I_dis`` with V2G, 0 discharge without), the car's
   ``r-bar`` and discharge limit;
 - the rate curve above ``tau`` (``p+ <= r-bar (1 - SoC) / (1 - tau)``) and its mirror for
   discharging (``p- <= r-bar_dis SoC / (1 - tau)``), with the SoC at the start of the step as
-  in :func:`chargax_marl.core.physics.clip_to_car`;
+  in `chargax_marl.core.physics.clip_to_car`;
 - the SoC window: at most the car's target, at least its arrival SoC (batteries: [0, 1]);
 - every node limit on the grid side (``p+ / eta - p- * eta`` summed under the node, with the
   efficiency of the path up to and including it; dropped in ``soft`` constraint mode, where
@@ -24,7 +24,7 @@ simulator applies:
   both: ``p+ / cmax + p- / dmax <= 1``);
 - the peak-demand charge on the highest net draw of the steps (when the params set one);
 - the batteries' net energy change valued at the day's terminal price, and their wear per
-  kWh into or out of the cells (:func:`chargax_marl.core.reward.battery_wear_eur`; the
+  kWh into or out of the cells (`chargax_marl.core.reward.battery_wear_eur`; the
   calendar ageing is a constant, booked with the fixed cost).
 
 Relaxations, so that the optimum bounds the simulator from above: currents are continuous
@@ -61,7 +61,7 @@ class SolverError(RuntimeError):
 
     Args:
         message: what failed, with the problem's size.
-        status: the solver's status (a value of :data:`STATUS`, e.g. ``"time or iteration
+        status: the solver's status (a value of `STATUS`, e.g. ``"time or iteration
             limit"``), kept as ``.status`` so that callers can report it per day.
     """
 
@@ -102,7 +102,7 @@ class Sessions:
 
 @dataclass
 class StationLimits:
-    """The station's arrays the LP needs, as numpy (see :class:`chargax_marl.core.station.StationArrays`)."""
+    """The station's arrays the LP needs, as numpy (see `chargax_marl.core.station.StationArrays`)."""
 
     charge_kw: np.ndarray  # (L,) V * I_max
     discharge_kw: np.ndarray  # (L,) V * I_dis, 0 where the leaf may not discharge
@@ -269,7 +269,7 @@ def run_highs(h: highspy.Highs, num_cols: int, num_rows: int) -> tuple[str, np.n
         num_rows: the model's rows (for the error message).
 
     Returns:
-        ``(status, x, objective)``: :data:`STATUS`'s ``"optimal"``, the primal solution and
+        ``(status, x, objective)``: `STATUS`'s ``"optimal"``, the primal solution and
         the minimised objective.
 
     Raises:
@@ -306,7 +306,7 @@ _LOWER, _BASIC, _UPPER = 0, 1, 2
 class Basis:
     """An optimal basis, each column and row named by a key (its kind, leaf or node, and the
     day's step), so that a later problem over overlapping steps can start from it
-    (:func:`build_and_solve`'s ``warm_start``). Keys are sorted."""
+    (`build_and_solve`'s ``warm_start``). Keys are sorted."""
 
     col_key: np.ndarray  # (num_cols,) int64
     col_status: np.ndarray  # (num_cols,) int8, HighsBasisStatus values
@@ -402,7 +402,7 @@ class _Builder:
         Args:
             maximise: maximise the cost (else minimise).
             time_limit_s: HiGHS's wall-clock limit (seconds); None for none.
-            col_status: a guessed basis status per column (:class:`highspy.HighsBasisStatus`
+            col_status: a guessed basis status per column (`highspy.HighsBasisStatus`
                 values), or None for a solve from scratch.
             row_status: the same per row (with ``col_status``).
 
@@ -478,7 +478,7 @@ class _Terms:
 def _terms(
     sessions: Sessions, limits: StationLimits, econ: Economics, charged_tolerance_kwh: float
 ) -> _Terms:
-    """The per-session constants of :func:`build_and_solve`'s LP, vectorised. Rows that the
+    """The per-session constants of `build_and_solve`'s LP, vectorised. Rows that the
     variables' bounds already imply (the rate curve of a car that never passes ``tau``, the
     discharge curve of one that never gets below its floor) are marked off."""
     f64 = lambda a: np.asarray(a, np.float64)  # noqa: E731
@@ -573,7 +573,7 @@ def build_and_solve(
             starts from it where the keys (kind, leaf or node, day's step) match. The
             optimum's value is the same; where several plans are optimal, the plan may differ
             from a solve from scratch.
-        keep_basis: return the optimal basis in :attr:`Solution.basis`.
+        keep_basis: return the optimal basis in `Solution.basis`.
 
     Returns:
         The optimum: its value, each session's net power per step and end SoC.

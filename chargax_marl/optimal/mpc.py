@@ -1,18 +1,18 @@
 """A model-predictive controller: re-solve the station LP over a receding horizon, apply step one.
 
 At each step (or every ``resolve_every`` steps, while the plan still matches the state) the
-controller solves the LP of :mod:`chargax_marl.optimal.model` over the next
+controller solves the LP of `chargax_marl.optimal.model` over the next
 ``horizon_hours`` with the cars present now (each staying until its planned departure, no
 knowledge of future arrivals), the buy and sell prices of those hours (known in advance, as on
 a day-ahead market; time-of-use surcharge included), the peak-demand charge on any draw above
 the day's peak so far, and the batteries valued at the day's terminal price at the horizon's
 end, and turns the first step's powers into levels.
 
-:class:`MPC` is a policy ``mpc(state, key, params) -> levels`` like those of
-:mod:`chargax_marl.policies`: it runs on the host through :func:`jax.pure_callback`, so it
+`MPC` is a policy ``mpc(state, key, params) -> levels`` like those of
+`chargax_marl.policies`: it runs on the host through `jax.pure_callback`, so it
 works inside ``jit``, ``scan`` and ``vmap`` (the calls are made one state at a time) and
-therefore in :func:`chargax_marl.evaluation.evaluate` and in both views
-(:func:`chargax_marl.policies.for_single`, :func:`chargax_marl.policies.for_marl`). It is
+therefore in `chargax_marl.evaluation.evaluate` and in both views
+(`chargax_marl.policies.for_single`, `chargax_marl.policies.for_marl`). It is
 slow next to the jitted policies: one HiGHS solve per step and state (see
 ``baselines/README.md`` for measured times), each started from the optimal basis of the same
 day's previous solve (``warm_start``).
@@ -182,7 +182,7 @@ class MPC:
         """The LP of one step for the host state ``s``.
 
         Args:
-            s: the host state (:data:`_FIELDS` as numpy arrays).
+            s: the host state (`_FIELDS` as numpy arrays).
 
         Returns:
             The horizon in steps, the prices and economics of those steps, and the sessions
@@ -313,5 +313,5 @@ class MPC:
 
 
 def mpc_policy(params: EnvParams, **kwargs) -> MPC:
-    """An :class:`MPC` for ``params`` (a policy ``(state, key, params) -> levels``)."""
+    """An `MPC` for ``params`` (a policy ``(state, key, params) -> levels``)."""
     return MPC(params, **kwargs)

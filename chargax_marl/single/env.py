@@ -2,10 +2,10 @@
 
 ``reset(key, params) -> (obs, state)`` and
 ``step(key, state, action, params) -> (obs, state, reward, terminated, truncated, info)``
-follow :class:`gymnax.environments.environment.Environment` and auto-reset at the end of the
+follow `gymnax.environments.environment.Environment` and auto-reset at the end of the
 day. This file only maps actions and builds observations; the transition is
-:func:`chargax_marl.core.simulator.step` (``step_env``) and
-:func:`chargax_marl.core.simulator.step_auto_reset` (``step``), as in the multi-agent view.
+`chargax_marl.core.simulator.step` (``step_env``) and
+`chargax_marl.core.simulator.step_auto_reset` (``step``), as in the multi-agent view.
 
 Action (discrete modes): a ``MultiDiscrete`` vector with one entry per leaf (ports, then
 batteries). Entry ``k`` of leaf ``i`` means level ``k + min_level_i`` where
@@ -58,7 +58,7 @@ def action_levels(action: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
     """The core's per-leaf levels (or fractions) of an action array of the single-agent space.
 
     Traceable. Indices outside the space are clipped into it (host integers beyond int32 on
-    the host first, :func:`chargax_marl.core.actions.host_array`); NaN and +-inf entries are
+    the host first, `chargax_marl.core.actions.host_array`); NaN and +-inf entries are
     the index of idle (level 0).
 
     Args:
@@ -83,8 +83,8 @@ def action_levels(action: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
 class Chargax(environment.Environment[EnvState, EnvParams]):
     """The EV charging station as a gymnax environment.
 
-    Construct with keyword overrides of :func:`chargax_marl.core.params.make_params`, or
-    pass ready ``params`` (checked by :func:`chargax_marl.core.params.validate_params`, so
+    Construct with keyword overrides of `chargax_marl.core.params.make_params`, or
+    pass ready ``params`` (checked by `chargax_marl.core.params.validate_params`, so
     params derived with ``replace`` get the same checks; ``ValueError`` naming the field). The defaults are the paper's: the 16-port ``multiple_types``
     station, 5-minute steps over one day (288), 10 levels, V2G on, customer price
     0.75 EUR/kWh, all alpha 0, shopping users at medium traffic, EU fleet, NL-2023 prices.
@@ -109,7 +109,7 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
         """Map an action of this env's space (host or jax values) to the core's per-leaf levels.
 
         The host action is checked and clipped into int32 / float32 first
-        (:func:`chargax_marl.core.actions.host_array`), then mapped by :func:`action_levels`.
+        (`chargax_marl.core.actions.host_array`), then mapped by `action_levels`.
 
         Raises:
             ValueError: the action does not have one entry per leaf or is not numeric.
@@ -117,7 +117,7 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
         return action_levels(actions.host_array(action, params.station.num_leaves), params)
 
     def levels_to_action(self, levels: jnp.ndarray, params: EnvParams | None = None) -> jnp.ndarray:
-        """Inverse of :meth:`action_to_levels` (for rule-based policies written in levels)."""
+        """Inverse of `action_to_levels` (for rule-based policies written in levels)."""
         params = params or self._params
         if params.action_mode == "continuous":
             return jnp.asarray(levels, jnp.float32)
@@ -139,15 +139,15 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
 
         The host action (numpy, list, Python numbers) is checked and clipped into int32 /
         float32 here, once, before it enters ``jit``
-        (:func:`chargax_marl.core.actions.host_array`), so a large host integer clips instead
+        (`chargax_marl.core.actions.host_array`), so a large host integer clips instead
         of wrapping. Under a caller's own ``jax.jit`` of this method JAX converts the
         arguments at the jit boundary, before this code runs: with ``JAX_ENABLE_X64`` off a
         numpy ``int64`` beyond int32 wraps there and a Python ``int`` beyond int32 raises
         JAX's ``OverflowError``; call ``step`` outside ``jit`` (it jits itself) or clip with
-        :func:`chargax_marl.core.actions.host_array` first. The transition is
-        :func:`chargax_marl.core.simulator.step_auto_reset`;
+        `chargax_marl.core.actions.host_array` first. The transition is
+        `chargax_marl.core.simulator.step_auto_reset`;
         the observation is built once, from the state it returns. ``info`` is
-        :func:`chargax_marl.core.simulator.info_dict` plus gymnax's ``terminated``,
+        `chargax_marl.core.simulator.info_dict` plus gymnax's ``terminated``,
         ``truncated`` and ``final_observation`` (the observation before the reset, computed
         only when a caller uses it).
 
@@ -215,7 +215,7 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
         each action entry, ``max(action_space().nvec)`` (``2L+1`` with V2G or a battery): a
         factored policy head has ``num_leaves x num_actions`` logits. In continuous mode the
         action dimension (``num_leaves``), as for gymnax's continuous envs. For a single
-        ``Discrete`` space use :class:`chargax_marl.single.FlatDiscrete`."""
+        ``Discrete`` space use `chargax_marl.single.FlatDiscrete`."""
         space = self.action_space(self._params)
         if self._params.action_mode == "continuous":
             return int(space.shape[0])
@@ -239,7 +239,7 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
             return MultiDiscrete(params.num_levels + 1 - np.asarray(self.min_level(params)))
 
     def observation_space(self, params: EnvParams | None = None):
-        """``Box(low, high)`` with finite bounds the observations respect (:mod:`chargax_marl.bounds`)."""
+        """``Box(low, high)`` with finite bounds the observations respect (`chargax_marl.bounds`)."""
         params = self._concrete(params or self._params)
         low, high = bounds.flat_obs_bounds(params)
         return spaces.Box(low, high, (observation.obs_size(params),), jnp.float32)

@@ -3,7 +3,7 @@
 The scenarios themselves (the four user profiles of paper Table 2 at three traffic levels,
 and the coordination scenarios ``shopping-grid10-<traffic>``, ``shopping-grid25-<traffic>``, ``shopping-grid50-<traffic>``,
 ``shopping-peak``, ``shopping-peak-high``, ``shopping-grid50-peak-high``) are defined in
-:mod:`chargax_marl.core.scenarios`, shared with ``ChargaxMARL(scenario=...)``.
+`chargax_marl.core.scenarios`, shared with ``ChargaxMARL(scenario=...)``.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ __all__ = ["COORDINATION_SCENARIOS", "SCENARIOS", "make"]
 
 
 def make(name: str = "shopping", **overrides: Any) -> tuple[Chargax, EnvParams]:
-    """Return ``(env, params)`` for a named scenario (:data:`SCENARIOS`), with keyword
-    overrides of :func:`chargax_marl.core.params.make_params` applied on top."""
+    """Return ``(env, params)`` for a named scenario (`SCENARIOS`), with keyword
+    overrides of `chargax_marl.core.params.make_params` applied on top."""
     env = Chargax(**scenario_kwargs(name, **overrides))
     return env, env.default_params

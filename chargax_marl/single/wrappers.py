@@ -34,7 +34,7 @@ class LogWrapper:
 
     ``info`` gains ``returned_episode_returns``, ``returned_episode_lengths``,
     ``returned_episode`` (True on the step that ended an episode) and
-    ``returned_episode_<total>`` for every field of :class:`EpisodeTotals` (profit,
+    ``returned_episode_<total>`` for every field of `EpisodeTotals` (profit,
     energies, cars served and rejected, ...), each holding the last finished episode's value.
     """
 
@@ -151,7 +151,7 @@ class FlatDiscrete:
         """The per-leaf levels ``(L,)`` of a flat action (works under jit).
 
         An index outside ``[0, n)`` is clipped into it in its own dtype (a host integer beyond
-        int32 on the host first, :func:`chargax_marl.core.actions.host_array`), so it never
+        int32 on the host first, `chargax_marl.core.actions.host_array`), so it never
         wraps; NaN and +-inf are the index of every leaf idle.
         """
         idle = self.action_index(0, 0)
@@ -215,19 +215,19 @@ class GymnasiumEnv(gymnasium.Env):
     """Gymnasium adapter: numpy in and out, jitted JAX underneath.
 
     - Observation: ``Box(low, high, (n,), float32)`` with finite bounds the observations
-      respect (:mod:`chargax_marl.bounds`). Action: ``MultiDiscrete`` with one entry per port
+      respect (`chargax_marl.bounds`). Action: ``MultiDiscrete`` with one entry per port
       and battery (discrete modes) or ``Box(-1, 1)`` (continuous).
     - The episode is one day; it ends with ``truncated=True`` and does not auto-reset:
       ``step`` after that raises ``RuntimeError`` until ``reset``.
     - ``reset(seed=s)`` accepts any non-negative integer (``ValueError`` otherwise); the same
-      seed gives the same day and cars (:func:`chargax_marl.lifecycle.key_from_seed`;
+      seed gives the same day and cars (`chargax_marl.lifecycle.key_from_seed`;
       seeds below ``2**32`` use ``jax.random.PRNGKey(seed)``).
       ``reset(options={"day": d})`` starts on day ``d`` in ``[0, num_days)`` of the price data.
     - ``render_mode``: ``"ansi"`` (text table), ``"human"`` (prints it) or ``"rgb_array"``.
-    - Instances of a plain :class:`Chargax` share one compiled reset and step per station
+    - Instances of a plain `Chargax` share one compiled reset and step per station
       layout and static settings; the wrapper pickles.
     - In a process forked after JAX started, construction and every call raise
-      :class:`chargax_marl.lifecycle.ForkedProcessError` (use the ``spawn`` start method).
+      `chargax_marl.lifecycle.ForkedProcessError` (use the ``spawn`` start method).
     """
 
     metadata = {"render_modes": rendering.RENDER_MODES, "render_fps": 4}

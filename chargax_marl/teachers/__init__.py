@@ -3,18 +3,18 @@
 Computed from the day's known prices (day-ahead prices are published the day before) and the
 simulator state, never from the future cars:
 
-- :mod:`~chargax_marl.teachers.storage_value`: the battery-only dynamic programme and LP over
+- `storage_value`: the battery-only dynamic programme and LP over
   the day's prices, net of the battery's losses and wear (the value of the stored energy; the
   programme's best action);
-- :mod:`~chargax_marl.teachers.car_plan`: each parked car's cheapest plan under the day's
+- `car_plan`: each parked car's cheapest plan under the day's
   prices (its value, a potential per car, the plan advice and the plan as a rule);
-- :mod:`~chargax_marl.teachers.shaping`: the battery potentials and the per-agent terms of
+- `shaping`: the battery potentials and the per-agent terms of
   the multi-agent view;
-- :mod:`~chargax_marl.teachers.prices`: relative prices, an observation feature;
-- :mod:`~chargax_marl.teachers.rules`: the teachers played as rules (also by name through
-  :func:`chargax_marl.policies.get_policy`).
+- `prices`: relative prices, an observation feature;
+- `rules`: the teachers played as rules (also by name through
+  `chargax_marl.policies.get_policy`).
 
-:mod:`chargax_marl.wrappers` applies them to the envs as reward shaping and observation
+`chargax_marl.wrappers` applies them to the envs as reward shaping and observation
 features.
 """
 

@@ -4,7 +4,7 @@ A port earns ``c - p_t / eta`` per kWh it charges into a car at step ``t``: the 
 price ``c`` minus the step's buy price ``p_t`` (day-ahead + grid fee + time-of-use, as the env
 prices it) over the port's path efficiency ``eta``. A time-sensitive car that still wants
 ``need`` kWh and stays ``k`` more whole steps (cut at the day's end) takes ``q`` kWh per
-step in the plan (:data:`PLAN_POWER_FRACTION` of the lower of the port's and the car's top
+step in the plan (`PLAN_POWER_FRACTION` of the lower of the port's and the car's top
 power, times the step). Ignoring the other cars, the best plan for it charges in the
 cheapest steps of its stay first while the margin is positive::
 
@@ -12,7 +12,7 @@ cheapest steps of its stay first while the margin is positive::
 
 over the stay's steps sorted by price, ``p_(1) <= p_(2) <= ...``.
 
-As a potential per car (:func:`car_potential`, :class:`chargax_marl.wrappers.CarPlanShaping`)
+As a potential per car (`car_potential`, `chargax_marl.wrappers.CarPlanShaping`)
 a port's shaping term is ``V`` after the step (the same car, ``need`` less what it took, one
 step less; 0 once it has left) minus ``V`` before it. A car that arrives during the step
 enters the potential from the next step on, so over a car's stay the terms add up to ``-V``
@@ -27,11 +27,11 @@ always-max; see ``baselines/README.md``).
 
 It is a learning signal only; the evaluation scores the env's profit.
 
-The plan advice (:func:`plan_advice`, :class:`chargax_marl.wrappers.PlanAdviceObservation`)
+The plan advice (`plan_advice`, `chargax_marl.wrappers.PlanAdviceObservation`)
 shows each port whether its car's plan charges now: whether a step is in a car's plan turns
 on the rank of its price among all the steps of the stay, which a port reading hourly prices
 a few hours ahead learns badly. The advice reads the day's whole price list within the stay
-and the car's top power, which the observation holds only in part. :func:`plan_action`
+and the car's top power, which the observation holds only in part. `plan_action`
 plays the plan as a rule.
 """
 
@@ -62,7 +62,7 @@ def price_order(params) -> tuple[np.ndarray, np.ndarray]:
 
 def plan_energy(sorted_steps, t, steps_left, need_kwh, step_kwh) -> jnp.ndarray:
     """``(L, T)``: the kWh each car's plan charges at each of ``sorted_steps`` (one day's row of
-    :func:`price_order`): ``step_kwh`` at the stay's cheapest steps (from step ``t``, ``steps_left``
+    `price_order`): ``step_kwh`` at the stay's cheapest steps (from step ``t``, ``steps_left``
     of them) until ``need_kwh`` is met."""
     steps_left, need_kwh, step_kwh = (
         jnp.asarray(x, jnp.float32)[:, None] for x in (steps_left, need_kwh, step_kwh)
@@ -76,7 +76,7 @@ def plan_value(
     sorted_steps, sorted_prices, t, steps_left, need_kwh, step_kwh, efficiency, customer_price
 ):
     """``V`` (EUR) of the module docstring for each car ``(L,)``: ``sorted_steps`` /
-    ``sorted_prices`` ``(T,)`` one day's row of :func:`price_order`, ``t`` the current step,
+    ``sorted_prices`` ``(T,)`` one day's row of `price_order`, ``t`` the current step,
     ``steps_left`` the steps the car still charges (``<= 0``: none), ``need_kwh`` its
     remaining demand, ``step_kwh`` what the plan charges per step, ``efficiency`` its port's
     path efficiency, ``customer_price`` what a delivered kWh sells for."""
@@ -152,7 +152,7 @@ def car_potential(env_params):
     """Each leaf's change of the car plan value ``V`` over a step, as a potential per car.
 
     Args:
-        env_params: concrete :class:`chargax_marl.core.types.EnvParams`.
+        env_params: concrete `chargax_marl.core.types.EnvParams`.
 
     Returns:
         ``potential(env_state) -> shift``, where ``shift(leaf_energy_kwh)`` is each leaf's
@@ -187,11 +187,11 @@ def car_potential(env_params):
 
 def plan_advice(env_params, power_fraction: float | None = PLAN_POWER_FRACTION):
     """``advice(core) -> (L,)`` float32 for one (unbatched) core state: 1 where a port should
-    charge its car now by the plan (a time-sensitive car whose plan, :func:`plan_energy` at
+    charge its car now by the plan (a time-sensitive car whose plan, `plan_energy` at
     ``power_fraction`` of its top power, uses the current step at a positive margin; every
     charge-sensitive car), 0 for idle, empty ports and batteries. ``power_fraction=None``:
     1 for every occupied port (always-max). The plan advice observation feature and the
-    ports of :func:`plan_action`."""
+    ports of `plan_action`."""
     order, sorted_prices, is_port, eff, leaf_max_kw, step_min, step_h, customer = plan_constants(
         env_params
     )
@@ -218,8 +218,8 @@ def plan_advice(env_params, power_fraction: float | None = PLAN_POWER_FRACTION):
 def plan_action(
     env_params, battery: str = "dp", power_fraction: float | None = PLAN_POWER_FRACTION
 ):
-    """``act(state, key, params) -> levels`` (the :mod:`chargax_marl.policies` signature): each
-    port charges its car at full power where :func:`plan_advice` says so and idles otherwise;
+    """``act(state, key, params) -> levels`` (the `chargax_marl.policies` signature): each
+    port charges its car at full power where `plan_advice` says so and idles otherwise;
     the batteries follow the battery-only programme's best action (``battery="dp"``) or idle
     (``"idle"``). A reference for what the port shaping's teacher earns, not a trained
     policy. ``power_fraction=None``: the ports charge at full power always (always-max)."""

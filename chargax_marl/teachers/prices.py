@@ -4,7 +4,7 @@
 day's 20 / 50 / 80 % price quantiles the observation's shared context already holds: the
 comparison a battery's charge or discharge decision turns on, which the raw prices (a few
 hundredths apart within a day, while the day's level moves by tenths) leave a network to
-learn. :class:`chargax_marl.wrappers.RelativePriceObservation` appends them to an env's
+learn. `chargax_marl.wrappers.RelativePriceObservation` appends them to an env's
 observations.
 """
 
@@ -21,11 +21,11 @@ def relative_price_columns(params, context_start: int):
     """Where an observation holds the observed prices and the day's price quantiles.
 
     The single-agent observation ends with the shared context
-    (:func:`chargax_marl.core.observation.context_features`); a
-    :class:`chargax_marl.marl.ChargaxMARL` agent's has the agent index after it.
+    (`chargax_marl.core.observation.context_features`); a
+    `chargax_marl.marl.ChargaxMARL` agent's has the agent index after it.
 
     Args:
-        params: concrete :class:`chargax_marl.core.types.EnvParams`.
+        params: concrete `chargax_marl.core.types.EnvParams`.
         context_start: the column where the observation's shared context starts.
 
     Returns:
@@ -44,7 +44,7 @@ def relative_prices(obs, prices, q20, q50, q80) -> jnp.ndarray:
 
     Args:
         obs: ``(..., obs_size)`` observations.
-        prices: the observed buy prices' columns, from :func:`relative_price_columns`.
+        prices: the observed buy prices' columns, from `relative_price_columns`.
         q20: the column of the day's 20 % price quantile (from the same).
         q50: the column of the day's 50 % price quantile (from the same).
         q80: the column of the day's 80 % price quantile (from the same).
@@ -58,11 +58,11 @@ def relative_prices(obs, prices, q20, q50, q80) -> jnp.ndarray:
 
 
 def with_relative_prices(obs, columns) -> jnp.ndarray:
-    """``obs`` with :func:`relative_prices` appended.
+    """``obs`` with `relative_prices` appended.
 
     Args:
         obs: ``(..., obs_size)`` observations.
-        columns: from :func:`relative_price_columns`, or ``None``.
+        columns: from `relative_price_columns`, or ``None``.
 
     Returns:
         ``(..., obs_size + H + 1)``, or ``obs`` itself when ``columns`` is ``None``.

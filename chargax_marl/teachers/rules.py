@@ -1,17 +1,17 @@
 """The teachers played as rules: policies built for one station and price table.
 
-Each builder takes concrete params and returns a :mod:`chargax_marl.policies` policy
+Each builder takes concrete params and returns a `chargax_marl.policies` policy
 ``policy(state, key, params) -> levels``; each needs a station with a battery.
-:func:`chargax_marl.policies.get_policy` builds them by name (``get_policy(name, params)``).
+`chargax_marl.policies.get_policy` builds them by name (``get_policy(name, params)``).
 
 - ``battery_programme``: always-max ports with the batteries on the battery-only programme (at
   each step the best of discharge / idle / charge at full power for the stored energy, by
   backward induction over the day's known buy prices,
-  :func:`chargax_marl.teachers.storage_value.dp_battery_action`). The battery shaping's teacher
+  `chargax_marl.teachers.storage_value.dp_battery_action`). The battery shaping's teacher
   played as a rule: the reference a learner trained with that shaping has to beat to show it
   learned more than its teacher.
 - ``plan_programme``: the ports on their cars' plans (full power in the steps of each car's
-  cheapest plan at :data:`chargax_marl.teachers.car_plan.PLAN_POWER_FRACTION`, idle otherwise)
+  cheapest plan at `chargax_marl.teachers.car_plan.PLAN_POWER_FRACTION`, idle otherwise)
   with the batteries on the battery-only programme: both teachers played as a rule.
 - ``grid_programme``: ``battery_programme`` that knows the node limits: the batteries do not
   charge while the ports' full-power draw alone (grid side) exceeds the limit of a node above
@@ -44,7 +44,7 @@ def battery_programme(params):
     """Always-max ports, the batteries on the battery-only programme.
 
     Args:
-        params: concrete :class:`chargax_marl.core.types.EnvParams` of a station with a battery.
+        params: concrete `chargax_marl.core.types.EnvParams` of a station with a battery.
 
     Returns:
         ``policy(state, key, params) -> levels`` (int32 ``(L,)``).
@@ -60,7 +60,7 @@ def plan_programme(params):
     """The ports on their cars' plans, the batteries on the battery-only programme.
 
     Args:
-        params: concrete :class:`chargax_marl.core.types.EnvParams` of a station with a battery.
+        params: concrete `chargax_marl.core.types.EnvParams` of a station with a battery.
 
     Returns:
         ``policy(state, key, params) -> levels`` (int32 ``(L,)``).
@@ -77,7 +77,7 @@ def grid_programme(params):
     alone exceeds the limit of a node above a battery.
 
     Args:
-        params: concrete :class:`chargax_marl.core.types.EnvParams` of a station with a battery.
+        params: concrete `chargax_marl.core.types.EnvParams` of a station with a battery.
 
     Returns:
         ``policy(state, key, params) -> levels`` (int32 ``(L,)``).

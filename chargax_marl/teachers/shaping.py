@@ -4,13 +4,13 @@ The env books the batteries' energy change at the day's last step (the day's ter
 times the change). With a potential ``Phi_t(E_t)`` of the stored energy ``E_t`` the shaping
 term of a step is ``Phi_{t+1}(E_{t+1}) - Phi_t(E_t)`` minus that terminal booking, so each
 step shows a learner what its battery action was worth now (Ng, Harada and Russell 1999).
-Potentials (:data:`BATTERY_POTENTIALS`): ``"day_mean"`` the env's terminal price times the
+Potentials (`BATTERY_POTENTIALS`): ``"day_mean"`` the env's terminal price times the
 energy (a day's undiscounted reward is unchanged), ``"storage_value"`` the battery-only LP's
 value per kWh of each step times the energy, ``"dp"`` the battery-only dynamic programme's
-value of the energy level (:mod:`chargax_marl.teachers.storage_value`); the last two move a
+value of the energy level (`chargax_marl.teachers.storage_value`); the last two move a
 day's sum by a constant of its first state.
 
-These are the building blocks; :class:`chargax_marl.wrappers.BatteryShaping` applies them to
+These are the building blocks; `chargax_marl.wrappers.BatteryShaping` applies them to
 an env's rewards.
 """
 
@@ -24,7 +24,7 @@ from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.teachers.storage_value import dp_values, level_value, storage_values
 
 BATTERY_POTENTIALS = ("day_mean", "storage_value", "dp")
-"""The battery potentials of :func:`battery_potential`."""
+"""The battery potentials of `battery_potential`."""
 
 
 def core_state(state):
@@ -34,7 +34,7 @@ def core_state(state):
         state: a core state or a (nested) wrapper state with an ``env_state`` field.
 
     Returns:
-        The core :class:`chargax_marl.core.types.EnvState`.
+        The core `chargax_marl.core.types.EnvState`.
     """
     while not hasattr(state, "totals"):
         state = state.env_state
@@ -47,7 +47,7 @@ def battery_value_price(state, params) -> jnp.ndarray:
 
     Args:
         state: a (possibly wrapped, possibly batched) core state.
-        params: the env's :class:`chargax_marl.core.types.EnvParams`.
+        params: the env's `chargax_marl.core.types.EnvParams`.
 
     Returns:
         The terminal price (EUR/kWh), shaped like the state's batch.
@@ -70,7 +70,7 @@ def battery_shaping(shift_eur, terminal_eur) -> jnp.ndarray:
 
     Args:
         shift_eur: the change of the potential over the step (EUR), from a shift of
-            :func:`battery_potential`.
+            `battery_potential`.
         terminal_eur: the env's terminal booking of the step (EUR; non-zero at the day's last
             step only), ``info["battery_terminal_value_eur"]``.
 
@@ -84,9 +84,9 @@ def battery_potential(env_params, mode: str = "dp"):
     """The potential of the batteries' stored energy, as its change over a step.
 
     Args:
-        env_params: concrete :class:`chargax_marl.core.types.EnvParams` (the tables are built
+        env_params: concrete `chargax_marl.core.types.EnvParams` (the tables are built
             for its days and prices).
-        mode: one of :data:`BATTERY_POTENTIALS`.
+        mode: one of `BATTERY_POTENTIALS`.
 
     Returns:
         ``potential(env_state) -> shift``, where ``shift(net_kwh)`` is the change of the
@@ -137,7 +137,7 @@ def battery_potential(env_params, mode: str = "dp"):
 
 
 def agent_potential_shaping(shift, info, is_battery, local_reward_weight: float) -> jnp.ndarray:
-    """The battery shaping term of each agent of :class:`chargax_marl.marl.ChargaxMARL`.
+    """The battery shaping term of each agent of `chargax_marl.marl.ChargaxMARL`.
 
     Mixed like the env's rewards ``(1 - w) * r + w * share_i``: every agent gets the station's
     term with weight ``1 - w``; with weight ``w`` the battery agents share it evenly (as the
@@ -145,7 +145,7 @@ def agent_potential_shaping(shift, info, is_battery, local_reward_weight: float)
     add up to the station's, as the shares do.
 
     Args:
-        shift: a ``shift(net_kwh)`` of :func:`battery_potential`, taken before the step.
+        shift: a ``shift(net_kwh)`` of `battery_potential`, taken before the step.
         info: the step's infos, leaves ``(..., agents)``; reads ``agent_energy_kwh`` and
             ``battery_terminal_value_eur``.
         is_battery: bool ``(agents,)``, the battery agents.
@@ -163,13 +163,13 @@ def agent_potential_shaping(shift, info, is_battery, local_reward_weight: float)
 
 
 def agent_battery_shaping(price, info, is_battery, local_reward_weight: float) -> jnp.ndarray:
-    """:func:`agent_potential_shaping` with one value ``price (...)`` (EUR/kWh) per stored kWh
+    """`agent_potential_shaping` with one value ``price (...)`` (EUR/kWh) per stored kWh
     before and after the step (``"day_mean"``): each agent's share of ``price * net`` minus the
     terminal booking.
 
     Args:
         price: the value of a stored kWh (EUR/kWh), shaped like the batch.
-        info: as for :func:`agent_potential_shaping`.
+        info: as for `agent_potential_shaping`.
         is_battery: bool ``(agents,)``.
         local_reward_weight: the env's ``local_reward_weight``.
 
@@ -183,7 +183,7 @@ def agent_battery_shaping(price, info, is_battery, local_reward_weight: float) -
 def mix_own_terms(own, local_reward_weight: float) -> jnp.ndarray:
     """Per-agent terms mixed like the env's rewards, ``(1 - w) * sum + w * own``: every agent
     gets the station's sum with weight ``1 - w`` and its own term with weight ``w`` (the car
-    plan shaping of :mod:`chargax_marl.teachers.car_plan` in the multi-agent view).
+    plan shaping of `chargax_marl.teachers.car_plan` in the multi-agent view).
 
     Args:
         own: ``(..., agents)`` each agent's own term.

@@ -1,8 +1,8 @@
 """The value of the energy held in the station battery at each step of each day, from the
-day's known prices: the duals of a battery-only arbitrage LP (:func:`storage_values`, a value
+day's known prices: the duals of a battery-only arbitrage LP (`storage_values`, a value
 per kWh) and the value function of the same problem with the battery's three full-power
-actions solved by dynamic programming (:func:`dp_values`, a value per stored energy level),
-with the programme's best action read from a state (:func:`dp_battery_action`).
+actions solved by dynamic programming (`dp_values`, a value per stored energy level),
+with the programme's best action read from a state (`dp_battery_action`).
 
 Day-ahead prices are published the day before, so a station knows all of a day's prices at
 midnight. For each day the LP below buys and sells the battery's energy against those
@@ -10,8 +10,8 @@ prices; the dual of its energy balance at step ``t`` is ``value[day, t]`` (EUR/k
 more kWh in the battery at the start of step ``t`` is worth for the rest of the day.
 
 A trainer uses it as a *potential* ``Phi_t = value[day, t] * E_t`` (``E_t`` the batteries'
-stored energy at the start of step ``t``; :func:`chargax_marl.teachers.shaping.battery_potential`,
-:class:`chargax_marl.wrappers.BatteryShaping`): the shaping term of a step is ``Phi_{t+1} - Phi_t``
+stored energy at the start of step ``t``; `chargax_marl.teachers.shaping.battery_potential`,
+`chargax_marl.wrappers.BatteryShaping`): the shaping term of a step is ``Phi_{t+1} - Phi_t``
 minus the env's terminal booking at the day's last step, where ``value[day, T]`` is the
 env's own terminal price (the day's mean buy price), so a day's undiscounted shaped reward
 differs from the env's by ``(terminal price - value[day, 0]) * E_0``, which no action
@@ -23,7 +23,7 @@ for cycling the battery at middling prices.
 The LP ignores the cars: the battery's energy is priced at the buy price both ways (what a
 discharged kWh saves while the station draws from the grid), losses are the battery's path
 efficiency each way, and every kWh into or out of the cells pays the battery's wear
-(:func:`battery_wear_eur_kwh`), so a cycle pays only where the spread beats both. It is a
+(`battery_wear_eur_kwh`), so a cycle pays only where the spread beats both. It is a
 learning signal only; the evaluation scores the env's profit.
 """
 
@@ -44,7 +44,7 @@ def battery_constants(params) -> tuple[float, float, float, float]:
     the energy they hold at the start of a day (the middle of the initial SoC range, kWh).
 
     Args:
-        params: concrete :class:`chargax_marl.core.types.EnvParams`.
+        params: concrete `chargax_marl.core.types.EnvParams`.
 
     Returns:
         ``(eta, power_kw, capacity_kwh, e0_kwh)`` as Python floats.
@@ -72,20 +72,20 @@ def battery_constants(params) -> tuple[float, float, float, float]:
 
 def battery_wear_eur_kwh(params) -> float:
     """The wear cost per kWh into or out of the batteries' cells (EUR/kWh), their mean
-    (:attr:`chargax_marl.core.types.EnvParams.battery_wear_eur_kwh`); 0 without a battery."""
+    (`chargax_marl.core.types.EnvParams.battery_wear_eur_kwh`); 0 without a battery."""
     wear = np.asarray(params.battery_wear_eur_kwh, np.float64)
     return float(np.mean(wear)) if wear.size else 0.0
 
 
 def step_buy_prices(params) -> np.ndarray:
     """``(days, steps)`` float64 buy price (EUR/kWh) of every step, as the env prices it
-    (:func:`chargax_marl.core.reward.price_tables`: day-ahead + grid fee + time-of-use)."""
+    (`chargax_marl.core.reward.price_tables`: day-ahead + grid fee + time-of-use)."""
     return np.asarray(price_tables(params)[0], np.float64)
 
 
 def terminal_prices(params) -> np.ndarray:
     """``(days,)`` the env's terminal price of every day (EUR/kWh): what a stored kWh is credited
-    at the day's end (:func:`chargax_marl.core.reward.battery_terminal_value_eur`)."""
+    at the day's end (`chargax_marl.core.reward.battery_terminal_value_eur`)."""
     days = jnp.arange(np.asarray(params.prices_eur_kwh).shape[0], dtype=jnp.int32)
     return np.asarray(
         jax.vmap(lambda d: battery_terminal_value_eur(jnp.float32(1.0), d, params))(days),
@@ -165,7 +165,7 @@ def dp_values(params, points_per_step: int = 4) -> tuple[np.ndarray, np.ndarray]
     charge) on the day's buy prices; ``value[day, steps]`` is the env's terminal booking,
     the day's terminal price times the energy held.
 
-    The same battery-only model as :func:`day_values` (the batteries as one store of their
+    The same battery-only model as `day_values` (the batteries as one store of their
     summed capacity and power, energy priced at the buy price both ways, the path efficiency
     each way, the wear per kWh in and out), but with the discrete actions the
     ``num_levels=1`` agents choose among, and
@@ -200,7 +200,7 @@ def level_values(
     points_per_step: int = 4,
     wear_eur_kwh: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``(grid (K,), value (days, steps + 1, K))`` of :func:`dp_values` for buy prices ``(days,
+    """``(grid (K,), value (days, steps + 1, K))`` of `dp_values` for buy prices ``(days,
     steps)`` and terminal prices ``(days,)``: per step, the best of discharging ``step_kwh``
     (earns ``eta * p - w`` per kWh taken out), idling and charging ``step_kwh`` (costs ``p /
     eta + w`` per kWh stored), each cut at the empty and the full battery; ``w`` is
@@ -265,7 +265,7 @@ def action_values(
 
 
 def level_value(rows, energy, step_kwh: float):
-    """``rows (..., K)`` of values on the uniform grid ``0, step_kwh, ...`` (:func:`dp_values`),
+    """``rows (..., K)`` of values on the uniform grid ``0, step_kwh, ...`` (`dp_values`),
     read at ``energy (...)`` linearly between grid points (jax)."""
     x = jnp.clip(energy / step_kwh, 0.0, rows.shape[-1] - 1.0)
     i = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, rows.shape[-1] - 2)
@@ -286,8 +286,8 @@ def dp_battery_action(params):
     """The battery-only programme's best full-power action, read from a simulator state.
 
     Args:
-        params: concrete :class:`chargax_marl.core.types.EnvParams` of a station with a battery
-            (the tables of :func:`dp_values` are built for its days and prices).
+        params: concrete `chargax_marl.core.types.EnvParams` of a station with a battery
+            (the tables of `dp_values` are built for its days and prices).
 
     Returns:
         ``act(state) -> (action, strict)`` for one (unbatched) core state: ``action`` int32 in

@@ -1,13 +1,13 @@
-"""Wrappers that put the teachers (:mod:`chargax_marl.teachers`) into an env, PureJaxRL / JaxMARL
-style: each wraps the gymnax view (:class:`chargax_marl.single.Chargax`, ``reset(key,
+"""Wrappers that put the teachers (`chargax_marl.teachers`) into an env, PureJaxRL / JaxMARL
+style: each wraps the gymnax view (`chargax_marl.single.Chargax`, ``reset(key,
 params)``, ``step(key, state, action, params)``) or the JaxMARL view
-(:class:`chargax_marl.marl.ChargaxMARL`, ``reset(key)``, ``step(key, state, actions)``), keeps its
+(`chargax_marl.marl.ChargaxMARL`, ``reset(key)``, ``step(key, state, actions)``), keeps its
 call signatures, forwards every other attribute, and is jit and vmap friendly. The teachers'
 tables are built from the env's own params (its days and prices).
 
-Reward shaping (potential-based, Ng, Harada and Russell 1999): :class:`BatteryShaping`,
-:class:`CarPlanShaping`. A fairness objective: :class:`FairnessReward`. Observation features: :class:`PlanAdviceObservation`,
-:class:`RelativePriceObservation`. A JaxMARL stack::
+Reward shaping (potential-based, Ng, Harada and Russell 1999): `BatteryShaping`,
+`CarPlanShaping`. A fairness objective: `FairnessReward`. Observation features: `PlanAdviceObservation`,
+`RelativePriceObservation`. A JaxMARL stack::
 
     env = ChargaxMARL(params=params, local_reward_weight=1.0)
     env = RelativePriceObservation(PlanAdviceObservation(CarPlanShaping(BatteryShaping(env))))

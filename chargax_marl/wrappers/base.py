@@ -22,8 +22,8 @@ class TeacherWrapper:
     JaxMARL's wrappers do, and knows which view it wraps.
 
     Args:
-        env: a :class:`chargax_marl.single.Chargax` (gymnax view) or a
-            :class:`chargax_marl.marl.ChargaxMARL` (JaxMARL view), possibly wrapped.
+        env: a `chargax_marl.single.Chargax` (gymnax view) or a
+            `chargax_marl.marl.ChargaxMARL` (JaxMARL view), possibly wrapped.
 
     Attributes:
         is_marl: whether ``env`` is the JaxMARL view (it has ``agents``).
@@ -43,7 +43,7 @@ class TeacherWrapper:
         return getattr(self._env, name)
 
     def step_arrays(self, key, state, indices, reset_state=None):
-        """The JaxMARL view's array step (:meth:`chargax_marl.marl.ChargaxMARL.step_arrays`)
+        """The JaxMARL view's array step (`chargax_marl.marl.ChargaxMARL.step_arrays`)
         through this wrapper. Each wrapper that changes the step defines its own; this one
         refuses, so that an array step never passes a wrapper by unchanged.
 

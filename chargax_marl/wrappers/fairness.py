@@ -1,7 +1,7 @@
 """A fairness term in the reward: a weight on the day's Jain index or minimum satisfaction.
 
 The term of a step is ``weight * (F(after) - F(before))`` with ``F`` the metric of the day's
-departed cars so far (:func:`chargax_marl.evaluation.service_metrics`; 1 before any car
+departed cars so far (`chargax_marl.evaluation.service_metrics`; 1 before any car
 leaves), so over a day the terms add up to ``weight * (F_day - 1)``: a penalty of ``weight``
 EUR per unit the day falls short of perfect fairness, booked as the cars leave. The profit,
 the infos' totals and the evaluation are unchanged: it steers learning only.
@@ -18,12 +18,12 @@ from chargax_marl.teachers.shaping import core_state
 from chargax_marl.wrappers.base import TeacherWrapper
 
 FAIRNESS_METRICS = ("jain_index", "min_satisfaction")
-"""The metrics the term can weigh (:data:`chargax_marl.evaluation.SERVICE_METRICS` names)."""
+"""The metrics the term can weigh (`chargax_marl.evaluation.SERVICE_METRICS` names)."""
 
 
 def fairness_metric(totals: EpisodeTotals, metric: str) -> jnp.ndarray:
     """The day's ``metric`` so far from its running totals (traceable; the values of
-    :func:`chargax_marl.evaluation.service_metrics`).
+    `chargax_marl.evaluation.service_metrics`).
 
     Raises:
         ValueError: an unknown metric.
@@ -113,8 +113,8 @@ class FairnessReward(TeacherWrapper):
 
     def step_arrays(self, key, state, indices, reset_state=None):
         """The JaxMARL view's ``step_arrays`` with the term added to every agent's reward
-        (the values of :meth:`step`, stacked; ``info["fairness_reward_eur"]`` a scalar).
-        Arguments and returns as :meth:`chargax_marl.marl.ChargaxMARL.step_arrays`, with this
+        (the values of `step`, stacked; ``info["fairness_reward_eur"]`` a scalar).
+        Arguments and returns as `chargax_marl.marl.ChargaxMARL.step_arrays`, with this
         wrapper's state.
         """
         obs, next_state, rewards, done, info = self._env.step_arrays(

@@ -1,5 +1,5 @@
 """Observation feature wrappers: the teachers' views appended as columns
-(:mod:`chargax_marl.teachers`).
+(`chargax_marl.teachers`).
 
 JaxMARL view: every agent's observation gains the same number of columns, and
 ``observation_space(agent)``, ``observation_spaces`` and ``obs_size`` grow with them, so
@@ -21,7 +21,7 @@ from chargax_marl.wrappers.base import TeacherWrapper, base_env
 
 
 class ObservationFeatures(TeacherWrapper):
-    """Appends ``width`` columns to each observation; subclasses define :meth:`features`.
+    """Appends ``width`` columns to each observation; subclasses define `features`.
 
     Args:
         env: either view, possibly wrapped.
@@ -74,8 +74,8 @@ class ObservationFeatures(TeacherWrapper):
 
     def step_arrays(self, key, state, indices, reset_state=None):
         """The JaxMARL view's ``step_arrays`` with the columns appended to every agent's row
-        (the values of :meth:`step`, stacked).
-        Arguments and returns as :meth:`chargax_marl.marl.ChargaxMARL.step_arrays`, with this
+        (the values of `step`, stacked).
+        Arguments and returns as `chargax_marl.marl.ChargaxMARL.step_arrays`, with this
         wrapper's state.
         """
         obs, state, *rest = self._env.step_arrays(key, state, indices, reset_state)
@@ -88,7 +88,7 @@ class ObservationFeatures(TeacherWrapper):
 
 
 class PlanAdviceObservation(ObservationFeatures):
-    """Each port's plan advice (:func:`chargax_marl.teachers.car_plan.plan_advice`): 1.0 where its
+    """Each port's plan advice (`chargax_marl.teachers.car_plan.plan_advice`): 1.0 where its
     car's cheapest plan under the day's prices charges now (every charge-sensitive car), else
     0.0 (idle, empty ports, batteries), read from the returned state (after an auto-reset, the
     new day's). JaxMARL view: one column per agent, its own leaf's advice. Gymnax view: one
@@ -111,7 +111,7 @@ class PlanAdviceObservation(ObservationFeatures):
 
 class RelativePriceObservation(ObservationFeatures):
     """Each observed buy price's place in its day's range, ``(p - median) / (q80 - q20)``
-    (:func:`chargax_marl.teachers.prices.relative_prices`; ``H + 1`` columns, now and the next
+    (`chargax_marl.teachers.prices.relative_prices`; ``H + 1`` columns, now and the next
     ``H = price_horizon_hours`` hours, clipped to [-5, 5]), computed from the env's own
     observation columns. JaxMARL view: every agent's row; gymnax view: the flat observation.
 

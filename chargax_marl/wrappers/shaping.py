@@ -1,5 +1,5 @@
 """Potential-based reward shaping wrappers: the battery's stored energy and each parked car's
-plan valued as they move (:mod:`chargax_marl.teachers`).
+plan valued as they move (`chargax_marl.teachers`).
 
 Each adds ``Phi(s') - Phi(s)`` (EUR) to a step's reward, with the potential read from the state
 *before* the step (the env auto-resets at the day's end, so the state it returns may be a new
@@ -30,7 +30,7 @@ class BatteryShaping(TeacherWrapper):
     Gymnax view: the station's reward gains the term. JaxMARL view: each agent gains its part,
     mixed like the env's rewards with its ``local_reward_weight`` ``w``: ``(1 - w)`` times the
     station's term for every agent, plus ``w`` times an even share of it for each battery agent
-    (:func:`chargax_marl.teachers.shaping.agent_potential_shaping`). ``info["battery_shaping_eur"]``
+    (`chargax_marl.teachers.shaping.agent_potential_shaping`). ``info["battery_shaping_eur"]``
     holds the term(s) added (scalar; ``(agents,)`` in the JaxMARL view).
 
     Args:
@@ -65,8 +65,8 @@ class BatteryShaping(TeacherWrapper):
 
     def step_arrays(self, key, state, indices, reset_state=None):
         """The JaxMARL view's ``step_arrays`` with each agent's shaping term added (the values
-        of :meth:`step`, stacked).
-        Arguments and returns as :meth:`chargax_marl.marl.ChargaxMARL.step_arrays`, with this
+        of `step`, stacked).
+        Arguments and returns as `chargax_marl.marl.ChargaxMARL.step_arrays`, with this
         wrapper's state.
         """
         shift = self._potential(state)  # before the (auto-resetting) step
@@ -84,13 +84,13 @@ class BatteryShaping(TeacherWrapper):
 
 class CarPlanShaping(TeacherWrapper):
     """Each parked car's plan value as a potential per port
-    (:func:`chargax_marl.teachers.car_plan.car_potential`).
+    (`chargax_marl.teachers.car_plan.car_potential`).
 
     A port's term is its car's plan value after the step minus before it (EUR; 0 for empty
     ports, batteries and charge-sensitive cars; a car that arrives during the step enters the
     potential from the next step on). Gymnax view: the station's reward gains the ports' sum.
     JaxMARL view: each agent gains ``(1 - w) * sum + w * own`` with the env's
-    ``local_reward_weight`` ``w`` (:func:`chargax_marl.teachers.shaping.mix_own_terms`).
+    ``local_reward_weight`` ``w`` (`chargax_marl.teachers.shaping.mix_own_terms`).
     ``info["car_plan_shaping_eur"]`` holds the term(s) added.
 
     Args:
@@ -117,8 +117,8 @@ class CarPlanShaping(TeacherWrapper):
 
     def step_arrays(self, key, state, indices, reset_state=None):
         """The JaxMARL view's ``step_arrays`` with each agent's plan shaping added (the values
-        of :meth:`step`, stacked).
-        Arguments and returns as :meth:`chargax_marl.marl.ChargaxMARL.step_arrays`, with this
+        of `step`, stacked).
+        Arguments and returns as `chargax_marl.marl.ChargaxMARL.step_arrays`, with this
         wrapper's state.
         """
         shift = self._potential(state)  # before the (auto-resetting) step

@@ -39,7 +39,7 @@ def tiny_ippo_run(tmp_path_factory):
 
 @pytest.fixture
 def ippo_run(tiny_ippo_run, tmp_path):
-    """A copy of :func:`tiny_ippo_run` that a test may change."""
+    """A copy of `tiny_ippo_run` that a test may change."""
     out = tmp_path / "run"
     shutil.copytree(tiny_ippo_run, out)
     return out

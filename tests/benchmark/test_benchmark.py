@@ -56,7 +56,7 @@ def _distinct_tasks():
 @pytest.mark.parametrize("task_id", _distinct_tasks())
 def test_shipped_references_recompute_on_this_code(task_id):
     """The first and last held-out days of every task: always-max to float32 rounding; on the
-    :data:`DEEP` tasks also the battery rule, and the first day's LP bound (draw 2, never
+    `DEEP` tasks also the battery rule, and the first day's LP bound (draw 2, never
     taken from make optimal's results) to solver tolerance."""
     task = TASKS[task_id]
     stored = load_references(task)

@@ -469,7 +469,7 @@ HOSTILE_ACTIONS = [NAN, INF, -INF, 1e30, -1e30, 2.5, -0.7, 0.3] + list(range(-25
 
 def _hostile_days(p, days: int, key=KEY):
     """``(before, after, info)`` of ``days`` days, each step's action drawn per leaf from
-    :data:`HOSTILE_ACTIONS` (leading axes: day, step)."""
+    `HOSTILE_ACTIONS` (leading axes: day, step)."""
     n = p.station.num_leaves
     pool = jnp.asarray(HOSTILE_ACTIONS, jnp.float32)
 

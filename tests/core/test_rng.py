@@ -89,7 +89,7 @@ def test_materialize_is_bit_exact():
 def test_the_draws_are_computed_once_in_the_compiled_step():
     """XLA must not re-fuse the hash into its consumers: in the compiled (vmapped) env step
     the hash constant appears a few times, not once per consumer fusion (28 times without
-    :func:`rng.materialize`, and a step 5-10x slower on a batch)."""
+    `rng.materialize`, and a step 5-10x slower on a batch)."""
     from chargax_marl.single import make
 
     env, params = make("shopping")

@@ -1,5 +1,5 @@
-"""A straightforward build of :func:`chargax_marl.optimal.model.build_and_solve`'s LP, one
-session and one step at a time into dense arrays, solved by :func:`scipy.optimize.linprog`:
+"""A straightforward build of `chargax_marl.optimal.model.build_and_solve`'s LP, one
+session and one step at a time into dense arrays, solved by `scipy.optimize.linprog`:
 the reference the vectorised builder is checked against. Small problems only."""
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""The car plan teacher (:mod:`chargax_marl.teachers.car_plan`, the trainers' ``PORT_SHAPING="plan"``
-through :mod:`chargax_marl.teachers.car_plan`): each parked car's remaining demand valued by its best plan
+"""The car plan teacher (`chargax_marl.teachers.car_plan`, the trainers' ``PORT_SHAPING="plan"``
+through `chargax_marl.teachers.car_plan`): each parked car's remaining demand valued by its best plan
 under the day's prices, used as a potential per car."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The battery-only programme and LP of :mod:`chargax_marl.teachers.storage_value`: hand cases."""
+"""The battery-only programme and LP of `chargax_marl.teachers.storage_value`: hand cases."""
 
 from __future__ import annotations
 

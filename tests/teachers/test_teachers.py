@@ -1,4 +1,4 @@
-"""The teachers as library code (:mod:`chargax_marl.teachers`): usable without the project's
+"""The teachers as library code (`chargax_marl.teachers`): usable without the project's
 ``baselines/``, and obtainable as rules by name."""
 
 from __future__ import annotations
@@ -67,7 +67,7 @@ def test_teacher_rules_are_built_by_name_for_given_params():
 
 
 def test_dp_battery_action_takes_the_best_of_the_three_actions_values():
-    """The programme's action is the argmax of :func:`storage_value.action_values` on the next
+    """The programme's action is the argmax of `storage_value.action_values` on the next
     step's table, read at the batteries' stored energy."""
     params = make_params(**TINY_ENV)
     act = jax.jit(storage_value.dp_battery_action(params))

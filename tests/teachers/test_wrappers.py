@@ -1,4 +1,4 @@
-"""The teacher wrappers (:mod:`chargax_marl.wrappers`): potential-based reward shaping and
+"""The teacher wrappers (`chargax_marl.wrappers`): potential-based reward shaping and
 observation features, on the gymnax and the JaxMARL views."""
 
 from __future__ import annotations
