@@ -106,9 +106,8 @@ def sample_categorical(key: jax.Array, logits: jnp.ndarray):
 
     Same distribution as ``jax.random.categorical`` (which adds Gumbel noise to every logit,
     ``K`` uniforms per head), from one uniform per head by inversion
-    (`categorical_from_uniform`). On this project's 2-core CPU the Gumbel draw was about
-    two thirds of a PPO rollout step with 16 envs (140 of 215 us); this costs about a third of
-    that (``benchmarks/README.md``, training speed).
+    (`categorical_from_uniform`): on a CPU the Gumbel draw was most of a small PPO rollout
+    step (``docs/performance.md``, training speed).
     """
     return categorical_from_uniform(jax.random.uniform(key, logits.shape[:-1]), logits)
 

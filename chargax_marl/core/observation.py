@@ -46,8 +46,8 @@ def leaf_features(state: EnvState, params: EnvParams) -> jnp.ndarray:
     )
     # Stacked feature-major, then transposed. Stacked on the last axis, XLA fused every
     # feature's producers (the whole state update of the step) into an interleaving
-    # concatenate that it evaluates element by element without SIMD: at 4096 envs that
-    # fusion was ~40 % of a single-agent env step (benchmarks/README.md).
+    # concatenate that it evaluates element by element without SIMD, a large share of a
+    # single-agent env step at thousands of envs (docs/performance.md, "Where the time goes").
     features = [
         state.occupied.astype(jnp.float32),
         state.soc,
