@@ -353,8 +353,16 @@ class StationArrays:
 def compile_station(root: Splitter) -> StationArrays:
     """Validate a station tree and compile it to `StationArrays`.
 
-    Raises ``ValueError`` naming the node and field for an invalid tree: a root that is
-    not a `Splitter`, no ports, duplicate names.
+    Args:
+        root: the grid connection, a `Splitter` whose subtree holds the ports, splitters and
+            batteries (each node's own fields are checked when it is built).
+
+    Returns:
+        The compiled arrays: leaves are the ports in depth-first order, then the batteries.
+
+    Raises:
+        ValueError: an invalid tree, naming the node and field: a root that is not a
+            `Splitter`, no ports, duplicate names.
     """
     if not isinstance(root, Splitter):
         raise ValueError(
@@ -560,6 +568,27 @@ def single_type(
 
     ``voltage_v``, ``max_current_a`` and ``grid_kw`` default (None) to the kind's paper values
     and the sum of the ports; 0 is rejected, not read as "default".
+
+    Args:
+        num_ports: the number of ports (>= 1).
+        kind: ``"DC"`` or ``"AC"``.
+        voltage_v: each port's voltage (V); None: 500 V for DC, 400 V for AC.
+        max_current_a: each port's charging current limit (A); None: 300 A for DC (150 kW at
+            500 V), 28.75 A for AC (11.5 kW at 400 V).
+        v2g: the ports can discharge, up to ``max_current_a``; False: discharge limit 0.
+        efficiency: each port's efficiency, in (0, 1].
+        grid_kw: the grid connection's limit (kW); None: the sum of the ports' ratings and
+            the battery's.
+        battery: a `Battery` under the grid connection; True: the default `Battery`;
+            None or False: no battery.
+
+    Returns:
+        The station tree: a `Splitter` named ``"grid"`` over the ports (and the battery).
+
+    Raises:
+        ValueError: ``num_ports`` not an integer >= 1, ``kind`` neither ``"AC"`` nor
+            ``"DC"``, or a voltage, current, efficiency or ``grid_kw`` outside its range.
+        TypeError: an unknown keyword argument.
     """
     _check_count("single_type", "num_ports", num_ports, 1)
     if kind not in ("AC", "DC"):
@@ -612,10 +641,32 @@ def multiple_types(
     """Paper Fig. 3b and the default station: DC and AC ports in EVSE groups under one splitter per kind.
 
     Default: 16 ports, 10 DC in 2-port groups of 150 kW and 6 AC in 2-port groups of
-    11.5 kW; each kind's splitter carries the sum of its groups. ``battery=True`` (default)
-    adds the default `Battery` (200 kWh, 100 kW) under the grid connection, the
-    paper's (N+1)-th controllable leaf; pass ``battery=None`` for a station without one.
-    The root carries the sum of its children.
+    11.5 kW; each kind's splitter carries the sum of its groups. The root carries the sum of
+    its children. DC ports run at 500 V, AC ports at 400 V; each port's current limit is
+    its group's power at that voltage.
+
+    Args:
+        num_dc: the number of DC ports (>= 0).
+        num_ac: the number of AC ports (>= 0); ``num_dc + num_ac >= 1``.
+        ports_per_evse: connectors per EVSE group, sharing the group's power (1: no groups).
+        dc_evse_kw: the power of a DC EVSE group (kW), also each DC port's rating.
+        ac_evse_kw: the power of an AC EVSE group (kW), also each AC port's rating.
+        v2g: the ports can discharge, up to their charging current; False: discharge limit 0.
+        port_efficiency: each port's efficiency, in (0, 1].
+        splitter_efficiency: the efficiency of each EVSE group and kind splitter, in (0, 1].
+        grid_kw: the grid connection's limit (kW); None: the sum of its children's.
+        battery: a `Battery` under the grid connection; True (default): the default
+            `Battery` (200 kWh, 100 kW), the paper's (N+1)-th controllable leaf; None or
+            False: a station without one.
+
+    Returns:
+        The station tree: a `Splitter` named ``"grid"`` over the kinds' splitters (and the
+        battery).
+
+    Raises:
+        ValueError: a count that is not an integer in range, no port at all, or a power,
+            efficiency or ``grid_kw`` outside its range.
+        TypeError: an unknown keyword argument.
     """
     _check_count("multiple_types", "num_dc", num_dc, 0)
     _check_count("multiple_types", "num_ac", num_ac, 0)
@@ -691,7 +742,34 @@ def multiple_splitters(
 
     Each kind's EVSE groups are divided over ``splitters_per_kind`` splitters; a splitter is
     rated at ``splitter_fraction`` of the sum of its groups, so the extra level constrains
-    the currents. The root is rated at the sum of its splitters.
+    the currents. The root is rated at the sum of its splitters. The ports and groups are
+    those of `multiple_types`.
+
+    Args:
+        num_dc: the number of DC ports (>= 0).
+        num_ac: the number of AC ports (>= 0); ``num_dc + num_ac >= 1``.
+        splitters_per_kind: splitters each kind's groups are divided over (>= 1; at most one
+            per group).
+        ports_per_evse: connectors per EVSE group, sharing the group's power (1: no groups).
+        dc_evse_kw: the power of a DC EVSE group (kW), also each DC port's rating.
+        ac_evse_kw: the power of an AC EVSE group (kW), also each AC port's rating.
+        splitter_fraction: each splitter's limit as a fraction of the sum of its groups, in
+            (0, 1].
+        v2g: the ports can discharge, up to their charging current; False: discharge limit 0.
+        port_efficiency: each port's efficiency, in (0, 1].
+        splitter_efficiency: the efficiency of every group and splitter, in (0, 1].
+        grid_kw: the grid connection's limit (kW); None: the sum of its children's.
+        battery: a `Battery` under the grid connection; True (default): the default
+            `Battery`; None or False: none.
+
+    Returns:
+        The station tree: a `Splitter` named ``"grid"`` over one splitter per kind, each over
+        its ``splitters_per_kind`` splitters (and the battery).
+
+    Raises:
+        ValueError: a count that is not an integer in range, or a power, fraction,
+            efficiency or ``grid_kw`` outside its range.
+        TypeError: an unknown keyword argument.
     """
     _check_count("multiple_splitters", "splitters_per_kind", splitters_per_kind, 1)
     _check_grid_kw("multiple_splitters", grid_kw)
@@ -759,8 +837,26 @@ def build_station(
     **kwargs,
 ) -> StationArrays:
     """Compile a named architecture (with builder keyword arguments), a custom tree, or pass
-    through arrays (checked by `check_station_arrays`). ``grid_fraction`` (in (0, 1]) sets the root's limit to that fraction of the
-    sum of its children's limits (`with_grid_fraction`)."""
+    through arrays (checked by `check_station_arrays`).
+
+    Args:
+        architecture: a builder's name (``"single_type"``, ``"multiple_types"``,
+            ``"multiple_splitters"``), a custom `Splitter` tree, or compiled `StationArrays`.
+        grid_fraction: in (0, 1]: sets the root's limit to that fraction of the sum of its
+            children's limits (`with_grid_fraction`); None: the tree's own limit.
+        **kwargs: keyword arguments of the named architecture's builder (`single_type`,
+            `multiple_types`, `multiple_splitters`).
+
+    Returns:
+        The compiled station.
+
+    Raises:
+        KeyError: an unknown architecture name.
+        ValueError: ``grid_fraction`` with compiled arrays, builder keyword arguments with a
+            tree, ``grid_fraction`` together with ``grid_kw``, or an invalid tree or
+            arrays.
+        TypeError: a keyword argument the named builder does not take.
+    """
     if isinstance(architecture, StationArrays):
         if grid_fraction is not None:
             raise ValueError(
