@@ -154,9 +154,18 @@ def check_battery_wear(
 class Port:
     """A charging port (one EVSE connector): a leaf of the station tree.
 
-    ``max_discharge_current_a = 0`` means the port cannot discharge (no V2G).
-    ``efficiency`` is the port's own efficiency; the path efficiency to the grid
-    multiplies it with every ancestor's efficiency.
+    Its fields are checked when it is built (``ValueError`` naming the port and field).
+
+    Attributes:
+        name: the port's name, unique in the station.
+        kind: ``"DC"`` or ``"AC"`` (which of the car's rate limits applies).
+        voltage_v: the port's voltage (V).
+        max_current_a: the charging current limit (A); ``voltage_v * max_current_a / 1000``
+            is the port's rating in kW.
+        max_discharge_current_a: the discharging current limit (A); 0 means the port cannot
+            discharge (no V2G).
+        efficiency: the port's own efficiency, in (0, 1]; the path efficiency to the grid
+            multiplies it with every ancestor's efficiency.
     """
 
     name: str
@@ -208,6 +217,19 @@ class Battery:
     calendar ageing) adds `calendar_eur_day` per day whatever the battery does. Both are
     part of the profit (`chargax_marl.core.reward.battery_wear_eur`); the defaults and
     their sources are in the data README. ``cost_eur_kwh=0`` makes cycling free.
+
+    Attributes:
+        name: the battery's name, unique in the station.
+        capacity_kwh: the energy it holds when full (kWh).
+        max_kw: the most power it takes or gives (kW), both directions.
+        voltage_v: its voltage (V); the current limit is ``max_kw * 1000 / voltage_v``.
+        efficiency: its own efficiency, in (0, 1].
+        tau: the SoC above which its charge rate tapers, in (0, 1).
+        initial_soc: its SoC at the start of a day, in [0, 1] (unless
+            ``make_params(battery_initial_soc=...)`` overrides it).
+        cost_eur_kwh: the installed cost per kWh of capacity (EUR/kWh).
+        cycle_life: full equivalent cycles to the end of life.
+        calendar_life_years: the calendar life (years); None: no calendar ageing.
     """
 
     name: str = "battery"
@@ -272,6 +294,12 @@ class Splitter:
     ``max_kw`` (paper Eq. 3): each leaf below it contributes its power divided by the
     efficiencies on its path up to and including this node when it charges (multiplied
     when it discharges), and the contributions add with their signs.
+
+    Attributes:
+        name: the node's name, unique in the station.
+        max_kw: the limit on the net power through the node, grid side (kW).
+        children: the nodes below it (`Splitter`, `Port` or `Battery`), at least one.
+        efficiency: the node's efficiency, in (0, 1].
     """
 
     name: str
@@ -306,34 +334,58 @@ class StationArrays:
     leaves that hang higher up); with it, node flows are segment sums, linear in ports.
     ``leaf_efficiency_at_depth[d, l]`` is the efficiency of the path from leaf ``l`` up to
     and including that ancestor, the factor that turns the leaf's power into the flow it
-    causes on the node's grid side.
+    causes on the node's grid side. ``B`` is the number of batteries, ``D`` the tree depth.
+
+    Attributes:
+        leaf_voltage_v: ``(L,)`` each leaf's voltage (V).
+        leaf_max_current_a: ``(L,)`` charging limit (A).
+        leaf_max_discharge_current_a: ``(L,)`` discharging limit (A), 0 where no V2G.
+        leaf_efficiency: ``(L,)`` own efficiency.
+        leaf_path_efficiency: ``(L,)`` product of efficiencies from the root to the leaf.
+        leaf_efficiency_at_depth: ``(D, L)`` product of the efficiencies from the leaf up to
+            and including its ancestor at depth d (its own efficiency included; 1 where it
+            has none).
+        leaf_kind: ``(L,)`` int32: 0 AC, 1 DC, 2 battery.
+        battery_capacity_kwh: ``(B,)`` capacity (kWh).
+        battery_tau: ``(B,)`` SoC above which the charge rate tapers.
+        battery_initial_soc: ``(B,)`` SoC at the start of a day.
+        battery_cost_eur_kwh: ``(B,)`` installed cost per kWh of capacity (EUR/kWh).
+        battery_cycle_life: ``(B,)`` full equivalent cycles to the end of life.
+        battery_calendar_life_years: ``(B,)`` calendar life (years), 0 = no calendar ageing.
+        leaf_solo_max_kw: ``(L,)`` most power a leaf can take alone: its rating and every
+            ancestor's limit divided by the efficiency of the path up to that ancestor (kW).
+        node_max_kw: ``(H,)`` each node's limit, grid side (kW).
+        node_efficiency: ``(H,)`` each node's efficiency.
+        node_depth: ``(H,)`` int32, root = 0.
+        node_of_leaf_at_depth: ``(D, L)`` int32, -1 = none.
+        incidence: ``(H, L)`` float32, 1 if leaf under node (for analysis and tests).
+        num_ports: the number of ports.
+        num_batteries: ``B``.
+        num_nodes: ``H``.
+        depth: ``D``, the depth of the tree.
+        leaf_names: the leaves' names, in leaf order.
+        node_names: the nodes' names, in node order.
     """
 
-    leaf_voltage_v: jnp.ndarray  # (L,)
-    leaf_max_current_a: jnp.ndarray  # (L,) charging limit
-    leaf_max_discharge_current_a: jnp.ndarray  # (L,) 0 where no V2G
-    leaf_efficiency: jnp.ndarray  # (L,) own efficiency
-    leaf_path_efficiency: jnp.ndarray  # (L,) product of efficiencies from the root to the leaf
-    leaf_efficiency_at_depth: (
-        jnp.ndarray
-    )  # (D, L) product of the efficiencies from the leaf up to and
-    #   including its ancestor at depth d (its own efficiency included; 1 where it has none)
-    leaf_kind: jnp.ndarray  # (L,) int32: 0 AC, 1 DC, 2 battery
-    battery_capacity_kwh: jnp.ndarray  # (B,)
-    battery_tau: jnp.ndarray  # (B,)
-    battery_initial_soc: jnp.ndarray  # (B,)
-    battery_cost_eur_kwh: jnp.ndarray  # (B,) installed cost per kWh of capacity
-    battery_cycle_life: jnp.ndarray  # (B,) full equivalent cycles to the end of life
-    battery_calendar_life_years: jnp.ndarray  # (B,) calendar life, 0 = no calendar ageing
-    leaf_solo_max_kw: (
-        jnp.ndarray
-    )  # (L,) most power a leaf can take alone: its rating and every ancestor's
-    #   limit divided by the efficiency of the path up to that ancestor
-    node_max_kw: jnp.ndarray  # (H,)
-    node_efficiency: jnp.ndarray  # (H,)
-    node_depth: jnp.ndarray  # (H,) int32, root = 0
-    node_of_leaf_at_depth: jnp.ndarray  # (D, L) int32, -1 = none
-    incidence: jnp.ndarray  # (H, L) float32, 1 if leaf under node (for analysis and tests)
+    leaf_voltage_v: jnp.ndarray
+    leaf_max_current_a: jnp.ndarray
+    leaf_max_discharge_current_a: jnp.ndarray
+    leaf_efficiency: jnp.ndarray
+    leaf_path_efficiency: jnp.ndarray
+    leaf_efficiency_at_depth: jnp.ndarray
+    leaf_kind: jnp.ndarray
+    battery_capacity_kwh: jnp.ndarray
+    battery_tau: jnp.ndarray
+    battery_initial_soc: jnp.ndarray
+    battery_cost_eur_kwh: jnp.ndarray
+    battery_cycle_life: jnp.ndarray
+    battery_calendar_life_years: jnp.ndarray
+    leaf_solo_max_kw: jnp.ndarray
+    node_max_kw: jnp.ndarray
+    node_efficiency: jnp.ndarray
+    node_depth: jnp.ndarray
+    node_of_leaf_at_depth: jnp.ndarray
+    incidence: jnp.ndarray
     num_ports: int = struct.field(pytree_node=False, default=0)
     num_batteries: int = struct.field(pytree_node=False, default=0)
     num_nodes: int = struct.field(pytree_node=False, default=0)
