@@ -96,20 +96,30 @@ def params_fingerprint(params: EnvParams) -> str:
 class DayTrace:
     """The exogenous inputs of one day (or, with a leading axis, of several days).
 
-    ``arrivals`` holds one `chargax_marl.core.traffic.Arrivals` per step (leading axis
-    ``num_steps``): arrival step = index, and per slot the car model, capacity, r-bar for AC
-    and DC ports, tau, arrival SoC, target SoC, planned stay and user type. Prices are per step
-    in EUR/kWh: what the station pays for a net draw and earns for a net feed-in.
+    Attributes:
+        day: ``()`` int32, the day's index into the price data.
+        arrivals: one `chargax_marl.core.traffic.Arrivals` per step (fields with a leading
+            ``(num_steps,)`` axis): arrival step = index, and per slot the car model,
+            capacity, r-bar for AC and DC ports, tau, arrival SoC, target SoC, planned stay
+            and user type.
+        battery_soc0: ``(B,)`` the initial SoC of each station battery.
+        price_buy_eur_kwh: ``(num_steps,)`` what the station pays per kWh of net draw
+            (EUR/kWh).
+        price_sell_grid_eur_kwh: ``(num_steps,)`` what it earns per kWh of net feed-in
+            (EUR/kWh).
+        battery_value_eur_kwh: ``()`` the price of the batteries' net energy change at the
+            day's end (EUR/kWh).
+        step_minutes: the step length (minutes) of the params the trace was made for.
+        num_steps: the steps of the day.
+        station: `station_fingerprint` of the params' station.
     """
 
-    day: jnp.ndarray  # () int32
-    arrivals: traffic.Arrivals  # fields with a leading (num_steps,) axis
-    battery_soc0: jnp.ndarray  # (B,) initial SoC of each station battery
-    price_buy_eur_kwh: jnp.ndarray  # (num_steps,)
-    price_sell_grid_eur_kwh: jnp.ndarray  # (num_steps,)
-    battery_value_eur_kwh: (
-        jnp.ndarray
-    )  # () price of the batteries' net energy change at the day's end
+    day: jnp.ndarray
+    arrivals: traffic.Arrivals
+    battery_soc0: jnp.ndarray
+    price_buy_eur_kwh: jnp.ndarray
+    price_sell_grid_eur_kwh: jnp.ndarray
+    battery_value_eur_kwh: jnp.ndarray
     step_minutes: float = struct.field(pytree_node=False, default=5.0)
     num_steps: int = struct.field(pytree_node=False, default=288)
     station: str = struct.field(pytree_node=False, default="")

@@ -54,7 +54,16 @@ def _core_state(state) -> EnvState:
 
 @struct.dataclass
 class LogEnvState:
-    """JaxMARL's ``LogEnvState`` fields (each ``(num_agents,)``) plus the last finished episode's totals."""
+    """JaxMARL's ``LogEnvState`` fields (each ``(num_agents,)``) plus the last finished episode's totals.
+
+    Attributes:
+        env_state: the wrapped env's state.
+        episode_returns: each agent's return so far in the running episode.
+        episode_lengths: the steps so far in the running episode (int32).
+        returned_episode_returns: each agent's return in the last finished episode.
+        returned_episode_lengths: the length of the last finished episode (int32).
+        returned_totals: the last finished episode's `chargax_marl.core.EpisodeTotals`.
+    """
 
     env_state: Any
     episode_returns: jnp.ndarray

@@ -41,10 +41,16 @@ from chargax_marl.policies import always_max
 
 @dataclass
 class Occupancy:
-    """Which car was at which port in which step, from a reference rollout (numpy)."""
+    """Which car was at which port in which step, from a reference rollout (numpy).
 
-    sessions: Sessions  # cars only (batteries are added by the LP)
-    reference_profit_eur: float  # the reference policy's profit on the day
+    Attributes:
+        sessions: the car sessions (cars only; batteries are added by the LP).
+        reference_profit_eur: the reference policy's profit on the day (EUR).
+        day: the day's index into the price data.
+    """
+
+    sessions: Sessions
+    reference_profit_eur: float
     day: int
 
 
@@ -191,6 +197,18 @@ class Bound:
 
     A day whose solve failed (`bound_days`) has ``status`` other than ``"optimal"``,
     ``profit_eur`` and ``solve_s`` NaN, no ``solution`` and the solver's ``message``.
+
+    Attributes:
+        profit_eur: the bound, the day's best profit (EUR), fixed cost included.
+        reference_profit_eur: the reference policy's profit on the same day and cars (EUR).
+        status: the solver's status, ``"optimal"`` when solved.
+        solve_s: the seconds spent in HiGHS.
+        num_vars: the LP's variables.
+        num_rows: the LP's constraints.
+        num_cars: the car sessions of the reference's occupancy.
+        solution: the solved LP (`chargax_marl.optimal.model.Solution`); None when the solve
+            failed.
+        message: the solver's message when the solve failed, else empty.
     """
 
     profit_eur: float
