@@ -10,7 +10,9 @@ checked once. The contracts, read from the code with `inspect` and `ast`:
   section, and every entry names a parameter; a ``*args`` / ``**kwargs`` entry may be
   written with or without its stars;
 - a class with a hand-written ``__init__`` documents that ``__init__``'s parameters in the
-  ``Args:`` section of the class docstring or of ``__init__``'s own;
+  ``Args:`` section of the class docstring or of ``__init__``'s own; a dataclass whose
+  ``__init__`` is generated documents its fields (the generated ``__init__``'s parameters)
+  as ``Attributes:`` (or ``Args:``) entries of the class docstring, and names no other;
 - a function whose body has a ``return <value>`` has a ``Returns:`` (or ``Yields:``) section,
   one with a ``yield`` a ``Yields:`` (or ``Returns:``) section;
 - a function whose body (or a hand-written ``__init__`` whose body) has a ``raise`` statement
@@ -179,6 +181,23 @@ def _unknown_args(params: list[str], *docs: str | None) -> list[str]:
     return [e for doc in docs for e in _sections(doc).get("Args", []) if e not in params]
 
 
+def _field_problems(cls, doc: str) -> list[str]:
+    """A dataclass with a generated ``__init__``: its fields are ``Attributes:`` (or
+    ``Args:``) entries of the class docstring, and every such entry names a field or an
+    attribute of the class."""
+    fields = [f.name for f in dataclasses.fields(cls) if f.init]
+    sections = _sections(doc)
+    entries = sections.get("Attributes", []) + sections.get("Args", [])
+    problems = []
+    missing = [f for f in fields if f not in entries]
+    if missing:
+        problems.append(f"lacks `Attributes:` entries for the fields {missing}")
+    unknown = [e for e in entries if e not in fields and not hasattr(cls, e)]
+    if unknown:
+        problems.append(f"has `Attributes:` entries that name no field: {unknown}")
+    return problems
+
+
 def _problems(obj) -> list[str]:
     doc = _docstring(obj)
     if doc is None:
@@ -187,7 +206,7 @@ def _problems(obj) -> list[str]:
     if inspect.isclass(obj):
         init = _hand_written_init(obj)
         if init is None:
-            return []
+            return _field_problems(obj, doc) if dataclasses.is_dataclass(obj) else []
         init_doc = inspect.cleandoc(init.__doc__) if init.__doc__ else None
         params = _parameters(init)
         missing = _missing_args(params, doc, init_doc)
