@@ -382,7 +382,8 @@ class ChargaxMARL(MultiAgentEnv):
         ValueError: ``local_reward_weight`` outside ``[0, 1]``, ``params`` together with a
             scenario or keyword arguments, an unknown ``agent_id``, ``action_mode
             "continuous"``, or invalid params.
-        KeyError: an unknown scenario name.
+        KeyError: an unknown scenario, architecture, dataset or traffic level name.
+        TypeError: a keyword `make_params` does not take.
     """
 
     def __init__(

@@ -134,6 +134,8 @@ class ChargaxParallelEnv(ParallelEnv):
         ValueError: an unknown ``render_mode``, ``max_cycles`` not a positive integer, a
             delay, loss probability or ``lost_action`` out of range, or an invalid
             `ChargaxMARL` argument.
+        KeyError: an unknown scenario, architecture, dataset or traffic level name.
+        TypeError: a keyword neither `ChargaxMARL` nor `make_params` takes.
         chargax_marl.lifecycle.ForkedProcessError: the process was forked after JAX started.
     """
 

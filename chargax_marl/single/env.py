@@ -100,6 +100,8 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
     Raises:
         ValueError: both ``params`` and ``overrides`` given, or an invalid field (the message
             names it).
+        KeyError: an unknown architecture, dataset or traffic level name (`make_params`).
+        TypeError: a keyword `make_params` does not take.
     """
 
     def __init__(self, params: EnvParams | None = None, **overrides: Any):

@@ -30,7 +30,9 @@ def make(name: str = "shopping", **overrides: Any) -> tuple[Chargax, EnvParams]:
         ``(env, params)``: a `Chargax` and its ``default_params``.
 
     Raises:
-        KeyError: an unknown scenario name.
+        KeyError: an unknown scenario name (or dataset name in ``overrides``).
+        ValueError: an invalid override (the message names the field).
+        TypeError: a keyword `make_params` does not take.
     """
     env = Chargax(**scenario_kwargs(name, **overrides))
     return env, env.default_params

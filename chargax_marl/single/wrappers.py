@@ -251,6 +251,8 @@ class GymnasiumEnv(gymnasium.Env):
     Raises:
         ValueError: both ``env`` and ``overrides`` given, an unknown ``render_mode``, or
             invalid params.
+        KeyError: an unknown architecture, dataset or traffic level name (`make_params`).
+        TypeError: a keyword `make_params` does not take.
         chargax_marl.lifecycle.ForkedProcessError: the process was forked after JAX started.
     """
 
