@@ -129,12 +129,26 @@ def _all_names() -> list[tuple[str, Any]]:
 
 
 def summary() -> list[dict[str, Any]]:
-    """One dict per bundled dataset: name, kind, shape, resolution, years, source, licence."""
+    """The bundled datasets, one row each.
+
+    Returns:
+        One dict per bundled dataset (prices, user profiles, fleets, MOER, grid-demand
+        shapes) with keys ``name``, ``kind``, ``shape``, ``resolution``, ``years``,
+        ``source`` and ``licence``.
+    """
     return [fn(n) for n, fn in _all_names()]
 
 
 def format_summary(rows: list[dict[str, Any]] | None = None) -> str:
-    """`summary` as a fixed-width text table."""
+    """`summary` as a fixed-width text table.
+
+    Args:
+        rows: rows as `summary` returns them; None: all of `summary`.
+
+    Returns:
+        The table (name, kind, shape, resolution, licence, source), one line per row under a
+        header.
+    """
     rows = summary() if rows is None else rows
     cols = ("name", "kind", "shape", "resolution", "licence", "source")
     cells = [[str(r[c]) for c in cols] for r in rows]
@@ -147,7 +161,18 @@ def format_summary(rows: list[dict[str, Any]] | None = None) -> str:
 
 
 def describe(name: str) -> str:
-    """A few lines about one bundled dataset (any kind), with basic statistics."""
+    """A few lines about one bundled dataset (any kind), with basic statistics.
+
+    Args:
+        name: a bundled dataset's name, as in `summary`.
+
+    Returns:
+        The dataset's `summary` row, one ``key: value`` line each, plus a line of
+        statistics computed from the data (except for grid-demand shapes).
+
+    Raises:
+        KeyError: an unknown name; the message lists the valid ones.
+    """
     for n, fn in _all_names():
         if n == name:
             row = fn(n)
@@ -193,8 +218,21 @@ def plot_profiles(
 
     Panels: prices by hour of day (mean, 10-90 % band, min-max) over the year;
     arrival weights (workday / weekend, per hour); stay and energy-demand
-    distributions (inverse CDFs); fleet shares by model. Any argument may be
-    ``None`` to leave its panel(s) empty.
+    distributions (inverse CDFs); fleet shares by model.
+
+    Args:
+        prices: a price dataset name or data, as for
+            `chargax_marl.core.datasets.load_prices`; None: no price panel.
+        user_profile: a user profile name or data, as for
+            `chargax_marl.core.datasets.load_user_profile`; None: no arrival, stay and
+            demand panels.
+        fleet: a fleet name or data, as for `chargax_marl.core.datasets.load_fleet`; None:
+            no fleet panel.
+        path: the PNG to write (its folder is created if needed).
+        dpi: the image's resolution (dots per inch).
+
+    Returns:
+        ``path`` as a `Path`.
     """
     matplotlib.use("Agg", force=False)
 

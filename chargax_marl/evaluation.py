@@ -46,6 +46,13 @@ class MemoryAct:
 def stateless(act: Act | MemoryAct, what: str) -> Act:
     """``act`` itself when it needs no memory.
 
+    Args:
+        act: a policy.
+        what: the caller's name, for the error message.
+
+    Returns:
+        ``act``, an `Act`.
+
     Raises:
         ValueError: ``act`` is a `MemoryAct`, which ``what`` cannot play.
     """
@@ -59,7 +66,14 @@ def stateless(act: Act | MemoryAct, what: str) -> Act:
 
 
 def with_memory(act: Act | MemoryAct) -> MemoryAct:
-    """``act`` as a `MemoryAct` (an `Act` gets an empty memory)."""
+    """A policy as a `MemoryAct`.
+
+    Args:
+        act: an `Act` or a `MemoryAct`.
+
+    Returns:
+        ``act`` itself if it is a `MemoryAct`; an `Act` wrapped with an empty memory.
+    """
     if isinstance(act, MemoryAct):
         return act
     return MemoryAct(init=lambda state: (), step=lambda state, key, memory: (act(state, key), ()))
@@ -140,7 +154,20 @@ def service_metrics(totals) -> dict[str, np.ndarray]:
 
 
 def split_days(num_days: int, num_eval: int = 100, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Split day indices into (training days, held-out evaluation days), reproducibly."""
+    """Split day indices into training days and held-out evaluation days, reproducibly.
+
+    Args:
+        num_days: the days of the price data; indices ``0 .. num_days - 1`` are split.
+        num_eval: how many days to hold out, in ``[1, num_days - 1]``.
+        seed: the seed of the random permutation.
+
+    Returns:
+        ``(train_days, eval_days)``: sorted int32 arrays of ``num_days - num_eval`` and
+        ``num_eval`` day indices.
+
+    Raises:
+        ValueError: ``num_eval`` outside ``[1, num_days - 1]``.
+    """
     if not 0 < num_eval < num_days:
         raise ValueError(f"field 'num_eval' must lie in [1, {num_days - 1}], got {num_eval!r}")
     perm = np.random.default_rng(seed).permutation(num_days)
@@ -148,9 +175,18 @@ def split_days(num_days: int, num_eval: int = 100, seed: int = 0) -> tuple[np.nd
 
 
 def run_days(act: Act | MemoryAct, params: EnvParams, days, key: jax.Array):
-    """Run ``act`` for one whole day per entry of ``days`` (vmapped); return the final totals
-    (an `EpisodeTotals` with a leading axis over days). Day ``i`` draws its cars from
-    ``split(key, len(days))[i]`` (`run_days_keyed`)."""
+    """Run ``act`` for one whole day per entry of ``days`` (vmapped).
+
+    Args:
+        act: ``act(state, key) -> levels``, or a `MemoryAct` (its memory starts afresh
+            each day).
+        params: the environment parameters.
+        days: ``(n,)`` day indices of the price data.
+        key: day ``i`` draws its cars from ``split(key, n)[i]`` (`run_days_keyed`).
+
+    Returns:
+        The final `chargax_marl.core.types.EpisodeTotals` with a leading axis ``(n,)``.
+    """
     days = jnp.asarray(days, jnp.int32)
     return run_days_keyed(act, params, days, jax.random.split(key, days.shape[0]))
 
@@ -236,22 +272,37 @@ def summarize(totals, failed=None) -> dict:
 
 
 def summarize_profit(daily_profit) -> dict:
-    """``{"daily_profit_eur": {mean, std, min, max}}`` of per-day profits alone (for entries,
-    such as the LP bound, that have no other metrics).
+    """Statistics of per-day profits alone (for entries, such as the LP bound, that have no
+    other metrics).
 
-    A NaN profit marks a day whose solve failed (`hindsight_bound`): it is left out of
-    every statistic and counted in ``days_failed`` (with ``days_scored``), never averaged in.
+    Args:
+        daily_profit: per-day profits (EUR). A NaN profit marks a day whose solve failed
+            (`hindsight_bound`): it is left out of every statistic and counted in
+            ``days_failed`` (with ``days_scored``), never averaged in.
+
+    Returns:
+        ``{"daily_profit_eur": {"mean", "std", "min", "max"}}`` (EUR), plus ``days_scored``
+        and ``days_failed`` when days were left out.
     """
     x = np.asarray(daily_profit, np.float64)
     return {"daily_profit_eur": _stats(x, np.isfinite(x))}
 
 
 def evaluate(act: Act, params: EnvParams, days, key: jax.Array | None = None) -> dict:
-    """Evaluate ``act`` on the given day indices; returns ``{"num_days", "days", "metrics"}``.
+    """Evaluate ``act`` on the given day indices.
 
-    Cars are drawn from ``key`` (default ``PRNGKey(0)``, also used by the trainers'
-    held-out evaluation): policies evaluated with the same key and days meet the same drawn
-    cars, so their day-by-day profits can be compared pairwise.
+    Args:
+        act: ``act(state, key) -> levels``, or a `MemoryAct`.
+        params: the environment parameters.
+        days: day indices of the price data.
+        key: the key the cars are drawn from (`run_days`); None: ``PRNGKey(0)``, also used
+            by the trainers' held-out evaluation. Policies evaluated with the same key and
+            days meet the same drawn cars, so their day-by-day profits can be compared
+            pairwise.
+
+    Returns:
+        ``{"num_days", "days", "metrics"}``: the number of days, their indices and the
+        statistics of `summarize`.
     """
     key = jax.random.PRNGKey(0) if key is None else key
     totals = jax.jit(lambda d, k: run_days(act, params, d, k))(jnp.asarray(days), key)
@@ -263,7 +314,22 @@ def evaluate(act: Act, params: EnvParams, days, key: jax.Array | None = None) ->
 
 
 def evaluate_policy(policy, params: EnvParams, days, key: jax.Array | None = None) -> dict:
-    """`evaluate` for a rule-based ``policy(state, key, params)`` or its name."""
+    """`evaluate` for a rule-based policy.
+
+    Args:
+        policy: ``policy(state, key, params) -> levels`` or its name
+            (`chargax_marl.policies.get_policy`).
+        params: the environment parameters, also passed to the policy.
+        days: day indices of the price data.
+        key: as for `evaluate`.
+
+    Returns:
+        The result of `evaluate`.
+
+    Raises:
+        KeyError: an unknown policy name.
+        ValueError: a teacher's rule for a station without a battery.
+    """
     policy = get_policy(policy, params) if isinstance(policy, str) else policy
     return evaluate(lambda s, k: policy(s, k, params), params, days, key)
 
@@ -277,15 +343,30 @@ def hindsight_bound(
     with_battery: bool = True,
 ) -> dict:
     """The LP hindsight bound (`chargax_marl.optimal.bound`) of each of ``days`` over
-    ``reference``'s port occupancy, with the cars `evaluate` draws with ``key``:
-    ``{"daily_profit", "reference_daily_profit", "solve_s", "status", "failed_days"}``
-    (arrays over days). ``with_battery=False`` leaves the station's batteries out of the LP
-    (the bound without them; the difference is what the batteries are worth at best).
+    ``reference``'s port occupancy, with the cars `evaluate` draws with ``key``.
 
     A day whose LP fails or hits ``time_limit_s`` has a NaN ``daily_profit`` and its solver
-    status in ``status``, and is listed in ``failed_days`` (``{"day", "status"}`` each); the
-    other days are solved as usual. `summarize_profit` and `headroom_captured`
-    leave such days out.
+    status in ``status``, and is listed in ``failed_days``; the other days are solved as
+    usual. `summarize_profit` and `headroom_captured` leave such days out.
+
+    Args:
+        params: the environment parameters.
+        days: day indices of the price data.
+        key: as for `evaluate`; None: ``PRNGKey(0)``.
+        reference: the name of the policy whose occupancy is bounded
+            (`chargax_marl.policies.get_policy`).
+        time_limit_s: HiGHS's time limit per day (seconds); None: none.
+        with_battery: False leaves the station's batteries out of the LP (the bound without
+            them; the difference is what the batteries are worth at best).
+
+    Returns:
+        ``{"daily_profit", "reference_daily_profit", "solve_s", "status", "failed_days",
+        "reference"}``: the bound's and the reference's profit per day (EUR), the solve
+        time per day (seconds) and the solver status per day, the failed days
+        (``{"day", "status"}`` each) and the reference's name.
+
+    Raises:
+        KeyError: an unknown reference name.
     """
 
     bounds = bound_days(
@@ -312,13 +393,22 @@ def hindsight_bound(
 
 def headroom_captured(daily_profit, always_max_daily, bound_daily) -> dict:
     """The fraction of the hindsight headroom a policy captures on the same days and cars:
-    ``mean(policy - always-max) / mean(bound - always-max)``, with both means (EUR/day) and
-    their standard errors over days (and seeds, when ``daily_profit`` is ``(seeds, days)``).
-    1 means the bound, 0 always-max; negative is worse than always-max.
+    ``mean(policy - always-max) / mean(bound - always-max)``. 1 means the bound, 0
+    always-max; negative is worse than always-max.
 
     Days where any of the three is NaN (a failed solve of the bound or of a solver-based
-    policy) are left out of both means, so that the pairs stay on the same days, and counted
-    in ``days_excluded`` (present only when some are).
+    policy) are left out of both means, so that the pairs stay on the same days.
+
+    Args:
+        daily_profit: the policy's profit per day (EUR), ``(days,)`` or ``(seeds, days)``.
+        always_max_daily: always-max's profit on the same days (EUR), ``(days,)``.
+        bound_daily: the hindsight bound on the same days (EUR), ``(days,)``.
+
+    Returns:
+        ``{"fraction", "captured_eur", "captured_stderr", "headroom_eur",
+        "headroom_stderr"}``: the fraction, both means (EUR/day) and their standard errors
+        over days (and seeds); ``fraction`` is NaN when the mean headroom is not positive.
+        ``days_excluded`` counts the days left out, present only when some are.
     """
     a = np.asarray(always_max_daily, np.float64)
     p = np.atleast_2d(np.asarray(daily_profit, np.float64))
@@ -344,6 +434,15 @@ def headroom_captured(daily_profit, always_max_daily, bound_daily) -> dict:
 
 
 def write_json(results: dict, path: str | Path) -> Path:
+    """Write results as indented JSON with sorted keys, creating the folder if needed.
+
+    Args:
+        results: JSON-serialisable results (e.g. of `evaluate`).
+        path: the file to write.
+
+    Returns:
+        The path written, as a `Path`.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(results, indent=2, sort_keys=True) + "\n")
@@ -351,9 +450,17 @@ def write_json(results: dict, path: str | Path) -> Path:
 
 
 def format_table(results: dict[str, dict]) -> str:
-    """A text table of ``{policy name: evaluate(...) result}``: mean +- std per metric ("-"
-    where an entry lacks the metric), plus the fraction of the hindsight headroom captured
-    where entries carry ``headroom``."""
+    """A text table of evaluation results, one column per policy.
+
+    Args:
+        results: ``{policy name: evaluate(...) result}``; an entry may also carry
+            ``headroom``, a result of `headroom_captured`.
+
+    Returns:
+        The table: mean +- std per metric of `METRICS` ("-" where an entry lacks the
+        metric), plus the fraction of the hindsight headroom captured where entries carry
+        ``headroom``.
+    """
     names = list(results)
     metrics = list(METRICS)
     width = max(len(m) for m in metrics) + 2

@@ -41,6 +41,14 @@ def always_max(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarra
 
     The car's rate curve and the node limits then cut the current to what is possible,
     so every car charges as fast as the station allows.
+
+    Args:
+        state: the simulator state (one day, unbatched).
+        key: unused (the policy is deterministic).
+        params: the environment parameters.
+
+    Returns:
+        ``(num_leaves,)`` int32 levels in ``[-L, L]``.
     """
     del state, key
     return jnp.where(_is_battery(params), 0, params.num_levels).astype(jnp.int32)
@@ -87,10 +95,20 @@ def battery_rule(
     state: EnvState, key: jax.Array, params: EnvParams, quantile: float = 0.2
 ) -> jnp.ndarray:
     """Always-max for the ports plus a price rule for the batteries that pays for losses and
-    wear: charge fully in the cheapest ``quantile`` (20 %) of the day's hours and discharge
+    wear: charge fully in the cheapest ``quantile`` of the day's hours and discharge
     fully in the dearest ``quantile``, each only when the round trip against the mean price of
     the other side of the day beats the battery's losses plus its wear in and out; idle
     otherwise. The strong two-line heuristic a learned agent must beat.
+
+    Args:
+        state: the simulator state (one day, unbatched).
+        key: unused (the policy is deterministic).
+        params: the environment parameters.
+        quantile: the fraction of the day's hours counted as cheap (and as dear);
+            default 0.2.
+
+    Returns:
+        ``(num_leaves,)`` int32 levels in ``[-L, L]``.
     """
     del key
     battery = _battery_arbitrage_levels(state, params, quantile)
@@ -102,7 +120,18 @@ def battery_rule_naive(
 ) -> jnp.ndarray:
     """`battery_rule` blind to losses and wear: the batteries charge fully in the
     cheapest ``quantile`` of the day's hours and discharge fully in the dearest, whatever the
-    spread (on a flat day they charge)."""
+    spread (on a flat day they charge).
+
+    Args:
+        state: the simulator state (one day, unbatched).
+        key: unused (the policy is deterministic).
+        params: the environment parameters.
+        quantile: the fraction of the day's hours counted as cheap (and as dear);
+            default 0.2.
+
+    Returns:
+        ``(num_leaves,)`` int32 levels in ``[-L, L]``.
+    """
     del key
     cheap, dear = _cheap_or_dear_hour(state, params, quantile)
     battery = jnp.where(cheap, params.num_levels, jnp.where(dear, -params.num_levels, 0))
@@ -113,7 +142,7 @@ def discharge_departing(
     state: EnvState, key: jax.Array, params: EnvParams, steps_before: int = 2
 ) -> jnp.ndarray:
     """Always-max, except that a time-sensitive car whose planned departure is within the
-    next ``steps_before`` (2) steps discharges at full power (where its port and the car may
+    next ``steps_before`` steps discharges at full power (where its port and the car may
     discharge); batteries idle.
 
     It takes back, just before the car leaves, energy the customer has paid for. That earns
@@ -122,6 +151,16 @@ def discharge_departing(
     the refund (the default) each kWh taken back is repaid at the customer price and sold at
     the grid price, a loss. The simulator never takes a car below its arrival SoC.
     Charge-sensitive cars leave when charged, not at a planned time: they charge at full power.
+
+    Args:
+        state: the simulator state (one day, unbatched).
+        key: unused (the policy is deterministic).
+        params: the environment parameters.
+        steps_before: how many steps before its planned departure a car starts discharging;
+            default 2.
+
+    Returns:
+        ``(num_leaves,)`` int32 levels in ``[-L, L]``.
     """
     del key
     is_battery = _is_battery(params)
@@ -139,7 +178,16 @@ def discharge_departing(
 
 
 def random_policy(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarray:
-    """Uniform random level per leaf within the leaf's valid range."""
+    """Uniform random level per leaf within the leaf's valid range.
+
+    Args:
+        state: unused.
+        key: draws the levels.
+        params: the environment parameters.
+
+    Returns:
+        ``(num_leaves,)`` int32 levels, each in ``[min_level, L]`` of its leaf.
+    """
     del state
     low = physics.leaf_min_level(params.station, params.num_levels, params.v2g)
     return jax.random.randint(key, low.shape, low, params.num_levels + 1, jnp.int32)
@@ -162,7 +210,16 @@ def _level_of(frac, round_up, num_levels) -> jnp.ndarray:
 
 def minimum_power_kw(state: EnvState, params: EnvParams) -> jnp.ndarray:
     """Per leaf, the constant power that delivers the remaining demand one step before the
-    planned departure (0 for empty ports, batteries and cars already satisfied)."""
+    planned departure.
+
+    Args:
+        state: the simulator state (one day, unbatched).
+        params: the environment parameters.
+
+    Returns:
+        ``(num_leaves,)`` power (kW), 0 for empty ports, batteries and cars already
+        satisfied.
+    """
     hours_left = (
         jnp.maximum(state.time_remaining_min - params.step_minutes, params.step_minutes) / 60.0
     )
@@ -177,6 +234,16 @@ def price_threshold(
     otherwise charge each car at the lowest level that still meets its demand by its
     planned departure. Batteries follow `battery_rule`'s price rule at the same
     ``quantile`` (cycling only where the spread beats losses plus wear).
+
+    Args:
+        state: the simulator state (one day, unbatched).
+        key: unused (the policy is deterministic).
+        params: the environment parameters.
+        quantile: the fraction of the day's hours counted as cheap (and as dear);
+            default 0.3.
+
+    Returns:
+        ``(num_leaves,)`` int32 levels in ``[-L, L]``.
     """
     del key
     cheap, _ = _cheap_or_dear_hour(state, params, quantile)
@@ -231,7 +298,16 @@ def _greedy_under_limits(priority: jnp.ndarray, state: EnvState, params: EnvPara
 def earliest_deadline_first(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarray:
     """Serve cars with the earliest planned departure first, each at the most power the node
     limits leave; levels cut by a node are rounded down so the station never needs a rescale.
-    Batteries idle."""
+    Batteries idle.
+
+    Args:
+        state: the simulator state (one day, unbatched).
+        key: unused (the policy is deterministic).
+        params: the environment parameters.
+
+    Returns:
+        ``(num_leaves,)`` int32 levels in ``[0, L]``.
+    """
     del key
     priority = jnp.where(state.occupied & ~_is_battery(params), state.time_remaining_min, jnp.inf)
     return _greedy_under_limits(priority, state, params)
@@ -239,7 +315,16 @@ def earliest_deadline_first(state: EnvState, key: jax.Array, params: EnvParams) 
 
 def least_laxity_first(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarray:
     """Serve cars with the least laxity first (minutes left minus minutes needed at full
-    rate), each at the most power the node limits leave. Batteries idle."""
+    rate), each at the most power the node limits leave. Batteries idle.
+
+    Args:
+        state: the simulator state (one day, unbatched).
+        key: unused (the policy is deterministic).
+        params: the environment parameters.
+
+    Returns:
+        ``(num_leaves,)`` int32 levels in ``[0, L]``.
+    """
     del key
     rate_kw = jnp.maximum(jnp.minimum(params.station.leaf_max_kw, state.max_rate_kw), 1e-3)
     needed_min = jnp.maximum(state.energy_remaining_kwh, 0.0) / rate_kw * 60.0
@@ -293,13 +378,40 @@ def get_policy(name: str, params: EnvParams | None = None) -> Policy:
 
 
 def for_single(policy: Policy | str, env, params: EnvParams | None = None):
-    """``fn(state, key) -> action`` in the action space of the single-agent env ``env``."""
+    """A rule-based policy as a policy of the single-agent env.
+
+    Args:
+        policy: ``policy(state, key, params) -> levels`` or its name (`get_policy`).
+        env: the single-agent env (`chargax_marl.single.Chargax`), whose
+            ``levels_to_action`` maps the levels to its action space.
+        params: the parameters the policy reads; None: ``env.default_params``.
+
+    Returns:
+        ``fn(state, key) -> action`` in the action space of ``env``.
+
+    Raises:
+        KeyError: an unknown policy name.
+        ValueError: a teacher's rule for a station without a battery.
+    """
     params = params if params is not None else env.default_params
     policy = get_policy(policy, params) if isinstance(policy, str) else policy
     return lambda state, key: env.levels_to_action(policy(state, key, params), params)
 
 
 def for_marl(policy: Policy | str, env):
-    """``fn(state, key) -> {agent: action}`` for the multi-agent env ``env``."""
+    """A rule-based policy as a policy of the multi-agent env.
+
+    Args:
+        policy: ``policy(state, key, params) -> levels`` or its name (`get_policy`).
+        env: the multi-agent env (`chargax_marl.marl.ChargaxMARL`); the policy reads its
+            ``params``.
+
+    Returns:
+        ``fn(state, key) -> {agent: action}`` for ``env``.
+
+    Raises:
+        KeyError: an unknown policy name.
+        ValueError: a teacher's rule for a station without a battery.
+    """
     policy = get_policy(policy, env.params) if isinstance(policy, str) else policy
     return lambda state, key: env.levels_to_actions(policy(state, key, env.params))

@@ -30,11 +30,17 @@ Act = Callable[[EnvState, jax.Array], jnp.ndarray]
 
 
 def day_keys(day_key: jax.Array, num_steps: int):
-    """The keys of one evaluated day: ``(act_keys, step_keys, battery_key)``.
+    """The keys of one evaluated day.
 
-    ``act_keys[t]`` goes to the policy and ``step_keys[t]`` to the simulator's step ``t`` (it
-    draws the step's cars); ``battery_key`` draws the batteries' initial SoC, apart from the
-    cars so that they stay the same whatever the battery setting.
+    Args:
+        day_key: the day's key.
+        num_steps: the steps of the day.
+
+    Returns:
+        ``(act_keys, step_keys, battery_key)``: ``act_keys[t]`` goes to the policy and
+        ``step_keys[t]`` to the simulator's step ``t`` (it draws the step's cars), one key
+        per step each; ``battery_key`` draws the batteries' initial SoC, apart from the
+        cars so that they stay the same whatever the battery setting.
     """
     pairs = jax.vmap(jax.random.split)(jax.random.split(day_key, num_steps))
     return pairs[:, 0], pairs[:, 1], jax.random.fold_in(day_key, 1)
@@ -42,7 +48,14 @@ def day_keys(day_key: jax.Array, num_steps: int):
 
 def station_fingerprint(params: EnvParams) -> str:
     """A short hash of the station's layout and limits (host side): traces made for one
-    station are refused by another."""
+    station are refused by another.
+
+    Args:
+        params: concrete environment parameters.
+
+    Returns:
+        16 hex digits.
+    """
     st = params.station
     h = hashlib.sha1()
     for a in (
@@ -62,7 +75,14 @@ def station_fingerprint(params: EnvParams) -> str:
 def params_fingerprint(params: EnvParams) -> str:
     """A short hash of every array and setting of ``params`` (host side) and of the random
     stream's version (`chargax_marl.core.rng.STREAM_VERSION`), to tell whether stored
-    results were computed for the same scenario and cars."""
+    results were computed for the same scenario and cars.
+
+    Args:
+        params: concrete environment parameters.
+
+    Returns:
+        16 hex digits.
+    """
     h = hashlib.sha1()
     h.update(f"stream {rng.STREAM_VERSION}".encode())
     leaves, treedef = jax.tree_util.tree_flatten(params)
@@ -76,20 +96,30 @@ def params_fingerprint(params: EnvParams) -> str:
 class DayTrace:
     """The exogenous inputs of one day (or, with a leading axis, of several days).
 
-    ``arrivals`` holds one `chargax_marl.core.traffic.Arrivals` per step (leading axis
-    ``num_steps``): arrival step = index, and per slot the car model, capacity, r-bar for AC
-    and DC ports, tau, arrival SoC, target SoC, planned stay and user type. Prices are per step
-    in EUR/kWh: what the station pays for a net draw and earns for a net feed-in.
+    Attributes:
+        day: ``()`` int32, the day's index into the price data.
+        arrivals: one `chargax_marl.core.traffic.Arrivals` per step (fields with a leading
+            ``(num_steps,)`` axis): arrival step = index, and per slot the car model,
+            capacity, r-bar for AC and DC ports, tau, arrival SoC, target SoC, planned stay
+            and user type.
+        battery_soc0: ``(B,)`` the initial SoC of each station battery.
+        price_buy_eur_kwh: ``(num_steps,)`` what the station pays per kWh of net draw
+            (EUR/kWh).
+        price_sell_grid_eur_kwh: ``(num_steps,)`` what it earns per kWh of net feed-in
+            (EUR/kWh).
+        battery_value_eur_kwh: ``()`` the price of the batteries' net energy change at the
+            day's end (EUR/kWh).
+        step_minutes: the step length (minutes) of the params the trace was made for.
+        num_steps: the steps of the day.
+        station: `station_fingerprint` of the params' station.
     """
 
-    day: jnp.ndarray  # () int32
-    arrivals: traffic.Arrivals  # fields with a leading (num_steps,) axis
-    battery_soc0: jnp.ndarray  # (B,) initial SoC of each station battery
-    price_buy_eur_kwh: jnp.ndarray  # (num_steps,)
-    price_sell_grid_eur_kwh: jnp.ndarray  # (num_steps,)
-    battery_value_eur_kwh: (
-        jnp.ndarray
-    )  # () price of the batteries' net energy change at the day's end
+    day: jnp.ndarray
+    arrivals: traffic.Arrivals
+    battery_soc0: jnp.ndarray
+    price_buy_eur_kwh: jnp.ndarray
+    price_sell_grid_eur_kwh: jnp.ndarray
+    battery_value_eur_kwh: jnp.ndarray
     step_minutes: float = struct.field(pytree_node=False, default=5.0)
     num_steps: int = struct.field(pytree_node=False, default=288)
     station: str = struct.field(pytree_node=False, default="")
@@ -161,11 +191,25 @@ CAR_DEFAULTS = {
 def trace_from_cars(
     params: EnvParams, cars: list[dict], day: int = 0, battery_soc0=None
 ) -> DayTrace:
-    """A hand-made day: ``cars`` is a list of dicts with ``arrival_step`` (the step at whose
-    end the car arrives; it charges from the next step) and any fields of
-    `CAR_DEFAULTS`; cars of one step fill its slots in list order (at most one per
-    port). Prices are the params' prices of ``day``; ``battery_soc0`` defaults to the middle
-    of the params' range. For tests and worked examples."""
+    """A hand-made day, for tests and worked examples.
+
+    Args:
+        params: the environment parameters.
+        cars: one dict per car with ``arrival_step`` (the step at whose end the car arrives;
+            it charges from the next step) and any fields of `CAR_DEFAULTS` (the others take
+            its defaults); cars of one step fill its slots in list order (at most one per
+            port).
+        day: the day of the price data whose prices the trace takes.
+        battery_soc0: the batteries' initial SoC, ``(B,)`` or a scalar; None: the middle of
+            the params' range.
+
+    Returns:
+        The one-day `DayTrace`.
+
+    Raises:
+        ValueError: a car with an unknown field or an ``arrival_step`` outside the day, or
+            more cars in one step than the station has ports.
+    """
     st = params.station
     n, slots = params.num_steps, st.num_ports
     fields = {f: np.zeros((n, slots), np.float32) for f in CAR_DEFAULTS}
@@ -221,13 +265,29 @@ def trace_from_cars(
 
 
 def day_of(traces: DayTrace, i: int) -> DayTrace:
-    """The ``i``-th day of a batch of traces."""
+    """The ``i``-th day of a batch of traces.
+
+    Args:
+        traces: traces with a leading axis over days (`make_traces`).
+        i: the index along that axis.
+
+    Returns:
+        The one-day `DayTrace`.
+    """
     return jax.tree_util.tree_map(lambda a: a[i], traces)
 
 
 def check_trace(trace: DayTrace, params: EnvParams) -> None:
-    """Raise ``ValueError`` when ``trace`` was not made for ``params`` (another station,
-    step length or day length)."""
+    """Check that ``trace`` was made for ``params``.
+
+    Args:
+        trace: a trace (one day or a batch).
+        params: the environment parameters (with traced params only the static fields are
+            checked).
+
+    Raises:
+        ValueError: the trace was made for another station, step length or day length.
+    """
     if trace.step_minutes != params.step_minutes:
         raise ValueError(
             f"trace field 'step_minutes' is {trace.step_minutes!r} but params have "
@@ -255,12 +315,23 @@ def check_trace(trace: DayTrace, params: EnvParams) -> None:
 
 
 def replay(act: Act, params: EnvParams, trace: DayTrace, day_key: jax.Array):
-    """Run ``act(state, key) -> levels`` for one day on ``trace`` (one day, no leading axis).
+    """Run a policy for one day on ``trace``. Jittable.
 
-    The policy receives the same keys as in `chargax_marl.evaluation.run_days` with
-    ``day_key``, so the result equals that day of ``run_days`` bit for bit. Returns
-    ``(start_states, infos, final_state)``: the state at the start of every step and the
-    step's `chargax_marl.core.types.StepInfo`, each with a leading ``(num_steps,)`` axis. Jittable.
+    Args:
+        act: the policy, ``act(state, key) -> levels`` (``(num_leaves,)`` levels).
+        params: the environment parameters.
+        trace: one day's trace (no leading axis).
+        day_key: the day's key; the policy receives the same keys as in
+            `chargax_marl.evaluation.run_days` with it, so the result equals that day of
+            ``run_days`` bit for bit.
+
+    Returns:
+        ``(start_states, infos, final_state)``: the state at the start of every step and the
+        step's `chargax_marl.core.types.StepInfo`, each with a leading ``(num_steps,)``
+        axis, and the state after the last step.
+
+    Raises:
+        ValueError: the trace was not made for ``params`` (`check_trace`).
     """
     check_trace(trace, params)
     act_keys, _, _ = day_keys(day_key, params.num_steps)
@@ -282,10 +353,19 @@ def replay(act: Act, params: EnvParams, trace: DayTrace, day_key: jax.Array):
 
 
 def replay_days(act: Act, params: EnvParams, traces: DayTrace, key: jax.Array | None = None):
-    """`replay` over a batch of traces (vmapped), with the per-day keys that
-    `chargax_marl.evaluation.run_days` derives from ``key`` (default ``PRNGKey(0)``).
-    Returns the final `chargax_marl.core.types.EpisodeTotals` (leading axis over days),
-    equal to ``run_days(act, params, traces.day, key)``. Jittable."""
+    """`replay` over a batch of traces (vmapped). Jittable.
+
+    Args:
+        act: the policy, ``act(state, key) -> levels``.
+        params: the environment parameters.
+        traces: traces with a leading axis over days (`make_traces`).
+        key: the evaluation key, split into one key per day as
+            `chargax_marl.evaluation.run_days` splits it; None: ``PRNGKey(0)``.
+
+    Returns:
+        The final `chargax_marl.core.types.EpisodeTotals` (leading axis over days), equal to
+        ``run_days(act, params, traces.day, key)``.
+    """
     key = jax.random.PRNGKey(0) if key is None else key
     num_days = traces.day.shape[0]
     return jax.vmap(lambda t, k: replay(act, params, t, k)[2].totals)(

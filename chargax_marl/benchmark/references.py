@@ -278,7 +278,16 @@ def _dumps(refs: dict) -> str:
 
 
 def save_references(refs: dict, directory: str | Path | None = None) -> Path:
-    """Write references as `compute_references` returns them; returns the path."""
+    """Write references as `compute_references` returns them, as ``<task id>.json``.
+
+    Args:
+        refs: the references of one task (`compute_references`).
+        directory: the folder to write to (created if missing); None: the shipped
+            `REFERENCES_DIR`.
+
+    Returns:
+        The path of the written file.
+    """
     path = reference_path(refs["task"], directory)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".json.tmp")

@@ -238,7 +238,13 @@ TASKS: dict[str, Task] = {
 
 
 def get_task(task: str | Task) -> Task:
-    """The task of an id (a `Task` is returned as it is).
+    """The task of an id.
+
+    Args:
+        task: a registered task id (a key of `TASKS`) or a `Task`, returned as it is.
+
+    Returns:
+        The `Task`.
 
     Raises:
         KeyError: an unknown id; the message lists the registered ones.

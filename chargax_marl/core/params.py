@@ -290,50 +290,102 @@ def make_params(
 ) -> EnvParams:
     """Assemble the parameters of a station scenario (paper defaults throughout).
 
-    ``station`` is an architecture name (``single_type``, ``multiple_types``,
-    ``multiple_splitters``) with ``station_kwargs`` for its builder, a custom
-    `Splitter` tree, or compiled `StationArrays`. ``grid_fraction`` in (0, 1]
-    sets the grid connection (the root) to that fraction of the sum of its children's limits
-    (0.25: a quarter of what the EVSEs and the battery could draw together); it replaces the
-    builder's ``grid_kw``. ``prices``, ``user_profile``
-    and ``fleet`` accept a bundled name or custom data (see `chargax_marl.core.datasets`).
-    ``traffic`` is ``low``/``medium``/``high`` (50/100/250 cars per day) or a number of cars
-    per day. ``moer_kg_per_kwh`` is an array ``(days, steps)`` or ``(steps,)`` in kg CO2/kWh, or a
-    bundled dataset name (``datasets.MOER_DATASETS``, 5-minute data resampled to the step); when
-    given, MOER is observed unless ``observe_moer=False``. ``grid_demand_kwh`` is ``(steps,)`` kWh
-    per step, a shape name (``datasets.GRID_DEMAND_SHAPES``) or a CSV path. ``reset_days``
-    restricts the days ``reset`` draws from (e.g. training days, holding out evaluation days;
-    see `chargax_marl.evaluation.split_days`); default all days of the price data.
+    Every argument is keyword-only and checked here; the result's fields are listed, with
+    their shapes and units, in `EnvParams` (and the model they feed in ``docs/model.md``).
 
-    Economics: the station sells at ``customer_price_eur_kwh`` (the paper's 0.75), buys at
-    the day-ahead price plus ``grid_fee_eur_kwh`` (default 0.04), feeds in at
-    ``feed_in_factor`` times the day-ahead price and pays ``fixed_cost_eur`` per step
-    (default 0.35 at 5-minute steps, about 100 EUR/day, scaled with the step length).
-    ``refund_discharged_energy`` (default True) refunds car owners ``customer_price_eur_kwh``
-    for every kWh discharged from their car (V2G), so customers pay for the net energy
-    delivered; False bills only the energy put into each car and refunds nothing, the
-    original Chargax implementation's accounting, under which discharging a car before it
-    leaves earns money (see `chargax_marl.core.reward.billed_car_kwh`).
-    Network tariff terms (`chargax_marl.core.tariffs`): ``tou_fee_eur_kwh`` adds a
-    time-of-use surcharge per local hour to the buy price (24 values or a preset such as
-    ``"evening-peak"``); ``peak_demand_eur_kw`` charges EUR per kW of the day's highest net
-    grid draw, booked at the day's last step (``peak_demand_booking="end_of_day"``) or as the
-    running peak rises (``"incremental"``, same daily total). Both are part of the profit.
+    Economics: the station sells at ``customer_price_eur_kwh``, buys at the day-ahead price
+    plus ``grid_fee_eur_kwh`` (and the hour's ``tou_fee_eur_kwh``), feeds in at
+    ``feed_in_factor`` times the day-ahead price and pays ``fixed_cost_eur`` per step; the
+    network tariff terms (`chargax_marl.core.tariffs`) and the batteries' wear
+    (`chargax_marl.core.reward.battery_wear_eur`) are part of the profit.
 
-    Station batteries: ``battery_initial_soc`` is a fixed SoC, a ``(low, high)`` range drawn
-    uniformly at every reset, or None (each `Battery`'s own ``initial_soc``).
-    ``battery_terminal_price`` values the batteries' energy change over the day at the last
-    step: ``"day_mean_buy"`` (default: the day's mean day-ahead price plus the grid fee), a
-    price in EUR/kWh, or None (no value, the paper's free battery energy).
-    ``battery_cost_eur_kwh``, ``battery_cycle_life`` and ``battery_calendar_life_years`` set
-    the wear of every battery (None: each `Battery`'s own; ``battery_cost_eur_kwh=0``
-    makes cycling free; ``battery_calendar_life_years=0`` turns calendar ageing off): each kWh
-    into or out of the cells costs ``cost / (2 cycle_life)`` and a calendar life adds ``cost *
-    capacity / (365 years)`` per day, both booked in the profit
-    (`chargax_marl.core.reward.battery_wear_eur`).
+    Args:
+        station: an architecture name (``single_type``, ``multiple_types``,
+            ``multiple_splitters``) built with ``station_kwargs``, a custom `Splitter` tree,
+            or compiled `StationArrays` (see `chargax_marl.core.station.build_station`).
+        station_kwargs: keyword arguments of the named architecture's builder.
+        grid_fraction: in (0, 1]: sets the grid connection (the root) to that fraction of the
+            sum of its children's limits (0.25: a quarter of what the EVSEs and the battery
+            could draw together); it replaces the builder's ``grid_kw``. None: the tree's own.
+        prices: day-ahead prices: a bundled dataset name, custom data (an array of EUR/kWh
+            ``(days, 24)`` or ``(24,)``, a `chargax_marl.core.prices.PriceData`) or a CSV
+            path in EUR/MWh (see `chargax_marl.core.datasets`).
+        first_weekday: the weekday of day 0 of the prices (0 = Monday); None: the dataset's
+            own.
+        user_profile: a bundled user-profile name or custom data (see
+            `chargax_marl.core.datasets`).
+        traffic: ``low``/``medium``/``high`` (50/100/250 cars per day) or a number of cars
+            per day (workdays; weekends scaled by the profile's weekend volume factor).
+        fleet: a bundled car-fleet name, custom data or a CSV path (see
+            `chargax_marl.core.datasets`).
+        moer_kg_per_kwh: the marginal emission rate in kg CO2/kWh: an array ``(days, steps)``
+            or ``(steps,)`` at the step resolution, or a bundled dataset name
+            (``datasets.MOER_DATASETS``, 5-minute data resampled to the step); None: zeros.
+            When given, MOER is observed unless ``observe_moer=False``.
+        grid_demand_kwh: the grid-demand signal of the grid-demand penalty: ``(steps,)`` kWh
+            per step, a shape name (``datasets.GRID_DEMAND_SHAPES``) or a CSV path; None:
+            zeros.
+        customer_price_eur_kwh: the price car owners pay (EUR/kWh; the paper's 0.75).
+        refund_discharged_energy: True (default) refunds car owners
+            ``customer_price_eur_kwh`` for every kWh discharged from their car (V2G), so
+            customers pay for the net energy delivered; False bills only the energy put into
+            each car and refunds nothing, the original Chargax implementation's accounting,
+            under which discharging a car before it leaves earns money (see
+            `chargax_marl.core.reward.billed_car_kwh`).
+        grid_fee_eur_kwh: added to the day-ahead price when buying (EUR/kWh).
+        tou_fee_eur_kwh: a time-of-use surcharge per local hour on the buy price (EUR/kWh):
+            24 values or a preset such as ``"evening-peak"``
+            (`chargax_marl.core.tariffs.TOU_PRESETS`); None: none.
+        peak_demand_eur_kw: EUR per kW of the day's highest net grid draw (0: no peak
+            charge).
+        peak_demand_booking: ``"end_of_day"`` books the peak charge at the day's last step,
+            ``"incremental"`` as the running peak rises (same daily total).
+        feed_in_factor: the feed-in price as a multiple of the day-ahead price.
+        fixed_cost_eur: the fixed cost per step (EUR); None: 0.35 EUR per 5 minutes, about
+            100 EUR/day, scaled with the step length.
+        battery_initial_soc: the station batteries' SoC at reset: a fixed SoC, a
+            ``(low, high)`` range drawn uniformly at every reset, or None (each `Battery`'s
+            own ``initial_soc``).
+        battery_terminal_price: values the batteries' energy change over the day at the last
+            step: ``"day_mean_buy"`` (default: the day's mean day-ahead price plus the grid
+            fee), a price in EUR/kWh, or None (no value, the paper's free battery energy).
+        battery_cost_eur_kwh: every battery's installed cost per kWh of capacity (EUR/kWh);
+            None: each `Battery`'s own; 0 makes cycling free. Each kWh into or out of the
+            cells costs ``cost / (2 cycle_life)``.
+        battery_cycle_life: every battery's full equivalent cycles to the end of life; None:
+            each `Battery`'s own.
+        battery_calendar_life_years: every battery's calendar life (years), which adds
+            ``cost * capacity / (365 years)`` per day; None: each `Battery`'s own; 0 turns
+            calendar ageing off.
+        alpha: the penalty weights, a `PenaltyWeights` or a dict ``{term: weight}`` over
+            `PENALTY_TERMS`; None: all 0.
+        beta: weighs the undertime credit of the charge-sensitive satisfaction term, 0 by
+            default (see `chargax_marl.core.traffic.depart`).
+        charged_tolerance_kwh: a charge-sensitive car leaves when the energy it still wants
+            is at most this (kWh, > 0).
+        step_minutes: the step length (minutes); must divide a day evenly.
+        num_levels: L, the discrete levels per direction (actions in ``[-L, L]``, or
+            ``[0, L]`` for a leaf that cannot discharge).
+        action_mode: ``"absolute"``, ``"delta"`` or ``"continuous"`` (``docs/model.md``).
+        v2g: ports with a discharge current may discharge cars (V2G); False: only the
+            batteries discharge.
+        constraint_mode: ``"hard"`` rescales currents so every node limit holds,
+            ``"soft"`` leaves them and reports the excess.
+        price_horizon_hours: hours of upcoming prices in the observation (0 to 48).
+        observe_moer: MOER now is part of the observation; None: whenever
+            ``moer_kg_per_kwh`` is given.
+        reset_days: restricts the days ``reset`` draws from (e.g. training days, holding out
+            evaluation days; see `chargax_marl.evaluation.split_days`), indices into the
+            price data; None: all days.
 
-    ``beta`` weighs the undertime credit of the charge-sensitive satisfaction term, 0 by
-    default (see `chargax_marl.core.traffic.depart`).
+    Returns:
+        The validated `EnvParams`.
+
+    Raises:
+        ValueError: any value outside what its field allows; the message names the field,
+            the value and what is allowed.
+        KeyError: an unknown architecture, dataset, traffic level or penalty term name.
+        TypeError: an unknown keyword argument.
     """
     if not isinstance(refund_discharged_energy, (bool, np.bool_)):
         raise ValueError(

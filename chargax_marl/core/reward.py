@@ -14,6 +14,15 @@ from chargax_marl.core.types import PENALTY_TERMS, EnvParams
 
 
 def hour_of_step(timestep: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
+    """The local hour of day of a step, the column of the day's hourly price tables.
+
+    Args:
+        timestep: the step of the day (int, any shape).
+        params: the environment parameters (``step_minutes``).
+
+    Returns:
+        int32 hours in ``[0, 23]``, shaped as ``timestep``.
+    """
     return jnp.clip((timestep * params.step_minutes / 60.0).astype(jnp.int32), 0, 23)
 
 

@@ -39,8 +39,17 @@ def battery_initial_soc(params: EnvParams, key: jax.Array | None = None) -> jnp.
 
 @jax.jit
 def empty_state(day: jnp.ndarray, params: EnvParams, key: jax.Array | None = None) -> EnvState:
-    """A station with no cars at step 0 of ``day``; batteries at their initial SoC
-    (`battery_initial_soc`, drawn from ``key`` when the range is not a point)."""
+    """A station with no cars at step 0 of ``day``; batteries at their initial SoC.
+
+    Args:
+        day: the day's index into the price data (``()`` int).
+        params: the environment parameters.
+        key: draws the batteries' initial SoC when its range is not a point
+            (`battery_initial_soc`); None: the middle of the range.
+
+    Returns:
+        The empty `EnvState` at step 0 of ``day``, its totals at zero.
+    """
     st = params.station
     num_leaves = st.leaf_kind.shape[0]
     zeros = jnp.zeros((num_leaves,), jnp.float32)
@@ -79,7 +88,15 @@ def empty_state(day: jnp.ndarray, params: EnvParams, key: jax.Array | None = Non
 @jax.jit
 def reset(key: jax.Array, params: EnvParams) -> EnvState:
     """Start an empty station on a uniformly random day of ``params.reset_days`` (exploring
-    starts; all days of the price data unless training days were set)."""
+    starts; all days of the price data unless training days were set).
+
+    Args:
+        key: draws the day and the batteries' initial SoC.
+        params: the environment parameters.
+
+    Returns:
+        The `EnvState` at step 0 of the drawn day (`empty_state`).
+    """
     # The day and the batteries' SoC are draws 0 and 1.. of the key's reset stream (`rng`).
     n = params.reset_days.shape[0]
     u = rng.uniform(rng.key_seed(key), rng.RESET, (1,))[0]
@@ -89,21 +106,29 @@ def reset(key: jax.Array, params: EnvParams) -> EnvState:
 
 @jax.jit
 def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams):
-    """One 5-minute (``params.step_minutes``) transition. Returns ``(new_state, StepInfo)``.
-
-    ``action`` is an array (jax or numpy, possibly traced) with one entry per leaf (ports,
-    then batteries): a signed level in ``[-L, L]`` for the discrete modes or a fraction in
-    ``[-1, 1]`` for ``continuous``. Values outside the leaf's range are clipped and NaN or
-    +-inf entries are idle; an action without exactly one entry per leaf raises
-    ``ValueError``. Host values that do not fit int32 / float32 (a numpy ``int64`` beyond
-    ``2**31``) are the caller's to clip first (`chargax_marl.core.actions.host_array`,
-    which the views' ``step`` entry points apply).
+    """One 5-minute (``params.step_minutes``) transition.
 
     The new state keeps the dtypes of ``state`` (float32, int32, bool) and the report is
     float32, also under ``JAX_ENABLE_X64=1``.
 
-    The step's cars are drawn from ``key`` (`traffic.draw_arrivals`), independently of
-    the state; `step_with_arrivals` takes them as given (to replay a recorded day).
+    Args:
+        key: draws the step's cars (`traffic.draw_arrivals`), independently of the state;
+            `step_with_arrivals` takes them as given (to replay a recorded day).
+        state: the state to step.
+        action: an array (jax or numpy, possibly traced) with one entry per leaf (ports,
+            then batteries), shape ``(num_leaves,)``: a signed level in ``[-L, L]`` for the
+            discrete modes or a fraction in ``[-1, 1]`` for ``continuous``. Values outside
+            the leaf's range are clipped and NaN or +-inf entries are idle. Host values that
+            do not fit int32 / float32 (a numpy ``int64`` beyond ``2**31``) are the caller's
+            to clip first (`chargax_marl.core.actions.host_array`, which the views' ``step``
+            entry points apply).
+        params: the environment parameters.
+
+    Returns:
+        ``(new_state, info)``: the state after the step and its `StepInfo`.
+
+    Raises:
+        ValueError: ``action`` does not have exactly one entry per leaf.
     """
     return step_with_arrivals(
         state, action, traffic.draw_arrivals(key, state.timestep, state.is_workday, params), params
@@ -236,7 +261,15 @@ def as_float32(tree):
 
 
 def is_done(state: EnvState, params: EnvParams) -> jnp.ndarray:
-    """The day is over (truncation; the station never terminates)."""
+    """The day is over (truncation; the station never terminates).
+
+    Args:
+        state: the station state.
+        params: the environment parameters.
+
+    Returns:
+        A ``()`` bool: ``state.timestep >= params.num_steps``.
+    """
     return state.timestep >= params.num_steps
 
 

@@ -154,9 +154,18 @@ def check_battery_wear(
 class Port:
     """A charging port (one EVSE connector): a leaf of the station tree.
 
-    ``max_discharge_current_a = 0`` means the port cannot discharge (no V2G).
-    ``efficiency`` is the port's own efficiency; the path efficiency to the grid
-    multiplies it with every ancestor's efficiency.
+    Its fields are checked when it is built (``ValueError`` naming the port and field).
+
+    Attributes:
+        name: the port's name, unique in the station.
+        kind: ``"DC"`` or ``"AC"`` (which of the car's rate limits applies).
+        voltage_v: the port's voltage (V).
+        max_current_a: the charging current limit (A); ``voltage_v * max_current_a / 1000``
+            is the port's rating in kW.
+        max_discharge_current_a: the discharging current limit (A); 0 means the port cannot
+            discharge (no V2G).
+        efficiency: the port's own efficiency, in (0, 1]; the path efficiency to the grid
+            multiplies it with every ancestor's efficiency.
     """
 
     name: str
@@ -208,6 +217,19 @@ class Battery:
     calendar ageing) adds `calendar_eur_day` per day whatever the battery does. Both are
     part of the profit (`chargax_marl.core.reward.battery_wear_eur`); the defaults and
     their sources are in the data README. ``cost_eur_kwh=0`` makes cycling free.
+
+    Attributes:
+        name: the battery's name, unique in the station.
+        capacity_kwh: the energy it holds when full (kWh).
+        max_kw: the most power it takes or gives (kW), both directions.
+        voltage_v: its voltage (V); the current limit is ``max_kw * 1000 / voltage_v``.
+        efficiency: its own efficiency, in (0, 1].
+        tau: the SoC above which its charge rate tapers, in (0, 1).
+        initial_soc: its SoC at the start of a day, in [0, 1] (unless
+            ``make_params(battery_initial_soc=...)`` overrides it).
+        cost_eur_kwh: the installed cost per kWh of capacity (EUR/kWh).
+        cycle_life: full equivalent cycles to the end of life.
+        calendar_life_years: the calendar life (years); None: no calendar ageing.
     """
 
     name: str = "battery"
@@ -272,6 +294,12 @@ class Splitter:
     ``max_kw`` (paper Eq. 3): each leaf below it contributes its power divided by the
     efficiencies on its path up to and including this node when it charges (multiplied
     when it discharges), and the contributions add with their signs.
+
+    Attributes:
+        name: the node's name, unique in the station.
+        max_kw: the limit on the net power through the node, grid side (kW).
+        children: the nodes below it (`Splitter`, `Port` or `Battery`), at least one.
+        efficiency: the node's efficiency, in (0, 1].
     """
 
     name: str
@@ -306,34 +334,58 @@ class StationArrays:
     leaves that hang higher up); with it, node flows are segment sums, linear in ports.
     ``leaf_efficiency_at_depth[d, l]`` is the efficiency of the path from leaf ``l`` up to
     and including that ancestor, the factor that turns the leaf's power into the flow it
-    causes on the node's grid side.
+    causes on the node's grid side. ``B`` is the number of batteries, ``D`` the tree depth.
+
+    Attributes:
+        leaf_voltage_v: ``(L,)`` each leaf's voltage (V).
+        leaf_max_current_a: ``(L,)`` charging limit (A).
+        leaf_max_discharge_current_a: ``(L,)`` discharging limit (A), 0 where no V2G.
+        leaf_efficiency: ``(L,)`` own efficiency.
+        leaf_path_efficiency: ``(L,)`` product of efficiencies from the root to the leaf.
+        leaf_efficiency_at_depth: ``(D, L)`` product of the efficiencies from the leaf up to
+            and including its ancestor at depth d (its own efficiency included; 1 where it
+            has none).
+        leaf_kind: ``(L,)`` int32: 0 AC, 1 DC, 2 battery.
+        battery_capacity_kwh: ``(B,)`` capacity (kWh).
+        battery_tau: ``(B,)`` SoC above which the charge rate tapers.
+        battery_initial_soc: ``(B,)`` SoC at the start of a day.
+        battery_cost_eur_kwh: ``(B,)`` installed cost per kWh of capacity (EUR/kWh).
+        battery_cycle_life: ``(B,)`` full equivalent cycles to the end of life.
+        battery_calendar_life_years: ``(B,)`` calendar life (years), 0 = no calendar ageing.
+        leaf_solo_max_kw: ``(L,)`` most power a leaf can take alone: its rating and every
+            ancestor's limit divided by the efficiency of the path up to that ancestor (kW).
+        node_max_kw: ``(H,)`` each node's limit, grid side (kW).
+        node_efficiency: ``(H,)`` each node's efficiency.
+        node_depth: ``(H,)`` int32, root = 0.
+        node_of_leaf_at_depth: ``(D, L)`` int32, -1 = none.
+        incidence: ``(H, L)`` float32, 1 if leaf under node (for analysis and tests).
+        num_ports: the number of ports.
+        num_batteries: ``B``.
+        num_nodes: ``H``.
+        depth: ``D``, the depth of the tree.
+        leaf_names: the leaves' names, in leaf order.
+        node_names: the nodes' names, in node order.
     """
 
-    leaf_voltage_v: jnp.ndarray  # (L,)
-    leaf_max_current_a: jnp.ndarray  # (L,) charging limit
-    leaf_max_discharge_current_a: jnp.ndarray  # (L,) 0 where no V2G
-    leaf_efficiency: jnp.ndarray  # (L,) own efficiency
-    leaf_path_efficiency: jnp.ndarray  # (L,) product of efficiencies from the root to the leaf
-    leaf_efficiency_at_depth: (
-        jnp.ndarray
-    )  # (D, L) product of the efficiencies from the leaf up to and
-    #   including its ancestor at depth d (its own efficiency included; 1 where it has none)
-    leaf_kind: jnp.ndarray  # (L,) int32: 0 AC, 1 DC, 2 battery
-    battery_capacity_kwh: jnp.ndarray  # (B,)
-    battery_tau: jnp.ndarray  # (B,)
-    battery_initial_soc: jnp.ndarray  # (B,)
-    battery_cost_eur_kwh: jnp.ndarray  # (B,) installed cost per kWh of capacity
-    battery_cycle_life: jnp.ndarray  # (B,) full equivalent cycles to the end of life
-    battery_calendar_life_years: jnp.ndarray  # (B,) calendar life, 0 = no calendar ageing
-    leaf_solo_max_kw: (
-        jnp.ndarray
-    )  # (L,) most power a leaf can take alone: its rating and every ancestor's
-    #   limit divided by the efficiency of the path up to that ancestor
-    node_max_kw: jnp.ndarray  # (H,)
-    node_efficiency: jnp.ndarray  # (H,)
-    node_depth: jnp.ndarray  # (H,) int32, root = 0
-    node_of_leaf_at_depth: jnp.ndarray  # (D, L) int32, -1 = none
-    incidence: jnp.ndarray  # (H, L) float32, 1 if leaf under node (for analysis and tests)
+    leaf_voltage_v: jnp.ndarray
+    leaf_max_current_a: jnp.ndarray
+    leaf_max_discharge_current_a: jnp.ndarray
+    leaf_efficiency: jnp.ndarray
+    leaf_path_efficiency: jnp.ndarray
+    leaf_efficiency_at_depth: jnp.ndarray
+    leaf_kind: jnp.ndarray
+    battery_capacity_kwh: jnp.ndarray
+    battery_tau: jnp.ndarray
+    battery_initial_soc: jnp.ndarray
+    battery_cost_eur_kwh: jnp.ndarray
+    battery_cycle_life: jnp.ndarray
+    battery_calendar_life_years: jnp.ndarray
+    leaf_solo_max_kw: jnp.ndarray
+    node_max_kw: jnp.ndarray
+    node_efficiency: jnp.ndarray
+    node_depth: jnp.ndarray
+    node_of_leaf_at_depth: jnp.ndarray
+    incidence: jnp.ndarray
     num_ports: int = struct.field(pytree_node=False, default=0)
     num_batteries: int = struct.field(pytree_node=False, default=0)
     num_nodes: int = struct.field(pytree_node=False, default=0)
@@ -353,8 +405,16 @@ class StationArrays:
 def compile_station(root: Splitter) -> StationArrays:
     """Validate a station tree and compile it to `StationArrays`.
 
-    Raises ``ValueError`` naming the node and field for an invalid tree: a root that is
-    not a `Splitter`, no ports, duplicate names.
+    Args:
+        root: the grid connection, a `Splitter` whose subtree holds the ports, splitters and
+            batteries (each node's own fields are checked when it is built).
+
+    Returns:
+        The compiled arrays: leaves are the ports in depth-first order, then the batteries.
+
+    Raises:
+        ValueError: an invalid tree, naming the node and field: a root that is not a
+            `Splitter`, no ports, duplicate names.
     """
     if not isinstance(root, Splitter):
         raise ValueError(
@@ -560,6 +620,27 @@ def single_type(
 
     ``voltage_v``, ``max_current_a`` and ``grid_kw`` default (None) to the kind's paper values
     and the sum of the ports; 0 is rejected, not read as "default".
+
+    Args:
+        num_ports: the number of ports (>= 1).
+        kind: ``"DC"`` or ``"AC"``.
+        voltage_v: each port's voltage (V); None: 500 V for DC, 400 V for AC.
+        max_current_a: each port's charging current limit (A); None: 300 A for DC (150 kW at
+            500 V), 28.75 A for AC (11.5 kW at 400 V).
+        v2g: the ports can discharge, up to ``max_current_a``; False: discharge limit 0.
+        efficiency: each port's efficiency, in (0, 1].
+        grid_kw: the grid connection's limit (kW); None: the sum of the ports' ratings and
+            the battery's.
+        battery: a `Battery` under the grid connection; True: the default `Battery`;
+            None or False: no battery.
+
+    Returns:
+        The station tree: a `Splitter` named ``"grid"`` over the ports (and the battery).
+
+    Raises:
+        ValueError: ``num_ports`` not an integer >= 1, ``kind`` neither ``"AC"`` nor
+            ``"DC"``, or a voltage, current, efficiency or ``grid_kw`` outside its range.
+        TypeError: an unknown keyword argument.
     """
     _check_count("single_type", "num_ports", num_ports, 1)
     if kind not in ("AC", "DC"):
@@ -612,10 +693,32 @@ def multiple_types(
     """Paper Fig. 3b and the default station: DC and AC ports in EVSE groups under one splitter per kind.
 
     Default: 16 ports, 10 DC in 2-port groups of 150 kW and 6 AC in 2-port groups of
-    11.5 kW; each kind's splitter carries the sum of its groups. ``battery=True`` (default)
-    adds the default `Battery` (200 kWh, 100 kW) under the grid connection, the
-    paper's (N+1)-th controllable leaf; pass ``battery=None`` for a station without one.
-    The root carries the sum of its children.
+    11.5 kW; each kind's splitter carries the sum of its groups. The root carries the sum of
+    its children. DC ports run at 500 V, AC ports at 400 V; each port's current limit is
+    its group's power at that voltage.
+
+    Args:
+        num_dc: the number of DC ports (>= 0).
+        num_ac: the number of AC ports (>= 0); ``num_dc + num_ac >= 1``.
+        ports_per_evse: connectors per EVSE group, sharing the group's power (1: no groups).
+        dc_evse_kw: the power of a DC EVSE group (kW), also each DC port's rating.
+        ac_evse_kw: the power of an AC EVSE group (kW), also each AC port's rating.
+        v2g: the ports can discharge, up to their charging current; False: discharge limit 0.
+        port_efficiency: each port's efficiency, in (0, 1].
+        splitter_efficiency: the efficiency of each EVSE group and kind splitter, in (0, 1].
+        grid_kw: the grid connection's limit (kW); None: the sum of its children's.
+        battery: a `Battery` under the grid connection; True (default): the default
+            `Battery` (200 kWh, 100 kW), the paper's (N+1)-th controllable leaf; None or
+            False: a station without one.
+
+    Returns:
+        The station tree: a `Splitter` named ``"grid"`` over the kinds' splitters (and the
+        battery).
+
+    Raises:
+        ValueError: a count that is not an integer in range, no port at all, or a power,
+            efficiency or ``grid_kw`` outside its range.
+        TypeError: an unknown keyword argument.
     """
     _check_count("multiple_types", "num_dc", num_dc, 0)
     _check_count("multiple_types", "num_ac", num_ac, 0)
@@ -691,7 +794,34 @@ def multiple_splitters(
 
     Each kind's EVSE groups are divided over ``splitters_per_kind`` splitters; a splitter is
     rated at ``splitter_fraction`` of the sum of its groups, so the extra level constrains
-    the currents. The root is rated at the sum of its splitters.
+    the currents. The root is rated at the sum of its splitters. The ports and groups are
+    those of `multiple_types`.
+
+    Args:
+        num_dc: the number of DC ports (>= 0).
+        num_ac: the number of AC ports (>= 0); ``num_dc + num_ac >= 1``.
+        splitters_per_kind: splitters each kind's groups are divided over (>= 1; at most one
+            per group).
+        ports_per_evse: connectors per EVSE group, sharing the group's power (1: no groups).
+        dc_evse_kw: the power of a DC EVSE group (kW), also each DC port's rating.
+        ac_evse_kw: the power of an AC EVSE group (kW), also each AC port's rating.
+        splitter_fraction: each splitter's limit as a fraction of the sum of its groups, in
+            (0, 1].
+        v2g: the ports can discharge, up to their charging current; False: discharge limit 0.
+        port_efficiency: each port's efficiency, in (0, 1].
+        splitter_efficiency: the efficiency of every group and splitter, in (0, 1].
+        grid_kw: the grid connection's limit (kW); None: the sum of its children's.
+        battery: a `Battery` under the grid connection; True (default): the default
+            `Battery`; None or False: none.
+
+    Returns:
+        The station tree: a `Splitter` named ``"grid"`` over one splitter per kind, each over
+        its ``splitters_per_kind`` splitters (and the battery).
+
+    Raises:
+        ValueError: a count that is not an integer in range, or a power, fraction,
+            efficiency or ``grid_kw`` outside its range.
+        TypeError: an unknown keyword argument.
     """
     _check_count("multiple_splitters", "splitters_per_kind", splitters_per_kind, 1)
     _check_grid_kw("multiple_splitters", grid_kw)
@@ -759,8 +889,26 @@ def build_station(
     **kwargs,
 ) -> StationArrays:
     """Compile a named architecture (with builder keyword arguments), a custom tree, or pass
-    through arrays (checked by `check_station_arrays`). ``grid_fraction`` (in (0, 1]) sets the root's limit to that fraction of the
-    sum of its children's limits (`with_grid_fraction`)."""
+    through arrays (checked by `check_station_arrays`).
+
+    Args:
+        architecture: a builder's name (``"single_type"``, ``"multiple_types"``,
+            ``"multiple_splitters"``), a custom `Splitter` tree, or compiled `StationArrays`.
+        grid_fraction: in (0, 1]: sets the root's limit to that fraction of the sum of its
+            children's limits (`with_grid_fraction`); None: the tree's own limit.
+        **kwargs: keyword arguments of the named architecture's builder (`single_type`,
+            `multiple_types`, `multiple_splitters`).
+
+    Returns:
+        The compiled station.
+
+    Raises:
+        KeyError: an unknown architecture name.
+        ValueError: ``grid_fraction`` with compiled arrays, builder keyword arguments with a
+            tree, ``grid_fraction`` together with ``grid_kw``, or an invalid tree or
+            arrays.
+        TypeError: a keyword argument the named builder does not take.
+    """
     if isinstance(architecture, StationArrays):
         if grid_fraction is not None:
             raise ValueError(

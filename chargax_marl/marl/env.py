@@ -317,9 +317,6 @@ class ChargaxMARL(MultiAgentEnv):
     for every agent). An episode is one day: ``dones[a]`` and ``dones["__all__"]`` turn true
     at its end (truncation); `step` then auto-resets (JaxMARL's base class).
 
-    Construct with keyword overrides of `chargax_marl.core.make_params` or with ready
-    ``params`` (kept as ``self.params``).
-
     **Actions.** Every agent has the same ``Discrete(n)`` space. With ``n = 2L+1`` (any leaf
     may discharge: batteries always, ports with V2G) index ``k`` means level ``k - L``, so
     ``L`` is idle and ``2L`` full power; with ``n = L+1`` (no leaf can discharge) index ``k``
@@ -336,11 +333,9 @@ class ChargaxMARL(MultiAgentEnv):
     (``ValueError``): use the single-agent view.
 
     **Construction.** ``ChargaxMARL()`` is the paper default (``shopping``, medium traffic);
-    ``ChargaxMARL(scenario="shopping-grid25-high")`` picks a named scenario of
-    `chargax_marl.core.scenarios` (also the coordination scenarios with a constrained
-    grid connection, a time-of-use surcharge and a peak-demand charge), keyword arguments of
-    `chargax_marl.core.params.make_params` override it, and ``params=`` passes ready
-    parameters.
+    ``ChargaxMARL(scenario="shopping-grid25-high")`` picks a named scenario, keyword
+    arguments of `chargax_marl.core.params.make_params` override it, and ``params=`` passes
+    ready parameters.
 
     **Observations.** Every agent gets a float32 vector of the same size
     (`obs_size`): its own leaf features (8, `observation.PORT_FEATURES`), its
@@ -369,6 +364,26 @@ class ChargaxMARL(MultiAgentEnv):
     only (a local, lower-variance learning signal for independent learners), and the
     rewards of all agents then still add up to ``r``. Infos and episode totals report the
     station's reward and profit whatever ``w`` is, so evaluations stay comparable.
+
+    Args:
+        params: ready parameters (checked by `chargax_marl.core.params.validate_params`,
+            kept as ``self.params``); None: built from ``scenario`` and
+            ``make_params_kwargs``.
+        scenario: a named scenario of `chargax_marl.core.scenarios` (also the coordination
+            scenarios with a constrained grid connection, a time-of-use surcharge and a
+            peak-demand charge); None: the `make_params` defaults.
+        agent_id: the agent-index feature of the observations: ``"onehot"`` or ``"scalar"``.
+        local_reward_weight: ``w`` in ``[0, 1]`` of the per-agent reward shaping above (0:
+            the shared station reward).
+        **make_params_kwargs: keyword arguments of `chargax_marl.core.params.make_params`
+            (its ``Args:`` list them all), on top of the scenario's.
+
+    Raises:
+        ValueError: ``local_reward_weight`` outside ``[0, 1]``, ``params`` together with a
+            scenario or keyword arguments, an unknown ``agent_id``, ``action_mode
+            "continuous"``, or invalid params.
+        KeyError: an unknown scenario, architecture, dataset or traffic level name.
+        TypeError: a keyword `make_params` does not take.
     """
 
     def __init__(

@@ -113,6 +113,30 @@ class ChargaxParallelEnv(ParallelEnv):
       ``infos[agent]["action_lost"]`` says whether it was. Both off by default.
     - In a process forked after JAX started, construction and every call raise
       `chargax_marl.lifecycle.ForkedProcessError` (use the ``spawn`` start method).
+
+    Args:
+        params: ready parameters; None: built from ``make_params_kwargs``.
+        render_mode: ``"ansi"``, ``"human"``, ``"rgb_array"`` or None.
+        max_cycles: truncate every agent after this many steps (a positive integer); None:
+            at the end of the day.
+        action_mask_in_obs: observations as ``{"observation", "action_mask"}`` dicts.
+        observation_delay_steps: ``k >= 0``, the steps by which the shared context and the
+            nodes' loads are seen late (0: none).
+        action_loss_prob: ``p`` in ``[0, 1]``, the probability that an agent's action is
+            lost (0: none).
+        lost_action: what a port applies when its action is lost: ``"previous"`` or
+            ``"idle"``.
+        **make_params_kwargs: keyword arguments of `ChargaxMARL` (``scenario``,
+            ``agent_id``, ``local_reward_weight``) and of
+            `chargax_marl.core.params.make_params`.
+
+    Raises:
+        ValueError: an unknown ``render_mode``, ``max_cycles`` not a positive integer, a
+            delay, loss probability or ``lost_action`` out of range, or an invalid
+            `ChargaxMARL` argument.
+        KeyError: an unknown scenario, architecture, dataset or traffic level name.
+        TypeError: a keyword neither `ChargaxMARL` nor `make_params` takes.
+        chargax_marl.lifecycle.ForkedProcessError: the process was forked after JAX started.
     """
 
     metadata = {
@@ -329,20 +353,42 @@ class ChargaxParallelEnv(ParallelEnv):
 
 
 def parallel_env(**kwargs: Any) -> ChargaxParallelEnv:
-    """Build a `ChargaxParallelEnv` (``render_mode=``, ``max_cycles=``,
-    ``action_mask_in_obs=``, ``params=`` or ``make_params`` keywords)."""
+    """Build a `ChargaxParallelEnv`.
+
+    Args:
+        **kwargs: keyword arguments of `ChargaxParallelEnv` (``params``, ``render_mode``,
+            ``max_cycles``, ``action_mask_in_obs``, the communication settings), of
+            `ChargaxMARL` (``scenario``, ``agent_id``, ``local_reward_weight``) and of
+            `chargax_marl.core.params.make_params`.
+
+    Returns:
+        The PettingZoo ``ParallelEnv``.
+    """
     return ChargaxParallelEnv(**kwargs)
 
 
 def raw_env(**kwargs: Any):
-    """The AEC view of `parallel_env` (PettingZoo's ``parallel_to_aec``)."""
+    """The AEC view of `parallel_env` (PettingZoo's ``parallel_to_aec``).
+
+    Args:
+        **kwargs: the keyword arguments of `parallel_env`.
+
+    Returns:
+        The PettingZoo ``AECEnv``.
+    """
     return parallel_to_aec(ChargaxParallelEnv(**kwargs))
 
 
 def env(**kwargs: Any):
-    """PettingZoo's AEC constructor: `raw_env` (same keywords as `parallel_env`).
+    """PettingZoo's AEC constructor: `raw_env`.
 
     Agents act one after another within a cycle; the station steps once all have acted.
+
+    Args:
+        **kwargs: the keyword arguments of `parallel_env`.
+
+    Returns:
+        The PettingZoo ``AECEnv``.
     """
     return raw_env(**kwargs)
 

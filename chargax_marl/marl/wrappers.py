@@ -54,7 +54,16 @@ def _core_state(state) -> EnvState:
 
 @struct.dataclass
 class LogEnvState:
-    """JaxMARL's ``LogEnvState`` fields (each ``(num_agents,)``) plus the last finished episode's totals."""
+    """JaxMARL's ``LogEnvState`` fields (each ``(num_agents,)``) plus the last finished episode's totals.
+
+    Attributes:
+        env_state: the wrapped env's state.
+        episode_returns: each agent's return so far in the running episode.
+        episode_lengths: the steps so far in the running episode (int32).
+        returned_episode_returns: each agent's return in the last finished episode.
+        returned_episode_lengths: the length of the last finished episode (int32).
+        returned_totals: the last finished episode's `chargax_marl.core.EpisodeTotals`.
+    """
 
     env_state: Any
     episode_returns: jnp.ndarray
@@ -71,7 +80,12 @@ class LogWrapper(_Wrapper):
     finished episode's values), ``returned_episode`` (True on the step that ended an
     episode) and ``returned_episode_<total>`` for every field of
     `chargax_marl.core.EpisodeTotals` (profit, energies, cars served, ...), each of
-    shape ``(num_agents,)``. With ``replace_info=True`` the env's own infos are dropped.
+    shape ``(num_agents,)``.
+
+    Args:
+        env: the multi-agent env to wrap (a `chargax_marl.marl.ChargaxMARL` or a wrapper of
+            one); every other attribute is forwarded to it.
+        replace_info: drop the env's own infos, keeping only the logged entries.
     """
 
     def __init__(self, env, replace_info: bool = False):
@@ -167,6 +181,10 @@ class WorldStateWrapper(_Wrapper):
 
     Every row is the env's `get_global_state` (the single-agent observation) of the
     returned state, so after an auto-reset it describes the new day.
+
+    Args:
+        env: the multi-agent env to wrap (a `chargax_marl.marl.ChargaxMARL` or a wrapper of
+            one); every other attribute is forwarded to it.
     """
 
     @functools.partial(jax.jit, static_argnums=(0,))

@@ -41,10 +41,16 @@ from chargax_marl.policies import always_max
 
 @dataclass
 class Occupancy:
-    """Which car was at which port in which step, from a reference rollout (numpy)."""
+    """Which car was at which port in which step, from a reference rollout (numpy).
 
-    sessions: Sessions  # cars only (batteries are added by the LP)
-    reference_profit_eur: float  # the reference policy's profit on the day
+    Attributes:
+        sessions: the car sessions (cars only; batteries are added by the LP).
+        reference_profit_eur: the reference policy's profit on the day (EUR).
+        day: the day's index into the price data.
+    """
+
+    sessions: Sessions
+    reference_profit_eur: float
     day: int
 
 
@@ -151,8 +157,22 @@ _REPLAY_CACHE: dict = {}
 def occupancy(
     params: EnvParams, trace: trace_lib.DayTrace, day_key: jax.Array, reference=always_max
 ) -> Occupancy:
-    """Replay ``reference(state, key, params)`` on one day's ``trace`` (with the policy keys of
-    ``day_key``, as in evaluation) and record its car sessions."""
+    """Replay a reference policy on one day's trace and record its car sessions.
+
+    Args:
+        params: the environment parameters.
+        trace: one day's trace (`chargax_marl.trace.make_traces`).
+        day_key: the day's key; the policy gets the keys evaluation gives it
+            (`chargax_marl.trace.day_keys`).
+        reference: the policy, ``reference(state, key, params) -> levels``; default
+            always-max.
+
+    Returns:
+        The day's `Occupancy`: the car sessions and the reference's profit (EUR).
+
+    Raises:
+        ValueError: the trace was not made for ``params``.
+    """
     trace_lib.check_trace(trace, params)
     cache_key = (id(params), reference)
     fn = _REPLAY_CACHE.get(cache_key)
@@ -177,6 +197,18 @@ class Bound:
 
     A day whose solve failed (`bound_days`) has ``status`` other than ``"optimal"``,
     ``profit_eur`` and ``solve_s`` NaN, no ``solution`` and the solver's ``message``.
+
+    Attributes:
+        profit_eur: the bound, the day's best profit (EUR), fixed cost included.
+        reference_profit_eur: the reference policy's profit on the same day and cars (EUR).
+        status: the solver's status, ``"optimal"`` when solved.
+        solve_s: the seconds spent in HiGHS.
+        num_vars: the LP's variables.
+        num_rows: the LP's constraints.
+        num_cars: the car sessions of the reference's occupancy.
+        solution: the solved LP (`chargax_marl.optimal.model.Solution`); None when the solve
+            failed.
+        message: the solver's message when the solve failed, else empty.
     """
 
     profit_eur: float
@@ -206,11 +238,20 @@ def hindsight_bound(
     """Solve the LP over ``occ``'s sessions and the station batteries for the whole day of
     ``trace``. See the module docstring for what the value bounds.
 
-    With ``with_battery=False`` the batteries are left out (no battery sessions, no calendar
-    ageing): the bound of the same station and cars without its battery, so that the
-    difference of the two is what the battery is worth at best.
+    Args:
+        params: the environment parameters.
+        trace: one day's trace.
+        occ: the reference's occupancy of the same day (`occupancy`).
+        time_limit_s: HiGHS's time limit (seconds); None: none.
+        with_battery: False leaves the batteries out (no battery sessions, no calendar
+            ageing): the bound of the same station and cars without its battery, so that
+            the difference of the two is what the battery is worth at best.
+
+    Returns:
+        The day's `Bound`; ``profit_eur`` is the bound (EUR), fixed cost included.
 
     Raises:
+        ValueError: the trace was not made for ``params``, or ``occ`` is of another day.
         chargax_marl.optimal.model.SolverError: HiGHS finds no optimum (e.g. the time limit).
     """
     trace_lib.check_trace(trace, params)
@@ -255,15 +296,23 @@ def bound_days(
     with_battery: bool = True,
     day_keys: jax.Array | None = None,
 ) -> list[Bound]:
-    """`hindsight_bound` for each of ``days`` with the cars that evaluation draws with
-    ``key`` (default ``PRNGKey(0)``) and ``reference``'s occupancy (``with_battery``: see
-    `hindsight_bound`). ``day_keys`` (one key per day) replaces ``key``'s split, as in
-    `chargax_marl.evaluation.run_days_keyed`.
+    """`hindsight_bound` for each of ``days`` with the cars that evaluation draws.
 
     A day whose LP fails or hits ``time_limit_s`` does not stop the others: its
     `Bound` carries the solver's ``status`` and ``message`` and a NaN ``profit_eur``
     (never a number), so that every mean over days can leave it out
     (`chargax_marl.evaluation.summarize_profit`).
+
+    Args:
+        params: the environment parameters.
+        days: day indices of the price data.
+        key: the evaluation key, split into one key per day; None: ``PRNGKey(0)``.
+        reference: the policy whose occupancy is bounded, ``reference(state, key, params)
+            -> levels``; default always-max.
+        time_limit_s: HiGHS's time limit per day (seconds); None: none.
+        with_battery: as for `hindsight_bound`.
+        day_keys: one key per day, in place of ``key``'s split, as in
+            `chargax_marl.evaluation.run_days_keyed`.
 
     Returns:
         One `Bound` per day, in the order of ``days``.

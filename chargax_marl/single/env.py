@@ -36,6 +36,9 @@ class MultiDiscrete(spaces.Space):
 
     ``nvec`` is a concrete numpy array (also inside ``jit``), so ``int(space.nvec[i])`` and
     ``space.nvec.max()`` can size a network's output layer.
+
+    Args:
+        nvec: the number of choices of each entry, shape ``(n,)``; stored as int32.
     """
 
     def __init__(self, nvec):
@@ -83,11 +86,22 @@ def action_levels(action: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
 class Chargax(environment.Environment[EnvState, EnvParams]):
     """The EV charging station as a gymnax environment.
 
-    Construct with keyword overrides of `chargax_marl.core.params.make_params`, or
-    pass ready ``params`` (checked by `chargax_marl.core.params.validate_params`, so
-    params derived with ``replace`` get the same checks; ``ValueError`` naming the field). The defaults are the paper's: the 16-port ``multiple_types``
-    station, 5-minute steps over one day (288), 10 levels, V2G on, customer price
-    0.75 EUR/kWh, all alpha 0, shopping users at medium traffic, EU fleet, NL-2023 prices.
+    The defaults are the paper's: the 16-port ``multiple_types`` station, 5-minute steps over
+    one day (288), 10 levels, V2G on, customer price 0.75 EUR/kWh, all alpha 0, shopping
+    users at medium traffic, EU fleet, NL-2023 prices.
+
+    Args:
+        params: ready parameters, checked by `chargax_marl.core.params.validate_params` (so
+            params derived with ``replace`` get the same checks); None: built from
+            ``overrides``.
+        **overrides: keyword arguments of `chargax_marl.core.params.make_params` (its
+            ``Args:`` list them all).
+
+    Raises:
+        ValueError: both ``params`` and ``overrides`` given, or an invalid field (the message
+            names it).
+        KeyError: an unknown architecture, dataset or traffic level name (`make_params`).
+        TypeError: a keyword `make_params` does not take.
     """
 
     def __init__(self, params: EnvParams | None = None, **overrides: Any):

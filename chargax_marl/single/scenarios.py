@@ -18,7 +18,21 @@ __all__ = ["COORDINATION_SCENARIOS", "SCENARIOS", "make"]
 
 
 def make(name: str = "shopping", **overrides: Any) -> tuple[Chargax, EnvParams]:
-    """Return ``(env, params)`` for a named scenario (`SCENARIOS`), with keyword
-    overrides of `chargax_marl.core.params.make_params` applied on top."""
+    """The env and params of a named scenario.
+
+    Args:
+        name: a scenario of `SCENARIOS` (the user profiles at each traffic level and the
+            coordination scenarios of `chargax_marl.core.scenarios`).
+        **overrides: keyword arguments of `chargax_marl.core.params.make_params`, applied on
+            top of the scenario's own.
+
+    Returns:
+        ``(env, params)``: a `Chargax` and its ``default_params``.
+
+    Raises:
+        KeyError: an unknown scenario name (or dataset name in ``overrides``).
+        ValueError: an invalid override (the message names the field).
+        TypeError: a keyword `make_params` does not take.
+    """
     env = Chargax(**scenario_kwargs(name, **overrides))
     return env, env.default_params

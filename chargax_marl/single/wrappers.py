@@ -36,6 +36,10 @@ class LogWrapper:
     ``returned_episode`` (True on the step that ended an episode) and
     ``returned_episode_<total>`` for every field of `EpisodeTotals` (profit,
     energies, cars served and rejected, ...), each holding the last finished episode's value.
+
+    Args:
+        env: the single-agent env to wrap (a `Chargax` or a wrapper of one); every other
+            attribute is forwarded to it.
     """
 
     def __init__(self, env: Chargax):
@@ -109,6 +113,12 @@ class FlatDiscrete:
     ``num_actions`` is ``n``, as gymnax code expects::
 
         env = LogWrapper(FlatDiscrete(Chargax()))   # gymnax.wrappers.purerl.LogWrapper also works
+
+    Args:
+        env: the single-agent env to wrap, built with ``action_mode="absolute"``.
+
+    Raises:
+        ValueError: the env's ``action_mode`` is not ``"absolute"``.
     """
 
     def __init__(self, env: Chargax):
@@ -228,6 +238,22 @@ class GymnasiumEnv(gymnasium.Env):
       layout and static settings; the wrapper pickles.
     - In a process forked after JAX started, construction and every call raise
       `chargax_marl.lifecycle.ForkedProcessError` (use the ``spawn`` start method).
+
+    Args:
+        env: the single-agent env to adapt; None: a `Chargax` built from ``params`` or
+            ``overrides``.
+        params: the parameters to run with (checked by
+            `chargax_marl.core.params.validate_params`); None: the env's ``default_params``.
+        render_mode: ``"ansi"``, ``"human"``, ``"rgb_array"`` or None.
+        **overrides: keyword arguments of `chargax_marl.core.params.make_params`, when
+            ``env`` is None.
+
+    Raises:
+        ValueError: both ``env`` and ``overrides`` given, an unknown ``render_mode``, or
+            invalid params.
+        KeyError: an unknown architecture, dataset or traffic level name (`make_params`).
+        TypeError: a keyword `make_params` does not take.
+        chargax_marl.lifecycle.ForkedProcessError: the process was forked after JAX started.
     """
 
     metadata = {"render_modes": rendering.RENDER_MODES, "render_fps": 4}

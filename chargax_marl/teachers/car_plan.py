@@ -53,17 +53,35 @@ fractions compared as rules (``python -m baselines.analysis.plan_rule``) see ``b
 
 
 def price_order(params) -> tuple[np.ndarray, np.ndarray]:
-    """``(steps, prices)``, each ``(days, T)``: every day's steps sorted by buy price (cheapest
-    first, ties by time) and their prices (EUR/kWh)."""
+    """Every day's steps sorted by buy price (cheapest first, ties by time).
+
+    Args:
+        params: concrete `chargax_marl.core.types.EnvParams`.
+
+    Returns:
+        ``(steps, prices)``, each ``(days, T)``: the step indices (int32) in price order and
+        their buy prices (float32, EUR/kWh).
+    """
     prices = step_buy_prices(params)
     order = np.argsort(prices, axis=1, kind="stable").astype(np.int32)
     return order, np.take_along_axis(prices, order, axis=1).astype(np.float32)
 
 
 def plan_energy(sorted_steps, t, steps_left, need_kwh, step_kwh) -> jnp.ndarray:
-    """``(L, T)``: the kWh each car's plan charges at each of ``sorted_steps`` (one day's row of
-    `price_order`): ``step_kwh`` at the stay's cheapest steps (from step ``t``, ``steps_left``
-    of them) until ``need_kwh`` is met."""
+    """The kWh each car's plan charges at each step: ``step_kwh`` at the stay's cheapest steps
+    until ``need_kwh`` is met.
+
+    Args:
+        sorted_steps: ``(T,)`` one day's row of the steps of `price_order`.
+        t: the current step.
+        steps_left: ``(L,)`` the steps each car still charges (its stay is steps ``t`` to
+            ``t + steps_left - 1``).
+        need_kwh: ``(L,)`` each car's remaining demand (kWh).
+        step_kwh: ``(L,)`` what the plan charges per step (kWh).
+
+    Returns:
+        ``(L, T)`` kWh, column ``j`` for step ``sorted_steps[j]``.
+    """
     steps_left, need_kwh, step_kwh = (
         jnp.asarray(x, jnp.float32)[:, None] for x in (steps_left, need_kwh, step_kwh)
     )
@@ -75,11 +93,21 @@ def plan_energy(sorted_steps, t, steps_left, need_kwh, step_kwh) -> jnp.ndarray:
 def plan_value(
     sorted_steps, sorted_prices, t, steps_left, need_kwh, step_kwh, efficiency, customer_price
 ):
-    """``V`` (EUR) of the module docstring for each car ``(L,)``: ``sorted_steps`` /
-    ``sorted_prices`` ``(T,)`` one day's row of `price_order`, ``t`` the current step,
-    ``steps_left`` the steps the car still charges (``<= 0``: none), ``need_kwh`` its
-    remaining demand, ``step_kwh`` what the plan charges per step, ``efficiency`` its port's
-    path efficiency, ``customer_price`` what a delivered kWh sells for."""
+    """The plan value ``V`` of the module docstring for each car.
+
+    Args:
+        sorted_steps: ``(T,)`` one day's row of the steps of `price_order`.
+        sorted_prices: ``(T,)`` their buy prices (EUR/kWh).
+        t: the current step.
+        steps_left: ``(L,)`` the steps each car still charges (``<= 0``: none).
+        need_kwh: ``(L,)`` each car's remaining demand (kWh).
+        step_kwh: ``(L,)`` what the plan charges per step (kWh).
+        efficiency: ``(L,)`` each car's port's path efficiency.
+        customer_price: what a delivered kWh sells for (EUR/kWh).
+
+    Returns:
+        ``(L,)`` values ``V`` (EUR).
+    """
     energy = plan_energy(sorted_steps, t, steps_left, need_kwh, step_kwh)
     margin = jnp.maximum(
         customer_price - sorted_prices[None, :] / jnp.asarray(efficiency)[:, None], 0.0
@@ -120,11 +148,19 @@ def plan_constants(env_params):
 
 
 def car_values(env_params):
-    """``values(core, timestep, minutes_left, need_kwh) -> V (L,)`` for one (unbatched) core
-    state: each leaf's car valued at step ``timestep`` with ``minutes_left`` of its stay and
-    ``need_kwh`` still wanted (``(L,)`` each; 0 for batteries, empty ports and charge-sensitive
-    cars). ``values(core, core.timestep, core.time_remaining_min, core.energy_remaining_kwh)``
-    is the potential of ``core``."""
+    """The plan value ``V`` of each leaf's car, as a function of one core state.
+
+    Args:
+        env_params: concrete `chargax_marl.core.types.EnvParams`.
+
+    Returns:
+        ``values(core, timestep, minutes_left, need_kwh) -> V (L,)`` (EUR) for one
+        (unbatched) core state: each leaf's car valued at step ``timestep`` with
+        ``minutes_left`` of its stay and ``need_kwh`` still wanted (``(L,)`` each; 0 for
+        batteries, empty ports and charge-sensitive cars).
+        ``values(core, core.timestep, core.time_remaining_min, core.energy_remaining_kwh)``
+        is the potential of ``core``.
+    """
     order, sorted_prices, is_port, eff, leaf_max_kw, step_min, step_h, customer = plan_constants(
         env_params
     )
@@ -186,12 +222,21 @@ def car_potential(env_params):
 
 
 def plan_advice(env_params, power_fraction: float | None = PLAN_POWER_FRACTION):
-    """``advice(core) -> (L,)`` float32 for one (unbatched) core state: 1 where a port should
-    charge its car now by the plan (a time-sensitive car whose plan, `plan_energy` at
-    ``power_fraction`` of its top power, uses the current step at a positive margin; every
-    charge-sensitive car), 0 for idle, empty ports and batteries. ``power_fraction=None``:
-    1 for every occupied port (always-max). The plan advice observation feature and the
-    ports of `plan_action`."""
+    """Whether each port should charge its car now by the plan: the plan advice observation
+    feature and the ports of `plan_action`.
+
+    Args:
+        env_params: concrete `chargax_marl.core.types.EnvParams`.
+        power_fraction: the fraction of the car's top power (the lower of the port's and
+            the car's) the plan counts on per step; None: every occupied port charges
+            (always-max).
+
+    Returns:
+        ``advice(core) -> (L,)`` float32 for one (unbatched) core state: 1 where a port
+        should charge its car now (a time-sensitive car whose plan, `plan_energy` at
+        ``power_fraction`` of its top power, uses the current step at a positive margin;
+        every charge-sensitive car), 0 for idle, empty ports and batteries.
+    """
     order, sorted_prices, is_port, eff, leaf_max_kw, step_min, step_h, customer = plan_constants(
         env_params
     )
@@ -218,11 +263,27 @@ def plan_advice(env_params, power_fraction: float | None = PLAN_POWER_FRACTION):
 def plan_action(
     env_params, battery: str = "dp", power_fraction: float | None = PLAN_POWER_FRACTION
 ):
-    """``act(state, key, params) -> levels`` (the `chargax_marl.policies` signature): each
-    port charges its car at full power where `plan_advice` says so and idles otherwise;
-    the batteries follow the battery-only programme's best action (``battery="dp"``) or idle
-    (``"idle"``). A reference for what the port shaping's teacher earns, not a trained
-    policy. ``power_fraction=None``: the ports charge at full power always (always-max)."""
+    """The car plan played as a rule: a reference for what the port shaping's teacher earns,
+    not a trained policy.
+
+    Each port charges its car at full power where `plan_advice` says so and idles
+    otherwise.
+
+    Args:
+        env_params: concrete `chargax_marl.core.types.EnvParams`.
+        battery: ``"dp"``: the batteries follow the battery-only programme's best action
+            (`chargax_marl.teachers.storage_value.dp_battery_action`); ``"idle"`` (or any
+            other value): they idle.
+        power_fraction: as for `plan_advice`; None: the ports charge at full power always
+            (always-max).
+
+    Returns:
+        ``act(state, key, params) -> levels`` (the `chargax_marl.policies` signature):
+        ``(L,)`` int32 levels.
+
+    Raises:
+        ValueError: ``battery="dp"`` on a station without a battery.
+    """
     is_battery = jnp.asarray(np.asarray(env_params.station.leaf_kind) == KIND_BATTERY)
     advice = plan_advice(env_params, power_fraction)
     dp = dp_battery_action(env_params) if battery == "dp" else None

@@ -71,21 +71,42 @@ def battery_constants(params) -> tuple[float, float, float, float]:
 
 
 def battery_wear_eur_kwh(params) -> float:
-    """The wear cost per kWh into or out of the batteries' cells (EUR/kWh), their mean
-    (`chargax_marl.core.types.EnvParams.battery_wear_eur_kwh`); 0 without a battery."""
+    """The wear cost per kWh into or out of the batteries' cells.
+
+    Args:
+        params: concrete `chargax_marl.core.types.EnvParams`.
+
+    Returns:
+        The mean of ``params.battery_wear_eur_kwh`` over the batteries (EUR/kWh), a Python
+        float; 0 without a battery.
+    """
     wear = np.asarray(params.battery_wear_eur_kwh, np.float64)
     return float(np.mean(wear)) if wear.size else 0.0
 
 
 def step_buy_prices(params) -> np.ndarray:
-    """``(days, steps)`` float64 buy price (EUR/kWh) of every step, as the env prices it
-    (`chargax_marl.core.reward.price_tables`: day-ahead + grid fee + time-of-use)."""
+    """The buy price of every step, as the env prices it.
+
+    Args:
+        params: concrete `chargax_marl.core.types.EnvParams`.
+
+    Returns:
+        ``(days, steps)`` float64 buy prices (EUR/kWh): day-ahead + grid fee + time-of-use
+        (`chargax_marl.core.reward.price_tables`).
+    """
     return np.asarray(price_tables(params)[0], np.float64)
 
 
 def terminal_prices(params) -> np.ndarray:
-    """``(days,)`` the env's terminal price of every day (EUR/kWh): what a stored kWh is credited
-    at the day's end (`chargax_marl.core.reward.battery_terminal_value_eur`)."""
+    """The env's terminal price of every day: what a stored kWh is credited at the day's end.
+
+    Args:
+        params: concrete `chargax_marl.core.types.EnvParams`.
+
+    Returns:
+        ``(days,)`` float64 prices (EUR/kWh) of
+        `chargax_marl.core.reward.battery_terminal_value_eur`.
+    """
     days = jnp.arange(np.asarray(params.prices_eur_kwh).shape[0], dtype=jnp.int32)
     return np.asarray(
         jax.vmap(lambda d: battery_terminal_value_eur(jnp.float32(1.0), d, params))(days),
@@ -136,9 +157,21 @@ def day_values(
 
 
 def storage_values(params) -> np.ndarray:
-    """``(days, steps + 1)`` float32 value of a stored kWh at the start of every step of every
-    day of ``params`` (last column: the env's terminal price, the day's mean buy price, or the
-    fixed battery price of ``make_params(battery_terminal_price=...)``)."""
+    """The value of a stored kWh at the start of every step of every day: the duals of the
+    battery-only LP of `day_values`, one LP per day.
+
+    Args:
+        params: concrete `chargax_marl.core.types.EnvParams` of a station with a battery.
+
+    Returns:
+        ``(days, steps + 1)`` float32 values (EUR/kWh); the last column is the env's terminal
+        price (the day's mean buy price, or the fixed battery price of
+        ``make_params(battery_terminal_price=...)``).
+
+    Raises:
+        ValueError: the station has no battery.
+        RuntimeError: an LP fails to solve.
+    """
     eta, power_kw, capacity_kwh, e0 = battery_constants(params)
     prices = step_buy_prices(params)
     terminal = terminal_prices(params)
@@ -159,11 +192,8 @@ def storage_values(params) -> np.ndarray:
 
 
 def dp_values(params, points_per_step: int = 4) -> tuple[np.ndarray, np.ndarray]:
-    """``(grid (K,), value (days, steps + 1, K))``: the most a battery holding ``grid[k]`` kWh
-    at the start of step ``t`` of ``day`` can still earn that day, ``value[day, t, k]`` (EUR),
-    by backward induction over the battery's three full-power actions (discharge, idle,
-    charge) on the day's buy prices; ``value[day, steps]`` is the env's terminal booking,
-    the day's terminal price times the energy held.
+    """The value function of the battery-only problem over the battery's three full-power
+    actions (discharge, idle, charge) on the day's buy prices, by backward induction.
 
     The same battery-only model as `day_values` (the batteries as one store of their
     summed capacity and power, energy priced at the buy price both ways, the path efficiency
@@ -177,6 +207,21 @@ def dp_values(params, points_per_step: int = 4) -> tuple[np.ndarray, np.ndarray]
     one-step learner then sees each action's loss against the best action of the battery-only
     problem, instead of a comparison with one value per kWh that is zero wherever the LP is
     indifferent. The learner's policy still sees only its observation, not this table.
+
+    Args:
+        params: concrete `chargax_marl.core.types.EnvParams` of a station with a battery.
+        points_per_step: grid points per step's full-power energy (an integer >= 1).
+
+    Returns:
+        ``(grid, value)``, float32: ``grid (K,)`` the stored energies (kWh, from 0 to the
+        capacity) and ``value (days, steps + 1, K)``, the most a battery holding ``grid[k]``
+        kWh at the start of step ``t`` of ``day`` can still earn that day,
+        ``value[day, t, k]`` (EUR); ``value[day, steps]`` is the env's terminal booking, the
+        day's terminal price times the energy held.
+
+    Raises:
+        ValueError: the station has no battery, or ``points_per_step`` is not an integer
+            >= 1.
     """
     eta, power_kw, capacity_kwh, _ = battery_constants(params)
     grid, value = level_values(
@@ -200,11 +245,29 @@ def level_values(
     points_per_step: int = 4,
     wear_eur_kwh: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``(grid (K,), value (days, steps + 1, K))`` of `dp_values` for buy prices ``(days,
-    steps)`` and terminal prices ``(days,)``: per step, the best of discharging ``step_kwh``
-    (earns ``eta * p - w`` per kWh taken out), idling and charging ``step_kwh`` (costs ``p /
-    eta + w`` per kWh stored), each cut at the empty and the full battery; ``w`` is
-    ``wear_eur_kwh`` (0: free cycling)."""
+    """The tables of `dp_values` for given prices: per step, the best of discharging
+    ``step_kwh`` (earns ``eta * p - w`` per kWh taken out), idling and charging ``step_kwh``
+    (costs ``p / eta + w`` per kWh stored), each cut at the empty and the full battery.
+
+    Args:
+        prices: buy prices (EUR/kWh), ``(days, steps)`` (or ``(steps,)`` for one day).
+        terminal_price: the price a kWh held at the day's end is credited at (EUR/kWh), a
+            scalar or ``(days,)``.
+        eta: the battery's efficiency each way, in (0, 1].
+        step_kwh: the energy a full-power action moves in one step (kWh, > 0).
+        capacity_kwh: the battery's capacity (kWh, > 0).
+        points_per_step: grid points per ``step_kwh`` (an integer >= 1).
+        wear_eur_kwh: ``w``, the wear per kWh into or out of the cells (EUR/kWh; 0: free
+            cycling).
+
+    Returns:
+        ``(grid, value)``, float64: ``grid (K,)`` the stored energies (kWh) and
+        ``value (days, steps + 1, K)`` (EUR), as in `dp_values`.
+
+    Raises:
+        ValueError: ``points_per_step`` not an integer >= 1, or ``step_kwh``,
+            ``capacity_kwh`` or ``eta`` out of range.
+    """
     if (
         isinstance(points_per_step, bool)
         or int(points_per_step) != points_per_step
@@ -250,11 +313,26 @@ def action_values(
     capacity_kwh: float,
     wear_eur_kwh: float = 0.0,
 ):
-    """``(discharge, idle, charge)``: what each full-power action earns this step at ``price``
-    from a stored ``energy`` plus ``value_after(energy after)``, the value of the level it
-    leaves (``xp``: ``numpy`` or ``jax.numpy``). Discharging earns ``eta * p - w`` per kWh
-    taken out, charging costs ``p / eta + w`` per kWh stored (``w = wear_eur_kwh``), each cut
-    at the empty and the full battery."""
+    """What each full-power action earns this step plus the value of the level it leaves.
+
+    Discharging earns ``eta * p - w`` per kWh taken out, charging costs ``p / eta + w`` per
+    kWh stored, each cut at the empty and the full battery.
+
+    Args:
+        xp: the array module, ``numpy`` or ``jax.numpy``.
+        value_after: ``value_after(energy after) -> value`` (EUR) of the level an action
+            leaves.
+        energy: the stored energy (kWh), any shape broadcasting with ``price``.
+        price: the step's buy price ``p`` (EUR/kWh).
+        eta: the battery's efficiency each way.
+        step_kwh: the energy a full-power action moves in one step (kWh).
+        capacity_kwh: the battery's capacity (kWh).
+        wear_eur_kwh: ``w``, the wear per kWh into or out of the cells (EUR/kWh).
+
+    Returns:
+        ``(discharge, idle, charge)``: the three actions' values (EUR), each of the
+        broadcast shape of ``energy`` and ``price``.
+    """
     full = xp.minimum(energy + step_kwh, capacity_kwh)
     empty = xp.maximum(energy - step_kwh, 0.0)
     return (
@@ -265,8 +343,16 @@ def action_values(
 
 
 def level_value(rows, energy, step_kwh: float):
-    """``rows (..., K)`` of values on the uniform grid ``0, step_kwh, ...`` (`dp_values`),
-    read at ``energy (...)`` linearly between grid points (jax)."""
+    """Values on the uniform grid of `dp_values`, read linearly between grid points (jax).
+
+    Args:
+        rows: values on the grid ``0, step_kwh, 2 step_kwh, ...``, shape ``(..., K)``.
+        energy: the stored energies to read at (kWh), shape ``(...)``; clipped to the grid.
+        step_kwh: the grid spacing (kWh).
+
+    Returns:
+        The interpolated values, shape ``(...)``.
+    """
     x = jnp.clip(energy / step_kwh, 0.0, rows.shape[-1] - 1.0)
     i = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, rows.shape[-1] - 2)
     lo = jnp.take_along_axis(rows, i[..., None], axis=-1)[..., 0]
