@@ -9,8 +9,9 @@ Rows: the shipped references of every task (`chargax_marl.benchmark.references`)
 row per name found in the score files of ``--scores`` (written by ``python -m
 baselines.score``: a trained agent on a task). A cell is the score (the fraction of the
 hindsight headroom captured) ± its standard error over days, and the EUR/day over
-always-max; a reference with days left out (an MPC day with a failed solve) says on how many
-days its cell rests. ``--time`` measures how long `chargax_marl.benchmark.score` takes for a
+always-max. The "days × draws" row says how many held-out days a column rests on (a day
+whose LP bound solve failed has no headroom and is left out); a reference with days of its
+own left out (an MPC day with a failed solve) says on how many its cell rests. ``--time`` measures how long `chargax_marl.benchmark.score` takes for a
 jitted policy (always-max, compile included) on each task and writes it to the given file;
 with an existing file, the table shows it.
 """
@@ -48,13 +49,21 @@ REFERENCE_LABELS = {
 """Row labels of the references, in the table's order."""
 
 
-def _cell(result: dict, num_days: int) -> str:
-    """``score ± s.e. (EUR/day over always-max)``; where days were left out (a reference's
-    failed solves), the number of days the cell rests on."""
+def _cell(result: dict, task_days: int) -> str:
+    """``score ± s.e. (EUR/day over always-max)``; where the policy itself has days without
+    a profit (an MPC reference's failed solves), the number of the task's scored days
+    (``task_days``) the cell rests on."""
     over = result["over_always_max_eur"]["mean"]
-    days = result.get("days_scored", num_days)
-    rests = "" if days == num_days else f"; {days} of {num_days} days"
+    days = result.get("days_scored", task_days)
+    rests = "" if days == task_days else f"; {days} of {task_days} days"
     return f"{result['score']:.2f} ± {result['score_stderr']:.2f} ({over:+.1f}{rests})"
+
+
+def _scored_days(task_id: str, references_dir=None) -> int:
+    """The held-out days a task's scores rest on: those with an LP bound (a day whose bound
+    solve failed has no headroom and is left out of every score)."""
+    refs = load_references(task_id, references_dir)
+    return compare(task_id, refs["policies"][BOUND]["daily_profit"], references_dir)["days_scored"]
 
 
 def read_scores(directory: str | Path) -> list[dict]:
@@ -99,17 +108,18 @@ def render(
     rows: dict[str, dict[str, str]] = {}
     for name, label in REFERENCE_LABELS.items():
         rows[label] = {}
+    scored = {t: _scored_days(t, references_dir) for t in tasks}
     for task_id in tasks:
         refs = load_references(task_id, references_dir)
         for name, label in REFERENCE_LABELS.items():
             if name in refs["policies"]:
                 rows[label][task_id] = _cell(
                     compare(task_id, refs["policies"][name]["daily_profit"], references_dir),
-                    TASKS[task_id].num_eval_days,
+                    scored[task_id],
                 )
     for data in read_scores(scores_dir) if scores_dir else []:
         label = f"{data['name']} ({data['seeds']} seeds)"
-        rows.setdefault(label, {})[data["task"]] = _cell(data, TASKS[data["task"]].num_eval_days)
+        rows.setdefault(label, {})[data["task"]] = _cell(data, scored[data["task"]])
     short = [t.removeprefix("Chargax-") for t in tasks]
     lines = [
         "| policy | " + " | ".join(f"`{s}`" for s in short) + " |",
@@ -117,10 +127,13 @@ def render(
     ]
     for label, cells in rows.items():
         lines.append(f"| {label} | " + " | ".join(cells.get(t, "–") for t in tasks) + " |")
+
+    def days(t):  # the days a column's scores rest on, of the task's held-out days
+        n = TASKS[t].num_eval_days
+        return f"{scored[t]} of {n}" if scored[t] < n else f"{n}"
+
     lines.append(
-        "| days × draws | "
-        + " | ".join(f"{TASKS[t].num_eval_days} × {TASKS[t].draws}" for t in tasks)
-        + " |"
+        "| days × draws | " + " | ".join(f"{days(t)} × {TASKS[t].draws}" for t in tasks) + " |"
     )
     if timings:
         measured = json.loads(Path(timings).read_text())
