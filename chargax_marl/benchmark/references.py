@@ -215,27 +215,35 @@ def compute_mpc(task: str | Task, num_levels: int | None = None, *, day_index=No
     }
 
 
-def add_mpc(task: str | Task, directory: str | Path | None = None, log=print) -> Path:
-    """Add `MPC_REFERENCES` to a task's stored references and write them back.
+def add_mpc(task: str | Task, directory: str | Path | None = None, log=print, names=None) -> Path:
+    """Add `MPC_REFERENCES` (or those of them named in ``names``) to a task's stored
+    references and write them back; the others stay as stored.
 
     Args:
         task: a task id or `Task`.
         directory: where the files live (default: the shipped `REFERENCES_DIR`).
         log: called with a line of progress (``None``: silent).
+        names: the `MPC_REFERENCES` to compute (default: all; one name a process lets
+            the two action spaces run in parallel on two cores).
 
     Returns:
         The path written.
 
     Raises:
         ReferenceMismatchError: no stored file for the task, or one of other parameters.
+        ValueError: a name that is not one of `MPC_REFERENCES`.
     """
+    names = list(MPC_REFERENCES) if names is None else list(names)
+    unknown = [n for n in names if n not in MPC_REFERENCES]
+    if unknown:
+        raise ValueError(f"field 'names' must name {list(MPC_REFERENCES)}, got {unknown}")
     task = get_task(task)
     log = log or (lambda _line: None)
     load_references(task, directory)  # checks the file belongs to the task on this code
     refs = json.loads(reference_path(task, directory).read_text())
-    for name, num_levels in MPC_REFERENCES.items():
+    for name in names:
         t0 = time.perf_counter()
-        refs["policies"][name] = compute_mpc(task, num_levels)
+        refs["policies"][name] = compute_mpc(task, MPC_REFERENCES[name])
         refs["wall_s"][name] = round(time.perf_counter() - t0, 2)
         mean = refs["policies"][name]["metrics"]["daily_profit_eur"]
         log(f"{task.id} {name}: {mean:.2f} EUR/day in {refs['wall_s'][name]:.0f} s")
@@ -373,11 +381,20 @@ def main(argv=None) -> None:
         action="store_true",
         help="add the MPC references to the stored files (an LP per step; nothing else moves)",
     )
+    parser.add_argument(
+        "--mpc-only",
+        choices=list(MPC_REFERENCES),
+        default=None,
+        help="with --mpc: only this one (run one process per action space to use two cores; "
+        "they write the same file, so run them on copies of --out and merge, or one after the "
+        "other)",
+    )
     args = parser.parse_args(argv)
     for task_id in args.task or list(TASKS):
         t0 = time.perf_counter()
         if args.mpc:
-            path = add_mpc(task_id, args.out)
+            only = None if args.mpc_only is None else [args.mpc_only]
+            path = add_mpc(task_id, args.out, names=only)
             print(f"{path}: {time.perf_counter() - t0:.0f} s")
             continue
         if args.keep_bound:

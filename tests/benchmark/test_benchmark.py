@@ -220,6 +220,8 @@ def test_mpc_references_are_added_and_compared_on_the_days_they_have(small_task,
     assert result["days_scored"] == 1
     assert result["score"] == pytest.approx((mpc[0].mean() - zero[0]) / result["headroom_eur"])
     assert result["vs"]["mpc"]["mean"] == 0.0
+    with pytest.raises(ValueError, match="field 'names' must name"):
+        add_mpc(task, work, log=None, names=["mpc_levels2"])
 
 
 def test_an_mpc_day_with_a_failed_solve_is_stored_without_a_profit(small_task, monkeypatch):
