@@ -6,7 +6,8 @@ path (``step_arrays``: observations ``(num_agents, obs_dim)`` per env, no per-ag
 the rows are *batchified* into ``(num_agents * num_envs, obs_dim)`` (agent-major, as
 JaxMARL's ``batchify``), actions are sampled from the logits masked by
 ``get_avail_actions`` (invalid logits set to -1e9) and handed back as ``(num_envs,
-num_agents)`` indices. All agents receive the shared station reward, or with ``LOCAL_REWARD_WEIGHT`` ``w > 0`` the
+num_agents)`` indices. All agents receive the shared station reward, or with
+``LOCAL_REWARD_WEIGHT`` ``w > 0`` the
 mix ``(1 - w) * r + w * share_i`` with their own share of it (see
 `chargax_marl.marl.ChargaxMARL`; evaluation always scores the station's profit).
 Episodes are logged by `chargax_marl.marl.wrappers.LogWrapper`.

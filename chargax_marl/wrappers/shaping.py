@@ -66,20 +66,24 @@ class BatteryShaping(TeacherWrapper):
     def step_arrays(self, key, state, indices, reset_state=None):
         """The JaxMARL view's ``step_arrays`` with each agent's shaping term added (the values
         of `step`, stacked).
+
         Arguments and returns as `chargax_marl.marl.ChargaxMARL.step_arrays`, with this
         wrapper's state.
         """
-        shift = self._potential(state)  # before the (auto-resetting) step
-        obs, state, rewards, done, info = self._env.step_arrays(key, state, indices, reset_state)
-        n = rewards.shape[0]
-        per_agent = {
-            "agent_energy_kwh": info["agent_energy_kwh"],
-            "battery_terminal_value_eur": jnp.broadcast_to(
-                info["battery_terminal_value_eur"], (n,)
-            ),
-        }
-        terms = agent_potential_shaping(shift, per_agent, self.is_battery, self.local_reward_weight)
-        return obs, state, rewards + terms, done, {**info, "battery_shaping_eur": terms}
+
+        def terms(shift, info):
+            n = info["agent_energy_kwh"].shape[-1]
+            per_agent = {
+                "agent_energy_kwh": info["agent_energy_kwh"],
+                "battery_terminal_value_eur": jnp.broadcast_to(
+                    info["battery_terminal_value_eur"], (n,)
+                ),
+            }
+            return agent_potential_shaping(
+                shift, per_agent, self.is_battery, self.local_reward_weight
+            )
+
+        return _shaped_arrays(self, key, state, indices, reset_state, terms, "battery_shaping_eur")
 
 
 class CarPlanShaping(TeacherWrapper):
@@ -118,10 +122,22 @@ class CarPlanShaping(TeacherWrapper):
     def step_arrays(self, key, state, indices, reset_state=None):
         """The JaxMARL view's ``step_arrays`` with each agent's plan shaping added (the values
         of `step`, stacked).
+
         Arguments and returns as `chargax_marl.marl.ChargaxMARL.step_arrays`, with this
         wrapper's state.
         """
-        shift = self._potential(state)  # before the (auto-resetting) step
-        obs, state, rewards, done, info = self._env.step_arrays(key, state, indices, reset_state)
-        terms = mix_own_terms(shift(info["agent_energy_kwh"]), self.local_reward_weight)
-        return obs, state, rewards + terms, done, {**info, "car_plan_shaping_eur": terms}
+
+        def terms(shift, info):
+            return mix_own_terms(shift(info["agent_energy_kwh"]), self.local_reward_weight)
+
+        return _shaped_arrays(self, key, state, indices, reset_state, terms, "car_plan_shaping_eur")
+
+
+def _shaped_arrays(wrapper, key, state, indices, reset_state, terms_of, info_key: str):
+    """A potential-shaping wrapper's array step: the potential of ``state`` (before the
+    auto-resetting step), the wrapped ``step_arrays``, and ``terms_of(shift, info)`` added to
+    the agents' rewards and stored as ``info[info_key]``."""
+    shift = wrapper._potential(state)
+    obs, state, rewards, done, info = wrapper._env.step_arrays(key, state, indices, reset_state)
+    terms = terms_of(shift, info)
+    return obs, state, rewards + terms, done, {**info, info_key: terms}
