@@ -79,8 +79,12 @@ class ObservationFeatures(TeacherWrapper):
         wrapper's state.
         """
         obs, state, *rest = self._env.step_arrays(key, state, indices, reset_state)
-        rows = dict(zip(self._env.agents, obs))
-        return (jnp.concatenate([obs, self.features(rows, state)], axis=-1), state, *rest)
+        return (jnp.concatenate([obs, self.matrix_features(obs, state)], axis=-1), state, *rest)
+
+    def matrix_features(self, obs, state):
+        """`features` of the observation matrix ``obs (agents, obs_size)`` (JaxMARL view);
+        subclasses that read ``obs`` may compute it on the matrix at once."""
+        return self.features(dict(zip(self._env.agents, obs)), state)
 
     def get_obs(self, state, *args, **kwargs):
         """The wrapped env's observation of ``state`` with the columns appended."""
@@ -135,3 +139,8 @@ class RelativePriceObservation(ObservationFeatures):
         if not self.is_marl:
             return relative_prices(obs, *self.columns)
         return jnp.stack([relative_prices(obs[a], *self.columns) for a in self._env.agents])
+
+    def matrix_features(self, obs, state):
+        """`features` on the matrix ``obs (agents, obs_size)`` at once, without a slice per
+        agent."""
+        return relative_prices(obs, *self.columns)
