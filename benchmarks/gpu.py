@@ -12,7 +12,7 @@ what it finished.
 
     python benchmarks/gpu.py --out gpu.jsonl                      # the full sweep
     python benchmarks/gpu.py --exponents 4 6 --train-envs 16      # a quick check on a CPU
-    python benchmarks/gpu.py --table benchmarks/results/gpu_h100.jsonl   # the docs' tables
+    python benchmarks/gpu.py --table benchmarks/results/gpu_h200.jsonl   # the docs' tables
 """
 
 from __future__ import annotations

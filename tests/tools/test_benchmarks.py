@@ -277,7 +277,7 @@ def test_gpu_sweep_writes_a_row_per_measurement_and_stops_at_its_budget(tmp_path
 
 def test_the_gpu_tables_of_the_docs_are_those_of_the_result_file():
     gpu = load("gpu")
-    path = BENCH / "results" / "gpu_h100.jsonl"
+    path = BENCH / "results" / "gpu_h200.jsonl"
     table = gpu.tables([json.loads(line) for line in path.read_text().splitlines()])
     assert table in (ROOT / "docs" / "performance.md").read_text()
     assert "| 2^20 |" in table and "| IPPO | 1024 | 2 x 256 |" in table
