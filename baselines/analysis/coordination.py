@@ -1,7 +1,7 @@
 """The README's table of the coordination scenarios: always-max, the battery price rule and the
 LP hindsight bound (over always-max's occupancy) on the 100 held-out days, key 0, same cars.
 
-Run: ``python -m baselines.analysis.coordination`` (about 2 min on 2 cores); writes
+Run: ``python -m baselines.analysis.coordination``; writes
 ``results/coordination/table.json`` and prints the Markdown rows.
 """
 

@@ -5,9 +5,8 @@
 ``baselines.train`` scores every policy on the 100 held-out days with one key (``PRNGKey(0)``,
 unless ``--eval-draws`` says more), so every policy meets the same cars. On a station that turns cars away the day-to-day
 spread of a paired difference is large (a battery step can change which car gets a freed
-port, worth tens of EUR that day; ``baselines/README.md``, the noise floor of
-``shopping-grid25-high``), and a seed's mean difference to a rule has a standard error of
-about 3 EUR/day there, larger than the differences in question.
+port), so with one car draw a seed's mean difference to a rule can have a standard error
+larger than the differences in question. More draws per day average that spread out.
 
 This tool replays the run's trained seeds and the rules (always-max, the battery rule and,
 on a station with a battery, the teachers' rules and the node-aware programme,
@@ -260,15 +259,15 @@ def main(argv=None) -> dict:
         "--bound",
         choices=("on", "off"),
         default="on",
-        help="the LP hindsight bound of every draw and the headroom fractions (about 18 s per draw "
-        "of 100 days on shopping-grid25-high)",
+        help="the LP hindsight bound of every draw and the headroom fractions (one LP per day "
+        "and draw)",
     )
     p.add_argument(
         "--mpc-draws",
         type=int,
         default=0,
-        help="run the MPC of make optimal on the first N draws too (about 5 min per draw of 100 days "
-        "at full power on 2 cores; draw 0 comes from --references when stored there)",
+        help="run the MPC of make optimal on the first N draws too (an LP per step, the slowest "
+        "part; draw 0 comes from --references when stored there)",
     )
     p.add_argument(
         "--references", default=None, help="a directory `make optimal` wrote (e.g. results/optimal)"

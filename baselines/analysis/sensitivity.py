@@ -12,7 +12,7 @@ idling for one step. Where nothing cascades, the difference is a few cents; wher
 reorder, a day moves by tens of euros. The spread over days sets how large a policy's gain
 must be before 100 held-out days can resolve it (``baselines/README.md``).
 
-Run: ``python -m baselines.analysis.sensitivity`` (about 1 min on 2 cores); writes
+Run: ``python -m baselines.analysis.sensitivity``; writes
 ``results/sensitivity.json`` and prints the Markdown table.
 """
 
