@@ -33,7 +33,7 @@ test: $(STAMP) $(DOCS_STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 	$(PY) -m pytest -n 2 -q --durations=20
-	JAX_ENABLE_X64=1 $(PY) -m pytest -n 2 -q $(X64_TESTS) -k "not under_x64"
+	JAX_ENABLE_X64=1 $(PY) -m pytest -n 2 -q $(X64_TESTS)
 	$(MAKE) docs
 
 # The client examples with heavy dependencies (stable-baselines3, supersuit, tianshou, torch:
