@@ -109,6 +109,26 @@ def _base_package(rev: str) -> str:
     return "chargax_ab_base"
 
 
+def _base_checkout(rev: str) -> str:
+    """Extract the trainers and the package at git revision ``rev`` into a temporary folder (the
+    ``--base DIR`` of ``train_speed.py`` and ``optimal_speed.py``); returns its path."""
+    import tarfile
+    import tempfile
+    from io import BytesIO
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    blob = subprocess.run(
+        ["git", "-C", str(root), "archive", rev, "chargax_marl", "baselines"],
+        check=True,
+        capture_output=True,
+    ).stdout
+    tmp = tempfile.mkdtemp(prefix="chargax_ab_checkout_")
+    with tarfile.open(fileobj=BytesIO(blob)) as tar:
+        tar.extractall(tmp)
+    return tmp
+
+
 def _views(package: str, scenario: str, agent_id: str):
     import importlib
 
@@ -150,7 +170,8 @@ def main(argv=None) -> list[dict]:
     parser.add_argument(
         "--base",
         default=None,
-        help="also time the env of this git revision, interleaved in the same run (A/B)",
+        help="also time this git revision, interleaved in the same run (A/B): its env here, and "
+        "with --train / --optimal its trainers and MPC (those scripts' --base)",
     )
     parser.add_argument(
         "--train",
@@ -258,15 +279,18 @@ def main(argv=None) -> list[dict]:
 
     here = os.path.dirname(os.path.abspath(__file__))
     env = {**os.environ, "XLA_FLAGS": without_host_devices(os.environ.get("XLA_FLAGS", ""))}
+    base = (
+        ["--base", _base_checkout(args.base)] if args.base and (args.train or args.optimal) else []
+    )
     if args.train:
         subprocess.run(
-            [sys.executable, os.path.join(here, "train_speed.py"), "--set", *args.train_set],
+            [sys.executable, os.path.join(here, "train_speed.py"), "--set", *args.train_set, *base],
             check=True,
             env=env,
         )
     if args.optimal:
         subprocess.run(
-            [sys.executable, os.path.join(here, "optimal_speed.py"), "--days", "1"],
+            [sys.executable, os.path.join(here, "optimal_speed.py"), "--days", "1", *base],
             check=True,
             env=env,
         )

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import subprocess
 import sys
 from pathlib import Path
 
@@ -281,3 +282,13 @@ def test_the_gpu_tables_of_the_docs_are_those_of_the_result_file():
     table = gpu.tables([json.loads(line) for line in path.read_text().splitlines()])
     assert table in (ROOT / "docs" / "performance.md").read_text()
     assert "| 2^20 |" in table and "| IPPO | 1024 | 2 x 256 |" in table
+
+
+def test_throughput_extracts_a_base_revision_for_the_training_and_mpc_a_b():
+    throughput = load("throughput")
+    base = Path(throughput._base_checkout("HEAD"))
+    for path in ("baselines/algos/ippo.py", "chargax_marl/optimal/mpc.py"):
+        committed = subprocess.run(
+            ["git", "-C", str(ROOT), "show", f"HEAD:{path}"], capture_output=True, text=True
+        ).stdout
+        assert (base / path).read_text() == committed
