@@ -89,3 +89,9 @@ def test_the_figures_copied_into_docs_are_the_current_ones():
                 assert figure.read_bytes() == source.read_bytes(), (
                     f"docs/{figure.name} differs from {source.relative_to(ROOT)}: copy it again"
                 )
+
+
+def test_the_changelog_page_includes_the_top_level_changelog():
+    # pymdownx.snippets reads it from the repository root (mkdocs.yml: base_path, check_paths)
+    assert (DOCS / "changelog.md").read_text().strip() == '--8<-- "CHANGELOG.md"'
+    assert (ROOT / "CHANGELOG.md").is_file()
