@@ -10,7 +10,7 @@ This module measures that directly. Always-max is compared, day by day, with alw
 one small change at one step: the battery charging at full power for one step, or one port
 idling for one step. Where nothing cascades, the difference is a few cents; where admissions
 reorder, a day moves by tens of euros. The spread over days sets how large a policy's gain
-must be before 100 held-out days can resolve it (``baselines/README.md``).
+must be before 100 held-out days can resolve it (the docs' design decisions).
 
 Run: ``python -m baselines.analysis.sensitivity``; writes
 ``results/sensitivity.json`` and prints the Markdown table.

@@ -45,7 +45,7 @@ GRID_PROGRAMME = "grid_programme"
 battery-only programme, except that they do not charge while the ports' full-power draw
 alone (grid side) exceeds the limit of a node above a battery. There the programme's charge
 would be rescaled with the ports', taking the scarce connection from the cars
-(see ``baselines/README.md`` for what this one change is worth on ``shopping-grid25-high``).
+(the docs' design decisions say what this one change is worth on ``shopping-grid25-high``).
 Not a teacher of any trainer; ``baselines.redraw`` scores it beside the teachers' rules."""
 
 

@@ -13,8 +13,8 @@ end, and turns the first step's powers into levels.
 works inside ``jit``, ``scan`` and ``vmap`` (the calls are made one state at a time) and
 therefore in `chargax_marl.evaluation.evaluate` and in both views
 (`chargax_marl.policies.for_single`, `chargax_marl.policies.for_marl`). It is
-slow next to the jitted policies: one HiGHS solve per step and state (see
-``baselines/README.md`` for measured times), each started from the optimal basis of the same
+slow next to the jitted policies: one HiGHS solve per step and state (its measured cost is
+in the docs' optimal-control and performance pages), each started from the optimal basis of the same
 day's previous solve (``warm_start``).
 """
 

@@ -23,7 +23,7 @@ plan step scores the price difference to the step that must replace it.
 
 Charge-sensitive cars (they leave when charged) have no potential: a port that delays one
 keeps the cars behind it out (a rule that timed them like the others lost against
-always-max; see ``baselines/README.md``).
+always-max; see the docs' design decisions).
 
 It is a learning signal only; the evaluation scores the env's profit.
 
@@ -49,7 +49,8 @@ PLAN_POWER_FRACTION = 0.5
 """The plan counts on this fraction of a car's top power per step (the lower of the port's and
 the car's): the taper near full, a port sharing its EVSE and the station's limits cut what a
 car takes, and a plan that counts on more tells a port it can wait when it cannot. For the
-fractions compared as rules (``python -m baselines.analysis.plan_rule``) see ``baselines/README.md``."""
+fractions compared as rules see ``python -m baselines.analysis.plan_rule`` and the docs' design
+decisions."""
 
 
 def price_order(params) -> tuple[np.ndarray, np.ndarray]:

@@ -217,7 +217,7 @@ def test_replot_adds_the_stored_mpc_for_exactly_the_runs_params(ippo_run, tmp_pa
 
 
 def test_eval_draws_score_every_policy_on_the_mean_over_car_draws_of_each_day(tmp_path):
-    """``--eval-draws 2``: the rules, the bound and the agent are scored under PRNGKey(0) and
+    """``EVAL_DRAWS=2``: the rules, the bound and the agent are scored under PRNGKey(0) and
     PRNGKey(1), each day's profit the mean of the two; the run says so, ``baselines.analysis.redraw``
     replays it only with at least its draws, and the one-draw stored MPC is refused."""
     from baselines import pipeline
