@@ -1,4 +1,5 @@
-"""The README's Python blocks run as a reader would paste them: in order, in one namespace.
+"""The Python blocks of the README and of the getting-started page run as a reader would paste
+them: in order, in one namespace.
 
 A block whose first line is ``# needs: a, b`` imports optional packages (the ``clients`` extra:
 torch-based clients); it runs under ``make examples`` (``CHARGAX_CLIENT_EXAMPLES=1``) where
@@ -54,22 +55,37 @@ def test_the_block_reader_finds_blocks_and_their_needs():
         python_blocks("a\n```python\nx = 1\n")
 
 
-def test_every_python_block_of_the_readme_runs():
-    blocks = python_blocks(README.read_text())
-    assert len(blocks) >= 5  # the quick starts, the clients and the benchmark
-    namespace: dict = {"__name__": "readme"}
+def run_blocks(path: Path) -> dict:
+    """Run every python block of a Markdown page in order in one namespace, as a reader pastes
+    them (a ``# needs:`` block only under ``make examples``); returns the namespace."""
+    namespace: dict = {"__name__": path.stem}
     ran, skipped = [], []
-    for line, code in blocks:
+    for line, code in python_blocks(path.read_text()):
         missing = [m for m in needs(code) if importlib.util.find_spec(m) is None]
         if needs(code) and (not CLIENT_EXAMPLES or missing):
             skipped.append((line, missing or "run by `make examples`"))
             continue
         try:
-            exec(compile(code, f"README.md:{line}", "exec"), namespace)
+            exec(compile(code, f"{path.name}:{line}", "exec"), namespace)
         except Exception as exc:
-            raise AssertionError(f"the README's block on line {line} fails: {exc!r}") from exc
+            raise AssertionError(f"{path.name}'s block on line {line} fails: {exc!r}") from exc
         ran.append(line)
     assert ran, skipped
+    return namespace
+
+
+def test_every_python_block_of_the_readme_runs():
+    assert len(python_blocks(README.read_text())) >= 5  # the quick starts, clients, benchmark
+    namespace = run_blocks(README)
     # what the blocks left behind: a stepped env of each view and a benchmark score
     assert "profit_eur" in namespace["info"] and "__all__" in namespace["dones"]
     assert namespace["result"]["score"] == pytest.approx(0.0, abs=1e-6)  # always-max scores 0
+
+
+def test_every_python_block_of_the_getting_started_page_runs():
+    namespace = run_blocks(ROOT / "docs" / "getting-started.md")
+    assert "profit_eur" in namespace["info"] and "__all__" in namespace["dones"]
+    result = namespace["result"]
+    assert result["score"] == pytest.approx(
+        namespace["get_normalized_score"]("Chargax-shopping-v1", result["daily_profit"])
+    )
