@@ -28,22 +28,25 @@ def params():
 
 @pytest.fixture(scope="module")
 def trajectories(params):
-    """One day per policy: the levels chosen and the leaf energies that flowed."""
-    out = {}
-    for name, policy in POLICIES.items():
+    """One day per policy: the levels chosen and the leaf energies that flowed. The days of
+    all the policies are one compiled program (one compile, not one per policy)."""
 
-        def body(state, k, policy=policy):
-            k1, k2 = jax.random.split(k)
-            levels = policy(state, k1, params)
-            new, info = simulator.step(k2, state, levels, params)
-            return new, (levels, info.leaf_energy_kwh, info.requested_excess_kw)
+    def days(k):
+        out = {}
+        for name, policy in POLICIES.items():
 
-        _, out[name] = jax.jit(
-            lambda k: jax.lax.scan(
+            def body(state, k, policy=policy):
+                k1, k2 = jax.random.split(k)
+                levels = policy(state, k1, params)
+                new, info = simulator.step(k2, state, levels, params)
+                return new, (levels, info.leaf_energy_kwh, info.requested_excess_kw)
+
+            _, out[name] = jax.lax.scan(
                 body, simulator.empty_state(jnp.asarray(3), params), jax.random.split(k, 288)
             )
-        )(jax.random.PRNGKey(0))
-    return out
+        return out
+
+    return jax.jit(days)(jax.random.PRNGKey(0))
 
 
 @pytest.mark.parametrize("name", sorted(POLICIES))

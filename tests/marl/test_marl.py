@@ -519,18 +519,20 @@ def test_scalar_agent_id_keeps_observations_linear():
 # ------------------------------------------------------------------ per-agent reward shaping
 
 
-def _day_rewards(env, seed=21):
+def _day_rewards(*envs, seed=21):
     """Per-agent rewards ``(T, N)``, the station reward ``(T,)`` and the shares ``(T, N)`` over a
-    day of random valid levels (the same levels and keys for every ``env``)."""
-    p = env.params
-    low = np.asarray(physics.leaf_min_level(p.station, L, p.v2g))
-    levels = jax.random.randint(
-        jax.random.PRNGKey(seed), (p.num_steps, p.station.num_leaves), low, L + 1
-    )
-    keys = jax.random.split(jax.random.PRNGKey(seed + 1), p.num_steps)
+    day of random valid levels (the same levels and keys for every ``env``); for several envs,
+    a list of them from one compiled program (one compile, not one per env)."""
 
-    @exact_jit  # the agents' rewards are compared bit for bit with the station's
-    def run(s):
+    def inputs(env):
+        p = env.params
+        low = np.asarray(physics.leaf_min_level(p.station, L, p.v2g))
+        levels = jax.random.randint(
+            jax.random.PRNGKey(seed), (p.num_steps, p.station.num_leaves), low, L + 1
+        )
+        return jax.random.split(jax.random.PRNGKey(seed + 1), p.num_steps), levels, start(p)
+
+    def day(env, keys, levels, s0):
         def body(s, x):
             k, lv = x
             _, s, r, _, info = env.step_env(
@@ -543,22 +545,28 @@ def _day_rewards(env, seed=21):
                 s,
             )
 
-        return jax.lax.scan(body, s, (keys, levels))[1]
+        return jax.lax.scan(body, s0, (keys, levels))[1]
 
-    return jax.device_get(run(start(p)))
+    # exact: the agents' rewards are compared bit for bit with the station's
+    run = exact_jit(lambda xs: [day(env, *x) for env, x in zip(envs, xs, strict=True)])
+    out = jax.device_get(run([inputs(env) for env in envs]))
+    return out[0] if len(envs) == 1 else out
 
 
 def test_reward_shares_add_up_and_local_weight_mixes_them(small):
-    r0, station, share, states0 = _day_rewards(small)
+    weights = (0.3, 1.0)
+    # without the refund of discharged car energy (the original Chargax's books), checked below
+    off = ChargaxMARL(station=mixed_station(), traffic=150.0, refund_discharged_energy=False)
+    days = _day_rewards(
+        small, *(ChargaxMARL(params=small.params, local_reward_weight=w) for w in weights), off
+    )
+    r0, station, share, states0 = days[0]
     # default: every agent gets exactly the station reward
     np.testing.assert_array_equal(r0, np.broadcast_to(station[:, None], r0.shape))
     # the shares sum to the station reward every step, and differ between agents
     np.testing.assert_allclose(share.sum(-1), station, rtol=1e-5, atol=1e-4)
     assert np.abs(share - share.mean(-1, keepdims=True)).max() > 0.1
-    for w in (0.3, 1.0):
-        rw, station_w, share_w, states_w = _day_rewards(
-            ChargaxMARL(params=small.params, local_reward_weight=w)
-        )
+    for w, (rw, station_w, share_w, states_w) in zip(weights, days[1:3], strict=True):
         # the weight changes the rewards only, never the trajectory or what infos report
         for x, y in zip(jax.tree.leaves(states_w), jax.tree.leaves(states0)):
             np.testing.assert_array_equal(x, y)
@@ -569,8 +577,7 @@ def test_reward_shares_add_up_and_local_weight_mixes_them(small):
         )
     # without the refund of discharged car energy (the original Chargax's books) the shares still
     # add up; the same levels now earn what the discharging cars' owners are not refunded
-    off = ChargaxMARL(station=mixed_station(), traffic=150.0, refund_discharged_energy=False)
-    _, station_off, share_off, states_off = _day_rewards(off)
+    _, station_off, share_off, states_off = days[3]
     for x, y in zip(jax.tree.leaves(states_off.soc), jax.tree.leaves(states0.soc)):
         np.testing.assert_array_equal(x, y)
     np.testing.assert_allclose(share_off.sum(-1), station_off, rtol=1e-5, atol=1e-4)
