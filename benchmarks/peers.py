@@ -29,7 +29,7 @@ The paper's Table 4 row "100k random steps": EV2Gym 77.95 s, Chargym 36.34 s, Su
    skipped with a message when those are missing or fail.
 
 Writes ``benchmarks/results/peers.json`` and ``peers.csv`` (``--out``).
-Run: ``python benchmarks/peers.py`` (about 5 min incl. installs from a warm pip cache) or
+Run: ``python benchmarks/peers.py`` or
 ``python benchmarks/peers.py --skip-peers`` (chargax only).
 """
 

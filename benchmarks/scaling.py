@@ -26,7 +26,7 @@ configuration so far dominates).
 Outputs (``--out``, default ``benchmarks/results``): ``scaling.csv``, ``scaling.png``
 (log-log env-steps/s vs envs, one line per station size and view; and time per env-step vs
 ports at fixed env counts) and the fitted exponent of time per env-step vs ports.
-Run: ``python benchmarks/scaling.py`` (about 10 min on 2 cores) or
+Run: ``python benchmarks/scaling.py`` or
 ``python benchmarks/scaling.py --ports 16 --envs 1 2 --views single --work 64`` (smoke).
 """
 

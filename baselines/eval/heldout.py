@@ -118,7 +118,7 @@ def baseline_results(
     occupancy, `chargax_marl.evaluation.hindsight_bound`) and, when ``references_dir``
     (a directory ``make optimal`` wrote) holds them for exactly these params and days, the
     stored bound and ``mpc``; ``"mpc"`` also runs the MPC when no
-    stored result matches (about 10 min per 100 days on 2 cores); ``"off"`` adds neither.
+    stored result matches (an LP per step: the slowest part); ``"off"`` adds neither.
     Every entry then gets ``headroom`` (`chargax_marl.evaluation.headroom_captured`).
     With ``draws`` > 1 every rule and the bound are scored under the keys of
     `draw_keys`, each day's profit the mean over the draws; the stored
