@@ -3,8 +3,8 @@
     python -m baselines.analysis.redraw results/ippo_shopping_grid25_high_4e6 --draws 16 --out-dir DIR
 
 ``baselines.train`` scores every policy on the 100 held-out days with one key (``PRNGKey(0)``,
-unless ``EVAL_DRAWS`` says more), so every policy meets the same cars. On a station that turns cars away the day-to-day
-spread of a paired difference is large (a battery step can change which car gets a freed
+unless ``EVAL_DRAWS`` says more), so every policy meets the same cars. On a station that
+turns cars away the day-to-day spread of a paired difference is large (a battery step can change which car gets a freed
 port), so with one car draw a seed's mean difference to a rule can have a standard error
 larger than the differences in question. More draws per day average that spread out.
 
@@ -17,7 +17,8 @@ refuses a run whose replayed evaluation differs from its ``results.json``: it wa
 another model), and every policy meets the same cars in every draw. A seed's paired
 difference is averaged over the draws of each day first and its standard error taken over
 the days, so the days, not the draws, are the independent units (the draws of one day share
-its prices), as ``baselines.train`` with ``EVAL_DRAWS`` does. ``beats`` is the trainers' rule: the mean above two standard errors.
+its prices), as ``baselines.train`` with ``EVAL_DRAWS`` does. ``beats`` is the trainers' rule:
+the mean above two standard errors.
 
 With ``--bound on`` (default) the LP hindsight bound is solved for every draw as well, and a
 seed's headroom fraction is its mean gain over always-max over all days and draws divided

@@ -54,7 +54,8 @@ def _core_state(state) -> EnvState:
 
 @struct.dataclass
 class LogEnvState:
-    """JaxMARL's ``LogEnvState`` fields (each ``(num_agents,)``) plus the last finished episode's totals.
+    """JaxMARL's ``LogEnvState`` fields (each ``(num_agents,)``) plus the last finished
+    episode's totals.
 
     Attributes:
         env_state: the wrapped env's state.
