@@ -16,8 +16,14 @@ from __future__ import annotations
 import argparse
 import csv
 import os
+import re
 import subprocess
+import sys
+import tarfile
+import tempfile
 import time
+from io import BytesIO
+from pathlib import Path
 
 import jax
 
@@ -85,23 +91,23 @@ def measure(fn, repeats: int):
     return compile_s, best
 
 
-def _base_package(rev: str) -> str:
-    """Extract ``chargax_marl`` at git revision ``rev`` as the package ``chargax_ab_base``
-    (imports renamed) in a temporary folder on ``sys.path``; returns its name."""
-    import re
-    import sys
-    import tarfile
-    import tempfile
-    from io import BytesIO
-    from pathlib import Path
-
-    root = Path(__file__).resolve().parents[1]
+def _extract(rev: str, *paths: str) -> Path:
+    """Extract ``paths`` of git revision ``rev`` into a new temporary folder; returns it."""
     blob = subprocess.run(
-        ["git", "-C", str(root), "archive", rev, "chargax_marl"], check=True, capture_output=True
+        ["git", "-C", str(Path(__file__).resolve().parents[1]), "archive", rev, *paths],
+        check=True,
+        capture_output=True,
     ).stdout
     tmp = Path(tempfile.mkdtemp(prefix="chargax_ab_"))
     with tarfile.open(fileobj=BytesIO(blob)) as tar:
         tar.extractall(tmp)
+    return tmp
+
+
+def _base_package(rev: str) -> str:
+    """Extract ``chargax_marl`` at git revision ``rev`` as the package ``chargax_ab_base``
+    (imports renamed) in a temporary folder on ``sys.path``; returns its name."""
+    tmp = _extract(rev, "chargax_marl")
     (tmp / "chargax_marl").rename(tmp / "chargax_ab_base")
     for py in (tmp / "chargax_ab_base").rglob("*.py"):
         py.write_text(re.sub(r"\bchargax_marl\b", "chargax_ab_base", py.read_text()))
@@ -112,21 +118,7 @@ def _base_package(rev: str) -> str:
 def _base_checkout(rev: str) -> str:
     """Extract the trainers and the package at git revision ``rev`` into a temporary folder (the
     ``--base DIR`` of ``train_speed.py`` and ``optimal_speed.py``); returns its path."""
-    import tarfile
-    import tempfile
-    from io import BytesIO
-    from pathlib import Path
-
-    root = Path(__file__).resolve().parents[1]
-    blob = subprocess.run(
-        ["git", "-C", str(root), "archive", rev, "chargax_marl", "baselines"],
-        check=True,
-        capture_output=True,
-    ).stdout
-    tmp = tempfile.mkdtemp(prefix="chargax_ab_checkout_")
-    with tarfile.open(fileobj=BytesIO(blob)) as tar:
-        tar.extractall(tmp)
-    return tmp
+    return str(_extract(rev, "chargax_marl", "baselines"))
 
 
 def _views(package: str, scenario: str, agent_id: str):
@@ -273,8 +265,6 @@ def main(argv=None) -> list[dict]:
     # The training and MPC timings run in their own processes: this one exposes --devices host
     # devices, and the trainers would shard their 16 envs over them; `make train` runs on
     # JAX's default single CPU device.
-    import sys
-
     from envbench import without_host_devices
 
     here = os.path.dirname(os.path.abspath(__file__))
