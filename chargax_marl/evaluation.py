@@ -7,6 +7,7 @@ by reading the observation from the state (see ``baselines/``).
 
 from __future__ import annotations
 
+import functools
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -206,6 +207,42 @@ def run_days_keyed(act: Act | MemoryAct, params: EnvParams, days, keys: jax.Arra
         The final `EpisodeTotals` with a leading axis ``(n,)``.
     """
     days = jnp.asarray(days, jnp.int32)
+    # compiled as one program: run eagerly, the vmapped scan is traced, batched and compiled
+    # piecewise, which costs more than the whole program (inside a caller's jit it is inlined)
+    return jax.jit(lambda d, k: _play_days(act, params, d, k))(days, keys)
+
+
+def run_policy_days(policy: Callable, params: EnvParams, days, key: jax.Array):
+    """`run_days` of a rule-based policy, compiled once per policy and station shape.
+
+    The params are an argument of the compiled program, not constants baked into it, so one
+    program plays the policy under any prices, traffic, fees or settings of the same shapes,
+    and it is compiled once per process (and found in JAX's persistent compilation cache,
+    when one is set, by every later process).
+
+    Args:
+        policy: ``policy(state, key, params) -> levels`` (`chargax_marl.policies.get_policy`);
+            a function defined once (a named rule), not a new closure per call, or the
+            program is compiled again for every new one.
+        params: the environment parameters, also passed to the policy.
+        days: ``(n,)`` day indices of the price data.
+        key: day ``i`` draws its cars from ``split(key, n)[i]``, as in `run_days`.
+
+    Returns:
+        The final `EpisodeTotals` with a leading axis ``(n,)``, as `run_days` returns for
+        ``lambda s, k: policy(s, k, params)``.
+    """
+    days = jnp.asarray(days, jnp.int32)
+    return _policy_days(policy, params, days, jax.random.split(key, days.shape[0]))
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _policy_days(policy, params, days, keys):
+    return _play_days(lambda s, k: policy(s, k, params), params, days, keys)
+
+
+def _play_days(act: Act | MemoryAct, params: EnvParams, days, keys: jax.Array):
+    """The traced body of `run_days_keyed`: ``act`` for one day per entry of ``days``."""
     policy = with_memory(act)
 
     def one_day(day, key):
@@ -224,9 +261,7 @@ def run_days_keyed(act: Act | MemoryAct, params: EnvParams, days, keys: jax.Arra
         (state, _), _ = jax.lax.scan(body, (start, policy.init(start)), (act_keys, step_keys))
         return state.totals
 
-    # compiled as one program: run eagerly, the vmapped scan is traced, batched and compiled
-    # piecewise, which costs more than the whole program (inside a caller's jit it is inlined)
-    return jax.jit(jax.vmap(one_day))(days, keys)
+    return jax.vmap(one_day)(days, keys)
 
 
 def _stats(x: np.ndarray, scored: np.ndarray) -> dict:
@@ -305,7 +340,11 @@ def evaluate(act: Act, params: EnvParams, days, key: jax.Array | None = None) ->
         statistics of `summarize`.
     """
     key = jax.random.PRNGKey(0) if key is None else key
-    totals = jax.jit(lambda d, k: run_days(act, params, d, k))(jnp.asarray(days), key)
+    return _evaluation(days, run_days(act, params, days, key))
+
+
+def _evaluation(days, totals) -> dict:
+    """`evaluate`'s result from the days' final totals."""
     return {
         "num_days": int(np.size(days)),
         "days": [int(d) for d in np.asarray(days)],
@@ -331,7 +370,8 @@ def evaluate_policy(policy, params: EnvParams, days, key: jax.Array | None = Non
         ValueError: a teacher's rule for a station without a battery.
     """
     policy = get_policy(policy, params) if isinstance(policy, str) else policy
-    return evaluate(lambda s, k: policy(s, k, params), params, days, key)
+    key = jax.random.PRNGKey(0) if key is None else key
+    return _evaluation(days, run_policy_days(policy, params, days, key))
 
 
 def hindsight_bound(

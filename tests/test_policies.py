@@ -9,7 +9,15 @@ import pytest
 
 from chargax_marl.core import make_params, simulator
 from chargax_marl.core.physics import leaf_min_level, node_flows_kw
-from chargax_marl.evaluation import evaluate_policy, run_days, split_days, summarize, write_json
+from chargax_marl.evaluation import (
+    _policy_days,
+    evaluate_policy,
+    run_days,
+    run_policy_days,
+    split_days,
+    summarize,
+    write_json,
+)
 from chargax_marl.policies import (
     POLICIES,
     for_single,
@@ -204,6 +212,23 @@ def test_evaluation_of_always_max_equals_a_hand_rolled_rollout(params):
         np.std(profits), rel=1e-4, abs=1e-3
     )
     assert result["days"] == [0, 5, 17]
+
+
+def test_a_named_rule_is_compiled_once_for_any_params_of_the_same_shapes(params):
+    """`run_policy_days` takes the params as an argument of its program: other traffic and
+    fees reuse the program compiled for the first params, and the totals are those of
+    `run_days` with the params closed over."""
+    days, key = np.array([2, 9]), jax.random.PRNGKey(7)
+    rule = POLICIES["always_max"]
+    busy = params.replace(arrival_rate=params.arrival_rate * 2.0)
+    first = run_policy_days(rule, params, days, key)
+    compiled = _policy_days._cache_size()
+    again = run_policy_days(rule, busy, days, key)
+    assert _policy_days._cache_size() == compiled
+    for p, got in ((params, first), (busy, again)):
+        closed = run_days(lambda s, k, p=p: rule(s, k, p), p, days, key)
+        np.testing.assert_allclose(got.profit_eur, closed.profit_eur, rtol=1e-6, atol=1e-4)
+    assert not np.allclose(first.profit_eur, again.profit_eur)
 
 
 def test_split_days_and_json(tmp_path, params):

@@ -7,11 +7,10 @@ with the evaluation's keys, so every policy meets the same cars.
 
 from __future__ import annotations
 
-import jax
 import numpy as np
 
 from baselines.eval import protocol, stats
-from chargax_marl.evaluation import run_days, summarize
+from chargax_marl.evaluation import run_policy_days, summarize
 from chargax_marl.policies import get_policy
 
 POLICIES = ("always_max", "battery_rule", "price_threshold", "edf", "llf")
@@ -88,8 +87,9 @@ def evaluate_rules(params, days, policies=POLICIES, key=None, draws: int = 1) ->
     out = {}
     for name in policies:
         policy = rule_policy(name, params)
-        fn = jax.jit(lambda d, k: run_days(lambda s, kk: policy(s, kk, params), params, d, k))
-        totals = protocol.mean_over_draws(lambda k: fn(np.asarray(days), k), keys)
+        totals = protocol.mean_over_draws(
+            lambda k, policy=policy: run_policy_days(policy, params, days, k), keys
+        )
         out[name] = {
             "num_days": int(np.size(days)),
             "days": [int(d) for d in np.asarray(days)],
