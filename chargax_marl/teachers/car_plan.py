@@ -87,8 +87,38 @@ def plan_energy(sorted_steps, t, steps_left, need_kwh, step_kwh) -> jnp.ndarray:
         jnp.asarray(x, jnp.float32)[:, None] for x in (steps_left, need_kwh, step_kwh)
     )
     in_stay = (sorted_steps[None, :] >= t) & (sorted_steps[None, :] < t + steps_left)
-    rank = jnp.cumsum(in_stay, axis=1) - 1  # 0 for the stay's cheapest step
+    rank = prefix_count(in_stay) - 1.0  # 0 for the stay's cheapest step
     return jnp.where(in_stay, jnp.clip(need_kwh - step_kwh * rank, 0.0, step_kwh), 0.0)
+
+
+PREFIX_BLOCK = 16
+"""The block length of `prefix_count`'s two-level sum."""
+
+
+def prefix_count(mask) -> jnp.ndarray:
+    """How many entries of each row of ``mask`` are set up to and including each column.
+
+    ``jnp.cumsum(mask, axis=-1)`` as float32, computed in blocks of `PREFIX_BLOCK` columns:
+    each block's running count is a product with a small triangular matrix of ones, and the
+    counts of the blocks before it are added. Every count is a whole number far below 2**24,
+    so the float32 sums are exact in any order: the same numbers as the cumulative sum,
+    which XLA's CPU backend computes as a much slower associative scan.
+
+    Args:
+        mask: ``(..., T)`` booleans.
+
+    Returns:
+        ``(..., T)`` float32 counts.
+    """
+    x = jnp.asarray(mask, jnp.float32)
+    width = x.shape[-1]
+    blocks = -(-width // PREFIX_BLOCK)
+    pad = [(0, 0)] * (x.ndim - 1) + [(0, blocks * PREFIX_BLOCK - width)]
+    x = jnp.pad(x, pad).reshape(*x.shape[:-1], blocks, PREFIX_BLOCK)
+    within = x @ jnp.asarray(np.triu(np.ones((PREFIX_BLOCK, PREFIX_BLOCK), np.float32)))
+    before = within[..., -1] @ jnp.asarray(np.triu(np.ones((blocks, blocks), np.float32), 1))
+    counts = within + before[..., None]
+    return counts.reshape(*counts.shape[:-2], blocks * PREFIX_BLOCK)[..., :width]
 
 
 def plan_value(

@@ -8,6 +8,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from baselines.algos import aids, ippo, ppo
 from chargax_marl.core import make_params, simulator
@@ -293,3 +295,19 @@ def test_ppo_plan_obs_appends_every_leaf_s_advice():
     )
     seed0 = jax.tree.map(lambda x: x[0], out["runner_state"].params)
     assert np.asarray(train.make_act(params)(seed0)(state, None)).shape == (n,)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    width=st.integers(1, 300),
+    rows=st.integers(1, 3),
+    density=st.floats(0.0, 1.0),
+    seed=st.integers(0, 2**31 - 1),
+)
+def test_prefix_count_is_the_cumulative_sum_exactly(width, rows, density, seed):
+    """The plan's rank of a step among its car's stay: the blocked count equals the cumulative
+    sum exactly, whatever the width (a multiple of the block or not) and the leading axes."""
+    mask = np.random.default_rng(seed).random((rows, 2, width)) < density
+    got = np.asarray(car_plan.prefix_count(jnp.asarray(mask)))
+    assert got.dtype == np.float32 and got.shape == mask.shape
+    np.testing.assert_array_equal(got, np.cumsum(mask, axis=-1))
