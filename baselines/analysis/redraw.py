@@ -4,9 +4,10 @@
 
 ``baselines.train`` scores every policy on the 100 held-out days with one key (``PRNGKey(0)``,
 unless ``EVAL_DRAWS`` says more), so every policy meets the same cars. On a station that
-turns cars away the day-to-day spread of a paired difference is large (a battery step can change which car gets a freed
-port), so with one car draw a seed's mean difference to a rule can have a standard error
-larger than the differences in question. More draws per day average that spread out.
+turns cars away the day-to-day spread of a paired difference is large (a battery step can
+change which car gets a freed port), so with one car draw a seed's mean difference to a rule
+can have a standard error larger than the differences in question. More draws per day
+average that spread out.
 
 This tool replays the run's trained seeds and the rules (always-max, the battery rule and,
 on a station with a battery, the teachers' rules and the node-aware programme,

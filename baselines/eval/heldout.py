@@ -31,12 +31,13 @@ def evaluate_batched(
     ``PRNGKey(0)``), so all policies meet the same drawn cars on the same days (common random
     numbers): differences between policies are then not masked by the day-to-day spread of
     traffic, which is far larger than most differences between policies. With ``draws`` > 1
-    (and no ``key``) each day is played under the keys of `draw_keys` and every per-day total is the mean
-    over the draws. Returns pooled mean ± std over seeds
-    × days (``metrics``), each seed's mean daily profit (``per_seed_profit``) and mean of every
-    metric over days (``per_seed_metrics``), and daily profits (``daily_profit``, seeds × days). With ``reference_profit`` (the daily profits of a
-    baseline on the same days and key, e.g. always-max), also ``paired_diff``: per seed, the
-    mean and standard error over days of (policy − reference) profit.
+    (and no ``key``) each day is played under the keys of `draw_keys` and every per-day total
+    is the mean over the draws. Returns pooled mean ± std over seeds × days (``metrics``),
+    each seed's mean daily profit (``per_seed_profit``) and mean of every metric over days
+    (``per_seed_metrics``), and daily profits (``daily_profit``, seeds × days). With
+    ``reference_profit`` (the daily profits of a baseline on the same days and key, e.g.
+    always-max), also ``paired_diff``: per seed, the mean and standard error over days of
+    (policy − reference) profit.
     """
     if key is not None and draws != 1:
         raise ValueError(

@@ -12,8 +12,9 @@ hindsight headroom captured) ± its standard error over days, and the EUR/day ov
 always-max. The "days × draws" row says how many held-out days a column rests on (a day
 whose LP bound solve failed has no headroom and is left out); a reference with days of its
 own left out (an MPC day with a failed solve) says on how many its cell rests. ``--time``
-measures how long `chargax_marl.benchmark.score` takes for a jitted policy (always-max, compile included) on each task and writes it to the given file;
-with an existing file, the table shows it.
+measures how long `chargax_marl.benchmark.score` takes for a jitted policy (always-max,
+compile included) on each task and writes it to the given file; with an existing file, the
+table shows it.
 """
 
 from __future__ import annotations
