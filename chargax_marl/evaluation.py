@@ -21,7 +21,7 @@ import numpy as np
 from chargax_marl.core import simulator
 from chargax_marl.core.types import EnvParams, EnvState
 from chargax_marl.optimal import bound_days
-from chargax_marl.policies import get_policy
+from chargax_marl.policies import POLICIES, get_policy
 from chargax_marl.trace import day_keys
 
 Act = Callable[[EnvState, jax.Array], jnp.ndarray]
@@ -213,17 +213,18 @@ def run_days_keyed(act: Act | MemoryAct, params: EnvParams, days, keys: jax.Arra
 
 
 def run_policy_days(policy: Callable, params: EnvParams, days, key: jax.Array):
-    """`run_days` of a rule-based policy, compiled once per policy and station shape.
+    """`run_days` of a rule-based policy, with the params an argument of the program.
 
-    The params are an argument of the compiled program, not constants baked into it, so one
-    program plays the policy under any prices, traffic, fees or settings of the same shapes,
-    and it is compiled once per process (and found in JAX's persistent compilation cache,
-    when one is set, by every later process).
+    The params are not constants baked into the compiled program, so one program plays the
+    policy under any prices, traffic, fees or settings of the same shapes. The program of a
+    named rule of `chargax_marl.policies.POLICIES` is kept: it is compiled once per process
+    and station shape (and found in JAX's persistent compilation cache, when one is set, by
+    every later process). Any other policy (a teacher's rule built for its params, a
+    caller's function) is compiled for this call and released with it, so policies built
+    anew for every call do not pile up compiled programs.
 
     Args:
-        policy: ``policy(state, key, params) -> levels`` (`chargax_marl.policies.get_policy`);
-            a function defined once (a named rule), not a new closure per call, or the
-            program is compiled again for every new one.
+        policy: ``policy(state, key, params) -> levels`` (`chargax_marl.policies.get_policy`).
         params: the environment parameters, also passed to the policy.
         days: ``(n,)`` day indices of the price data.
         key: day ``i`` draws its cars from ``split(key, n)[i]``, as in `run_days`.
@@ -233,12 +234,19 @@ def run_policy_days(policy: Callable, params: EnvParams, days, key: jax.Array):
         ``lambda s, k: policy(s, k, params)``.
     """
     days = jnp.asarray(days, jnp.int32)
-    return _policy_days(policy, params, days, jax.random.split(key, days.shape[0]))
+    keys = jax.random.split(key, days.shape[0])
+    if any(policy is rule for rule in POLICIES.values()):
+        return _policy_days(policy, params, days, keys)
+    return jax.jit(functools.partial(_policy_program, policy))(params, days, keys)
 
 
-@functools.partial(jax.jit, static_argnums=0)
-def _policy_days(policy, params, days, keys):
+def _policy_program(policy, params, days, keys):
+    """The traced body of `run_policy_days`."""
     return _play_days(lambda s, k: policy(s, k, params), params, days, keys)
+
+
+_policy_days = jax.jit(_policy_program, static_argnums=0)
+"""`_policy_program` compiled once per named rule and station shape."""
 
 
 def _play_days(act: Act | MemoryAct, params: EnvParams, days, keys: jax.Array):
