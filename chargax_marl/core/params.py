@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from chargax_marl.core import checks, datasets, fleets, prices, profiles, tariffs
+from chargax_marl.core.arrays import device_array
 from chargax_marl.core.observation import PRICE_QUANTILES
 from chargax_marl.core.station import (
     Splitter,
@@ -464,7 +465,7 @@ def make_params(
         days = _check_reset_days(reset_days, days_all)
 
     def scalar(name, value):
-        return jnp.asarray(_finite(name, value, **_SCALARS[name]), jnp.float32)
+        return device_array(_finite(name, value, **_SCALARS[name]), jnp.float32)
 
     if fixed_cost_eur is None:
         fixed_cost_eur = FIXED_COST_EUR_PER_STEP * step_minutes / 5.0
@@ -493,43 +494,43 @@ def make_params(
 
     return EnvParams(
         station=stations,
-        prices_eur_kwh=jnp.asarray(price.prices_eur_kwh, jnp.float32),
-        day_price_quantiles_eur_kwh=jnp.asarray(_day_price_quantiles(price.prices_eur_kwh, tou)),
-        first_weekday=jnp.asarray(price.first_weekday, jnp.int32),
-        arrival_rate=jnp.asarray(rate, jnp.float32),
-        stay_quantiles_min=jnp.asarray(profile.stay_quantiles_min, jnp.float32),
-        stay_scale_by_hour=jnp.asarray(profile.stay_scale_by_hour, jnp.float32),
-        demand_quantiles_kwh=jnp.asarray(profile.demand_quantiles_kwh, jnp.float32),
-        demand_scale_by_hour=jnp.asarray(profile.demand_scale_by_hour, jnp.float32),
-        arrival_soc_range=jnp.asarray(profile.arrival_soc_range, jnp.float32),
-        charge_sensitive_prob=jnp.asarray(profile.charge_sensitive_prob, jnp.float32),
-        fleet_share=jnp.asarray(fleet_data.share, jnp.float32),
-        fleet_capacity_kwh=jnp.asarray(fleet_data.capacity_kwh, jnp.float32),
-        fleet_ac_kw=jnp.asarray(fleet_data.max_ac_kw, jnp.float32),
-        fleet_dc_kw=jnp.asarray(fleet_data.max_dc_kw, jnp.float32),
-        fleet_tau=jnp.asarray(fleet_data.tau, jnp.float32),
-        fleet_ac_discharge_kw=jnp.asarray(fleet_data.max_ac_discharge_kw, jnp.float32),
-        fleet_dc_discharge_kw=jnp.asarray(fleet_data.max_dc_discharge_kw, jnp.float32),
-        moer_kg_per_kwh=jnp.asarray(moer, jnp.float32),
-        grid_demand_kwh=jnp.asarray(demand, jnp.float32),
-        reset_days=jnp.asarray(days),
-        battery_soc0_low=jnp.asarray(soc0_low, jnp.float32),
-        battery_soc0_high=jnp.asarray(soc0_high, jnp.float32),
-        battery_wear_eur_kwh=jnp.asarray(wear_eur_kwh, jnp.float32),
-        battery_calendar_eur_step=jnp.asarray(
+        prices_eur_kwh=device_array(price.prices_eur_kwh, jnp.float32),
+        day_price_quantiles_eur_kwh=device_array(_day_price_quantiles(price.prices_eur_kwh, tou)),
+        first_weekday=device_array(price.first_weekday, jnp.int32),
+        arrival_rate=device_array(rate, jnp.float32),
+        stay_quantiles_min=device_array(profile.stay_quantiles_min, jnp.float32),
+        stay_scale_by_hour=device_array(profile.stay_scale_by_hour, jnp.float32),
+        demand_quantiles_kwh=device_array(profile.demand_quantiles_kwh, jnp.float32),
+        demand_scale_by_hour=device_array(profile.demand_scale_by_hour, jnp.float32),
+        arrival_soc_range=device_array(profile.arrival_soc_range, jnp.float32),
+        charge_sensitive_prob=device_array(profile.charge_sensitive_prob, jnp.float32),
+        fleet_share=device_array(fleet_data.share, jnp.float32),
+        fleet_capacity_kwh=device_array(fleet_data.capacity_kwh, jnp.float32),
+        fleet_ac_kw=device_array(fleet_data.max_ac_kw, jnp.float32),
+        fleet_dc_kw=device_array(fleet_data.max_dc_kw, jnp.float32),
+        fleet_tau=device_array(fleet_data.tau, jnp.float32),
+        fleet_ac_discharge_kw=device_array(fleet_data.max_ac_discharge_kw, jnp.float32),
+        fleet_dc_discharge_kw=device_array(fleet_data.max_dc_discharge_kw, jnp.float32),
+        moer_kg_per_kwh=device_array(moer, jnp.float32),
+        grid_demand_kwh=device_array(demand, jnp.float32),
+        reset_days=device_array(days),
+        battery_soc0_low=device_array(soc0_low, jnp.float32),
+        battery_soc0_high=device_array(soc0_high, jnp.float32),
+        battery_wear_eur_kwh=device_array(wear_eur_kwh, jnp.float32),
+        battery_calendar_eur_step=device_array(
             calendar_eur_day * step_minutes / MINUTES_PER_DAY, jnp.float32
         ),
         customer_price_eur_kwh=scalar("customer_price_eur_kwh", customer_price_eur_kwh),
-        refund_discharged_energy=jnp.asarray(bool(refund_discharged_energy)),
+        refund_discharged_energy=device_array(bool(refund_discharged_energy)),
         grid_fee_eur_kwh=scalar("grid_fee_eur_kwh", grid_fee_eur_kwh),
-        tou_fee_eur_kwh=jnp.asarray(tou, jnp.float32),
-        peak_demand_eur_kw=jnp.asarray(peak_rate, jnp.float32),
-        peak_demand_incremental=jnp.asarray(peak_incremental),
+        tou_fee_eur_kwh=device_array(tou, jnp.float32),
+        peak_demand_eur_kw=device_array(peak_rate, jnp.float32),
+        peak_demand_incremental=device_array(peak_incremental),
         feed_in_factor=scalar("feed_in_factor", feed_in_factor),
         fixed_cost_eur=scalar("fixed_cost_eur", fixed_cost_eur),
         alpha=penalty_weights(alpha),
-        battery_value_day_mean=jnp.asarray(value_day_mean),
-        battery_value_eur_kwh=jnp.asarray(value_price, jnp.float32),
+        battery_value_day_mean=device_array(value_day_mean),
+        battery_value_eur_kwh=device_array(value_price, jnp.float32),
         beta=scalar("beta", beta),
         charged_tolerance_kwh=scalar("charged_tolerance_kwh", charged_tolerance_kwh),
         step_minutes=step_minutes,

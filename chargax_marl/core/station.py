@@ -24,6 +24,7 @@ import numpy as np
 from flax import struct
 
 from chargax_marl.core import checks
+from chargax_marl.core.arrays import device_array
 
 KIND_AC = 0
 KIND_DC = 1
@@ -489,33 +490,33 @@ def compile_station(root: Splitter) -> StationArrays:
         for h in anc:
             solo[leaf] = min(solo[leaf], node_kw[h] * eff_at_depth[depths[h], leaf])
     return StationArrays(
-        leaf_voltage_v=jnp.asarray(leaf_attr(lambda x: x.voltage_v)),
-        leaf_max_current_a=jnp.asarray(leaf_attr(lambda x: x.max_current_a)),
-        leaf_max_discharge_current_a=jnp.asarray(
+        leaf_voltage_v=device_array(leaf_attr(lambda x: x.voltage_v)),
+        leaf_max_current_a=device_array(leaf_attr(lambda x: x.max_current_a)),
+        leaf_max_discharge_current_a=device_array(
             leaf_attr(
                 lambda x: x.max_current_a if isinstance(x, Battery) else x.max_discharge_current_a
             )
         ),
-        leaf_efficiency=jnp.asarray(leaf_attr(lambda x: x.efficiency)),
-        leaf_path_efficiency=jnp.asarray(path_eff.astype(np.float32)),
-        leaf_efficiency_at_depth=jnp.asarray(eff_at_depth.astype(np.float32)),
-        leaf_kind=jnp.asarray(kind),
-        battery_capacity_kwh=jnp.asarray(
+        leaf_efficiency=device_array(leaf_attr(lambda x: x.efficiency)),
+        leaf_path_efficiency=device_array(path_eff.astype(np.float32)),
+        leaf_efficiency_at_depth=device_array(eff_at_depth.astype(np.float32)),
+        leaf_kind=device_array(kind),
+        battery_capacity_kwh=device_array(
             np.array([b.capacity_kwh for b in bats], dtype=np.float32)
         ),
-        battery_tau=jnp.asarray(np.array([b.tau for b in bats], dtype=np.float32)),
-        battery_initial_soc=jnp.asarray(np.array([b.initial_soc for b in bats], dtype=np.float32)),
-        battery_cost_eur_kwh=jnp.asarray(np.array([b.cost_eur_kwh for b in bats], np.float32)),
-        battery_cycle_life=jnp.asarray(np.array([b.cycle_life for b in bats], np.float32)),
-        battery_calendar_life_years=jnp.asarray(
+        battery_tau=device_array(np.array([b.tau for b in bats], dtype=np.float32)),
+        battery_initial_soc=device_array(np.array([b.initial_soc for b in bats], dtype=np.float32)),
+        battery_cost_eur_kwh=device_array(np.array([b.cost_eur_kwh for b in bats], np.float32)),
+        battery_cycle_life=device_array(np.array([b.cycle_life for b in bats], np.float32)),
+        battery_calendar_life_years=device_array(
             np.array([b.calendar_life_years or 0.0 for b in bats], np.float32)
         ),
-        leaf_solo_max_kw=jnp.asarray(solo.astype(np.float32)),
-        node_max_kw=jnp.asarray(node_kw.astype(np.float32)),
-        node_efficiency=jnp.asarray(node_eff.astype(np.float32)),
-        node_depth=jnp.asarray(np.array(depths, dtype=np.int32)),
-        node_of_leaf_at_depth=jnp.asarray(at_depth),
-        incidence=jnp.asarray(incidence),
+        leaf_solo_max_kw=device_array(solo.astype(np.float32)),
+        node_max_kw=device_array(node_kw.astype(np.float32)),
+        node_efficiency=device_array(node_eff.astype(np.float32)),
+        node_depth=device_array(np.array(depths, dtype=np.int32)),
+        node_of_leaf_at_depth=device_array(at_depth),
+        incidence=device_array(incidence),
         num_ports=len(ports),
         num_batteries=len(batteries),
         num_nodes=num_nodes,
