@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -15,11 +16,16 @@ from chargax_marl.core import (
     compile_station,
     multiple_splitters,
     multiple_types,
+    physics,
     single_type,
 )
-from chargax_marl.core.physics import node_flows_kw, rescale_to_limits
 from chargax_marl.core.station import KIND_AC, KIND_BATTERY, KIND_DC, build_station
 from tests.helpers import grid_side_node_flows_kw, three_level_station, tiny_root_station, trees
+
+# jitted: the property tests call them on a new station shape per example, and one compile per
+# shape costs less than compiling each of their operations for it
+rescale_to_limits = jax.jit(physics.rescale_to_limits)
+node_flows_kw = jax.jit(physics.node_flows_kw)
 
 
 def test_default_station_is_the_papers():
