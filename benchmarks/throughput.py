@@ -187,8 +187,15 @@ def main(argv=None) -> list[dict]:
 
     from envbench import set_host_devices
 
+    flags_before = os.environ.get("XLA_FLAGS")
     set_host_devices(args.devices)  # before JAX starts its backend
     if len(jax.devices()) != args.devices:
+        # the count came too late to take effect here; leave the caller's environment as it
+        # was, or every process it starts afterwards would get that many host devices
+        if flags_before is None:
+            os.environ.pop("XLA_FLAGS", None)
+        else:
+            os.environ["XLA_FLAGS"] = flags_before
         raise RuntimeError(
             f"--devices {args.devices}: JAX sees {len(jax.devices())} device(s) because its backend started "
             "before the host device count was set (something imported chargax_marl's views, gymnax or jaxmarl first); run "

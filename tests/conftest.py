@@ -37,6 +37,28 @@ if os.environ.get("CI"):
     settings.load_profile("ci")
 
 
+@pytest.fixture(autouse=True)
+def _environment_left_as_found():
+    """Fail a test that leaves ``os.environ`` changed (use ``monkeypatch.setenv``): every later
+    test of its worker, and every process those tests start (command-line runs inherit the
+    environment), would run under the change: a host device count left in ``XLA_FLAGS``, for
+    one, gives every later subprocess that many devices, and a sharded program's numbers."""
+    ignored = ("PYTEST_CURRENT_TEST",)  # pytest's own record of the running test's phase
+
+    def environment():
+        return {k: v for k, v in os.environ.items() if k not in ignored}
+
+    before = environment()
+    yield
+    after = environment()
+    if after != before:
+        changed = sorted(k for k in before.keys() | after.keys() if before.get(k) != after.get(k))
+        pytest.fail(
+            "the test left os.environ changed: "
+            + ", ".join(f"{k}: {before.get(k)!r} -> {after.get(k)!r}" for k in changed)
+        )
+
+
 @pytest.fixture(scope="session")
 def small_params():
     """A 6-port, 3-level station with a battery, busy traffic so cars come and go."""

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -98,8 +99,12 @@ def test_throughput_uses_the_requested_host_devices():
 def test_throughput_refuses_a_device_count_it_cannot_have():
     import jax
 
+    flags = os.environ.get("XLA_FLAGS")
     with pytest.raises(RuntimeError, match="--devices"):
         load("throughput").main(["--envs", "1", "--devices", str(jax.device_count() + 1)])
+    # the refused count is not left in the environment: the processes this one starts later
+    # (the command-line runs of other tests) would otherwise get that many host devices
+    assert os.environ.get("XLA_FLAGS") == flags
 
 
 def test_scaling_main_smallest(tmp_path, capsys):
