@@ -42,17 +42,22 @@ def _environment_left_as_found():
     """Fail a test that leaves ``os.environ`` changed (use ``monkeypatch.setenv``): every later
     test of its worker, and every process those tests start (command-line runs inherit the
     environment), would run under the change: a host device count left in ``XLA_FLAGS``, for
-    one, gives every later subprocess that many devices, and a sharded program's numbers."""
-    ignored = ("PYTEST_CURRENT_TEST",)  # pytest's own record of the running test's phase
+    one, gives every later subprocess that many devices, and a sharded program's numbers.
 
-    def environment():
-        return {k: v for k, v in os.environ.items() if k not in ignored}
-
-    before = environment()
+    A variable that was set must keep its value; a new one is an error only when it is JAX's
+    or XLA's, since a third-party package adds its own settings the first time a test imports
+    it (pygame's ``SDL_AUDIODRIVER``). pytest's ``PYTEST_CURRENT_TEST`` is left out."""
+    before = dict(os.environ)
     yield
-    after = environment()
-    if after != before:
-        changed = sorted(k for k in before.keys() | after.keys() if before.get(k) != after.get(k))
+    after = dict(os.environ)
+    changed = sorted(
+        k
+        for k in before.keys() | after.keys()
+        if k != "PYTEST_CURRENT_TEST"
+        and before.get(k) != after.get(k)
+        and (k in before or k.startswith(("JAX_", "XLA_")))
+    )
+    if changed:
         pytest.fail(
             "the test left os.environ changed: "
             + ", ".join(f"{k}: {before.get(k)!r} -> {after.get(k)!r}" for k in changed)
