@@ -61,6 +61,28 @@ def default_setup():
     return params, days, exact_jit(lambda k: trace.make_traces(params, days, k))(KEY)
 
 
+def test_a_named_reference_is_replayed_by_one_program_for_any_prices(default_setup):
+    """`optimal.occupancy` replays a named rule with the params an argument of its program:
+    other prices reuse the program compiled for the first params, and the sessions and the
+    reference's profit are those of a replay with the params closed over."""
+    params, _, traces = default_setup
+    tr = jax.tree.map(lambda x: x[0], traces)
+    rule = policies.battery_rule
+    dear = params.replace(prices_eur_kwh=params.prices_eur_kwh * 1.5)
+    first = optimal.occupancy(params, tr, KEY, reference=rule)
+    compiled = bound_module._replay_named._cache_size()
+    again = optimal.occupancy(dear, tr, KEY, reference=rule)
+    assert bound_module._replay_named._cache_size() == compiled
+    for p, got in ((params, first), (dear, again)):
+        closed = optimal.occupancy(p, tr, KEY, reference=lambda s, k, q: rule(s, k, q))
+        assert got.reference_profit_eur == pytest.approx(closed.reference_profit_eur, rel=1e-6)
+        for field in ("leaf", "first", "last", "soc0", "target_soc", "capacity_kwh"):
+            np.testing.assert_allclose(
+                getattr(got.sessions, field), getattr(closed.sessions, field), rtol=1e-6
+            )
+    assert first.reference_profit_eur != pytest.approx(again.reference_profit_eur, rel=1e-3)
+
+
 @pytest.mark.parametrize("name", ["random", "battery_rule"])
 def test_replay_equals_the_keyed_rollout_bit_for_bit(default_setup, name):
     params, days, traces = default_setup
