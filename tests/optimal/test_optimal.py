@@ -6,6 +6,8 @@ cost); the property tests compare the bound with the policies' own profits on dr
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -39,11 +41,21 @@ def hand_params(station, hourly_prices, **kw):
     )
 
 
+def _replay_profit(policy, params, tr, key):
+    _, _, final = trace.replay(lambda s, kk: policy(s, kk, params), params, tr, key)
+    return final.totals.profit_eur
+
+
+_replay_named_profit = jax.jit(_replay_profit, static_argnums=0)
+
+
 def run_on_trace(policy, params, tr):
-    _, _, final = jax.jit(
-        lambda t, k: trace.replay(lambda s, kk: policy(s, kk, params), params, t, k)
-    )(tr, KEY)
-    return float(final.totals.profit_eur)
+    """The day's profit of ``policy`` replayed on ``tr``. A named rule's program takes the
+    params as an argument (one compile per rule and station shape, as the parametrised
+    stations share their shapes); any other policy is compiled with its params."""
+    if any(policy is rule for rule in policies.POLICIES.values()):
+        return float(_replay_named_profit(policy, params, tr, KEY))
+    return float(jax.jit(functools.partial(_replay_profit, policy, params))(tr, KEY))
 
 
 def bound_for(policy, params, tr):
