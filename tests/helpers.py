@@ -72,9 +72,12 @@ def random_rollout(params, key, num_steps=None, policy="random"):
         new_state, info = simulator.step(k2, state, levels, params)
         return new_state, (state, levels, new_state, info)
 
-    state = simulator.reset(key, params)
-    _, out = jax.lax.scan(body, state, jax.random.split(key, num_steps))
-    return out
+    def rollout(key):
+        state = simulator.reset(key, params)
+        return jax.lax.scan(body, state, jax.random.split(key, num_steps))[1]
+
+    # one compiled program: run eagerly, the reset and the key split compile op by op
+    return jax.jit(rollout)(key)
 
 
 def three_level_station(ac_discharge_current_a: float = 16.0) -> Splitter:

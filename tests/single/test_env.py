@@ -83,7 +83,7 @@ def check_energy_closes(params, key, num_steps=288):
     from chargax_marl.core.physics import node_flows_kw
 
     power = e / params.step_hours
-    flows = np.asarray(jax.vmap(lambda p: node_flows_kw(p, st))(jnp.asarray(power)))
+    flows = np.asarray(jax.jit(jax.vmap(lambda p: node_flows_kw(p, st)))(jnp.asarray(power)))
     assert np.all(flows <= np.asarray(st.node_max_kw) * (1 + 1e-4) + 1e-3)
     return info, after
 
