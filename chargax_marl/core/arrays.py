@@ -2,9 +2,9 @@
 
 ``jnp.asarray`` on host data (a numpy array, a list, a Python scalar) runs a small compiled
 conversion program, one per new shape and dtype in the process. The builders of a station and
-its parameters create dozens of arrays of shapes that depend on the station, so every new
-station paid for dozens of compiles before its first step. `device_array` converts on the host
-with numpy and copies the result to the device, which compiles nothing.
+its parameters create dozens of arrays whose shapes depend on the station, which would cost
+dozens of compiles for each new station. `device_array` converts on the host with numpy and
+copies the result to the device, which compiles nothing.
 """
 
 from __future__ import annotations

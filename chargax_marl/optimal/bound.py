@@ -171,6 +171,10 @@ def occupancy(
 ) -> Occupancy:
     """Replay a reference policy on one day's trace and record its car sessions.
 
+    A named rule of `chargax_marl.policies.POLICIES` is replayed by one compiled program per
+    rule and station shape, with the params an argument; any other policy is compiled with
+    the params it is given.
+
     Args:
         params: the environment parameters.
         trace: one day's trace (`chargax_marl.trace.make_traces`).
