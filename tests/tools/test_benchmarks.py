@@ -196,6 +196,14 @@ def test_profile_step_smallest(capsys):
     assert "poisson draw (inverse CDF)" in capsys.readouterr().out
 
 
+def test_teacher_count_times_both_counts_and_they_agree(tmp_path):
+    out = tmp_path / "count.jsonl"
+    rows = load("teacher_count").main(["--envs", "2", "--reps", "1", "--out", str(out)])
+    assert [r["envs"] for r in rows] == [2] and rows[0]["identical"]
+    assert all(rows[0][k] > 0 for k in rows[0] if k.endswith("_ms_blocked") or "cumsum" in k)
+    assert [json.loads(line)["envs"] for line in out.read_text().splitlines()] == [2]
+
+
 def test_peers_chargax_part(tmp_path, capsys):
     peers = load("peers")
     results = peers.main(
