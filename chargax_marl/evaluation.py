@@ -21,7 +21,7 @@ import numpy as np
 from chargax_marl.core import simulator
 from chargax_marl.core.types import EnvParams, EnvState
 from chargax_marl.optimal import bound_days
-from chargax_marl.policies import POLICIES, get_policy
+from chargax_marl.policies import get_policy, is_named_rule
 from chargax_marl.trace import day_keys
 
 Act = Callable[[EnvState, jax.Array], jnp.ndarray]
@@ -235,7 +235,7 @@ def run_policy_days(policy: Callable, params: EnvParams, days, key: jax.Array):
     """
     days = jnp.asarray(days, jnp.int32)
     keys = jax.random.split(key, days.shape[0])
-    if any(policy is rule for rule in POLICIES.values()):
+    if is_named_rule(policy):
         return _policy_days(policy, params, days, keys)
     return jax.jit(functools.partial(_policy_program, policy))(params, days, keys)
 

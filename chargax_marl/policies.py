@@ -345,6 +345,20 @@ POLICIES: dict[str, Policy] = {
 }
 
 
+def is_named_rule(policy) -> bool:
+    """Whether ``policy`` is one of the functions of `POLICIES` (defined once, so a program
+    compiled with it as a static argument can be kept and reused), not a rule built for given
+    params or a caller's function.
+
+    Args:
+        policy: any policy ``(state, key, params) -> levels``.
+
+    Returns:
+        True for a function of `POLICIES` itself.
+    """
+    return any(policy is rule for rule in POLICIES.values())
+
+
 TEACHER_RULES = tuple(RULE_BUILDERS)
 """The teachers' rules (`chargax_marl.teachers.rules`): `get_policy` builds them for
 given params; each needs a station with a battery."""

@@ -22,6 +22,7 @@ from chargax_marl.policies import (
     POLICIES,
     for_single,
     get_policy,
+    is_named_rule,
     minimum_power_kw,
     price_threshold,
 )
@@ -212,6 +213,13 @@ def test_evaluation_of_always_max_equals_a_hand_rolled_rollout(params):
         np.std(profits), rel=1e-4, abs=1e-3
     )
     assert result["days"] == [0, 5, 17]
+
+
+def test_only_the_functions_of_policies_are_named_rules(params):
+    assert all(is_named_rule(rule) for rule in POLICIES.values())
+    assert all(is_named_rule(get_policy(name)) for name in POLICIES)
+    assert not is_named_rule(get_policy("battery_programme", params))  # built for the params
+    assert not is_named_rule(lambda s, k, p: POLICIES["always_max"](s, k, p))
 
 
 def test_a_named_rule_is_compiled_once_for_any_params_of_the_same_shapes(params):

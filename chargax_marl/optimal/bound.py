@@ -36,7 +36,7 @@ from chargax_marl.optimal.model import (
     StationLimits,
     build_and_solve,
 )
-from chargax_marl.policies import POLICIES, always_max
+from chargax_marl.policies import always_max, is_named_rule
 
 
 @dataclass
@@ -190,7 +190,7 @@ def occupancy(
         ValueError: the trace was not made for ``params``.
     """
     trace_lib.check_trace(trace, params)
-    if any(reference is rule for rule in POLICIES.values()):
+    if is_named_rule(reference):
         states, infos, final = _replay_named(reference, params, trace, day_key)
     else:  # a rule built for these params (a teacher's), or a caller's function
         cache_key = (id(params), reference)

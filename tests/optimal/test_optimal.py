@@ -53,7 +53,7 @@ def run_on_trace(policy, params, tr):
     """The day's profit of ``policy`` replayed on ``tr``. A named rule's program takes the
     params as an argument (one compile per rule and station shape, as the parametrised
     stations share their shapes); any other policy is compiled with its params."""
-    if any(policy is rule for rule in policies.POLICIES.values()):
+    if policies.is_named_rule(policy):
         return float(_replay_named_profit(policy, params, tr, KEY))
     return float(jax.jit(functools.partial(_replay_profit, policy, params))(tr, KEY))
 
