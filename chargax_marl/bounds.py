@@ -48,6 +48,12 @@ def _eager(fn):
     return wrapper
 
 
+# Station arrays the bounds read, each compiled as one program per station shape (run op by op,
+# every operation of a new shape would compile a program of its own).
+_leaf_max_kw = jax.jit(lambda station: station.leaf_max_kw)
+_node_flows_kw = jax.jit(physics.node_flows_kw)
+
+
 def _margin(low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     low = np.asarray(low, np.float64)
     high = np.asarray(high, np.float64)
@@ -63,7 +69,7 @@ def leaf_feature_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
     kinds = np.asarray(st.leaf_kind)
     is_bat = kinds == KIND_BATTERY
     n = kinds.shape[0]
-    leaf_max_kw = np.asarray(st.leaf_max_kw, np.float64)
+    leaf_max_kw = np.asarray(_leaf_max_kw(st), np.float64)
     fleet_cap = float(np.max(np.asarray(params.fleet_capacity_kwh)))
     bat_cap = np.zeros(n)
     bat_cap[is_bat] = np.asarray(st.battery_capacity_kwh, np.float64)
@@ -96,7 +102,7 @@ def _full_power_loads(params: EnvParams) -> np.ndarray:
         np.asarray(st.leaf_max_discharge_current_a, np.float64),
     )
     flows = np.asarray(
-        physics.node_flows_kw(np.asarray(volts * amps / 1000.0, np.float32), st), np.float64
+        _node_flows_kw(np.asarray(volts * amps / 1000.0, np.float32), st), np.float64
     )
     return flows * (1.0 + 1e-4) / np.maximum(np.asarray(st.node_max_kw, np.float64), 1e-12)
 

@@ -247,6 +247,22 @@ TINY_CLI = [
 """The command line of a tiny run (add ``ALGO=``, ``TOTAL_TIMESTEPS=``, ``CHUNKS=``, ``OUT=``)."""
 
 
+def count_compiles(fn) -> int:
+    """Run ``fn`` and count the XLA programs compiled meanwhile (in this thread)."""
+    events = []
+
+    def listener(event, duration_secs, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            events.append(duration_secs)
+
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    try:
+        fn()
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listener)
+    return len(events)
+
+
 def finite_losses(train, seeds=2):
     out = jax.jit(jax.vmap(train))(jax.random.split(jax.random.PRNGKey(0), seeds))
     m = jax.device_get(out["metrics"])

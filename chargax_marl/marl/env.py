@@ -57,8 +57,14 @@ def action_offset(params: EnvParams) -> int:
     """
     if params.action_mode == "delta":
         return params.num_levels
-    min_level = np.asarray(physics.leaf_min_level(params.station, params.num_levels, params.v2g))
+    min_level = np.asarray(_leaf_min_level(params.station, params.num_levels, params.v2g))
     return params.num_levels if bool(np.any(min_level < 0)) else 0
+
+
+# The station constants that a new `ChargaxMARL` computes from concrete params, each compiled
+# as one program per station shape (run op by op, every operation of a new shape would compile
+# a program of its own).
+_leaf_min_level = jax.jit(physics.leaf_min_level, static_argnums=(1, 2))
 
 
 def min_levels(params: EnvParams) -> jnp.ndarray:
@@ -94,6 +100,10 @@ def avail_actions(params: EnvParams, offset: int) -> jnp.ndarray:
     return levels >= min_levels(params)[:, None]
 
 
+_avail_actions = jax.jit(avail_actions, static_argnums=1)
+"""`avail_actions` as one program per station shape (for a new env's mask)."""
+
+
 def ancestor_table(params: EnvParams) -> jnp.ndarray:
     """``(N, D)`` node index of each leaf's ancestors from the deepest to the root, ``-1`` padded."""
     st = params.station
@@ -126,6 +136,16 @@ def obs_layout(params: EnvParams, agent_id: str = "onehot") -> ObsLayout:
     """
     if agent_id not in AGENT_ID_ENCODINGS:
         raise ValueError(f"field 'agent_id' must be one of {AGENT_ID_ENCODINGS}, got {agent_id!r}")
+    # called with traced params, the program is inlined into the caller's
+    layout = _layout_program(params, agent_id)
+    if not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(layout)):
+        layout = jax.tree.map(np.asarray, layout)
+    return layout
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def _layout_program(params: EnvParams, agent_id: str) -> ObsLayout:
+    """The arrays of `obs_layout`, one program per station shape and ``agent_id``."""
     st = params.station
     n = st.num_leaves
     ids = (
@@ -133,14 +153,11 @@ def obs_layout(params: EnvParams, agent_id: str = "onehot") -> ObsLayout:
         if agent_id == "onehot"
         else (jnp.arange(n, dtype=jnp.float32) / max(n - 1, 1))[:, None]
     )
-    layout = ObsLayout(
+    return ObsLayout(
         kind_onehot=jax.nn.one_hot(st.leaf_kind, NUM_KINDS, dtype=jnp.float32),
         ancestors=ancestor_table(params).astype(jnp.int32),
         agent_id=ids,
     )
-    if not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(layout)):
-        layout = jax.tree.map(np.asarray, layout)
-    return layout
 
 
 def ancestor_loads(
@@ -425,7 +442,7 @@ class ChargaxMARL(MultiAgentEnv):
         self.agent_index = {a: i for i, a in enumerate(self.agents)}
         self.action_offset = action_offset(params)
         self.num_actions = params.num_levels + 1 + self.action_offset
-        self._avail_np = np.asarray(avail_actions(params, self.action_offset))
+        self._avail_np = np.asarray(_avail_actions(params, self.action_offset))
         self._layout = obs_layout(params, agent_id)
         obs_shape = jax.eval_shape(
             lambda s: agent_observations(s, params, self._layout), simulator.empty_state(0, params)

@@ -9,22 +9,7 @@ import pytest
 
 from chargax_marl.core import make_params
 from chargax_marl.core.arrays import device_array
-
-
-def _compiles(fn):
-    """Run ``fn`` and count the XLA programs compiled meanwhile (in this thread)."""
-    events = []
-
-    def listener(event, duration_secs, **kwargs):
-        if event == "/jax/core/compile/backend_compile_duration":
-            events.append(duration_secs)
-
-    jax.monitoring.register_event_duration_secs_listener(listener)
-    try:
-        fn()
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listener)
-    return len(events)
+from tests.helpers import count_compiles
 
 
 @pytest.mark.parametrize(
@@ -49,7 +34,7 @@ def test_device_array_is_jnp_asarray(value, dtype):
 def test_a_new_station_s_params_compile_no_program():
     # 37 ports and 20-minute steps: array shapes no other test builds, so any jnp conversion
     # on the host would compile here
-    count = _compiles(
+    count = count_compiles(
         lambda: make_params(
             station="single_type", station_kwargs={"num_ports": 37}, step_minutes=20.0
         )

@@ -12,12 +12,13 @@ import numpy as np
 import pytest
 from jaxmarl.environments import spaces as jm_spaces
 
-from chargax_marl.core import observation, physics, simulator
+from chargax_marl.core import make_params, observation, physics, simulator
 from chargax_marl.marl import ChargaxMARL, LogWrapper, WorldStateWrapper
-from chargax_marl.marl.env import ancestor_loads, ancestor_table
+from chargax_marl.marl.env import ancestor_loads, ancestor_table, obs_layout
 from chargax_marl.policies import always_max
 from chargax_marl.single import Chargax
 from tests.helpers import (
+    count_compiles,
     exact_jit,
     mixed_station,
     no_arrivals,
@@ -165,6 +166,19 @@ def test_observation_layout(small):
         np.asarray(ancestor_table(p))[6], [0, -1, -1]
     )  # battery hangs under the grid
     np.testing.assert_array_equal(env.get_global_state(s), observation.flat_obs(s, p))
+
+
+def test_a_new_station_s_env_compiles_a_program_per_table_not_per_operation():
+    # 39 ports and 20-minute steps: shapes no other test builds, so nothing is cached
+    params = make_params(station="single_type", station_kwargs={"num_ports": 39}, step_minutes=20.0)
+    # the masks, the observation layout and the bounds: a few programs, not one per operation
+    assert count_compiles(lambda: ChargaxMARL(params=params)) <= 10
+    # with traced params the layout is traced too (inlined into the caller's program)
+    layout = obs_layout(params, "scalar")
+    traced = jax.jit(lambda p: obs_layout(p, "scalar"))(params)
+    for a, b in zip(jax.tree.leaves(layout), jax.tree.leaves(traced)):
+        assert isinstance(a, np.ndarray)
+        np.testing.assert_array_equal(a, b)
 
 
 def test_ancestor_loads_match_the_core_node_flows(default_params):
