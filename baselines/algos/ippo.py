@@ -31,6 +31,7 @@ import numpy as np
 from baselines.algos import aids, networks, ppo_core, runner
 from baselines.algos.trainer import IdentityCache, Trainer
 from baselines.config import build_env_params, resolve
+from chargax_marl.core.arrays import device_array
 from chargax_marl.core.observation import PORT_FEATURES, context_size
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.marl import env as marl_env
@@ -281,7 +282,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
 
     # ``get_avail_actions`` depends only on the station: one constant (actors, K) mask, agent-major.
     avail_agents = base_env.get_avail_actions(None)
-    avail_b = jnp.asarray(
+    avail_b = device_array(
         np.repeat(np.stack([np.asarray(avail_agents[a]) for a in agents]), n_envs, axis=0)
     )
     dedup = centralised_critic and DEDUP_CENTRAL_CRITIC

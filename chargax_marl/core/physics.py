@@ -7,6 +7,8 @@ static number of levels).
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 
@@ -31,11 +33,13 @@ def discharge_curve_kw(soc: jnp.ndarray, max_rate_kw: jnp.ndarray, tau: jnp.ndar
     return rate_curve_kw(1.0 - soc, max_rate_kw, tau)
 
 
+@functools.partial(jax.jit, static_argnums=(1, 2))
 def leaf_min_level(station: StationArrays, num_levels: int, v2g: bool) -> jnp.ndarray:
     """Lowest discrete level per leaf: ``-L`` where the leaf may discharge, else 0.
 
     Batteries may always discharge; ports only when V2G is on and the port has a
-    discharge current.
+    discharge current. Compiled as one program per station shape (the views call it on the
+    host to build their action spaces and masks).
     """
     can_discharge = (station.leaf_kind == KIND_BATTERY) | (
         jnp.asarray(v2g) & (station.leaf_max_discharge_current_a > 0)

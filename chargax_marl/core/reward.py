@@ -52,10 +52,12 @@ def grid_prices(day, timestep, params: EnvParams):
     return spot + params.grid_fee_eur_kwh + tou_fee(timestep, params), spot * params.feed_in_factor
 
 
+@jax.jit
 def price_tables(params: EnvParams):
     """``(buy, sell)``, each ``(days, steps)`` EUR/kWh: `grid_prices` of every step of
     every day of the price data, for planners that read all of a day's prices at once (the
-    MPC, the trainers' storage values)."""
+    MPC, the trainers' storage values). Compiled as one program per station shape (its
+    planners call it on the host)."""
     days = jnp.arange(params.num_days, dtype=jnp.int32)
     steps = jnp.arange(params.num_steps, dtype=jnp.int32)
     return jax.vmap(lambda d: jax.vmap(lambda t: grid_prices(d, t, params))(steps))(days)

@@ -57,14 +57,8 @@ def action_offset(params: EnvParams) -> int:
     """
     if params.action_mode == "delta":
         return params.num_levels
-    min_level = np.asarray(_leaf_min_level(params.station, params.num_levels, params.v2g))
+    min_level = np.asarray(physics.leaf_min_level(params.station, params.num_levels, params.v2g))
     return params.num_levels if bool(np.any(min_level < 0)) else 0
-
-
-# The station constants that a new `ChargaxMARL` computes from concrete params, each compiled
-# as one program per station shape (run op by op, every operation of a new shape would compile
-# a program of its own).
-_leaf_min_level = jax.jit(physics.leaf_min_level, static_argnums=(1, 2))
 
 
 def min_levels(params: EnvParams) -> jnp.ndarray:
@@ -101,7 +95,8 @@ def avail_actions(params: EnvParams, offset: int) -> jnp.ndarray:
 
 
 _avail_actions = jax.jit(avail_actions, static_argnums=1)
-"""`avail_actions` as one program per station shape (for a new env's mask)."""
+"""`avail_actions` as one program per station shape (a new env's mask; run op by op, every
+operation of a new shape would compile a program of its own)."""
 
 
 def ancestor_table(params: EnvParams) -> jnp.ndarray:

@@ -172,7 +172,7 @@ def test_a_new_station_s_env_compiles_a_program_per_table_not_per_operation():
     # 39 ports and 20-minute steps: shapes no other test builds, so nothing is cached
     params = make_params(station="single_type", station_kwargs={"num_ports": 39}, step_minutes=20.0)
     # the masks, the observation layout and the bounds: a few programs, not one per operation
-    assert count_compiles(lambda: ChargaxMARL(params=params)) <= 10
+    assert count_compiles(lambda: ChargaxMARL(params=params)) <= 8
     # with traced params the layout is traced too (inlined into the caller's program)
     layout = obs_layout(params, "scalar")
     traced = jax.jit(lambda p: obs_layout(p, "scalar"))(params)

@@ -10,9 +10,9 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 from hypothesis import HealthCheck, Phase, given, settings
 
-from chargax_marl.core import make_params, multiple_splitters, single_type
+from chargax_marl.core import make_params, multiple_splitters, reward, single_type
 from chargax_marl.single import SCENARIOS, Chargax, GymnasiumEnv, LogWrapper, make
-from tests.helpers import random_rollout, three_level_station, trees
+from tests.helpers import count_compiles, random_rollout, three_level_station, trees
 
 
 def tree_equal(a, b):
@@ -306,3 +306,19 @@ def test_gymnasium_wrapper_passes_the_checker():
     with pytest.raises(ValueError, match="outside the action space"):
         genv.step(np.full(7, 99))
     assert isinstance(genv.action_space, gymnasium.spaces.MultiDiscrete)
+
+
+def test_a_new_station_s_spaces_and_price_tables_compile_a_program_per_table():
+    # 43 ports and 20-minute steps: shapes no other test builds, so nothing is cached
+    params = make_params(station="single_type", station_kwargs={"num_ports": 43}, step_minutes=20.0)
+    env = Chargax()
+    count = count_compiles(
+        lambda: (
+            env.action_space(params),
+            env.observation_space(params),
+            reward.price_tables(params),
+        )
+    )
+    # the min levels, the leaf powers, the node flows and the prices: a few programs, not one
+    # per operation
+    assert count <= 8
