@@ -87,16 +87,14 @@ def levels_to_indices(levels: jnp.ndarray, params: EnvParams, offset: int) -> jn
     return jnp.asarray(levels).astype(jnp.int32) + offset
 
 
+@functools.partial(jax.jit, static_argnums=1)
 def avail_actions(params: EnvParams, offset: int) -> jnp.ndarray:
-    """Bool ``(N, n)``: ``True`` where index ``k`` gives a level the agent's leaf can take."""
+    """Bool ``(N, n)``: ``True`` where index ``k`` gives a level the agent's leaf can take.
+
+    Compiled as one program per station shape (a new env builds its mask with it)."""
     n = params.num_levels + 1 + offset
     levels = jnp.arange(n, dtype=jnp.int32)[None, :] - offset
     return levels >= min_levels(params)[:, None]
-
-
-_avail_actions = jax.jit(avail_actions, static_argnums=1)
-"""`avail_actions` as one program per station shape (a new env's mask; run op by op, every
-operation of a new shape would compile a program of its own)."""
 
 
 def ancestor_table(params: EnvParams) -> jnp.ndarray:
@@ -437,7 +435,7 @@ class ChargaxMARL(MultiAgentEnv):
         self.agent_index = {a: i for i, a in enumerate(self.agents)}
         self.action_offset = action_offset(params)
         self.num_actions = params.num_levels + 1 + self.action_offset
-        self._avail_np = np.asarray(_avail_actions(params, self.action_offset))
+        self._avail_np = np.asarray(avail_actions(params, self.action_offset))
         self._layout = obs_layout(params, agent_id)
         obs_shape = jax.eval_shape(
             lambda s: agent_observations(s, params, self._layout), simulator.empty_state(0, params)

@@ -200,7 +200,8 @@ def test_teacher_count_times_both_counts_and_they_agree(tmp_path):
     out = tmp_path / "count.jsonl"
     rows = load("teacher_count").main(["--envs", "2", "--reps", "1", "--out", str(out)])
     assert [r["envs"] for r in rows] == [2] and rows[0]["identical"]
-    assert all(rows[0][k] > 0 for k in rows[0] if k.endswith("_ms_blocked") or "cumsum" in k)
+    for what in ("potential", "advice"):
+        assert rows[0][f"{what}_ms_blocked"] > 0 and rows[0][f"{what}_ms_cumsum"] > 0
     assert [json.loads(line)["envs"] for line in out.read_text().splitlines()] == [2]
 
 
