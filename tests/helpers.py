@@ -263,8 +263,23 @@ def count_compiles(fn) -> int:
     return len(events)
 
 
+def train_seeds(train, keys):
+    """``jax.jit(jax.vmap(train))(keys)`` as one program of ``vmap(train.init)`` then
+    ``vmap(train.run_updates)``: the same training, traced in about half the time. Under a single
+    ``vmap(train)`` the optimiser's zero moments and the update counter enter the updates' scan
+    unbatched and leave it batched, so ``vmap`` batches the scan's body (and every scan in it)
+    again; ``vmap(train.init)`` hands ``run_updates`` a runner state batched throughout."""
+
+    def seeds(keys):
+        rs = jax.vmap(train.init)(keys)
+        rs, metrics = jax.vmap(lambda r: train.run_updates(r, train.num_updates))(rs)
+        return {"runner_state": rs, "metrics": metrics}
+
+    return jax.jit(seeds)(keys)
+
+
 def finite_losses(train, seeds=2):
-    out = jax.jit(jax.vmap(train))(jax.random.split(jax.random.PRNGKey(0), seeds))
+    out = train_seeds(train, jax.random.split(jax.random.PRNGKey(0), seeds))
     m = jax.device_get(out["metrics"])
     for k in ("actor_loss", "value_loss", "entropy", "approx_kl"):
         assert m[k].shape == (seeds, train.num_updates)

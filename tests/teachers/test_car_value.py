@@ -16,7 +16,7 @@ from chargax_marl.core import make_params, simulator
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.teachers import car_plan, shaping
 from tests.helpers import TINY as HELPER_TINY
-from tests.helpers import TINY_ENV
+from tests.helpers import TINY_ENV, train_seeds
 
 TINY = {**HELPER_TINY, "ENV_KWARGS": {**TINY_ENV, "num_levels": 1}}
 
@@ -186,7 +186,7 @@ def test_port_shaping_trains_and_keeps_the_logged_profit(mod):
         if mod is ippo:
             config["LOCAL_REWARD_WEIGHT"] = 1.0
         train = mod.make_train(config)
-        out = jax.jit(jax.vmap(train))(jax.random.split(jax.random.PRNGKey(0), 2))
+        out = train_seeds(train, jax.random.split(jax.random.PRNGKey(0), 2))
         m = jax.device_get(out["metrics"])
         for k in ("actor_loss", "value_loss"):
             assert np.all(np.isfinite(m[k])), (k, m[k])
@@ -264,7 +264,7 @@ def test_ippo_plan_obs_appends_the_advice_to_every_agent_s_observation():
     train = ippo.make_train(
         {**TINY, "PORT_SHAPING": "off", "PLAN_OBS": True, "LOCAL_REWARD_WEIGHT": 1.0}
     )
-    out = jax.jit(jax.vmap(train))(jax.random.split(jax.random.PRNGKey(0), 2))
+    out = train_seeds(train, jax.random.split(jax.random.PRNGKey(0), 2))
     assert np.all(np.isfinite(np.asarray(out["metrics"]["actor_loss"])))
     env = ChargaxMARL(params=train.env_params)
     assert train.policy.obs_dim == env.obs_size + 1
@@ -284,7 +284,7 @@ def test_ppo_plan_obs_appends_every_leaf_s_advice():
     from chargax_marl.core.observation import flat_obs
 
     train = ppo.make_train({**TINY, "PORT_SHAPING": "plan", "PLAN_OBS": True, "SPLIT_CREDIT": True})
-    out = jax.jit(jax.vmap(train))(jax.random.split(jax.random.PRNGKey(0), 2))
+    out = train_seeds(train, jax.random.split(jax.random.PRNGKey(0), 2))
     assert np.all(np.isfinite(np.asarray(out["metrics"]["actor_loss"])))
     params = make_params(**TINY_ENV, num_levels=1)
     state = _one_car_state(params, minutes_left=120.0, need_kwh=5.0, charge_sensitive=True)
