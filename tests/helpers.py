@@ -265,10 +265,11 @@ def count_compiles(fn) -> int:
 
 def train_seeds(train, keys):
     """``jax.jit(jax.vmap(train))(keys)`` as one program of ``vmap(train.init)`` then
-    ``vmap(train.run_updates)``: the same training, traced in about half the time. Under a single
-    ``vmap(train)`` the optimiser's zero moments and the update counter enter the updates' scan
-    unbatched and leave it batched, so ``vmap`` batches the scan's body (and every scan in it)
-    again; ``vmap(train.init)`` hands ``run_updates`` a runner state batched throughout."""
+    ``vmap(train.run_updates)``, as the command-line runner trains: the same training, traced
+    with less work. Under a single ``vmap(train)`` the optimiser's zero moments and the update
+    counter enter the updates' scan unbatched and leave it batched, so ``vmap`` batches the
+    scan's body (and every scan in it) again; ``vmap(train.init)`` hands ``run_updates`` a
+    runner state batched throughout."""
 
     def seeds(keys):
         rs = jax.vmap(train.init)(keys)
