@@ -306,3 +306,63 @@ def test_throughput_extracts_a_base_revision_for_the_training_and_mpc_a_b():
             ["git", "-C", str(ROOT), "show", f"HEAD:{path}"], capture_output=True, text=True
         ).stdout
         assert (base / path).read_text() == committed
+
+
+def test_suite_profile_charges_jax_compile_events_to_the_running_test(tmp_path):
+    """The plugin, run by pytest on a one-test file, charges the test's trace, lower and
+    compile to it and names the compiled function."""
+    tiny = tmp_path / "test_tiny.py"
+    tiny.write_text(
+        "import jax\n\n\ndef test_doubles():\n"
+        "    assert float(jax.jit(lambda x: x * 2.0)(3.0)) == 6.0\n"
+    )
+    records = tmp_path / "records"
+    records.mkdir()
+    env = {
+        **os.environ,
+        "CHARGAX_SUITE_PROFILE_DIR": str(records),
+        "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "cache"),
+        "JAX_PLATFORMS": "cpu",
+    }
+    cmd = [sys.executable, "-m", "pytest", "-q", "-p", "benchmarks.suite_profile", str(tiny)]
+    res = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    profile = load("suite_profile")
+    merged = profile.merge([json.loads((records / "main.json").read_text())])
+    (test,) = [t for t in merged["tests"] if t.endswith("::test_doubles")]
+    row = merged["tests"][test]
+    assert row["seconds"] > 0 and row["compiles"] >= 1
+    assert row["trace_s"] > 0 and row["lower_s"] > 0 and row["compile_s"] > 0
+    assert any(t == test and "lambda" in fun for t, fun, _ in merged["programs"])
+
+
+def test_suite_profile_sums_processes_per_test_and_file():
+    profile = load("suite_profile")
+    controller = {
+        "durations": {"a.py::t1": 3.0, "a.py::t2": 1.0, "b.py::t3": 5.0},
+        "jax": {},
+        "programs": [],
+    }
+    worker = {
+        "durations": {},
+        "jax": {
+            "a.py::t1": {"trace_s": 0.5, "compile_s": 2.0, "compiles": 2},
+            profile.OUTSIDE: {"trace_s": 0.25},
+        },
+        "programs": [["a.py::t1", "jit(f)", 1.5], ["a.py::t1", "jit(g)", 0.5]],
+    }
+    merged = profile.merge([controller, worker])
+    assert merged["tests"]["a.py::t1"] == {
+        "seconds": 3.0,
+        "trace_s": 0.5,
+        "compile_s": 2.0,
+        "compiles": 2,
+    }
+    report = profile.summarize(merged, top=2)
+    lines = report.splitlines()
+    assert "all 3 tests" in lines[2] and lines[2].split()[:2] == ["9.0", "0.8"]
+    files = lines[lines.index("the 2 files with the most seconds") + 2 :][:2]
+    assert [f.split()[-1] for f in files] == ["b.py", "a.py"]
+    assert files[1].split()[:1] == ["4.0"]
+    funs = lines[lines.index("the 2 compiled functions with the most compile seconds") + 2 :]
+    assert [f.split()[-1] for f in funs] == ["jit(f)", "jit(g)"]

@@ -1,0 +1,203 @@
+"""Where the test suite's time goes: each test's seconds and, of them, JAX's tracing, lowering
+and XLA compiling, summed per test file, per test and per compiled function.
+
+    python benchmarks/suite_profile.py                    # the suite as `make test` runs it
+    python benchmarks/suite_profile.py --cold             # with an empty compilation cache
+    python benchmarks/suite_profile.py --out prof.json -- tests/marl -k array
+
+Runs pytest with this module as a plugin (``-p benchmarks.suite_profile``). In every process
+that runs tests (each pytest-xdist worker) the plugin listens to JAX's compile events and
+charges each to the test running at the time (events outside a test, at collection, go to
+``<outside tests>``); processes that a test starts itself are not seen, their time is in that
+test's seconds. ``--cold`` gives the run a new, empty persistent compilation cache, as a fresh
+clone's first run has; without it the run reads and fills the suite's own cache
+(``tests/conftest.py``), so programs compiled by an earlier run are not compiled again.
+
+Prints the totals, the files and tests that take longest, and the functions whose programs took
+longest to compile; ``--out`` also writes every record as JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT_DIR_ENV = "CHARGAX_SUITE_PROFILE_DIR"
+"""The folder the plugin writes its records to; unset, the plugin records nothing."""
+
+OUTSIDE = "<outside tests>"
+PHASES = {
+    "/jax/core/compile/jaxpr_trace_duration": "trace_s",
+    "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower_s",
+    "/jax/core/compile/backend_compile_duration": "compile_s",
+}
+
+# ----------------------------------------------------------------------- the pytest plugin
+
+_jax_events: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
+_programs: list[tuple[str, str, float]] = []  # (test, function, compile seconds)
+_durations: collections.Counter = collections.Counter()
+_listening: list[bool] = []
+
+
+def _current_test() -> str:
+    current = os.environ.get("PYTEST_CURRENT_TEST")
+    return current.rsplit(" ", 1)[0] if current else OUTSIDE
+
+
+def on_event(event: str, duration_s: float, **kwargs) -> None:
+    """A ``jax.monitoring`` duration listener: charges trace, lower and compile seconds to the
+    running test, and records each XLA compile with its function's name.
+
+    Args:
+        event: the JAX monitoring event name.
+        duration_s: its duration (seconds).
+        **kwargs: the event's fields (``fun_name`` for the compile events).
+    """
+    phase = PHASES.get(event)
+    if phase is None:
+        return
+    test = _current_test()
+    _jax_events[test][phase] += duration_s
+    if phase == "compile_s":
+        _jax_events[test]["compiles"] += 1
+        _programs.append((test, str(kwargs.get("fun_name", "?")), duration_s))
+
+
+def pytest_runtest_setup(item) -> None:
+    # jax as the tests imported it, at the first test that has it: this module does not import
+    # jax, which would read jax's settings before tests/conftest.py sets the compilation cache
+    jax = sys.modules.get("jax")
+    if not _listening and jax is not None and os.environ.get(OUT_DIR_ENV):
+        jax.monitoring.register_event_duration_secs_listener(on_event)
+        _listening.append(True)
+
+
+def pytest_runtest_logreport(report) -> None:
+    # the process that reports to the terminal (the xdist controller, or the only process)
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        _durations[report.nodeid] += report.duration
+
+
+def pytest_sessionfinish(session) -> None:
+    out = os.environ.get(OUT_DIR_ENV)
+    if not out:
+        return
+    name = os.environ.get("PYTEST_XDIST_WORKER", "main")
+    record = {
+        "durations": dict(_durations),
+        "jax": {test: dict(c) for test, c in _jax_events.items()},
+        "programs": _programs,
+    }
+    (Path(out) / f"{name}.json").write_text(json.dumps(record))
+
+
+# ----------------------------------------------------------------------- the summary
+
+
+def merge(records: list[dict]) -> dict:
+    """The per-process records as one: seconds and JAX phases per test, every compile.
+
+    Args:
+        records: the JSON records the plugin wrote, one per process.
+
+    Returns:
+        ``{"tests": {test: {"seconds", "trace_s", "lower_s", "compile_s", "compiles"}},
+        "programs": [(test, function, compile seconds), ...]}``.
+    """
+    tests: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
+    programs = []
+    for r in records:
+        for test, s in r["durations"].items():
+            tests[test]["seconds"] += s
+        for test, phases in r["jax"].items():
+            tests[test].update(phases)
+        programs += [tuple(p) for p in r["programs"]]
+    return {"tests": {t: dict(c) for t, c in tests.items()}, "programs": programs}
+
+
+COLUMNS = ("seconds", "trace_s", "lower_s", "compile_s", "compiles")
+
+
+def summarize(merged: dict, top: int = 20) -> str:
+    """The report: totals, then the files and tests with the most seconds, then the functions
+    with the most compile seconds.
+
+    Args:
+        merged: `merge`'s output.
+        top: rows per table.
+
+    Returns:
+        The report as text.
+    """
+    tests = merged["tests"]
+    files: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
+    for test, c in tests.items():
+        files[test.split("::")[0]].update(c)
+    total = collections.Counter()
+    for c in tests.values():
+        total.update(c)
+
+    def row(c, name: str) -> str:
+        return (
+            f"{c.get('seconds', 0.0):9.1f} {c.get('trace_s', 0.0):8.1f} "
+            f"{c.get('lower_s', 0.0):8.1f} {c.get('compile_s', 0.0):9.1f} "
+            f"{int(c.get('compiles', 0)):8d}  {name}"
+        )
+
+    head = f"{'seconds':>9} {'trace_s':>8} {'lower_s':>8} {'compile_s':>9} {'compiles':>8}"
+    lines = [
+        "tests' seconds (summed over processes) and, of them, JAX's trace, lower and compile",
+        head,
+        row(total, f"all {sum(1 for t in tests if t != OUTSIDE)} tests"),
+    ]
+    for title, table in (("files", files), ("tests", tests)):
+        lines += ["", f"the {top} {title} with the most seconds", head]
+        ranked = sorted(table.items(), key=lambda kv: -kv[1].get("seconds", 0.0))
+        lines += [row(c, name) for name, c in ranked[:top]]
+    by_fun: dict[str, list] = collections.defaultdict(lambda: [0, 0.0])
+    for _, fun, seconds in merged["programs"]:
+        by_fun[fun][0] += 1
+        by_fun[fun][1] += seconds
+    lines += ["", f"the {top} compiled functions with the most compile seconds"]
+    lines += [f"{'compile_s':>9} {'compiles':>8}  function"]
+    for fun, (n, s) in sorted(by_fun.items(), key=lambda kv: -kv[1][1])[:top]:
+        lines.append(f"{s:9.1f} {n:8d}  {fun}")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    p.add_argument("--cold", action="store_true", help="start from an empty compilation cache")
+    p.add_argument("--workers", type=int, default=2, help="pytest-xdist workers (0: none)")
+    p.add_argument("--top", type=int, default=20, help="rows per table")
+    p.add_argument("--out", type=Path, default=None, help="write the merged records as JSON")
+    p.add_argument("pytest_args", nargs="*", help="pytest's arguments (after --)")
+    args = p.parse_args(argv)
+    if args.workers < 0 or args.top < 1:
+        p.error(f"--workers must be >= 0 and --top >= 1, got {args.workers} and {args.top}")
+    with tempfile.TemporaryDirectory() as records, tempfile.TemporaryDirectory() as cache:
+        env = {**os.environ, OUT_DIR_ENV: records}
+        if args.cold:
+            env["JAX_COMPILATION_CACHE_DIR"] = cache
+        cmd = [sys.executable, "-m", "pytest", "-q", "-p", "benchmarks.suite_profile"]
+        if args.workers:
+            cmd += ["-n", str(args.workers)]
+        code = subprocess.call([*cmd, *args.pytest_args], cwd=ROOT, env=env)
+        merged = merge([json.loads(f.read_text()) for f in sorted(Path(records).glob("*.json"))])
+    print(summarize(merged, args.top))
+    if args.out is not None:
+        args.out.write_text(json.dumps(merged))
+        print(f"wrote {args.out}")
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())
