@@ -45,6 +45,12 @@ _jax_events: dict[str, collections.Counter] = collections.defaultdict(collection
 _programs: list[tuple[str, str, float]] = []  # (test, function, compile seconds)
 _durations: collections.Counter = collections.Counter()
 _listening: list[bool] = []
+_process: dict[str, str] = {}  # "name": the xdist worker's id, or "main" for the controller
+
+
+def pytest_configure(config) -> None:
+    worker = getattr(config, "workerinput", None)  # set by pytest-xdist in its workers
+    _process["name"] = worker["workerid"] if worker else "main"
 
 
 def _current_test() -> str:
@@ -82,7 +88,7 @@ def pytest_runtest_setup(item) -> None:
 
 def pytest_runtest_logreport(report) -> None:
     # the process that reports to the terminal (the xdist controller, or the only process)
-    if not os.environ.get("PYTEST_XDIST_WORKER"):
+    if _process.get("name") == "main":
         _durations[report.nodeid] += report.duration
 
 
@@ -90,7 +96,7 @@ def pytest_sessionfinish(session) -> None:
     out = os.environ.get(OUT_DIR_ENV)
     if not out:
         return
-    name = os.environ.get("PYTEST_XDIST_WORKER", "main")
+    name = _process.get("name", "main")
     record = {
         "durations": dict(_durations),
         "jax": {test: dict(c) for test, c in _jax_events.items()},
