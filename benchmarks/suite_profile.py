@@ -21,11 +21,14 @@ from __future__ import annotations
 
 import argparse
 import collections
+import importlib.metadata
 import json
 import os
+import platform
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -133,8 +136,8 @@ COLUMNS = ("seconds", "trace_s", "lower_s", "compile_s", "compiles")
 
 
 def summarize(merged: dict, top: int = 20) -> str:
-    """The report: totals, then the files and tests with the most seconds, then the functions
-    with the most compile seconds.
+    """The report: totals, the files and tests with the most seconds, the functions with the
+    most compile seconds, the compiles by their duration and the longest ones.
 
     Args:
         merged: `merge`'s output.
@@ -176,7 +179,53 @@ def summarize(merged: dict, top: int = 20) -> str:
     lines += [f"{'compile_s':>9} {'compiles':>8}  function"]
     for fun, (n, s) in sorted(by_fun.items(), key=lambda kv: -kv[1][1])[:top]:
         lines.append(f"{s:9.1f} {n:8d}  {fun}")
+    lines += ["", "compiles by their seconds", f"{'compile_s':>9} {'compiles':>8}  each"]
+    edges = (0.0, 0.1, 1.0, 5.0, float("inf"))
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        sizes = [s for _, _, s in merged["programs"] if lo <= s < hi]
+        each = f">= {lo:g} s" if hi == float("inf") else f"{lo:g}-{hi:g} s"
+        lines.append(f"{sum(sizes):9.1f} {len(sizes):8d}  {each}")
+    lines += ["", f"the {top} longest compiles", f"{'compile_s':>9}  function  test"]
+    for test, fun, s in sorted(merged["programs"], key=lambda p: -p[2])[:top]:
+        lines.append(f"{s:9.1f}  {fun}  {test}")
     return "\n".join(lines)
+
+
+def run_header(wall_s: float, exit_code: int, cold: bool) -> str:
+    """The run's machine, code and wall time (without importing jax: this module is also the
+    plugin, imported before the tests set jax's settings).
+
+    Args:
+        wall_s: the pytest run's wall-clock seconds.
+        exit_code: pytest's exit code.
+        cold: whether the run started from an empty compilation cache.
+
+    Returns:
+        Two lines of text.
+    """
+    model = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            model = next(ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    try:
+        commit = subprocess.run(
+            ["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        commit = "?"
+    load = " ".join(f"{x:.2f}" for x in os.getloadavg())
+    cache = "an empty compilation cache" if cold else "the compilation cache of tests/conftest.py"
+    return (
+        f"{model}, {os.cpu_count()} cores, jax {importlib.metadata.version('jax')}, "
+        f"commit {commit or '?'}, load averages after the run {load}\n"
+        f"pytest exit code {exit_code}, wall {wall_s:.0f} s, "
+        f"{cache}"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -196,8 +245,11 @@ def main(argv: list[str] | None = None) -> int:
         cmd = [sys.executable, "-m", "pytest", "-q", "-p", "benchmarks.suite_profile"]
         if args.workers:
             cmd += ["-n", str(args.workers)]
+        t0 = time.perf_counter()
         code = subprocess.call([*cmd, *args.pytest_args], cwd=ROOT, env=env)
+        wall_s = time.perf_counter() - t0
         merged = merge([json.loads(f.read_text()) for f in sorted(Path(records).glob("*.json"))])
+    print(run_header(wall_s, code, args.cold))
     print(summarize(merged, args.top))
     if args.out is not None:
         args.out.write_text(json.dumps(merged))

@@ -367,4 +367,13 @@ def test_suite_profile_sums_processes_per_test_and_file():
     assert [f.split()[-1] for f in files] == ["b.py", "a.py"]
     assert files[1].split()[:1] == ["4.0"]
     funs = lines[lines.index("the 2 compiled functions with the most compile seconds") + 2 :]
-    assert [f.split()[-1] for f in funs] == ["jit(f)", "jit(g)"]
+    assert [f.split()[-1] for f in funs[:2]] == ["jit(f)", "jit(g)"]
+    sizes = lines[lines.index("compiles by their seconds") + 2 :][:4]
+    assert [r.split()[:2] for r in sizes] == [
+        ["0.0", "0"],
+        ["0.5", "1"],
+        ["1.5", "1"],
+        ["0.0", "0"],
+    ]
+    longest = lines[lines.index("the 2 longest compiles") + 2 :]
+    assert [r.split()[:2] for r in longest] == [["1.5", "jit(f)"], ["0.5", "jit(g)"]]
