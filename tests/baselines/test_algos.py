@@ -165,7 +165,9 @@ def test_gae_matches_reference():
 
 def test_ppo_update_finite_and_short_training_improves_return():
     """From a near-uniform policy, a few dozen updates learn to charge the tiny station's cars
-    (two vmapped seeds, both must improve over their own first iteration)."""
+    (two vmapped seeds, both must improve over their own first iteration). It trains through
+    ``jax.jit(jax.vmap(train))``, the form the trainers' docstrings give (the other tests
+    vmap ``init`` and ``run_updates`` apart, `tests.helpers.train_seeds`)."""
     config = {
         **TINY,
         "NUM_ENVS": 8,
@@ -176,7 +178,10 @@ def test_ppo_update_finite_and_short_training_improves_return():
         "NUM_MINIBATCHES": 4,
     }
     train = ppo.make_train(config)
-    out = finite_losses(train)
+    out = jax.jit(jax.vmap(train))(jax.random.split(jax.random.PRNGKey(0), 2))
+    m = jax.device_get(out["metrics"])
+    for k in ("actor_loss", "value_loss", "entropy", "approx_kl"):
+        assert m[k].shape == (2, train.num_updates) and np.all(np.isfinite(m[k])), k
     ret = np.asarray(out["metrics"]["episode_return"])  # (seeds, updates)
     first, last = ret[:, :2].mean(1), ret[:, -5:].mean(1)
     assert np.all(last > first + 0.1 * np.abs(first)), (first, last)
