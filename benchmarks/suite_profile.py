@@ -7,14 +7,16 @@ and XLA compiling, summed per test file, per test and per compiled function.
 
 Runs pytest with this module as a plugin (``-p benchmarks.suite_profile``). In every process
 that runs tests (each pytest-xdist worker) the plugin listens to JAX's compile events and
-charges each to the test running at the time (events outside a test, at collection, go to
-``<outside tests>``); processes that a test starts itself are not seen, their time is in that
+charges each to the test running at the time (fixtures included). It starts listening at the
+first test, so the compiles of collection (imports) are not counted; events between tests go to
+``<outside tests>``. Processes that a test starts itself are not seen: their time is in that
 test's seconds. ``--cold`` gives the run a new, empty persistent compilation cache, as a fresh
 clone's first run has; without it the run reads and fills the suite's own cache
 (``tests/conftest.py``), so programs compiled by an earlier run are not compiled again.
 
-Prints the totals, the files and tests that take longest, and the functions whose programs took
-longest to compile; ``--out`` also writes every record as JSON.
+Prints the run's machine, commit and wall time, the totals, the files and tests that take
+longest, the functions whose programs took longest to compile, the compiles grouped by their
+duration and the longest ones; ``--out`` also writes every record as JSON.
 """
 
 from __future__ import annotations
