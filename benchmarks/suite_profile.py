@@ -5,12 +5,10 @@ and XLA compiling, summed per test file, per test and per compiled function.
     python benchmarks/suite_profile.py --cold             # with an empty compilation cache
     python benchmarks/suite_profile.py --out prof.json -- tests/marl -k array
 
-Runs pytest with this module as a plugin (``-p benchmarks.suite_profile``). In every process
-that runs tests (each pytest-xdist worker) the plugin listens to JAX's compile events and
-charges each to the test running at the time (fixtures included). It starts listening at the
-first test, so the compiles of collection (imports) are not counted; events between tests go to
-``<outside tests>``. Processes that a test starts itself are not seen: their time is in that
-test's seconds. ``--cold`` gives the run a new, empty persistent compilation cache, as a fresh
+Runs pytest with `suite_profile_plugin.py` as a plugin, which charges JAX's compile events in
+every test process to the test running at the time (fixtures included; collection is not
+counted, and processes that a test starts itself are not seen: their time is in that test's
+seconds). ``--cold`` gives the run a new, empty persistent compilation cache, as a fresh
 clone's first run has; without it the run reads and fills the suite's own cache
 (``tests/conftest.py``), so programs compiled by an earlier run are not compiled again.
 
@@ -23,10 +21,8 @@ from __future__ import annotations
 
 import argparse
 import collections
-import importlib.metadata
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -34,83 +30,9 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-OUT_DIR_ENV = "CHARGAX_SUITE_PROFILE_DIR"
-"""The folder the plugin writes its records to; unset, the plugin records nothing."""
-
-OUTSIDE = "<outside tests>"
-PHASES = {
-    "/jax/core/compile/jaxpr_trace_duration": "trace_s",
-    "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower_s",
-    "/jax/core/compile/backend_compile_duration": "compile_s",
-}
-
-# ----------------------------------------------------------------------- the pytest plugin
-
-_jax_events: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
-_programs: list[tuple[str, str, float]] = []  # (test, function, compile seconds)
-_durations: collections.Counter = collections.Counter()
-_listening: list[bool] = []
-_process: dict[str, str] = {}  # "name": the xdist worker's id, or "main" for the controller
-
-
-def pytest_configure(config) -> None:
-    worker = getattr(config, "workerinput", None)  # set by pytest-xdist in its workers
-    _process["name"] = worker["workerid"] if worker else "main"
-
-
-def _current_test() -> str:
-    current = os.environ.get("PYTEST_CURRENT_TEST")
-    return current.rsplit(" ", 1)[0] if current else OUTSIDE
-
-
-def on_event(event: str, duration_s: float, **kwargs) -> None:
-    """A ``jax.monitoring`` duration listener: charges trace, lower and compile seconds to the
-    running test, and records each XLA compile with its function's name.
-
-    Args:
-        event: the JAX monitoring event name.
-        duration_s: its duration (seconds).
-        **kwargs: the event's fields (``fun_name`` for the compile events).
-    """
-    phase = PHASES.get(event)
-    if phase is None:
-        return
-    test = _current_test()
-    _jax_events[test][phase] += duration_s
-    if phase == "compile_s":
-        _jax_events[test]["compiles"] += 1
-        _programs.append((test, str(kwargs.get("fun_name", "?")), duration_s))
-
-
-def pytest_runtest_setup(item) -> None:
-    # jax as the tests imported it, at the first test that has it: this module does not import
-    # jax, which would read jax's settings before tests/conftest.py sets the compilation cache
-    jax = sys.modules.get("jax")
-    if not _listening and jax is not None and os.environ.get(OUT_DIR_ENV):
-        jax.monitoring.register_event_duration_secs_listener(on_event)
-        _listening.append(True)
-
-
-def pytest_runtest_logreport(report) -> None:
-    # the process that reports to the terminal (the xdist controller, or the only process)
-    if _process.get("name") == "main":
-        _durations[report.nodeid] += report.duration
-
-
-def pytest_sessionfinish(session) -> None:
-    out = os.environ.get(OUT_DIR_ENV)
-    if not out:
-        return
-    name = _process.get("name", "main")
-    record = {
-        "durations": dict(_durations),
-        "jax": {test: dict(c) for test, c in _jax_events.items()},
-        "programs": _programs,
-    }
-    (Path(out) / f"{name}.json").write_text(json.dumps(record))
-
-
-# ----------------------------------------------------------------------- the summary
+sys.path.insert(0, str(ROOT))  # benchmarks/ is not installed: run from a checkout
+from benchmarks.suite_profile_plugin import OUT_DIR_ENV, OUTSIDE  # noqa: E402
+from chargax_marl.machine import code_version, load_info, machine_info  # noqa: E402
 
 
 def merge(records: list[dict]) -> dict:
@@ -132,9 +54,6 @@ def merge(records: list[dict]) -> dict:
             tests[test].update(phases)
         programs += [tuple(p) for p in r["programs"]]
     return {"tests": {t: dict(c) for t, c in tests.items()}, "programs": programs}
-
-
-COLUMNS = ("seconds", "trace_s", "lower_s", "compile_s", "compiles")
 
 
 def summarize(merged: dict, top: int = 20) -> str:
@@ -194,8 +113,7 @@ def summarize(merged: dict, top: int = 20) -> str:
 
 
 def run_header(wall_s: float, exit_code: int, cold: bool) -> str:
-    """The run's machine, code and wall time (without importing jax: this module is also the
-    plugin, imported before the tests set jax's settings).
+    """The run's machine, code, load and wall time.
 
     Args:
         wall_s: the pytest run's wall-clock seconds.
@@ -205,28 +123,12 @@ def run_header(wall_s: float, exit_code: int, cold: bool) -> str:
     Returns:
         Two lines of text.
     """
-    model = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            model = next(ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    try:
-        commit = subprocess.run(
-            ["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
-            capture_output=True,
-            text=True,
-            timeout=10,
-        ).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        commit = "?"
-    load = " ".join(f"{x:.2f}" for x in os.getloadavg())
+    m, code = machine_info(), code_version(ROOT)
     cache = "an empty compilation cache" if cold else "the compilation cache of tests/conftest.py"
     return (
-        f"{model}, {os.cpu_count()} cores, jax {importlib.metadata.version('jax')}, "
-        f"commit {commit or '?'}, load averages after the run {load}\n"
-        f"pytest exit code {exit_code}, wall {wall_s:.0f} s, "
-        f"{cache}"
+        f"{m['cpu']}, {m['cores']} cores, jax {m['jax']}, commit {code['commit']}"
+        f"{' (uncommitted changes)' if code['dirty'] else ''}, {load_info()} after the run\n"
+        f"pytest exit code {exit_code}, wall {wall_s:.0f} s, {cache}"
     )
 
 
@@ -244,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
         env = {**os.environ, OUT_DIR_ENV: records}
         if args.cold:
             env["JAX_COMPILATION_CACHE_DIR"] = cache
-        cmd = [sys.executable, "-m", "pytest", "-q", "-p", "benchmarks.suite_profile"]
+        cmd = [sys.executable, "-m", "pytest", "-q", "-p", "benchmarks.suite_profile_plugin"]
         if args.workers:
             cmd += ["-n", str(args.workers)]
         t0 = time.perf_counter()

@@ -319,14 +319,13 @@ def test_suite_profile_charges_jax_compile_events_to_the_running_test(tmp_path):
     records = tmp_path / "records"
     records.mkdir()
     # the run is pytest's own, not part of this session's (its xdist worker, its current test)
-    env = {k: v for k, v in os.environ.items() if not k.startswith("PYTEST_")}
     env = {
-        **env,
+        **{k: v for k, v in os.environ.items() if not k.startswith("PYTEST_")},
         "CHARGAX_SUITE_PROFILE_DIR": str(records),
         "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "cache"),
         "JAX_PLATFORMS": "cpu",
     }
-    cmd = [sys.executable, "-m", "pytest", "-q", "-p", "benchmarks.suite_profile", str(tiny)]
+    cmd = [sys.executable, "-m", "pytest", "-q", "-p", "benchmarks.suite_profile_plugin", str(tiny)]
     res = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
     profile = load("suite_profile")
