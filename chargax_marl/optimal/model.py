@@ -353,6 +353,17 @@ def _key(kind: int, entity, step) -> np.ndarray:
     return (np.int64(kind) << 40) + (np.asarray(entity, np.int64) << 20) + np.asarray(step)
 
 
+def _per_item(value, count: int, shape: tuple | None = None) -> np.ndarray:
+    """``value`` (a scalar or an array of ``shape``, default ``(count,)``) as ``count``
+    float64s."""
+    a = np.asarray(value, np.float64)
+    if a.ndim == 0:
+        return np.full(count, a)
+    if a.shape != (shape or (count,)):
+        a = np.broadcast_to(a, shape or (count,))
+    return a.ravel()
+
+
 class _Builder:
     """Variables with bounds and costs, and sparse rows ``lb <= A x <= ub``, added in blocks
     (each call takes whole arrays)."""
@@ -366,25 +377,41 @@ class _Builder:
 
     def vars(self, count: int, lb, ub, cost=0.0, integer: bool = False) -> np.ndarray:
         idx = np.arange(self.n, self.n + count)
-        self.lb.append(np.broadcast_to(np.asarray(lb, np.float64), (count,)))
-        self.ub.append(np.broadcast_to(np.asarray(ub, np.float64), (count,)))
-        self.cost.append(np.broadcast_to(np.asarray(cost, np.float64), (count,)))
+        self.lb.append(_per_item(lb, count))
+        self.ub.append(_per_item(ub, count))
+        self.cost.append(_per_item(cost, count))
         self.integer.append(np.full(count, bool(integer)))
         self.n += count
         return idx
 
     def new_rows(self, count: int, lb, ub) -> np.ndarray:
         idx = np.arange(self.m, self.m + count)
-        self.row_lb.append(np.broadcast_to(np.asarray(lb, np.float64), (count,)))
-        self.row_ub.append(np.broadcast_to(np.asarray(ub, np.float64), (count,)))
+        self.row_lb.append(_per_item(lb, count))
+        self.row_ub.append(_per_item(ub, count))
         self.m += count
         return idx
 
     def coef(self, rows, cols, vals) -> None:
-        rows, cols = np.broadcast_arrays(np.asarray(rows), np.asarray(cols))
+        rows, cols = np.asarray(rows), np.asarray(cols)
+        if rows.shape != cols.shape:
+            rows, cols = np.broadcast_arrays(rows, cols)
         self.rows.append(rows.ravel())
         self.cols.append(cols.ravel())
-        self.vals.append(np.broadcast_to(np.asarray(vals, np.float64), rows.shape).ravel())
+        self.vals.append(_per_item(vals, rows.size, rows.shape))
+
+    def matrix(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The rows' coefficients column-wise (CSC): ``(start, index, value)``, each
+        column's rows in ascending order and a coefficient given twice summed."""
+        cat = lambda parts: np.concatenate(parts) if parts else np.zeros(0, np.int64)  # noqa: E731
+        rows, cols = cat(self.rows).astype(np.int64), cat(self.cols).astype(np.int64)
+        vals = np.concatenate(self.vals) if self.vals else np.zeros(0)
+        order = np.argsort(cols * max(self.m, 1) + rows, kind="stable")
+        sorted_rows, sorted_cols = rows[order], cols[order]
+        if np.any((sorted_rows[1:] == sorted_rows[:-1]) & (sorted_cols[1:] == sorted_cols[:-1])):
+            a = sp.csc_array((vals, (rows, cols)), shape=(self.m, self.n))
+            a.sum_duplicates()
+            return a.indptr, a.indices, a.data
+        return np.searchsorted(sorted_cols, np.arange(self.n + 1)), sorted_rows, vals[order]
 
     def solve(
         self,
@@ -418,11 +445,7 @@ class _Builder:
             np.concatenate(parts) if parts else np.zeros(0, dtype)
         )
         c = cat(self.cost)
-        a = sp.csc_array(
-            (cat(self.vals), (cat(self.rows, np.int64), cat(self.cols, np.int64))),
-            shape=(self.m, self.n),
-        )
-        a.sum_duplicates()
+        start, index, value = self.matrix()
         integer = cat(self.integer, bool)
         h = new_highs(time_limit_s)
         if not integer.any():
@@ -436,9 +459,9 @@ class _Builder:
             cat(self.ub),
             cat(self.row_lb),
             cat(self.row_ub),
-            a.indptr,
-            a.indices,
-            a.data,
+            start,
+            index,
+            value,
             integer,
         )
         if col_status is not None:

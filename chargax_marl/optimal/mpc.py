@@ -20,6 +20,7 @@ day's previous solve (``warm_start``).
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -302,6 +303,15 @@ class MPC:
         return np.concatenate([s["soc"][None], s["soc"][None] + steps[:-1]], axis=0)
 
     # ---- the policy
+    def _host_flat(self, layout: tuple, flat: np.ndarray) -> np.ndarray:
+        """`host_act` on the fields that `__call__` packed into one array (``layout``: each
+        field's shape and dtype; every value round-trips exactly)."""
+        sizes = [math.prod(shape) for shape, _ in layout]
+        parts = np.split(np.asarray(flat), np.cumsum(sizes)[:-1])
+        return self.host_act(
+            *(p.reshape(shape).astype(dtype) for p, (shape, dtype) in zip(parts, layout))
+        )
+
     def __call__(self, state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarray:
         del key, params
         dtype = jnp.float32 if self.continuous else jnp.int32
@@ -309,7 +319,15 @@ class MPC:
         args = [
             state.totals.peak_grid_kw if f == "peak_grid_kw" else getattr(state, f) for f in _FIELDS
         ]
-        return jax.pure_callback(self.host_act, out, *args, vmap_method="sequential")
+        # one operand instead of 13: each operand of a host callback costs time on every step.
+        # The widest float dtype holds every field exactly (the step and day as whole numbers
+        # below 2**24, the flags as 0 and 1).
+        wide = jnp.result_type(*(a for a in args if jnp.issubdtype(a.dtype, jnp.floating)))
+        layout = tuple((tuple(a.shape), np.dtype(a.dtype)) for a in args)
+        flat = jnp.concatenate([jnp.ravel(a).astype(wide) for a in args])
+        return jax.pure_callback(
+            functools.partial(self._host_flat, layout), out, flat, vmap_method="sequential"
+        )
 
 
 def mpc_policy(params: EnvParams, **kwargs) -> MPC:

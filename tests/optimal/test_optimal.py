@@ -12,6 +12,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import scipy.sparse
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from chargax_marl import evaluation, optimal, policies, trace
 from chargax_marl.core import simulator
@@ -701,3 +704,65 @@ def test_a_warm_start_with_a_foreign_builder_is_refused():
             builder=model_module._Builder(),
             keep_basis=True,
         )
+
+
+def test_the_mpc_callback_hands_the_host_every_field_exactly():
+    # the fields travel packed in one array; each must arrive with its own dtype and value,
+    # for one state and for each state of a vmapped batch
+    params = hand_params(ONE_PORT, [0.2] * 24, step_minutes=60.0)
+    state = simulator.empty_state(jnp.asarray(3), params).replace(timestep=jnp.asarray(7))
+    state = place_car(state, 0, soc=0.2345678, remaining_kwh=20.0, time_min=187.5)
+    state = state.replace(totals=state.totals.replace(peak_grid_kw=jnp.float32(12.345679)))
+    other = place_car(state.replace(day=jnp.asarray(4)), 0, soc=0.7, remaining_kwh=5.0)
+    mpc = MPC(params)
+    seen = []
+
+    def record(*arrays):
+        seen.append(arrays)
+        return np.zeros(mpc.num_leaves, np.int32)
+
+    mpc.host_act = record
+    jax.block_until_ready(jax.jit(lambda s: mpc(s, KEY, params))(state))
+    batch = jax.tree.map(lambda a, b: jnp.stack([a, b]), state, other)
+    jax.block_until_ready(jax.jit(jax.vmap(lambda s: mpc(s, KEY, params)))(batch))
+    assert len(seen) == 3
+    for arrays, s in zip(seen, [state, state, other]):
+        for name, got in zip(mpc_module._FIELDS, arrays):
+            want = np.asarray(s.totals.peak_grid_kw if name == "peak_grid_kw" else getattr(s, name))
+            assert got.dtype == want.dtype and got.shape == want.shape, name
+            np.testing.assert_array_equal(got, want, err_msg=name)
+
+
+def _scipy_csc(rows, cols, vals, shape):
+    a = scipy.sparse.csc_array((vals, (rows, cols)), shape=shape)
+    a.sum_duplicates()
+    return a.indptr, a.indices, a.data
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    shape=st.tuples(st.integers(1, 7), st.integers(1, 7)),
+    entries=st.lists(
+        st.tuples(st.integers(0, 6), st.integers(0, 6), st.floats(-1e3, 1e3)), max_size=40
+    ),
+    blocks=st.integers(1, 4),
+)
+def test_the_builder_hands_highs_the_matrix_scipy_builds(shape, entries, blocks):
+    # the coefficients given in blocks, in any order and with repeats, become the CSC matrix
+    # SciPy makes of them (rows sorted within each column, repeats summed)
+    m, n = shape
+    entries = [(r % m, c % n, v) for r, c, v in entries]
+    b = model_module._Builder()
+    b.vars(n, 0.0, 1.0)
+    b.new_rows(m, 0.0, 1.0)
+    for part in np.array_split(np.arange(len(entries)), blocks):
+        b.coef(
+            np.array([entries[i][0] for i in part], np.int64),
+            np.array([entries[i][1] for i in part], np.int64),
+            np.array([entries[i][2] for i in part], np.float64),
+        )
+    rows = np.array([e[0] for e in entries], np.int64)
+    cols = np.array([e[1] for e in entries], np.int64)
+    vals = np.array([e[2] for e in entries], np.float64)
+    for got, want in zip(b.matrix(), _scipy_csc(rows, cols, vals, (m, n))):
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
