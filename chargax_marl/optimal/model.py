@@ -771,31 +771,24 @@ def _node_rows(
         The rows' keys ``step * num_nodes + node``, in row order.
     """
     num_nodes = limits.node_max_kw.shape[0]
-    leaf = t.leaf[cs]
-    keys, cols, vals, load_c, load_d = [], [], [], [], []
-    for d in range(limits.node_at_depth.shape[0]):
-        node = limits.node_at_depth[d, leaf]
-        e = limits.eff_at_depth[d, leaf]
-        on = np.nonzero(node >= 0)[0]
-        key = step[on] * num_nodes + node[on]
-        keys.append(key)
-        cols.append(pp[on])
-        vals.append(1.0 / e[on])
-        load_c.append((key, t.pp_max_kw[cs[on]] / e[on]))
-        on_d = np.nonzero(node[dc] >= 0)[0]
-        key_d = step[dc[on_d]] * num_nodes + node[dc[on_d]]
-        keys.append(key_d)
-        cols.append(pm[on_d])
-        vals.append(-e[dc[on_d]])
-        load_d.append((key_d, t.pm_max_kw[cs[dc[on_d]]] * e[dc[on_d]]))
+    # every (depth, cell) whose leaf has a node at that depth, depth by depth; a node sits at
+    # one depth, so each row's sums below run over its cells in the same order either way
+    node = limits.node_at_depth[:, t.leaf[cs]]  # (depths, cells)
+    eff = limits.eff_at_depth[:, t.leaf[cs]]
+    d_c, on_c = np.nonzero(node >= 0)
+    key_c = step[on_c] * num_nodes + node[d_c, on_c]
+    e_c = eff[d_c, on_c]
+    d_d, on_d = np.nonzero(node[:, dc] >= 0)
+    key_d = step[dc[on_d]] * num_nodes + node[d_d, dc[on_d]]
+    e_d = eff[d_d, dc[on_d]]
     size = n * num_nodes
-    worst_c = sum(np.bincount(kk, vv, size) for kk, vv in load_c)
-    worst_d = sum(np.bincount(kk, vv, size) for kk, vv in load_d)
+    worst_c = np.bincount(key_c, t.pp_max_kw[cs[on_c]] / e_c, size)
+    worst_d = np.bincount(key_d, t.pm_max_kw[cs[dc[on_d]]] * e_d, size)
     node_max = np.tile(limits.node_max_kw, n)
     keep = np.nonzero((worst_c > node_max) | (worst_d > node_max))[0]
     row_of = np.full(size, -1, np.int64)
     row_of[keep] = b.new_rows(keep.size, -node_max[keep], node_max[keep])
-    for key, col, val in zip(keys, cols, vals):
+    for key, col, val in ((key_c, pp[on_c], 1.0 / e_c), (key_d, pm[on_d], -e_d)):
         r = row_of[key]
         on = r >= 0
         b.coef(r[on], col[on], val[on])
