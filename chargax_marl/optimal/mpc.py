@@ -9,13 +9,13 @@ the day's peak so far, and the batteries valued at the day's terminal price at t
 end, and turns the first step's powers into levels.
 
 `MPC` is a policy ``mpc(state, key, params) -> levels`` like those of
-`chargax_marl.policies`: it runs on the host through `jax.pure_callback`, so it
-works inside ``jit``, ``scan`` and ``vmap`` (the calls are made one state at a time) and
-therefore in `chargax_marl.evaluation.evaluate` and in both views
-(`chargax_marl.policies.for_single`, `chargax_marl.policies.for_marl`). It is
-slow next to the jitted policies: one HiGHS solve per step and state (its measured cost is
-in the docs' optimal-control and performance pages), each started from the optimal basis of the same
-day's previous solve (``warm_start``).
+`chargax_marl.policies`: it runs on the host through `jax.pure_callback`, so it works inside
+``jit``, ``scan`` and ``vmap`` (under ``vmap``, one call per step solves the batch's states
+one at a time, in the batch's order) and therefore in `chargax_marl.evaluation.evaluate` and
+in both views (`chargax_marl.policies.for_single`, `chargax_marl.policies.for_marl`). It is
+slow next to the jitted policies: one HiGHS solve per step and state (its measured cost is in
+the docs' optimal-control and performance pages), each started from the optimal basis of the
+same day's previous solve (``warm_start``).
 """
 
 from __future__ import annotations
@@ -303,14 +303,22 @@ class MPC:
         return np.concatenate([s["soc"][None], s["soc"][None] + steps[:-1]], axis=0)
 
     # ---- the policy
-    def _host_flat(self, layout: tuple, flat: np.ndarray) -> np.ndarray:
-        """`host_act` on the fields that `__call__` packed into one array (``layout``: each
+    def _host_batch(self, layout: tuple, flat: np.ndarray) -> np.ndarray:
+        """`host_act` on each state of a batch, in the batch's order (leading axes of ``flat``:
+        the batch; its last axis: the fields that `__call__` packed, ``layout`` giving each
         field's shape and dtype; every value round-trips exactly)."""
-        sizes = [math.prod(shape) for shape, _ in layout]
-        parts = np.split(np.asarray(flat), np.cumsum(sizes)[:-1])
-        return self.host_act(
-            *(p.reshape(shape).astype(dtype) for p, (shape, dtype) in zip(parts, layout))
-        )
+        flat = np.asarray(flat)
+        batch = flat.shape[:-1]
+        splits = np.cumsum([math.prod(shape) for shape, _ in layout])[:-1]
+        levels = []
+        for row in flat.reshape(-1, flat.shape[-1]):
+            parts = np.split(row, splits)
+            levels.append(
+                self.host_act(
+                    *(p.reshape(shape).astype(dtype) for p, (shape, dtype) in zip(parts, layout))
+                )
+            )
+        return np.stack(levels).reshape(batch + (self.num_leaves,))
 
     def __call__(self, state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarray:
         del key, params
@@ -319,14 +327,15 @@ class MPC:
         args = [
             state.totals.peak_grid_kw if f == "peak_grid_kw" else getattr(state, f) for f in _FIELDS
         ]
-        # one operand instead of 13: each operand of a host callback costs time on every step.
-        # The widest float dtype holds every field exactly (the step and day as whole numbers
-        # below 2**24, the flags as 0 and 1).
+        # One operand, and under vmap one call per step for the whole batch (solved state by
+        # state in the batch's order): each operand and each call of a host callback costs
+        # time on every step. The widest float dtype holds every field exactly (the step and
+        # day as whole numbers below 2**24, the flags as 0 and 1).
         wide = jnp.result_type(*(a for a in args if jnp.issubdtype(a.dtype, jnp.floating)))
         layout = tuple((tuple(a.shape), np.dtype(a.dtype)) for a in args)
         flat = jnp.concatenate([jnp.ravel(a).astype(wide) for a in args])
         return jax.pure_callback(
-            functools.partial(self._host_flat, layout), out, flat, vmap_method="sequential"
+            functools.partial(self._host_batch, layout), out, flat, vmap_method="broadcast_all"
         )
 
 
