@@ -11,7 +11,8 @@ parameters for the task. Rebuild with::
     python -m chargax_marl.benchmark.references --task Chargax-shopping-v1 --mpc   # add the MPC
 
 The MPC references (`MPC_REFERENCES`) solve an LP per step and are added on request to
-a stored file of the same parameters.
+a stored file of the same parameters; each one's days are shared among ``--processes``
+processes (default: one per core).
 """
 
 from __future__ import annotations
@@ -20,10 +21,14 @@ import argparse
 import functools
 import importlib.metadata
 import json
+import multiprocessing
+import os
 import re
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+import jax
 import numpy as np
 
 from chargax_marl.benchmark import protocol
@@ -181,41 +186,83 @@ def compute_references(
     return out
 
 
-def compute_mpc(task: str | Task, num_levels: int | None = None, *, day_index=None) -> dict:
+def _mpc_part(task: str | Task, num_levels: int | None, day_index: np.ndarray) -> tuple:
+    """The MPC on some of a task's held-out days (positions ``day_index``), every draw: its
+    totals (numpy leaves, ``(days, draws)``), the days with a failed solve and the number of
+    solves. Module-level, so that `compute_mpc` can run it in another process."""
+    task = get_task(task)
+    params = task.make_params() if num_levels is None else task.policy_params(num_levels)
+    controller = MPC(params)
+    totals = protocol.play(
+        controller, params, task.eval_days()[day_index], task.day_keys()[day_index]
+    )
+    return totals, sorted(int(d) for d in controller.failed_solves), int(controller.solves)
+
+
+def compute_mpc(
+    task: str | Task, num_levels: int | None = None, *, day_index=None, processes: int = 1
+) -> dict:
     """The MPC (`chargax_marl.optimal.mpc.MPC`, default settings) on a task's held-out
     days and car draws.
 
+    The MPC starts each solve from the basis of the same day's previous one, so a day's
+    decisions depend only on the day and its draws: split over processes by day, the
+    reference is the one a single process computes, number for number.
+
     Args:
-        task: a task id or `Task`.
+        task: a task id or `Task` (a `Task` that is not registered must pickle for
+            ``processes > 1``).
         num_levels: the action space it acts in (``None``: the task's own; see
             `Task.policy_params`).
         day_index: positions in the task's held-out days to play (default: all).
+        processes: how many processes play the days (each takes a contiguous share of
+            them, every draw of a day in the same process); one core each.
 
     Returns:
         The reference as stored: ``daily_profit`` (a ``(days, draws)`` list, ``None`` on a day
         where a solve failed: a day with a failed solve is not the MPC's result), ``metrics``
         (over every day played), ``failed_days``, ``solves`` and ``num_levels``.
+
+    Raises:
+        ValueError: ``processes`` is not a whole number >= 1.
     """
+    if isinstance(processes, bool) or not isinstance(processes, (int, np.integer)) or processes < 1:
+        raise ValueError(f"field 'processes' must be an integer >= 1, got {processes!r}")
     task = get_task(task)
-    params = task.make_params() if num_levels is None else task.policy_params(num_levels)
-    days, keys = task.eval_days(), task.day_keys()
-    if day_index is not None:
-        days, keys = days[np.asarray(day_index)], keys[np.asarray(day_index)]
-    controller = MPC(params)
-    totals = protocol.play(controller, params, days, keys)
+    positions = np.arange(len(task.eval_days())) if day_index is None else np.asarray(day_index)
+    positions = positions.reshape(-1)
+    shares = [p for p in np.array_split(positions, min(int(processes), positions.size)) if p.size]
+    which = task.id if TASKS.get(task.id) is task else task  # a registered one by its id
+    if len(shares) == 1:
+        parts = [_mpc_part(which, num_levels, shares[0])]
+    else:
+        # spawned, not forked: the parent's JAX runtime and threads do not survive a fork
+        context = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(len(shares), mp_context=context) as pool:
+            parts = list(
+                pool.map(_mpc_part, [which] * len(shares), [num_levels] * len(shares), shares)
+            )
+    totals = jax.tree.map(lambda *xs: np.concatenate(xs), *[p[0] for p in parts])
+    failed = sorted(set().union(*(p[1] for p in parts)))
     profit = np.asarray(totals.profit_eur, np.float64)
-    failed = sorted(int(d) for d in controller.failed_solves)
-    profit[np.isin(days, failed)] = np.nan
+    profit[np.isin(task.eval_days()[positions], failed)] = np.nan
+    params = task.make_params() if num_levels is None else task.policy_params(num_levels)
     return {
         "daily_profit": [[None if np.isnan(x) else float(x) for x in row] for row in profit],
         "metrics": secondary_metrics(totals),
         "failed_days": failed,
-        "solves": int(controller.solves),
+        "solves": sum(p[2] for p in parts),
         "num_levels": int(params.num_levels),
     }
 
 
-def add_mpc(task: str | Task, directory: str | Path | None = None, log=print, names=None) -> Path:
+def add_mpc(
+    task: str | Task,
+    directory: str | Path | None = None,
+    log=print,
+    names=None,
+    processes: int = 1,
+) -> Path:
     """Add `MPC_REFERENCES` (or those of them named in ``names``) to a task's stored
     references and write them back; the others stay as stored.
 
@@ -223,8 +270,8 @@ def add_mpc(task: str | Task, directory: str | Path | None = None, log=print, na
         task: a task id or `Task`.
         directory: where the files live (default: the shipped `REFERENCES_DIR`).
         log: called with a line of progress (``None``: silent).
-        names: the `MPC_REFERENCES` to compute (default: all; one name a process lets
-            the two action spaces run in parallel on two cores).
+        names: the `MPC_REFERENCES` to compute (default: all).
+        processes: how many processes play each reference's days (`compute_mpc`).
 
     Returns:
         The path written.
@@ -243,7 +290,7 @@ def add_mpc(task: str | Task, directory: str | Path | None = None, log=print, na
     refs = json.loads(reference_path(task, directory).read_text())
     for name in names:
         t0 = time.perf_counter()
-        refs["policies"][name] = compute_mpc(task, MPC_REFERENCES[name])
+        refs["policies"][name] = compute_mpc(task, MPC_REFERENCES[name], processes=processes)
         refs["wall_s"][name] = round(time.perf_counter() - t0, 2)
         mean = refs["policies"][name]["metrics"]["daily_profit_eur"]
         log(f"{task.id} {name}: {mean:.2f} EUR/day in {refs['wall_s'][name]:.0f} s")
@@ -385,16 +432,20 @@ def main(argv=None) -> None:
         "--mpc-only",
         choices=list(MPC_REFERENCES),
         default=None,
-        help="with --mpc: only this one (run one process per action space to use two cores; "
-        "they write the same file, so run them on copies of --out and merge, or one after the "
-        "other)",
+        help="with --mpc: only this one, the other left as stored",
+    )
+    parser.add_argument(
+        "--processes",
+        type=int,
+        default=os.cpu_count() or 1,
+        help="with --mpc: processes that share each reference's days (default: one per core)",
     )
     args = parser.parse_args(argv)
     for task_id in args.task or list(TASKS):
         t0 = time.perf_counter()
         if args.mpc:
             only = None if args.mpc_only is None else [args.mpc_only]
-            path = add_mpc(task_id, args.out, names=only)
+            path = add_mpc(task_id, args.out, names=only, processes=args.processes)
             print(f"{path}: {time.perf_counter() - t0:.0f} s")
             continue
         if args.keep_bound:

@@ -236,6 +236,16 @@ def test_an_mpc_day_with_a_failed_solve_is_stored_without_a_profit(small_task, m
     assert entry["failed_days"] == [int(task.eval_days()[0])]
 
 
+def test_an_mpc_reference_split_over_processes_is_the_one_process_reference(small_task):
+    # each process plays whole days (every draw of a day), and a day's decisions depend on
+    # that day alone: the same reference, number for number
+    task, _ = small_task
+    assert compute_mpc(task, 1, processes=2) == compute_mpc(task, 1)
+    for bad in (0, 1.5, True):
+        with pytest.raises(ValueError, match="field 'processes' must be an integer >= 1"):
+            compute_mpc(task, 1, processes=bad)
+
+
 def half_day_levels(first_half, params):
     """Ports at full power; the battery charges in the first half of the day (the sine of the
     time of day above 0) and discharges in the second."""
