@@ -8,10 +8,13 @@ replayed, and each step's LP is solved, interleaved step by step, from scratch a
 previous step's basis (as the MPC does) and, with ``--base DIR``, by the LP builder of another
 checkout (e.g. ``git worktree add /tmp/base main``). The bound solves ``--bound-days`` days'
 LPs with this checkout's builder and, with ``--base``, the other one's, interleaved day by
-day. Ratios are ``base / this`` (above 1: this checkout is faster); compare them rather than
+day. On the 25 % grid station, ``--reference-days`` held-out days of its task are first played
+with every car draw in one batch, as a stored MPC reference is computed. Ratios are
+``base / this`` (above 1: this checkout is faster); compare them rather than
 the seconds on a shared machine.
 
-Run: ``python benchmarks/optimal_speed.py [--days 2] [--bound-days 8] [--base /tmp/base]``.
+Run: ``python benchmarks/optimal_speed.py [--days 2] [--bound-days 8] [--reference-days 1]
+[--base /tmp/base]``.
 """
 
 from __future__ import annotations
@@ -27,12 +30,16 @@ import jax
 import numpy as np
 
 from chargax_marl import trace as trace_lib
+from chargax_marl.benchmark import protocol
 from chargax_marl.benchmark.tasks import get_task
 from chargax_marl.core import make_params
 from chargax_marl.evaluation import run_days
 from chargax_marl.optimal import bound as bound_lib
 from chargax_marl.optimal import model
 from chargax_marl.optimal.mpc import _FIELDS, MPC
+
+REFERENCE_TASKS = {"grid25": "Chargax-shopping-grid25-high-v1"}
+"""The task whose stored MPC reference a station's batched timing mimics."""
 
 STATIONS = {
     "default": make_params,
@@ -141,6 +148,26 @@ def replay_lps(params, states: list[dict], base) -> dict[str, float]:
     return {k: 1000.0 * v / len(states) for k, v in times.items()}
 
 
+def reference_batch(task_id: str, num_days: int, base_mpc) -> tuple[dict[str, float], bool]:
+    """Play the MPC on a task's first ``num_days`` held-out days with every car draw in one
+    batch, as a stored reference is computed (``benchmark.protocol.play``; this checkout's MPC
+    and ``base_mpc``'s in turn, compile included in each); ms per day-step each, and whether
+    the two gave the same totals."""
+    task = get_task(task_id)
+    params = task.make_params()
+    days, keys = task.eval_days()[:num_days], task.day_keys()[:num_days]
+    ms, totals = {}, {}
+    for name, cls in [("this", MPC)] + ([("base", base_mpc.MPC)] if base_mpc else []):
+        t0 = time.perf_counter()
+        totals[name] = protocol.play(cls(params), params, days, keys)
+        ms[name] = 1000.0 * (time.perf_counter() - t0) / (keys.shape[0] * keys.shape[1])
+        ms[name] /= params.num_steps
+    same = base_mpc is not None and all(
+        np.array_equal(a, b) for a, b in zip(*map(jax.tree.leaves, totals.values()))
+    )
+    return ms, same
+
+
 def bound_days(params, num_days: int, base) -> dict[str, float]:
     """The bound's LP on ``num_days`` days (this checkout, and ``base``, interleaved); s per
     day each, and the largest relative difference of the two values."""
@@ -177,15 +204,36 @@ def main() -> None:
     parser.add_argument("--days", type=int, default=2, help="MPC days per station")
     parser.add_argument("--bound-days", type=int, default=8, help="LP bound days per station")
     parser.add_argument("--base", default=None, help="another checkout to compare with")
+    parser.add_argument(
+        "--reference-days",
+        type=int,
+        default=1,
+        help="days of the grid25 task's held-out set played with all its draws in one batch "
+        "(0: none)",
+    )
     parser.add_argument("--stations", nargs="+", default=list(STATIONS), choices=list(STATIONS))
     args = parser.parse_args()
-    if args.days < 1 or args.bound_days < 1:
+    if args.days < 1 or args.bound_days < 1 or args.reference_days < 0:
         raise ValueError(
-            f"--days and --bound-days must be >= 1, got {args.days}, {args.bound_days}"
+            f"--days and --bound-days must be >= 1 and --reference-days >= 0, got {args.days}, "
+            f"{args.bound_days}, {args.reference_days}"
         )
     base, base_mpc = load_base(args.base) if args.base else (None, None)
     print(f"load averages {os.getloadavg()}, {os.cpu_count()} cores, jax {jax.__version__}")
     for name in args.stations:
+        if name in REFERENCE_TASKS and args.reference_days > 0:
+            ms, same = reference_batch(REFERENCE_TASKS[name], args.reference_days, base_mpc)
+            task = get_task(REFERENCE_TASKS[name])
+            line = (
+                f"{name}: MPC reference {ms['this']:.2f} ms per day-step ({task.id}, "
+                f"{args.reference_days} days x {task.draws} draws in one batch, compile included)"
+            )
+            if base_mpc is not None:
+                line += (
+                    f"; base {ms['base']:.2f} ms; base/this {ms['base'] / ms['this']:.2f}x; "
+                    f"same totals {same}"
+                )
+            print(line, flush=True)
         params = STATIONS[name]()
         states, ms = mpc_loop(params, np.arange(args.days) * 30 + 10, base_mpc)
         line = f"{name}: MPC loop {ms['this']:.2f} ms/step, {ms['this'] * params.num_steps / 1000:.1f} s/day"
