@@ -231,7 +231,7 @@ def compute_mpc(
     task = get_task(task)
     positions = np.arange(len(task.eval_days())) if day_index is None else np.asarray(day_index)
     positions = positions.reshape(-1)
-    shares = [p for p in np.array_split(positions, min(int(processes), positions.size)) if p.size]
+    shares = np.array_split(positions, max(1, min(int(processes), positions.size)))
     which = task.id if TASKS.get(task.id) is task else task  # a registered one by its id
     if len(shares) == 1:
         parts = [_mpc_part(which, num_levels, shares[0])]

@@ -708,7 +708,7 @@ def test_a_warm_start_with_a_foreign_builder_is_refused():
 
 def test_the_mpc_callback_hands_the_host_every_field_exactly():
     # the fields travel packed in one array; each must arrive with its own dtype and value,
-    # for one state and for each state of a vmapped batch
+    # for one state and for each state of a vmapped batch (an empty batch asks for nothing)
     params = hand_params(ONE_PORT, [0.2] * 24, step_minutes=60.0)
     state = simulator.empty_state(jnp.asarray(3), params).replace(timestep=jnp.asarray(7))
     state = place_car(state, 0, soc=0.2345678, remaining_kwh=20.0, time_min=187.5)
@@ -725,6 +725,9 @@ def test_the_mpc_callback_hands_the_host_every_field_exactly():
     jax.block_until_ready(jax.jit(lambda s: mpc(s, KEY, params))(state))
     batch = jax.tree.map(lambda a, b: jnp.stack([a, b]), state, other)
     jax.block_until_ready(jax.jit(jax.vmap(lambda s: mpc(s, KEY, params)))(batch))
+    empty = jax.tree.map(lambda a: a[:0], batch)
+    none = jax.jit(jax.vmap(lambda s: mpc(s, KEY, params)))(empty)
+    assert none.shape == (0, mpc.num_leaves)
     assert len(seen) == 3
     for arrays, s in zip(seen, [state, state, other]):
         for name, got in zip(mpc_module._FIELDS, arrays):
