@@ -23,6 +23,7 @@ import importlib.metadata
 import json
 import multiprocessing
 import os
+import pickle
 import re
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -224,7 +225,8 @@ def compute_mpc(
         (over every day played), ``failed_days``, ``solves`` and ``num_levels``.
 
     Raises:
-        ValueError: ``processes`` is not a whole number >= 1.
+        ValueError: ``processes`` is not a whole number >= 1, or is above 1 for a `Task` that
+            does not pickle.
     """
     if isinstance(processes, bool) or not isinstance(processes, (int, np.integer)) or processes < 1:
         raise ValueError(f"field 'processes' must be an integer >= 1, got {processes!r}")
@@ -236,6 +238,13 @@ def compute_mpc(
     if len(shares) == 1:
         parts = [_mpc_part(which, num_levels, shares[0])]
     else:
+        try:
+            pickle.dumps(which)
+        except Exception as exc:
+            raise ValueError(
+                f"field 'processes' must be 1 for task {task.id!r}: it is not registered and does "
+                f"not pickle ({type(exc).__name__}: {exc}), so other processes cannot receive it"
+            ) from exc
         # spawned, not forked: the parent's JAX runtime and threads do not survive a fork
         context = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(len(shares), mp_context=context) as pool:

@@ -244,6 +244,9 @@ def test_an_mpc_reference_split_over_processes_is_the_one_process_reference(smal
     for bad in (0, 1.5, True):
         with pytest.raises(ValueError, match="field 'processes' must be an integer >= 1"):
             compute_mpc(task, 1, processes=bad)
+    local = dataclasses.replace(task, params_fn=lambda: small_params())  # does not pickle
+    with pytest.raises(ValueError, match="field 'processes' must be 1 .* does not pickle"):
+        compute_mpc(local, 1, processes=2)
 
 
 def half_day_levels(first_half, params):
