@@ -43,7 +43,7 @@ REFERENCE_TASKS = {"grid25": "Chargax-shopping-grid25-high-v1"}
 
 STATIONS = {
     "default": make_params,
-    "grid25": lambda: get_task("Chargax-shopping-grid25-high-v1").make_params(),
+    "grid25": lambda: get_task(REFERENCE_TASKS["grid25"]).make_params(),
 }
 
 

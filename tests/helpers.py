@@ -279,8 +279,10 @@ def train_seeds(train, keys):
     return jax.jit(seeds)(keys)
 
 
-def finite_losses(train, seeds=2):
-    out = train_seeds(train, jax.random.split(jax.random.PRNGKey(0), seeds))
+def finite_losses(train, seeds=2, run=train_seeds):
+    """Train ``seeds`` seeds with ``run(train, keys)`` and check the losses are finite, one per
+    seed and update; returns the training's output."""
+    out = run(train, jax.random.split(jax.random.PRNGKey(0), seeds))
     m = jax.device_get(out["metrics"])
     for k in ("actor_loss", "value_loss", "entropy", "approx_kl"):
         assert m[k].shape == (seeds, train.num_updates)

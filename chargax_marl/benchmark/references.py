@@ -187,12 +187,17 @@ def compute_references(
     return out
 
 
+def _mpc_params(task: Task, num_levels: int | None):
+    """The params an MPC reference acts in: the task's own (``None``) or ``num_levels``'."""
+    return task.make_params() if num_levels is None else task.policy_params(num_levels)
+
+
 def _mpc_part(task: str | Task, num_levels: int | None, day_index: np.ndarray) -> tuple:
     """The MPC on some of a task's held-out days (positions ``day_index``), every draw: its
     totals (numpy leaves, ``(days, draws)``), the days with a failed solve and the number of
     solves. Module-level, so that `compute_mpc` can run it in another process."""
     task = get_task(task)
-    params = task.make_params() if num_levels is None else task.policy_params(num_levels)
+    params = _mpc_params(task, num_levels)
     controller = MPC(params)
     totals = protocol.play(
         controller, params, task.eval_days()[day_index], task.day_keys()[day_index]
@@ -255,13 +260,12 @@ def compute_mpc(
     failed = sorted(set().union(*(p[1] for p in parts)))
     profit = np.asarray(totals.profit_eur, np.float64)
     profit[np.isin(task.eval_days()[positions], failed)] = np.nan
-    params = task.make_params() if num_levels is None else task.policy_params(num_levels)
     return {
         "daily_profit": [[None if np.isnan(x) else float(x) for x in row] for row in profit],
         "metrics": secondary_metrics(totals),
         "failed_days": failed,
         "solves": sum(p[2] for p in parts),
-        "num_levels": int(params.num_levels),
+        "num_levels": int(_mpc_params(task, num_levels).num_levels),
     }
 
 

@@ -359,9 +359,13 @@ def _per_item(value, count: int, shape: tuple | None = None) -> np.ndarray:
     a = np.asarray(value, np.float64)
     if a.ndim == 0:
         return np.full(count, a)
-    if a.shape != (shape or (count,)):
-        a = np.broadcast_to(a, shape or (count,))
-    return a.ravel()
+    shape = shape or (count,)
+    return (a if a.shape == shape else np.broadcast_to(a, shape)).ravel()
+
+
+def _cat(parts: list, dtype=np.float64) -> np.ndarray:
+    """The builder's blocks as one array (an empty one of ``dtype`` for none)."""
+    return np.concatenate(parts) if parts else np.zeros(0, dtype)
 
 
 class _Builder:
@@ -402,9 +406,9 @@ class _Builder:
     def matrix(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The rows' coefficients column-wise (CSC): ``(start, index, value)``, each
         column's rows in ascending order and a coefficient given twice summed."""
-        cat = lambda parts: np.concatenate(parts) if parts else np.zeros(0, np.int64)  # noqa: E731
-        rows, cols = cat(self.rows).astype(np.int64), cat(self.cols).astype(np.int64)
-        vals = np.concatenate(self.vals) if self.vals else np.zeros(0)
+        rows = _cat(self.rows, np.int64).astype(np.int64)
+        cols = _cat(self.cols, np.int64).astype(np.int64)
+        vals = _cat(self.vals)
         order = np.argsort(cols * max(self.m, 1) + rows, kind="stable")
         sorted_rows, sorted_cols = rows[order], cols[order]
         if np.any((sorted_rows[1:] == sorted_rows[:-1]) & (sorted_cols[1:] == sorted_cols[:-1])):
@@ -441,12 +445,9 @@ class _Builder:
         Raises:
             SolverError: no optimum.
         """
-        cat = lambda parts, dtype=np.float64: (  # noqa: E731
-            np.concatenate(parts) if parts else np.zeros(0, dtype)
-        )
-        c = cat(self.cost)
+        c = _cat(self.cost)
         start, index, value = self.matrix()
-        integer = cat(self.integer, bool)
+        integer = _cat(self.integer, bool)
         h = new_highs(time_limit_s)
         if not integer.any():
             h.setOptionValue("presolve", "off")
@@ -455,10 +456,10 @@ class _Builder:
         pass_model(
             h,
             -c if maximise else c,
-            cat(self.lb),
-            cat(self.ub),
-            cat(self.row_lb),
-            cat(self.row_ub),
+            _cat(self.lb),
+            _cat(self.ub),
+            _cat(self.row_lb),
+            _cat(self.row_ub),
             start,
             index,
             value,

@@ -178,10 +178,7 @@ def test_ppo_update_finite_and_short_training_improves_return():
         "NUM_MINIBATCHES": 4,
     }
     train = ppo.make_train(config)
-    out = jax.jit(jax.vmap(train))(jax.random.split(jax.random.PRNGKey(0), 2))
-    m = jax.device_get(out["metrics"])
-    for k in ("actor_loss", "value_loss", "entropy", "approx_kl"):
-        assert m[k].shape == (2, train.num_updates) and np.all(np.isfinite(m[k])), k
+    out = finite_losses(train, run=lambda t, keys: jax.jit(jax.vmap(t))(keys))
     ret = np.asarray(out["metrics"]["episode_return"])  # (seeds, updates)
     first, last = ret[:, :2].mean(1), ret[:, -5:].mean(1)
     assert np.all(last > first + 0.1 * np.abs(first)), (first, last)
