@@ -79,9 +79,11 @@ class MPC:
     previous solve (matched by leaf, row kind and step), without presolve; the optimum's
     value is the same as a solve from scratch, but where the LP has several optimal plans it
     may pick another one, so the levels (and the day's profit) can differ slightly from
-    ``warm_start=False``. The bases are kept per day, so a day's decisions do not depend on
-    which days run beside it. A warm-started solve that fails is solved again from scratch
-    (counted in ``warm_retries``) before it counts as a failure.
+    ``warm_start=False``. The bases (and the plans of ``resolve_every``) are kept per env:
+    per day and per position in the vmapped batch, which stays the same from step to step.
+    So each env starts from its own previous basis, and its decisions do not depend on the
+    days and car draws that run beside it. A warm-started solve that fails is solved again
+    from scratch (counted in ``warm_retries``) before it counts as a failure.
     """
 
     def __init__(
@@ -144,7 +146,8 @@ class MPC:
         self._plans: dict = {}
         self.warm_start = bool(warm_start)
         self.warm_retries = 0
-        self._bases: dict = {}  # day -> (step of the solve, its optimal Basis)
+        self._bases: dict = {}  # (day, slot) -> (step of the solve, its optimal Basis)
+        self._slot = 0  # the position in the batch of the state being solved
 
     # ---- host side
     def _sessions(self, s: dict, n: int) -> Sessions:
@@ -213,7 +216,7 @@ class MPC:
         if sessions.size == 0:
             return out
         self.solves += 1
-        warm = self._bases.pop(day, None)
+        warm = self._bases.pop((day, self._slot), None)
         if warm is not None and not 0 < t - warm[0] <= self.horizon_steps:
             warm = None
         urgency = np.where(sessions.charge_sensitive, self.urgency_eur_kwh_h, 0.0)
@@ -244,7 +247,7 @@ class MPC:
             return out
         self.solve_s += sol.solve_s
         if sol.basis is not None and t + 1 < self.num_steps:  # the day's last step keeps none
-            self._bases[day] = (t, sol.basis)
+            self._bases[(day, self._slot)] = (t, sol.basis)
         for i, leaf in enumerate(sessions.leaf):
             net = sol.net_kw[i]
             if net is not None:
@@ -282,7 +285,7 @@ class MPC:
             ) from exc
 
     def _act(self, s: dict, day: int, t: int) -> np.ndarray:
-        cached = self._plans.get(day)
+        cached = self._plans.get((day, self._slot))
         if cached is not None and self.resolve_every > 1:
             t0, occ, socs, plan = cached
             k = t - t0
@@ -294,7 +297,12 @@ class MPC:
                 return self._levels(plan[k])
         plan = self.plan(s)
         if self.resolve_every > 1:
-            self._plans[day] = (t, s["occupied"].copy(), self._predicted_soc(s, plan), plan)
+            self._plans[(day, self._slot)] = (
+                t,
+                s["occupied"].copy(),
+                self._predicted_soc(s, plan),
+                plan,
+            )
         return self._levels(plan[0])
 
     def _predicted_soc(self, s: dict, plan: np.ndarray) -> np.ndarray:
@@ -304,14 +312,16 @@ class MPC:
 
     # ---- the policy
     def _host_batch(self, layout: tuple, flat: np.ndarray) -> np.ndarray:
-        """`host_act` on each state of a batch, in the batch's order (leading axes of ``flat``:
-        the batch; its last axis: the fields that `__call__` packed, ``layout`` giving each
-        field's shape and dtype; every value round-trips exactly)."""
+        """`host_act` on each state of a batch, in the batch's order, each under its position
+        in the batch (leading axes of ``flat``: the batch; its last axis: the fields that
+        `__call__` packed, ``layout`` giving each field's shape and dtype; every value
+        round-trips exactly)."""
         flat = np.asarray(flat)
         batch = flat.shape[:-1]
         splits = np.cumsum([math.prod(shape) for shape, _ in layout])[:-1]
         levels = []
-        for row in flat.reshape(-1, flat.shape[-1]):
+        for slot, row in enumerate(flat.reshape(-1, flat.shape[-1])):
+            self._slot = slot
             parts = np.split(row, splits)
             levels.append(
                 self.host_act(
@@ -328,9 +338,9 @@ class MPC:
             state.totals.peak_grid_kw if f == "peak_grid_kw" else getattr(state, f) for f in _FIELDS
         ]
         # One operand, and under vmap one call per step for the whole batch (solved state by
-        # state in the batch's order): each operand and each call of a host callback costs
-        # time on every step. The widest float dtype holds every field exactly (the step and
-        # day as whole numbers below 2**24, the flags as 0 and 1).
+        # state, each knowing its position, which keys its warm start): each operand and each
+        # call of a host callback costs time on every step. The widest float dtype holds every
+        # field exactly (the step and day as whole numbers below 2**24, the flags as 0 and 1).
         wide = jnp.result_type(*(a for a in args if jnp.issubdtype(a.dtype, jnp.floating)))
         layout = tuple((tuple(a.shape), np.dtype(a.dtype)) for a in args)
         flat = jnp.concatenate([jnp.ravel(a).astype(wide) for a in args])

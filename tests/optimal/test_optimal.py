@@ -17,6 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from chargax_marl import evaluation, optimal, policies, trace
+from chargax_marl.benchmark import protocol
 from chargax_marl.core import simulator
 from chargax_marl.core.params import make_params
 from chargax_marl.core.station import Battery, Port, Splitter
@@ -25,7 +26,7 @@ from chargax_marl.optimal import milp as milp_module
 from chargax_marl.optimal import model as model_module
 from chargax_marl.optimal import mpc as mpc_module
 from chargax_marl.optimal.mpc import MPC
-from tests.helpers import exact_jit, place_car
+from tests.helpers import exact_jit, place_car, three_level_station
 from tests.optimal.reference_lp import reference_value_eur
 
 KEY = jax.random.PRNGKey(0)
@@ -769,3 +770,24 @@ def test_the_builder_hands_highs_the_matrix_scipy_builds(shape, entries, blocks)
     vals = np.array([e[2] for e in entries], np.float64)
     for got, want in zip(b.matrix(), _scipy_csc(rows, cols, vals, (m, n))):
         np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+
+
+def test_each_env_of_a_batch_warm_starts_from_its_own_previous_solve(monkeypatch):
+    # two car draws of one day, played together and alone: each env's solves after its first
+    # start from its own previous basis, so it decides the same either way (the env's float32
+    # sums may round by an ulp between a batch of two and of one)
+    params = make_params(station=three_level_station(), traffic=150.0, step_minutes=60.0)
+    keys = jax.random.split(KEY, 2)[None]  # (1 day, 2 draws, 2)
+    real = mpc_module.build_and_solve
+    cold = []
+
+    def spy(*args, **kwargs):
+        cold.append(kwargs.get("warm_start") is None)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(mpc_module, "build_and_solve", spy)
+    together = protocol.play(MPC(params), params, np.array([3]), keys)
+    assert sum(cold) == 2 and len(cold) == 2 * params.num_steps  # one cold start per env
+    alone = [protocol.play(MPC(params), params, np.array([3]), keys[:, r : r + 1]) for r in (0, 1)]
+    for both, *each in zip(*map(jax.tree.leaves, [together, *alone])):
+        np.testing.assert_allclose(both, np.concatenate(each, axis=1), rtol=1e-6, atol=1e-5)
