@@ -4,6 +4,7 @@
     python -m baselines.score results/ippo_shopping_medium --task Chargax-shopping-v1 \\
         --name IPPO --out results/scores/ippo_Chargax-shopping-v1.json \\
         --picture docs/benchmark_day_ippo_shopping.png
+    python -m baselines.score --rescore results/scores/*.json   # after references move
 
 The run's greedy policies are played on the task's held-out days and car draws
 (`chargax_marl.benchmark`) in the run's own action space (``num_levels``), and scored
@@ -153,16 +154,65 @@ def write_score(result: dict, name: str, path: str | Path) -> Path:
     return path
 
 
-def main(argv=None) -> dict:
+def rescore(path: str | Path, references_dir=None) -> dict:
+    """A score file's comparison made again against the current references, from the daily
+    profits it stores (nothing is played again): for references recomputed after the run was
+    scored.
+
+    Args:
+        path: a score file written by `write_score`.
+        references_dir: where the references live (default: the shipped ones).
+
+    Returns:
+        The file's content with `chargax_marl.benchmark.scoring.compare`'s fields made again;
+        its profits, metrics and settings as stored.
+
+    Raises:
+        CheckpointMismatchError: the file was scored on other parameters than its task's on
+            this code (the run must be scored again).
+    """
+    stored = json.loads(Path(path).read_text())
+    task = get_task(stored["task"])
+    current = params_fingerprint(task.make_params())
+    if stored.get("params_fingerprint") != current:
+        raise CheckpointMismatchError(
+            f"{path}: scored on parameters with fingerprint {stored.get('params_fingerprint')}, "
+            f"but {task.id} has {current} on this code: score the run again"
+        )
+    daily = np.asarray(stored["daily_profit"], np.float64)
+    return {**stored, **compare(task, daily, references_dir), "daily_profit": daily}
+
+
+def main(argv=None) -> dict | list:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("run_dir")
-    parser.add_argument("--task", required=True, help="a benchmark task id")
+    parser.add_argument("run_dir", nargs="?")
+    parser.add_argument("--task", default=None, help="a benchmark task id")
     parser.add_argument("--name", default=None, help="the row label (default: the algorithm)")
     parser.add_argument("--out", default=None, help="write the score file here")
     parser.add_argument(
         "--picture", default=None, help="draw seed 0's first held-out day beside always-max here"
     )
+    parser.add_argument(
+        "--rescore",
+        nargs="+",
+        default=None,
+        metavar="SCORE_FILE",
+        help="compare these score files again against the current references and write them "
+        "back (instead of scoring a run)",
+    )
     args = parser.parse_args(argv)
+    if args.rescore:
+        if args.run_dir or args.task:
+            parser.error("--rescore takes score files only (no run directory or --task)")
+        out = []
+        for path in args.rescore:
+            result = rescore(path)
+            write_score(result, result["name"], path)
+            print(f"{path}: score {result['score']:.3f} ± {result['score_stderr']:.3f}")
+            out.append(result)
+        return out
+    if not (args.run_dir and args.task):
+        parser.error("a run directory and --task are required (or --rescore SCORE_FILE ...)")
     if args.picture:
         picture(args.run_dir, args.task, args.picture, args.name)
     result = score_run(args.run_dir, args.task)

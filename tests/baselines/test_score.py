@@ -11,7 +11,14 @@ import pytest
 from baselines import score as score_cli
 from baselines.config import ConfigError, build_env_params, load, resolve
 from baselines.runs import load_run
-from chargax_marl.benchmark import TASKS, Task, compute_references, save_references, score
+from chargax_marl.benchmark import (
+    TASKS,
+    Task,
+    compare,
+    compute_references,
+    save_references,
+    score,
+)
 from chargax_marl.trace import params_fingerprint
 
 
@@ -43,6 +50,50 @@ def test_a_checkpoint_scores_as_its_greedy_policy_does(tiny_ippo_run, run_task, 
     path = score_cli.write_score(result, "IPPO", tmp_path / "score.json")
     stored = json.loads(path.read_text())
     assert stored["name"] == "IPPO" and stored["seeds"] == 2 and stored["task"] == task.id
+
+
+def test_a_score_file_is_compared_again_against_references_that_moved(
+    run_task, tmp_path, monkeypatch
+):
+    """``--rescore``: the comparison is made again from the stored profits; a reference that
+    moved by 1 EUR on every day moves the policy's difference to it by 1 EUR, and nothing
+    else of the file moves."""
+    task, directory = run_task
+    monkeypatch.setitem(TASKS, task.id, task)  # a score file names its task by id
+    daily = np.random.default_rng(0).normal(100.0, 10.0, (2, 2, 2))  # seeds, days, draws
+    result = {
+        **compare(task, daily, directory),
+        "daily_profit": daily,
+        "metrics": {"daily_profit_eur": float(daily.mean())},
+        "config": {"TOTAL_TIMESTEPS": 1, "SCENARIO": "custom", "TRAFFIC": None},
+        "params_fingerprint": params_fingerprint(task.make_params()),
+    }
+    path = score_cli.write_score(result, "mine", tmp_path / "score.json")
+    before = path.read_text()
+    again = score_cli.rescore(path, directory)
+    assert score_cli.write_score(again, "mine", tmp_path / "again.json").read_text() == before
+
+    moved = tmp_path / "moved"
+    moved.mkdir()
+    refs = json.loads(next(directory.glob("*.json")).read_text())
+    refs["policies"]["edf"] = json.loads(json.dumps(refs["policies"]["always_max"]))
+    refs["policies"]["edf"]["daily_profit"] = [
+        [x + 1.0 for x in row] for row in refs["policies"]["edf"]["daily_profit"]
+    ]
+    (moved / next(directory.glob("*.json")).name).write_text(json.dumps(refs))
+    new = score_cli.rescore(path, moved)
+    old = json.loads(before)
+    assert new["vs"]["edf"]["mean"] == pytest.approx(old["vs"]["always_max"]["mean"] - 1.0)
+    assert new["vs"]["always_max"] == old["vs"]["always_max"]
+    assert new["score"] == old["score"] and new["metrics"] == old["metrics"]
+    np.testing.assert_array_equal(new["daily_profit"], daily)
+
+    stale = {**old, "params_fingerprint": "0000000000000000"}
+    (tmp_path / "stale.json").write_text(json.dumps(stale))
+    with pytest.raises(score_cli.CheckpointMismatchError, match="0000000000000000"):
+        score_cli.rescore(tmp_path / "stale.json", directory)
+    with pytest.raises(SystemExit):
+        score_cli.main(["--rescore", str(path), "--task", task.id])
 
 
 def test_a_checkpoint_of_another_station_is_refused(tiny_ippo_run):
