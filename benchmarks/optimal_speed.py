@@ -89,9 +89,9 @@ def mpc_loop(params, days: np.ndarray, base_mpc) -> tuple[list[dict], dict[str, 
         if name == "this":
             act = mpc.host_act
 
-            def record(*arrays, act=act):
+            def record(*arrays, act=act, slot=0):
                 seen.append({k: np.asarray(v).copy() for k, v in zip(_FIELDS, arrays)})
-                return act(*arrays)
+                return act(*arrays, slot=slot)
 
             mpc.host_act = record
         policy = lambda s, kk, mpc=mpc: mpc(s, kk, params)  # noqa: E731

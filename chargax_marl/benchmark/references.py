@@ -211,9 +211,10 @@ def compute_mpc(
     """The MPC (`chargax_marl.optimal.mpc.MPC`, default settings) on a task's held-out
     days and car draws.
 
-    The MPC starts each solve from the basis of the same day's previous one, so a day's
-    decisions depend only on the day and its draws: split over processes by day, the
-    reference is the one a single process computes, number for number.
+    The MPC starts each solve from the basis of the same env's previous one (the env: a day
+    and a car draw), so an env's decisions do not depend on the envs beside it: split over
+    processes by day, the reference is the one a single process computes, number for
+    number.
 
     Args:
         task: a task id or `Task` (a `Task` that is not registered must pickle for

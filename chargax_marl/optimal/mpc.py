@@ -15,7 +15,7 @@ one at a time, in the batch's order) and therefore in `chargax_marl.evaluation.e
 in both views (`chargax_marl.policies.for_single`, `chargax_marl.policies.for_marl`). It is
 slow next to the jitted policies: one HiGHS solve per step and state (its measured cost is in
 the docs' optimal-control and performance pages), each started from the optimal basis of the
-same day's previous solve (``warm_start``).
+same env's previous solve (its day and position in the batch; ``warm_start``).
 """
 
 from __future__ import annotations
@@ -268,8 +268,16 @@ class MPC:
         scaled = frac * self.num_levels
         return np.where(scaled > 0, np.ceil(scaled - 1e-6), np.trunc(scaled)).astype(np.int32)
 
-    def host_act(self, *arrays) -> np.ndarray:
+    def host_act(self, *arrays, slot: int = 0) -> np.ndarray:
         """The levels for one host state (the body of the ``pure_callback``).
+
+        Args:
+            *arrays: the state's fields (`_FIELDS`), in order.
+            slot: the state's position in its batch; with its day, it keys the warm start and
+                the plans of ``resolve_every``, so each env continues from its own solves.
+
+        Returns:
+            The signed level of every leaf.
 
         Raises:
             RuntimeError: the host-side step failed; the message names the day and the step
@@ -277,6 +285,7 @@ class MPC:
         """
         s = {k: np.asarray(v) for k, v in zip(_FIELDS, arrays)}
         day, t = int(s["day"]), int(s["timestep"])
+        self._slot = int(slot)
         try:
             return self._act(s, day, t)
         except Exception as exc:
@@ -321,11 +330,11 @@ class MPC:
         splits = np.cumsum([math.prod(shape) for shape, _ in layout])[:-1]
         levels = []
         for slot, row in enumerate(flat.reshape(-1, flat.shape[-1])):
-            self._slot = slot
             parts = np.split(row, splits)
             levels.append(
                 self.host_act(
-                    *(p.reshape(shape).astype(dtype) for p, (shape, dtype) in zip(parts, layout))
+                    *(p.reshape(shape).astype(dtype) for p, (shape, dtype) in zip(parts, layout)),
+                    slot=slot,
                 )
             )
         return np.stack(levels).reshape(batch + (self.num_leaves,))

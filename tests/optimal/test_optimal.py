@@ -661,9 +661,9 @@ def test_a_warm_started_mpc_solve_has_the_value_of_a_cold_one(small_setup):
     seen = []
     act = mpc.host_act
 
-    def record(*arrays):
+    def record(*arrays, slot=0):
         seen.append({k: np.asarray(v).copy() for k, v in zip(mpc_module._FIELDS, arrays)})
-        return act(*arrays)
+        return act(*arrays, slot=slot)
 
     mpc.host_act = record
     run_on_trace(mpc, params, trace.day_of(traces, 0))
@@ -718,8 +718,8 @@ def test_the_mpc_callback_hands_the_host_every_field_exactly():
     mpc = MPC(params)
     seen = []
 
-    def record(*arrays):
-        seen.append(arrays)
+    def record(*arrays, slot):
+        seen.append((slot, arrays))
         return np.zeros(mpc.num_leaves, np.int32)
 
     mpc.host_act = record
@@ -729,8 +729,8 @@ def test_the_mpc_callback_hands_the_host_every_field_exactly():
     empty = jax.tree.map(lambda a: a[:0], batch)
     none = jax.jit(jax.vmap(lambda s: mpc(s, KEY, params)))(empty)
     assert none.shape == (0, mpc.num_leaves)
-    assert len(seen) == 3
-    for arrays, s in zip(seen, [state, state, other]):
+    assert [slot for slot, _ in seen] == [0, 0, 1]  # each state under its place in the batch
+    for (_, arrays), s in zip(seen, [state, state, other]):
         for name, got in zip(mpc_module._FIELDS, arrays):
             want = np.asarray(s.totals.peak_grid_kw if name == "peak_grid_kw" else getattr(s, name))
             assert got.dtype == want.dtype and got.shape == want.shape, name
