@@ -142,6 +142,10 @@ def picture(run_dir, task_id: str, path, name: str | None = None, day_index: int
     return fig
 
 
+SCORE_FIELDS = ("name", "task", "daily_profit", "params_fingerprint")
+"""Fields of a score file that `rescore` reads."""
+
+
 def write_score(result: dict, name: str, path: str | Path) -> Path:
     """Write a score file for the scoreboard: ``name`` is its row label."""
     path = Path(path)
@@ -168,10 +172,14 @@ def rescore(path: str | Path, references_dir=None) -> dict:
         its profits, metrics and settings as stored.
 
     Raises:
+        ValueError: the file is not a score file (it lacks a field `write_score` writes).
         CheckpointMismatchError: the file was scored on other parameters than its task's on
             this code (the run must be scored again).
     """
     stored = json.loads(Path(path).read_text())
+    missing = [k for k in SCORE_FIELDS if k not in stored]
+    if missing:
+        raise ValueError(f"{path}: not a score file, it has no field {missing}")
     task = get_task(stored["task"])
     current = params_fingerprint(task.make_params())
     if stored.get("params_fingerprint") != current:
@@ -206,6 +214,9 @@ def main(argv=None) -> dict | list:
             parser.error("--rescore takes score files only (no run directory or --task)")
         out = []
         for path in args.rescore:
+            if not set(SCORE_FIELDS) <= set(json.loads(Path(path).read_text())):
+                print(f"{path}: not a score file, left as it is")  # score_time.json, say
+                continue
             result = rescore(path)
             write_score(result, result["name"], path)
             print(f"{path}: score {result['score']:.3f} ± {result['score_stderr']:.3f}")

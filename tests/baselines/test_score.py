@@ -94,6 +94,9 @@ def test_a_score_file_is_compared_again_against_references_that_moved(
         score_cli.rescore(tmp_path / "stale.json", directory)
     with pytest.raises(SystemExit):
         score_cli.main(["--rescore", str(path), "--task", task.id])
+    (tmp_path / "timing.json").write_text(json.dumps({"task": task.id}))
+    with pytest.raises(ValueError, match="not a score file"):
+        score_cli.rescore(tmp_path / "timing.json", directory)
 
 
 def test_a_checkpoint_of_another_station_is_refused(tiny_ippo_run):
