@@ -146,6 +146,11 @@ SCORE_FIELDS = ("name", "task", "daily_profit", "params_fingerprint")
 """Fields of a score file that `rescore` reads."""
 
 
+def _missing_fields(data: dict) -> list[str]:
+    """The `SCORE_FIELDS` that ``data`` lacks (none: it is a score file)."""
+    return [k for k in SCORE_FIELDS if k not in data]
+
+
 def write_score(result: dict, name: str, path: str | Path) -> Path:
     """Write a score file for the scoreboard: ``name`` is its row label."""
     path = Path(path)
@@ -177,7 +182,7 @@ def rescore(path: str | Path, references_dir=None) -> dict:
             this code (the run must be scored again).
     """
     stored = json.loads(Path(path).read_text())
-    missing = [k for k in SCORE_FIELDS if k not in stored]
+    missing = _missing_fields(stored)
     if missing:
         raise ValueError(f"{path}: not a score file, it has no field {missing}")
     task = get_task(stored["task"])
@@ -214,7 +219,7 @@ def main(argv=None) -> dict | list:
             parser.error("--rescore takes score files only (no run directory or --task)")
         out = []
         for path in args.rescore:
-            if not set(SCORE_FIELDS) <= set(json.loads(Path(path).read_text())):
+            if _missing_fields(json.loads(Path(path).read_text())):
                 print(f"{path}: not a score file, left as it is")  # score_time.json, say
                 continue
             result = rescore(path)

@@ -160,8 +160,7 @@ def reference_batch(task_id: str, num_days: int, base_mpc) -> tuple[dict[str, fl
     for name, cls in [("this", MPC)] + ([("base", base_mpc.MPC)] if base_mpc else []):
         t0 = time.perf_counter()
         totals[name] = protocol.play(cls(params), params, days, keys)
-        ms[name] = 1000.0 * (time.perf_counter() - t0) / (keys.shape[0] * keys.shape[1])
-        ms[name] /= params.num_steps
+        ms[name] = 1000.0 * (time.perf_counter() - t0) / (keys[..., 0].size * params.num_steps)
     same = base_mpc is not None and all(
         np.array_equal(a, b) for a, b in zip(*map(jax.tree.leaves, totals.values()))
     )
