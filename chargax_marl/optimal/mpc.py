@@ -147,6 +147,7 @@ class MPC:
         self.warm_start = bool(warm_start)
         self.warm_retries = 0
         self._bases: dict = {}  # (day, slot) -> (step of the solve, its optimal Basis)
+        self._slot = 0  # the position in the batch of the state being solved
 
     # ---- host side
     def _sessions(self, s: dict, n: int) -> Sessions:
@@ -207,16 +208,15 @@ class MPC:
         )
         return n, econ, self._sessions(s, n)
 
-    def plan(self, s: dict, slot: int = 0) -> np.ndarray:
-        """Net power per leaf and step ``(n, L)`` (kW, car side) for the host state ``s``, at
-        position ``slot`` of its batch (with its day, the key of its warm start)."""
+    def plan(self, s: dict) -> np.ndarray:
+        """Net power per leaf and step ``(n, L)`` (kW, car side) for the host state ``s``."""
         day, t = int(s["day"]), int(s["timestep"])
         n, econ, sessions = self.problem(s)
         out = np.zeros((n, self.num_leaves))
         if sessions.size == 0:
             return out
         self.solves += 1
-        warm = self._bases.pop((day, slot), None)
+        warm = self._bases.pop((day, self._slot), None)
         if warm is not None and not 0 < t - warm[0] <= self.horizon_steps:
             warm = None
         urgency = np.where(sessions.charge_sensitive, self.urgency_eur_kwh_h, 0.0)
@@ -247,7 +247,7 @@ class MPC:
             return out
         self.solve_s += sol.solve_s
         if sol.basis is not None and t + 1 < self.num_steps:  # the day's last step keeps none
-            self._bases[(day, slot)] = (t, sol.basis)
+            self._bases[(day, self._slot)] = (t, sol.basis)
         for i, leaf in enumerate(sessions.leaf):
             net = sol.net_kw[i]
             if net is not None:
@@ -285,16 +285,16 @@ class MPC:
         """
         s = {k: np.asarray(v) for k, v in zip(_FIELDS, arrays)}
         day, t = int(s["day"]), int(s["timestep"])
+        self._slot = int(slot)
         try:
-            return self._act(s, (day, int(slot)), t)
+            return self._act(s, day, t)
         except Exception as exc:
             raise RuntimeError(
                 f"MPC failed on day {day}, step {t}: {type(exc).__name__}: {exc}"
             ) from exc
 
-    def _act(self, s: dict, env: tuple[int, int], t: int) -> np.ndarray:
-        """The levels of host state ``s`` at step ``t`` of ``env`` (its day and slot)."""
-        cached = self._plans.get(env)
+    def _act(self, s: dict, day: int, t: int) -> np.ndarray:
+        cached = self._plans.get((day, self._slot))
         if cached is not None and self.resolve_every > 1:
             t0, occ, socs, plan = cached
             k = t - t0
@@ -304,9 +304,14 @@ class MPC:
                 and np.allclose(socs[k], s["soc"], atol=1e-4)
             ):
                 return self._levels(plan[k])
-        plan = self.plan(s, env[1])
+        plan = self.plan(s)
         if self.resolve_every > 1:
-            self._plans[env] = (t, s["occupied"].copy(), self._predicted_soc(s, plan), plan)
+            self._plans[(day, self._slot)] = (
+                t,
+                s["occupied"].copy(),
+                self._predicted_soc(s, plan),
+                plan,
+            )
         return self._levels(plan[0])
 
     def _predicted_soc(self, s: dict, plan: np.ndarray) -> np.ndarray:
