@@ -29,6 +29,7 @@ from chargax_marl import trace as trace_lib
 from chargax_marl.core import reward as reward_lib
 from chargax_marl.core.types import EnvParams
 from chargax_marl.optimal.model import (
+    Basis,
     Economics,
     Sessions,
     Solution,
@@ -251,6 +252,8 @@ def hindsight_bound(
     *,
     time_limit_s: float | None = 60.0,
     with_battery: bool = True,
+    warm_start: Basis | None = None,
+    keep_basis: bool = False,
 ) -> Bound:
     """Solve the LP over ``occ``'s sessions and the station batteries for the whole day of
     ``trace``. See the module docstring for what the value bounds.
@@ -263,6 +266,11 @@ def hindsight_bound(
         with_battery: False leaves the batteries out (no battery sessions, no calendar
             ageing): the bound of the same station and cars without its battery, so that
             the difference of the two is what the battery is worth at best.
+        warm_start: the optimal basis of another day's bound on the same station
+            (`Bound.solution`'s ``basis``): HiGHS starts from it where a column or row of
+            this day has the same key (its kind, port or node, and step). The bound is the
+            same; where several plans reach it, the plan may differ from a solve from scratch.
+        keep_basis: keep the optimal basis in ``solution.basis`` (to warm-start another day).
 
     Returns:
         The day's `Bound`; ``profit_eur`` is the bound (EUR), fixed cost included.
@@ -288,6 +296,8 @@ def hindsight_bound(
         economics(params, trace),
         charged_tolerance_kwh=float(params.charged_tolerance_kwh),
         time_limit_s=time_limit_s,
+        warm_start=warm_start,
+        keep_basis=keep_basis,
     )
     per_step = reward_lib.fixed_cost_per_step_eur(params) if with_battery else params.fixed_cost_eur
     fixed = float(per_step) * n
@@ -312,8 +322,14 @@ def bound_days(
     time_limit_s: float | None = 60.0,
     with_battery: bool = True,
     day_keys: jax.Array | None = None,
+    warm_start: bool = True,
 ) -> list[Bound]:
     """`hindsight_bound` for each of ``days`` with the cars that evaluation draws.
+
+    Each day's LP starts from the optimal basis of the last day solved before it (the
+    station's ports, nodes and steps are the same every day, so most of a basis carries
+    over); a warm-started solve that fails is solved again from scratch. The bounds are those
+    of solves from scratch, to the solver's tolerance.
 
     A day whose LP fails or hits ``time_limit_s`` does not stop the others: its
     `Bound` carries the solver's ``status`` and ``message`` and a NaN ``profit_eur``
@@ -330,6 +346,7 @@ def bound_days(
         with_battery: as for `hindsight_bound`.
         day_keys: one key per day, in place of ``key``'s split, as in
             `chargax_marl.evaluation.run_days_keyed`.
+        warm_start: False solves every day from scratch.
 
     Returns:
         One `Bound` per day, in the order of ``days``.
@@ -338,14 +355,27 @@ def bound_days(
         key = jax.random.PRNGKey(0) if key is None else key
         day_keys = jax.random.split(key, int(np.size(days)))
     traces = trace_lib.make_traces(params, days, day_keys=day_keys)
-    out = []
+    out, basis = [], None
     for i in range(int(np.size(days))):
         tr = trace_lib.day_of(traces, i)
         occ = occupancy(params, tr, day_keys[i], reference)
+        solve = lambda start: hindsight_bound(  # noqa: E731
+            params,
+            tr,
+            occ,
+            time_limit_s=time_limit_s,
+            with_battery=with_battery,
+            warm_start=start,
+            keep_basis=warm_start,
+        )
         try:
-            b = hindsight_bound(
-                params, tr, occ, time_limit_s=time_limit_s, with_battery=with_battery
-            )
+            try:
+                b = solve(basis)
+            except SolverError:
+                if basis is None:
+                    raise
+                b = solve(None)  # a failed warm start is solved again from scratch
+            basis = b.solution.basis
         except SolverError as exc:
             b = Bound(
                 profit_eur=float("nan"),

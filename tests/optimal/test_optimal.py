@@ -380,20 +380,22 @@ LIMIT = "time or iteration limit"
 
 
 def test_a_failed_lp_day_is_reported_and_kept_out_of_every_mean(monkeypatch):
-    # the second day's LP hits its time limit: it is reported with its status, its profit is
-    # NaN (not a number to average) and the means and the headroom use the first day only
+    # the second day's LP hits its time limit, warm-started and again from scratch: it is
+    # reported with its status, its profit is NaN (not a number to average) and the means and
+    # the headroom use the first day only
     params = hand_params(ONE_PORT, [0.2] * 24, step_minutes=60.0)
     real, calls = bound_module.build_and_solve, []
 
     def second_day_fails(*args, **kwargs):
-        calls.append(None)
-        if len(calls) == 2:
+        calls.append(kwargs["warm_start"] is not None)
+        if len(calls) >= 2:
             raise optimal.SolverError(f"HiGHS did not solve the problem: {LIMIT}", LIMIT)
         return real(*args, **kwargs)
 
     monkeypatch.setattr(bound_module, "build_and_solve", second_day_fails)
     res = evaluation.hindsight_bound(params, np.array([0, 1]))
     bound, ref = res["daily_profit"], res["reference_daily_profit"]
+    assert calls == [False, True, False]  # day 1: warm, then from scratch
     assert res["status"] == ["optimal", LIMIT]
     assert res["failed_days"] == [{"day": 1, "status": LIMIT}]
     assert np.isfinite(bound[0]) and np.isnan(bound[1]) and np.isfinite(ref).all()
@@ -452,6 +454,38 @@ def test_a_failed_warm_start_is_solved_again_from_scratch(monkeypatch):
     for t in range(3):
         jax.block_until_ready(act(state.replace(timestep=jnp.asarray(t))))
     assert mpc.solves == 3 and mpc.warm_retries == 2 and mpc.failures == 0
+
+
+def test_each_bound_day_starts_from_the_previous_day_s_basis_and_keeps_its_value(
+    small_params, monkeypatch
+):
+    """`bound_days` hands each day's LP the optimal basis of the day before; the bounds are
+    those of solves from scratch, and a warm start that fails is solved again from scratch."""
+    days = np.array([3, 40, 41, 200])
+    cold = bound_module.bound_days(small_params, days, warm_start=False)
+    real, starts = bound_module.build_and_solve, []
+
+    def spy(*args, **kwargs):
+        starts.append(kwargs["warm_start"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(bound_module, "build_and_solve", spy)
+    warm = bound_module.bound_days(small_params, days)
+    assert starts[0] is None and all(isinstance(b, model_module.Basis) for b in starts[1:])
+    assert [s is w.solution.basis for s, w in zip(starts[1:], warm[:-1])] == [True] * 3
+    assert all(b.solved for b in warm + cold)
+    np.testing.assert_allclose(
+        [b.profit_eur for b in warm], [b.profit_eur for b in cold], rtol=1e-9, atol=1e-9
+    )
+
+    def warm_fails(*args, **kwargs):
+        if kwargs["warm_start"] is not None:
+            raise optimal.SolverError(f"HiGHS did not solve the problem: {LIMIT}", LIMIT)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(bound_module, "build_and_solve", warm_fails)
+    again = bound_module.bound_days(small_params, days)
+    assert [b.profit_eur for b in again] == [b.profit_eur for b in cold]
 
 
 # --- reporting --------------------------------------------------------------------------
