@@ -26,7 +26,7 @@ from chargax_marl.optimal import milp as milp_module
 from chargax_marl.optimal import model as model_module
 from chargax_marl.optimal import mpc as mpc_module
 from chargax_marl.optimal.mpc import MPC
-from tests.helpers import exact_jit, place_car, three_level_station
+from tests.helpers import count_compiles, exact_jit, place_car, three_level_station
 from tests.optimal.reference_lp import reference_value_eur
 
 KEY = jax.random.PRNGKey(0)
@@ -142,6 +142,18 @@ def test_the_cars_of_a_day_do_not_depend_on_the_policy(default_setup):
         first_b = np.asarray(getattr(drawn_b, field))[np.asarray(drawn_b.occupied & ~busy.occupied)]
         n = min(first_a.size, first_b.size)
         np.testing.assert_array_equal(first_a[:n], first_b[:n])
+
+
+def test_traces_of_other_prices_and_traffic_reuse_the_compiled_program(small_params):
+    """`make_traces` compiles once per station shape and number of days: a bound or reference
+    computed under other prices, traffic or fees traces and compiles nothing again."""
+    days, keys = np.array([3, 4]), jax.random.split(KEY, 2)
+    first = trace.make_traces(small_params, days, day_keys=keys)
+    busier = small_params.replace(arrival_rate=small_params.arrival_rate * 2)
+    assert count_compiles(lambda: trace.make_traces(busier, days, day_keys=keys)) == 0
+    again = trace.make_traces(busier, days, day_keys=keys)
+    assert (np.asarray(again.arrivals.requested) >= np.asarray(first.arrivals.requested)).all()
+    assert (np.asarray(again.arrivals.requested) > np.asarray(first.arrivals.requested)).any()
 
 
 def test_a_trace_for_another_station_or_step_length_is_refused(default_setup):
