@@ -368,28 +368,32 @@ def bound_days(
             warm_start=start,
             keep_basis=warm_start,
         )
-        try:
-            try:
-                b = solve(basis)
-            except SolverError:
-                if basis is None:
-                    raise
-                b = solve(None)  # a failed warm start is solved again from scratch
+        b = _bound_or_failure(solve, basis, occ)
+        if not b.solved and basis is not None:
+            b = _bound_or_failure(solve, None, occ)  # a failed warm start, again from scratch
+        if b.solved and b.solution.basis is not None:
             basis = b.solution.basis
-        except SolverError as exc:
-            b = Bound(
-                profit_eur=float("nan"),
-                reference_profit_eur=occ.reference_profit_eur,
-                status=exc.status,
-                solve_s=float("nan"),
-                num_vars=0,
-                num_rows=0,
-                num_cars=occ.sessions.size,
-                solution=None,
-                message=str(exc),
-            )
         out.append(b)
     return out
+
+
+def _bound_or_failure(solve, start: Basis | None, occ: Occupancy) -> Bound:
+    """``solve(start)``, or a `Bound` that carries the solver's status and message and a NaN
+    profit when HiGHS finds no optimum."""
+    try:
+        return solve(start)
+    except SolverError as exc:
+        return Bound(
+            profit_eur=float("nan"),
+            reference_profit_eur=occ.reference_profit_eur,
+            status=exc.status,
+            solve_s=float("nan"),
+            num_vars=0,
+            num_rows=0,
+            num_cars=occ.sessions.size,
+            solution=None,
+            message=str(exc),
+        )
 
 
 __all__ = [
