@@ -22,15 +22,14 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# One call of a checkout's bound_days, run in a process with that checkout first on sys.path.
+# One checkout's round, run by ``python -c`` in that checkout (its folder first on sys.path).
 _ROUND = """
-import sys, time
-sys.path.insert(0, {root!r})
+import time
 import jax, numpy as np
 from chargax_marl.benchmark.tasks import get_task
 from chargax_marl.core import make_params
 from chargax_marl.optimal import bound as bound_lib
-params = make_params() if {station!r} == "default" else get_task({task!r}).make_params()
+params = get_task({task!r}).make_params() if {task!r} else make_params()
 days = np.arange({days}) * 20
 seconds = []
 for rep in range(3):
@@ -47,10 +46,9 @@ TASKS = {"grid25": "Chargax-shopping-grid25-high-v1", "default": ""}
 
 def one_round(root: Path, station: str, days: int) -> str:
     """``bound_days`` of the checkout at ``root`` in a process of its own; its printed line."""
-    code = _ROUND.format(root=str(root), station=station, task=TASKS[station], days=days)
-    env = {**os.environ, "PYTHONPATH": str(root)}
+    code = _ROUND.format(task=TASKS[station], days=days)
     out = subprocess.run(
-        [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+        [sys.executable, "-c", code], cwd=root, capture_output=True, text=True, check=True
     )
     return out.stdout.strip().splitlines()[-1]
 

@@ -172,14 +172,10 @@ def make_traces(
     return _traces_of_days(params, days, day_keys).replace(station=fingerprint)
 
 
-def _traces_program(params: EnvParams, days, day_keys) -> DayTrace:
-    """The traced body of `make_traces`: one `_make_trace` per day, vmapped."""
-    return jax.vmap(lambda d, k: _make_trace(params, d, k))(days, day_keys)
-
-
-_traces_of_days = jax.jit(_traces_program)
-"""`_traces_program` compiled once per station shape and number of days, with the params an
-argument: a call with other prices, traffic or fees reuses it instead of tracing anew."""
+_traces_of_days = jax.jit(jax.vmap(_make_trace, in_axes=(None, 0, 0)))
+"""`_make_trace` for each day, compiled once per station shape and number of days, with the
+params an argument: a call with other prices, traffic or fees reuses it instead of tracing
+anew."""
 
 
 CAR_DEFAULTS = {
