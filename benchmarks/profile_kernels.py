@@ -12,6 +12,14 @@ inputs).
     python benchmarks/profile_kernels.py --view single --envs 4096 --top 30
     python benchmarks/profile_kernels.py --view marl --envs 16
     python benchmarks/profile_kernels.py --chargax-root ../old-checkout      # the same for another commit
+    python benchmarks/profile_kernels.py --train ippo --config ippo          # a trainer's update
+
+``--train ALGO`` profiles two updates of one seed's training program instead (``--config NAME``
+a bundled config, ``make train``'s with ``ippo``; ``--envs`` its ``NUM_ENVS``, default the
+config's). Each kernel is put in the phase its number of calls gives away (once per rollout
+step, per minibatch, per epoch or per update) and counted as a matrix product (a ``dot``, or
+a library fusion of one operation) or not; printed: milliseconds per update of each phase and
+kind, then the top kernels with the operation XLA names as their source.
 
 The kernel times are summed over XLA's worker threads (two kernels may overlap), and the
 trace itself adds a fixed cost per kernel, so at 1-16 envs the figures overstate small
@@ -58,12 +66,127 @@ def fusion_sizes(hlo_text: str) -> dict:
     return out
 
 
+def source_ops(hlo_text: str) -> dict:
+    """``{kernel name: the op_name of its metadata}`` (the JAX operation it came from)."""
+    out = {}
+    for line in hlo_text.splitlines():
+        m = re.match(r'\s*(?:ROOT )?%(\S+) = .*?op_name="([^"]*)"', line)
+        if m:
+            out[m.group(1)] = m.group(2)
+    return out
+
+
+def kernel_times(fn, arg, sizes: dict) -> tuple[collections.Counter, collections.Counter]:
+    """Nanoseconds and calls of each compiled kernel over one traced call ``fn(arg)``."""
+    import jax
+    from jax._src.profiler import ProfileData
+
+    total_ns, calls = collections.Counter(), collections.Counter()
+    with tempfile.TemporaryDirectory() as folder:
+        with jax.profiler.trace(folder):
+            jax.block_until_ready(fn(arg))
+        data = ProfileData.from_file(glob.glob(folder + "/**/*.xplane.pb", recursive=True)[0])
+        for plane in data.planes:
+            for line in plane.lines:
+                if not line.name.startswith("tf_XLAEigen"):
+                    continue
+                for event in line.events:
+                    if event.name in sizes:
+                        total_ns[event.name] += event.duration_ns
+                        calls[event.name] += 1
+    return total_ns, calls
+
+
+def phase_of(calls: int, per_phase: dict) -> str:
+    """The phase a kernel called ``calls`` times belongs to: the name in ``per_phase``
+    (``{name: calls of a kernel run once per that phase}``) with that count, ``"other"`` for
+    none and the names joined by ``"|"`` where several phases share the count."""
+    names = [name for name, n in per_phase.items() if n == calls]
+    return "|".join(names) if names else "other"
+
+
+def is_matrix_product(name: str, source: str) -> bool:
+    """A kernel that multiplies matrices: XLA's own ``dot`` kernel, or a fusion whose source
+    operation is a ``dot_general`` (a library fusion, YNNPACK's on the CPU)."""
+    return name.startswith("dot") or source.endswith("dot_general")
+
+
+def profile_training(
+    algo: str, config_name: str | None, num_envs: int | None, top: int
+) -> list[dict]:
+    """Profile two updates of one seed of ``algo`` (see the module docstring); returns the rows
+    of the phase table."""
+    import jax
+    from train_speed import build
+
+    from baselines.config import SCHEMA, settings
+
+    config = {k: v for k, v in (settings(config_name) if config_name else {}).items()}
+    config.pop("TOTAL_TIMESTEPS", None)
+    get = lambda k: config.get(k, SCHEMA[k].default)  # noqa: E731
+    envs = int(num_envs or get("NUM_ENVS"))
+    steps, epochs, minibatches = (
+        int(get("NUM_STEPS")),
+        int(get("UPDATE_EPOCHS")),
+        int(get("NUM_MINIBATCHES")),
+    )
+    updates = 2
+    train, _ = build(algo, envs, updates * envs * steps, config)
+    compiled = train.lower(jax.random.PRNGKey(0)).compile()
+    text = compiled.as_text()
+    sizes, sources = fusion_sizes(text), source_ops(text)
+    jax.block_until_ready(compiled(jax.random.PRNGKey(0)))
+    total_ns, calls = kernel_times(compiled, jax.random.PRNGKey(1), sizes)
+    per_phase = {
+        "rollout step": updates * steps,
+        "minibatch": updates * epochs * minibatches,
+        "epoch": updates * epochs,
+        "update": updates,
+    }
+    summed = sum(total_ns.values())
+    groups = collections.defaultdict(lambda: [0, 0])
+    for name, ns in total_ns.items():
+        kind = "products" if is_matrix_product(name, sources.get(name, "")) else "other"
+        g = groups[(phase_of(calls[name], per_phase), kind)]
+        g[0] += ns
+        g[1] += 1
+    print(
+        f"profile_kernels --train {algo} | config {config_name or 'paper defaults'} | {envs} envs x "
+        f"{steps} steps, {epochs} epochs x {minibatches} minibatches, {updates} updates of one "
+        f"seed | {len(total_ns)} kernels, summed kernel time {summed / updates / 1e6:.0f} ms per update"
+    )
+    print(f"{'phase':<14} {'kind':<9} {'kernels':>7} {'ms / update':>11} {'share':>6}")
+    rows = []
+    for (phase, kind), (ns, n) in sorted(groups.items(), key=lambda kv: -kv[1][0]):
+        rows.append(
+            {
+                "phase": phase,
+                "kind": kind,
+                "kernels": n,
+                "ms_per_update": ns / updates / 1e6,
+                "share": ns / summed,
+            }
+        )
+        print(
+            f"{phase:<14} {kind:<9} {n:>7} {ns / updates / 1e6:>11.1f} {100 * ns / summed:>5.1f}%"
+        )
+    print(f"the {top} kernels with the most time (ms per update, phase, shape, source)")
+    for name, ns in total_ns.most_common(top):
+        phase = phase_of(calls[name], per_phase)
+        print(
+            f"{ns / updates / 1e6:7.1f} ms  {phase:<13} {sizes[name][0][:30]:<30} {name:<30} {sources.get(name, '').split('closed_call/')[-1][:60]}"
+        )
+    return rows
+
+
 def main(argv=None) -> list[dict]:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--view", choices=["single", "marl"], default="single")
-    parser.add_argument("--envs", type=int, default=4096)
+    parser.add_argument("--view", choices=["single", "marl", "marl_array"], default="single")
+    parser.add_argument(
+        "--envs", type=int, default=None, help="env batch (default 4096; --train: the config's)"
+    )
     parser.add_argument("--steps", type=int, default=32, help="scan length of the traced call")
     parser.add_argument("--top", type=int, default=25)
     parser.add_argument("--scenario", default="shopping")
@@ -72,33 +195,26 @@ def main(argv=None) -> list[dict]:
         default=None,
         help="import chargax_marl from this checkout (e.g. an older commit, for a before/after)",
     )
+    parser.add_argument("--train", metavar="ALGO", help="profile a trainer (ppo, ippo, mappo)")
+    parser.add_argument("--config", default=None, help="with --train: a bundled config's settings")
     args = parser.parse_args(argv)
 
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     if args.chargax_root:
         sys.path.insert(0, os.path.abspath(args.chargax_root))
+    if args.train:
+        return profile_training(args.train, args.config, args.envs, args.top)
+    args.envs = args.envs or 4096
     import jax
     import jax.numpy as jnp
     from envbench import rollout_fn
-    from jax._src.profiler import ProfileData
     from throughput import _views
 
     env, params = _views("chargax_marl", args.scenario, "onehot")[args.view]
     fn = jax.jit(rollout_fn(args.view, env, params, args.envs, args.steps))
     sizes = fusion_sizes(fn.lower(jnp.uint32(0)).compile().as_text())
     jax.block_until_ready(fn(jnp.uint32(0)))
-    with tempfile.TemporaryDirectory() as folder:
-        with jax.profiler.trace(folder):
-            jax.block_until_ready(fn(jnp.uint32(1)))
-        data = ProfileData.from_file(glob.glob(folder + "/**/*.xplane.pb", recursive=True)[0])
-        total_ns = collections.Counter()
-        for plane in data.planes:
-            for line in plane.lines:
-                if not line.name.startswith("tf_XLAEigen"):
-                    continue
-                for event in line.events:
-                    if event.name in sizes:
-                        total_ns[event.name] += event.duration_ns
+    total_ns, _ = kernel_times(fn, jnp.uint32(1), sizes)
     env_steps = args.envs * args.steps
     summed = sum(total_ns.values())
     import chargax_marl

@@ -376,3 +376,20 @@ def test_suite_profile_sums_processes_per_test_and_file():
     ]
     longest = lines[lines.index("the 2 longest compiles") + 2 :]
     assert [r.split()[:2] for r in longest] == [["1.5", "jit(f)"], ["0.5", "jit(g)"]]
+
+
+def test_profile_kernels_puts_each_kernel_in_the_phase_its_call_count_names():
+    """``profile_kernels.py --train`` reads a kernel's phase from how often one traced call ran
+    it; a count two phases share is named ambiguous, not given to one of them."""
+    pk = load("profile_kernels")
+    per_phase = {"rollout step": 300, "minibatch": 32, "epoch": 8, "update": 2}
+    assert pk.phase_of(300, per_phase) == "rollout step"
+    assert pk.phase_of(32, per_phase) == "minibatch"
+    assert pk.phase_of(1500, per_phase) == "other"
+    assert pk.phase_of(8, {"minibatch": 8, "epoch": 8}) == "minibatch|epoch"
+    assert pk.is_matrix_product("dot.472", "")
+    assert pk.is_matrix_product("ynn_fusion.31", "jit(train)/MLP/Dense_0/dot_general")
+    assert not pk.is_matrix_product("ynn_fusion", "jit(train)/vmap()/reduce_sum")
+    assert not pk.is_matrix_product("add_tanh_fusion.6", "jit(train)/MLP/tanh")
+    hlo = '  %ynn_fusion.3 = f32[8,16]{1,0} fusion(%p), kind=kCustom, metadata={op_name="jit(f)/a/dot_general" stack_frame_id=1}'
+    assert pk.source_ops(hlo) == {"ynn_fusion.3": "jit(f)/a/dot_general"}
