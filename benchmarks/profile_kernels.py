@@ -12,14 +12,16 @@ inputs).
     python benchmarks/profile_kernels.py --view single --envs 4096 --top 30
     python benchmarks/profile_kernels.py --view marl --envs 16
     python benchmarks/profile_kernels.py --chargax-root ../old-checkout      # the same for another commit
-    python benchmarks/profile_kernels.py --train ippo --config ippo          # a trainer's update
+    python benchmarks/profile_kernels.py --train ippo ppo --config ippo ppo   # trainers' updates
 
-``--train ALGO`` profiles two updates of one seed's training program instead (``--config NAME``
-a bundled config, ``make train``'s with ``ippo``; ``--envs`` its ``NUM_ENVS``, default the
-config's). Each kernel is put in the phase its number of calls gives away (once per rollout
-step, per minibatch, per epoch or per update) and counted as a matrix product (a ``dot``, or
-a library fusion of one operation) or not; printed: milliseconds per update of each phase and
-kind, then the top kernels with the operation XLA names as their source.
+``--train ALGO [ALGO ...]`` profiles two updates of one seed of each training program instead
+(``--config NAME [NAME ...]``: a bundled config for all or one per trainer, ``make train``'s
+with ``ippo``; ``--envs`` their ``NUM_ENVS``, default each config's), compiled first and then
+traced in turn, ``--repeats`` rounds (each kernel's median), so that the machine's changes of
+speed between runs do not skew one trainer against another. Each kernel is put in the phase its
+number of calls gives away (once per rollout step, per minibatch, per epoch or per update) and
+counted as a matrix product or not; printed: milliseconds per update of each phase and kind,
+then the top kernels with the operation XLA names as their source.
 
 The kernel times are summed over XLA's worker threads (two kernels may overlap), and the
 trace itself adds a fixed cost per kernel, so at 1-16 envs the figures overstate small
@@ -35,6 +37,8 @@ import os
 import re
 import sys
 import tempfile
+
+import numpy as np
 
 
 def fusion_sizes(hlo_text: str) -> dict:
@@ -111,17 +115,15 @@ def is_matrix_product(name: str, source: str) -> bool:
     return name.startswith("dot") or source.endswith("dot_general")
 
 
-def profile_training(
-    algo: str, config_name: str | None, num_envs: int | None, top: int
-) -> list[dict]:
-    """Profile two updates of one seed of ``algo`` (see the module docstring); returns the rows
-    of the phase table."""
+def _trainer_program(algo: str, config_name: str | None, num_envs: int | None, updates: int):
+    """A trainer's compiled program of ``updates`` updates of one seed, its kernels' shapes and
+    sources, and the calls a kernel of each phase makes in one call."""
     import jax
     from train_speed import build
 
     from baselines.config import SCHEMA, settings
 
-    config = {k: v for k, v in (settings(config_name) if config_name else {}).items()}
+    config = dict(settings(config_name)) if config_name else {}
     config.pop("TOTAL_TIMESTEPS", None)
     get = lambda k: config.get(k, SCHEMA[k].default)  # noqa: E731
     envs = int(num_envs or get("NUM_ENVS"))
@@ -130,53 +132,106 @@ def profile_training(
         int(get("UPDATE_EPOCHS")),
         int(get("NUM_MINIBATCHES")),
     )
-    updates = 2
     train, _ = build(algo, envs, updates * envs * steps, config)
     compiled = train.lower(jax.random.PRNGKey(0)).compile()
     text = compiled.as_text()
-    sizes, sources = fusion_sizes(text), source_ops(text)
     jax.block_until_ready(compiled(jax.random.PRNGKey(0)))
-    total_ns, calls = kernel_times(compiled, jax.random.PRNGKey(1), sizes)
     per_phase = {
         "rollout step": updates * steps,
         "minibatch": updates * epochs * minibatches,
         "epoch": updates * epochs,
         "update": updates,
     }
-    summed = sum(total_ns.values())
-    groups = collections.defaultdict(lambda: [0, 0])
-    for name, ns in total_ns.items():
-        kind = "products" if is_matrix_product(name, sources.get(name, "")) else "other"
-        g = groups[(phase_of(calls[name], per_phase), kind)]
-        g[0] += ns
-        g[1] += 1
-    print(
-        f"profile_kernels --train {algo} | config {config_name or 'paper defaults'} | {envs} envs x "
-        f"{steps} steps, {epochs} epochs x {minibatches} minibatches, {updates} updates of one "
-        f"seed | {len(total_ns)} kernels, summed kernel time {summed / updates / 1e6:.0f} ms per update"
+    title = (
+        f"--train {algo} --config {config_name or '(paper defaults)'} | {envs} envs x {steps} "
+        f"steps, {epochs} epochs x {minibatches} minibatches"
     )
-    print(f"{'phase':<14} {'kind':<9} {'kernels':>7} {'ms / update':>11} {'share':>6}")
-    rows = []
-    for (phase, kind), (ns, n) in sorted(groups.items(), key=lambda kv: -kv[1][0]):
-        rows.append(
-            {
-                "phase": phase,
-                "kind": kind,
-                "kernels": n,
-                "ms_per_update": ns / updates / 1e6,
-                "share": ns / summed,
-            }
+    return compiled, fusion_sizes(text), source_ops(text), per_phase, title
+
+
+def profile_training(
+    algos: list[str],
+    config_names: list[str | None],
+    num_envs: int | None,
+    top: int,
+    repeats: int = 3,
+    updates: int = 2,
+) -> dict[str, list[dict]]:
+    """Profile ``updates`` updates of one seed of each trainer (see the module docstring).
+
+    The trainers' programs are compiled first, then traced in turn, ``repeats`` rounds, so that
+    a change of the machine's speed meets all of them alike; each kernel's time is its median
+    over the rounds.
+
+    Args:
+        algos: the trainers (``ppo``, ``ippo``, ``mappo``).
+        config_names: a bundled config per trainer (None: the paper defaults), or one for all.
+        num_envs: ``NUM_ENVS``, or None for each config's.
+        top: how many of each trainer's longest kernels to print.
+        repeats: traced calls per trainer.
+        updates: updates per call.
+
+    Returns:
+        Per trainer, the rows of its phase table.
+    """
+    import jax
+
+    if len(config_names) == 1:
+        config_names = list(config_names) * len(algos)
+    if len(config_names) != len(algos):
+        raise ValueError(
+            f"field 'config' must name one config or one per trainer ({len(algos)}), "
+            f"got {config_names!r}"
         )
+    programs = [
+        _trainer_program(a, c, num_envs, updates) for a, c in zip(algos, config_names, strict=True)
+    ]
+    traced = [[] for _ in programs]
+    for r in range(repeats):
+        for i, (compiled, sizes, *_) in enumerate(programs):
+            traced[i].append(kernel_times(compiled, jax.random.PRNGKey(r + 1), sizes))
+    out = {}
+    for (_, sizes, sources, per_phase, title), runs in zip(programs, traced, strict=True):
+        calls = runs[0][1]
+        total_ns = collections.Counter(
+            {name: int(np.median([t[0][name] for t in runs])) for name in runs[0][0]}
+        )
+        summed = sum(total_ns.values())
+        groups = collections.defaultdict(lambda: [0, 0])
+        for name, ns in total_ns.items():
+            kind = "products" if is_matrix_product(name, sources.get(name, "")) else "other"
+            g = groups[(phase_of(calls[name], per_phase), kind)]
+            g[0] += ns
+            g[1] += 1
         print(
-            f"{phase:<14} {kind:<9} {n:>7} {ns / updates / 1e6:>11.1f} {100 * ns / summed:>5.1f}%"
+            f"\nprofile_kernels {title}, {updates} updates of one seed | {len(total_ns)} kernels, "
+            f"summed kernel time {summed / updates / 1e6:.0f} ms per update (each kernel's "
+            f"median over {repeats} traced calls, the trainers traced in turn)"
         )
-    print(f"the {top} kernels with the most time (ms per update, phase, shape, source)")
-    for name, ns in total_ns.most_common(top):
-        phase = phase_of(calls[name], per_phase)
-        print(
-            f"{ns / updates / 1e6:7.1f} ms  {phase:<13} {sizes[name][0][:30]:<30} {name:<30} {sources.get(name, '').split('closed_call/')[-1][:60]}"
-        )
-    return rows
+        print(f"{'phase':<14} {'kind':<9} {'kernels':>7} {'ms / update':>11} {'share':>6}")
+        rows = []
+        for (phase, kind), (ns, n) in sorted(groups.items(), key=lambda kv: -kv[1][0]):
+            ms = ns / updates / 1e6
+            rows.append(
+                {
+                    "phase": phase,
+                    "kind": kind,
+                    "kernels": n,
+                    "ms_per_update": ms,
+                    "share": ns / summed,
+                }
+            )
+            print(f"{phase:<14} {kind:<9} {n:>7} {ms:>11.1f} {100 * ns / summed:>5.1f}%")
+        if top:
+            print(f"the {top} kernels with the most time (ms per update, phase, shape, source)")
+        for name, ns in total_ns.most_common(top):
+            source = sources.get(name, "").split("closed_call/")[-1][:60]
+            print(
+                f"{ns / updates / 1e6:7.1f} ms  {phase_of(calls[name], per_phase):<13} "
+                f"{sizes[name][0][:30]:<30} {name:<30} {source}"
+            )
+        out[title] = rows
+    return out
 
 
 def main(argv=None) -> list[dict]:
@@ -195,15 +250,25 @@ def main(argv=None) -> list[dict]:
         default=None,
         help="import chargax_marl from this checkout (e.g. an older commit, for a before/after)",
     )
-    parser.add_argument("--train", metavar="ALGO", help="profile a trainer (ppo, ippo, mappo)")
-    parser.add_argument("--config", default=None, help="with --train: a bundled config's settings")
+    parser.add_argument(
+        "--train", nargs="+", metavar="ALGO", help="profile trainers (ppo, ippo, mappo) in turn"
+    )
+    parser.add_argument(
+        "--config",
+        nargs="+",
+        default=[None],
+        help="with --train: a bundled config's settings, one for all trainers or one each",
+    )
+    parser.add_argument(
+        "--repeats", type=int, default=3, help="with --train: traced calls (each kernel's median)"
+    )
     args = parser.parse_args(argv)
 
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     if args.chargax_root:
         sys.path.insert(0, os.path.abspath(args.chargax_root))
     if args.train:
-        return profile_training(args.train, args.config, args.envs, args.top)
+        return profile_training(args.train, args.config, args.envs, args.top, args.repeats)
     args.envs = args.envs or 4096
     import jax
     import jax.numpy as jnp
