@@ -173,6 +173,9 @@ def profile_training(
 
     Returns:
         Per trainer, the rows of its phase table.
+
+    Raises:
+        ValueError: ``config_names`` holds neither one config nor one per trainer.
     """
     import jax
 
@@ -234,7 +237,7 @@ def profile_training(
     return out
 
 
-def main(argv=None) -> list[dict]:
+def main(argv=None) -> list[dict] | dict[str, list[dict]]:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
