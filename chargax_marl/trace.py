@@ -147,6 +147,12 @@ def _make_trace(params: EnvParams, day, day_key) -> DayTrace:
     )
 
 
+_traces_of_days = jax.jit(jax.vmap(_make_trace, in_axes=(None, 0, 0)))
+"""`_make_trace` for each day, compiled once per station shape and number of days, with the
+params an argument: a call with other prices, traffic or fees reuses it instead of tracing
+anew."""
+
+
 def make_traces(
     params: EnvParams, days, key: jax.Array | None = None, *, day_keys: jax.Array | None = None
 ) -> DayTrace:
@@ -170,12 +176,6 @@ def make_traces(
         day_keys = jax.random.split(key, days.shape[0])
     fingerprint = station_fingerprint(params)
     return _traces_of_days(params, days, day_keys).replace(station=fingerprint)
-
-
-_traces_of_days = jax.jit(jax.vmap(_make_trace, in_axes=(None, 0, 0)))
-"""`_make_trace` for each day, compiled once per station shape and number of days, with the
-params an argument: a call with other prices, traffic or fees reuses it instead of tracing
-anew."""
 
 
 CAR_DEFAULTS = {

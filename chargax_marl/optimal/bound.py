@@ -20,6 +20,7 @@ discrete levels are a subset) and every limit the simulator applies is a constra
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import jax
@@ -359,13 +360,13 @@ def bound_days(
     for i in range(int(np.size(days))):
         tr = trace_lib.day_of(traces, i)
         occ = occupancy(params, tr, day_keys[i], reference)
-        solve = lambda start: hindsight_bound(  # noqa: E731
+        solve = functools.partial(
+            hindsight_bound,
             params,
             tr,
             occ,
             time_limit_s=time_limit_s,
             with_battery=with_battery,
-            warm_start=start,
             keep_basis=warm_start,
         )
         b = _bound_or_failure(solve, basis, occ)
@@ -378,10 +379,10 @@ def bound_days(
 
 
 def _bound_or_failure(solve, start: Basis | None, occ: Occupancy) -> Bound:
-    """``solve(start)``, or a `Bound` that carries the solver's status and message and a NaN
-    profit when HiGHS finds no optimum."""
+    """``solve(warm_start=start)``, or a `Bound` that carries the solver's status and message
+    and a NaN profit when HiGHS finds no optimum."""
     try:
-        return solve(start)
+        return solve(warm_start=start)
     except SolverError as exc:
         return Bound(
             profit_eur=float("nan"),
