@@ -10,9 +10,11 @@ import pytest
 from chargax_marl.core import make_params, simulator
 from chargax_marl.core.physics import leaf_min_level, node_flows_kw
 from chargax_marl.evaluation import (
+    _policies_days,
     _policy_days,
     evaluate_policy,
     run_days,
+    run_policies_days,
     run_policy_days,
     split_days,
     summarize,
@@ -27,7 +29,7 @@ from chargax_marl.policies import (
     price_threshold,
 )
 from chargax_marl.single import Chargax
-from tests.helpers import no_arrivals, place_car, start, three_level_station
+from tests.helpers import count_compiles, no_arrivals, place_car, start, three_level_station
 
 
 @pytest.fixture(scope="module")
@@ -237,6 +239,39 @@ def test_a_named_rule_is_compiled_once_for_any_params_of_the_same_shapes(params)
         closed = run_days(lambda s, k, p=p: rule(s, k, p), p, days, key)
         np.testing.assert_allclose(got.profit_eur, closed.profit_eur, rtol=1e-6, atol=1e-4)
     assert not np.allclose(first.profit_eur, again.profit_eur)
+
+
+def test_several_rules_play_in_one_program_as_each_does_alone(params):
+    """`run_policies_days` plays every rule on the same cars as `run_policy_days` does for
+    each (to float32 rounding), compiles one program for a tuple of named rules and reuses it
+    under other params, and hands one policy to `run_policy_days` itself."""
+    days, key = np.array([2, 9, 14]), jax.random.PRNGKey(7)
+    names = ("always_max", "battery_rule", "price_threshold")
+    rules = [POLICIES[name] for name in names] + [get_policy("battery_programme", params)]
+    together = run_policies_days(rules, params, days, key)
+    assert together.profit_eur.shape == (4, 3)
+    for i, rule in enumerate(rules):
+        alone = run_policy_days(rule, params, days, key)
+        for field in ("profit_eur", "energy_delivered_kwh", "cars_served"):
+            np.testing.assert_allclose(
+                getattr(together, field)[i], getattr(alone, field), rtol=1e-6, atol=1e-4
+            )
+    # the rules differ, so a mix-up of the switch's branches would show
+    assert len({tuple(np.round(np.asarray(p), 3)) for p in together.profit_eur}) == 4
+
+    named = tuple(POLICIES[name] for name in names)
+    run_policies_days(named, params, days, key)
+    compiled = _policies_days._cache_size()
+    busy = params.replace(arrival_rate=params.arrival_rate * 2.0)
+    assert count_compiles(lambda: run_policies_days(named, busy, days, key)) == 0
+    assert _policies_days._cache_size() == compiled
+
+    one = run_policies_days(rules[:1], params, days, key)
+    np.testing.assert_array_equal(
+        one.profit_eur[0], run_policy_days(rules[0], params, days, key).profit_eur
+    )
+    with pytest.raises(ValueError, match="policies"):
+        run_policies_days([], params, days, key)
 
 
 def test_split_days_and_json(tmp_path, params):

@@ -7,10 +7,11 @@ with the evaluation's keys, so every policy meets the same cars.
 
 from __future__ import annotations
 
+import jax
 import numpy as np
 
 from baselines.eval import protocol, stats
-from chargax_marl.evaluation import run_policy_days, summarize
+from chargax_marl.evaluation import run_policies_days, summarize
 from chargax_marl.policies import get_policy
 
 POLICIES = ("always_max", "battery_rule", "price_threshold", "edf", "llf")
@@ -84,12 +85,15 @@ def evaluate_rules(params, days, policies=POLICIES, key=None, draws: int = 1) ->
             f"evaluate_rules: give either a key or draws > 1, not both (draws={draws!r})"
         )
     keys = [key] if key is not None else protocol.draw_keys(draws)
+    names = tuple(policies)
+    if not names:
+        return {}
+    rules = [rule_policy(name, params) for name in names]
+    # one program plays every rule (the simulator compiled once), each on the same cars
+    every = protocol.mean_over_draws(lambda k: run_policies_days(rules, params, days, k), keys)
     out = {}
-    for name in policies:
-        policy = rule_policy(name, params)
-        totals = protocol.mean_over_draws(
-            lambda k, policy=policy: run_policy_days(policy, params, days, k), keys
-        )
+    for i, name in enumerate(names):
+        totals = jax.tree.map(lambda x, i=i: x[i], every)
         out[name] = {
             "num_days": int(np.size(days)),
             "days": [int(d) for d in np.asarray(days)],

@@ -118,8 +118,13 @@ def _check_add_teacher_rules_reproduces(path, res):
     assert list(new["over_seeds"]) == list(res["over_seeds"])
     for name in rules:
         fresh = res["evaluation"]["table"][name]
+        # scored beside other rules than in the run (one program for the rules it plays), so
+        # equal to float32 rounding of a day's sum
         np.testing.assert_allclose(
-            new["evaluation"]["table"][name]["daily_profit"], fresh["daily_profit"], rtol=1e-6
+            new["evaluation"]["table"][name]["daily_profit"],
+            fresh["daily_profit"],
+            rtol=1e-6,
+            atol=1e-4,
         )
         assert new["evaluation"]["table"][name]["headroom"]["fraction"] == pytest.approx(
             fresh["headroom"]["fraction"], rel=1e-5
