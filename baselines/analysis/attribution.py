@@ -18,6 +18,7 @@ the ports. ``--out`` writes the JSON.
 from __future__ import annotations
 
 import argparse
+import functools
 from pathlib import Path
 
 import jax
@@ -30,7 +31,7 @@ from baselines.eval import stats
 from baselines.eval.rules import evaluate_rules
 from baselines.eval.stats import over_seeds
 from chargax_marl import policies
-from chargax_marl.evaluation import run_days, stateless
+from chargax_marl.evaluation import run_policies_days, stateless
 
 MIXES = ("learned", "learned_ports_rule_battery", "always_max_ports_learned_battery")
 
@@ -50,6 +51,11 @@ def mixed_policies(act, params) -> dict:
     }
 
 
+def _ignore_params(act, state, key, params):
+    """``act(state, key)`` as a rule's ``policy(state, key, params)``."""
+    return act(state, key)
+
+
 def attribute(run_dir: str | Path) -> dict:
     """Score every seed of a run under each mix; see the module docstring."""
 
@@ -62,23 +68,21 @@ def attribute(run_dir: str | Path) -> dict:
     rules = evaluate_rules(eval_params, days, ("always_max", "battery_rule"), key=key)
     am = rules["always_max"]["daily_profit"]
     make_act = train.make_act(eval_params)
-    # One program per mix, the seed's parameters an argument (not a constant): compiled once, run per seed.
-    score = {
-        name: jax.jit(
-            lambda p, d, k, name=name: run_days(
-                mixed_policies(make_act(p), eval_params)[name], eval_params, d, k
-            )
-        )
-        for name in MIXES
-    }
+
+    @jax.jit
+    def score(seed_params, d, k):
+        """Every mix in one program (the simulator compiled once), the seed's parameters an
+        argument (not a constant): compiled once, run per seed."""
+        mixes = mixed_policies(make_act(seed_params), eval_params)
+        as_rules = [functools.partial(_ignore_params, mixes[name]) for name in MIXES]
+        return run_policies_days(as_rules, eval_params, d, k)
+
     per_seed = {m: [] for m in MIXES}
     for i in range(int(results["seeds"])):
         seed_params = jax.tree.map(lambda x: x[i], all_params)
-        for name in MIXES:
-            totals = score[name](seed_params, days, key)
-            per_seed[name].append(
-                stats.paired_difference(np.asarray(totals.profit_eur, np.float64), am)
-            )
+        profit = np.asarray(score(seed_params, days, key).profit_eur, np.float64)
+        for j, name in enumerate(MIXES):
+            per_seed[name].append(stats.paired_difference(profit[j], am))
     out = {
         "run": str(run_dir),
         "algo": results["algo"],
