@@ -8,6 +8,7 @@ with the evaluation's keys, so every policy meets the same cars.
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from baselines.eval import protocol, stats
@@ -89,8 +90,15 @@ def evaluate_rules(params, days, policies=POLICIES, key=None, draws: int = 1) ->
     if not names:
         return {}
     rules = [rule_policy(name, params) for name in names]
-    # one program plays every rule (the simulator compiled once), each on the same cars
-    every = protocol.mean_over_draws(lambda k: run_policies_days(rules, params, days, k), keys)
+
+    def play(k):  # every rule in one program (the simulator compiled once), on the same cars
+        return run_policies_days(rules, params, days, k)
+
+    if len(keys) == 1:
+        every = protocol.mean_over_draws(play, keys)
+    else:  # and every draw in one program (compiled once, not once per draw), then the mean
+        per_draw = jax.device_get(jax.jit(jax.vmap(play))(jnp.stack(keys)))
+        every = jax.tree.map(lambda x: np.mean(np.asarray(x, np.float64), axis=0), per_draw)
     out = {}
     for i, name in enumerate(names):
         totals = jax.tree.map(lambda x, i=i: x[i], every)

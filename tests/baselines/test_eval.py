@@ -131,6 +131,32 @@ def test_held_out_evaluation_uses_common_random_numbers():
     assert d["mean"] == 2.0 and d["per_seed_mean"] == [2.0] and d["stderr"] == pytest.approx(1.0)
 
 
+def test_the_draws_of_the_rules_are_traced_once(monkeypatch):
+    """``evaluate_rules(..., draws=2)`` traces each rule once for both draws: one program
+    plays them (a teacher's rule, built for its params, was traced and compiled again for
+    every draw). That each day is the mean of its draws is `test_train`'s ``EVAL_DRAWS``
+    test."""
+    from baselines.eval import rules
+
+    _, full, _, days = build_env_params(resolve(TINY))
+    traces = []
+
+    def counted(name, params):
+        policy = rules.get_policy(name, params)
+
+        def traced(state, key, p):
+            traces.append(name)  # runs when the program is traced, not when it runs
+            return policy(state, key, p)
+
+        return traced
+
+    monkeypatch.setattr(rules, "rule_policy", counted)
+    names = ("always_max", "battery_programme")
+    out = rules.evaluate_rules(full, days[:2], names, draws=2)
+    assert sorted(traces) == sorted(names)
+    assert all(np.all(np.isfinite(out[name]["daily_profit"])) for name in names)
+
+
 def test_redraw_clusters_the_draws_of_a_day_before_the_standard_error():
     """Two days, two draws each: the per-day means 2 and 4 give mean 3 and s.e. 1 (not the
     s.e. of four independent numbers), and 3 > 2 x 1 beats."""
