@@ -80,7 +80,9 @@ def evaluate_rules(params, days, policies=POLICIES, key=None, draws: int = 1) ->
     ``days``, all with the same key (default ``PRNGKey(0)``, the trainers' evaluation key), so
     every policy meets the same cars and daily profits compare pairwise. ``policies`` may name
     `TEACHER_RULES`. With ``draws`` > 1 (and no ``key``), every day is played under the
-    keys of `baselines.eval.protocol.draw_keys` and its totals are the means over the draws."""
+    keys of `baselines.eval.protocol.draw_keys` and its totals are the means over the draws.
+    The rules, and the draws, are played in one compiled program
+    (`chargax_marl.evaluation.run_policies_days`)."""
     if key is not None and draws != 1:
         raise ValueError(
             f"evaluate_rules: give either a key or draws > 1, not both (draws={draws!r})"
