@@ -44,7 +44,7 @@ def trajectories(params):
     """One day per policy: the levels chosen and the leaf energies that flowed. The days of
     all the policies are one compiled program, the policies taking turns through one
     simulator (``lax.map`` over them, ``lax.switch`` at each step): one compile of it."""
-    branches = [functools.partial(lambda p, s, k: p(s, k, params), p) for p in POLICIES.values()]
+    branches = [functools.partial(policy, params=params) for policy in POLICIES.values()]
 
     def day(index):
         def body(state, k):

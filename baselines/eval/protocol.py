@@ -22,6 +22,9 @@ def draw_keys(draws: int = 1) -> list:
 def mean_over_draws(evaluate, keys):
     """``evaluate(key) -> pytree of arrays`` averaged leaf by leaf over ``keys`` (one call per key)."""
     outs = [jax.device_get(evaluate(k)) for k in keys]
-    return jax.tree.map(
-        lambda *x: np.mean(np.stack([np.asarray(v, np.float64) for v in x]), axis=0), *outs
-    )
+    return mean_of_draws(jax.tree.map(lambda *x: np.stack(x), *outs))
+
+
+def mean_of_draws(per_draw):
+    """A pytree of arrays whose leading axis is the car draws, averaged over it in float64."""
+    return jax.tree.map(lambda x: np.mean(np.asarray(x, np.float64), axis=0), per_draw)

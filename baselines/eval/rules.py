@@ -98,9 +98,8 @@ def evaluate_rules(params, days, policies=POLICIES, key=None, draws: int = 1) ->
 
     if len(keys) == 1:
         every = protocol.mean_over_draws(play, keys)
-    else:  # and every draw in one program (compiled once, not once per draw), then the mean
-        per_draw = jax.device_get(jax.jit(jax.vmap(play))(jnp.stack(keys)))
-        every = jax.tree.map(lambda x: np.mean(np.asarray(x, np.float64), axis=0), per_draw)
+    else:  # and every draw in one program (compiled once, not once per draw)
+        every = protocol.mean_of_draws(jax.device_get(jax.jit(jax.vmap(play))(jnp.stack(keys))))
     out = {}
     for i, name in enumerate(names):
         totals = jax.tree.map(lambda x, i=i: x[i], every)
