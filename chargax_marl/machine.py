@@ -12,14 +12,63 @@ import subprocess
 import jax
 
 
+def cpu_description(lscpu: str) -> str:
+    """The CPU as ``lscpu`` describes it: the model name, with the family, model and the
+    widest vector instructions (``avx512``, ``avx2``) in brackets, and the L2 and L3 caches
+    (their sizes summed over their instances, as ``lscpu`` gives them).
+
+    A virtual machine often reports only a generic model name ("AMD EPYC"), which two hosts of
+    different generations, and speeds, share; the family and model tell them apart.
+
+    Args:
+        lscpu: the output of ``lscpu``.
+
+    Returns:
+        For example ``"AMD EPYC (family 25 model 17, avx512; L2 2 MiB, L3 32 MiB)"``; the empty
+        string when ``lscpu`` names no model.
+    """
+    fields = {}
+    for line in lscpu.splitlines():
+        key, sep, value = line.partition(":")
+        if sep and key.strip() not in fields:
+            fields[key.strip()] = value.strip()
+    name = fields.get("Model name", "")
+    if not name:
+        return ""
+    flags = set(fields.get("Flags", "").split())
+    isa = "avx512" if "avx512f" in flags else "avx2" if "avx2" in flags else ""
+    ident = ", ".join(
+        x
+        for x in (
+            " ".join(
+                f"{label} {fields[key]}"
+                for label, key in (("family", "CPU family"), ("model", "Model"))
+                if fields.get(key)
+            ),
+            isa,
+        )
+        if x
+    )
+    caches = ", ".join(
+        f"{level} {fields[key].split(' (')[0]}"
+        for level, key in (("L2", "L2 cache"), ("L3", "L3 cache"))
+        if fields.get(key)
+    )
+    details = "; ".join(x for x in (ident, caches) if x)
+    return f"{name} ({details})" if details else name
+
+
 def machine_info() -> dict:
-    """CPU model, core count, jax version, backend and device kind (for result files and READMEs)."""
+    """CPU, core count, jax version, backend and device kind (for result files and READMEs).
+
+    Returns:
+        ``{"cpu", "cores", "jax", "backend", "device", "python"}``; ``cpu`` is
+        `cpu_description` of ``lscpu`` where it runs, else the platform's processor name.
+    """
     model = platform.processor() or platform.machine()
     try:
         out = subprocess.run(["lscpu"], capture_output=True, text=True, timeout=10).stdout
-        for line in out.splitlines():
-            if line.startswith("Model name:"):
-                model = line.split(":", 1)[1].strip()
+        model = cpu_description(out) or model
     except (OSError, subprocess.SubprocessError):
         pass
     dev = jax.devices()[0]
