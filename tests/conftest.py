@@ -16,11 +16,13 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
 # The tests' programs are small and compiled once or twice each, so compiling dominates: the
 # cheap LLVM pipeline, with fusions emitted by XLA's elemental emitter rather than its MLIR
 # fusion emitters (which dominate compile time once LLVM's optimisation is off). It leaves
-# XLA's own passes (fusion, algebraic simplification) as they are. Benchmark scripts started by
-# the tests drop it.
+# XLA's own passes (fusion, algebraic simplification) as they are. Each program's machine code
+# is generated as one piece, not split for parallel code generation: the test workers already
+# keep every core busy, and the split's threads cost more than they save. The processes the
+# tests start inherit these flags, unless a test sets XLA_FLAGS for its process itself.
 FAST_COMPILE = (
     "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
-    " --xla_cpu_use_fusion_emitters=false"
+    " --xla_cpu_use_fusion_emitters=false --xla_cpu_parallel_codegen_split_count=1"
 )
 os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {FAST_COMPILE}".strip()
 
