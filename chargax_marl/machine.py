@@ -35,25 +35,15 @@ def cpu_description(lscpu: str) -> str:
     name = fields.get("Model name", "")
     if not name:
         return ""
+
+    def labelled(*pairs):  # "label value" of each field present (without lscpu's "(N instances)")
+        return [f"{label} {fields[key].split(' (')[0]}" for label, key in pairs if fields.get(key)]
+
     flags = set(fields.get("Flags", "").split())
     isa = "avx512" if "avx512f" in flags else "avx2" if "avx2" in flags else ""
-    ident = ", ".join(
-        x
-        for x in (
-            " ".join(
-                f"{label} {fields[key]}"
-                for label, key in (("family", "CPU family"), ("model", "Model"))
-                if fields.get(key)
-            ),
-            isa,
-        )
-        if x
-    )
-    caches = ", ".join(
-        f"{level} {fields[key].split(' (')[0]}"
-        for level, key in (("L2", "L2 cache"), ("L3", "L3 cache"))
-        if fields.get(key)
-    )
+    family_model = " ".join(labelled(("family", "CPU family"), ("model", "Model")))
+    ident = ", ".join(x for x in (family_model, isa) if x)
+    caches = ", ".join(labelled(("L2", "L2 cache"), ("L3", "L3 cache")))
     details = "; ".join(x for x in (ident, caches) if x)
     return f"{name} ({details})" if details else name
 
