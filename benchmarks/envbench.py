@@ -118,9 +118,38 @@ def rollout_fn(view: str, env, params, num_envs: int, num_steps: int):
     return run
 
 
+class Rollout:
+    """A rollout program ``fn(seed: int)`` that blocks until done. It is compiled at its first
+    call (ahead of time, so that the first call still times the compile), which also keeps
+    XLA's memory analysis of the program.
+
+    Attributes:
+        devices: the devices the batch is split over.
+        envs_per_device: the envs each device steps.
+        temp_bytes: the program's temporaries on one device, bytes (XLA's memory analysis;
+            None before the first call, or where the backend gives none).
+    """
+
+    def __init__(self, jitted, make_arg, devices: int, envs_per_device: int):
+        self._jitted, self._make_arg, self._exe = jitted, make_arg, None
+        self.devices, self.envs_per_device = devices, envs_per_device
+        self.temp_bytes: int | None = None
+
+    def __call__(self, seed: int):
+        import jax
+
+        arg = self._make_arg(seed)
+        if self._exe is None:
+            self._exe = self._jitted.lower(arg).compile()
+            memory = self._exe.memory_analysis()
+            self.temp_bytes = None if memory is None else int(memory.temp_size_in_bytes)
+        return jax.block_until_ready(self._exe(arg))
+
+
 def compiled_rollout(view: str, env, params, num_envs: int, num_steps: int):
     """The jitted rollout over all envs, split over the host devices when the batch allows.
-    Returns ``(fn, devices_used)`` with ``fn(seed: int)`` blocking until done."""
+    Returns ``(fn, devices_used)`` with ``fn`` a `Rollout` (``fn(seed: int)`` blocks until
+    done)."""
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -145,13 +174,12 @@ def compiled_rollout(view: str, env, params, num_envs: int, num_steps: int):
             )
         )
 
-        def fn(seed: int):
-            seeds = jnp.arange(nd, dtype=jnp.uint32) * np.uint32(0x9E3779B9) + np.uint32(seed)
-            return jax.block_until_ready(sharded(seeds))
+        def seeds(seed: int):
+            return jnp.arange(nd, dtype=jnp.uint32) * np.uint32(0x9E3779B9) + np.uint32(seed)
 
-        return fn, nd
+        return Rollout(sharded, seeds, nd, num_envs // nd), nd
     single = jax.jit(rollout_fn(view, env, params, num_envs, num_steps))
-    return (lambda seed: jax.block_until_ready(single(jnp.uint32(seed)))), 1
+    return Rollout(single, jnp.uint32, 1, num_envs), 1
 
 
 def time_interleaved(fns: dict, repeats: int) -> tuple[dict, dict]:

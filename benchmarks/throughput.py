@@ -238,10 +238,14 @@ def main(argv=None) -> list[dict]:
                 fns[f"{label}{view}"], used = compiled_rollout(view, e, p, n, steps)
         compile_s, best = time_interleaved(fns, args.repeats)
         sps = {k: n * steps / v for k, v in best.items()}
+        single = fns["single"]
         row = {
             "envs": n,
             "devices": used,
             "steps": steps,
+            "single_temp_bytes_per_env": (
+                None if single.temp_bytes is None else single.temp_bytes / single.envs_per_device
+            ),
             **{f"{k.replace(' ', '_')}_steps_per_s": v for k, v in sps.items()},
             "marl_over_single": sps["marl"] / sps["single"],
             "compile_s_max": max(compile_s.values()),
@@ -265,9 +269,17 @@ def main(argv=None) -> list[dict]:
         )
         rows.append(row)
     print(load_info())
+    temp = rows[-1]["single_temp_bytes_per_env"]
     print(
-        f"memory per env: state {state_bytes(env, params):,} bytes (the pytree a rollout carries per env; "
-        "the compiled step's temporaries scale with the batch as well, see scaling.py's peak RSS)"
+        f"memory per env: state {state_bytes(env, params):,} bytes (the pytree a rollout carries "
+        "per env)"
+        + (
+            ""
+            if temp is None
+            else f"; the single view's {rows[-1]['envs']}-env rollout program holds {temp:,.0f} "
+            f"bytes of temporaries per env ({single.envs_per_device} envs per device; XLA's "
+            "memory analysis)"
+        )
     )
     # The training and MPC timings run in their own processes: this one exposes --devices host
     # devices, and the trainers would shard their 16 envs over them; `make train` runs on

@@ -9,6 +9,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -59,6 +60,10 @@ def test_throughput_main_smallest(tmp_path, capsys):
     assert (
         "memory per env: state 891 bytes" in out
     )  # 17 leaves x (11 float32 + 2 bool fields), day, step, workday, 25 float32 totals
+    # the compiled program's temporaries per env, from XLA's memory analysis, as the CSV has them
+    temp = re.search(r"holds ([\d,]+) bytes of temporaries per env \(1 envs per device", out)
+    assert temp and int(temp[1].replace(",", "")) == round(rows[0]["single_temp_bytes_per_env"])
+    assert rows[0]["single_temp_bytes_per_env"] > 891
 
 
 def test_throughput_uses_the_requested_host_devices():
