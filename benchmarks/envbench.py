@@ -119,9 +119,9 @@ def rollout_fn(view: str, env, params, num_envs: int, num_steps: int):
 
 
 class Rollout:
-    """A rollout program ``fn(seed: int)`` that blocks until done. It is compiled at its first
-    call (ahead of time, so that the first call still times the compile), which also keeps
-    XLA's memory analysis of the program.
+    """A rollout program ``fn(seed: int)`` that blocks until done. Its first call compiles it
+    (``lower().compile()``, so the first call's time still includes the compile) and keeps
+    XLA's memory analysis of the compiled program.
 
     Attributes:
         devices: the devices the batch is split over.

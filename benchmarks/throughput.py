@@ -238,13 +238,15 @@ def main(argv=None) -> list[dict]:
                 fns[f"{label}{view}"], used = compiled_rollout(view, e, p, n, steps)
         compile_s, best = time_interleaved(fns, args.repeats)
         sps = {k: n * steps / v for k, v in best.items()}
-        single = fns["single"]
+        single_rollout = fns["single"]
         row = {
             "envs": n,
             "devices": used,
             "steps": steps,
             "single_temp_bytes_per_env": (
-                None if single.temp_bytes is None else single.temp_bytes / single.envs_per_device
+                None
+                if single_rollout.temp_bytes is None
+                else single_rollout.temp_bytes / single_rollout.envs_per_device
             ),
             **{f"{k.replace(' ', '_')}_steps_per_s": v for k, v in sps.items()},
             "marl_over_single": sps["marl"] / sps["single"],
@@ -277,8 +279,8 @@ def main(argv=None) -> list[dict]:
             ""
             if temp is None
             else f"; the single view's {rows[-1]['envs']}-env rollout program holds {temp:,.0f} "
-            f"bytes of temporaries per env ({single.envs_per_device} envs per device; XLA's "
-            "memory analysis)"
+            f"bytes of temporaries per env (envs per device: {single_rollout.envs_per_device}; "
+            "XLA's memory analysis)"
         )
     )
     # The training and MPC timings run in their own processes: this one exposes --devices host
