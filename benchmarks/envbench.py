@@ -124,16 +124,20 @@ class Rollout:
     XLA's memory analysis of the compiled program.
 
     Attributes:
-        devices: the devices the batch is split over.
         envs_per_device: the envs each device steps.
         temp_bytes: the program's temporaries on one device, bytes (XLA's memory analysis;
             None before the first call, or where the backend gives none).
     """
 
-    def __init__(self, jitted, make_arg, devices: int, envs_per_device: int):
+    def __init__(self, jitted, make_arg, envs_per_device: int):
         self._jitted, self._make_arg, self._exe = jitted, make_arg, None
-        self.devices, self.envs_per_device = devices, envs_per_device
+        self.envs_per_device = envs_per_device
         self.temp_bytes: int | None = None
+
+    @property
+    def temp_bytes_per_env(self) -> float | None:
+        """`temp_bytes` per env of a device (None where `temp_bytes` is)."""
+        return None if self.temp_bytes is None else self.temp_bytes / self.envs_per_device
 
     def __call__(self, seed: int):
         import jax
@@ -177,9 +181,9 @@ def compiled_rollout(view: str, env, params, num_envs: int, num_steps: int):
         def seeds(seed: int):
             return jnp.arange(nd, dtype=jnp.uint32) * np.uint32(0x9E3779B9) + np.uint32(seed)
 
-        return Rollout(sharded, seeds, nd, num_envs // nd), nd
+        return Rollout(sharded, seeds, num_envs // nd), nd
     single = jax.jit(rollout_fn(view, env, params, num_envs, num_steps))
-    return Rollout(single, jnp.uint32, 1, num_envs), 1
+    return Rollout(single, jnp.uint32, num_envs), 1
 
 
 def time_interleaved(fns: dict, repeats: int) -> tuple[dict, dict]:

@@ -78,9 +78,7 @@ def env_row(view: str, env, params, num_envs: int, num_steps: int, repeats: int)
         "run_s": best,
         "env_steps_per_s": steps / best,
         "s_per_100k": best / steps * 100_000,
-        "temp_bytes_per_env": (
-            None if fn.temp_bytes is None else fn.temp_bytes / fn.envs_per_device
-        ),
+        "temp_bytes_per_env": fn.temp_bytes_per_env,
     }
 
 

@@ -243,11 +243,7 @@ def main(argv=None) -> list[dict]:
             "envs": n,
             "devices": used,
             "steps": steps,
-            "single_temp_bytes_per_env": (
-                None
-                if single_rollout.temp_bytes is None
-                else single_rollout.temp_bytes / single_rollout.envs_per_device
-            ),
+            "single_temp_bytes_per_env": single_rollout.temp_bytes_per_env,
             **{f"{k.replace(' ', '_')}_steps_per_s": v for k, v in sps.items()},
             "marl_over_single": sps["marl"] / sps["single"],
             "compile_s_max": max(compile_s.values()),
