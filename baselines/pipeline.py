@@ -117,6 +117,7 @@ def run(
         name for name in heldout.REFERENCES[2:] if name in baselines
     ]  # the teachers' rules (a station with a battery)
     evals = []
+    last_chunk_eval = {}  # the last chunk's evaluation, which is also the final policy's
 
     def vs_rule(ev):
         return (
@@ -143,6 +144,8 @@ def run(
             reference_profit=am_daily,
             draws=draws,
         )
+        if i == chunks - 1:
+            last_chunk_eval["final"] = ev
         teacher_diffs = vs_programme(ev)
         evals.append(
             {
@@ -203,10 +206,14 @@ def run(
         train, keys, chunks, on_chunk_and_save, desc=algo, resume=start
     )
     params = host(rs.params)
-    say(f"evaluating the trained greedy policy on {held_out_desc}")
-    final = heldout.evaluate_batched(
-        make_act, params, eval_params, eval_days, reference_profit=am_daily, draws=draws
-    )
+    # The last chunk's evaluation scored these parameters on the same days and keys; a run
+    # resumed from a checkpoint that holds every chunk evaluates them here.
+    final = last_chunk_eval.get("final")
+    if final is None:
+        say(f"evaluating the trained greedy policy on {held_out_desc}")
+        final = heldout.evaluate_batched(
+            make_act, params, eval_params, eval_days, reference_profit=am_daily, draws=draws
+        )
     wall = time.time() - t_start
     first_beat = next(
         (e for e in evals if e["vs_always_max"] is not None and stats.beats(e["vs_always_max"])),

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import random
+import shutil
 import signal
 import subprocess
 import sys
@@ -92,6 +93,16 @@ def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path, capsys):
     b = json.loads((killed / "results.json").read_text())
     assert _without_timings(b) == _without_timings(a)
     assert len(b["eval_curve"]) == 4
+
+    # a run resumed from a checkpoint that holds every chunk trains no further and evaluates
+    # the final policy itself: the same results again
+    again = tmp_path / "again"
+    shutil.copytree(full, again)
+    (again / "results.json").unlink()
+    cli.main(["--resume", str(again)])
+    assert "evaluating the trained greedy policy" in capsys.readouterr().out
+    c = json.loads((again / "results.json").read_text())
+    assert _without_timings(c) == _without_timings(a)
 
 
 def test_resume_refuses_overrides_and_a_missing_checkpoint(tmp_path):
