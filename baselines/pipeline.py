@@ -117,7 +117,7 @@ def run(
         name for name in heldout.REFERENCES[2:] if name in baselines
     ]  # the teachers' rules (a station with a battery)
     evals = []
-    last_chunk_eval = {}  # the last chunk's evaluation, which is also the final policy's
+    final = None  # the last chunk's evaluation, which is also the final policy's
 
     def vs_rule(ev):
         return (
@@ -133,6 +133,7 @@ def run(
         }
 
     def on_chunk(i, rs, m, steps, seconds):
+        nonlocal final
         if not evaluate_every_chunk and i < chunks - 1:
             return
         say(f"  evaluating chunk {i + 1}/{chunks}'s greedy policy on {held_out_desc}")
@@ -145,7 +146,7 @@ def run(
             draws=draws,
         )
         if i == chunks - 1:
-            last_chunk_eval["final"] = ev
+            final = ev
         teacher_diffs = vs_programme(ev)
         evals.append(
             {
@@ -208,7 +209,6 @@ def run(
     params = host(rs.params)
     # The last chunk's evaluation scored these parameters on the same days and keys; a run
     # resumed from a checkpoint that holds every chunk evaluates them here.
-    final = last_chunk_eval.get("final")
     if final is None:
         say(f"evaluating the trained greedy policy on {held_out_desc}")
         final = heldout.evaluate_batched(

@@ -238,12 +238,11 @@ def main(argv=None) -> list[dict]:
                 fns[f"{label}{view}"], used = compiled_rollout(view, e, p, n, steps)
         compile_s, best = time_interleaved(fns, args.repeats)
         sps = {k: n * steps / v for k, v in best.items()}
-        single_rollout = fns["single"]
         row = {
             "envs": n,
             "devices": used,
             "steps": steps,
-            "single_temp_bytes_per_env": single_rollout.temp_bytes_per_env,
+            "single_temp_bytes_per_env": fns["single"].temp_bytes_per_env,
             **{f"{k.replace(' ', '_')}_steps_per_s": v for k, v in sps.items()},
             "marl_over_single": sps["marl"] / sps["single"],
             "compile_s_max": max(compile_s.values()),
@@ -262,20 +261,21 @@ def main(argv=None) -> list[dict]:
             line += f" {row['single_new_over_base']:>16.2f} {row['marl_new_over_base']:>14.2f}"
         row["single_s_per_100k"] = 1e5 / sps["single"]
         print(
-            line + f" {row['single_s_per_100k']:>14.3f} {max(compile_s.values()):>10.2f}",
+            line + f" {row['single_s_per_100k']:>14.3f} {row['compile_s_max']:>10.2f}",
             flush=True,
         )
         rows.append(row)
     print(load_info())
-    temp = rows[-1]["single_temp_bytes_per_env"]
+    last = rows[-1]
+    temp = last["single_temp_bytes_per_env"]
     print(
         f"memory per env: state {state_bytes(env, params):,} bytes (the pytree a rollout carries "
         "per env)"
         + (
             ""
             if temp is None
-            else f"; the single view's {rows[-1]['envs']}-env rollout program holds {temp:,.0f} "
-            f"bytes of temporaries per env (envs per device: {single_rollout.envs_per_device}; "
+            else f"; the single view's {last['envs']}-env rollout program holds {temp:,.0f} "
+            f"bytes of temporaries per env (envs per device: {last['envs'] // last['devices']}; "
             "XLA's memory analysis)"
         )
     )
