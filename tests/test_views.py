@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from chargax_marl.core import actions, make_params, multiple_types, observation, simulator
-from chargax_marl.marl import ChargaxMARL, parallel_env
+from chargax_marl.marl import ChargaxMARL, FinalObservationWrapper, parallel_env
 from chargax_marl.marl import env as marl_env
 from chargax_marl.single import Chargax
 
@@ -82,7 +82,19 @@ def test_both_views_step_is_core_step_then_reset_selection(params, marl, at_end)
     assert tree_equal(got, want) and bool(dones["__all__"]) == at_end
     assert_close(jnp.stack(list(rewards.values())), jnp.full(marl.num_agents, core_info.reward))
     assert_close(jnp.stack([obs[a] for a in marl.agents]), marl.get_obs_matrix(want))
-    assert_close(infos["final_observation"], marl.get_obs_matrix(stepped))
+    assert "final_observation" not in infos  # JaxMARL's convention: every leaf per agent
+    # opt-in: the same step with the observations of the stepped state
+    final = FinalObservationWrapper(marl)
+    f_obs, f_state, f_rewards, f_dones, f_infos = final.step(
+        KEY, state, marl.levels_to_actions(levels)
+    )
+    assert tree_equal((f_obs, f_state, f_rewards, f_dones), (obs, got, rewards, dones))
+    assert_close(f_infos["final_observation"], marl.get_obs_matrix(stepped))
+    indices = marl.stack_actions(marl.levels_to_actions(levels))
+    a_obs, a_state, _, _, a_info = final.step_arrays(KEY, state, indices)
+    assert tree_equal(a_state, want)
+    assert_close(a_obs, marl.get_obs_matrix(want))
+    assert_close(a_info["final_observation"], marl.get_obs_matrix(stepped))
 
 
 def test_both_views_auto_reset_through_the_core_function(params, monkeypatch):
@@ -121,11 +133,12 @@ def test_info_keys_are_the_same_in_both_views(params, marl):
 
     report = set(simulator.INFO_KEYS) | {"leaf_energy_kwh"}
     assert set(single_env) == report
-    assert set(single_step) == report | set(simulator.AUTO_RESET_INFO_KEYS)
-    assert set(single_env) <= set(marl_env_info) and set(single_step) <= set(marl_step)
+    auto = set(simulator.AUTO_RESET_INFO_KEYS)
+    assert set(single_step) == report | auto | {"final_observation"}  # gymnax's three keys
+    assert set(single_env) <= set(marl_env_info) and report | auto <= set(marl_step)
     extra = {"agent_energy_kwh", "agent_reward_share"}  # the MARL view's per-agent entries
     assert set(marl_env_info) - set(single_env) == extra == set(marl_env.AGENT_INFO_KEYS)
-    assert set(marl_step) - set(single_step) == extra
+    assert set(marl_step) - (report | auto) == extra
     assert set(arrays) == set(marl_env_info)
     for k in simulator.INFO_KEYS:  # the same values (the MARL view broadcasts scalars)
         assert_close(marl_env_info[k], jnp.broadcast_to(single_env[k], (marl.num_agents,)), k)

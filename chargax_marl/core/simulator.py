@@ -341,8 +341,11 @@ INFO_KEYS = (
 """Every scalar key of `info_dict`, in order: the step's report, ``battery_reward_eur``,
 ``penalty_<term>``, ``episode_<total>``."""
 
-AUTO_RESET_INFO_KEYS = ("terminated", "truncated", "final_observation")
-"""The keys the views' auto-resetting ``step`` adds to `info_dict` (gymnax's names)."""
+AUTO_RESET_INFO_KEYS = ("terminated", "truncated")
+"""The keys both views' auto-resetting ``step`` adds to `info_dict` (gymnax's names). The
+single-agent view's also adds ``final_observation``, as gymnax's own base class does; the
+multi-agent view's does not, as JaxMARL's does not (its baselines need every info leaf to be
+one value per agent)."""
 
 
 def info_dict(info: StepInfo, state: EnvState, params: EnvParams) -> dict:

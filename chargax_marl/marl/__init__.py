@@ -1,7 +1,8 @@
 """Multi-agent view of the station: one agent per charging port and per station battery.
 
 - `ChargaxMARL`: JaxMARL 0.2 ``MultiAgentEnv`` (``reset(key)``, ``step(key, state, actions)``).
-- `LogWrapper`, `WorldStateWrapper`: JaxMARL-style episode logging and MAPPO world state.
+- `LogWrapper`, `WorldStateWrapper`: JaxMARL-style episode logging and MAPPO world state;
+  `FinalObservationWrapper`: the observations before an auto-reset, for loops of your own.
 - `DelayedObservationWrapper`, `ActionLossWrapper`: imperfect communication
   (observations seen late, actions lost; `chargax_marl.marl.communication`), and
   `communicating_act`, a policy played on held-out days under the same communication.
@@ -45,13 +46,19 @@ from chargax_marl.marl.communication import (  # noqa: E402
 from chargax_marl.marl.env import ChargaxMARL  # noqa: E402
 from chargax_marl.marl.pettingzoo_env import ChargaxParallelEnv, parallel_env  # noqa: E402
 from chargax_marl.marl.pettingzoo_env import env as aec_env  # noqa: E402
-from chargax_marl.marl.wrappers import LogEnvState, LogWrapper, WorldStateWrapper  # noqa: E402
+from chargax_marl.marl.wrappers import (  # noqa: E402
+    FinalObservationWrapper,
+    LogEnvState,
+    LogWrapper,
+    WorldStateWrapper,
+)
 
 __all__ = [
     "ActionLossWrapper",
     "ChargaxMARL",
     "DelayedObservationWrapper",
     "ChargaxParallelEnv",
+    "FinalObservationWrapper",
     "aec_env",
     "LogEnvState",
     "LogWrapper",

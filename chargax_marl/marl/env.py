@@ -242,6 +242,7 @@ def step_arrays(
     local_reward_weight: float = 0.0,
     auto_reset: bool = False,
     reset_state: EnvState | None = None,
+    final_observation: bool = False,
 ):
     """The multi-agent transition on arrays; ``ChargaxMARL.step`` / ``step_env`` are views of it.
 
@@ -257,6 +258,8 @@ def step_arrays(
         auto_reset: start a fresh day where the step ends one
             (`chargax_marl.core.simulator.step_auto_reset`).
         reset_state: with ``auto_reset``, the fresh day's state (``None``: a random one).
+        final_observation: also report the observations of the stepped state (before an
+            auto-reset) as ``info["final_observation"]`` ``(N, obs_size)`` (concrete).
 
     Returns:
         ``(obs (N, obs_size), next_state, rewards (N,), done (), info)``; ``obs`` is that of
@@ -264,17 +267,35 @@ def step_arrays(
         and ``leaf_energy_kwh``), ``agent_energy_kwh`` ``(N,)`` (the same energies, named for
         agents) and ``agent_reward_share`` ``(N,)``, each agent's share of the reward
         (`chargax_marl.core.reward.leaf_reward_shares`; the shares sum to the reward);
-        with ``auto_reset`` also ``terminated``, ``truncated`` and ``final_observation``
-        (the observation matrix before the reset).
+        with ``auto_reset`` also ``terminated`` and ``truncated``; with ``final_observation``
+        also ``final_observation``, the observation matrix of the stepped state.
     """
     next_state, rewards, done, info = _transition(
-        key, state, indices, params, offset, layout, local_reward_weight, auto_reset, reset_state
+        key,
+        state,
+        indices,
+        params,
+        offset,
+        layout,
+        local_reward_weight,
+        auto_reset,
+        reset_state,
+        final_observation,
     )
     return agent_observations(next_state, params, layout), next_state, rewards, done, info
 
 
 def _transition(
-    key, state, indices, params, offset, layout, local_reward_weight, auto_reset, reset_state
+    key,
+    state,
+    indices,
+    params,
+    offset,
+    layout,
+    local_reward_weight,
+    auto_reset,
+    reset_state,
+    final_observation=False,
 ):
     """`step_arrays` without the observation: ``(next_state, rewards, done, info)``."""
     levels = actions_to_levels(indices, params, offset)
@@ -289,11 +310,9 @@ def _transition(
     info["agent_energy_kwh"] = info["leaf_energy_kwh"]
     info["agent_reward_share"] = core_info.leaf_reward.astype(jnp.float32)
     if auto_reset:
-        info.update(
-            terminated=jnp.asarray(False),
-            truncated=done,
-            final_observation=agent_observations(stepped, params, layout),
-        )
+        info.update(terminated=jnp.asarray(False), truncated=done)
+    if final_observation:
+        info["final_observation"] = agent_observations(stepped, params, layout)
     rewards = agent_rewards(core_info.reward, info["agent_reward_share"], local_reward_weight)
     return next_state, rewards, done, info
 
@@ -358,15 +377,18 @@ class ChargaxMARL(MultiAgentEnv):
     stations. `get_global_state` is the single-agent observation.
 
     **Infos.** The single-agent view's keys (`chargax_marl.core.simulator.info_dict`;
-    `step` adds ``terminated``, ``truncated`` and ``final_observation``, the
-    ``(num_agents, obs_size)`` observations before an auto-reset) plus `AGENT_INFO_KEYS`.
-    Every leaf has leading axis ``num_agents``: the step's reward and profit, every penalty
+    `step` adds ``terminated`` and ``truncated``) plus `AGENT_INFO_KEYS`. Every leaf has
+    shape ``(num_agents,)`` and nothing else, the contract of JaxMARL's baselines (they
+    reshape every info leaf of a batch of envs to ``(num_envs * num_agents,)``), which
+    every wrapper of this package keeps: the step's reward and profit, every penalty
     term as ``penalty_<name>``, energies, prices, car counts, the running episode totals as
     ``episode_<name>`` (scalars broadcast to every agent), ``leaf_energy_kwh`` and its alias
     ``agent_energy_kwh``, each agent's own energy this step, and ``agent_reward_share``, each
     agent's share of the reward (`chargax_marl.core.reward.leaf_reward_shares`: the
     money its own energy made minus the penalties it caused and an even part of the fixed
-    cost; the shares sum to the reward).
+    cost; the shares sum to the reward). The observations of the last step of a day, which
+    the auto-reset replaces, are not in the infos (JaxMARL's convention);
+    `chargax_marl.marl.FinalObservationWrapper` adds them for a loop that needs them.
 
     **Rewards.** By default every agent gets the shared station reward ``r``. The optional
     per-agent shaping ``local_reward_weight=w`` in ``[0, 1]`` gives agent ``i`` the reward
@@ -525,7 +547,9 @@ class ChargaxMARL(MultiAgentEnv):
         obs = agent_observations(next_state, self.params, self._layout)
         return obs, next_state, rewards, done, info
 
-    def _transition(self, key, state, indices, reset_state, auto_reset: bool):
+    def _transition(
+        self, key, state, indices, reset_state, auto_reset: bool, final_observation: bool = False
+    ):
         """This env's `_transition`: ``(next_state, rewards, done, info)``."""
         return _transition(
             key,
@@ -537,6 +561,7 @@ class ChargaxMARL(MultiAgentEnv):
             self.local_reward_weight,
             auto_reset,
             reset_state,
+            final_observation,
         )
 
     @functools.partial(jax.jit, static_argnums=(0,))
@@ -551,11 +576,12 @@ class ChargaxMARL(MultiAgentEnv):
         reset_state: EnvState | None,
         *,
         auto_reset: bool,
+        final_observation: bool = False,
     ):
         """The dict view of `step_arrays`: observation rows built per agent (no matrix),
         scalar infos broadcast to ``(num_agents,)``."""
         next_state, rewards, done, info = self._transition(
-            key, state, indices, reset_state, auto_reset
+            key, state, indices, reset_state, auto_reset, final_observation
         )
         dones = {a: done for a in self.agents}
         dones["__all__"] = done

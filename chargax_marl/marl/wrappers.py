@@ -1,6 +1,7 @@
-"""JaxMARL-style wrappers of `ChargaxMARL`: episode logging and MAPPO's world state.
+"""JaxMARL-style wrappers of `ChargaxMARL`: episode logging, MAPPO's world state and the
+observations before an auto-reset.
 
-Both keep JaxMARL's call signatures (``reset(key)``, ``step(key, state, actions)``) and
+Each keeps JaxMARL's call signatures (``reset(key)``, ``step(key, state, actions)``) and
 forward every other attribute to the wrapped env, so they stack like JaxMARL's: the
 MAPPO order is ``LogWrapper(WorldStateWrapper(env))``. Each also has the array step of
 `chargax_marl.marl.ChargaxMARL.step_arrays` (``step_arrays(key, state, indices)``:
@@ -19,6 +20,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from chargax_marl.core.types import EnvState, EpisodeTotals
+from chargax_marl.marl.env import ChargaxMARL
 
 
 class _Wrapper:
@@ -233,3 +235,60 @@ class WorldStateWrapper(_Wrapper):
 
     def world_state_size(self) -> int:
         return self._env.state_size
+
+
+class FinalObservationWrapper(_Wrapper):
+    """Report the observations of each step's stepped state, before an auto-reset replaces them.
+
+    ``info["final_observation"]`` ``(num_agents, obs_size)``: row ``i`` is agent ``i``'s
+    observation of the state the step reached, which differs from the returned observation
+    only on the last step of a day (where the returned one is the fresh day's). A loop that
+    bootstraps the value of a truncated day needs it. The entry is opt-in because it breaks
+    the infos' contract that every leaf is ``(num_agents,)`` (`ChargaxMARL`'s infos):
+    JaxMARL's baselines reshape every info leaf and fail on it, so stack this wrapper only
+    under code of your own.
+
+    It wraps a `ChargaxMARL` itself (other wrappers go on top of it and pass the entry
+    through). Its `step` and `step_arrays` are the env's, with the entry added.
+
+    Args:
+        env: the `ChargaxMARL` to wrap.
+
+    Raises:
+        TypeError: ``env`` is not a `ChargaxMARL` (a wrapper of one included).
+    """
+
+    def __init__(self, env):
+        if not isinstance(env, ChargaxMARL):
+            raise TypeError(
+                f"FinalObservationWrapper: field 'env' must be a ChargaxMARL itself (put other "
+                f"wrappers on top of this one), got {type(env).__name__}"
+            )
+        super().__init__(env)
+
+    def step(self, key: jax.Array, state: EnvState, actions: dict, reset_state=None):
+        """The env's ``step`` with ``info["final_observation"]``; ``actions`` is checked and its
+        host integers clipped before the jitted step (`host_actions`).
+
+        Raises:
+            ValueError: a bad action dict.
+        """
+        return self._step(key, state, self.host_actions(actions), reset_state)
+
+    @functools.partial(jax.jit, static_argnums=(0,))
+    def _step(self, key: jax.Array, state: EnvState, actions: dict, reset_state=None):
+        indices = self._env.stack_actions(actions)
+        return self._env._dict_step(
+            key, state, indices, reset_state, auto_reset=True, final_observation=True
+        )
+
+    @functools.partial(jax.jit, static_argnums=(0,))
+    def step_arrays(self, key: jax.Array, state: EnvState, indices: jax.Array, reset_state=None):
+        """The env's ``step_arrays`` with ``info["final_observation"]``.
+        Arguments and returns as `chargax_marl.marl.ChargaxMARL.step_arrays`.
+        """
+        env = self._env
+        next_state, rewards, done, info = env._transition(
+            key, state, indices, reset_state, True, final_observation=True
+        )
+        return env.get_obs_matrix(next_state), next_state, rewards, done, info
