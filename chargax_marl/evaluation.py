@@ -17,9 +17,10 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from flax import struct
 
 from chargax_marl.core import simulator
-from chargax_marl.core.types import EnvParams, EnvState
+from chargax_marl.core.types import EnvParams, EnvState, EpisodeTotals
 from chargax_marl.optimal import bound_days
 from chargax_marl.policies import get_policy, is_named_rule
 from chargax_marl.trace import day_keys
@@ -175,6 +176,105 @@ def split_days(num_days: int, num_eval: int = 100, seed: int = 0) -> tuple[np.nd
     return np.sort(perm[num_eval:]).astype(np.int32), np.sort(perm[:num_eval]).astype(np.int32)
 
 
+@struct.dataclass
+class PolicyOutputCounts:
+    """How often a played policy returned levels the env had to reinterpret, per played day.
+
+    Attributes:
+        nonfinite_steps: ``(n,)`` int32, the steps whose levels held NaN or +-inf (the env
+            plays such an entry as idle).
+        fractional_steps: ``(n,)`` int32, the steps whose finite levels were not integers in a
+            discrete action mode (the env truncates a level toward zero: 3.7 plays as 3, -1.5
+            as -1); always 0 in the continuous mode, whose fractions are floats.
+    """
+
+    nonfinite_steps: jnp.ndarray
+    fractional_steps: jnp.ndarray
+
+
+def _output_flags(levels: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
+    """``(2,)`` int32 flags of one step's policy output: a non-finite entry; a finite
+    non-integer entry in a discrete action mode. Integer levels cost nothing (static zeros)."""
+    x = jnp.asarray(levels)
+    if not jnp.issubdtype(x.dtype, jnp.floating):
+        return jnp.zeros(2, jnp.int32)
+    finite = jnp.isfinite(x)
+    nonfinite = ~jnp.all(finite)
+    if params.action_mode == "continuous":
+        fractional = jnp.asarray(False)
+    else:
+        fractional = jnp.any(
+            finite & (jnp.where(finite, x, 0.0) != jnp.trunc(jnp.where(finite, x, 0.0)))
+        )
+    return jnp.stack([nonfinite, fractional]).astype(jnp.int32)
+
+
+def check_policy_outputs(counts: PolicyOutputCounts, days, what: str = "the policy") -> None:
+    """Refuse the results of a play in which the policy returned non-finite or non-integer levels.
+
+    A NaN level is played as idle and a level of 3.7 as 3, so the day's profit is that of
+    another policy than the one returned: no result of it is given. Nothing is checked when
+    ``counts`` are traced (a play inside a caller's ``jit``: check its counts after it).
+
+    Args:
+        counts: the play's `PolicyOutputCounts`, one entry per played day (and draw).
+        days: ``(n,)`` the day index of each entry.
+        what: the policy's name, for the message.
+
+    Raises:
+        ValueError: a step with a non-finite level, or with a non-integer level in a discrete
+            action mode; the message gives the number of steps and the days.
+    """
+    if isinstance(counts.nonfinite_steps, jax.core.Tracer):
+        return
+    days = np.asarray(days).reshape(-1)
+    problems = []
+    for name, meaning, fix in (
+        (
+            "nonfinite_steps",
+            "non-finite levels (NaN or +-inf, played as idle)",
+            "make it return finite levels",
+        ),
+        (
+            "fractional_steps",
+            "non-integer levels (truncated toward zero: 3.7 plays as 3)",
+            "return integer levels (round them, or cast to int32, in the policy)",
+        ),
+    ):
+        steps = np.asarray(getattr(counts, name)).reshape(-1)
+        if steps.sum() > 0:
+            bad_days = sorted({int(d) for d in days[steps > 0]})
+            shown = bad_days[:10] + (["..."] if len(bad_days) > 10 else [])
+            problems.append(
+                f"{meaning} on {int(steps.sum())} steps, in {int((steps > 0).sum())} of the "
+                f"{steps.size} days played (a day counted once per car draw; day indices "
+                f"{shown}): {fix}"
+            )
+    if problems:
+        raise ValueError(
+            f"{what} returned " + "; and ".join(problems) + ". No result is given: the env "
+            "played other levels than the policy returned."
+        )
+
+
+def play_days(
+    act: Act | MemoryAct, params: EnvParams, days, keys: jax.Array
+) -> tuple[EpisodeTotals, PolicyOutputCounts]:
+    """`run_days_keyed`'s play, traceable, with the counts of reinterpreted policy outputs.
+
+    Args:
+        act: ``act(state, key) -> levels``, or a `MemoryAct`.
+        params: the environment parameters.
+        days: ``(n,)`` day indices of the price data.
+        keys: ``(n, 2)`` keys, one per day.
+
+    Returns:
+        ``(totals, counts)``: the final `EpisodeTotals` and the `PolicyOutputCounts`, each
+        with a leading axis ``(n,)``. Pass ``counts`` to `check_policy_outputs`.
+    """
+    return _play_days(act, params, jnp.asarray(days, jnp.int32), keys)
+
+
 def run_days(act: Act | MemoryAct, params: EnvParams, days, key: jax.Array):
     """Run ``act`` for one whole day per entry of ``days`` (vmapped).
 
@@ -187,6 +287,10 @@ def run_days(act: Act | MemoryAct, params: EnvParams, days, key: jax.Array):
 
     Returns:
         The final `chargax_marl.core.types.EpisodeTotals` with a leading axis ``(n,)``.
+
+    Raises:
+        ValueError: the policy returned non-finite or non-integer levels
+            (`check_policy_outputs`).
     """
     days = jnp.asarray(days, jnp.int32)
     return run_days_keyed(act, params, days, jax.random.split(key, days.shape[0]))
@@ -205,11 +309,18 @@ def run_days_keyed(act: Act | MemoryAct, params: EnvParams, days, keys: jax.Arra
 
     Returns:
         The final `EpisodeTotals` with a leading axis ``(n,)``.
+
+    Raises:
+        ValueError: the policy returned non-finite or non-integer levels
+            (`check_policy_outputs`; inside a caller's ``jit`` use `play_days` and check its
+            counts).
     """
     days = jnp.asarray(days, jnp.int32)
     # compiled as one program: run eagerly, the vmapped scan is traced, batched and compiled
     # piecewise, which costs more than the whole program (inside a caller's jit it is inlined)
-    return jax.jit(lambda d, k: _play_days(act, params, d, k))(days, keys)
+    totals, counts = jax.jit(lambda d, k: _play_days(act, params, d, k))(days, keys)
+    check_policy_outputs(counts, days)
+    return totals
 
 
 def run_policy_days(policy: Callable, params: EnvParams, days, key: jax.Array):
@@ -232,16 +343,23 @@ def run_policy_days(policy: Callable, params: EnvParams, days, key: jax.Array):
     Returns:
         The final `EpisodeTotals` with a leading axis ``(n,)``, as `run_days` returns for
         ``lambda s, k: policy(s, k, params)``.
+
+    Raises:
+        ValueError: the policy returned non-finite or non-integer levels
+            (`check_policy_outputs`).
     """
     days = jnp.asarray(days, jnp.int32)
     keys = jax.random.split(key, days.shape[0])
     if is_named_rule(policy):
-        return _policy_days(policy, params, days, keys)
-    return jax.jit(functools.partial(_policy_program, policy))(params, days, keys)
+        totals, counts = _policy_days(policy, params, days, keys)
+    else:
+        totals, counts = jax.jit(functools.partial(_policy_program, policy))(params, days, keys)
+    check_policy_outputs(counts, days)
+    return totals
 
 
 def _policy_program(policy, params, days, keys):
-    """The traced body of `run_policy_days`."""
+    """The traced body of `run_policy_days`: ``(totals, counts)``."""
     return _play_days(lambda s, k: policy(s, k, params), params, days, keys)
 
 
@@ -297,7 +415,7 @@ def _policies_program(policies, params, days, keys):
         def act(state, key):
             return jax.lax.switch(index, branches, state, key)
 
-        return _play_days(act, params, days, keys)
+        return _play_days(act, params, days, keys)[0]
 
     return jax.lax.map(one_policy, jnp.arange(len(policies)))
 
@@ -307,24 +425,27 @@ _policies_days = jax.jit(_policies_program, static_argnums=0)
 
 
 def _play_days(act: Act | MemoryAct, params: EnvParams, days, keys: jax.Array):
-    """The traced body of `run_days_keyed`: ``act`` for one day per entry of ``days``."""
+    """The traced body of `run_days_keyed`: ``act`` for one day per entry of ``days``;
+    ``(totals, PolicyOutputCounts)``, counted in the program (no host call per step)."""
     policy = with_memory(act)
 
     def one_day(day, key):
         act_keys, step_keys, battery_key = day_keys(key, params.num_steps)
 
         def body(carry, keys):
-            state, memory = carry
+            state, memory, flags = carry
             k_act, k_step = keys
             levels, memory = policy.step(state, k_act, memory)
+            flags = flags + _output_flags(levels, params)
             state, _ = simulator.step(k_step, state, levels, params)
-            return (state, memory), None
+            return (state, memory, flags), None
 
         # the batteries' initial SoC (when drawn from a range) from a key of its own, so the
         # cars drawn from ``key`` stay the same whatever the battery setting
         start = simulator.empty_state(day, params, battery_key)
-        (state, _), _ = jax.lax.scan(body, (start, policy.init(start)), (act_keys, step_keys))
-        return state.totals
+        carry = (start, policy.init(start), jnp.zeros(2, jnp.int32))
+        (state, _, flags), _ = jax.lax.scan(body, carry, (act_keys, step_keys))
+        return state.totals, PolicyOutputCounts(flags[0], flags[1])
 
     return jax.vmap(one_day)(days, keys)
 

@@ -14,7 +14,9 @@ from chargax_marl.core.physics import leaf_min_level, node_flows_kw
 from chargax_marl.evaluation import (
     _policies_days,
     _policy_days,
+    evaluate,
     evaluate_policy,
+    play_days,
     run_days,
     run_policies_days,
     run_policy_days,
@@ -215,6 +217,33 @@ def test_evaluation_of_always_max_equals_a_hand_rolled_rollout(params):
         np.std(profits), rel=1e-4, abs=1e-3
     )
     assert result["days"] == [0, 5, 17]
+
+
+def test_the_evaluation_refuses_levels_the_env_would_reinterpret():
+    """NaN levels (played as idle) and non-integer ones (truncated) are counted inside the
+    compiled play; `evaluate` and `run_policy_days` refuse them, naming the steps and days;
+    `play_days` hands the counts to a caller's own ``jit``."""
+    p = make_params(station=three_level_station(), traffic=150.0, step_minutes=60.0)
+    days, key = np.array([2, 9]), jax.random.PRNGKey(1)
+    n = p.station.num_leaves
+
+    def nan_on_day_9(state, key):  # two NaN steps on day 9, else full power as floats
+        bad = (state.day == 9) & ((state.timestep == 4) | (state.timestep == 20))
+        return jnp.where(bad, jnp.nan, jnp.full(n, p.num_levels, jnp.float32))
+
+    with pytest.raises(
+        ValueError, match=r"non-finite levels .* on 2 steps, in 1 of the 2 days played .*\[9\]"
+    ):
+        evaluate(nan_on_day_9, p, days, key)
+    with pytest.raises(ValueError, match=r"non-integer levels .* on 24 steps, in 1 of the 2"):
+        run_policy_days(lambda s, k, q: jnp.where(s.day == 2, 0.5, 1.0) * jnp.ones(n), p, days, key)
+    keys = jax.random.split(key, 2)
+    totals, counts = jax.jit(lambda d, k: play_days(nan_on_day_9, p, d, k))(days, keys)
+    np.testing.assert_array_equal(counts.nonfinite_steps, [0, 2])
+    np.testing.assert_array_equal(counts.fractional_steps, [0, 0])
+    # integer levels are never counted (no check in the program)
+    _, counts = play_days(lambda s, k: jnp.full(n, p.num_levels, jnp.int32), p, days, keys)
+    assert int(counts.nonfinite_steps.sum() + counts.fractional_steps.sum()) == 0
 
 
 def test_only_the_functions_of_policies_are_named_rules(params):

@@ -30,7 +30,7 @@ import numpy as np
 
 from chargax_marl.core import observation, simulator
 from chargax_marl.core.types import EnvParams, EpisodeTotals
-from chargax_marl.evaluation import run_days_keyed
+from chargax_marl.evaluation import PolicyOutputCounts, check_policy_outputs, play_days
 from chargax_marl.marl.env import ChargaxMARL
 from chargax_marl.single.env import Chargax, action_levels
 from chargax_marl.trace import day_keys as split_day_key
@@ -124,7 +124,14 @@ def as_core(policy: Callable, kind: str, params: EnvParams) -> Callable:
     if kind == "single":
 
         def act(state, key):
-            return action_levels(policy(observation.flat_obs(state, params), key), params)
+            action = policy(observation.flat_obs(state, params), key)
+            levels = action_levels(action, params)
+            if params.action_mode != "continuous":  # integer indices (checked below)
+                return levels
+            # a non-finite fraction stays non-finite, so the play counts it (the core plays it
+            # as idle all the same)
+            finite = jnp.isfinite(jnp.reshape(jnp.asarray(action, jnp.float32), levels.shape))
+            return jnp.where(finite, levels, jnp.nan)
 
         out = jax.eval_shape(lambda s, k: policy(observation.flat_obs(s, params), k), state0, key0)
         _check_single_action(out, params, "single-agent policy")
@@ -174,19 +181,26 @@ def play(
         ``(n, draws)``.
 
     Raises:
-        ValueError: an unknown kind or an action that does not fit the action space.
+        ValueError: an unknown kind, an action that does not fit the action space, or levels
+            the env would have reinterpreted: non-finite on any step, or not integers in a
+            discrete action mode (`chargax_marl.evaluation.check_policy_outputs`, counted
+            inside the compiled play).
     """
     _check_kind(kind)
     flat_days, flat_keys, n, r = flatten_schedule(days, day_keys)
     if kind in HOST_KINDS:
-        return unflatten_totals(_play_host(policy, kind, params, flat_days, flat_keys), n, r)
-    act = as_core(policy, kind, params)
-    totals = jax.jit(lambda d, k: run_days_keyed(act, params, d, k))(flat_days, flat_keys)
+        totals, counts = _play_host(policy, kind, params, flat_days, flat_keys)
+    else:
+        act = as_core(policy, kind, params)
+        totals, counts = jax.jit(lambda d, k: play_days(act, params, d, k))(flat_days, flat_keys)
+    check_policy_outputs(jax.device_get(counts), flat_days, f"the {kind} policy")
     return unflatten_totals(jax.device_get(totals), n, r)
 
 
-def _play_host(policy, kind, params, days, keys) -> EpisodeTotals:
-    """The host loop: every day and draw one env, stepped together, the policy called per env."""
+def _play_host(policy, kind, params, days, keys) -> tuple[EpisodeTotals, PolicyOutputCounts]:
+    """The host loop: every day and draw one env, stepped together, the policy called per env;
+    the totals and the counts of non-finite actions (only a continuous action can hold one:
+    the discrete kinds are checked to be integers)."""
     steps = int(params.num_steps)
     _, step_keys, battery_keys = jax.vmap(lambda k: split_day_key(k, steps))(keys)
     state = jax.jit(jax.vmap(lambda d, k: simulator.empty_state(d, params, k)))(
@@ -219,14 +233,18 @@ def _play_host(policy, kind, params, days, keys) -> EpisodeTotals:
     observe = jax.jit(jax.vmap(obs_fn))
     advance = jax.jit(jax.vmap(lambda s, k, a: simulator.step(k, s, to_levels(a), params)[0]))
     agents = None if kind == "gymnasium" else env.agents
+    nonfinite = np.zeros(len(days), np.int32)
     for t in range(steps):
         obs = np.asarray(observe(state))
         if agents is None:
             acts = [check(policy(o)) for o in obs]
         else:
             acts = [check(policy(dict(zip(agents, o)))) for o in obs]
-        state = advance(state, step_keys[:, t], jnp.asarray(np.stack(acts)))
-    return jax.device_get(state.totals)
+        acts = np.stack(acts)
+        nonfinite += ~np.isfinite(acts.reshape(len(days), -1)).all(axis=1)
+        state = advance(state, step_keys[:, t], jnp.asarray(acts))
+    counts = PolicyOutputCounts(nonfinite, np.zeros_like(nonfinite))
+    return jax.device_get(state.totals), counts
 
 
 def _host_single_action(a, params, space) -> np.ndarray:

@@ -21,6 +21,7 @@ from chargax_marl.benchmark import (
     compute_references,
     get_normalized_score,
     load_references,
+    protocol,
     save_references,
     score,
 )
@@ -333,6 +334,55 @@ def test_bad_input_gets_a_clear_error(small_task):
         score(lambda o: np.full(n, 99), task, kind="gymnasium", references_dir=directory)
     with pytest.raises(ValueError, match="levels of shape"):
         score(lambda s, k, p: jnp.zeros(2, jnp.int32), task, references_dir=directory)
+
+
+def test_a_policy_with_non_finite_or_non_integer_levels_gets_no_score(small_task):
+    """The play counts, in its compiled program, the steps whose levels the env had to
+    reinterpret (NaN played as idle, 3.7 as 3) and ``score`` refuses to give a number."""
+    task, directory = small_task
+    params = task.make_params()
+    days = task.eval_days()
+    n = params.station.num_leaves
+
+    def nan_early_on_one_day(state, key, p):  # NaN on the first 3 steps of days[1] only
+        bad = (state.day == days[1]) & (state.timestep < 3)
+        return jnp.where(bad, jnp.nan, jnp.full(n, p.num_levels, jnp.float32))
+
+    steps = 3 * task.draws
+    with pytest.raises(
+        ValueError,
+        match=rf"non-finite levels .* on {steps} steps, in {task.draws} of the "
+        rf"{2 * task.draws} days played .*day indices \[{int(days[1])}\]",
+    ):
+        score(nan_early_on_one_day, task, references_dir=directory)
+    with pytest.raises(ValueError, match=r"non-integer levels \(truncated toward zero"):
+        score(lambda s, k, p: jnp.full(n, 3.7), task, references_dir=directory)
+
+    # whole float levels are integers: scored as the int32 levels are
+    def as_floats(s, k, p):
+        return policies.always_max(s, k, p).astype(jnp.float32)
+
+    whole = score(as_floats, task, references_dir=directory)["daily_profit"]
+    ints = score(policies.always_max, task, references_dir=directory)["daily_profit"]
+    np.testing.assert_array_equal(whole, ints)
+
+
+def test_continuous_policies_with_nan_fractions_get_no_score(small_task):
+    """The same count for a single-agent policy in the continuous mode, jitted and on the
+    host (Gymnasium kind)."""
+    task, _ = small_task
+    params = dataclasses.replace(task.make_params(), action_mode="continuous")
+    days, keys = task.eval_days(), task.day_keys()
+    n = params.station.num_leaves
+    with pytest.raises(ValueError, match=r"single policy returned non-finite levels"):
+        protocol.play(lambda o, k: jnp.full(n, jnp.nan), params, days, keys, kind="single")
+    with pytest.raises(ValueError, match=r"gymnasium policy returned non-finite levels"):
+        protocol.play(
+            lambda o: np.full(n, np.nan, np.float32), params, days, keys, kind="gymnasium"
+        )
+    # finite fractions are floats by nature: played and totalled
+    totals = protocol.play(lambda o, k: jnp.full(n, 0.5), params, days, keys, kind="single")
+    assert np.all(np.isfinite(totals.profit_eur))
 
 
 # --- a picture of a day -----------------------------------------------------------------
