@@ -29,7 +29,7 @@ from chargax_marl.benchmark.picture import day_picture
 from chargax_marl.benchmark.references import SECONDARY, load_references, package_version
 from chargax_marl.benchmark.scoring import compare
 from chargax_marl.benchmark.tasks import get_task
-from chargax_marl.evaluation import METRICS, run_days_keyed, stateless
+from chargax_marl.evaluation import METRICS, check_policy_outputs, play_days, stateless
 from chargax_marl.trace import params_fingerprint, station_fingerprint
 
 
@@ -84,6 +84,8 @@ def score_run(run_dir: str | Path, task_id: str, references_dir=None) -> dict:
 
     Raises:
         CheckpointMismatchError: the run was trained on another station or scenario.
+        ValueError: the policy returned non-finite or non-integer levels
+            (`chargax_marl.evaluation.check_policy_outputs`).
     """
     task = get_task(task_id)
     load_references(task, references_dir)
@@ -94,9 +96,11 @@ def score_run(run_dir: str | Path, task_id: str, references_dir=None) -> dict:
     make_act = train.make_act(params)
     days, keys, n, r = protocol.flatten_schedule(task.eval_days(), task.day_keys())
     t0 = time.perf_counter()
-    totals = jax.jit(
-        jax.vmap(lambda p, d, k: run_days_keyed(make_act(p), params, d, k), in_axes=(0, None, None))
+    totals, counts = jax.jit(
+        jax.vmap(lambda p, d, k: play_days(make_act(p), params, d, k), in_axes=(0, None, None))
     )(seed_params, days, keys)
+    counts = jax.device_get(counts)  # (seeds, days x draws) each
+    check_policy_outputs(counts, np.tile(days, counts.nonfinite_steps.shape[0]), "the run's policy")
     totals = protocol.unflatten_totals(jax.device_get(totals), n, r)
     wall_s = time.perf_counter() - t0
     daily = np.asarray(totals.profit_eur, np.float64)
