@@ -230,15 +230,6 @@ class DelayedObservationWrapper(_Wrapper):
         history = start_history(_stack(self, obs), self.delay_steps)
         return obs, DelayState(env_state=env_state, history=history)
 
-    def step(self, key: jax.Array, state: DelayState, actions: dict, reset_state=None):
-        """The wrapped env's ``step`` with the delayed observations; ``actions`` is checked
-        on the host first (`host_actions`).
-
-        Raises:
-            ValueError: a bad action dict.
-        """
-        return self._step(key, state, self.host_actions(actions), reset_state)
-
     @functools.partial(jax.jit, static_argnums=(0,))
     def _step(self, key: jax.Array, state: DelayState, actions: dict, reset_state=None):
         extra = () if reset_state is None else (reset_state,)
@@ -296,15 +287,6 @@ class ActionLossWrapper(_Wrapper):
     def reset(self, key: jax.Array):
         obs, env_state = self._env.reset(key)
         return obs, ActionLossState(env_state=env_state, applied=self._idle_indices())
-
-    def step(self, key: jax.Array, state: ActionLossState, actions: dict, reset_state=None):
-        """The wrapped env's ``step`` with each action lost with probability ``loss_prob``;
-        ``actions`` is checked on the host first (`host_actions`).
-
-        Raises:
-            ValueError: a bad action dict.
-        """
-        return self._step(key, state, self.host_actions(actions), reset_state)
 
     @functools.partial(jax.jit, static_argnums=(0,))
     def _step(self, key: jax.Array, state: ActionLossState, actions: dict, reset_state=None):

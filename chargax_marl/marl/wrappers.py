@@ -32,6 +32,24 @@ class _Wrapper:
             raise AttributeError(name)
         return getattr(self._env, name)
 
+    def step(self, key: jax.Array, state, actions: dict, reset_state=None):
+        """The wrapped env's ``step`` with what this wrapper adds (its class docstring), jitted;
+        ``actions`` is checked and its host integers clipped first (`host_actions`).
+
+        Args:
+            key: the step's key.
+            state: this wrapper's state.
+            actions: ``{agent: index}``, one entry per agent.
+            reset_state: the fresh day's state at the end of a day (``None``: a random one).
+
+        Returns:
+            ``(obs, state, rewards, dones, infos)``, JaxMARL's step.
+
+        Raises:
+            ValueError: a bad action dict.
+        """
+        return self._step(key, state, self.host_actions(actions), reset_state)
+
     def host_actions(self, actions: dict) -> dict:
         """The action dict checked on the host, before it enters ``jit``: the wrapped env's
         ``validate_actions`` (host integers clipped into int32, so a large one clips instead of
@@ -109,15 +127,6 @@ class LogWrapper(_Wrapper):
             EpisodeTotals.zeros(),
         )
         return obs, state
-
-    def step(self, key: jax.Array, state: LogEnvState, actions: dict, reset_state=None):
-        """The wrapped env's ``step`` with the episode logging; ``actions`` is checked and its
-        host integers clipped before the jitted step (`host_actions`).
-
-        Raises:
-            ValueError: a bad action dict.
-        """
-        return self._step(key, state, self.host_actions(actions), reset_state)
 
     @functools.partial(jax.jit, static_argnums=(0,))
     def _step(self, key: jax.Array, state: LogEnvState, actions: dict, reset_state=None):
@@ -197,15 +206,6 @@ class WorldStateWrapper(_Wrapper):
         obs["world_state"] = self.world_state(env_state)
         return obs, env_state
 
-    def step(self, key: jax.Array, state, actions: dict, reset_state=None):
-        """The wrapped env's ``step`` with the world state added; ``actions`` is checked and its
-        host integers clipped before the jitted step (`host_actions`).
-
-        Raises:
-            ValueError: a bad action dict.
-        """
-        return self._step(key, state, self.host_actions(actions), reset_state)
-
     @functools.partial(jax.jit, static_argnums=(0,))
     def _step(self, key: jax.Array, state, actions: dict, reset_state=None):
         if reset_state is None:
@@ -265,15 +265,6 @@ class FinalObservationWrapper(_Wrapper):
                 f"wrappers on top of this one), got {type(env).__name__}"
             )
         super().__init__(env)
-
-    def step(self, key: jax.Array, state: EnvState, actions: dict, reset_state=None):
-        """The env's ``step`` with ``info["final_observation"]``; ``actions`` is checked and its
-        host integers clipped before the jitted step (`host_actions`).
-
-        Raises:
-            ValueError: a bad action dict.
-        """
-        return self._step(key, state, self.host_actions(actions), reset_state)
 
     @functools.partial(jax.jit, static_argnums=(0,))
     def _step(self, key: jax.Array, state: EnvState, actions: dict, reset_state=None):
