@@ -380,7 +380,8 @@ def run_policies_days(policies: Sequence[Callable], params: EnvParams, days, key
 
     Args:
         policies: one or more ``policy(state, key, params) -> levels``
-            (`chargax_marl.policies.get_policy`).
+            (`chargax_marl.policies.get_policy`), returning integer levels (they are cast to
+            int32 unchecked; `run_policy_days` checks a policy's levels).
         params: the environment parameters, also passed to the policies.
         days: ``(n,)`` day indices of the price data.
         key: day ``i`` draws its cars from ``split(key, n)[i]``, as in `run_days`.
