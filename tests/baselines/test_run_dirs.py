@@ -1,6 +1,6 @@
 """A run directory holds one run: a second training into it is refused unless it resumes or
-overwrites, a live run's lock refuses another process, and a killed run's lock is taken
-over."""
+overwrites, a live run's lock refuses another process, a killed run's lock is taken over, and
+the experiment runners' result files follow the same rule."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ import pytest
 
 from baselines import runs
 from baselines import train as cli
+from baselines.experiments import alpha_ablation
 from tests.helpers import TINY_CLI, toml_inline
 
 TINY_RUN = [*TINY_CLI, "ALGO=ippo", f"TOTAL_TIMESTEPS={4 * 24}", "CHUNKS=1", "OPTIMAL=off"]
@@ -117,3 +118,32 @@ def test_resume_and_overwrite_together_are_refused(tmp_path):
     with pytest.raises(ValueError, match="give one of them"):
         with runs.claim_run_dir(tmp_path, resume=True, overwrite=True):
             pass
+
+
+def _refuse_training(monkeypatch):
+    """Make an experiment runner fail as soon as it would score or train anything."""
+
+    def trained(*args, **kwargs):
+        raise AssertionError("the runner went on to score and train")
+
+    monkeypatch.setattr(alpha_ablation, "baseline_results", trained)
+    monkeypatch.setattr(alpha_ablation, "run", trained)
+
+
+def test_an_experiment_runner_refuses_the_result_files_of_an_earlier_run(tmp_path, monkeypatch):
+    _refuse_training(monkeypatch)
+    prefix = tmp_path / "ablation"
+    (tmp_path / "ablation.json").write_text('{"earlier": true}\n')
+    with pytest.raises(FileExistsError) as refused:
+        alpha_ablation.main(["--optimal", "off"], out=str(prefix))
+    assert "ablation.json" in str(refused.value) and "--overwrite" in str(refused.value)
+    assert (tmp_path / "ablation.json").read_text() == '{"earlier": true}\n'
+    assert _listing(tmp_path) == ["ablation.json"]  # no lock left behind
+
+
+def test_an_experiment_runner_with_overwrite_deletes_the_earlier_files(tmp_path, monkeypatch):
+    _refuse_training(monkeypatch)
+    (tmp_path / "ablation.json").write_text('{"earlier": true}\n')
+    with pytest.raises(AssertionError, match="went on to score"):  # past the claim
+        alpha_ablation.main(["--optimal", "off", "--overwrite"], out=str(tmp_path / "ablation"))
+    assert _listing(tmp_path) == []
