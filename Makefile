@@ -56,15 +56,18 @@ examples: $(CLIENTS_STAMP)
 
 # Each training target names a config of baselines/configs/ (the settings and why, next to
 # their values); `python -m baselines.train --config NAME KEY=value ...` runs any other.
+# A target rebuilds its run: --overwrite replaces the run its config's OUT holds (the same
+# settings, unless the config file changed), so the directory the docs name is always the
+# latest; a second target running into the same OUT at the same time is still refused.
 # IPPO on the default scenario, 4 seeds, scored on the held-out days (outputs/train_ippo).
 train: $(STAMP)
-	$(PY) -m baselines.train --config ippo
+	$(PY) -m baselines.train --config ippo --overwrite
 
 train-mappo: $(STAMP)
-	$(PY) -m baselines.train --config mappo
+	$(PY) -m baselines.train --config mappo --overwrite
 
 train-ppo: $(STAMP)
-	$(PY) -m baselines.train --config ppo
+	$(PY) -m baselines.train --config ppo --overwrite
 
 # The LP hindsight bound, the MPC and the rule-based policies on the 100 held-out days of the
 # default scenario and of three coordination scenarios (grid at 25 % and 10 %, high traffic;

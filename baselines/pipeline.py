@@ -62,6 +62,7 @@ def run(
     optimal: str = "off",
     references_dir=None,
     resume: bool = False,
+    overwrite: bool = False,
 ) -> RunOutput:
     """Train ``seeds`` seeds of ``algo`` and evaluate them; returns the results dict (and
     writes the outputs when ``out`` is given). ``eval_params`` / ``env_params`` override the
@@ -74,12 +75,81 @@ def run(
     process. ``resume=True`` continues from that checkpoint: the run ends with the parameters
     and results it would have had without the interruption (the timings aside).
 
+    ``out`` holds one run: the main process claims it before training
+    (`baselines.runs.claim_run_dir`) and holds its lock until the run ends. A directory that
+    holds another run's files is refused unless ``resume`` continues that run or
+    ``overwrite`` deletes its files first; one another live process is writing is refused.
+
     Raises:
         ValueError: ``resume`` without ``out``, without a readable checkpoint there, with one
             of another run (algorithm, config, seeds, chunks or references), or on several
-            processes.
+            processes; or both ``resume`` and ``overwrite``.
+        baselines.runs.RunDirError: ``out`` holds another run (without ``resume`` or
+            ``overwrite``), or another live process is writing it.
     """
+    kwargs = dict(
+        algo=algo,
+        config=config,
+        seeds=seeds,
+        seed=seed,
+        out=out,
+        chunks=chunks,
+        evaluate_every_chunk=evaluate_every_chunk,
+        baselines=baselines,
+        eval_params=eval_params,
+        eval_days=eval_days,
+        env_params=env_params,
+        title=title,
+        quiet=quiet,
+        optimal=optimal,
+        references_dir=references_dir,
+        resume=resume,
+    )
+    if out is None or not distributed.is_main():  # only process 0 writes
+        return _run(**kwargs)
+    record = _record(algo, config, seeds, seed, chunks, optimal, references_dir)
+    with runs.claim_run_dir(out, overwrite=overwrite, resume=resume, run=record):
+        return _run(**kwargs)
 
+
+def _record(algo: str, config: dict, seeds: int, seed: int, chunks: int, optimal, references_dir):
+    """The settings that make a run (what its checkpoint stores and a resumption must match),
+    as JSON values: the config resolved, its env-steps rounded down to equal chunks."""
+    config = resolve(config)
+    chunks, n_upd = chunked_updates(config, chunks)
+    config["TOTAL_TIMESTEPS"] = n_upd * config["NUM_ENVS"] * config["NUM_STEPS"]
+    return runs.to_jsonable(
+        {
+            "algo": algo,
+            "config": config,
+            "seeds": seeds,
+            "seed": seed,
+            "chunks": chunks,
+            "optimal": optimal,
+            "references_dir": None if references_dir is None else str(references_dir),
+        }
+    )
+
+
+def _run(
+    algo: str,
+    config: dict,
+    seeds: int,
+    seed: int,
+    out: str | Path | None,
+    chunks: int,
+    evaluate_every_chunk: bool,
+    baselines: dict | None,
+    eval_params,
+    eval_days,
+    env_params,
+    title: str | None,
+    quiet: bool,
+    optimal: str,
+    references_dir,
+    resume: bool,
+) -> RunOutput:
+    """`run` once ``out`` is claimed (see there)."""
     main_process = distributed.is_main()  # only process 0 writes and prints the evaluation
     quiet = quiet or not main_process
     out = out if main_process else None
@@ -175,17 +245,7 @@ def run(
     keys = jax.random.split(jax.random.PRNGKey(seed), seeds)
     if multi:  # inputs of a program over every process's devices must be global arrays
         keys = distributed.replicate(keys)
-    record = runs.to_jsonable(
-        {
-            "algo": algo,
-            "config": config,
-            "seeds": seeds,
-            "seed": seed,
-            "chunks": chunks,
-            "optimal": optimal,
-            "references_dir": None if references_dir is None else str(references_dir),
-        }
-    )
+    record = _record(algo, config, seeds, seed, chunks, optimal, references_dir)
     checkpoint = None if out is None or multi else Path(out) / runs.CHECKPOINT
     metric_chunks: list = []
     start = None

@@ -1,10 +1,16 @@
-"""What a training run writes: parameters (msgpack), results as JSON, learning-curve plots."""
+"""What a training run writes: parameters (msgpack), results as JSON, learning-curve plots,
+and the claim on its output directory (`claim_run_dir`) that keeps two runs out of one."""
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import os
+import socket
+import sys
 import warnings
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 import flax.serialization
@@ -21,6 +27,17 @@ CHECKPOINT = "checkpoint.msgpack"
 
 CHECKPOINT_FORMAT = 1
 """The layout of `save_checkpoint`'s file; a checkpoint of another layout is refused."""
+
+RUN_FILES = ("results.json", "params.msgpack", "curve.png", CHECKPOINT)
+"""The files a training run writes in its output directory: any of them marks a run there."""
+
+LOCK = ".lock"
+"""The lock file in a run directory while a run writes it (see `claim_run_dir`)."""
+
+
+class RunDirError(FileExistsError):
+    """An output directory (or path prefix) that holds another run's files, or that another
+    live process is writing."""
 
 
 def atomic_write_bytes(data: bytes, path: str | Path) -> Path:
@@ -312,3 +329,221 @@ def load_run(run_dir: str | Path):
         jax.random.split(jax.random.PRNGKey(0), int(results["seeds"]))
     )
     return results, train, load_params(template, run_dir / "params.msgpack")
+
+
+def _holder(text: str) -> str:
+    """Who a lock file's ``text`` (`_lock`'s JSON) names, for a message."""
+    try:
+        d = json.loads(text)
+        return f"PID {d['pid']} on host {d['host']}"
+    except (ValueError, TypeError, KeyError):
+        return "a process that has not yet written its PID"
+
+
+@contextlib.contextmanager
+def _lock(path: Path, what: str) -> Iterator[None]:
+    """Hold the exclusive lock ``path`` (``fcntl.flock``) for the duration of the block.
+
+    The lock file holds the holder's PID and host as JSON, for the messages. The kernel
+    releases a ``flock`` when its process ends, however it ends: a lock file that nobody holds
+    was left by a process that ended without removing it (killed, or its machine restarted),
+    and is taken over with a message on stderr. The lock file is removed on leaving the block,
+    normally or by an exception.
+
+    Args:
+        path: The lock file.
+        what: What the lock guards, for the messages (e.g. ``run directory outputs/x``).
+
+    Raises:
+        RunDirError: A live process holds the lock; the message names its PID and host.
+    """
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = _holder(os.pread(fd, 4096, 0).decode(errors="replace"))
+            os.close(fd)
+            raise RunDirError(
+                f"{what} is being written by {holder}, which holds its lock {path}: wait for "
+                "that run to end, or write to another output"
+            ) from None
+        try:  # the file a holder removed on release is not the lock any more: open it anew
+            same = os.stat(path).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    try:
+        previous = os.pread(fd, 4096, 0).decode(errors="replace")
+        if previous.strip():
+            print(
+                f"{path}: taking over the stale lock of {_holder(previous)}: no process "
+                "holds it any more (that run ended without releasing it, e.g. killed)",
+                file=sys.stderr,
+            )
+        mine = {"pid": os.getpid(), "host": socket.gethostname()}
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, (json.dumps(mine) + "\n").encode(), 0)
+        yield
+    finally:
+        path.unlink(missing_ok=True)
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def _claim(
+    lock: Path,
+    files: Sequence[Path],
+    what: str,
+    overwrite: bool,
+    refusal: Callable[[list[Path]], str] | None,
+) -> Iterator[None]:
+    """Hold ``lock`` and make sure no earlier run's ``files`` are there (see `claim_run_dir`).
+
+    Args:
+        lock: The lock file.
+        files: The files a run writes; any of them present is another run's.
+        what: What the lock guards, for the messages.
+        overwrite: Delete ``files`` (and their temporaries) instead of refusing.
+        refusal: The refusal's message from the files present; None accepts them (resume).
+
+    Raises:
+        RunDirError: A live process holds ``lock``, or ``files`` are present and neither
+            ``overwrite`` nor resuming accepts them.
+    """
+    with _lock(lock, what):
+        present = [f for f in files if f.exists()]
+        if overwrite:
+            for f in files:
+                f.unlink(missing_ok=True)
+                for tmp in f.parent.glob(f"{f.name}.*.tmp"):  # `atomic_write_bytes`'s leftovers
+                    tmp.unlink(missing_ok=True)
+            if present:
+                print(f"{what}: deleted the previous run's {[f.name for f in present]}")
+        elif present and refusal is not None:
+            raise RunDirError(refusal(present))
+        yield
+
+
+def _stored_run(out: Path) -> dict | None:
+    """The settings of the run in ``out``: its checkpoint's (algorithm, config, seeds, seed,
+    chunks, references) or else its ``results.json``'s; None where neither reads."""
+    try:
+        return load_checkpoint(out / CHECKPOINT)["run"]
+    except ValueError:  # no checkpoint or an unreadable one
+        pass
+    try:
+        results = json.loads((out / "results.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return {k: results[k] for k in ("algo", "config", "seeds", "seed") if k in results}
+
+
+def _differences(stored: dict, run: dict) -> list[str]:
+    """``KEY=stored (this run: value)`` for each setting both hold with different values."""
+    stored, run = to_jsonable(stored), to_jsonable(run)
+    pairs = [(k, stored[k], run[k]) for k in sorted(stored) if k != "config" and k in run]
+    theirs, mine = stored.get("config") or {}, run.get("config") or {}
+    pairs += [(f"config {k}", theirs[k], mine[k]) for k in sorted(theirs) if k in mine]
+    return [f"{k}={a!r} (this run: {b!r})" for k, a, b in pairs if a != b]
+
+
+@contextlib.contextmanager
+def claim_run_dir(
+    out: str | Path, *, overwrite: bool = False, resume: bool = False, run: dict | None = None
+) -> Iterator[Path]:
+    """Claim the run directory ``out`` for one training run, for the duration of the block.
+
+    A run directory holds one run. While the block runs, ``out/.lock`` (`LOCK`) holds an
+    exclusive ``fcntl.flock`` and the PID and host of this process: a second process that
+    claims ``out`` meanwhile is refused with a message naming them. A lock left by a process
+    that ended without releasing it (killed) is taken over, with a message on stderr. The
+    lock is released and its file removed on leaving the block, normally or by an exception.
+
+    A directory that holds any of a run's files (`RUN_FILES`) is refused unless ``resume``
+    (the run there continues from its checkpoint; `baselines.pipeline.run` checks that the
+    settings match) or ``overwrite`` (that run's files are deleted first; other files in
+    ``out`` are left alone).
+
+    Args:
+        out: The run directory; created if missing.
+        overwrite: Delete the files of the run already in ``out`` instead of refusing.
+        resume: Accept the run already in ``out``: this run continues it.
+        run: This run's settings (``algo``, ``config``, ``seeds`` ...), to name the settings
+            in which the run already in ``out`` differs; None names only its files.
+
+    Yields:
+        ``out`` as a `Path`.
+
+    Raises:
+        ValueError: Both ``overwrite`` and ``resume``.
+        RunDirError: Another live process holds the lock of ``out``, or ``out`` holds a run
+            and neither ``overwrite`` nor ``resume`` is given.
+    """
+    if overwrite and resume:
+        raise ValueError(
+            f"{out}: overwrite=True (--overwrite) deletes the run that resume=True (--resume) "
+            "continues; give one of them"
+        )
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+
+    def refusal(present: list[Path]) -> str:
+        stored = _stored_run(out)
+        held = f"{out} already holds a run ({', '.join(f.name for f in present)})"
+        if stored is not None:
+            held += f": {stored.get('algo')}, {stored.get('seeds')} seeds"
+            diffs = _differences(stored, run) if run is not None else []
+            if diffs:
+                held += ", differing from this run in " + "; ".join(diffs)
+            elif run is not None:
+                held += ", with this run's settings"
+        return (
+            f"{held}. A run directory holds one run: write to another directory (OUT=...), "
+            f"continue that run from its checkpoint (python -m baselines.train --resume {out}; "
+            "resume=True), or delete its files and train afresh (--overwrite; overwrite=True)"
+        )
+
+    what = f"run directory {out}"
+    files = [out / name for name in RUN_FILES]
+    with _claim(out / LOCK, files, what, overwrite, None if resume else refusal):
+        yield out
+
+
+@contextlib.contextmanager
+def claim_outputs(
+    prefix: str | Path, suffixes: Sequence[str], *, overwrite: bool = False
+) -> Iterator[str]:
+    """Claim the result files ``prefix + suffix`` of one experiment runner, for the block.
+
+    The rule of `claim_run_dir` for a runner's path prefix (e.g. ``outputs/traffic_sweep``
+    writes ``outputs/traffic_sweep.json`` and ``.png``): ``prefix.lock`` holds the lock, and
+    files of an earlier run are refused unless ``overwrite`` deletes them first.
+
+    Args:
+        prefix: The path prefix of the result files; its folder is created if missing.
+        suffixes: What the runner appends to ``prefix`` (e.g. ``(".json", ".png")``).
+        overwrite: Delete the earlier run's files instead of refusing.
+
+    Yields:
+        ``prefix`` as a string.
+
+    Raises:
+        RunDirError: Another live process holds ``prefix.lock``, or a file ``prefix + suffix``
+            exists and ``overwrite`` is not given.
+    """
+    prefix = str(prefix)
+    Path(prefix).parent.mkdir(parents=True, exist_ok=True)
+
+    def refusal(present: list[Path]) -> str:
+        return (
+            f"{prefix}: the result files {[str(f) for f in present]} of an earlier run exist. "
+            "Write to another path (--out or out=...), or delete them and run afresh "
+            "(--overwrite; overwrite=True)"
+        )
+
+    files = [Path(prefix + suffix) for suffix in suffixes]
+    with _claim(Path(prefix + ".lock"), files, f"outputs {prefix}", overwrite, refusal):
+        yield prefix

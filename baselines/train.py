@@ -5,6 +5,7 @@
     python -m baselines.train --config my_settings.toml SCENARIO=shopping-grid25-high
     python -m baselines.train --replot outputs/train_ippo --references results/optimal
     python -m baselines.train --resume outputs/train_ippo     # continue a killed run
+    python -m baselines.train --config ppo --overwrite         # replace outputs/train_ppo
 
 ``--config`` names a file of ``baselines/configs/`` (or a path); ``KEY=value`` arguments
 override its keys (`baselines.config` lists them all; an unknown key is an error). The
@@ -23,12 +24,18 @@ parameters of every seed; leading axis = seed), each written atomically, and
 ``checkpoint.msgpack``, the whole training state after the last finished chunk. A run that was
 killed continues from it with ``--resume OUT`` (the settings come from the checkpoint) and
 ends with the parameters and results an uninterrupted run has (the timings aside).
+
+``OUT`` holds one run (`baselines.runs.claim_run_dir`): a directory that already holds a
+run's files is refused unless ``--resume OUT`` continues that run or ``--overwrite`` deletes
+its files first, and one that another live process is writing (its ``OUT/.lock`` names the
+PID) is refused; the lock of a process that was killed is taken over.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 import jax
 
@@ -39,11 +46,12 @@ if __name__ == "__main__":  # before the imports below: importing gymnax already
 from baselines import pipeline  # noqa: E402
 from baselines.algos import distributed  # noqa: E402
 from baselines.config import DEFAULT_CONFIG, ConfigError, load  # noqa: E402
+from baselines.runs import RunDirError  # noqa: E402
 
 
 def parser() -> argparse.ArgumentParser:
-    """The command line: ``--config``, ``KEY=value`` overrides, ``--replot`` and the
-    multi-process flags."""
+    """The command line: ``--config``, ``KEY=value`` overrides, ``--replot``, ``--resume``,
+    ``--overwrite`` and the multi-process flags."""
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -73,6 +81,12 @@ def parser() -> argparse.ArgumentParser:
         help="continue the run whose directory this is from its checkpoint (after the last "
         "finished chunk), with the settings it was started with; no --config or KEY=value",
     )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="OUT may hold an earlier run: delete its files (results.json, params.msgpack, "
+        "curve.png, checkpoint.msgpack) and train afresh; without it such an OUT is refused",
+    )
     distributed.add_arguments(p)
     return p
 
@@ -86,7 +100,10 @@ def main(argv=None) -> dict:
     Raises:
         baselines.config.ConfigError: an unknown config, key or value, or overrides with
             ``--resume``.
-        ValueError: ``--resume`` of a directory without a readable checkpoint.
+        ValueError: ``--resume`` of a directory without a readable checkpoint, or with
+            ``--overwrite``.
+        baselines.runs.RunDirError: ``OUT`` holds another run (without ``--resume`` or
+            ``--overwrite``), or another live process is writing it.
     """
     a = parser().parse_intermixed_args(argv)
     if a.replot:
@@ -117,6 +134,7 @@ def main(argv=None) -> dict:
             optimal=s["optimal"],
             references_dir=s["references_dir"],
             resume=True,
+            overwrite=a.overwrite,
         )
         return out.results
     config, run = load(a.config, a.overrides)
@@ -134,9 +152,13 @@ def main(argv=None) -> dict:
         chunks=run["CHUNKS"],
         optimal=run["OPTIMAL"],
         references_dir=run["REFERENCES_DIR"] or None,
+        overwrite=a.overwrite,
     )
     return out.results
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except RunDirError as e:  # the message says what to do; the traceback would bury it
+        sys.exit(f"baselines.train: {e}")

@@ -6,6 +6,8 @@ learning settings: ``tuned`` (default) are those of the learned-agents work (``m
 for PPO, ``make train`` for IPPO / MAPPO); ``table3`` are the paper's Table 3 exactly. Every
 result file records the budget, the seeds, the settings, the wall time and the machine, and
 whether the run was cut from the paper's scale (``cut``), so no cut run reads as the paper's.
+A runner refuses to write over the result files of an earlier run, or beside another live
+runner at the same path, unless ``--overwrite`` deletes the earlier files (`output`).
 """
 
 from __future__ import annotations
@@ -13,11 +15,13 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from pathlib import Path
+from collections.abc import Sequence
+from contextlib import AbstractContextManager
 
 import jax
 import numpy as np
 
+from baselines import runs
 from baselines.config import SCHEMA, build_env_params, resolve, settings
 from baselines.eval.heldout import OPTIMAL_CHOICES, baseline_results
 from baselines.pipeline import RunOutput, chunked_updates, run
@@ -69,6 +73,11 @@ def parser(
         default="bound",
         help="add the LP hindsight bound (bound, default), also the MPC (mpc), or neither (off)",
     )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="delete the result files of an earlier run at the same path instead of refusing",
+    )
     p.set_defaults(full_seeds=full_seeds)
     return p
 
@@ -81,10 +90,29 @@ def config_of(args) -> tuple[dict, int]:
     return base, (args.full_seeds if args.full else args.seeds)
 
 
-def output(out: str) -> str:
-    """``out`` (a path prefix for ``.png`` / ``.json``), its folder created."""
-    Path(out).parent.mkdir(parents=True, exist_ok=True)
-    return str(out)
+def output(
+    out: str, overwrite: bool = False, suffixes: Sequence[str] = (".json", ".png")
+) -> AbstractContextManager[str]:
+    """Claim a runner's result files for the duration of a ``with`` block.
+
+    The runners' outputs follow the rule of a training run's directory
+    (`baselines.runs.claim_outputs`): ``out + ".lock"`` is held while the runner runs, and
+    result files of an earlier run are refused unless ``overwrite`` deletes them first.
+
+    Args:
+        out: The path prefix of the result files (e.g. ``outputs/traffic_sweep``); its folder
+            is created.
+        overwrite: ``--overwrite``: delete the earlier run's result files instead of refusing.
+        suffixes: What the runner appends to ``out`` (default ``.json`` and ``.png``).
+
+    Returns:
+        A context manager that yields ``out`` as a string.
+
+    Raises:
+        baselines.runs.RunDirError: On entering the block: result files ``out + suffix``
+            exist and ``overwrite`` is not given, or another live process runs into ``out``.
+    """
+    return runs.claim_outputs(out, suffixes, overwrite=overwrite)
 
 
 def with_env_kwargs(base: dict, **kwargs) -> dict:

@@ -42,68 +42,68 @@ METRIC = {"satisfaction_time": "missing_kwh_at_departure", "satisfaction_charge"
 
 def main(argv=None, out="outputs/alpha_ablation"):
     args = parser(__doc__, full_seeds=5).parse_args(argv)
-    out = output(out)
-    base, seeds = config_of(args)
-    record = Record(args, seeds, base, paper_seeds=5, figure="Fig. 4b-c")
-    grid = FULL if args.full else SMALL
-    _, full_params, _, eval_days = build_env_params(resolve(base))
-    baselines = baseline_results(full_params, eval_days, args.optimal)
-    results = {term: {} for term in grid}
-    zero = None
-    for term, alphas in grid.items():
-        for alpha in alphas:
-            if alpha == 0.0 and zero is not None:
-                results[term][alpha] = zero
-                continue
-            cfg = with_env_kwargs(base, alpha={term: alpha})
-            # evaluation reports the raw terms (profit, missing kWh, overtime) on the held-out days
-            res = run(
-                args.algo,
-                cfg,
-                seeds=seeds,
-                chunks=2,
-                evaluate_every_chunk=False,
-                baselines=baselines,
-                quiet=True,
-            ).results
-            ev = res["evaluation"]["table"][args.algo]
-            row = {
-                "alpha": alpha,
-                "metrics": ev["metrics"],
-                "per_seed_profit": ev["per_seed_profit"],
-                "per_seed": {k: ev["per_seed_metrics"][k] for k in TERMS},
-                "vs_always_max": res["vs_always_max"],
-                "wall_seconds": res["wall_seconds"],
-                "timesteps": res["timesteps"],
-            }
-            results[term][alpha] = row
-            if alpha == 0.0:
-                zero = row
-            m = row["metrics"]
-            print(
-                f"{term} alpha={alpha:g}: {METRIC[term]} {m[METRIC[term]]['mean']:.2f} ± {m[METRIC[term]]['std']:.2f}, "
-                f"profit {m['daily_profit_eur']['mean']:.1f} ({res['wall_seconds']:.0f} s)",
-                flush=True,
-            )
-    for term, rows in results.items():
-        for row in rows.values():
-            row["vs_alpha0"] = {
-                k: paired_over_seeds(row["per_seed"][k], zero["per_seed"][k])
-                for k in row["per_seed"]
-            }
-    meta = record.as_dict()
-    runs.write_json(
-        {
-            **meta,
-            "baselines": baselines,
-            "results": {t: list(r.values()) for t, r in results.items()},
-        },
-        out + ".json",
-    )
-    plot(results, baselines, out + ".png")
-    print(f"wrote {out}.png, {out}.json")
-    print(Record.summary(meta))
-    return results
+    with output(out, args.overwrite) as prefix:
+        base, seeds = config_of(args)
+        record = Record(args, seeds, base, paper_seeds=5, figure="Fig. 4b-c")
+        grid = FULL if args.full else SMALL
+        _, full_params, _, eval_days = build_env_params(resolve(base))
+        baselines = baseline_results(full_params, eval_days, args.optimal)
+        results = {term: {} for term in grid}
+        zero = None
+        for term, alphas in grid.items():
+            for alpha in alphas:
+                if alpha == 0.0 and zero is not None:
+                    results[term][alpha] = zero
+                    continue
+                cfg = with_env_kwargs(base, alpha={term: alpha})
+                # evaluation reports the raw terms (profit, missing kWh, overtime) on the held-out days
+                res = run(
+                    args.algo,
+                    cfg,
+                    seeds=seeds,
+                    chunks=2,
+                    evaluate_every_chunk=False,
+                    baselines=baselines,
+                    quiet=True,
+                ).results
+                ev = res["evaluation"]["table"][args.algo]
+                row = {
+                    "alpha": alpha,
+                    "metrics": ev["metrics"],
+                    "per_seed_profit": ev["per_seed_profit"],
+                    "per_seed": {k: ev["per_seed_metrics"][k] for k in TERMS},
+                    "vs_always_max": res["vs_always_max"],
+                    "wall_seconds": res["wall_seconds"],
+                    "timesteps": res["timesteps"],
+                }
+                results[term][alpha] = row
+                if alpha == 0.0:
+                    zero = row
+                m = row["metrics"]
+                print(
+                    f"{term} alpha={alpha:g}: {METRIC[term]} {m[METRIC[term]]['mean']:.2f} ± {m[METRIC[term]]['std']:.2f}, "
+                    f"profit {m['daily_profit_eur']['mean']:.1f} ({res['wall_seconds']:.0f} s)",
+                    flush=True,
+                )
+        for term, rows in results.items():
+            for row in rows.values():
+                row["vs_alpha0"] = {
+                    k: paired_over_seeds(row["per_seed"][k], zero["per_seed"][k])
+                    for k in row["per_seed"]
+                }
+        meta = record.as_dict()
+        runs.write_json(
+            {
+                **meta,
+                "baselines": baselines,
+                "results": {t: list(r.values()) for t, r in results.items()},
+            },
+            prefix + ".json",
+        )
+        plot(results, baselines, prefix + ".png")
+        print(f"wrote {prefix}.png, {prefix}.json")
+        print(Record.summary(meta))
+        return results
 
 
 TERMS = ("daily_profit_eur", "missing_kwh_at_departure", "overtime_min")

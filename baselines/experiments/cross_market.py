@@ -25,6 +25,7 @@ import matplotlib
 import matplotlib.pyplot as plt
 import numpy as np
 
+from baselines import runs
 from baselines.eval import heldout, stats
 from baselines.experiments._common import (
     Record,
@@ -50,67 +51,67 @@ def main(argv=None, out="outputs/cross_market", *, experiments=None, overrides=N
         "--no-reference", action="store_true", help="do not train the in-market reference agents"
     )
     args = p.parse_args(argv)
-    out = output(out)
-    base, seeds = config_of(args)
-    base = {**base, **(overrides or {})}
-    experiments = EXPERIMENTS if experiments is None else experiments
-    t0 = time.time()
-    record = Record(args, seeds, base, paper_seeds=5, figure="cross-market (beside Fig. 5)")
-    markets = list(
-        dict.fromkeys([m for src, targets in experiments.items() for m in (src, *targets)])
-    )
-    evals = {m: eval_setup(base, m, args.optimal) for m in markets}
-    baselines = {m: e[2] for m, e in evals.items()}
-    trained = list(experiments) + (
-        [] if args.no_reference else [m for m in markets if m not in experiments]
-    )
-    matrix, runs = {}, {}
-    for src in trained:
-        out = train_on(args.algo, base, src, seeds, baselines[src])
-        act, res = out.trainer.make_act, out.results
-        matrix[src] = {}
-        for tgt in experiments.get(src, (src,)):
-            full, days, _ = evals[tgt]
-            ev = heldout.evaluate_batched(
-                act(full),
-                out.params,
-                full,
-                days,
-                reference_profit=baselines[tgt]["always_max"]["daily_profit"],
-            )
-            matrix[src][tgt] = ev
-            m, d = ev["metrics"]["daily_profit_eur"], ev["paired_diff"]
-            print(
-                f"train {src} -> eval {tgt}: {m['mean']:.1f} ± {m['std']:.1f} EUR/day "
-                f"(vs always-max {d['mean']:+.1f} ± {d['stderr']:.1f})",
-                flush=True,
-            )
-        runs[src] = {
-            "wall_seconds": res["wall_seconds"],
-            "timesteps": res["timesteps"],
-            "curve": profit_curve(res["curve"]),
-        }
-    gaps = transfer_gaps(matrix, experiments)
-    wall = time.time() - t0
-    plot(matrix, baselines, experiments, args.algo, out + ".png")
-    meta = record.as_dict()
-    runs.write_json(
-        {
-            **meta,
-            "timesteps": runs[trained[0]]["timesteps"],
-            "experiments": {s: list(t) for s, t in experiments.items()},
-            "evaluation": "greedy, held-out days of each target, PRNGKey(0) for every policy (common random numbers)",
-            "wall_seconds_total": wall,
-            "matrix": matrix,
-            "transfer_gap_vs_in_market": gaps,
-            "baselines": baselines,
-            "runs": runs,
-        },
-        out + ".json",
-    )
-    print(summary(matrix, baselines, gaps, experiments))
-    print(f"wrote {out}.png, {out}.json ({wall:.0f} s wall)")
-    return matrix
+    with output(out, args.overwrite) as prefix:
+        base, seeds = config_of(args)
+        base = {**base, **(overrides or {})}
+        experiments = EXPERIMENTS if experiments is None else experiments
+        t0 = time.time()
+        record = Record(args, seeds, base, paper_seeds=5, figure="cross-market (beside Fig. 5)")
+        markets = list(
+            dict.fromkeys([m for src, targets in experiments.items() for m in (src, *targets)])
+        )
+        evals = {m: eval_setup(base, m, args.optimal) for m in markets}
+        baselines = {m: e[2] for m, e in evals.items()}
+        trained = list(experiments) + (
+            [] if args.no_reference else [m for m in markets if m not in experiments]
+        )
+        matrix, trained_runs = {}, {}
+        for src in trained:
+            agent = train_on(args.algo, base, src, seeds, baselines[src])
+            act, res = agent.trainer.make_act, agent.results
+            matrix[src] = {}
+            for tgt in experiments.get(src, (src,)):
+                full, days, _ = evals[tgt]
+                ev = heldout.evaluate_batched(
+                    act(full),
+                    agent.params,
+                    full,
+                    days,
+                    reference_profit=baselines[tgt]["always_max"]["daily_profit"],
+                )
+                matrix[src][tgt] = ev
+                m, d = ev["metrics"]["daily_profit_eur"], ev["paired_diff"]
+                print(
+                    f"train {src} -> eval {tgt}: {m['mean']:.1f} ± {m['std']:.1f} EUR/day "
+                    f"(vs always-max {d['mean']:+.1f} ± {d['stderr']:.1f})",
+                    flush=True,
+                )
+            trained_runs[src] = {
+                "wall_seconds": res["wall_seconds"],
+                "timesteps": res["timesteps"],
+                "curve": profit_curve(res["curve"]),
+            }
+        gaps = transfer_gaps(matrix, experiments)
+        wall = time.time() - t0
+        plot(matrix, baselines, experiments, args.algo, prefix + ".png")
+        meta = record.as_dict()
+        runs.write_json(
+            {
+                **meta,
+                "timesteps": trained_runs[trained[0]]["timesteps"],
+                "experiments": {s: list(t) for s, t in experiments.items()},
+                "evaluation": "greedy, held-out days of each target, PRNGKey(0) for every policy (common random numbers)",
+                "wall_seconds_total": wall,
+                "matrix": matrix,
+                "transfer_gap_vs_in_market": gaps,
+                "baselines": baselines,
+                "runs": trained_runs,
+            },
+            prefix + ".json",
+        )
+        print(summary(matrix, baselines, gaps, experiments))
+        print(f"wrote {prefix}.png, {prefix}.json ({wall:.0f} s wall)")
+        return matrix
 
 
 def transfer_gaps(matrix: dict, experiments: dict) -> dict:

@@ -37,53 +37,55 @@ YEARS = ("NL-2021", "NL-2022", "NL-2023")
 
 def main(argv=None, out="outputs/price_shift"):
     args = parser(__doc__, full_seeds=10).parse_args(argv)
-    out = output(out)
-    base, seeds = config_of(args)
-    record = Record(args, seeds, base, paper_seeds=10, figure="Fig. 5")
-    evals = {year: eval_setup(base, year, args.optimal) for year in YEARS}
-    matrix, rows = {}, {}
-    for train_year in YEARS:
-        out = train_on(args.algo, base, train_year, seeds, evals[train_year][2])
-        train, res = out.trainer, out.results
-        matrix[train_year] = {}
-        for eval_year, (full, days, bl) in evals.items():
-            ev = heldout.evaluate_batched(
-                train.make_act(full),
-                out.params,
-                full,
-                days,
-                reference_profit=bl["always_max"]["daily_profit"],
-            )
-            ev["vs_battery_rule"] = stats.paired_difference(
-                ev["daily_profit"], bl["battery_rule"]["daily_profit"]
-            )
-            for name in (
-                n for n in ("battery_programme", "plan_programme") if n in bl
-            ):  # the teachers' rules
-                ev[f"vs_{name}"] = stats.paired_difference(
-                    ev["daily_profit"], bl[name]["daily_profit"]
+    with output(out, args.overwrite) as prefix:
+        base, seeds = config_of(args)
+        record = Record(args, seeds, base, paper_seeds=10, figure="Fig. 5")
+        evals = {year: eval_setup(base, year, args.optimal) for year in YEARS}
+        matrix, rows = {}, {}
+        for train_year in YEARS:
+            trained = train_on(args.algo, base, train_year, seeds, evals[train_year][2])
+            train, res = trained.trainer, trained.results
+            matrix[train_year] = {}
+            for eval_year, (full, days, bl) in evals.items():
+                ev = heldout.evaluate_batched(
+                    train.make_act(full),
+                    trained.params,
+                    full,
+                    days,
+                    reference_profit=bl["always_max"]["daily_profit"],
                 )
-            add_headroom({"agent": ev}, bl)
-            matrix[train_year][eval_year] = ev
-            d, r = ev["paired_diff"], ev["vs_battery_rule"]
-            print(
-                f"train {train_year} -> eval {eval_year}: {ev['metrics']['daily_profit_eur']['mean']:.1f} EUR/day; "
-                f"vs always-max {d['mean']:+.2f} ± {d['stderr']:.2f}, vs battery rule {r['mean']:+.2f} ± "
-                f"{r['stderr']:.2f}",
-                flush=True,
-            )
-        rows[train_year] = {
-            "wall_seconds": res["wall_seconds"],
-            "timesteps": res["timesteps"],
-            "curve": profit_curve(res["curve"]),
-        }
-    baselines = {y: e[2] for y, e in evals.items()}
-    meta = record.as_dict()
-    runs.write_json({**meta, "matrix": matrix, "baselines": baselines, "runs": rows}, out + ".json")
-    plot(matrix, baselines, args.algo, out + ".png")
-    print(f"wrote {out}.png, {out}.json")
-    print(Record.summary(meta))
-    return matrix
+                ev["vs_battery_rule"] = stats.paired_difference(
+                    ev["daily_profit"], bl["battery_rule"]["daily_profit"]
+                )
+                for name in (
+                    n for n in ("battery_programme", "plan_programme") if n in bl
+                ):  # the teachers' rules
+                    ev[f"vs_{name}"] = stats.paired_difference(
+                        ev["daily_profit"], bl[name]["daily_profit"]
+                    )
+                add_headroom({"agent": ev}, bl)
+                matrix[train_year][eval_year] = ev
+                d, r = ev["paired_diff"], ev["vs_battery_rule"]
+                print(
+                    f"train {train_year} -> eval {eval_year}: {ev['metrics']['daily_profit_eur']['mean']:.1f} EUR/day; "
+                    f"vs always-max {d['mean']:+.2f} ± {d['stderr']:.2f}, vs battery rule {r['mean']:+.2f} ± "
+                    f"{r['stderr']:.2f}",
+                    flush=True,
+                )
+            rows[train_year] = {
+                "wall_seconds": res["wall_seconds"],
+                "timesteps": res["timesteps"],
+                "curve": profit_curve(res["curve"]),
+            }
+        baselines = {y: e[2] for y, e in evals.items()}
+        meta = record.as_dict()
+        runs.write_json(
+            {**meta, "matrix": matrix, "baselines": baselines, "runs": rows}, prefix + ".json"
+        )
+        plot(matrix, baselines, args.algo, prefix + ".png")
+        print(f"wrote {prefix}.png, {prefix}.json")
+        print(Record.summary(meta))
+        return matrix
 
 
 def plot(matrix, baselines, algo, path):

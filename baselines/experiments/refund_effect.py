@@ -54,76 +54,76 @@ def main(argv=None, out="outputs/refund_effect"):
     p = parser(__doc__, full_seeds=5)
     p.add_argument("--fleets", nargs="+", choices=FLEETS, default=list(FLEETS))
     args = p.parse_args(argv)
-    out = output(out)
-    base, seeds = config_of(args)
-    record = Record(
-        args, seeds, base, paper_seeds=None, figure="refund effect (the original's accounting)"
-    )
-    results = {}
-    for fleet in args.fleets:
-        setups = {}
-        for refund in (True, False):
-            cfg = with_env_kwargs(base, fleet=fleet_of(fleet), refund_discharged_energy=refund)
-            _, full, _, days = build_env_params(resolve(cfg))
-            setups[refund] = (cfg, full, days, references(full, days, args.optimal))
-        results[fleet] = {
-            "references": {ACCOUNTS[r]: s[3] for r, s in setups.items()},
-            "agents": {},
-        }
-        for train_refund, (cfg, *_rest) in setups.items():
-            out = run(
-                args.algo,
-                cfg,
-                seeds=seeds,
-                chunks=2,
-                evaluate_every_chunk=False,
-                baselines=setups[train_refund][3],
-                quiet=True,
-            )
-            res = out.results
-            row = {"wall_seconds": res["wall_seconds"], "timesteps": res["timesteps"]}
-            for eval_refund, (_, full, days, refs) in setups.items():
-                ev = heldout.evaluate_batched(
-                    out.trainer.make_act(full),
-                    out.params,
-                    full,
-                    days,
-                    reference_profit=refs["always_max"]["daily_profit"],
+    with output(out, args.overwrite) as prefix:
+        base, seeds = config_of(args)
+        record = Record(
+            args, seeds, base, paper_seeds=None, figure="refund effect (the original's accounting)"
+        )
+        results = {}
+        for fleet in args.fleets:
+            setups = {}
+            for refund in (True, False):
+                cfg = with_env_kwargs(base, fleet=fleet_of(fleet), refund_discharged_energy=refund)
+                _, full, _, days = build_env_params(resolve(cfg))
+                setups[refund] = (cfg, full, days, references(full, days, args.optimal))
+            results[fleet] = {
+                "references": {ACCOUNTS[r]: s[3] for r, s in setups.items()},
+                "agents": {},
+            }
+            for train_refund, (cfg, *_rest) in setups.items():
+                trained = run(
+                    args.algo,
+                    cfg,
+                    seeds=seeds,
+                    chunks=2,
+                    evaluate_every_chunk=False,
+                    baselines=setups[train_refund][3],
+                    quiet=True,
                 )
-                row[ACCOUNTS[eval_refund]] = ev
-            row["off_minus_on"] = paired_over_seeds(
-                row["no_refund"]["daily_profit"], row["refund"]["daily_profit"]
-            )
-            results[fleet]["agents"][f"trained_{ACCOUNTS[train_refund]}"] = row
-            print(
-                f"{fleet}, trained with {ACCOUNTS[train_refund]}: "
-                + "; ".join(
-                    f"evaluated with {ACCOUNTS[e]} {row[ACCOUNTS[e]]['metrics']['daily_profit_eur']['mean']:.1f} EUR/day "
-                    f"(vs always-max {row[ACCOUNTS[e]]['paired_diff']['mean']:+.2f} ± "
-                    f"{row[ACCOUNTS[e]]['paired_diff']['stderr']:.2f})"
-                    for e in (True, False)
+                res = trained.results
+                row = {"wall_seconds": res["wall_seconds"], "timesteps": res["timesteps"]}
+                for eval_refund, (_, full, days, refs) in setups.items():
+                    ev = heldout.evaluate_batched(
+                        trained.trainer.make_act(full),
+                        trained.params,
+                        full,
+                        days,
+                        reference_profit=refs["always_max"]["daily_profit"],
+                    )
+                    row[ACCOUNTS[eval_refund]] = ev
+                row["off_minus_on"] = paired_over_seeds(
+                    row["no_refund"]["daily_profit"], row["refund"]["daily_profit"]
                 )
-                + f"; off - on {row['off_minus_on']['mean']:+.2f} ({res['wall_seconds']:.0f} s)",
-                flush=True,
-            )
-    meta = record.as_dict()
-    runs.write_json(
-        {
-            **meta,
-            "fleets": {
-                f: "bundled EU fleet"
-                if f == "EU"
-                else "EU fleet, every model may discharge at its charging limit"
-                for f in args.fleets
+                results[fleet]["agents"][f"trained_{ACCOUNTS[train_refund]}"] = row
+                print(
+                    f"{fleet}, trained with {ACCOUNTS[train_refund]}: "
+                    + "; ".join(
+                        f"evaluated with {ACCOUNTS[e]} {row[ACCOUNTS[e]]['metrics']['daily_profit_eur']['mean']:.1f} EUR/day "
+                        f"(vs always-max {row[ACCOUNTS[e]]['paired_diff']['mean']:+.2f} ± "
+                        f"{row[ACCOUNTS[e]]['paired_diff']['stderr']:.2f})"
+                        for e in (True, False)
+                    )
+                    + f"; off - on {row['off_minus_on']['mean']:+.2f} ({res['wall_seconds']:.0f} s)",
+                    flush=True,
+                )
+        meta = record.as_dict()
+        runs.write_json(
+            {
+                **meta,
+                "fleets": {
+                    f: "bundled EU fleet"
+                    if f == "EU"
+                    else "EU fleet, every model may discharge at its charging limit"
+                    for f in args.fleets
+                },
+                "results": results,
             },
-            "results": results,
-        },
-        out + ".json",
-    )
-    plot(results, args.algo, out + ".png")
-    print(f"wrote {out}.png, {out}.json")
-    print(Record.summary(meta))
-    return results
+            prefix + ".json",
+        )
+        plot(results, args.algo, prefix + ".png")
+        print(f"wrote {prefix}.png, {prefix}.json")
+        print(Record.summary(meta))
+        return results
 
 
 def references(params, days, optimal: str) -> dict:

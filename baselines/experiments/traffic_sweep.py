@@ -93,45 +93,47 @@ def main(argv=None, out="outputs/traffic_sweep"):
     fleets = args.fleets or (FLEETS if args.appendix else ("EU",))
     cells = conditions(tuple(profiles), tuple(fleets))
     reuse = parse_reuse(p, args.reuse, cells, args.traffic)
-    out = output(args.out)
-    record = Record(
-        args,
-        seeds,
-        base,
-        paper_seeds=20,
-        figure="Fig. 4a" + (" and appendix" if len(cells) > 1 else ""),
-    )
-    sweeps = {
-        f"{profile}/{fleet}": _sweep(args, base, seeds, profile, fleet, reuse)
-        for profile, fleet in cells
-    }
-    meta = record.as_dict()
-    if reuse:
-        meta["reused"] = {
-            key: {
-                "path": path,
-                "wall_seconds": sweeps[key.rsplit("/", 1)[0]][key.rsplit("/", 1)[1]][
-                    "wall_seconds"
-                ],
-            }
-            for key, path in reuse.items()
+    with output(
+        args.out, args.overwrite, (".json", ".png", "_appendix.json", "_appendix.png")
+    ) as prefix:
+        record = Record(
+            args,
+            seeds,
+            base,
+            paper_seeds=20,
+            figure="Fig. 4a" + (" and appendix" if len(cells) > 1 else ""),
+        )
+        sweeps = {
+            f"{profile}/{fleet}": _sweep(args, base, seeds, profile, fleet, reuse)
+            for profile, fleet in cells
         }
-        meta["wall_seconds_with_reused"] = meta["wall_seconds"] + sum(
-            r["wall_seconds"] for r in meta["reused"].values()
-        )
-    if "shopping/EU" in sweeps:  # the main figure: {traffic: result}
-        runs.write_json({**meta, "results": sweeps["shopping/EU"]}, out + ".json")
-        plot(sweeps["shopping/EU"], args.algo, out + ".png")
-        print(f"wrote {out}.png, {out}.json")
-    if len(cells) > 1:
-        runs.write_json(
-            {**meta, "conditions": [list(c) for c in cells], "results": sweeps},
-            out + "_appendix.json",
-        )
-        plot_grid(sweeps, args.algo, out + "_appendix.png")
-        print(f"wrote {out}_appendix.png, {out}_appendix.json")
-    print(Record.summary(meta))
-    return sweeps
+        meta = record.as_dict()
+        if reuse:
+            meta["reused"] = {
+                key: {
+                    "path": path,
+                    "wall_seconds": sweeps[key.rsplit("/", 1)[0]][key.rsplit("/", 1)[1]][
+                        "wall_seconds"
+                    ],
+                }
+                for key, path in reuse.items()
+            }
+            meta["wall_seconds_with_reused"] = meta["wall_seconds"] + sum(
+                r["wall_seconds"] for r in meta["reused"].values()
+            )
+        if "shopping/EU" in sweeps:  # the main figure: {traffic: result}
+            runs.write_json({**meta, "results": sweeps["shopping/EU"]}, prefix + ".json")
+            plot(sweeps["shopping/EU"], args.algo, prefix + ".png")
+            print(f"wrote {prefix}.png, {prefix}.json")
+        if len(cells) > 1:
+            runs.write_json(
+                {**meta, "conditions": [list(c) for c in cells], "results": sweeps},
+                prefix + "_appendix.json",
+            )
+            plot_grid(sweeps, args.algo, prefix + "_appendix.png")
+            print(f"wrote {prefix}_appendix.png, {prefix}_appendix.json")
+        print(Record.summary(meta))
+        return sweeps
 
 
 CHUNKS = 4  # a cell trains in 4 chunks (its env-steps rounded to them), evaluated once at the end

@@ -138,9 +138,10 @@ def test_runner_defaults_are_the_tuned_settings_and_full_is_the_paper_s_budget()
     ] == {"num_levels": 1}
 
 
-def test_the_makefile_s_training_targets_name_a_config_and_nothing_else():
-    """``make train`` / ``train-ppo`` / ``train-mappo`` run ``baselines.train --config NAME``
-    with no other argument; the runners' tuned settings are those files' learning settings."""
+def test_the_makefile_s_training_targets_name_a_config_and_replace_their_run():
+    """``make train`` / ``train-ppo`` / ``train-mappo`` run ``baselines.train --config NAME
+    --overwrite`` with no other argument (a second ``make train`` replaces the first's run);
+    the runners' tuned settings are those files' learning settings."""
     import re
     from pathlib import Path
 
@@ -150,7 +151,7 @@ def test_the_makefile_s_training_targets_name_a_config_and_nothing_else():
     text = Path(__file__).resolve().parents[2].joinpath("Makefile").read_text()
     for target, name in (("train", "ippo"), ("train-ppo", "ppo"), ("train-mappo", "mappo")):
         line = re.search(rf"^{target}:.*\n\t(.*)$", text, flags=re.M).group(1)
-        assert line == f"$(PY) -m baselines.train --config {name}", (target, line)
+        assert line == f"$(PY) -m baselines.train --config {name} --overwrite", (target, line)
         config, run = load(name)
         assert run["ALGO"] == name
         assert all(config[k] == v for k, v in _common.TUNED[name].items())
