@@ -464,11 +464,25 @@ def add_stored_mpc(run_dir, references_dir) -> dict:
     Returns:
         The updated results.
 
+    The run directory is claimed for the rewrite (`baselines.runs.claim_run_dir`, accepting
+    the run it holds), so a replot never mixes its files with those of a training that is
+    writing the directory.
+
     Raises:
         LookupError: no stored MPC matches the run's params and days, or the run was scored
             on several car draws (the stored MPC is one draw).
+        FileNotFoundError: ``run_dir`` holds no ``results.json``.
+        baselines.runs.RunDirError: another live process is writing ``run_dir``.
     """
     run_dir = Path(run_dir)
+    if not (run_dir / "results.json").is_file():
+        raise FileNotFoundError(f"{run_dir}: no results.json (not a finished training run)")
+    with runs.claim_run_dir(run_dir, resume=True):
+        return _add_stored_mpc(run_dir, references_dir)
+
+
+def _add_stored_mpc(run_dir: Path, references_dir) -> dict:
+    """`add_stored_mpc` on a claimed run directory."""
     results = json.loads((run_dir / "results.json").read_text())
     config = resolve(results["config"])
     _, eval_params, _, days = build_env_params(config)

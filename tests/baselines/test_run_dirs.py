@@ -91,6 +91,28 @@ def test_a_run_directory_another_live_process_writes_is_refused_naming_its_pid(t
         holder.wait(timeout=60)
 
 
+def test_a_replot_of_a_run_another_process_writes_is_refused(tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "results.json").write_text("{}")
+    holder = subprocess.Popen(
+        [sys.executable, "-c", HOLDER, str(out / ".lock")],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "holding"
+        with pytest.raises(FileExistsError, match=f"PID {holder.pid} on host"):
+            cli.main(["--replot", str(out), "--references", str(tmp_path / "refs")])
+        assert (out / "results.json").read_text() == "{}"
+    finally:
+        holder.stdin.close()
+        holder.wait(timeout=60)
+    with pytest.raises(FileNotFoundError, match="no results.json"):
+        cli.main(["--replot", str(tmp_path / "missing")])
+
+
 def test_a_stale_lock_is_taken_over_with_a_message(tmp_path, capsys):
     out = tmp_path / "run"
     out.mkdir()
