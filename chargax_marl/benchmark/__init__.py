@@ -17,6 +17,7 @@ from chargax_marl.benchmark.references import (
     compute_mpc,
     compute_references,
     load_references,
+    refill_bound,
     save_references,
 )
 from chargax_marl.benchmark.scoring import compare, get_normalized_score, score
@@ -35,6 +36,7 @@ __all__ = [
     "get_task",
     "load_references",
     "play",
+    "refill_bound",
     "save_references",
     "score",
 ]

@@ -9,6 +9,10 @@ parameters for the task. Rebuild with::
     python -m chargax_marl.benchmark.references                 # every task
     python -m chargax_marl.benchmark.references --task Chargax-shopping-v1
     python -m chargax_marl.benchmark.references --task Chargax-shopping-v1 --mpc   # add the MPC
+    python -m chargax_marl.benchmark.references --task Chargax-shopping-v1 --refill-bound
+
+``--refill-bound`` solves the stored LP bound's failed days again (`refill_bound`) and keeps
+every other number as stored.
 
 The MPC references (`MPC_REFERENCES`) solve an LP per step and are added on request to
 a stored file of the same parameters; each one's days are shared among ``--processes``
@@ -36,6 +40,7 @@ from chargax_marl.benchmark import protocol
 from chargax_marl.benchmark.tasks import TASKS, Task, get_task
 from chargax_marl.evaluation import METRICS, service_metrics
 from chargax_marl.optimal import bound_days
+from chargax_marl.optimal.model import FIRST_ATTEMPTS
 from chargax_marl.optimal.mpc import MPC
 from chargax_marl.policies import get_policy
 from chargax_marl.trace import params_fingerprint
@@ -131,7 +136,8 @@ def compute_references(
 
     Returns:
         The references as stored (``policies``: ``{name: {"daily_profit", "metrics"}}`` with
-        ``daily_profit`` a ``(days, draws)`` list; ``lp_bound`` also has ``status``).
+        ``daily_profit`` a ``(days, draws)`` list; ``lp_bound`` also has ``status``, per day
+        and draw, `bound_status`'s).
     """
     task = get_task(task)
     log = log or (lambda _line: None)
@@ -168,16 +174,7 @@ def compute_references(
                 profit[:, 0], status[:, 0] = stored, "optimal (make optimal)"
                 log(f"{task.id} {BOUND}: draw 1 from {reuse_dir}")
                 continue
-            for i, b in enumerate(
-                bound_days(
-                    params,
-                    days,
-                    day_keys=keys[:, r],
-                    reference=get_policy(ZERO, params),
-                    time_limit_s=time_limit_s,
-                )
-            ):
-                profit[i, r], status[i, r] = b.profit_eur, b.status
+            profit[:, r], status[:, r] = _bound_draw(params, days, keys[:, r], time_limit_s)
             log(f"{task.id} {BOUND}: draw {r + 1}/{task.draws} in {time.perf_counter() - t0:.0f} s")
         out["policies"][BOUND] = {
             "daily_profit": [[None if np.isnan(x) else float(x) for x in row] for row in profit],
@@ -187,6 +184,92 @@ def compute_references(
     return out
 
 
+def bound_status(b) -> str:
+    """The status a reference file stores for a day's bound: the solver's, and in brackets
+    the retry's settings where a retry solved it (e.g. ``"optimal (primal simplex)"``).
+
+    Args:
+        b: the day's `chargax_marl.optimal.Bound`.
+
+    Returns:
+        The status to store.
+    """
+    return b.status if not b.solved or b.attempt in FIRST_ATTEMPTS else f"{b.status} ({b.attempt})"
+
+
+def _bound_draw(params, days, day_keys, time_limit_s) -> tuple[np.ndarray, np.ndarray]:
+    """The LP bound of one draw on every one of ``days`` (keys ``day_keys``, one per day),
+    each day warm-started from the day before (`bound_days`): the profits (NaN where the
+    solve failed) and the statuses (`bound_status`)."""
+    bounds = bound_days(
+        params,
+        days,
+        day_keys=day_keys,
+        reference=get_policy(ZERO, params),
+        time_limit_s=time_limit_s,
+    )
+    return (
+        np.array([b.profit_eur for b in bounds], np.float64),
+        np.array([bound_status(b) for b in bounds], dtype=object),
+    )
+
+
+def refill_bound(
+    task: str | Task,
+    directory: str | Path | None = None,
+    *,
+    time_limit_s: float | None = 60.0,
+    log=print,
+) -> Path:
+    """Solve a task's stored LP bound again where it failed, and write the file back.
+
+    Each draw with a failed day is solved again whole, with `compute_references`' code,
+    so that every day starts from the basis a full rebuild gives it: a refilled day is the
+    full rebuild's. Only the failed days change; every other number stays as stored (the
+    log gives the largest difference of the days solved again to the stored ones).
+
+    Args:
+        task: a task id or `Task`.
+        directory: where the files live (default: the shipped `REFERENCES_DIR`).
+        time_limit_s: the LP's time limit per day and attempt.
+        log: called with a line of progress (``None``: silent).
+
+    Returns:
+        The path of the task's file (left as it is when no day failed).
+
+    Raises:
+        ReferenceMismatchError: no stored file for the task, or one of other parameters.
+    """
+    task = get_task(task)
+    log = log or (lambda _line: None)
+    refs = load_references(task, directory)  # checks the file belongs to the task on this code
+    stored = json.loads(reference_path(task, directory).read_text())
+    profit = refs["policies"][BOUND]["daily_profit"]
+    params, days, keys = task.make_params(), np.asarray(refs["days"]), task.day_keys()
+    entry = stored["policies"][BOUND]
+    draws = np.nonzero(np.isnan(profit).any(axis=0))[0]
+    if draws.size == 0:
+        log(f"{task.id} {BOUND}: no failed day")
+        return reference_path(task, directory)
+    for r in draws:
+        t0 = time.perf_counter()
+        new_profit, new_status = _bound_draw(params, days, keys[:, r], time_limit_s)
+        failed = np.isnan(profit[:, r])
+        for i in np.nonzero(failed)[0]:
+            x = new_profit[i]
+            entry["daily_profit"][i][r] = None if np.isnan(x) else float(x)
+            entry["status"][i][r] = new_status[i]
+            log(f"{task.id} {BOUND}: day {int(days[i])} draw {r + 1}: {new_status[i]}")
+        kept = ~failed & ~np.isnan(new_profit)
+        moved = np.max(np.abs(new_profit[kept] - profit[kept, r]), initial=0.0)
+        log(
+            f"{task.id} {BOUND}: draw {r + 1} solved again in {time.perf_counter() - t0:.0f} s; "
+            f"the other days within {moved:.2g} EUR of the stored ones"
+        )
+    _read.cache_clear()
+    return save_references(stored, directory)
+
+
 def _mpc_params(task: Task, num_levels: int | None):
     """The params an MPC reference acts in: the task's own (``None``) or ``num_levels``'."""
     return task.make_params() if num_levels is None else task.policy_params(num_levels)
@@ -194,15 +277,21 @@ def _mpc_params(task: Task, num_levels: int | None):
 
 def _mpc_part(task: str | Task, num_levels: int | None, day_index: np.ndarray) -> tuple:
     """The MPC on some of a task's held-out days (positions ``day_index``), every draw: its
-    totals (numpy leaves, ``(days, draws)``), the days with a failed solve and the number of
-    solves. Module-level, so that `compute_mpc` can run it in another process."""
+    totals (numpy leaves, ``(days, draws)``), the days with a failed solve, the number of
+    solves and the solves a retry solved by its settings (`MPC.retried_solves`).
+    Module-level, so that `compute_mpc` can run it in another process."""
     task = get_task(task)
     params = _mpc_params(task, num_levels)
     controller = MPC(params)
     totals = protocol.play(
         controller, params, task.eval_days()[day_index], task.day_keys()[day_index]
     )
-    return totals, sorted(int(d) for d in controller.failed_solves), int(controller.solves)
+    return (
+        totals,
+        sorted(int(d) for d in controller.failed_solves),
+        int(controller.solves),
+        dict(controller.retried_solves),
+    )
 
 
 def compute_mpc(
@@ -228,7 +317,8 @@ def compute_mpc(
     Returns:
         The reference as stored: ``daily_profit`` (a ``(days, draws)`` list, ``None`` on a day
         where a solve failed: a day with a failed solve is not the MPC's result), ``metrics``
-        (over every day played), ``failed_days``, ``solves`` and ``num_levels``.
+        (over every day played), ``failed_days``, ``solves``, ``retried_solves`` (the solves
+        that a retry with other settings solved, by those settings) and ``num_levels``.
 
     Raises:
         ValueError: ``processes`` is not a whole number >= 1, or is above 1 for a `Task` that
@@ -266,6 +356,10 @@ def compute_mpc(
         "metrics": secondary_metrics(totals),
         "failed_days": failed,
         "solves": sum(p[2] for p in parts),
+        "retried_solves": {
+            name: sum(p[3].get(name, 0) for p in parts)
+            for name in sorted(set().union(*(p[3] for p in parts)))
+        },
         "num_levels": int(_mpc_params(task, num_levels).num_levels),
     }
 
@@ -454,9 +548,19 @@ def main(argv=None) -> None:
         default=os.cpu_count() or 1,
         help="with --mpc: processes that share each reference's days (default: one per core)",
     )
+    parser.add_argument(
+        "--refill-bound",
+        action="store_true",
+        help="solve the stored LP bound's failed days again (each such draw whole, as a full "
+        "rebuild does); every other number stays as stored",
+    )
     args = parser.parse_args(argv)
     for task_id in args.task or list(TASKS):
         t0 = time.perf_counter()
+        if args.refill_bound:
+            path = refill_bound(task_id, args.out)
+            print(f"{path}: {time.perf_counter() - t0:.0f} s")
+            continue
         if args.mpc:
             only = None if args.mpc_only is None else [args.mpc_only]
             path = add_mpc(task_id, args.out, names=only, processes=args.processes)

@@ -214,8 +214,9 @@ class Bound:
     """The hindsight bound of one day: ``profit_eur`` (EUR), the solver's status and time,
     the reference's profit on the same day and the LP's size.
 
-    A day whose solve failed (`bound_days`) has ``status`` other than ``"optimal"``,
-    ``profit_eur`` and ``solve_s`` NaN, no ``solution`` and the solver's ``message``.
+    A day whose solve failed (`bound_days`) has ``status`` other than ``"optimal"`` (the
+    last attempt's), ``profit_eur`` and ``solve_s`` NaN, no ``solution``, the solver's
+    ``message`` and an empty ``attempt``.
 
     Attributes:
         profit_eur: the bound, the day's best profit (EUR), fixed cost included.
@@ -228,6 +229,9 @@ class Bound:
         solution: the solved LP (`chargax_marl.optimal.model.Solution`); None when the solve
             failed.
         message: the solver's message when the solve failed, else empty.
+        attempt: the solver settings that found the optimum
+            (`chargax_marl.optimal.model.attempt_settings`: ``"default"`` or ``"warm start"``
+            unless a retry did); empty when the solve failed.
     """
 
     profit_eur: float
@@ -239,6 +243,7 @@ class Bound:
     num_cars: int
     solution: Solution | None
     message: str = ""
+    attempt: str = ""
 
     @property
     def solved(self) -> bool:
@@ -263,7 +268,7 @@ def hindsight_bound(
         params: the environment parameters.
         trace: one day's trace.
         occ: the reference's occupancy of the same day (`occupancy`).
-        time_limit_s: HiGHS's time limit (seconds); None: none.
+        time_limit_s: HiGHS's time limit of each attempt (seconds); None: none.
         with_battery: False leaves the batteries out (no battery sessions, no calendar
             ageing): the bound of the same station and cars without its battery, so that
             the difference of the two is what the battery is worth at best.
@@ -278,7 +283,8 @@ def hindsight_bound(
 
     Raises:
         ValueError: the trace was not made for ``params``, or ``occ`` is of another day.
-        chargax_marl.optimal.model.SolverError: HiGHS finds no optimum (e.g. the time limit).
+        chargax_marl.optimal.model.SolverError: HiGHS finds no optimum with any of the
+            settings it tries (e.g. each hits the time limit).
     """
     trace_lib.check_trace(trace, params)
     if occ.day != int(trace.day):
@@ -311,6 +317,7 @@ def hindsight_bound(
         num_rows=sol.num_rows,
         num_cars=occ.sessions.size,
         solution=sol,
+        attempt=sol.attempt,
     )
 
 
@@ -329,11 +336,14 @@ def bound_days(
 
     Each day's LP starts from the optimal basis of the last day solved before it (the
     station's ports, nodes and steps are the same every day, so most of a basis carries
-    over); a warm-started solve that fails is solved again from scratch. The bounds are those
-    of solves from scratch, to the solver's tolerance.
+    over); a warm-started solve that fails is solved again from scratch, then with the other
+    settings of `chargax_marl.optimal.model.attempt_settings` (``Bound.attempt`` names the
+    one that solved it). The bounds are those of solves from scratch, to the solver's
+    tolerance.
 
-    A day whose LP fails or hits ``time_limit_s`` does not stop the others: its
-    `Bound` carries the solver's ``status`` and ``message`` and a NaN ``profit_eur``
+    A day whose LP fails or hits ``time_limit_s`` with every setting does not stop the
+    others: its `Bound` carries the last attempt's ``status``, the solver's ``message``
+    (naming each setting tried) and a NaN ``profit_eur``
     (never a number), so that every mean over days can leave it out
     (`chargax_marl.evaluation.summarize_profit`).
 
@@ -343,7 +353,7 @@ def bound_days(
         key: the evaluation key, split into one key per day; None: ``PRNGKey(0)``.
         reference: the policy whose occupancy is bounded, ``reference(state, key, params)
             -> levels``; default always-max.
-        time_limit_s: HiGHS's time limit per day (seconds); None: none.
+        time_limit_s: HiGHS's time limit per day and attempt (seconds); None: none.
         with_battery: as for `hindsight_bound`.
         day_keys: one key per day, in place of ``key``'s split, as in
             `chargax_marl.evaluation.run_days_keyed`.
@@ -370,8 +380,6 @@ def bound_days(
             keep_basis=warm_start,
         )
         b = _bound_or_failure(solve, basis, occ)
-        if not b.solved and basis is not None:
-            b = _bound_or_failure(solve, None, occ)  # a failed warm start, again from scratch
         if b.solved and b.solution.basis is not None:
             basis = b.solution.basis
         out.append(b)

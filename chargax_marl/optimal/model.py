@@ -62,12 +62,18 @@ class SolverError(RuntimeError):
     Args:
         message: what failed, with the problem's size.
         status: the solver's status (a value of `STATUS`, e.g. ``"time or iteration
-            limit"``), kept as ``.status`` so that callers can report it per day.
+            limit"``), kept as ``.status`` so that callers can report it per day; after
+            `solve_with_retries`, the last attempt's.
+        attempts: ``(name, status)`` of each setting tried (`attempt_settings`'s names), in
+            order; empty for a single run.
     """
 
-    def __init__(self, message: str, status: str = STATUS[4]):
+    def __init__(
+        self, message: str, status: str = STATUS[4], attempts: tuple[tuple[str, str], ...] = ()
+    ):
         super().__init__(message)
         self.status = status
+        self.attempts = tuple(attempts)
 
 
 @dataclass
@@ -162,7 +168,8 @@ class Solution:
     """A solved problem: ``value_eur`` is the money the LP books (the fixed cost excluded),
     ``net_kw[s, k]`` the net power of session ``s`` in its ``k``-th step (car side),
     ``soc_end`` the SoC of each session after its last step, ``basis`` the optimal basis when
-    asked for (``keep_basis``)."""
+    asked for (``keep_basis``), ``attempt`` the name of the solver settings that solved it
+    (`attempt_settings`: ``"warm start"`` or ``"default"`` unless a retry did)."""
 
     value_eur: float
     status: str
@@ -173,6 +180,7 @@ class Solution:
     soc_end: np.ndarray | None = None
     x: np.ndarray | None = None
     basis: Basis | None = None
+    attempt: str = "default"
 
 
 _MODEL_STATUS = {
@@ -189,19 +197,74 @@ _MODEL_STATUS = {
 _HIGHS = getattr(highspy, "_Highs", highspy.Highs)
 
 
-def new_highs(time_limit_s: float | None = None) -> highspy.Highs:
+LP_OPTIONS = {"presolve": "off", "simplex_dual_edge_weight_strategy": 1}
+"""HiGHS's options for an LP's first solve: the dual simplex (HiGHS's choice for an LP)
+without presolve, which on these problems costs more than it saves, and Devex pricing. A
+problem with integer columns keeps HiGHS's defaults."""
+
+FIRST_ATTEMPTS = ("warm start", "default")
+"""`attempt_settings`' names of a solve's own settings: from the basis it was given, and from
+scratch. Any other name is a retry."""
+
+
+def attempt_settings(first: dict, warm: bool = False) -> list[tuple[str, dict]]:
+    """The solver settings a solve tries in turn, until one reports an optimum.
+
+    Each attempt runs on a new solver object that holds the model and no basis (only
+    ``"warm start"`` is given one), so a retry never starts from the basis or the state of
+    the run that failed:
+
+    - ``"warm start"`` (only when ``warm``): ``first`` with presolve off, from the basis;
+    - ``"default"``: ``first``, from scratch;
+    - ``"presolve on"`` (``"presolve off"`` where ``first`` has it on): ``first`` with
+      presolve switched;
+    - ``"primal simplex"``: ``first`` with the primal simplex in place of the dual;
+    - ``"interior point"``: ``first`` with the interior-point method and crossover (a basic
+      solution at the end);
+    - ``"HiGHS defaults"``: none of ``first``, HiGHS's own defaults.
+
+    Args:
+        first: HiGHS options of the first attempt (e.g. `LP_OPTIONS`; ``{}`` for HiGHS's
+            defaults).
+        warm: whether the solve was given a basis to start from.
+
+    Returns:
+        ``(name, options)`` per attempt, in order.
+    """
+    presolved = first.get("presolve", "choose") != "off"
+    out = [("warm start", {**first, "presolve": "off"})] if warm else []
+    return out + [
+        ("default", dict(first)),
+        (
+            "presolve off" if presolved else "presolve on",
+            {**first, "presolve": "off" if presolved else "on"},
+        ),
+        ("primal simplex", {**first, "solver": "simplex", "simplex_strategy": 4}),
+        ("interior point", {**first, "solver": "ipm", "run_crossover": "on"}),
+        ("HiGHS defaults", {}),
+    ]
+
+
+def new_highs(time_limit_s: float | None = None, options: dict | None = None) -> highspy.Highs:
     """A silent HiGHS instance with this module's options.
 
     Args:
         time_limit_s: the wall-clock limit of each solve (seconds); None for none.
+        options: further HiGHS options by name (e.g. `LP_OPTIONS`); None for none.
 
     Returns:
         The solver, with no model yet.
+
+    Raises:
+        ValueError: HiGHS refuses an option's name or value.
     """
     h = _HIGHS()
     h.setOptionValue("output_flag", False)
     if time_limit_s is not None:
         h.setOptionValue("time_limit", float(time_limit_s))
+    for name, value in (options or {}).items():
+        if h.setOptionValue(name, value) == highspy.HighsStatus.kError:
+            raise ValueError(f"HiGHS refused option {name!r} = {value!r}")
     return h
 
 
@@ -286,6 +349,47 @@ def run_highs(h: highspy.Highs, num_cols: int, num_rows: int) -> tuple[str, np.n
         )
     x = np.asarray(h.getSolution().col_value, np.float64)
     return status, x, float(h.getInfo().objective_function_value)
+
+
+def solve_with_retries(
+    model: tuple,
+    first: dict,
+    time_limit_s: float | None = None,
+    basis: highspy.HighsBasis | None = None,
+) -> tuple[str, np.ndarray, float, highspy.Highs, str]:
+    """Solve ``model`` with the settings of `attempt_settings`, in turn, until one reports
+    an optimum.
+
+    Args:
+        model: `pass_model`'s arguments after the solver (costs, bounds, matrix, integrality).
+        first: HiGHS options of the first attempt (`attempt_settings`).
+        time_limit_s: HiGHS's wall-clock limit of each attempt (seconds); None for none.
+        basis: a basis for the first attempt (``"warm start"``); None for none.
+
+    Returns:
+        ``(status, x, objective, highs, attempt)``: `run_highs`'s first three, the solver
+        that found the optimum (to read its basis) and the name of its settings.
+
+    Raises:
+        SolverError: no attempt reports an optimum; its ``status`` is the last attempt's and
+            its ``attempts`` every attempt's, in order.
+    """
+    num_cols, num_rows = int(model[0].shape[0]), int(model[3].shape[0])
+    tried, last = [], None
+    for name, options in attempt_settings(first, warm=basis is not None):
+        h = new_highs(time_limit_s, options)
+        pass_model(h, *model)
+        if name == "warm start":
+            h.setBasis(basis)
+        try:
+            status, x, obj = run_highs(h, num_cols, num_rows)
+        except SolverError as exc:
+            tried.append((name, exc.status))
+            last = exc
+            continue
+        return status, x, obj, h, name
+    settings = ", ".join(f"{name}: {status}" for name, status in tried)
+    raise SolverError(f"{last} (settings tried: {settings})", tried[-1][1], tuple(tried))
 
 
 # HiGHS's basis statuses by their integer value (kLower, kBasic, kUpper, kZero, kNonbasic)
@@ -423,38 +527,40 @@ class _Builder:
         time_limit_s: float | None = None,
         col_status: np.ndarray | None = None,
         row_status: np.ndarray | None = None,
-    ) -> tuple[str, np.ndarray, float, float, highspy.Highs]:
+    ) -> tuple[str, np.ndarray, float, float, highspy.Highs, str]:
         """Solve with HiGHS: from scratch, or from a guessed basis.
 
-        An LP goes to the dual simplex without presolve, with Devex pricing (on these
-        problems presolve costs more than it saves); a problem with integer columns keeps
-        HiGHS's defaults.
+        An LP is first solved with `LP_OPTIONS`; a problem with integer columns with
+        HiGHS's defaults. A run that reports no optimum is tried again with the other
+        settings of `attempt_settings`, without the guessed basis (`solve_with_retries`).
 
         Args:
             maximise: maximise the cost (else minimise).
-            time_limit_s: HiGHS's wall-clock limit (seconds); None for none.
+            time_limit_s: HiGHS's wall-clock limit of each attempt (seconds); None for none.
             col_status: a guessed basis status per column (`highspy.HighsBasisStatus`
                 values), or None for a solve from scratch.
             row_status: the same per row (with ``col_status``).
 
         Returns:
-            ``(status, x, objective, solve_s, highs)``: the objective in the direction asked
-            for, ``solve_s`` the seconds spent in HiGHS (the model's hand-over included), and
-            the solver (to read its basis).
+            ``(status, x, objective, solve_s, highs, attempt)``: the objective in the
+            direction asked for, ``solve_s`` the seconds spent in HiGHS over every attempt
+            (the model's hand-over included), the solver (to read its basis) and the name of
+            the settings that solved it (`attempt_settings`).
 
         Raises:
-            SolverError: no optimum.
+            SolverError: no optimum with any of the settings.
         """
         c = _cat(self.cost)
         start, index, value = self.matrix()
         integer = _cat(self.integer, bool)
-        h = new_highs(time_limit_s)
-        if not integer.any():
-            h.setOptionValue("presolve", "off")
-            h.setOptionValue("simplex_dual_edge_weight_strategy", 1)  # Devex
-        t0 = time.perf_counter()
-        pass_model(
-            h,
+        basis = None
+        if col_status is not None:
+            # an alien basis: HiGHS completes or repairs it
+            basis = highspy.HighsBasis()
+            basis.col_status = _BASIS_STATUS[col_status].tolist()
+            basis.row_status = _BASIS_STATUS[row_status].tolist()
+            basis.alien = True
+        model = (
             -c if maximise else c,
             _cat(self.lb),
             _cat(self.ub),
@@ -465,16 +571,10 @@ class _Builder:
             value,
             integer,
         )
-        if col_status is not None:
-            # an alien basis: HiGHS completes or repairs it
-            h.setOptionValue("presolve", "off")
-            basis = highspy.HighsBasis()
-            basis.col_status = _BASIS_STATUS[col_status].tolist()
-            basis.row_status = _BASIS_STATUS[row_status].tolist()
-            basis.alien = True
-            h.setBasis(basis)
-        status, x, obj = run_highs(h, self.n, self.m)
-        return status, x, (-obj if maximise else obj), time.perf_counter() - t0, h
+        first = {} if integer.any() else LP_OPTIONS
+        t0 = time.perf_counter()
+        status, x, obj, h, attempt = solve_with_retries(model, first, time_limit_s, basis)
+        return status, x, (-obj if maximise else obj), time.perf_counter() - t0, h, attempt
 
 
 @dataclass
@@ -577,13 +677,18 @@ def build_and_solve(
     sessions cannot overload in a step, a rate curve a car never reaches) are left out, which
     does not change the LP's optimum.
 
+    A solve that reports no optimum is tried again with other settings, in the order of
+    `attempt_settings` (presolve switched, the primal simplex, the interior-point method,
+    HiGHS's defaults), each from scratch; `Solution.attempt` names the settings that solved
+    it.
+
     Args:
         sessions: the cars and batteries; a session with ``last < first`` is empty.
         num_steps: the problem's steps.
         limits: the station's limits.
         econ: the steps' prices and the profit's constants.
         charged_tolerance_kwh: how far below its target a must-reach session may end.
-        time_limit_s: HiGHS's wall-clock limit (seconds); None for none.
+        time_limit_s: HiGHS's wall-clock limit of each attempt (seconds); None for none.
         occupancy_vars: (used by the MILP) maps a session index to a binary variable of
             ``builder`` that multiplies its power limits (the session exists only when the
             binary is 1).
@@ -596,14 +701,16 @@ def build_and_solve(
         warm_start: the basis of an earlier problem (e.g. the MPC's previous step): HiGHS
             starts from it where the keys (kind, leaf or node, day's step) match. The
             optimum's value is the same; where several plans are optimal, the plan may differ
-            from a solve from scratch.
+            from a solve from scratch. A warm start that fails is solved again from scratch
+            (``"default"``), then with the other settings.
         keep_basis: return the optimal basis in `Solution.basis`.
 
     Returns:
         The optimum: its value, each session's net power per step and end SoC.
 
     Raises:
-        SolverError: HiGHS does not report an optimum.
+        SolverError: HiGHS reports no optimum with any of the settings (its ``status`` is
+            the last attempt's, its ``attempts`` each attempt's).
         ValueError: ``warm_start`` or ``keep_basis`` with ``builder`` or ``occupancy_vars``
             (the MILP's columns and rows have no keys).
     """
@@ -738,7 +845,7 @@ def build_and_solve(
             ]
         )
     guess = (None, None) if warm_start is None else warm_start.guess(col_key, row_key)
-    _, xsol, value_eur, solve_s, h = b.solve(
+    _, xsol, value_eur, solve_s, h, attempt = b.solve(
         time_limit_s=time_limit_s, col_status=guess[0], row_status=guess[1]
     )
     pm_full = np.zeros(num_cells)
@@ -759,6 +866,7 @@ def build_and_solve(
         soc_end=soc_end,
         x=xsol,
         basis=Basis.read(h, b, col_key, row_key) if keep_basis else None,
+        attempt=attempt,
     )
 
 

@@ -31,10 +31,10 @@ from chargax_marl.core import reward as reward_lib
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState
 from chargax_marl.optimal.model import (
+    FIRST_ATTEMPTS,
     STATUS,
     Economics,
     Sessions,
-    SolverError,
     StationLimits,
     build_and_solve,
 )
@@ -61,13 +61,18 @@ class MPC:
 
     ``horizon_hours`` (default 4) sets the look-ahead; ``resolve_every`` re-solves every k
     steps and in between applies the stored plan as long as the cars and SoCs are those the
-    plan predicted (any difference re-solves). ``time_limit_s`` bounds each solve; a solve
-    that fails (or hits the limit) falls back to charging every car at full power and idling
-    the batteries for that step, is counted in ``failures`` and is recorded with its day, step
-    and solver status in ``failed_solves`` (``{day: [(step, status), ...]}``): a day with
-    one is not the MPC's result and is scored as failed, not as a profit
-    (``baselines.eval.references.evaluate_mpc``). Any other error of the host-side step is
-    raised through ``jax.pure_callback`` as a ``RuntimeError`` naming the day and the step.
+    plan predicted (any difference re-solves). ``time_limit_s`` bounds each attempt of a
+    solve. A solve that reports no optimum is tried again with other settings
+    (`chargax_marl.optimal.model.attempt_settings`: presolve switched, the primal simplex,
+    the interior-point method, HiGHS's defaults, each from scratch); ``retried_solves``
+    counts the solves a retry solved, by the settings that did. A solve that fails with
+    every setting (or hits the limit with each) falls back to charging every car at full
+    power and idling the batteries for that step, is counted in ``failures`` and is recorded
+    with its day, step and the last attempt's solver status in ``failed_solves`` (``{day:
+    [(step, status), ...]}``): a day with one is not the MPC's result and is scored as
+    failed, not as a profit (``baselines.eval.references.evaluate_mpc``). Any other error of
+    the host-side step is raised through ``jax.pure_callback`` as a ``RuntimeError`` naming
+    the day and the step.
 
     A charge-sensitive car frees its port when it is charged, which only matters for cars
     the controller cannot see yet; ``urgency_eur_kwh_h`` (default 0.1 EUR/kWh per hour)
@@ -82,8 +87,9 @@ class MPC:
     ``warm_start=False``. The bases (and the plans of ``resolve_every``) are kept per env:
     per day and per position in the vmapped batch, which stays the same from step to step.
     So each env starts from its own previous basis, and its decisions do not depend on the
-    days and car draws that run beside it. A warm-started solve that fails is solved again
-    from scratch (counted in ``warm_retries``) before it counts as a failure.
+    days and car draws that run beside it. A warm-started solve that the warm start does not
+    solve is counted in ``warm_retries`` and solved again from scratch, then with the other
+    settings, before it counts as a failure.
     """
 
     def __init__(
@@ -146,6 +152,7 @@ class MPC:
         self._plans: dict = {}
         self.warm_start = bool(warm_start)
         self.warm_retries = 0
+        self.retried_solves: dict[str, int] = {}
         self._bases: dict = {}  # (day, slot) -> (step of the solve, its optimal Basis)
         self._slot = 0  # the position in the batch of the state being solved
 
@@ -232,19 +239,16 @@ class MPC:
             keep_basis=self.warm_start,
         )
         try:
-            try:
-                sol = solve(None if warm is None else warm[1])
-            except SolverError:
-                if warm is None:
-                    raise
-                self.warm_retries += 1  # a failed warm start is solved again from scratch
-                sol = solve(None)
+            sol = solve(None if warm is None else warm[1])
         except RuntimeError as exc:  # SolverError
+            self.warm_retries += warm is not None
             self.failures += 1
-            status = getattr(exc, "status", STATUS[4])
-            self.failed_solves.setdefault(day, []).append((t, status))
+            self.failed_solves.setdefault(day, []).append((t, getattr(exc, "status", STATUS[4])))
             out[:, ~self.is_battery] = self.limits.charge_kw[~self.is_battery]
             return out
+        self.warm_retries += warm is not None and sol.attempt != "warm start"
+        if sol.attempt not in FIRST_ATTEMPTS:
+            self.retried_solves[sol.attempt] = self.retried_solves.get(sol.attempt, 0) + 1
         self.solve_s += sol.solve_s
         if sol.basis is not None and t + 1 < self.num_steps:  # the day's last step keeps none
             self._bases[(day, self._slot)] = (t, sol.basis)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import shutil
 
 import jax
@@ -22,11 +23,12 @@ from chargax_marl.benchmark import (
     get_normalized_score,
     load_references,
     protocol,
+    refill_bound,
     save_references,
     score,
 )
 from chargax_marl.benchmark.picture import day_picture
-from chargax_marl.benchmark.references import BOUND, MPC_REFERENCES, ZERO
+from chargax_marl.benchmark.references import BOUND, MPC_REFERENCES, ZERO, reference_path
 from chargax_marl.core import Battery, Port, Splitter, make_params
 from chargax_marl.core.observation import context_index, context_size, obs_size
 from chargax_marl.core.station import KIND_BATTERY
@@ -223,6 +225,26 @@ def test_mpc_references_are_added_and_compared_on_the_days_they_have(small_task,
     assert result["vs"]["mpc"]["mean"] == 0.0
     with pytest.raises(ValueError, match="field 'names' must name"):
         add_mpc(task, work, log=None, names=["mpc_levels2"])
+
+
+def test_a_refilled_bound_day_is_the_full_rebuild_s(small_task, tmp_path):
+    # a day stored as failed is solved again with its whole draw: it gets the number the
+    # full build stored, and nothing else in the file moves
+    task, directory = small_task
+    work = tmp_path / "refs"
+    shutil.copytree(directory, work)
+    path = reference_path(task, work)
+    full = json.loads(path.read_text())
+    holed = json.loads(path.read_text())
+    holed["policies"][BOUND]["daily_profit"][1][1] = None
+    holed["policies"][BOUND]["status"][1][1] = "other solver error"
+    save_references(holed, work)
+    assert np.isnan(load_references(task, work)["policies"][BOUND]["daily_profit"][1, 1])
+    assert refill_bound(task, work, log=None) == path
+    assert json.loads(path.read_text()) == full
+    before = path.stat().st_mtime_ns
+    refill_bound(task, work, log=None)  # nothing failed: the file is left alone
+    assert path.stat().st_mtime_ns == before
 
 
 def test_an_mpc_day_with_a_failed_solve_is_stored_without_a_profit(small_task, monkeypatch):

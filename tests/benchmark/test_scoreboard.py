@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from chargax_marl.benchmark import scoreboard
+from chargax_marl.benchmark.references import BOUND, reference_path, save_references
 
 ROOT = Path(__file__).resolve().parents[2]
 SCORES = ROOT / "results" / "scores"
@@ -35,12 +36,18 @@ def test_embed_replaces_only_the_block():
         scoreboard.embedded("no block")
 
 
-def test_a_cell_says_how_many_days_it_rests_on_when_days_were_left_out():
+def test_a_cell_says_how_many_days_it_rests_on_when_days_were_left_out(tmp_path):
     result = {"score": 0.5, "score_stderr": 0.1, "over_always_max_eur": {"mean": 3.0}}
     assert scoreboard._cell({**result, "days_scored": 100}, 100) == "0.50 ± 0.10 (+3.0)"
     assert (
         scoreboard._cell({**result, "days_scored": 98}, 99) == "0.50 ± 0.10 (+3.0; 98 of 99 days)"
     )
-    # the LP bound of the 10 % grid task failed on one day: every score there rests on 99
-    assert scoreboard._scored_days("Chargax-shopping-grid10-high-v1") == 99
-    assert scoreboard._scored_days("Chargax-shopping-v1") == 100
+    # the shipped LP bound has every day of every task
+    for task_id in scoreboard.TASKS:
+        assert scoreboard._scored_days(task_id) == 100
+    # a day whose bound solve failed has no headroom: every score of the task rests on 99
+    task_id = "Chargax-shopping-grid10-high-v1"
+    refs = json.loads(reference_path(task_id).read_text())
+    refs["policies"][BOUND]["daily_profit"][44][7] = None
+    save_references(refs, tmp_path)
+    assert scoreboard._scored_days(task_id, tmp_path) == 99

@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 
 from chargax_marl import evaluation, optimal, policies, trace
 from chargax_marl.benchmark import protocol
+from chargax_marl.benchmark import references as references_module
 from chargax_marl.core import simulator
 from chargax_marl.core.params import make_params
 from chargax_marl.core.station import Battery, Port, Splitter
@@ -389,10 +390,11 @@ def test_a_full_day_mpc_reaches_the_bound_when_no_car_arrives_later(action_mode,
 # --- solver failures --------------------------------------------------------------------
 
 LIMIT = "time or iteration limit"
+STATUS_ERROR = "other solver error"
 
 
 def test_a_failed_lp_day_is_reported_and_kept_out_of_every_mean(monkeypatch):
-    # the second day's LP hits its time limit, warm-started and again from scratch: it is
+    # the second day's LP hits its time limit (with every setting the model tries): it is
     # reported with its status, its profit is NaN (not a number to average) and the means and
     # the headroom use the first day only
     params = hand_params(ONE_PORT, [0.2] * 24, step_minutes=60.0)
@@ -407,7 +409,7 @@ def test_a_failed_lp_day_is_reported_and_kept_out_of_every_mean(monkeypatch):
     monkeypatch.setattr(bound_module, "build_and_solve", second_day_fails)
     res = evaluation.hindsight_bound(params, np.array([0, 1]))
     bound, ref = res["daily_profit"], res["reference_daily_profit"]
-    assert calls == [False, True, False]  # day 1: warm, then from scratch
+    assert calls == [False, True]  # day 1 warm-started; the model itself retries
     assert res["status"] == ["optimal", LIMIT]
     assert res["failed_days"] == [{"day": 1, "status": LIMIT}]
     assert np.isfinite(bound[0]) and np.isnan(bound[1]) and np.isfinite(ref).all()
@@ -448,24 +450,134 @@ def test_an_mpc_solve_that_fails_is_recorded_with_its_day_step_and_status(monkey
     assert mpc.failures == 1 and mpc.failed_solves == {1: [(5, LIMIT)]}
 
 
+def _fail_from_a_basis(monkeypatch, status=STATUS_ERROR):
+    """Make every HiGHS run that starts from a basis end in ``status``; returns the list of
+    whether each run had one."""
+    real, runs = model_module.run_highs, []
+
+    def run(h, num_cols, num_rows):
+        runs.append(bool(h.getBasis().valid))
+        if runs[-1]:
+            raise optimal.SolverError(f"HiGHS did not solve the problem: {status}", status)
+        return real(h, num_cols, num_rows)
+
+    monkeypatch.setattr(model_module, "run_highs", run)
+    return runs
+
+
 def test_a_failed_warm_start_is_solved_again_from_scratch(monkeypatch):
-    # every warm-started solve fails: each is solved again cold, and no step falls back
+    # every warm-started solve fails: each is solved again without the basis, and no step
+    # falls back
     params = hand_params(ONE_PORT, [0.2] * 24, step_minutes=60.0)
     state = simulator.empty_state(jnp.asarray(1), params)
     state = place_car(state, 0, soc=0.2, remaining_kwh=20.0, time_min=600.0)
-    real = mpc_module.build_and_solve
-
-    def warm_fails(*args, **kwargs):
-        if kwargs.get("warm_start") is not None:
-            raise optimal.SolverError(f"HiGHS did not solve the problem: {LIMIT}", LIMIT)
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(mpc_module, "build_and_solve", warm_fails)
+    runs = _fail_from_a_basis(monkeypatch)
     mpc = MPC(params)
     act = jax.jit(lambda s: mpc(s, KEY, params))
     for t in range(3):
         jax.block_until_ready(act(state.replace(timestep=jnp.asarray(t))))
     assert mpc.solves == 3 and mpc.warm_retries == 2 and mpc.failures == 0
+    assert runs == [False, True, False, True, False]  # each retry without the basis
+    assert mpc.retried_solves == {}  # solved by its own settings from scratch
+
+
+RETRIED = [
+    # (runs that fail first, the attempt that solves, its options)
+    (1, "presolve on", {"presolve": "on", "simplex_dual_edge_weight_strategy": 1}),
+    (2, "primal simplex", {"presolve": "off", "solver": "simplex", "simplex_strategy": 4}),
+    (3, "interior point", {"presolve": "off", "solver": "ipm", "run_crossover": "on"}),
+    (4, "HiGHS defaults", {"presolve": "choose", "simplex_dual_edge_weight_strategy": -1}),
+]
+
+
+def _one_car_day():
+    params = hand_params(ONE_PORT, [1.0] * 6 + [0.1] * 18)
+    car = dict(
+        arrival_step=48,
+        capacity_kwh=60.0,
+        dc_kw=50.0,
+        tau=0.99,
+        arrival_soc=0.2,
+        target_soc=0.6,
+        stay_min=240.0,
+    )
+    return params, trace.trace_from_cars(params, [car])
+
+
+@pytest.mark.parametrize("failing,attempt,options", RETRIED)
+def test_a_failed_highs_run_is_retried_with_other_settings(monkeypatch, failing, attempt, options):
+    # HiGHS ends the first runs in an error; the next settings solve the day to the value a
+    # clean solve gets, and the bound says which settings did
+    params, tr = _one_car_day()
+    occ = optimal.occupancy(params, tr, KEY)
+    clean = optimal.hindsight_bound(params, tr, occ)
+    real, runs = model_module.run_highs, []
+
+    def run(h, num_cols, num_rows):
+        runs.append({k: h.getOptionValue(k)[1] for k in options})
+        if len(runs) <= failing:
+            raise optimal.SolverError(f"HiGHS did not solve the problem: {STATUS_ERROR}")
+        return real(h, num_cols, num_rows)
+
+    monkeypatch.setattr(model_module, "run_highs", run)
+    bound = optimal.hindsight_bound(params, tr, occ)
+    assert bound.status == "optimal" and bound.attempt == attempt
+    assert bound.solution.attempt == attempt
+    assert len(runs) == failing + 1 and runs[-1] == options
+    assert bound.profit_eur == pytest.approx(clean.profit_eur, abs=1e-6)
+    assert clean.attempt == "default"
+    assert references_module.bound_status(bound) == f"optimal ({attempt})"
+    assert references_module.bound_status(clean) == "optimal"
+
+
+def test_a_day_that_fails_every_setting_keeps_the_last_status(monkeypatch):
+    # the first day solves; every run of the second day fails, the last one as infeasible:
+    # the day is reported with that status and each setting tried is named
+    params = hand_params(ONE_PORT, [0.2] * 24, step_minutes=60.0)
+    names = [name for name, _ in model_module.attempt_settings(model_module.LP_OPTIONS, warm=True)]
+    real, runs = model_module.run_highs, []
+
+    def run(h, num_cols, num_rows):
+        runs.append(h)
+        if len(runs) == 1:
+            return real(h, num_cols, num_rows)
+        status = "infeasible" if len(runs) == 1 + len(names) else STATUS_ERROR
+        raise optimal.SolverError(f"HiGHS did not solve the problem: {status}", status)
+
+    monkeypatch.setattr(model_module, "run_highs", run)
+    first, second = bound_module.bound_days(params, np.array([0, 1]))
+    assert first.solved and first.attempt == "default"
+    assert len(runs) == 1 + len(names) and names[0] == "warm start"
+    assert second.status == "infeasible" and np.isnan(second.profit_eur)
+    assert second.attempt == "" and second.solution is None
+    assert all(f"{name}: " in second.message for name in names)
+    assert references_module.bound_status(second) == "infeasible"
+    runs.clear()
+    res = evaluation.hindsight_bound(params, np.array([0, 1]))
+    assert res["status"] == ["optimal", "infeasible"]
+    assert res["failed_days"] == [{"day": 1, "status": "infeasible"}]
+
+
+def test_a_solve_that_fails_every_setting_raises_with_each_attempt(monkeypatch):
+    params, tr = _one_car_day()
+    occ = optimal.occupancy(params, tr, KEY)
+    statuses = iter([STATUS_ERROR, STATUS_ERROR, STATUS_ERROR, STATUS_ERROR, LIMIT])
+
+    def run(h, num_cols, num_rows):
+        status = next(statuses)
+        raise optimal.SolverError(f"HiGHS did not solve the problem: {status}", status)
+
+    monkeypatch.setattr(model_module, "run_highs", run)
+    with pytest.raises(optimal.SolverError) as info:
+        optimal.hindsight_bound(params, tr, occ)
+    assert info.value.status == LIMIT
+    assert info.value.attempts == (
+        ("default", STATUS_ERROR),
+        ("presolve on", STATUS_ERROR),
+        ("primal simplex", STATUS_ERROR),
+        ("interior point", STATUS_ERROR),
+        ("HiGHS defaults", LIMIT),
+    )
 
 
 def test_each_bound_day_starts_from_the_previous_day_s_basis_and_keeps_its_value(
@@ -490,14 +602,12 @@ def test_each_bound_day_starts_from_the_previous_day_s_basis_and_keeps_its_value
         [b.profit_eur for b in warm], [b.profit_eur for b in cold], rtol=1e-9, atol=1e-9
     )
 
-    def warm_fails(*args, **kwargs):
-        if kwargs["warm_start"] is not None:
-            raise optimal.SolverError(f"HiGHS did not solve the problem: {LIMIT}", LIMIT)
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(bound_module, "build_and_solve", warm_fails)
+    monkeypatch.setattr(bound_module, "build_and_solve", real)
+    runs = _fail_from_a_basis(monkeypatch, LIMIT)
     again = bound_module.bound_days(small_params, days)
+    assert runs == [False] + [True, False] * 3  # each failed warm start, again from scratch
     assert [b.profit_eur for b in again] == [b.profit_eur for b in cold]
+    assert [b.attempt for b in again] == ["default"] * 4
 
 
 # --- reporting --------------------------------------------------------------------------
