@@ -253,7 +253,12 @@ def price_threshold(
     return jnp.where(_is_battery(params), battery, ports).astype(jnp.int32)
 
 
-def _greedy_under_limits(priority: jnp.ndarray, state: EnvState, params: EnvParams) -> jnp.ndarray:
+def fill_in_priority_order(
+    priority: jnp.ndarray,
+    state: EnvState,
+    params: EnvParams,
+    headroom_kw: jnp.ndarray | None = None,
+) -> jnp.ndarray:
     """Give cars power in order of ``priority`` (lower first), each as much as its rate,
     its port and the remaining headroom of every node on its path allow, as a level.
 
@@ -261,7 +266,20 @@ def _greedy_under_limits(priority: jnp.ndarray, state: EnvState, params: EnvPara
     grant the car itself limits is rounded up (the car's curve and target clip the rest), so a
     car close to its target still finishes. Each car takes from its nodes' headroom what it
     will draw at its level, not its unrounded grant: with few levels (``num_levels`` 1) a
-    node-bound car rounds to idle, and the power it does not draw stays for the cars after it."""
+    node-bound car rounds to idle, and the power it does not draw stays for the cars after it.
+
+    Args:
+        priority: ``(num_leaves,)`` the order of service (lower first); ``inf`` for a leaf
+            that gets nothing (an empty port, a battery, a car that is not to charge).
+        state: the simulator state (one day, unbatched).
+        params: the environment parameters.
+        headroom_kw: ``(num_nodes,)`` grid-side kW each node may still pass before the cars
+            are served (what other leaves already take is kept from them); None: every node's
+            limit (``params.station.node_max_kw``).
+
+    Returns:
+        ``(num_leaves,)`` int32 levels in ``[0, L]``, 0 where ``priority`` is ``inf``.
+    """
     st = params.station
     want_kw = jnp.minimum(
         st.leaf_max_kw, physics.rate_curve_kw(state.soc, state.max_rate_kw, state.tau)
@@ -269,8 +287,9 @@ def _greedy_under_limits(priority: jnp.ndarray, state: EnvState, params: EnvPara
     room_kw = (
         jnp.maximum((state.target_soc - state.soc) * state.capacity_kwh, 0.0) / params.step_hours
     )
-    want_kw = jnp.where(state.occupied & ~_is_battery(params), jnp.minimum(want_kw, room_kw), 0.0)
-    headroom = st.node_max_kw  # grid-side kW each node may still pass
+    served = state.occupied & ~_is_battery(params) & jnp.isfinite(priority)
+    want_kw = jnp.where(served, jnp.minimum(want_kw, room_kw), 0.0)
+    headroom = st.node_max_kw if headroom_kw is None else headroom_kw
     ancestors = st.node_of_leaf_at_depth.T  # (L, D), -1 = none
     path_eff = (
         st.leaf_efficiency_at_depth.T
@@ -310,7 +329,7 @@ def earliest_deadline_first(state: EnvState, key: jax.Array, params: EnvParams) 
     """
     del key
     priority = jnp.where(state.occupied & ~_is_battery(params), state.time_remaining_min, jnp.inf)
-    return _greedy_under_limits(priority, state, params)
+    return fill_in_priority_order(priority, state, params)
 
 
 def least_laxity_first(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarray:
@@ -330,7 +349,7 @@ def least_laxity_first(state: EnvState, key: jax.Array, params: EnvParams) -> jn
     needed_min = jnp.maximum(state.energy_remaining_kwh, 0.0) / rate_kw * 60.0
     laxity = state.time_remaining_min - needed_min
     priority = jnp.where(state.occupied & ~_is_battery(params), laxity, jnp.inf)
-    return _greedy_under_limits(priority, state, params)
+    return fill_in_priority_order(priority, state, params)
 
 
 POLICIES: dict[str, Policy] = {

@@ -5,15 +5,17 @@ params)``, ``step(key, state, action, params)``) or the JaxMARL view
 call signatures, forwards every other attribute, and is jit and vmap friendly. The teachers'
 tables are built from the env's own params (its days and prices).
 
-Reward shaping (potential-based, Ng, Harada and Russell 1999): `BatteryShaping`,
-`CarPlanShaping`. A fairness objective: `FairnessReward`. Observation features: `PlanAdviceObservation`,
-`RelativePriceObservation`. A JaxMARL stack::
+Actions that fill the nodes' capacity in priority order (JaxMARL view): `PriorityFill`,
+`priority_fill_levels`. Reward shaping (potential-based, Ng, Harada and Russell 1999):
+`BatteryShaping`, `CarPlanShaping`. A fairness objective: `FairnessReward`. Observation
+features: `PlanAdviceObservation`, `RelativePriceObservation`. A JaxMARL stack::
 
     env = ChargaxMARL(params=params, local_reward_weight=1.0)
     env = RelativePriceObservation(PlanAdviceObservation(CarPlanShaping(BatteryShaping(env))))
     env = LogWrapper(env)  # chargax_marl.marl.LogWrapper
 """
 
+from chargax_marl.wrappers.actions import PriorityFill, priority_fill_levels
 from chargax_marl.wrappers.fairness import FairnessReward
 from chargax_marl.wrappers.observations import (
     ObservationFeatures,
@@ -28,5 +30,7 @@ __all__ = [
     "FairnessReward",
     "ObservationFeatures",
     "PlanAdviceObservation",
+    "PriorityFill",
     "RelativePriceObservation",
+    "priority_fill_levels",
 ]

@@ -1,0 +1,136 @@
+"""``PriorityFill``: on hand-made stations a node that holds two cars of three serves the two
+with the highest priority fully, ties go to the car that leaves first (earliest-deadline-first
+when every agent asks for full power), the batteries' charging is kept from the ports, idle
+and discharging actions pass unchanged, and the wrapped env still keeps JaxMARL's contract."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jaxmarl.wrappers.baselines import LogWrapper as JaxMARLLogWrapper
+
+from chargax_marl.core import Battery, Port, Splitter, make_params
+from chargax_marl.marl import ChargaxMARL
+from chargax_marl.policies import earliest_deadline_first
+from chargax_marl.single import Chargax
+from chargax_marl.wrappers import PriorityFill, priority_fill_levels
+from tests.helpers import no_arrivals, place_car, start
+
+KEY = jax.random.PRNGKey(0)
+L = 10
+PORT_KW = 50.0  # 500 V x 100 A
+
+
+def station(battery: bool = False, v2g_current_a: float = 0.0) -> Splitter:
+    """Three 50 kW ports (lossless) on a connection that holds two of them at full power, and
+    optionally a 50 kW battery."""
+    ports = tuple(Port(f"p{i}", "DC", 500.0, 100.0, v2g_current_a, 1.0) for i in range(3))
+    extra = (Battery("bat", capacity_kwh=200.0, max_kw=50.0, efficiency=0.95, initial_soc=0.2),)
+    # a little over two ports: a port's power is 50 kW to float32 rounding (50.000004)
+    return Splitter("grid", 2 * PORT_KW + 0.01, ports + (extra if battery else ()), 1.0)
+
+
+def parked(params, minutes=(600.0, 600.0, 600.0)):
+    """A car on each port, far from full, leaving after ``minutes``."""
+    state = start(params)
+    for i, m in enumerate(minutes):
+        state = place_car(
+            state,
+            i,
+            soc=0.1,
+            capacity_kwh=200.0,
+            max_rate_kw=100.0,
+            remaining_kwh=150.0,
+            time_min=m,
+        )
+    return state
+
+
+def params_of(**kwargs):
+    return no_arrivals(make_params(step_minutes=60.0, num_levels=L, **kwargs))
+
+
+def step_both(params, state, levels):
+    """The stepped infos through the plain view and through `PriorityFill`, same actions."""
+    env = ChargaxMARL(params=params)
+    actions = env.levels_to_actions(jnp.asarray(levels, jnp.int32))
+    plain = env.step_env(KEY, state, actions)[-1]
+    filled = PriorityFill(env).step(KEY, state, actions)[-1]
+    return plain, filled
+
+
+def test_a_node_that_holds_two_cars_of_three_serves_the_two_highest_priorities_fully():
+    params = params_of(station=station(), v2g=False)
+    state = parked(params)
+    asked = jnp.asarray([3, L, L], jnp.int32)
+    np.testing.assert_array_equal(priority_fill_levels(asked, state, params), [0, L, L])
+    plain, filled = step_both(params, state, asked)
+    # the view rescales all three to the node's limit: 115 kW asked of 100
+    assert float(plain["requested_excess_kw"][0]) > 0.0
+    np.testing.assert_allclose(
+        plain["agent_energy_kwh"], np.array([15, 50, 50]) * 100.01 / 115, 1e-4
+    )
+    # the fill serves the two priorities of L at full power and nothing is rescaled
+    assert float(filled["requested_excess_kw"][0]) == 0.0
+    np.testing.assert_allclose(filled["agent_energy_kwh"], [0.0, PORT_KW, PORT_KW], atol=1e-3)
+
+
+def test_ties_go_to_the_car_that_leaves_first_which_is_edf_at_full_power():
+    params = params_of(station=station(), v2g=False)
+    state = parked(params, minutes=(300.0, 200.0, 400.0))
+    full = jnp.full(3, L, jnp.int32)
+    filled = priority_fill_levels(full, state, params)
+    np.testing.assert_array_equal(filled, [L, L, 0])
+    np.testing.assert_array_equal(filled, earliest_deadline_first(state, KEY, params))
+    # a higher priority beats an earlier departure
+    np.testing.assert_array_equal(
+        priority_fill_levels(jnp.asarray([L, L - 1, L]), state, params), [L, 0, L]
+    )
+
+
+def test_the_batteries_charging_is_kept_from_the_ports():
+    params = params_of(station=station(battery=True), v2g=False)
+    state = parked(params)
+    asked = jnp.asarray([L, L, L, L], jnp.int32)  # the battery charges at full power too
+    levels = priority_fill_levels(asked, state, params)
+    assert int(levels[3]) == L  # the battery's level is played as given
+    # 50 / 0.95 kW grid side for the battery leaves 47.4 kW: the first port rounds down to 9
+    # levels (45 kW), and the 2.4 kW left are less than a level of the next
+    np.testing.assert_array_equal(levels[:3], [9, 0, 0])
+    plain, filled = step_both(params, state, asked)
+    assert float(plain["requested_excess_kw"][0]) > 0.0
+    assert float(filled["requested_excess_kw"][0]) == 0.0
+
+
+def test_idle_and_discharging_actions_pass_unchanged():
+    params = params_of(station=station(v2g_current_a=100.0), v2g=True)
+    state = parked(params)
+    asked = jnp.asarray([-5, 0, L], jnp.int32)
+    np.testing.assert_array_equal(priority_fill_levels(asked, state, params), asked)
+
+
+def test_the_dict_and_array_steps_agree_and_keep_jaxmarls_info_contract():
+    env = ChargaxMARL(station=station(battery=True), step_minutes=60.0, traffic=150.0)
+    wrapped = PriorityFill(env)
+    obs, state = wrapped.reset(KEY)
+    for _ in range(5):  # a few busy steps
+        indices = jnp.asarray([env.num_actions - 1] * env.num_agents)
+        actions = dict(zip(env.agents, indices))
+        d_obs, d_state, d_rew, d_done, d_info = wrapped.step(KEY, state, actions)
+        a_obs, a_state, a_rew, a_done, a_info = wrapped.step_arrays(KEY, state, indices)
+        np.testing.assert_allclose(a_obs, jnp.stack([d_obs[a] for a in env.agents]), 1e-6)
+        np.testing.assert_allclose(a_info["agent_energy_kwh"], d_info["agent_energy_kwh"], 1e-6)
+        assert float(d_info["requested_excess_kw"][0]) == 0.0
+        state = d_state
+    logged = JaxMARLLogWrapper(PriorityFill(env))
+    _, s = jax.vmap(logged.reset)(jax.random.split(KEY, 2))
+    acts = {a: jnp.full((2, 1), env.num_actions - 1) for a in env.agents}
+    info = jax.vmap(logged.step)(jax.random.split(KEY, 2), s, acts)[-1]
+    assert {k: v.shape for k, v in info.items() if v.shape != (2, env.num_agents)} == {}
+
+
+def test_the_gymnax_view_is_refused():
+    with pytest.raises(TypeError, match="field 'env' must be the JaxMARL view.*Chargax"):
+        PriorityFill(Chargax(station=station(), step_minutes=60.0))
