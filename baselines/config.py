@@ -98,6 +98,11 @@ SCHEMA: dict[str, Field] = {
     # multi-agent (IPPO / MAPPO)
     "AGENT_ID": Field("onehot", (str,), ("onehot", "scalar"), "agent-index encoding"),
     "LOCAL_REWARD_WEIGHT": Field(0.0, _NUM, doc="weight in [0, 1] of each agent's own share"),
+    "PRIORITY_FILL": Field(
+        False,
+        (bool,),
+        doc="charging actions as priorities, each node filled in that order (PriorityFill)",
+    ),
     "AGENT_ADV_NORM": Field(False, (bool,), doc="normalise the advantages per agent"),
     "OBS_DELAY_STEPS": Field(
         0, (int,), doc="the context and node loads seen this many steps late (training)"

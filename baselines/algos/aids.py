@@ -5,7 +5,8 @@ valued as a potential), ``PORT_SHAPING`` (`chargax_marl.teachers.car_plan`: each
 parked car's plan value as a potential), ``FAIRNESS_WEIGHT`` / ``FAIRNESS_METRIC``
 (`chargax_marl.wrappers.FairnessReward`: a weight on the day's fairness) and the
 multi-agent trainers' imperfect communication, ``OBS_DELAY_STEPS``, ``ACTION_LOSS_PROB`` and
-``LOST_ACTION`` (`chargax_marl.marl.communication`).
+``LOST_ACTION`` (`chargax_marl.marl.communication`), and their ``PRIORITY_FILL``
+(`chargax_marl.wrappers.PriorityFill`: charging actions as priorities).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from __future__ import annotations
 from chargax_marl.marl import ActionLossWrapper, DelayedObservationWrapper
 from chargax_marl.teachers import car_plan
 from chargax_marl.teachers import shaping as teacher_shaping
-from chargax_marl.wrappers import FairnessReward
+from chargax_marl.wrappers import FairnessReward, PriorityFill
 
 PORT_SHAPING_MODES = ("off", "plan")
 
@@ -102,3 +103,22 @@ def battery_potential(config: dict, env_params):
     if mode == "off":
         return None
     return teacher_shaping.battery_potential(env_params, mode)
+
+
+def priority_fill(config: dict, env):
+    """``env`` wrapped in `chargax_marl.wrappers.PriorityFill` when ``PRIORITY_FILL`` is on;
+    ``env`` itself otherwise.
+
+    Raises:
+        ValueError: ``PRIORITY_FILL`` together with an observation delay or an action loss (a
+            lost action would undo the fill, which is computed from the state the agents see).
+    """
+    if not config.get("PRIORITY_FILL", False):
+        return env
+    delay, loss = config.get("OBS_DELAY_STEPS", 0), config.get("ACTION_LOSS_PROB", 0.0)
+    if delay != 0 or loss != 0.0:
+        raise ValueError(
+            f"PRIORITY_FILL=true plays the fill on the state the agents act on; it cannot be "
+            f"combined with OBS_DELAY_STEPS={delay!r} or ACTION_LOSS_PROB={loss!r} (set them to 0)"
+        )
+    return PriorityFill(env)

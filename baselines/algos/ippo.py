@@ -40,6 +40,7 @@ from chargax_marl.marl.env import ChargaxMARL
 from chargax_marl.marl.wrappers import LogWrapper, WorldStateWrapper
 from chargax_marl.teachers import car_plan, prices
 from chargax_marl.teachers import shaping as teacher_shaping
+from chargax_marl.wrappers import priority_fill_levels
 
 
 class Transition(NamedTuple):
@@ -262,8 +263,8 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         agent_id=config["AGENT_ID"],
         local_reward_weight=config["LOCAL_REWARD_WEIGHT"],
     )
-    # FAIRNESS_WEIGHT, OBS_DELAY_STEPS, ACTION_LOSS_PROB (each off: the env itself)
-    env = aids.communication(config, aids.fairness(config, base_env))
+    # PRIORITY_FILL, FAIRNESS_WEIGHT, OBS_DELAY_STEPS, ACTION_LOSS_PROB (each off: the env)
+    env = aids.communication(config, aids.fairness(config, aids.priority_fill(config, base_env)))
     env = LogWrapper(WorldStateWrapper(env) if centralised_critic else env)
     agents = base_env.agents
     policy = SharedPolicy(config, base_env, centralised_critic)
@@ -493,6 +494,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
             config.get("OBS_DELAY_STEPS", 0),
             config.get("ACTION_LOSS_PROB", 0.0),
             config.get("LOST_ACTION", "previous"),
+            config.get("PRIORITY_FILL", False),
         ),
     )
 
@@ -503,11 +505,14 @@ def make_act_builder(
     delay_steps: int = 0,
     loss_prob: float = 0.0,
     lost_action: str = "previous",
+    priority_fill: bool = False,
 ):
     """``make_act_for(eval_params)(params) -> act``: every agent takes the argmax of its masked
     logits (greedy), read from the simulator state. With an observation delay or an action loss
     (the config's ``OBS_DELAY_STEPS``, ``ACTION_LOSS_PROB``, ``LOST_ACTION``) the policy is
-    played under them (`chargax_marl.marl.communicating_act`), as it was trained."""
+    played under them (`chargax_marl.marl.communicating_act`), as it was trained; with
+    ``priority_fill`` (``PRIORITY_FILL``) its levels are filled as the training env filled them
+    (`chargax_marl.wrappers.priority_fill_levels`)."""
     cache = IdentityCache()
 
     def build(eval_params):
@@ -525,7 +530,10 @@ def make_act_builder(
 
             def act(state, key):
                 idx = choose(env.get_obs_matrix(state), state, key)
-                return marl_env.actions_to_levels(idx, eval_params, env.action_offset)
+                levels = marl_env.actions_to_levels(idx, eval_params, env.action_offset)
+                if priority_fill:
+                    return priority_fill_levels(levels, state, eval_params)
+                return levels
 
             return act
 

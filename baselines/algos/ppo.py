@@ -159,6 +159,11 @@ def make_train(config: dict | None = None, env_params=None):
                 "single-agent PPO has one controller and nothing to communicate (use "
                 f"{off})"
             )
+    if config.get("PRIORITY_FILL", False):
+        raise ValueError(
+            "PRIORITY_FILL=true applies to the multi-agent trainers (ippo, mappo) only: it reads "
+            "their agents' charging actions as priorities (use false)"
+        )
     if env_params is None:
         env_params = build_env_params(config)[0]
     base_env = Chargax(params=env_params)

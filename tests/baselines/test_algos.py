@@ -18,11 +18,13 @@ import pytest
 
 from baselines.algos import aids, ippo, mappo, networks, ppo, ppo_core, runner
 from baselines.config import build_env_params
+from chargax_marl.core import simulator
 from chargax_marl.evaluation import MemoryAct, run_days
 from chargax_marl.marl import ActionLossWrapper, DelayedObservationWrapper
 from chargax_marl.teachers import prices as teacher_prices
 from chargax_marl.teachers import shaping as teacher_shaping
 from chargax_marl.teachers import storage_value
+from chargax_marl.wrappers import PriorityFill, priority_fill_levels
 from tests.helpers import TINY, TINY_ENV, exact_jit, finite_losses
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -460,6 +462,27 @@ def test_ippo_trains_through_delayed_observations_and_lost_actions_and_ppo_refus
         ippo.make_train({**TINY, "ACTION_LOSS_PROB": 1.5})
     with pytest.raises(ValueError, match="OBS_DELAY_STEPS=2 applies to the multi-agent"):
         ppo.make_train({**TINY, "OBS_DELAY_STEPS": 2})
+
+
+def test_ippo_trains_through_the_priority_fill_and_plays_it_when_scored():
+    config = {**TINY, "PRIORITY_FILL": True}
+    train = ippo.make_train(config)
+    stack = aids.priority_fill(config, train.env)  # what make_train puts under its LogWrapper
+    assert isinstance(stack, PriorityFill) and aids.priority_fill(TINY, train.env) is train.env
+    out = finite_losses(train)
+    seed0 = jax.tree.map(lambda x: x[0], out["runner_state"].params)
+    plain = ippo.make_train(TINY).make_act(train.env_params)(seed0)
+    filled = train.make_act(train.env_params)(seed0)
+    state = simulator.reset(jax.random.PRNGKey(3), train.env_params)
+    for _ in range(6):  # a few busy steps of the same greedy policy, with and without the fill
+        key = jax.random.PRNGKey(0)
+        want = priority_fill_levels(plain(state, key), state, train.env_params)
+        np.testing.assert_array_equal(filled(state, key), want)
+        state, _ = simulator.step(key, state, want, train.env_params)
+    with pytest.raises(ValueError, match="PRIORITY_FILL=true .* OBS_DELAY_STEPS=2"):
+        ippo.make_train({**config, "OBS_DELAY_STEPS": 2})
+    with pytest.raises(ValueError, match="PRIORITY_FILL=true applies to the multi-agent"):
+        ppo.make_train(config)
 
 
 @pytest.mark.parametrize("mod", [ippo, mappo])
