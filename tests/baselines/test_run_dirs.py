@@ -4,6 +4,7 @@ the experiment runners' result files follow the same rule."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import socket
 import subprocess
@@ -70,10 +71,9 @@ def test_overwrite_replaces_the_run_a_directory_holds(ippo_run):
     assert runs.LOCK not in _listing(ippo_run)  # released when the run ends
 
 
-def test_a_run_directory_another_live_process_writes_is_refused_naming_its_pid(tmp_path):
-    out = tmp_path / "run"
-    out.mkdir()
-    lock = out / ".lock"
+@contextlib.contextmanager
+def held_lock(lock):
+    """A live process holding ``lock`` (`HOLDER`) for the block; yields its PID."""
     holder = subprocess.Popen(
         [sys.executable, "-c", HOLDER, str(lock)],
         stdin=subprocess.PIPE,
@@ -82,33 +82,31 @@ def test_a_run_directory_another_live_process_writes_is_refused_naming_its_pid(t
     )
     try:
         assert holder.stdout.readline().strip() == "holding"
-        with pytest.raises(FileExistsError, match=f"PID {holder.pid} on host"):
-            cli.main([*TINY_RUN, f"OUT={toml_inline(str(out))}"])
-        assert json.loads(lock.read_text())["pid"] == holder.pid  # its lock left alone
-        assert _listing(out) == [".lock"]
+        yield holder.pid
     finally:
         holder.stdin.close()
         holder.wait(timeout=60)
+
+
+def test_a_run_directory_another_live_process_writes_is_refused_naming_its_pid(tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    lock = out / ".lock"
+    with held_lock(lock) as pid:
+        with pytest.raises(FileExistsError, match=f"PID {pid} on host"):
+            cli.main([*TINY_RUN, f"OUT={toml_inline(str(out))}"])
+        assert json.loads(lock.read_text())["pid"] == pid  # its lock left alone
+        assert _listing(out) == [".lock"]
 
 
 def test_a_replot_of_a_run_another_process_writes_is_refused(tmp_path):
     out = tmp_path / "run"
     out.mkdir()
     (out / "results.json").write_text("{}")
-    holder = subprocess.Popen(
-        [sys.executable, "-c", HOLDER, str(out / ".lock")],
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        assert holder.stdout.readline().strip() == "holding"
-        with pytest.raises(FileExistsError, match=f"PID {holder.pid} on host"):
+    with held_lock(out / ".lock") as pid:
+        with pytest.raises(FileExistsError, match=f"PID {pid} on host"):
             cli.main(["--replot", str(out), "--references", str(tmp_path / "refs")])
         assert (out / "results.json").read_text() == "{}"
-    finally:
-        holder.stdin.close()
-        holder.wait(timeout=60)
     with pytest.raises(FileNotFoundError, match="no results.json"):
         cli.main(["--replot", str(tmp_path / "missing")])
 
