@@ -73,6 +73,11 @@ class PriorityFill(TeacherWrapper):
     highest priority fully rather than all three at two thirds. Every agent choosing full
     power is earliest-deadline-first for the ports.
 
+    A car that a node cannot serve at its priority's full want gets the level below what the
+    node has left; with one level per direction (``num_levels = 1``) that is idle, so on a
+    tight connection most cars get nothing where the view's rescale would share the power.
+    Use it with the finer levels that let a partial grant be played.
+
     The wrapper is part of the policy it plays: score a policy trained through it with the
     same mapping (``kind="core"``: ``priority_fill_levels(env.actions_to_levels(act(obs,
     key)), state, params)``). Other wrappers go on top of it or under it; it reads the core
