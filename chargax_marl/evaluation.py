@@ -203,9 +203,8 @@ def _output_flags(levels: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
     if params.action_mode == "continuous":
         fractional = jnp.asarray(False)
     else:
-        fractional = jnp.any(
-            finite & (jnp.where(finite, x, 0.0) != jnp.trunc(jnp.where(finite, x, 0.0)))
-        )
+        x = jnp.where(finite, x, 0.0)  # a non-finite entry is counted above, not here
+        fractional = jnp.any(x != jnp.trunc(x))
     return jnp.stack([nonfinite, fractional]).astype(jnp.int32)
 
 

@@ -242,7 +242,6 @@ def step_arrays(
     local_reward_weight: float = 0.0,
     auto_reset: bool = False,
     reset_state: EnvState | None = None,
-    final_observation: bool = False,
 ):
     """The multi-agent transition on arrays; ``ChargaxMARL.step`` / ``step_env`` are views of it.
 
@@ -258,8 +257,6 @@ def step_arrays(
         auto_reset: start a fresh day where the step ends one
             (`chargax_marl.core.simulator.step_auto_reset`).
         reset_state: with ``auto_reset``, the fresh day's state (``None``: a random one).
-        final_observation: also report the observations of the stepped state (before an
-            auto-reset) as ``info["final_observation"]`` ``(N, obs_size)`` (concrete).
 
     Returns:
         ``(obs (N, obs_size), next_state, rewards (N,), done (), info)``; ``obs`` is that of
@@ -267,20 +264,11 @@ def step_arrays(
         and ``leaf_energy_kwh``), ``agent_energy_kwh`` ``(N,)`` (the same energies, named for
         agents) and ``agent_reward_share`` ``(N,)``, each agent's share of the reward
         (`chargax_marl.core.reward.leaf_reward_shares`; the shares sum to the reward);
-        with ``auto_reset`` also ``terminated`` and ``truncated``; with ``final_observation``
-        also ``final_observation``, the observation matrix of the stepped state.
+        with ``auto_reset`` also ``terminated`` and ``truncated`` (the observations before an
+        auto-reset: `chargax_marl.marl.FinalObservationWrapper`).
     """
     next_state, rewards, done, info = _transition(
-        key,
-        state,
-        indices,
-        params,
-        offset,
-        layout,
-        local_reward_weight,
-        auto_reset,
-        reset_state,
-        final_observation,
+        key, state, indices, params, offset, layout, local_reward_weight, auto_reset, reset_state
     )
     return agent_observations(next_state, params, layout), next_state, rewards, done, info
 
@@ -295,9 +283,11 @@ def _transition(
     local_reward_weight,
     auto_reset,
     reset_state,
-    final_observation=False,
+    final_obs=False,
 ):
-    """`step_arrays` without the observation: ``(next_state, rewards, done, info)``."""
+    """`step_arrays` without the observation: ``(next_state, rewards, done, info)``; with
+    ``final_obs`` the info also holds ``final_observation``, the observation matrix of the
+    stepped state (`chargax_marl.marl.FinalObservationWrapper`)."""
     levels = actions_to_levels(indices, params, offset)
     if auto_reset:
         next_state, stepped, core_info, done = simulator.step_auto_reset(
@@ -311,7 +301,7 @@ def _transition(
     info["agent_reward_share"] = core_info.leaf_reward.astype(jnp.float32)
     if auto_reset:
         info.update(terminated=jnp.asarray(False), truncated=done)
-    if final_observation:
+    if final_obs:
         info["final_observation"] = agent_observations(stepped, params, layout)
     rewards = agent_rewards(core_info.reward, info["agent_reward_share"], local_reward_weight)
     return next_state, rewards, done, info

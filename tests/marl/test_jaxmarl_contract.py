@@ -111,20 +111,18 @@ def rollout(env, key, world_state: bool):
     return traj
 
 
-def base(params, **kwargs):
-    return ChargaxMARL(params=params, **kwargs)
-
-
 # Every stack the docs build on the view, under JaxMARL's own LogWrapper.
 STACKS = {
-    "view": lambda p: base(p),
-    "world_state": lambda p: WorldStateWrapper(base(p)),
-    "project_log": lambda p: LogWrapper(WorldStateWrapper(base(p))),
+    "view": lambda p: ChargaxMARL(params=p),
+    "world_state": lambda p: WorldStateWrapper(ChargaxMARL(params=p)),
+    "project_log": lambda p: LogWrapper(WorldStateWrapper(ChargaxMARL(params=p))),
     "teachers": lambda p: RelativePriceObservation(
-        PlanAdviceObservation(CarPlanShaping(BatteryShaping(base(p, local_reward_weight=1.0))))
+        PlanAdviceObservation(
+            CarPlanShaping(BatteryShaping(ChargaxMARL(params=p, local_reward_weight=1.0)))
+        )
     ),
-    "fairness": lambda p: FairnessReward(base(p), weight_eur=2.0),
-    "communication": lambda p: ActionLossWrapper(DelayedObservationWrapper(base(p))),
+    "fairness": lambda p: FairnessReward(ChargaxMARL(params=p), weight_eur=2.0),
+    "communication": lambda p: ActionLossWrapper(DelayedObservationWrapper(ChargaxMARL(params=p))),
 }
 
 
@@ -188,10 +186,9 @@ def test_jaxmarl_baselines_shape_operations(params, name):
     np.testing.assert_array_equal(info["returned_episode_lengths"][DAY_STEPS - 1], DAY_STEPS)
 
     # the actions reached the env as sampled: masked actions were never chosen
-    mask = np.asarray(env.get_avail_actions(None)[env.agents[0]])
     avail = np.stack([np.asarray(env.get_avail_actions(None)[a]) for a in env.agents])
     np.testing.assert_array_equal(traj["avail"][0], np.repeat(avail, NUM_ENVS, axis=0))
-    assert traj["avail"].shape == (NUM_STEPS, n_act, mask.shape[0])
+    assert traj["avail"].shape == (NUM_STEPS, n_act, env.num_actions)
     assert np.take_along_axis(traj["avail"], traj["action"][..., None], -1).all()
 
     # observations are agent-major: actor i * NUM_ENVS + e is agent i in env e; the agent
