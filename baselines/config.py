@@ -84,6 +84,9 @@ SCHEMA: dict[str, Field] = {
     "PORT_SHAPING": Field(
         "off", (str,), ("off", "plan"), "each parked car's plan value as a potential"
     ),
+    "SHAPING_WEIGHT": Field(
+        1.0, _NUM, doc="weight of the BATTERY_SHAPING and PORT_SHAPING terms in the reward"
+    ),
     "PLAN_OBS": Field(False, (bool,), doc="each agent also observes its port's plan advice"),
     "RELATIVE_PRICES": Field(False, (bool,), doc="the networks also read relative prices"),
     "FAIRNESS_WEIGHT": Field(

@@ -22,6 +22,7 @@ of the agent's observation.
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -66,6 +67,7 @@ class RunnerState(NamedTuple):
     obs: jnp.ndarray  # (envs, agents, obs_dim)
     key: jnp.ndarray
     update: jnp.ndarray
+    hyper: dict  # ppo_core.HYPER_KEYS as float32 scalars
 
 
 INFO_KEYS = (
@@ -345,9 +347,14 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
             f"BATTERY_ENT_COEF={config['BATTERY_ENT_COEF']} must be a finite number >= 0 "
             "(or None: ENT_COEF)"
         )
-    gamma_b = jnp.asarray(
-        np.repeat(np.where(is_bat, battery_gamma, config["GAMMA"]), n_envs), jnp.float32
-    )
+    battery_rows = np.repeat(is_bat, n_envs)  # agent-major
+
+    def row_gammas(hyper):
+        """Each actor's discount ``(agents * envs,)``: ``BATTERY_GAMMA`` for the batteries'
+        rows when it is set, ``GAMMA`` (a value of ``hyper``) otherwise."""
+        if config["BATTERY_GAMMA"] is None:
+            return jnp.broadcast_to(hyper["GAMMA"], battery_rows.shape)
+        return jnp.where(battery_rows, jnp.float32(battery_gamma), hyper["GAMMA"])
 
     def per_agent_normalised(adv):
         """AGENT_ADV_NORM: each agent's advantages ``(steps, agents * envs)`` scaled to mean 0 and
@@ -360,13 +367,16 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         std = a.std(axis=(0, 2), keepdims=True)
         return ((a - mean) / (std + 1e-8)).reshape(adv.shape)
 
-    def init(key):
+    def init(key, hyper=None):
         k_net, k_env, key = jax.random.split(key, 3)
         params = policy.init(k_net)
         obs, env_state = jax.vmap(env.reset)(jax.random.split(k_env, n_envs))
         obs = jnp.stack([obs[a] for a in agents], axis=1)  # (envs, agents, obs)
         obs, env_state = runner.shard_envs((obs, env_state), mesh)
-        return RunnerState(params, tx.init(params), env_state, obs, key, jnp.zeros((), jnp.int32))
+        hyper = ppo_core.hyper_values(config) if hyper is None else hyper
+        return RunnerState(
+            params, tx.init(params), env_state, obs, key, jnp.zeros((), jnp.int32), hyper
+        )
 
     def agent_rows(obs, env_state):
         """The actors' observations ``(agents * envs, obs)`` (agent-major) of the per-env
@@ -376,7 +386,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
             obs = policy.with_plan(obs, teacher_shaping.core_state(env_state))
         return agent_major(obs)
 
-    def env_step(carry, _):
+    def env_step(hyper, carry, _):
         params, env_state, obs, key = carry
         key, k_act, k_step = jax.random.split(key, 3)
         obs_b = agent_rows(obs, env_state)
@@ -393,12 +403,12 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         )
         reward_b = agent_major(reward)
         if pot is not None:
-            reward_b = reward_b + battery_term(pot, info)
+            reward_b = reward_b + hyper["SHAPING_WEIGHT"] * battery_term(pot, info)
         if car_pot is not None:
             own = teacher_shaping.mix_own_terms(
                 car_pot(info["agent_energy_kwh"]), config["LOCAL_REWARD_WEIGHT"]
             )
-            reward_b = reward_b + agent_major(own)
+            reward_b = reward_b + hyper["SHAPING_WEIGHT"] * agent_major(own)
         next_obs, env_state = runner.shard_envs((next_obs, env_state), mesh)
         tr = Transition(
             obs_b,
@@ -407,13 +417,13 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
             action,
             logp,
             value,
-            reward_b * config["REWARD_SCALE"],
+            reward_b * hyper["REWARD_SCALE"],
             jnp.tile(done, n_agents).astype(jnp.float32),
             {k: info[k] for k in INFO_KEYS},
         )  # each (envs, agents)
         return (params, env_state, next_obs, key), tr
 
-    def make_loss(ws_table):
+    def make_loss(ws_table, hyper):
         def loss_fn(params, mb):
             tr, adv, targets = mb
             logits = policy.logits(params, tr.obs, tr.avail, rows="env_step_major")
@@ -429,7 +439,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
                 ent_coef = jnp.where(
                     policy.is_battery(tr.obs)[..., 0] > 0.5,
                     float(config["BATTERY_ENT_COEF"]),
-                    float(config["ENT_COEF"]),
+                    hyper["ENT_COEF"],
                 )
             return ppo_core.ppo_loss(
                 new_logp,
@@ -439,15 +449,19 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
                 tr.value,
                 targets,
                 networks.entropy(logits),
-                config,
+                hyper,
                 ent_coef,
             )
 
         return loss_fn
 
     def update(rs: RunnerState, _):
+        hyper = rs.hyper
         (params, env_state, obs, key), traj = jax.lax.scan(
-            env_step, (rs.params, rs.env_state, rs.obs, rs.key), None, n_steps
+            functools.partial(env_step, hyper),
+            (rs.params, rs.env_state, rs.obs, rs.key),
+            None,
+            n_steps,
         )
         last_value = rollout_value(params, env_state, agent_rows(obs, env_state))[1]
         ws_table = None
@@ -458,15 +472,26 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
                 jnp.arange(n_steps)[:, None] * n_envs + jnp.arange(n_actors)[None, :] % n_envs
             ).astype(jnp.int32)
             traj = traj._replace(critic_in=idx if dedup_update else ws_table[idx])
-        loss_fn = make_loss(ws_table)
+        loss_fn = make_loss(ws_table, hyper)
         adv, targets = ppo_core.gae(
-            traj.reward, traj.value, traj.done, last_value, gamma_b, config["GAE_LAMBDA"]
+            traj.reward, traj.value, traj.done, last_value, row_gammas(hyper), hyper["GAE_LAMBDA"]
         )
         if config["AGENT_ADV_NORM"]:
             adv = per_agent_normalised(adv)
 
         params, opt_state, key, parts = ppo_core.ppo_epochs(
-            loss_fn, tx, params, rs.opt_state, key, traj, adv, targets, config, agents=n_agents
+            loss_fn,
+            tx,
+            params,
+            rs.opt_state,
+            key,
+            traj,
+            adv,
+            targets,
+            config,
+            hyper,
+            rs.update,
+            agents=n_agents,
         )
         metrics = {k: v.mean() for k, v in parts.items()}
         # Every agent logs the same episode: use agent 0's column.
@@ -475,7 +500,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
                 traj.info["returned_episode"][..., 0], {k: v[..., 0] for k, v in traj.info.items()}
             )
         )
-        return RunnerState(params, opt_state, env_state, obs, key, rs.update + 1), metrics
+        return RunnerState(params, opt_state, env_state, obs, key, rs.update + 1, hyper), metrics
 
     def run_updates(rs: RunnerState, n: int):
         return jax.lax.scan(update, rs, None, n)

@@ -14,6 +14,7 @@ CLI evaluates on held-out days between chunks).
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -49,6 +50,7 @@ class RunnerState(NamedTuple):
     obs: jnp.ndarray
     key: jnp.ndarray
     update: jnp.ndarray
+    hyper: dict  # ppo_core.HYPER_KEYS as float32 scalars
 
 
 INFO_KEYS = (
@@ -183,14 +185,17 @@ def make_train(config: dict | None = None, env_params=None):
     v_reset = jax.vmap(env.reset, in_axes=(0, None))
     v_step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
 
-    def init(key):
+    def init(key, hyper=None):
         k_net, k_env, key = jax.random.split(key, 3)
         params = policy.init(k_net)
         obs, env_state = v_reset(jax.random.split(k_env, n_envs), env_params)
         obs, env_state = runner.shard_envs((obs, env_state), mesh)
-        return RunnerState(params, tx.init(params), env_state, obs, key, jnp.zeros((), jnp.int32))
+        hyper = ppo_core.hyper_values(config) if hyper is None else hyper
+        return RunnerState(
+            params, tx.init(params), env_state, obs, key, jnp.zeros((), jnp.int32), hyper
+        )
 
-    def env_step(carry, _):
+    def env_step(hyper, carry, _):
         params, env_state, obs, key = carry
         key, k_act, k_step = jax.random.split(key, 3)
         obs = policy.with_plan(obs, teacher_shaping.core_state(env_state))
@@ -215,6 +220,8 @@ def make_train(config: dict | None = None, env_params=None):
         port_shaping = (
             0.0 if car_pot is None else jnp.sum(car_pot(info["leaf_energy_kwh"]), axis=-1)
         )
+        battery_term = hyper["SHAPING_WEIGHT"] * battery_term
+        port_shaping = hyper["SHAPING_WEIGHT"] * port_shaping
         if (
             policy.split
         ):  # (envs, 2): the ports' share and their shaping, the batteries' share and theirs
@@ -234,42 +241,56 @@ def make_train(config: dict | None = None, env_params=None):
             action,
             logp,
             value,
-            reward * config["REWARD_SCALE"],
+            reward * hyper["REWARD_SCALE"],
             done.astype(jnp.float32),
             {k: info[k] for k in INFO_KEYS},
         )
         return (params, env_state, next_obs, key), tr
 
-    def loss_fn(params, mb):
+    def loss_fn(hyper, params, mb):
         tr, adv, targets = mb
         logits = policy.logits(params, tr.obs)
         head_logp = networks.log_prob(logits, tr.action)  # (batch, heads)
         ent = networks.entropy(logits).sum(-1)
         values = policy.value(params, tr.obs)
         return ppo_core.ppo_loss(
-            policy.credit_logp(head_logp), tr.log_prob, adv, values, tr.value, targets, ent, config
+            policy.credit_logp(head_logp), tr.log_prob, adv, values, tr.value, targets, ent, hyper
         )
 
     def update(rs: RunnerState, _):
+        hyper = rs.hyper
         (params, env_state, obs, key), traj = jax.lax.scan(
-            env_step, (rs.params, rs.env_state, rs.obs, rs.key), None, n_steps
+            functools.partial(env_step, hyper),
+            (rs.params, rs.env_state, rs.obs, rs.key),
+            None,
+            n_steps,
         )
         last_value = policy.value(
             params, policy.with_plan(obs, teacher_shaping.core_state(env_state))
         )
         done = traj.done[..., None] if policy.split else traj.done
         adv, targets = ppo_core.gae(
-            traj.reward, traj.value, done, last_value, config["GAMMA"], config["GAE_LAMBDA"]
+            traj.reward, traj.value, done, last_value, hyper["GAMMA"], hyper["GAE_LAMBDA"]
         )
         if policy.split:  # each part's advantages to mean 0 and std 1 over the rollout
             adv = (adv - adv.mean(axis=(0, 1))) / (adv.std(axis=(0, 1)) + 1e-8)
 
         params, opt_state, key, parts = ppo_core.ppo_epochs(
-            loss_fn, tx, params, rs.opt_state, key, traj, adv, targets, config
+            functools.partial(loss_fn, hyper),
+            tx,
+            params,
+            rs.opt_state,
+            key,
+            traj,
+            adv,
+            targets,
+            config,
+            hyper,
+            rs.update,
         )
         metrics = {k: v.mean() for k, v in parts.items()}
         metrics.update(ppo_core.episode_metrics(traj.info["returned_episode"], traj.info))
-        return RunnerState(params, opt_state, env_state, obs, key, rs.update + 1), metrics
+        return RunnerState(params, opt_state, env_state, obs, key, rs.update + 1, hyper), metrics
 
     def run_updates(rs: RunnerState, n: int):
         return jax.lax.scan(update, rs, None, n)

@@ -1,11 +1,48 @@
 """The PPO pieces every trainer shares: GAE, the clipped loss, epochs over shuffled
-minibatches, the optimiser with an annealed learning rate, and episode metrics."""
+minibatches, the optimiser with an annealed learning rate, and episode metrics.
+
+The scalar hyper-parameters of `HYPER_KEYS` are *values* of the training program, not
+constants compiled into it: every trainer keeps them in its runner state (`hyper_values`), so
+that one compiled program trains many settings of them at once (``jax.vmap`` over the runner
+states, `baselines.sweep`) and a setting trained alone runs the same program.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
+
+HYPER_KEYS = (
+    "LR",
+    "MAX_GRAD_NORM",
+    "GAMMA",
+    "GAE_LAMBDA",
+    "CLIP_EPS",
+    "VF_CLIP",
+    "ENT_COEF",
+    "VF_COEF",
+    "REWARD_SCALE",
+    "SHAPING_WEIGHT",
+)
+"""The config keys a trainer reads as values of its runner state (float32 scalars); every other
+key sets the program's shapes or structure and is compiled in."""
+
+
+def hyper_values(config: dict) -> dict[str, jax.Array]:
+    """The `HYPER_KEYS` of a resolved config as float32 scalars (a runner state's ``hyper``).
+
+    Args:
+        config: a resolved config (`baselines.config.resolve`).
+
+    Returns:
+        ``{key: float32 array of shape ()}`` for every key of `HYPER_KEYS`.
+    """
+    return {k: jnp.asarray(np.float32(config[k])) for k in HYPER_KEYS}
 
 
 def gae(rewards, values, dones, last_value, gamma: float, lam: float):
@@ -26,20 +63,32 @@ def gae(rewards, values, dones, last_value, gamma: float, lam: float):
 
 
 def ppo_loss(
-    new_logp, old_logp, advantages, values, old_values, targets, ent, config, ent_coef=None
+    new_logp, old_logp, advantages, values, old_values, targets, ent, hyper, ent_coef=None
 ):
-    """Clipped surrogate + clipped value loss - entropy bonus. Returns ``(total, parts)``.
+    """Clipped surrogate + clipped value loss - entropy bonus.
 
-    ``ent_coef``: the entropy coefficient of each row (default ``config["ENT_COEF"]`` for all)."""
+    Args:
+        new_logp, old_logp: log-probabilities of the taken actions under the new and the
+            rollout's policy, ``(rows,)`` (or ``(rows, parts)``).
+        advantages, targets: GAE advantages and value targets, shaped as the values.
+        values, old_values: the critic's new and rollout values.
+        ent: the policy's entropy per row.
+        hyper: ``CLIP_EPS``, ``VF_CLIP``, ``ENT_COEF`` and ``VF_COEF`` (a runner state's
+            ``hyper``, or a config).
+        ent_coef: the entropy coefficient of each row (default ``hyper["ENT_COEF"]`` for all).
+
+    Returns:
+        ``(total, parts)``: the loss and its actor, value, entropy and approximate-KL parts.
+    """
     adv = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
     ratio = jnp.exp(new_logp - old_logp)
-    eps = config["CLIP_EPS"]
+    eps = hyper["CLIP_EPS"]
     actor_loss = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - eps, 1 + eps) * adv).mean()
-    v_clip = old_values + jnp.clip(values - old_values, -config["VF_CLIP"], config["VF_CLIP"])
+    v_clip = old_values + jnp.clip(values - old_values, -hyper["VF_CLIP"], hyper["VF_CLIP"])
     value_loss = 0.5 * jnp.maximum((values - targets) ** 2, (v_clip - targets) ** 2).mean()
-    bonus = (config["ENT_COEF"] if ent_coef is None else ent_coef) * ent
+    bonus = (hyper["ENT_COEF"] if ent_coef is None else ent_coef) * ent
     ent = ent.mean()
-    total = actor_loss + config["VF_COEF"] * value_loss - bonus.mean()
+    total = actor_loss + hyper["VF_COEF"] * value_loss - bonus.mean()
     approx_kl = ((ratio - 1) - (new_logp - old_logp)).mean()
     return total, {
         "actor_loss": actor_loss,
@@ -70,15 +119,28 @@ def shuffled_rows(key: jax.Array, steps: int, actors: int, agents: int = 1) -> j
 
 
 def ppo_epochs(
-    loss_fn, tx, params, opt_state, key, traj, adv, targets, config: dict, agents: int = 1
+    loss_fn,
+    tx: Optimizer,
+    params,
+    opt_state,
+    key,
+    traj,
+    adv,
+    targets,
+    config: dict,
+    hyper: dict,
+    update,
+    agents: int = 1,
 ):
     """``UPDATE_EPOCHS`` passes over the rollout in ``NUM_MINIBATCHES`` shuffled minibatches.
 
     ``traj`` is the rollout (a NamedTuple with an ``info`` field, dropped here) with leading
     axes ``(steps, actors)``; ``loss_fn(params, (traj, adv, targets))`` returns
-    ``(loss, parts)``. Returns ``(params, opt_state, key, parts)`` with ``parts`` stacked over
-    epochs and minibatches. ``agents > 1`` (IPPO, MAPPO: ``actors = agents * envs``,
-    agent-major) shuffles env-steps, each with all of its agents' rows (`shuffled_rows`).
+    ``(loss, parts)``; ``tx`` steps with the learning rate and clip norm of ``hyper`` at the
+    update index ``update``. Returns ``(params, opt_state, key, parts)`` with ``parts``
+    stacked over epochs and minibatches. ``agents > 1`` (IPPO, MAPPO: ``actors = agents *
+    envs``, agent-major) shuffles env-steps, each with all of its agents' rows
+    (`shuffled_rows`).
     """
     steps, actors = traj.reward.shape[:2]
     batch = steps * actors
@@ -96,8 +158,8 @@ def ppo_epochs(
         def minibatch(carry, mb):
             params, opt_state = carry
             (_, parts), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, mb)
-            updates, opt_state = tx.update(grads, opt_state, params)
-            return (jax.tree.map(lambda p, u: p + u, params, updates), opt_state), parts
+            params, opt_state = tx.step(grads, opt_state, params, hyper, update)
+            return (params, opt_state), parts
 
         (params, opt_state), parts = jax.lax.scan(minibatch, (params, opt_state), mbs)
         return (params, opt_state, key), parts
@@ -108,15 +170,47 @@ def ppo_epochs(
     return params, opt_state, key, parts
 
 
-def make_optimizer(config: dict, num_updates: int):
-    """Adam with global-norm clipping; the learning rate anneals linearly to 0 over training."""
-    steps_per_update = config["NUM_MINIBATCHES"] * config["UPDATE_EPOCHS"]
+class Optimizer(NamedTuple):
+    """Adam whose learning rate and clip norm are values (a runner state's ``hyper``).
 
-    def schedule(count):
-        return config["LR"] * (1.0 - (count // steps_per_update) / max(num_updates, 1))
+    Attributes:
+        init: ``init(params) -> opt_state``.
+        step: ``step(grads, opt_state, params, hyper, update) -> (params, opt_state)``: one
+            gradient step at the update index ``update``.
+    """
 
-    lr = schedule if config["ANNEAL_LR"] else config["LR"]
-    return optax.chain(optax.clip_by_global_norm(config["MAX_GRAD_NORM"]), optax.adam(lr, eps=1e-5))
+    init: Callable
+    step: Callable
+
+
+def make_optimizer(config: dict, num_updates: int) -> Optimizer:
+    """Adam with global-norm clipping (``MAX_GRAD_NORM``); the learning rate ``LR`` anneals
+    linearly to 0 over the ``num_updates`` updates when ``ANNEAL_LR`` is on.
+
+    Args:
+        config: a resolved config (``ANNEAL_LR``; the values come from ``hyper`` at each step).
+        num_updates: the updates of the whole training.
+
+    Returns:
+        The `Optimizer`.
+    """
+    adam = optax.scale_by_adam(eps=1e-5)
+    anneal = bool(config["ANNEAL_LR"])
+
+    def step(grads, opt_state, params, hyper, update):
+        g_norm = jnp.sqrt(sum(jnp.sum(jnp.square(g)) for g in jax.tree.leaves(grads)))
+        max_norm = hyper["MAX_GRAD_NORM"]
+        grads = jax.tree.map(
+            lambda g: jax.lax.select(g_norm < max_norm, g, (g / g_norm.astype(g.dtype)) * max_norm),
+            grads,
+        )
+        direction, opt_state = adam.update(grads, opt_state, params)
+        lr = hyper["LR"]
+        if anneal:
+            lr = lr * (1.0 - update / max(num_updates, 1))
+        return jax.tree.map(lambda p, d: p - lr * d, params, direction), opt_state
+
+    return Optimizer(adam.init, step)
 
 
 def num_updates(config: dict) -> int:

@@ -47,12 +47,15 @@ def chunk_bounds(total_updates: int, num_chunks: int) -> np.ndarray:
     return np.linspace(0, total_updates, num_chunks + 1).astype(int)
 
 
-def run_in_chunks(train, keys, num_chunks: int, on_chunk=None, desc: str = "train", resume=None):
+def run_in_chunks(
+    train, keys, num_chunks: int, on_chunk=None, desc: str = "train", resume=None, hyper=None
+):
     """Run ``train.init`` then ``train.run_updates`` in ``num_chunks`` jitted chunks.
 
-    The seeds are vmapped. After each chunk ``on_chunk(chunk_index, runner_state, metrics,
-    steps, seconds)`` is called (e.g. held-out evaluation or a checkpoint; the runner state is
-    donated to the next chunk, so copy what you keep), under a tqdm progress bar.
+    The runs (seeds, or a sweep's settings x seeds) are vmapped. After each chunk
+    ``on_chunk(chunk_index, runner_state, metrics, steps, seconds)`` is called (e.g. an
+    evaluation or a checkpoint; the runner state is donated to the next chunk, so copy what
+    you keep), under a tqdm progress bar.
 
     Args:
         train: A `baselines.algos.trainer.Trainer`.
@@ -64,6 +67,8 @@ def run_in_chunks(train, keys, num_chunks: int, on_chunk=None, desc: str = "trai
             metric_chunks, seconds)`` from a checkpoint: the chunk to run next, the runner state
             after the chunks before it, their metrics (one dict per chunk) and the seconds they
             took; training continues exactly as it would have without the interruption.
+        hyper: None for the config's values of `baselines.algos.ppo_core.HYPER_KEYS` in every
+            run, or ``{key: (runs,)}`` each run's own (a sweep; unused when resuming).
 
     Returns:
         ``(runner_state, metrics, seconds)`` where ``metrics`` holds arrays ``(seeds, updates)``.
@@ -74,7 +79,7 @@ def run_in_chunks(train, keys, num_chunks: int, on_chunk=None, desc: str = "trai
     steps_per_update = train.config["NUM_ENVS"] * train.config["NUM_STEPS"]
     if resume is None:
         start, chunks, t0 = 0, [], time.time()
-        rs = jax.jit(jax.vmap(train.init))(keys)
+        rs = jax.jit(jax.vmap(train.init))(keys, hyper)
     else:
         start, rs, chunks, seconds = resume
         chunks, t0 = list(chunks), time.time() - seconds

@@ -12,7 +12,9 @@ class Trainer:
     """A built trainer, PureJaxRL-shaped: ``trainer(key)`` trains one seed end to end.
 
     Attributes:
-        init: ``init(key) -> runner_state``: networks, optimiser and envs of one seed.
+        init: ``init(key, hyper=None) -> runner_state``: networks, optimiser and envs of one
+            seed; ``hyper`` the values of `baselines.algos.ppo_core.HYPER_KEYS` it trains
+            with (float32 scalars; default the config's), kept in the runner state.
         run_updates: ``run_updates(runner_state, n) -> (runner_state, metrics)``: ``n``
             PPO updates (a ``jax.lax.scan``); metrics have a leading update axis.
         num_updates: the updates ``config["TOTAL_TIMESTEPS"]`` holds.
