@@ -25,7 +25,7 @@ import numpy as np
 
 from chargax_marl.benchmark.tasks import TASKS, get_task
 from chargax_marl.core.params import make_params
-from chargax_marl.evaluation import split_days
+from chargax_marl.evaluation import split_days, validation_days
 from chargax_marl.single.scenarios import SCENARIOS
 
 CONFIG_DIR = Path(__file__).resolve().parent / "configs"
@@ -132,6 +132,14 @@ SCHEMA: dict[str, Field] = {
     "NUM_EVAL_DAYS": Field(100, (int,), doc="held-out days"),
     "EVAL_DRAWS": Field(1, (int,), doc="car draws per held-out day (keys 0 .. N-1)"),
     "SPLIT_SEED": Field(0, (int,), doc="seed of the held-out split"),
+    # the validation split: what a run evaluates on while it trains (drawn from training days)
+    "NUM_VALIDATION_DAYS": Field(
+        20, (int,), doc="validation days, drawn from the training days (with TASK: the task's)"
+    ),
+    "VALIDATION_DRAWS": Field(
+        1, (int,), doc="car draws per validation day (keys 0 .. N-1; with TASK: the task's)"
+    ),
+    "VALIDATION_SEED": Field(1, (int,), doc="seed of the validation draw (with TASK: the task's)"),
 }
 """Every key a trainer reads, with its default (Table 3, learning aids off)."""
 
@@ -139,7 +147,7 @@ RUN_SCHEMA: dict[str, Field] = {
     "ALGO": Field("ippo", (str,), ("ppo", "ippo", "mappo")),
     "SEEDS": Field(2, (int,), doc="seeds trained at once (vmapped)"),
     "SEED": Field(0, (int,), doc="the first seed's key"),
-    "CHUNKS": Field(10, (int,), doc="training pieces (progress and held-out evaluation)"),
+    "CHUNKS": Field(10, (int,), doc="training pieces (progress and validation evaluation)"),
     "OUT": Field("outputs/run", (str,), doc="run directory (git-ignored outputs/ by default)"),
     "OPTIMAL": Field("bound", (str,), ("off", "bound", "mpc"), "references beside the rules"),
     "REFERENCES_DIR": Field(
@@ -199,7 +207,30 @@ def resolve(config: dict | None = None, schema: dict[str, Field] = SCHEMA) -> di
         out["TOTAL_TIMESTEPS"] = int(float(out["TOTAL_TIMESTEPS"]))
     if "EVAL_DRAWS" in out and out["EVAL_DRAWS"] < 1:
         raise ConfigError(f"config key EVAL_DRAWS={out['EVAL_DRAWS']!r}: expected an integer >= 1")
+    if out.get("TASK"):  # the validation keys not given are the task's
+        task = get_task(out["TASK"])
+        for key, value in _task_validation(task).items():
+            if key in out and key not in config:
+                out[key] = value
+    for key in VALIDATION_KEYS:
+        if key in out and out[key] < 1:
+            raise ConfigError(f"config key {key}={out[key]!r}: expected an integer >= 1")
     return out
+
+
+VALIDATION_KEYS = ("NUM_VALIDATION_DAYS", "VALIDATION_DRAWS", "VALIDATION_SEED")
+"""The keys of the validation split (`validation_env`); with ``TASK``, the task's."""
+
+
+def _task_validation(task) -> dict:
+    """The validation keys' values of a `chargax_marl.benchmark.Task`."""
+    return dict(
+        zip(
+            VALIDATION_KEYS,
+            (task.num_validation_days, task.validation_draws, task.validation_seed),
+            strict=True,
+        )
+    )
 
 
 def config_path(name: str | Path) -> Path:
@@ -257,8 +288,9 @@ def load(name: str | Path = DEFAULT_CONFIG, overrides=()) -> tuple[dict, dict]:
         ``(config, run)``: the resolved trainer config (`SCHEMA`) and run settings
         (`RUN_SCHEMA`).
 
-    A ``TASK`` override sets the scenario and the traffic to the task's: the file's
-    ``SCENARIO`` and ``TRAFFIC`` give way to it (an override of either still must match it).
+    A ``TASK`` override sets the scenario, the traffic and the validation split
+    (`VALIDATION_KEYS`) to the task's: the file's ``SCENARIO``, ``TRAFFIC`` and validation
+    keys give way to it (an override of any still must match it).
 
     Raises:
         ConfigError: no such file, an unknown key, or a value the key does not allow.
@@ -268,7 +300,8 @@ def load(name: str | Path = DEFAULT_CONFIG, overrides=()) -> tuple[dict, dict]:
     if given.get("TASK"):
         task = get_task(resolve({"TASK": given["TASK"]})["TASK"])
         raw["SCENARIO"] = task.scenario
-        raw.pop("TRAFFIC", None)
+        for key in ("TRAFFIC", *VALIDATION_KEYS):
+            raw.pop(key, None)
     raw.update(given)
     run = {k: raw.pop(k) for k in list(raw) if k in RUN_SCHEMA}
     return resolve(raw), resolve(run, RUN_SCHEMA)
@@ -320,3 +353,67 @@ def _task_env_params(config: dict):
     overrides = dict(config.get("ENV_KWARGS") or {})
     train = task.train_params(**overrides)
     return train, task.scored_params(**overrides), np.asarray(train.reset_days), task.eval_days()
+
+
+def validation_env(config: dict) -> tuple:
+    """The validation split of a config: what a training run evaluates on while it trains.
+
+    The validation days are training days (never held-out ones), drawn by
+    `chargax_marl.evaluation.validation_days`, and are played in the training env.
+
+    Args:
+        config: a resolved config (the keys of `build_env_params` and `VALIDATION_KEYS`).
+
+    Returns:
+        ``(val_params, val_days, val_draws)``: with ``TASK``, the task's
+        ``validation_params(**ENV_KWARGS)``, ``validation_days()`` and ``validation_draws``;
+        otherwise the config's training params, ``NUM_VALIDATION_DAYS`` days drawn with
+        ``VALIDATION_SEED`` from its training days, and ``VALIDATION_DRAWS``.
+
+    Raises:
+        ConfigError: with ``TASK``, a validation key other than the task's (or a traffic or
+            held-out split other than the task's, see `build_env_params`); without it,
+            ``NUM_VALIDATION_DAYS`` more than the training days.
+    """
+    train_params, _, train_days, _ = build_env_params(config)
+    return _validation_env(config, train_params, train_days)
+
+
+def _validation_env(config: dict, train_params, train_days) -> tuple:
+    """`validation_env` on the config's built training params and days."""
+    if config.get("TASK"):
+        task = get_task(config["TASK"])
+        for key, value in _task_validation(task).items():
+            if int(config[key]) != value:
+                raise ConfigError(
+                    f"TASK={task.id!r} validates with {key}={value!r}; got {key}={config[key]!r}"
+                )
+        return train_params, task.validation_days(), task.validation_draws
+    try:
+        days = validation_days(
+            train_days, int(config["NUM_VALIDATION_DAYS"]), int(config["VALIDATION_SEED"])
+        )
+    except ValueError:
+        raise ConfigError(
+            f"config key NUM_VALIDATION_DAYS={config['NUM_VALIDATION_DAYS']!r} is not allowed: "
+            f"expected an integer in [1, {np.size(train_days)}] (the training days)"
+        ) from None
+    return train_params, days, int(config["VALIDATION_DRAWS"])
+
+
+def validation_source(config: dict) -> str:
+    """Where a config's validation split comes from, in words (for a run's record).
+
+    Args:
+        config: a resolved config.
+
+    Returns:
+        The task's fields, or the config's `VALIDATION_KEYS`, with their values.
+    """
+    if config.get("TASK"):
+        task = get_task(config["TASK"])
+        return (
+            f"task {task.id}: num_validation_days={task.num_validation_days}, "
+            f"validation_draws={task.validation_draws}, validation_seed={task.validation_seed}"
+        )
+    return "config: " + ", ".join(f"{k}={config[k]}" for k in VALIDATION_KEYS)

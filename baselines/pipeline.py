@@ -1,5 +1,6 @@
-"""One training run end to end: train the seeds in chunks, evaluate each chunk on the held-out
-days against the references, and write the run directory."""
+"""One training run end to end: train the seeds in chunks, evaluate each chunk on the validation
+days (training days, `baselines.config.validation_env`) against the references played on them,
+score the finished run once on the held-out days, and write the run directory."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from tqdm.auto import tqdm
 from baselines import runs
 from baselines.algos import distributed, ppo_core, registry, runner
 from baselines.algos.trainer import Trainer
-from baselines.config import build_env_params, resolve
+from baselines.config import build_env_params, resolve, validation_env, validation_source
 from baselines.eval import heldout, references, stats
 from chargax_marl.evaluation import format_table, summarize_profit
 from chargax_marl.machine import code_version
@@ -65,12 +66,22 @@ def run(
     overwrite: bool = False,
 ) -> RunOutput:
     """Train ``seeds`` seeds of ``algo`` and evaluate them; returns the results dict (and
-    writes the outputs when ``out`` is given). ``eval_params`` / ``env_params`` override the
-    evaluation and training parameters (e.g. another price year). ``optimal`` adds the LP
-    bound (and the MPC) to the baselines, see `baseline_results`.
+    writes the outputs when ``out`` is given). ``eval_params`` / ``eval_days`` /
+    ``env_params`` override the held-out evaluation's and the training's parameters (e.g.
+    another price year). ``optimal`` adds the LP bound (and the MPC) to the held-out
+    references, see `baselines.eval.heldout.baseline_results`; ``baselines`` gives them
+    precomputed.
+
+    While it trains, the run evaluates the greedy policy after every chunk on the config's
+    validation days and draws (`baselines.config.validation_env`: training days, in the
+    training env) against always-max and the rules on the same days (``eval_curve``,
+    ``first_beats_*``, the ``validation`` block); ``evaluate_every_chunk=False`` skips these.
+    The held-out days are played once, after training: the references and the final
+    parameters (the ``evaluation`` table, ``per_seed``, ``over_seeds``, ``vs_*``,
+    ``headroom``).
 
     With ``out``, the whole training state (parameters, optimiser states, env states, keys,
-    the curves and the held-out evaluations so far) is written to ``out/checkpoint.msgpack``
+    the curves and the validation evaluations so far) is written to ``out/checkpoint.msgpack``
     (`baselines.runs.save_checkpoint`, atomically) at the end of every chunk, on a single
     process. ``resume=True`` continues from that checkpoint: the run ends with the parameters
     and results it would have had without the interruption (the timings aside).
@@ -160,86 +171,55 @@ def _run(
     chunks, n_upd = chunked_updates(config, chunks)
     config["TOTAL_TIMESTEPS"] = n_upd * steps_per_update
     train_params, full_params, train_days, held_out = build_env_params(config)
+    val_params, val_days, val_draws = validation_env(config)
     env_params = train_params if env_params is None else env_params
     eval_params = full_params if eval_params is None else eval_params
     eval_days = held_out if eval_days is None else eval_days
     t_start = time.time()
     train = registry.make_train(algo, config, env_params)
-    make_act = train.make_act(eval_params)
     draws = int(config["EVAL_DRAWS"])
     held_out_desc = f"{np.size(eval_days)} held-out days x {draws} car draws"
+    val_desc = f"{np.size(val_days)} validation days x {val_draws} car draws"
 
     def say(message: str) -> None:  # what the run is doing, between the progress bar's updates
         if not quiet:
             tqdm.write(message)
 
-    if baselines is None:
-        say(
-            f"scoring the references on {held_out_desc}: always-max and the rules"
-            + ("" if optimal == "off" else ", the LP hindsight bound")
-            + (", the MPC" if optimal == "mpc" else "")
-        )
-        baselines = heldout.baseline_results(eval_params, eval_days, optimal, draws, references_dir)
-    am = baselines["always_max"]["metrics"]["daily_profit_eur"]["mean"]
-    am_daily = baselines["always_max"].get("daily_profit")
-    rule_daily = baselines.get("battery_rule", {}).get("daily_profit")
-    teachers = [
-        name for name in heldout.REFERENCES[2:] if name in baselines
-    ]  # the teachers' rules (a station with a battery)
     evals = []
-    final = None  # the last chunk's evaluation, which is also the final policy's
-
-    def vs_rule(ev):
-        return (
-            None if rule_daily is None else stats.paired_difference(ev["daily_profit"], rule_daily)
-        )
-
-    def vs_programme(ev):
-        return {
-            f"vs_{name}": stats.paired_difference(
-                ev["daily_profit"], baselines[name]["daily_profit"]
-            )
-            for name in teachers
-        }
+    val_refs = None  # the references on the validation days (when the chunks are evaluated)
+    if evaluate_every_chunk:
+        say(f"scoring the references on {val_desc}: always-max and the rules")
+        val_refs = heldout.baseline_results(val_params, val_days, optimal="off", draws=val_draws)
+        val_act = train.make_act(val_params)
 
     def on_chunk(i, rs, m, steps, seconds):
-        nonlocal final
-        if not evaluate_every_chunk and i < chunks - 1:
+        if not evaluate_every_chunk:
             return
-        say(f"  evaluating chunk {i + 1}/{chunks}'s greedy policy on {held_out_desc}")
+        say(f"  evaluating chunk {i + 1}/{chunks}'s greedy policy on {val_desc}")
         ev = heldout.evaluate_batched(
-            make_act,
+            val_act,
             host(rs.params),
-            eval_params,
-            eval_days,
-            reference_profit=am_daily,
-            draws=draws,
+            val_params,
+            val_days,
+            reference_profit=val_refs["always_max"].get("daily_profit"),
+            draws=val_draws,
         )
-        if i == chunks - 1:
-            final = ev
-        teacher_diffs = vs_programme(ev)
+        diffs = _paired_differences(ev, val_refs)
         evals.append(
             {
                 "timesteps": int(steps),
                 "train_seconds": seconds,
                 "per_seed_profit": ev["per_seed_profit"],
                 "mean_profit": float(np.mean(ev["per_seed_profit"])),
-                "vs_always_max": ev.get("paired_diff"),
-                "vs_battery_rule": vs_rule(ev),
-                **teacher_diffs,
+                **diffs,
             }
         )
         if not quiet:
-            diff, rule = ev.get("paired_diff"), vs_rule(ev)
-            vs = f"; vs always-max {diff['mean']:+.2f} ± {diff['stderr']:.2f}" if diff else ""
-            vs += f", vs battery rule {rule['mean']:+.2f} ± {rule['stderr']:.2f}" if rule else ""
-            vs += "".join(
-                f", vs {k[3:].replace('_', ' ')} {d['mean']:+.2f} ± {d['stderr']:.2f}"
-                for k, d in teacher_diffs.items()
-            )
+            am = val_refs["always_max"]["metrics"]["daily_profit_eur"]["mean"]
             tqdm.write(
-                f"  held-out greedy daily profit: {np.mean(ev['per_seed_profit']):.1f} EUR "
-                f"(per seed {np.round(ev['per_seed_profit'], 1).tolist()}; always-max {am:.1f}{vs})"
+                f"  validation greedy daily profit: {np.mean(ev['per_seed_profit']):.1f} EUR "
+                f"(per seed {np.round(ev['per_seed_profit'], 1).tolist()}; always-max {am:.1f}"
+                f"{_describe(diffs)})"
             )
 
     keys = jax.random.split(jax.random.PRNGKey(seed), seeds)
@@ -267,26 +247,42 @@ def _run(
         train, keys, chunks, on_chunk_and_save, desc=algo, resume=start
     )
     params = host(rs.params)
-    # The last chunk's evaluation scored these parameters on the same days and keys; a run
-    # resumed from a checkpoint that holds every chunk evaluates them here.
-    if final is None:
-        say(f"evaluating the trained greedy policy on {held_out_desc}")
-        final = heldout.evaluate_batched(
-            make_act, params, eval_params, eval_days, reference_profit=am_daily, draws=draws
+    # The held-out days are played once, by the finished run: its references and its policy.
+    if baselines is None:
+        say(
+            f"scoring the references on {held_out_desc}: always-max and the rules"
+            + ("" if optimal == "off" else ", the LP hindsight bound")
+            + (", the MPC" if optimal == "mpc" else "")
+        )
+        baselines = heldout.baseline_results(eval_params, eval_days, optimal, draws, references_dir)
+    am = baselines["always_max"]["metrics"]["daily_profit_eur"]["mean"]
+    teachers = [
+        name for name in heldout.REFERENCES[2:] if name in baselines
+    ]  # the teachers' rules (a station with a battery)
+    say(f"evaluating the trained greedy policy on {held_out_desc}")
+    final = heldout.evaluate_batched(
+        train.make_act(eval_params),
+        params,
+        eval_params,
+        eval_days,
+        reference_profit=baselines["always_max"].get("daily_profit"),
+        draws=draws,
+    )
+    final_diffs = _paired_differences(final, baselines)
+    if not quiet:
+        tqdm.write(
+            f"  held-out greedy daily profit: {np.mean(final['per_seed_profit']):.1f} EUR "
+            f"(per seed {np.round(final['per_seed_profit'], 1).tolist()}; always-max {am:.1f}"
+            f"{_describe(final_diffs)})"
         )
     wall = time.time() - t_start
-    first_beat = next(
-        (e for e in evals if e["vs_always_max"] is not None and stats.beats(e["vs_always_max"])),
-        None,
-    )
-    first_beat_rule = next(
-        (
-            e
-            for e in evals
-            if e["vs_battery_rule"] is not None and stats.beats(e["vs_battery_rule"])
-        ),
-        None,
-    )
+    first_beat = {
+        f"first_beats_{name}": next(
+            (e for e in evals if e.get(f"vs_{name}") is not None and stats.beats(e[f"vs_{name}"])),
+            None,
+        )
+        for name in ("always_max", "battery_rule", *teachers)
+    }
     heldout.add_headroom({"final": final}, baselines)
     table = {**baselines, algo: final}
     if not quiet:
@@ -333,15 +329,18 @@ def _run(
             "days": [int(d) for d in np.asarray(eval_days)],
             "table": table,
         },
-        "vs_always_max": final.get("paired_diff"),
-        "vs_battery_rule": vs_rule(final),
-        **vs_programme(final),
+        "vs_always_max": final_diffs["vs_always_max"],
+        "vs_battery_rule": final_diffs["vs_battery_rule"],
+        **{f"vs_{name}": final_diffs[f"vs_{name}"] for name in teachers},
         "headroom": final.get("headroom"),
-        "first_beats_always_max": first_beat,
-        "first_beats_battery_rule": first_beat_rule,
-        **{
-            f"first_beats_{name}": next((e for e in evals if stats.beats(e[f"vs_{name}"])), None)
-            for name in teachers
+        **first_beat,
+        "validation": {
+            "source": validation_source(config),
+            "num_days": int(np.size(val_days)),
+            "draws": val_draws,
+            "days": [int(d) for d in np.asarray(val_days)],
+            "evaluated": "every chunk" if evaluate_every_chunk else "never",
+            "references": val_refs,
         },
         "eval_curve": evals,
         "curve": {
@@ -387,16 +386,44 @@ def _run(
             algo,
             timesteps,
             metrics["episode_profit_eur"],
-            baselines,
+            table,
             evals,
             title
             or f"{algo.upper()} {config['SCENARIO']} / {config['TRAFFIC']}: {seeds} seeds"
             + (f", held-out days x {draws} car draws" if draws > 1 else ""),
+            validation=val_refs,
         )
         runs.write_json(results, out / "results.json")
         if not quiet:
             print(f"wrote {out / 'curve.png'}, {out / 'results.json'}, {out / 'params.msgpack'}")
     return RunOutput(results=results, params=params, trainer=train)
+
+
+def _paired_differences(ev: dict, refs: dict) -> dict:
+    """An evaluation's paired differences to the references played on the same days and
+    draws: ``vs_always_max``, ``vs_battery_rule`` (None without it) and ``vs_<teacher rule>``
+    for each teachers' rule the references hold."""
+    rule = refs.get("battery_rule", {}).get("daily_profit")
+    return {
+        "vs_always_max": ev.get("paired_diff"),
+        "vs_battery_rule": (
+            None if rule is None else stats.paired_difference(ev["daily_profit"], rule)
+        ),
+        **{
+            f"vs_{name}": stats.paired_difference(ev["daily_profit"], refs[name]["daily_profit"])
+            for name in heldout.REFERENCES[2:]
+            if name in refs
+        },
+    }
+
+
+def _describe(diffs: dict) -> str:
+    """``diffs`` (`_paired_differences`) for a progress line."""
+    return "".join(
+        f"; vs {k[3:].replace('_', ' ')} {d['mean']:+.2f} ± {d['stderr']:.2f}"
+        for k, d in diffs.items()
+        if d is not None
+    )
 
 
 def _resume_from(checkpoint, record: dict, train: Trainer, keys, out, multi: bool):
@@ -528,5 +555,6 @@ def _add_stored_mpc(run_dir: Path, references_dir) -> dict:
         table,
         results["eval_curve"],
         title,
+        validation=(results.get("validation") or {}).get("references"),
     )
     return results

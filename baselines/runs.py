@@ -132,7 +132,7 @@ def save_checkpoint(path: str | Path, run: dict, next_chunk: int, runner_state, 
         next_chunk: The index of the chunk to train next.
         runner_state: The trainer's runner state after the chunks before ``next_chunk``
             (parameters, optimiser state, env states, keys, update counter of every seed).
-        progress: What the run has recorded so far (the metrics of each chunk, the held-out
+        progress: What the run has recorded so far (the metrics of each chunk, the validation
             evaluations, the seconds spent), any mix of dicts, lists, arrays and numbers.
 
     Returns:
@@ -291,30 +291,60 @@ LINES = (
 
 
 def plot_curve(
-    path, algo: str, timesteps, episode_profit, baselines: dict, evals: list, title: str
+    path,
+    algo: str,
+    timesteps,
+    episode_profit,
+    baselines: dict,
+    evals: list,
+    title: str,
+    validation: dict | None = None,
 ):
-    """A run's learning curve: the sampled training-episode profit over seeds, the held-out
-    greedy evaluations, and every reference of ``baselines`` present (`LINES`) as a line."""
+    """A run's learning curve: the sampled training-episode profit over seeds, the greedy
+    evaluations during training (on the validation days), the final held-out evaluation, and
+    the references as lines.
+
+    Args:
+        path: the PNG to write.
+        algo: the algorithm's name, for the labels.
+        timesteps: the env steps of the training curve's points.
+        episode_profit: ``(seeds, points)`` sampled training-episode profits.
+        baselines: the held-out references by name (a run's evaluation table); every one of
+            `LINES` present, and always-max, is drawn as a line; an entry ``algo`` (the
+            trained policy's held-out evaluation) is drawn as a point at the last step.
+        evals: a run's ``eval_curve``, the validation evaluations, drawn as points.
+        title: the plot's title.
+        validation: the validation days' references (a run's ``validation["references"]``):
+            always-max on them is drawn as a line too.
+    """
     am = baselines["always_max"]["metrics"]["daily_profit_eur"]["mean"]
     lines = {f"always-max (held-out) {am:.0f}": am}
     for key, label in LINES:
         if key in baselines:
             v = baselines[key]["metrics"]["daily_profit_eur"]["mean"]
             lines[f"{label} (held-out) {v:.0f}"] = v
+    if validation and "always_max" in validation:
+        v = validation["always_max"]["metrics"]["daily_profit_eur"]["mean"]
+        lines[f"always-max (validation) {v:.0f}"] = v
+    points = {}
+    if evals:
+        points[f"{algo} validation (greedy)"] = (
+            [e["timesteps"] for e in evals],
+            np.asarray([e["per_seed_profit"] for e in evals]).T,
+        )
+    final = baselines.get(algo)
+    if isinstance(final, dict) and "per_seed_profit" in final and len(timesteps):
+        points[f"{algo} held-out (greedy, final)"] = (
+            [np.asarray(timesteps)[-1]],
+            np.asarray([final["per_seed_profit"]]).T,
+        )
     plot_learning_curve(
         path,
         timesteps,
         {f"{algo} training episodes (sampled)": np.asarray(episode_profit)},
         lines,
         title,
-        eval_points={
-            f"{algo} held-out (greedy)": (
-                [e["timesteps"] for e in evals],
-                np.asarray([e["per_seed_profit"] for e in evals]).T,
-            )
-        }
-        if evals
-        else None,
+        eval_points=points or None,
     )
 
 

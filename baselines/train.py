@@ -1,4 +1,4 @@
-"""Train PPO, IPPO or MAPPO from a config file, evaluate on held-out days, write a run directory.
+"""Train PPO, IPPO or MAPPO from a config file, score on held-out days, write a run directory.
 
     python -m baselines.train                                  # --config ippo: `make train`
     python -m baselines.train --config ppo TOTAL_TIMESTEPS=2e6 SEEDS=2 OUT=outputs/ppo_2e6
@@ -16,7 +16,8 @@ Several seeds train in one compiled program (``jax.vmap``); the env batch is sha
 every device JAX sees: the local ones, or those of every process with ``--coordinator
 HOST:PORT --num-processes N --process-id i`` (``jax.distributed``; only process 0 writes).
 Training runs in ``CHUNKS`` jitted pieces under a progress bar; after each piece the greedy
-policies are scored on the held-out days (`baselines.pipeline`).
+policies are evaluated on the validation days (training days), and the finished run's on the
+held-out days (`baselines.pipeline`).
 
 Outputs in ``OUT``: ``curve.png``, ``results.json`` (config, curves, the evaluation table
 with every reference, paired differences, wall time) and ``params.msgpack`` (the final

@@ -176,6 +176,34 @@ def split_days(num_days: int, num_eval: int = 100, seed: int = 0) -> tuple[np.nd
     return np.sort(perm[num_eval:]).astype(np.int32), np.sort(perm[:num_eval]).astype(np.int32)
 
 
+def validation_days(train_days, num: int = 20, seed: int = 1) -> np.ndarray:
+    """Draw validation days from training days, reproducibly.
+
+    A training run evaluates its policy on these days while it trains (to follow and select
+    it), so the held-out days it is scored on play no part in that; they are training days,
+    never held-out ones.
+
+    Args:
+        train_days: the training day indices to draw from (e.g. ``split_days(...)[0]``).
+        num: how many days to draw, in ``[1, len(train_days)]``.
+        seed: the seed of the draw (``numpy.random.default_rng(seed)``).
+
+    Returns:
+        ``(num,)`` sorted int32 day indices, a subset of ``train_days``.
+
+    Raises:
+        ValueError: ``num`` outside ``[1, len(train_days)]``.
+    """
+    train_days = np.unique(np.asarray(train_days, np.int64).reshape(-1))
+    if isinstance(num, bool) or int(num) != num or not 1 <= num <= train_days.size:
+        raise ValueError(
+            f"field 'num_validation_days' must lie in [1, {train_days.size}] (the training "
+            f"days), got {num!r}"
+        )
+    chosen = np.random.default_rng(seed).choice(train_days, size=int(num), replace=False)
+    return np.sort(chosen).astype(np.int32)
+
+
 @struct.dataclass
 class PolicyOutputCounts:
     """How often a played policy returned levels the env had to reinterpret, per played day.

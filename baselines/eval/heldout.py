@@ -1,5 +1,7 @@
 """The held-out protocol: every policy on the same days and cars (car draws per day), the rules'
-and the optimal references beside it, and what each trained seed scores against them."""
+and the optimal references beside it, and what each trained seed scores against them. A
+training run plays the same protocol on its validation days while it trains (the rules only,
+``optimal="off"``) and on the held-out days once, when it has finished."""
 
 from __future__ import annotations
 
@@ -110,8 +112,9 @@ OPTIMAL_CHOICES = RUN_SCHEMA["OPTIMAL"].choices
 def baseline_results(
     eval_params, eval_days, optimal: str = "off", draws: int = 1, references_dir=None
 ) -> dict:
-    """The `BASELINES` (and, on a station with a battery, the teachers' rules) on the
-    held-out days, with the evaluation's default key (the same
+    """The `BASELINES` (and, on a station with a battery, the teachers' rules) on
+    ``eval_days`` (the held-out days, or a run's validation days), with the evaluation's
+    default key (the same
     drawn cars that `evaluate_batched` gives the agents). Each keeps its
     daily profits (``daily_profit``) for paired comparisons.
 
@@ -194,9 +197,9 @@ def per_seed_results(final: dict, evals: list, baselines: dict, seed: int) -> li
     (``vs_battery_rule``) and, where the baselines hold them, to the teachers' rules
     (``vs_battery_programme``, ``vs_plan_programme``), the fraction of the LP bound's headroom it captures
     (``headroom_fraction``, when the bound was computed), and the env steps and wall minutes
-    (since the start of training, compile and evaluations included) of the first held-out
-    evaluation at which this seed beats each reference by more than two standard errors
-    (``None``: never)."""
+    (since the start of training, compile and evaluations included) of the first evaluation
+    of ``evals`` (a run's validation evaluations) at which this seed beats each reference by
+    more than two standard errors (``None``: never)."""
     profit = np.atleast_2d(np.asarray(final["daily_profit"], np.float64))
     am = np.asarray(baselines["always_max"]["daily_profit"], np.float64)
     bound = baselines.get("lp_bound", {}).get("daily_profit")

@@ -12,6 +12,11 @@ from ``jax.random.split(jax.random.PRNGKey(r), len(days))[i]``: draw 0 is the ev
 
 Distribution-shift tasks are scored on the held-out days of a test price year (or market)
 that their training data do not contain: `Task.train_params` gives the training env.
+
+Validation split: a training run follows and selects its policy on `Task.validation_days`,
+days drawn from the task's training days (played in `Task.validation_params`, the training
+env), under the keys of draws ``0 .. validation_draws - 1`` as above; the held-out days are
+played once per finished run, for its score.
 """
 
 from __future__ import annotations
@@ -30,10 +35,13 @@ from chargax_marl.core.params import validate_params
 from chargax_marl.core.prices import PriceData, load_prices
 from chargax_marl.core.scenarios import scenario_kwargs
 from chargax_marl.core.types import EnvParams
-from chargax_marl.evaluation import split_days
+from chargax_marl.evaluation import split_days, validation_days
 
 NUM_EVAL_DAYS = 100
 """Held-out days per task."""
+
+NUM_VALIDATION_DAYS = 20
+"""Validation days per task (drawn from its training days)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,6 +63,17 @@ class Task:
         params_fn: builds the scored env's parameters in place of ``scenario`` and
             ``prices`` (a task on a station or prices of one's own; its references are
             built with `chargax_marl.benchmark.references.compute_references`).
+        num_validation_days: validation days, drawn from the training days by
+            `chargax_marl.evaluation.validation_days` (at most the number of training days,
+            checked when the days are first drawn).
+        validation_draws: car draws per validation day: 1 on a task of 2 draws, 2 on one of 8
+            (a noisier station); a quarter or half of ``draws`` on a fifth of the days keeps
+            the evaluations during training a small part of a run.
+        validation_seed: seed of the validation draw.
+
+    Raises:
+        ValueError: ``num_validation_days``, ``validation_draws`` or ``validation_seed`` not
+            a positive integer (the message names the field, the value and what is allowed).
     """
 
     name: str
@@ -67,6 +86,17 @@ class Task:
     num_eval_days: int = NUM_EVAL_DAYS
     split_seed: int = 0
     params_fn: Callable[[], EnvParams] | None = None
+    num_validation_days: int = NUM_VALIDATION_DAYS
+    validation_draws: int = 1
+    validation_seed: int = 1
+
+    def __post_init__(self) -> None:
+        for name in ("num_validation_days", "validation_draws", "validation_seed"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(
+                    f"task {self.name!r}: field {name!r} must be a positive integer, got {value!r}"
+                )
 
     @property
     def id(self) -> str:
@@ -79,9 +109,13 @@ class Task:
         return bool(self.train_prices)
 
     def env_kwargs(self) -> dict[str, Any]:
+        """The `chargax_marl.core.make_params` keywords of the scored env.
+
+        Raises:
+            ValueError: a ``params_fn`` task (it has no keywords).
+        """
         if self.params_fn is not None:
             raise ValueError(f"task {self.id!r} builds its params with params_fn, not keywords")
-        """The `chargax_marl.core.make_params` keywords of the scored env."""
         return scenario_kwargs(self.scenario, prices=self.prices)
 
     def make_params(self) -> EnvParams:
@@ -132,6 +166,38 @@ class Task:
         )
         return make_params(**{**self.env_kwargs(), **overrides, "prices": joined})
 
+    def validation_days(self) -> np.ndarray:
+        """The days a training run evaluates its policy on while it trains.
+
+        ``num_validation_days`` days drawn by `chargax_marl.evaluation.validation_days` with
+        ``validation_seed`` from the training days: the days that are not held out, or on a
+        shift task every day of the joined ``train_prices``. They never include a held-out
+        day (a shift task's index another price year).
+
+        Returns:
+            ``(num_validation_days,)`` sorted int32 day indices of `validation_params`'s
+            price data.
+
+        Raises:
+            ValueError: ``num_validation_days`` more than the training days.
+        """
+        return _validation_days(self).copy()
+
+    def validation_params(self, **overrides: Any) -> EnvParams:
+        """The env the validation days are played in: the training env, `train_params`
+        (on a shift task, the training years' prices).
+
+        Args:
+            **overrides: `chargax_marl.core.make_params` keywords, as for `train_params`.
+
+        Returns:
+            The training env's parameters.
+
+        Raises:
+            ValueError: overrides on a ``params_fn`` task.
+        """
+        return self.train_params(**overrides)
+
     def scored_params(self, **overrides: Any) -> EnvParams:
         """The scored env with ``overrides`` on top (`make_params` without them)."""
         if not overrides:
@@ -161,12 +227,29 @@ def _params(task: Task) -> EnvParams:
 
 
 @functools.cache
+def _training_days(task: Task) -> np.ndarray:
+    """The indices of the days a task trains on, in its training env's price data."""
+    if not task.train_prices:
+        return _days(task)[0]
+    return np.arange(sum(int(load_prices(p).prices_eur_kwh.shape[0]) for p in task.train_prices))
+
+
+@functools.cache
+def _validation_days(task: Task) -> np.ndarray:
+    try:
+        return validation_days(_training_days(task), task.num_validation_days, task.validation_seed)
+    except ValueError as e:
+        raise ValueError(f"task {task.id!r}: {e}") from None
+
+
+@functools.cache
 def _days(task: Task) -> tuple[np.ndarray, np.ndarray]:
     return split_days(int(_params(task).num_days), task.num_eval_days, seed=task.split_seed)
 
 
 _MEDIUM_DRAWS = 2
 _HIGH_DRAWS = 8
+_HIGH_VALIDATION_DRAWS = 2  # the medium-draw tasks validate on 1 draw (the default)
 
 TASKS: dict[str, Task] = {
     t.id: t
@@ -184,6 +267,7 @@ TASKS: dict[str, Task] = {
             "shopping-grid25-high",
             _HIGH_DRAWS,
             "high traffic, the grid connection at 25 % of what the station could draw",
+            validation_draws=_HIGH_VALIDATION_DRAWS,
         ),
         Task(
             "shopping-grid10-high",
@@ -191,6 +275,7 @@ TASKS: dict[str, Task] = {
             "shopping-grid10-high",
             _HIGH_DRAWS,
             "high traffic, the grid connection at 10 %",
+            validation_draws=_HIGH_VALIDATION_DRAWS,
         ),
         Task(
             "shopping-peak",

@@ -21,11 +21,11 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def test_cli_smoke_writes_png_json_checkpoint(tmp_path, monkeypatch):
     out = tmp_path / "run"
-    evaluations = []  # one entry per held-out evaluation of the agent's parameters
+    evaluations = []  # the days of every evaluation of the agent's parameters
     evaluate = heldout.evaluate_batched
 
     def counting(*args, **kwargs):
-        evaluations.append(None)
+        evaluations.append(np.asarray(args[3]).tolist())
         return evaluate(*args, **kwargs)
 
     monkeypatch.setattr(heldout, "evaluate_batched", counting)
@@ -64,9 +64,11 @@ def test_cli_smoke_writes_png_json_checkpoint(tmp_path, monkeypatch):
     assert np.isfinite(res["headroom"]["fraction"]) and res["headroom"]["headroom_eur"] > 0
     assert table["ppo"]["num_days"] == 20 and res["timesteps"] == 4 * 24 * 2
     assert len(res["eval_curve"]) == 2 and len(res["curve"]["timesteps"]) == 2
-    # one evaluation per chunk: the final policy's scores are the last chunk's, not a rerun
-    assert len(evaluations) == 2
-    assert table["ppo"]["per_seed_profit"] == res["eval_curve"][-1]["per_seed_profit"]
+    # one evaluation per chunk on the validation days, then the final policy's on the held-out
+    validation = res["validation"]
+    assert evaluations == [validation["days"]] * 2 + [res["evaluation"]["days"]]
+    assert validation["num_days"] == 20 and validation["draws"] == 1
+    assert set(validation["references"]) == set(table) - {"lp_bound", "ppo"}
     # paired comparison with always-max on the same days and cars, per evaluation point
     vs = res["vs_always_max"]
     assert len(vs["per_seed_mean"]) == 2 and np.isfinite(vs["mean"]) and vs["stderr"] >= 0

@@ -1,0 +1,76 @@
+"""The config's validation split: `validation_env` for a task and a scenario, and the keys a
+task fixes."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from baselines.config import ConfigError, build_env_params, load, resolve, validation_env
+from chargax_marl.benchmark.tasks import TASKS
+from chargax_marl.evaluation import validation_days
+from chargax_marl.trace import params_fingerprint
+
+HIGH = "Chargax-shopping-grid25-high-v1"
+SHIFT = "Chargax-shift-nl2024-v1"
+
+
+def test_a_task_configs_validation_split_is_the_tasks():
+    for task_id, kwargs in ((HIGH, {}), (SHIFT, {"num_levels": 1})):
+        task = TASKS[task_id]
+        config = resolve({"TASK": task_id, "ENV_KWARGS": kwargs})
+        assert config["VALIDATION_DRAWS"] == task.validation_draws
+        params, days, draws = validation_env(config)
+        np.testing.assert_array_equal(days, task.validation_days())
+        assert draws == task.validation_draws
+        assert params_fingerprint(params) == params_fingerprint(task.validation_params(**kwargs))
+    assert TASKS[HIGH].validation_draws == 2  # not the key's default: the task sets it
+
+
+def test_a_scenario_configs_validation_days_are_drawn_from_its_training_days():
+    config = resolve({"NUM_EVAL_DAYS": 30, "NUM_VALIDATION_DAYS": 7, "VALIDATION_SEED": 3})
+    train, _, train_days, eval_days = build_env_params(config)
+    params, days, draws = validation_env(config)
+    np.testing.assert_array_equal(days, validation_days(train_days, 7, 3))
+    assert np.isin(days, train_days).all() and not np.isin(days, eval_days).any()
+    assert draws == 1 and params_fingerprint(params) == params_fingerprint(train)
+    assert [resolve({})[k] for k in ("NUM_VALIDATION_DAYS", "VALIDATION_DRAWS")] == [20, 1]
+    with pytest.raises(ConfigError, match=r"NUM_VALIDATION_DAYS=400.*\[1, 335\]"):
+        validation_env(resolve({"NUM_EVAL_DAYS": 30, "NUM_VALIDATION_DAYS": 400}))
+
+
+@pytest.mark.parametrize(
+    "key, value", [("NUM_VALIDATION_DAYS", 10), ("VALIDATION_DRAWS", 1), ("VALIDATION_SEED", 2)]
+)
+def test_a_validation_key_other_than_the_tasks_is_refused_naming_it(key, value):
+    config = resolve({"TASK": HIGH, key: value})
+    with pytest.raises(ConfigError, match=rf"{key}={value}"):
+        validation_env(config)
+
+
+@pytest.mark.parametrize("key", ["NUM_VALIDATION_DAYS", "VALIDATION_DRAWS", "VALIDATION_SEED"])
+def test_a_validation_key_below_one_is_refused(key):
+    with pytest.raises(ConfigError, match=key):
+        resolve({key: 0})
+
+
+def test_a_task_override_sets_the_validation_keys_over_the_files(tmp_path):
+    path = tmp_path / "mine.toml"
+    path.write_text("VALIDATION_DRAWS = 3\nNUM_VALIDATION_DAYS = 5\n")
+    assert load(path)[0]["VALIDATION_DRAWS"] == 3
+    config, _ = load(path, [f"TASK={HIGH}"])
+    assert config["VALIDATION_DRAWS"] == 2 and config["NUM_VALIDATION_DAYS"] == 20
+    validation_env(config)
+    with pytest.raises(ConfigError, match="VALIDATION_DRAWS=3"):
+        validation_env(load(path, [f"TASK={HIGH}", "VALIDATION_DRAWS=3"])[0])
+
+
+def test_stored_run_configs_still_resolve():
+    root = Path(__file__).resolve().parents[2] / "results"
+    configs = [json.loads(p.read_text()).get("config") for p in sorted(root.rglob("results.json"))]
+    for config in filter(None, configs):
+        resolved = resolve(config)
+        assert resolved["NUM_VALIDATION_DAYS"] >= 1 and resolved["VALIDATION_DRAWS"] >= 1

@@ -1,0 +1,66 @@
+"""The pipeline's protocol: evaluations during training play only the validation days; the
+held-out days are played once, by the finished run."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from baselines import pipeline
+from baselines.algos import runner
+from baselines.config import build_env_params, resolve, validation_env
+from baselines.eval import heldout, rules
+from tests.helpers import TINY
+
+
+def test_no_evaluation_during_training_plays_a_held_out_day(monkeypatch):
+    config = resolve(
+        {
+            **TINY,
+            "HIDDEN": 16,
+            "TOTAL_TIMESTEPS": 4 * 24 * 2,
+            "NUM_EVAL_DAYS": 6,
+            "NUM_VALIDATION_DAYS": 3,
+        }
+    )
+    _, _, _, held_out = build_env_params(config)
+    _, val_days, _ = validation_env(config)
+    assert not np.intersect1d(val_days, held_out).size
+    phase = ["before training"]
+    played = []  # (phase, what, days) of every evaluation of the policy or the rules
+
+    def recording(name, fn, days_at):
+        def wrapped(*args, **kwargs):
+            played.append((phase[0], name, np.asarray(args[days_at]).tolist()))
+            return fn(*args, **kwargs)
+
+        monkeypatch.setattr(module_of[name], name, wrapped)
+
+    module_of = {"evaluate_batched": heldout, "evaluate_rules": rules}
+    recording("evaluate_batched", heldout.evaluate_batched, 3)
+    recording("evaluate_rules", rules.evaluate_rules, 1)
+    run_in_chunks = runner.run_in_chunks
+
+    def training(*args, **kwargs):
+        phase[0] = "training"
+        try:
+            return run_in_chunks(*args, **kwargs)
+        finally:
+            phase[0] = "after training"
+
+    monkeypatch.setattr(runner, "run_in_chunks", training)
+    res = pipeline.run("ppo", config, seeds=1, chunks=2, quiet=True).results
+
+    val, held = val_days.tolist(), held_out.tolist()
+    until_trained = [p for p in played if p[0] != "after training"]
+    assert [p[1] for p in until_trained if p[0] == "training"] == ["evaluate_batched"] * 2
+    assert all(days == val for _, _, days in until_trained), until_trained
+    after = [p for p in played if p[0] == "after training"]
+    assert sorted(p[1] for p in after) == ["evaluate_batched", "evaluate_rules"]
+    assert all(days == held for _, _, days in after), after
+    # what the results say the evaluations played
+    assert res["validation"]["days"] == val and res["evaluation"]["days"] == held
+    assert (
+        res["validation"]["draws"] == 1 and "NUM_VALIDATION_DAYS=3" in res["validation"]["source"]
+    )
+    assert [e["timesteps"] for e in res["eval_curve"]] == [4 * 24, 4 * 24 * 2]
+    assert res["evaluation"]["table"]["ppo"]["num_days"] == 6
