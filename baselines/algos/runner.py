@@ -12,6 +12,8 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from tqdm.auto import tqdm
 
+from baselines.algos.ppo_core import HYPER_KEYS
+
 ENV_AXIS = "envs"
 
 
@@ -120,6 +122,94 @@ def run_in_chunks(
             if on_chunk is not None:
                 on_chunk(i, rs, m, b * steps_per_update, time.time() - t0)
     metrics = {k: np.concatenate([c[k] for c in chunks], axis=1) for k in chunks[0]}
+    return rs, metrics, time.time() - t0
+
+
+def run_settings_in_chunks(
+    train,
+    keys,
+    hyper: dict,
+    num_chunks: int,
+    on_chunk=None,
+    desc: str = "sweep",
+    settings_per_batch: int = 1,
+):
+    """Train several settings of the hyper-parameters, each over the same seeds, as one program.
+
+    Every setting trains exactly the program `run_in_chunks` runs for one setting: its seeds
+    vmapped, in the same chunks. The settings are mapped over (``jax.lax.map``), so the program
+    is compiled once for all of them; with ``settings_per_batch`` 1 each setting's numbers are
+    bit for bit those of `run_in_chunks` with its values, and with more, that many settings
+    are vmapped together (faster where the device has parallel width to spare, such as a GPU;
+    XLA may then sum in another order, so the numbers agree to float32 rounding).
+
+    Args:
+        train: A `baselines.algos.trainer.Trainer` (its shapes and structure are the settings').
+        keys: ``(seeds, 2)`` the seeds' keys, the same for every setting.
+        hyper: ``{key: (settings,)}`` each setting's values of
+            `baselines.algos.ppo_core.HYPER_KEYS`.
+        num_chunks: How many chunks the updates are split into (`chunk_bounds`).
+        on_chunk: ``on_chunk(chunk_index, runner_state, metrics, steps, seconds)`` after each
+            chunk, with leading axes ``(settings, seeds)``, or None.
+        desc: The progress bar's label.
+        settings_per_batch: Settings vmapped together; it must divide the number of settings.
+
+    Returns:
+        ``(runner_state, metrics, seconds)`` with leading axes ``(settings, seeds)`` and
+        metrics ``(settings, seeds, updates)``.
+
+    Raises:
+        ValueError: ``hyper`` without every key of ``HYPER_KEYS``, of unequal lengths, or a
+            ``settings_per_batch`` that does not divide them.
+    """
+    missing = sorted(set(HYPER_KEYS) - set(hyper))
+    lengths = {int(np.shape(v)[0]) for v in hyper.values()}
+    if missing or len(lengths) != 1:
+        raise ValueError(
+            f"hyper must give every key of {HYPER_KEYS} for the same number of settings; "
+            f"missing {missing}, lengths {sorted(lengths)}"
+        )
+    settings = lengths.pop()
+    if settings_per_batch < 1 or settings % settings_per_batch:
+        raise ValueError(
+            f"settings_per_batch={settings_per_batch} must be a positive divisor of the "
+            f"{settings} settings"
+        )
+    hyper = {k: jnp.asarray(v, jnp.float32) for k, v in hyper.items()}
+    total = train.num_updates
+    bounds = chunk_bounds(total, num_chunks)
+    sizes = sorted(set(int(b - a) for a, b in zip(bounds[:-1], bounds[1:]) if b > a))
+    steps_per_update = train.config["NUM_ENVS"] * train.config["NUM_STEPS"]
+    t0 = time.time()
+    per_setting = jax.vmap(train.init, in_axes=(0, None))
+    rs = jax.jit(jax.vmap(per_setting, in_axes=(None, 0)))(keys, hyper)
+    batch = None if settings_per_batch == 1 else settings_per_batch
+    chunks = []
+    with tqdm(
+        total=settings * total * steps_per_update,
+        desc=desc,
+        unit="step",
+        unit_scale=True,
+        dynamic_ncols=True,
+    ) as bar:
+        progress = _Progress(bar, steps_per_update)
+
+        def mapped(n, rs):
+            one = functools.partial(_chunk, train, n, progress.update)
+            return jax.lax.map(one, rs, batch_size=batch)
+
+        runs = {n: jax.jit(functools.partial(mapped, n), donate_argnums=0) for n in sizes}
+        for i, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
+            if b <= a:
+                continue
+            if not progress.started:
+                bar.set_postfix_str("compiling the training program")
+            rs, m = runs[int(b - a)](rs)
+            m = jax.device_get(m)
+            chunks.append(m)
+            if on_chunk is not None:
+                on_chunk(i, rs, m, b * steps_per_update, time.time() - t0)
+    metrics = {k: np.concatenate([c[k] for c in chunks], axis=2) for k in chunks[0]}
     return rs, metrics, time.time() - t0
 
 

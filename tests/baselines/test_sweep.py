@@ -1,0 +1,123 @@
+"""The sweep: its grid, one compiled program per structure, and each setting's numbers those of
+the same setting trained alone."""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import numpy as np
+import pytest
+
+from baselines import pipeline, sweep
+from baselines.algos import ppo_core
+from baselines.config import ConfigError, load, validation_env
+from baselines.runs import RunDirError
+from tests.helpers import TINY_CLI
+
+
+def test_parse_grid_splits_swept_keys_from_fixed_ones():
+    fixed, grid = sweep.parse_grid(
+        ["lr=1e-3,3e-4", "SEEDS=4", "ENV_KWARGS={num_levels=2, v2g=true}", "ACTIVATION=tanh,relu"]
+    )
+    assert fixed == ["SEEDS=4", "ENV_KWARGS={num_levels=2, v2g=true}"]
+    assert grid == {"LR": [1e-3, 3e-4], "ACTIVATION": ["tanh", "relu"]}
+    assert sweep.settings_of(grid) == [
+        {"LR": 1e-3, "ACTIVATION": "tanh"},
+        {"LR": 1e-3, "ACTIVATION": "relu"},
+        {"LR": 3e-4, "ACTIVATION": "tanh"},
+        {"LR": 3e-4, "ACTIVATION": "relu"},
+    ]
+    assert sweep.settings_of({}) == [{}]
+    assert sweep.parse_grid(["LR=1e-3,3e-4", "HIDDEN=8", "LR=1e-4", "HIDDEN=8,16"]) == (
+        ["LR=1e-4"],
+        {"HIDDEN": [8, 16]},
+    )
+
+
+@pytest.mark.parametrize(
+    "args, match",
+    [
+        (["SEEDS=2,4"], "run key"),
+        (["LR=1e-3,1e-3"], "repeated"),
+        (["LR"], "KEY=value"),
+    ],
+)
+def test_parse_grid_refuses_what_a_sweep_cannot_mean(args, match):
+    with pytest.raises(ConfigError, match=match):
+        sweep.parse_grid(args)
+
+
+def test_a_swept_value_the_key_does_not_allow_is_refused_before_training(tmp_path):
+    with pytest.raises(ConfigError, match="ENT_COEF"):
+        sweep.sweep("cpu", ["ENT_COEF=0.01,oops", f"OUT={tmp_path}/s"], write=False)
+
+
+def test_structure_separates_shapes_from_values():
+    config, _ = load("cpu")
+    other_values = {**config, **{k: 0.5 for k in ppo_core.HYPER_KEYS}}
+    assert sweep._structure(config) == sweep._structure(other_values)
+    assert sweep._structure(config) != sweep._structure({**config, "HIDDEN": 8})
+
+
+def test_a_setting_of_a_sweep_is_bit_for_bit_the_same_setting_trained_alone(tmp_path):
+    """Two learning rates x two entropy coefficients (one compiled program) and two widths (a
+    second): the setting ``LR=3e-4 ENT_COEF=0.003`` trained alone by the pipeline, as
+    ``python -m baselines.train`` trains it, ends with the same parameters, bit for bit, and
+    scores the same on every validation day after every chunk."""
+    base = TINY_CLI[2:] + ["ALGO=ippo", "TOTAL_TIMESTEPS=288", "CHUNKS=2", "OPTIMAL=off"]
+    out = tmp_path / "sweep"
+    argv = ["--config", "cpu", *base, "LR=1e-3,3e-4", "ENT_COEF=0.0,0.003", f"OUT={out}"]
+    results = sweep.main(argv + ["HIDDEN=8,16"])
+    assert len(results["results"]) == 8 and len(results["groups"]) == 2
+    for f in sweep.SUFFIXES:
+        assert (tmp_path / f"sweep{f}").is_file()
+    stored = json.loads((tmp_path / "sweep.json").read_text())
+    assert stored["ranking"] == results["ranking"]
+    assert sorted(stored["ranking"]) == list(range(8))
+    profits = [e["mean_profit"] for e in results["results"]]
+    assert [profits[i] for i in stored["ranking"]] == sorted(profits, reverse=True)
+    index = next(
+        e["index"]
+        for e in results["results"]
+        if e["setting"] == {"LR": 3e-4, "ENT_COEF": 0.003, "HIDDEN": 16}
+    )
+    entry = results["results"][index]
+    config, run = load("cpu", [*base, "LR=3e-4", "ENT_COEF=0.003", "HIDDEN=16"])
+    alone = pipeline.run("ippo", config, seeds=run["SEEDS"], chunks=run["CHUNKS"], quiet=True)
+    for a, b in zip(jax.tree.leaves(alone.params), jax.tree.leaves(results["params"][index])):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    curve = alone.results["eval_curve"]
+    assert [e["timesteps"] for e in curve] == [e["timesteps"] for e in entry["eval_curve"]]
+    for a, b in zip(curve, entry["eval_curve"]):
+        np.testing.assert_array_equal(a["per_seed_profit"], b["per_seed_profit"])
+    assert stored["validation"]["days"] == np.asarray(validation_env(config)[1]).tolist()
+    # the settings differ: the learning rate reaches the program as a value
+    other = results["results"][
+        next(
+            e["index"]
+            for e in results["results"]
+            if e["setting"] == {"LR": 1e-3, "ENT_COEF": 0.003, "HIDDEN": 16}
+        )
+    ]
+    assert entry["group"] == other["group"]
+    assert any(
+        not np.array_equal(np.asarray(a), np.asarray(b))
+        for a, b in zip(
+            jax.tree.leaves(results["params"][index]),
+            jax.tree.leaves(results["params"][other["index"]]),
+        )
+    )
+    with pytest.raises(RunDirError, match="--overwrite"):
+        sweep.main(argv)
+
+
+def test_settings_vmapped_together_agree_to_rounding():
+    base = TINY_CLI[2:] + ["ALGO=ppo", "TOTAL_TIMESTEPS=192", "CHUNKS=1", "OPTIMAL=off"]
+    grid = ["LR=1e-3,3e-4"]
+    one = sweep.sweep("cpu", base + grid, write=False, quiet=True)
+    two = sweep.sweep("cpu", base + grid, settings_per_batch=2, write=False, quiet=True)
+    for a, b in zip(jax.tree.leaves(one["params"]), jax.tree.leaves(two["params"])):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-6)
+    with pytest.raises(ValueError, match="settings_per_batch"):
+        sweep.sweep("cpu", base + grid, settings_per_batch=3, write=False, quiet=True)
