@@ -25,7 +25,8 @@ Every setting is scored after each of ``CHUNKS`` chunks on the validation days (
 bound's gain over always-max captured). The ranking is by mean validation profit over seeds.
 
 Outputs: ``OUT.json`` (every setting's config, per-seed validation profits, paired
-differences to always-max, headroom, the validation curve with env-steps and seconds, the
+differences to always-max, headroom, the validation curve with env-steps and seconds (its
+``train_seconds``: since the group's start, compiles included, evaluations left out), the
 compile groups and their wall times), ``OUT.md`` (the ranked table) and ``OUT.params.msgpack``
 (every setting's final parameters, leading axis seed). ``OUT`` defaults to
 ``outputs/sweep_<algo>``; the files of an earlier sweep are refused unless ``--overwrite``.
@@ -147,6 +148,7 @@ def sweep(
     overwrite: bool = False,
     write: bool = True,
     quiet: bool = False,
+    stop_at_headroom: float | None = None,
 ) -> dict:
     """Train and score every setting of a grid (see the module's docstring).
 
@@ -158,6 +160,9 @@ def sweep(
         overwrite: replace the files of an earlier sweep at ``OUT``.
         write: write ``OUT.json``, ``OUT.md`` and ``OUT.params.msgpack``.
         quiet: print nothing but the progress bars.
+        stop_at_headroom: stop a compile group's training after the first chunk at which
+            every setting's mean headroom over seeds reaches this fraction (a time-to-score
+            measurement; None: train the config's env-steps).
 
     Returns:
         The results (what ``OUT.json`` holds), with ``params``: each setting's final
@@ -178,9 +183,29 @@ def sweep(
     algo = run["ALGO"]
     out = run["OUT"] if any(o.startswith("OUT=") for o in fixed) else f"outputs/sweep_{algo}"
     if not write:
-        return _sweep(name, fixed, grid, grid_settings, configs, run, settings_per_batch, quiet)
+        return _sweep(
+            name,
+            fixed,
+            grid,
+            grid_settings,
+            configs,
+            run,
+            settings_per_batch,
+            quiet,
+            stop_at_headroom,
+        )
     with runs.claim_outputs(out, SUFFIXES, overwrite=overwrite):
-        results = _sweep(name, fixed, grid, grid_settings, configs, run, settings_per_batch, quiet)
+        results = _sweep(
+            name,
+            fixed,
+            grid,
+            grid_settings,
+            configs,
+            run,
+            settings_per_batch,
+            quiet,
+            stop_at_headroom,
+        )
         params = results.pop("params")
         runs.write_json(results, out + ".json")
         Path(out + ".md").write_text(ranked_table(results) + "\n")
@@ -191,7 +216,9 @@ def sweep(
     return results
 
 
-def _sweep(name, fixed, grid, grid_settings, configs, run, settings_per_batch, quiet) -> dict:
+def _sweep(
+    name, fixed, grid, grid_settings, configs, run, settings_per_batch, quiet, stop_at_headroom
+) -> dict:
     """`sweep` once its outputs are claimed."""
     t_start = time.time()
     algo, seeds, seed, chunks = run["ALGO"], run["SEEDS"], run["SEED"], run["CHUNKS"]
@@ -237,6 +264,7 @@ def _sweep(name, fixed, grid, grid_settings, configs, run, settings_per_batch, q
             k: np.asarray([configs[i][k] for i in members], np.float32) for k in ppo_core.HYPER_KEYS
         }
         curves: list[list[dict]] = [[] for _ in members]
+        eval_seconds = [0.0]  # the evaluations' time so far, left out of train_seconds
 
         def score(flat_params):
             ev = heldout.evaluate_batched(
@@ -244,19 +272,27 @@ def _sweep(name, fixed, grid, grid_settings, configs, run, settings_per_batch, q
             )
             return np.asarray(ev["daily_profit"], np.float64)  # (settings * seeds, days)
 
-        def on_chunk(i, rs, m, steps, seconds, curves=curves, score=score):
+        def on_chunk(i, rs, m, steps, seconds, curves=curves, score=score, spent=eval_seconds):
+            t_eval = time.time()
             flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), rs.params)
             daily = score(jax.device_get(flat)).reshape(len(curves), seeds, -1)
+            train_seconds = seconds - spent[0]
+            spent[0] += time.time() - t_eval
             for j, curve in enumerate(curves):
                 curve.append(
                     {
                         "timesteps": int(steps),
-                        "train_seconds": seconds,
+                        "train_seconds": train_seconds,
+                        "wall_seconds": seconds + time.time() - t_eval,
                         "per_seed_profit": daily[j].mean(axis=1).tolist(),
                         "mean_profit": float(daily[j].mean()),
                         "headroom": _headroom(daily[j], am_daily, bound_daily),
                     }
                 )
+            if stop_at_headroom is None:
+                return False
+            reached = [c[-1]["headroom"] for c in curves]
+            return all(h is not None and h["mean"] >= stop_at_headroom for h in reached)
 
         rs, metrics, seconds = runner.run_settings_in_chunks(
             train,

@@ -150,7 +150,8 @@ def run_settings_in_chunks(
             `baselines.algos.ppo_core.HYPER_KEYS`.
         num_chunks: How many chunks the updates are split into (`chunk_bounds`).
         on_chunk: ``on_chunk(chunk_index, runner_state, metrics, steps, seconds)`` after each
-            chunk, with leading axes ``(settings, seeds)``, or None.
+            chunk, with leading axes ``(settings, seeds)``, or None; it returns True to stop
+            the training there (the metrics then end with that chunk).
         desc: The progress bar's label.
         settings_per_batch: Settings vmapped together; it must divide the number of settings.
 
@@ -207,8 +208,8 @@ def run_settings_in_chunks(
             rs, m = runs[int(b - a)](rs)
             m = jax.device_get(m)
             chunks.append(m)
-            if on_chunk is not None:
-                on_chunk(i, rs, m, b * steps_per_update, time.time() - t0)
+            if on_chunk is not None and on_chunk(i, rs, m, b * steps_per_update, time.time() - t0):
+                break
     metrics = {k: np.concatenate([c[k] for c in chunks], axis=2) for k in chunks[0]}
     return rs, metrics, time.time() - t0
 
