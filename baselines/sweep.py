@@ -141,6 +141,28 @@ def _structure(config: dict) -> str:
     )
 
 
+def compile_groups(configs: list[dict], chunks: int) -> dict[str, list[int]]:
+    """The settings that train in one compiled program.
+
+    Each config's ``TOTAL_TIMESTEPS`` is first rounded down to equal chunks, as
+    `baselines.pipeline.run` rounds it (in place).
+
+    Args:
+        configs: the settings' resolved configs.
+        chunks: the run's ``CHUNKS``.
+
+    Returns:
+        ``{structure: [setting index, ...]}``: settings whose keys other than
+        `baselines.algos.ppo_core.HYPER_KEYS` are equal share one program.
+    """
+    groups: dict[str, list[int]] = {}
+    for i, config in enumerate(configs):
+        _, n_upd = pipeline.chunked_updates(config, chunks)
+        config["TOTAL_TIMESTEPS"] = n_upd * config["NUM_ENVS"] * config["NUM_STEPS"]
+        groups.setdefault(_structure(config), []).append(i)
+    return groups
+
+
 def sweep(
     name: str | Path = DEFAULT_CONFIG,
     overrides=(),
@@ -223,11 +245,7 @@ def _sweep(
     t_start = time.time()
     algo, seeds, seed, chunks = run["ALGO"], run["SEEDS"], run["SEED"], run["CHUNKS"]
     optimal = "off" if run["OPTIMAL"] == "off" else "bound"
-    groups: dict[str, list[int]] = {}
-    for i, config in enumerate(configs):
-        num_chunks, n_upd = pipeline.chunked_updates(config, chunks)
-        config["TOTAL_TIMESTEPS"] = n_upd * config["NUM_ENVS"] * config["NUM_STEPS"]
-        groups.setdefault(_structure(config), []).append(i)
+    groups = compile_groups(configs, chunks)
     keys = jax.random.split(jax.random.PRNGKey(seed), seeds)
     entries: list[dict | None] = [None] * len(configs)
     params: list = [None] * len(configs)

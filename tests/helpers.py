@@ -243,6 +243,7 @@ TINY_CLI = [
     "HIDDEN=16",
     f"ENV_KWARGS={toml_inline(TINY_ENV)}",
     "NUM_EVAL_DAYS=20",  # enough held-out days for every property; the default 100 for users
+    "NUM_VALIDATION_DAYS=20",  # as many as held out: the evaluations share their programs
 ]
 """The command line of a tiny run (add ``ALGO=``, ``TOTAL_TIMESTEPS=``, ``CHUNKS=``, ``OUT=``)."""
 

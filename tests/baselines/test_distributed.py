@@ -41,6 +41,7 @@ ARGS = [
     "UPDATE_EPOCHS=1",
     "CHUNKS=1",
     "NUM_EVAL_DAYS=2",
+    "NUM_VALIDATION_DAYS=2",  # as many as held out: both evaluations share their programs
     "OPTIMAL=off",
     'ENV_KWARGS={ station = "single_type", station_kwargs = { num_ports = 4, battery = false }, step_minutes = 60.0 }',
 ]

@@ -38,6 +38,7 @@ RESUME_CLI = [
     f"TOTAL_TIMESTEPS={4 * 4 * 24}",
     "CHUNKS=4",
     "NUM_EVAL_DAYS=2",
+    "NUM_VALIDATION_DAYS=2",  # as many as held out: both evaluations share their programs
     "OPTIMAL=off",
 ]
 

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from baselines import pipeline, sweep
-from baselines.algos import ppo_core
+from baselines.algos import ppo, ppo_core, runner
 from baselines.config import ConfigError, load, validation_env
 from baselines.runs import RunDirError
-from tests.helpers import TINY_CLI
+from tests.helpers import TINY, TINY_CLI
 
 
 def test_parse_grid_splits_swept_keys_from_fixed_ones():
@@ -53,37 +53,41 @@ def test_a_swept_value_the_key_does_not_allow_is_refused_before_training(tmp_pat
         sweep.sweep("cpu", ["ENT_COEF=0.01,oops", f"OUT={tmp_path}/s"], write=False)
 
 
-def test_structure_separates_shapes_from_values():
+def test_settings_share_a_program_unless_a_shape_or_structure_key_differs():
     config, _ = load("cpu")
     other_values = {**config, **{k: 0.5 for k in ppo_core.HYPER_KEYS}}
     assert sweep._structure(config) == sweep._structure(other_values)
     assert sweep._structure(config) != sweep._structure({**config, "HIDDEN": 8})
+    _, grid = sweep.parse_grid(["LR=1e-3,3e-4", "HIDDEN=8,16", "GAMMA=0.9,0.99"])
+    configs = [
+        load("cpu", [sweep._override(k, v) for k, v in s.items()])[0]
+        for s in sweep.settings_of(grid)
+    ]
+    groups = sweep.compile_groups(configs, chunks=3)
+    assert sorted(groups.values()) == [[0, 1, 4, 5], [2, 3, 6, 7]]  # by HIDDEN
+    assert all(c["TOTAL_TIMESTEPS"] % (3 * c["NUM_ENVS"] * c["NUM_STEPS"]) == 0 for c in configs)
 
 
 def test_a_setting_of_a_sweep_is_bit_for_bit_the_same_setting_trained_alone(tmp_path):
-    """Two learning rates x two entropy coefficients (one compiled program) and two widths (a
-    second): the setting ``LR=3e-4 ENT_COEF=0.003`` trained alone by the pipeline, as
+    """Two learning rates in one compiled program: the setting ``LR=3e-4`` trained alone by
+    the pipeline, as
     ``python -m baselines.train`` trains it, ends with the same parameters, bit for bit, and
     scores the same on every validation day after every chunk."""
     base = TINY_CLI[2:] + ["ALGO=ippo", "TOTAL_TIMESTEPS=288", "CHUNKS=2", "OPTIMAL=off"]
     out = tmp_path / "sweep"
-    argv = ["--config", "cpu", *base, "LR=1e-3,3e-4", "ENT_COEF=0.0,0.003", f"OUT={out}"]
-    results = sweep.main(argv + ["HIDDEN=8,16"])
-    assert len(results["results"]) == 8 and len(results["groups"]) == 2
+    argv = ["--config", "cpu", *base, "LR=1e-3,3e-4", f"OUT={out}"]
+    results = sweep.main(argv)
+    assert len(results["results"]) == 2 and len(results["groups"]) == 1
     for f in sweep.SUFFIXES:
         assert (tmp_path / f"sweep{f}").is_file()
     stored = json.loads((tmp_path / "sweep.json").read_text())
     assert stored["ranking"] == results["ranking"]
-    assert sorted(stored["ranking"]) == list(range(8))
+    assert sorted(stored["ranking"]) == [0, 1]
     profits = [e["mean_profit"] for e in results["results"]]
     assert [profits[i] for i in stored["ranking"]] == sorted(profits, reverse=True)
-    index = next(
-        e["index"]
-        for e in results["results"]
-        if e["setting"] == {"LR": 3e-4, "ENT_COEF": 0.003, "HIDDEN": 16}
-    )
+    index = next(e["index"] for e in results["results"] if e["setting"] == {"LR": 3e-4})
     entry = results["results"][index]
-    config, run = load("cpu", [*base, "LR=3e-4", "ENT_COEF=0.003", "HIDDEN=16"])
+    config, run = load("cpu", [*base, "LR=3e-4"])
     alone = pipeline.run("ippo", config, seeds=run["SEEDS"], chunks=run["CHUNKS"], quiet=True)
     for a, b in zip(jax.tree.leaves(alone.params), jax.tree.leaves(results["params"][index])):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
@@ -94,11 +98,7 @@ def test_a_setting_of_a_sweep_is_bit_for_bit_the_same_setting_trained_alone(tmp_
     assert stored["validation"]["days"] == np.asarray(validation_env(config)[1]).tolist()
     # the settings differ: the learning rate reaches the program as a value
     other = results["results"][
-        next(
-            e["index"]
-            for e in results["results"]
-            if e["setting"] == {"LR": 1e-3, "ENT_COEF": 0.003, "HIDDEN": 16}
-        )
+        next(e["index"] for e in results["results"] if e["setting"] == {"LR": 1e-3})
     ]
     assert entry["group"] == other["group"]
     assert any(
@@ -113,11 +113,16 @@ def test_a_setting_of_a_sweep_is_bit_for_bit_the_same_setting_trained_alone(tmp_
 
 
 def test_settings_vmapped_together_agree_to_rounding():
-    base = TINY_CLI[2:] + ["ALGO=ppo", "TOTAL_TIMESTEPS=192", "CHUNKS=1", "OPTIMAL=off"]
-    grid = ["LR=1e-3,3e-4"]
-    one = sweep.sweep("cpu", base + grid, write=False, quiet=True)
-    two = sweep.sweep("cpu", base + grid, settings_per_batch=2, write=False, quiet=True)
-    for a, b in zip(jax.tree.leaves(one["params"]), jax.tree.leaves(two["params"])):
+    train = ppo.make_train({**TINY, "HIDDEN": 16})
+    keys = jax.random.split(jax.random.PRNGKey(0), 2)
+    hyper = {k: np.full(2, v, np.float32) for k, v in ppo_core.hyper_values(train.config).items()}
+    hyper["LR"] = np.asarray([1e-3, 3e-4], np.float32)
+    one = runner.run_settings_in_chunks(train, keys, hyper, 1)[0].params
+    two = runner.run_settings_in_chunks(train, keys, hyper, 1, settings_per_batch=2)[0].params
+    for a, b in zip(jax.tree.leaves(one), jax.tree.leaves(two)):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-6)
+    assert not np.array_equal(*np.asarray(jax.tree.leaves(one)[0])[:, 0])  # the LRs differ
     with pytest.raises(ValueError, match="settings_per_batch"):
-        sweep.sweep("cpu", base + grid, settings_per_batch=3, write=False, quiet=True)
+        runner.run_settings_in_chunks(train, keys, hyper, 1, settings_per_batch=3)
+    with pytest.raises(ValueError, match="missing"):
+        runner.run_settings_in_chunks(train, keys, {"LR": hyper["LR"]}, 1)
