@@ -355,19 +355,25 @@ def _task_env_params(config: dict):
     return train, task.scored_params(**overrides), np.asarray(train.reset_days), task.eval_days()
 
 
-def validation_env(config: dict) -> tuple:
+def validation_env(config: dict, built: tuple | None = None) -> tuple:
     """The validation split of a config: what a training run evaluates on while it trains.
 
     The validation days are training days (never held-out ones), drawn by
-    `chargax_marl.evaluation.validation_days`, and are played in the training env.
+    `chargax_marl.evaluation.validation_days`. They are played in the env of their price
+    data: the scored env's parameters, or a shift task's training env
+    (`chargax_marl.benchmark.tasks.Task.validation_params`); a played day starts from an
+    empty station on its day, so the training env's ``reset_days`` would change nothing.
 
     Args:
         config: a resolved config (the keys of `build_env_params` and `VALIDATION_KEYS`).
+        built: what `build_env_params` returned for ``config``, to reuse its parameters
+            (the validation then plays in the same scored-env object as the held-out days,
+            and a caller's compiled evaluation serves both); None builds them.
 
     Returns:
         ``(val_params, val_days, val_draws)``: with ``TASK``, the task's
         ``validation_params(**ENV_KWARGS)``, ``validation_days()`` and ``validation_draws``;
-        otherwise the config's training params, ``NUM_VALIDATION_DAYS`` days drawn with
+        otherwise the config's scored params, ``NUM_VALIDATION_DAYS`` days drawn with
         ``VALIDATION_SEED`` from its training days, and ``VALIDATION_DRAWS``.
 
     Raises:
@@ -375,11 +381,11 @@ def validation_env(config: dict) -> tuple:
             held-out split other than the task's, see `build_env_params`); without it,
             ``NUM_VALIDATION_DAYS`` more than the training days.
     """
-    train_params, _, train_days, _ = build_env_params(config)
-    return _validation_env(config, train_params, train_days)
+    _, full_params, train_days, _ = build_env_params(config) if built is None else built
+    return _validation_env(config, full_params, train_days)
 
 
-def _validation_env(config: dict, train_params, train_days) -> tuple:
+def _validation_env(config: dict, full_params, train_days) -> tuple:
     """`validation_env` on the config's built training params and days."""
     if config.get("TASK"):
         task = get_task(config["TASK"])
@@ -388,7 +394,10 @@ def _validation_env(config: dict, train_params, train_days) -> tuple:
                 raise ConfigError(
                     f"TASK={task.id!r} validates with {key}={value!r}; got {key}={config[key]!r}"
                 )
-        return train_params, task.validation_days(), task.validation_draws
+        params = full_params
+        if task.is_shift:
+            params = task.validation_params(**dict(config.get("ENV_KWARGS") or {}))
+        return params, task.validation_days(), task.validation_draws
     try:
         days = validation_days(
             train_days, int(config["NUM_VALIDATION_DAYS"]), int(config["VALIDATION_SEED"])
@@ -398,7 +407,7 @@ def _validation_env(config: dict, train_params, train_days) -> tuple:
             f"config key NUM_VALIDATION_DAYS={config['NUM_VALIDATION_DAYS']!r} is not allowed: "
             f"expected an integer in [1, {np.size(train_days)}] (the training days)"
         ) from None
-    return train_params, days, int(config["VALIDATION_DRAWS"])
+    return full_params, days, int(config["VALIDATION_DRAWS"])
 
 
 def validation_source(config: dict) -> str:

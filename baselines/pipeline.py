@@ -74,7 +74,7 @@ def run(
 
     While it trains, the run evaluates the greedy policy after every chunk on the config's
     validation days and draws (`baselines.config.validation_env`: training days, in the
-    training env) against always-max and the rules on the same days (``eval_curve``,
+    env of their price data) against always-max and the rules on the same days (``eval_curve``,
     ``first_beats_*``, the ``validation`` block); ``evaluate_every_chunk=False`` skips these.
     The held-out days are played once, after training: the references and the final
     parameters (the ``evaluation`` table, ``per_seed``, ``over_seeds``, ``vs_*``,
@@ -170,8 +170,9 @@ def _run(
     steps_per_update = config["NUM_ENVS"] * config["NUM_STEPS"]
     chunks, n_upd = chunked_updates(config, chunks)
     config["TOTAL_TIMESTEPS"] = n_upd * steps_per_update
-    train_params, full_params, train_days, held_out = build_env_params(config)
-    val_params, val_days, val_draws = validation_env(config)
+    built = build_env_params(config)
+    train_params, full_params, train_days, held_out = built
+    val_params, val_days, val_draws = validation_env(config, built)
     env_params = train_params if env_params is None else env_params
     eval_params = full_params if eval_params is None else eval_params
     eval_days = held_out if eval_days is None else eval_days

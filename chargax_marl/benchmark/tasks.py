@@ -184,19 +184,26 @@ class Task:
         return _validation_days(self).copy()
 
     def validation_params(self, **overrides: Any) -> EnvParams:
-        """The env the validation days are played in: the training env, `train_params`
-        (on a shift task, the training years' prices).
+        """The env the validation days are played in.
+
+        On a shift task, the training env (`train_params`: the training years' prices, which
+        the validation days index). Otherwise the scored env (`scored_params`): the validation
+        days are days of its price data, and a played day starts from an empty station on
+        that day, so the training env's restricted ``reset_days`` would change nothing but
+        the compiled program, which the held-out evaluation then shares.
 
         Args:
             **overrides: `chargax_marl.core.make_params` keywords, as for `train_params`.
 
         Returns:
-            The training env's parameters.
+            The parameters to play `validation_days` in.
 
         Raises:
             ValueError: overrides on a ``params_fn`` task.
         """
-        return self.train_params(**overrides)
+        if self.is_shift:
+            return self.train_params(**overrides)
+        return self.scored_params(**overrides)
 
     def scored_params(self, **overrides: Any) -> EnvParams:
         """The scored env with ``overrides`` on top (`make_params` without them)."""

@@ -6,13 +6,16 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
 from baselines.config import ConfigError, build_env_params, load, resolve, validation_env
 from chargax_marl.benchmark.tasks import TASKS
-from chargax_marl.evaluation import validation_days
+from chargax_marl.evaluation import run_policy_days, validation_days
+from chargax_marl.policies import always_max
 from chargax_marl.trace import params_fingerprint
+from tests.helpers import TINY_ENV
 
 HIGH = "Chargax-shopping-grid25-high-v1"
 SHIFT = "Chargax-shift-nl2024-v1"
@@ -36,7 +39,23 @@ def test_a_scenario_configs_validation_days_are_drawn_from_its_training_days():
     params, days, draws = validation_env(config)
     np.testing.assert_array_equal(days, validation_days(train_days, 7, 3))
     assert np.isin(days, train_days).all() and not np.isin(days, eval_days).any()
-    assert draws == 1 and params_fingerprint(params) == params_fingerprint(train)
+    assert draws == 1 and params_fingerprint(params) == params_fingerprint(
+        build_env_params(config)[1]
+    )
+
+
+def test_a_validation_day_plays_the_same_in_the_training_and_the_scored_env():
+    """Validation plays in the scored env (where the price data are the same): a day starts
+    from an empty station on that day, so the training env's reset days change nothing."""
+    config = resolve({"ENV_KWARGS": TINY_ENV, "NUM_VALIDATION_DAYS": 3})
+    train, full, _, _ = build_env_params(config)
+    params, days, _ = validation_env(config)
+    assert np.shape(train.reset_days) != np.shape(full.reset_days)
+    key = jax.random.PRNGKey(4)
+    a = run_policy_days(always_max, train, days, key)
+    b = run_policy_days(always_max, params, days, key)
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
     assert [resolve({})[k] for k in ("NUM_VALIDATION_DAYS", "VALIDATION_DRAWS")] == [20, 1]
     with pytest.raises(ConfigError, match=r"NUM_VALIDATION_DAYS=400.*\[1, 335\]"):
         validation_env(resolve({"NUM_EVAL_DAYS": 30, "NUM_VALIDATION_DAYS": 400}))

@@ -8,6 +8,7 @@ import pytest
 from chargax_marl.benchmark.tasks import TASKS, Task
 from chargax_marl.core import make_params
 from chargax_marl.evaluation import split_days, validation_days
+from chargax_marl.trace import params_fingerprint
 
 
 @pytest.mark.parametrize("task_id", sorted(TASKS))
@@ -16,8 +17,10 @@ def test_validation_days_are_training_days_drawn_reproducibly(task_id):
     days = task.validation_days()
     assert days.dtype == np.int32 and days.shape == (task.num_validation_days,)
     assert np.all(np.diff(days) > 0)  # sorted, no day twice
-    train = task.validation_params()
+    train = task.train_params()
     assert np.isin(days, np.asarray(train.reset_days)).all()
+    played_in = task.train_params() if task.is_shift else task.make_params()
+    assert params_fingerprint(task.validation_params()) == params_fingerprint(played_in)
     assert days.max() < int(train.num_days)
     if task.is_shift:  # every day of the training years
         assert int(train.num_days) == np.asarray(train.reset_days).size
