@@ -7,21 +7,15 @@ import numpy as np
 
 from baselines import pipeline
 from baselines.algos import runner
-from baselines.config import build_env_params, resolve, validation_env
+from baselines.config import build_env_params, load, validation_env
 from baselines.eval import heldout, rules
-from tests.helpers import TINY
+from tests.helpers import TINY_CLI
 
 
 def test_no_evaluation_during_training_plays_a_held_out_day(monkeypatch):
-    config = resolve(
-        {
-            **TINY,
-            "HIDDEN": 16,
-            "TOTAL_TIMESTEPS": 4 * 24 * 2,
-            "NUM_EVAL_DAYS": 6,
-            "NUM_VALIDATION_DAYS": 3,
-        }
-    )
+    # the tiny IPPO run of the other pipeline tests (their compiled programs are shared), in
+    # two chunks of one update, 20 held-out and 20 validation days
+    config, _ = load("cpu", [*TINY_CLI[2:], f"TOTAL_TIMESTEPS={2 * 4 * 24}", "OPTIMAL=off"])
     _, _, _, held_out = build_env_params(config)
     _, val_days, _ = validation_env(config)
     assert not np.intersect1d(val_days, held_out).size
@@ -48,7 +42,7 @@ def test_no_evaluation_during_training_plays_a_held_out_day(monkeypatch):
             phase[0] = "after training"
 
     monkeypatch.setattr(runner, "run_in_chunks", training)
-    res = pipeline.run("ppo", config, seeds=1, chunks=2, quiet=True).results
+    res = pipeline.run("ippo", config, seeds=2, chunks=2, quiet=True).results
 
     val, held = val_days.tolist(), held_out.tolist()
     until_trained = [p for p in played if p[0] != "after training"]
@@ -60,7 +54,7 @@ def test_no_evaluation_during_training_plays_a_held_out_day(monkeypatch):
     # what the results say the evaluations played
     assert res["validation"]["days"] == val and res["evaluation"]["days"] == held
     assert (
-        res["validation"]["draws"] == 1 and "NUM_VALIDATION_DAYS=3" in res["validation"]["source"]
+        res["validation"]["draws"] == 1 and "NUM_VALIDATION_DAYS=20" in res["validation"]["source"]
     )
     assert [e["timesteps"] for e in res["eval_curve"]] == [4 * 24, 4 * 24 * 2]
-    assert res["evaluation"]["table"]["ppo"]["num_days"] == 6
+    assert res["evaluation"]["table"]["ippo"]["num_days"] == 20
