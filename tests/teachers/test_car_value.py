@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from baselines.algos import aids, ippo, ppo
+from baselines.algos import aids, ippo, ppo, ppo_core
 from chargax_marl.core import make_params, simulator
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.teachers import car_plan, shaping
@@ -179,20 +179,29 @@ def test_single_env_reports_each_leaf_s_energy():
 @pytest.mark.parametrize("mod", [ppo, ippo])
 def test_port_shaping_trains_and_keeps_the_logged_profit(mod):
     """The trainers run with the port shaping; it changes the learning signal, not the
-    profit the env logs (same seeds, same first rollout)."""
+    profit the env logs (same seeds, same first rollout). ``SHAPING_WEIGHT`` 0, a value of the
+    runner state, takes the shaping out again."""
     outs = {}
+    keys = jax.random.split(jax.random.PRNGKey(0), 2)
     for mode in ("off", "plan"):
         config = {**TINY, "PORT_SHAPING": mode, "SPLIT_CREDIT": mod is ppo}
         if mod is ippo:
             config["LOCAL_REWARD_WEIGHT"] = 1.0
         train = mod.make_train(config)
-        out = train_seeds(train, jax.random.split(jax.random.PRNGKey(0), 2))
+        out = train_seeds(train, keys)
         m = jax.device_get(out["metrics"])
         for k in ("actor_loss", "value_loss"):
             assert np.all(np.isfinite(m[k])), (k, m[k])
         outs[mode] = m
     np.testing.assert_allclose(
         outs["plan"]["episode_profit_eur"][:, 0], outs["off"]["episode_profit_eur"][:, 0], rtol=1e-5
+    )
+    unshaped = {**ppo_core.hyper_values(train.config), "SHAPING_WEIGHT": jnp.float32(0.0)}
+    rs = jax.vmap(train.init, in_axes=(0, None))(keys, unshaped)
+    _, m = jax.jit(jax.vmap(lambda r: train.run_updates(r, train.num_updates)))(rs)
+    assert not np.allclose(outs["plan"]["value_loss"], outs["off"]["value_loss"], rtol=1e-3)
+    np.testing.assert_allclose(
+        jax.device_get(m["value_loss"]), outs["off"]["value_loss"], rtol=1e-4
     )
 
 
