@@ -39,7 +39,7 @@ X64_TESTS := tests/core/test_model.py tests/core/test_bad_input.py
 test: $(STAMP) $(DOCS_STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
-	$(PY) -m pytest -n 2 --dist worksteal -q --durations=20
+	$(PY) -m pytest -n 2 -q --durations=20
 	JAX_ENABLE_X64=1 $(PY) -m pytest -n 2 -q $(X64_TESTS)
 	$(MAKE) docs
 
