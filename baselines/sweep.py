@@ -37,6 +37,7 @@ baselines.train`` and scoring the run with ``python -m baselines.score``.
 from __future__ import annotations
 
 import argparse
+import functools
 import itertools
 import json
 import sys
@@ -204,30 +205,13 @@ def sweep(
         configs.append(config)
     algo = run["ALGO"]
     out = run["OUT"] if any(o.startswith("OUT=") for o in fixed) else f"outputs/sweep_{algo}"
+    train_and_score = functools.partial(
+        _sweep, name, fixed, grid, grid_settings, configs, run, settings_per_batch, quiet
+    )
     if not write:
-        return _sweep(
-            name,
-            fixed,
-            grid,
-            grid_settings,
-            configs,
-            run,
-            settings_per_batch,
-            quiet,
-            stop_at_headroom,
-        )
+        return train_and_score(stop_at_headroom)
     with runs.claim_outputs(out, SUFFIXES, overwrite=overwrite):
-        results = _sweep(
-            name,
-            fixed,
-            grid,
-            grid_settings,
-            configs,
-            run,
-            settings_per_batch,
-            quiet,
-            stop_at_headroom,
-        )
+        results = train_and_score(stop_at_headroom)
         params = results.pop("params")
         runs.write_json(results, out + ".json")
         Path(out + ".md").write_text(ranked_table(results) + "\n")

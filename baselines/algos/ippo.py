@@ -480,18 +480,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
             adv = per_agent_normalised(adv)
 
         params, opt_state, key, parts = ppo_core.ppo_epochs(
-            loss_fn,
-            tx,
-            params,
-            rs.opt_state,
-            key,
-            traj,
-            adv,
-            targets,
-            config,
-            hyper,
-            rs.update,
-            agents=n_agents,
+            loss_fn, tx, params, rs, key, traj, adv, targets, config, agents=n_agents
         )
         metrics = {k: v.mean() for k, v in parts.items()}
         # Every agent logs the same episode: use agent 0's column.

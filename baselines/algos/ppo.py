@@ -276,17 +276,7 @@ def make_train(config: dict | None = None, env_params=None):
             adv = (adv - adv.mean(axis=(0, 1))) / (adv.std(axis=(0, 1)) + 1e-8)
 
         params, opt_state, key, parts = ppo_core.ppo_epochs(
-            functools.partial(loss_fn, hyper),
-            tx,
-            params,
-            rs.opt_state,
-            key,
-            traj,
-            adv,
-            targets,
-            config,
-            hyper,
-            rs.update,
+            functools.partial(loss_fn, hyper), tx, params, rs, key, traj, adv, targets, config
         )
         metrics = {k: v.mean() for k, v in parts.items()}
         metrics.update(ppo_core.episode_metrics(traj.info["returned_episode"], traj.info))

@@ -119,29 +119,19 @@ def shuffled_rows(key: jax.Array, steps: int, actors: int, agents: int = 1) -> j
 
 
 def ppo_epochs(
-    loss_fn,
-    tx: Optimizer,
-    params,
-    opt_state,
-    key,
-    traj,
-    adv,
-    targets,
-    config: dict,
-    hyper: dict,
-    update,
-    agents: int = 1,
+    loss_fn, tx: Optimizer, params, rs, key, traj, adv, targets, config: dict, agents: int = 1
 ):
     """``UPDATE_EPOCHS`` passes over the rollout in ``NUM_MINIBATCHES`` shuffled minibatches.
 
     ``traj`` is the rollout (a NamedTuple with an ``info`` field, dropped here) with leading
     axes ``(steps, actors)``; ``loss_fn(params, (traj, adv, targets))`` returns
-    ``(loss, parts)``; ``tx`` steps with the learning rate and clip norm of ``hyper`` at the
-    update index ``update``. Returns ``(params, opt_state, key, parts)`` with ``parts``
+    ``(loss, parts)``; ``tx`` steps from the runner state ``rs``'s optimiser state, with the
+    learning rate and clip norm of its ``hyper`` at its update index ``update``. Returns ``(params, opt_state, key, parts)`` with ``parts``
     stacked over epochs and minibatches. ``agents > 1`` (IPPO, MAPPO: ``actors = agents *
     envs``, agent-major) shuffles env-steps, each with all of its agents' rows
     (`shuffled_rows`).
     """
+    opt_state, hyper, update = rs.opt_state, rs.hyper, rs.update
     steps, actors = traj.reward.shape[:2]
     batch = steps * actors
 

@@ -85,14 +85,7 @@ def run_in_chunks(
     else:
         start, rs, chunks, seconds = resume
         chunks, t0 = list(chunks), time.time() - seconds
-    with tqdm(
-        total=total * steps_per_update,
-        initial=int(bounds[start]) * steps_per_update,
-        desc=desc,
-        unit="step",
-        unit_scale=True,
-        dynamic_ncols=True,
-    ) as bar:
+    with _bar(total * steps_per_update, desc, int(bounds[start]) * steps_per_update) as bar:
         progress = _Progress(bar, steps_per_update)
         # The runner state is donated: each chunk updates it in place instead of copying the
         # parameters, optimiser moments and env states (``on_chunk`` must not keep its arrays).
@@ -186,13 +179,7 @@ def run_settings_in_chunks(
     rs = jax.jit(jax.vmap(per_setting, in_axes=(None, 0)))(keys, hyper)
     batch = None if settings_per_batch == 1 else settings_per_batch
     chunks = []
-    with tqdm(
-        total=settings * total * steps_per_update,
-        desc=desc,
-        unit="step",
-        unit_scale=True,
-        dynamic_ncols=True,
-    ) as bar:
+    with _bar(settings * total * steps_per_update, desc) as bar:
         progress = _Progress(bar, steps_per_update)
 
         def mapped(n, rs):
@@ -212,6 +199,18 @@ def run_settings_in_chunks(
                 break
     metrics = {k: np.concatenate([c[k] for c in chunks], axis=2) for k in chunks[0]}
     return rs, metrics, time.time() - t0
+
+
+def _bar(total_steps: int, desc: str, initial: int = 0):
+    """The training progress bar, counting env-steps."""
+    return tqdm(
+        total=total_steps,
+        initial=initial,
+        desc=desc,
+        unit="step",
+        unit_scale=True,
+        dynamic_ncols=True,
+    )
 
 
 def _chunk(train, n: int, report, rs):
