@@ -339,6 +339,7 @@ def _sweep(
             }
         )
     ranking = sorted(range(len(entries)), key=lambda i: -entries[i]["mean_profit"])
+    _, first_days, first_draws = validation_env(configs[0])
     results = {
         "algo": algo,
         "config": str(name),
@@ -349,8 +350,8 @@ def _sweep(
         "chunks": chunks,
         "settings_per_batch": settings_per_batch,
         "validation": {
-            "days": [int(d) for d in np.asarray(validation_env(configs[0])[1])],
-            "draws": int(validation_env(configs[0])[2]),
+            "days": [int(d) for d in np.asarray(first_days)],
+            "draws": int(first_draws),
             "references": {
                 k: float(np.mean(v["daily_profit"]))
                 for k, v in next(iter(references_cache.values())).items()

@@ -173,24 +173,26 @@ def test_a_trace_for_another_station_or_step_length_is_refused(default_setup):
 ONE_PORT = Splitter("grid", 1000.0, (Port("p0", "DC", 500.0, 100.0),))  # 50 kW
 
 
+def _one_car_day():
+    """One 50 kW port, dear (1.00 EUR/kWh) until 06:00 and cheap (0.10) after; one car
+    parks 04:05-08:05 and wants 24 kWh."""
+    params = hand_params(ONE_PORT, [1.0] * 6 + [0.1] * 18)
+    car = dict(
+        arrival_step=48,
+        capacity_kwh=60.0,
+        dc_kw=50.0,
+        tau=0.99,
+        arrival_soc=0.2,
+        target_soc=0.6,
+        stay_min=240.0,
+    )
+    return params, trace.trace_from_cars(params, [car])
+
+
 def test_one_car_waits_for_the_cheap_hours():
     # dear (1.00 EUR/kWh) until 06:00, cheap (0.10) after; the car parks 04:05-08:05 and
     # wants 24 kWh: the best plan buys all of it at 0.10 -> 24 * (0.75 - 0.10) = 15.6 EUR
-    params = hand_params(ONE_PORT, [1.0] * 6 + [0.1] * 18)
-    tr = trace.trace_from_cars(
-        params,
-        [
-            dict(
-                arrival_step=48,
-                capacity_kwh=60.0,
-                dc_kw=50.0,
-                tau=0.99,
-                arrival_soc=0.2,
-                target_soc=0.6,
-                stay_min=240.0,
-            )
-        ],
-    )
+    params, tr = _one_car_day()
     bound = bound_for(policies.always_max, params, tr)
     assert bound.status == "optimal"
     assert bound.profit_eur == pytest.approx(24 * (0.75 - 0.10), abs=1e-4)
@@ -488,20 +490,6 @@ RETRIED = [
     (3, "interior point", {"presolve": "off", "solver": "ipm", "run_crossover": "on"}),
     (4, "HiGHS defaults", {"presolve": "choose", "simplex_dual_edge_weight_strategy": -1}),
 ]
-
-
-def _one_car_day():
-    params = hand_params(ONE_PORT, [1.0] * 6 + [0.1] * 18)
-    car = dict(
-        arrival_step=48,
-        capacity_kwh=60.0,
-        dc_kw=50.0,
-        tau=0.99,
-        arrival_soc=0.2,
-        target_soc=0.6,
-        stay_min=240.0,
-    )
-    return params, trace.trace_from_cars(params, [car])
 
 
 @pytest.mark.parametrize("failing,attempt,options", RETRIED)
