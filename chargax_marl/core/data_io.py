@@ -51,6 +51,10 @@ PRICE_INDEX_FILES: tuple[str, ...] = (
     ENTSOE_PRICE_INDEX_FILE,
 )
 USER_PROFILES_FILE = "user_profiles.json"
+USER_PROFILES_V2_FILE = "user_profiles_v2.json"
+SESSION_MODELS: tuple[str, ...] = ("v2", "paper")
+"""The session models: ``v2`` (stays and energies by arrival hour, requests, day-to-day volume,
+holidays; the default) and ``paper`` (the mechanics of the Chargax paper)."""
 US_USER_PROFILES_FILE = "user_profiles_US.json"
 FLEET_FILES: dict[str, str] = {
     "EU": "fleet_EU.csv",

@@ -15,8 +15,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from chargax_marl.core import checks, datasets, fleets, prices, profiles, tariffs
+from chargax_marl.core import calendar_days, checks, datasets, fleets, prices, profiles, tariffs
 from chargax_marl.core.arrays import device_array
+from chargax_marl.core.data_io import NUM_QUANTILES
 from chargax_marl.core.observation import PRICE_QUANTILES
 from chargax_marl.core.station import (
     Splitter,
@@ -251,6 +252,26 @@ def penalty_weights(alpha: PenaltyWeights | dict | None) -> PenaltyWeights:
     )
 
 
+PORT_CHOICES = ("auto", "first_free", "random")
+"""Values of ``make_params(port_choice=...)``."""
+
+
+def _holidays(country: str | None, price: prices.PriceData, session_model: str) -> np.ndarray:
+    """``(days,)`` bool: the public holidays of ``country`` on the price data's days."""
+    days = price.prices_eur_kwh.shape[0]
+    if country == "auto":
+        known = price.first_date is not None and price.country in calendar_days.HOLIDAY_COUNTRIES
+        country = price.country if session_model == "v2" and known else None
+    if country is None:
+        return np.zeros(days, bool)
+    if price.first_date is None:
+        raise ValueError(
+            f"field 'holidays' ({country!r}) needs the dates of the price data, which "
+            f"{price.name!r} does not carry: use a bundled dataset or holidays=None"
+        )
+    return calendar_days.holiday_days(country, price.first_date, days)
+
+
 @checks.known_keywords
 def make_params(
     *,
@@ -288,6 +309,9 @@ def make_params(
     price_horizon_hours: int = 6,
     observe_moer: bool | None = None,
     reset_days: Any = None,
+    session_model: str = "v2",
+    holidays: str | None = "auto",
+    port_choice: str = "auto",
 ) -> EnvParams:
     """Assemble the parameters of a station scenario (paper defaults throughout).
 
@@ -378,6 +402,18 @@ def make_params(
         reset_days: restricts the days ``reset`` draws from (e.g. training days, holding out
             evaluation days; see `chargax_marl.evaluation.split_days`), indices into the
             price data; None: all days.
+        session_model: ``"v2"`` (default: stays and energies by arrival hour, requests,
+            day-to-day volume, holidays) or ``"paper"`` (the Chargax paper's sessions): which
+            bundled profiles a ``user_profile`` name refers to, and the default of
+            ``holidays``.
+        holidays: the public holidays of this country (``calendar_days.HOLIDAY_COUNTRIES``)
+            get the arrivals of a weekend day; needs prices whose dates are known (a bundled
+            dataset). ``"auto"``: under the v2 session model the price market's country
+            where the prices' dates are known, else none; under ``"paper"`` none. None: no
+            holidays.
+        port_choice: where an arriving car parks: ``"first_free"`` (the first free port in
+            port order, the paper's) or ``"random"`` (a uniformly random free port);
+            ``"auto"``: ``"random"`` under the v2 session model, else ``"first_free"``.
 
     Returns:
         The validated `EnvParams`.
@@ -401,7 +437,7 @@ def make_params(
     tou = tariffs.tou_fee(tou_fee_eur_kwh)
     peak_rate, peak_incremental = tariffs.peak_demand(peak_demand_eur_kw, peak_demand_booking)
     price = datasets.load_prices(prices, first_weekday=first_weekday)
-    profile = datasets.load_user_profile(user_profile)
+    profile = datasets.load_user_profile(user_profile, session_model=session_model)
     fleet_data = datasets.load_fleet(fleet)
     cars_per_day = datasets.traffic_cars_per_day(traffic)
 
@@ -415,6 +451,13 @@ def make_params(
     weights = resample_day(profile.arrival_weights, num_steps)
     rate = weights * cars_per_day
     rate[1] *= profile.weekend_volume_factor
+    holiday = _holidays(holidays, price, session_model)
+    if port_choice not in PORT_CHOICES:
+        raise ValueError(
+            f"field 'port_choice' must be one of {list(PORT_CHOICES)}, got {port_choice!r}"
+        )
+    if port_choice == "auto":
+        port_choice = "random" if session_model == "v2" else "first_free"
 
     # MOER: a bundled dataset name / MoerData (resampled to num_steps) or an array at the step resolution.
     if moer_kg_per_kwh is None:
@@ -498,12 +541,18 @@ def make_params(
         day_price_quantiles_eur_kwh=device_array(_day_price_quantiles(price.prices_eur_kwh, tou)),
         first_weekday=device_array(price.first_weekday, jnp.int32),
         arrival_rate=device_array(rate, jnp.float32),
-        stay_quantiles_min=device_array(profile.stay_quantiles_min, jnp.float32),
+        holiday=device_array(holiday),
+        weekday_volume_factors=device_array(profile.weekday_factors, jnp.float32),
+        daily_volume_cv=device_array(profile.daily_volume_cv, jnp.float32),
+        stay_quantiles_min=device_array(profile.stay_table_min, jnp.float32),
         stay_scale_by_hour=device_array(profile.stay_scale_by_hour, jnp.float32),
-        demand_quantiles_kwh=device_array(profile.demand_quantiles_kwh, jnp.float32),
+        demand_quantiles_kwh=device_array(profile.demand_table_kwh, jnp.float32),
         demand_scale_by_hour=device_array(profile.demand_scale_by_hour, jnp.float32),
+        request_ratio_quantiles=device_array(profile.request_ratios, jnp.float32),
         arrival_soc_range=device_array(profile.arrival_soc_range, jnp.float32),
         charge_sensitive_prob=device_array(profile.charge_sensitive_prob, jnp.float32),
+        dc_charge_sensitive_prob=device_array(profile.dc_charge_sensitive, jnp.float32),
+        random_port_choice=device_array(port_choice == "random"),
         fleet_share=device_array(fleet_data.share, jnp.float32),
         fleet_capacity_kwh=device_array(fleet_data.capacity_kwh, jnp.float32),
         fleet_ac_kw=device_array(fleet_data.max_ac_kw, jnp.float32),
@@ -607,16 +656,21 @@ def validate_params(params: EnvParams) -> EnvParams:
     b = (st.num_batteries,)
     for field, bounds in _SCALARS.items():
         _finite(field, _scalar(params, field), **bounds)
-    for field in ("refund_discharged_energy", "peak_demand_incremental", "battery_value_day_mean"):
+    for field in (
+        "refund_discharged_energy",
+        "peak_demand_incremental",
+        "battery_value_day_mean",
+        "random_port_choice",
+    ):
         _scalar(params, field, "bool")
     booking = "incremental" if _scalar(params, "peak_demand_incremental", "bool") else "end_of_day"
     tariffs.peak_demand(_scalar(params, "peak_demand_eur_kw"), booking)
     weekday = _scalar(params, "first_weekday")
     if not (isinstance(weekday, int) and 0 <= weekday <= 6):
         raise ValueError(f"field 'first_weekday' must be an integer in [0, 6], got {weekday!r}")
-    _finite(
-        "charge_sensitive_prob", _scalar(params, "charge_sensitive_prob"), minimum=0.0, maximum=1.0
-    )
+    for field in ("charge_sensitive_prob", "dc_charge_sensitive_prob"):
+        _finite(field, _scalar(params, field), minimum=0.0, maximum=1.0)
+    profiles._validate_volume_cv(_scalar(params, "daily_volume_cv"))
 
     price = np.asarray(params.prices_eur_kwh)
     if price.ndim != 2:
@@ -636,8 +690,12 @@ def validate_params(params: EnvParams) -> EnvParams:
         )
     rate = _shape("arrival_rate", params.arrival_rate, (2, num_steps), "workday and weekend rows")
     checks.array("arrival_rate", rate, low=0.0, high=checks.MAX_CARS_PER_DAY, unit="cars per step")
-    profiles._validate_quantiles(np.asarray(params.stay_quantiles_min), "stay_quantiles_min")
-    profiles._validate_quantiles(np.asarray(params.demand_quantiles_kwh), "demand_quantiles_kwh")
+    for field in ("stay_quantiles_min", "demand_quantiles_kwh"):
+        table = _shape(field, getattr(params, field), (24, NUM_QUANTILES), "one per arrival hour")
+        profiles._validate_quantiles(table, field, by_hour=True)
+    profiles._validate_request_ratios(np.asarray(params.request_ratio_quantiles))
+    profiles._validate_weekday_factors(np.asarray(params.weekday_volume_factors))
+    _shape("holiday", params.holiday, (price.shape[0],), "one per day of the prices")
     profiles._validate_scale(np.asarray(params.stay_scale_by_hour), "stay_scale_by_hour")
     profiles._validate_scale(np.asarray(params.demand_scale_by_hour), "demand_scale_by_hour")
     soc_range = _shape("arrival_soc_range", params.arrival_soc_range, (2,), "low and high")

@@ -48,12 +48,16 @@ class PriceData:
     """Day-ahead prices: ``prices_eur_kwh[day, local_hour]`` in EUR/kWh (float32).
 
     ``first_weekday`` is the weekday of day 0 (0 = Monday ... 6 = Sunday); day
-    ``d`` has weekday ``(first_weekday + d) % 7``.
+    ``d`` has weekday ``(first_weekday + d) % 7``. ``first_date`` (ISO date) is the date of
+    day 0 where the data knows it (the bundled datasets), else None; ``country`` the ISO
+    code of the market's country where known.
     """
 
     name: str
     prices_eur_kwh: np.ndarray
     first_weekday: int
+    first_date: str | None = None
+    country: str | None = None
 
     @property
     def num_days(self) -> int:
@@ -94,6 +98,8 @@ def load_prices(source: Any = "NL-2023", *, first_weekday: int | None = None) ->
             source.name,
             _readonly(_validate_prices(source.prices_eur_kwh, "prices_eur_kwh")),
             _check_weekday(source.first_weekday),
+            source.first_date,
+            source.country,
         )
     elif isinstance(source, str) and source in PRICE_DATASETS:
         data = _load_bundled_prices(source)
@@ -110,8 +116,9 @@ def load_prices(source: Any = "NL-2023", *, first_weekday: int | None = None) ->
         raise ValueError(
             f"prices: expected a dataset name {list(PRICE_DATASETS)}, an array (days, 24), or a CSV path, got {type(source).__name__}"
         )
-    if first_weekday is not None:
-        data = dataclasses.replace(data, first_weekday=_check_weekday(first_weekday))
+    if first_weekday is not None and _check_weekday(first_weekday) != data.first_weekday:
+        # another weekday for day 0: the data's dates no longer hold
+        data = dataclasses.replace(data, first_weekday=first_weekday, first_date=None)
     return data
 
 
@@ -131,7 +138,9 @@ def _load_bundled_prices(name: str) -> PriceData:
         raise RuntimeError(
             f"bundled price file {entry['file']} disagrees with its index ({PRICE_INDEX_FILES}); run `make data`"
         )
-    return PriceData(name, _readonly(prices), first_weekday)
+    return PriceData(
+        name, _readonly(prices), first_weekday, entry.get("first_date"), name.split("-")[0]
+    )
 
 
 def read_prices_csv(path: str | os.PathLike) -> tuple[np.ndarray, int]:

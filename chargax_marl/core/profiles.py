@@ -22,11 +22,13 @@ from chargax_marl.core.data_io import (
     HOURS_PER_DAY,
     NUM_QUANTILES,
     QUANTILE_PROBS,
+    SESSION_MODELS,
     SLOTS_PER_DAY,
     TRAFFIC_LEVELS,
     US_USER_PROFILES,
     US_USER_PROFILES_FILE,
     USER_PROFILES_FILE,
+    USER_PROFILES_V2_FILE,
     _as_float_array,
     _check_bounds,
     _check_finite,
@@ -69,12 +71,22 @@ class UserProfileData:
     ``arrival_weights`` (float32, (2, 288)): share of a day's arrivals per
     5-minute slot, row 0 workday, row 1 weekend; each row sums to 1. The weekend
     daily volume is ``weekend_volume_factor`` times the workday volume.
-    ``stay_quantiles_min`` / ``demand_quantiles_kwh`` (float32, (101,)):
+    ``stay_quantiles_min`` / ``demand_quantiles_kwh`` (float32, (101,) or (24, 101)):
     inverse CDFs at probabilities 0, 0.01, ..., 1 of the stay (minutes) and of
-    the energy demand (kWh); ``*_scale_by_hour`` (float32, (24,)) multiply a
-    sample by the arrival hour's factor. ``arrival_soc_range``: uniform range
-    of the arrival SoC; ``charge_sensitive_prob``: P(u = 1), i.e. the user
-    leaves when charged rather than at the end of the stay.
+    the energy the car takes (kWh), one table for every arrival hour or one per
+    arrival hour (the conditional distributions); ``*_scale_by_hour`` (float32, (24,))
+    multiply a sample by the arrival hour's factor. ``arrival_soc_range``: uniform range
+    of the arrival SoC; ``charge_sensitive_prob``: P(u = 1) at AC ports, i.e. the user
+    leaves when charged rather than at the end of the stay; ``dc_charge_sensitive_prob``:
+    the same at DC ports (None: ``charge_sensitive_prob``).
+
+    ``request_ratio_quantiles`` (float32, (101,), values in (0, 1]): inverse CDF of the
+    ratio of the energy a car takes to the energy its user asks for; the user's request is
+    the car's energy over a draw of it (all ones: users ask for what their car takes).
+    ``daily_volume_cv``: coefficient of variation of a day's arrival intensity (a
+    log-normal factor drawn once per episode, mean 1; 0: every day has the same Poisson
+    rate). ``weekday_volume_factors`` (float32, (7,), Monday first): the volume of each
+    weekday relative to its day type's (mean 1 over Monday-Friday and over the weekend).
     """
 
     name: str
@@ -86,6 +98,47 @@ class UserProfileData:
     demand_scale_by_hour: np.ndarray
     arrival_soc_range: tuple[float, float]
     charge_sensitive_prob: float
+    dc_charge_sensitive_prob: float | None = None
+    request_ratio_quantiles: np.ndarray | None = None
+    daily_volume_cv: float = 0.0
+    weekday_volume_factors: np.ndarray | None = None
+
+    @property
+    def dc_charge_sensitive(self) -> float:
+        """P(u = 1) at DC ports."""
+        if self.dc_charge_sensitive_prob is None:
+            return self.charge_sensitive_prob
+        return self.dc_charge_sensitive_prob
+
+    @property
+    def stay_table_min(self) -> np.ndarray:
+        """The stay quantiles per arrival hour, (24, 101) minutes (before the hourly scale)."""
+        return _by_hour(self.stay_quantiles_min)
+
+    @property
+    def demand_table_kwh(self) -> np.ndarray:
+        """The demand quantiles per arrival hour, (24, 101) kWh (before the hourly scale)."""
+        return _by_hour(self.demand_quantiles_kwh)
+
+    @property
+    def request_ratios(self) -> np.ndarray:
+        """``request_ratio_quantiles`` with its default (all ones), (101,)."""
+        if self.request_ratio_quantiles is None:
+            return np.ones(NUM_QUANTILES, np.float32)
+        return self.request_ratio_quantiles
+
+    @property
+    def weekday_factors(self) -> np.ndarray:
+        """``weekday_volume_factors`` with its default (all ones), (7,)."""
+        if self.weekday_volume_factors is None:
+            return np.ones(7, np.float32)
+        return self.weekday_volume_factors
+
+
+def _by_hour(table: np.ndarray) -> np.ndarray:
+    if table.ndim == 1:
+        return np.broadcast_to(table, (HOURS_PER_DAY, table.shape[0])).astype(np.float32)
+    return table
 
 
 _PROFILE_FIELDS = tuple(f.name for f in dataclasses.fields(UserProfileData))
@@ -112,11 +165,15 @@ def _validate_weights(value: Any, field: str = "arrival_weights") -> np.ndarray:
     return (arr / sums[:, None]).astype(np.float32)
 
 
-def _validate_quantiles(value: Any, field: str) -> np.ndarray:
+def _validate_quantiles(value: Any, field: str, by_hour: bool = False) -> np.ndarray:
     arr = _as_float_array(value, field)
+    if by_hour and arr.ndim == 2 and arr.shape[0] == HOURS_PER_DAY:
+        return np.stack([_validate_quantiles(row, f"{field}[{h}]") for h, row in enumerate(arr)])
     if arr.ndim != 1 or arr.shape[0] < 2:
+        per_hour = f" or one per arrival hour ({HOURS_PER_DAY}, {NUM_QUANTILES})" if by_hour else ""
         raise ValueError(
-            f"{field}: expected a 1-D quantile table ({NUM_QUANTILES},) (or >= 2 evenly spaced quantiles), got shape {tuple(arr.shape)}"
+            f"{field}: expected a 1-D quantile table ({NUM_QUANTILES},) (or >= 2 evenly spaced "
+            f"quantiles){per_hour}, got shape {tuple(arr.shape)}"
         )
     _check_finite(arr, field)
     if (arr < 0).any():
@@ -126,8 +183,9 @@ def _validate_quantiles(value: Any, field: str) -> np.ndarray:
         raise ValueError(
             f"{field}: quantiles must be non-decreasing, got {float(arr[i])!r} then {float(arr[i + 1])!r} at index {i + 1}"
         )
+    base = field.split("[")[0]
     high, unit = (
-        (checks.MAX_STAY_MIN, "min") if field.endswith("_min") else (checks.MAX_DEMAND_KWH, "kWh")
+        (checks.MAX_STAY_MIN, "min") if base.endswith("_min") else (checks.MAX_DEMAND_KWH, "kWh")
     )
     _check_bounds(arr, field, 0.0, high, unit)
     if arr.shape[0] != NUM_QUANTILES:
@@ -146,6 +204,46 @@ def _validate_scale(value: Any, field: str) -> np.ndarray:
         raise ValueError(f"{field}: factors must be > 0, got {float(arr.min())!r}")
     _check_bounds(arr, field, 0.0, checks.MAX_FACTOR, low_open=True)
     return arr.astype(np.float32)
+
+
+def _validate_request_ratios(value: Any) -> np.ndarray | None:
+    field = "request_ratio_quantiles"
+    if value is None:
+        return None
+    arr = _validate_quantiles(value, field)
+    if not (arr > 0).all() or not (arr <= 1).all():
+        raise ValueError(
+            f"{field}: ratios of the energy taken to the energy requested must lie in (0, 1], "
+            f"got values in [{float(arr.min())!r}, {float(arr.max())!r}]"
+        )
+    return arr
+
+
+def _validate_weekday_factors(value: Any) -> np.ndarray | None:
+    field = "weekday_volume_factors"
+    if value is None:
+        return None
+    arr = _as_float_array(value, field)
+    if arr.shape != (7,):
+        raise ValueError(f"{field}: expected shape (7,) (Monday first), got {tuple(arr.shape)}")
+    _check_finite(arr, field)
+    if (arr <= 0).any():
+        raise ValueError(f"{field}: factors must be > 0, got {float(arr.min())!r}")
+    _check_bounds(arr, field, 0.0, checks.MAX_FACTOR, low_open=True)
+    return arr.astype(np.float32)
+
+
+def _validate_volume_cv(value: Any) -> float:
+    v = _validate_unit_scalar(value, "daily_volume_cv", upper=None)
+    if v > MAX_VOLUME_CV:
+        raise ValueError(
+            f"daily_volume_cv: expected a value in [0, {MAX_VOLUME_CV:g}], got {value!r}"
+        )
+    return v
+
+
+MAX_VOLUME_CV = 10.0
+"""The largest coefficient of variation of the daily arrival intensity a profile may set."""
 
 
 def _validate_weekend_factor(value: Any) -> float:
@@ -183,32 +281,71 @@ def make_user_profile(
     demand_scale_by_hour: Any = None,
     arrival_soc_range: tuple[float, float] = (0.2, 0.6),
     charge_sensitive_prob: float = 0.0,
+    dc_charge_sensitive_prob: float | None = None,
+    request_ratio_quantiles: Any = None,
+    daily_volume_cv: float = 0.0,
+    weekday_volume_factors: Any = None,
 ) -> UserProfileData:
     """Build and validate a custom user profile.
 
-    ``arrival_weights``: shape (288,) (same for workdays and weekends), (2, 288)
-    (workday, weekend), or hourly (24,) / (2, 24), which is spread evenly over
-    the hour's twelve 5-minute slots; non-negative, re-normalised per row.
-    Quantile tables: inverse CDFs at evenly spaced probabilities from 0 to 1
-    (101 entries, or any length >= 2, resampled linearly to 101), non-negative,
-    non-decreasing, finite; stays in minutes, demands in kWh. Scale factors:
-    (24,) positive, default all ones.
+    Args:
+        name: the profile's name.
+        arrival_weights: shape (288,) (same for workdays and weekends), (2, 288)
+            (workday, weekend), or hourly (24,) / (2, 24), which is spread evenly over
+            the hour's twelve 5-minute slots; non-negative, re-normalised per row.
+        stay_quantiles_min: inverse CDF of the planned stay (minutes) at evenly spaced
+            probabilities from 0 to 1 (101 entries, or any length >= 2, resampled linearly
+            to 101), non-negative, non-decreasing, finite; or one such table per arrival
+            hour, shape (24, n).
+        demand_quantiles_kwh: the same for the energy the car takes (kWh).
+        weekend_volume_factor: weekend daily volume over the workday volume.
+        stay_scale_by_hour: (24,) positive multipliers of a stay by arrival hour (default
+            all ones).
+        demand_scale_by_hour: the same for the demand.
+        arrival_soc_range: ``(lo, hi)`` with ``0 <= lo <= hi < 1``.
+        charge_sensitive_prob: P(the user leaves when charged) at AC ports, in [0, 1].
+        dc_charge_sensitive_prob: the same at DC ports; None: ``charge_sensitive_prob``.
+        request_ratio_quantiles: inverse CDF (like the stay table) of the energy a car takes
+            over the energy its user requests, values in (0, 1]; None: all ones.
+        daily_volume_cv: coefficient of variation of the day's arrival intensity, in
+            [0, 10] (0: Poisson arrivals with a fixed daily rate).
+        weekday_volume_factors: (7,) positive, Monday first; None: all ones.
+
+    Returns:
+        The validated `UserProfileData` (arrays float32, read-only).
+
+    Raises:
+        ValueError: a field is out of range or has the wrong shape; the message names it.
     """
     return UserProfileData(
         name=_validate_name(name),
         arrival_weights=_readonly(_validate_weights(arrival_weights)),
         weekend_volume_factor=_validate_weekend_factor(weekend_volume_factor),
-        stay_quantiles_min=_readonly(_validate_quantiles(stay_quantiles_min, "stay_quantiles_min")),
+        stay_quantiles_min=_readonly(
+            _validate_quantiles(stay_quantiles_min, "stay_quantiles_min", by_hour=True)
+        ),
         stay_scale_by_hour=_readonly(_validate_scale(stay_scale_by_hour, "stay_scale_by_hour")),
         demand_quantiles_kwh=_readonly(
-            _validate_quantiles(demand_quantiles_kwh, "demand_quantiles_kwh")
+            _validate_quantiles(demand_quantiles_kwh, "demand_quantiles_kwh", by_hour=True)
         ),
         demand_scale_by_hour=_readonly(
             _validate_scale(demand_scale_by_hour, "demand_scale_by_hour")
         ),
         arrival_soc_range=_validate_soc_range(arrival_soc_range),
         charge_sensitive_prob=_validate_unit_scalar(charge_sensitive_prob, "charge_sensitive_prob"),
+        dc_charge_sensitive_prob=None
+        if dc_charge_sensitive_prob is None
+        else _validate_unit_scalar(dc_charge_sensitive_prob, "dc_charge_sensitive_prob"),
+        request_ratio_quantiles=_readonly_or_none(
+            _validate_request_ratios(request_ratio_quantiles)
+        ),
+        daily_volume_cv=_validate_volume_cv(daily_volume_cv),
+        weekday_volume_factors=_readonly_or_none(_validate_weekday_factors(weekday_volume_factors)),
     )
+
+
+def _readonly_or_none(arr: np.ndarray | None) -> np.ndarray | None:
+    return None if arr is None else _readonly(arr)
 
 
 def _profile_from_fields(fields: dict[str, Any]) -> UserProfileData:
@@ -223,12 +360,30 @@ def _profile_from_fields(fields: dict[str, Any]) -> UserProfileData:
     )
 
 
-def load_user_profile(source: Any = "shopping", **overrides: Any) -> UserProfileData:
+def load_user_profile(
+    source: Any = "shopping", *, session_model: str = "v2", **overrides: Any
+) -> UserProfileData:
     """A bundled profile by name (`ALL_USER_PROFILES`) or a `UserProfileData`.
 
-    Keyword overrides replace fields (e.g. ``charge_sensitive_prob=0.5``) and
-    are validated like `make_user_profile` arguments.
+    Args:
+        source: a bundled profile's name or a `UserProfileData`.
+        session_model: which bundled profiles a name refers to (`SESSION_MODELS`): ``"v2"``
+            (stays and energies by arrival hour, requests, day-to-day volume) or
+            ``"paper"`` (the Chargax paper's profiles). Ignored for a `UserProfileData`.
+        **overrides: fields to replace (e.g. ``charge_sensitive_prob=0.5``), validated like
+            `make_user_profile` arguments.
+
+    Returns:
+        The validated profile.
+
+    Raises:
+        KeyError: an unknown profile name.
+        ValueError: an unknown field or session model, or a bad value.
     """
+    if session_model not in SESSION_MODELS:
+        raise ValueError(
+            f"session_model: unknown {session_model!r}; valid models are {list(SESSION_MODELS)}"
+        )
     unknown = sorted(set(overrides) - set(_PROFILE_FIELDS))
     if unknown:
         raise ValueError(
@@ -241,7 +396,7 @@ def load_user_profile(source: Any = "shopping", **overrides: Any) -> UserProfile
             raise KeyError(
                 f"user profile: unknown profile {source!r}; valid names are {list(ALL_USER_PROFILES)}"
             )
-        base = _load_bundled_profile(source)
+        base = _load_bundled_profile(source, session_model)
         if not overrides:
             return base
     else:
@@ -263,14 +418,22 @@ def _us_profiles_json() -> dict[str, Any]:
     return json.loads((DATA_DIR / US_USER_PROFILES_FILE).read_text(encoding="utf-8"))
 
 
+@functools.cache
+def _v2_profiles_json() -> dict[str, Any]:
+    return json.loads((DATA_DIR / USER_PROFILES_V2_FILE).read_text(encoding="utf-8"))
+
+
 def list_user_profiles() -> list[str]:
     """Names accepted by `load_user_profile` (the paper's four plus the US ACN-Data profiles)."""
     return list(ALL_USER_PROFILES)
 
 
 @functools.cache
-def _load_bundled_profile(name: str) -> UserProfileData:
-    doc = _us_profiles_json() if name in US_USER_PROFILES else _profiles_json()
+def _load_bundled_profile(name: str, session_model: str = "v2") -> UserProfileData:
+    if session_model == "v2":
+        doc = _v2_profiles_json()
+    else:
+        doc = _us_profiles_json() if name in US_USER_PROFILES else _profiles_json()
     return profile_from_dict(name, doc["profiles"][name])
 
 
@@ -287,4 +450,8 @@ def profile_from_dict(name: str, p: dict) -> UserProfileData:
         demand_scale_by_hour=p["demand_scale_by_hour"],
         arrival_soc_range=tuple(p["arrival_soc_range"]),
         charge_sensitive_prob=p["charge_sensitive_prob"],
+        dc_charge_sensitive_prob=p.get("dc_charge_sensitive_prob"),
+        request_ratio_quantiles=p.get("request_ratio_quantiles"),
+        daily_volume_cv=p.get("daily_volume_cv", 0.0),
+        weekday_volume_factors=p.get("weekday_volume_factors"),
     )

@@ -38,6 +38,7 @@ are not read back as if they were another's."""
 # Stream ids: one per consumer, so that draws of different purposes never share a counter.
 ARRIVALS = 1
 RESET = 2
+VOLUME = 3
 
 
 def fmix32(x: jnp.ndarray) -> jnp.ndarray:

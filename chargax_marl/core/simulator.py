@@ -21,10 +21,7 @@ from chargax_marl.core import reward as reward_lib
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import PENALTY_TERMS, EnvParams, EnvState, EpisodeTotals, StepInfo
 
-
-def is_workday(day: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
-    """Monday to Friday, counting from the weekday of the data's first day (holidays ignored)."""
-    return jnp.mod(params.first_weekday + day, 7) < 5
+is_workday = traffic.is_workday
 
 
 def battery_initial_soc(params: EnvParams, key: jax.Array | None = None) -> jnp.ndarray:
@@ -45,7 +42,8 @@ def empty_state(day: jnp.ndarray, params: EnvParams, key: jax.Array | None = Non
         day: the day's index into the price data (``()`` int).
         params: the environment parameters.
         key: draws the batteries' initial SoC when its range is not a point
-            (`battery_initial_soc`); None: the middle of the range.
+            (`battery_initial_soc`) and the day's arrival volume (`traffic.day_volume`);
+            None: the middle of the range and the weekday's volume factor.
 
     Returns:
         The empty `EnvState` at step 0 of ``day``, its totals at zero.
@@ -78,9 +76,11 @@ def empty_state(day: jnp.ndarray, params: EnvParams, key: jax.Array | None = Non
         tau=bat(st.battery_tau),
         charge_sensitive=jnp.zeros((num_leaves,), bool),
         arrival_soc=zeros,
+        request_extra_kwh=zeros,
         day=day,
         timestep=jnp.zeros((), jnp.int32),
         is_workday=is_workday(day, params),
+        day_volume=traffic.day_volume(day, params, key),
         totals=EpisodeTotals.zeros(),
     )
 
@@ -131,7 +131,10 @@ def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams
         ValueError: ``action`` does not have exactly one entry per leaf.
     """
     return step_with_arrivals(
-        state, action, traffic.draw_arrivals(key, state.timestep, state.is_workday, params), params
+        state,
+        action,
+        traffic.draw_arrivals(key, state.timestep, state.is_workday, params, state.day_volume),
+        params,
     )
 
 

@@ -2,10 +2,14 @@
 
 Departures follow the user type: time-sensitive users (u = 0) leave when their planned
 stay is over, charge-sensitive users (u = 1) when they reach their target SoC. Every car
-carries a target SoC (arrival SoC + demand / capacity) and stops charging there. Arrivals are
-Poisson with the rate of the day type and step, clipped by the free ports (the surplus is
+carries a target SoC (arrival SoC + demand / capacity) and stops charging there, and its
+user's request (the demand over a drawn ratio in (0, 1]: users ask for more than their car
+takes), against which satisfaction and missing energy are measured. Arrivals are Poisson
+with the rate of the day type and step times the day's volume factor (`day_volume`: the
+weekday's factor and a log-normal draw per day), clipped by the free ports (the surplus is
 rejected) and placed first-free-port in port order; each car draws a car profile from the
-fleet and a user profile from the location's distributions. The draw
+fleet and a user profile from the location's distributions (stay and demand conditional on
+the arrival hour). The draw
 (`draw_arrivals`) does not look at the station, so the cars of a day do not depend on
 the policy; `place_arrivals` parks them.
 """
@@ -32,6 +36,7 @@ CAR_FIELDS = (
     "target_soc",
     "tau",
     "arrival_soc",
+    "request_extra_kwh",
 )
 
 
@@ -72,7 +77,7 @@ def depart(state: EnvState, params: EnvParams):
         & (state.energy_remaining_kwh <= params.charged_tolerance_kwh)
     )
     leaving = rng.materialize(time_up | charged)
-    leaf_missing = jnp.where(time_up, jnp.maximum(state.energy_remaining_kwh, 0.0), 0.0)
+    leaf_missing = jnp.where(time_up, jnp.maximum(unmet_request_kwh(state), 0.0), 0.0)
     # this step's minutes past the plan (physics has already taken the step off the clock)
     leaf_over = jnp.where(
         active & state.charge_sensitive,
@@ -110,19 +115,29 @@ def depart(state: EnvState, params: EnvParams):
     return new_state, report
 
 
+def requested_kwh(state: EnvState) -> jnp.ndarray:
+    """Each leaf's request, ``(L,)`` kWh: the energy the car takes, ``capacity * (target_soc -
+    arrival_soc)``, plus what its user asked for beyond that (``request_extra_kwh``)."""
+    return state.capacity_kwh * (state.target_soc - state.arrival_soc) + state.request_extra_kwh
+
+
+def unmet_request_kwh(state: EnvState) -> jnp.ndarray:
+    """Each leaf's energy still missing from its user's request, ``(L,)`` kWh: the energy the
+    car still takes plus what its user asked for beyond that (``request_extra_kwh``)."""
+    return jnp.maximum(state.energy_remaining_kwh, 0.0) + state.request_extra_kwh
+
+
 def satisfaction(state: EnvState, params: EnvParams) -> jnp.ndarray:
     """Each parked car's satisfaction if it left now, ``(L,)`` (0 where no car is parked).
 
-    The energy delivered over the energy requested: ``1 - remaining / requested`` with
-    ``requested = capacity * (target_soc - arrival_soc)`` and ``remaining`` the energy it still
-    wants, clipped to ``[0, 1]``; 1 when the car is within ``charged_tolerance_kwh`` of its
-    target (or requested no more than that).
+    The energy delivered over the energy its user requested: ``1 - unmet / requested``
+    (`unmet_request_kwh`, `requested_kwh`), clipped to ``[0, 1]``; 1 when the unmet request is within
+    ``charged_tolerance_kwh`` (or the request was no more than that).
     """
     is_car = state.occupied & (params.station.leaf_kind != KIND_BATTERY)
-    requested = state.capacity_kwh * (state.target_soc - state.arrival_soc)
-    remaining = jnp.maximum(state.energy_remaining_kwh, 0.0)
+    remaining = unmet_request_kwh(state)
     served = remaining <= params.charged_tolerance_kwh
-    share = jnp.clip(1.0 - remaining / jnp.maximum(requested, 1e-6), 0.0, 1.0)
+    share = jnp.clip(1.0 - remaining / jnp.maximum(requested_kwh(state), 1e-6), 0.0, 1.0)
     return jnp.where(is_car, jnp.where(served, 1.0, share), 0.0)
 
 
@@ -167,9 +182,42 @@ def _inverse_cdf(table: jnp.ndarray, u: jnp.ndarray) -> jnp.ndarray:
 
 
 def arrival_rate(timestep: jnp.ndarray, is_workday: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
-    """Expected number of arrivals in this step (lambda of the Poisson draw)."""
+    """Expected number of arrivals in this step on a day of volume factor 1 (the Poisson
+    draw's rate is this times the day's `day_volume`)."""
     t = jnp.clip(timestep, 0, params.arrival_rate.shape[1] - 1)
     return params.arrival_rate[jnp.where(is_workday, 0, 1), t]
+
+
+def is_workday(day: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
+    """Monday to Friday, counting from the weekday of the data's first day, and not a public
+    holiday (``params.holiday``)."""
+    holiday = params.holiday[jnp.mod(day, params.holiday.shape[0])]
+    return (jnp.mod(params.first_weekday + day, 7) < 5) & ~holiday
+
+
+def day_volume(day: jnp.ndarray, params: EnvParams, key: jax.Array | None = None) -> jnp.ndarray:
+    """The day's arrival intensity factor ``()``: the weekday's volume factor (1 on a public
+    holiday) times a log-normal draw of mean 1 and coefficient of variation
+    ``params.daily_volume_cv`` (1 without a key or with a CV of 0).
+
+    Args:
+        day: the day's index into the price data.
+        params: the environment parameters.
+        key: the episode's reset key (the draw uses its own stream, `rng.VOLUME`).
+
+    Returns:
+        ``()`` float32, the factor on the day's arrival rates.
+    """
+    weekday = jnp.mod(params.first_weekday + day, 7)
+    holiday = params.holiday[jnp.mod(day, params.holiday.shape[0])]
+    factor = jnp.where(holiday, 1.0, params.weekday_volume_factors[weekday])
+    if key is None:
+        return factor.astype(jnp.float32)
+    u = rng.uniform(rng.key_seed(key), rng.VOLUME, (1,))[0]
+    z = jax.scipy.special.ndtri(jnp.clip(u, 1e-7, 1.0 - 1e-7))
+    var_log = jnp.log1p(params.daily_volume_cv**2)
+    draw = jnp.exp(jnp.sqrt(var_log) * z - 0.5 * var_log)
+    return (factor * draw).astype(jnp.float32)
 
 
 @struct.dataclass
@@ -178,7 +226,8 @@ class Arrivals:
 
     Slot ``k`` (of ``num_ports``) holds the ``k``-th car of the step; the station admits the
     first ``min(requested, free ports)`` of them and parks car ``k`` at the ``k``-th free port
-    in port order. Because the draw does not depend on the occupancy, the cars of a day are
+    in port order, or with ``params.random_port_choice`` in the order of the step's random
+    ``port_key`` (each car at a uniformly random free port). Because the draw does not depend on the occupancy, the cars of a day are
     the same whatever the policy does (only which of them find a free port differs): this is
     what makes a day replayable (`chargax_marl.trace`). Fields over slots have shape
     ``(num_ports,)``; rates are given for both port kinds because the port is chosen later.
@@ -195,7 +244,10 @@ class Arrivals:
     arrival_soc: jnp.ndarray  # (P,)
     target_soc: jnp.ndarray  # (P,) arrival SoC + demand / capacity (<= 1)
     stay_min: jnp.ndarray  # (P,) planned stay
-    charge_sensitive: jnp.ndarray  # (P,) bool, u = 1
+    charge_sensitive: jnp.ndarray  # (P,) bool, u = 1 at an AC port
+    charge_sensitive_dc: jnp.ndarray  # (P,) bool, u = 1 at a DC port
+    request_ratio: jnp.ndarray  # (P,) energy taken / energy requested, in (0, 1]
+    port_key: jnp.ndarray  # (P,) one uniform per PORT (not per slot): the random port order
 
 
 SLOT_FIELDS = (
@@ -210,24 +262,45 @@ SLOT_FIELDS = (
     "target_soc",
     "stay_min",
     "charge_sensitive",
+    "charge_sensitive_dc",
+    "request_ratio",
 )
 """The per-slot fields of `Arrivals` (every field but ``requested``)."""
 
 
 def draw_arrivals(
-    key: jax.Array, timestep: jnp.ndarray, is_workday: jnp.ndarray, params: EnvParams
+    key: jax.Array,
+    timestep: jnp.ndarray,
+    is_workday: jnp.ndarray,
+    params: EnvParams,
+    volume: jnp.ndarray | float = 1.0,
 ) -> Arrivals:
-    """The step's arriving cars (`Arrivals`): a Poisson count with the rate of the day
-    type and step, and one car profile (fleet) and user profile (stay, demand, arrival SoC,
-    user type) per slot. All of them come from ``key`` through `chargax_marl.core.rng`
-    (one hash call; the count by inversion of the Poisson CDF). ``timestep`` is the step in which the cars arrive (its hour scales
-    the stay and demand)."""
+    """The step's arriving cars (`Arrivals`).
+
+    A Poisson count with the rate of the day type and step times ``volume``, and per slot
+    one car profile (fleet) and user profile (stay and demand from the arrival hour's
+    tables, arrival SoC, user type per port kind, request ratio). All of them come from
+    ``key`` through `chargax_marl.core.rng` (one hash call; the count by inversion of the
+    Poisson CDF).
+
+    Args:
+        key: the step's key.
+        timestep: the step in which the cars arrive (its hour selects the stay and demand
+            tables and scales).
+        is_workday: ``()`` bool, the day type's row of the arrival rate.
+        params: the environment parameters.
+        volume: the day's volume factor (`day_volume`; the state's ``day_volume``).
+
+    Returns:
+        The step's `Arrivals`.
+    """
     st = params.station
     num_slots = st.num_ports
-    # One hash call gives the count's uniform and five uniforms per slot (see `rng`).
-    draws = rng.uniform(rng.key_seed(key), rng.ARRIVALS, (1 + 5 * num_slots,))
-    requested = rng.poisson(draws[0], arrival_rate(timestep, is_workday, params))
-    u = draws[1:].reshape(5, num_slots)
+    # One hash call gives the count's uniform and seven uniforms per slot (see `rng`): the
+    # seventh row is one random key per port, for a random choice among the free ports.
+    draws = rng.uniform(rng.key_seed(key), rng.ARRIVALS, (1 + 7 * num_slots,))
+    requested = rng.poisson(draws[0], arrival_rate(timestep, is_workday, params) * volume)
+    u = draws[1:].reshape(7, num_slots)
     # Car profile: model index by inverse CDF of the fleet shares.
     cdf = jnp.cumsum(params.fleet_share)
     # searchsorted by comparing with every entry (a fleet has tens of models): one fused
@@ -240,13 +313,15 @@ def draw_arrivals(
     capacity = params.fleet_capacity_kwh[model]
     # User profile: stay and demand scaled by the arrival hour, user type.
     hour = jnp.clip((timestep * params.step_minutes / 60.0).astype(jnp.int32), 0, 23)
-    stay = _inverse_cdf(params.stay_quantiles_min, u[1]) * params.stay_scale_by_hour[hour]
+    stay = _inverse_cdf(params.stay_quantiles_min[hour], u[1]) * params.stay_scale_by_hour[hour]
     stay = jnp.maximum(stay, params.step_minutes)
     # The demand fits the car: at most what fills it from the lowest arrival SoC. The
     # arrival SoC is uniform over the part of the profile's range that leaves room for the
     # demand, and the car's target is arrival SoC + demand / capacity (<= 1).
     lo, hi = params.arrival_soc_range[0], params.arrival_soc_range[1]
-    demand = _inverse_cdf(params.demand_quantiles_kwh, u[3]) * params.demand_scale_by_hour[hour]
+    demand = (
+        _inverse_cdf(params.demand_quantiles_kwh[hour], u[3]) * params.demand_scale_by_hour[hour]
+    )
     demand = jnp.clip(demand, 0.0, (1.0 - lo) * capacity)
     hi_fit = jnp.maximum(jnp.minimum(hi, 1.0 - demand / jnp.maximum(capacity, 1e-6)), lo)
     soc0 = lo + (hi_fit - lo) * u[2]
@@ -264,6 +339,9 @@ def draw_arrivals(
         target_soc=target,
         stay_min=stay,
         charge_sensitive=u[4] < params.charge_sensitive_prob,
+        charge_sensitive_dc=u[4] < params.dc_charge_sensitive_prob,
+        request_ratio=jnp.maximum(_inverse_cdf(params.request_ratio_quantiles, u[5]), 1e-3),
+        port_key=u[6],
     )
 
 
@@ -280,7 +358,17 @@ def place_arrivals(state: EnvState, arrivals: Arrivals, params: EnvParams):
     num_free = jnp.sum(free)
     requested = arrivals.requested
     admitted = jnp.minimum(requested, num_free)
-    rank = jnp.cumsum(free) - 1  # rank among free ports, in port order
+    in_order = jnp.cumsum(free) - 1  # rank among free ports, in port order
+    # random choice: rank among free ports by the step's random port keys (ties impossible
+    # but harmless: argsort is stable)
+    port_key = jnp.concatenate(
+        [arrivals.port_key, jnp.full((st.leaf_kind.shape[0] - st.num_ports,), 2.0)]
+    )
+    order = jnp.argsort(jnp.where(free, port_key, 2.0))
+    by_key = (
+        jnp.zeros_like(in_order).at[order].set(jnp.arange(order.shape[0], dtype=in_order.dtype))
+    )
+    rank = jnp.where(params.random_port_choice, by_key, in_order)
     new_car = rng.materialize(free & (rank < admitted))
     slot = jnp.clip(rank, 0, st.num_ports - 1)
     car = arrivals.replace(**{f: getattr(arrivals, f)[slot] for f in SLOT_FIELDS})  # per leaf now
@@ -289,6 +377,7 @@ def place_arrivals(state: EnvState, arrivals: Arrivals, params: EnvParams):
     max_rate = jnp.where(is_ac, car.ac_kw, car.dc_kw)
     max_dis = jnp.where(is_ac, car.ac_discharge_kw, car.dc_discharge_kw)
     demand = (car.target_soc - car.arrival_soc) * car.capacity_kwh
+    charge_sensitive = jnp.where(is_ac, car.charge_sensitive, car.charge_sensitive_dc)
     earliest = earliest_finish_min(
         car.arrival_soc,
         car.target_soc,
@@ -307,6 +396,7 @@ def place_arrivals(state: EnvState, arrivals: Arrivals, params: EnvParams):
         current_a=put(0.0, state.current_a),
         soc=put(car.arrival_soc, state.soc),
         arrival_soc=put(car.arrival_soc, state.arrival_soc),
+        request_extra_kwh=put(demand / car.request_ratio - demand, state.request_extra_kwh),
         energy_remaining_kwh=put(demand, state.energy_remaining_kwh),
         time_remaining_min=put(car.stay_min, state.time_remaining_min),
         slack_min=put(car.stay_min - earliest, state.slack_min),
@@ -315,7 +405,7 @@ def place_arrivals(state: EnvState, arrivals: Arrivals, params: EnvParams):
         max_discharge_rate_kw=put(max_dis, state.max_discharge_rate_kw),
         target_soc=put(car.target_soc, state.target_soc),
         tau=put(car.tau, state.tau),
-        charge_sensitive=jnp.where(new_car, car.charge_sensitive, state.charge_sensitive),
+        charge_sensitive=jnp.where(new_car, charge_sensitive, state.charge_sensitive),
     )
     report = {
         "requested": requested.astype(jnp.float32),
@@ -330,5 +420,7 @@ def arrive(key: jax.Array, state: EnvState, params: EnvParams):
     """Step 4: draw the step's cars (`draw_arrivals`) and park them
     (`place_arrivals`). ``state.timestep`` is the step in which the cars arrive."""
     return place_arrivals(
-        state, draw_arrivals(key, state.timestep, state.is_workday, params), params
+        state,
+        draw_arrivals(key, state.timestep, state.is_workday, params, state.day_volume),
+        params,
     )

@@ -80,12 +80,25 @@ class EnvParams:
             `make_params` (rebuild params to change prices).
         first_weekday: ``()`` int32, weekday of day 0 (0 = Monday).
         arrival_rate: ``(2, T)`` expected arrivals per step; row 0 workday, row 1 weekend.
-        stay_quantiles_min: ``(Q,)`` inverse CDF of the stay duration (minutes).
+        holiday: ``(D,)`` bool, the day is a public holiday (arrivals of a weekend day).
+        weekday_volume_factors: ``(7,)`` volume of each weekday (Monday first) relative to
+            its day type's row of ``arrival_rate``.
+        daily_volume_cv: ``()`` coefficient of variation of a day's arrival intensity (0:
+            the rate is the same every day).
+        stay_quantiles_min: ``(24, Q)`` inverse CDF of the planned stay (minutes) per
+            arrival hour.
         stay_scale_by_hour: ``(24,)`` multiplier of the stay by arrival hour.
-        demand_quantiles_kwh: ``(Q,)`` inverse CDF of the energy demand (kWh).
+        demand_quantiles_kwh: ``(24, Q)`` inverse CDF of the energy a car takes (kWh) per
+            arrival hour.
         demand_scale_by_hour: ``(24,)`` multiplier of the demand by arrival hour.
+        request_ratio_quantiles: ``(Q,)`` inverse CDF of the energy a car takes over the
+            energy its user requests, in (0, 1].
         arrival_soc_range: ``(2,)`` uniform arrival SoC bounds.
-        charge_sensitive_prob: ``()`` probability of u = 1 (a charge-sensitive user).
+        charge_sensitive_prob: ``()`` probability of u = 1 (a charge-sensitive user) at AC
+            ports.
+        dc_charge_sensitive_prob: ``()`` the same at DC ports.
+        random_port_choice: ``()`` bool: an arriving car parks at a uniformly random free
+            port (else at the first free port in port order).
         fleet_share: ``(K,)`` share of each car model; sums to 1.
         fleet_capacity_kwh: ``(K,)`` battery capacity of each model (kWh).
         fleet_ac_kw: ``(K,)`` charging limit of each model at AC ports (kW).
@@ -146,12 +159,18 @@ class EnvParams:
     day_price_quantiles_eur_kwh: jnp.ndarray
     first_weekday: jnp.ndarray
     arrival_rate: jnp.ndarray
+    holiday: jnp.ndarray
+    weekday_volume_factors: jnp.ndarray
+    daily_volume_cv: jnp.ndarray
     stay_quantiles_min: jnp.ndarray
     stay_scale_by_hour: jnp.ndarray
     demand_quantiles_kwh: jnp.ndarray
     demand_scale_by_hour: jnp.ndarray
+    request_ratio_quantiles: jnp.ndarray
     arrival_soc_range: jnp.ndarray
     charge_sensitive_prob: jnp.ndarray
+    dc_charge_sensitive_prob: jnp.ndarray
+    random_port_choice: jnp.ndarray
     fleet_share: jnp.ndarray
     fleet_capacity_kwh: jnp.ndarray
     fleet_ac_kw: jnp.ndarray
@@ -296,9 +315,13 @@ class EnvState:
         tau: bulk/absorption transition SoC.
         charge_sensitive: bool, u = 1.
         arrival_soc: SoC at arrival: discharging never goes below it.
+        request_extra_kwh: what the car's user asked for beyond the energy the car takes
+            (kWh, >= 0; the request is ``(target_soc - arrival_soc) * capacity`` plus this).
         day: ``()`` int32 index into the price data.
         timestep: ``()`` int32 step of the day, ``0..num_steps``.
         is_workday: ``()`` bool.
+        day_volume: ``()`` the day's arrival intensity factor (weekday factor times the
+            day's draw, see `chargax_marl.core.traffic.day_volume`).
         totals: the episode's running totals.
     """
 
@@ -315,9 +338,11 @@ class EnvState:
     tau: jnp.ndarray
     charge_sensitive: jnp.ndarray
     arrival_soc: jnp.ndarray
+    request_extra_kwh: jnp.ndarray
     day: jnp.ndarray
     timestep: jnp.ndarray
     is_workday: jnp.ndarray
+    day_volume: jnp.ndarray
     totals: EpisodeTotals
 
     @property

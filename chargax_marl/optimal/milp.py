@@ -70,6 +70,7 @@ def candidate_sessions(params: EnvParams, trace: trace_lib.DayTrace, num_steps: 
             "target_soc",
             "stay_min",
             "charge_sensitive",
+            "charge_sensitive_dc",
         )
     }
     st = params.station
@@ -81,9 +82,10 @@ def candidate_sessions(params: EnvParams, trace: trace_lib.DayTrace, num_steps: 
             stay_steps = max(
                 1, int(math.ceil(float(a["stay_min"][t, k]) / params.step_minutes - 1e-6))
             )
-            sensitive = bool(a["charge_sensitive"][t, k])
             for port in range(st.num_ports):
                 ac = kind[port] == 0
+                # the user type is drawn per port kind (`traffic.Arrivals`)
+                sensitive = bool(a["charge_sensitive" if ac else "charge_sensitive_dc"][t, k])
                 common = dict(
                     leaf=port,
                     first=t + 1,

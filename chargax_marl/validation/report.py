@@ -1,0 +1,242 @@
+"""The held-out comparison of simulated and real charging sessions.
+
+For each ACN site and each period of 2019-2020, the session model is refitted on the site's
+other periods (`fit.fit_profile`), a station built like the site plays the simulated days
+with always-max, and the simulated sessions are compared with the held-out period's real
+ones by two-sample Kolmogorov-Smirnov distances. Each distance is set against ``d``, the
+distance between the held-out period's real sessions and the site's other periods' real
+sessions: no model should match a period better than the site's own other periods do.
+The day-to-day volume is compared by the standard deviation of the workday counts (the
+simulated station's traffic set to the period's own mean, a level the user chooses), the
+requests by their medians.
+
+The NL profiles are compared with the ElaadNL tables they come from: the realised stays at
+the AC ports of a station with the profile, against the connection-time distribution.
+"""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+from scipy.stats import ks_2samp
+
+from chargax_marl.core.data_io import QUANTILE_PROBS
+from chargax_marl.core.params import make_params
+from chargax_marl.core.profiles import UserProfileData, load_user_profile
+from chargax_marl.core.station import single_type
+from chargax_marl.validation import fit, real
+from chargax_marl.validation.simulated import SimulatedSessions, simulate_sessions
+
+HELD_OUT_PERIODS = ("2019-05-01", "2019-09-01", "2020-02-01")
+"""The periods held out in turn (the 2021 period is always a training period)."""
+SITE_PORTS = {"caltech": 54, "jpl": 52}
+"""AC ports of each ACN site (208 V, 32 A)."""
+SITE_PRICES = "NL-2019"
+"""The price data of the simulated site (its calendar: weekdays and, with US holidays,
+the days the arrivals follow); prices do not enter always-max's sessions."""
+THRESHOLDS = {"stay": 0.10, "arrival_hour": 0.11, "delivered": 0.07}
+"""A statistic passes when its KS distance is at most max(threshold, d)."""
+DAILY_SD_TOLERANCE = 0.25
+REQUEST_MEDIAN_TOLERANCE = 0.10
+
+
+def site_params(site: str, profile: UserProfileData, cars_per_workday: float):
+    """A station like an ACN site (AC ports, 208 V, 32 A, no V2G), US fleet and holidays.
+
+    Args:
+        site: ``"caltech"`` or ``"jpl"``.
+        profile: the user profile.
+        cars_per_workday: mean arrivals per workday.
+
+    Returns:
+        The `EnvParams`.
+    """
+    station = single_type(
+        SITE_PORTS[site], kind="AC", voltage_v=208.0, max_current_a=32.0, v2g=False
+    )
+    return make_params(
+        station=station,
+        prices=SITE_PRICES,
+        user_profile=profile,
+        traffic=float(cars_per_workday),
+        fleet="US",
+        holidays="US",
+        num_levels=1,
+    )
+
+
+def _ks(a: np.ndarray, b: np.ndarray) -> float:
+    return float(ks_2samp(a, b).statistic)
+
+
+def held_out(site: str, period: str, num_days: int = 364, seed: int = 0) -> dict:
+    """One site with one period held out: the model fitted on the other periods against the
+    held-out period's real sessions.
+
+    Args:
+        site: ``"caltech"`` or ``"jpl"``.
+        period: the held-out period (`real.PERIODS`).
+        num_days: simulated days (from day 0 of `SITE_PRICES`).
+        seed: the evaluation key's seed.
+
+    Returns:
+        A row: per statistic the KS distance, ``d`` and whether it passes; the daily-count
+        standard deviations; the request medians; the share of cut sessions.
+    """
+    sessions = real.load_sessions(site)
+    others = tuple(p for p in real.PERIODS if p != period)
+    train, test = sessions.select(others), sessions.select([period])
+    profile = fit.fit_profile(train, real.SITES[site])
+    _, counts, _, workday, _ = fit.day_types(test)
+    params = site_params(site, profile, counts[workday].mean())
+    sim = simulate_sessions(params, np.arange(num_days), jax.random.PRNGKey(seed))
+    real_of = {
+        "stay": (test.stay_min, train.stay_min, sim.stay_min),
+        "arrival_hour": (test.arrival_hour, train.arrival_hour, sim.arrival_hour),
+        "delivered": (test.delivered_kwh, train.delivered_kwh, sim.delivered_kwh),
+    }
+    row = {"site": site, "held_out": period, "sessions": len(test), "simulated": len(sim.stay_min)}
+    for name, (held, rest, simulated) in real_of.items():
+        ks, d = _ks(held, simulated), _ks(held, rest)
+        row[name] = {
+            "ks": ks,
+            "d": d,
+            "real_median": float(np.median(held)),
+            "sim_median": float(np.median(simulated)),
+            "pass": ks <= max(THRESHOLDS[name], d),
+        }
+    real_sd = float(counts[workday].std(ddof=1))
+    sim_sd = float(sim.day_requested[sim.day_workday].std(ddof=1))
+    row["daily_sd"] = {
+        "real": real_sd,
+        "sim": sim_sd,
+        "real_mean": float(counts[workday].mean()),
+        "sim_mean": float(sim.day_requested[sim.day_workday].mean()),
+        "pass": abs(sim_sd / real_sd - 1.0) <= DAILY_SD_TOLERANCE,
+    }
+    req_real, req_sim = float(np.median(test.requested_kwh)), float(np.median(sim.requested_kwh))
+    row["request_median"] = {
+        "real": req_real,
+        "sim": req_sim,
+        "pass": abs(req_sim / req_real - 1.0) <= REQUEST_MEDIAN_TOLERANCE,
+    }
+    row["cut_share"] = float(sim.cut.mean())
+    return row
+
+
+def elaad_stay_ks(sim: SimulatedSessions, stay_quantiles_min: np.ndarray) -> float:
+    """One-sample KS distance between the realised AC stays and a quantile table.
+
+    Args:
+        sim: simulated sessions.
+        stay_quantiles_min: ``(Q,)`` the reference stay quantiles (minutes).
+
+    Returns:
+        ``sup |F_sim - F_ref|`` over the simulated stays.
+    """
+    x = np.sort(sim.stay_min[sim.ac])
+    ref = np.interp(x, stay_quantiles_min, QUANTILE_PROBS, left=0.0, right=1.0)
+    n = x.size
+    upper = np.arange(1, n + 1) / n - ref
+    lower = ref - np.arange(0, n) / n
+    return float(max(upper.max(), lower.max()))
+
+
+def elaad(profile: str = "shopping", num_days: int = 364, seed: int = 0, **env) -> dict:
+    """A bundled NL profile against the ElaadNL connection times it comes from.
+
+    Args:
+        profile: a bundled NL profile (``shopping``, ``workplace``, ``residential``).
+        num_days: simulated days (from day 0 of the env's prices).
+        seed: the evaluation key's seed.
+        **env: further `make_params` keywords (e.g. ``episode_start_hour``).
+
+    Returns:
+        The AC stays' KS distance to the paper profile's pooled table (the ElaadNL
+        connection times), the realised median stays, and the share of sessions cut by the
+        episode's end.
+    """
+    params = make_params(user_profile=profile, **env)
+    sim = simulate_sessions(params, np.arange(num_days), jax.random.PRNGKey(seed))
+    table = load_user_profile(profile, session_model="paper").stay_quantiles_min
+    return {
+        "profile": profile,
+        "env": {k: repr(v) for k, v in env.items()},
+        "stay_ks_ac": elaad_stay_ks(sim, np.asarray(table)),
+        "elaad_median_min": float(np.interp(0.5, QUANTILE_PROBS, table)),
+        "sim_median_ac_min": float(np.median(sim.stay_min[sim.ac])),
+        "sim_median_min": float(np.median(sim.stay_min)),
+        "cut_share": float(sim.cut.mean()),
+        "sessions": int(sim.stay_min.size),
+    }
+
+
+def table_markdown(rows: list[dict]) -> str:
+    """The held-out rows as a Markdown table.
+
+    Args:
+        rows: `held_out` rows.
+
+    Returns:
+        The table's text.
+    """
+    head = (
+        "| site | held out | stay KS (d) | arrival hour KS (d) | delivered KS (d) "
+        "| workday count sd, real / sim | request median kWh, real / sim |\n"
+        "|---|---|---|---|---|---|---|\n"
+    )
+
+    def ks(cell):
+        mark = "" if cell["pass"] else " ✗"
+        return f"{cell['ks']:.3f} ({cell['d']:.3f}){mark}"
+
+    lines = []
+    for r in rows:
+        sd, rq = r["daily_sd"], r["request_median"]
+        lines.append(
+            f"| {r['site']} | {r['held_out']} | {ks(r['stay'])} | {ks(r['arrival_hour'])} "
+            f"| {ks(r['delivered'])} | {sd['real']:.1f} / {sd['sim']:.1f}"
+            f"{'' if sd['pass'] else ' ✗'} | {rq['real']:.1f} / {rq['sim']:.1f}"
+            f"{'' if rq['pass'] else ' ✗'} |"
+        )
+    return head + "\n".join(lines) + "\n"
+
+
+def run(num_days: int = 364, seed: int = 0, elaad_env: dict | None = None) -> dict:
+    """Every held-out row and the ElaadNL comparisons.
+
+    Args:
+        num_days: simulated days per row.
+        seed: the evaluation key's seed.
+        elaad_env: per NL profile, further `make_params` keywords of its ElaadNL comparison.
+
+    Returns:
+        ``{"held_out": [...], "elaad": [...], "settings": {...}}``.
+    """
+    rows = [held_out(s, p, num_days, seed) for s in real.SITES for p in HELD_OUT_PERIODS]
+    envs = elaad_env or {"shopping": {}, "workplace": {}, "residential": {}}
+    nl = [elaad(name, num_days, seed, **env) for name, env in envs.items()]
+    return {
+        "held_out": rows,
+        "elaad": nl,
+        "settings": {
+            "num_days": num_days,
+            "seed": seed,
+            "thresholds": THRESHOLDS,
+            "daily_sd_tolerance": DAILY_SD_TOLERANCE,
+            "request_median_tolerance": REQUEST_MEDIAN_TOLERANCE,
+            "site_prices": SITE_PRICES,
+            "min_sessions_per_hour": fit.MIN_SESSIONS_PER_HOUR,
+        },
+    }
+
+
+__all__ = [
+    "HELD_OUT_PERIODS",
+    "elaad",
+    "elaad_stay_ks",
+    "held_out",
+    "run",
+    "site_params",
+    "table_markdown",
+]
