@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from chargax_marl.core import rng
+from chargax_marl.core import clock, rng
 from chargax_marl.core.station import KIND_AC, KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState
 
@@ -167,9 +167,10 @@ def _inverse_cdf(table: jnp.ndarray, u: jnp.ndarray) -> jnp.ndarray:
 
 
 def arrival_rate(timestep: jnp.ndarray, is_workday: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
-    """Expected number of arrivals in this step (lambda of the Poisson draw)."""
-    t = jnp.clip(timestep, 0, params.arrival_rate.shape[1] - 1)
-    return params.arrival_rate[jnp.where(is_workday, 0, 1), t]
+    """Expected number of arrivals in this step (lambda of the Poisson draw): the rate of the
+    step's slot of its calendar day (`chargax_marl.core.clock.slot_of_day`), for the day
+    type ``is_workday`` of that calendar day (`chargax_marl.core.clock.is_workday`)."""
+    return params.arrival_rate[jnp.where(is_workday, 0, 1), clock.slot_of_day(timestep, params)]
 
 
 @struct.dataclass
@@ -239,7 +240,7 @@ def draw_arrivals(
     ).astype(jnp.int32)
     capacity = params.fleet_capacity_kwh[model]
     # User profile: stay and demand scaled by the arrival hour, user type.
-    hour = jnp.clip((timestep * params.step_minutes / 60.0).astype(jnp.int32), 0, 23)
+    hour = clock.clock_hour(timestep, params)
     stay = _inverse_cdf(params.stay_quantiles_min, u[1]) * params.stay_scale_by_hour[hour]
     stay = jnp.maximum(stay, params.step_minutes)
     # The demand fits the car: at most what fills it from the lowest arrival SoC. The

@@ -138,6 +138,10 @@ class EnvParams:
             excess).
         price_horizon_hours: hours of upcoming prices in the observation.
         observe_moer: MOER now is part of the observation.
+        episode_start_hour: the local hour (0..23) an episode starts at on its day; step
+            ``t`` is at ``episode_start_hour + t * step_minutes / 60`` hours of ``state.day``,
+            hours of 24 and more on the next day (`chargax_marl.core.clock`). 0: the
+            calendar day.
     """
 
     station: StationArrays
@@ -189,6 +193,7 @@ class EnvParams:
     constraint_mode: str = struct.field(pytree_node=False, default="hard")
     price_horizon_hours: int = struct.field(pytree_node=False, default=6)
     observe_moer: bool = struct.field(pytree_node=False, default=False)
+    episode_start_hour: int = struct.field(pytree_node=False, default=0)
 
     @property
     def num_days(self) -> int:
@@ -296,9 +301,10 @@ class EnvState:
         tau: bulk/absorption transition SoC.
         charge_sensitive: bool, u = 1.
         arrival_soc: SoC at arrival: discharging never goes below it.
-        day: ``()`` int32 index into the price data.
-        timestep: ``()`` int32 step of the day, ``0..num_steps``.
-        is_workday: ``()`` bool.
+        day: ``()`` int32 index into the price data of the day the episode starts on.
+        timestep: ``()`` int32 step of the episode, ``0..num_steps`` (its clock time:
+            `chargax_marl.core.clock`).
+        is_workday: ``()`` bool, the day type of the calendar day the step falls on.
         totals: the episode's running totals.
     """
 
