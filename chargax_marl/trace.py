@@ -22,8 +22,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from chargax_marl.core import clock, rng, simulator, traffic
 from chargax_marl.core import reward as reward_lib
-from chargax_marl.core import rng, simulator, traffic
 from chargax_marl.core.types import EnvParams, EnvState
 
 Act = Callable[[EnvState, jax.Array], jnp.ndarray]
@@ -97,7 +97,8 @@ class DayTrace:
     """The exogenous inputs of one day (or, with a leading axis, of several days).
 
     Attributes:
-        day: ``()`` int32, the day's index into the price data.
+        day: ``()`` int32, the day's index into the price data (the day the episode
+            starts on).
         arrivals: one `chargax_marl.core.traffic.Arrivals` per step (fields with a leading
             ``(num_steps,)`` axis): arrival step = index, and per slot the car model,
             capacity, r-bar for AC and DC ports, tau, arrival SoC, target SoC, planned stay
@@ -112,6 +113,8 @@ class DayTrace:
         step_minutes: the step length (minutes) of the params the trace was made for.
         num_steps: the steps of the day.
         station: `station_fingerprint` of the params' station.
+        episode_start_hour: the hour the episode starts at (`chargax_marl.core.clock`) in
+            the params the trace was made for.
     """
 
     day: jnp.ndarray
@@ -123,14 +126,16 @@ class DayTrace:
     step_minutes: float = struct.field(pytree_node=False, default=5.0)
     num_steps: int = struct.field(pytree_node=False, default=288)
     station: str = struct.field(pytree_node=False, default="")
+    episode_start_hour: int = struct.field(pytree_node=False, default=0)
 
 
 def _make_trace(params: EnvParams, day, day_key) -> DayTrace:
     _, step_keys, battery_key = day_keys(day_key, params.num_steps)
     day = jnp.asarray(day, jnp.int32)
-    workday = simulator.is_workday(day, params)
     steps = jnp.arange(params.num_steps, dtype=jnp.int32)
-    arrivals = jax.vmap(lambda k, t: traffic.draw_arrivals(k, t, workday, params))(step_keys, steps)
+    arrivals = jax.vmap(
+        lambda k, t: traffic.draw_arrivals(k, t, clock.is_workday(day, t, params), params)
+    )(step_keys, steps)
     buy, sell = jax.vmap(lambda t: reward_lib.grid_prices(day, t, params))(steps)
     nb = params.station.num_batteries
     return DayTrace(
@@ -144,6 +149,7 @@ def _make_trace(params: EnvParams, day, day_key) -> DayTrace:
         battery_value_eur_kwh=reward_lib.battery_terminal_value_eur(jnp.float32(1.0), day, params),
         step_minutes=params.step_minutes,
         num_steps=params.num_steps,
+        episode_start_hour=params.episode_start_hour,
     )
 
 
@@ -169,7 +175,13 @@ def make_traces(
 
     Returns:
         A `DayTrace` with a leading axis over days.
+
+    Raises:
+        ValueError: with ``episode_start_hour > 0``, a day of ``days`` is the data's last
+            (`chargax_marl.core.clock.check_days`).
     """
+    if params.episode_start_hour and not isinstance(days, jax.core.Tracer):
+        clock.check_days(days, params.num_days, params.episode_start_hour)
     days = jnp.atleast_1d(jnp.asarray(days, jnp.int32))
     if day_keys is None:
         key = jax.random.PRNGKey(0) if key is None else key
@@ -266,6 +278,7 @@ def trace_from_cars(
         step_minutes=params.step_minutes,
         num_steps=n,
         station=station_fingerprint(params),
+        episode_start_hour=params.episode_start_hour,
     )
 
 
@@ -291,7 +304,8 @@ def check_trace(trace: DayTrace, params: EnvParams) -> None:
             checked).
 
     Raises:
-        ValueError: the trace was made for another station, step length or day length.
+        ValueError: the trace was made for another station, step length, day length or
+            episode start hour.
     """
     if trace.step_minutes != params.step_minutes:
         raise ValueError(
@@ -302,6 +316,12 @@ def check_trace(trace: DayTrace, params: EnvParams) -> None:
         raise ValueError(
             f"trace field 'num_steps' is {trace.num_steps!r} but params have "
             f"num_steps={params.num_steps!r}: make the trace with the same params"
+        )
+    if trace.episode_start_hour != params.episode_start_hour:
+        raise ValueError(
+            f"trace field 'episode_start_hour' is {trace.episode_start_hour!r} but params have "
+            f"episode_start_hour={params.episode_start_hour!r}: make the trace with the same "
+            "params"
         )
     if isinstance(params.station.leaf_voltage_v, jax.core.Tracer):
         return  # params traced: only the static fields above can be checked
