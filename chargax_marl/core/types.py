@@ -98,7 +98,8 @@ class EnvParams:
             MOER data.
         grid_demand_kwh: ``(T,)`` grid demand signal per step for the grid-demand penalty
             (kWh).
-        reset_days: ``(R,)`` int32 day indices ``reset`` draws from (all days by default).
+        reset_days: ``(R,)`` int32 day indices ``reset`` draws from (by default all days an
+            episode can start on, `chargax_marl.core.clock.episode_days`).
         battery_soc0_low: ``(B,)`` the initial SoC of each station battery is uniform in
             ``[low, high]``.
         battery_soc0_high: ``(B,)`` the high end of that range.

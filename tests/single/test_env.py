@@ -339,3 +339,11 @@ def test_gymnasium_wrapper_passes_the_checker_with_episodes_from_noon():
         if steps == 12:
             assert "time 00:00 (+1 day)" in genv.render()
     assert steps == 24
+
+
+def test_reset_to_day_refuses_the_last_day_when_episodes_start_after_midnight():
+    env = Chargax(station=three_level_station(), step_minutes=60.0, episode_start_hour=12)
+    last = env.default_params.num_days - 1
+    env.reset_to_day(last - 1)
+    with pytest.raises(ValueError, match=rf"\[0, {last - 1}\]"):
+        env.reset_to_day(last)
