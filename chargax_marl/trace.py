@@ -14,6 +14,7 @@ baselines (`chargax_marl.optimal`) read their cars and prices from traces.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 from collections.abc import Callable
 
@@ -86,10 +87,27 @@ def params_fingerprint(params: EnvParams) -> str:
     h = hashlib.sha1()
     h.update(f"stream {rng.STREAM_VERSION}".encode())
     leaves, treedef = jax.tree_util.tree_flatten(params)
-    h.update(str(treedef).encode())
+    h.update(_treedef_text(treedef, params).encode())
     for a in leaves:
         h.update(np.asarray(a).tobytes())
     return h.hexdigest()[:16]
+
+
+def _treedef_text(treedef, params: EnvParams) -> str:
+    """The text of ``params``' tree structure (its static settings included) that
+    `params_fingerprint` hashes. ``episode_start_hour`` came after the stored fingerprints:
+    a start hour of 0 is left out of the text, so that the fingerprints of midnight starts,
+    the references' among them, stay what they were."""
+    text = str(treedef)
+    if params.episode_start_hour == 0:
+        static = tuple(
+            getattr(params, f.name)
+            for f in dataclasses.fields(params)
+            if not f.metadata.get("pytree_node", True)
+        )
+        assert dataclasses.fields(params)[-1].name == "episode_start_hour"
+        text = text.replace(f"EnvParams[{static!r}]", f"EnvParams[{static[:-1]!r}]", 1)
+    return text
 
 
 @struct.dataclass

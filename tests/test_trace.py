@@ -10,7 +10,7 @@ import pytest
 from chargax_marl.core import make_params, reward
 from chargax_marl.evaluation import run_days
 from chargax_marl.policies import always_max
-from chargax_marl.trace import check_trace, make_traces, replay_days
+from chargax_marl.trace import check_trace, make_traces, params_fingerprint, replay_days
 from tests.helpers import three_level_station
 
 HOURLY = dict(station=three_level_station(), traffic=150.0, step_minutes=60.0)
@@ -47,3 +47,7 @@ def test_a_trace_is_refused_by_params_with_another_start_hour(noon):
         check_trace(trace, noon)
     with pytest.raises(ValueError, match="'days'.*next day"):
         make_traces(noon, [noon.num_days - 1])
+
+
+def test_the_start_hour_is_part_of_the_params_fingerprint(noon):
+    assert params_fingerprint(noon) != params_fingerprint(make_params(**HOURLY))
