@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from chargax_marl.core import simulator
+from chargax_marl.core import clock, simulator
 from chargax_marl.core.types import EnvParams, EnvState, EpisodeTotals
 from chargax_marl.optimal import bound_days
 from chargax_marl.policies import get_policy, is_named_rule
@@ -159,7 +159,9 @@ def split_days(num_days: int, num_eval: int = 100, seed: int = 0) -> tuple[np.nd
     """Split day indices into training days and held-out evaluation days, reproducibly.
 
     Args:
-        num_days: the days of the price data; indices ``0 .. num_days - 1`` are split.
+        num_days: the days of the price data; indices ``0 .. num_days - 1`` are split. With
+            episodes that start after midnight pass ``clock.episode_days(params)`` (all days
+            but the last, `chargax_marl.core.clock`).
         num_eval: how many days to hold out, in ``[1, num_days - 1]``.
         seed: the seed of the random permutation.
 
@@ -302,6 +304,14 @@ def play_days(
     return _play_days(act, params, jnp.asarray(days, jnp.int32), keys)
 
 
+def _start_days(days, params: EnvParams) -> jnp.ndarray:
+    """``days`` as int32, checked to be days an episode can start on when episodes start after
+    midnight (`clock.check_days`: the last day of the data has no next day's prices)."""
+    if params.episode_start_hour and not isinstance(days, jax.core.Tracer):
+        clock.check_days(days, params.num_days, params.episode_start_hour)
+    return jnp.asarray(days, jnp.int32)
+
+
 def run_days(act: Act | MemoryAct, params: EnvParams, days, key: jax.Array):
     """Run ``act`` for one whole day per entry of ``days`` (vmapped).
 
@@ -317,7 +327,8 @@ def run_days(act: Act | MemoryAct, params: EnvParams, days, key: jax.Array):
 
     Raises:
         ValueError: the policy returned non-finite or non-integer levels
-            (`check_policy_outputs`).
+            (`check_policy_outputs`), or, with ``episode_start_hour > 0``, a day of ``days``
+            is the data's last (`chargax_marl.core.clock.check_days`).
     """
     days = jnp.asarray(days, jnp.int32)
     return run_days_keyed(act, params, days, jax.random.split(key, days.shape[0]))
@@ -340,9 +351,10 @@ def run_days_keyed(act: Act | MemoryAct, params: EnvParams, days, keys: jax.Arra
     Raises:
         ValueError: the policy returned non-finite or non-integer levels
             (`check_policy_outputs`; inside a caller's ``jit`` use `play_days` and check its
-            counts).
+            counts), or, with ``episode_start_hour > 0``, a day of ``days`` is the data's last
+            (`chargax_marl.core.clock.check_days`).
     """
-    days = jnp.asarray(days, jnp.int32)
+    days = _start_days(days, params)
     # compiled as one program: run eagerly, the vmapped scan is traced, batched and compiled
     # piecewise, which costs more than the whole program (inside a caller's jit it is inlined)
     totals, counts = jax.jit(lambda d, k: _play_days(act, params, d, k))(days, keys)
@@ -373,9 +385,10 @@ def run_policy_days(policy: Callable, params: EnvParams, days, key: jax.Array):
 
     Raises:
         ValueError: the policy returned non-finite or non-integer levels
-            (`check_policy_outputs`).
+            (`check_policy_outputs`), or, with ``episode_start_hour > 0``, a day of ``days``
+            is the data's last (`chargax_marl.core.clock.check_days`).
     """
-    days = jnp.asarray(days, jnp.int32)
+    days = _start_days(days, params)
     keys = jax.random.split(key, days.shape[0])
     if is_named_rule(policy):
         totals, counts = _policy_days(policy, params, days, keys)
@@ -417,14 +430,15 @@ def run_policies_days(policies: Sequence[Callable], params: EnvParams, days, key
         The final `EpisodeTotals` with leading axes ``(len(policies), n)``.
 
     Raises:
-        ValueError: no policy.
+        ValueError: no policy, or, with ``episode_start_hour > 0``, a day of ``days`` is the
+            data's last (`chargax_marl.core.clock.check_days`).
     """
     policies = tuple(policies)
     if not policies:
         raise ValueError("field 'policies' must name at least one policy, got none")
     if len(policies) == 1:
         return jax.tree.map(lambda x: x[None], run_policy_days(policies[0], params, days, key))
-    days = jnp.asarray(days, jnp.int32)
+    days = _start_days(days, params)
     keys = jax.random.split(key, days.shape[0])
     if all(is_named_rule(p) for p in policies):
         return _policies_days(policies, params, days, keys)

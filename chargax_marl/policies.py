@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 
 from chargax_marl.core import physics
-from chargax_marl.core.reward import hour_of_step
+from chargax_marl.core.reward import episode_buy_prices, hour_of_step
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState
 from chargax_marl.teachers.rules import RULE_BUILDERS
@@ -55,16 +55,17 @@ def always_max(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarra
 
 
 def _day_buy_prices(state: EnvState, params: EnvParams) -> tuple[jnp.ndarray, jnp.ndarray]:
-    """``(day (24,), now ())``: the day's hourly buy prices (day-ahead, grid fee, time-of-use
-    surcharge; EUR/kWh) and the current hour's."""
-    day_prices = params.prices_eur_kwh[state.day] + params.grid_fee_eur_kwh + params.tou_fee_eur_kwh
+    """``(day (24,), now ())``: the hourly buy prices of the episode's 24 hours (day-ahead, grid
+    fee, time-of-use surcharge; EUR/kWh; `chargax_marl.core.reward.episode_buy_prices`) and
+    the current hour's."""
+    day_prices = episode_buy_prices(state.day, params)
     return day_prices, day_prices[hour_of_step(state.timestep, params)]
 
 
 def _cheap_or_dear_hour(state: EnvState, params: EnvParams, quantile: float):
     """Whether the current hour's buy price (day-ahead plus the time-of-use surcharge) is in the
-    cheapest / dearest ``quantile`` of the day's hours."""
-    day_prices = params.prices_eur_kwh[state.day] + params.tou_fee_eur_kwh
+    cheapest / dearest ``quantile`` of the episode's 24 hours."""
+    day_prices = episode_buy_prices(state.day, params, grid_fee=False)
     now = day_prices[hour_of_step(state.timestep, params)]
     return now <= jnp.quantile(day_prices, quantile), now >= jnp.quantile(
         day_prices, 1.0 - quantile

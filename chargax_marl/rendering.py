@@ -2,7 +2,8 @@
 
 Modes: ``"ansi"`` returns a text table of the station now, ``"human"`` prints that table and
 returns None, ``"rgb_array"`` returns an ``HxWx3`` uint8 plot of the day so far (price and
-station power).
+station power). Times are clock times (`chargax_marl.core.clock`): an episode that starts at
+noon is drawn from 12:00 to 12:00 the next day.
 """
 
 from __future__ import annotations
@@ -11,7 +12,9 @@ import gymnasium
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.ticker import FuncFormatter, MultipleLocator
 
+from chargax_marl.core import clock
 from chargax_marl.core.station import KIND_NAMES
 from chargax_marl.core.types import EnvParams
 
@@ -26,10 +29,33 @@ def check_render_mode(render_mode: str | None, where: str) -> None:
 
 
 def price_now(state, params: EnvParams) -> float:
-    """The day-ahead price (EUR/kWh) of the state's hour; ``state`` on the host."""
-    hour = min(int(int(state.timestep) * params.step_minutes // 60), 23)
-    day = int(state.day) % params.num_days
-    return float(np.asarray(params.prices_eur_kwh)[day, hour])
+    """The day-ahead price (EUR/kWh) of the state's hour at its clock time (the next day's
+    prices past midnight); ``state`` on the host."""
+    hour = int(clock.episode_hour(int(state.timestep), params))
+    flat = np.asarray(params.prices_eur_kwh).reshape(-1)
+    return float(flat[((int(state.day) % params.num_days) * 24 + hour) % flat.size])
+
+
+def clock_time(state, params: EnvParams) -> str:
+    """The state's clock time ``HH:MM``, with ``(+1 day)`` past the episode's first
+    midnight when the episode starts after midnight (one that starts at midnight ends at
+    ``24:00``); ``state`` on the host."""
+    minutes = int(clock.steps_since_midnight(int(state.timestep), params)) * params.step_minutes
+    next_day = ""
+    if params.episode_start_hour and minutes >= 1440:
+        next_day, minutes = " (+1 day)", minutes - 1440
+    return f"{int(minutes // 60):02d}:{int(minutes % 60):02d}{next_day}"
+
+
+def clock_axis(ax, params: EnvParams) -> None:
+    """Label an axis of hours since midnight of the episode's first day as clock times
+    (``HH:00``, wrapping past 24) when the episode starts after midnight; a start hour of 0
+    keeps the plain hours of the day."""
+    if not params.episode_start_hour:
+        return
+    ax.xaxis.set_major_locator(MultipleLocator(3))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{int(round(x)) % 24:02d}:00"))
+    ax.set_xlabel("clock time (past 24:00: the next day)")
 
 
 def ansi_table(state, params: EnvParams, names: list[str]) -> str:
@@ -37,10 +63,9 @@ def ansi_table(state, params: EnvParams, names: list[str]) -> str:
     st = params.station
     kinds = np.asarray(st.leaf_kind)
     volts = np.asarray(st.leaf_voltage_v)
-    minutes = int(state.timestep) * params.step_minutes
     lines = [
         f"day {int(state.day)}  step {int(state.timestep)}/{params.num_steps}  "
-        f"time {int(minutes // 60):02d}:{int(minutes % 60):02d}  "
+        f"time {clock_time(state, params)}  "
         f"price {price_now(state, params):.4f} EUR/kWh  profit so far {float(state.totals.profit_eur):.2f} EUR",
         f"{'agent':<12}{'kind':<9}{'occupied':>9}{'SoC':>7}{'current A':>11}{'power kW':>10}",
     ]
@@ -56,19 +81,22 @@ def ansi_table(state, params: EnvParams, names: list[str]) -> str:
 
 
 def rgb_plot(history: list[tuple[float, float, float]], state, params: EnvParams) -> np.ndarray:
-    """``HxWx3`` uint8 plot of ``history`` rows ``(hour, buy price, station kW)``."""
+    """``HxWx3`` uint8 plot of ``history`` rows ``(hour, buy price, station kW)``, the hour
+    counted from the episode's start and drawn at its clock time."""
 
     fig = Figure(figsize=(6.4, 4.0), dpi=80)
     canvas = FigureCanvasAgg(fig)
     ax_price, ax_power = fig.subplots(2, 1, sharex=True)
     if history:
         h = np.asarray(history)
-        ax_price.step(h[:, 0], h[:, 1], where="post", color="tab:orange")
-        ax_power.step(h[:, 0], h[:, 2], where="post", color="tab:blue")
+        hours = params.episode_start_hour + h[:, 0]
+        ax_price.step(hours, h[:, 1], where="post", color="tab:orange")
+        ax_power.step(hours, h[:, 2], where="post", color="tab:blue")
     ax_price.set_ylabel("price EUR/kWh")
     ax_power.set_ylabel("station kW")
     ax_power.set_xlabel("hour of the day")
-    ax_power.set_xlim(0, 24)
+    ax_power.set_xlim(params.episode_start_hour, params.episode_start_hour + 24)
+    clock_axis(ax_power, params)
     ax_price.set_title(f"day {int(state.day)}, step {int(state.timestep)}/{params.num_steps}")
     fig.tight_layout()
     canvas.draw()

@@ -23,8 +23,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from chargax_marl.core import clock, rng, simulator, traffic
 from chargax_marl.core import reward as reward_lib
-from chargax_marl.core import rng, simulator, traffic
 from chargax_marl.core.types import EnvParams, EnvState
 
 Act = Callable[[EnvState, jax.Array], jnp.ndarray]
@@ -87,7 +87,7 @@ def params_fingerprint(params: EnvParams) -> str:
     h = hashlib.sha1()
     h.update(f"stream {rng.STREAM_VERSION}".encode())
     leaves, treedef = jax.tree_util.tree_flatten(params)
-    structure = str(treedef)
+    structure = _treedef_text(treedef, params)
     dropped = _neutral_later_fields(params)
     if dropped:
         # Fields added to EnvParams after results were first stored, at values that change
@@ -148,12 +148,30 @@ def _neutral_later_fields(params: EnvParams) -> tuple[str, ...]:
     )
 
 
+def _treedef_text(treedef, params: EnvParams) -> str:
+    """The text of ``params``' tree structure (its static settings included) that
+    `params_fingerprint` hashes. ``episode_start_hour`` came after the stored fingerprints:
+    a start hour of 0 is left out of the text, so that the fingerprints of midnight starts,
+    the references' among them, stay what they were."""
+    text = str(treedef)
+    if params.episode_start_hour == 0:
+        static = tuple(
+            getattr(params, f.name)
+            for f in dataclasses.fields(params)
+            if not f.metadata.get("pytree_node", True)
+        )
+        assert dataclasses.fields(params)[-1].name == "episode_start_hour"
+        text = text.replace(f"EnvParams[{static!r}]", f"EnvParams[{static[:-1]!r}]", 1)
+    return text
+
+
 @struct.dataclass
 class DayTrace:
     """The exogenous inputs of one day (or, with a leading axis, of several days).
 
     Attributes:
-        day: ``()`` int32, the day's index into the price data.
+        day: ``()`` int32, the day's index into the price data (the day the episode
+            starts on).
         arrivals: one `chargax_marl.core.traffic.Arrivals` per step (fields with a leading
             ``(num_steps,)`` axis): arrival step = index, and per slot the car model,
             capacity, r-bar for AC and DC ports, tau, arrival SoC, target SoC, planned stay
@@ -168,6 +186,8 @@ class DayTrace:
         step_minutes: the step length (minutes) of the params the trace was made for.
         num_steps: the steps of the day.
         station: `station_fingerprint` of the params' station.
+        episode_start_hour: the hour the episode starts at (`chargax_marl.core.clock`) in
+            the params the trace was made for.
     """
 
     day: jnp.ndarray
@@ -179,17 +199,17 @@ class DayTrace:
     step_minutes: float = struct.field(pytree_node=False, default=5.0)
     num_steps: int = struct.field(pytree_node=False, default=288)
     station: str = struct.field(pytree_node=False, default="")
+    episode_start_hour: int = struct.field(pytree_node=False, default=0)
 
 
 def _make_trace(params: EnvParams, day, day_key) -> DayTrace:
     _, step_keys, battery_key = day_keys(day_key, params.num_steps)
     day = jnp.asarray(day, jnp.int32)
-    workday = simulator.is_workday(day, params)
-    volume = traffic.day_volume(day, params, battery_key)
     steps = jnp.arange(params.num_steps, dtype=jnp.int32)
-    arrivals = jax.vmap(lambda k, t: traffic.draw_arrivals(k, t, workday, params, volume))(
-        step_keys, steps
-    )
+    volume = traffic.day_volume(day, params, battery_key)
+    arrivals = jax.vmap(
+        lambda k, t: traffic.draw_arrivals(k, t, clock.is_workday(day, t, params), params, volume)
+    )(step_keys, steps)
     buy, sell = jax.vmap(lambda t: reward_lib.grid_prices(day, t, params))(steps)
     nb = params.station.num_batteries
     return DayTrace(
@@ -203,6 +223,7 @@ def _make_trace(params: EnvParams, day, day_key) -> DayTrace:
         battery_value_eur_kwh=reward_lib.battery_terminal_value_eur(jnp.float32(1.0), day, params),
         step_minutes=params.step_minutes,
         num_steps=params.num_steps,
+        episode_start_hour=params.episode_start_hour,
     )
 
 
@@ -228,7 +249,13 @@ def make_traces(
 
     Returns:
         A `DayTrace` with a leading axis over days.
+
+    Raises:
+        ValueError: with ``episode_start_hour > 0``, a day of ``days`` is the data's last
+            (`chargax_marl.core.clock.check_days`).
     """
+    if params.episode_start_hour and not isinstance(days, jax.core.Tracer):
+        clock.check_days(days, params.num_days, params.episode_start_hour)
     days = jnp.atleast_1d(jnp.asarray(days, jnp.int32))
     if day_keys is None:
         key = jax.random.PRNGKey(0) if key is None else key
@@ -328,6 +355,7 @@ def trace_from_cars(
         step_minutes=params.step_minutes,
         num_steps=n,
         station=station_fingerprint(params),
+        episode_start_hour=params.episode_start_hour,
     )
 
 
@@ -353,7 +381,8 @@ def check_trace(trace: DayTrace, params: EnvParams) -> None:
             checked).
 
     Raises:
-        ValueError: the trace was made for another station, step length or day length.
+        ValueError: the trace was made for another station, step length, day length or
+            episode start hour.
     """
     if trace.step_minutes != params.step_minutes:
         raise ValueError(
@@ -364,6 +393,12 @@ def check_trace(trace: DayTrace, params: EnvParams) -> None:
         raise ValueError(
             f"trace field 'num_steps' is {trace.num_steps!r} but params have "
             f"num_steps={params.num_steps!r}: make the trace with the same params"
+        )
+    if trace.episode_start_hour != params.episode_start_hour:
+        raise ValueError(
+            f"trace field 'episode_start_hour' is {trace.episode_start_hour!r} but params have "
+            f"episode_start_hour={params.episode_start_hour!r}: make the trace with the same "
+            "params"
         )
     if isinstance(params.station.leaf_voltage_v, jax.core.Tracer):
         return  # params traced: only the static fields above can be checked

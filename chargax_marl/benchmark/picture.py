@@ -1,7 +1,8 @@
 """A picture of a policy's held-out day beside a reference, for an operator to look at.
 
 `day_picture` plays one held-out day and draw of a task (the cars every policy meets on
-it) and draws, over the hours of the day: the buy price; the grid draw of both against the
+it) and draws, over the hours of the day (clock times: an episode that starts at noon runs from
+12:00 to 12:00 the next day): the buy price; the grid draw of both against the
 connection's limit; each port's power under the policy as a heat map, with arrivals and
 departures marked; the station battery's state of charge; and the cumulative profit of both,
 with the LP hindsight bound's day total.
@@ -20,6 +21,7 @@ from chargax_marl.benchmark import protocol
 from chargax_marl.benchmark.references import BOUND, load_references
 from chargax_marl.benchmark.tasks import Task, get_task
 from chargax_marl.policies import get_policy
+from chargax_marl.rendering import clock_axis
 from chargax_marl.trace import day_of, make_traces, replay
 
 
@@ -27,7 +29,8 @@ def play_day(act: Callable, params, day: int, key: jax.Array) -> dict:
     """One day of ``act(state, key) -> levels`` with the cars of ``key``, step by step.
 
     Returns:
-        ``{"hours", "price_eur_kwh", "grid_kw", "port_kw" (steps, ports), "arrived"
+        ``{"hours" (hours since midnight of the episode's first day, the step's clock time;
+        24 and more on the next day), "price_eur_kwh", "grid_kw", "port_kw" (steps, ports), "arrived"
         (steps, ports), "departed" (steps, ports), "battery_soc" (steps, batteries),
         "profit_eur" (steps,), "total_profit_eur"}``; the total equals the day's profit in
         `chargax_marl.benchmark.score` for the same day and draw.
@@ -41,7 +44,7 @@ def play_day(act: Callable, params, day: int, key: jax.Array) -> dict:
     after = np.concatenate([occupied[1:], np.zeros_like(occupied[:1])])
     arrived = np.asarray(infos.leaf_arrived)[:, :ports]
     return {
-        "hours": np.arange(occupied.shape[0]) * hours,
+        "hours": params.episode_start_hour + np.arange(occupied.shape[0]) * hours,
         "price_eur_kwh": np.asarray(infos.price_buy_eur_kwh),
         "grid_kw": np.asarray(infos.grid_net_kwh) / hours,
         "port_kw": np.asarray(infos.leaf_energy_kwh)[:, :ports] / hours,
@@ -121,7 +124,7 @@ def day_picture(
         aspect="auto",
         origin="lower",
         cmap="coolwarm",
-        extent=(h[0], h[-1] + h[1], -0.5, ports - 0.5),
+        extent=(h[0], h[-1] + (h[1] - h[0]), -0.5, ports - 0.5),
         vmin=-np.abs(mine["port_kw"]).max() - 1e-6,
         vmax=np.abs(mine["port_kw"]).max() + 1e-6,
     )
@@ -142,6 +145,7 @@ def day_picture(
     axes[4].axhline(bound, color="g", ls=":", label=f"LP bound (day total): {bound:.1f}")
     axes[4].set_ylabel("cumulative\nprofit, EUR")
     axes[4].set_xlabel("hour of the day")
+    clock_axis(axes[4], base)
     axes[4].legend(loc="upper left", fontsize=8)
     fig.suptitle(f"{task.id}, held-out day {day} (draw {draw}): {label} and {reference}")
     fig.tight_layout()

@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from chargax_marl.core import make_params
+from chargax_marl.core import clock, make_params
 from chargax_marl.core.data_io import SESSION_MODELS
 from chargax_marl.core.params import validate_params
 from chargax_marl.core.prices import PriceData, load_prices
@@ -247,7 +247,8 @@ def _training_days(task: Task) -> np.ndarray:
     """The indices of the days a task trains on, in its training env's price data."""
     if not task.train_prices:
         return _days(task)[0]
-    return np.arange(sum(int(load_prices(p).prices_eur_kwh.shape[0]) for p in task.train_prices))
+    days = sum(int(load_prices(p).prices_eur_kwh.shape[0]) for p in task.train_prices)
+    return np.arange(clock.num_start_days(days, _params(task).episode_start_hour))
 
 
 @functools.cache
@@ -260,7 +261,9 @@ def _validation_days(task: Task) -> np.ndarray:
 
 @functools.cache
 def _days(task: Task) -> tuple[np.ndarray, np.ndarray]:
-    return split_days(int(_params(task).num_days), task.num_eval_days, seed=task.split_seed)
+    # the days an episode can start on: all of them, or all but the last when the scenario's
+    # episodes start after midnight (`clock.episode_days`)
+    return split_days(clock.episode_days(_params(task)), task.num_eval_days, seed=task.split_seed)
 
 
 _MEDIUM_DRAWS = 2

@@ -7,6 +7,7 @@
 - `traffic`: departures and arrivals.
 - `reward`: prices, profit and penalty terms.
 - `simulator`: ``reset`` and ``step``.
+- `clock`: the clock time and calendar day of a step (episodes may start at any hour).
 - `observation`: observation features.
 - `datasets`: bundled and custom exogenous data (a re-export of `prices`,
   `profiles` (user profiles and traffic), `fleets` and `signals` (MOER, grid

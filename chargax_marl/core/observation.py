@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from chargax_marl.core import physics
+from chargax_marl.core import clock, physics
 from chargax_marl.core.reward import day_ahead_price, day_price_quantiles, moer_now, tou_fee
 from chargax_marl.core.types import EnvParams, EnvState
 
@@ -74,17 +74,21 @@ def root_load(state: EnvState, params: EnvParams) -> jnp.ndarray:
 
 def context_features(state: EnvState, params: EnvParams) -> jnp.ndarray:
     """Shared context, in order: the buy-side price (day-ahead plus
-    the time-of-use surcharge) now and the next H hours, customer price, time of day (sin, cos),
-    workday flag, day of the data, the fraction of the hour left until the price changes, the
-    day's price quantiles (`PRICE_QUANTILES`), the grid connection's load
+    the time-of-use surcharge) now and the next H hours, customer price, time of day (sin, cos)
+    and the workday flag of the step's clock time and calendar day (`chargax_marl.core.clock`;
+    ``state.is_workday``, which `chargax_marl.core.simulator.step` keeps current),
+    the day of the data the episode started on, the fraction of the hour left until the price
+    changes, the price quantiles of the episode's 24 hours (`PRICE_QUANTILES`), the grid
+    connection's load
     (`root_load`), the day's peak draw so far over the connection's limit, and MOER now
     when ``params.observe_moer``."""
     ahead = jnp.arange(params.price_horizon_hours + 1)  # one gather per table, not one per hour
     prices = day_ahead_price(state.day, state.timestep, params, ahead) + tou_fee(
         state.timestep, params, ahead
     )
-    angle = 2.0 * jnp.pi * state.timestep / params.num_steps
-    minute_of_hour = jnp.mod(state.timestep * params.step_minutes, 60.0)
+    now = clock.steps_since_midnight(state.timestep, params)
+    angle = 2.0 * jnp.pi * now / params.num_steps
+    minute_of_hour = jnp.mod(now * params.step_minutes, 60.0)
     root_kw = params.station.node_max_kw[0]
     parts = [
         prices / PRICE_SCALE_EUR_KWH,

@@ -15,7 +15,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from chargax_marl.core import calendar_days, checks, datasets, fleets, prices, profiles, tariffs
+from chargax_marl.core import (
+    calendar_days,
+    checks,
+    clock,
+    datasets,
+    fleets,
+    prices,
+    profiles,
+    tariffs,
+)
 from chargax_marl.core.arrays import device_array
 from chargax_marl.core.data_io import NUM_QUANTILES
 from chargax_marl.core.observation import PRICE_QUANTILES
@@ -114,26 +123,51 @@ def _check_settings(
     return step_minutes, int(round(num_steps))
 
 
-def _check_reset_days(reset_days: Any, days_all: int) -> np.ndarray:
-    """The days ``reset`` draws from as int32, each in ``[0, days_all)``."""
+def _check_start_hour(episode_start_hour: Any, step_minutes: float) -> int:
+    """The hour episodes start at: an integer in ``[0, 23]`` on a step boundary."""
+    h = episode_start_hour
+    if (
+        isinstance(h, (bool, np.bool_))
+        or not isinstance(h, (int, np.integer))
+        or not 0 <= h < clock.HOURS_PER_DAY
+    ):
+        raise ValueError(
+            f"field 'episode_start_hour' must be an integer hour in [0, 23] (the local hour "
+            f"an episode starts at; 0: midnight), got {h!r}"
+        )
+    steps = int(h) * 60.0 / step_minutes
+    if abs(steps - round(steps)) > 1e-9:
+        raise ValueError(
+            f"field 'episode_start_hour' must fall on a step boundary: {int(h)} h is not a "
+            f"whole number of {step_minutes:g}-minute steps; use an hour that is, or 0"
+        )
+    return int(h)
+
+
+def _check_reset_days(reset_days: Any, days_all: int, episode_start_hour: int = 0) -> np.ndarray:
+    """The days ``reset`` draws from as int32, each a day an episode can start on
+    (`clock.check_days`: all days of the price data, or all but the last when episodes
+    start after midnight)."""
     days = np.asarray(reset_days)
     if days.ndim != 1 or days.size == 0 or not np.issubdtype(days.dtype, np.integer):
         raise ValueError(
             f"field 'reset_days' must be a non-empty 1-D array of day indices, got {reset_days!r}"
         )
-    if days.min() < 0 or days.max() >= days_all:
-        raise ValueError(
-            f"field 'reset_days' must lie in [0, {days_all - 1}] (days of the price data), "
-            f"got values from {days.min()} to {days.max()}"
-        )
+    clock.check_days(days, days_all, episode_start_hour, "reset_days")
     return days.astype(np.int32)
 
 
-def _day_price_quantiles(prices_eur_kwh: np.ndarray, tou: np.ndarray) -> np.ndarray:
-    """Quantiles (`PRICE_QUANTILES`) of each day's hourly buy price plus surcharge, float32."""
+def _day_price_quantiles(
+    prices_eur_kwh: np.ndarray, tou: np.ndarray, episode_start_hour: int = 0
+) -> np.ndarray:
+    """Quantiles (`PRICE_QUANTILES`) of the hourly buy price plus surcharge of the episode
+    that starts on each day (its 24 hours from ``episode_start_hour``), float32."""
+    window = clock.episode_price_window(prices_eur_kwh, episode_start_hour)
     return np.asarray(
         np.quantile(
-            np.asarray(prices_eur_kwh, np.float64) + tou[None, :], PRICE_QUANTILES, axis=1
+            np.asarray(window, np.float64) + np.roll(tou, -episode_start_hour)[None, :],
+            PRICE_QUANTILES,
+            axis=1,
         ).T,
         np.float32,
     )
@@ -312,6 +346,7 @@ def make_params(
     session_model: str = "v2",
     holidays: str | None = "auto",
     port_choice: str = "auto",
+    episode_start_hour: int = 0,
 ) -> EnvParams:
     """Assemble the parameters of a station scenario (paper defaults throughout).
 
@@ -401,7 +436,8 @@ def make_params(
             ``moer_kg_per_kwh`` is given.
         reset_days: restricts the days ``reset`` draws from (e.g. training days, holding out
             evaluation days; see `chargax_marl.evaluation.split_days`), indices into the
-            price data; None: all days.
+            price data; None: all days an episode can start on (with
+            ``episode_start_hour > 0`` all but the last, which has no next day's prices).
         session_model: ``"v2"`` (default: stays and energies by arrival hour, requests,
             day-to-day volume, holidays) or ``"paper"`` (the Chargax paper's sessions): which
             bundled profiles a ``user_profile`` name refers to, and the default of
@@ -414,6 +450,13 @@ def make_params(
         port_choice: where an arriving car parks: ``"first_free"`` (the first free port in
             port order, the paper's) or ``"random"`` (a uniformly random free port);
             ``"auto"``: ``"random"`` under the v2 session model, else ``"first_free"``.
+        episode_start_hour: the local hour (an integer in ``[0, 23]``) an episode starts at:
+            step ``t`` of an episode that starts on day ``d`` is at ``episode_start_hour + t *
+            step_minutes / 60`` hours of day ``d``, hours of 24 and more on day ``d + 1``,
+            whose prices, arrival rates and day type (workday or weekend) then apply
+            (`chargax_marl.core.clock`). 0 (default): an episode is the calendar day; 12: noon
+            to noon, so that overnight (home) charging fits in one episode. Must fall on a
+            step boundary.
 
     Returns:
         The validated `EnvParams`.
@@ -432,6 +475,7 @@ def make_params(
     step_minutes, num_steps = _check_settings(
         action_mode, constraint_mode, num_levels, price_horizon_hours, step_minutes
     )
+    start_hour = _check_start_hour(episode_start_hour, step_minutes)
 
     stations = build_station(station, grid_fraction=grid_fraction, **(station_kwargs or {}))
     tou = tariffs.tou_fee(tou_fee_eur_kwh)
@@ -503,9 +547,13 @@ def make_params(
 
     days_all = price.prices_eur_kwh.shape[0]
     if reset_days is None:
-        days = np.arange(days_all, dtype=np.int32)
-    else:
-        days = _check_reset_days(reset_days, days_all)
+        reset_days = np.arange(clock.num_start_days(days_all, start_hour), dtype=np.int32)
+        if reset_days.size == 0:
+            raise ValueError(
+                f"field 'episode_start_hour' ({start_hour}) needs at least two days of prices "
+                f"(an episode runs into the next day), got {days_all} day"
+            )
+    days = _check_reset_days(reset_days, days_all, start_hour)
 
     def scalar(name, value):
         return device_array(_finite(name, value, **_SCALARS[name]), jnp.float32)
@@ -538,7 +586,9 @@ def make_params(
     return EnvParams(
         station=stations,
         prices_eur_kwh=device_array(price.prices_eur_kwh, jnp.float32),
-        day_price_quantiles_eur_kwh=device_array(_day_price_quantiles(price.prices_eur_kwh, tou)),
+        day_price_quantiles_eur_kwh=device_array(
+            _day_price_quantiles(price.prices_eur_kwh, tou, start_hour)
+        ),
         first_weekday=device_array(price.first_weekday, jnp.int32),
         arrival_rate=device_array(rate, jnp.float32),
         holiday=device_array(holiday),
@@ -590,6 +640,7 @@ def make_params(
         constraint_mode=constraint_mode,
         price_horizon_hours=int(price_horizon_hours),
         observe_moer=observe_moer,
+        episode_start_hour=start_hour,
     )
 
 
@@ -649,6 +700,7 @@ def validate_params(params: EnvParams) -> EnvParams:
         raise ValueError(
             f"field 'num_steps' must be 1440 / step_minutes = {num_steps}, got {params.num_steps!r}"
         )
+    start_hour = _check_start_hour(params.episode_start_hour, params.step_minutes)
     for field in ("v2g", "observe_moer"):
         if not isinstance(getattr(params, field), (bool, np.bool_)):
             raise ValueError(f"field '{field}' must be a bool, got {getattr(params, field)!r}")
@@ -681,12 +733,13 @@ def validate_params(params: EnvParams) -> EnvParams:
     tou = tariffs.tou_fee(np.asarray(params.tou_fee_eur_kwh, np.float64))
     quantiles = np.asarray(params.day_price_quantiles_eur_kwh)
     if quantiles.shape != (price.shape[0], len(PRICE_QUANTILES)) or not np.allclose(
-        quantiles, _day_price_quantiles(price, tou), rtol=1e-5, atol=1e-6
+        quantiles, _day_price_quantiles(price, tou, start_hour), rtol=1e-5, atol=1e-6
     ):
         raise ValueError(
             "field 'day_price_quantiles_eur_kwh' must be the quantiles of prices_eur_kwh plus "
-            "tou_fee_eur_kwh of each day (derived by make_params): build the params with "
-            "make_params(prices=..., tou_fee_eur_kwh=...) instead of replacing either"
+            "tou_fee_eur_kwh of each day's episode (derived by make_params): build the params "
+            "with make_params(prices=..., tou_fee_eur_kwh=..., episode_start_hour=...) instead "
+            "of replacing any of them"
         )
     rate = _shape("arrival_rate", params.arrival_rate, (2, num_steps), "workday and weekend rows")
     checks.array("arrival_rate", rate, low=0.0, high=checks.MAX_CARS_PER_DAY, unit="cars per step")
@@ -721,7 +774,7 @@ def validate_params(params: EnvParams) -> EnvParams:
         )
     datasets.validate_moer(moer, check_resolution=False)
     datasets.validate_grid_demand(np.asarray(params.grid_demand_kwh), num_steps)
-    _check_reset_days(params.reset_days, price.shape[0])
+    _check_reset_days(params.reset_days, price.shape[0], start_hour)
     low = _shape("battery_soc0_low", params.battery_soc0_low, b, "one per battery")
     high = _shape("battery_soc0_high", params.battery_soc0_high, b, "one per battery")
     checks.array("battery_soc0_low", low, low=0.0, high=1.0)

@@ -1,7 +1,8 @@
 """Reward: profit (paper Eq. 2) minus weighted penalty terms (Eq. 4, Appendix A.3).
 
 The only place that prices energy and weighs penalties. Prices are looked up by the step in
-which the energy flowed.
+which the energy flowed, at its clock time (`chargax_marl.core.clock`: an episode may start
+at another hour than midnight and run into the next day).
 """
 
 from __future__ import annotations
@@ -9,43 +10,70 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from chargax_marl.core import clock
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import PENALTY_TERMS, EnvParams
 
 
 def hour_of_step(timestep: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
-    """The local hour of day of a step, the column of the day's hourly price tables.
+    """The hour of the episode a step is in (`chargax_marl.core.clock.hours_since_start`),
+    the column of the episode's hourly price tables (`episode_buy_prices`); with the default
+    start hour 0 it is the local hour of day, the column of the day's row of
+    ``prices_eur_kwh``.
 
     Args:
-        timestep: the step of the day (int, any shape).
+        timestep: the step of the episode (int, any shape).
         params: the environment parameters (``step_minutes``).
 
     Returns:
         int32 hours in ``[0, 23]``, shaped as ``timestep``.
     """
-    return jnp.clip((timestep * params.step_minutes / 60.0).astype(jnp.int32), 0, 23)
+    return clock.hours_since_start(timestep, params)
 
 
 def day_ahead_price(
     day: jnp.ndarray, timestep: jnp.ndarray, params: EnvParams, ahead_hours=0
 ) -> jnp.ndarray:
-    """Day-ahead price (EUR/kWh) ``ahead_hours`` (an int or an array of them) after the hour of ``timestep``.
+    """Day-ahead price (EUR/kWh) ``ahead_hours`` (an int or an array of them) after the hour of
+    step ``timestep`` of the episode that starts on ``day``, at its clock time
+    (`chargax_marl.core.clock.episode_hour`).
 
     Hours past midnight read the next day's prices (the year wraps to its first day).
     """
     flat = params.prices_eur_kwh.reshape(-1)
-    idx = day * 24 + hour_of_step(timestep, params) + ahead_hours
+    idx = day * 24 + clock.episode_hour(timestep, params) + ahead_hours
     return flat[jnp.mod(idx, flat.shape[0])]
 
 
 def tou_fee(timestep: jnp.ndarray, params: EnvParams, ahead_hours=0) -> jnp.ndarray:
     """The time-of-use surcharge (EUR/kWh) ``ahead_hours`` (an int or an array of them) after
-    the hour of ``timestep``."""
-    return params.tou_fee_eur_kwh[jnp.mod(hour_of_step(timestep, params) + ahead_hours, 24)]
+    the local hour of step ``timestep`` (`chargax_marl.core.clock.episode_hour`)."""
+    return params.tou_fee_eur_kwh[jnp.mod(clock.episode_hour(timestep, params) + ahead_hours, 24)]
+
+
+def episode_buy_prices(day, params: EnvParams, grid_fee: bool = True) -> jnp.ndarray:
+    """The buy prices (EUR/kWh) of the 24 hours of the episode that starts on ``day``, in the
+    episode's order (indexed by `hour_of_step`): day-ahead price, grid fee (unless
+    ``grid_fee=False``) and time-of-use surcharge. With the default start hour 0 it is the
+    day's row of ``prices_eur_kwh`` plus the fees.
+
+    Args:
+        day: the episode's day (``()`` int).
+        params: the environment parameters.
+        grid_fee: add ``grid_fee_eur_kwh``.
+
+    Returns:
+        ``(24,)`` EUR/kWh.
+    """
+    spot = clock.episode_day_ahead_prices(day, params)
+    if grid_fee:
+        return spot + params.grid_fee_eur_kwh + clock.episode_tou_fee(params)
+    return spot + clock.episode_tou_fee(params)
 
 
 def grid_prices(day, timestep, params: EnvParams):
-    """``(p_buy, p_sell_grid)`` in EUR/kWh for the step: the buy price is the day-ahead price
+    """``(p_buy, p_sell_grid)`` in EUR/kWh for step ``timestep`` of the episode that starts on
+    ``day`` (at its clock time): the buy price is the day-ahead price
     plus the grid fee plus the hour's time-of-use surcharge; feed-in earns ``feed_in_factor``
     times the day-ahead price."""
     spot = day_ahead_price(day, timestep, params)
@@ -55,7 +83,9 @@ def grid_prices(day, timestep, params: EnvParams):
 @jax.jit
 def price_tables(params: EnvParams):
     """``(buy, sell)``, each ``(days, steps)`` EUR/kWh: `grid_prices` of every step of
-    every day of the price data, for planners that read all of a day's prices at once (the
+    the episode that starts on each day of the price data (row ``d``: the episode of day
+    ``d``, at its clock time; with a start hour above 0 the last row wraps to the data's first
+    day, an episode that ``reset`` never draws), for planners that read all of a day's prices at once (the
     MPC, the trainers' storage values). Compiled as one program per station shape (its
     planners call it on the host)."""
     days = jnp.arange(params.num_days, dtype=jnp.int32)
@@ -64,15 +94,17 @@ def price_tables(params: EnvParams):
 
 
 def day_price_quantiles(day, params: EnvParams) -> jnp.ndarray:
-    """The day's quantiles of the hourly buy-side price (day-ahead plus time-of-use surcharge),
-    EUR/kWh, precomputed by ``make_params`` (`EnvParams.day_price_quantiles_eur_kwh`)."""
+    """The quantiles of the hourly buy-side price (day-ahead plus time-of-use surcharge) over
+    the 24 hours of the episode that starts on ``day``, EUR/kWh, precomputed by
+    ``make_params`` (`EnvParams.day_price_quantiles_eur_kwh`)."""
     q = params.day_price_quantiles_eur_kwh
     return q[jnp.mod(day, q.shape[0])]
 
 
 def day_mean_buy_price(day, params: EnvParams) -> jnp.ndarray:
-    """The day's mean buy price (EUR/kWh): mean day-ahead price, grid fee, mean surcharge."""
-    spot = params.prices_eur_kwh[jnp.mod(day, params.prices_eur_kwh.shape[0])]
+    """The mean buy price (EUR/kWh) over the 24 hours of the episode that starts on ``day``:
+    mean day-ahead price, grid fee, mean surcharge."""
+    spot = clock.episode_day_ahead_prices(jnp.mod(day, params.prices_eur_kwh.shape[0]), params)
     return jnp.mean(spot) + params.grid_fee_eur_kwh + jnp.mean(params.tou_fee_eur_kwh)
 
 
@@ -80,7 +112,8 @@ def peak_demand_charge(grid_net_kwh, peak_before_kw, last, params: EnvParams):
     """``(peak_after_kw, charge_eur)``: the running peak of the net grid draw (kW, the step's
     energy over its length; feed-in counts as 0) and the peak-demand charge booked this step,
     ``peak_demand_eur_kw`` times the day's peak at the last step, or times the rise of the
-    running peak in every step with incremental booking (the same daily total)."""
+    running peak in every step with incremental booking (the same daily total). The peak is
+    the episode's (it starts at each reset), whatever hour the episode starts at."""
     draw_kw = jnp.maximum(grid_net_kwh, 0.0) / params.step_hours
     peak_after = jnp.maximum(peak_before_kw, draw_kw)
     booked_kw = jnp.where(
@@ -92,9 +125,19 @@ def peak_demand_charge(grid_net_kwh, peak_before_kw, last, params: EnvParams):
 
 
 def moer_now(day, timestep, params: EnvParams) -> jnp.ndarray:
-    """Marginal emission rate (kg CO2/kWh) for the step; the MOER data repeats over its days."""
+    """Marginal emission rate (kg CO2/kWh) for the step, at its calendar day and step of day
+    (`chargax_marl.core.clock`); the MOER data repeats over its days."""
     m = params.moer_kg_per_kwh
-    return m[jnp.mod(day, m.shape[0]), jnp.clip(timestep, 0, m.shape[1] - 1)]
+    return m[
+        jnp.mod(clock.calendar_day(day, timestep, params), m.shape[0]),
+        clock.slot_of_day(timestep, params),
+    ]
+
+
+def grid_demand_now(timestep, params: EnvParams) -> jnp.ndarray:
+    """The grid-demand signal (kWh) for the step, at its step of day
+    (`chargax_marl.core.clock.slot_of_day`)."""
+    return params.grid_demand_kwh[clock.slot_of_day(timestep, params)]
 
 
 def station_grid_price(flows: dict, p_buy, p_sell_grid) -> jnp.ndarray:

@@ -18,6 +18,11 @@ single-agent ``make(name)`` and the multi-agent ``ChargaxMARL(scenario=name)``.
     17:00-21:00) and a peak-demand charge of 0.15 EUR per kW of the day's highest net grid
     draw, booked at the end of the day (`chargax_marl.core.tariffs`);
   - ``shopping-grid50-peak-high``: both at once.
+- ``residential-overnight`` and ``residential-overnight-<traffic>``: the residential profile
+  with episodes from noon to noon (``episode_start_hour=12``, `chargax_marl.core.clock`), so
+  that the evening arrivals charge overnight within one episode instead of being cut at
+  midnight. Any scenario takes ``episode_start_hour`` as an override
+  (``make("shopping", episode_start_hour=6)``).
 
 How often each node binds under always-max in each scenario is tabled in docs/scenarios.md
 (``python -m chargax_marl.binding``).
@@ -55,6 +60,20 @@ SCENARIOS["shopping-grid50-peak-high"] = {
     "grid_fraction": 0.5,
     **_PEAK,
 }
+
+OVERNIGHT_START_HOUR = 12
+"""The episode start hour of the ``residential-overnight`` scenarios (noon to noon)."""
+SCENARIOS["residential-overnight"] = {
+    "user_profile": "residential",
+    "traffic": "medium",
+    "episode_start_hour": OVERNIGHT_START_HOUR,
+}
+for _traffic in datasets.TRAFFIC_LEVELS:
+    SCENARIOS[f"residential-overnight-{_traffic}"] = {
+        "user_profile": "residential",
+        "traffic": _traffic,
+        "episode_start_hour": OVERNIGHT_START_HOUR,
+    }
 
 COORDINATION_SCENARIOS = tuple(n for n in SCENARIOS if "grid" in n or "peak" in n)
 """The scenarios built to make the agents coordinate (grid-constrained and/or peak-priced)."""

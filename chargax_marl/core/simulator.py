@@ -16,12 +16,18 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from chargax_marl.core import physics, rng, traffic
+from chargax_marl.core import clock, physics, rng, traffic
 from chargax_marl.core import reward as reward_lib
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import PENALTY_TERMS, EnvParams, EnvState, EpisodeTotals, StepInfo
 
-is_workday = traffic.is_workday
+
+def is_workday(day: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
+    """Whether the first step of the episode that starts on ``day`` is on a workday: Monday to
+    Friday, counting from the weekday of the data's first day, and not a public holiday. A later
+    step's day type is `chargax_marl.core.clock.is_workday`'s (the episode may run past
+    midnight)."""
+    return clock.is_workday(day, 0, params)
 
 
 def battery_initial_soc(params: EnvParams, key: jax.Array | None = None) -> jnp.ndarray:
@@ -36,7 +42,8 @@ def battery_initial_soc(params: EnvParams, key: jax.Array | None = None) -> jnp.
 
 @jax.jit
 def empty_state(day: jnp.ndarray, params: EnvParams, key: jax.Array | None = None) -> EnvState:
-    """A station with no cars at step 0 of ``day``; batteries at their initial SoC.
+    """A station with no cars at step 0 of the episode that starts on ``day`` (at
+    ``params.episode_start_hour``); batteries at their initial SoC.
 
     Args:
         day: the day's index into the price data (``()`` int).
@@ -130,10 +137,11 @@ def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams
     Raises:
         ValueError: ``action`` does not have exactly one entry per leaf.
     """
+    workday = clock.is_workday(state.day, state.timestep, params)
     return step_with_arrivals(
         state,
         action,
-        traffic.draw_arrivals(key, state.timestep, state.is_workday, params, state.day_volume),
+        traffic.draw_arrivals(key, state.timestep, workday, params, state.day_volume),
         params,
     )
 
@@ -175,9 +183,7 @@ def step_with_arrivals(
         reward_lib.profit_eur(flows, p_buy, p_sell_grid, params) + terminal - peak_charge - wear
     )
     moer = reward_lib.moer_now(state.day, state.timestep, params)
-    demand = params.grid_demand_kwh[
-        jnp.clip(state.timestep, 0, params.grid_demand_kwh.shape[0] - 1)
-    ]
+    demand = reward_lib.grid_demand_now(state.timestep, params)
     terms = reward_lib.penalty_terms(flows, dep, arr, excess_kw, moer, demand)
     r = reward_lib.reward(profit, terms, params)
 
@@ -213,7 +219,11 @@ def step_with_arrivals(
         satisfaction_sum_time_sensitive=t.satisfaction_sum_time_sensitive
         + dep["satisfaction_sum_time_sensitive"],
     )
-    new_state = arrived_state.replace(timestep=state.timestep + 1, totals=totals)
+    new_state = arrived_state.replace(
+        timestep=state.timestep + 1,
+        is_workday=clock.is_workday(state.day, state.timestep + 1, params),
+        totals=totals,
+    )
     info = StepInfo(
         reward=r,
         profit_eur=profit,

@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from chargax_marl.core import rng
+from chargax_marl.core import clock, rng
 from chargax_marl.core.station import KIND_AC, KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState
 
@@ -183,21 +183,15 @@ def _inverse_cdf(table: jnp.ndarray, u: jnp.ndarray) -> jnp.ndarray:
 
 def arrival_rate(timestep: jnp.ndarray, is_workday: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
     """Expected number of arrivals in this step on a day of volume factor 1 (the Poisson
-    draw's rate is this times the day's `day_volume`)."""
-    t = jnp.clip(timestep, 0, params.arrival_rate.shape[1] - 1)
-    return params.arrival_rate[jnp.where(is_workday, 0, 1), t]
-
-
-def is_workday(day: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
-    """Monday to Friday, counting from the weekday of the data's first day, and not a public
-    holiday (``params.holiday``)."""
-    holiday = params.holiday[jnp.mod(day, params.holiday.shape[0])]
-    return (jnp.mod(params.first_weekday + day, 7) < 5) & ~holiday
+    draw's rate is this times the day's `day_volume`): the rate of the step's slot of its
+    calendar day (`chargax_marl.core.clock.slot_of_day`), for the day type ``is_workday`` of
+    that calendar day (`chargax_marl.core.clock.is_workday`)."""
+    return params.arrival_rate[jnp.where(is_workday, 0, 1), clock.slot_of_day(timestep, params)]
 
 
 def day_volume(day: jnp.ndarray, params: EnvParams, key: jax.Array | None = None) -> jnp.ndarray:
-    """The day's arrival intensity factor ``()``: the weekday's volume factor (1 on a public
-    holiday) times a log-normal draw of mean 1 and coefficient of variation
+    """The episode's arrival intensity factor ``()``: the volume factor of its first day's
+    weekday (1 on a public holiday) times a log-normal draw of mean 1 and coefficient of variation
     ``params.daily_volume_cv`` (1 without a key or with a CV of 0).
 
     Args:
@@ -312,7 +306,7 @@ def draw_arrivals(
     ).astype(jnp.int32)
     capacity = params.fleet_capacity_kwh[model]
     # User profile: stay and demand scaled by the arrival hour, user type.
-    hour = jnp.clip((timestep * params.step_minutes / 60.0).astype(jnp.int32), 0, 23)
+    hour = clock.clock_hour(timestep, params)
     stay = _inverse_cdf(params.stay_quantiles_min[hour], u[1]) * params.stay_scale_by_hour[hour]
     stay = jnp.maximum(stay, params.step_minutes)
     # The demand fits the car: at most what fills it from the lowest arrival SoC. The

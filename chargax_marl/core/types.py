@@ -111,7 +111,8 @@ class EnvParams:
             MOER data.
         grid_demand_kwh: ``(T,)`` grid demand signal per step for the grid-demand penalty
             (kWh).
-        reset_days: ``(R,)`` int32 day indices ``reset`` draws from (all days by default).
+        reset_days: ``(R,)`` int32 day indices ``reset`` draws from (by default all days an
+            episode can start on, `chargax_marl.core.clock.episode_days`).
         battery_soc0_low: ``(B,)`` the initial SoC of each station battery is uniform in
             ``[low, high]``.
         battery_soc0_high: ``(B,)`` the high end of that range.
@@ -151,6 +152,10 @@ class EnvParams:
             excess).
         price_horizon_hours: hours of upcoming prices in the observation.
         observe_moer: MOER now is part of the observation.
+        episode_start_hour: the local hour (0..23) an episode starts at on its day; step
+            ``t`` is at ``episode_start_hour + t * step_minutes / 60`` hours of ``state.day``,
+            hours of 24 and more on the next day (`chargax_marl.core.clock`). 0: the
+            calendar day.
     """
 
     station: StationArrays
@@ -208,6 +213,7 @@ class EnvParams:
     constraint_mode: str = struct.field(pytree_node=False, default="hard")
     price_horizon_hours: int = struct.field(pytree_node=False, default=6)
     observe_moer: bool = struct.field(pytree_node=False, default=False)
+    episode_start_hour: int = struct.field(pytree_node=False, default=0)
 
     @property
     def num_days(self) -> int:
@@ -317,9 +323,10 @@ class EnvState:
         arrival_soc: SoC at arrival: discharging never goes below it.
         request_extra_kwh: what the car's user asked for beyond the energy the car takes
             (kWh, >= 0; the request is ``(target_soc - arrival_soc) * capacity`` plus this).
-        day: ``()`` int32 index into the price data.
-        timestep: ``()`` int32 step of the day, ``0..num_steps``.
-        is_workday: ``()`` bool.
+        day: ``()`` int32 index into the price data of the day the episode starts on.
+        timestep: ``()`` int32 step of the episode, ``0..num_steps`` (its clock time:
+            `chargax_marl.core.clock`).
+        is_workday: ``()`` bool, the day type of the calendar day the step falls on.
         day_volume: ``()`` the day's arrival intensity factor (weekday factor times the
             day's draw, see `chargax_marl.core.traffic.day_volume`).
         totals: the episode's running totals.

@@ -26,7 +26,7 @@ from jaxmarl.environments.multi_agent_env import MultiAgentEnv
 
 from chargax_marl import bounds
 from chargax_marl.core import actions as core_actions
-from chargax_marl.core import observation, physics, simulator
+from chargax_marl.core import clock, observation, physics, simulator
 from chargax_marl.core.params import make_params, validate_params
 from chargax_marl.core.rng import materialize
 from chargax_marl.core.scenarios import scenario_kwargs
@@ -472,9 +472,10 @@ class ChargaxMARL(MultiAgentEnv):
 
     def reset_to_day(self, day: int | jax.Array):
         """Start an empty station on a chosen day of the price data (for fixed evaluation days;
-        ``ValueError`` for a concrete day outside ``[0, num_days)``)."""
+        ``ValueError`` for a concrete day outside ``[0, num_days)``, or the data's last day
+        when episodes start after midnight, `chargax_marl.core.clock.episode_days`)."""
         if not isinstance(day, jax.core.Tracer):
-            check_day(day, self.params.num_days)
+            check_day(day, clock.episode_days(self.params))
         state = simulator.empty_state(jnp.asarray(day, jnp.int32), self.params)
         return self.get_obs(state), state
 

@@ -21,7 +21,7 @@ from pettingzoo.utils.conversions import parallel_to_aec
 from pettingzoo.utils.env import ParallelEnv
 
 from chargax_marl import bounds, lifecycle, rendering
-from chargax_marl.core import simulator
+from chargax_marl.core import clock, simulator
 from chargax_marl.core.types import EnvParams
 from chargax_marl.marl import communication
 from chargax_marl.marl import env as marl_env
@@ -223,7 +223,9 @@ class ChargaxParallelEnv(ParallelEnv):
     def reset(self, seed: int | None = None, options: dict | None = None):
         lifecycle.check_not_forked("ChargaxParallelEnv.reset")
         key = None if seed is None else lifecycle.key_from_seed(seed, "ChargaxParallelEnv.reset")
-        day = lifecycle.reset_day(options, self.params.num_days, "ChargaxParallelEnv.reset")
+        day = lifecycle.reset_day(
+            options, clock.episode_days(self.params), "ChargaxParallelEnv.reset"
+        )
         if key is not None:
             self._key = key
         if day is not None:

@@ -25,7 +25,7 @@ import numpy as np
 from gymnax.environments import environment, spaces
 
 from chargax_marl import bounds
-from chargax_marl.core import actions, observation, physics, simulator
+from chargax_marl.core import actions, clock, observation, physics, simulator
 from chargax_marl.core.params import make_params, validate_params
 from chargax_marl.core.types import EnvParams, EnvState
 from chargax_marl.lifecycle import check_day
@@ -196,7 +196,7 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
         """Start an empty station on a chosen day (for evaluation on fixed held-out days)."""
         params = params or self._params
         if not isinstance(day, jax.core.Tracer):
-            check_day(day, params.num_days)
+            check_day(day, clock.episode_days(params))
         state = simulator.empty_state(jnp.asarray(day, jnp.int32), params)
         return self.get_obs(state, params), state
 

@@ -2,8 +2,11 @@
 
 The scenarios themselves (the four user profiles of paper Table 2 at three traffic levels,
 and the coordination scenarios ``shopping-grid10-<traffic>``, ``shopping-grid25-<traffic>``, ``shopping-grid50-<traffic>``,
-``shopping-peak``, ``shopping-peak-high``, ``shopping-grid50-peak-high``) are defined in
-`chargax_marl.core.scenarios`, shared with ``ChargaxMARL(scenario=...)``.
+``shopping-peak``, ``shopping-peak-high``, ``shopping-grid50-peak-high``, and the
+``residential-overnight`` scenarios whose episodes run from noon to noon) are defined in
+`chargax_marl.core.scenarios`, shared with ``ChargaxMARL(scenario=...)``. Every scenario
+takes ``make_params`` overrides, ``episode_start_hour`` among them (the hour episodes start
+at, `chargax_marl.core.clock`).
 """
 
 from __future__ import annotations
@@ -21,10 +24,11 @@ def make(name: str = "shopping", **overrides: Any) -> tuple[Chargax, EnvParams]:
     """The env and params of a named scenario.
 
     Args:
-        name: a scenario of `SCENARIOS` (the user profiles at each traffic level and the
-            coordination scenarios of `chargax_marl.core.scenarios`).
+        name: a scenario of `SCENARIOS` (the user profiles at each traffic level, the
+            coordination scenarios and the overnight ones of `chargax_marl.core.scenarios`).
         **overrides: keyword arguments of `chargax_marl.core.params.make_params`, applied on
-            top of the scenario's own.
+            top of the scenario's own (``episode_start_hour=12``: episodes from noon to
+            noon).
 
     Returns:
         ``(env, params)``: a `Chargax` and its ``default_params``.

@@ -13,7 +13,7 @@ from flax import struct
 from gymnax.environments import spaces as gx_spaces
 
 from chargax_marl import bounds, lifecycle, rendering
-from chargax_marl.core import actions, observation, simulator
+from chargax_marl.core import actions, clock, observation, simulator
 from chargax_marl.core.params import validate_params
 from chargax_marl.core.types import EnvParams, EnvState, EpisodeTotals
 from chargax_marl.single.env import Chargax, action_levels
@@ -232,7 +232,8 @@ class GymnasiumEnv(gymnasium.Env):
     - ``reset(seed=s)`` accepts any non-negative integer (``ValueError`` otherwise); the same
       seed gives the same day and cars (`chargax_marl.lifecycle.key_from_seed`;
       seeds below ``2**32`` use ``jax.random.PRNGKey(seed)``).
-      ``reset(options={"day": d})`` starts on day ``d`` in ``[0, num_days)`` of the price data.
+      ``reset(options={"day": d})`` starts on day ``d`` in ``[0, num_days)`` of the price data
+      (all but the last when episodes start after midnight).
     - ``render_mode``: ``"ansi"`` (text table), ``"human"`` (prints it) or ``"rgb_array"``.
     - Instances of a plain `Chargax` share one compiled reset and step per station
       layout and static settings; the wrapper pickles.
@@ -328,7 +329,7 @@ class GymnasiumEnv(gymnasium.Env):
         lifecycle.check_not_forked("GymnasiumEnv.reset")
         if seed is not None:
             key = lifecycle.key_from_seed(seed, "GymnasiumEnv.reset")
-        day = lifecycle.reset_day(options, self.params.num_days, "GymnasiumEnv.reset")
+        day = lifecycle.reset_day(options, clock.episode_days(self.params), "GymnasiumEnv.reset")
         super().reset(seed=seed)
         if seed is not None:
             self._key = key

@@ -268,3 +268,10 @@ def test_local_reward_weight_gives_each_agent_its_share(small_params):
         )
         spread = max(spread, float(r.max() - r.min()))
     assert spread > 0.1  # agents are rewarded differently
+
+
+def test_parallel_api_with_episodes_from_noon():
+    env = parallel_env(**SMALL, episode_start_hour=12)
+    assert env.params.episode_start_hour == 12
+    parallel_api_test(env, num_cycles=100)
+    parallel_seed_test(lambda: parallel_env(**SMALL, episode_start_hour=12))

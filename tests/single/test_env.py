@@ -322,3 +322,28 @@ def test_a_new_station_s_spaces_and_price_tables_compile_a_program_per_table():
     # the min levels, the leaf powers, the node flows and the prices: a few programs, not one
     # per operation
     assert count <= 8
+
+
+def test_gymnasium_wrapper_passes_the_checker_with_episodes_from_noon():
+    genv = GymnasiumEnv(
+        station=three_level_station(), step_minutes=60.0, episode_start_hour=12, render_mode="ansi"
+    )
+    check_env(genv, skip_render_check=True)
+    obs, _ = genv.reset(seed=3)
+    assert genv.observation_space.contains(obs) and "time 12:00 " in genv.render()
+    steps, truncated = 0, False
+    while not truncated:
+        obs, _, term, truncated, _ = genv.step(genv.action_space.sample())
+        assert genv.observation_space.contains(obs) and not term
+        steps += 1
+        if steps == 12:
+            assert "time 00:00 (+1 day)" in genv.render()
+    assert steps == 24
+
+
+def test_reset_to_day_refuses_the_last_day_when_episodes_start_after_midnight():
+    env = Chargax(station=three_level_station(), step_minutes=60.0, episode_start_hour=12)
+    last = env.default_params.num_days - 1
+    env.reset_to_day(last - 1)
+    with pytest.raises(ValueError, match=rf"\[0, {last - 1}\]"):
+        env.reset_to_day(last)
