@@ -12,8 +12,8 @@ simulator state, not the observation. To use one with a view:
 All policies are jittable and vmappable.
 
 The teachers' rules (``battery_programme``, ``plan_programme``, ``grid_programme``,
-`chargax_marl.teachers.rules`) read tables built for one station and price table, so
-they are built for given params: ``get_policy("battery_programme", params)``.
+``coupled_plan``, `chargax_marl.teachers.rules`) read tables built for one station and price
+table, so they are built for given params: ``get_policy("battery_programme", params)``.
 """
 
 from __future__ import annotations
@@ -381,7 +381,7 @@ def is_named_rule(policy) -> bool:
 
 TEACHER_RULES = tuple(RULE_BUILDERS)
 """The teachers' rules (`chargax_marl.teachers.rules`): `get_policy` builds them for
-given params; each needs a station with a battery."""
+given params; each but ``coupled_plan`` needs a station with a battery."""
 
 
 def get_policy(name: str, params: EnvParams | None = None) -> Policy:

@@ -62,6 +62,7 @@ RULES = (
     "battery_programme",
     "plan_programme",
     "grid_programme",
+    "coupled_plan",
 )
 """The rules computed for every task (`chargax_marl.policies.get_policy` names)."""
 

@@ -43,6 +43,7 @@ REFERENCE_LABELS = {
     "battery_programme": "battery programme",
     "plan_programme": "plan programme",
     "grid_programme": "grid programme",
+    "coupled_plan": "coupled plan",
     "mpc": "MPC (4 h look-ahead)",
     "mpc_levels1": "MPC, learned agents' action space",
     BOUND: "LP hindsight bound",
@@ -127,6 +128,8 @@ def render(
         "|---|" + "---|" * len(tasks),
     ]
     for label, cells in rows.items():
+        if not cells:  # a reference no stored file holds yet (added since they were built)
+            continue
         lines.append(f"| {label} | " + " | ".join(cells.get(t, "–") for t in tasks) + " |")
 
     def days(t):  # the days a column's scores rest on, of the task's held-out days

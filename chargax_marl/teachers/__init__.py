@@ -8,6 +8,9 @@ simulator state, never from the future cars:
   programme's best action);
 - `car_plan`: each parked car's cheapest plan under the day's
   prices (its value, a potential per car, the plan advice and the plan as a rule);
+- `congestion`: the parked cars planned together under the node limits and the peak
+  charge (congestion prices, the joint plan, its potential per car, its advice and the plan
+  as a rule);
 - `shaping`: the battery potentials and the per-agent terms of
   the multi-agent view;
 - `prices`: relative prices, an observation feature;
@@ -28,6 +31,14 @@ from chargax_marl.teachers.car_plan import (
     plan_value,
     price_order,
 )
+from chargax_marl.teachers.congestion import (
+    CoupledPlan,
+    coupled_advice,
+    coupled_plan,
+    coupled_plan_action,
+    coupled_potential,
+    solve_coupled_lp,
+)
 from chargax_marl.teachers.prices import (
     relative_price_columns,
     relative_prices,
@@ -36,6 +47,7 @@ from chargax_marl.teachers.prices import (
 from chargax_marl.teachers.rules import (
     RULE_BUILDERS,
     battery_programme,
+    coupled_plan_rule,
     grid_programme,
     plan_programme,
 )
@@ -63,6 +75,7 @@ __all__ = [
     "BATTERY_POTENTIALS",
     "PLAN_POWER_FRACTION",
     "RULE_BUILDERS",
+    "CoupledPlan",
     "action_values",
     "agent_potential_shaping",
     "battery_constants",
@@ -72,6 +85,11 @@ __all__ = [
     "battery_shaping",
     "car_potential",
     "car_values",
+    "coupled_advice",
+    "coupled_plan",
+    "coupled_plan_action",
+    "coupled_plan_rule",
+    "coupled_potential",
     "dp_battery_action",
     "dp_values",
     "grid_programme",
@@ -86,6 +104,7 @@ __all__ = [
     "price_order",
     "relative_price_columns",
     "relative_prices",
+    "solve_coupled_lp",
     "step_buy_prices",
     "storage_values",
     "terminal_prices",

@@ -17,6 +17,10 @@ Each builder takes concrete params and returns a `chargax_marl.policies` policy
   charge while the ports' full-power draw alone (grid side) exceeds the limit of a node above
   a battery, where the programme's charge would be rescaled with the ports', taking the scarce
   connection from the cars. Not a trainer's teacher.
+- ``coupled_plan``: the ports on the parked cars' joint plan under the node limits and the
+  peak-demand charge (`chargax_marl.teachers.congestion.coupled_plan_action`, with the
+  headroom the plan leaves given to the cars that still want energy), the batteries on the
+  battery-only programme within the headroom the cars leave. Needs no battery.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ import numpy as np
 from chargax_marl.core import physics
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.teachers.car_plan import PLAN_POWER_FRACTION, plan_action
+from chargax_marl.teachers.congestion import coupled_plan_action
 from chargax_marl.teachers.storage_value import dp_battery_action
 
 
@@ -106,9 +111,24 @@ def grid_programme(params):
     return act
 
 
+def coupled_plan_rule(params):
+    """The ports on the parked cars' joint plan (congestion prices for the node limits and the
+    peak charge), the headroom it leaves topped up earliest departure first, the batteries on
+    the battery-only programme where the station has one.
+
+    Args:
+        params: concrete `chargax_marl.core.types.EnvParams`.
+
+    Returns:
+        ``policy(state, key, params) -> levels`` (int32 ``(L,)``).
+    """
+    return coupled_plan_action(params, battery="dp" if has_battery(params) else "idle", top_up=True)
+
+
 RULE_BUILDERS = {
     "battery_programme": battery_programme,
     "plan_programme": plan_programme,
     "grid_programme": grid_programme,
+    "coupled_plan": coupled_plan_rule,
 }
 """Name -> ``builder(params) -> policy`` of every rule of this module."""

@@ -7,8 +7,9 @@ tables are built from the env's own params (its days and prices).
 
 Actions that fill the nodes' capacity in priority order (JaxMARL view): `PriorityFill`,
 `priority_fill_levels`. Reward shaping (potential-based, Ng, Harada and Russell 1999):
-`BatteryShaping`, `CarPlanShaping`. A fairness objective: `FairnessReward`. Observation
-features: `PlanAdviceObservation`, `RelativePriceObservation`. A JaxMARL stack::
+`BatteryShaping`, `CarPlanShaping`, `CoupledPlanShaping` (the parked cars planned together
+under the node limits and the peak charge, `chargax_marl.teachers.congestion`). A fairness objective: `FairnessReward`. Observation
+features: `PlanAdviceObservation`, `CoupledPlanAdviceObservation`, `RelativePriceObservation`. A JaxMARL stack::
 
     env = ChargaxMARL(params=params, local_reward_weight=1.0)
     env = RelativePriceObservation(PlanAdviceObservation(CarPlanShaping(BatteryShaping(env))))
@@ -18,15 +19,18 @@ features: `PlanAdviceObservation`, `RelativePriceObservation`. A JaxMARL stack::
 from chargax_marl.wrappers.actions import PriorityFill, priority_fill_levels
 from chargax_marl.wrappers.fairness import FairnessReward
 from chargax_marl.wrappers.observations import (
+    CoupledPlanAdviceObservation,
     ObservationFeatures,
     PlanAdviceObservation,
     RelativePriceObservation,
 )
-from chargax_marl.wrappers.shaping import BatteryShaping, CarPlanShaping
+from chargax_marl.wrappers.shaping import BatteryShaping, CarPlanShaping, CoupledPlanShaping
 
 __all__ = [
     "BatteryShaping",
     "CarPlanShaping",
+    "CoupledPlanAdviceObservation",
+    "CoupledPlanShaping",
     "FairnessReward",
     "ObservationFeatures",
     "PlanAdviceObservation",

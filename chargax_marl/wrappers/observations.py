@@ -15,6 +15,7 @@ import numpy as np
 
 from chargax_marl.core import observation
 from chargax_marl.teachers.car_plan import PLAN_POWER_FRACTION, plan_advice
+from chargax_marl.teachers.congestion import COUPLED_ADVICE_WIDTH, coupled_advice
 from chargax_marl.teachers.prices import relative_price_columns, relative_prices
 from chargax_marl.teachers.shaping import core_state
 from chargax_marl.wrappers.base import TeacherWrapper, base_env
@@ -111,6 +112,33 @@ class PlanAdviceObservation(ObservationFeatures):
     def features(self, obs, state):
         advice = self._advice(core_state(state))
         return advice[:, None] if self.is_marl else advice
+
+
+class CoupledPlanAdviceObservation(ObservationFeatures):
+    """Each port's coupled plan now (`chargax_marl.teachers.congestion.coupled_advice`): the
+    share of its top power its car's joint plan takes now, in [0, 1], and the congestion price
+    on its path now (EUR/kWh, in [0, customer price]), read from the returned state (after an
+    auto-reset, the new day's); 0 for empty ports and batteries. JaxMARL view: two columns per
+    agent, its own leaf's. Gymnax view: ``2 L`` columns, the shares of every leaf (ports then
+    batteries), then their prices.
+
+    Args:
+        env: either view, possibly wrapped.
+        **plan_kwargs: settings of `chargax_marl.teachers.congestion.coupled_plan`.
+    """
+
+    def __init__(self, env, **plan_kwargs):
+        marl = hasattr(env, "agents")
+        params = env.params if marl else env.default_params
+        leaves = params.station.num_leaves
+        width = COUPLED_ADVICE_WIDTH * (1 if marl else leaves)
+        high = max(1.0, float(params.customer_price_eur_kwh))
+        super().__init__(env, width, 0.0, high)
+        self._advice = coupled_advice(self.env_params, **plan_kwargs)
+
+    def features(self, obs, state):
+        advice = self._advice(core_state(state))
+        return advice if self.is_marl else advice.T.reshape(-1)
 
 
 class RelativePriceObservation(ObservationFeatures):

@@ -11,6 +11,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from chargax_marl.teachers.car_plan import car_potential
+from chargax_marl.teachers.congestion import coupled_potential
 from chargax_marl.teachers.shaping import (
     agent_potential_shaping,
     battery_potential,
@@ -131,6 +132,27 @@ class CarPlanShaping(TeacherWrapper):
             return mix_own_terms(shift(info["agent_energy_kwh"]), self.local_reward_weight)
 
         return _shaped_arrays(self, key, state, indices, reset_state, terms, "car_plan_shaping_eur")
+
+
+class CoupledPlanShaping(CarPlanShaping):
+    """Each parked car valued at the coupled plan's congestion prices, as a term per port
+    (`chargax_marl.teachers.congestion.coupled_potential`).
+
+    A port's term is its car's value after the step minus before it, both at the congestion
+    prices (node limits and peak charge) of the state before the step, minus those prices
+    times what the car took now (EUR; 0 for empty ports and batteries). Gymnax view: the
+    station's reward gains the ports' sum. JaxMARL view: each agent gains ``(1 - w) * sum + w *
+    own`` with the env's ``local_reward_weight`` ``w``, so at ``w = 1`` the agents' terms add
+    up to the station's. ``info["car_plan_shaping_eur"]`` holds the term(s) added.
+
+    Args:
+        env: either view, possibly wrapped.
+        **plan_kwargs: settings of `chargax_marl.teachers.congestion.coupled_plan`.
+    """
+
+    def __init__(self, env, **plan_kwargs):
+        TeacherWrapper.__init__(self, env)
+        self._potential = coupled_potential(self.env_params, **plan_kwargs)
 
 
 def _shaped_arrays(wrapper, key, state, indices, reset_state, terms_of, info_key: str):

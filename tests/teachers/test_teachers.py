@@ -39,12 +39,18 @@ def test_teacher_rules_are_built_by_name_for_given_params():
     """``get_policy(name, params)`` builds each teacher rule; without params, or on a station
     without a battery, it says why; ``for_single`` / ``for_marl`` take the names."""
     params = make_params(**TINY_ENV)
-    assert set(TEACHER_RULES) == {"battery_programme", "plan_programme", "grid_programme"}
+    assert set(TEACHER_RULES) == {
+        "battery_programme",
+        "plan_programme",
+        "grid_programme",
+        "coupled_plan",
+    }
     state = simulator.reset(jax.random.PRNGKey(1), params).replace(timestep=jnp.int32(3))
     expected = {
         "battery_programme": car_plan.plan_action(params, "dp", None),
         "plan_programme": car_plan.plan_action(params, "dp", car_plan.PLAN_POWER_FRACTION),
         "grid_programme": rules.grid_programme(params),
+        "coupled_plan": rules.coupled_plan_rule(params),
     }
     for name in TEACHER_RULES:
         levels = np.asarray(get_policy(name, params)(state, None, params))
