@@ -189,7 +189,7 @@ def describe(name: str) -> str:
     elif kind == "user profile":
         p = ds.load_user_profile(name)
         lines.append(
-            f"{'stats':10s}: median stay {p.stay_quantiles_min[50]:.0f} min, median demand {p.demand_quantiles_kwh[50]:.1f} kWh, "
+            f"{'stats':10s}: median stay {p.stay_marginal_min[50]:.0f} min, median demand {p.demand_marginal_kwh[50]:.1f} kWh, "
             f"weekend volume x{p.weekend_volume_factor:.2f}, SoC on arrival U{p.arrival_soc_range}, P(charge-sensitive) {p.charge_sensitive_prob}"
         )
     elif kind == "fleet":
@@ -274,11 +274,11 @@ def plot_profiles(
         ax_a.set_ylabel("share of a workday's arrivals")
         ax_a.legend(fontsize=7)
         q = ds.QUANTILE_PROBS
-        ax_s.plot(up.stay_quantiles_min / 60.0, q)
+        ax_s.plot(up.stay_marginal_min / 60.0, q)
         ax_s.set_title("stay duration (CDF)")
         ax_s.set_xlabel("hours")
         ax_s.set_ylabel("P(stay <= x)")
-        ax_d.plot(up.demand_quantiles_kwh, q, color="C2")
+        ax_d.plot(up.demand_marginal_kwh, q, color="C2")
         ax_d.set_title("energy demand (CDF)")
         ax_d.set_xlabel("kWh")
         ax_d.set_ylabel("P(demand <= x)")
@@ -289,8 +289,8 @@ def plot_profiles(
             "\n".join(
                 [
                     f"profile: {up.name}",
-                    f"median stay: {up.stay_quantiles_min[50]:.0f} min",
-                    f"median demand: {up.demand_quantiles_kwh[50]:.1f} kWh",
+                    f"median stay: {up.stay_marginal_min[50]:.0f} min",
+                    f"median demand: {up.demand_marginal_kwh[50]:.1f} kWh",
                     f"arrival SoC ~ U{tuple(round(x, 2) for x in up.arrival_soc_range)}",
                     f"P(charge-sensitive): {up.charge_sensitive_prob:g}",
                 ]

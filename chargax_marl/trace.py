@@ -83,6 +83,10 @@ def params_fingerprint(params: EnvParams) -> str:
 
     Returns:
         16 hex digits.
+
+    Raises:
+        RuntimeError: the params' tree has a layout the fingerprint does not know (a guard
+            for changes of `EnvParams`).
     """
     h = hashlib.sha1()
     h.update(f"stream {rng.STREAM_VERSION}".encode())

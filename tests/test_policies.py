@@ -203,7 +203,8 @@ def test_evaluation_of_always_max_equals_a_hand_rolled_rollout(params):
     keys = jax.random.split(key, 3)
     profits = []
     for d, k in zip(days, keys):
-        state = simulator.empty_state(jnp.asarray(d), params)
+        # the day's volume (and batteries) come from the day key's own key (trace.day_keys)
+        state = simulator.empty_state(jnp.asarray(d), params, jax.random.fold_in(k, 1))
         for kk in jax.random.split(k, params.num_steps):
             k_act, k_step = jax.random.split(kk)
             state, info = jax.jit(simulator.step)(

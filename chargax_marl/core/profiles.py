@@ -121,6 +121,23 @@ class UserProfileData:
         return _by_hour(self.demand_quantiles_kwh)
 
     @property
+    def stay_marginal_min(self) -> np.ndarray:
+        """The stay quantiles over a workday's arrivals, (101,) minutes (`marginal_quantiles`)."""
+        return marginal_quantiles(self.stay_table_min, self.stay_scale_by_hour, self.hour_weights)
+
+    @property
+    def demand_marginal_kwh(self) -> np.ndarray:
+        """The demand quantiles over a workday's arrivals, (101,) kWh (`marginal_quantiles`)."""
+        return marginal_quantiles(
+            self.demand_table_kwh, self.demand_scale_by_hour, self.hour_weights
+        )
+
+    @property
+    def hour_weights(self) -> np.ndarray:
+        """The share of a workday's arrivals per hour, (24,)."""
+        return self.arrival_weights[0].reshape(HOURS_PER_DAY, -1).sum(axis=1)
+
+    @property
     def request_ratios(self) -> np.ndarray:
         """``request_ratio_quantiles`` with its default (all ones), (101,)."""
         if self.request_ratio_quantiles is None:
@@ -133,6 +150,30 @@ class UserProfileData:
         if self.weekday_volume_factors is None:
             return np.ones(7, np.float32)
         return self.weekday_volume_factors
+
+
+def marginal_quantiles(
+    table: np.ndarray, scale_by_hour: np.ndarray, hour_weights: np.ndarray
+) -> np.ndarray:
+    """The quantiles of a value drawn from the table of a random arrival hour.
+
+    Args:
+        table: ``(24, Q)`` quantile tables per arrival hour, at evenly spaced probabilities.
+        scale_by_hour: ``(24,)`` factors on each hour's draws.
+        hour_weights: ``(24,)`` the share of arrivals per hour (sums to 1).
+
+    Returns:
+        ``(Q,)`` the mixture's quantiles at the same probabilities.
+    """
+    values = np.asarray(table, np.float64) * np.asarray(scale_by_hour, np.float64)[:, None]
+    probs = np.linspace(0.0, 1.0, values.shape[1])
+    grid = np.unique(values)
+    cdf = sum(
+        w * np.interp(grid, row, probs, left=0.0, right=1.0)
+        for w, row in zip(np.asarray(hour_weights, np.float64), values, strict=True)
+    )
+    cdf = np.maximum.accumulate(cdf / max(float(np.sum(hour_weights)), 1e-12))
+    return np.interp(probs, cdf, grid).astype(np.float32)
 
 
 def _by_hour(table: np.ndarray) -> np.ndarray:

@@ -7,9 +7,10 @@
 * **day-to-day volume**: the weekend's volume relative to workdays, each weekday's volume
   relative to its day type (`weekday_volume_factors`), and the coefficient of variation of
   the daily intensity beyond Poisson noise (`daily_volume_cv`): per period, the workday
-  counts' variance in excess of their mean over the squared mean, after dividing out the
-  weekday factors; the median over the periods (a period whose level moves, such as the
-  spring of 2020, reads as a large value and does not set the median);
+  counts' variance around their local level (a moving median over +-`TREND_HALF_WINDOW`
+  workdays) in excess of the Poisson variance, over the squared level, after dividing out
+  the weekday factors; the median over the periods. A level that moves within a period (the
+  spring of 2020) is not day-to-day dispersion, and the model does not reproduce it;
 * **stays and energies by arrival hour**: for every hour, the quantiles of the stays and of
   the delivered energies of the sessions that arrived within a window around it, widened
   until it holds `MIN_SESSIONS_PER_HOUR` sessions. The realised stays of the data already
@@ -28,6 +29,8 @@ from chargax_marl.core.data_io import HOURS_PER_DAY, QUANTILE_PROBS, SLOTS_PER_D
 from chargax_marl.core.profiles import UserProfileData, make_user_profile
 from chargax_marl.validation.real import PERIODS, Sessions, weekday
 
+TREND_HALF_WINDOW = 7
+"""Workdays on either side of a day in the moving median that sets its local level."""
 MIN_SESSIONS_PER_HOUR = 300
 """The fewest sessions behind one arrival hour's stay and energy tables."""
 SMOOTH_KERNEL = np.array([1, 2, 3, 4, 3, 2, 1], dtype=float)
@@ -102,8 +105,17 @@ def volume_fit(sessions: Sessions, country: str = "US") -> dict:
     for p in sessions.periods:
         days = workday & (period == p)
         x = counts[days] / factors[wd[days]]
-        if x.size > 2 and x.mean() > 0:
-            cv2[p] = max((x.var(ddof=1) - x.mean()) / x.mean() ** 2, 0.0)
+        if x.size > 2 * TREND_HALF_WINDOW and x.mean() > 0:
+            # day-to-day variation around the period's local level (a moving median), so that
+            # a level that moves within the period is not read as dispersion
+            level = np.array(
+                [
+                    np.median(x[max(0, i - TREND_HALF_WINDOW) : i + TREND_HALF_WINDOW + 1])
+                    for i in range(x.size)
+                ]
+            )
+            excess = (x - level).var(ddof=1) - level.mean()
+            cv2[p] = max(excess / level.mean() ** 2, 0.0)
     return {
         "weekend_volume_factor": float(mean_weekend / mean_work),
         "weekday_volume_factors": factors,

@@ -202,6 +202,80 @@ def table_markdown(rows: list[dict]) -> str:
     return head + "\n".join(lines) + "\n"
 
 
+ELAAD_THRESHOLD = 0.10
+"""The AC stays of an NL profile pass when their KS distance to ElaadNL is at most this."""
+CUT_SHARE_THRESHOLD = 0.02
+"""An overnight profile passes when at most this share of its sessions is cut by the
+episode's end."""
+ELAAD_RUNS = {
+    "shopping": {},
+    "workplace": {},
+    "residential": {"episode_start_hour": 12},
+}
+"""The NL profiles compared with ElaadNL, and their `make_params` keywords (residential:
+noon-to-noon episodes, the overnight home charging)."""
+
+
+def elaad_markdown(rows: list[dict]) -> str:
+    """The ElaadNL rows as a Markdown table.
+
+    Args:
+        rows: `elaad` rows.
+
+    Returns:
+        The table's text.
+    """
+    head = (
+        "| profile | settings | AC stay KS to ElaadNL | median stay min, ElaadNL / AC ports "
+        "| sessions cut by the episode's end |\n|---|---|---|---|---|\n"
+    )
+    lines = [
+        f"| {r['profile']} | {', '.join(f'{k}={v}' for k, v in r['env'].items()) or 'defaults'} "
+        f"| {r['stay_ks_ac']:.3f}{'' if r['stay_ks_ac'] <= ELAAD_THRESHOLD else ' ✗'} "
+        f"| {r['elaad_median_min']:.0f} / {r['sim_median_ac_min']:.0f} "
+        f"| {100 * r['cut_share']:.1f} % |"
+        for r in rows
+    ]
+    return head + "\n".join(lines) + "\n"
+
+
+def markdown(result: dict) -> str:
+    """Both tables of a `run` result, with the settings they were made with.
+
+    Args:
+        result: a `run` result.
+
+    Returns:
+        Markdown text.
+    """
+    st = result["settings"]
+    return (
+        f"Held out, each ACN site and period ({st['num_days']} simulated days each, seed "
+        f"{st['seed']}; KS distance, in brackets d, the distance between the period's real "
+        "sessions and the site's other periods'; ✗: above max(threshold, d), or a standard "
+        f"deviation off by more than {100 * st['daily_sd_tolerance']:.0f} %, or a request median "
+        f"off by more than {100 * st['request_median_tolerance']:.0f} %):\n\n"
+        + table_markdown(result["held_out"])
+        + "\nThe NL profiles against the ElaadNL connection times (✗: KS above "
+        f"{ELAAD_THRESHOLD}):\n\n" + elaad_markdown(result["elaad"])
+    )
+
+
+def all_pass(result: dict) -> bool:
+    """Whether every held-out statistic and every ElaadNL stay passes its threshold.
+
+    Args:
+        result: a `run` result.
+
+    Returns:
+        True when all pass.
+    """
+    keys = ("stay", "arrival_hour", "delivered", "daily_sd", "request_median")
+    held = all(row[k]["pass"] for row in result["held_out"] for k in keys)
+    nl = all(r["stay_ks_ac"] <= ELAAD_THRESHOLD for r in result["elaad"])
+    return held and nl
+
+
 def run(num_days: int = 364, seed: int = 0, elaad_env: dict | None = None) -> dict:
     """Every held-out row and the ElaadNL comparisons.
 
@@ -214,7 +288,7 @@ def run(num_days: int = 364, seed: int = 0, elaad_env: dict | None = None) -> di
         ``{"held_out": [...], "elaad": [...], "settings": {...}}``.
     """
     rows = [held_out(s, p, num_days, seed) for s in real.SITES for p in HELD_OUT_PERIODS]
-    envs = elaad_env or {"shopping": {}, "workplace": {}, "residential": {}}
+    envs = ELAAD_RUNS if elaad_env is None else elaad_env
     nl = [elaad(name, num_days, seed, **env) for name, env in envs.items()]
     return {
         "held_out": rows,
@@ -226,17 +300,7 @@ def run(num_days: int = 364, seed: int = 0, elaad_env: dict | None = None) -> di
             "daily_sd_tolerance": DAILY_SD_TOLERANCE,
             "request_median_tolerance": REQUEST_MEDIAN_TOLERANCE,
             "site_prices": SITE_PRICES,
+            "elaad_threshold": ELAAD_THRESHOLD,
             "min_sessions_per_hour": fit.MIN_SESSIONS_PER_HOUR,
         },
     }
-
-
-__all__ = [
-    "HELD_OUT_PERIODS",
-    "elaad",
-    "elaad_stay_ks",
-    "held_out",
-    "run",
-    "site_params",
-    "table_markdown",
-]

@@ -319,7 +319,8 @@ STAY_MEDIAN_RANGE_MIN = {
 
 @pytest.mark.parametrize("name", ds.USER_PROFILES)
 def test_bundled_profiles(name):
-    p = ds.load_user_profile(name)
+    """The paper's profiles (the session model v2's are in tests/core/test_sessions.py)."""
+    p = ds.load_user_profile(name, session_model="paper")
     assert p.name == name
     assert p.arrival_weights.shape == (2, 288) and p.arrival_weights.dtype == np.float32
     np.testing.assert_allclose(p.arrival_weights.sum(axis=1), 1.0, atol=1e-5)
@@ -334,7 +335,7 @@ def test_bundled_profiles(name):
     assert 0 <= p.arrival_soc_range[0] <= p.arrival_soc_range[1] < 1
     assert 0 <= p.charge_sensitive_prob <= 1
     assert not p.arrival_weights.flags.writeable
-    assert ds.load_user_profile(name) is p
+    assert ds.load_user_profile(name, session_model="paper") is p
 
 
 def test_profile_shapes_make_sense():
@@ -796,7 +797,7 @@ def test_user_profile_lists():
 
 @pytest.mark.parametrize("name", ds.US_USER_PROFILES)
 def test_us_profiles(name):
-    p = ds.load_user_profile(name)
+    p = ds.load_user_profile(name, session_model="paper")
     assert p.name == name
     assert p.arrival_weights.shape == (2, 288)
     np.testing.assert_allclose(p.arrival_weights.sum(axis=1), 1.0, rtol=1e-5)

@@ -247,8 +247,11 @@ def test_arrivals_fill_first_free_ports_and_count_rejections(params):
     assert float(info.cars_arrived) == 4
     requested = float(info.cars_arrived + info.cars_rejected)
     assert requested > 4 and float(info.penalties["rejected"]) == requested - 4
-    # With a small rate, new cars take the lowest free ports.
-    trickle = params.replace(arrival_rate=jnp.full_like(params.arrival_rate, 1.5))
+    # With a small rate and the first-free choice, new cars take the lowest free ports.
+    trickle = params.replace(
+        arrival_rate=jnp.full_like(params.arrival_rate, 1.5),
+        random_port_choice=jnp.asarray(False),
+    )
     s = place_car(place_car(start(trickle), 0, time_min=600.0), 2, time_min=600.0)
     seen = set()
     for k in jax.random.split(KEY, 40):

@@ -275,7 +275,8 @@ def test_the_lp_prices_the_refund_by_hand():
 
 def test_the_bound_without_the_refund_is_above_the_bound_with_it_and_the_rules():
     # the default station (4 DC, 2 AC) on a busy day: a tenth of the EU fleet may discharge at DC
-    kw = dict(station_kwargs={"num_dc": 4, "num_ac": 2}, traffic="high")
+    # the paper's sessions: time-sensitive users at the DC ports, whom discharging reaches
+    kw = dict(station_kwargs={"num_dc": 4, "num_ac": 2}, traffic="high", session_model="paper")
     on, off = make_params(**kw), make_params(**kw, refund_discharged_energy=False)
     tr = trace.day_of(trace.make_traces(on, np.array([30]), KEY), 0)
     b_on = optimal.hindsight_bound(on, tr, optimal.occupancy(on, tr, KEY))

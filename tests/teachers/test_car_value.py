@@ -18,7 +18,9 @@ from chargax_marl.teachers import car_plan, shaping
 from tests.helpers import TINY as HELPER_TINY
 from tests.helpers import TINY_ENV, train_seeds
 
-TINY = {**HELPER_TINY, "ENV_KWARGS": {**TINY_ENV, "num_levels": 1}}
+# the paper's sessions: every user of the session model v2 at a DC port leaves when charged,
+# and the plan values only the cars that leave at the end of their stay
+TINY = {**HELPER_TINY, "ENV_KWARGS": {**TINY_ENV, "num_levels": 1, "session_model": "paper"}}
 
 
 def test_plan_value_fills_the_cheapest_steps_of_the_stay_first():
@@ -114,7 +116,10 @@ def test_car_potential_telescopes_over_a_day(policy):
     from chargax_marl import policies
 
     params = make_params(
-        station="single_type", station_kwargs={"num_ports": 6, "battery": True}, num_levels=1
+        station="single_type",
+        station_kwargs={"num_ports": 6, "battery": True},
+        num_levels=1,
+        session_model="paper",  # time-sensitive users at the DC ports
     )
     pot = car_plan.car_potential(params)
     values = car_plan.car_values(params)
