@@ -1231,7 +1231,9 @@ def build_profiles_v2(out: Path) -> list[str]:
     borrowed_cv = float(np.mean([p.daily_volume_cv for p in us.values()]))
     profiles: dict[str, Any] = {}
     print("user profiles (session model v2):")
-    print("  profile               stay median [min] @8h/12h/18h   daily volume CV  request ratio median")
+    print(
+        "  profile               stay median [min] @8h/12h/18h   daily volume CV  request ratio median"
+    )
     for name in ds.USER_PROFILES:
         p = dict(paper[name])
         w_hour = np.asarray(p["arrival_weights_workday"]).reshape(24, 12).sum(axis=1)

@@ -114,7 +114,9 @@ def volume_fit(sessions: Sessions, country: str = "US") -> dict:
                     for i in range(x.size)
                 ]
             )
-            excess = (x - level).var(ddof=1) - level.mean()
+            # the Poisson variance of a count divided by its weekday factor f is level / f
+            poisson = (level / factors[wd[days]]).mean()
+            excess = (x - level).var(ddof=1) - poisson
             cv2[p] = max(excess / level.mean() ** 2, 0.0)
     return {
         "weekend_volume_factor": float(mean_weekend / mean_work),

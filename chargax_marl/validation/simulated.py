@@ -27,8 +27,11 @@ class SimulatedSessions:
 
     Attributes:
         day: the day index (into the price data) of the episode.
-        arrival_hour: clock hour at which the car started charging (fractional).
+        arrival_hour: clock hour at which the car arrived (fractional, the middle of its
+            step).
         stay_min: realised stay (minutes): the steps the car was parked.
+        time_left_min: the episode's minutes left after the car's arrival (the longest stay
+            it could realise).
         delivered_kwh: energy into the car over its stay (kWh, terminal side).
         requested_kwh: its user's request (kWh).
         cut: the car was still parked when the episode ended.
@@ -40,6 +43,7 @@ class SimulatedSessions:
     day: np.ndarray
     arrival_hour: np.ndarray
     stay_min: np.ndarray
+    time_left_min: np.ndarray
     delivered_kwh: np.ndarray
     requested_kwh: np.ndarray
     cut: np.ndarray
@@ -124,10 +128,12 @@ def simulate_sessions(
                     out["cut"].append(cut)
                     out["ac"].append(kind[port] == KIND_AC)
     steps = np.asarray(out["steps"], np.float64)
+    t0 = np.asarray(out["t0"], np.float64)
     return SimulatedSessions(
         day=np.asarray(out["day"], np.int32),
-        arrival_hour=np.asarray(out["t0"], np.float64) * params.step_minutes / 60.0,
+        arrival_hour=np.mod(params.episode_start_hour + t0 * params.step_minutes / 60.0, 24.0),
         stay_min=steps * params.step_minutes,
+        time_left_min=(params.num_steps - 0.5 - t0) * params.step_minutes,
         delivered_kwh=np.asarray(out["energy"], np.float64),
         requested_kwh=np.asarray(out["request"], np.float64),
         cut=np.asarray(out["cut"], bool),

@@ -1,0 +1,87 @@
+"""The real sessions, the session model's fit, and a small held-out comparison with the
+thresholds of ``python -m chargax_marl.validation``."""
+
+import jax
+import numpy as np
+import pytest
+
+from chargax_marl.core import datasets as ds
+from chargax_marl.core import make_params
+from chargax_marl.core.profiles import marginal_quantiles
+from chargax_marl.validation import fit, real, report
+from chargax_marl.validation.__main__ import main
+from chargax_marl.validation.simulated import simulate_sessions
+
+
+def test_the_bundled_sessions_are_acn_datas():
+    caltech, jpl = real.load_sessions("caltech"), real.load_sessions("jpl")
+    assert (len(caltech), len(jpl)) == (9802, 17605)
+    assert set(caltech.period) == set(real.PERIODS)
+    one = jpl.select(["2019-09-01"])
+    assert 0 < len(one) < len(jpl) and set(one.period) == {"2019-09-01"}
+    assert one.days().shape == (122,)  # 2019-09-01 .. 2019-12-31
+    assert (jpl.delivered_kwh >= 0).all() and (jpl.stay_min > 0).all()
+    with pytest.raises(ValueError, match="site: unknown 'ucsd'"):
+        real.load_sessions("ucsd")
+    with pytest.raises(ValueError, match="periods: unknown"):
+        jpl.select(["2018-01-01"])
+
+
+def test_conditional_tables_mix_back_to_the_pooled_table():
+    pooled = np.quantile(np.random.default_rng(0).gamma(2.0, 60.0, 20000), ds.QUANTILE_PROBS)
+    scale = np.linspace(0.5, 1.5, 24)
+    weights = np.full(24, 1 / 24)
+    tables = fit.conditional_tables(pooled, scale, weights)
+    assert tables.shape == (24, 101) and (np.diff(tables, axis=1) >= 0).all()
+    np.testing.assert_allclose(
+        marginal_quantiles(tables, np.ones(24), weights)[5:96], pooled[5:96], rtol=0.02
+    )
+    # the order of the hours' means is kept
+    assert (np.diff(tables[:, 50]) >= 0).all()
+
+
+def test_hour_windows_hold_the_minimum_of_sessions():
+    hours = np.concatenate([np.full(500, 8.5), np.full(20, 20.2)])
+    masks = fit.hour_windows(hours, minimum=100)
+    assert masks[8].sum() == 500 and masks[20].sum() >= 100
+    assert masks[20][:500].any()  # widened to reach the morning sessions
+
+
+def test_the_fit_reads_weekday_and_weekend_volume():
+    jpl = real.load_sessions("jpl")
+    volume = fit.volume_fit(jpl)
+    assert 0.0 < volume["weekend_volume_factor"] < 0.3  # JPL is quiet at weekends
+    assert volume["weekday_volume_factors"][4] < 0.85  # Fridays carry less
+    np.testing.assert_allclose(volume["weekday_volume_factors"][:5].mean(), 1.0, rtol=1e-9)
+    # the spring of 2020 moves its level: raw it looks far more dispersed than around its level
+    assert volume["cv_by_period"]["2020-02-01"] < 0.5
+
+
+def test_simulated_sessions_close_energy_and_count_every_car():
+    params = make_params(traffic="high")
+    sim = simulate_sessions(params, np.arange(3), jax.random.PRNGKey(0))
+    assert sim.day_requested.shape == (3,) and sim.stay_min.size > 0
+    assert (sim.stay_min[~sim.cut] >= params.step_minutes).all()  # a car stays a step at least
+    assert (sim.delivered_kwh <= sim.requested_kwh + 1e-3).all()
+    assert sim.cut.any() or sim.stay_min.max() <= 1440
+
+
+def test_a_held_out_period_passes_the_thresholds():
+    """JPL with its autumn 2019 held out, 120 simulated days: realised stays, arrival hours
+    and delivered energies within max(threshold, d), the request median within 10 %."""
+    row = report.held_out("jpl", "2019-09-01", num_days=120)
+    for name in ("stay", "arrival_hour", "delivered"):
+        cell = row[name]
+        assert cell["ks"] <= max(report.THRESHOLDS[name], cell["d"]), (name, cell)
+    assert row["request_median"]["pass"], row["request_median"]
+    assert row["cut_share"] < 0.05
+
+
+def test_workplace_ac_stays_match_elaad():
+    row = report.elaad("workplace", num_days=60)
+    assert row["stay_ks_ac"] <= report.ELAAD_THRESHOLD, row
+
+
+def test_the_command_refuses_fewer_than_a_week():
+    with pytest.raises(SystemExit):
+        main(["--days", "3"])
