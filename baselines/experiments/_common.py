@@ -85,7 +85,8 @@ def parser(
 def config_of(args) -> tuple[dict, int]:
     """``(training config, seeds)`` of the parsed arguments."""
     base = dict(TUNED[args.algo]) if args.settings == "tuned" else {}
-    base["ENV_KWARGS"] = dict(base.get("ENV_KWARGS") or {})
+    # the paper's experiments run on its session model (the default is the v2 model)
+    base["ENV_KWARGS"] = {"session_model": "paper", **(base.get("ENV_KWARGS") or {})}
     base["TOTAL_TIMESTEPS"] = PAPER_TIMESTEPS if args.full else int(args.timesteps)
     return base, (args.full_seeds if args.full else args.seeds)
 

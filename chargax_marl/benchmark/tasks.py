@@ -172,6 +172,8 @@ class Task:
             "+".join(self.train_prices),
             np.concatenate([d.prices_eur_kwh for d in data]),
             data[0].first_weekday,
+            _joined_first_date(data),
+            data[0].country if len({d.country for d in data}) == 1 else None,
         )
         return make_params(**{**self.env_kwargs(), **overrides, "prices": joined})
 
@@ -233,6 +235,18 @@ class Task:
         """The action space the references were computed in, in words."""
         p = self.make_params()
         return f"{p.action_mode}, {int(p.num_levels)} levels, v2g={bool(p.v2g)}"
+
+
+def _joined_first_date(data: list[PriceData]) -> str | None:
+    """The first date of price data joined end to end, where their days follow each other
+    (the calendar, and so the holidays, of the joined days); else None."""
+    if any(d.first_date is None for d in data):
+        return None
+    for a, b in zip(data, data[1:], strict=False):
+        end = np.datetime64(a.first_date) + a.num_days
+        if end != np.datetime64(b.first_date):
+            return None
+    return data[0].first_date
 
 
 @functools.cache
