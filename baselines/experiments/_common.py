@@ -182,6 +182,9 @@ def reused_run(path, algo: str, config: dict, seeds: int, chunks: int) -> dict:
         if k not in theirs and config[k] == (SCHEMA[k].default if k in SCHEMA else object())
     )
     theirs = {**{k: config[k] for k in absent}, **theirs}
+    # the runners name the session model; a run stored without it predates the v2 model and
+    # ran on the paper's
+    theirs["ENV_KWARGS"] = {"session_model": "paper", **(theirs.get("ENV_KWARGS") or {})}
     diffs += [
         f"config {k}={theirs.get(k)!r} (this run: {config.get(k)!r})"
         for k in sorted(set(config) | set(theirs))

@@ -117,7 +117,7 @@ def test_runner_defaults_are_the_tuned_settings_and_full_is_the_paper_s_budget()
     assert (
         base["GAMMA"] == 0.95
         and base["RELATIVE_PRICES"] is True
-        and base["ENV_KWARGS"] == {"num_levels": 1}
+        and base["ENV_KWARGS"] == {"session_model": "paper", "num_levels": 1}
     )
     assert all(
         base[k] == v
@@ -130,7 +130,10 @@ def test_runner_defaults_are_the_tuned_settings_and_full_is_the_paper_s_budget()
     full, full_seeds = _common.config_of(_args(["--full"]))
     assert full_seeds == 20 and full["TOTAL_TIMESTEPS"] == 10_000_000 and full["GAMMA"] == 0.95
     table3, _ = _common.config_of(_args(["--full", "--settings", "table3"]))
-    assert table3 == {"ENV_KWARGS": {}, "TOTAL_TIMESTEPS": 10_000_000}  # resolve() fills in Table 3
+    assert table3 == {  # resolve() fills in Table 3
+        "ENV_KWARGS": {"session_model": "paper"},
+        "TOTAL_TIMESTEPS": 10_000_000,
+    }
     # the tuned settings are not shared mutable state: a runner adding env kwargs leaves them alone
     again = _common.with_env_kwargs(base, fleet="US")
     assert again["ENV_KWARGS"] == {"num_levels": 1, "fleet": "US"} and _common.TUNED["ppo"][
