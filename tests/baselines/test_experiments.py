@@ -136,9 +136,11 @@ def test_runner_defaults_are_the_tuned_settings_and_full_is_the_paper_s_budget()
     }
     # the tuned settings are not shared mutable state: a runner adding env kwargs leaves them alone
     again = _common.with_env_kwargs(base, fleet="US")
-    assert again["ENV_KWARGS"] == {"num_levels": 1, "fleet": "US"} and _common.TUNED["ppo"][
-        "ENV_KWARGS"
-    ] == {"num_levels": 1}
+    assert again["ENV_KWARGS"] == {
+        "session_model": "paper",
+        "num_levels": 1,
+        "fleet": "US",
+    } and _common.TUNED["ppo"]["ENV_KWARGS"] == {"num_levels": 1}
 
 
 def test_the_makefile_s_training_targets_name_a_config_and_replace_their_run():
