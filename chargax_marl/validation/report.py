@@ -135,8 +135,12 @@ def elaad_stay_ks(sim: SimulatedSessions, stay_quantiles_min: np.ndarray) -> flo
         ``sup |F_sim - F_ref|`` over the simulated stays.
     """
     x = np.sort(sim.stay_min[sim.ac])
-    ref = np.interp(x, stay_quantiles_min, QUANTILE_PROBS, left=0.0, right=1.0)
-    n = x.size
+    return _sup_distance(x, np.interp(x, stay_quantiles_min, QUANTILE_PROBS, left=0.0, right=1.0))
+
+
+def _sup_distance(x_sorted: np.ndarray, ref: np.ndarray) -> float:
+    """One-sample KS distance of sorted values to a reference CDF evaluated at them."""
+    n = x_sorted.size
     upper = np.arange(1, n + 1) / n - ref
     lower = ref - np.arange(0, n) / n
     return float(max(upper.max(), lower.max()))
@@ -160,11 +164,7 @@ def elaad_stay_ks_censored(sim: SimulatedSessions, stay_quantiles_min: np.ndarra
     left = sim.time_left_min[sim.ac]
     base = np.interp(x, stay_quantiles_min, QUANTILE_PROBS, left=0.0, right=1.0)
     cut = np.searchsorted(np.sort(left), x + 1e-9, side="right") / left.size  # caps <= x
-    ref = base * (1.0 - cut) + cut
-    n = x.size
-    upper = np.arange(1, n + 1) / n - ref
-    lower = ref - np.arange(0, n) / n
-    return float(max(upper.max(), lower.max()))
+    return _sup_distance(x, base * (1.0 - cut) + cut)
 
 
 def elaad(profile: str = "shopping", num_days: int = 364, seed: int = 0, **env) -> dict:
