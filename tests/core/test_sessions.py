@@ -153,20 +153,27 @@ def test_a_car_parks_at_a_random_free_port_with_the_same_attributes():
     first_free = params.replace(random_port_choice=jnp.asarray(False))
     state = simulator.empty_state(jnp.int32(3), params)
     busy = state.replace(occupied=state.occupied.at[:2].set(True))
-    ports = []
-    for k in jax.random.split(KEY, 300):
+
+    def place(k):
         a = traffic.draw_arrivals(k, jnp.int32(100), jnp.bool_(True), params).replace(
             requested=jnp.int32(1)
         )
         placed, _ = traffic.place_arrivals(busy, a, params)
-        new = np.flatnonzero(np.asarray(placed.occupied & ~busy.occupied))
-        assert new.size == 1 and new[0] >= 2  # a free port
-        ports.append(int(new[0]))
         ref, _ = traffic.place_arrivals(busy, a, first_free)
-        assert np.flatnonzero(np.asarray(ref.occupied & ~busy.occupied)).tolist() == [2]
-        assert float(placed.capacity_kwh[new[0]]) == float(ref.capacity_kwh[2])
-        assert float(placed.time_remaining_min[new[0]]) == float(ref.time_remaining_min[2])
-    counts = np.bincount(ports, minlength=6)[2:]
+        return placed, ref
+
+    placed, ref = jax.jit(jax.vmap(place))(jax.random.split(KEY, 300))
+    new = np.asarray(placed.occupied & ~busy.occupied)
+    assert (new.sum(axis=1) == 1).all() and not new[:, :2].any()  # one car, at a free port
+    port = new.argmax(axis=1)
+    ref_new = np.asarray(ref.occupied & ~busy.occupied)
+    assert ref_new[:, 2].all() and ref_new.sum() == 300  # first free: always port 2
+    rows = np.arange(300)
+    for field in ("capacity_kwh", "time_remaining_min", "soc"):
+        np.testing.assert_array_equal(
+            np.asarray(getattr(placed, field))[rows, port], np.asarray(getattr(ref, field))[:, 2]
+        )
+    counts = np.bincount(port, minlength=6)[2:]
     assert counts.min() > 300 / 4 * 0.6  # every free port, about a quarter each
 
 
