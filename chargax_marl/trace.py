@@ -337,7 +337,7 @@ def trace_from_cars(
             for f, v in fields.items()
         },
         charge_sensitive_dc=jnp.asarray(fields["charge_sensitive"], bool),
-        port_key=jnp.zeros((n, slots), jnp.float32),
+        port_draw=jnp.zeros((n,), jnp.float32),
     )
     day_arr = jnp.asarray(day, jnp.int32)
     steps = jnp.arange(n, dtype=jnp.int32)

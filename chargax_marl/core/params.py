@@ -448,7 +448,8 @@ def make_params(
             where the prices' dates are known, else none; under ``"paper"`` none. None: no
             holidays.
         port_choice: where an arriving car parks: ``"first_free"`` (the first free port in
-            port order, the paper's) or ``"random"`` (a uniformly random free port);
+            port order, the paper's) or ``"random"`` (the step's first car at a uniformly random
+            free port, the next ones at the free ports after it);
             ``"auto"``: ``"random"`` under the v2 session model, else ``"first_free"``.
         episode_start_hour: the local hour (an integer in ``[0, 23]``) an episode starts at:
             step ``t`` of an episode that starts on day ``d`` is at ``episode_start_hour + t *

@@ -220,8 +220,10 @@ class Arrivals:
 
     Slot ``k`` (of ``num_ports``) holds the ``k``-th car of the step; the station admits the
     first ``min(requested, free ports)`` of them and parks car ``k`` at the ``k``-th free port
-    in port order, or with ``params.random_port_choice`` in the order of the step's random
-    ``port_key`` (each car at a uniformly random free port). Because the draw does not depend on the occupancy, the cars of a day are
+    in port order, or with ``params.random_port_choice`` in port order rotated by a random
+    number of free ports (``port_draw``): the step's first car at a uniformly random free
+    port, the next ones at the free ports that follow it. Because the draw does not depend on
+    the occupancy, the cars of a day are
     the same whatever the policy does (only which of them find a free port differs): this is
     what makes a day replayable (`chargax_marl.trace`). Fields over slots have shape
     ``(num_ports,)``; rates are given for both port kinds because the port is chosen later.
@@ -241,7 +243,7 @@ class Arrivals:
     charge_sensitive: jnp.ndarray  # (P,) bool, u = 1 at an AC port
     charge_sensitive_dc: jnp.ndarray  # (P,) bool, u = 1 at a DC port
     request_ratio: jnp.ndarray  # (P,) energy taken / energy requested, in (0, 1]
-    port_key: jnp.ndarray  # (P,) one uniform per PORT (not per slot): the random port order
+    port_draw: jnp.ndarray  # () uniform: the rotation of the free ports' order
 
 
 SLOT_FIELDS = (
@@ -290,11 +292,11 @@ def draw_arrivals(
     """
     st = params.station
     num_slots = st.num_ports
-    # One hash call gives the count's uniform and seven uniforms per slot (see `rng`): the
-    # seventh row is one random key per port, for a random choice among the free ports.
-    draws = rng.uniform(rng.key_seed(key), rng.ARRIVALS, (1 + 7 * num_slots,))
+    # One hash call gives the count's uniform, six uniforms per slot and the port rotation's
+    # uniform (see `rng`).
+    draws = rng.uniform(rng.key_seed(key), rng.ARRIVALS, (2 + 6 * num_slots,))
     requested = rng.poisson(draws[0], arrival_rate(timestep, is_workday, params) * volume)
-    u = draws[1:].reshape(7, num_slots)
+    u = draws[1:-1].reshape(6, num_slots)
     # Car profile: model index by inverse CDF of the fleet shares.
     cdf = jnp.cumsum(params.fleet_share)
     # searchsorted by comparing with every entry (a fleet has tens of models): one fused
@@ -335,7 +337,7 @@ def draw_arrivals(
         charge_sensitive=u[4] < params.charge_sensitive_prob,
         charge_sensitive_dc=u[4] < params.dc_charge_sensitive_prob,
         request_ratio=jnp.maximum(_inverse_cdf(params.request_ratio_quantiles, u[5]), 1e-3),
-        port_key=u[6],
+        port_draw=draws[-1],
     )
 
 
@@ -353,16 +355,11 @@ def place_arrivals(state: EnvState, arrivals: Arrivals, params: EnvParams):
     requested = arrivals.requested
     admitted = jnp.minimum(requested, num_free)
     in_order = jnp.cumsum(free) - 1  # rank among free ports, in port order
-    # random choice: rank among free ports by the step's random port keys (ties impossible
-    # but harmless: argsort is stable)
-    port_key = jnp.concatenate(
-        [arrivals.port_key, jnp.full((st.leaf_kind.shape[0] - st.num_ports,), 2.0)]
-    )
-    order = jnp.argsort(jnp.where(free, port_key, 2.0))
-    by_key = (
-        jnp.zeros_like(in_order).at[order].set(jnp.arange(order.shape[0], dtype=in_order.dtype))
-    )
-    rank = jnp.where(params.random_port_choice, by_key, in_order)
+    # random choice: the free ports' order rotated by a uniform number of them (a sort per
+    # step would double the step's cost)
+    offset = jnp.minimum((arrivals.port_draw * num_free).astype(in_order.dtype), num_free - 1)
+    rotated = jnp.mod(in_order - offset, jnp.maximum(num_free, 1))
+    rank = jnp.where(params.random_port_choice, rotated, in_order)
     new_car = rng.materialize(free & (rank < admitted))
     slot = jnp.clip(rank, 0, st.num_ports - 1)
     car = arrivals.replace(**{f: getattr(arrivals, f)[slot] for f in SLOT_FIELDS})  # per leaf now
