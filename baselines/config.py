@@ -222,6 +222,40 @@ VALIDATION_KEYS = ("NUM_VALIDATION_DAYS", "VALIDATION_DRAWS", "VALIDATION_SEED")
 """The keys of the validation split (`validation_env`); with ``TASK``, the task's."""
 
 
+def name_session_model(config: dict) -> dict:
+    """A resolved config of a new run with its session model named: without ``TASK`` (whose
+    task names it) and without ``ENV_KWARGS["session_model"]``, the default ``"v2"``, so that
+    the stored run says which model it trained on.
+
+    Args:
+        config: a resolved config (`resolve`).
+
+    Returns:
+        The config, with ``ENV_KWARGS["session_model"]`` set where it was missing.
+    """
+    env = dict(config.get("ENV_KWARGS") or {})
+    if config.get("TASK") or "session_model" in env:
+        return config
+    return {**config, "ENV_KWARGS": {**env, "session_model": "v2"}}
+
+
+def stored_config(config: dict) -> dict:
+    """A stored run's config as the run trained it: a config without ``TASK`` whose
+    ``ENV_KWARGS`` do not name ``session_model`` was stored before the session model v2
+    existed (new runs name it, `name_session_model`), so it ran on the paper's sessions.
+
+    Args:
+        config: the ``config`` of a run's ``results.json`` or checkpoint.
+
+    Returns:
+        The config, with ``ENV_KWARGS["session_model"] = "paper"`` where it was missing.
+    """
+    env = dict(config.get("ENV_KWARGS") or {})
+    if config.get("TASK") or "session_model" in env:
+        return config
+    return {**config, "ENV_KWARGS": {**env, "session_model": "paper"}}
+
+
 def _task_validation(task) -> dict:
     """The validation keys' values of a `chargax_marl.benchmark.Task`."""
     return dict(

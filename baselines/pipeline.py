@@ -17,7 +17,14 @@ from tqdm.auto import tqdm
 from baselines import runs
 from baselines.algos import distributed, ppo_core, registry, runner
 from baselines.algos.trainer import Trainer
-from baselines.config import build_env_params, resolve, validation_env, validation_source
+from baselines.config import (
+    build_env_params,
+    name_session_model,
+    resolve,
+    stored_config,
+    validation_env,
+    validation_source,
+)
 from baselines.eval import heldout, references, stats
 from chargax_marl.evaluation import format_table, summarize_profit
 from chargax_marl.machine import code_version
@@ -126,7 +133,7 @@ def run(
 def _record(algo: str, config: dict, seeds: int, seed: int, chunks: int, optimal, references_dir):
     """The settings that make a run (what its checkpoint stores and a resumption must match),
     as JSON values: the config resolved, its env-steps rounded down to equal chunks."""
-    config = resolve(config)
+    config = name_session_model(resolve(config))
     chunks, n_upd = chunked_updates(config, chunks)
     config["TOTAL_TIMESTEPS"] = n_upd * config["NUM_ENVS"] * config["NUM_STEPS"]
     return runs.to_jsonable(
@@ -166,7 +173,7 @@ def _run(
     out = out if main_process else None
     multi = jax.process_count() > 1
     host = distributed.to_host if multi else (lambda tree: tree)  # params readable on this process
-    config = resolve(config)
+    config = name_session_model(resolve(config))
     steps_per_update = config["NUM_ENVS"] * config["NUM_STEPS"]
     chunks, n_upd = chunked_updates(config, chunks)
     config["TOTAL_TIMESTEPS"] = n_upd * steps_per_update
@@ -474,7 +481,8 @@ def resume_settings(out) -> dict:
     path = Path(out) / runs.CHECKPOINT
     if not path.exists():
         raise ValueError(f"--resume: {path} does not exist (no chunk of that run finished)")
-    return runs.load_checkpoint(path)["run"]
+    settings = runs.load_checkpoint(path)["run"]
+    return {**settings, "config": stored_config(settings["config"])}
 
 
 def add_stored_mpc(run_dir, references_dir) -> dict:
@@ -512,7 +520,7 @@ def add_stored_mpc(run_dir, references_dir) -> dict:
 def _add_stored_mpc(run_dir: Path, references_dir) -> dict:
     """`add_stored_mpc` on a claimed run directory."""
     results = json.loads((run_dir / "results.json").read_text())
-    config = resolve(results["config"])
+    config = resolve(stored_config(results["config"]))
     _, eval_params, _, days = build_env_params(config)
     days = results["evaluation"]["days"] if results["evaluation"].get("days") else days
     if int(config["EVAL_DRAWS"]) != 1:

@@ -21,6 +21,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from baselines.algos import registry
+from baselines.config import stored_config
 
 CHECKPOINT = "checkpoint.msgpack"
 """The file name of a run's checkpoint in its output directory."""
@@ -354,7 +355,7 @@ def load_run(run_dir: str | Path):
     parameters of every seed (leading axis = seed) from ``params.msgpack``."""
     run_dir = Path(run_dir)
     results = json.loads((run_dir / "results.json").read_text())
-    train = registry.make_train(results["algo"], results["config"])
+    train = registry.make_train(results["algo"], stored_config(results["config"]))
     template = jax.vmap(train.policy.init)(
         jax.random.split(jax.random.PRNGKey(0), int(results["seeds"]))
     )
@@ -461,14 +462,16 @@ def _stored_run(out: Path) -> dict | None:
     """The settings of the run in ``out``: its checkpoint's (algorithm, config, seeds, seed,
     chunks, references) or else its ``results.json``'s; None where neither reads."""
     try:
-        return load_checkpoint(out / CHECKPOINT)["run"]
+        stored = load_checkpoint(out / CHECKPOINT)["run"]
     except ValueError:  # no checkpoint or an unreadable one
-        pass
-    try:
-        results = json.loads((out / "results.json").read_text())
-    except (OSError, ValueError):
-        return None
-    return {k: results[k] for k in ("algo", "config", "seeds", "seed") if k in results}
+        try:
+            results = json.loads((out / "results.json").read_text())
+        except (OSError, ValueError):
+            return None
+        stored = {k: results[k] for k in ("algo", "config", "seeds", "seed") if k in results}
+    if "config" in stored:
+        stored = {**stored, "config": stored_config(stored["config"])}
+    return stored
 
 
 def _differences(stored: dict, run: dict) -> list[str]:
