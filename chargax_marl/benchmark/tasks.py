@@ -127,6 +127,17 @@ class Task:
             raise ValueError(f"task {self.id!r} builds its params with params_fn, not keywords")
         return scenario_kwargs(self.scenario, prices=self.prices, session_model=self.session_model)
 
+    def _kwargs(self, overrides: dict[str, Any]) -> dict[str, Any]:
+        """The task's `make_params` keywords with ``overrides`` on top; its session model
+        cannot be overridden (another model is another task)."""
+        model = overrides.get("session_model", self.session_model)
+        if model != self.session_model:
+            raise ValueError(
+                f"task {self.id!r} runs on session_model={self.session_model!r}; an override "
+                f"session_model={model!r} would be another task"
+            )
+        return {**self.env_kwargs(), **overrides}
+
     def make_params(self) -> EnvParams:
         """The env parameters the task is scored with (every day of ``prices``)."""
         return _params(self)
@@ -166,7 +177,7 @@ class Task:
             train_days = jnp.asarray(_days(self)[0])
             return validate_params(self.make_params().replace(reset_days=train_days))
         if not self.train_prices:
-            return make_params(**self.env_kwargs(), **overrides, reset_days=_days(self)[0])
+            return make_params(**self._kwargs(overrides), reset_days=_days(self)[0])
         data = [load_prices(p) for p in self.train_prices]
         joined = PriceData(
             "+".join(self.train_prices),
@@ -175,7 +186,7 @@ class Task:
             _joined_first_date(data),
             data[0].country if len({d.country for d in data}) == 1 else None,
         )
-        return make_params(**{**self.env_kwargs(), **overrides, "prices": joined})
+        return make_params(**{**self._kwargs(overrides), "prices": joined})
 
     def validation_days(self) -> np.ndarray:
         """The days a training run evaluates its policy on while it trains.
@@ -222,7 +233,7 @@ class Task:
             return self.make_params()
         if self.params_fn is not None:
             raise ValueError(f"task {self.id!r} builds its params with params_fn: no overrides")
-        return make_params(**self.env_kwargs(), **overrides)
+        return make_params(**self._kwargs(overrides))
 
     def day_keys(self) -> jax.Array:
         """The cars' keys, ``(num_eval_days, draws, 2)`` (the module's key schedule)."""

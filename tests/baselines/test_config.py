@@ -93,3 +93,16 @@ def test_stored_run_configs_still_resolve():
     for config in filter(None, configs):
         resolved = resolve(config)
         assert resolved["NUM_VALIDATION_DAYS"] >= 1 and resolved["VALIDATION_DRAWS"] >= 1
+
+
+def test_a_new_run_names_its_session_model_and_an_old_one_reads_as_the_papers():
+    from baselines.config import name_session_model, stored_config
+
+    fresh = name_session_model(resolve({"ENV_KWARGS": {"num_levels": 1}}))
+    assert fresh["ENV_KWARGS"] == {"num_levels": 1, "session_model": "v2"}
+    old = stored_config({"ENV_KWARGS": {"num_levels": 1}})
+    assert old["ENV_KWARGS"] == {"num_levels": 1, "session_model": "paper"}
+    # a named model and a task's are kept as they are
+    assert stored_config(fresh) is fresh
+    task = {"TASK": "Chargax-shopping-v1", "ENV_KWARGS": {}}
+    assert stored_config(task) is task and name_session_model(task) is task

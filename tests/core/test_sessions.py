@@ -211,3 +211,10 @@ def test_bad_session_settings_are_refused_by_name():
         make_params(port_choice="nearest")
     with pytest.raises(ValueError, match="field 'session_model' must be one of"):
         Task("x", 1, "shopping", 2, "x", session_model="v3")
+
+
+def test_a_task_refuses_another_session_model():
+    task = TASKS["Chargax-shopping-v1"]
+    assert task.train_params(session_model="paper").num_days == 365  # its own: fine
+    with pytest.raises(ValueError, match="session_model='paper'.*session_model='v2'"):
+        task.scored_params(session_model="v2")
