@@ -27,6 +27,7 @@ from chargax_marl.core import physics
 from chargax_marl.core.reward import episode_buy_prices, hour_of_step
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState
+from chargax_marl.teachers.fill import serve_in_order
 from chargax_marl.teachers.rules import RULE_BUILDERS
 
 Policy = Callable[[EnvState, jax.Array, EnvParams], jnp.ndarray]
@@ -291,28 +292,17 @@ def fill_in_priority_order(
     served = state.occupied & ~_is_battery(params) & jnp.isfinite(priority)
     want_kw = jnp.where(served, jnp.minimum(want_kw, room_kw), 0.0)
     headroom = st.node_max_kw if headroom_kw is None else headroom_kw
-    ancestors = st.node_of_leaf_at_depth.T  # (L, D), -1 = none
-    path_eff = (
-        st.leaf_efficiency_at_depth.T
-    )  # (L, D): leaf kW = grid-side kW * efficiency up to the node
     levels = params.num_levels
 
-    def give(headroom, leaf):
-        anc = ancestors[leaf]
-        valid = anc >= 0
-        eff = path_eff[leaf]
+    def grant(leaf, free):
         want = want_kw[leaf]
-        free = jnp.min(jnp.where(valid, headroom[jnp.maximum(anc, 0)] * eff, jnp.inf))
-        grant = jnp.clip(jnp.minimum(want, free), 0.0)
+        kw = jnp.clip(jnp.minimum(want, free), 0.0)
         node_bound = free < want
-        level = _level_of(grant / st.leaf_max_kw[leaf] * levels, ~node_bound, levels)
-        drawn = jnp.where(node_bound, level / levels * st.leaf_max_kw[leaf], grant)
-        headroom = headroom.at[jnp.maximum(anc, 0)].add(jnp.where(valid, -drawn / eff, 0.0))
-        return headroom, level
+        level = _level_of(kw / st.leaf_max_kw[leaf] * levels, ~node_bound, levels)
+        drawn = jnp.where(node_bound, level / levels * st.leaf_max_kw[leaf], kw)
+        return level, drawn
 
-    order = jnp.argsort(priority)
-    _, given = jax.lax.scan(give, headroom, order)
-    return jnp.zeros(want_kw.shape, jnp.int32).at[order].set(given)
+    return serve_in_order(priority, headroom, st, grant)[0]
 
 
 def earliest_deadline_first(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarray:

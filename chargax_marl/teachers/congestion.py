@@ -47,6 +47,7 @@ from flax import struct
 from chargax_marl.core import physics
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.teachers.car_plan import batched, steps_of
+from chargax_marl.teachers.fill import serve_in_order
 from chargax_marl.teachers.shaping import core_state
 from chargax_marl.teachers.storage_value import dp_battery_action, step_buy_prices
 
@@ -366,15 +367,9 @@ def fill_planned_power(priority, want_kw, able_kw, headroom_kw, station, num_lev
         ``(levels (L,) int32 in [0, num_levels], headroom_kw (H,))``: the levels and the
         headroom they leave.
     """
-    ancestors = station.node_of_leaf_at_depth.T  # (L, D), -1 = none
-    path_eff = station.leaf_efficiency_at_depth.T
     leaf_max_kw = station.leaf_max_kw
 
-    def give(headroom, leaf):
-        anc = ancestors[leaf]
-        valid = anc >= 0
-        eff = path_eff[leaf]
-        free = jnp.min(jnp.where(valid, headroom[jnp.maximum(anc, 0)] * eff, jnp.inf))
+    def grant(leaf, free):
         want = jnp.where(jnp.isfinite(priority[leaf]), jnp.minimum(want_kw[leaf], able_kw[leaf]), 0)
         level = jnp.ceil(want / leaf_max_kw[leaf] * num_levels - 1e-6)
         drawn = jnp.minimum(level / num_levels * leaf_max_kw[leaf], able_kw[leaf])
@@ -383,12 +378,9 @@ def fill_planned_power(priority, want_kw, able_kw, headroom_kw, station, num_lev
             cut, jnp.floor(jnp.maximum(free, 0.0) / leaf_max_kw[leaf] * num_levels + 1e-6), level
         )
         drawn = jnp.minimum(level / num_levels * leaf_max_kw[leaf], able_kw[leaf])
-        headroom = headroom.at[jnp.maximum(anc, 0)].add(jnp.where(valid, -drawn / eff, 0.0))
-        return headroom, jnp.clip(level, 0, num_levels).astype(jnp.int32)
+        return jnp.clip(level, 0, num_levels).astype(jnp.int32), drawn
 
-    order = jnp.argsort(priority)
-    headroom, given = jax.lax.scan(give, jnp.asarray(headroom_kw, jnp.float32), order)
-    return jnp.zeros(priority.shape, jnp.int32).at[order].set(given), headroom
+    return serve_in_order(priority, jnp.asarray(headroom_kw, jnp.float32), station, grant)
 
 
 def _able_kw(state, params) -> jnp.ndarray:
