@@ -27,7 +27,7 @@ from chargax_marl.core import physics
 from chargax_marl.core.reward import episode_buy_prices, hour_of_step
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState
-from chargax_marl.teachers.fill import serve_in_order
+from chargax_marl.teachers.fill import able_kw, serve_in_order
 from chargax_marl.teachers.rules import RULE_BUILDERS
 
 Policy = Callable[[EnvState, jax.Array, EnvParams], jnp.ndarray]
@@ -283,14 +283,7 @@ def fill_in_priority_order(
         ``(num_leaves,)`` int32 levels in ``[0, L]``, 0 where ``priority`` is ``inf``.
     """
     st = params.station
-    want_kw = jnp.minimum(
-        st.leaf_max_kw, physics.rate_curve_kw(state.soc, state.max_rate_kw, state.tau)
-    )
-    room_kw = (
-        jnp.maximum((state.target_soc - state.soc) * state.capacity_kwh, 0.0) / params.step_hours
-    )
-    served = state.occupied & ~_is_battery(params) & jnp.isfinite(priority)
-    want_kw = jnp.where(served, jnp.minimum(want_kw, room_kw), 0.0)
+    want_kw = jnp.where(jnp.isfinite(priority), able_kw(state, params), 0.0)
     headroom = st.node_max_kw if headroom_kw is None else headroom_kw
     levels = params.num_levels
 

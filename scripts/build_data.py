@@ -98,14 +98,23 @@ Q = 101
 SLOTS = 288
 
 
-def _load_datasets_module():
-    """Import chargax_marl/core/datasets.py and its data modules (numpy only) from this checkout,
-    without the package's JAX imports: stand-in packages serve the imports while it loads."""
+NUMPY_MODULES = (
+    "chargax_marl.core.datasets",
+    "chargax_marl.validation.fit",
+    "chargax_marl.validation.real",
+)
+"""The library modules this script uses: numpy and the standard library only."""
+
+
+def _load_numpy_modules():
+    """Import `NUMPY_MODULES` (numpy only) from this checkout, without the package's JAX
+    imports: stand-in packages serve the imports while they load."""
     if "chargax_marl.core" in sys.modules:  # already imported (e.g. under pytest): use it
-        return importlib.import_module("chargax_marl.core.datasets")
+        return tuple(importlib.import_module(name) for name in NUMPY_MODULES)
     stubs = {
         "chargax_marl": ROOT / "chargax_marl",
         "chargax_marl.core": ROOT / "chargax_marl" / "core",
+        "chargax_marl.validation": ROOT / "chargax_marl" / "validation",
     }
     before = set(sys.modules)
     for name, path in stubs.items():
@@ -113,14 +122,14 @@ def _load_datasets_module():
         pkg.__path__ = [str(path)]
         sys.modules[name] = pkg
     try:
-        return importlib.import_module("chargax_marl.core.datasets")
+        return tuple(importlib.import_module(name) for name in NUMPY_MODULES)
     finally:  # leave no stand-in behind: a later real import runs the package's __init__
         for name in set(sys.modules) - before:
             if name.startswith("chargax_marl"):
                 del sys.modules[name]
 
 
-ds = _load_datasets_module()
+ds, fit, real = _load_numpy_modules()
 
 
 # --------------------------------------------------------------------------------------
@@ -193,6 +202,22 @@ def fmt_fixed(x: float, decimals: int) -> str:
 def round_sig(x: float, sig: int = 8) -> float:
     v = float(f"{float(x):.{sig}g}")
     return v + 0.0  # no negative zero
+
+
+def round_fields(p: dict[str, Any], sig: int = 8, floats: bool = False) -> None:
+    """Round a profile's arrays (and nested lists) to ``sig`` significant digits in place,
+    as lists; with ``floats`` its float fields too."""
+
+    def rounded(v):
+        if isinstance(v, np.ndarray):
+            v = v.tolist()
+        if isinstance(v, list):
+            return [rounded(x) for x in v]
+        return round_sig(v, sig) if isinstance(v, float) else v
+
+    for k, v in list(p.items()):
+        if isinstance(v, (np.ndarray, list)) or (floats and isinstance(v, float)):
+            p[k] = rounded(v)
 
 
 def dump_json(obj: Any, indent: int = 0) -> str:
@@ -456,9 +481,7 @@ def build_profiles(zf: zipfile.ZipFile, out: Path) -> list[str]:
         "  profile      stay median [min]  demand median [kWh]  stay scale [min..max]  demand scale [min..max]"
     )
     for name, p in profiles.items():
-        for k, v in p.items():
-            if isinstance(v, np.ndarray):
-                p[k] = [round_sig(x) for x in v.tolist()]
+        round_fields(p)
         # validate exactly as the runtime loader will
         ds.profile_from_dict(name, p)
         ss, dsc = p["stay_scale_by_hour"], p["demand_scale_by_hour"]
@@ -1032,19 +1055,12 @@ def build_moer(zf: zipfile.ZipFile, out: Path) -> list[str]:
 # --------------------------------------------------------------------------------------
 
 ACN_SITES = {"workplace-us-caltech": "caltech", "workplace-us-jpl": "jpl"}
-ACN_SMOOTH_KERNEL = np.array([1, 2, 3, 4, 3, 2, 1], dtype=float)  # circular, +-15 min
 ACN_SHRINK_SESSIONS = (
     20.0  # hourly means shrunk towards the overall mean with this many pseudo-sessions
 )
 ACN_STAY_CAP_MIN = 1440.0
 US_ARRIVAL_SOC_RANGE = (0.3, 0.7)
 US_CHARGE_SENSITIVE_PROB = 0.2
-
-
-def _circular_smooth(v: np.ndarray, kernel: np.ndarray) -> np.ndarray:
-    k = kernel / kernel.sum()
-    half = len(k) // 2
-    return sum(k[i] * np.roll(v, i - half) for i in range(len(k)))
 
 
 def build_us_profiles(zf: zipfile.ZipFile, out: Path) -> list[str]:
@@ -1098,7 +1114,7 @@ def build_us_profiles(zf: zipfile.ZipFile, out: Path) -> list[str]:
         weights = []
         for kind in (0, 1):
             hist = np.bincount(np.array(slots[kind], dtype=int), minlength=SLOTS).astype(float)
-            sm = _circular_smooth(hist, ACN_SMOOTH_KERNEL)
+            sm = fit.smooth(hist)
             weights.append(sm / sm.sum())
         wf = (len(slots[1]) / n_weekend) / (len(slots[0]) / n_workdays)
 
@@ -1133,9 +1149,7 @@ def build_us_profiles(zf: zipfile.ZipFile, out: Path) -> list[str]:
             "sessions_dropped": dropped,
             "stays_capped_at_1440_min": capped,
         }
-        for k, v in p.items():
-            if isinstance(v, np.ndarray):
-                p[k] = [round_sig(x) for x in v.tolist()]
+        round_fields(p)
         p["weekend_volume_factor"] = round_sig(wf, 6)
         ds.make_user_profile(
             name,
@@ -1213,16 +1227,9 @@ def build_acn_sessions(zf: zipfile.ZipFile, out: Path) -> list[str]:
     return [ACN_SESSIONS_FILE]
 
 
-def _fit_module():
-    from chargax_marl.validation import fit, real  # the session model's fit (numpy only)
-
-    return fit, real
-
-
 def build_profiles_v2(out: Path) -> list[str]:
     """The session model's profiles (``user_profiles_v2.json``) from the paper profiles'
     ElaadNL tables and the ACN sessions written before (see README.md, "Session model")."""
-    fit, real = _fit_module()
     paper = json.loads((out / ds.USER_PROFILES_FILE).read_text(encoding="utf-8"))["profiles"]
     rows = real.parse_rows((out / ACN_SESSIONS_FILE).read_bytes())
     sessions = {site: real.load_sessions(site, rows) for site in real.SITES}
@@ -1281,15 +1288,7 @@ def build_profiles_v2(out: Path) -> list[str]:
             "weekday_volume_factors": prof.weekday_volume_factors,
         }
     for name, p in profiles.items():
-        for k, v in list(p.items()):
-            if isinstance(v, np.ndarray):
-                v = v.tolist()
-            if isinstance(v, list) and v and isinstance(v[0], list):
-                p[k] = [[round_sig(x, 6) for x in row] for row in v]
-            elif isinstance(v, list) and k != "arrival_soc_range":
-                p[k] = [round_sig(x, 6) for x in v]
-            elif isinstance(v, float):
-                p[k] = round_sig(v, 6)
+        round_fields(p, sig=6, floats=True)
         prof = ds.profile_from_dict(name, p)  # validated as the runtime loader will
         st = prof.stay_table_min[:, 50] * prof.stay_scale_by_hour
         print(

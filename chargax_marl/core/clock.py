@@ -171,8 +171,34 @@ def is_workday(day, timestep, params: EnvParams) -> jnp.ndarray:
         A bool array shaped as the broadcast of ``day`` and ``timestep``.
     """
     calendar = calendar_day(day, timestep, params)
-    holiday = params.holiday[jnp.mod(calendar, params.holiday.shape[0])]
-    return (jnp.mod(params.first_weekday + calendar, 7) < 5) & ~holiday
+    return (weekday(calendar, params) < 5) & ~is_holiday(calendar, params)
+
+
+def weekday(calendar, params: EnvParams) -> jnp.ndarray:
+    """The weekday (0 = Monday) of calendar day ``calendar`` of the price data.
+
+    Args:
+        calendar: a day index of the price data (int, any shape).
+        params: the environment parameters (``first_weekday``).
+
+    Returns:
+        int32 in ``[0, 6]``, shaped as ``calendar``.
+    """
+    return jnp.mod(params.first_weekday + calendar, 7)
+
+
+def is_holiday(calendar, params: EnvParams) -> jnp.ndarray:
+    """Whether calendar day ``calendar`` of the price data is a public holiday
+    (``params.holiday``; wrapped around the data).
+
+    Args:
+        calendar: a day index of the price data (int, any shape).
+        params: the environment parameters.
+
+    Returns:
+        bool, shaped as ``calendar``.
+    """
+    return params.holiday[jnp.mod(calendar, params.holiday.shape[0])]
 
 
 def episode_days(params: EnvParams) -> int:

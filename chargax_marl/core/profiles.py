@@ -234,17 +234,23 @@ def _validate_quantiles(value: Any, field: str, by_hour: bool = False) -> np.nda
     return arr.astype(np.float32)
 
 
-def _validate_scale(value: Any, field: str) -> np.ndarray:
-    if value is None:
-        return np.ones(HOURS_PER_DAY, dtype=np.float32)
+def _positive_factors(value: Any, field: str, n: int, note: str = "") -> np.ndarray:
+    """Positive finite factors of shape ``(n,)``, at most `checks.MAX_FACTOR` (``note`` says
+    in the shape error what the entries are)."""
     arr = _as_float_array(value, field)
-    if arr.shape != (HOURS_PER_DAY,):
-        raise ValueError(f"{field}: expected shape (24,), got {tuple(arr.shape)}")
+    if arr.shape != (n,):
+        raise ValueError(f"{field}: expected shape ({n},){note}, got {tuple(arr.shape)}")
     _check_finite(arr, field)
     if (arr <= 0).any():
         raise ValueError(f"{field}: factors must be > 0, got {float(arr.min())!r}")
     _check_bounds(arr, field, 0.0, checks.MAX_FACTOR, low_open=True)
     return arr.astype(np.float32)
+
+
+def _validate_scale(value: Any, field: str) -> np.ndarray:
+    if value is None:
+        return np.ones(HOURS_PER_DAY, dtype=np.float32)
+    return _positive_factors(value, field, HOURS_PER_DAY)
 
 
 def _validate_request_ratios(value: Any) -> np.ndarray | None:
@@ -261,17 +267,13 @@ def _validate_request_ratios(value: Any) -> np.ndarray | None:
 
 
 def _validate_weekday_factors(value: Any) -> np.ndarray | None:
-    field = "weekday_volume_factors"
     if value is None:
         return None
-    arr = _as_float_array(value, field)
-    if arr.shape != (7,):
-        raise ValueError(f"{field}: expected shape (7,) (Monday first), got {tuple(arr.shape)}")
-    _check_finite(arr, field)
-    if (arr <= 0).any():
-        raise ValueError(f"{field}: factors must be > 0, got {float(arr.min())!r}")
-    _check_bounds(arr, field, 0.0, checks.MAX_FACTOR, low_open=True)
-    return arr.astype(np.float32)
+    return _positive_factors(value, "weekday_volume_factors", 7, " (Monday first)")
+
+
+MAX_VOLUME_CV = 10.0
+"""The largest coefficient of variation of the daily arrival intensity a profile may set."""
 
 
 def _validate_volume_cv(value: Any) -> float:
@@ -281,10 +283,6 @@ def _validate_volume_cv(value: Any) -> float:
             f"daily_volume_cv: expected a value in [0, {MAX_VOLUME_CV:g}], got {value!r}"
         )
     return v
-
-
-MAX_VOLUME_CV = 10.0
-"""The largest coefficient of variation of the daily arrival intensity a profile may set."""
 
 
 def _validate_weekend_factor(value: Any) -> float:

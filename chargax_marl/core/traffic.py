@@ -202,9 +202,11 @@ def day_volume(day: jnp.ndarray, params: EnvParams, key: jax.Array | None = None
     Returns:
         ``()`` float32, the factor on the day's arrival rates.
     """
-    weekday = jnp.mod(params.first_weekday + day, 7)
-    holiday = params.holiday[jnp.mod(day, params.holiday.shape[0])]
-    factor = jnp.where(holiday, 1.0, params.weekday_volume_factors[weekday])
+    factor = jnp.where(
+        clock.is_holiday(day, params),
+        1.0,
+        params.weekday_volume_factors[clock.weekday(day, params)],
+    )
     if key is None:
         return factor.astype(jnp.float32)
     u = rng.uniform(rng.key_seed(key), rng.VOLUME, (1,))[0]

@@ -47,7 +47,7 @@ from flax import struct
 from chargax_marl.core import physics
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.teachers.car_plan import batched, steps_of
-from chargax_marl.teachers.fill import serve_in_order
+from chargax_marl.teachers.fill import able_kw, serve_in_order
 from chargax_marl.teachers.shaping import core_state
 from chargax_marl.teachers.storage_value import dp_battery_action, step_buy_prices
 
@@ -383,17 +383,6 @@ def fill_planned_power(priority, want_kw, able_kw, headroom_kw, station, num_lev
     return serve_in_order(priority, jnp.asarray(headroom_kw, jnp.float32), station, grant)
 
 
-def _able_kw(state, params) -> jnp.ndarray:
-    """What each leaf's car can take this step (kW): its port, its curve, its room."""
-    st = params.station
-    room_kw = (
-        jnp.maximum((state.target_soc - state.soc) * state.capacity_kwh, 0.0) / params.step_hours
-    )
-    curve = physics.rate_curve_kw(state.soc, state.max_rate_kw, state.tau)
-    able = jnp.minimum(jnp.minimum(st.leaf_max_kw, curve), room_kw)
-    return jnp.where(state.occupied & (st.leaf_kind != KIND_BATTERY), able, 0.0)
-
-
 def coupled_plan_action(
     env_params,
     battery: str = "dp",
@@ -438,7 +427,7 @@ def coupled_plan_action(
         del key
         levels_n = params.num_levels
         plan = plan_of(state)
-        able = _able_kw(state, params)
+        able = able_kw(state, params)
         want = plan.energy_kwh[:, 0] / step_h
         bat = jnp.zeros((), jnp.int32) if dp is None else dp(state)[0]
         bat_levels = jnp.where(is_battery, bat * levels_n, 0).astype(jnp.int32)

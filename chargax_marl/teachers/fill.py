@@ -7,6 +7,29 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from chargax_marl.core import physics
+from chargax_marl.core.station import KIND_BATTERY
+
+
+def able_kw(state, params) -> jnp.ndarray:
+    """What each leaf's car can take this step, ``(L,)`` kW: the least of its port's limit,
+    its rate curve and its room to its target (0 at empty ports and batteries).
+
+    Args:
+        state: the simulator state (one day, unbatched).
+        params: the environment parameters.
+
+    Returns:
+        ``(L,)`` kW.
+    """
+    st = params.station
+    room_kw = (
+        jnp.maximum((state.target_soc - state.soc) * state.capacity_kwh, 0.0) / params.step_hours
+    )
+    curve = physics.rate_curve_kw(state.soc, state.max_rate_kw, state.tau)
+    able = jnp.minimum(jnp.minimum(st.leaf_max_kw, curve), room_kw)
+    return jnp.where(state.occupied & (st.leaf_kind != KIND_BATTERY), able, 0.0)
+
 
 def serve_in_order(priority, headroom_kw, station, grant):
     """Serve the leaves in ``priority`` order (lower first), each taking from every node on

@@ -43,7 +43,8 @@ ARRIVAL_SOC_RANGE = (0.3, 0.7)
 """Arrival SoC range of the fitted profiles (the data has no SoC; an assumption)."""
 
 
-def _smooth(v: np.ndarray) -> np.ndarray:
+def smooth(v: np.ndarray) -> np.ndarray:
+    """``v`` (a histogram over the day's slots) smoothed circularly with `SMOOTH_KERNEL`."""
     k = SMOOTH_KERNEL / SMOOTH_KERNEL.sum()
     half = len(k) // 2
     return sum(k[i] * np.roll(v, i - half) for i in range(len(k)))
@@ -149,8 +150,9 @@ def hour_windows(hours: np.ndarray, minimum: int = MIN_SESSIONS_PER_HOUR) -> lis
     return out
 
 
-def _quantiles(values: np.ndarray) -> np.ndarray:
-    return np.maximum.accumulate(np.quantile(values, QUANTILE_PROBS))
+def quantiles(values: np.ndarray) -> np.ndarray:
+    """The non-decreasing quantile table of ``values`` at `QUANTILE_PROBS`."""
+    return np.maximum.accumulate(np.quantile(np.asarray(values, np.float64), QUANTILE_PROBS))
 
 
 def fit_profile(
@@ -185,13 +187,13 @@ def fit_profile(
         hist = np.bincount(slot[rows], minlength=SLOTS_PER_DAY).astype(float)
         if hist.sum() == 0:
             hist = np.bincount(slot, minlength=SLOTS_PER_DAY).astype(float)
-        weights.append(_smooth(hist) / hist.sum())
+        weights.append(smooth(hist) / hist.sum())
     volume = volume_fit(sessions, country)
     stays = np.clip(sessions.stay_min, *STAY_RANGE_MIN)
     energy = np.maximum(sessions.delivered_kwh, MIN_ENERGY_KWH)
     windows = hour_windows(sessions.arrival_hour, minimum_per_hour)
-    stay_table = np.stack([_quantiles(stays[m]) for m in windows])
-    energy_table = np.stack([_quantiles(energy[m]) for m in windows])
+    stay_table = np.stack([quantiles(stays[m]) for m in windows])
+    energy_table = np.stack([quantiles(energy[m]) for m in windows])
     return make_user_profile(
         name,
         np.stack(weights),
@@ -201,7 +203,7 @@ def fit_profile(
         arrival_soc_range=ARRIVAL_SOC_RANGE,
         charge_sensitive_prob=0.0,
         dc_charge_sensitive_prob=1.0,
-        request_ratio_quantiles=_quantiles(request_ratios(sessions)),
+        request_ratio_quantiles=quantiles(request_ratios(sessions)),
         daily_volume_cv=volume["daily_volume_cv"],
         weekday_volume_factors=volume["weekday_volume_factors"],
     )
@@ -223,11 +225,6 @@ def request_ratios(sessions: Sessions) -> np.ndarray:
         1.0,
     )
     return np.clip(ratio, MIN_REQUEST_RATIO, 1.0)
-
-
-def quantiles(values: np.ndarray) -> np.ndarray:
-    """The non-decreasing quantile table of ``values`` at `QUANTILE_PROBS`."""
-    return _quantiles(np.asarray(values, np.float64))
 
 
 def conditional_tables(

@@ -9,7 +9,6 @@ delivered.
 
 from __future__ import annotations
 
-import datetime as dt
 import functools
 import gzip
 from dataclasses import dataclass
@@ -156,8 +155,3 @@ def load_sessions(site: str, rows: tuple | None = None) -> Sessions:
 def weekday(dates: np.ndarray) -> np.ndarray:
     """Monday = 0 of ``datetime64[D]`` dates."""
     return ((dates.astype("datetime64[D]").astype(np.int64) + 3) % 7).astype(int)
-
-
-def to_date(d: np.datetime64) -> dt.date:
-    """A ``datetime64[D]`` as a `datetime.date`."""
-    return dt.date.fromisoformat(str(d.astype("datetime64[D]")))
