@@ -42,6 +42,7 @@ from chargax_marl.evaluation import METRICS, service_metrics
 from chargax_marl.optimal import bound_days
 from chargax_marl.optimal.model import FIRST_ATTEMPTS
 from chargax_marl.optimal.mpc import MPC
+from chargax_marl.optimal.pooled import pooled_bound_days
 from chargax_marl.policies import get_policy
 from chargax_marl.trace import params_fingerprint
 
@@ -52,7 +53,9 @@ ZERO = "always_max"
 """The reference that scores 0."""
 
 BOUND = "lp_bound"
-"""The reference that scores 1: the LP hindsight bound over always-max's occupancy."""
+"""The reference that scores 1: the task's LP bound (`chargax_marl.benchmark.tasks.Task.bound`):
+the hindsight bound over always-max's occupancy on the version-1 tasks, the port-pooled bound
+over every policy from version 2 on."""
 
 RULES = (
     "always_max",
@@ -171,15 +174,18 @@ def compute_references(
         status = np.full(keys.shape[:2], "", dtype=object)
         stored = None if day_index is not None else _stored_bound(params, days, reuse_dir)
         for r in range(task.draws):
-            if r == 0 and stored is not None:
+            if r == 0 and stored is not None and task.bound == "occupancy":
                 profit[:, 0], status[:, 0] = stored, "optimal (make optimal)"
                 log(f"{task.id} {BOUND}: draw 1 from {reuse_dir}")
                 continue
-            profit[:, r], status[:, r] = _bound_draw(params, days, keys[:, r], time_limit_s)
+            profit[:, r], status[:, r] = _bound_draw(
+                task.bound, params, days, keys[:, r], time_limit_s
+            )
             log(f"{task.id} {BOUND}: draw {r + 1}/{task.draws} in {time.perf_counter() - t0:.0f} s")
         out["policies"][BOUND] = {
             "daily_profit": [[None if np.isnan(x) else float(x) for x in row] for row in profit],
             "status": status.tolist(),
+            "kind": task.bound,
         }
         out["wall_s"][BOUND] = round(time.perf_counter() - t0, 2)
     return out
@@ -198,17 +204,21 @@ def bound_status(b) -> str:
     return b.status if not b.solved or b.attempt in FIRST_ATTEMPTS else f"{b.status} ({b.attempt})"
 
 
-def _bound_draw(params, days, day_keys, time_limit_s) -> tuple[np.ndarray, np.ndarray]:
-    """The LP bound of one draw on every one of ``days`` (keys ``day_keys``, one per day),
-    each day warm-started from the day before (`bound_days`): the profits (NaN where the
-    solve failed) and the statuses (`bound_status`)."""
-    bounds = bound_days(
-        params,
-        days,
-        day_keys=day_keys,
-        reference=get_policy(ZERO, params),
-        time_limit_s=time_limit_s,
-    )
+def _bound_draw(kind, params, days, day_keys, time_limit_s) -> tuple[np.ndarray, np.ndarray]:
+    """The LP bound of kind ``kind`` (`chargax_marl.benchmark.tasks.BOUNDS`) of one draw on
+    every one of ``days`` (keys ``day_keys``, one per day): the profits (NaN where the solve
+    failed) and the statuses (`bound_status`). The occupancy bound warm-starts each day from
+    the day before (`bound_days`)."""
+    if kind == "pooled":
+        bounds = pooled_bound_days(params, days, day_keys, time_limit_s=time_limit_s)
+    else:
+        bounds = bound_days(
+            params,
+            days,
+            day_keys=day_keys,
+            reference=get_policy(ZERO, params),
+            time_limit_s=time_limit_s,
+        )
     return (
         np.array([b.profit_eur for b in bounds], np.float64),
         np.array([bound_status(b) for b in bounds], dtype=object),
@@ -254,7 +264,7 @@ def refill_bound(
         return reference_path(task, directory)
     for r in draws:
         t0 = time.perf_counter()
-        new_profit, new_status = _bound_draw(params, days, keys[:, r], time_limit_s)
+        new_profit, new_status = _bound_draw(task.bound, params, days, keys[:, r], time_limit_s)
         failed = np.isnan(profit[:, r])
         for i in np.nonzero(failed)[0]:
             x = new_profit[i]
@@ -497,6 +507,12 @@ def load_references(task: str | Task, directory: str | Path | None = None) -> di
             f"task's parameters on this code have fingerprint {current}: the model changed; "
             f"rebuild them (python -m chargax_marl.benchmark.references --task {task.id}) "
             "and raise the task's version"
+        )
+    kind = data["policies"].get(BOUND, {}).get("kind", "occupancy")
+    if BOUND in data["policies"] and kind != task.bound:
+        raise ReferenceMismatchError(
+            f"references of {task.id!r} hold the {kind!r} bound, but the task is scored "
+            f"against the {task.bound!r} bound; rebuild them"
         )
     days = [int(d) for d in task.eval_days()]
     if data["days"] != days or data["draws"] != task.draws:

@@ -45,6 +45,10 @@ NUM_VALIDATION_DAYS = 20
 """Validation days per task (drawn from its training days)."""
 
 
+BOUNDS = ("occupancy", "pooled")
+"""The bounds a task's score 1 can be (`Task.bound`)."""
+
+
 @dataclasses.dataclass(frozen=True)
 class Task:
     """A benchmark task.
@@ -73,6 +77,10 @@ class Task:
         validation_seed: seed of the validation draw.
         session_model: the cars' session model (`chargax_marl.core.data_io.SESSION_MODELS`):
             ``"paper"`` on the version-1 tasks, ``"v2"`` from version 2 on.
+        bound: the reference that scores 1 (`BOUNDS`): ``"occupancy"``, the LP hindsight
+            bound over always-max's port occupancy (`chargax_marl.optimal.bound`), on the
+            version-1 tasks; ``"pooled"``, the port-pooled bound over every policy
+            (`chargax_marl.optimal.pooled`), from version 2 on.
 
     Raises:
         ValueError: ``num_validation_days``, ``validation_draws`` or ``validation_seed`` not
@@ -93,8 +101,14 @@ class Task:
     validation_draws: int = 1
     validation_seed: int = 1
     session_model: str = "v2"
+    bound: str = "pooled"
 
     def __post_init__(self) -> None:
+        if self.bound not in BOUNDS:
+            raise ValueError(
+                f"task {self.name!r}: field 'bound' must be one of {list(BOUNDS)}, "
+                f"got {self.bound!r}"
+            )
         if self.session_model not in SESSION_MODELS:
             raise ValueError(
                 f"task {self.name!r}: field 'session_model' must be one of "
@@ -305,6 +319,7 @@ TASKS: dict[str, Task] = {
             _MEDIUM_DRAWS,
             "the default: shopping users, medium traffic, NL 2023 prices",
             session_model="paper",
+            bound="occupancy",
         ),
         Task(
             "shopping-grid25-high",
@@ -313,6 +328,7 @@ TASKS: dict[str, Task] = {
             _HIGH_DRAWS,
             "high traffic, the grid connection at 25 % of what the station could draw",
             session_model="paper",
+            bound="occupancy",
             validation_draws=_HIGH_VALIDATION_DRAWS,
         ),
         Task(
@@ -322,6 +338,7 @@ TASKS: dict[str, Task] = {
             _HIGH_DRAWS,
             "high traffic, the grid connection at 10 %",
             session_model="paper",
+            bound="occupancy",
             validation_draws=_HIGH_VALIDATION_DRAWS,
         ),
         Task(
@@ -331,6 +348,7 @@ TASKS: dict[str, Task] = {
             _MEDIUM_DRAWS,
             "an evening time-of-use surcharge and a peak-demand charge",
             session_model="paper",
+            bound="occupancy",
         ),
         Task(
             "workplace",
@@ -339,6 +357,7 @@ TASKS: dict[str, Task] = {
             _MEDIUM_DRAWS,
             "workplace users (long morning stays), medium traffic",
             session_model="paper",
+            bound="occupancy",
         ),
         Task(
             "shift-nl2023",
@@ -347,6 +366,7 @@ TASKS: dict[str, Task] = {
             _MEDIUM_DRAWS,
             "train on NL 2021-2022 prices, score on NL 2023",
             session_model="paper",
+            bound="occupancy",
             train_prices=("NL-2021", "NL-2022"),
         ),
         Task(
@@ -356,6 +376,7 @@ TASKS: dict[str, Task] = {
             _MEDIUM_DRAWS,
             "train on NL 2021-2022 prices, score on NL 2024",
             session_model="paper",
+            bound="occupancy",
             prices="NL-2024",
             train_prices=("NL-2021", "NL-2022"),
         ),
@@ -366,11 +387,13 @@ TASKS: dict[str, Task] = {
             _MEDIUM_DRAWS,
             "train on NL 2023 prices, score on DE 2023 (another market)",
             session_model="paper",
+            bound="occupancy",
             prices="DE-2023",
             train_prices=("NL-2023",),
         ),
     )
 }
+
 """Every registered task by id."""
 
 

@@ -107,6 +107,32 @@ class Sessions:
 
 
 @dataclass
+class Pools:
+    """Sessions that stand for one car at any port of a group (the port-pooled relaxation).
+
+    Every car of a problem gets one session per port group (ports with the same rating,
+    efficiency and path of nodes); the car's sessions share one SoC, and the LP decides how
+    much of the car sits at each group in each step. A *holding* session keeps its share of
+    a port for its whole range (a car that leaves at its planned time); any other session
+    holds a port only in the steps it charges or discharges, by its power over its bound (a
+    car that may leave once charged). Rows: a car takes at most one port's worth per step;
+    a group holds at most its port count per step.
+
+    Attributes:
+        car: (S,) the car of each session; -1 for a session outside the pools (a battery).
+            A car's sessions start in the same step (they may end in different ones).
+        group: (S,) each session's port group (ignored where ``car`` is -1).
+        holds: (S,) bool: the session holds its port for its whole range.
+        group_ports: (G,) the number of ports of each group.
+    """
+
+    car: np.ndarray
+    group: np.ndarray
+    holds: np.ndarray
+    group_ports: np.ndarray
+
+
+@dataclass
 class StationLimits:
     """The station's arrays the LP needs, as numpy (see `chargax_marl.core.station.StationArrays`)."""
 
@@ -201,6 +227,11 @@ LP_OPTIONS = {"presolve": "off", "simplex_dual_edge_weight_strategy": 1}
 """HiGHS's options for an LP's first solve: the dual simplex (HiGHS's choice for an LP)
 without presolve, which on these problems costs more than it saves, and Devex pricing. A
 problem with integer columns keeps HiGHS's defaults."""
+
+POOLED_OPTIONS = {"simplex_strategy": 4}
+"""HiGHS's options for the port-pooled LP's first solve (`chargax_marl.optimal.pooled`): the
+primal simplex with presolve, faster on those problems than `LP_OPTIONS`
+(`benchmarks/pooled_speed.py` times both)."""
 
 FIRST_ATTEMPTS = ("warm start", "default")
 """`attempt_settings`' names of a solve's own settings: from the basis it was given, and from
@@ -527,11 +558,12 @@ class _Builder:
         time_limit_s: float | None = None,
         col_status: np.ndarray | None = None,
         row_status: np.ndarray | None = None,
+        presolve: bool = False,
     ) -> tuple[str, np.ndarray, float, float, highspy.Highs, str]:
         """Solve with HiGHS: from scratch, or from a guessed basis.
 
-        An LP is first solved with `LP_OPTIONS`; a problem with integer columns with
-        HiGHS's defaults. A run that reports no optimum is tried again with the other
+        An LP is first solved with `LP_OPTIONS` (`POOLED_OPTIONS` with ``presolve``); a problem with integer
+        columns with HiGHS's defaults. A run that reports no optimum is tried again with the other
         settings of `attempt_settings`, without the guessed basis (`solve_with_retries`).
 
         Args:
@@ -540,6 +572,8 @@ class _Builder:
             col_status: a guessed basis status per column (`highspy.HighsBasisStatus`
                 values), or None for a solve from scratch.
             row_status: the same per row (with ``col_status``).
+            presolve: first solve with `POOLED_OPTIONS` (presolve on) in place of
+                `LP_OPTIONS`.
 
         Returns:
             ``(status, x, objective, solve_s, highs, attempt)``: the objective in the
@@ -571,7 +605,7 @@ class _Builder:
             value,
             integer,
         )
-        first = {} if integer.any() else LP_OPTIONS
+        first = {} if integer.any() else POOLED_OPTIONS if presolve else LP_OPTIONS
         t0 = time.perf_counter()
         status, x, obj, h, attempt = solve_with_retries(model, first, time_limit_s, basis)
         return status, x, (-obj if maximise else obj), time.perf_counter() - t0, h, attempt
@@ -669,6 +703,7 @@ def build_and_solve(
     step_offset: int = 0,
     warm_start: Basis | None = None,
     keep_basis: bool = False,
+    pools: Pools | None = None,
 ) -> Solution:
     """Build the LP of the module docstring for ``sessions`` and solve it with HiGHS.
 
@@ -704,6 +739,8 @@ def build_and_solve(
             from a solve from scratch. A warm start that fails is solved again from scratch
             (``"default"``), then with the other settings.
         keep_basis: return the optimal basis in `Solution.basis`.
+        pools: the port-pooled relaxation (`Pools`, used by `chargax_marl.optimal.pooled`):
+            which sessions are one car at several port groups; None for one car per session.
 
     Returns:
         The optimum: its value, each session's net power per step and end SoC.
@@ -711,8 +748,9 @@ def build_and_solve(
     Raises:
         SolverError: HiGHS reports no optimum with any of the settings (its ``status`` is
             the last attempt's, its ``attempts`` each attempt's).
-        ValueError: ``warm_start`` or ``keep_basis`` with ``builder`` or ``occupancy_vars``
-            (the MILP's columns and rows have no keys).
+        ValueError: ``warm_start`` or ``keep_basis`` with ``builder``, ``occupancy_vars`` or
+            ``pools`` (their columns and rows have no keys); ``pools`` whose car has sessions
+            that start in different steps.
     """
     b = builder or _Builder()
     dt = econ.step_hours
@@ -749,6 +787,24 @@ def build_and_solve(
     cs = np.repeat(np.arange(num_sess), m)
     k = np.arange(num_cells) - off[cs]
     step = first[valid][cs] + k
+    # a pooled car's sessions share the SoC of its longest session ("primary"); a holding
+    # session's power is bounded by its share of a port, a continuous variable
+    prim = np.arange(num_sess)
+    pooled = np.zeros(num_sess, bool)
+    if pools is not None:
+        car = np.asarray(pools.car, np.int64)[valid]
+        pooled = car >= 0
+        idx = np.nonzero(pooled)[0]
+        # the primary is the car's longest session: every other one's steps are in its range
+        idx = idx[np.lexsort((-m[idx], car[idx]))]
+        cars, first_of = np.unique(car[idx], return_index=True)
+        prim[idx] = idx[first_of][np.searchsorted(cars, car[idx])]
+        if np.any(first[valid][prim] != first[valid]):
+            raise ValueError("field 'pools.car' joins sessions that start in different steps")
+        holds = pooled & np.asarray(pools.holds, bool)[valid]
+        hs = np.nonzero(holds)[0]
+        z[hs] = b.vars(hs.size, 0.0, 1.0)
+        cond = z >= 0
 
     value = t.price_eur_kwh[cs]
     if urgency_eur_kwh_h is not None:
@@ -768,8 +824,9 @@ def build_and_solve(
     x_lo[x_first] = x_hi[x_first] = soc0
     x_lo[x_end[must & ~cond]] = t.goal_soc[must & ~cond]
     x = b.vars(num_cells + num_sess, x_lo, x_hi)
-    xs = x[x_first[cs] + k]  # SoC at the start of each cell
-    xe = xs + 1
+    xs_own = x[x_first[cs] + k]
+    xs = x[x_first[prim[cs]] + k]  # SoC at the start of each cell (a pooled car's shared one)
+    pcell = off[prim[cs]] + k  # the cell whose SoC row takes the cell's power
     # only when the session exists: x_end - (goal - lo) z >= lo
     mc = np.nonzero(must & cond)[0]
     if mc.size:
@@ -777,11 +834,12 @@ def build_and_solve(
         b.coef(row, x[x_end[mc]], 1.0)
         b.coef(row, z[mc], -(t.goal_soc[mc] - t.soc_lo[mc]))
     # SoC dynamics: x_{k+1} - x_k - (p+ - p-) dt / C = 0
+    # (a pooled car's other sessions keep their own SoC at the start SoC, no power in it)
     dyn = b.new_rows(num_cells, 0.0, 0.0)
-    b.coef(dyn, xe, 1.0)
-    b.coef(dyn, xs, -1.0)
-    b.coef(dyn, pp, -dt / t.cap_kwh[cs])
-    b.coef(dyn[dc], pm, dt / t.cap_kwh[dcs])
+    b.coef(dyn, xs_own + 1, 1.0)
+    b.coef(dyn, xs_own, -1.0)
+    b.coef(dyn[pcell], pp, -dt / t.cap_kwh[cs])
+    b.coef(dyn[pcell[dc]], pm, dt / t.cap_kwh[dcs])
     cc = np.nonzero(cond[cs])[0]
     if cc.size:  # p+ <= cmax z, p- <= dmax z
         lim = b.new_rows(cc.size, -np.inf, 0.0)
@@ -811,11 +869,14 @@ def build_and_solve(
     node_keys = np.zeros(0, np.int64)
     if limits.hard:
         node_keys = _node_rows(b, limits, n, t, cs, step, pp, dc, pm)
+    if pools is not None:
+        _pool_rows(b, pools, valid, n, t, cs, step, pcell, pooled, holds, z, pp, dc, pm, soc0, dt)
 
     keyed = warm_start is not None or keep_basis
-    if keyed and (builder is not None or occupancy_vars):
+    if keyed and (builder is not None or occupancy_vars or pools is not None):
         raise ValueError(
-            "fields 'builder' and 'occupancy_vars' must be None with 'warm_start' or 'keep_basis'"
+            "fields 'builder', 'occupancy_vars' and 'pools' must be None with 'warm_start' or "
+            "'keep_basis'"
         )
     if keyed:
         num_nodes = limits.node_max_kw.shape[0]
@@ -846,7 +907,10 @@ def build_and_solve(
         )
     guess = (None, None) if warm_start is None else warm_start.guess(col_key, row_key)
     _, xsol, value_eur, solve_s, h, attempt = b.solve(
-        time_limit_s=time_limit_s, col_status=guess[0], row_status=guess[1]
+        time_limit_s=time_limit_s,
+        col_status=guess[0],
+        row_status=guess[1],
+        presolve=pools is not None,  # the pooled LP's presolve pays for itself
     )
     pm_full = np.zeros(num_cells)
     pm_full[dc] = xsol[pm]
@@ -855,7 +919,7 @@ def build_and_solve(
     soc_end = np.full(sessions.size, np.nan)
     for i, s in enumerate(valid):
         net[s] = net_cells[i]
-    soc_end[valid] = xsol[x[x_end]]
+    soc_end[valid] = xsol[x[x_end[prim]]]
     return Solution(
         value_eur=value_eur,
         status=STATUS[0],
@@ -868,6 +932,70 @@ def build_and_solve(
         basis=Basis.read(h, b, col_key, row_key) if keep_basis else None,
         attempt=attempt,
     )
+
+
+def _pool_rows(
+    b: _Builder,
+    pools: Pools,
+    valid,
+    n: int,
+    t: _Terms,
+    cs,
+    step,
+    pcell,
+    pooled,
+    holds,
+    z,
+    pp,
+    dc,
+    pm,
+    soc0,
+    dt: float,
+) -> None:
+    """`Pools`' rows: each pooled car takes at most one port's worth per step, and each
+    group at most its port count per step. A holding session counts its share of a port in
+    every step of its range; any other its power over its bound. A holding session's net
+    energy is at most its share of what the car can take (``(hi - soc0) C``): a car at a
+    port, share 1, takes at most that, and a car turned away, share 0, nothing; without
+    the row, a small share of a fast port could carry a whole car's energy."""
+    num_cells = cs.shape[0]
+    group = np.asarray(pools.group, np.int64)[valid]
+    group_ports = np.asarray(pools.group_ports, np.float64)
+    # each cell's use of a port, as (cell, column, coefficient) terms
+    on = pooled[cs]
+    hold_c = np.nonzero(on & holds[cs])[0]
+    free_c = np.nonzero(on & ~holds[cs] & (t.pp_max_kw[cs] > 0))[0]
+    free_d = np.nonzero(on[dc] & ~holds[cs[dc]])[0]
+    cells = np.concatenate([hold_c, free_c, dc[free_d]])
+    cols = np.concatenate([z[cs[hold_c]], pp[free_c], pm[free_d]])
+    vals = np.concatenate(
+        [
+            np.ones(hold_c.size),
+            1.0 / t.pp_max_kw[cs[free_c]],
+            1.0 / t.pm_max_kw[cs[dc[free_d]]],
+        ]
+    )
+    # one port's worth per car and step: one row per primary cell
+    car_row = np.full(num_cells, -1, np.int64)
+    used = np.unique(pcell[cells])
+    car_row[used] = b.new_rows(used.size, -np.inf, 1.0)
+    b.coef(car_row[pcell[cells]], cols, vals)
+    # a group's port count per step
+    num_groups = group_ports.shape[0]
+    key = step[cells] * num_groups + group[cs[cells]]
+    keys, inverse = np.unique(key, return_inverse=True)
+    rows = b.new_rows(keys.size, -np.inf, group_ports[keys % num_groups])
+    b.coef(rows[inverse], cols, vals)
+    # a holding session's net energy (kWh) - its share * what the car can take <= 0
+    hs = np.nonzero(holds)[0]
+    row_of = np.full(holds.shape[0], -1, np.int64)
+    row_of[hs] = b.new_rows(hs.size, -np.inf, 0.0)
+    room_kwh = (t.soc_hi[hs] - soc0[hs]) * t.cap_kwh[hs]
+    b.coef(row_of[hs], z[hs], -np.maximum(room_kwh, 0.0))
+    cell_h = np.nonzero(holds[cs])[0]
+    b.coef(row_of[cs[cell_h]], pp[cell_h], dt)
+    dis_h = np.nonzero(holds[cs[dc]])[0]
+    b.coef(row_of[cs[dc[dis_h]]], pm[dis_h], -dt)
 
 
 def _node_rows(
