@@ -23,7 +23,7 @@ from chargax_marl.optimal.pooled import pooled_bound
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--tasks", nargs="+", default=["shopping", "shopping-grid25-high"])
+    parser.add_argument("--tasks", nargs="+", default=["shopping", "shopping-grid10-high"])
     parser.add_argument("--days", type=int, default=2)
     parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)

@@ -46,7 +46,7 @@ REFERENCE_LABELS = {
     "coupled_plan": "coupled plan",
     "mpc": "MPC (4 h look-ahead)",
     "mpc_levels1": "MPC, learned agents' action space",
-    BOUND: "LP hindsight bound",
+    BOUND: "LP bound (v1: occupancy; v2: port-pooled)",
 }
 """Row labels of the references, in the table's order."""
 

@@ -394,6 +394,18 @@ TASKS: dict[str, Task] = {
     )
 }
 
+_V2 = ("shopping", "shopping-peak", "workplace", "shift-nl2023", "shift-nl2024", "shift-de2023")
+# version 2: the same stations, prices and days on the v2 session model, scored against the
+# port-pooled bound
+TASKS.update(
+    (t.id, t)
+    for t in (
+        dataclasses.replace(
+            TASKS[f"Chargax-{name}-v1"], version=2, session_model="v2", bound="pooled"
+        )
+        for name in _V2
+    )
+)
 """Every registered task by id."""
 
 

@@ -41,7 +41,12 @@ from tests.helpers import no_arrivals, three_level_station
 # --- the shipped references ------------------------------------------------------------
 
 
-DEEP = ("Chargax-shopping-v1", "Chargax-shopping-grid10-high-v1", "Chargax-shift-nl2024-v1")
+DEEP = (
+    "Chargax-shopping-v1",
+    "Chargax-shopping-grid10-high-v1",
+    "Chargax-shift-nl2024-v1",
+    "Chargax-shopping-v2",
+)
 """Tasks whose battery rule and LP bound are recomputed too (each costs a compile and a solve)."""
 
 
@@ -49,7 +54,7 @@ def _distinct_tasks():
     """One task per distinct scored env (``shift-nl2023`` is scored on the default's)."""
     seen, out = set(), []
     for task_id, task in sorted(TASKS.items()):
-        key = (task.scenario, task.prices, task.draws)
+        key = (task.scenario, task.prices, task.draws, task.session_model)
         if key not in seen:
             seen.add(key)
             out.append(task_id)
@@ -90,6 +95,18 @@ def test_every_task_has_its_references_and_the_bound_tops_every_rule():
             per_day = entry["daily_profit"].mean(axis=1)
             assert per_day.shape == (task.num_eval_days,), (task.id, name)
             assert np.nanmean(per_day) <= np.nanmean(bound) + 1e-6, (task.id, name)
+
+
+def test_no_reference_beats_the_port_pooled_bound_on_any_day_or_draw():
+    pooled = [task for task in TASKS.values() if task.bound == "pooled"]
+    assert pooled
+    for task in pooled:
+        refs = load_references(task)
+        bound = refs["policies"][BOUND]["daily_profit"]
+        assert refs["policies"][BOUND]["kind"] == "pooled" and np.isfinite(bound).all()
+        for name, entry in refs["policies"].items():
+            over = entry["daily_profit"] - (bound + 1e-4 * np.abs(bound) + 1e-3)
+            assert np.nanmax(over) <= 0.0, (task.id, name, np.nanmax(over))
 
 
 def test_always_max_scores_exactly_zero_and_the_bound_one():

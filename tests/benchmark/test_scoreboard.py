@@ -17,7 +17,7 @@ SCORES = ROOT / "results" / "scores"
 def test_the_readme_shows_the_generated_scoreboard():
     table = scoreboard.render(SCORES, SCORES / "score_time.json")
     assert scoreboard.embedded((ROOT / "README.md").read_text()) == table
-    assert "| LP hindsight bound | 1.00 ± " in table
+    assert "| LP bound (v1: occupancy; v2: port-pooled) | 1.00 ± " in table
     assert "always-max | 0.00 ± 0.00 (+0.0)" in table
 
 
