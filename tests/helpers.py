@@ -10,6 +10,7 @@ import numpy as np
 from hypothesis import strategies as st
 
 from chargax_marl.core import Battery, Port, Splitter, simulator
+from chargax_marl.core.params import make_params
 
 
 def place_car(
@@ -289,3 +290,18 @@ def finite_losses(train, seeds=2, run=train_seeds):
         assert m[k].shape == (seeds, train.num_updates)
         assert np.all(np.isfinite(m[k])), (k, m[k])
     return out
+
+
+def hand_params(station, hourly_prices=(0.1,) * 24, **kw):
+    """Params for hand-computed optima: two days of ``hourly_prices`` (EUR/kWh), no grid fee,
+    no fixed cost, feed-in at the buy price, customers paying 0.75 EUR/kWh."""
+    prices = np.tile(np.asarray(hourly_prices, np.float32), (2, 1))
+    return make_params(
+        station=station,
+        prices=prices,
+        grid_fee_eur_kwh=0.0,
+        fixed_cost_eur=0.0,
+        feed_in_factor=1.0,
+        customer_price_eur_kwh=0.75,
+        **kw,
+    )

@@ -558,11 +558,11 @@ class _Builder:
         time_limit_s: float | None = None,
         col_status: np.ndarray | None = None,
         row_status: np.ndarray | None = None,
-        presolve: bool = False,
+        first: dict | None = None,
     ) -> tuple[str, np.ndarray, float, float, highspy.Highs, str]:
         """Solve with HiGHS: from scratch, or from a guessed basis.
 
-        An LP is first solved with `LP_OPTIONS` (`POOLED_OPTIONS` with ``presolve``); a problem with integer
+        An LP is first solved with `LP_OPTIONS` (unless ``first`` is given); a problem with integer
         columns with HiGHS's defaults. A run that reports no optimum is tried again with the other
         settings of `attempt_settings`, without the guessed basis (`solve_with_retries`).
 
@@ -572,8 +572,8 @@ class _Builder:
             col_status: a guessed basis status per column (`highspy.HighsBasisStatus`
                 values), or None for a solve from scratch.
             row_status: the same per row (with ``col_status``).
-            presolve: first solve with `POOLED_OPTIONS` (presolve on) in place of
-                `LP_OPTIONS`.
+            first: HiGHS options of the first attempt (e.g. `POOLED_OPTIONS`); None for the
+                defaults above.
 
         Returns:
             ``(status, x, objective, solve_s, highs, attempt)``: the objective in the
@@ -605,7 +605,8 @@ class _Builder:
             value,
             integer,
         )
-        first = {} if integer.any() else POOLED_OPTIONS if presolve else LP_OPTIONS
+        if first is None:
+            first = {} if integer.any() else LP_OPTIONS
         t0 = time.perf_counter()
         status, x, obj, h, attempt = solve_with_retries(model, first, time_limit_s, basis)
         return status, x, (-obj if maximise else obj), time.perf_counter() - t0, h, attempt
@@ -870,7 +871,7 @@ def build_and_solve(
     if limits.hard:
         node_keys = _node_rows(b, limits, n, t, cs, step, pp, dc, pm)
     if pools is not None:
-        _pool_rows(b, pools, valid, n, t, cs, step, pcell, pooled, holds, z, pp, dc, pm, soc0, dt)
+        _pool_rows(b, pools, valid, t, cs, step, pcell, pooled, holds, z, pp, dc, pm, soc0, dt)
 
     keyed = warm_start is not None or keep_basis
     if keyed and (builder is not None or occupancy_vars or pools is not None):
@@ -910,7 +911,7 @@ def build_and_solve(
         time_limit_s=time_limit_s,
         col_status=guess[0],
         row_status=guess[1],
-        presolve=pools is not None,  # the pooled LP's presolve pays for itself
+        first=None if pools is None else POOLED_OPTIONS,
     )
     pm_full = np.zeros(num_cells)
     pm_full[dc] = xsol[pm]
@@ -938,7 +939,6 @@ def _pool_rows(
     b: _Builder,
     pools: Pools,
     valid,
-    n: int,
     t: _Terms,
     cs,
     step,

@@ -27,23 +27,10 @@ from chargax_marl.optimal import milp as milp_module
 from chargax_marl.optimal import model as model_module
 from chargax_marl.optimal import mpc as mpc_module
 from chargax_marl.optimal.mpc import MPC
-from tests.helpers import count_compiles, exact_jit, place_car, three_level_station
+from tests.helpers import count_compiles, exact_jit, hand_params, place_car, three_level_station
 from tests.optimal.reference_lp import reference_value_eur
 
 KEY = jax.random.PRNGKey(0)
-
-
-def hand_params(station, hourly_prices, **kw):
-    prices = np.tile(np.asarray(hourly_prices, np.float32), (2, 1))
-    return make_params(
-        station=station,
-        prices=prices,
-        grid_fee_eur_kwh=0.0,
-        fixed_cost_eur=0.0,
-        feed_in_factor=1.0,
-        customer_price_eur_kwh=0.75,
-        **kw,
-    )
 
 
 def _replay_profit(policy, params, tr, key):

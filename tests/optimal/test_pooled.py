@@ -16,22 +16,10 @@ from chargax_marl.core.params import make_params
 from chargax_marl.core.station import Port, Splitter
 from chargax_marl.optimal import model as model_module
 from chargax_marl.optimal.pooled import pooled_bound, pooled_limits, pooled_sessions, port_groups
+from tests.helpers import hand_params
 
 KEY = jax.random.PRNGKey(0)
 ONE_PORT = Splitter("grid", 1000.0, (Port("p0", "DC", 500.0, 100.0),))  # 50 kW
-
-
-def hand_params(station, **kw):
-    prices = np.full((2, 24), 0.1, np.float32)
-    return make_params(
-        station=station,
-        prices=prices,
-        grid_fee_eur_kwh=0.0,
-        fixed_cost_eur=0.0,
-        feed_in_factor=1.0,
-        customer_price_eur_kwh=0.75,
-        **kw,
-    )
 
 
 CAR = dict(capacity_kwh=100.0, dc_kw=50.0, tau=0.99, arrival_soc=0.2)
