@@ -106,6 +106,12 @@ SCHEMA: dict[str, Field] = {
         (bool,),
         doc="charging actions as priorities, each node filled in that order (PriorityFill)",
     ),
+    "PRIORITY_CLASSES": Field(
+        0,
+        (int,),
+        doc="with PRIORITY_FILL: 0 = the view's levels are the priorities; P > 0 = each agent "
+        "chooses discharge, idle or one of P charging classes, filled at the env's num_levels",
+    ),
     "AGENT_ADV_NORM": Field(False, (bool,), doc="normalise the advantages per agent"),
     "OBS_DELAY_STEPS": Field(
         0, (int,), doc="the context and node loads seen this many steps late (training)"

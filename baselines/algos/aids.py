@@ -106,14 +106,23 @@ def battery_potential(config: dict, env_params):
 
 
 def priority_fill(config: dict, env):
-    """``env`` wrapped in `chargax_marl.wrappers.PriorityFill` when ``PRIORITY_FILL`` is on;
-    ``env`` itself otherwise.
+    """``env`` wrapped in `chargax_marl.wrappers.PriorityFill` when ``PRIORITY_FILL`` is on
+    (with ``PRIORITY_CLASSES`` charging classes when it is positive); ``env`` itself otherwise.
 
     Raises:
         ValueError: ``PRIORITY_FILL`` together with an observation delay or an action loss (a
-            lost action would undo the fill, which is computed from the state the agents see).
+            lost action would undo the fill, which is computed from the state the agents see);
+            ``PRIORITY_CLASSES`` negative, or positive without ``PRIORITY_FILL``.
     """
+    classes = config.get("PRIORITY_CLASSES", 0)
+    if classes < 0:
+        raise ValueError(f"PRIORITY_CLASSES must be 0 or a positive integer, got {classes!r}")
     if not config.get("PRIORITY_FILL", False):
+        if classes:
+            raise ValueError(
+                f"PRIORITY_CLASSES={classes} needs PRIORITY_FILL=true: the classes are the "
+                "fill's priorities (set PRIORITY_CLASSES=0 or PRIORITY_FILL=true)"
+            )
         return env
     delay, loss = config.get("OBS_DELAY_STEPS", 0), config.get("ACTION_LOSS_PROB", 0.0)
     if delay != 0 or loss != 0.0:
@@ -121,4 +130,4 @@ def priority_fill(config: dict, env):
             f"PRIORITY_FILL=true plays the fill on the state the agents act on; it cannot be "
             f"combined with OBS_DELAY_STEPS={delay!r} or ACTION_LOSS_PROB={loss!r} (set them to 0)"
         )
-    return PriorityFill(env)
+    return PriorityFill(env, classes or None)

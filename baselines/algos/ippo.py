@@ -41,7 +41,7 @@ from chargax_marl.marl.env import ChargaxMARL
 from chargax_marl.marl.wrappers import LogWrapper, WorldStateWrapper
 from chargax_marl.teachers import car_plan, prices
 from chargax_marl.teachers import shaping as teacher_shaping
-from chargax_marl.wrappers import priority_fill_levels
+from chargax_marl.wrappers import PriorityFill, priority_class_levels, priority_fill_levels
 
 
 class Transition(NamedTuple):
@@ -266,10 +266,13 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         local_reward_weight=config["LOCAL_REWARD_WEIGHT"],
     )
     # PRIORITY_FILL, FAIRNESS_WEIGHT, OBS_DELAY_STEPS, ACTION_LOSS_PROB (each off: the env)
-    env = aids.communication(config, aids.fairness(config, aids.priority_fill(config, base_env)))
+    filled_env = aids.priority_fill(config, base_env)
+    env = aids.communication(config, aids.fairness(config, filled_env))
     env = LogWrapper(WorldStateWrapper(env) if centralised_critic else env)
     agents = base_env.agents
-    policy = SharedPolicy(config, base_env, centralised_critic)
+    # the agents' own action space: the view's, or PRIORITY_CLASSES' classes (the fill's)
+    action_env = filled_env if config.get("PRIORITY_CLASSES", 0) else base_env
+    policy = SharedPolicy(config, action_env, centralised_critic)
     n_envs, n_steps, n_agents = config["NUM_ENVS"], config["NUM_STEPS"], base_env.num_agents
     n_actors = n_agents * n_envs
     total_updates = ppo_core.num_updates(config)
@@ -284,7 +287,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
     tx = ppo_core.make_optimizer(config, total_updates)
 
     # ``get_avail_actions`` depends only on the station: one constant (actors, K) mask, agent-major.
-    avail_agents = base_env.get_avail_actions(None)
+    avail_agents = action_env.get_avail_actions(None)
     avail_b = device_array(
         np.repeat(np.stack([np.asarray(avail_agents[a]) for a in agents]), n_envs, axis=0)
     )
@@ -509,6 +512,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
             config.get("ACTION_LOSS_PROB", 0.0),
             config.get("LOST_ACTION", "previous"),
             config.get("PRIORITY_FILL", False),
+            config.get("PRIORITY_CLASSES", 0),
         ),
     )
 
@@ -520,17 +524,21 @@ def make_act_builder(
     loss_prob: float = 0.0,
     lost_action: str = "previous",
     priority_fill: bool = False,
+    priority_classes: int = 0,
 ):
     """``make_act_for(eval_params)(params) -> act``: every agent takes the argmax of its masked
     logits (greedy), read from the simulator state. With an observation delay or an action loss
     (the config's ``OBS_DELAY_STEPS``, ``ACTION_LOSS_PROB``, ``LOST_ACTION``) the policy is
     played under them (`chargax_marl.marl.communicating_act`), as it was trained; with
     ``priority_fill`` (``PRIORITY_FILL``) its levels are filled as the training env filled them
-    (`chargax_marl.wrappers.priority_fill_levels`)."""
+    (`chargax_marl.wrappers.priority_fill_levels`; with ``priority_classes``
+    (``PRIORITY_CLASSES``) its indices are classes, `chargax_marl.wrappers.priority_class_levels`)."""
     cache = IdentityCache()
 
     def build(eval_params):
         env = ChargaxMARL(params=eval_params, agent_id=agent_id)
+        if priority_classes:
+            env = PriorityFill(env, priority_classes)
         avail = jnp.asarray(env._avail_np)
 
         def make_act(params):
@@ -544,6 +552,8 @@ def make_act_builder(
 
             def act(state, key):
                 idx = choose(env.get_obs_matrix(state), state, key)
+                if priority_classes:
+                    return priority_class_levels(idx, state, eval_params, priority_classes)
                 levels = marl_env.actions_to_levels(idx, eval_params, env.action_offset)
                 if priority_fill:
                     return priority_fill_levels(levels, state, eval_params)

@@ -6,7 +6,8 @@ call signatures, forwards every other attribute, and is jit and vmap friendly. T
 tables are built from the env's own params (its days and prices).
 
 Actions that fill the nodes' capacity in priority order (JaxMARL view): `PriorityFill`,
-`priority_fill_levels`. Reward shaping (potential-based, Ng, Harada and Russell 1999):
+`priority_fill_levels`, `priority_class_levels`. Reward shaping (potential-based, Ng, Harada
+and Russell 1999):
 `BatteryShaping`, `CarPlanShaping`, `CoupledPlanShaping` (the parked cars planned together
 under the node limits and the peak charge, `chargax_marl.teachers.congestion`). A fairness objective: `FairnessReward`. Observation
 features: `PlanAdviceObservation`, `CoupledPlanAdviceObservation`, `RelativePriceObservation`. A JaxMARL stack::
@@ -16,7 +17,12 @@ features: `PlanAdviceObservation`, `CoupledPlanAdviceObservation`, `RelativePric
     env = LogWrapper(env)  # chargax_marl.marl.LogWrapper
 """
 
-from chargax_marl.wrappers.actions import PriorityFill, priority_fill_levels
+from chargax_marl.wrappers.actions import (
+    PriorityFill,
+    priority_class_levels,
+    priority_class_size,
+    priority_fill_levels,
+)
 from chargax_marl.wrappers.fairness import FairnessReward
 from chargax_marl.wrappers.observations import (
     CoupledPlanAdviceObservation,
@@ -36,5 +42,7 @@ __all__ = [
     "PlanAdviceObservation",
     "PriorityFill",
     "RelativePriceObservation",
+    "priority_class_levels",
+    "priority_class_size",
     "priority_fill_levels",
 ]

@@ -2,16 +2,22 @@
 
 `PriorityFill` turns the multi-agent view's charging actions into priorities and fills each
 node's capacity in that order (`priority_fill_levels`), so the env's proportional rescale of
-an overloaded node never applies.
+an overloaded node never applies. With ``num_priorities`` the agents choose among a few
+priority classes (`priority_class_levels`) while the fill grants power at the env's own,
+finer levels.
 """
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
+import numpy as np
+from gymnax.environments import spaces
 
+from chargax_marl.core import actions as core_actions
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState
-from chargax_marl.marl.env import actions_to_levels, levels_to_indices
+from chargax_marl.marl.env import action_offset, actions_to_levels, levels_to_indices, min_levels
 from chargax_marl.policies import fill_in_priority_order
 from chargax_marl.teachers.shaping import core_state
 from chargax_marl.wrappers.base import TeacherWrapper
@@ -19,6 +25,26 @@ from chargax_marl.wrappers.base import TeacherWrapper
 DEPARTURE_TIE_BREAK_MIN = 1e5
 """The weight of one priority step against the minutes to a car's planned departure, which
 break ties within a priority (a day holds far fewer minutes)."""
+
+
+def _fill_ranked(levels: jnp.ndarray, rank: jnp.ndarray, state: EnvState, params: EnvParams):
+    """``levels`` with every port of ``rank > 0`` filled in rank order (highest first, ties to
+    the car that leaves first); the batteries' charging levels are kept from the ports first.
+    ``levels`` holds every other leaf's played level."""
+    st = params.station
+    is_battery = st.leaf_kind == KIND_BATTERY
+    charging = (rank > 0) & ~is_battery
+    priority = jnp.where(
+        charging, -rank * DEPARTURE_TIE_BREAK_MIN + state.time_remaining_min, jnp.inf
+    )
+    # the batteries' charging draw at their level, grid side at each node of their path
+    battery_kw = jnp.where(is_battery & (levels > 0), levels / params.num_levels, 0.0)
+    battery_kw = battery_kw * st.leaf_max_kw
+    ancestors = st.node_of_leaf_at_depth  # (D, L), -1 = none
+    grid_side = jnp.where(ancestors >= 0, battery_kw / st.leaf_efficiency_at_depth, 0.0)
+    taken = jnp.zeros_like(st.node_max_kw).at[jnp.maximum(ancestors, 0)].add(grid_side)
+    filled = fill_in_priority_order(priority, state, params, st.node_max_kw - taken)
+    return jnp.where(charging, filled, levels).astype(jnp.int32)
 
 
 def priority_fill_levels(levels: jnp.ndarray, state: EnvState, params: EnvParams) -> jnp.ndarray:
@@ -41,71 +67,164 @@ def priority_fill_levels(levels: jnp.ndarray, state: EnvState, params: EnvParams
     Returns:
         ``(num_leaves,)`` int32 levels in ``[-L, L]``.
     """
-    st = params.station
     levels = jnp.asarray(levels, jnp.int32)
-    is_battery = st.leaf_kind == KIND_BATTERY
-    charging = (levels > 0) & ~is_battery
-    priority = jnp.where(
-        charging,
-        (params.num_levels - levels) * DEPARTURE_TIE_BREAK_MIN + state.time_remaining_min,
-        jnp.inf,
-    )
-    # the batteries' charging draw at their level, grid side at each node of their path
-    battery_kw = jnp.where(is_battery & (levels > 0), levels / params.num_levels, 0.0)
-    battery_kw = battery_kw * st.leaf_max_kw
-    ancestors = st.node_of_leaf_at_depth  # (D, L), -1 = none
-    grid_side = jnp.where(ancestors >= 0, battery_kw / st.leaf_efficiency_at_depth, 0.0)
-    taken = jnp.zeros_like(st.node_max_kw).at[jnp.maximum(ancestors, 0)].add(grid_side)
-    filled = fill_in_priority_order(priority, state, params, st.node_max_kw - taken)
-    return jnp.where(charging, filled, levels).astype(jnp.int32)
+    return _fill_ranked(levels, jnp.maximum(levels, 0), state, params)
+
+
+def priority_class_size(params: EnvParams, num_priorities: int) -> tuple[int, int]:
+    """The agents' ``Discrete(n)`` size and idle index when they choose among
+    ``num_priorities`` charging classes (`priority_class_levels`).
+
+    Args:
+        params: the environment parameters (concrete).
+        num_priorities: the number of charging classes, at least 1.
+
+    Returns:
+        ``(n, idle_index)``: ``n = idle_index + 1 + num_priorities``; ``idle_index`` is 1
+        where some leaf may discharge (index 0 is then full discharge), else 0.
+    """
+    with jax.ensure_compile_time_eval():  # concrete params inside a traced step
+        idle = 1 if action_offset(params) > 0 else 0
+    return idle + 1 + int(num_priorities), idle
+
+
+def priority_class_levels(
+    indices: jnp.ndarray, state: EnvState, params: EnvParams, num_priorities: int
+) -> jnp.ndarray:
+    """The levels played for agents that choose a priority class instead of a level.
+
+    Each agent's index (``Discrete(n)`` of `priority_class_size`) means: below the idle index,
+    full discharge (``-L``; idle for a leaf that cannot discharge); the idle index, idle;
+    ``idle + k`` for ``k`` in ``1..num_priorities``, charge with priority ``k``. The charging
+    ports are then filled as in `priority_fill_levels`, at the env's own ``L`` levels: each
+    car gets the most power its car, its port and the headroom its path has left allow,
+    rounded down to one of the ``L`` levels where a node binds. A battery's charging classes
+    all mean full charge. Indices outside ``[0, n)`` are clipped into it.
+
+    Args:
+        indices: ``(num_leaves,)`` integer class indices, one per agent.
+        state: the simulator state (one day, unbatched).
+        params: the environment parameters (concrete: the class count reads the station).
+        num_priorities: the number of charging classes, at least 1.
+
+    Returns:
+        ``(num_leaves,)`` int32 levels in ``[-L, L]``.
+    """
+    n, idle = priority_class_size(params, num_priorities)
+    indices = core_actions.to_int32(jnp.asarray(indices), 0, n - 1, idle)
+    rank = jnp.maximum(indices - idle, 0)
+    top_level = params.num_levels
+    given = jnp.where(indices < idle, -top_level, jnp.where(rank > 0, top_level, 0))
+    given = jnp.maximum(given, min_levels(params)).astype(jnp.int32)
+    return _fill_ranked(given, rank, state, params)
 
 
 class PriorityFill(TeacherWrapper):
     """Charging actions as priorities, filled into each node's capacity in priority order.
 
-    For the JaxMARL view (`chargax_marl.marl.ChargaxMARL`, possibly wrapped); every agent
-    keeps its ``Discrete(n)`` space. A port agent's charging index (the view's level ``k`` in
-    ``1..L``) asks for power with priority ``k``; idle and discharging indices, and the battery
-    agents' indices, mean what they mean in the view. The step plays
-    `priority_fill_levels`: the charging cars are served from the highest priority down (ties
-    to the car that leaves first), each at the most power the car, its port and every node of
-    its path still allow, so a node that holds two cars of three serves the two with the
-    highest priority fully rather than all three at two thirds. Every agent choosing full
-    power is earliest-deadline-first for the ports.
+    For the JaxMARL view (`chargax_marl.marl.ChargaxMARL`, possibly wrapped), in the
+    ``absolute`` action mode. The step serves the charging cars from the highest priority down
+    (ties to the car that leaves first), each at the most power the car, its port and every
+    node of its path still allow, so a node that holds two cars of three serves the two with
+    the highest priority fully rather than all three at two thirds. Every agent choosing to
+    charge at its top priority is earliest-deadline-first for the ports.
 
-    A car that a node cannot serve at its priority's full want gets the level below what the
-    node has left; with one level per direction (``num_levels = 1``) that is idle, so on a
-    tight connection most cars get nothing where the view's rescale would share the power.
-    Use it with the finer levels that let a partial grant be played.
+    Two action spaces:
+
+    - ``num_priorities=None``: every agent keeps the view's ``Discrete(n)`` space. A port
+      agent's charging index (the view's level ``k`` in ``1..L``) asks for power with priority
+      ``k`` (`priority_fill_levels`); idle and discharging indices, and the battery agents'
+      indices, mean what they mean in the view. A car that a node cannot serve at its full
+      want gets the level below what the node has left; with one level per direction
+      (``num_levels = 1``) that is idle, so on a tight connection most cars get nothing where
+      the view's rescale would share the power.
+    - ``num_priorities=P``: every agent chooses among full discharge, idle and ``P``
+      charging classes (``Discrete(P + 2)``, or ``P + 1`` where no leaf can discharge:
+      `priority_class_size`), and the fill grants power at the wrapped env's own ``L``
+      levels (`priority_class_levels`). Wrap an env with fine levels (a task's own) to give
+      the agents a small action set whose partial grants are still played.
 
     The wrapper is part of the policy it plays: score a policy trained through it with the
     same mapping (``kind="core"``: ``priority_fill_levels(env.actions_to_levels(act(obs,
-    key)), state, params)``). Other wrappers go on top of it or under it; it reads the core
-    state under any wrapper state.
+    key)), state, params)``, or `priority_class_levels` of its indices). Other wrappers go on
+    top of it or under it; it reads the core state under any wrapper state.
 
     Args:
         env: a `chargax_marl.marl.ChargaxMARL`, possibly wrapped.
+        num_priorities: None, or the number of charging classes (a positive integer).
 
     Raises:
         TypeError: ``env`` is the gymnax view (no agents).
+        ValueError: the env's action mode is not ``absolute`` (a level is then a change, not
+            a power to grant), or ``num_priorities`` is not a positive integer.
     """
 
-    def __init__(self, env):
+    def __init__(self, env, num_priorities: int | None = None):
         super().__init__(env)
         if not self.is_marl:
             raise TypeError(
                 "PriorityFill: field 'env' must be the JaxMARL view (ChargaxMARL, possibly "
                 f"wrapped), got {type(env).__name__}"
             )
+        params = self.env_params
+        if params.action_mode != "absolute":
+            raise ValueError(
+                "PriorityFill: field 'action_mode' of the env must be 'absolute' (levels are "
+                f"powers to grant), got {params.action_mode!r}"
+            )
+        if num_priorities is not None and (
+            isinstance(num_priorities, bool)
+            or not isinstance(num_priorities, (int, np.integer))
+            or num_priorities < 1
+        ):
+            raise ValueError(
+                "PriorityFill: field 'num_priorities' must be None or a positive integer, got "
+                f"{num_priorities!r}"
+            )
         self._offset = int(env.action_offset)
+        self.num_priorities = None if num_priorities is None else int(num_priorities)
+        if self.num_priorities is not None:
+            n, idle = priority_class_size(params, self.num_priorities)
+            # the agents' own space: read by the trainers and JaxMARL's code through the wrapper
+            self.num_actions, self.action_offset = n, idle
+            self.action_spaces = {a: spaces.Discrete(n) for a in env.agents}
+            classes = np.arange(n)[None, :]
+            can_discharge = np.asarray(min_levels(params))[:, None] < 0
+            self._avail_np = (classes >= idle) | can_discharge
+
+    def action_space(self, agent: str):
+        """The agent's ``Discrete`` space (the view's, or the classes' with ``num_priorities``)."""
+        if self.num_priorities is None:
+            return self._env.action_space(agent)
+        return self.action_spaces[agent]
+
+    def get_avail_actions(self, state) -> dict:
+        """Bool mask per agent; with ``num_priorities``, ``False`` only at full discharge for a
+        leaf that cannot discharge."""
+        if self.num_priorities is None:
+            return self._env.get_avail_actions(state)
+        return {a: jnp.asarray(self._avail_np[i]) for i, a in enumerate(self._env.agents)}
+
+    def levels(self, state, indices: jnp.ndarray) -> jnp.ndarray:
+        """The core levels ``(num_agents,)`` played for the agents' ``indices`` in ``state`` (a
+        core or wrapper state)."""
+        params = self.env_params
+        core = core_state(state)
+        if self.num_priorities is not None:
+            return priority_class_levels(indices, core, params, self.num_priorities)
+        levels = actions_to_levels(jnp.asarray(indices), params, self._offset)
+        return priority_fill_levels(levels, core, params)
 
     def fill(self, state, indices: jnp.ndarray) -> jnp.ndarray:
         """The action indices ``(num_agents,)`` the wrapped env is stepped with for the agents'
         ``indices`` in ``state`` (a core or wrapper state)."""
-        params = self.env_params
-        levels = actions_to_levels(jnp.asarray(indices), params, self._offset)
-        filled = priority_fill_levels(levels, core_state(state), params)
-        return levels_to_indices(filled, params, self._offset)
+        return levels_to_indices(self.levels(state, indices), self.env_params, self._offset)
+
+    def _stack(self, actions: dict) -> jnp.ndarray:
+        indices = self._env.stack_actions(actions)
+        if self.num_priorities is None:
+            return indices
+        return jnp.clip(indices, 0, self.num_actions - 1)
 
     def step(self, key, state, actions: dict, reset_state=None):
         """The wrapped env's ``step`` with the actions filled (`fill`).
@@ -113,7 +232,7 @@ class PriorityFill(TeacherWrapper):
         Raises:
             ValueError: a bad action dict (`chargax_marl.marl.ChargaxMARL.validate_actions`).
         """
-        indices = self.fill(state, self._env.stack_actions(actions))
+        indices = self.fill(state, self._stack(actions))
         filled = dict(zip(self._env.agents, indices))
         if reset_state is None:
             return self._env.step(key, state, filled)
@@ -127,4 +246,10 @@ class PriorityFill(TeacherWrapper):
         return self._env.step_arrays(key, state, self.fill(state, indices), reset_state)
 
 
-__all__ = ["DEPARTURE_TIE_BREAK_MIN", "PriorityFill", "priority_fill_levels"]
+__all__ = [
+    "DEPARTURE_TIE_BREAK_MIN",
+    "PriorityFill",
+    "priority_class_levels",
+    "priority_class_size",
+    "priority_fill_levels",
+]

@@ -24,7 +24,7 @@ from chargax_marl.marl import ActionLossWrapper, DelayedObservationWrapper
 from chargax_marl.teachers import prices as teacher_prices
 from chargax_marl.teachers import shaping as teacher_shaping
 from chargax_marl.teachers import storage_value
-from chargax_marl.wrappers import PriorityFill, priority_fill_levels
+from chargax_marl.wrappers import PriorityFill, priority_class_levels, priority_fill_levels
 from tests.helpers import TINY, TINY_ENV, exact_jit, finite_losses
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -483,6 +483,28 @@ def test_ippo_trains_through_the_priority_fill_and_plays_it_when_scored():
         ippo.make_train({**config, "OBS_DELAY_STEPS": 2})
     with pytest.raises(ValueError, match="PRIORITY_FILL=true applies to the multi-agent"):
         ppo.make_train(config)
+
+
+def test_ippo_trains_in_priority_classes_and_plays_them_at_the_envs_levels_when_scored():
+    config = {**TINY, "PRIORITY_FILL": True, "PRIORITY_CLASSES": 2}
+    train = ippo.make_train(config)
+    # the policy's heads are the classes' (discharge, idle, two classes), not the view's levels
+    assert train.policy.k == 4 and train.env.num_actions == 2 * train.env_params.num_levels + 1
+    out = finite_losses(train)
+    seed0 = jax.tree.map(lambda x: x[0], out["runner_state"].params)
+    act = train.make_act(train.env_params)(seed0)
+    classes = PriorityFill(train.env, 2)
+    state = simulator.reset(jax.random.PRNGKey(3), train.env_params)
+    for _ in range(6):  # the scored levels are the classes the greedy policy picks, filled
+        key = jax.random.PRNGKey(0)
+        obs = train.policy.with_plan(train.env.get_obs_matrix(state), state)
+        avail = jnp.asarray(classes._avail_np)
+        idx = jnp.argmax(train.policy.logits(seed0, obs, avail), axis=-1)
+        want = priority_class_levels(idx, state, train.env_params, 2)
+        np.testing.assert_array_equal(act(state, key), want)
+        state, _ = simulator.step(key, state, want, train.env_params)
+    with pytest.raises(ValueError, match="PRIORITY_CLASSES=2 needs PRIORITY_FILL=true"):
+        ippo.make_train({**TINY, "PRIORITY_CLASSES": 2})
 
 
 @pytest.mark.parametrize("mod", [ippo, mappo])

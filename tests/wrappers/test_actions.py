@@ -15,7 +15,12 @@ from chargax_marl.core import Battery, Port, Splitter, make_params
 from chargax_marl.marl import ChargaxMARL
 from chargax_marl.policies import earliest_deadline_first
 from chargax_marl.single import Chargax
-from chargax_marl.wrappers import PriorityFill, priority_fill_levels
+from chargax_marl.wrappers import (
+    PriorityFill,
+    priority_class_levels,
+    priority_class_size,
+    priority_fill_levels,
+)
 from tests.helpers import no_arrivals, place_car, start
 
 KEY = jax.random.PRNGKey(0)
@@ -134,3 +139,89 @@ def test_the_dict_and_array_steps_agree_and_keep_jaxmarls_info_contract():
 def test_the_gymnax_view_is_refused():
     with pytest.raises(TypeError, match="field 'env' must be the JaxMARL view.*Chargax"):
         PriorityFill(Chargax(station=station(), step_minutes=60.0))
+
+
+def wide_station(battery: bool = False) -> Splitter:
+    """The three 50 kW ports on a connection that holds two and a half of them."""
+    ports = tuple(Port(f"p{i}", "DC", 500.0, 100.0, 100.0, 1.0) for i in range(3))
+    extra = (Battery("bat", capacity_kwh=200.0, max_kw=50.0, efficiency=1.0, initial_soc=0.5),)
+    return Splitter("grid", 2.5 * PORT_KW + 0.01, ports + (extra if battery else ()), 1.0)
+
+
+def test_priority_classes_grant_partial_power_at_the_envs_levels_where_view_levels_cannot():
+    params = params_of(station=wide_station(), v2g=False)
+    state = parked(params, minutes=(300.0, 200.0, 400.0))
+    charge = jnp.full(3, 1, jnp.int32)  # one class: index 1 charges (no leaf discharges)
+    levels = priority_class_levels(charge, state, params, 1)
+    # the last car to leave gets the half port the connection has left, at the env's 10 levels
+    np.testing.assert_array_equal(levels, [L, L, L // 2])
+    np.testing.assert_array_equal(levels, earliest_deadline_first(state, KEY, params))
+    # the same choice in the view's own levels at one level per direction rounds it to idle
+    coarse = params.replace(num_levels=1)
+    np.testing.assert_array_equal(priority_fill_levels(jnp.ones(3), state, coarse), [1, 1, 0])
+    # a higher class is served first, whatever its departure
+    np.testing.assert_array_equal(
+        priority_class_levels(jnp.asarray([2, 1, 2]), state, params, 2), [L, L // 2, L]
+    )
+
+
+def test_priority_classes_discharge_idle_and_the_battery_mean_what_they_say():
+    params = params_of(station=wide_station(battery=True), v2g=True)
+    state = parked(params)
+    env = PriorityFill(ChargaxMARL(params=params), num_priorities=2)
+    assert env.num_actions == 4 and env.action_offset == 1
+    assert all(env.action_space(a).n == 4 for a in env.agents)
+    np.testing.assert_array_equal(priority_class_size(params, 2), (4, 1))
+    # index 0 full discharge, 1 idle; the battery's charging classes are all full charge
+    np.testing.assert_array_equal(
+        priority_class_levels(jnp.asarray([0, 1, 3, 2]), state, params, 2), [-L, 0, L, L]
+    )
+    # out-of-range indices are clipped into [0, n)
+    np.testing.assert_array_equal(
+        priority_class_levels(jnp.asarray([-7, 99, 1, 1]), state, params, 2), [-L, L, 0, 0]
+    )
+
+
+def test_priority_classes_mask_discharge_only_where_a_leaf_cannot_discharge():
+    params = params_of(station=station(battery=True), v2g=False)
+    env = PriorityFill(ChargaxMARL(params=params), num_priorities=3)
+    assert env.num_actions == 5
+    avail = env.get_avail_actions(None)
+    np.testing.assert_array_equal(avail["port_0"], [False, True, True, True, True])
+    np.testing.assert_array_equal(avail["battery_0"], [True] * 5)
+    # without a leaf that may discharge there is no discharge index
+    plain = PriorityFill(ChargaxMARL(params=params_of(station=station(), v2g=False)), 3)
+    assert plain.num_actions == 4 and plain.action_offset == 0
+
+
+def test_priority_classes_step_through_jaxmarls_wrapper_with_dict_and_array_steps_agreeing():
+    env = ChargaxMARL(station=wide_station(battery=True), step_minutes=60.0, traffic=150.0)
+    wrapped = PriorityFill(env, num_priorities=2)
+    obs, state = wrapped.reset(KEY)
+    for _ in range(5):
+        indices = jnp.asarray([3, 2, 3, 1])
+        actions = dict(zip(env.agents, indices))
+        d_obs, d_state, _, _, d_info = wrapped.step(KEY, state, actions)
+        a_obs, _, _, _, a_info = wrapped.step_arrays(KEY, state, indices)
+        np.testing.assert_allclose(a_obs, jnp.stack([d_obs[a] for a in env.agents]), 1e-6)
+        np.testing.assert_allclose(a_info["agent_energy_kwh"], d_info["agent_energy_kwh"], 1e-6)
+        assert float(d_info["requested_excess_kw"][0]) == 0.0
+        state = d_state
+    logged = JaxMARLLogWrapper(wrapped)
+    _, s = jax.vmap(logged.reset)(jax.random.split(KEY, 2))
+    acts = {a: jnp.full((2, 1), wrapped.num_actions - 1) for a in env.agents}
+    info = jax.vmap(logged.step)(jax.random.split(KEY, 2), s, acts)[-1]
+    assert {k: v.shape for k, v in info.items() if v.shape != (2, env.num_agents)} == {}
+
+
+@pytest.mark.parametrize("bad", [0, -1, 1.5, True, "2"])
+def test_a_bad_number_of_priorities_is_refused_by_field(bad):
+    env = ChargaxMARL(station=station(), step_minutes=60.0)
+    with pytest.raises(ValueError, match="field 'num_priorities' must be None or a positive"):
+        PriorityFill(env, num_priorities=bad)
+
+
+def test_the_delta_action_mode_is_refused():
+    env = ChargaxMARL(station=station(), step_minutes=60.0, action_mode="delta")
+    with pytest.raises(ValueError, match="field 'action_mode' of the env must be 'absolute'"):
+        PriorityFill(env)
