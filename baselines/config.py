@@ -82,12 +82,22 @@ SCHEMA: dict[str, Field] = {
         "value the batteries' energy as it moves: True = day_mean; storage_value; dp",
     ),
     "PORT_SHAPING": Field(
-        "off", (str,), ("off", "plan"), "each parked car's plan value as a potential"
+        "off",
+        (str,),
+        ("off", "plan", "coupled"),
+        "each parked car's value as a potential: plan = its plan alone; coupled = at the "
+        "coupled plan's congestion prices",
     ),
     "SHAPING_WEIGHT": Field(
         1.0, _NUM, doc="weight of the BATTERY_SHAPING and PORT_SHAPING terms in the reward"
     ),
-    "PLAN_OBS": Field(False, (bool,), doc="each agent also observes its port's plan advice"),
+    "PLAN_OBS": Field(
+        False,
+        (bool, str),
+        (False, True, "off", "plan", "coupled"),
+        "each agent also observes its port's advice: True = plan (charge now by its own plan); "
+        "coupled = the coupled plan's share of top power and congestion price",
+    ),
     "RELATIVE_PRICES": Field(False, (bool,), doc="the networks also read relative prices"),
     "FAIRNESS_WEIGHT": Field(
         0.0, _NUM, doc="EUR per unit of the day's fairness metric in the reward (FairnessReward)"

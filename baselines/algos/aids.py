@@ -12,11 +12,12 @@ multi-agent trainers' imperfect communication, ``OBS_DELAY_STEPS``, ``ACTION_LOS
 from __future__ import annotations
 
 from chargax_marl.marl import ActionLossWrapper, DelayedObservationWrapper
-from chargax_marl.teachers import car_plan
+from chargax_marl.teachers import car_plan, congestion
 from chargax_marl.teachers import shaping as teacher_shaping
 from chargax_marl.wrappers import FairnessReward, PriorityFill
 
-PORT_SHAPING_MODES = ("off", "plan")
+PORT_SHAPING_MODES = ("off", "plan", "coupled")
+PLAN_OBS_MODES = ("off", "plan", "coupled")
 
 
 def communication(config: dict, env):
@@ -73,9 +74,42 @@ def port_shaping_mode(config: dict) -> str:
 def car_potential(config: dict, env_params):
     """``None`` when ``PORT_SHAPING`` is off, else the per-car potential of
     `chargax_marl.teachers.car_plan.car_potential`: ``potential(env_state) -> shift``."""
-    if port_shaping_mode(config) == "off":
+    mode = port_shaping_mode(config)
+    if mode == "off":
         return None
+    if mode == "coupled":
+        return congestion.coupled_potential(env_params)
     return car_plan.car_potential(env_params)
+
+
+def plan_obs_mode(config: dict) -> str:
+    """``PLAN_OBS`` as one of `PLAN_OBS_MODES` (``False`` / ``True`` are ``"off"`` /
+    ``"plan"``)."""
+    v = config.get("PLAN_OBS", False)
+    mode = {False: "off", True: "plan", None: "off"}.get(v, v) if not isinstance(v, str) else v
+    if mode not in PLAN_OBS_MODES:
+        raise ValueError(f"PLAN_OBS must be a bool or one of {PLAN_OBS_MODES}, got {v!r}")
+    return mode
+
+
+def plan_features(config: dict, env_params):
+    """The per-leaf advice ``PLAN_OBS`` appends to the observations, or ``None`` when off.
+
+    Returns:
+        ``None``, or ``(advice, width)``: ``advice(core) -> (L, width)`` float32 for one
+        (unbatched) core state; ``plan``: width 1, `chargax_marl.teachers.car_plan.plan_advice`
+        (1 = its car's best plan under the day's prices charges now); ``coupled``: width
+        `chargax_marl.teachers.congestion.COUPLED_ADVICE_WIDTH`,
+        `chargax_marl.teachers.congestion.coupled_advice` (the share of the port's top power
+        the coupled plan takes now and the congestion price on its path). 0 for batteries.
+    """
+    mode = plan_obs_mode(config)
+    if mode == "off":
+        return None
+    if mode == "coupled":
+        return congestion.coupled_advice(env_params), congestion.COUPLED_ADVICE_WIDTH
+    plan = car_plan.plan_advice(env_params)
+    return (lambda core: plan(core)[:, None]), 1
 
 
 SHAPING_MODES = ("off",) + teacher_shaping.BATTERY_POTENTIALS

@@ -133,14 +133,14 @@ class SharedPolicy:
             )
         # the critic reads the same features when it reads the agent's own observation (IPPO)
         self.critic_features = self.relative is not None and not centralised_critic
-        # PLAN_OBS: each agent's observation ends with its leaf's plan advice
-        # (car_plan.plan_advice: 1 = its car's best plan under the day's prices charges now;
+        # PLAN_OBS: each agent's observation ends with its leaf's advice (aids.plan_features:
+        # its own plan's charge-now flag, or the coupled plan's share and congestion price;
         # always 0 for the batteries), before the relative prices.
-        self.plan = car_plan.plan_advice(env.params) if config["PLAN_OBS"] else None
-        if self.plan is not None:
-            self.obs_dim += 1
-            if not centralised_critic:
-                self.critic_dim += 1
+        features = aids.plan_features(config, env.params)
+        self.plan, plan_width = (None, 0) if features is None else features
+        self.obs_dim += plan_width
+        if not centralised_critic:
+            self.critic_dim += plan_width
         if self.relative is not None:
             self.obs_dim += len(self.relative[0])
             if self.critic_features:
@@ -151,9 +151,7 @@ class SharedPolicy:
         core state ``core`` appended; unchanged when ``PLAN_OBS`` is off."""
         if self.plan is None:
             return obs_matrix
-        return jnp.concatenate(
-            [obs_matrix, car_plan.batched(self.plan, core)(core)[..., None]], axis=-1
-        )
+        return jnp.concatenate([obs_matrix, car_plan.batched(self.plan, core)(core)], axis=-1)
 
     def features(self, obs):
         return prices.with_relative_prices(obs, self.relative)

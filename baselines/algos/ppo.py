@@ -95,12 +95,13 @@ class Policy:
             self.relative = prices.relative_price_columns(
                 env_params, self.obs_dim - context_size(env_params)
             )
-        # PLAN_OBS: the observation also ends with every leaf's plan advice
-        # (car_plan.plan_advice), before the relative prices.
-        self.plan = car_plan.plan_advice(env_params) if config["PLAN_OBS"] else None
+        # PLAN_OBS: the observation also ends with every leaf's advice (aids.plan_features),
+        # leaf-major, before the relative prices.
+        features = aids.plan_features(config, env_params)
+        self.plan, plan_width = (None, 0) if features is None else features
         self.input_dim = (
             self.obs_dim
-            + (0 if self.plan is None else self.num_leaves)
+            + self.num_leaves * plan_width
             + (0 if self.relative is None else len(self.relative[0]))
         )
 
@@ -109,7 +110,8 @@ class Policy:
         appended when ``PLAN_OBS`` is on."""
         if self.plan is None:
             return obs
-        return jnp.concatenate([obs, car_plan.batched(self.plan, core)(core)], axis=-1)
+        advice = car_plan.batched(self.plan, core)(core)  # (..., L, width)
+        return jnp.concatenate([obs, advice.reshape(advice.shape[:-2] + (-1,))], axis=-1)
 
     def features(self, obs):
         return prices.with_relative_prices(obs, self.relative)

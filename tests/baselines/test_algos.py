@@ -18,12 +18,13 @@ import pytest
 
 from baselines.algos import aids, ippo, mappo, networks, ppo, ppo_core, runner
 from baselines.config import build_env_params
-from chargax_marl.core import simulator
+from chargax_marl import policies
+from chargax_marl.core import observation, simulator
 from chargax_marl.evaluation import MemoryAct, run_days
 from chargax_marl.marl import ActionLossWrapper, DelayedObservationWrapper
+from chargax_marl.teachers import congestion, storage_value
 from chargax_marl.teachers import prices as teacher_prices
 from chargax_marl.teachers import shaping as teacher_shaping
-from chargax_marl.teachers import storage_value
 from chargax_marl.wrappers import PriorityFill, priority_class_levels, priority_fill_levels
 from tests.helpers import TINY, TINY_ENV, exact_jit, finite_losses
 
@@ -505,6 +506,42 @@ def test_ippo_trains_in_priority_classes_and_plays_them_at_the_envs_levels_when_
         state, _ = simulator.step(key, state, want, train.env_params)
     with pytest.raises(ValueError, match="PRIORITY_CLASSES=2 needs PRIORITY_FILL=true"):
         ippo.make_train({**TINY, "PRIORITY_CLASSES": 2})
+
+
+@pytest.mark.parametrize("mod", [ippo, ppo])
+def test_the_coupled_teacher_shapes_and_advises_the_trainers(mod):
+    """``PORT_SHAPING="coupled"`` shapes with the coupled plan's per-car potential and
+    ``PLAN_OBS="coupled"`` appends its two advice columns per leaf, in the rollout and in the
+    greedy evaluation act."""
+    config = {**TINY, "PORT_SHAPING": "coupled", "PLAN_OBS": "coupled"}
+    if mod is ippo:
+        config["LOCAL_REWARD_WEIGHT"] = 1.0
+    train = mod.make_train(config)
+    out = finite_losses(train)
+    params = train.env_params
+    state = simulator.reset(jax.random.PRNGKey(3), params)
+    for _ in range(12):  # cars arrive over the morning
+        levels = policies.always_max(state, None, params)
+        state, _ = simulator.step(jax.random.PRNGKey(0), state, levels, params)
+    advice = np.asarray(congestion.coupled_advice(params)(state))
+    assert advice.shape == (params.station.num_leaves, 2) and advice[:, 0].max() > 0
+    if mod is ippo:
+        assert train.policy.obs_dim == train.env.obs_size + 2
+        rows = train.policy.with_plan(train.env.get_obs_matrix(state), state)
+        np.testing.assert_allclose(np.asarray(rows[:, -2:]), advice, rtol=1e-6)
+    else:
+        obs = train.policy.with_plan(observation.flat_obs(state, params), state)
+        np.testing.assert_allclose(np.asarray(obs[-advice.size :]), advice.reshape(-1), rtol=1e-6)
+    energy = jnp.full((params.station.num_leaves,), 3.0)
+    np.testing.assert_allclose(
+        aids.car_potential(config, params)(state)(energy),
+        congestion.coupled_potential(params)(state)(energy),
+        rtol=1e-6,
+    )
+    seed0 = jax.tree.map(lambda x: x[0], out["runner_state"].params)
+    assert np.asarray(train.make_act(params)(seed0)(state, None)).shape == advice[:, 0].shape
+    with pytest.raises(ValueError, match="PLAN_OBS must be a bool or one of"):
+        aids.plan_obs_mode({"PLAN_OBS": "later"})
 
 
 @pytest.mark.parametrize("mod", [ippo, mappo])
