@@ -260,6 +260,7 @@ def fill_in_priority_order(
     state: EnvState,
     params: EnvParams,
     headroom_kw: jnp.ndarray | None = None,
+    want_kw: jnp.ndarray | None = None,
 ) -> jnp.ndarray:
     """Give cars power in order of ``priority`` (lower first), each as much as its rate,
     its port and the remaining headroom of every node on its path allow, as a level.
@@ -278,12 +279,15 @@ def fill_in_priority_order(
         headroom_kw: ``(num_nodes,)`` grid-side kW each node may still pass before the cars
             are served (what other leaves already take is kept from them); None: every node's
             limit (``params.station.node_max_kw``).
+        want_kw: ``(num_leaves,)`` kW each leaf would take with the headroom to spare; None:
+            what its car can take (`chargax_marl.teachers.fill.able_kw`, 0 for batteries).
 
     Returns:
         ``(num_leaves,)`` int32 levels in ``[0, L]``, 0 where ``priority`` is ``inf``.
     """
     st = params.station
-    want_kw = jnp.where(jnp.isfinite(priority), able_kw(state, params), 0.0)
+    want_kw = able_kw(state, params) if want_kw is None else want_kw
+    want_kw = jnp.where(jnp.isfinite(priority), want_kw, 0.0)
     headroom = st.node_max_kw if headroom_kw is None else headroom_kw
     levels = params.num_levels
 

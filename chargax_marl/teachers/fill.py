@@ -11,13 +11,15 @@ from chargax_marl.core import physics
 from chargax_marl.core.station import KIND_BATTERY
 
 
-def able_kw(state, params) -> jnp.ndarray:
+def able_kw(state, params, batteries: bool = False) -> jnp.ndarray:
     """What each leaf's car can take this step, ``(L,)`` kW: the least of its port's limit,
-    its rate curve and its room to its target (0 at empty ports and batteries).
+    its rate curve and its room to its target (0 at empty ports, and at batteries unless
+    ``batteries``).
 
     Args:
         state: the simulator state (one day, unbatched).
         params: the environment parameters.
+        batteries: also what each battery can take, by the same limits (its target is full).
 
     Returns:
         ``(L,)`` kW.
@@ -28,7 +30,7 @@ def able_kw(state, params) -> jnp.ndarray:
     )
     curve = physics.rate_curve_kw(state.soc, state.max_rate_kw, state.tau)
     able = jnp.minimum(jnp.minimum(st.leaf_max_kw, curve), room_kw)
-    return jnp.where(state.occupied & (st.leaf_kind != KIND_BATTERY), able, 0.0)
+    return jnp.where(state.occupied & (batteries | (st.leaf_kind != KIND_BATTERY)), able, 0.0)
 
 
 def serve_in_order(priority, headroom_kw, station, grant):

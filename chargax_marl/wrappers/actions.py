@@ -19,6 +19,7 @@ from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState
 from chargax_marl.marl.env import action_offset, actions_to_levels, levels_to_indices, min_levels
 from chargax_marl.policies import fill_in_priority_order
+from chargax_marl.teachers.fill import able_kw
 from chargax_marl.teachers.shaping import core_state
 from chargax_marl.wrappers.base import TeacherWrapper
 
@@ -96,10 +97,13 @@ def priority_class_levels(
     Each agent's index (``Discrete(n)`` of `priority_class_size`) means: below the idle index,
     full discharge (``-L``; idle for a leaf that cannot discharge); the idle index, idle;
     ``idle + k`` for ``k`` in ``1..num_priorities``, charge with priority ``k``. The charging
-    ports are then filled as in `priority_fill_levels`, at the env's own ``L`` levels: each
-    car gets the most power its car, its port and the headroom its path has left allow,
-    rounded down to one of the ``L`` levels where a node binds. A battery's charging classes
-    all mean full charge. Indices outside ``[0, n)`` are clipped into it.
+    leaves are served from the highest class down, each at the most power it can take (a
+    car: its port, its rate curve and its room to its target; a battery: the same to full)
+    and every node of its path still allows, rounded down to one of the env's own ``L``
+    levels where a node binds. Within a class the ports go first, the car that leaves first
+    first, then the batteries: a battery's charging takes what the cars of its class leave,
+    and comes before the cars of lower classes. Indices outside ``[0, n)`` are clipped into
+    it.
 
     Args:
         indices: ``(num_leaves,)`` integer class indices, one per agent.
@@ -113,10 +117,15 @@ def priority_class_levels(
     n, idle = priority_class_size(params, num_priorities)
     indices = core_actions.to_int32(jnp.asarray(indices), 0, n - 1, idle)
     rank = jnp.maximum(indices - idle, 0)
-    top_level = params.num_levels
-    given = jnp.where(indices < idle, -top_level, jnp.where(rank > 0, top_level, 0))
-    given = jnp.maximum(given, min_levels(params)).astype(jnp.int32)
-    return _fill_ranked(given, rank, state, params)
+    is_battery = params.station.leaf_kind == KIND_BATTERY
+    discharge = jnp.maximum(-params.num_levels, min_levels(params))
+    given = jnp.where(indices < idle, discharge, 0).astype(jnp.int32)
+    # within a class: the ports by departure (minutes < the tie-break), then the batteries
+    later = jnp.where(is_battery, DEPARTURE_TIE_BREAK_MIN - 1.0, state.time_remaining_min)
+    priority = jnp.where(rank > 0, -rank * DEPARTURE_TIE_BREAK_MIN + later, jnp.inf)
+    want_kw = able_kw(state, params, batteries=True)
+    filled = fill_in_priority_order(priority, state, params, want_kw=want_kw)
+    return jnp.where(rank > 0, filled, given).astype(jnp.int32)
 
 
 class PriorityFill(TeacherWrapper):
@@ -141,7 +150,8 @@ class PriorityFill(TeacherWrapper):
     - ``num_priorities=P``: every agent chooses among full discharge, idle and ``P``
       charging classes (``Discrete(P + 2)``, or ``P + 1`` where no leaf can discharge:
       `priority_class_size`), and the fill grants power at the wrapped env's own ``L``
-      levels (`priority_class_levels`). Wrap an env with fine levels (a task's own) to give
+      levels (`priority_class_levels`); a battery's charging joins the fill in its class,
+      after that class's cars. Wrap an env with fine levels (a task's own) to give
       the agents a small action set whose partial grants are still played.
 
     The wrapper is part of the policy it plays: score a policy trained through it with the

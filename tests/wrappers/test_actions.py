@@ -182,6 +182,22 @@ def test_priority_classes_discharge_idle_and_the_battery_mean_what_they_say():
     )
 
 
+def test_a_batterys_charging_class_comes_after_its_class_cars_and_before_lower_classes():
+    params = params_of(station=wide_station(battery=True), v2g=False)
+    state = parked(params, minutes=(300.0, 200.0, 400.0))
+    # one class: the three cars take the 125 kW first (50, 50, 25), the battery gets nothing
+    one = priority_class_levels(jnp.asarray([2, 2, 2, 2]), state, params, 1)
+    np.testing.assert_array_equal(one, [L, L, L // 2, 0])
+    # the battery in the top class charges first; the cars share the 75 kW left by departure
+    two = priority_class_levels(jnp.asarray([2, 2, 2, 3]), state, params, 2)
+    np.testing.assert_array_equal(two, [L // 2, L, 0, L])
+    for levels in (one, two):
+        _, _, _, _, info = ChargaxMARL(params=params).step_env(
+            KEY, state, ChargaxMARL(params=params).levels_to_actions(levels)
+        )
+        assert float(info["requested_excess_kw"][0]) == 0.0
+
+
 def test_priority_classes_mask_discharge_only_where_a_leaf_cannot_discharge():
     params = params_of(station=station(battery=True), v2g=False)
     env = PriorityFill(ChargaxMARL(params=params), num_priorities=3)
