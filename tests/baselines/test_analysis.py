@@ -10,11 +10,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from baselines.analysis import attribution, read_policy, redraw, sensitivity
+from baselines.analysis import ablation, attribution, read_policy, redraw, sensitivity
 from baselines.config import build_env_params
 from baselines.eval import references
 from baselines.eval.rules import evaluate_rules
 from chargax_marl import policies
+from chargax_marl.benchmark.references import load_references
+from chargax_marl.benchmark.tasks import get_task
 from chargax_marl.core import make_params, simulator
 from chargax_marl.teachers import storage_value
 from tests.helpers import TINY_ENV, no_arrivals
@@ -177,3 +179,51 @@ def test_sensitivity_battery_step_on_an_empty_station_is_the_hand_computed_trade
     )
     with pytest.raises(ValueError, match="perturbation"):
         sensitivity.perturbed_always_max(params, "battery_discharges", 0)
+
+
+def test_the_ablation_table_pairs_methods_with_the_base_and_the_rules(tmp_path):
+    """Score files made of two shipped references (EDF as a one-seed method, always-max as
+    the base): the method's difference with the base is EDF's with always-max, paired over
+    days, and its differences with the rules are the scoreboard's."""
+    task_id = "Chargax-shopping-grid10-high-v1"
+    refs = load_references(get_task(task_id))["policies"]
+
+    def score_file(name, policy):
+        profit = np.asarray(refs[policy]["daily_profit"])[None]  # (1 seed, days, draws)
+        path = tmp_path / f"{name}.json"
+        path.write_text(json.dumps({"task": task_id, "daily_profit": profit.tolist()}))
+        return f"{name}={path}"
+
+    out = tmp_path / "table"
+    result = ablation.main(
+        [
+            "--task",
+            task_id,
+            "--base",
+            score_file("base", "always_max"),
+            "--method",
+            score_file("edf", "edf"),
+            "--out",
+            str(out),
+        ]
+    )
+    base, edf = result["rows"]
+    assert base["vs_base"] is None and base["score"] == pytest.approx(0.0, abs=1e-9)
+    diff = (
+        np.asarray(refs["edf"]["daily_profit"]) - np.asarray(refs["always_max"]["daily_profit"])
+    ).mean(1)
+    assert edf["vs_base"]["mean"] == pytest.approx(diff.mean(), rel=1e-9)
+    assert edf["vs_base"]["stderr"] == pytest.approx(
+        diff.std(ddof=1) / np.sqrt(diff.size), rel=1e-9
+    )
+    assert edf["vs_rules"]["edf"]["mean"] == pytest.approx(0.0, abs=1e-9)
+    assert edf["vs_rules"]["always_max"]["mean"] == pytest.approx(diff.mean(), rel=1e-9)
+    best = max(result["rules"], key=lambda r: np.nanmean(refs[r]["daily_profit"]))
+    assert result["strongest_rule"] == best and "lp_bound" not in result["rules"]
+    assert edf["vs_strongest_rule"] == edf["vs_rules"][best]
+    assert "| edf | 1 |" in out.with_suffix(".md").read_text()
+    assert json.loads(out.with_suffix(".json").read_text())["rows"][1]["name"] == "edf"
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({"task": "Chargax-shopping-v1", "daily_profit": [[[0.0]]]}))
+    with pytest.raises(ValueError, match="field 'task' is 'Chargax-shopping-v1'"):
+        ablation.ablation(task_id, ("base", str(other)), [])
