@@ -4,6 +4,8 @@
     python -m chargax_marl.benchmark.scoreboard --scores results/scores --time results/scores/score_time.json
     python -m chargax_marl.benchmark.scoreboard --scores results/scores \
         --time results/scores/score_time.json --readme README.md   # the README's table
+    python -m chargax_marl.benchmark.scoreboard --scores results/scores \
+        --gaps results/scores/learner_gaps.md   # the best learned agents against the MPC
 
 Rows: the shipped references of every task (`chargax_marl.benchmark.references`) and one
 row per name found in the score files of ``--scores`` (written by ``python -m
@@ -27,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from chargax_marl import policies
-from chargax_marl.benchmark.references import BOUND, load_references
+from chargax_marl.benchmark.references import BOUND, RULES, load_references
 from chargax_marl.benchmark.scoring import compare, score
 from chargax_marl.benchmark.tasks import TASKS, get_task
 from chargax_marl.single.env import Chargax
@@ -49,6 +51,9 @@ REFERENCE_LABELS = {
     BOUND: "LP bound (v1: occupancy; v2: port-pooled)",
 }
 """Row labels of the references, in the table's order."""
+
+MPCS = ("mpc", "mpc_levels1")
+"""The MPC references: in the task's full action space and in the learned agents'."""
 
 
 def _cell(result: dict, task_days: int) -> str:
@@ -151,6 +156,54 @@ def render(
     return "\n".join(lines)
 
 
+def _pm(entry: dict) -> str:
+    return f"{entry['mean']:+.1f} ± {entry['stderr']:.1f}"
+
+
+def learner_gaps(scores_dir: str | Path, references_dir: str | Path | None = None) -> str:
+    """Per task, the best learned agent of the score files against the MPC and the rules.
+
+    The best agent is the score file of the task with the highest score. Its paired
+    differences (EUR/day, per day over seeds and draws, standard errors over days) are with
+    the MPC in the task's full action space (``mpc``), with the MPC in the learned agents'
+    action space (``mpc_levels1``) and with the strongest shipped no-learning rule (the rule
+    of `chargax_marl.benchmark.references.RULES` with the highest mean profit), all as
+    `chargax_marl.benchmark.scoring.compare` gives them on the current references.
+
+    Args:
+        scores_dir: a directory of score files.
+        references_dir: where the references live (default: the shipped ones).
+
+    Returns:
+        A Markdown table, one row per task with a score file (``–`` where the task has no
+        such reference).
+    """
+    best: dict[str, dict] = {}
+    for data in read_scores(scores_dir):
+        if data["task"] not in best or data["score"] > best[data["task"]]["score"]:
+            best[data["task"]] = data
+    lines = [
+        "| task | best learned agent | score | vs MPC, full action space | vs MPC, learned "
+        "agents' action space | strongest rule | vs strongest rule |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for task_id in TASKS:
+        if task_id not in best:
+            continue
+        data = best[task_id]
+        refs = load_references(task_id, references_dir)["policies"]
+        result = compare(task_id, data["daily_profit"], references_dir)
+        rules = [name for name in RULES if name in refs]
+        strongest = max(rules, key=lambda name: np.nanmean(refs[name]["daily_profit"]))
+        cells = [_pm(result["vs"][name]) if name in refs else "–" for name in MPCS]
+        lines.append(
+            f"| `{task_id.removeprefix('Chargax-')}` | {data['name']} ({data['seeds']} seeds) "
+            f"| {result['score']:.2f} ± {result['score_stderr']:.2f} | {cells[0]} | {cells[1]} "
+            f"| {REFERENCE_LABELS.get(strongest, strongest)} | {_pm(result['vs'][strongest])} |"
+        )
+    return "\n".join(lines)
+
+
 def time_score(path: str | Path) -> dict:
     """Time `chargax_marl.benchmark.score` of always-max on every task (jit compile
     included, the references already shipped), and of always-max as a host Gymnasium policy
@@ -199,7 +252,16 @@ def main(argv=None) -> str:
     parser.add_argument("--scores", default=None, help="a directory of score files")
     parser.add_argument("--time", default=None, help="a timing file (measured if missing)")
     parser.add_argument("--readme", default=None, help="write the table into this file's block")
+    parser.add_argument(
+        "--gaps", default=None, help="write the best learned agents' gaps to the MPC here"
+    )
     args = parser.parse_args(argv)
+    if args.gaps:
+        if not args.scores:
+            parser.error("--gaps needs --scores")
+        gaps = learner_gaps(args.scores)
+        Path(args.gaps).write_text(gaps + "\n")
+        print(gaps)
     if args.time and not Path(args.time).exists():
         time_score(args.time)
     table = render(args.scores, args.time)

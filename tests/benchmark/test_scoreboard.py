@@ -5,10 +5,19 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from chargax_marl.benchmark import scoreboard
-from chargax_marl.benchmark.references import BOUND, reference_path, save_references
+from chargax_marl.benchmark.references import (
+    BOUND,
+    RULES,
+    load_references,
+    reference_path,
+    save_references,
+)
+from chargax_marl.benchmark.tasks import get_task
+from chargax_marl.trace import params_fingerprint
 
 ROOT = Path(__file__).resolve().parents[2]
 SCORES = ROOT / "results" / "scores"
@@ -51,3 +60,30 @@ def test_a_cell_says_how_many_days_it_rests_on_when_days_were_left_out(tmp_path)
     refs["policies"][BOUND]["daily_profit"][44][7] = None
     save_references(refs, tmp_path)
     assert scoreboard._scored_days(task_id, tmp_path) == 99
+
+
+def test_the_learner_gaps_pair_the_best_agent_with_both_mpcs_and_the_strongest_rule(tmp_path):
+    """A score file made of EDF's profits on the 10 % grid task: its gaps are EDF's paired
+    differences with the two MPCs and the strongest rule; the committed table is the
+    generated one."""
+    task_id = "Chargax-shopping-grid10-high-v1"
+    refs = load_references(task_id)["policies"]
+    edf = np.asarray(refs["edf"]["daily_profit"])
+    fingerprint = params_fingerprint(get_task(task_id).make_params())
+    for name, profit in (("EDF as a run", edf), ("worse", edf - 1.0)):
+        data = {"name": name, "task": task_id, "seeds": 1, "daily_profit": profit[None].tolist()}
+        data.update(score=float(profit.mean()), params_fingerprint=fingerprint)
+        (tmp_path / f"{name}.json").write_text(json.dumps(data))
+    table = scoreboard.learner_gaps(tmp_path)
+    day = edf.mean(1)
+
+    def pm(other):
+        diff = day - np.asarray(refs[other]["daily_profit"]).mean(1)
+        return f"{diff.mean():+.1f} ± {diff.std(ddof=1) / np.sqrt(diff.size):.1f}"
+
+    best = max(RULES, key=lambda r: np.nanmean(refs[r]["daily_profit"]) if r in refs else -1e9)
+    row = table.splitlines()[2]
+    assert row.startswith("| `shopping-grid10-high-v1` | EDF as a run (1 seeds) |")
+    assert row.endswith(f"| {pm('mpc')} | {pm('mpc_levels1')} | coupled plan | {pm(best)} |")
+    assert best == "coupled_plan" and len(table.splitlines()) == 3
+    assert (SCORES / "learner_gaps.md").read_text() == scoreboard.learner_gaps(SCORES) + "\n"
