@@ -116,22 +116,28 @@ def test_idle_and_discharging_actions_pass_unchanged():
     np.testing.assert_array_equal(priority_fill_levels(asked, state, params), asked)
 
 
-def test_the_dict_and_array_steps_agree_and_keep_jaxmarls_info_contract():
-    env = ChargaxMARL(station=station(battery=True), step_minutes=60.0, traffic=150.0)
-    wrapped = PriorityFill(env)
+@pytest.mark.parametrize("num_priorities", [None, 2])
+def test_the_dict_and_array_steps_agree_and_keep_jaxmarls_info_contract(num_priorities):
+    """In the view's levels (every agent at full power) and in two priority classes (a mix of
+    classes and idle), the dict and array steps agree, no node is rescaled, and JaxMARL's
+    LogWrapper steps the wrapper."""
+    env = ChargaxMARL(station=wide_station(battery=True), step_minutes=60.0, traffic=150.0)
+    wrapped = PriorityFill(env, num_priorities)
+    full = wrapped.num_actions - 1
+    asked = [full] * env.num_agents if num_priorities is None else [3, 2, 3, 1]
     obs, state = wrapped.reset(KEY)
     for _ in range(5):  # a few busy steps
-        indices = jnp.asarray([env.num_actions - 1] * env.num_agents)
+        indices = jnp.asarray(asked)
         actions = dict(zip(env.agents, indices))
-        d_obs, d_state, d_rew, d_done, d_info = wrapped.step(KEY, state, actions)
-        a_obs, a_state, a_rew, a_done, a_info = wrapped.step_arrays(KEY, state, indices)
+        d_obs, d_state, _, _, d_info = wrapped.step(KEY, state, actions)
+        a_obs, _, _, _, a_info = wrapped.step_arrays(KEY, state, indices)
         np.testing.assert_allclose(a_obs, jnp.stack([d_obs[a] for a in env.agents]), 1e-6)
         np.testing.assert_allclose(a_info["agent_energy_kwh"], d_info["agent_energy_kwh"], 1e-6)
         assert float(d_info["requested_excess_kw"][0]) == 0.0
         state = d_state
-    logged = JaxMARLLogWrapper(PriorityFill(env))
+    logged = JaxMARLLogWrapper(wrapped)
     _, s = jax.vmap(logged.reset)(jax.random.split(KEY, 2))
-    acts = {a: jnp.full((2, 1), env.num_actions - 1) for a in env.agents}
+    acts = {a: jnp.full((2, 1), full) for a in env.agents}
     info = jax.vmap(logged.step)(jax.random.split(KEY, 2), s, acts)[-1]
     assert {k: v.shape for k, v in info.items() if v.shape != (2, env.num_agents)} == {}
 
@@ -208,26 +214,6 @@ def test_priority_classes_mask_discharge_only_where_a_leaf_cannot_discharge():
     # without a leaf that may discharge there is no discharge index
     plain = PriorityFill(ChargaxMARL(params=params_of(station=station(), v2g=False)), 3)
     assert plain.num_actions == 4 and plain.action_offset == 0
-
-
-def test_priority_classes_step_through_jaxmarls_wrapper_with_dict_and_array_steps_agreeing():
-    env = ChargaxMARL(station=wide_station(battery=True), step_minutes=60.0, traffic=150.0)
-    wrapped = PriorityFill(env, num_priorities=2)
-    obs, state = wrapped.reset(KEY)
-    for _ in range(5):
-        indices = jnp.asarray([3, 2, 3, 1])
-        actions = dict(zip(env.agents, indices))
-        d_obs, d_state, _, _, d_info = wrapped.step(KEY, state, actions)
-        a_obs, _, _, _, a_info = wrapped.step_arrays(KEY, state, indices)
-        np.testing.assert_allclose(a_obs, jnp.stack([d_obs[a] for a in env.agents]), 1e-6)
-        np.testing.assert_allclose(a_info["agent_energy_kwh"], d_info["agent_energy_kwh"], 1e-6)
-        assert float(d_info["requested_excess_kw"][0]) == 0.0
-        state = d_state
-    logged = JaxMARLLogWrapper(wrapped)
-    _, s = jax.vmap(logged.reset)(jax.random.split(KEY, 2))
-    acts = {a: jnp.full((2, 1), wrapped.num_actions - 1) for a in env.agents}
-    info = jax.vmap(logged.step)(jax.random.split(KEY, 2), s, acts)[-1]
-    assert {k: v.shape for k, v in info.items() if v.shape != (2, env.num_agents)} == {}
 
 
 @pytest.mark.parametrize("bad", [0, -1, 1.5, True, "2"])
