@@ -9,7 +9,7 @@ errors are over days, as the scoreboard's (`chargax_marl.benchmark.scoring.compa
     python -m baselines.analysis.ablation --task Chargax-shopping-grid10-high-v1 \\
         --base "plan teacher=results/scores/ippo_Chargax-shopping-grid10-high-v1.json" \\
         --method "priority classes=outputs/scores/classes.json" \\
-        --out results/ablation/grid10
+        --rules edf --out results/ablation/grid10
 """
 
 from __future__ import annotations
@@ -98,9 +98,11 @@ def _pm(entry: dict | None) -> str:
     return "–" if entry is None else f"{entry['mean']:+.1f} ± {entry['stderr']:.1f}"
 
 
-def to_markdown(result: dict) -> str:
-    """The table of `ablation`'s result."""
+def to_markdown(result: dict, rules: tuple[str, ...] = ()) -> str:
+    """The table of `ablation`'s result, with a column for the difference with each of
+    ``rules`` (names of the task's references) besides the strongest rule's."""
     strongest = result["strongest_rule"]
+    rules = tuple(r for r in rules if r != strongest)
     lines = [
         f"### {result['task']}",
         "",
@@ -108,13 +110,17 @@ def to_markdown(result: dict) -> str:
         f"per day (mean over seeds and draws), standard errors over days. Strongest rule: "
         f"`{strongest}`.",
         "",
-        f"| method | seeds | score | vs base | vs `{strongest}` |",
-        "|---|---|---|---|---|",
+        "| method | seeds | score | vs base | "
+        + "".join(f"vs `{r}` | " for r in rules)
+        + f"vs `{strongest}` |",
+        "|---|---|---|---|" + "---|" * (len(rules) + 1),
     ]
     for row in result["rows"]:
         lines.append(
             f"| {row['name']} | {row['seeds']} | {row['score']:.2f} ± {row['score_stderr']:.2f} "
-            f"| {_pm(row['vs_base'])} | {_pm(row['vs_strongest_rule'])} |"
+            f"| {_pm(row['vs_base'])} | "
+            + "".join(f"{_pm(row['vs_rules'][r])} | " for r in rules)
+            + f"{_pm(row['vs_strongest_rule'])} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -131,10 +137,15 @@ def main(argv=None) -> dict:
     parser.add_argument("--task", required=True, help="a benchmark task id")
     parser.add_argument("--base", required=True, type=_pair, help="NAME=SCORE_FILE")
     parser.add_argument("--method", action="append", default=[], type=_pair, help="NAME=FILE")
+    parser.add_argument("--rules", default="", help="comma-separated rules to show besides")
     parser.add_argument("--out", help="write OUT.json and OUT.md")
     args = parser.parse_args(argv)
     result = ablation(args.task, args.base, args.method)
-    text = to_markdown(result)
+    rules = tuple(r for r in args.rules.split(",") if r)
+    unknown = sorted(set(rules) - set(result["rules"]))
+    if unknown:
+        parser.error(f"--rules: {unknown} are not rules of the task's references {result['rules']}")
+    text = to_markdown(result, rules)
     print(text)
     if args.out:
         out = Path(args.out)

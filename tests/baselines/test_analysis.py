@@ -205,6 +205,8 @@ def test_the_ablation_table_pairs_methods_with_the_base_and_the_rules(tmp_path):
             score_file("edf", "edf"),
             "--out",
             str(out),
+            "--rules",
+            "edf,coupled_plan",
         ]
     )
     base, edf = result["rows"]
@@ -221,7 +223,9 @@ def test_the_ablation_table_pairs_methods_with_the_base_and_the_rules(tmp_path):
     best = max(result["rules"], key=lambda r: np.nanmean(refs[r]["daily_profit"]))
     assert result["strongest_rule"] == best and "lp_bound" not in result["rules"]
     assert edf["vs_strongest_rule"] == edf["vs_rules"][best]
-    assert "| edf | 1 |" in out.with_suffix(".md").read_text()
+    table = out.with_suffix(".md").read_text()
+    assert "| method | seeds | score | vs base | vs `edf` | vs `coupled_plan` |" in table
+    assert "| edf | 1 |" in table and "+0.0 ± 0.0 |" in table
     assert json.loads(out.with_suffix(".json").read_text())["rows"][1]["name"] == "edf"
     other = tmp_path / "other.json"
     other.write_text(json.dumps({"task": "Chargax-shopping-v1", "daily_profit": [[[0.0]]]}))
