@@ -231,3 +231,16 @@ def test_the_ablation_table_pairs_methods_with_the_base_and_the_rules(tmp_path):
     other.write_text(json.dumps({"task": "Chargax-shopping-v1", "daily_profit": [[[0.0]]]}))
     with pytest.raises(ValueError, match="field 'task' is 'Chargax-shopping-v1'"):
         ablation.ablation(task_id, ("base", str(other)), [])
+
+
+@pytest.mark.parametrize("table", ["grid10", "shopping", "grid25", "peak"])
+def test_the_committed_ablation_tables_are_what_their_score_files_give(table):
+    stored = json.loads((ROOT / "results" / "ablation" / f"{table}.json").read_text())
+    base, *methods = [(row["name"], str(ROOT / row["file"])) for row in stored["rows"]]
+    again = ablation.ablation(stored["task"], base, methods)
+    assert [row["score"] for row in again["rows"]] == [row["score"] for row in stored["rows"]]
+    assert again["rows"][1:] and all(
+        a["vs_base"] == s["vs_base"] for a, s in zip(again["rows"], stored["rows"])
+    )
+    text = (ROOT / "results" / "ablation" / f"{table}.md").read_text()
+    assert text == ablation.to_markdown(again, ("edf",))

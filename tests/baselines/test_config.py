@@ -10,7 +10,14 @@ import jax
 import numpy as np
 import pytest
 
-from baselines.config import ConfigError, build_env_params, load, resolve, validation_env
+from baselines.config import (
+    CONFIG_DIR,
+    ConfigError,
+    build_env_params,
+    load,
+    resolve,
+    validation_env,
+)
 from chargax_marl.benchmark.tasks import TASKS
 from chargax_marl.evaluation import run_policy_days, validation_days
 from chargax_marl.policies import always_max
@@ -106,3 +113,11 @@ def test_a_new_run_names_its_session_model_and_an_old_one_reads_as_the_papers():
     assert stored_config(fresh) is fresh
     task = {"TASK": "Chargax-shopping-v1", "ENV_KWARGS": {}}
     assert stored_config(task) is task and name_session_model(task) is task
+
+
+@pytest.mark.parametrize("path", sorted(CONFIG_DIR.glob("*.toml")), ids=lambda p: p.stem)
+def test_every_bundled_config_resolves_and_a_task_config_builds_its_task(path):
+    config, _ = load(path.stem)
+    if config["TASK"]:  # a per-task config trains on its task's training data
+        _, params, _, _ = build_env_params(config)
+        assert params.station.num_leaves == TASKS[config["TASK"]].make_params().station.num_leaves
