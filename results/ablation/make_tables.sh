@@ -10,7 +10,7 @@ $PY -m baselines.analysis.ablation --task Chargax-shopping-grid10-high-v1 --rule
   --method "IPPO, priority classes (1), no teacher=$S/grid10_classes1.json" \
   --method "IPPO, priority classes (2), no teacher=$S/grid10_classes2.json" \
   --method "MAPPO, priority classes (1), no teacher=$S/grid10_mappo_classes1.json" \
-  ${COUPLED_OBS:+--method "IPPO, priority classes (1), coupled advice=$S/grid10_classes1_coupled_obs.json"} \
+  --method "IPPO, priority classes (1), coupled advice=$S/grid10_classes1_coupled_obs.json" \
   --out results/ablation/grid10 > /dev/null
 for spec in "shopping-v1:shopping" "shopping-grid25-high-v1:grid25" "shopping-peak-v1:peak"; do
     task=${spec%%:*}; name=${spec##*:}
