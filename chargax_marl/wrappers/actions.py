@@ -215,6 +215,34 @@ class PriorityFill(TeacherWrapper):
             return self._env.get_avail_actions(state)
         return {a: jnp.asarray(self._avail_np[i]) for i, a in enumerate(self._env.agents)}
 
+    def actions_to_levels(self, actions):
+        """The view's mapping of actions to levels; refused with ``num_priorities``, where an
+        action's level depends on the state (use `levels`).
+
+        Raises:
+            NotImplementedError: with ``num_priorities``.
+        """
+        if self.num_priorities is not None:
+            raise NotImplementedError(
+                "PriorityFill(num_priorities=...): an action's level depends on the state; use "
+                "levels(state, indices) (priority_class_levels)"
+            )
+        return self._env.actions_to_levels(actions)
+
+    def levels_to_actions(self, levels):
+        """The view's mapping of levels to actions; refused with ``num_priorities``, whose
+        agents choose classes, not levels.
+
+        Raises:
+            NotImplementedError: with ``num_priorities``.
+        """
+        if self.num_priorities is not None:
+            raise NotImplementedError(
+                "PriorityFill(num_priorities=...): the agents choose priority classes, not "
+                "levels; there is no action for a level"
+            )
+        return self._env.levels_to_actions(levels)
+
     def levels(self, state, indices: jnp.ndarray) -> jnp.ndarray:
         """The core levels ``(num_agents,)`` played for the agents' ``indices`` in ``state`` (a
         core or wrapper state)."""

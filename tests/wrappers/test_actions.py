@@ -216,6 +216,19 @@ def test_priority_classes_mask_discharge_only_where_a_leaf_cannot_discharge():
     assert plain.num_actions == 4 and plain.action_offset == 0
 
 
+def test_priority_classes_refuse_the_views_level_mappings():
+    env = ChargaxMARL(station=wide_station(), step_minutes=60.0)
+    wrapped = PriorityFill(env, num_priorities=1)
+    with pytest.raises(NotImplementedError, match="depends on the state; use levels"):
+        wrapped.actions_to_levels(jnp.zeros(env.num_agents, jnp.int32))
+    with pytest.raises(NotImplementedError, match="choose priority classes, not levels"):
+        wrapped.levels_to_actions(jnp.zeros(env.num_agents, jnp.int32))
+    # in the view's levels they are the view's
+    plain = PriorityFill(env)
+    levels = jnp.arange(env.num_agents, dtype=jnp.int32)
+    np.testing.assert_array_equal(plain.actions_to_levels(plain.levels_to_actions(levels)), levels)
+
+
 @pytest.mark.parametrize("bad", [0, -1, 1.5, True, "2"])
 def test_a_bad_number_of_priorities_is_refused_by_field(bad):
     env = ChargaxMARL(station=station(), step_minutes=60.0)
