@@ -124,6 +124,7 @@ def compute_references(
     time_limit_s: float | None = 60.0,
     reuse_dir: str | Path | None = None,
     log=print,
+    processes: int = 1,
 ) -> dict:
     """Compute a task's references.
 
@@ -137,13 +138,29 @@ def compute_references(
         reuse_dir: a directory of ``make optimal`` results (``results/optimal``): where one
             was computed for the same parameters and days with key 0, its LP bound is draw 0's.
         log: called with a line of progress (``None``: silent).
+        processes: how many processes solve the port-pooled bound (each a contiguous share
+            of the days, every draw; one core each). Its days are independent LPs, so the
+            result is the one process's; the occupancy bound starts each day from the day
+            before's basis and takes 1.
 
     Returns:
         The references as stored (``policies``: ``{name: {"daily_profit", "metrics"}}`` with
         ``daily_profit`` a ``(days, draws)`` list; ``lp_bound`` also has ``status``, per day
         and draw, `bound_status`'s).
+
+    Raises:
+        ValueError: ``processes`` is not an integer >= 1, or is above 1 for a task whose
+            bound is not the port-pooled one, or for a `Task` that does not pickle.
     """
     task = get_task(task)
+    shares = _process_shares(
+        task, processes, len(task.eval_days()) if day_index is None else np.size(day_index)
+    )
+    if bound and shares > 1 and task.bound != "pooled":
+        raise ValueError(
+            f"field 'processes' must be 1 for task {task.id!r}: its {task.bound} bound starts "
+            "each day from the day before's basis"
+        )
     log = log or (lambda _line: None)
     params = task.make_params()
     days = task.eval_days()
@@ -173,7 +190,16 @@ def compute_references(
         profit = np.full(keys.shape[:2], np.nan)
         status = np.full(keys.shape[:2], "", dtype=object)
         stored = None if day_index is not None else _stored_bound(params, days, reuse_dir)
-        for r in range(task.draws):
+        if shares > 1:
+            positions = np.arange(len(task.eval_days()))
+            positions = positions if day_index is None else positions[np.asarray(day_index)]
+            parts = _in_processes(
+                _pooled_part, task, np.array_split(positions, shares), time_limit_s
+            )
+            profit = np.concatenate([p[0] for p in parts])
+            status = np.concatenate([p[1] for p in parts])
+            log(f"{task.id} {BOUND}: {shares} processes in {time.perf_counter() - t0:.0f} s")
+        for r in range(task.draws if shares == 1 else 0):
             if r == 0 and stored is not None and task.bound == "occupancy":
                 profit[:, 0], status[:, 0] = stored, "optimal (make optimal)"
                 log(f"{task.id} {BOUND}: draw 1 from {reuse_dir}")
@@ -189,6 +215,51 @@ def compute_references(
         }
         out["wall_s"][BOUND] = round(time.perf_counter() - t0, 2)
     return out
+
+
+def _process_shares(task: Task, processes, num_days: int) -> int:
+    """How many processes share ``num_days`` days of ``task`` (at most one per day).
+
+    Raises:
+        ValueError: ``processes`` is not an integer >= 1.
+    """
+    if isinstance(processes, bool) or not isinstance(processes, (int, np.integer)) or processes < 1:
+        raise ValueError(f"field 'processes' must be an integer >= 1, got {processes!r}")
+    return max(1, min(int(processes), int(num_days)))
+
+
+def _in_processes(part, task: Task, shares: list, *args) -> list:
+    """``part(task, share, *args)`` for each share of days, each in its own spawned process
+    (a registered task is sent by its id).
+
+    Raises:
+        ValueError: ``task`` is not registered and does not pickle.
+    """
+    which = task.id if TASKS.get(task.id) is task else task
+    try:
+        pickle.dumps(which)
+    except Exception as exc:
+        raise ValueError(
+            f"field 'processes' must be 1 for task {task.id!r}: it is not registered and does "
+            f"not pickle ({type(exc).__name__}: {exc}), so other processes cannot receive it"
+        ) from exc
+    # spawned, not forked: the parent's JAX runtime and threads do not survive a fork
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(len(shares), mp_context=context) as pool:
+        return list(
+            pool.map(part, [which] * len(shares), shares, *([a] * len(shares) for a in args))
+        )
+
+
+def _pooled_part(task: str | Task, day_index: np.ndarray, time_limit_s) -> tuple:
+    """The port-pooled bound of some of a task's held-out days (positions ``day_index``),
+    every draw: ``(profit, status)``, each ``(days, draws)``. Module-level, so that
+    `compute_references` can run it in another process."""
+    task = get_task(task)
+    params = task.make_params()
+    days, keys = task.eval_days()[day_index], task.day_keys()[day_index]
+    out = [_bound_draw("pooled", params, days, keys[:, r], time_limit_s) for r in range(task.draws)]
+    return np.stack([o[0] for o in out], axis=1), np.stack([o[1] for o in out], axis=1)
 
 
 def bound_status(b) -> str:
@@ -286,7 +357,7 @@ def _mpc_params(task: Task, num_levels: int | None):
     return task.make_params() if num_levels is None else task.policy_params(num_levels)
 
 
-def _mpc_part(task: str | Task, num_levels: int | None, day_index: np.ndarray) -> tuple:
+def _mpc_part(task: str | Task, day_index: np.ndarray, num_levels: int | None) -> tuple:
     """The MPC on some of a task's held-out days (positions ``day_index``), every draw: its
     totals (numpy leaves, ``(days, draws)``), the days with a failed solve, the number of
     solves and the solves a retry solved by its settings (`MPC.retried_solves`).
@@ -335,29 +406,14 @@ def compute_mpc(
         ValueError: ``processes`` is not a whole number >= 1, or is above 1 for a `Task` that
             does not pickle.
     """
-    if isinstance(processes, bool) or not isinstance(processes, (int, np.integer)) or processes < 1:
-        raise ValueError(f"field 'processes' must be an integer >= 1, got {processes!r}")
     task = get_task(task)
     positions = np.arange(len(task.eval_days())) if day_index is None else np.asarray(day_index)
     positions = positions.reshape(-1)
-    shares = np.array_split(positions, max(1, min(int(processes), positions.size)))
-    which = task.id if TASKS.get(task.id) is task else task  # a registered one by its id
+    shares = np.array_split(positions, _process_shares(task, processes, positions.size))
     if len(shares) == 1:
-        parts = [_mpc_part(which, num_levels, shares[0])]
+        parts = [_mpc_part(task, shares[0], num_levels)]
     else:
-        try:
-            pickle.dumps(which)
-        except Exception as exc:
-            raise ValueError(
-                f"field 'processes' must be 1 for task {task.id!r}: it is not registered and does "
-                f"not pickle ({type(exc).__name__}: {exc}), so other processes cannot receive it"
-            ) from exc
-        # spawned, not forked: the parent's JAX runtime and threads do not survive a fork
-        context = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(len(shares), mp_context=context) as pool:
-            parts = list(
-                pool.map(_mpc_part, [which] * len(shares), [num_levels] * len(shares), shares)
-            )
+        parts = _in_processes(_mpc_part, task, shares, num_levels)
     totals = jax.tree.map(lambda *xs: np.concatenate(xs), *[p[0] for p in parts])
     failed = sorted(set().union(*(p[1] for p in parts)))
     profit = np.asarray(totals.profit_eur, np.float64)
@@ -563,7 +619,8 @@ def main(argv=None) -> None:
         "--processes",
         type=int,
         default=os.cpu_count() or 1,
-        help="with --mpc: processes that share each reference's days (default: one per core)",
+        help="with --mpc, or for a port-pooled bound: processes that share the days (default: "
+        "one per core)",
     )
     parser.add_argument(
         "--refill-bound",
@@ -597,7 +654,13 @@ def main(argv=None) -> None:
                     refs["policies"][name] = stored["policies"][name]
                     refs["wall_s"][name] = stored["wall_s"][name]
         else:
-            refs = compute_references(task_id, bound=not args.no_bound, reuse_dir=args.reuse)
+            pooled = get_task(task_id).bound == "pooled"
+            refs = compute_references(
+                task_id,
+                bound=not args.no_bound,
+                reuse_dir=args.reuse,
+                processes=args.processes if pooled else 1,
+            )
         path = save_references(refs, args.out)
         print(f"{path}: {time.perf_counter() - t0:.0f} s")
 

@@ -289,6 +289,22 @@ def test_an_mpc_reference_split_over_processes_is_the_one_process_reference(smal
         compute_mpc(local, 1, processes=2)
 
 
+def test_a_pooled_bound_split_over_processes_is_the_one_process_bound(small_task):
+    # the port-pooled bound's days are independent LPs: split by day, the same numbers
+    task, _ = small_task
+    pooled = dataclasses.replace(task, bound="pooled")
+    one = compute_references(pooled, rules=(), log=None)
+    two = compute_references(pooled, rules=(), log=None, processes=2)
+    assert one["policies"][BOUND] == two["policies"][BOUND]
+    assert np.isfinite(np.asarray(one["policies"][BOUND]["daily_profit"], float)).all()
+    # the occupancy bound starts each day from the day before's basis: one process
+    occupancy = dataclasses.replace(task, bound="occupancy")
+    with pytest.raises(ValueError, match="field 'processes' must be 1 .* occupancy bound"):
+        compute_references(occupancy, rules=(), log=None, processes=2)
+    with pytest.raises(ValueError, match="field 'processes' must be an integer >= 1"):
+        compute_references(pooled, rules=(), log=None, processes=0)
+
+
 def half_day_levels(first_half, params):
     """Ports at full power; the battery charges in the first half of the day (the sine of the
     time of day above 0) and discharges in the second."""
