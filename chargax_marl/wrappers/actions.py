@@ -28,26 +28,6 @@ DEPARTURE_TIE_BREAK_MIN = 1e5
 break ties within a priority (a day holds far fewer minutes)."""
 
 
-def _fill_ranked(levels: jnp.ndarray, rank: jnp.ndarray, state: EnvState, params: EnvParams):
-    """``levels`` with every port of ``rank > 0`` filled in rank order (highest first, ties to
-    the car that leaves first); the batteries' charging levels are kept from the ports first.
-    ``levels`` holds every other leaf's played level."""
-    st = params.station
-    is_battery = st.leaf_kind == KIND_BATTERY
-    charging = (rank > 0) & ~is_battery
-    priority = jnp.where(
-        charging, -rank * DEPARTURE_TIE_BREAK_MIN + state.time_remaining_min, jnp.inf
-    )
-    # the batteries' charging draw at their level, grid side at each node of their path
-    battery_kw = jnp.where(is_battery & (levels > 0), levels / params.num_levels, 0.0)
-    battery_kw = battery_kw * st.leaf_max_kw
-    ancestors = st.node_of_leaf_at_depth  # (D, L), -1 = none
-    grid_side = jnp.where(ancestors >= 0, battery_kw / st.leaf_efficiency_at_depth, 0.0)
-    taken = jnp.zeros_like(st.node_max_kw).at[jnp.maximum(ancestors, 0)].add(grid_side)
-    filled = fill_in_priority_order(priority, state, params, st.node_max_kw - taken)
-    return jnp.where(charging, filled, levels).astype(jnp.int32)
-
-
 def priority_fill_levels(levels: jnp.ndarray, state: EnvState, params: EnvParams) -> jnp.ndarray:
     """The levels the multi-agent view's levels become under `PriorityFill`.
 
@@ -68,8 +48,23 @@ def priority_fill_levels(levels: jnp.ndarray, state: EnvState, params: EnvParams
     Returns:
         ``(num_leaves,)`` int32 levels in ``[-L, L]``.
     """
+    st = params.station
     levels = jnp.asarray(levels, jnp.int32)
-    return _fill_ranked(levels, jnp.maximum(levels, 0), state, params)
+    is_battery = st.leaf_kind == KIND_BATTERY
+    charging = (levels > 0) & ~is_battery
+    priority = jnp.where(
+        charging,
+        (params.num_levels - levels) * DEPARTURE_TIE_BREAK_MIN + state.time_remaining_min,
+        jnp.inf,
+    )
+    # the batteries' charging draw at their level, grid side at each node of their path
+    battery_kw = jnp.where(is_battery & (levels > 0), levels / params.num_levels, 0.0)
+    battery_kw = battery_kw * st.leaf_max_kw
+    ancestors = st.node_of_leaf_at_depth  # (D, L), -1 = none
+    grid_side = jnp.where(ancestors >= 0, battery_kw / st.leaf_efficiency_at_depth, 0.0)
+    taken = jnp.zeros_like(st.node_max_kw).at[jnp.maximum(ancestors, 0)].add(grid_side)
+    filled = fill_in_priority_order(priority, state, params, st.node_max_kw - taken)
+    return jnp.where(charging, filled, levels).astype(jnp.int32)
 
 
 def priority_class_size(params: EnvParams, num_priorities: int) -> tuple[int, int]:
