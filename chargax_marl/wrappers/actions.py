@@ -254,10 +254,13 @@ class PriorityFill(TeacherWrapper):
         return levels_to_indices(self.levels(state, indices), self.env_params, self._offset)
 
     def _stack(self, actions: dict) -> jnp.ndarray:
-        indices = self._env.stack_actions(actions)
+        """The action dict in agent order: the view's clipped indices, or with
+        ``num_priorities`` the validated values as given (`priority_class_levels` clips them
+        into the classes and reads a non-finite value as idle)."""
         if self.num_priorities is None:
-            return indices
-        return jnp.clip(indices, 0, self.num_actions - 1)
+            return self._env.stack_actions(actions)
+        parts = self._env.validate_actions(actions)
+        return jnp.stack([jnp.asarray(x).reshape(()) for x in parts])
 
     def step(self, key, state, actions: dict, reset_state=None):
         """The wrapped env's ``step`` with the actions filled (`fill`).

@@ -216,6 +216,21 @@ def test_priority_classes_mask_discharge_only_where_a_leaf_cannot_discharge():
     assert plain.num_actions == 4 and plain.action_offset == 0
 
 
+def test_a_non_finite_class_action_is_idle_in_the_dict_step_as_in_the_array_step():
+    params = params_of(station=wide_station(battery=True), v2g=False)
+    env = ChargaxMARL(params=params)
+    wrapped = PriorityFill(env, num_priorities=1)
+    state = parked(params)  # a car on each port
+    given = [jnp.nan, 2.0, jnp.inf, 2.0]  # NaN and +inf: idle, whatever the classes
+    d_info = wrapped.step(KEY, state, dict(zip(env.agents, map(jnp.asarray, given))))[-1]
+    a_info = wrapped.step_arrays(KEY, state, jnp.asarray(given))[-1]
+    np.testing.assert_array_equal(d_info["agent_energy_kwh"], a_info["agent_energy_kwh"])
+    np.testing.assert_array_equal(wrapped.levels(state, jnp.asarray(given)), [0, L, 0, L])
+    assert (
+        float(d_info["agent_energy_kwh"][0]) == 0.0 and float(d_info["agent_energy_kwh"][2]) == 0.0
+    )
+
+
 def test_priority_classes_refuse_the_views_level_mappings():
     env = ChargaxMARL(station=wide_station(), step_minutes=60.0)
     wrapped = PriorityFill(env, num_priorities=1)
