@@ -93,6 +93,10 @@ def params_fingerprint(params: EnvParams) -> str:
     leaves, treedef = jax.tree_util.tree_flatten(params)
     structure = _treedef_text(treedef, params)
     dropped = _neutral_later_fields(params)
+    collapse_tables = bool(dropped)
+    if float(np.asarray(params.stay_demand_corr)) == 0.0:
+        # the copula came after the session model v2's first results: at 0 it changes nothing
+        dropped += ("stay_demand_corr",)
     if dropped:
         # Fields added to EnvParams after results were first stored, at values that change
         # nothing, are left out (and tables that are the same for every arrival hour count
@@ -103,7 +107,7 @@ def params_fingerprint(params: EnvParams) -> str:
             if not f.metadata.get("pytree_node", True) or f.name in dropped:
                 continue
             value = getattr(params, f.name)
-            if f.name in _HOURLY_TABLES and _same_rows(value):
+            if collapse_tables and f.name in _HOURLY_TABLES and _same_rows(value):
                 value = np.asarray(value)[0]
             leaves.extend(jax.tree_util.tree_leaves(value))
         start = structure.index("]), ") + len("]), ")  # after the station's node

@@ -1286,6 +1286,7 @@ def build_profiles_v2(out: Path) -> list[str]:
             "request_ratio_quantiles": prof.request_ratio_quantiles,
             "daily_volume_cv": prof.daily_volume_cv,
             "weekday_volume_factors": prof.weekday_volume_factors,
+            "stay_demand_corr": prof.stay_demand_corr,
         }
     for name, p in profiles.items():
         round_fields(p, sig=6, floats=True)
@@ -1302,7 +1303,8 @@ def build_profiles_v2(out: Path) -> list[str]:
             "profiles are user_profiles.json and user_profiles_US.json). Same fields as those, "
             "plus: stay_quantiles_min / demand_quantiles_kwh per arrival hour (24 x 101), "
             "dc_charge_sensitive_prob, request_ratio_quantiles (energy taken / energy "
-            "requested), daily_volume_cv and weekday_volume_factors (Monday first). Built by "
+            "requested), daily_volume_cv, weekday_volume_factors (Monday first) and "
+            "stay_demand_corr (the stay-energy copula's correlation; absent: 0). Built by "
             "scripts/build_data.py; see README.md."
         ),
         "quantile_probs": "0.00, 0.01, ..., 1.00",

@@ -599,6 +599,7 @@ def make_params(
         stay_scale_by_hour=device_array(profile.stay_scale_by_hour, jnp.float32),
         demand_quantiles_kwh=device_array(profile.demand_table_kwh, jnp.float32),
         demand_scale_by_hour=device_array(profile.demand_scale_by_hour, jnp.float32),
+        stay_demand_corr=device_array(profile.stay_demand_corr, jnp.float32),
         request_ratio_quantiles=device_array(profile.request_ratios, jnp.float32),
         arrival_soc_range=device_array(profile.arrival_soc_range, jnp.float32),
         charge_sensitive_prob=device_array(profile.charge_sensitive_prob, jnp.float32),
@@ -724,6 +725,7 @@ def validate_params(params: EnvParams) -> EnvParams:
     for field in ("charge_sensitive_prob", "dc_charge_sensitive_prob"):
         _finite(field, _scalar(params, field), minimum=0.0, maximum=1.0)
     profiles._validate_volume_cv(_scalar(params, "daily_volume_cv"))
+    profiles._validate_corr(_scalar(params, "stay_demand_corr"))
 
     price = np.asarray(params.prices_eur_kwh)
     if price.ndim != 2:

@@ -87,6 +87,8 @@ class UserProfileData:
     log-normal factor drawn once per episode, mean 1; 0: every day has the same Poisson
     rate). ``weekday_volume_factors`` (float32, (7,), Monday first): the volume of each
     weekday relative to its day type's (mean 1 over Monday-Friday and over the weekend).
+    ``stay_demand_corr``: the correlation of the Gaussian copula that joins a car's stay
+    and its energy draws (0: independent; in (-1, 1)).
     """
 
     name: str
@@ -102,6 +104,7 @@ class UserProfileData:
     request_ratio_quantiles: np.ndarray | None = None
     daily_volume_cv: float = 0.0
     weekday_volume_factors: np.ndarray | None = None
+    stay_demand_corr: float = 0.0
 
     @property
     def dc_charge_sensitive(self) -> float:
@@ -285,6 +288,16 @@ def _validate_volume_cv(value: Any) -> float:
     return v
 
 
+def _validate_corr(value: Any, field: str = "stay_demand_corr") -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{field}: expected a number in (-1, 1), got {value!r}") from None
+    if not -1.0 < v < 1.0:  # also refuses NaN
+        raise ValueError(f"{field}: expected a number in (-1, 1), got {value!r}")
+    return v
+
+
 def _validate_weekend_factor(value: Any) -> float:
     v = _validate_unit_scalar(value, "weekend_volume_factor", upper=None)
     if v > checks.MAX_FACTOR:
@@ -324,6 +337,7 @@ def make_user_profile(
     request_ratio_quantiles: Any = None,
     daily_volume_cv: float = 0.0,
     weekday_volume_factors: Any = None,
+    stay_demand_corr: float = 0.0,
 ) -> UserProfileData:
     """Build and validate a custom user profile.
 
@@ -349,6 +363,8 @@ def make_user_profile(
         daily_volume_cv: coefficient of variation of the day's arrival intensity, in
             [0, 10] (0: Poisson arrivals with a fixed daily rate).
         weekday_volume_factors: (7,) positive, Monday first; None: all ones.
+        stay_demand_corr: correlation in (-1, 1) of the Gaussian copula that joins a car's
+            stay and energy draws within its arrival hour (0: drawn independently).
 
     Returns:
         The validated `UserProfileData` (arrays float32, read-only).
@@ -380,6 +396,7 @@ def make_user_profile(
         ),
         daily_volume_cv=_validate_volume_cv(daily_volume_cv),
         weekday_volume_factors=_readonly_or_none(_validate_weekday_factors(weekday_volume_factors)),
+        stay_demand_corr=_validate_corr(stay_demand_corr),
     )
 
 
@@ -493,4 +510,5 @@ def profile_from_dict(name: str, p: dict) -> UserProfileData:
         request_ratio_quantiles=p.get("request_ratio_quantiles"),
         daily_volume_cv=p.get("daily_volume_cv", 0.0),
         weekday_volume_factors=p.get("weekday_volume_factors"),
+        stay_demand_corr=p.get("stay_demand_corr", 0.0),
     )

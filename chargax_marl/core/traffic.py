@@ -172,6 +172,20 @@ def earliest_finish_min(
     return steps * params.step_minutes
 
 
+_COPULA_EPS = 1e-7  # keeps the normal quantiles of the uniforms finite
+
+
+def _joined(u_stay: jnp.ndarray, u_demand: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
+    """The demand's uniform joined to the stay's by a Gaussian copula of correlation
+    ``params.stay_demand_corr``: ``Phi(rho z_stay + sqrt(1 - rho^2) z_demand)`` with
+    ``z = Phi^-1(u)``; ``u_demand`` itself, bit for bit, at a correlation of 0."""
+    rho = params.stay_demand_corr
+    z_stay = jax.scipy.special.ndtri(jnp.clip(u_stay, _COPULA_EPS, 1.0 - _COPULA_EPS))
+    z_demand = jax.scipy.special.ndtri(jnp.clip(u_demand, _COPULA_EPS, 1.0 - _COPULA_EPS))
+    joined = jax.scipy.special.ndtr(rho * z_stay + jnp.sqrt(1.0 - rho**2) * z_demand)
+    return jnp.where(rho == 0.0, u_demand, joined)
+
+
 def _inverse_cdf(table: jnp.ndarray, u: jnp.ndarray) -> jnp.ndarray:
     """Sample from a quantile table at evenly spaced probabilities by linear interpolation."""
     q = table.shape[0]
@@ -277,7 +291,8 @@ def draw_arrivals(
 
     A Poisson count with the rate of the day type and step times ``volume``, and per slot
     one car profile (fleet) and user profile (stay and demand from the arrival hour's
-    tables, arrival SoC, user type per port kind, request ratio). All of them come from
+    tables, joined by the profile's Gaussian copula, arrival SoC, user type per port kind,
+    request ratio). All of them come from
     ``key`` through `chargax_marl.core.rng` (one hash call; the count by inversion of the
     Poisson CDF).
 
@@ -318,7 +333,8 @@ def draw_arrivals(
     # demand, and the car's target is arrival SoC + demand / capacity (<= 1).
     lo, hi = params.arrival_soc_range[0], params.arrival_soc_range[1]
     demand = (
-        _inverse_cdf(params.demand_quantiles_kwh[hour], u[3]) * params.demand_scale_by_hour[hour]
+        _inverse_cdf(params.demand_quantiles_kwh[hour], _joined(u[1], u[3], params))
+        * params.demand_scale_by_hour[hour]
     )
     demand = jnp.clip(demand, 0.0, (1.0 - lo) * capacity)
     hi_fit = jnp.maximum(jnp.minimum(hi, 1.0 - demand / jnp.maximum(capacity, 1e-6)), lo)

@@ -91,6 +91,8 @@ class EnvParams:
         demand_quantiles_kwh: ``(24, Q)`` inverse CDF of the energy a car takes (kWh) per
             arrival hour.
         demand_scale_by_hour: ``(24,)`` multiplier of the demand by arrival hour.
+        stay_demand_corr: ``()`` correlation of the Gaussian copula that joins a car's stay
+            and demand draws (0: independent).
         request_ratio_quantiles: ``(Q,)`` inverse CDF of the energy a car takes over the
             energy its user requests, in (0, 1].
         arrival_soc_range: ``(2,)`` uniform arrival SoC bounds.
@@ -171,6 +173,7 @@ class EnvParams:
     stay_scale_by_hour: jnp.ndarray
     demand_quantiles_kwh: jnp.ndarray
     demand_scale_by_hour: jnp.ndarray
+    stay_demand_corr: jnp.ndarray
     request_ratio_quantiles: jnp.ndarray
     arrival_soc_range: jnp.ndarray
     charge_sensitive_prob: jnp.ndarray

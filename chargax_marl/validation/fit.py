@@ -16,6 +16,9 @@
   until it holds `MIN_SESSIONS_PER_HOUR` sessions. The realised stays of the data already
   contain the users who leave when charged, so every AC user of the fitted profile leaves
   at the end of its stay (``charge_sensitive_prob = 0``);
+* **stay and energy together**: within an arrival hour, longer stays take more energy; the
+  profile's Gaussian copula joins the two draws with the correlation of the data's rank
+  correlation within the hours' windows (`stay_demand_corr`);
 * **requests**: the quantiles of delivered over requested energy (1 where the user entered
   no request), so that a car's request is its energy over a draw of the ratio.
 """
@@ -150,6 +153,44 @@ def hour_windows(hours: np.ndarray, minimum: int = MIN_SESSIONS_PER_HOUR) -> lis
     return out
 
 
+def _ranks(x: np.ndarray) -> np.ndarray:
+    """Ranks from 0 with ties at their mean rank."""
+    _, inverse, counts = np.unique(x, return_inverse=True, return_counts=True)
+    return (np.cumsum(counts) - (counts + 1) / 2.0)[inverse]
+
+
+def rank_corr(a: np.ndarray, b: np.ndarray) -> float:
+    """Spearman's rank correlation of two samples (ties at their mean rank; 0 when either
+    is constant)."""
+    ra, rb = _ranks(np.asarray(a)), _ranks(np.asarray(b))
+    ra, rb = ra - ra.mean(), rb - rb.mean()
+    norm = np.sqrt((ra**2).sum() * (rb**2).sum())
+    return float((ra * rb).sum() / norm) if norm > 0 else 0.0
+
+
+def stay_demand_corr(
+    stays: np.ndarray, energies: np.ndarray, hours: np.ndarray, windows: list[np.ndarray]
+) -> float:
+    """The Gaussian copula's correlation between a session's stay and its energy within its
+    arrival hour: Spearman's rank correlation in each hour's window, averaged with the
+    weights of the sessions' arrival hours, as the normal correlation of that rank
+    correlation (``2 sin(pi r / 6)``).
+
+    Args:
+        stays: ``(n,)`` stays (minutes).
+        energies: ``(n,)`` energies (kWh).
+        hours: ``(n,)`` arrival hours (fractional).
+        windows: `hour_windows` of ``hours``.
+
+    Returns:
+        The correlation, in (-1, 1).
+    """
+    weights = np.bincount(np.floor(hours).astype(int) % HOURS_PER_DAY, minlength=HOURS_PER_DAY)
+    r = np.array([rank_corr(stays[w], energies[w]) if w.sum() > 2 else 0.0 for w in windows])
+    r_mean = float(np.average(r, weights=weights)) if weights.sum() > 0 else 0.0
+    return float(np.clip(2.0 * np.sin(np.pi * r_mean / 6.0), -0.99, 0.99))
+
+
 def quantiles(values: np.ndarray) -> np.ndarray:
     """The non-decreasing quantile table of ``values`` at `QUANTILE_PROBS`."""
     return np.maximum.accumulate(np.quantile(np.asarray(values, np.float64), QUANTILE_PROBS))
@@ -206,6 +247,7 @@ def fit_profile(
         request_ratio_quantiles=quantiles(request_ratios(sessions)),
         daily_volume_cv=volume["daily_volume_cv"],
         weekday_volume_factors=volume["weekday_volume_factors"],
+        stay_demand_corr=stay_demand_corr(stays, energy, sessions.arrival_hour, windows),
     )
 
 

@@ -12,6 +12,7 @@ from chargax_marl.benchmark.references import load_references
 from chargax_marl.benchmark.tasks import TASKS, Task
 from chargax_marl.core import datasets as ds
 from chargax_marl.core import make_params, simulator, traffic
+from chargax_marl.core.params import validate_params
 from chargax_marl.core.station import single_type
 
 KEY = jax.random.PRNGKey(0)
@@ -197,6 +198,8 @@ def test_the_paper_option_keeps_the_v1_fingerprints_and_v2_moves_them():
         (dict(weekday_volume_factors=np.ones(5)), r"weekday_volume_factors: expected shape \(7,\)"),
         (dict(dc_charge_sensitive_prob=2.0), r"dc_charge_sensitive_prob: expected a value"),
         (dict(stay_quantiles_min=np.ones((23, 101))), r"stay_quantiles_min: expected a 1-D"),
+        (dict(stay_demand_corr=1.0), r"stay_demand_corr: expected a number in \(-1, 1\)"),
+        (dict(stay_demand_corr=float("nan")), r"stay_demand_corr: expected a number in"),
     ],
 )
 def test_bad_session_fields_are_refused_by_name(kwargs, match):
@@ -218,3 +221,49 @@ def test_a_task_refuses_another_session_model():
     assert task.train_params(session_model="paper").num_days == 365  # its own: fine
     with pytest.raises(ValueError, match="session_model='paper'.*session_model='v2'"):
         task.scored_params(session_model="v2")
+
+
+def _arrival_draws(params, n_keys=400):
+    """Stays and demands of the cars drawn at a busy step for ``n_keys`` keys."""
+    keys = jax.random.split(KEY, n_keys)
+    arr = jax.vmap(lambda k: traffic.draw_arrivals(k, jnp.int32(150), jnp.bool_(True), params))(
+        keys
+    )
+    demand_kwh = (arr.target_soc - arr.arrival_soc) * arr.capacity_kwh
+    return np.asarray(arr.stay_min).ravel(), np.asarray(demand_kwh).ravel()
+
+
+def _spearman(a, b):
+    ra, rb = np.argsort(np.argsort(a)), np.argsort(np.argsort(b))
+    return float(np.corrcoef(ra, rb)[0, 1])
+
+
+def test_the_stay_demand_copula_joins_the_draws_and_keeps_their_marginals():
+    """A positive correlation makes long stays take more energy; each draw's distribution
+    stays the profile's; at 0 the demand's uniform is the one drawn, bit for bit."""
+    station = single_type(8, kind="AC", voltage_v=230.0, max_current_a=16.0)
+    plain = make_params(station=station, user_profile="shopping")
+    joined = make_params(
+        station=station, user_profile=ds.load_user_profile("shopping", stay_demand_corr=0.8)
+    )
+    stay0, demand0 = _arrival_draws(plain)
+    stay1, demand1 = _arrival_draws(joined)
+    assert abs(_spearman(stay0, demand0)) < 0.1
+    assert _spearman(stay1, demand1) > 0.6
+    np.testing.assert_array_equal(stay0, stay1)  # the stays are the same draws
+    # the demands' marginal is unchanged (quartiles within sampling noise)
+    np.testing.assert_allclose(
+        np.quantile(demand1, [0.25, 0.5, 0.75]), np.quantile(demand0, [0.25, 0.5, 0.75]), rtol=0.1
+    )
+    u = jax.random.uniform(KEY, (2, 1000))
+    np.testing.assert_array_equal(np.asarray(traffic._joined(u[0], u[1], plain)), np.asarray(u[1]))
+
+
+def test_a_stay_demand_copula_moves_the_fingerprint_and_zero_keeps_it():
+    base = ds.load_user_profile("shopping")
+    fp = trace.params_fingerprint(make_params(user_profile=base))
+    assert fp == trace.params_fingerprint(TASKS["Chargax-shopping-v2"].make_params())
+    joined = ds.load_user_profile("shopping", stay_demand_corr=0.3)
+    assert trace.params_fingerprint(make_params(user_profile=joined)) != fp
+    with pytest.raises(ValueError, match="stay_demand_corr"):
+        validate_params(make_params().replace(stay_demand_corr=jnp.float32(1.5)))

@@ -4,6 +4,7 @@ thresholds of ``python -m chargax_marl.validation``."""
 import jax
 import numpy as np
 import pytest
+from scipy.stats import spearmanr
 
 from chargax_marl import policies
 from chargax_marl.core import datasets as ds
@@ -96,3 +97,31 @@ def test_workplace_ac_stays_match_elaad():
 def test_the_command_refuses_fewer_than_a_week():
     with pytest.raises(SystemExit):
         main(["--days", "3"])
+
+
+def test_rank_corr_is_spearmans_with_ties():
+    rng = np.random.default_rng(0)
+    a = rng.integers(0, 20, 500).astype(float)  # many ties
+    b = a + rng.normal(0, 5, 500)
+    assert fit.rank_corr(a, b) == pytest.approx(spearmanr(a, b).statistic, abs=1e-12)
+    assert fit.rank_corr(np.ones(5), np.arange(5.0)) == 0.0
+
+
+def test_the_copula_correlation_is_recovered_from_joined_sessions():
+    """Sessions drawn from a Gaussian copula of correlation 0.5 (any marginals, in every
+    arrival hour) give back 0.5; independent ones 0."""
+    rng = np.random.default_rng(1)
+    n = 20_000
+    hours = rng.uniform(6, 20, n)
+    z = rng.multivariate_normal([0, 0], [[1, 0.5], [0.5, 1]], n)
+    stays, energies = np.exp(z[:, 0]) * 100 + hours, np.exp(z[:, 1]) * 5
+    windows = fit.hour_windows(hours)
+    assert fit.stay_demand_corr(stays, energies, hours, windows) == pytest.approx(0.5, abs=0.03)
+    shuffled = rng.permutation(energies)
+    assert abs(fit.stay_demand_corr(stays, shuffled, hours, windows)) < 0.03
+
+
+def test_the_acn_fits_join_longer_stays_to_more_energy():
+    for site, name in real.SITES.items():
+        assert 0.1 < fit.fit_profile(real.load_sessions(site), name).stay_demand_corr < 0.5
+        assert ds.load_user_profile(name).stay_demand_corr > 0.1  # the bundled profile has it
