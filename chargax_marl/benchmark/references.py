@@ -88,6 +88,10 @@ class ReferenceMismatchError(ValueError):
     """Stored references that do not belong to the task on this code."""
 
 
+BOUND_CHUNK_DAYS = 5
+"""Days per process in a chunk of a port-pooled bound kept in a ``bound_dir``."""
+
+
 def package_version() -> str:
     """The installed chargax_marl version (``"unknown"`` when not installed)."""
     try:
@@ -125,6 +129,8 @@ def compute_references(
     reuse_dir: str | Path | None = None,
     log=print,
     processes: int = 1,
+    bound_dir: str | Path | None = None,
+    bound_chunk_days: int = BOUND_CHUNK_DAYS,
 ) -> dict:
     """Compute a task's references.
 
@@ -142,6 +148,11 @@ def compute_references(
             of the days, every draw; one core each). Its days are independent LPs, so the
             result is the one process's; the occupancy bound starts each day from the day
             before's basis and takes 1.
+        bound_dir: where a port-pooled bound keeps its solved days: the days are solved in
+            chunks of ``bound_chunk_days`` days per process, each chunk written to this
+            directory when solved and read back, not solved again, by a later call for the
+            same task and parameters (a stopped build resumes where it stopped).
+        bound_chunk_days: with ``bound_dir``, the days of a chunk per process.
 
     Returns:
         The references as stored (``policies``: ``{name: {"daily_profit", "metrics"}}`` with
@@ -150,9 +161,25 @@ def compute_references(
 
     Raises:
         ValueError: ``processes`` is not an integer >= 1, or is above 1 for a task whose
-            bound is not the port-pooled one, or for a `Task` that does not pickle.
+            bound is not the port-pooled one, or for a `Task` that does not pickle;
+            ``bound_dir`` for a task whose bound is not the port-pooled one, or a chunk file
+            there of other parameters or days; ``bound_chunk_days`` is not an integer >= 1.
     """
     task = get_task(task)
+    if bound and bound_dir is not None:
+        if task.bound != "pooled":
+            raise ValueError(
+                f"field 'bound_dir' needs a port-pooled bound; task {task.id!r} has the "
+                f"{task.bound} bound, which starts each day from the day before's basis"
+            )
+        if (
+            isinstance(bound_chunk_days, bool)
+            or not isinstance(bound_chunk_days, (int, np.integer))
+            or bound_chunk_days < 1
+        ):
+            raise ValueError(
+                f"field 'bound_chunk_days' must be an integer >= 1, got {bound_chunk_days!r}"
+            )
     shares = _process_shares(
         task, processes, len(task.eval_days()) if day_index is None else np.size(day_index)
     )
@@ -190,16 +217,21 @@ def compute_references(
         profit = np.full(keys.shape[:2], np.nan)
         status = np.full(keys.shape[:2], "", dtype=object)
         stored = None if day_index is not None else _stored_bound(params, days, reuse_dir)
-        if shares > 1:
-            positions = np.arange(len(task.eval_days()))
-            positions = positions if day_index is None else positions[np.asarray(day_index)]
+        positions = np.arange(len(task.eval_days()))
+        positions = positions if day_index is None else positions[np.asarray(day_index)]
+        if bound_dir is not None:
+            profit, status = _bound_in_chunks(
+                task, positions, shares, bound_chunk_days, Path(bound_dir), time_limit_s, log
+            )
+            log(f"{task.id} {BOUND}: {len(positions)} days in {time.perf_counter() - t0:.0f} s")
+        elif shares > 1:
             parts = _in_processes(
                 _pooled_part, task, np.array_split(positions, shares), time_limit_s
             )
             profit = np.concatenate([p[0] for p in parts])
             status = np.concatenate([p[1] for p in parts])
             log(f"{task.id} {BOUND}: {shares} processes in {time.perf_counter() - t0:.0f} s")
-        for r in range(task.draws if shares == 1 else 0):
+        for r in range(task.draws if shares == 1 and bound_dir is None else 0):
             if r == 0 and stored is not None and task.bound == "occupancy":
                 profit[:, 0], status[:, 0] = stored, "optimal (make optimal)"
                 log(f"{task.id} {BOUND}: draw 1 from {reuse_dir}")
@@ -249,6 +281,73 @@ def _in_processes(part, task: Task, shares: list, *args) -> list:
         return list(
             pool.map(part, [which] * len(shares), shares, *([a] * len(shares) for a in args))
         )
+
+
+def _bound_in_chunks(
+    task: Task, positions, shares: int, chunk_days: int, directory: Path, time_limit_s, log
+) -> tuple[np.ndarray, np.ndarray]:
+    """The port-pooled bound of the held-out days at ``positions``, chunk by chunk: a chunk
+    (``chunk_days`` days per process) is read from ``directory`` where an earlier call
+    solved it, else solved (in ``shares`` processes) and written there at once.
+
+    Returns:
+        ``(profit, status)``, each ``(days, draws)``.
+
+    Raises:
+        ValueError: a chunk file of other parameters, days or draws.
+    """
+    directory.mkdir(parents=True, exist_ok=True)
+    fingerprint = params_fingerprint(task.make_params())
+    all_days = task.eval_days()
+    profit, status = [], []
+    step = chunk_days * shares
+    for start in range(0, len(positions), step):
+        chunk = np.asarray(positions[start : start + step])
+        days = [int(d) for d in all_days[chunk]]
+        path = directory / f"{task.id}.bound.{int(chunk[0]):03d}-{int(chunk[-1]):03d}.json"
+        if path.exists():
+            stored = json.loads(path.read_text())
+            if (stored["params_fingerprint"], stored["days"], stored["draws"]) != (
+                fingerprint,
+                days,
+                task.draws,
+            ):
+                raise ValueError(
+                    f"field 'bound_dir': {path} holds another bound (its parameters, days or "
+                    "draws differ from the task's); remove it or choose another directory"
+                )
+            part = (
+                np.array(stored["daily_profit"], np.float64),
+                np.array(stored["status"], dtype=object),
+            )
+        else:
+            if shares > 1:
+                parts = _in_processes(
+                    _pooled_part, task, np.array_split(chunk, shares), time_limit_s
+                )
+                part = (
+                    np.concatenate([p[0] for p in parts]),
+                    np.concatenate([p[1] for p in parts]),
+                )
+            else:
+                part = _pooled_part(task, chunk, time_limit_s)
+            record = {
+                "task": task.id,
+                "params_fingerprint": fingerprint,
+                "days": days,
+                "draws": task.draws,
+                "daily_profit": [
+                    [None if np.isnan(x) else float(x) for x in row] for row in part[0]
+                ],
+                "status": part[1].tolist(),
+            }
+            tmp = path.with_suffix(".tmp")
+            tmp.write_text(json.dumps(record))
+            tmp.replace(path)  # a chunk file is whole or absent
+            log(f"{task.id} {BOUND}: days {int(chunk[0])}-{int(chunk[-1])} written to {path}")
+        profit.append(np.asarray(part[0], np.float64))
+        status.append(np.asarray(part[1], dtype=object))
+    return np.concatenate(profit), np.concatenate(status)
 
 
 def _pooled_part(task: str | Task, day_index: np.ndarray, time_limit_s) -> tuple:
@@ -628,6 +727,12 @@ def main(argv=None) -> None:
         help="solve the stored LP bound's failed days again (each such draw whole, as a full "
         "rebuild does); every other number stays as stored",
     )
+    parser.add_argument(
+        "--bound-dir",
+        default=None,
+        help="for a port-pooled bound: keep its solved days in this directory, chunk by chunk, "
+        "and reuse them when the command is run again (a stopped build resumes)",
+    )
     args = parser.parse_args(argv)
     for task_id in args.task or list(TASKS):
         t0 = time.perf_counter()
@@ -660,6 +765,7 @@ def main(argv=None) -> None:
                 bound=not args.no_bound,
                 reuse_dir=args.reuse,
                 processes=args.processes if pooled else 1,
+                bound_dir=args.bound_dir if pooled else None,
             )
         path = save_references(refs, args.out)
         print(f"{path}: {time.perf_counter() - t0:.0f} s")

@@ -27,6 +27,7 @@ from chargax_marl.benchmark import (
     save_references,
     score,
 )
+from chargax_marl.benchmark import references as references_module
 from chargax_marl.benchmark.picture import day_picture
 from chargax_marl.benchmark.references import BOUND, MPC_REFERENCES, ZERO, reference_path
 from chargax_marl.core import Battery, Port, Splitter, make_params
@@ -303,6 +304,38 @@ def test_a_pooled_bound_split_over_processes_is_the_one_process_bound(small_task
         compute_references(occupancy, rules=(), log=None, processes=2)
     with pytest.raises(ValueError, match="field 'processes' must be an integer >= 1"):
         compute_references(pooled, rules=(), log=None, processes=0)
+
+
+def test_a_pooled_bound_kept_in_chunks_resumes_and_is_the_whole_bound(
+    small_task, tmp_path, monkeypatch
+):
+    # each chunk of days is written when solved; a rerun reads the chunks, solves nothing,
+    # and gives the numbers of the bound computed whole
+    task, _ = small_task
+    pooled = dataclasses.replace(task, bound="pooled")
+    whole = compute_references(pooled, rules=(), log=None)
+    kept = compute_references(pooled, rules=(), log=None, bound_dir=tmp_path, bound_chunk_days=1)
+    assert kept["policies"][BOUND] == whole["policies"][BOUND]
+    files = sorted(tmp_path.glob("*.bound.*.json"))
+    assert len(files) == pooled.num_eval_days
+
+    def unsolvable(*args, **kwargs):
+        raise AssertionError("a kept chunk was solved again")
+
+    monkeypatch.setattr(references_module, "_pooled_part", unsolvable)
+    again = compute_references(pooled, rules=(), log=None, bound_dir=tmp_path, bound_chunk_days=1)
+    assert again["policies"][BOUND] == whole["policies"][BOUND]
+    # a chunk of other parameters is refused, by file
+    other = json.loads(files[0].read_text())
+    other["params_fingerprint"] = "0" * 16
+    files[0].write_text(json.dumps(other))
+    with pytest.raises(ValueError, match="field 'bound_dir': .* holds another bound"):
+        compute_references(pooled, rules=(), log=None, bound_dir=tmp_path, bound_chunk_days=1)
+    occupancy = dataclasses.replace(task, bound="occupancy")
+    with pytest.raises(ValueError, match="field 'bound_dir' needs a port-pooled bound"):
+        compute_references(occupancy, rules=(), log=None, bound_dir=tmp_path)
+    with pytest.raises(ValueError, match="field 'bound_chunk_days' must be an integer >= 1"):
+        compute_references(pooled, rules=(), log=None, bound_dir=tmp_path, bound_chunk_days=0)
 
 
 def half_day_levels(first_half, params):
