@@ -21,9 +21,9 @@ from flax import struct
 
 from chargax_marl.core import clock, simulator
 from chargax_marl.core.types import EnvParams, EnvState, EpisodeTotals
-from chargax_marl.optimal import bound_days
+from chargax_marl.optimal import bound_days, pooled_bound_days
 from chargax_marl.policies import get_policy, is_named_rule
-from chargax_marl.trace import day_keys
+from chargax_marl.trace import day_keys, is_paper_session_model
 
 Act = Callable[[EnvState, jax.Array], jnp.ndarray]
 
@@ -656,6 +656,47 @@ def hindsight_bound(
             if not b.solved
         ],
         "reference": reference,
+    }
+
+
+def policy_bound(
+    params: EnvParams, days, key: jax.Array | None = None, time_limit_s: float | None = 60.0
+) -> dict:
+    """The LP bound no policy beats under the params' session model, per day, with the cars
+    `evaluate` draws with ``key``: on the paper's mechanics (`trace.is_paper_session_model`)
+    the hindsight bound over always-max's occupancy (`hindsight_bound`), whose ports and
+    departures no policy changes; otherwise (a random free port, users who leave when
+    charged) the port-pooled bound (`chargax_marl.optimal.pooled`), which holds whatever
+    ports the cars get.
+
+    Args:
+        params: the environment parameters.
+        days: day indices of the price data.
+        key: as for `evaluate`; None: ``PRNGKey(0)``.
+        time_limit_s: HiGHS's time limit per day (seconds); None: none.
+
+    Returns:
+        ``{"daily_profit", "status", "failed_days", "kind"}``: the bound per day (EUR, NaN
+        where the solve failed), the solver status per day, the failed days (``{"day",
+        "status"}`` each) and the bound's kind, ``"occupancy"`` or ``"pooled"``.
+    """
+    if is_paper_session_model(params):
+        out = hindsight_bound(params, days, key, time_limit_s=time_limit_s)
+        return {k: out[k] for k in ("daily_profit", "status", "failed_days")} | {
+            "kind": "occupancy"
+        }
+    key = jax.random.PRNGKey(0) if key is None else key
+    days = np.asarray(days).reshape(-1)
+    bounds = pooled_bound_days(
+        params, days, jax.random.split(key, days.size), time_limit_s=time_limit_s
+    )
+    return {
+        "daily_profit": np.array([b.profit_eur for b in bounds]),
+        "status": [b.status for b in bounds],
+        "failed_days": [
+            {"day": int(d), "status": b.status} for d, b in zip(days, bounds) if not b.solved
+        ],
+        "kind": "pooled",
     }
 
 

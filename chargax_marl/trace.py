@@ -129,6 +129,20 @@ def _same_rows(table) -> bool:
     return arr.ndim == 2 and bool((arr == arr[:1]).all())
 
 
+def is_paper_session_model(params: EnvParams) -> bool:
+    """Whether ``params`` run the Chargax paper's session mechanics: every field of the
+    session model v2 at the value that reproduces them (`make_params(session_model="paper")`
+    gives such params; so does a v2 profile whose session fields are all neutral).
+
+    Args:
+        params: the environment parameters.
+
+    Returns:
+        True on the paper's mechanics.
+    """
+    return bool(_neutral_later_fields(params))
+
+
 def _neutral_later_fields(params: EnvParams) -> tuple[str, ...]:
     """The `EnvParams` fields added with the session model v2 when every one of them is at
     the value that reproduces the earlier model (no holidays, weekday factors and requests of

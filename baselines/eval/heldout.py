@@ -15,12 +15,13 @@ from baselines.eval import protocol, references, rules, stats
 from chargax_marl.evaluation import (
     METRICS,
     headroom_captured,
-    hindsight_bound,
+    policy_bound,
     run_days,
     summarize,
     summarize_profit,
 )
 from chargax_marl.teachers.rules import has_battery
+from chargax_marl.trace import is_paper_session_model
 
 
 def evaluate_batched(
@@ -118,8 +119,10 @@ def baseline_results(
     drawn cars that `evaluate_batched` gives the agents). Each keeps its
     daily profits (``daily_profit``) for paired comparisons.
 
-    ``optimal``: ``"bound"`` adds ``lp_bound`` (the LP hindsight bound over always-max's
-    occupancy, `chargax_marl.evaluation.hindsight_bound`) and, when ``references_dir``
+    ``optimal``: ``"bound"`` adds ``lp_bound`` (the LP bound that holds under the params'
+    session model, `chargax_marl.evaluation.policy_bound`: over always-max's occupancy on
+    the paper's mechanics, the port-pooled bound otherwise; its ``kind`` says which) and,
+    when ``references_dir``
     (a directory ``make optimal`` wrote) holds them for exactly these params and days, the
     stored bound and ``mpc``; ``"mpc"`` also runs the MPC when no
     stored result matches (an LP per step: the slowest part); ``"off"`` adds neither.
@@ -154,7 +157,7 @@ def baseline_results(
     else:
         keys = protocol.draw_keys(draws)
         bound_daily = protocol.mean_over_draws(
-            lambda k: hindsight_bound(eval_params, eval_days, k)["daily_profit"], keys
+            lambda k: policy_bound(eval_params, eval_days, k)["daily_profit"], keys
         )
         mpc_daily = (
             protocol.mean_over_draws(
@@ -168,6 +171,7 @@ def baseline_results(
         "daily_profit": bound_daily,
         "metrics": summarize_profit(bound_daily),
         "source": source,
+        "kind": "occupancy" if is_paper_session_model(eval_params) else "pooled",
     }
     if mpc_daily is not None:
         out["mpc"] = {

@@ -11,6 +11,7 @@ import pytest
 
 from baselines.config import build_env_params, resolve
 from baselines.eval import heldout, references, stats
+from chargax_marl import evaluation, optimal
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.teachers import car_plan, storage_value
 from tests.helpers import TINY, TINY_ENV
@@ -213,3 +214,27 @@ def test_a_day_with_a_failed_mpc_solve_is_reported_and_kept_out_of_the_means(mon
     d = stats.paired_difference(np.append(profit, profit[0] + 2.0), np.ones(3))
     assert d["mean"] == pytest.approx(profit[0]) and d["days_excluded"] == 1
     assert d["stderr"] == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("session_model, kind", [("paper", "occupancy"), ("v2", "pooled")])
+def test_the_held_out_bound_is_the_one_that_holds_under_the_session_model(session_model, kind):
+    """On the v2 session model a policy changes which port a car gets and when a DC user
+    leaves, so the bound over always-max's occupancy is no bound there: the held-out
+    evaluation (and a run's headroom) uses the port-pooled bound, the same cars' LP."""
+    config = resolve({**TINY, "ENV_KWARGS": {**TINY_ENV, "session_model": session_model}})
+    _, full, _, days = build_env_params(config)
+    days = days[:3]
+    base = heldout.baseline_results(full, days, optimal="bound")
+    bound = base["lp_bound"]
+    assert bound["kind"] == kind
+    key = jax.random.PRNGKey(0)
+    if kind == "pooled":
+        expected = [
+            b.profit_eur
+            for b in optimal.pooled_bound_days(full, days, jax.random.split(key, days.size))
+        ]
+    else:
+        expected = evaluation.hindsight_bound(full, days, key)["daily_profit"]
+    np.testing.assert_allclose(bound["daily_profit"], expected, rtol=1e-9)
+    for name in ("always_max", "battery_rule"):
+        assert (bound["daily_profit"] >= base[name]["daily_profit"] - 1e-3).all(), name
