@@ -343,7 +343,8 @@ def load(name: str | Path = DEFAULT_CONFIG, overrides=()) -> tuple[dict, dict]:
     keys give way to it (an override of any still must match it).
 
     Raises:
-        ConfigError: no such file, an unknown key, or a value the key does not allow.
+        ConfigError: no such file, an unknown key, or a value the key does not allow; a
+            ``SCENARIO`` override other than the config's ``TASK``'s scenario.
     """
     raw = tomllib.loads(config_path(name).read_text())
     given = dict(parse_override(o) for o in overrides)
@@ -353,6 +354,14 @@ def load(name: str | Path = DEFAULT_CONFIG, overrides=()) -> tuple[dict, dict]:
         for key in ("TRAFFIC", *VALIDATION_KEYS):
             raw.pop(key, None)
     raw.update(given)
+    if raw.get("TASK") and "SCENARIO" in given:
+        task = get_task(resolve({"TASK": raw["TASK"]})["TASK"])
+        if given["SCENARIO"] != task.scenario:
+            raise ConfigError(
+                f"SCENARIO={given['SCENARIO']!r} differs from TASK={task.id!r}'s scenario "
+                f"{task.scenario!r}: a task fixes its scenario (add TASK= to train on a "
+                "scenario outside the tasks)"
+            )
     run = {k: raw.pop(k) for k in list(raw) if k in RUN_SCHEMA}
     return resolve(raw), resolve(run, RUN_SCHEMA)
 

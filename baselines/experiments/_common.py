@@ -33,12 +33,13 @@ TUNED = {
     algo: {
         k: v
         for k, v in settings(algo).items()
-        if k not in ("SCENARIO", "TRAFFIC", "TOTAL_TIMESTEPS")
+        if k not in ("SCENARIO", "TRAFFIC", "TASK", "TOTAL_TIMESTEPS")
     }
     for algo in ("ppo", "ippo", "mappo")
 }
 """The ``tuned`` learning settings per algorithm: those of ``baselines/configs/<algo>.toml``
-(``make train-ppo``, ``make train``, ``make train-mappo``) without their scenario and budget.
+(``make train-ppo``, ``make train``, ``make train-mappo``) without their task, scenario and
+budget.
 The result files committed before these settings record the ones they ran with (``config``)."""
 
 DEFAULT_TIMESTEPS = 2e6

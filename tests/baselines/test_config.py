@@ -94,6 +94,17 @@ def test_a_task_override_sets_the_validation_keys_over_the_files(tmp_path):
         validation_env(load(path, [f"TASK={HIGH}", "VALIDATION_DRAWS=3"])[0])
 
 
+def test_a_scenario_other_than_the_configs_task_is_refused_and_task_off_frees_it():
+    # the default configs train on a task; a SCENARIO override would have been ignored
+    with pytest.raises(ConfigError, match="SCENARIO='shopping-grid25-high' differs from TASK="):
+        load("ippo", ["SCENARIO=shopping-grid25-high"])
+    config, _ = load("ippo", ["TASK=", "SCENARIO=shopping-grid25-high", "TRAFFIC=high"])
+    assert config["TASK"] == "" and config["SCENARIO"] == "shopping-grid25-high"
+    assert float(build_env_params(config)[1].station.node_max_kw[0]) < float(
+        TASKS["Chargax-shopping-v2"].make_params().station.node_max_kw[0]
+    )
+
+
 def test_stored_run_configs_still_resolve():
     root = Path(__file__).resolve().parents[2] / "results"
     configs = [json.loads(p.read_text()).get("config") for p in sorted(root.rglob("results.json"))]
