@@ -924,3 +924,19 @@ def test_each_env_of_a_batch_warm_starts_from_its_own_previous_solve(monkeypatch
     alone = [protocol.play(MPC(params), params, np.array([3]), keys[:, r : r + 1]) for r in (0, 1)]
     for both, *each in zip(*map(jax.tree.leaves, [together, *alone])):
         np.testing.assert_allclose(both, np.concatenate(each, axis=1), rtol=1e-6, atol=1e-5)
+
+
+def test_make_optimal_s_scenarios_are_the_params_of_its_stored_results():
+    # its references are of the paper's session model (where the occupancy bound holds); a
+    # scenario that resolved to the default v2 model would be another model than they state
+    import json
+    from pathlib import Path
+
+    from baselines.analysis import references as opt
+
+    root = Path(__file__).resolve().parents[2] / "results" / "optimal"
+    for name in opt.SCENARIOS:
+        stored = json.loads((root / f"{name}.json").read_text())["params_fingerprint"]
+        params, _ = opt.scenario_params(name)
+        assert trace.params_fingerprint(params) == stored, name
+        assert trace.is_paper_session_model(params), name
