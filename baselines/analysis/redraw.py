@@ -40,7 +40,7 @@ from baselines.eval import heldout, protocol, references, stats
 from baselines.eval.rules import BATTERY_RULES, evaluate_rules
 from baselines.eval.stats import over_seeds
 from baselines.runs import load_run
-from chargax_marl.evaluation import hindsight_bound
+from chargax_marl.evaluation import policy_bound
 from chargax_marl.teachers.rules import has_battery
 from chargax_marl.trace import params_fingerprint
 
@@ -80,7 +80,7 @@ def reference_profits(
                 out[name].append(r["daily_profit"])
             if bound:
                 out["lp_bound"].append(
-                    np.asarray(hindsight_bound(eval_params, days, key)["daily_profit"], np.float64)
+                    np.asarray(policy_bound(eval_params, days, key)["daily_profit"], np.float64)
                 )
             if k < mpc_draws:
                 from_store = k == 0 and stored is not None and "mpc" in stored["policies"]
