@@ -122,17 +122,23 @@ def test_a_task_in_the_config_trains_on_its_training_data_and_holds_out_its_days
         resolve({"TASK": "Chargax-nope-v1"})
 
 
-def test_a_task_on_the_command_line_overrides_the_files_scenario_and_traffic():
-    """``--config ippo TASK=<a high-traffic task>``: the file's medium traffic gives way to the
-    task's; a ``TRAFFIC`` override that contradicts the task is still refused."""
+def test_a_task_on_the_command_line_overrides_the_files_scenario_and_traffic(tmp_path):
+    """``--config FILE TASK=<a high-traffic task>``: the file's scenario and medium traffic
+    give way to the task's; a ``TRAFFIC`` override that contradicts the task is still
+    refused."""
     task = TASKS["Chargax-shopping-grid10-high-v1"]
-    assert load("ippo")[0]["TRAFFIC"] == "medium"
-    config, _ = load("ippo", [f"TASK={task.id}"])
+    path = tmp_path / "medium.toml"
+    path.write_text(
+        'ALGO = "ippo"\nSCENARIO = "shopping"\nTRAFFIC = "medium"\n'
+        "ENV_KWARGS = { num_levels = 1 }\n"
+    )
+    assert load(path)[0]["TRAFFIC"] == "medium"
+    config, _ = load(path, [f"TASK={task.id}"])
     assert config["SCENARIO"] == task.scenario and config["TRAFFIC"] is None
     _, full, _, _ = build_env_params(config)
     assert params_fingerprint(full) == params_fingerprint(task.policy_params(1))
-    assert load("ippo", [f"TASK={task.id}", "TRAFFIC=high"])[0]["TRAFFIC"] == "high"
+    assert load(path, [f"TASK={task.id}", "TRAFFIC=high"])[0]["TRAFFIC"] == "high"
     with pytest.raises(ConfigError, match="fixes the traffic at .high."):
-        build_env_params(load("ippo", [f"TASK={task.id}", "TRAFFIC=medium"])[0])
+        build_env_params(load(path, [f"TASK={task.id}", "TRAFFIC=medium"])[0])
     with pytest.raises(ConfigError, match="TASK"):
-        load("ippo", ["TASK=Chargax-nope-v1"])
+        load(path, ["TASK=Chargax-nope-v1"])
