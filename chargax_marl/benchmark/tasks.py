@@ -394,7 +394,15 @@ TASKS: dict[str, Task] = {
     )
 }
 
-_V2 = ("shopping", "shopping-peak", "workplace", "shift-nl2023", "shift-nl2024", "shift-de2023")
+_V2 = (
+    "shopping",
+    "shopping-grid10-high",
+    "shopping-peak",
+    "workplace",
+    "shift-nl2023",
+    "shift-nl2024",
+    "shift-de2023",
+)
 # version 2: the same stations, prices and days on the v2 session model, scored against the
 # port-pooled bound
 TASKS.update(
