@@ -733,11 +733,19 @@ def main(argv=None) -> None:
         help="for a port-pooled bound: keep its solved days in this directory, chunk by chunk, "
         "and reuse them when the command is run again (a stopped build resumes)",
     )
+    parser.add_argument(
+        "--time-limit",
+        type=float,
+        default=60.0,
+        help="the LP bound's time limit per day and solver attempt, in seconds (default: 60)",
+    )
     args = parser.parse_args(argv)
+    if not args.time_limit > 0:
+        parser.error(f"--time-limit must be a positive number of seconds, got {args.time_limit}")
     for task_id in args.task or list(TASKS):
         t0 = time.perf_counter()
         if args.refill_bound:
-            path = refill_bound(task_id, args.out)
+            path = refill_bound(task_id, args.out, time_limit_s=args.time_limit)
             print(f"{path}: {time.perf_counter() - t0:.0f} s")
             continue
         if args.mpc:
@@ -766,6 +774,7 @@ def main(argv=None) -> None:
                 reuse_dir=args.reuse,
                 processes=args.processes if pooled else 1,
                 bound_dir=args.bound_dir if pooled else None,
+                time_limit_s=args.time_limit,
             )
         path = save_references(refs, args.out)
         print(f"{path}: {time.perf_counter() - t0:.0f} s")

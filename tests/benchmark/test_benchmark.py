@@ -338,6 +338,32 @@ def test_a_pooled_bound_kept_in_chunks_resumes_and_is_the_whole_bound(
         compute_references(pooled, rules=(), log=None, bound_dir=tmp_path, bound_chunk_days=0)
 
 
+def test_the_references_command_passes_its_time_limit(tmp_path, monkeypatch):
+    # --time-limit reaches the LP solves of a build and of a refill; a limit <= 0 is refused
+    seen = []
+
+    def fake_compute(task_id, **kwargs):
+        seen.append(("compute", kwargs["time_limit_s"]))
+        raise SystemExit(0)
+
+    def fake_refill(task_id, directory, **kwargs):
+        seen.append(("refill", kwargs["time_limit_s"]))
+        raise SystemExit(0)
+
+    monkeypatch.setattr(references_module, "compute_references", fake_compute)
+    monkeypatch.setattr(references_module, "refill_bound", fake_refill)
+    task_id = "Chargax-shopping-v2"
+    for extra in ([], ["--refill-bound"]):
+        with pytest.raises(SystemExit):
+            references_module.main(
+                ["--task", task_id, "--out", str(tmp_path), "--time-limit", "600"] + extra
+            )
+    assert seen == [("compute", 600.0), ("refill", 600.0)]
+    with pytest.raises(SystemExit) as refused:
+        references_module.main(["--task", task_id, "--time-limit", "0"])
+    assert refused.value.code == 2
+
+
 def half_day_levels(first_half, params):
     """Ports at full power; the battery charges in the first half of the day (the sine of the
     time of day above 0) and discharges in the second."""
