@@ -36,7 +36,20 @@ def node_binding(
 ) -> np.ndarray:
     """Fraction of steps ``(H,)`` in which each inner node binds under ``policy``, over one
     whole day per entry of ``days`` with the cars that evaluation draws with ``key``
-    (default ``PRNGKey(0)``, as `chargax_marl.evaluation.evaluate_policy`)."""
+    (default ``PRNGKey(0)``, as `chargax_marl.evaluation.evaluate_policy`).
+
+    Args:
+        params: the environment parameters.
+        days: ``(n,)`` day indices of the price data.
+        key: day ``i`` draws its cars from ``split(key, n)[i]``; None: ``PRNGKey(0)``.
+        policy: ``policy(state, key, params) -> levels``, a rule of
+            `chargax_marl.policies`.
+
+    Returns:
+        ``(H,)`` float64, one entry per inner node in node order
+        (``params.station.node_names``): the share of steps, averaged over the days, in which
+        the node's requested grid-side flow is at least ``(1 - BIND_TOLERANCE)`` of its limit.
+    """
     key = jax.random.PRNGKey(0) if key is None else key
     days = jnp.asarray(days, jnp.int32)
     st = params.station
@@ -81,7 +94,16 @@ GROUPS = ("grid connection", "DC cable", "AC cable", "DC EVSE pairs", "AC EVSE p
 
 
 def grouped(params: EnvParams, fractions: np.ndarray) -> dict:
-    """Mean binding fraction per node group (`GROUPS`) of the bundled architectures."""
+    """Mean binding fraction per node group (`GROUPS`) of the bundled architectures.
+
+    Args:
+        params: the environment parameters, whose station's node names give the groups.
+        fractions: ``(H,)`` a value per inner node, as `node_binding` returns.
+
+    Returns:
+        ``{group: mean of its nodes' fractions}`` for the groups present in the station (a
+        node of no bundled group is a group of its own, under its name).
+    """
     out: dict[str, list[float]] = {}
     for name, f in zip(params.station.node_names, fractions):
         out.setdefault(_kind(name), []).append(float(f))
@@ -90,7 +112,18 @@ def grouped(params: EnvParams, fractions: np.ndarray) -> dict:
 
 def table(scenarios=("shopping",) + COORDINATION_SCENARIOS, num_days: int = 100) -> list[dict]:
     """One row per scenario: the grid limit and the percentage of steps each node group binds
-    under always-max on the held-out days ``split_days(365, num_days)``."""
+    under always-max on the held-out days ``split_days(365, num_days)``.
+
+    Args:
+        scenarios: names of `chargax_marl.core.scenarios`.
+        num_days: how many held-out days each scenario plays
+            (``split_days(params.num_days, num_days, seed=0)``).
+
+    Returns:
+        One dict per scenario: ``"scenario"`` (its name), ``"grid_kw"`` (the grid
+        connection's limit, kW) and, per node group present, the percentage of steps in which
+        its nodes bind (`grouped`).
+    """
     rows = []
     for name in scenarios:
         params = make_params(**scenario_kwargs(name))
@@ -107,6 +140,15 @@ def table(scenarios=("shopping",) + COORDINATION_SCENARIOS, num_days: int = 100)
 
 
 def format_table(rows: list[dict]) -> str:
+    """A Markdown table of `table`'s rows.
+
+    Args:
+        rows: the rows of `table`.
+
+    Returns:
+        The table: one line per row, with the grid limit (kW) and the percentage of steps of
+        each of `GROUPS` (one decimal; "–" for a group the scenario's station lacks).
+    """
     head = (
         "| scenario | grid connection kW | " + " | ".join(f"{g} % of steps" for g in GROUPS) + " |"
     )
@@ -118,6 +160,14 @@ def format_table(rows: list[dict]) -> str:
 
 
 def main(argv=None) -> list[dict]:
+    """The command line: print the binding table of the given scenarios (the module doc).
+
+    Args:
+        argv: the command-line arguments (``--days``, ``--scenarios``); None: ``sys.argv``.
+
+    Returns:
+        The rows of `table` that were printed.
+    """
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

@@ -64,7 +64,15 @@ def _margin(low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 @_eager
 def leaf_feature_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
-    """``(low, high)`` of `observation.leaf_features`, each ``(L, 8)`` (no margin)."""
+    """``(low, high)`` of `observation.leaf_features`, each ``(L, 8)`` (no margin).
+
+    Args:
+        params: the environment parameters.
+
+    Returns:
+        ``(low, high)``, float64 ``(L, len(observation.PORT_FEATURES))``, one row per leaf
+        (ports, then batteries), columns in the order of ``PORT_FEATURES``.
+    """
     st = params.station
     kinds = np.asarray(st.leaf_kind)
     is_bat = kinds == KIND_BATTERY
@@ -109,7 +117,15 @@ def _full_power_loads(params: EnvParams) -> np.ndarray:
 
 @_eager
 def context_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
-    """``(low, high)`` of `observation.context_features` (no margin)."""
+    """``(low, high)`` of `observation.context_features` (no margin).
+
+    Args:
+        params: the environment parameters.
+
+    Returns:
+        ``(low, high)``, float64 vectors of the context's width, in the order of
+        `observation.context_features` (MOER last when ``params.observe_moer``).
+    """
     tou = np.asarray(params.tou_fee_eur_kwh, np.float64)
     spot = np.asarray(params.prices_eur_kwh, np.float64)
     prices = (
@@ -150,7 +166,15 @@ def context_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
 
 @_eager
 def flat_obs_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
-    """``(low, high)`` float32 of the single-agent observation `observation.flat_obs`."""
+    """``(low, high)`` float32 of the single-agent observation `observation.flat_obs`.
+
+    Args:
+        params: the environment parameters.
+
+    Returns:
+        ``(low, high)``, float32 ``(obs_size,)``: the ports' features, the batteries' SoC
+        and current, then the context, widened by the margin.
+    """
     low, high = leaf_feature_bounds(params)
     clow, chigh = context_bounds(params)
     p = params.station.num_ports
@@ -163,7 +187,17 @@ def flat_obs_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
 @_eager
 def ancestor_load_bounds(params: EnvParams, ancestors: np.ndarray) -> np.ndarray:
     """Upper bound ``(N, D)`` of each agent's ancestor loads (``ancestors``: the
-    ``(N, D)`` node table of `chargax_marl.marl.env.ancestor_table`)."""
+    ``(N, D)`` node table of `chargax_marl.marl.env.ancestor_table`).
+
+    Args:
+        params: the environment parameters.
+        ancestors: ``(N, D)`` int node indices, -1 where an agent has no ancestor at that
+            depth.
+
+    Returns:
+        ``(N, D)`` float64: each ancestor's full-power load over its limit (with a 1e-4
+        margin), 0 where ``ancestors`` is -1. The lower bound is 0.
+    """
     load = _full_power_loads(params)
     anc = np.asarray(ancestors)
     return np.where(anc >= 0, load[np.maximum(anc, 0)], 0.0)
@@ -174,7 +208,18 @@ def agent_obs_bounds(
     params: EnvParams, ancestors: np.ndarray, agent_id_width: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(low, high)`` float32 ``(obs_size,)`` shared by every agent of the multi-agent view
-    (the elementwise min and max over the agents' rows)."""
+    (the elementwise min and max over the agents' rows).
+
+    Args:
+        params: the environment parameters.
+        ancestors: ``(N, D)`` node table of `chargax_marl.marl.env.ancestor_table`.
+        agent_id_width: the width of the agent-id part of the observation (0 without one).
+
+    Returns:
+        ``(low, high)``, float32 ``(obs_size,)`` in the order of the multi-agent row: leaf
+        features, kind one-hot (3), ancestor loads (D), context, agent id; widened by the
+        margin.
+    """
     low, high = leaf_feature_bounds(params)
     n = low.shape[0]
     clow, chigh = context_bounds(params)

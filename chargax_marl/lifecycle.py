@@ -56,12 +56,25 @@ if hasattr(os, "register_at_fork"):
 
 
 def forked_after_jax() -> bool:
-    """True in a process forked (directly or not) from one where JAX had started."""
+    """True in a process forked (directly or not) from one where JAX had started.
+
+    Returns:
+        Whether this process descends, through ``os.fork``, from a process whose JAX runtime
+        had started before the fork.
+    """
     return _FORKED_AFTER_JAX
 
 
 def check_not_forked(where: str) -> None:
-    """Raise `ForkedProcessError` when JAX work here could deadlock (see the module doc)."""
+    """Raise `ForkedProcessError` when JAX work here could deadlock (see the module doc).
+
+    Args:
+        where: the caller's name, which starts the error message.
+
+    Raises:
+        ForkedProcessError: this process was forked after JAX started in its parent
+            (`forked_after_jax`).
+    """
     if _FORKED_AFTER_JAX:
         raise ForkedProcessError(
             f"{where}: this process was forked (os.fork) after JAX started in its parent; JAX is "
@@ -79,6 +92,16 @@ def key_from_seed(seed: Any, where: str) -> jax.Array:
     ``2**32`` that is ``jax.random.PRNGKey(seed)``, so existing seeds keep their trajectories.
     Larger seeds are hashed to 64 bits with `numpy.random.SeedSequence`, which reads
     the whole integer. Anything else raises ``ValueError`` naming the seed.
+
+    Args:
+        seed: the seed, a Python or numpy integer ``>= 0`` (not a bool).
+        where: the caller's name, which starts the error message.
+
+    Returns:
+        A ``uint32`` key of shape ``(2,)``.
+
+    Raises:
+        ValueError: ``seed`` is not an integer, is a bool, or is negative.
     """
     if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)):
         raise ValueError(f"{where}: seed must be a non-negative integer or None, got {seed!r}")
@@ -93,7 +116,19 @@ def key_from_seed(seed: Any, where: str) -> jax.Array:
 
 
 def check_day(day, num_days: int) -> int:
-    """``day`` as an int in ``[0, num_days)``, or ``ValueError`` naming it and the range."""
+    """``day`` as an int in ``[0, num_days)``, or ``ValueError`` naming it and the range.
+
+    Args:
+        day: the day index: a scalar (Python, numpy or JAX) whose value is a whole number.
+        num_days: the number of days of the price data.
+
+    Returns:
+        ``day`` as a Python int.
+
+    Raises:
+        ValueError: ``day`` is not a scalar whole number (a string, a bool, an array with a
+            dimension, a fractional value), or lies outside ``[0, num_days)``.
+    """
     try:
         value = (
             int(np.asarray(day).item())
@@ -120,6 +155,19 @@ def reset_day(options: dict | None, num_days: int, where: str) -> int | None:
 
     Raises ``ValueError`` naming the option, its value and what is allowed for a bad day.
     Other keys are ignored (PettingZoo's API test passes arbitrary options).
+
+    Args:
+        options: the ``options`` of a Gymnasium or PettingZoo ``reset``, or None.
+        num_days: the number of days of the price data.
+        where: the caller's name, which starts the error message.
+
+    Returns:
+        ``options["day"]`` as an int, or None when ``options`` is empty or None or its
+        ``"day"`` is missing or None.
+
+    Raises:
+        ValueError: ``options`` is not a dict, or its ``"day"`` is not an integer (a bool
+            counts as none) in ``[0, num_days)``.
     """
     if not options:
         return None

@@ -74,7 +74,15 @@ def machine_info() -> dict:
 
 def code_version(root=None) -> dict:
     """The git commit of the checkout at ``root`` (default: this package's) and whether it has
-    uncommitted changes, for result files; ``commit`` is ``None`` outside a git checkout."""
+    uncommitted changes, for result files; ``commit`` is ``None`` outside a git checkout.
+
+    Args:
+        root: a directory inside the git checkout; None for the one holding this package.
+
+    Returns:
+        ``{"commit", "dirty"}``: the ``HEAD`` commit hash and whether tracked files have
+        uncommitted changes; both None when ``git`` fails or cannot run.
+    """
     root = root or os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     try:
 
@@ -96,7 +104,12 @@ def code_version(root=None) -> dict:
 
 
 def load_info() -> str:
-    """The 1/5/15-minute load averages, as ``uptime`` prints them (other jobs skew timings)."""
+    """The 1/5/15-minute load averages, as ``uptime`` prints them (other jobs skew timings).
+
+    Returns:
+        ``"load <1-min> <5-min> <15-min>"`` with two decimals each, or ``"load n/a"`` where the
+        system gives no load averages.
+    """
     try:
         one, five, fifteen = os.getloadavg()
         return f"load {one:.2f} {five:.2f} {fifteen:.2f}"

@@ -25,7 +25,12 @@ NAMESPACE = "chargax_marl"
 
 
 def env_ids() -> dict[str, dict]:
-    """Every id this package registers, with the keyword arguments it passes."""
+    """Every id this package registers, with the keyword arguments it passes.
+
+    Returns:
+        ``{env id: keyword arguments}``: ``{}`` for ``chargax_marl/Chargax-v0`` and a copy of
+        `chargax_marl.core.scenarios.SCENARIOS`' entry for each scenario's id.
+    """
     ids = {f"{NAMESPACE}/Chargax-v0": {}}
     for name, kwargs in SCENARIOS.items():
         ids[f"{NAMESPACE}/Chargax-{name}-v0"] = dict(kwargs)

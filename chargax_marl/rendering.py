@@ -22,6 +22,15 @@ RENDER_MODES = ["ansi", "human", "rgb_array"]
 
 
 def check_render_mode(render_mode: str | None, where: str) -> None:
+    """Refuse a render mode that is not one of `RENDER_MODES` (None is allowed).
+
+    Args:
+        render_mode: the env's ``render_mode``.
+        where: the caller's name, which starts the error message.
+
+    Raises:
+        ValueError: ``render_mode`` is neither None nor one of `RENDER_MODES`.
+    """
     if render_mode is not None and render_mode not in RENDER_MODES:
         raise ValueError(
             f"{where}: render_mode must be one of {RENDER_MODES} or None, got {render_mode!r}"
@@ -30,7 +39,16 @@ def check_render_mode(render_mode: str | None, where: str) -> None:
 
 def price_now(state, params: EnvParams) -> float:
     """The day-ahead price (EUR/kWh) of the state's hour at its clock time (the next day's
-    prices past midnight); ``state`` on the host."""
+    prices past midnight); ``state`` on the host.
+
+    Args:
+        state: the env state (`chargax_marl.core.types.EnvState`); its ``day`` and
+            ``timestep`` are read.
+        params: the environment parameters.
+
+    Returns:
+        The day-ahead price in EUR/kWh, without the time-of-use surcharge.
+    """
     hour = int(clock.episode_hour(int(state.timestep), params))
     flat = np.asarray(params.prices_eur_kwh).reshape(-1)
     return float(flat[((int(state.day) % params.num_days) * 24 + hour) % flat.size])
@@ -39,7 +57,15 @@ def price_now(state, params: EnvParams) -> float:
 def clock_time(state, params: EnvParams) -> str:
     """The state's clock time ``HH:MM``, with ``(+1 day)`` past the episode's first
     midnight when the episode starts after midnight (one that starts at midnight ends at
-    ``24:00``); ``state`` on the host."""
+    ``24:00``); ``state`` on the host.
+
+    Args:
+        state: the env state; its ``timestep`` is read.
+        params: the environment parameters.
+
+    Returns:
+        ``"HH:MM"``, followed by ``" (+1 day)"`` on the next day.
+    """
     minutes = int(clock.steps_since_midnight(int(state.timestep), params)) * params.step_minutes
     next_day = ""
     if params.episode_start_hour and minutes >= 1440:
@@ -50,7 +76,12 @@ def clock_time(state, params: EnvParams) -> str:
 def clock_axis(ax, params: EnvParams) -> None:
     """Label an axis of hours since midnight of the episode's first day as clock times
     (``HH:00``, wrapping past 24) when the episode starts after midnight; a start hour of 0
-    keeps the plain hours of the day."""
+    keeps the plain hours of the day.
+
+    Args:
+        ax: the matplotlib axes whose x axis is labelled (in place).
+        params: the environment parameters; ``episode_start_hour`` is read.
+    """
     if not params.episode_start_hour:
         return
     ax.xaxis.set_major_locator(MultipleLocator(3))
@@ -59,7 +90,18 @@ def clock_axis(ax, params: EnvParams) -> None:
 
 
 def ansi_table(state, params: EnvParams, names: list[str]) -> str:
-    """One line of context, then one row per leaf (``names`` in leaf order); ``state`` on the host."""
+    """One line of context, then one row per leaf (``names`` in leaf order); ``state`` on the host.
+
+    Args:
+        state: the env state.
+        params: the environment parameters.
+        names: one name per leaf (ports, then batteries), in leaf order.
+
+    Returns:
+        The table as text: a line with the day, step, clock time, price (EUR/kWh) and profit so
+        far (EUR), a header, and per leaf its name, kind, whether it is occupied, its SoC
+        ("-" when free), current (A) and power (kW).
+    """
     st = params.station
     kinds = np.asarray(st.leaf_kind)
     volts = np.asarray(st.leaf_voltage_v)
@@ -82,7 +124,17 @@ def ansi_table(state, params: EnvParams, names: list[str]) -> str:
 
 def rgb_plot(history: list[tuple[float, float, float]], state, params: EnvParams) -> np.ndarray:
     """``HxWx3`` uint8 plot of ``history`` rows ``(hour, buy price, station kW)``, the hour
-    counted from the episode's start and drawn at its clock time."""
+    counted from the episode's start and drawn at its clock time.
+
+    Args:
+        history: the rows of the day so far, one per step; empty draws empty axes.
+        state: the env state, whose day and step make the title.
+        params: the environment parameters.
+
+    Returns:
+        The RGB image, ``(320, 512, 3)`` uint8 (a 6.4 x 4.0 inch figure at 80 dpi): the price
+        over the power, 24 hours from the episode's start.
+    """
 
     fig = Figure(figsize=(6.4, 4.0), dpi=80)
     canvas = FigureCanvasAgg(fig)
@@ -104,7 +156,23 @@ def rgb_plot(history: list[tuple[float, float, float]], state, params: EnvParams
 
 
 def render(mode: str | None, state, params: EnvParams, names: list[str], history, where: str):
-    """Dispatch on ``mode``; ``None`` warns (Gymnasium's convention) and returns None."""
+    """Dispatch on ``mode``; ``None`` warns (Gymnasium's convention) and returns None.
+
+    Args:
+        mode: one of `RENDER_MODES`, or None.
+        state: the env state on the host; None before the first reset.
+        params: the environment parameters.
+        names: one name per leaf, in leaf order (`ansi_table`).
+        history: the rows of the day so far (`rgb_plot`).
+        where: the env's class name, for the messages.
+
+    Returns:
+        ``"rgb_array"``: the image of `rgb_plot`; ``"human"`` and None: None (``"human"``
+        prints the table); any other mode: the text of `ansi_table`.
+
+    Raises:
+        RuntimeError: a mode is given and ``state`` is None (render before reset).
+    """
     if mode is None:
         gymnasium.logger.warn(
             f"{where}.render() called without a render_mode; pass render_mode='ansi', "

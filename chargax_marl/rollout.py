@@ -25,6 +25,17 @@ def rollout_days(policy, params: EnvParams, keys: jax.Array):
 
     Returns ``(totals, days, returns)``: the final `EpisodeTotals` per day, the day
     indices drawn as ``reset`` draws them, and each day's summed reward.
+
+    Args:
+        policy: ``policy(state, key, params) -> levels``, e.g. a value of
+            `chargax_marl.policies.POLICIES`.
+        params: the environment parameters.
+        keys: ``(n, 2)`` keys: key ``i`` draws day ``i`` (`chargax_marl.core.simulator.reset`);
+            the days' cars are drawn from ``keys[0]`` (`chargax_marl.evaluation.run_days`).
+
+    Returns:
+        ``(totals, days, returns)`` as above, each with a leading axis ``(n,)``; ``returns``
+        is ``totals.reward``.
     """
 
     @jax.jit
@@ -37,6 +48,12 @@ def rollout_days(policy, params: EnvParams, keys: jax.Array):
 
 
 def main(argv=None) -> None:
+    """The command line: roll out a policy and print the days' results (the module doc).
+
+    Args:
+        argv: the command-line arguments (``--policy``, ``--scenario``, ``--days``,
+            ``--seed``); None: ``sys.argv``.
+    """
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

@@ -42,7 +42,14 @@ assert (KIND_AC, KIND_DC, KIND_BATTERY) == (0, 1, 2)
 
 
 def agent_names(params: EnvParams) -> list[str]:
-    """``port_0 .. port_{P-1}`` then ``battery_0 ..``, in leaf order."""
+    """``port_0 .. port_{P-1}`` then ``battery_0 ..``, in leaf order.
+
+    Args:
+        params: the environment parameters.
+
+    Returns:
+        The ``N = num_ports + num_batteries`` agent names.
+    """
     st = params.station
     return [f"port_{i}" for i in range(st.num_ports)] + [
         f"battery_{j}" for j in range(st.num_batteries)
@@ -54,6 +61,12 @@ def action_offset(params: EnvParams) -> int:
 
     ``Discrete(2L+1)`` (index ``k`` is level ``k - L``) when any leaf may discharge or in
     ``delta`` mode, else ``Discrete(L+1)`` (index ``k`` is level ``k``). Needs concrete params.
+
+    Args:
+        params: the environment parameters (concrete).
+
+    Returns:
+        ``L = params.num_levels`` in ``delta`` mode or when any leaf may discharge, else 0.
     """
     if params.action_mode == "delta":
         return params.num_levels
@@ -62,7 +75,14 @@ def action_offset(params: EnvParams) -> int:
 
 
 def min_levels(params: EnvParams) -> jnp.ndarray:
-    """Lowest valid level per agent: ``-L`` where the leaf may discharge (all leaves in delta mode), else 0."""
+    """Lowest valid level per agent: ``-L`` where the leaf may discharge (all leaves in delta mode), else 0.
+
+    Args:
+        params: the environment parameters.
+
+    Returns:
+        ``(N,)`` int32 levels, in agent order.
+    """
     if params.action_mode == "delta":
         return jnp.full((params.station.num_leaves,), -params.num_levels, jnp.int32)
     return physics.leaf_min_level(params.station, params.num_levels, params.v2g)
@@ -75,6 +95,15 @@ def actions_to_levels(indices: jnp.ndarray, params: EnvParams, offset: int) -> j
     cast; host integers beyond int32 are clipped on the host first,
     `chargax_marl.core.actions.host_array`); NaN and +-inf are idle; a masked (invalid)
     action falls back to idle, level 0.
+
+    Args:
+        indices: ``(N,)`` action indices in agent order (integers or floats; floats are
+            truncated toward zero).
+        params: the environment parameters.
+        offset: `action_offset` of ``params``, the index of idle.
+
+    Returns:
+        ``(N,)`` int32 signed levels, ``index - offset`` where valid, else 0.
     """
     n = params.num_levels + 1 + offset
     idx = core_actions.to_int32(core_actions.host_array(indices), 0, n - 1, offset)
@@ -83,7 +112,16 @@ def actions_to_levels(indices: jnp.ndarray, params: EnvParams, offset: int) -> j
 
 
 def levels_to_indices(levels: jnp.ndarray, params: EnvParams, offset: int) -> jnp.ndarray:
-    """Inverse of `actions_to_levels` for valid levels (e.g. from `chargax_marl.policies`)."""
+    """Inverse of `actions_to_levels` for valid levels (e.g. from `chargax_marl.policies`).
+
+    Args:
+        levels: ``(N,)`` signed levels in agent order (cast to int32; not checked).
+        params: the environment parameters (unused: the offset carries what is needed).
+        offset: `action_offset` of ``params``, the index of idle.
+
+    Returns:
+        ``(N,)`` int32 action indices ``level + offset``.
+    """
     return jnp.asarray(levels).astype(jnp.int32) + offset
 
 
@@ -91,14 +129,31 @@ def levels_to_indices(levels: jnp.ndarray, params: EnvParams, offset: int) -> jn
 def avail_actions(params: EnvParams, offset: int) -> jnp.ndarray:
     """Bool ``(N, n)``: ``True`` where index ``k`` gives a level the agent's leaf can take.
 
-    Compiled as one program per station shape (a new env builds its mask with it)."""
+    Compiled as one program per station shape (a new env builds its mask with it).
+
+    Args:
+        params: the environment parameters.
+        offset: `action_offset` of ``params`` (static: ``n = num_levels + 1 + offset``).
+
+    Returns:
+        ``(N, n)`` bool mask, rows in agent order: index ``k`` is available where level
+        ``k - offset`` is at least the agent's `min_levels`.
+    """
     n = params.num_levels + 1 + offset
     levels = jnp.arange(n, dtype=jnp.int32)[None, :] - offset
     return levels >= min_levels(params)[:, None]
 
 
 def ancestor_table(params: EnvParams) -> jnp.ndarray:
-    """``(N, D)`` node index of each leaf's ancestors from the deepest to the root, ``-1`` padded."""
+    """``(N, D)`` node index of each leaf's ancestors from the deepest to the root, ``-1`` padded.
+
+    Args:
+        params: the environment parameters; ``D`` is the station tree's depth.
+
+    Returns:
+        ``(N, D)`` int node indices; row ``i`` lists leaf ``i``'s ancestors starting with its
+        parent and ending with the root (node 0, the grid connection), then ``-1``.
+    """
     st = params.station
     anc = st.node_of_leaf_at_depth.T  # (N, D), ancestors by depth, root first, -1 where none
     count = jnp.sum(anc >= 0, axis=1)
@@ -109,7 +164,14 @@ def ancestor_table(params: EnvParams) -> jnp.ndarray:
 
 @struct.dataclass
 class ObsLayout:
-    """Station-dependent constants of the agent observations (see `obs_layout`)."""
+    """Station-dependent constants of the agent observations (see `obs_layout`).
+
+    Attributes:
+        kind_onehot: ``(N, 3)`` float32 one-hot of each agent's leaf kind (AC, DC, battery).
+        ancestors: ``(N, D)`` int32 node table of `ancestor_table`.
+        agent_id: the agent-index columns: ``(N, N)`` one-hot, or ``(N, 1)``
+            ``index / (N - 1)``.
+    """
 
     kind_onehot: jnp.ndarray  # (N, 3) AC, DC, battery
     ancestors: jnp.ndarray  # (N, D) int32, `ancestor_table`
@@ -126,6 +188,16 @@ def obs_layout(params: EnvParams, agent_id: str = "onehot") -> ObsLayout:
     ``agent_id`` picks the agent-index feature: ``"onehot"`` (N columns; the observation then
     grows with the number of agents, so a step costs O(N^2)) or ``"scalar"`` (one column,
     ``index / (N - 1)``; O(N) per step, for large stations).
+
+    Args:
+        params: the environment parameters.
+        agent_id: ``"onehot"`` or ``"scalar"`` (`AGENT_ID_ENCODINGS`).
+
+    Returns:
+        The station's `ObsLayout`.
+
+    Raises:
+        ValueError: ``agent_id`` is not one of `AGENT_ID_ENCODINGS`.
     """
     if agent_id not in AGENT_ID_ENCODINGS:
         raise ValueError(f"field 'agent_id' must be one of {AGENT_ID_ENCODINGS}, got {agent_id!r}")
@@ -163,6 +235,15 @@ def ancestor_loads(
     efficiencies up to and including ``H`` when charging, multiplied when discharging, from
     the currents in ``state``) over its ``max_kw``: the same flow the hard rescale limits, so
     a load of 1 means the node binds. Linear in the number of ports.
+
+    Args:
+        state: the env state, whose ``current_a`` gives the flows.
+        params: the environment parameters.
+        layout: `obs_layout` of ``params`` (built when None).
+
+    Returns:
+        ``(N, D)`` load fractions, rows in agent order, 0 where an agent has fewer than ``D``
+        ancestors.
     """
     layout = obs_layout(params) if layout is None else layout
     st = params.station
@@ -199,6 +280,14 @@ def agent_observations(
     battery); load fraction ``|grid-side net flow| / max_kw`` of each ancestor node from the deepest to
     the root, zero-padded to the tree depth; the shared context; the agent index one-hot.
     ``layout`` (from `obs_layout`) saves recomputing the station constants.
+
+    Args:
+        state: the env state.
+        params: the environment parameters.
+        layout: `obs_layout` of ``params`` (built when None, with the one-hot agent index).
+
+    Returns:
+        ``(N, obs_size)`` float32; the agent-index columns are those of ``layout``.
     """
     layout = obs_layout(params) if layout is None else layout
     leaf, kind, loads, ctx, agent_id = _observation_parts(state, params, layout)
@@ -214,7 +303,16 @@ def agent_observation_rows(
     """The rows of `agent_observations` as a list of ``(obs_size,)`` arrays, each built
     on its own (the same values bit for bit). The dict API hands out one array per agent:
     slicing the matrix made XLA write the ``(N, obs_size)`` matrix and then copy every row
-    out of it; built per agent, each row is written once (or fused into its reader)."""
+    out of it; built per agent, each row is written once (or fused into its reader).
+
+    Args:
+        state: the env state.
+        params: the environment parameters.
+        layout: `obs_layout` of ``params`` (built when None).
+
+    Returns:
+        ``N`` float32 arrays of shape ``(obs_size,)``, in agent order.
+    """
     layout = obs_layout(params) if layout is None else layout
     leaf, kind, loads, ctx, agent_id = _observation_parts(state, params, layout)
     return [
@@ -310,7 +408,16 @@ def _transition(
 def agent_rewards(reward, shares, local_reward_weight: float):
     """Per-agent rewards ``(N,)``: ``(1 - w) * reward + w * shares`` with ``w`` the
     (concrete) ``local_reward_weight``; exactly the shared ``reward`` for every agent when
-    ``w == 0``. Works on JAX and NumPy values."""
+    ``w == 0``. Works on JAX and NumPy values.
+
+    Args:
+        reward: the station's scalar reward of the step.
+        shares: ``(N,)`` each agent's share of the reward (they sum to ``reward``).
+        local_reward_weight: ``w`` in ``[0, 1]``, a concrete number.
+
+    Returns:
+        ``(N,)`` per-agent rewards, shaped as ``shares``.
+    """
     w = float(local_reward_weight)
     if w == 0.0:  # the shared reward, without a dependence on the shares (XLA then skips them)
         xp = np if isinstance(shares, np.ndarray) else jnp
@@ -319,7 +426,15 @@ def agent_rewards(reward, shares, local_reward_weight: float):
 
 
 def world_state(state: EnvState, params: EnvParams) -> jnp.ndarray:
-    """The single-agent observation, MAPPO's world state."""
+    """The single-agent observation, MAPPO's world state.
+
+    Args:
+        state: the env state.
+        params: the environment parameters.
+
+    Returns:
+        ``(state_size,)`` float32, `chargax_marl.core.observation.flat_obs` of the state.
+    """
     return observation.flat_obs(state, params)
 
 
@@ -473,7 +588,18 @@ class ChargaxMARL(MultiAgentEnv):
     def reset_to_day(self, day: int | jax.Array):
         """Start an empty station on a chosen day of the price data (for fixed evaluation days;
         ``ValueError`` for a concrete day outside ``[0, num_days)``, or the data's last day
-        when episodes start after midnight, `chargax_marl.core.clock.episode_days`)."""
+        when episodes start after midnight, `chargax_marl.core.clock.episode_days`).
+
+        Args:
+            day: the day index, a Python int or a JAX scalar (a traced day is not checked).
+
+        Returns:
+            ``(obs, state)``: the observations keyed by agent (`get_obs`) and the state.
+
+        Raises:
+            ValueError: a concrete day that is not a day an episode can start on
+                (`chargax_marl.lifecycle.check_day`).
+        """
         if not isinstance(day, jax.core.Tracer):
             check_day(day, clock.episode_days(self.params))
         state = simulator.empty_state(jnp.asarray(day, jnp.int32), self.params)
@@ -481,6 +607,18 @@ class ChargaxMARL(MultiAgentEnv):
 
     def step_env(self, key: jax.Array, state: EnvState, actions: Mapping[str, Any]):
         """One transition without auto-reset: ``(obs, state, rewards, dones, infos)``.
+
+        Args:
+            key: the step's key.
+            state: the state to step.
+            actions: ``{agent: index}``, one entry per agent (`validate_actions`).
+
+        Returns:
+            ``(obs, state, rewards, dones, infos)``: the stepped state's observations keyed by
+            agent, the stepped state (not reset at the day's end), the rewards keyed by agent,
+            ``dones`` keyed by agent and ``"__all__"`` (true at the day's end), and the infos
+            (the class docstring's keys without ``terminated`` and ``truncated``), each
+            ``(num_agents,)``.
 
         Raises:
             ValueError: a bad action dict (`validate_actions`).
@@ -506,6 +644,18 @@ class ChargaxMARL(MultiAgentEnv):
         Python ``int`` beyond int32 raises JAX's ``OverflowError``; call ``step`` outside
         ``jit`` (it jits itself) or clip with `chargax_marl.core.actions.host_array`
         first.
+
+        Args:
+            key: the step's key.
+            state: the state to step.
+            actions: ``{agent: index}``, one entry per agent (`validate_actions`).
+            reset_state: the fresh day's state at the end of a day (None: a random one).
+
+        Returns:
+            ``(obs, state, rewards, dones, infos)``: the observations keyed by agent, the next
+            state, the rewards keyed by agent, ``dones`` keyed by agent and ``"__all__"``, and
+            the infos (the class docstring's keys, ``terminated`` and ``truncated`` included),
+            each of shape ``(num_agents,)``.
 
         Raises:
             ValueError: a bad action dict (`validate_actions`).
@@ -581,11 +731,25 @@ class ChargaxMARL(MultiAgentEnv):
         return self.get_obs(next_state), next_state, dict(zip(self.agents, rewards)), dones, infos
 
     def get_obs(self, state: EnvState) -> dict:
-        """Observations keyed by agent (see the class docstring for the layout)."""
+        """Observations keyed by agent (see the class docstring for the layout).
+
+        Args:
+            state: the env state.
+
+        Returns:
+            ``{agent: (obs_size,) float32}`` (`agent_observation_rows`).
+        """
         return dict(zip(self.agents, agent_observation_rows(state, self.params, self._layout)))
 
     def get_obs_matrix(self, state: EnvState) -> jnp.ndarray:
-        """All observations as one ``(num_agents, obs_size)`` matrix, rows in agent order."""
+        """All observations as one ``(num_agents, obs_size)`` matrix, rows in agent order.
+
+        Args:
+            state: the env state.
+
+        Returns:
+            ``(num_agents, obs_size)`` float32 (`agent_observations`).
+        """
         return agent_observations(state, self.params, self._layout)
 
     @functools.partial(jax.jit, static_argnums=(0,))
@@ -596,7 +760,14 @@ class ChargaxMARL(MultiAgentEnv):
         return {a: avail[i] for i, a in enumerate(self.agents)}
 
     def get_global_state(self, state: EnvState) -> jnp.ndarray:
-        """MAPPO's world state: the single-agent observation ``(state_size,)``."""
+        """MAPPO's world state: the single-agent observation ``(state_size,)``.
+
+        Args:
+            state: the env state.
+
+        Returns:
+            ``(state_size,)`` float32 (`world_state`).
+        """
         return world_state(state, self.params)
 
     @property
@@ -688,6 +859,12 @@ class ChargaxMARL(MultiAgentEnv):
         Indices outside ``[0, n)`` are clipped into it (in their own dtype), floats truncated,
         NaN and +-inf idle.
 
+        Args:
+            actions: ``{agent: index}``, one entry per agent.
+
+        Returns:
+            ``(num_agents,)`` int32 indices in ``[0, num_actions)``.
+
         Raises:
             ValueError: as `validate_actions` (``strict=False``).
         """
@@ -707,6 +884,12 @@ class ChargaxMARL(MultiAgentEnv):
         Masked actions are accepted (they fall back to idle). Traced values (inside ``jit``)
         get the structural checks only and give 0.
 
+        Args:
+            actions: ``{agent: index}``, one entry per agent.
+
+        Returns:
+            ``(num_agents,)`` numpy int32 indices, in agent order.
+
         Raises:
             ValueError: as `validate_actions` (``strict=True``).
         """
@@ -719,7 +902,21 @@ class ChargaxMARL(MultiAgentEnv):
         )
 
     def actions_to_levels(self, actions: Mapping[str, jax.Array] | jax.Array) -> jnp.ndarray:
-        """The core's signed levels ``(num_agents,)`` for an action dict or index vector."""
+        """The core's signed levels ``(num_agents,)`` for an action dict or index vector.
+
+        Args:
+            actions: ``{agent: index}`` (checked by `stack_actions`), or a ``(num_agents,)``
+                index vector in agent order (checked by
+                `chargax_marl.core.actions.host_array`).
+
+        Returns:
+            ``(num_agents,)`` int32 levels (module-level `actions_to_levels`: out-of-range
+            indices clipped, masked ones idle).
+
+        Raises:
+            ValueError: a bad action dict (`validate_actions`), or a vector of the wrong
+                size or dtype.
+        """
         indices = (
             self.stack_actions(actions)
             if isinstance(actions, Mapping)
@@ -729,6 +926,13 @@ class ChargaxMARL(MultiAgentEnv):
 
     def levels_to_actions(self, levels: jax.Array) -> dict:
         """Action dict for valid signed levels ``(num_agents,)`` (e.g. a rule-based policy of
-        `chargax_marl.policies`)."""
+        `chargax_marl.policies`).
+
+        Args:
+            levels: ``(num_agents,)`` signed levels in agent order.
+
+        Returns:
+            ``{agent: int32 index}`` (`levels_to_indices`).
+        """
         idx = levels_to_indices(levels, self.params, self.action_offset)
         return {a: idx[i] for i, a in enumerate(self.agents)}
