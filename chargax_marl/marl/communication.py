@@ -44,7 +44,17 @@ LOSS_STREAM = 0x105E
 
 
 def check_delay_steps(delay_steps: Any) -> int:
-    """``delay_steps`` as an int, or a ``ValueError`` naming the field and what is allowed."""
+    """``delay_steps`` as an int, or a ``ValueError`` naming the field and what is allowed.
+
+    Args:
+        delay_steps: the delay in steps, a Python or numpy integer ``>= 0``.
+
+    Returns:
+        ``delay_steps`` as a Python int.
+
+    Raises:
+        ValueError: ``delay_steps`` is not an integer (a bool counts as none) or is negative.
+    """
     if isinstance(delay_steps, bool) or not isinstance(delay_steps, (int, np.integer)):
         raise ValueError(f"field 'delay_steps' must be an integer >= 0, got {delay_steps!r}")
     if delay_steps < 0:
@@ -53,7 +63,19 @@ def check_delay_steps(delay_steps: Any) -> int:
 
 
 def check_loss(loss_prob: Any, lost_action: Any) -> tuple[float, str]:
-    """``(loss_prob, lost_action)`` checked, or a ``ValueError`` naming the field."""
+    """``(loss_prob, lost_action)`` checked, or a ``ValueError`` naming the field.
+
+    Args:
+        loss_prob: the probability that an action is lost, a number in ``[0, 1]``.
+        lost_action: what a port applies instead, one of `LOST_ACTIONS`.
+
+    Returns:
+        ``(loss_prob, lost_action)`` as a float and a str.
+
+    Raises:
+        ValueError: ``loss_prob`` is not a number (a bool counts as none) or lies outside
+            ``[0, 1]`` (NaN included), or ``lost_action`` is not one of `LOST_ACTIONS`.
+    """
     if isinstance(loss_prob, bool) or not isinstance(loss_prob, (int, float, np.number)):
         raise ValueError(f"field 'loss_prob' must be a number in [0, 1], got {loss_prob!r}")
     if not 0.0 <= float(loss_prob) <= 1.0:
@@ -66,7 +88,14 @@ def check_loss(loss_prob: Any, lost_action: Any) -> tuple[float, str]:
 def delayed_columns(env: ChargaxMARL) -> np.ndarray:
     """``(obs_size,)`` bool: the observation columns that a delay shows late, the ancestor
     loads and the shared context (`chargax_marl.marl.ChargaxMARL`'s layout: leaf
-    features, kind one-hot, ancestor loads, context, agent index)."""
+    features, kind one-hot, ancestor loads, context, agent index).
+
+    Args:
+        env: the multi-agent view (unwrapped), whose observation layout is read.
+
+    Returns:
+        ``(obs_size,)`` bool mask, True for the ancestor-load and context columns.
+    """
     own = len(PORT_FEATURES) + NUM_KINDS
     id_width = np.asarray(env._layout.agent_id).shape[1]
     mask = np.zeros(env.obs_size, bool)
@@ -76,7 +105,15 @@ def delayed_columns(env: ChargaxMARL) -> np.ndarray:
 
 def start_history(obs: jax.Array, delay_steps: int) -> jax.Array:
     """The history a day starts with: ``delay_steps`` copies of its first observation,
-    ``(delay_steps, num_agents, obs_size)``."""
+    ``(delay_steps, num_agents, obs_size)``.
+
+    Args:
+        obs: ``(num_agents, obs_size)`` the day's first observations.
+        delay_steps: the delay in steps (``>= 0``).
+
+    Returns:
+        ``(delay_steps, num_agents, obs_size)``, ``obs`` repeated.
+    """
     return jnp.broadcast_to(obs, (delay_steps, *obs.shape))
 
 
@@ -195,7 +232,13 @@ def _unstack(env, obs: dict, matrix: jax.Array) -> dict:
 
 @struct.dataclass
 class DelayState:
-    """The wrapped env's state and the observations of the last ``delay_steps`` steps."""
+    """The wrapped env's state and the observations of the last ``delay_steps`` steps.
+
+    Attributes:
+        env_state: the wrapped env's state.
+        history: ``(delay_steps, num_agents, obs_size)`` the observations of the last
+            ``delay_steps`` steps, oldest first (`delay`).
+    """
 
     env_state: Any
     history: jnp.ndarray  # (delay_steps, num_agents, obs_size), oldest first
@@ -254,7 +297,13 @@ class DelayedObservationWrapper(_Wrapper):
 
 @struct.dataclass
 class ActionLossState:
-    """The wrapped env's state and the action indices the ports applied last step."""
+    """The wrapped env's state and the action indices the ports applied last step.
+
+    Attributes:
+        env_state: the wrapped env's state.
+        applied: ``(num_agents,)`` int32 the action indices the ports applied last step (idle
+            at the start of a day).
+    """
 
     env_state: Any
     applied: jnp.ndarray  # (num_agents,) int32

@@ -214,13 +214,50 @@ class ChargaxParallelEnv(ParallelEnv):
 
     # ------------------------------------------------------------------ spaces
     def observation_space(self, agent: str) -> gymnasium.spaces.Box:
+        """An agent's observation space (PettingZoo's API).
+
+        Args:
+            agent: an agent name of ``possible_agents``.
+
+        Returns:
+            ``Box(low, high, (obs_size,), float32)``; with ``action_mask_in_obs`` a
+            ``Dict`` of that box (``"observation"``) and ``MultiBinary(n)``
+            (``"action_mask"``).
+        """
         return self.observation_spaces[agent]
 
     def action_space(self, agent: str) -> gymnasium.spaces.Discrete:
+        """An agent's action space (PettingZoo's API).
+
+        Args:
+            agent: an agent name of ``possible_agents``.
+
+        Returns:
+            ``Discrete(n)``, the same for every agent (`ChargaxMARL`'s actions).
+        """
         return self.action_spaces[agent]
 
     # ------------------------------------------------------------------ episode
     def reset(self, seed: int | None = None, options: dict | None = None):
+        """Start a day with an empty station; every agent of ``possible_agents`` is live.
+
+        Args:
+            seed: a non-negative integer that starts the env's key
+                (`chargax_marl.lifecycle.key_from_seed`); None continues the key sequence.
+            options: ``{"day": d}`` starts on day ``d`` of the price data (an episode's start
+                day, `chargax_marl.core.clock.episode_days`); without it a random day is
+                drawn. Other keys are ignored.
+
+        Returns:
+            ``(observations, infos)``: the observation keyed by agent (see the class
+            docstring for its form), and ``{agent: {"action_mask": (n,) int8}}``.
+
+        Raises:
+            ValueError: a bad seed (`chargax_marl.lifecycle.key_from_seed`) or ``options``
+                (`chargax_marl.lifecycle.reset_day`).
+            chargax_marl.lifecycle.ForkedProcessError: the process was forked after JAX
+                started.
+        """
         lifecycle.check_not_forked("ChargaxParallelEnv.reset")
         key = None if seed is None else lifecycle.key_from_seed(seed, "ChargaxParallelEnv.reset")
         day = lifecycle.reset_day(
@@ -250,6 +287,27 @@ class ChargaxParallelEnv(ParallelEnv):
         return row
 
     def step(self, actions: dict):
+        """Step the station once with every live agent's action (PettingZoo's API).
+
+        Args:
+            actions: ``{agent: index}``, one integer in ``[0, n)`` per live agent
+                (`ChargaxMARL.check_actions`); a masked index plays as idle.
+
+        Returns:
+            ``(observations, rewards, terminations, truncations, infos)`` keyed by agent: the
+            observations of the stepped state (delayed columns as set), the rewards (floats,
+            EUR; the station reward or its per-agent mix), ``terminations`` always False,
+            ``truncations`` True for every agent at the day's end or after ``max_cycles``
+            steps, and the infos (the step's report as floats, ``energy_kwh``,
+            ``reward_share``, ``action_lost``, ``action_mask``). After a truncation
+            ``agents`` is empty.
+
+        Raises:
+            RuntimeError: called before `reset`, or after the episode ended.
+            ValueError: a bad action dict (`ChargaxMARL.validate_actions`, strict).
+            chargax_marl.lifecycle.ForkedProcessError: the process was forked after JAX
+                started.
+        """
         lifecycle.check_not_forked("ChargaxParallelEnv.step")
         if self._state is None:
             raise RuntimeError(

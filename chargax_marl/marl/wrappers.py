@@ -219,17 +219,42 @@ class WorldStateWrapper(_Wrapper):
     def step_arrays(self, key: jax.Array, state, indices: jax.Array, reset_state=None):
         """The wrapped env's ``step_arrays``, unchanged: the observations are a matrix with no
         room for an entry of its own, so an array-path trainer reads the world state of the
-        returned state with `global_state` (the same row `step` adds)."""
+        returned state with `global_state` (the same row `step` adds).
+
+        Args:
+            key: the step's key.
+            state: the wrapped env's state (this wrapper keeps no state of its own).
+            indices: ``(num_agents,)`` action indices in agent order.
+            reset_state: the fresh day's state at the end of a day (None: a random one).
+
+        Returns:
+            The wrapped env's ``(obs, state, rewards, done, info)``
+            (`chargax_marl.marl.ChargaxMARL.step_arrays`).
+        """
         return self._env.step_arrays(key, state, indices, reset_state)
 
     def global_state(self, state) -> jnp.ndarray:
         """The world state ``(state_size,)`` of a (wrapped) state: one row of
-        `world_state`."""
+        `world_state`.
+
+        Args:
+            state: a core `EnvState` or a wrapper's state holding one (``.env_state``).
+
+        Returns:
+            ``(state_size,)`` float32, the env's ``get_global_state``.
+        """
         return self._env.get_global_state(_core_state(state))
 
     def world_state(self, state) -> jnp.ndarray:
         """``obs["world_state"]``: `global_state` for every agent,
-        ``(num_agents, state_size)``."""
+        ``(num_agents, state_size)``.
+
+        Args:
+            state: a core `EnvState` or a wrapper's state holding one (``.env_state``).
+
+        Returns:
+            ``(num_agents, state_size)``, the same row for every agent.
+        """
         ws = self.global_state(state)
         return jnp.broadcast_to(ws, (self._env.num_agents, ws.shape[0]))
 

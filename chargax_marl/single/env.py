@@ -50,9 +50,28 @@ class MultiDiscrete(spaces.Space):
         return f"MultiDiscrete({[int(n) for n in self.nvec]})"
 
     def sample(self, key: jax.Array) -> jax.Array:
+        """A uniformly random element of the space.
+
+        Args:
+            key: the JAX key of the draw.
+
+        Returns:
+            ``(n,)`` int32, entry ``i`` uniform in ``[0, nvec[i])``.
+        """
         return jax.random.randint(key, self.shape, 0, self.nvec, self.dtype)
 
     def contains(self, x: jax.Array) -> jax.Array:
+        """Whether ``x`` is an element of the space.
+
+        An ``x`` whose shape does not broadcast against ``(n,)`` raises JAX's ``TypeError``
+        instead of giving False.
+
+        Args:
+            x: a candidate action.
+
+        Returns:
+            A ``()`` bool: ``x`` has shape ``(n,)`` and every entry lies in ``[0, nvec[i])``.
+        """
         x = jnp.asarray(x)
         return (x.shape == self.shape) & jnp.all((x >= 0) & (x < self.nvec))
 
@@ -116,6 +135,15 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
 
     # ------------------------------------------------------------------ actions
     def min_level(self, params: EnvParams | None = None) -> jnp.ndarray:
+        """The lowest level of each leaf in the ``absolute`` mode's action mapping.
+
+        Args:
+            params: the environment parameters; None: the construction's.
+
+        Returns:
+            ``(num_leaves,)`` int32: ``-num_levels`` for a leaf that may discharge (batteries;
+            ports with V2G), else 0.
+        """
         params = params or self._params
         return physics.leaf_min_level(params.station, params.num_levels, params.v2g)
 
@@ -125,13 +153,32 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
         The host action is checked and clipped into int32 / float32 first
         (`chargax_marl.core.actions.host_array`), then mapped by `action_levels`.
 
+        Args:
+            action: ``(num_leaves,)`` indices of `action_space`, or fractions in ``[-1, 1]``
+                in continuous mode.
+            params: the environment parameters.
+
+        Returns:
+            ``(num_leaves,)`` int32 signed levels (float32 fractions in continuous mode).
+
         Raises:
             ValueError: the action does not have one entry per leaf or is not numeric.
         """
         return action_levels(actions.host_array(action, params.station.num_leaves), params)
 
     def levels_to_action(self, levels: jnp.ndarray, params: EnvParams | None = None) -> jnp.ndarray:
-        """Inverse of `action_to_levels` (for rule-based policies written in levels)."""
+        """Inverse of `action_to_levels` (for rule-based policies written in levels).
+
+        Args:
+            levels: ``(num_leaves,)`` valid signed levels (fractions in continuous mode); not
+                checked.
+            params: the environment parameters; None: the construction's.
+
+        Returns:
+            ``(num_leaves,)`` the action: int32 indices (``level + num_levels`` in ``delta``
+            mode, ``level - min_level`` in ``absolute`` mode), or the float32 fractions in
+            continuous mode.
+        """
         params = params or self._params
         if params.action_mode == "continuous":
             return jnp.asarray(levels, jnp.float32)
@@ -141,6 +188,23 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
 
     # ------------------------------------------------------------------ dynamics
     def step_env(self, key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams):
+        """One transition without auto-reset (gymnax's ``step_env``).
+
+        Args:
+            key: the step's key.
+            state: the state to step.
+            action: an action of `action_space` (`action_to_levels`).
+            params: the environment parameters.
+
+        Returns:
+            ``(obs, state, reward, terminated, info)``: the stepped state's observation, the
+            stepped state (not reset at the day's end), the step's reward, ``terminated``
+            always False (the day's end is `is_truncated`), and
+            `chargax_marl.core.simulator.info_dict`.
+
+        Raises:
+            ValueError: the action does not have one entry per leaf or is not numeric.
+        """
         new_state, info = simulator.step(key, state, self.action_to_levels(action, params), params)
         obs = self.get_obs(new_state, params)
         info_dict = simulator.info_dict(info, new_state, params)
@@ -164,6 +228,17 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
         `chargax_marl.core.simulator.info_dict` plus gymnax's ``terminated``,
         ``truncated`` and ``final_observation`` (the observation before the reset, computed
         only when a caller uses it).
+
+        Args:
+            key: the step's key.
+            state: the state to step.
+            action: an action of `action_space`, host or JAX values.
+            params: the environment parameters; None: `default_params`.
+
+        Returns:
+            ``(obs, state, reward, terminated, truncated, info)``: the observation and state
+            (a fresh day's after the day's last step), the step's reward, ``terminated``
+            always False, ``truncated`` True on the day's last step, and ``info``.
 
         Raises:
             ValueError: the action does not have one entry per leaf or is not numeric.
@@ -189,11 +264,35 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
         return obs, next_state, core_info.reward, terminated, done, info
 
     def reset_env(self, key: jax.Array, params: EnvParams):
+        """Start an empty station on a random day (gymnax's ``reset_env``).
+
+        Args:
+            key: draws the day (of ``params.reset_days``) and the batteries' initial SoC
+                (`chargax_marl.core.simulator.reset`).
+            params: the environment parameters.
+
+        Returns:
+            ``(obs, state)``: the observation and the state at step 0.
+        """
         state = simulator.reset(key, params)
         return self.get_obs(state, params), state
 
     def reset_to_day(self, day: int | jax.Array, params: EnvParams | None = None):
-        """Start an empty station on a chosen day (for evaluation on fixed held-out days)."""
+        """Start an empty station on a chosen day (for evaluation on fixed held-out days).
+
+        Args:
+            day: the day index, a Python int or a JAX scalar (a traced day is not checked).
+            params: the environment parameters; None: the construction's.
+
+        Returns:
+            ``(obs, state)``: the observation and the state at step 0 of ``day``.
+
+        Raises:
+            ValueError: a concrete day that is not a day an episode can start on, outside
+                ``[0, num_days)`` or, when episodes start after midnight, the data's last
+                day (`chargax_marl.lifecycle.check_day`,
+                `chargax_marl.core.clock.episode_days`).
+        """
         params = params or self._params
         if not isinstance(day, jax.core.Tracer):
             check_day(day, clock.episode_days(params))
@@ -201,16 +300,55 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
         return self.get_obs(state, params), state
 
     def get_obs(self, state: EnvState, params: EnvParams | None = None, key=None) -> jnp.ndarray:
+        """The single-agent observation of a state.
+
+        Args:
+            state: the env state.
+            params: the environment parameters; None: the construction's.
+            key: unused (gymnax's ``get_obs`` signature).
+
+        Returns:
+            ``(obs_size,)`` float32, `chargax_marl.core.observation.flat_obs`: ports, then
+            batteries, then context.
+        """
         return observation.flat_obs(state, params or self._params)
 
     def obs_dict(self, state: EnvState, params: EnvParams | None = None) -> dict:
-        """The observation's named parts: ``ports``, ``batteries``, ``context``."""
+        """The observation's named parts: ``ports``, ``batteries``, ``context``.
+
+        Args:
+            state: the env state.
+            params: the environment parameters; None: the construction's.
+
+        Returns:
+            ``{"ports", "batteries", "context"}`` arrays
+            (`chargax_marl.core.observation.obs_dict`), whose flattened concatenation is
+            `get_obs`.
+        """
         return observation.obs_dict(state, params or self._params)
 
     def is_truncated(self, state: EnvState, params: EnvParams) -> jax.Array:
+        """Whether the day is over (gymnax's truncation).
+
+        Args:
+            state: the env state.
+            params: the environment parameters.
+
+        Returns:
+            A ``()`` bool: ``state.timestep >= params.num_steps``.
+        """
         return simulator.is_done(state, params)
 
     def is_terminated(self, state: EnvState, params: EnvParams) -> jax.Array:
+        """Whether the episode ended naturally: never (a day only ends by truncation).
+
+        Args:
+            state: the env state (unused).
+            params: the environment parameters (unused).
+
+        Returns:
+            A ``()`` bool, False.
+        """
         return jnp.asarray(False)
 
     # ------------------------------------------------------------------ spaces
@@ -243,6 +381,17 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
         return params
 
     def action_space(self, params: EnvParams | None = None):
+        """The action space, sized from the station (concrete also inside ``jit``).
+
+        Args:
+            params: the environment parameters; None, or traced station arrays: the
+                construction's.
+
+        Returns:
+            ``Box(-1, 1, (num_leaves,))`` float32 fractions in continuous mode;
+            `MultiDiscrete` with ``2L+1`` choices per leaf in ``delta`` mode, and with
+            ``L + 1 - min_level`` choices per leaf in ``absolute`` mode (`min_level`).
+        """
         params = self._concrete(params or self._params)
         n = params.station.num_leaves
         if params.action_mode == "continuous":
@@ -253,7 +402,15 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
             return MultiDiscrete(params.num_levels + 1 - np.asarray(self.min_level(params)))
 
     def observation_space(self, params: EnvParams | None = None):
-        """``Box(low, high)`` with finite bounds the observations respect (`chargax_marl.bounds`)."""
+        """``Box(low, high)`` with finite bounds the observations respect (`chargax_marl.bounds`).
+
+        Args:
+            params: the environment parameters; None, or traced station arrays: the
+                construction's.
+
+        Returns:
+            ``Box(low, high, (obs_size,), float32)`` (`chargax_marl.bounds.flat_obs_bounds`).
+        """
         params = self._concrete(params or self._params)
         low, high = bounds.flat_obs_bounds(params)
         return spaces.Box(low, high, (observation.obs_size(params),), jnp.float32)

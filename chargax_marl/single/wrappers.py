@@ -21,6 +21,18 @@ from chargax_marl.single.env import Chargax, action_levels
 
 @struct.dataclass
 class LogState:
+    """The state of the single-agent `LogWrapper`: the wrapped env's state and the episode
+    statistics, each a scalar.
+
+    Attributes:
+        env_state: the wrapped env's state.
+        episode_return: the return so far in the running episode (float32).
+        episode_length: the steps so far in the running episode (int32).
+        returned_episode_return: the return of the last finished episode (float32).
+        returned_episode_length: the length of the last finished episode (int32).
+        returned_totals: the last finished episode's `EpisodeTotals`.
+    """
+
     env_state: EnvState
     episode_return: jnp.ndarray
     episode_length: jnp.ndarray
@@ -49,6 +61,15 @@ class LogWrapper:
         return getattr(self._env, name)
 
     def reset(self, key: jax.Array, params: EnvParams | None = None):
+        """The wrapped env's ``reset``, with the episode statistics at zero.
+
+        Args:
+            key: the reset's key.
+            params: the environment parameters; None: the wrapped env's defaults.
+
+        Returns:
+            ``(obs, state)``: the wrapped env's observation and a `LogState`.
+        """
         obs, env_state = self._env.reset(key, params)
         zero = jnp.zeros((), jnp.float32)
         state = LogState(
@@ -62,6 +83,19 @@ class LogWrapper:
         return obs, state
 
     def step(self, key: jax.Array, state: LogState, action, params: EnvParams | None = None):
+        """The wrapped env's auto-resetting ``step``, with the episode logging.
+
+        Args:
+            key: the step's key.
+            state: the `LogState`.
+            action: an action of the wrapped env's space.
+            params: the environment parameters; None: the wrapped env's defaults.
+
+        Returns:
+            ``(obs, state, reward, terminated, truncated, info)``: the wrapped env's values,
+            the `LogState` after the step, and ``info`` with the logged entries (the class
+            docstring).
+        """
         obs, env_state, reward, terminated, truncated, info = self._env.step(
             key, state.env_state, action, params
         )
@@ -149,10 +183,30 @@ class FlatDiscrete:
         return self.n
 
     def action_space(self, params: EnvParams | None = None) -> gx_spaces.Discrete:
+        """The flat action space.
+
+        Args:
+            params: unused (gymnax's signature); the space is the construction's.
+
+        Returns:
+            ``gymnax.environments.spaces.Discrete(n)``.
+        """
         return gx_spaces.Discrete(self.n)
 
     def action_index(self, port_level: int, battery_level: int = 0) -> int:
-        """The flat action of a shared port level and battery level (host side)."""
+        """The flat action of a shared port level and battery level (host side).
+
+        Args:
+            port_level: a level of `port_levels`.
+            battery_level: a level of `battery_levels` (0 without a battery).
+
+        Returns:
+            The index ``i * len(battery_levels) + j`` of the two levels' positions ``i`` and
+            ``j``.
+
+        Raises:
+            IndexError: a level that is not in `port_levels` or `battery_levels`.
+        """
         i = int(np.flatnonzero(self.port_levels == port_level)[0])
         j = int(np.flatnonzero(self.battery_levels == battery_level)[0])
         return i * self.battery_levels.size + j
@@ -163,6 +217,14 @@ class FlatDiscrete:
         An index outside ``[0, n)`` is clipped into it in its own dtype (a host integer beyond
         int32 on the host first, `chargax_marl.core.actions.host_array`), so it never
         wraps; NaN and +-inf are the index of every leaf idle.
+
+        Args:
+            action: a flat action, a scalar (or an array of one element).
+
+        Returns:
+            ``(num_leaves,)`` int32 signed levels: the shared port level for the ports, the
+            shared battery level for the batteries, each raised to the leaf's lowest level
+            (a port that cannot discharge idles at a negative level).
         """
         idle = self.action_index(0, 0)
         a = actions.to_int32(jnp.reshape(actions.host_array(action), ()), 0, self.n - 1, idle)
@@ -173,13 +235,40 @@ class FlatDiscrete:
         return jnp.maximum(lv, jnp.asarray(self._min_level))
 
     def to_env_action(self, action) -> jnp.ndarray:
-        """The wrapped env's ``MultiDiscrete`` action of a flat action."""
+        """The wrapped env's ``MultiDiscrete`` action of a flat action.
+
+        Args:
+            action: a flat action (`levels`).
+
+        Returns:
+            ``(num_leaves,)`` int32 indices of the wrapped env's action space.
+        """
         return self.levels(action) - jnp.asarray(self._min_level)
 
     def reset(self, key: jax.Array, params: EnvParams | None = None):
+        """The wrapped env's ``reset``, unchanged.
+
+        Args:
+            key: the reset's key.
+            params: the environment parameters; None: the wrapped env's defaults.
+
+        Returns:
+            ``(obs, state)`` of the wrapped env.
+        """
         return self._env.reset(key, params)
 
     def step(self, key: jax.Array, state, action, params: EnvParams | None = None):
+        """The wrapped env's ``step`` with a flat action (`to_env_action`).
+
+        Args:
+            key: the step's key.
+            state: the wrapped env's state.
+            action: a flat action in ``Discrete(n)`` (clipped into range).
+            params: the environment parameters; None: the wrapped env's defaults.
+
+        Returns:
+            ``(obs, state, reward, terminated, truncated, info)`` of the wrapped env's step.
+        """
         return self._env.step(key, state, self.to_env_action(action), params)
 
 
@@ -217,7 +306,12 @@ def _shared_step(key: jax.Array, state: EnvState, action: jax.Array, params: Env
 
 
 def compile_count() -> int:
-    """How many times the shared reset and step were compiled in this process (for tests)."""
+    """How many times the shared reset and step were compiled in this process (for tests).
+
+    Returns:
+        The number of entries in the compilation caches of the shared random reset and step
+        (the reset to a chosen day is not counted).
+    """
     return int(_shared_reset._cache_size()) + int(_shared_step._cache_size())
 
 
@@ -326,6 +420,23 @@ class GymnasiumEnv(gymnasium.Env):
 
     # ------------------------------------------------------------------ episode
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Start a day with an empty station (Gymnasium's API).
+
+        Args:
+            seed: a non-negative integer that starts the env's key
+                (`chargax_marl.lifecycle.key_from_seed`); None continues the key sequence.
+            options: ``{"day": d}`` starts on day ``d`` of the price data (an episode's start
+                day, `chargax_marl.core.clock.episode_days`); without it a random day is
+                drawn. Other keys are ignored.
+
+        Returns:
+            ``(obs, info)``: the ``(n,)`` float32 observation and an empty dict.
+
+        Raises:
+            ValueError: a bad seed or ``options`` (`chargax_marl.lifecycle`).
+            chargax_marl.lifecycle.ForkedProcessError: the process was forked after JAX
+                started.
+        """
         lifecycle.check_not_forked("GymnasiumEnv.reset")
         if seed is not None:
             key = lifecycle.key_from_seed(seed, "GymnasiumEnv.reset")
@@ -344,6 +455,25 @@ class GymnasiumEnv(gymnasium.Env):
         return np.array(obs, dtype=np.float32), {}
 
     def step(self, action):
+        """Step the station once (Gymnasium's API; no auto-reset).
+
+        Args:
+            action: an element of ``action_space``: per-leaf level indices (discrete modes)
+                or fractions in ``[-1, 1]`` (continuous mode), as numpy values.
+
+        Returns:
+            ``(obs, reward, terminated, truncated, info)``: the ``(n,)`` float32
+            observation, the step's reward as a float, ``terminated`` always False,
+            ``truncated`` True on the day's last step, and the step's report
+            (`chargax_marl.core.simulator.info_dict`) with scalars as floats and
+            ``leaf_energy_kwh`` as a float32 array.
+
+        Raises:
+            RuntimeError: called before `reset`, or after the day ended.
+            ValueError: the action is not numeric or lies outside ``action_space``.
+            chargax_marl.lifecycle.ForkedProcessError: the process was forked after JAX
+                started.
+        """
         lifecycle.check_not_forked("GymnasiumEnv.step")
         if self._state is None:
             raise RuntimeError(
