@@ -198,14 +198,29 @@ class PriorityFill(TeacherWrapper):
             self._avail_np = (classes >= idle) | can_discharge
 
     def action_space(self, agent: str):
-        """The agent's ``Discrete`` space (the view's, or the classes' with ``num_priorities``)."""
+        """The agent's ``Discrete`` space (the view's, or the classes' with ``num_priorities``).
+
+        Args:
+            agent: an agent name.
+
+        Returns:
+            The wrapped env's space without ``num_priorities``; with it
+            ``Discrete(n)`` of `priority_class_size`.
+        """
         if self.num_priorities is None:
             return self._env.action_space(agent)
         return self.action_spaces[agent]
 
     def get_avail_actions(self, state) -> dict:
         """Bool mask per agent; with ``num_priorities``, ``False`` only at full discharge for a
-        leaf that cannot discharge."""
+        leaf that cannot discharge.
+
+        Args:
+            state: the env state (the mask does not depend on it).
+
+        Returns:
+            ``{agent: (n,) bool}``: the wrapped env's masks without ``num_priorities``.
+        """
         if self.num_priorities is None:
             return self._env.get_avail_actions(state)
         return {a: jnp.asarray(self._avail_np[i]) for i, a in enumerate(self._env.agents)}
@@ -213,6 +228,12 @@ class PriorityFill(TeacherWrapper):
     def actions_to_levels(self, actions):
         """The view's mapping of actions to levels; refused with ``num_priorities``, where an
         action's level depends on the state (use `levels`).
+
+        Args:
+            actions: an action dict or ``(num_agents,)`` index vector of the view.
+
+        Returns:
+            The wrapped env's ``(num_agents,)`` levels of ``actions``, before the fill.
 
         Raises:
             NotImplementedError: with ``num_priorities``.
@@ -228,6 +249,12 @@ class PriorityFill(TeacherWrapper):
         """The view's mapping of levels to actions; refused with ``num_priorities``, whose
         agents choose classes, not levels.
 
+        Args:
+            levels: ``(num_agents,)`` valid signed levels.
+
+        Returns:
+            The wrapped env's action dict for ``levels``.
+
         Raises:
             NotImplementedError: with ``num_priorities``.
         """
@@ -240,7 +267,16 @@ class PriorityFill(TeacherWrapper):
 
     def levels(self, state, indices: jnp.ndarray) -> jnp.ndarray:
         """The core levels ``(num_agents,)`` played for the agents' ``indices`` in ``state`` (a
-        core or wrapper state)."""
+        core or wrapper state).
+
+        Args:
+            state: the core state or a wrapper's state holding one.
+            indices: ``(num_agents,)`` the agents' action indices, in agent order.
+
+        Returns:
+            ``(num_agents,)`` int32 levels in ``[-L, L]``: `priority_fill_levels` of the view's
+            levels, or with ``num_priorities`` `priority_class_levels`.
+        """
         params = self.env_params
         core = core_state(state)
         if self.num_priorities is not None:
@@ -250,7 +286,15 @@ class PriorityFill(TeacherWrapper):
 
     def fill(self, state, indices: jnp.ndarray) -> jnp.ndarray:
         """The action indices ``(num_agents,)`` the wrapped env is stepped with for the agents'
-        ``indices`` in ``state`` (a core or wrapper state)."""
+        ``indices`` in ``state`` (a core or wrapper state).
+
+        Args:
+            state: the core state or a wrapper's state holding one.
+            indices: ``(num_agents,)`` the agents' action indices, in agent order.
+
+        Returns:
+            ``(num_agents,)`` int32 indices of the wrapped env's space, those of `levels`.
+        """
         return levels_to_indices(self.levels(state, indices), self.env_params, self._offset)
 
     def _stack(self, actions: dict) -> jnp.ndarray:
@@ -265,6 +309,15 @@ class PriorityFill(TeacherWrapper):
     def step(self, key, state, actions: dict, reset_state=None):
         """The wrapped env's ``step`` with the actions filled (`fill`).
 
+        Args:
+            key: the step's key.
+            state: the wrapped env's state.
+            actions: ``{agent: index}``, one entry per agent, in this wrapper's space.
+            reset_state: the fresh day's state at the end of a day (None: a random one).
+
+        Returns:
+            ``(obs, state, rewards, dones, infos)`` of the wrapped env's step.
+
         Raises:
             ValueError: a bad action dict (`chargax_marl.marl.ChargaxMARL.validate_actions`).
         """
@@ -278,6 +331,15 @@ class PriorityFill(TeacherWrapper):
         """The wrapped env's ``step_arrays`` with the actions filled (`fill`).
         Arguments and returns as `chargax_marl.marl.ChargaxMARL.step_arrays`, with this
         wrapper's state.
+
+        Args:
+            key: the step's key.
+            state: the wrapped env's state.
+            indices: ``(num_agents,)`` action indices in this wrapper's space, agent order.
+            reset_state: the fresh day's state at the end of a day (None: a random one).
+
+        Returns:
+            ``(obs, state, rewards, done, info)`` of the wrapped env's ``step_arrays``.
         """
         return self._env.step_arrays(key, state, self.fill(state, indices), reset_state)
 

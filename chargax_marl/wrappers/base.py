@@ -11,7 +11,14 @@ from chargax_marl.core.station import KIND_BATTERY
 
 
 def base_env(env):
-    """The innermost env under a stack of wrappers (each holding the next one as ``_env``)."""
+    """The innermost env under a stack of wrappers (each holding the next one as ``_env``).
+
+    Args:
+        env: an env or a wrapper of one.
+
+    Returns:
+        The first object down the ``_env`` chain that has no ``_env``.
+    """
     while hasattr(env, "_env"):
         env = env._env
     return env
@@ -47,16 +54,37 @@ class TeacherWrapper:
         through this wrapper. Each wrapper that changes the step defines its own; this one
         refuses, so that an array step never passes a wrapper by unchanged.
 
+        Args:
+            key: the step's key.
+            state: this wrapper's state.
+            indices: ``(num_agents,)`` action indices in agent order.
+            reset_state: the fresh day's state at the end of a day (None: a random one).
+
         Raises:
             NotImplementedError: the wrapper has no array step.
         """
         raise NotImplementedError(f"{type(self).__name__} has no array step (step_arrays)")
 
     def add_to_rewards(self, rewards: dict, terms) -> dict:
-        """``rewards[agent] + terms[i]`` for the agents in order (``terms (agents,)``)."""
+        """``rewards[agent] + terms[i]`` for the agents in order (``terms (agents,)``).
+
+        Args:
+            rewards: the step's rewards keyed by agent.
+            terms: ``(num_agents,)`` the terms to add, in agent order.
+
+        Returns:
+            The rewards keyed by agent, each with its term added.
+        """
         return {a: rewards[a] + terms[i] for i, a in enumerate(self._env.agents)}
 
 
 def agent_axis(values) -> jnp.ndarray:
-    """``values (agents,)`` as a column ``(agents, 1)``, to append one feature per agent."""
+    """``values (agents,)`` as a column ``(agents, 1)``, to append one feature per agent.
+
+    Args:
+        values: ``(num_agents,)`` one value per agent.
+
+    Returns:
+        ``(num_agents, 1)`` float32.
+    """
     return jnp.asarray(values, jnp.float32)[:, None]

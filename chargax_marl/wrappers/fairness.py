@@ -25,6 +25,14 @@ def fairness_metric(totals: EpisodeTotals, metric: str) -> jnp.ndarray:
     """The day's ``metric`` so far from its running totals (traceable; the values of
     `chargax_marl.evaluation.service_metrics`).
 
+    Args:
+        totals: the day's running `EpisodeTotals` (any leading axes).
+        metric: one of `FAIRNESS_METRICS`.
+
+    Returns:
+        The metric of the cars departed so far, shaped as the totals' fields; 1 before any car
+        has left.
+
     Raises:
         ValueError: an unknown metric.
     """
@@ -87,7 +95,21 @@ class FairnessReward(TeacherWrapper):
 
     def step(self, key, state, action, *args):
         """The wrapped ``step`` (gymnax: ``params``; JaxMARL: ``reset_state`` in ``args``) with
-        the fairness term added to the reward(s)."""
+        the fairness term added to the reward(s).
+
+        Args:
+            key: the step's key.
+            state: the wrapped env's state.
+            action: the action (gymnax) or action dict (JaxMARL) of the wrapped env.
+            *args: passed on to the wrapped ``step``: gymnax's ``params`` or JaxMARL's
+                ``reset_state``.
+
+        Returns:
+            The wrapped step's tuple, gymnax's ``(obs, state, reward, terminated, truncated,
+            info)`` or JaxMARL's ``(obs, state, rewards, dones, infos)``, with the term added
+            to the reward (every agent's) and stored as ``fairness_reward_eur`` in the info
+            (``(num_agents,)`` in the JaxMARL view).
+        """
         out = self._env.step(key, state, action, *args)
         term = self._term(state, out[-1])
         if self.is_marl:
@@ -116,6 +138,16 @@ class FairnessReward(TeacherWrapper):
         (the values of `step`, stacked; ``info["fairness_reward_eur"]`` a scalar).
         Arguments and returns as `chargax_marl.marl.ChargaxMARL.step_arrays`, with this
         wrapper's state.
+
+        Args:
+            key: the step's key.
+            state: the wrapped env's state.
+            indices: ``(num_agents,)`` action indices in agent order.
+            reset_state: the fresh day's state at the end of a day (None: a random one).
+
+        Returns:
+            ``(obs, state, rewards, done, info)`` of the wrapped ``step_arrays``, the term
+            added to ``rewards`` and stored as ``info["fairness_reward_eur"]``.
         """
         obs, next_state, rewards, done, info = self._env.step_arrays(
             key, state, indices, reset_state

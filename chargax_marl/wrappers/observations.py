@@ -49,7 +49,16 @@ class ObservationFeatures(TeacherWrapper):
 
     def features(self, obs, state):
         """The appended columns: ``(agents, width)`` from the dict ``obs`` (JaxMARL) or
-        ``(width,)`` from the flat ``obs`` (gymnax), for the (wrapped) core ``state``."""
+        ``(width,)`` from the flat ``obs`` (gymnax), for the (wrapped) core ``state``.
+
+        Args:
+            obs: the wrapped env's observation: a dict keyed by agent (JaxMARL) or the flat
+                vector (gymnax).
+            state: the state the observation is of (a core or wrapper state).
+
+        Raises:
+            NotImplementedError: always here; a subclass defines the columns.
+        """
         raise NotImplementedError
 
     def _append(self, obs, state):
@@ -60,16 +69,47 @@ class ObservationFeatures(TeacherWrapper):
         return {**obs, **grown}
 
     def observation_space(self, agent_or_params=None):
-        """JaxMARL: the grown ``Box`` of ``agent``; gymnax: the grown ``Box`` for ``params``."""
+        """JaxMARL: the grown ``Box`` of ``agent``; gymnax: the grown ``Box`` for ``params``.
+
+        Args:
+            agent_or_params: an agent name (JaxMARL view), or the environment parameters
+                (gymnax view; None: the env's defaults).
+
+        Returns:
+            The wrapped env's ``Box`` with ``width`` columns appended, bounded by the class's
+            ``low`` and ``high``.
+        """
         if self.is_marl:
             return self.observation_spaces[agent_or_params]
         return self._grown(self._env.observation_space(agent_or_params))
 
     def reset(self, key, *args):
+        """The wrapped env's ``reset`` with the columns appended to the observation(s).
+
+        Args:
+            key: the reset's key.
+            *args: passed on to the wrapped ``reset`` (gymnax's ``params``).
+
+        Returns:
+            ``(obs, state)``: the grown observation(s) and the wrapped env's state.
+        """
         obs, state = self._env.reset(key, *args)
         return self._append(obs, state), state
 
     def step(self, key, state, action, *args):
+        """The wrapped env's ``step`` with the columns appended to the observation(s).
+
+        Args:
+            key: the step's key.
+            state: the wrapped env's state.
+            action: the action (gymnax) or action dict (JaxMARL) of the wrapped env.
+            *args: passed on to the wrapped ``step``: gymnax's ``params`` or JaxMARL's
+                ``reset_state``.
+
+        Returns:
+            The wrapped step's tuple with the returned state's columns appended to its
+            observation(s) (after an auto-reset, the new day's).
+        """
         obs, state, *rest = self._env.step(key, state, action, *args)
         return (self._append(obs, state), state, *rest)
 
@@ -78,17 +118,45 @@ class ObservationFeatures(TeacherWrapper):
         (the values of `step`, stacked).
         Arguments and returns as `chargax_marl.marl.ChargaxMARL.step_arrays`, with this
         wrapper's state.
+
+        Args:
+            key: the step's key.
+            state: the wrapped env's state.
+            indices: ``(num_agents,)`` action indices in agent order.
+            reset_state: the fresh day's state at the end of a day (None: a random one).
+
+        Returns:
+            ``(obs, state, rewards, done, info)`` of the wrapped ``step_arrays``, ``obs``
+            grown to ``(num_agents, obs_size + width)``.
         """
         obs, state, *rest = self._env.step_arrays(key, state, indices, reset_state)
         return (jnp.concatenate([obs, self.matrix_features(obs, state)], axis=-1), state, *rest)
 
     def matrix_features(self, obs, state):
         """`features` of the observation matrix ``obs (agents, obs_size)`` (JaxMARL view);
-        subclasses that read ``obs`` may compute it on the matrix at once."""
+        subclasses that read ``obs`` may compute it on the matrix at once.
+
+        Args:
+            obs: ``(num_agents, obs_size)`` the wrapped env's observation matrix.
+            state: the state the observations are of (a core or wrapper state).
+
+        Returns:
+            ``(num_agents, width)`` the appended columns.
+        """
         return self.features(dict(zip(self._env.agents, obs)), state)
 
     def get_obs(self, state, *args, **kwargs):
-        """The wrapped env's observation of ``state`` with the columns appended."""
+        """The wrapped env's observation of ``state`` with the columns appended.
+
+        Args:
+            state: the state to observe (a core or wrapper state, as the wrapped env takes).
+            *args: passed on to the wrapped ``get_obs`` (gymnax's ``params``).
+            **kwargs: passed on to the wrapped ``get_obs``.
+
+        Returns:
+            The grown observation(s): a dict keyed by agent (JaxMARL) or the flat vector
+            (gymnax).
+        """
         return self._append(self._env.get_obs(state, *args, **kwargs), state)
 
 
@@ -110,6 +178,16 @@ class PlanAdviceObservation(ObservationFeatures):
         self._advice = plan_advice(self.env_params, power_fraction)
 
     def features(self, obs, state):
+        """The plan advice of the state's ports.
+
+        Args:
+            obs: the wrapped env's observation (unused).
+            state: the state to advise on (a core or wrapper state).
+
+        Returns:
+            ``(num_agents, 1)`` (JaxMARL) or ``(num_leaves,)`` (gymnax) float advice, 1.0 where
+            the car's plan charges now.
+        """
         advice = self._advice(core_state(state))
         return advice[:, None] if self.is_marl else advice
 
@@ -137,6 +215,16 @@ class CoupledPlanAdviceObservation(ObservationFeatures):
         self._advice = coupled_advice(self.env_params, **plan_kwargs)
 
     def features(self, obs, state):
+        """The coupled plan's power share and congestion price of the state's ports.
+
+        Args:
+            obs: the wrapped env's observation (unused).
+            state: the state to advise on (a core or wrapper state).
+
+        Returns:
+            ``(num_agents, 2)`` (JaxMARL: share, price) or ``(2 * num_leaves,)`` (gymnax: every
+            leaf's share, then every leaf's price).
+        """
         advice = self._advice(core_state(state))
         return advice if self.is_marl else advice.T.reshape(-1)
 
@@ -164,11 +252,29 @@ class RelativePriceObservation(ObservationFeatures):
         self.columns = relative_price_columns(params, end - observation.context_size(params))
 
     def features(self, obs, state):
+        """The relative prices read from the observation's price columns.
+
+        Args:
+            obs: the wrapped env's observation: a dict keyed by agent (JaxMARL) or the flat
+                vector (gymnax).
+            state: unused (the prices are read from ``obs``).
+
+        Returns:
+            ``(num_agents, H + 1)`` (JaxMARL) or ``(H + 1,)`` (gymnax), each in ``[-5, 5]``.
+        """
         if not self.is_marl:
             return relative_prices(obs, *self.columns)
         return jnp.stack([relative_prices(obs[a], *self.columns) for a in self._env.agents])
 
     def matrix_features(self, obs, state):
         """`features` on the matrix ``obs (agents, obs_size)`` at once, without a slice per
-        agent."""
+        agent.
+
+        Args:
+            obs: ``(num_agents, obs_size)`` the wrapped env's observation matrix.
+            state: unused (the prices are read from ``obs``).
+
+        Returns:
+            ``(num_agents, H + 1)`` relative prices, each in ``[-5, 5]``.
+        """
         return relative_prices(obs, *self.columns)

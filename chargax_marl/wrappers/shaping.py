@@ -51,7 +51,20 @@ class BatteryShaping(TeacherWrapper):
 
     def step(self, key, state, action, *args):
         """The wrapped ``step`` (gymnax: ``params``; JaxMARL: ``reset_state`` in ``args``) with the
-        shaping term added to the reward(s)."""
+        shaping term added to the reward(s).
+
+        Args:
+            key: the step's key.
+            state: the wrapped env's state.
+            action: the action (gymnax) or action dict (JaxMARL) of the wrapped env.
+            *args: passed on to the wrapped ``step``: gymnax's ``params`` or JaxMARL's
+                ``reset_state``.
+
+        Returns:
+            The wrapped step's tuple, gymnax's ``(obs, state, reward, terminated, truncated,
+            info)`` or JaxMARL's ``(obs, state, rewards, dones, infos)``, with the term(s)
+            added to the reward(s) and stored as ``battery_shaping_eur`` in the info.
+        """
         shift = self._potential(state)  # before the (auto-resetting) step
         out = self._env.step(key, state, action, *args)
         if self.is_marl:
@@ -70,6 +83,17 @@ class BatteryShaping(TeacherWrapper):
 
         Arguments and returns as `chargax_marl.marl.ChargaxMARL.step_arrays`, with this
         wrapper's state.
+
+        Args:
+            key: the step's key.
+            state: the wrapped env's state.
+            indices: ``(num_agents,)`` action indices in agent order.
+            reset_state: the fresh day's state at the end of a day (None: a random one).
+
+        Returns:
+            ``(obs, state, rewards, done, info)`` of the wrapped ``step_arrays``, the
+            ``(num_agents,)`` terms added to ``rewards`` and stored as
+            ``info["battery_shaping_eur"]``.
         """
 
         def terms(shift, info):
@@ -107,7 +131,20 @@ class CarPlanShaping(TeacherWrapper):
         self._potential = car_potential(self.env_params)
 
     def step(self, key, state, action, *args):
-        """The wrapped ``step`` with the ports' plan shaping added to the reward(s)."""
+        """The wrapped ``step`` with the ports' plan shaping added to the reward(s).
+
+        Args:
+            key: the step's key.
+            state: the wrapped env's state.
+            action: the action (gymnax) or action dict (JaxMARL) of the wrapped env.
+            *args: passed on to the wrapped ``step``: gymnax's ``params`` or JaxMARL's
+                ``reset_state``.
+
+        Returns:
+            The wrapped step's tuple, gymnax's ``(obs, state, reward, terminated, truncated,
+            info)`` or JaxMARL's ``(obs, state, rewards, dones, infos)``, with the term(s)
+            added to the reward(s) and stored as ``car_plan_shaping_eur`` in the info.
+        """
         shift = self._potential(state)  # before the (auto-resetting) step
         out = self._env.step(key, state, action, *args)
         if self.is_marl:
@@ -126,6 +163,17 @@ class CarPlanShaping(TeacherWrapper):
 
         Arguments and returns as `chargax_marl.marl.ChargaxMARL.step_arrays`, with this
         wrapper's state.
+
+        Args:
+            key: the step's key.
+            state: the wrapped env's state.
+            indices: ``(num_agents,)`` action indices in agent order.
+            reset_state: the fresh day's state at the end of a day (None: a random one).
+
+        Returns:
+            ``(obs, state, rewards, done, info)`` of the wrapped ``step_arrays``, the
+            ``(num_agents,)`` terms added to ``rewards`` and stored as
+            ``info["car_plan_shaping_eur"]``.
         """
 
         def terms(shift, info):
