@@ -41,6 +41,27 @@ def evaluate_batched(
     ``reference_profit`` (the daily profits of a baseline on the same days and key, e.g.
     always-max), also ``paired_diff``: per seed, the mean and standard error over days of
     (policy − reference) profit.
+
+    Args:
+        make_act: ``make_act(params) -> act(state, key) -> levels`` or a
+            `chargax_marl.evaluation.MemoryAct` (a trainer's ``make_act(eval_params)``).
+        net_params: every seed's network parameters, a pytree with a leading seed axis.
+        eval_params: the evaluation env parameters.
+        days: ``(days,)`` day indices to play.
+        key: one evaluation key for every day; ``None`` plays the keys of `draw_keys`.
+        reference_profit: ``(days,)`` daily profits in EUR/day of a reference on the same
+            days and key, or ``None`` for no ``paired_diff``.
+        draws: car draws per day (a positive integer); only with ``key=None``.
+
+    Returns:
+        ``{"num_days", "num_seeds", "metrics", "per_seed_profit", "daily_profit",
+        "per_seed_metrics"}`` (``daily_profit`` a float64 ``(seeds, days)`` array in EUR/day,
+        ``per_seed_profit`` a list of each seed's mean daily profit in EUR/day), plus
+        ``paired_diff`` (`baselines.eval.stats.paired_difference`) with ``reference_profit``.
+
+    Raises:
+        ValueError: both a ``key`` and ``draws`` other than 1, or ``draws`` not a positive
+            integer (`baselines.eval.protocol.draw_keys`).
     """
     if key is not None and draws != 1:
         raise ValueError(
@@ -130,6 +151,26 @@ def baseline_results(
     With ``draws`` > 1 every rule and the bound are scored under the keys of
     `draw_keys`, each day's profit the mean over the draws; the stored
     MPC (one draw) is then not used, and ``optimal="mpc"`` runs the MPC on every draw.
+
+    Args:
+        eval_params: the evaluation env parameters.
+        eval_days: the day indices to play.
+        optimal: one of `OPTIMAL_CHOICES`: ``"off"``, ``"bound"`` or ``"mpc"``.
+        draws: car draws per day (a positive integer).
+        references_dir: a directory of stored references (``make optimal``), or ``None`` to
+            compute the bound (and the MPC) here.
+
+    Returns:
+        ``{name: entry}`` per rule (`baselines.eval.rules.evaluate_rules` entries;
+        ``battery_rule`` and the teachers' rules with ``vs_always_max``, the teachers' rules
+        also with ``vs_battery_rule``). Unless ``optimal="off"``, also ``lp_bound``
+        (``daily_profit``, ``metrics``, ``source``, ``kind``) and, when stored or run,
+        ``mpc`` (``daily_profit``, ``metrics``, ``source``), and every entry gets
+        ``headroom``.
+
+    Raises:
+        ValueError: ``optimal`` not one of `OPTIMAL_CHOICES`, or ``draws`` not a positive
+            integer (`baselines.eval.protocol.draw_keys`).
     """
     if optimal not in OPTIMAL_CHOICES:
         raise ValueError(f"field 'optimal' must be one of {OPTIMAL_CHOICES}, got {optimal!r}")
@@ -185,7 +226,15 @@ def baseline_results(
 
 def add_headroom(entries: dict, baselines: dict) -> dict:
     """Add ``headroom`` (fraction of the hindsight headroom captured) to every entry that has
-    ``daily_profit``, when ``baselines`` hold ``lp_bound`` and ``always_max``."""
+    ``daily_profit``, when ``baselines`` hold ``lp_bound`` and ``always_max``.
+
+    Args:
+        entries: ``{name: entry}``; the dict entries with ``daily_profit`` are changed in place.
+        baselines: ``{name: entry}`` that may hold ``lp_bound``; with it, also ``always_max``.
+
+    Returns:
+        ``entries``, the same dict (unchanged when ``baselines`` lack ``lp_bound``).
+    """
     if "lp_bound" not in baselines:
         return entries
     am, bound = baselines["always_max"]["daily_profit"], baselines["lp_bound"]["daily_profit"]
@@ -203,7 +252,21 @@ def per_seed_results(final: dict, evals: list, baselines: dict, seed: int) -> li
     (``headroom_fraction``, when the bound was computed), and the env steps and wall minutes
     (since the start of training, compile and evaluations included) of the first evaluation
     of ``evals`` (a run's validation evaluations) at which this seed beats each reference by
-    more than two standard errors (``None``: never)."""
+    more than two standard errors (``None``: never).
+
+    Args:
+        final: the held-out evaluation of every seed (`evaluate_batched`), its
+            ``daily_profit`` ``(seeds, days)`` in EUR/day.
+        evals: the run's validation evaluations, each a dict with ``timesteps``,
+            ``train_seconds`` and the ``vs_<reference>`` paired differences it has.
+        baselines: `baseline_results` on the same days (``always_max`` is required).
+        seed: the run's seed, written into each entry's ``key``.
+
+    Returns:
+        One dict per seed: ``seed_index``, ``key``, ``mean_profit_eur``, ``vs_<reference>``
+        (``{"mean", "stderr"}`` in EUR/day, or ``None``), ``headroom_fraction`` and
+        ``first_beats_<reference>`` (``{"timesteps", "wall_minutes"}`` or ``None``).
+    """
     profit = np.atleast_2d(np.asarray(final["daily_profit"], np.float64))
     am = np.asarray(baselines["always_max"]["daily_profit"], np.float64)
     bound = baselines.get("lp_bound", {}).get("daily_profit")

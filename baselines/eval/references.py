@@ -23,6 +23,12 @@ def evaluate_mpc(params, days, key=None, **mpc_kwargs) -> dict:
     ``failed_days`` with the steps and solver statuses of its failed solves
     (`chargax_marl.optimal.mpc.MPC.failed_solves`).
 
+    Args:
+        params: the env parameters.
+        days: the day indices to play.
+        key: the evaluation key; ``None`` is ``PRNGKey(0)``.
+        **mpc_kwargs: keyword arguments of `chargax_marl.optimal.mpc.MPC`.
+
     Returns:
         ``{"daily_profit", "metrics", "failed_days", "wall_s", "solves", "failures",
         "warm_retries", "solve_s_total", "ms_per_step", "settings"}``.
@@ -88,7 +94,16 @@ def cached(params, days, directory: str | Path) -> dict | None:
 
 def stored_mpc(stored: dict | None, days) -> np.ndarray | None:
     """The MPC's per-day profits of a stored result when it ran on every one of ``days``
-    (``make optimal --mpc-days N`` stores it for the first N only); else ``None``."""
+    (``make optimal --mpc-days N`` stores it for the first N only); else ``None``.
+
+    Args:
+        stored: a stored result (`cached`), or ``None``.
+        days: the held-out days.
+
+    Returns:
+        The MPC's ``(days,)`` float64 daily profits in EUR/day, or ``None`` when there is no
+        stored result, it has no MPC, or its MPC covers a different number of days.
+    """
     if stored is None or "mpc" not in stored["policies"]:
         return None
     daily = np.asarray(stored["policies"]["mpc"]["daily_profit"], np.float64)

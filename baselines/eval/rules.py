@@ -57,14 +57,33 @@ BATTERY_RULES = TEACHER_RULES + (GRID_PROGRAMME,)
 def rule_policy(name: str, params):
     """The ``policy(state, key, params)`` of a rule name: a `chargax_marl.policies` rule, or
     one of `BATTERY_RULES` (built for ``params``; a ``ValueError`` on a station without
-    a battery)."""
+    a battery).
+
+    Args:
+        name: a rule name of `chargax_marl.policies.get_policy`.
+        params: the env parameters a battery rule is built for.
+
+    Returns:
+        ``policy(state, key, params) -> levels``.
+    """
     return get_policy(name, params)
 
 
 def check_replay(replayed: dict, stored: dict, names, where: str) -> None:
     """Refuse (``ValueError``) a stored result whose ``names`` (rule entries with
     ``daily_profit``) differ from ``replayed`` on this code by more than float32 noise: it was
-    made on another model, and new entries computed beside it would not compare."""
+    made on another model, and new entries computed beside it would not compare.
+
+    Args:
+        replayed: ``{name: entry}`` played on this code, each with ``daily_profit`` (EUR/day).
+        stored: ``{name: entry}`` read from the stored result, each with ``daily_profit``.
+        names: the entries to compare.
+        where: the stored result's name, for the error message.
+
+    Raises:
+        ValueError: a ``daily_profit`` of ``names`` differs by more than ``rtol=1e-5`` and
+            ``atol=1e-3`` EUR/day on some day.
+    """
     for name in names:
         ref = np.asarray(stored[name]["daily_profit"], np.float64)
         if not np.allclose(replayed[name]["daily_profit"], ref, rtol=1e-5, atol=1e-3):
@@ -82,7 +101,24 @@ def evaluate_rules(params, days, policies=POLICIES, key=None, draws: int = 1) ->
     `TEACHER_RULES`. With ``draws`` > 1 (and no ``key``), every day is played under the
     keys of `baselines.eval.protocol.draw_keys` and its totals are the means over the draws.
     The rules, and the draws, are played in one compiled program
-    (`chargax_marl.evaluation.run_policies_days`)."""
+    (`chargax_marl.evaluation.run_policies_days`).
+
+    Args:
+        params: the env parameters.
+        days: the day indices to play.
+        policies: rule names (`rule_policy`).
+        key: one evaluation key for every day; ``None`` plays the keys of ``draw_keys``.
+        draws: car draws per day (a positive integer); only with ``key=None``.
+
+    Returns:
+        ``{name: {"num_days", "days", "metrics", "daily_profit"}}`` per rule (``metrics`` of
+        `chargax_marl.evaluation.summarize`, ``daily_profit`` a float64 ``(days,)`` array in
+        EUR/day); ``{}`` for no ``policies``.
+
+    Raises:
+        ValueError: both a ``key`` and ``draws`` other than 1, or ``draws`` not a positive
+            integer (`baselines.eval.protocol.draw_keys`).
+    """
     if key is not None and draws != 1:
         raise ValueError(
             f"evaluate_rules: give either a key or draws > 1, not both (draws={draws!r})"
@@ -113,7 +149,17 @@ def evaluate_rules(params, days, policies=POLICIES, key=None, draws: int = 1) ->
 
 
 def add_paired_differences(results: dict, references=("always_max", "battery_rule")) -> dict:
-    """Add ``vs_<reference>`` (paired mean ± standard error over days) to every entry."""
+    """Add ``vs_<reference>`` (paired mean ± standard error over days) to every entry.
+
+    Args:
+        results: ``{name: entry}`` with ``daily_profit`` (`evaluate_rules`); changed in place.
+        references: the names of the entries to compare against; those absent from
+            ``results`` are skipped.
+
+    Returns:
+        ``results``, every entry with a `baselines.eval.stats.paired_difference` per present
+        reference (an entry that is a reference gets one to itself).
+    """
     for r in results.values():
         for ref in references:
             if ref in results:
@@ -124,6 +170,18 @@ def add_paired_differences(results: dict, references=("always_max", "battery_rul
 
 
 def format_rules(results: dict) -> str:
+    """A plain-text table of rule results: one line per policy.
+
+    Args:
+        results: ``{name: entry}`` of `evaluate_rules`, each with ``metrics``, optionally with
+            ``vs_always_max`` and ``vs_battery_rule`` (`add_paired_differences`).
+
+    Returns:
+        The header and one line per policy: mean daily profit (EUR/day), the paired
+        differences to always-max and to the battery rule (mean ± standard error, ``-`` when
+        absent), mean energy delivered and missing at departure (kWh) and the battery's
+        terminal value (EUR).
+    """
     lines = [
         f"{'policy':<18}{'EUR/day':>10}{'vs always-max':>20}{'vs battery rule':>20}"
         f"{'delivered kWh':>15}{'missing kWh':>13}{'battery V EUR':>15}"
