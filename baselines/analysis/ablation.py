@@ -32,6 +32,13 @@ def _mean_se(x: np.ndarray) -> dict:
 def read_score(path: str | Path, task_id: str) -> dict:
     """A score file of ``baselines.score`` for ``task_id``.
 
+    Args:
+        path: the score file (JSON).
+        task_id: the benchmark task id the file must score.
+
+    Returns:
+        The file's JSON object (its ``daily_profit`` ``(seeds, days, draws)`` in EUR/day).
+
     Raises:
         ValueError: the file scores another task.
     """
@@ -100,7 +107,18 @@ def _pm(entry: dict | None) -> str:
 
 def to_markdown(result: dict, rules: tuple[str, ...] = ()) -> str:
     """The table of `ablation`'s result, with a column for the difference with each of
-    ``rules`` (names of the task's references) besides the strongest rule's."""
+    ``rules`` (names of the task's references) besides the strongest rule's.
+
+    Args:
+        result: an `ablation` result.
+        rules: rule names to give a column each; the strongest rule is left out of them (it
+            has its own column).
+
+    Returns:
+        A Markdown section: a ``###`` heading of the task, a line on the days, draws and
+        strongest rule, and a table with one row per method (seeds, score ± standard error,
+        and the paired differences in EUR/day), ending in a newline.
+    """
     strongest = result["strongest_rule"]
     rules = tuple(r for r in rules if r != strongest)
     lines = [
@@ -133,6 +151,19 @@ def _pair(text: str) -> tuple[str, str]:
 
 
 def main(argv=None) -> dict:
+    """The command line: `ablation` of ``--base`` and every ``--method`` on ``--task``, its
+    table printed, and with ``--out OUT`` written to ``OUT.json`` and ``OUT.md``.
+
+    Args:
+        argv: the command-line arguments; ``None`` reads ``sys.argv``.
+
+    Returns:
+        The `ablation` result.
+
+    Raises:
+        SystemExit: a malformed argument, or ``--rules`` naming a rule that is not among the
+            task's references (``argparse`` exits with status 2).
+    """
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--task", required=True, help="a benchmark task id")
     parser.add_argument("--base", required=True, type=_pair, help="NAME=SCORE_FILE")

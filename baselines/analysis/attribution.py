@@ -37,7 +37,18 @@ MIXES = ("learned", "learned_ports_rule_battery", "always_max_ports_learned_batt
 
 
 def mixed_policies(act, params) -> dict:
-    """The `MIXES` as ``policy(state, key) -> levels`` from a trained ``act``."""
+    """The `MIXES` as ``policy(state, key) -> levels`` from a trained ``act``.
+
+    Args:
+        act: the trained policy, ``act(state, key) -> levels``.
+        params: the env parameters (the battery rule's prices, which leaves are batteries).
+
+    Returns:
+        ``{mix: policy(state, key) -> levels}`` for every name of `MIXES`.
+
+    Raises:
+        ValueError: ``act`` carries a memory (`chargax_marl.evaluation.stateless`).
+    """
     act = stateless(act, "the attribution's policy mixes")
     is_battery = policies._is_battery(params)
     return {
@@ -57,7 +68,19 @@ def _ignore_params(act, state, key, params):
 
 
 def attribute(run_dir: str | Path) -> dict:
-    """Score every seed of a run under each mix; see the module docstring."""
+    """Score every seed of a run under each mix; see the module docstring.
+
+    Args:
+        run_dir: an output directory of ``baselines.train`` (``results.json``,
+            ``params.msgpack``).
+
+    Returns:
+        ``{"run", "algo", "num_days", "seeds", "battery_rule_vs_always_max", "mixes"}``:
+        the battery rule's paired difference to always-max
+        (`baselines.eval.stats.paired_difference`), and per mix ``{"per_seed": [{"mean",
+        "stderr"}], "over_seeds"}`` (`baselines.eval.stats.over_seeds` of the seeds' means),
+        differences to always-max in EUR/day.
+    """
 
     results, train, all_params = runs.load_run(run_dir)
     _, eval_params, _, days = build_env_params(train.config)
@@ -102,6 +125,16 @@ def attribute(run_dir: str | Path) -> dict:
 
 
 def format_attribution(out: dict) -> str:
+    """The plain-text report of an `attribute` result.
+
+    Args:
+        out: an `attribute` result.
+
+    Returns:
+        A header line, the battery rule's paired difference to always-max (over days), and
+        one line per mix: its mean ± standard error over seeds and every seed's mean, in
+        EUR/day.
+    """
     rule = out["battery_rule_vs_always_max"]
     lines = [
         f"{out['algo']} run {out['run']}: paired difference to always-max, EUR/day, {out['num_days']} held-out "
@@ -116,6 +149,15 @@ def format_attribution(out: dict) -> str:
 
 
 def main(argv=None) -> dict:
+    """The command line: `attribute` a run directory, print the report and, with ``--out``,
+    write the result as JSON (`baselines.runs.write_json`).
+
+    Args:
+        argv: the command-line arguments; ``None`` reads ``sys.argv``.
+
+    Returns:
+        The `attribute` result.
+    """
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

@@ -100,6 +100,15 @@ def compare_task(task_id: str, days: int, draws: int, rule: str = "coupled_plan"
 
 
 def main(argv=None) -> list[dict]:
+    """The command line: `compare_task` on every ``--task`` (default `TASKS`), one line
+    printed per task and, with ``--out``, the list written as JSON.
+
+    Args:
+        argv: the command-line arguments; ``None`` reads ``sys.argv``.
+
+    Returns:
+        One `compare_task` result per task (``--draws`` capped at each task's draws).
+    """
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--task", action="append", help="a task id (repeatable)")
     parser.add_argument("--days", type=int, default=20, help="held-out days, the first ones")

@@ -26,7 +26,18 @@ def main(argv=None) -> dict:
     on the 100 held-out days of a scenario of `baselines.analysis.references`, with and without the
     programme's battery, at several plan power fractions, against always-max and the battery
     rule (paired over days, the same cars), and the fraction of the LP bound's headroom from
-    ``<references>/<scenario>.json``."""
+    ``<references>/<scenario>.json``.
+
+    Args:
+        argv: the command-line arguments; ``None`` reads ``sys.argv``.
+
+    Returns:
+        ``{"scenario", "always_max_eur", "headroom_eur", "rows"}``: always-max's mean daily
+        profit and the bound's mean headroom over it (EUR/day), and one row per battery
+        (``"idle"``, ``"dp"``) and power fraction (``None``: always-max ports, with the
+        programme's battery only) with ``vs_always_max``, ``vs_battery_rule`` (paired
+        differences in EUR/day), ``headroom_fraction`` and ``energy_delivered_kwh``.
+    """
     p = argparse.ArgumentParser(description=main.__doc__)
     p.add_argument("--scenario", default="default", choices=sorted(SCENARIOS))
     p.add_argument("--fractions", default="0.2,0.5,1.0")

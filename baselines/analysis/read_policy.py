@@ -32,6 +32,22 @@ from chargax_marl.teachers.storage_value import dp_battery_action
 
 
 def read(run_dir: str | Path, num_days: int | None = None) -> dict:
+    """Read every seed of a run on its held-out days; see the module docstring.
+
+    Args:
+        run_dir: an output directory of ``baselines.train`` (``results.json``,
+            ``params.msgpack``).
+        num_days: play the first ``num_days`` held-out days; ``None`` (or 0) plays them all.
+
+    Returns:
+        ``{"run", "algo", "num_days", "per_seed"}``, per seed ``battery_share`` (the shares
+        of steps with the batteries' summed level below, at and above zero),
+        ``hourly_action`` and ``hourly_soc`` (per hour of the day, the mean sign of the
+        batteries' summed level and their capacity-weighted state of charge, 0 to 1),
+        ``agrees_with_dp`` (``None`` when the programme never strictly prefers an action),
+        ``ports_full_power_share`` and ``ports_follow_plan_share`` (shares of the steps of
+        parked cars).
+    """
     results, train, all_params = load_run(run_dir)
     _, params, _, days = build_env_params(train.config)
     days = np.asarray(days)[:num_days] if num_days else np.asarray(days)
@@ -97,6 +113,15 @@ def read(run_dir: str | Path, num_days: int | None = None) -> dict:
 
 
 def format_reading(out: dict) -> str:
+    """The plain-text report of a `read` result.
+
+    Args:
+        out: a `read` result.
+
+    Returns:
+        A header line, and per seed a line of its battery and port shares and two lines of
+        its hourly action and hourly state of charge.
+    """
     lines = [f"{out['algo']} run {out['run']}, {out['num_days']} held-out days"]
     for i, s in enumerate(out["per_seed"]):
         share = ", ".join(f"{k} {v:.2f}" for k, v in s["battery_share"].items())
@@ -111,6 +136,15 @@ def format_reading(out: dict) -> str:
 
 
 def main(argv=None) -> dict:
+    """The command line: `read` a run directory, print the report and, with ``--out``,
+    write the result as JSON.
+
+    Args:
+        argv: the command-line arguments; ``None`` reads ``sys.argv``.
+
+    Returns:
+        The `read` result.
+    """
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

@@ -11,8 +11,8 @@ average that spread out.
 
 This tool replays the run's trained seeds and the rules (always-max, the battery rule and,
 on a station with a battery, the teachers' rules and the node-aware programme,
-``heuristics.BATTERY_RULES``) on the same held-out days with ``draws``
-keys, ``PRNGKey(0) ... PRNGKey(draws - 1)`` (`baselines.algos.draw_keys`): the first
+`baselines.eval.rules.BATTERY_RULES`) on the same held-out days with ``draws``
+keys, ``PRNGKey(0) ... PRNGKey(draws - 1)`` (`baselines.eval.protocol.draw_keys`): the first
 are the run's own evaluation draws (one unless it trained with ``EVAL_DRAWS``; the tool
 refuses a run whose replayed evaluation differs from its ``results.json``: it was trained on
 another model), and every policy meets the same cars in every draw. A seed's paired
@@ -58,7 +58,23 @@ def reference_profits(
     and ``mpc`` (``(mpc_draws, days)``: the MPC of ``make optimal`` on the first ``mpc_draws``
     draws; draw 0 from ``references_dir`` when ``make optimal`` stored these params and days there);
     computed once per params, days and draws in a process, so several runs of one scenario
-    share them."""
+    share them.
+
+    Args:
+        eval_params: the evaluation env parameters.
+        days: the held-out day indices.
+        draws: car draws per day (a positive integer).
+        bound: also solve the LP hindsight bound of every draw (``lp_bound``).
+        mpc_draws: run the MPC on the first ``mpc_draws`` draws (0: no ``mpc``).
+        references_dir: a directory ``make optimal`` wrote, read for the MPC of draw 0 when
+            ``mpc_draws`` > 0; ``None`` runs it.
+
+    Returns:
+        ``{name: daily profits}`` as float64 arrays in EUR/day: ``(draws, days)`` per rule of
+        `RULES` (and, on a station with a battery, `baselines.eval.rules.BATTERY_RULES`) and
+        for ``lp_bound``, ``(mpc_draws, days)`` for ``mpc``. The same dict is returned again
+        for the same arguments in a process.
+    """
 
     cache_key = (
         params_fingerprint(eval_params),
@@ -105,7 +121,36 @@ def redraw(
     ``bound``, also the LP hindsight bound of every draw and each seed's fraction of the
     headroom (bound - always-max) over all draws; with ``mpc_draws``, the MPC on the first
     ``mpc_draws`` draws and each seed's paired difference to it on those draws
-    (``vs["mpc"]``)."""
+    (``vs["mpc"]``).
+
+    Args:
+        run_dir: an output directory of ``baselines.train`` (``results.json``,
+            ``params.msgpack``).
+        draws: car draws per held-out day, a positive integer at least the run's
+            ``EVAL_DRAWS``.
+        bound: also solve the LP hindsight bound of every draw and report headroom fractions.
+        mpc_draws: run the MPC on the first ``mpc_draws`` draws, an integer in
+            ``[0, draws]``.
+        check_tolerance_eur: the largest difference (EUR/day, per seed) allowed between the
+            replayed evaluation on the run's own draws and its ``results.json``.
+        references_dir: a directory ``make optimal`` wrote (`reference_profits`), or ``None``.
+
+    Returns:
+        ``{"run", "algo", "scenario", "num_days", "draws", "seeds", "keys",
+        "replay_check_max_abs_eur", "references_mean_profit_eur",
+        "references_vs_always_max", "per_draw_vs_always_max", "mpc_draws", "vs"}``; with
+        ``bound`` also ``headroom_eur``, ``headroom_eur_per_draw`` and
+        ``headroom_fraction``. ``vs`` holds, per reference but the bound, each seed's
+        `baselines.eval.stats.day_clustered` difference (and on draw 0 alone,
+        ``draw0_per_seed``), their `baselines.eval.stats.over_seeds`, and the counts of
+        seeds above it and beating it. Profits and differences in EUR/day.
+
+    Raises:
+        ValueError: ``draws`` not a positive integer, ``mpc_draws`` not an integer in
+            ``[0, draws]``, ``draws`` fewer than the run's ``EVAL_DRAWS``, or the replayed
+            evaluation differing from ``results.json`` by more than ``check_tolerance_eur``
+            (the run was made on another model).
+    """
 
     if isinstance(draws, bool) or not isinstance(draws, (int, np.integer)) or int(draws) < 1:
         raise ValueError(f"draws must be a positive integer, got {draws!r}")
@@ -208,6 +253,16 @@ def redraw(
 
 
 def format_redraw(out: dict) -> str:
+    """The plain-text report of a `redraw` result.
+
+    Args:
+        out: a `redraw` result.
+
+    Returns:
+        A header line; per reference its difference to always-max (and headroom fraction,
+        with the bound); the learned seeds' headroom fractions (with the bound); and per
+        reference of ``vs`` the seeds' differences over seeds and per seed, in EUR/day.
+    """
     lines = [
         f"{out['algo']} run {out['run']} ({out['scenario']}): {out['num_days']} held-out days x "
         f"{out['draws']} car draws, {out['seeds']} seeds; EUR/day, per seed mean ± s.e. over days "
@@ -245,6 +300,15 @@ def format_redraw(out: dict) -> str:
 
 
 def main(argv=None) -> dict:
+    """The command line: `redraw` every ``RUN_DIR``, print each report and, with
+    ``--out-dir``, write each result to ``<out-dir>/<run name>.json``.
+
+    Args:
+        argv: the command-line arguments; ``None`` reads ``sys.argv``.
+
+    Returns:
+        ``{run_dir: redraw result}``.
+    """
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

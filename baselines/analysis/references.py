@@ -90,7 +90,15 @@ SCENARIOS = {
 
 
 def scenario_params(name: str):
-    """``(eval_params, held_out_days)`` of a named scenario of this runner."""
+    """``(eval_params, held_out_days)`` of a named scenario of this runner.
+
+    Args:
+        name: a key of `SCENARIOS`.
+
+    Returns:
+        The scenario's evaluation env parameters (every day of the year) and its held-out
+        day indices.
+    """
     config = resolve(SCENARIOS[name])
     _, full, _, days = build_env_params(config)
     return full, days
@@ -104,7 +112,24 @@ def run_scenario(
 ) -> dict:
     """The rules, the MPC and the LP bounds of scenario ``name`` on its held-out days (the
     first ``num_days``; the MPC on the first ``mpc_days`` of them, all by default, its
-    paired differences and headroom on those days)."""
+    paired differences and headroom on those days).
+
+    Args:
+        name: a key of `SCENARIOS`.
+        mpc_kwargs: keyword arguments of `chargax_marl.optimal.mpc.MPC`; ``None``: none.
+        num_days: play the first ``num_days`` held-out days; ``None``: all of them.
+        mpc_days: run the MPC on the first ``mpc_days`` of those; ``None``: all of them.
+
+    Returns:
+        ``{"scenario", "config", "days", "params_fingerprint", "key", "root_kw", "policies",
+        "battery_worth", "rules_wall_s"}``: ``policies`` holds every rule of `RULES`,
+        ``mpc``, ``lp_bound`` and ``lp_bound_no_battery``, each with its ``daily_profit``
+        (a list, EUR/day; NaN on a failed solve), ``mean_eur`` (failed days left out),
+        ``vs_always_max`` and ``headroom`` on its days, and where they apply ``metrics``,
+        ``timing`` (seconds), ``settings``, ``status`` and ``failed_days``;
+        ``battery_worth`` is the paired difference of the bound with and without the
+        battery (EUR/day).
+    """
     params, days = scenario_params(name)
     days = days if num_days is None else days[:num_days]
     out = {
@@ -177,7 +202,24 @@ def refresh_rules(name: str, out_dir: Path = RESULTS_DIR) -> dict:
     """Re-evaluate the rule-based policies of a stored scenario result on the current code and
     put them in place of the stored rules, keeping its LP bound and MPC (minutes to hours to
     recompute). Refuses (``ValueError``) a file made for other params or days, or whose
-    always-max no longer replays to the stored profits (another model: re-run the scenario)."""
+    always-max no longer replays to the stored profits (another model: re-run the scenario).
+
+    Writes ``<out_dir>/<name>.json`` (the updated result) and ``<out_dir>/<name>.png``
+    (`plot`).
+
+    Args:
+        name: a key of `SCENARIOS`.
+        out_dir: the directory holding ``<name>.json``.
+
+    Returns:
+        The updated result, every rule of `RULES` with ``daily_profit``, ``metrics``,
+        ``mean_eur``, ``vs_always_max`` and ``headroom`` (against the stored bound), and
+        ``rules_wall_s``.
+
+    Raises:
+        ValueError: the file was made for other params or days than the scenario builds, or
+            its always-max does not replay (`baselines.eval.rules.check_replay`).
+    """
     path = Path(out_dir) / f"{name}.json"
     stored = json.loads(path.read_text())
     params, days = scenario_params(name)
@@ -219,7 +261,19 @@ MILP_SCENARIO = {
 
 def run_milp(num_days: int = 10, num_steps: int = 36) -> dict:
     """MILP (admissions free) against the LP over always-max's occupancy and always-max itself,
-    on the first ``num_steps`` of the first ``num_days`` held-out days of `MILP_SCENARIO`."""
+    on the first ``num_steps`` of the first ``num_days`` held-out days of `MILP_SCENARIO`.
+
+    Args:
+        num_days: the number of held-out days, the first ones (at least 2, for the standard
+            error).
+        num_steps: the window, steps from midnight.
+
+    Returns:
+        ``{"scenario", "num_steps", "days", "rows", "mean", "milp_minus_lp"}``: one row per
+        day (window profits in EUR of the MILP, the LP and always-max, the number of cars
+        and binaries, solve times in seconds), the means of the rows' numbers, and the
+        MILP's profit minus the LP's (``mean``, ``stderr``, ``max``, EUR).
+    """
 
     config = resolve(MILP_SCENARIO)
     _, params, _, days = build_env_params(config)
@@ -259,6 +313,15 @@ def run_milp(num_days: int = 10, num_steps: int = 36) -> dict:
 
 
 def format_milp(r: dict) -> str:
+    """The one-paragraph report of a `run_milp` result.
+
+    Args:
+        r: a `run_milp` result.
+
+    Returns:
+        The mean window profits (EUR) of always-max, the LP bound and the MILP, the MILP's
+        gap over the LP, the mean numbers of cars and binaries and the mean solve times.
+    """
     m, g = r["mean"], r["milp_minus_lp"]
     return (
         f"MILP vs LP, 4-port station, high traffic, first {r['num_steps']} steps of {len(r['days'])} held-out days "
@@ -270,6 +333,16 @@ def format_milp(r: dict) -> str:
 
 
 def format_optimal(result: dict) -> str:
+    """The plain-text table of a `run_scenario` (or `refresh_rules`) result.
+
+    Args:
+        result: a `run_scenario` or `refresh_rules` result.
+
+    Returns:
+        A header line, and one line per policy: mean EUR/day, the paired difference to
+        always-max, the headroom fraction and, for the MPC and the bound, the solve time;
+        then the battery's worth when the result has it.
+    """
     lines = [
         f"{result['scenario']}: {len(result['days'])} held-out days, key 0, same cars for all; "
         f"grid connection {result['root_kw']:.1f} kW",
@@ -297,6 +370,16 @@ def format_optimal(result: dict) -> str:
 
 
 def plot(result: dict, path: Path) -> Path:
+    """Bar chart of every policy's paired difference to always-max (EUR/day, ± standard
+    error), written as a PNG (its parent directory created).
+
+    Args:
+        result: a `run_scenario` or `refresh_rules` result.
+        path: the PNG file to write.
+
+    Returns:
+        ``path``.
+    """
     matplotlib.use("Agg")
 
     names = list(result["policies"])
@@ -320,6 +403,17 @@ def plot(result: dict, path: Path) -> Path:
 
 
 def main(argv=None) -> dict:
+    """The command line (``make optimal``): with ``--rules-only``, `refresh_rules` of every
+    ``--scenarios``; otherwise `run_milp` (unless ``--milp-days 0``, written to
+    ``<out>/milp_small.json``) and `run_scenario` of every scenario, each printed and written
+    to ``<out>/<scenario>.json`` and ``<out>/<scenario>.png``.
+
+    Args:
+        argv: the command-line arguments; ``None`` reads ``sys.argv``.
+
+    Returns:
+        ``{scenario: result}``, and ``milp`` when the MILP ran.
+    """
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

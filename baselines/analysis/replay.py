@@ -52,7 +52,14 @@ def replay(run_dir: str | Path) -> dict:
 
 
 def main(argv=None) -> list[dict]:
-    """Replay every run directory on the command line and print one line each."""
+    """Replay every run directory on the command line and print one line each.
+
+    Args:
+        argv: the command-line arguments; ``None`` reads ``sys.argv``.
+
+    Returns:
+        One `replay` result per run directory, in order.
+    """
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

@@ -25,6 +25,18 @@ from chargax_marl.teachers.rules import has_battery
 
 
 def main(argv=None) -> dict:
+    """The command line: every rule of `baselines.eval.rules.POLICIES` (and, on a station with
+    a battery, `baselines.eval.rules.BATTERY_RULES`) on the held-out days of ``--scenario``
+    at ``--traffic``, the table printed and, with ``--out``, written as JSON (the metrics and
+    paired differences, without the per-day profits).
+
+    Args:
+        argv: the command-line arguments; ``None`` reads ``sys.argv``.
+
+    Returns:
+        ``{policy: entry}`` of `baselines.eval.rules.evaluate_rules`, each entry with
+        ``vs_always_max`` and ``vs_battery_rule``.
+    """
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

@@ -12,8 +12,8 @@ idling for one step. Where nothing cascades, the difference is a few cents; wher
 reorder, a day moves by tens of euros. The spread over days sets how large a policy's gain
 must be before 100 held-out days can resolve it (the docs' design decisions).
 
-Run: ``python -m baselines.analysis.sensitivity``; writes
-``results/sensitivity.json`` and prints the Markdown table.
+Run: ``python -m baselines.analysis.sensitivity``; writes ``outputs/sensitivity.json``
+(`OUT`, or ``--out``; copy it to ``results/`` to commit) and prints the Markdown table.
 """
 
 from __future__ import annotations
@@ -46,7 +46,19 @@ OUT = Path("outputs/sensitivity.json")  # copy to results/ to commit
 def perturbed_always_max(params, perturbation: str, step: int):
     """``act(state, key) -> levels``: always-max for the ports with the batteries idle, except at
     step ``step`` of the day, where the batteries charge at full power (``"battery_charges"``)
-    or the first port idles (``"port_idles"``). A step outside the day changes nothing."""
+    or the first port idles (``"port_idles"``). A step outside the day changes nothing.
+
+    Args:
+        params: the env parameters.
+        perturbation: one of `PERTURBATIONS`.
+        step: the step of the day (from midnight) that is changed.
+
+    Returns:
+        ``act(state, key) -> levels``, int32 levels per leaf.
+
+    Raises:
+        ValueError: ``perturbation`` is not one of `PERTURBATIONS`.
+    """
     if perturbation not in PERTURBATIONS:
         raise ValueError(f"perturbation must be one of {PERTURBATIONS}, got {perturbation!r}")
     is_battery = jnp.asarray(np.asarray(params.station.leaf_kind) == KIND_BATTERY)
@@ -65,13 +77,37 @@ def perturbed_always_max(params, perturbation: str, step: int):
 
 
 def daily_totals(act, params, days, key):
+    """The day totals of ``act`` on ``days``, jitted (`chargax_marl.evaluation.run_days`).
+
+    Args:
+        act: ``act(state, key) -> levels``.
+        params: the env parameters.
+        days: the day indices.
+        key: the key the cars are drawn from.
+
+    Returns:
+        The days' `EpisodeTotals`, leaves with a leading axis over ``days``.
+    """
     return jax.jit(lambda d, k: run_days(act, params, d, k))(np.asarray(days), key)
 
 
 def sensitivity(params, days, key=None, step: int | None = None) -> dict:
     """Per perturbation (`PERTURBATIONS`, at ``step``, default 10:00): the day-by-day
     profit difference to the unperturbed policy (``perturbed_always_max`` at a step outside the
-    day) and the days on which the served cars differ. ``key`` defaults to ``PRNGKey(0)``."""
+    day) and the days on which the served cars differ. ``key`` defaults to ``PRNGKey(0)``.
+
+    Args:
+        params: the env parameters.
+        days: the day indices.
+        key: the key the cars are drawn from; ``None``: ``PRNGKey(0)``.
+        step: the changed step of the day; ``None``: the step at 10:00.
+
+    Returns:
+        ``{"step", "clock", <perturbation>: {...}}``: ``clock`` the step's time in decimal
+        hours, and per perturbation ``daily_difference_eur`` (the per-day list), ``mean``,
+        ``std``, ``max_abs`` (EUR/day), ``days_over_1_eur`` (days moved by more than 1 EUR)
+        and ``days_served_cars_differ`` (days whose count of served cars differs).
+    """
     key = jax.random.PRNGKey(0) if key is None else key
     step = int(round(10 * 60 / float(params.step_minutes))) if step is None else int(step)
     base = daily_totals(perturbed_always_max(params, "battery_charges", -1), params, days, key)
@@ -92,6 +128,17 @@ def sensitivity(params, days, key=None, step: int | None = None) -> dict:
 
 
 def main(argv=None) -> dict:
+    """The command line: `sensitivity` of every ``--scenarios`` at ``--hour`` on the 100
+    held-out days (key 0), the Markdown rows printed and, unless ``--out`` is empty, the
+    result written as JSON.
+
+    Args:
+        argv: the command-line arguments; ``None`` reads ``sys.argv``.
+
+    Returns:
+        ``{"days", "key", "hour", "scenarios"}``, per scenario the `sensitivity` result and
+        its ``wall_s`` (seconds).
+    """
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--scenarios", nargs="+", default=list(SCENARIO_NAMES))
     p.add_argument(

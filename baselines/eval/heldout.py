@@ -121,7 +121,7 @@ BASELINES = ("always_max", "battery_rule", "price_threshold")
 always-max plus a battery that charges in the day's cheapest 20 % of hours and discharges in
 the dearest 20 %); on a station with a battery also the teachers' rules,
 ``battery_programme`` (always-max plus the battery-only programme) and ``plan_programme``
-(the ports' plans plus the programme), `baselines.rules.TEACHER_RULES`."""
+(the ports' plans plus the programme), `baselines.eval.rules.TEACHER_RULES`."""
 
 
 REFERENCES = ("always_max", "battery_rule", "battery_programme", "plan_programme")

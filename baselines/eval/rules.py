@@ -47,7 +47,7 @@ battery-only programme, except that they do not charge while the ports' full-pow
 alone (grid side) exceeds the limit of a node above a battery. There the programme's charge
 would be rescaled with the ports', taking the scarce connection from the cars
 (the docs' design decisions say what this one change is worth on ``shopping-grid25-high``).
-Not a teacher of any trainer; ``baselines.redraw`` scores it beside the teachers' rules."""
+Not a teacher of any trainer; ``baselines.analysis.redraw`` scores it beside the teachers' rules."""
 
 
 BATTERY_RULES = TEACHER_RULES + (GRID_PROGRAMME,)
