@@ -10,7 +10,7 @@ The trainers' shaping teachers, played as rules with no learning
 - ``plan_programme``: the ports on their cars' plans, the batteries on the programme (also
   the teacher of ``PORT_SHAPING="plan"`` and ``PLAN_OBS``, the multi-agent settings').
 
-`baselines.train.baseline_results` evaluates both on every station with a battery, so
+`baselines.eval.heldout.baseline_results` evaluates both on every station with a battery, so
 each new run records its paired differences to them (``vs_battery_programme``,
 ``vs_plan_programme``). Runs made before that lack them; this adds to every training result
 in each file (a ``baselines.train`` result: ``config``, ``evaluation``, ``per_seed``) what a
@@ -56,7 +56,17 @@ from chargax_marl.teachers.rules import has_battery
 
 
 def training_results(tree, path: str = "") -> list[tuple[str, dict]]:
-    """``(where, result)`` of every ``baselines.train`` result nested in a result file."""
+    """``(where, result)`` of every ``baselines.train`` result nested in a result file.
+
+    Args:
+        tree: a result file's JSON value (or a part of it).
+        path: the ``/``-joined keys that lead to ``tree`` (``""`` at the top).
+
+    Returns:
+        ``(where, result)`` for every dict with ``config``, ``evaluation`` and ``per_seed``
+        (searched through nested dicts, not lists; not inside such a result), ``where`` its
+        ``/``-joined keys (``"/"`` for the file itself); ``[]`` when there is none.
+    """
     if isinstance(tree, dict):
         if {"config", "evaluation", "per_seed"} <= set(tree):
             return [(path or "/", tree)]
@@ -68,7 +78,24 @@ def teacher_entries(params, days, stored: dict, where: str) -> dict:
     """``{rule: entry}`` of the teachers' rules on ``days`` (evaluation key 0), each with its
     paired differences to the stored always-max and battery rule and its headroom share, after
     checking that always-max and the battery rule replayed on this code give the stored
-    ``stored[name]["daily_profit"]`` (else a ``ValueError``: the run was made on another model)."""
+    ``stored[name]["daily_profit"]`` (else a ``ValueError``: the run was made on another model).
+
+    Args:
+        params: the run's evaluation env parameters.
+        days: the run's held-out days, rebuilt from its config.
+        stored: the stored evaluation table (``{name: entry}``) with ``always_max`` (and its
+            ``days``) and ``battery_rule``, and ``lp_bound`` for the headroom.
+        where: the result's name, for the error messages.
+
+    Returns:
+        ``{rule: entry}`` per rule of `baselines.eval.rules.TEACHER_RULES`: the
+        `baselines.eval.rules.evaluate_rules` entry with ``vs_always_max``,
+        ``vs_battery_rule`` and, when ``stored`` holds ``lp_bound``, ``headroom``.
+
+    Raises:
+        ValueError: ``days`` differ from the stored always-max's, or always-max or the
+            battery rule replay differently (`baselines.eval.rules.check_replay`).
+    """
     if [int(d) for d in np.asarray(days)] != [int(d) for d in stored["always_max"]["days"]]:
         raise ValueError(f"{where}: its config builds other held-out days than it was evaluated on")
     rules = evaluate_rules(params, days, ("always_max", "battery_rule") + TEACHER_RULES)
@@ -85,7 +112,19 @@ def teacher_entries(params, days, stored: dict, where: str) -> dict:
 
 def add_to_result(res: dict, where: str = "") -> bool:
     """Add the teachers' rules to one training result in place (see the module's doc).
-    ``False`` when the run's station has no battery (nothing to add)."""
+    ``False`` when the run's station has no battery (nothing to add).
+
+    Args:
+        res: a ``baselines.train`` result (``config``, ``algo``, ``evaluation``,
+            ``per_seed``); changed in place.
+        where: the result's name, for the error messages.
+
+    Returns:
+        ``True`` when the rules were added, ``False`` when the station has no battery.
+
+    Raises:
+        ValueError: the stored run does not replay on this code (`teacher_entries`).
+    """
     _, params, _, days = build_env_params(resolve(res["config"]))
     if not has_battery(params):
         return False
@@ -120,7 +159,21 @@ def add_to_result(res: dict, where: str = "") -> bool:
 def add_to_price_shift(d: dict, where: str = "") -> dict:
     """Add the teachers' rules to a ``price_shift`` result (``matrix`` train year x eval year,
     ``baselines`` per eval year) in place: per eval year the rules' entries, checked as in
-    `teacher_entries`, and per cell ``vs_<rule>``. Returns ``{cell: {key: difference}}``."""
+    `teacher_entries`, and per cell ``vs_<rule>``. Returns ``{cell: {key: difference}}``.
+
+    Args:
+        d: a ``price_shift`` result file's JSON (``settings``, ``algo``, ``matrix``,
+            ``baselines``); changed in place.
+        where: the file's name, for the error messages.
+
+    Returns:
+        ``{"<train year> -> <eval year>": {"vs_<rule>": paired difference}}`` per cell, the
+        differences over seeds × days in EUR/day (`baselines.eval.stats.paired_difference`).
+
+    Raises:
+        ValueError: the result's settings are not ``"tuned"``, or an eval year's always-max
+            or battery rule does not replay (`teacher_entries`).
+    """
     if d.get("settings") != "tuned":
         raise ValueError(
             f"{where}: settings {d.get('settings')!r}; only the tuned settings' params are rebuilt here"
@@ -147,6 +200,21 @@ def _line(diffs: dict) -> str:
 
 
 def main(argv=None) -> dict:
+    """The command line: add the teachers' rules to every result file named, print a line per
+    training result (or ``price_shift`` cell) and rewrite each file in place.
+
+    Args:
+        argv: the command-line arguments; ``None`` reads ``sys.argv``.
+
+    Returns:
+        ``{file: rows}``: for a ``price_shift`` file the `add_to_price_shift` rows, otherwise
+        ``{where: the result's over-seeds vs_<reference>}`` per training result with a battery.
+
+    Raises:
+        ValueError: a file (not a ``price_shift`` one) holds no ``baselines.train`` result,
+            or a result does not replay on this code; the files named before it are already
+            rewritten.
+    """
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

@@ -41,6 +41,20 @@ METRIC = {"satisfaction_time": "missing_kwh_at_departure", "satisfaction_charge"
 
 
 def main(argv=None, out="outputs/alpha_ablation"):
+    """The command line: train one agent per alpha of each term (`SMALL`, or `FULL` with
+    ``--full``; alpha 0 trained once and shared by the terms), evaluate each on the held-out
+    days, and write ``<out>.json`` and ``<out>.png`` (`plot`).
+
+    Args:
+        argv: the command-line arguments; ``None`` reads ``sys.argv``.
+        out: the path prefix of the result files.
+
+    Returns:
+        ``{term: {alpha: row}}``, each row with ``alpha``, ``metrics``, ``per_seed_profit``,
+        ``per_seed`` (per-seed means of `TERMS`), ``vs_always_max``, ``wall_seconds``,
+        ``timesteps`` and ``vs_alpha0`` (`baselines.eval.stats.paired_over_seeds` per term
+        of `TERMS`).
+    """
     args = parser(__doc__, full_seeds=5).parse_args(argv)
     with output(out, args.overwrite) as prefix:
         base, seeds = config_of(args)
@@ -116,7 +130,14 @@ def _se(per_seed) -> float:
 
 def plot(results, baselines, path):
     """Missing kWh, overtime and profit per alpha: means over seeds x days, error bars the
-    standard error over seeds of the per-seed means."""
+    standard error over seeds of the per-seed means.
+
+    Args:
+        results: `main`'s ``{term: {alpha: row}}``.
+        baselines: `baselines.eval.heldout.baseline_results` of the held-out days
+            (``always_max``; ``battery_rule`` and ``lp_bound`` drawn where present).
+        path: the PNG file to write.
+    """
     matplotlib.use("Agg")
 
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))

@@ -45,7 +45,23 @@ EXPERIMENTS = {
 
 def main(argv=None, out="outputs/cross_market", *, experiments=None, overrides=None):
     """``experiments`` ({source: targets}) and ``overrides`` (merged into the training config)
-    are for tests; the command line runs `EXPERIMENTS`."""
+    are for tests; the command line runs `EXPERIMENTS`.
+
+    Trains an agent per source (and, unless ``--no-reference``, per other target: the
+    in-market references), evaluates each on its targets' held-out days, and writes
+    ``<out>.json`` and ``<out>.png`` (`plot`).
+
+    Args:
+        argv: the command-line arguments; ``None`` reads ``sys.argv``.
+        out: the path prefix of the result files.
+        experiments: ``{source market: target markets}``; ``None``: `EXPERIMENTS`.
+        overrides: entries merged into the training config; ``None``: none.
+
+    Returns:
+        ``{trained market: {target: evaluation}}``, each evaluation a
+        `baselines.eval.heldout.evaluate_batched` result with ``paired_diff`` to the target's
+        always-max; an in-market reference is evaluated on its own market only.
+    """
     p = parser(__doc__, full_seeds=5)
     p.add_argument(
         "--no-reference", action="store_true", help="do not train the in-market reference agents"
@@ -116,7 +132,17 @@ def main(argv=None, out="outputs/cross_market", *, experiments=None, overrides=N
 
 def transfer_gaps(matrix: dict, experiments: dict) -> dict:
     """{source: {target: paired difference (source-trained - target-trained) per seed x day}}
-    for every cross target whose in-market agent was trained."""
+    for every cross target whose in-market agent was trained.
+
+    Args:
+        matrix: `main`'s ``{trained market: {target: evaluation}}``.
+        experiments: ``{source market: target markets}``.
+
+    Returns:
+        ``{source: {target: difference}}``: `baselines.eval.stats.paired_difference` of the
+        source-trained agent's ``(seeds, days)`` daily profits against the target-trained
+        agent's per-day mean over its seeds, in EUR/day.
+    """
     gaps = {}
     for src, targets in experiments.items():
         for tgt in targets:
@@ -129,6 +155,20 @@ def transfer_gaps(matrix: dict, experiments: dict) -> dict:
 
 
 def summary(matrix: dict, baselines: dict, gaps: dict, experiments: dict) -> str:
+    """The plain-text summary: one line per source and target.
+
+    Args:
+        matrix: `main`'s ``{trained market: {target: evaluation}}``.
+        baselines: ``{market: baseline results}`` with ``always_max`` and
+            ``price_threshold``.
+        gaps: `transfer_gaps`.
+        experiments: ``{source market: target markets}``.
+
+    Returns:
+        A header line, then per source and target the mean held-out daily profits (EUR/day)
+        of the source-trained agent, the in-market agent (``-`` when not trained),
+        always-max and price-threshold, and the transfer gap when there is one.
+    """
     lines = [
         "source -> target: source-trained | in-market | always-max | price-threshold EUR/day; gap to in-market"
     ]
@@ -153,6 +193,18 @@ def summary(matrix: dict, baselines: dict, gaps: dict, experiments: dict) -> str
 
 
 def plot(matrix, baselines, experiments, algo, path):
+    """One panel per source: per target, the held-out daily profit of the source-trained and
+    the target-trained agents (mean ± std over seeds × days), always-max and price-threshold,
+    written as a PNG.
+
+    Args:
+        matrix: `main`'s ``{trained market: {target: evaluation}}``.
+        baselines: ``{market: baseline results}`` with ``always_max`` and
+            ``price_threshold``.
+        experiments: ``{source market: target markets}``.
+        algo: the algorithm's name, for the legend.
+        path: the PNG file to write.
+    """
     matplotlib.use("Agg")
 
     fig, axes = plt.subplots(

@@ -36,6 +36,19 @@ YEARS = ("NL-2021", "NL-2022", "NL-2023")
 
 
 def main(argv=None, out="outputs/price_shift"):
+    """The command line: train on each year of `YEARS`, evaluate every agent on every year's
+    held-out days, and write ``<out>.json`` and ``<out>.png`` (`plot`).
+
+    Args:
+        argv: the command-line arguments; ``None`` reads ``sys.argv``.
+        out: the path prefix of the result files.
+
+    Returns:
+        ``{train year: {eval year: evaluation}}``, each a
+        `baselines.eval.heldout.evaluate_batched` result with ``paired_diff`` (to the eval
+        year's always-max), ``vs_battery_rule``, ``vs_<teacher rule>`` where the year has
+        them, and ``headroom`` when the year's baselines hold the LP bound.
+    """
     args = parser(__doc__, full_seeds=10).parse_args(argv)
     with output(out, args.overwrite) as prefix:
         base, seeds = config_of(args)
@@ -89,6 +102,16 @@ def main(argv=None, out="outputs/price_shift"):
 
 
 def plot(matrix, baselines, algo, path):
+    """Grouped bars per eval year: each train year's agent (mean held-out daily profit, error
+    bar the std over seeds of the per-seed means) beside the references every year has
+    (always-max, the battery rule, the teachers' rules, the LP bound), written as a PNG.
+
+    Args:
+        matrix: `main`'s ``{train year: {eval year: evaluation}}``.
+        baselines: ``{eval year: baseline results}``.
+        algo: the algorithm's name, for the legend.
+        path: the PNG file to write.
+    """
     matplotlib.use("Agg")
 
     fig, ax = plt.subplots(figsize=(7.5, 4))

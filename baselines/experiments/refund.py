@@ -30,7 +30,15 @@ RULES = ("always_max", "battery_rule", "discharge_departing")
 
 
 def all_v2g(fleet="EU") -> datasets.FleetData:
-    """``fleet`` with every model allowed to discharge at its charging limit (AC and DC)."""
+    """``fleet`` with every model allowed to discharge at its charging limit (AC and DC).
+
+    Args:
+        fleet: the name of a bundled fleet (`chargax_marl.core.datasets.load_fleet`).
+
+    Returns:
+        The fleet with ``max_ac_discharge_kw`` and ``max_dc_discharge_kw`` set to its
+        ``max_ac_kw`` and ``max_dc_kw``.
+    """
     f = datasets.load_fleet(fleet)
     return dataclasses.replace(f, max_ac_discharge_kw=f.max_ac_kw, max_dc_discharge_kw=f.max_dc_kw)
 
@@ -39,7 +47,18 @@ def daily_profits(
     scenario: str = "shopping", rules=RULES, num_eval: int = 100, key=None, **overrides
 ) -> dict:
     """``{(rule, refund): daily profit (days,)}`` on the held-out days, refund in (True, False);
-    ``overrides`` go to ``make_params`` on top of the scenario."""
+    ``overrides`` go to ``make_params`` on top of the scenario.
+
+    Args:
+        scenario: a named scenario (`chargax_marl.core.scenarios.scenario_kwargs`).
+        rules: rule names (`baselines.eval.rules.evaluate_rules`).
+        num_eval: the number of held-out days (``split_days(num_days, num_eval, seed=0)``).
+        key: the evaluation key; ``None``: ``PRNGKey(0)``.
+        **overrides: ``make_params`` keyword arguments on top of the scenario's.
+
+    Returns:
+        ``{(rule, refund): daily profits}``, float64 ``(days,)`` arrays in EUR/day.
+    """
     kwargs = scenario_kwargs(scenario, **overrides)
     base = make_params(**kwargs)
     _, days = split_days(int(base.num_days), num_eval, seed=0)
@@ -54,6 +73,18 @@ def daily_profits(
 
 
 def format_table(profits: dict, rules=RULES) -> str:
+    """The plain-text table of `daily_profits`: one line per rule.
+
+    Args:
+        profits: `daily_profits`' result; it must hold always-max under both accountings.
+        rules: the rules to list.
+
+    Returns:
+        A header line, and per rule its mean daily profit ± standard error and paired
+        difference to always-max with the refund and without, and the paired difference
+        without - with (EUR/day).
+    """
+
     def mean_se(x):
         return "{:.2f} ± {:.2f}".format(*mean_stderr(x))
 
@@ -75,6 +106,15 @@ def format_table(profits: dict, rules=RULES) -> str:
 
 
 def main(argv=None) -> dict:
+    """The command line: `daily_profits` of `RULES` on ``--scenario`` (with ``--all-v2g``, on
+    the `all_v2g` EU fleet), the table printed.
+
+    Args:
+        argv: the command-line arguments; ``None`` reads ``sys.argv``.
+
+    Returns:
+        `daily_profits`' ``{(rule, refund): daily profits}``.
+    """
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

@@ -46,11 +46,34 @@ ACCOUNTS = {True: "refund", False: "no_refund"}
 
 
 def fleet_of(name: str):
-    """The ``fleet`` argument of ``make_params`` for a fleet name of `FLEETS`."""
+    """The ``fleet`` argument of ``make_params`` for a fleet name of `FLEETS`.
+
+    Args:
+        name: ``"EU-all-v2g"`` or a bundled fleet's name.
+
+    Returns:
+        `baselines.experiments.refund.all_v2g` of the EU fleet for ``"EU-all-v2g"``, else
+        ``name`` itself.
+    """
     return all_v2g("EU") if name == "EU-all-v2g" else name
 
 
 def main(argv=None, out="outputs/refund_effect"):
+    """The command line: per fleet of ``--fleets``, train an agent with and without the
+    refund, evaluate each under both accountings, and write ``<out>.json`` and
+    ``<out>.png`` (`plot`).
+
+    Args:
+        argv: the command-line arguments; ``None`` reads ``sys.argv``.
+        out: the path prefix of the result files.
+
+    Returns:
+        ``{fleet: {"references", "agents"}}``: ``references`` per accounting
+        (``"refund"``, ``"no_refund"``) the `references` entries; ``agents`` per training
+        accounting (``trained_refund``, ``trained_no_refund``) ``wall_seconds``,
+        ``timesteps``, a `baselines.eval.heldout.evaluate_batched` result per evaluation
+        accounting, and ``off_minus_on`` (`baselines.eval.stats.paired_over_seeds`).
+    """
     p = parser(__doc__, full_seeds=5)
     p.add_argument("--fleets", nargs="+", choices=FLEETS, default=list(FLEETS))
     args = p.parse_args(argv)
@@ -128,7 +151,17 @@ def main(argv=None, out="outputs/refund_effect"):
 
 def references(params, days, optimal: str) -> dict:
     """The refund rules (always-max, battery rule, discharge departing) and, unless ``optimal``
-    is ``"off"``, the LP hindsight bound, on ``days`` with the evaluation key."""
+    is ``"off"``, the LP hindsight bound, on ``days`` with the evaluation key.
+
+    Args:
+        params: the env parameters (one accounting).
+        days: the held-out days.
+        optimal: ``"off"`` leaves the bound out; any other value adds it.
+
+    Returns:
+        ``{name: entry}`` per rule of `baselines.experiments.refund.RULES` (and
+        ``lp_bound``: ``daily_profit``, ``metrics``), each with ``vs_always_max``.
+    """
     out = evaluate_rules(params, days, RULES)
     if optimal != "off":
         bound = hindsight_bound(params, days)["daily_profit"]
@@ -138,7 +171,17 @@ def references(params, days, optimal: str) -> dict:
 
 def plot(results: dict, algo: str, path):
     """Per fleet, the paired difference to always-max (same accounting) of the rules and of the
-    agents trained with / without the refund, evaluated with / without it."""
+    agents trained with / without the refund, evaluated with / without it.
+
+    Bars: the rules after always-max and the bound (± standard error over days), and each
+    agent (mean over seeds of the per-seed differences ± standard error over seeds), on a
+    symlog axis; written as a PNG.
+
+    Args:
+        results: `main`'s ``{fleet: {"references", "agents"}}``.
+        algo: the algorithm's name, for the labels.
+        path: the PNG file to write.
+    """
     matplotlib.use("Agg")
 
     fig, axes = plt.subplots(1, len(results), figsize=(5.5 * len(results), 3.8), squeeze=False)
