@@ -23,18 +23,45 @@ from baselines.eval.stats import over_seeds, paired_difference
 
 
 def pm(d: dict | None, digits: int = 2) -> str:
+    """``mean ± stderr`` of a difference, the mean signed.
+
+    Args:
+        d: a dict with ``mean`` and ``stderr``, or ``None``.
+        digits: the decimals of both numbers.
+
+    Returns:
+        ``"+1.23 ± 0.45"``, or ``"–"`` for ``None``.
+    """
     if d is None:
         return "–"
     return f"{d['mean']:+.{digits}f} ± {d['stderr']:.{digits}f}"
 
 
 def seeds_stat(per_seed) -> dict:
-    """`baselines.train.over_seeds` of per-seed numbers, with how many are above zero."""
+    """`baselines.eval.stats.over_seeds` of per-seed numbers, with how many are above zero.
+
+    Args:
+        per_seed: one number per seed.
+
+    Returns:
+        `baselines.eval.stats.over_seeds`' dict with ``above`` (the count of numbers above
+        zero) and ``n`` (the count of numbers).
+    """
     v = np.asarray(per_seed, np.float64)
     return {**over_seeds(v), "above": int((v > 0).sum()), "n": int(v.size)}
 
 
 def provenance(d: dict) -> str:
+    """One line on how a runner's result file was made.
+
+    Args:
+        d: a runner's result file (`baselines.experiments._common.Record.as_dict` keys, and
+            ``reused`` / ``wall_seconds_with_reused`` where cells were reused).
+
+    Returns:
+        The budget note (``cut_note``), the settings, the wall time in minutes (with the
+        reused cells' when there are some) and the machine, where recorded.
+    """
     m = d.get("machine") or {}
     wall = d.get("wall_seconds_with_reused", d.get("wall_seconds"))
     reused = d.get("reused") or {}
@@ -89,7 +116,17 @@ CELL_HEADER = (
 
 
 def teacher_rules(cells: list[tuple[str, dict]]) -> str:
-    """The teachers' rules over always-max per cell (one line each), where the file holds them."""
+    """The teachers' rules over always-max per cell (one line each), where the file holds them.
+
+    Args:
+        cells: ``(label, training result)`` pairs.
+
+    Returns:
+        A Markdown table (after a blank line and a caption) with one row per cell whose
+        evaluation table holds both `TEACHERS`: each rule's paired difference to
+        always-max over days (and headroom fraction, where stored); ``""`` when no cell
+        holds them.
+    """
     rows = []
     for label, res in cells:
         t = res["evaluation"]["table"]
@@ -120,6 +157,15 @@ def teacher_rules(cells: list[tuple[str, dict]]) -> str:
 
 
 def traffic_sweep(d: dict) -> str:
+    """The tables of a ``traffic_sweep`` result file (Fig. 4a).
+
+    Args:
+        d: the result file's JSON: ``algo`` and ``results`` ``{traffic: training result}``.
+
+    Returns:
+        The `provenance` line, one row per traffic level (`CELL_HEADER`'s columns) and the
+        `teacher_rules` table.
+    """
     algo = d["algo"]
     cells = list(d["results"].items())
     rows = [_cell_row(traffic, res, algo) for traffic, res in cells]
@@ -135,6 +181,16 @@ def traffic_sweep(d: dict) -> str:
 
 
 def appendix(d: dict) -> str:
+    """The tables of a ``traffic_sweep`` appendix result file (every profile and fleet).
+
+    Args:
+        d: the result file's JSON: ``algo`` and ``results``
+            ``{"profile/fleet": {traffic: training result}}``.
+
+    Returns:
+        The `provenance` line, one row per condition and traffic level (`CELL_HEADER`'s
+        columns) and the `teacher_rules` table.
+    """
     algo = d["algo"]
     cells = [
         (f"{cond} {traffic}", res)
@@ -157,6 +213,17 @@ METRIC = {"satisfaction_time": "missing_kwh_at_departure", "satisfaction_charge"
 
 
 def alpha_ablation(d: dict) -> str:
+    """The table of an ``alpha_ablation`` result file (Fig. 4b-c).
+
+    Args:
+        d: the result file's JSON: ``baselines`` and ``results`` ``{term: [row per alpha]}``.
+
+    Returns:
+        The `provenance` line; per term and alpha its metric (kWh or min), the change to
+        alpha 0 (with the count of seeds below it), the daily profit and its change to alpha
+        0, and the wall minutes; then a line of always-max's figures (and the battery rule's
+        and the bound's profit, where present).
+    """
     am = d["baselines"]["always_max"]["metrics"]
     lines = [
         provenance(d),
@@ -194,6 +261,18 @@ def alpha_ablation(d: dict) -> str:
 
 
 def price_shift(d: dict) -> str:
+    """The tables of a ``price_shift`` result file (Fig. 5).
+
+    Args:
+        d: the result file's JSON: ``matrix`` ``{train year: {eval year: evaluation}}`` and
+            ``baselines`` ``{eval year: baseline results}``.
+
+    Returns:
+        The `provenance` line; the train year × eval year table of held-out daily profits
+        with the paired differences to always-max over seeds, a row per reference every
+        year holds; and per teacher rule that every cell holds a table of the differences to
+        it.
+    """
     years = list(d["matrix"])
     lines = [
         provenance(d),
@@ -241,6 +320,17 @@ def price_shift(d: dict) -> str:
 
 
 def refund_effect(d: dict) -> str:
+    """The tables of a ``refund_effect`` result file.
+
+    Args:
+        d: the result file's JSON: ``algo``, ``fleets`` and ``results``
+            ``{fleet: {"references", "agents"}}``.
+
+    Returns:
+        The `provenance` line, and per fleet a table of every reference and agent: daily
+        profit and difference to always-max with the refund and without, and the paired
+        difference without - with.
+    """
     lines = [provenance(d), ""]
     for fleet, res in d["results"].items():
         refs = res["references"]
@@ -289,6 +379,16 @@ the earlier settings, Fig. 4b-c, Fig. 5, the refund."""
 
 
 def main(argv=None) -> str:
+    """The command line: the tables of every file of `REPORTS` under ``--results``, printed.
+
+    Args:
+        argv: the command-line arguments; ``None`` reads ``sys.argv``.
+
+    Returns:
+        The Markdown text: a ``###`` section per file of `REPORTS`, saying so where the file
+        is missing or was written by a runner that did not record its budget
+        (no ``cut_note``).
+    """
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

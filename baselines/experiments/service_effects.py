@@ -38,7 +38,16 @@ METRICS = ("daily_profit_eur", "jain_index", "min_satisfaction", "mean_satisfact
 
 
 def daily_metrics(totals) -> dict[str, np.ndarray]:
-    """`METRICS` of episode totals with any leading axes (float64)."""
+    """`METRICS` of episode totals with any leading axes (float64).
+
+    Args:
+        totals: `EpisodeTotals` with any leading axes (e.g. ``(seeds, days)``).
+
+    Returns:
+        ``{metric: array}`` per name of `METRICS`, each of the totals' leading shape: the
+        profit in EUR/day and the service metrics of
+        `chargax_marl.evaluation.service_metrics`.
+    """
     out = {"daily_profit_eur": np.asarray(totals.profit_eur, np.float64)}
     service = service_metrics(totals)
     out.update({m: service[m] for m in METRICS if m != "daily_profit_eur"})
@@ -52,7 +61,23 @@ def _mean_over_keys(evaluate, keys) -> dict[str, np.ndarray]:
 
 def score_run(run_dir, draws: int) -> dict:
     """Every seed of a run on its held-out days: ``{"days", "config", metric: (seeds, days)}``,
-    plus always-max's ``(days,)`` on the same days and cars under ``"always_max"``."""
+    plus always-max's ``(days,)`` on the same days and cars under ``"always_max"``.
+
+    Args:
+        run_dir: an output directory of ``baselines.train`` (``results.json``,
+            ``params.msgpack``).
+        draws: car draws per held-out day (`baselines.eval.protocol.draw_keys`); every
+            metric is the mean over a day's draws.
+
+    Returns:
+        ``{metric: (seeds, days) array}`` per name of `METRICS`, ``"always_max"``
+        (``{metric: (days,) array}``), ``"days"`` (the held-out day indices) and
+        ``"config"`` (the run's stored config).
+
+    Raises:
+        ValueError: ``draws`` is not a positive integer
+            (`baselines.eval.protocol.draw_keys`).
+    """
     results, train, params = runs.load_run(run_dir)
     _, eval_params, _, days = build_env_params(train.config)
     days = jnp.asarray(days, jnp.int32)
@@ -75,7 +100,15 @@ def score_run(run_dir, draws: int) -> dict:
 def paired(a: np.ndarray, b: np.ndarray) -> dict:
     """``a - b`` with ``a`` ``(seeds, days)`` and ``b`` ``(seeds, days)`` or ``(days,)``: the
     mean, its standard error over the seeds' mean differences (NaN for one seed) and over
-    the seeds x days differences, and each seed's mean difference."""
+    the seeds x days differences, and each seed's mean difference.
+
+    Args:
+        a: ``(seeds, days)`` numbers of the run.
+        b: ``(seeds, days)`` or ``(days,)`` numbers of the reference.
+
+    Returns:
+        ``{"mean", "stderr_seeds", "stderr_seed_days", "per_seed"}`` in the numbers' unit.
+    """
     d = np.asarray(a, np.float64) - np.broadcast_to(np.asarray(b, np.float64), np.shape(a))
     per_seed = d.mean(axis=1)
     seeds = per_seed.size
@@ -88,7 +121,21 @@ def paired(a: np.ndarray, b: np.ndarray) -> dict:
 
 
 def compare(name: str, run: dict, reference: dict) -> dict:
-    """One comparison's record: both runs' means and the paired differences per metric."""
+    """One comparison's record: both runs' means and the paired differences per metric.
+
+    Args:
+        name: the comparison's label.
+        run: `score_run` of the run.
+        reference: `score_run` of the reference run.
+
+    Returns:
+        ``{"name", "seeds", metric: {...}}``, per name of `METRICS` the means over seeds ×
+        days of the run, the reference and always-max (on the run's cars), and `paired`
+        differences ``vs_reference`` and ``vs_always_max``.
+
+    Raises:
+        ValueError: the run and the reference were held out on different days.
+    """
     if run["days"] != reference["days"]:
         raise ValueError(f"{name}: the run and its reference were held out on different days")
     out = {"name": name, "seeds": int(np.shape(run["daily_profit_eur"])[0])}
@@ -104,7 +151,16 @@ def compare(name: str, run: dict, reference: dict) -> dict:
 
 
 def table(record: dict) -> str:
-    """A markdown table of a result file: one row per comparison and metric."""
+    """A markdown table of a result file: one row per comparison and metric.
+
+    Args:
+        record: ``{"comparisons": [compare record]}``, a result file of `main`.
+
+    Returns:
+        The table: per comparison and metric the run's, the reference's and always-max's
+        means and the differences to the reference and to always-max with their standard
+        errors.
+    """
     lines = [
         "| comparison | metric | run | reference | always-max | run - reference "
         "(± se seeds; ± se seeds x days) | run - always-max (± se seeds x days) |",
@@ -125,6 +181,23 @@ def table(record: dict) -> str:
 
 
 def main(argv=None) -> dict | None:
+    """The command line: ``--table FILE`` prints a result file's table; otherwise every
+    ``--compare NAME RUN REFERENCE`` is scored (each run directory once) and its table
+    printed, and with ``--out`` the comparisons are written to that JSON file, replacing
+    those of the same names and keeping the others.
+
+    Args:
+        argv: the command-line arguments; ``None`` reads ``sys.argv``.
+
+    Returns:
+        ``None`` with ``--table``; otherwise ``{"comparisons": [...]}``: the `compare`
+        records with ``run``, ``reference`` and ``draws`` (with ``--out`` onto an existing
+        file, also the comparisons kept from it).
+
+    Raises:
+        SystemExit: neither ``--compare`` nor ``--table`` is given (``argparse`` exits with
+            status 2).
+    """
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

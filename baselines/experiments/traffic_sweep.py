@@ -13,9 +13,10 @@ rules / price-threshold / the LP hindsight bound on the same 100 held-out days a
 
 ``--appendix`` repeats the sweep for the four bundled user profiles (shopping, residential,
 workplace, highway; EU fleet) and for the US and World fleets (shopping) and also writes
-``results/traffic_sweep_appendix.{png,json}``; ``--profiles`` / ``--fleets`` pick
-conditions by hand (every profile with the first fleet, then the first profile with every
-other fleet). Shopping with the EU fleet is the main figure whenever it is among them.
+``outputs/traffic_sweep_appendix.{png,json}`` (the ``--out`` prefix with ``_appendix``);
+``--profiles`` / ``--fleets`` pick conditions by hand (every profile with the first fleet,
+then the first profile with every other fleet). Shopping with the EU fleet is the main figure
+whenever it is among them.
 
 ``--traffic`` picks traffic levels. ``--reuse medium=DIR/results.json`` (or
 ``highway/EU/high=...`` for another condition) takes a cell from a run ``baselines.train``
@@ -55,17 +56,50 @@ FLEETS = ("EU", "US", "World")
 
 def conditions(profiles=("shopping",), fleets=("EU",)) -> list[tuple[str, str]]:
     """``(profile, fleet)`` pairs: every profile with the first fleet, then the first profile
-    with each other fleet (the appendix varies one at a time)."""
+    with each other fleet (the appendix varies one at a time).
+
+    Args:
+        profiles: user profile names, the first one paired with every other fleet.
+        fleets: fleet names, the first one paired with every profile.
+
+    Returns:
+        The ``(profile, fleet)`` pairs, without repeats, in that order.
+    """
     out = [(p, fleets[0]) for p in profiles] + [(profiles[0], f) for f in fleets[1:]]
     return list(dict.fromkeys(out))
 
 
 def condition_config(base: dict, profile: str, fleet: str, traffic: str) -> dict:
-    """The training config of one cell: ``base`` on ``profile``'s scenario at ``traffic`` with ``fleet``."""
+    """The training config of one cell: ``base`` on ``profile``'s scenario at ``traffic``
+    with ``fleet``.
+
+    Args:
+        base: the training config.
+        profile: the scenario (``SCENARIO``), one of `PROFILES`.
+        fleet: the fleet name, added to ``ENV_KWARGS``.
+        traffic: the traffic level (``TRAFFIC``), one of `TRAFFIC`.
+
+    Returns:
+        A new config; ``base`` is not changed.
+    """
     return {**with_env_kwargs(base, fleet=fleet), "SCENARIO": profile, "TRAFFIC": traffic}
 
 
 def main(argv=None, out="outputs/traffic_sweep"):
+    """The command line: train (or reuse) every cell of the chosen conditions and traffic
+    levels, and write ``<out>.json`` and ``<out>.png`` (`plot`) when shopping/EU is among
+    the conditions, and ``<out>_appendix.json`` and ``<out>_appendix.png`` (`plot_grid`)
+    when there are several conditions.
+
+    Args:
+        argv: the command-line arguments; ``None`` reads ``sys.argv``.
+        out: the default of ``--out``, the path prefix of the result files.
+
+    Returns:
+        ``{"profile/fleet": {traffic: result}}``: each cell's ``baselines.train`` result
+        (its keys starting with ``_`` left out) with its training ``curve`` cut to the
+        timesteps and the episode profit.
+    """
     p = parser(__doc__, full_seeds=20)
     p.add_argument(
         "--appendix",
@@ -144,7 +178,21 @@ def parse_reuse(
 ) -> dict[str, str]:
     """``{"profile/fleet/traffic": results.json path}`` of ``--reuse [PROFILE/FLEET/]TRAFFIC=PATH``
     items; a bare traffic level means shopping/EU. A cell that this sweep does not train is an
-    error (through ``p``)."""
+    error (through ``p``).
+
+    Args:
+        p: the argument parser, whose ``error`` reports a bad item.
+        items: the ``--reuse`` items.
+        cells: the sweep's ``(profile, fleet)`` conditions.
+        traffic: the sweep's traffic levels.
+
+    Returns:
+        ``{"profile/fleet/traffic": path}`` per item.
+
+    Raises:
+        SystemExit: an item without ``=`` or a path, or naming a cell the sweep does not
+            train (``p.error`` exits with status 2).
+    """
     valid = [f"{profile}/{fleet}/{t}" for profile, fleet in cells for t in traffic]
     reuse = {}
     for item in items:
@@ -189,7 +237,18 @@ def _sweep(args, base, seeds, profile, fleet, reuse: dict) -> dict:
 
 
 def line(res: dict, algo: str) -> str:
-    """One cell's held-out profits and paired differences, for the log."""
+    """One cell's held-out profits and paired differences, for the log.
+
+    Args:
+        res: the cell's ``baselines.train`` result.
+        algo: the algorithm's name (its entry in the evaluation table).
+
+    Returns:
+        The mean held-out daily profits of the agent, always-max, the battery rule, the
+        battery programme, price-threshold and the LP bound (those in the table), the
+        agent's paired differences that the result holds (mean ± standard error, EUR/day),
+        and its headroom fraction over seeds where recorded.
+    """
     t = res["evaluation"]["table"]
     out = " | ".join(
         f"{name} {t[name]['metrics']['daily_profit_eur']['mean']:.1f}"
@@ -213,7 +272,16 @@ def line(res: dict, algo: str) -> str:
 def plot_grid(results: dict, algo: str, path):
     """One panel per condition (``profile/fleet``): held-out daily profit minus always-max's
     on the same days and cars, per traffic level, of the learned agent (mean ± std over seeds),
-    the battery rule and the LP bound."""
+    the battery rule and the LP bound.
+
+    The teachers' rules are drawn too where every traffic level of the condition holds them;
+    written as a PNG.
+
+    Args:
+        results: `main`'s ``{"profile/fleet": {traffic: result}}``.
+        algo: the algorithm's name (its entry in the evaluation tables).
+        path: the PNG file to write.
+    """
     matplotlib.use("Agg")
 
     fig, axes = plt.subplots(1, len(results), figsize=(3.6 * len(results), 3.4), squeeze=False)
@@ -252,6 +320,16 @@ def plot_grid(results: dict, algo: str, path):
 
 
 def plot(results, algo, path):
+    """One panel per traffic level: the agent's sampled training episode profit (mean ± std
+    over seeds) against environment steps, its greedy held-out daily profit (error bar the
+    std over seeds of the per-seed means) at the last step, and a line per reference in the
+    evaluation table; written as a PNG.
+
+    Args:
+        results: ``{traffic: result}`` of one condition (shopping/EU in `main`).
+        algo: the algorithm's name (its entry in the evaluation table).
+        path: the PNG file to write.
+    """
     matplotlib.use("Agg")
 
     fig, axes = plt.subplots(1, len(results), figsize=(4.2 * len(results), 3.6))
