@@ -294,7 +294,8 @@ def _modules(tree: str) -> list[str]:
 
 def _api(tree: str) -> dict[str, object]:
     """``qualified name -> object`` of the tree's public functions, classes and methods (a
-    method of a class when it is defined in that class and takes an argument)."""
+    method of a class when the tree's code defines it in that class and it takes an
+    argument)."""
     out: dict[str, object] = {}
     for module_name in _modules(tree):
         module = importlib.import_module(module_name)
@@ -313,6 +314,8 @@ def _api(tree: str) -> dict[str, object]:
             for attr, member in vars(obj).items():
                 if attr.startswith("_") or not inspect.isfunction(member):
                     continue
+                if not (getattr(member, "__module__", None) or "").startswith(tree):
+                    continue  # a method a library adds (flax.struct's replace)
                 if _parameters(member):
                     out[f"{module_name}.{name}.{attr}"] = member
     return out
