@@ -3,7 +3,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: test docs examples train train-ppo train-mappo optimal rollout bench bench-peers bench-scaling data data-check clean
+.PHONY: test dist docs examples train train-ppo train-mappo optimal rollout bench bench-peers bench-scaling data data-check clean
 
 # The project is installed by uv (put into the venv by pip), which resolves the same versions
 # as pip and downloads and unpacks them in parallel: a fresh clone's set-up takes a fraction of
@@ -36,12 +36,27 @@ docs: $(DOCS_STAMP)
 # whatever the flag.
 X64_TESTS := tests/core/test_model.py tests/core/test_bad_input.py
 
+# The distributions as users get them are built and checked in one place, tests/test_wheel.py:
+# `python -m build` (the sdist, then the wheel from it), `twine check --strict`, the wheel
+# installed into a fresh venv and the README's quick start and a benchmark score run there.
+# CHARGAX_DIST makes it leave them in dist/, whose sizes the targets print.
+DIST       := dist
+DIST_SIZES := $(PY) -c "import pathlib; [print(f'{p}: {p.stat().st_size} bytes ({p.stat().st_size / 1e6:.2f} MB)') for p in sorted(pathlib.Path('$(DIST)').iterdir())]"
+
 test: $(STAMP) $(DOCS_STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
-	$(PY) -m pytest -n 2 -q --durations=20
+	rm -rf $(DIST)
+	CHARGAX_DIST=$(CURDIR)/$(DIST) $(PY) -m pytest -n 2 -q --durations=20
+	@$(DIST_SIZES)
 	JAX_ENABLE_X64=1 $(PY) -m pytest -n 2 -q $(X64_TESTS)
 	$(MAKE) docs
+
+# The release's sdist and wheel in dist/, built and checked by the wheel test alone.
+dist: $(STAMP)
+	rm -rf $(DIST)
+	CHARGAX_DIST=$(CURDIR)/$(DIST) $(PY) -m pytest -q tests/test_wheel.py
+	@$(DIST_SIZES)
 
 # The client examples with heavy dependencies (stable-baselines3, supersuit, tianshou, torch:
 # the `clients` extra), each on a tiny budget; not part of `make test`. The dependency-light
@@ -102,4 +117,4 @@ data-check: $(STAMP)
 	$(PY) scripts/build_data.py --check
 
 clean:
-	rm -rf $(VENV) .pytest_cache .hypothesis site
+	rm -rf $(VENV) .pytest_cache .hypothesis site $(DIST) build
