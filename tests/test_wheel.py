@@ -85,6 +85,20 @@ def quick_start() -> str:
     return "\n".join(blocks)
 
 
+def test_the_readme_renders_as_the_package_index_renders_it():
+    """PyPI's renderer (readme_renderer, Markdown by its ``md`` extra): without the extra it
+    renders nothing, and ``twine check`` passes any Markdown unread."""
+    import tomllib
+
+    from readme_renderer.markdown import render
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    assert project["readme"] == "README.md"
+    html = render(README.read_text())
+    assert html is not None, "readme_renderer has no Markdown renderer: install readme-renderer[md]"
+    assert "<table>" in html and "Quick start" in html
+
+
 def test_the_quick_start_is_read_from_the_readme():
     assert section("# t\n## A\na\n## B\nb\n", "A") == "a\n"
     assert section("## A\na\n", "A") == "a\n"
