@@ -28,6 +28,13 @@ from chargax_marl.trace import day_of, make_traces, replay
 def play_day(act: Callable, params, day: int, key: jax.Array) -> dict:
     """One day of ``act(state, key) -> levels`` with the cars of ``key``, step by step.
 
+    Args:
+        act: a jittable ``act(state, key) -> levels`` (`chargax_marl.benchmark.protocol.as_core`).
+        params: the env parameters.
+        day: the day index.
+        key: the ``(2,)`` key of the day and draw (one row of
+            `chargax_marl.benchmark.Task.day_keys`).
+
     Returns:
         ``{"hours" (hours since midnight of the episode's first day, the step's clock time;
         24 and more on the next day), "price_eur_kwh", "grid_kw", "port_kw" (steps, ports), "arrived"

@@ -147,7 +147,22 @@ def as_core(policy: Callable, kind: str, params: EnvParams) -> Callable:
 
 
 def flatten_schedule(days, day_keys) -> tuple[np.ndarray, jax.Array, int, int]:
-    """``(days repeated per draw, keys (n * draws, 2), n, draws)``: one entry per played day."""
+    """``(days repeated per draw, keys (n * draws, 2), n, draws)``: one entry per played day.
+
+    Args:
+        days: ``(n,)`` day indices (any shape, flattened).
+        day_keys: ``(n, draws, 2)`` keys, ``day_keys[i, r]`` the keys of draw ``r`` of
+            ``days[i]``.
+
+    Returns:
+        ``(flat_days, flat_keys, n, draws)``: ``flat_days`` the ``(n * draws,)`` int32 day
+        indices (each day repeated once per draw), ``flat_keys`` the ``(n * draws, 2)`` keys in
+        the same order, and the two counts.
+
+    Raises:
+        ValueError: ``day_keys`` is not three-dimensional or its first axis is not the number
+            of days.
+    """
     days = np.asarray(days, np.int32).reshape(-1)
     keys = jnp.asarray(day_keys)
     if keys.ndim != 3 or keys.shape[0] != days.size:
@@ -160,7 +175,17 @@ def flatten_schedule(days, day_keys) -> tuple[np.ndarray, jax.Array, int, int]:
 
 def unflatten_totals(totals: EpisodeTotals, n: int, r: int) -> EpisodeTotals:
     """Per-day totals (scalars per day) over the flat schedule, with any leading axes before
-    it (seeds), as ``(..., n, draws)``."""
+    it (seeds), as ``(..., n, draws)``.
+
+    Args:
+        totals: `EpisodeTotals` whose leaves have the flat schedule (``n * draws``) as their
+            last axis (`flatten_schedule`'s order).
+        n: the number of days.
+        r: the number of draws per day.
+
+    Returns:
+        The same totals as numpy leaves of shape ``(..., n, r)``.
+    """
     return jax.tree.map(lambda x: np.asarray(x).reshape(np.shape(x)[:-1] + (n, r)), totals)
 
 

@@ -93,7 +93,11 @@ BOUND_CHUNK_DAYS = 5
 
 
 def package_version() -> str:
-    """The installed chargax_marl version (``"unknown"`` when not installed)."""
+    """The installed chargax_marl version (``"unknown"`` when not installed).
+
+    Returns:
+        The version string from the package metadata, or ``"unknown"``.
+    """
     try:
         return importlib.metadata.version("chargax_marl")
     except importlib.metadata.PackageNotFoundError:
@@ -593,7 +597,15 @@ def _stored_bound(params, days, directory) -> np.ndarray | None:
 
 
 def reference_path(task: str | Task, directory: str | Path | None = None) -> Path:
-    """The file of a task's references (in ``directory``, default `REFERENCES_DIR`)."""
+    """The file of a task's references (in ``directory``, default `REFERENCES_DIR`).
+
+    Args:
+        task: a task id or `Task` (an id is not checked against the registry).
+        directory: the folder of the files; None: `REFERENCES_DIR`.
+
+    Returns:
+        ``<directory>/<task id>.json`` (the file need not exist).
+    """
     task_id = task.id if isinstance(task, Task) else str(task)
     return Path(directory or REFERENCES_DIR) / f"{task_id}.json"
 
@@ -690,6 +702,20 @@ def load_references(task: str | Task, directory: str | Path | None = None) -> di
 
 
 def main(argv=None) -> None:
+    """The command line: compute the references of tasks and write them as JSON files.
+
+    Per task, one of: ``--refill-bound`` (`refill_bound`), ``--mpc`` (`add_mpc`),
+    ``--keep-bound`` (replay the rules, keep the stored bound and MPC references), or a full
+    build (`compute_references`, ``--no-bound`` leaving the bound out); each writes the
+    task's file in ``--out`` and prints its path and wall time.
+
+    Args:
+        argv: the arguments (None: ``sys.argv[1:]``); ``--help`` lists them.
+
+    Raises:
+        SystemExit: ``--keep-bound`` on a task whose parameters' fingerprint or always-max's
+            per-day profits differ from the stored file's (the bound must be rebuilt too).
+    """
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--task", action="append", help="a task id (repeatable; default: all)")
     parser.add_argument("--out", default=str(REFERENCES_DIR), help="directory of the files")

@@ -77,7 +77,15 @@ def read_scores(directory: str | Path) -> list[dict]:
     """The score files of ``directory`` (``*.json`` with ``name``, ``task`` and ``score``),
     each checked against the current code's task parameters.
 
+    Args:
+        directory: the folder of score files (``python -m baselines.score`` writes them);
+            other JSON files in it are skipped.
+
+    Returns:
+        The files' contents, in the order of their sorted paths.
+
     Raises:
+        KeyError: a score file of a task not in the registry (`get_task`).
         ValueError: a score file computed on other parameters than its task's on this code.
     """
     out = []
@@ -207,7 +215,15 @@ def learner_gaps(scores_dir: str | Path, references_dir: str | Path | None = Non
 def time_score(path: str | Path) -> dict:
     """Time `chargax_marl.benchmark.score` of always-max on every task (jit compile
     included, the references already shipped), and of always-max as a host Gymnasium policy
-    on the default task; write ``{"score_s": {task: seconds}, "gymnasium_s": {task: s}}``."""
+    on the default task; write ``{"score_s": {task: seconds}, "gymnasium_s": {task: s}}``.
+
+    Args:
+        path: the JSON file to write (its folder is created if missing).
+
+    Returns:
+        What is written: ``{"score_s": {task id: seconds}, "gymnasium_s": {DEFAULT_TASK:
+        seconds}, "policy": "always_max"}``, seconds rounded to 0.1 s.
+    """
     out = {"score_s": {}, "gymnasium_s": {}, "policy": "always_max"}
     for task_id in TASKS:
         t0 = time.perf_counter()
@@ -232,6 +248,12 @@ START, END = "<!-- scoreboard:start -->", "<!-- scoreboard:end -->"
 def embedded(text: str) -> str:
     """The table between `START` and `END` in ``text``.
 
+    Args:
+        text: the contents of a Markdown file.
+
+    Returns:
+        The text between the first `START` and the next `END`, stripped.
+
     Raises:
         ValueError: the markers are missing.
     """
@@ -241,13 +263,36 @@ def embedded(text: str) -> str:
 
 
 def embed(text: str, table: str) -> str:
-    """``text`` with the block between the markers replaced by ``table``."""
+    """``text`` with the block between the markers replaced by ``table``.
+
+    Args:
+        text: the contents of a Markdown file with a `START` ... `END` block.
+        table: the Markdown to put between the markers.
+
+    Returns:
+        ``text`` with the first block's contents replaced by ``table`` (on its own lines).
+
+    Raises:
+        ValueError: the markers are missing (`embedded`).
+    """
     embedded(text)
     head, rest = text.split(START, 1)
     return f"{head}{START}\n{table}\n{END}{rest.split(END, 1)[1]}"
 
 
 def main(argv=None) -> str:
+    """The command line: print the scoreboard, and write it where the options say.
+
+    ``--gaps`` writes `learner_gaps` of ``--scores`` to a file; ``--time`` names a timing
+    file, measured first (`time_score`) when it does not exist; ``--readme`` writes the table
+    into that file's `START` ... `END` block.
+
+    Args:
+        argv: the arguments (None: ``sys.argv[1:]``); ``--help`` lists them.
+
+    Returns:
+        The Markdown table (`render`).
+    """
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scores", default=None, help="a directory of score files")
     parser.add_argument("--time", default=None, help="a timing file (measured if missing)")

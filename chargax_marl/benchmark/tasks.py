@@ -162,6 +162,12 @@ class Task:
         station stay the task's, so the profits compare with the references; only what the
         policy can choose differs.
 
+        Args:
+            num_levels: the policy's levels per direction (None: the task's).
+
+        Returns:
+            The task's `EnvParams`, with ``num_levels`` replaced where it differs.
+
         Raises:
             ValueError: ``num_levels`` not a positive integer.
         """
@@ -184,6 +190,14 @@ class Task:
             **overrides: `chargax_marl.core.make_params` keywords on top of the task's
                 (``num_levels=1``: a policy trained in fewer levels); not for ``params_fn``
                 tasks.
+
+        Returns:
+            The training env's `EnvParams`: the scored env with ``reset_days`` the training
+            days, or on a shift task an env over the joined ``train_prices``.
+
+        Raises:
+            ValueError: overrides on a ``params_fn`` task, or a ``session_model`` override
+                other than the task's.
         """
         if self.params_fn is not None:
             if overrides:
@@ -242,7 +256,18 @@ class Task:
         return self.scored_params(**overrides)
 
     def scored_params(self, **overrides: Any) -> EnvParams:
-        """The scored env with ``overrides`` on top (`make_params` without them)."""
+        """The scored env with ``overrides`` on top (`make_params` without them).
+
+        Args:
+            **overrides: `chargax_marl.core.make_params` keywords on top of the task's.
+
+        Returns:
+            The scored env's `EnvParams`.
+
+        Raises:
+            ValueError: overrides on a ``params_fn`` task, or a ``session_model`` override
+                other than the task's.
+        """
         if not overrides:
             return self.make_params()
         if self.params_fn is not None:

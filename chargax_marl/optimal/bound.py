@@ -59,7 +59,18 @@ class Occupancy:
 def sessions_from_rollout(states, infos, params: EnvParams) -> Sessions:
     """The car sessions of one replayed day (`chargax_marl.trace.replay`'s ``states``
     and ``infos``, leading axis = steps). A car present at the start of step ``t`` charges in
-    ``t``; it is the same car as in ``t - 1`` unless the port received a new car in ``t - 1``."""
+    ``t``; it is the same car as in ``t - 1`` unless the port received a new car in ``t - 1``.
+
+    Args:
+        states: the states at the start of each step, leaves with a leading steps axis.
+        infos: the steps' infos, leaves with a leading steps axis.
+        params: the environment parameters the day was replayed with.
+
+    Returns:
+        The car sessions, port by port and in step order within a port: each starts at the
+        car's SoC and constants in its first step, and a charge-sensitive car that left
+        before the day's end must reach its target (``must_reach``).
+    """
     occ = np.asarray(states.occupied)
     arrived = np.asarray(infos.leaf_arrived)
     num_steps = occ.shape[0]
@@ -114,7 +125,18 @@ def sessions_from_rollout(states, infos, params: EnvParams) -> Sessions:
 
 
 def battery_sessions(params: EnvParams, soc0, first: int, last: int) -> Sessions:
-    """The station batteries as sessions over steps ``first..last`` (always present)."""
+    """The station batteries as sessions over steps ``first..last`` (always present).
+
+    Args:
+        params: the environment parameters.
+        soc0: the batteries' SoC at the start of step ``first``, one per battery.
+        first: the first step.
+        last: the last step (inclusive).
+
+    Returns:
+        One session per station battery, SoC window [0, 1], charging and discharging at the
+        battery leaf's rating ``V * I_max`` (kW).
+    """
     st = params.station
     nb = st.num_batteries
     kw = np.asarray(st.leaf_voltage_v * st.leaf_max_current_a / 1000.0, np.float64)[st.num_ports :]
@@ -139,7 +161,17 @@ def economics(
     params: EnvParams, trace: trace_lib.DayTrace, first: int = 0, last: int | None = None
 ) -> Economics:
     """The trace's prices for steps ``first..last`` and the params' customer price (and
-    whether discharged car energy is refunded)."""
+    whether discharged car energy is refunded).
+
+    Args:
+        params: the environment parameters.
+        trace: one day's trace (its buy, sell and terminal battery prices).
+        first: the first step.
+        last: the last step (inclusive); None: the trace's last.
+
+    Returns:
+        The `Economics` of steps ``first..last``, with no peak paid so far.
+    """
     last = trace.num_steps - 1 if last is None else last
     sl = slice(first, last + 1)
     return Economics(

@@ -38,7 +38,20 @@ from chargax_marl.policies import always_max
 
 @dataclass
 class WindowBounds:
-    """MILP and LP bounds of one window, with the reference policy's window profit (EUR)."""
+    """MILP and LP bounds of one window, with the reference policy's window profit (EUR).
+
+    Attributes:
+        milp_eur: the MILP bound of the window profit (EUR, fixed cost included).
+        lp_eur: the LP bound over the reference's occupancy cut to the window (`restrict`;
+            EUR, fixed cost included).
+        reference_eur: the reference policy's window profit (`window_profit`; EUR).
+        num_steps: the window's steps.
+        num_candidates: the cars that ask to park in the window (at most one per port per
+            step of arrival).
+        num_binaries: the MILP's binaries, one per (car, port[, departure step]) session.
+        milp_solve_s: the seconds HiGHS spent on the MILP.
+        lp_solve_s: the seconds HiGHS spent on the LP.
+    """
 
     milp_eur: float
     lp_eur: float
@@ -125,8 +138,24 @@ def admission_bound(
     time_limit_s: float | None = 120.0,
 ):
     """Solve the MILP of the module docstring over the window's first ``num_steps`` steps.
-    Returns `chargax_marl.optimal.model.Solution` (value without the fixed cost).
-    Raises `chargax_marl.optimal.model.SolverError` when HiGHS finds no optimum."""
+
+    Args:
+        params: the environment parameters.
+        trace: one day's trace (`chargax_marl.trace.make_traces`).
+        num_steps: the window's steps, from the day's first.
+        time_limit_s: HiGHS's wall-clock limit of each attempt (seconds); None: none.
+
+    Returns:
+        The `chargax_marl.optimal.model.Solution` (``value_eur`` without the fixed cost),
+        with two more attributes: ``num_binaries``, the candidate sessions, and
+        ``num_candidates``, the cars they belong to.
+
+    Raises:
+        ValueError: the trace was not made for ``params``, or ``num_steps`` outside
+            ``[2, params.num_steps]``.
+        chargax_marl.optimal.model.SolverError: HiGHS finds no optimum with any of the
+            settings it tries.
+    """
     trace_lib.check_trace(trace, params)
     if not 2 <= num_steps <= params.num_steps:
         raise ValueError(
@@ -165,7 +194,20 @@ def admission_bound(
 def window_profit(
     params: EnvParams, trace: trace_lib.DayTrace, day_key: jax.Array, policy, num_steps: int
 ) -> float:
-    """A policy's window profit (see the module docstring) on the trace's first ``num_steps``."""
+    """A policy's window profit (see the module docstring) on the trace's first ``num_steps``.
+
+    Args:
+        params: the environment parameters.
+        trace: one day's trace.
+        day_key: the day's key, as for `chargax_marl.trace.replay`.
+        policy: ``policy(state, key, params) -> levels``.
+        num_steps: the window's steps, from the day's first.
+
+    Returns:
+        The profit booked in the window's steps (EUR, fixed cost included), with the
+        batteries' net energy over the window valued at the day's terminal price in place
+        of the booked terminal value.
+    """
     act = lambda s, k: policy(s, k, params)  # noqa: E731
     _, infos, _ = jax.jit(lambda t, k: trace_lib.replay(act, params, t, k))(trace, day_key)
     profit = np.asarray(infos.profit_eur, np.float64)[:num_steps]
@@ -176,7 +218,17 @@ def window_profit(
 
 def restrict(sessions: Sessions, num_steps: int) -> Sessions:
     """The sessions of a reference occupancy cut to the window's first ``num_steps`` steps (a
-    charge-sensitive car keeps its target only if it left within the window)."""
+    charge-sensitive car keeps its target only if it left within the window).
+
+    Args:
+        sessions: the car sessions of a reference occupancy
+            (`chargax_marl.optimal.bound.Occupancy.sessions`).
+        num_steps: the window's steps, from the day's first.
+
+    Returns:
+        The sessions that start in the window, each ending at the window's last step at
+        the latest; ``must_reach`` cleared on those cut short.
+    """
     keep = sessions.first <= num_steps - 1
     out = Sessions(
         **{k: np.asarray(getattr(sessions, k))[keep] for k in Sessions.__dataclass_fields__}
@@ -196,7 +248,24 @@ def compare(
     time_limit_s: float | None = 120.0,
 ) -> WindowBounds:
     """MILP bound, LP bound over ``reference``'s occupancy and ``reference``'s own profit, all
-    on the same window (EUR, fixed cost included)."""
+    on the same window (EUR, fixed cost included).
+
+    Args:
+        params: the environment parameters.
+        trace: one day's trace.
+        day_key: the day's key (the cars' and the reference's keys).
+        num_steps: the window's steps, from the day's first.
+        reference: ``reference(state, key, params) -> levels``; default always-max.
+        time_limit_s: HiGHS's wall-clock limit of each attempt (seconds); None: none.
+
+    Returns:
+        The window's `WindowBounds`.
+
+    Raises:
+        ValueError: the trace was not made for ``params``, or ``num_steps`` outside
+            ``[2, params.num_steps]`` (`admission_bound`).
+        chargax_marl.optimal.model.SolverError: HiGHS finds no optimum of the MILP or the LP.
+    """
     fixed = float(reward_lib.fixed_cost_per_step_eur(params)) * num_steps
     milp = admission_bound(params, trace, num_steps, time_limit_s=time_limit_s)
     occ = occupancy(params, trace, day_key, reference)

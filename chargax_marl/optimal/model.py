@@ -79,7 +79,23 @@ class SolverError(RuntimeError):
 @dataclass
 class Sessions:
     """Cars (and batteries) of a problem, arrays over sessions ``(S,)``. Steps are indices into
-    the problem's step range; a session charges in steps ``first..last`` inclusive."""
+    the problem's step range; a session charges in steps ``first..last`` inclusive.
+
+    Attributes:
+        leaf: (S,) int, the leaf (port, or station battery) each session sits at.
+        first: (S,) int, the session's first step.
+        last: (S,) int, the session's last step (``last < first``: an empty session).
+        soc0: (S,) the SoC at the start of step ``first``.
+        reserve_soc: (S,) the lowest SoC allowed (the car's arrival SoC; 0 for batteries).
+        target_soc: (S,) the highest SoC allowed (the car's target; 1 for batteries).
+        capacity_kwh: (S,) the battery's capacity (kWh).
+        max_rate_kw: (S,) the car's charging power limit ``r-bar`` (kW).
+        max_discharge_rate_kw: (S,) the car's discharging power limit (kW).
+        tau: (S,) the SoC above which the rate curve tapers.
+        must_reach: (S,) bool, the session ends at its target, less the charged tolerance.
+        charge_sensitive: (S,) bool, the car leaves once charged (informational: the LP does
+            not read it).
+    """
 
     leaf: np.ndarray
     first: np.ndarray
@@ -96,10 +112,12 @@ class Sessions:
 
     @property
     def size(self) -> int:
+        """The number of sessions ``S``."""
         return int(self.leaf.shape[0])
 
     @staticmethod
     def concat(parts: list[Sessions]) -> Sessions:
+        """The sessions of ``parts``, one after the other, as one `Sessions`."""
         names = Sessions.__dataclass_fields__
         return Sessions(
             **{n: np.concatenate([np.asarray(getattr(p, n)) for p in parts]) for n in names}
@@ -134,7 +152,26 @@ class Pools:
 
 @dataclass
 class StationLimits:
-    """The station's arrays the LP needs, as numpy (see `chargax_marl.core.station.StationArrays`)."""
+    """The station's arrays the LP needs, as numpy (see `chargax_marl.core.station.StationArrays`).
+
+    ``L`` leaves (ports, then batteries), ``D`` depths of the station tree, ``H`` nodes.
+
+    Attributes:
+        charge_kw: (L,) each leaf's charging rating ``V * I_max`` (kW).
+        discharge_kw: (L,) each leaf's discharging rating ``V * I_dis`` (kW); 0 where the
+            leaf may not discharge (a port without V2G).
+        path_eff: (L,) the efficiency of each leaf's path to the grid.
+        eff_at_depth: (D, L) the efficiency of each leaf's path up to and including its node
+            at each depth.
+        node_at_depth: (D, L) each leaf's node at each depth; -1 where it has none.
+        node_max_kw: (H,) each node's limit (kW); node 0 is the root, the grid connection.
+        is_battery: (L,) bool, the leaf is a station battery.
+        hard: the node limits are constraints (``constraint_mode == "hard"``); False drops
+            them, as the simulator's ``soft`` mode lets the excess flow.
+        root_kw: the root node's limit (kW).
+        wear_eur_kwh: (L,) the battery wear per kWh into or out of the cells (EUR/kWh), 0 at
+            ports; None for no wear.
+    """
 
     charge_kw: np.ndarray  # (L,) V * I_max
     discharge_kw: np.ndarray  # (L,) V * I_dis, 0 where the leaf may not discharge
@@ -149,6 +186,7 @@ class StationLimits:
 
     @staticmethod
     def of(params: EnvParams) -> StationLimits:
+        """The limits of the station of ``params`` (discharge at ports only with ``v2g``)."""
         st = params.station
         kind = np.asarray(st.leaf_kind)
         is_bat = kind == KIND_BATTERY
@@ -175,7 +213,21 @@ class StationLimits:
 
 @dataclass
 class Economics:
-    """Prices of a problem's steps (EUR/kWh) and the constants of the profit."""
+    """Prices of a problem's steps (EUR/kWh) and the constants of the profit.
+
+    Attributes:
+        buy: (n,) the buy price of each step (EUR/kWh).
+        sell: (n,) the grid's sell (feed-in) price of each step (EUR/kWh).
+        customer: the price a car's owner pays per kWh charged (EUR/kWh).
+        battery_value: the value per kWh of net energy into the station batteries over the
+            problem (EUR/kWh; the day's terminal price).
+        step_hours: the length of a step (hours).
+        peak_eur_kw: the peak-demand charge per kW of the highest net draw (step average;
+            EUR/kW); 0 for none.
+        peak_so_far_kw: the day's peak before the problem's first step (kW), already paid
+            for.
+        refund_discharged: car owners get ``customer`` back per kWh taken out of their car.
+    """
 
     buy: np.ndarray  # (n,)
     sell: np.ndarray  # (n,)
@@ -195,7 +247,21 @@ class Solution:
     ``net_kw[s, k]`` the net power of session ``s`` in its ``k``-th step (car side),
     ``soc_end`` the SoC of each session after its last step, ``basis`` the optimal basis when
     asked for (``keep_basis``), ``attempt`` the name of the solver settings that solved it
-    (`attempt_settings`: ``"warm start"`` or ``"default"`` unless a retry did)."""
+    (`attempt_settings`: ``"warm start"`` or ``"default"`` unless a retry did).
+
+    Attributes:
+        value_eur: the money the LP books over the problem (EUR), the fixed cost excluded.
+        status: the solver's status (`STATUS`), ``"optimal"``.
+        solve_s: the seconds spent in HiGHS over every attempt.
+        num_vars: the LP's variables (columns).
+        num_rows: the LP's constraints (rows).
+        net_kw: per session, the ``(last - first + 1,)`` net power of each of its steps (kW,
+            car side, charging positive); None for an empty session.
+        soc_end: (S,) each session's SoC after its last step; NaN for an empty session.
+        x: the LP's whole primal solution, one value per column.
+        basis: the optimal `Basis` when asked for (``keep_basis``), else None.
+        attempt: the name of the settings that solved it (`attempt_settings`).
+    """
 
     value_eur: float
     status: str
@@ -441,7 +507,15 @@ _LOWER, _BASIC, _UPPER = 0, 1, 2
 class Basis:
     """An optimal basis, each column and row named by a key (its kind, leaf or node, and the
     day's step), so that a later problem over overlapping steps can start from it
-    (`build_and_solve`'s ``warm_start``). Keys are sorted."""
+    (`build_and_solve`'s ``warm_start``). Keys are sorted.
+
+    Attributes:
+        col_key: (num_cols,) int64, the columns' keys, sorted.
+        col_status: (num_cols,) int8, each column's status as an index of HiGHS's basis
+            statuses (0 at its lower bound, 1 basic, 2 at its upper bound).
+        row_key: (num_rows,) int64, the rows' keys, sorted.
+        row_status: (num_rows,) int8, each row's status, as for the columns.
+    """
 
     col_key: np.ndarray  # (num_cols,) int64
     col_status: np.ndarray  # (num_cols,) int8, HighsBasisStatus values
@@ -468,7 +542,16 @@ class Basis:
 
     def guess(self, col_key: np.ndarray, row_key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Statuses for a problem with these keys: this basis's where a key is known, else a
-        column at its lower bound and a basic row."""
+        column at its lower bound and a basic row.
+
+        Args:
+            col_key: the new problem's column keys, in column order.
+            row_key: the new problem's row keys, in row order.
+
+        Returns:
+            ``(col_status, row_status)``: int8 arrays of the keys' shapes, as
+            `Basis.col_status`.
+        """
         return (
             _lookup(self.col_key, self.col_status, col_key, _LOWER),
             _lookup(self.row_key, self.row_status, row_key, _BASIC),

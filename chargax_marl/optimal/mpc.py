@@ -90,6 +90,25 @@ class MPC:
     days and car draws that run beside it. A warm-started solve that the warm start does not
     solve is counted in ``warm_retries`` and solved again from scratch, then with the other
     settings, before it counts as a failure.
+
+    Args:
+        params: the environment parameters the controller acts in (its station, prices,
+            step length and action space).
+        horizon_hours: the look-ahead (hours), rounded up to whole steps and cut at the
+            day's end.
+        resolve_every: solve every this many steps, applying the stored plan in between
+            while it matches the state.
+        time_limit_s: HiGHS's wall-clock limit of each attempt of a solve (seconds).
+        urgency_eur_kwh_h: the bonus per kWh for charging a charge-sensitive car, falling
+            by this much per hour of delay (EUR/kWh per hour).
+        deadline_margin_steps: each car is planned to be done this many steps before its
+            planned departure.
+        warm_start: start each solve from the same env's previous optimal basis.
+
+    Raises:
+        ValueError: ``horizon_hours`` not above 0, ``resolve_every`` below 1,
+            ``deadline_margin_steps`` below 0, or ``params.action_mode`` ``"delta"`` (the
+            MPC acts in ``"absolute"`` or ``"continuous"``).
     """
 
     def __init__(
@@ -216,7 +235,21 @@ class MPC:
         return n, econ, self._sessions(s, n)
 
     def plan(self, s: dict) -> np.ndarray:
-        """Net power per leaf and step ``(n, L)`` (kW, car side) for the host state ``s``."""
+        """Net power per leaf and step ``(n, L)`` (kW, car side) for the host state ``s``.
+
+        Solves the step's LP (`problem`), warm-started from the same env's previous basis
+        when it is at most a horizon old. A solve that fails with every setting is counted
+        in ``failures`` and ``failed_solves``, and its plan charges every port at its rating
+        and idles the batteries.
+
+        Args:
+            s: the host state (`_FIELDS` as numpy arrays).
+
+        Returns:
+            ``(n, L)`` net power (kW, car side, charging positive) of every leaf in each of
+            the horizon's ``n`` steps; zeros at a port without a car, and after a car's
+            planned last step.
+        """
         day, t = int(s["day"]), int(s["timestep"])
         n, econ, sessions = self.problem(s)
         out = np.zeros((n, self.num_leaves))
@@ -363,5 +396,13 @@ class MPC:
 
 
 def mpc_policy(params: EnvParams, **kwargs) -> MPC:
-    """An `MPC` for ``params`` (a policy ``(state, key, params) -> levels``)."""
+    """An `MPC` for ``params`` (a policy ``(state, key, params) -> levels``).
+
+    Args:
+        params: the environment parameters.
+        **kwargs: `MPC`'s other arguments (``horizon_hours``, ``resolve_every``, ...).
+
+    Returns:
+        The controller.
+    """
     return MPC(params, **kwargs)
