@@ -148,13 +148,31 @@ def plan_value(
 
 def steps_of(minutes_left, step_minutes: float) -> jnp.ndarray:
     """The steps a time-sensitive car still charges: it leaves after the step that takes its
-    minutes left to 0 or below, so ``ceil(minutes / step)`` (0 when none are left)."""
+    minutes left to 0 or below, so ``ceil(minutes / step)`` (0 when none are left).
+
+    Args:
+        minutes_left: the cars' minutes of stay left (any shape).
+        step_minutes: the length of a step (minutes).
+
+    Returns:
+        The steps left, as floats of ``minutes_left``'s shape (a tolerance of 1e-4 step
+        keeps an exact multiple from rounding up).
+    """
     return jnp.maximum(jnp.ceil(minutes_left / step_minutes - 1e-4), 0.0)
 
 
 def batched(fn, core):
     """``fn(core, *per_env_args)`` of one core state, vmapped over the env batch of ``core``
-    (none, one or more leading axes of its ``timestep``)."""
+    (none, one or more leading axes of its ``timestep``).
+
+    Args:
+        fn: a function of one (unbatched) core state and per-env arguments.
+        core: a core state whose ``timestep`` has the batch's leading axes (a scalar for
+            one env).
+
+    Returns:
+        ``fn`` wrapped in one `jax.vmap` per leading axis of ``core.timestep``.
+    """
     for _ in range(jnp.ndim(core.timestep)):
         fn = jax.vmap(fn)
     return fn
@@ -163,7 +181,17 @@ def batched(fn, core):
 def plan_constants(env_params):
     """What the plan reads from the params: every day's steps by price and their prices, the
     port mask, the path efficiencies, the leaves' top power, the step in minutes and hours and
-    the customer price."""
+    the customer price.
+
+    Args:
+        env_params: concrete `chargax_marl.core.types.EnvParams`.
+
+    Returns:
+        ``(order, sorted_prices, is_port, eff, leaf_max_kw, step_minutes, step_hours,
+        customer)``: `price_order`'s ``(days, T)`` step indices and buy prices (EUR/kWh),
+        ``(L,)`` bool port mask, ``(L,)`` path efficiencies, ``(L,)`` leaf top power (kW),
+        the step in minutes and hours (floats) and the customer price (EUR/kWh).
+    """
     order_np, sorted_np = price_order(env_params)
     st = env_params.station
     return (

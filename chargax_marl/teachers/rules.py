@@ -36,7 +36,14 @@ from chargax_marl.teachers.storage_value import dp_battery_action
 
 
 def has_battery(params) -> bool:
-    """Whether the station of ``params`` has a battery leaf."""
+    """Whether the station of ``params`` has a battery leaf.
+
+    Args:
+        params: concrete `chargax_marl.core.types.EnvParams`.
+
+    Returns:
+        True when any leaf of the station is a battery.
+    """
     return bool(np.any(np.asarray(params.station.leaf_kind) == KIND_BATTERY))
 
 

@@ -131,6 +131,24 @@ def day_values(
     E_{t+1} = E_t + c_t - d_t,  0 <= E_t <= C,  0 <= c_t, d_t <= P dt,  E_0 = e0,
 
     ``w`` the wear per kWh into or out of the cells (``wear_eur_kwh``; 0: free cycling).
+
+    Args:
+        prices: ``(T,)`` the day's buy prices (EUR/kWh), the ``p_t``.
+        terminal_price: the value of a kWh held at the day's end (EUR/kWh).
+        eta: the store's path efficiency to the grid, each way.
+        power_kw: the store's top power (kW), into or out of the cells.
+        capacity_kwh: the store's capacity ``C`` (kWh).
+        e0: the energy held at the day's start (kWh).
+        step_hours: the length of a step (hours).
+        wear_eur_kwh: the wear ``w`` per kWh into or out of the cells (EUR/kWh).
+
+    Returns:
+        ``(T + 1,)`` float64 values (EUR/kWh): entry ``t`` the dual of the energy balance of
+        step ``t`` (the value of one more kWh held from step ``t`` on), the last entry
+        ``terminal_price``.
+
+    Raises:
+        RuntimeError: HiGHS (`scipy.optimize.linprog`) does not solve the LP.
     """
     p = np.asarray(prices, np.float64)
     n = p.shape[0]

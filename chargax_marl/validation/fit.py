@@ -47,7 +47,14 @@ ARRIVAL_SOC_RANGE = (0.3, 0.7)
 
 
 def smooth(v: np.ndarray) -> np.ndarray:
-    """``v`` (a histogram over the day's slots) smoothed circularly with `SMOOTH_KERNEL`."""
+    """``v`` (a histogram over the day's slots) smoothed circularly with `SMOOTH_KERNEL`.
+
+    Args:
+        v: ``(slots,)`` a histogram over the day's slots (the last slot wraps to the first).
+
+    Returns:
+        ``(slots,)`` the smoothed histogram (the kernel is normalised, so the sum is kept).
+    """
     k = SMOOTH_KERNEL / SMOOTH_KERNEL.sum()
     half = len(k) // 2
     return sum(k[i] * np.roll(v, i - half) for i in range(len(k)))
@@ -161,7 +168,15 @@ def _ranks(x: np.ndarray) -> np.ndarray:
 
 def rank_corr(a: np.ndarray, b: np.ndarray) -> float:
     """Spearman's rank correlation of two samples (ties at their mean rank; 0 when either
-    is constant)."""
+    is constant).
+
+    Args:
+        a: ``(n,)`` the first sample.
+        b: ``(n,)`` the second sample, paired with ``a``.
+
+    Returns:
+        The rank correlation, in [-1, 1].
+    """
     ra, rb = _ranks(np.asarray(a)), _ranks(np.asarray(b))
     ra, rb = ra - ra.mean(), rb - rb.mean()
     norm = np.sqrt((ra**2).sum() * (rb**2).sum())
@@ -192,7 +207,15 @@ def stay_demand_corr(
 
 
 def quantiles(values: np.ndarray) -> np.ndarray:
-    """The non-decreasing quantile table of ``values`` at `QUANTILE_PROBS`."""
+    """The non-decreasing quantile table of ``values`` at `QUANTILE_PROBS`.
+
+    Args:
+        values: a sample (any shape, flattened).
+
+    Returns:
+        ``(len(QUANTILE_PROBS),)`` float64 quantiles, made non-decreasing by a running
+        maximum.
+    """
     return np.maximum.accumulate(np.quantile(np.asarray(values, np.float64), QUANTILE_PROBS))
 
 

@@ -153,5 +153,12 @@ def load_sessions(site: str, rows: tuple | None = None) -> Sessions:
 
 
 def weekday(dates: np.ndarray) -> np.ndarray:
-    """Monday = 0 of ``datetime64[D]`` dates."""
+    """Monday = 0 of ``datetime64[D]`` dates.
+
+    Args:
+        dates: dates (``datetime64``, cast to days).
+
+    Returns:
+        The weekday of each date as int, Monday 0 to Sunday 6, of ``dates``' shape.
+    """
     return ((dates.astype("datetime64[D]").astype(np.int64) + 3) % 7).astype(int)
