@@ -25,6 +25,14 @@ def communication(config: dict, env):
     (`chargax_marl.marl.DelayedObservationWrapper`, then
     `chargax_marl.marl.ActionLossWrapper`); ``env`` itself when both are off.
 
+    Args:
+        config: the trainer's config (``OBS_DELAY_STEPS``, default 0;
+            ``ACTION_LOSS_PROB``, default 0; ``LOST_ACTION``, default ``"previous"``).
+        env: a multi-agent env (`chargax_marl.marl.ChargaxMARL` or a wrapper of it).
+
+    Returns:
+        The wrapped env, or ``env`` itself.
+
     Raises:
         ValueError: a bad delay, probability or lost action.
     """
@@ -47,6 +55,14 @@ def fairness(config: dict, env):
     """``env`` wrapped in `chargax_marl.wrappers.FairnessReward` with ``FAIRNESS_WEIGHT``
     and ``FAIRNESS_METRIC``; ``env`` itself when the weight is 0 (the default).
 
+    Args:
+        config: the trainer's config (``FAIRNESS_WEIGHT``, default 0; ``FAIRNESS_METRIC``,
+            default ``"jain_index"``).
+        env: the env to wrap.
+
+    Returns:
+        The wrapped env, or ``env`` itself.
+
     Raises:
         ValueError: a negative or non-finite weight, or an unknown metric.
     """
@@ -61,7 +77,18 @@ def fairness(config: dict, env):
 
 
 def port_shaping_mode(config: dict) -> str:
-    """``PORT_SHAPING`` as one of `PORT_SHAPING_MODES`."""
+    """``PORT_SHAPING`` as one of `PORT_SHAPING_MODES`.
+
+    Args:
+        config: the trainer's config (``PORT_SHAPING``, default ``"off"``; None or False
+            is ``"off"``).
+
+    Returns:
+        The mode, a string of `PORT_SHAPING_MODES`.
+
+    Raises:
+        ValueError: any other value.
+    """
     mode = config.get("PORT_SHAPING", "off")
     mode = "off" if mode in (None, False) else mode
     if mode not in PORT_SHAPING_MODES:
@@ -73,7 +100,19 @@ def port_shaping_mode(config: dict) -> str:
 
 def car_potential(config: dict, env_params):
     """``None`` when ``PORT_SHAPING`` is off, else the per-car potential of
-    `chargax_marl.teachers.car_plan.car_potential`: ``potential(env_state) -> shift``."""
+    `chargax_marl.teachers.car_plan.car_potential`: ``potential(env_state) -> shift``.
+
+    Args:
+        config: the trainer's config (``PORT_SHAPING``).
+        env_params: concrete `chargax_marl.core.types.EnvParams` of the training env.
+
+    Returns:
+        None; for ``"plan"`` `chargax_marl.teachers.car_plan.car_potential`'s potential;
+        for ``"coupled"`` `chargax_marl.teachers.congestion.coupled_potential`'s.
+
+    Raises:
+        ValueError: an unknown ``PORT_SHAPING`` (`port_shaping_mode`).
+    """
     mode = port_shaping_mode(config)
     if mode == "off":
         return None
@@ -84,7 +123,17 @@ def car_potential(config: dict, env_params):
 
 def plan_obs_mode(config: dict) -> str:
     """``PLAN_OBS`` as one of `PLAN_OBS_MODES` (``False`` / ``True`` are ``"off"`` /
-    ``"plan"``)."""
+    ``"plan"``).
+
+    Args:
+        config: the trainer's config (``PLAN_OBS``, default False).
+
+    Returns:
+        The mode, a string of `PLAN_OBS_MODES`.
+
+    Raises:
+        ValueError: any other value.
+    """
     v = config.get("PLAN_OBS", False)
     mode = {False: "off", True: "plan", None: "off"}.get(v, v) if not isinstance(v, str) else v
     if mode not in PLAN_OBS_MODES:
@@ -95,6 +144,10 @@ def plan_obs_mode(config: dict) -> str:
 def plan_features(config: dict, env_params):
     """The per-leaf advice ``PLAN_OBS`` appends to the observations, or ``None`` when off.
 
+    Args:
+        config: the trainer's config (``PLAN_OBS``).
+        env_params: concrete `chargax_marl.core.types.EnvParams` of the training env.
+
     Returns:
         ``None``, or ``(advice, width)``: ``advice(core) -> (L, width)`` float32 for one
         (unbatched) core state; ``plan``: width 1, `chargax_marl.teachers.car_plan.plan_advice`
@@ -102,6 +155,9 @@ def plan_features(config: dict, env_params):
         `chargax_marl.teachers.congestion.COUPLED_ADVICE_WIDTH`,
         `chargax_marl.teachers.congestion.coupled_advice` (the share of the port's top power
         the coupled plan takes now and the congestion price on its path). 0 for batteries.
+
+    Raises:
+        ValueError: an unknown ``PLAN_OBS`` (`plan_obs_mode`).
     """
     mode = plan_obs_mode(config)
     if mode == "off":
@@ -117,7 +173,17 @@ SHAPING_MODES = ("off",) + teacher_shaping.BATTERY_POTENTIALS
 
 def shaping_mode(config: dict) -> str:
     """``BATTERY_SHAPING`` as one of `SHAPING_MODES` (``False`` / ``True`` are ``"off"`` /
-    ``"day_mean"``)."""
+    ``"day_mean"``).
+
+    Args:
+        config: the trainer's config (``BATTERY_SHAPING``, default False).
+
+    Returns:
+        The mode, a string of `SHAPING_MODES`.
+
+    Raises:
+        ValueError: any other value.
+    """
     v = config.get("BATTERY_SHAPING", False)
     mode = (
         {False: "off", True: "day_mean", None: "off"}.get(v, v)
@@ -132,7 +198,19 @@ def shaping_mode(config: dict) -> str:
 def battery_potential(config: dict, env_params):
     """``None`` when ``BATTERY_SHAPING`` is off, else the potential of
     `chargax_marl.teachers.shaping.battery_potential` of that mode:
-    ``potential(env_state) -> shift(net_kwh)``."""
+    ``potential(env_state) -> shift(net_kwh)``.
+
+    Args:
+        config: the trainer's config (``BATTERY_SHAPING``).
+        env_params: concrete `chargax_marl.core.types.EnvParams` of the training env.
+
+    Returns:
+        None, or the potential.
+
+    Raises:
+        ValueError: an unknown ``BATTERY_SHAPING`` (`shaping_mode`), or a mode that needs a
+            battery on a station without one.
+    """
     mode = shaping_mode(config)
     if mode == "off":
         return None
@@ -142,6 +220,15 @@ def battery_potential(config: dict, env_params):
 def priority_fill(config: dict, env):
     """``env`` wrapped in `chargax_marl.wrappers.PriorityFill` when ``PRIORITY_FILL`` is on
     (with ``PRIORITY_CLASSES`` charging classes when it is positive); ``env`` itself otherwise.
+
+    Args:
+        config: the trainer's config (``PRIORITY_FILL``, default False;
+            ``PRIORITY_CLASSES``, default 0; ``OBS_DELAY_STEPS`` and ``ACTION_LOSS_PROB``,
+            which must be 0 with the fill).
+        env: a multi-agent env.
+
+    Returns:
+        The wrapped env, or ``env`` itself.
 
     Raises:
         ValueError: ``PRIORITY_FILL`` together with an observation delay or an action loss (a

@@ -29,7 +29,11 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The command-line flags of a multi-process run (``--distributed``, ``--coordinator``,
-    ``--num-processes``, ``--process-id``)."""
+    ``--num-processes``, ``--process-id``).
+
+    Args:
+        parser: the parser to add them to, as one argument group.
+    """
     d = parser.add_argument_group(
         "multi-process (multi-host) training, see baselines/algos/distributed.py"
     )
@@ -52,7 +56,15 @@ def initialize_from_argv(argv=None) -> bool:
     (`add_arguments`); ignores every other flag. Returns whether it did.
 
     A command-line entry point calls this *before* importing the trainers: importing them
-    (gymnax) already runs JAX computations, after which ``jax.distributed.initialize`` refuses."""
+    (gymnax) already runs JAX computations, after which ``jax.distributed.initialize`` refuses.
+
+    Args:
+        argv: the command line's arguments; None: ``sys.argv[1:]``.
+
+    Returns:
+        True when it called `initialize`; False when neither ``--distributed`` nor
+        ``--coordinator`` is given, or ``jax.distributed`` is already initialised.
+    """
     parser = argparse.ArgumentParser(add_help=False)
     add_arguments(parser)
     a, _ = parser.parse_known_args(argv)
@@ -70,7 +82,13 @@ def initialize(
     """``jax.distributed.initialize`` with CPU collectives switched on (gloo) so that CPU-only
     processes can run cross-process programs. With no arguments JAX detects the cluster
     (SLURM, Open MPI, Kubernetes, Cloud TPU, ...). Must run before any JAX computation,
-    which includes importing `baselines.algos` (gymnax builds arrays at import)."""
+    which includes importing `baselines.algos` (gymnax builds arrays at import).
+
+    Args:
+        coordinator_address: ``HOST:PORT`` of process 0's coordinator service; None: detected.
+        num_processes: the number of processes; None: detected.
+        process_id: this process's index; None: detected.
+    """
     if jax.config.jax_cpu_collectives_implementation in (None, "", "none"):
         jax.config.update("jax_cpu_collectives_implementation", "gloo")
     jax.distributed.initialize(
@@ -79,13 +97,26 @@ def initialize(
 
 
 def is_main() -> bool:
-    """Whether this is process 0, the one that writes outputs."""
+    """Whether this is process 0, the one that writes outputs.
+
+    Returns:
+        True on process 0 (and on a single-process run).
+    """
     return jax.process_index() == 0
 
 
 def replicate(x, mesh=None):
     """A process-local array (the same on every process, e.g. PRNG keys) as a global array
-    replicated on every device of ``mesh`` (default: all devices). Unchanged on one process."""
+    replicated on every device of ``mesh`` (default: all devices). Unchanged on one process.
+
+    Args:
+        x: an array, or an array of typed PRNG keys, equal on every process.
+        mesh: the mesh to replicate over; None: a one-axis mesh of ``jax.devices()``.
+
+    Returns:
+        ``x`` itself on one process; else a global array (typed keys stay typed keys) with a
+        fully replicated sharding over ``mesh``.
+    """
     if jax.process_count() == 1:
         return x
 
@@ -101,7 +132,15 @@ def replicate(x, mesh=None):
 def to_host(tree):
     """Every array leaf as a NumPy array on this process: a replicated leaf from this process's
     own copy, a leaf split across processes gathered from all of them (a collective: every
-    process must call it)."""
+    process must call it).
+
+    Args:
+        tree: a pytree of arrays (any leaf that is not a `jax.Array` is passed to
+            ``np.asarray``).
+
+    Returns:
+        The same pytree with NumPy leaves.
+    """
 
     def leaf(x):
         if not isinstance(x, jax.Array) or x.is_fully_addressable:

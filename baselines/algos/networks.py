@@ -28,7 +28,20 @@ def _init(gain: float):
 
 class MLP(nn.Module):
     """``NUM_LAYERS`` hidden layers then a linear head (PureJaxRL's gains: sqrt(2) hidden,
-    0.01 policy head, 1 value head)."""
+    0.01 policy head, 1 value head).
+
+    Every layer's weights are drawn from a normal distribution of variance
+    ``gain**2 / fan_in``, its biases 0.
+
+    Attributes:
+        out: the head's outputs (logits or values).
+        hidden: the width of each hidden layer.
+        layers: the number of hidden layers.
+        activation: the hidden layers' activation, ``"tanh"`` or ``"relu"``.
+        head_scale: the head's gain (0.01 for a policy head, 1 for a value head).
+        parent: the parent module (flax's; None for a top-level module).
+        name: the module's name (flax's; None: assigned by its parent).
+    """
 
     out: int
     hidden: int = 256
@@ -46,6 +59,20 @@ class MLP(nn.Module):
 
 
 def actor_critic(config: dict, num_logits: int, num_values: int = 1):
+    """The actor and critic `MLP`s of a trainer's config.
+
+    Args:
+        config: the trainer's config (``HIDDEN``, ``NUM_LAYERS``, ``ACTIVATION``).
+        num_logits: the actor's outputs.
+        num_values: the critic's outputs.
+
+    Returns:
+        ``(actor, critic)``: the actor with a head of gain 0.01, the critic with one of
+        gain 1, both of the config's width, depth and activation.
+
+    Raises:
+        KeyError: the config lacks one of the three keys.
+    """
     kw = dict(
         hidden=int(config["HIDDEN"]),
         layers=int(config["NUM_LAYERS"]),
@@ -61,7 +88,18 @@ def always_max_prior(config: dict) -> tuple[float, float]:
     the sampled policy explores around it (an offset of 6 leaves about 5 % of a 21-action
     head's mass on the other 20 actions, 2 about 73 %); training moves away from the
     baseline wherever that pays, since the network's logits can outweigh the offsets. A
-    weaker battery offset keeps the battery exploring. ``0`` is the plain policy."""
+    weaker battery offset keeps the battery exploring. ``0`` is the plain policy.
+
+    Args:
+        config: the trainer's config (``ALWAYS_MAX_PRIOR``, ``BATTERY_IDLE_PRIOR``; each
+            default 0).
+
+    Returns:
+        ``(always_max_prior, battery_idle_prior)`` as floats.
+
+    Raises:
+        ValueError: an offset that is negative or not finite.
+    """
     out = []
     for name in ("ALWAYS_MAX_PRIOR", "BATTERY_IDLE_PRIOR"):
         b = float(config.get(name, 0.0))
@@ -72,11 +110,28 @@ def always_max_prior(config: dict) -> tuple[float, float]:
 
 
 def masked_logits(logits: jnp.ndarray, mask) -> jnp.ndarray:
+    """``logits`` with every action that ``mask`` rules out set to `NEG_INF`.
+
+    Args:
+        logits: ``(..., K)`` logits.
+        mask: bool, broadcastable to ``logits``; True where the action is allowed.
+
+    Returns:
+        ``(..., K)`` the masked logits.
+    """
     return jnp.where(mask, logits, NEG_INF)
 
 
 def log_prob(logits: jnp.ndarray, action: jnp.ndarray) -> jnp.ndarray:
-    """Log-probability of integer ``action`` under (masked) ``logits (..., K)``."""
+    """Log-probability of integer ``action`` under (masked) ``logits (..., K)``.
+
+    Args:
+        logits: ``(..., K)`` logits.
+        action: ``(...)`` action indices in ``[0, K)``.
+
+    Returns:
+        ``(...)`` the log-probability of each action under ``softmax(logits)``.
+    """
     logp = jax.nn.log_softmax(logits, axis=-1)
     return jnp.take_along_axis(logp, action[..., None].astype(jnp.int32), axis=-1)[..., 0]
 
@@ -88,11 +143,18 @@ _INVERSION_MARGIN = np.float32(1.0 - 2.0**-22)
 
 def categorical_from_uniform(u: jnp.ndarray, logits: jnp.ndarray):
     """One draw per head from ``softmax(logits (..., K))`` by inverting its CDF at ``u (...)``
-    in ``[0, 1)``. Returns ``(action int32 (...), log-probability of it (...))``.
+    in ``[0, 1)``.
 
     The chosen index is the first ``j`` with ``cdf[j] > u * cdf[K-1]``, so an index of zero
     probability (a masked action, ``NEG_INF`` logit) is never chosen, whatever ``u``; the
     margin keeps ``u * cdf[K-1]`` below ``cdf[K-1]``, so some ``j < K`` always qualifies.
+
+    Args:
+        u: ``(...)`` uniforms in ``[0, 1)``, one per head.
+        logits: ``(..., K)`` logits.
+
+    Returns:
+        ``(action, logp)``: ``(...)`` int32 actions and their ``(...)`` log-probabilities.
     """
     logp_all = jax.nn.log_softmax(logits, axis=-1)
     cdf = jnp.cumsum(jnp.exp(logp_all), axis=-1)
@@ -108,11 +170,26 @@ def sample_categorical(key: jax.Array, logits: jnp.ndarray):
     ``K`` uniforms per head), from one uniform per head by inversion
     (`categorical_from_uniform`): on a CPU the Gumbel draw was most of a small PPO rollout
     step (``docs/performance.md``, training speed).
+
+    Args:
+        key: a PRNG key.
+        logits: ``(..., K)`` logits.
+
+    Returns:
+        ``(action, logp)``: ``(...)`` int32 actions and their ``(...)`` log-probabilities.
     """
     return categorical_from_uniform(jax.random.uniform(key, logits.shape[:-1]), logits)
 
 
 def entropy(logits: jnp.ndarray) -> jnp.ndarray:
+    """The entropy of ``softmax(logits)`` per head (nats); actions of probability 0 add 0.
+
+    Args:
+        logits: ``(..., K)`` logits.
+
+    Returns:
+        ``(...)`` the entropies.
+    """
     logp = jax.nn.log_softmax(logits, axis=-1)
     p = jnp.exp(logp)
     return -jnp.sum(jnp.where(p > 0, p * logp, 0.0), axis=-1)
