@@ -45,6 +45,25 @@ from chargax_marl.wrappers import PriorityFill, priority_class_levels, priority_
 
 
 class Transition(NamedTuple):
+    """One rollout step of every actor (``actors = agents * envs`` rows, agent-major).
+
+    Attributes:
+        obs: ``(actors, obs_dim)`` the actors' observations (with the plan advice when
+            ``PLAN_OBS`` is on).
+        critic_in: the critic's input: IPPO, an int8 zero placeholder ``(actors,)`` (the
+            critic reads ``obs``); MAPPO, the world states ``(envs, state_dim)`` in the
+            rollout, and in the update each row's index into the rollout's table of world
+            states (or its world state ``(actors, state_dim)`` when
+            `DEDUP_CENTRAL_CRITIC` is off).
+        avail: ``(actors, K)`` bool, the actions each actor may take.
+        action: ``(actors,)`` the sampled action indices.
+        log_prob: ``(actors,)`` their log-probabilities.
+        value: ``(actors,)`` the critic's values.
+        reward: ``(actors,)`` the rewards, shaped and times ``REWARD_SCALE``.
+        done: ``(actors,)`` 1.0 where the env's episode ended with the step.
+        info: the `INFO_KEYS` of the step's infos, leaves ``(envs, agents)``.
+    """
+
     obs: jnp.ndarray  # (actors, obs_dim)
     # IPPO: a zero placeholder (actors,), the critic reads ``obs``. MAPPO: during the rollout the world state
     # (envs, state_dim), once per env; for the update the row's index into the rollout's
@@ -61,6 +80,18 @@ class Transition(NamedTuple):
 
 
 class RunnerState(NamedTuple):
+    """The state the training loop carries from update to update (one seed).
+
+    Attributes:
+        params: the networks' parameters (`SharedPolicy.init`).
+        opt_state: the optimiser's state (`baselines.algos.ppo_core.Optimizer`).
+        env_state: the wrapped envs' states, leading axis the envs.
+        obs: ``(envs, agents, obs_dim)`` the current observations.
+        key: the PRNG key.
+        update: the index of the next update (int32 scalar).
+        hyper: the values of `baselines.algos.ppo_core.HYPER_KEYS` (float32 scalars).
+    """
+
     params: dict
     opt_state: object
     env_state: object
@@ -87,18 +118,47 @@ DEDUP_CENTRAL_CRITIC = True
 
 def agent_major(x: jnp.ndarray) -> jnp.ndarray:
     """``(envs, agents, ...)`` -> ``(agents * envs, ...)``, agent-major rows (JaxMARL's
-    ``batchify`` of a per-agent dict)."""
+    ``batchify`` of a per-agent dict).
+
+    Args:
+        x: ``(envs, agents, ...)`` an array per env and agent.
+
+    Returns:
+        ``(agents * envs, ...)``, row ``agent * envs + env``.
+    """
     x = jnp.swapaxes(x, 0, 1)
     return x.reshape((x.shape[0] * x.shape[1],) + x.shape[2:])
 
 
 def env_major(x: jnp.ndarray, num_agents: int, num_envs: int) -> jnp.ndarray:
-    """``(agents * envs, ...)`` agent-major rows -> ``(envs, agents, ...)``."""
+    """``(agents * envs, ...)`` agent-major rows -> ``(envs, agents, ...)``.
+
+    Args:
+        x: ``(agents * envs, ...)`` agent-major rows (`agent_major`).
+        num_agents: the agents per env.
+        num_envs: the envs.
+
+    Returns:
+        ``(envs, agents, ...)``, the inverse of `agent_major`.
+    """
     return jnp.swapaxes(x.reshape((num_agents, num_envs) + x.shape[1:]), 0, 1)
 
 
 class SharedPolicy:
-    """The shared actor (masked ``Discrete``) and critic."""
+    """The shared actor (masked ``Discrete``) and critic.
+
+    Args:
+        config: the resolved config (``HIDDEN``, ``NUM_LAYERS``, ``ACTIVATION``,
+            ``ALWAYS_MAX_PRIOR``, ``BATTERY_IDLE_PRIOR``, ``BATTERY_NET``,
+            ``RELATIVE_PRICES``, ``PLAN_OBS``).
+        env: the multi-agent env whose action space the agents act in (a
+            `chargax_marl.wrappers.PriorityFill` with ``PRIORITY_CLASSES``).
+        centralised_critic: the critic reads the world state (MAPPO), not the agent's own
+            observation (IPPO).
+
+    Raises:
+        ValueError: a negative or non-finite prior offset, or an unknown ``PLAN_OBS``.
+    """
 
     def __init__(self, config: dict, env: ChargaxMARL, centralised_critic: bool):
         self.k = env.num_actions
@@ -148,15 +208,45 @@ class SharedPolicy:
 
     def with_plan(self, obs_matrix, core):
         """``obs_matrix (..., agents, obs)`` with the `PLAN_OBS` column of the (batched)
-        core state ``core`` appended; unchanged when ``PLAN_OBS`` is off."""
+        core state ``core`` appended; unchanged when ``PLAN_OBS`` is off.
+
+        Args:
+            obs_matrix: ``(..., agents, obs)`` the agents' observations.
+            core: the core state (`chargax_marl.core.types.EnvState`) with the same leading
+                axes.
+
+        Returns:
+            ``(..., agents, obs + width)`` with each agent's leaf advice
+            (`baselines.algos.aids.plan_features`), or ``obs_matrix`` itself.
+        """
         if self.plan is None:
             return obs_matrix
         return jnp.concatenate([obs_matrix, car_plan.batched(self.plan, core)(core)], axis=-1)
 
     def features(self, obs):
+        """The networks' input: ``obs`` with the relative prices when ``RELATIVE_PRICES``
+        is on.
+
+        Args:
+            obs: ``(..., obs)`` actor rows.
+
+        Returns:
+            ``(..., obs + H + 1)`` (`chargax_marl.teachers.prices.with_relative_prices`), or
+            ``obs`` itself.
+        """
         return prices.with_relative_prices(obs, self.relative)
 
     def init(self, key):
+        """Fresh parameters of the networks.
+
+        Args:
+            key: a PRNG key.
+
+        Returns:
+            ``{"actor", "critic"}`` flax parameters, with ``"battery_actor"`` under
+            ``BATTERY_NET`` and ``"battery_critic"`` when the batteries also get their own
+            critic (``BATTERY_NET`` with a critic on the agent's own observation).
+        """
         ka, kc, kba, kbc = jax.random.split(key, 4)
         params = {
             "actor": self.actor.init(ka, jnp.zeros((self.obs_dim,))),
@@ -169,6 +259,14 @@ class SharedPolicy:
         return params
 
     def is_battery(self, obs):
+        """The battery flag of the kind one-hot in each row's observation.
+
+        Args:
+            obs: ``(..., obs)`` actor rows.
+
+        Returns:
+            ``(..., 1)``: 1.0 for a battery agent's row, 0.0 for a port's.
+        """
         return obs[..., self.battery_col : self.battery_col + 1]
 
     def _by_kind(self, port_net, battery_net, x, rows: str):
@@ -192,7 +290,23 @@ class SharedPolicy:
         """Masked logits of the actor rows ``obs (rows, obs)``. With ``BATTERY_NET`` the
         battery rows go through the battery's actor: with ``rows`` (the rows' layout, see
         `_by_kind`) each actor runs on its own rows only, else both run on every row and
-        a ``where`` keeps each row's own."""
+        a ``where`` keeps each row's own.
+
+        Args:
+            params: the networks' parameters (`init`).
+            obs: ``(rows, obs)`` actor rows (``(..., obs)`` when ``rows`` is None).
+            avail: ``(rows, K)`` bool, or broadcastable to the logits; True where the action
+                is allowed.
+            rows: the rows' layout, ``"agent_major"`` or ``"env_step_major"``; None for any
+                rows.
+
+        Returns:
+            ``(rows, K)`` logits, with the prior offsets added and the unavailable actions
+            at `baselines.algos.networks.NEG_INF`.
+
+        Raises:
+            ValueError: an unknown ``rows`` (with ``BATTERY_NET``).
+        """
         x = self.features(obs)
         if self.battery_net and self._split(rows):
             logits = self._by_kind(
@@ -216,7 +330,20 @@ class SharedPolicy:
 
     def value(self, params, critic_in, rows: str | None = None):
         """Values of the critic rows; ``rows`` as in `logits` (used with a battery
-        critic, which reads the agent's own observation)."""
+        critic, which reads the agent's own observation).
+
+        Args:
+            params: the networks' parameters (`init`).
+            critic_in: ``(rows, critic_dim)`` the critic's input: the agents' observations
+                (IPPO) or world states (MAPPO).
+            rows: the rows' layout, as in `logits`.
+
+        Returns:
+            ``(rows,)`` the values.
+
+        Raises:
+            ValueError: an unknown ``rows`` (with a battery critic).
+        """
         x = self.features(critic_in) if self.critic_features else critic_in
         if self.battery_critic and self._split(rows):
             return self._by_kind(
@@ -241,6 +368,23 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
     ``config`` keys are those of `baselines.algos.PAPER_DEFAULTS` plus ``AGENT_ID``
     (``onehot``/``scalar``, the agent-index encoding). ``TOTAL_TIMESTEPS`` counts env steps
     (one step moves every agent).
+
+    Args:
+        config: the config (resolved with `baselines.config.resolve`; None: the defaults).
+        env_params: the training env's parameters; None: the config's
+            (`baselines.config.build_env_params`).
+        centralised_critic: MAPPO's critic on the world state, in place of IPPO's on the
+            agent's own observation.
+
+    Returns:
+        The `baselines.algos.trainer.Trainer`.
+
+    Raises:
+        ValueError: ``NUM_ENVS * NUM_STEPS`` not divisible by ``NUM_MINIBATCHES``,
+            ``NUM_ENVS`` not divisible by the number of devices, ``BATTERY_GAMMA`` outside
+            [0, 1], ``BATTERY_ENT_COEF`` negative or not finite, ``TOTAL_TIMESTEPS`` less
+            than one rollout, or a learning aid's setting refused
+            (`baselines.algos.aids`).
     """
     config = resolve(
         {
@@ -530,7 +674,22 @@ def make_act_builder(
     played under them (`chargax_marl.marl.communicating_act`), as it was trained; with
     ``priority_fill`` (``PRIORITY_FILL``) its levels are filled as the training env filled them
     (`chargax_marl.wrappers.priority_fill_levels`; with ``priority_classes``
-    (``PRIORITY_CLASSES``) its indices are classes, `chargax_marl.wrappers.priority_class_levels`)."""
+    (``PRIORITY_CLASSES``) its indices are classes, `chargax_marl.wrappers.priority_class_levels`).
+
+    Args:
+        policy: the trained `SharedPolicy`.
+        agent_id: the agent-index encoding (``AGENT_ID``).
+        delay_steps: the observation delay (steps).
+        loss_prob: the probability that an action is lost.
+        lost_action: what a lost action becomes (``LOST_ACTION``).
+        priority_fill: the levels are filled as priorities (``PRIORITY_FILL``).
+        priority_classes: the number of charging classes (``PRIORITY_CLASSES``); 0 for none.
+
+    Returns:
+        ``make_act_for(eval_params) -> make_act``, built once per ``eval_params`` object,
+        where ``make_act(params) -> act(state, key) -> levels`` (or a
+        `chargax_marl.evaluation.MemoryAct` under a delay or a loss).
+    """
     cache = IdentityCache()
 
     def build(eval_params):

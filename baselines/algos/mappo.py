@@ -17,5 +17,13 @@ from baselines.algos import ippo
 
 
 def make_train(config: dict | None = None, env_params=None):
-    """Build MAPPO's jittable ``train(key)``; see `baselines.algos.ippo.make_train`."""
+    """Build MAPPO's jittable ``train(key)``; see `baselines.algos.ippo.make_train`.
+
+    Args:
+        config: the config, as for `baselines.algos.ippo.make_train`.
+        env_params: the training env's parameters, as for `baselines.algos.ippo.make_train`.
+
+    Returns:
+        `baselines.algos.ippo.make_train`'s trainer with the centralised critic.
+    """
     return ippo.make_train(config, env_params, centralised_critic=True)

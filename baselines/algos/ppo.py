@@ -34,6 +34,20 @@ from chargax_marl.teachers import shaping as teacher_shaping
 
 
 class Transition(NamedTuple):
+    """One rollout step of every env.
+
+    Attributes:
+        obs: ``(envs, obs)`` the observations (with the plan advice when ``PLAN_OBS`` is
+            on).
+        action: ``(envs, leaves)`` the sampled action index of every head.
+        log_prob: ``(envs,)`` the joint log-probability (summed over heads), or
+            ``(envs, 2)`` the ports' and the batteries' parts with ``SPLIT_CREDIT``.
+        value: ``(envs,)`` the critic's values, or ``(envs, 2)`` with ``SPLIT_CREDIT``.
+        reward: the rewards, shaped and times ``REWARD_SCALE``, shaped as ``value``.
+        done: ``(envs,)`` 1.0 where the episode ended (terminated or truncated).
+        info: the `INFO_KEYS` of the step's infos.
+    """
+
     obs: jnp.ndarray
     action: jnp.ndarray
     log_prob: jnp.ndarray  # joint (summed over heads)
@@ -44,6 +58,18 @@ class Transition(NamedTuple):
 
 
 class RunnerState(NamedTuple):
+    """The state the training loop carries from update to update (one seed).
+
+    Attributes:
+        params: the networks' parameters (`Policy.init`).
+        opt_state: the optimiser's state (`baselines.algos.ppo_core.Optimizer`).
+        env_state: the wrapped envs' states, leading axis the envs.
+        obs: ``(envs, obs_dim)`` the current observations.
+        key: the PRNG key.
+        update: the index of the next update (int32 scalar).
+        hyper: the values of `baselines.algos.ppo_core.HYPER_KEYS` (float32 scalars).
+    """
+
     params: dict
     opt_state: object
     env_state: object
@@ -62,7 +88,19 @@ INFO_KEYS = (
 
 
 class Policy:
-    """The factored categorical policy and the critic of a single-agent env."""
+    """The factored categorical policy and the critic of a single-agent env.
+
+    Args:
+        config: the resolved config (``HIDDEN``, ``NUM_LAYERS``, ``ACTIVATION``,
+            ``SPLIT_CREDIT``, ``ALWAYS_MAX_PRIOR``, ``BATTERY_IDLE_PRIOR``,
+            ``RELATIVE_PRICES``, ``PLAN_OBS``).
+        env: the single-agent env (its ``MultiDiscrete`` action space).
+        env_params: the training env's parameters.
+
+    Raises:
+        ValueError: ``SPLIT_CREDIT`` on a station without a battery, a negative or
+            non-finite prior offset, or an unknown ``PLAN_OBS``.
+    """
 
     def __init__(self, config: dict, env: Chargax, env_params):
         nvec = np.asarray(env.action_space(env_params).nvec)
@@ -107,34 +145,88 @@ class Policy:
 
     def with_plan(self, obs, core):
         """``obs (..., obs_dim)`` with the plan advice of the (batched) core state ``core``
-        appended when ``PLAN_OBS`` is on."""
+        appended when ``PLAN_OBS`` is on.
+
+        Args:
+            obs: ``(..., obs_dim)`` observations.
+            core: the core state (`chargax_marl.core.types.EnvState`) with the same leading
+                axes.
+
+        Returns:
+            ``(..., obs_dim + leaves * width)``, every leaf's advice leaf-major, or ``obs``
+            itself.
+        """
         if self.plan is None:
             return obs
         advice = car_plan.batched(self.plan, core)(core)  # (..., L, width)
         return jnp.concatenate([obs, advice.reshape(advice.shape[:-2] + (-1,))], axis=-1)
 
     def features(self, obs):
+        """The networks' input: ``obs`` with the relative prices when ``RELATIVE_PRICES``
+        is on.
+
+        Args:
+            obs: ``(..., obs)`` observations.
+
+        Returns:
+            ``(..., obs + H + 1)`` (`chargax_marl.teachers.prices.with_relative_prices`), or
+            ``obs`` itself.
+        """
         return prices.with_relative_prices(obs, self.relative)
 
     def init(self, key):
+        """Fresh parameters of the networks.
+
+        Args:
+            key: a PRNG key.
+
+        Returns:
+            ``{"actor", "critic"}`` flax parameters.
+        """
         ka, kc = jax.random.split(key)
         x = jnp.zeros((self.input_dim,), jnp.float32)
         return {"actor": self.actor.init(ka, x), "critic": self.critic.init(kc, x)}
 
     def logits(self, params, obs):
+        """The masked logits of every head.
+
+        Args:
+            params: the networks' parameters (`init`).
+            obs: ``(..., obs)`` observations, as `with_plan` returns them.
+
+        Returns:
+            ``(..., leaves, K)`` logits, with the prior offsets added and the indices a
+            leaf does not have at `baselines.algos.networks.NEG_INF`.
+        """
         raw = self.actor.apply(params["actor"], self.features(obs))
         return networks.masked_logits(
             raw.reshape(raw.shape[:-1] + (self.num_leaves, self.k)) + self.offset, self.mask
         )
 
     def value(self, params, obs):
-        """``(...)``, or ``(..., 2)`` (ports, batteries) with ``SPLIT_CREDIT``."""
+        """``(...)``, or ``(..., 2)`` (ports, batteries) with ``SPLIT_CREDIT``.
+
+        Args:
+            params: the networks' parameters (`init`).
+            obs: ``(..., obs)`` observations, as `with_plan` returns them.
+
+        Returns:
+            The critic's values, ``(...)`` or ``(..., 2)``.
+        """
         v = self.critic.apply(params["critic"], self.features(obs))
         return v if self.split else v[..., 0]
 
     def credit_logp(self, head_logp):
         """The log-probability of the joint action ``(...)``, or with ``SPLIT_CREDIT`` that of
-        the ports' and the batteries' parts ``(..., 2)``."""
+        the ports' and the batteries' parts ``(..., 2)``.
+
+        Args:
+            head_logp: ``(..., leaves)`` each head's log-probability.
+
+        Returns:
+            ``(...)`` their sum, or ``(..., 2)`` the sums over the ports' and the batteries'
+            heads.
+        """
         if not self.split:
             return head_logp.sum(-1)
         bat = jnp.asarray(self.is_battery)
@@ -147,6 +239,21 @@ def make_train(config: dict | None = None, env_params=None):
     """Build ``train(key)`` for a config (keys of `baselines.algos.PAPER_DEFAULTS`).
 
     ``env_params`` defaults to the config's scenario restricted to its training days.
+
+    Args:
+        config: the config (resolved with `baselines.config.resolve`; None: the defaults).
+        env_params: the training env's parameters; None: the config's
+            (`baselines.config.build_env_params`).
+
+    Returns:
+        The `baselines.algos.trainer.Trainer`.
+
+    Raises:
+        ValueError: a setting of the multi-agent trainers only (``LOCAL_REWARD_WEIGHT``,
+            ``OBS_DELAY_STEPS``, ``ACTION_LOSS_PROB``, ``PRIORITY_FILL``),
+            ``NUM_ENVS * NUM_STEPS`` not divisible by ``NUM_MINIBATCHES``, ``NUM_ENVS`` not
+            divisible by the number of devices, ``TOTAL_TIMESTEPS`` less than one rollout,
+            or a learning aid's setting refused (`baselines.algos.aids`).
     """
     config = resolve(
         {**{"RELATIVE_PRICES": False, "SPLIT_CREDIT": False, "PLAN_OBS": False}, **(config or {})}
@@ -300,8 +407,16 @@ def make_train(config: dict | None = None, env_params=None):
 
 
 def make_act_builder(policy: Policy, env: Chargax):
-    """``make_act(params) -> act(state, key) -> levels``: the greedy (argmax per head) policy read
-    from the simulator state, for `chargax_marl.evaluation`."""
+    """``make_act_for(eval_params)(params) -> act(state, key) -> levels``: the greedy (argmax
+    per head) policy read from the simulator state, for `chargax_marl.evaluation`.
+
+    Args:
+        policy: the trained `Policy`.
+        env: the single-agent env (its ``action_to_levels``).
+
+    Returns:
+        ``make_act_for(eval_params) -> make_act``, built once per ``eval_params`` object.
+    """
     cache = IdentityCache()
 
     def build(eval_params):

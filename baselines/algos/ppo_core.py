@@ -47,7 +47,20 @@ def hyper_values(config: dict) -> dict[str, jax.Array]:
 
 def gae(rewards, values, dones, last_value, gamma: float, lam: float):
     """Generalised advantage estimation over a rollout ``(T, ...)``; ``dones[t]`` ends the
-    episode after step ``t`` (the day ends: the next value is not bootstrapped)."""
+    episode after step ``t`` (the day ends: the next value is not bootstrapped).
+
+    Args:
+        rewards: ``(T, ...)`` rewards.
+        values: ``(T, ...)`` the critic's values of the steps' observations.
+        dones: ``(T, ...)`` 1 where the episode ends after the step, else 0.
+        last_value: ``(...)`` the critic's value after the rollout's last step.
+        gamma: the discount factor.
+        lam: the GAE lambda.
+
+    Returns:
+        ``(advantages, targets)``, each ``(T, ...)``: the GAE advantages and the value
+        targets ``advantages + values``.
+    """
 
     def body(carry, x):
         next_adv, next_value = carry
@@ -68,10 +81,13 @@ def ppo_loss(
     """Clipped surrogate + clipped value loss - entropy bonus.
 
     Args:
-        new_logp, old_logp: log-probabilities of the taken actions under the new and the
-            rollout's policy, ``(rows,)`` (or ``(rows, parts)``).
-        advantages, targets: GAE advantages and value targets, shaped as the values.
-        values, old_values: the critic's new and rollout values.
+        new_logp: log-probabilities of the taken actions under the new policy, ``(rows,)``
+            (or ``(rows, parts)``).
+        old_logp: the same under the rollout's policy.
+        advantages: GAE advantages, shaped as the values; normalised over the minibatch.
+        values: the critic's new values.
+        old_values: the critic's values in the rollout.
+        targets: the value targets, shaped as the values.
         ent: the policy's entropy per row.
         hyper: ``CLIP_EPS``, ``VF_CLIP``, ``ENT_COEF`` and ``VF_COEF`` (a runner state's
             ``hyper``, or a config).
@@ -108,6 +124,16 @@ def shuffled_rows(key: jax.Array, steps: int, actors: int, agents: int = 1) -> j
     rows of a multi-agent rollout (81,600 for 17 agents x 16 envs x 300 steps, a sort) cost
     about a quarter of an IPPO epoch on a CPU; permuting its env-steps is ``agents`` times
     smaller.
+
+    Args:
+        key: a PRNG key.
+        steps: the rollout's steps.
+        actors: the rollout's actors (``agents * envs`` when ``agents > 1``).
+        agents: the agents per env.
+
+    Returns:
+        ``(steps * actors,)`` row indices into the rollout flattened as
+        ``step * actors + actor``, each row once.
     """
     if agents == 1:
         return jax.random.permutation(key, steps * actors)
@@ -126,10 +152,26 @@ def ppo_epochs(
     ``traj`` is the rollout (a NamedTuple with an ``info`` field, dropped here) with leading
     axes ``(steps, actors)``; ``loss_fn(params, (traj, adv, targets))`` returns
     ``(loss, parts)``; ``tx`` steps from the runner state ``rs``'s optimiser state, with the
-    learning rate and clip norm of its ``hyper`` at its update index ``update``. Returns ``(params, opt_state, key, parts)`` with ``parts``
-    stacked over epochs and minibatches. ``agents > 1`` (IPPO, MAPPO: ``actors = agents *
-    envs``, agent-major) shuffles env-steps, each with all of its agents' rows
-    (`shuffled_rows`).
+    learning rate and clip norm of its ``hyper`` at its update index ``update``.
+    ``agents > 1`` (IPPO, MAPPO: ``actors = agents * envs``, agent-major) shuffles
+    env-steps, each with all of its agents' rows (`shuffled_rows`).
+
+    Args:
+        loss_fn: ``loss_fn(params, (traj, adv, targets)) -> (loss, parts)`` on a minibatch.
+        tx: the `Optimizer`.
+        params: the network parameters to train.
+        rs: the runner state (its ``opt_state``, ``hyper`` and ``update``).
+        key: a PRNG key for the shuffles.
+        traj: the rollout, leaves with leading axes ``(steps, actors)``.
+        adv: the advantages, leading axes ``(steps, actors)``.
+        targets: the value targets, leading axes ``(steps, actors)``.
+        config: the resolved config (``UPDATE_EPOCHS``, ``NUM_MINIBATCHES``).
+        agents: the agents per env (1 for single-agent PPO).
+
+    Returns:
+        ``(params, opt_state, key, parts)``: the trained parameters, the optimiser state,
+        the advanced key and ``loss_fn``'s ``parts`` stacked over epochs and minibatches
+        (leading axes ``(UPDATE_EPOCHS, NUM_MINIBATCHES)``).
     """
     opt_state, hyper, update = rs.opt_state, rs.hyper, rs.update
     steps, actors = traj.reward.shape[:2]
@@ -204,6 +246,17 @@ def make_optimizer(config: dict, num_updates: int) -> Optimizer:
 
 
 def num_updates(config: dict) -> int:
+    """The number of updates of a training run: whole rollouts in ``TOTAL_TIMESTEPS``.
+
+    Args:
+        config: the config (``TOTAL_TIMESTEPS``, ``NUM_ENVS``, ``NUM_STEPS``).
+
+    Returns:
+        ``TOTAL_TIMESTEPS // (NUM_ENVS * NUM_STEPS)``.
+
+    Raises:
+        ValueError: ``TOTAL_TIMESTEPS`` less than one rollout.
+    """
     n = int(config["TOTAL_TIMESTEPS"]) // (int(config["NUM_ENVS"]) * int(config["NUM_STEPS"]))
     if n < 1:
         raise ValueError(
@@ -214,7 +267,19 @@ def num_updates(config: dict) -> int:
 
 
 def episode_metrics(done, info, prefix="returned_episode") -> dict:
-    """Mean over the episodes that ended in a rollout of the episode return and totals."""
+    """Mean over the episodes that ended in a rollout of the episode return and totals.
+
+    Args:
+        done: where an episode ended (any shape, as the info's leaves).
+        info: the rollout's infos, with ``<prefix>_returns``, ``<prefix>_profit_eur`` and
+            ``<prefix>_energy_delivered_kwh`` (the log wrapper's episode totals).
+        prefix: the prefix of those keys.
+
+    Returns:
+        ``{"episodes", "episode_return", "episode_profit_eur" (EUR),
+        "episode_energy_delivered_kwh" (kWh)}``: the count of ended episodes and the means
+        over them (NaN when none ended).
+    """
     done = done.astype(jnp.float32)
     count = done.sum()
 

@@ -18,7 +18,17 @@ ENV_AXIS = "envs"
 
 
 def env_mesh(num_envs: int) -> Mesh:
-    """A 1-D mesh over every device JAX sees (all hosts after ``jax.distributed.initialize()``)."""
+    """A 1-D mesh over every device JAX sees (all hosts after ``jax.distributed.initialize()``).
+
+    Args:
+        num_envs: the env batch (``NUM_ENVS``), split evenly over the devices.
+
+    Returns:
+        The mesh, its one axis named `ENV_AXIS`.
+
+    Raises:
+        ValueError: ``num_envs`` is not a multiple of the number of devices.
+    """
     devices = jax.devices()
     if num_envs % len(devices):
         raise ValueError(
@@ -29,7 +39,17 @@ def env_mesh(num_envs: int) -> Mesh:
 
 
 def shard_envs(tree, mesh: Mesh):
-    """Constrain the leading (env) axis of every array leaf to be split over the mesh."""
+    """Constrain the leading (env) axis of every array leaf to be split over the mesh.
+
+    Args:
+        tree: a pytree whose array leaves have the env batch as their leading axis (scalar
+            leaves are left as they are).
+        mesh: the mesh (`env_mesh`).
+
+    Returns:
+        The same pytree, each leaf of one or more axes under a sharding constraint over
+        `ENV_AXIS` (inside ``jit``).
+    """
     sharding = NamedSharding(mesh, PartitionSpec(ENV_AXIS))
     return jax.tree.map(
         lambda x: jax.lax.with_sharding_constraint(x, sharding) if jnp.ndim(x) >= 1 else x, tree
