@@ -38,7 +38,15 @@ class ConfigError(ValueError):
 
 @dataclass(frozen=True)
 class Field:
-    """One config key: its default, the kinds of value it takes, and (optionally) its choices."""
+    """One config key: its default, the kinds of value it takes, and (optionally) its choices.
+
+    Attributes:
+        default: the value when the config does not set the key (None: the key may be None).
+        kinds: the Python types a value may have (a bool only where ``bool`` is listed; a
+            whole float is taken for an ``(int,)`` key; a float must be finite).
+        choices: the values allowed, when not empty.
+        doc: one line on what the key does.
+    """
 
     default: Any
     kinds: tuple
@@ -286,6 +294,13 @@ def _task_validation(task) -> dict:
 def config_path(name: str | Path) -> Path:
     """The TOML file of a config name (``ippo``) or path (``my.toml``).
 
+    Args:
+        name: a bundled config's name (looked up in ``CONFIG_DIR``), or a path ending in
+            ``.toml``.
+
+    Returns:
+        The path of the file.
+
     Raises:
         ConfigError: no such file.
     """
@@ -301,8 +316,15 @@ def config_path(name: str | Path) -> Path:
 def parse_override(text: str) -> tuple[str, Any]:
     """``"KEY=value"`` as ``(KEY, value)``, the value read as a TOML value (a bare word: a string).
 
+    Args:
+        text: one override, ``KEY=value``.
+
+    Returns:
+        ``(key, value)``: the key stripped and upper-cased; the value as TOML reads it, or
+        the text after ``=`` as it is when it is not a TOML value.
+
     Raises:
-        ConfigError: no ``=`` in ``text``.
+        ConfigError: no ``=`` in ``text``, or nothing before it.
     """
     key, sep, raw = text.partition("=")
     if not sep or not key.strip():

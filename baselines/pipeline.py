@@ -47,7 +47,20 @@ class RunOutput:
 
 def chunked_updates(config: dict, chunks: int) -> tuple[int, int]:
     """``(chunks, updates)`` that `run` trains ``config`` with: the updates its
-    ``TOTAL_TIMESTEPS`` holds, rounded down to equal chunks (one compiled program)."""
+    ``TOTAL_TIMESTEPS`` holds, rounded down to equal chunks (one compiled program).
+
+    Args:
+        config: a resolved config (``TOTAL_TIMESTEPS``, ``NUM_ENVS``, ``NUM_STEPS``).
+        chunks: the chunks asked for.
+
+    Returns:
+        ``(chunks, updates)``: the chunks, between 1 and the config's updates, and the
+        updates the run trains, a multiple of them.
+
+    Raises:
+        ValueError: ``TOTAL_TIMESTEPS`` less than one rollout
+            (`baselines.algos.ppo_core.num_updates`).
+    """
     n_upd = ppo_core.num_updates(config)
     chunks = max(1, min(chunks, n_upd))
     return chunks, (n_upd // chunks) * chunks
@@ -97,6 +110,35 @@ def run(
     (`baselines.runs.claim_run_dir`) and holds its lock until the run ends. A directory that
     holds another run's files is refused unless ``resume`` continues that run or
     ``overwrite`` deletes its files first; one another live process is writing is refused.
+
+    Args:
+        algo: the algorithm, one of `baselines.algos.registry.ALGOS`.
+        config: the trainer's config (resolved here with `baselines.config.resolve`).
+        seeds: the seeds trained together.
+        seed: the seed of ``jax.random.PRNGKey`` split into the seeds' keys.
+        out: the run directory to write (``results.json``, ``params.msgpack``,
+            ``curve.png``, ``checkpoint.msgpack``); None: write nothing.
+        chunks: the jitted chunks the training is split into (`chunked_updates`).
+        evaluate_every_chunk: evaluate the greedy policy on the validation days after each
+            chunk.
+        baselines: the held-out references, as `baselines.eval.heldout.baseline_results`
+            returns them; None: computed here.
+        eval_params: the held-out evaluation's env parameters; None: the config's scenario
+            on every day.
+        eval_days: the held-out days; None: the config's.
+        env_params: the training env's parameters; None: the config's, on its training days.
+        title: the curve's title; None: from the algorithm, scenario, traffic and seeds.
+        quiet: print nothing but the progress bar.
+        optimal: ``"off"``, ``"bound"`` or ``"mpc"``: which optimal-control references the
+            held-out evaluation adds (`baselines.eval.heldout.baseline_results`).
+        references_dir: a directory ``make optimal`` wrote, whose stored bound and MPC are
+            reused where they match; None: none.
+        resume: continue from ``out``'s checkpoint.
+        overwrite: delete the files of an earlier run in ``out`` first.
+
+    Returns:
+        The `RunOutput`: the results (what ``results.json`` holds), the final parameters of
+        every seed and the trainer.
 
     Raises:
         ValueError: ``resume`` without ``out``, without a readable checkpoint there, with one

@@ -83,13 +83,31 @@ def save_params(params, path: str | Path) -> Path:
 
 
 def load_params(template, path: str | Path):
+    """Read parameters written by `save_params`.
+
+    Args:
+        template: a pytree of the parameters' structure (its leaves' values are replaced).
+        path: the msgpack file.
+
+    Returns:
+        ``template``'s structure with the file's arrays.
+    """
     return flax.serialization.from_bytes(template, Path(path).read_bytes())
 
 
 def to_jsonable(x):
     """``x`` as JSON values: arrays as lists, non-finite floats as ``None``, and a float that is
     a float32 value as the shortest decimal that reads back to the same float32 (the trainers'
-    metrics are float32; their float64 expansions took three times the digits)."""
+    metrics are float32; their float64 expansions took three times the digits).
+
+    Args:
+        x: a value: dicts (keys made strings), lists and tuples are converted element by
+            element; any other value that is not a NumPy or JAX array or scalar is kept as it
+            is.
+
+    Returns:
+        ``x`` as dicts, lists, floats, ints, None and the values kept.
+    """
     if isinstance(x, dict):
         return {str(k): to_jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
@@ -119,7 +137,16 @@ def _dumps(x, indent: int = 0) -> str:
 
 def write_json(obj: dict, path: str | Path) -> Path:
     """Write ``obj`` (see `to_jsonable`) as indented JSON whose number lists take one line
-    each, atomically (`atomic_write_bytes`)."""
+    each, atomically (`atomic_write_bytes`).
+
+    Args:
+        obj: the object to write (a value `to_jsonable` does not convert is written as its
+            ``str``).
+        path: the file to write.
+
+    Returns:
+        ``path``.
+    """
     return atomic_write_bytes((_dumps(to_jsonable(obj)) + "\n").encode(), path)
 
 
@@ -222,7 +249,15 @@ def _from_msgpack(x):
 
 
 def smooth_nan(x: np.ndarray) -> np.ndarray:
-    """Carry the last finite value forward along the last axis (updates with no finished episode)."""
+    """Carry the last finite value forward along the last axis (updates with no finished episode).
+
+    Args:
+        x: an array whose last axis is the points of a curve.
+
+    Returns:
+        A float64 copy with each non-finite entry replaced by the last finite one before it
+        (NaN before the first).
+    """
     x = np.array(x, dtype=np.float64)
     for idx in np.ndindex(x.shape[:-1]):
         row = x[idx]
@@ -237,7 +272,14 @@ def smooth_nan(x: np.ndarray) -> np.ndarray:
 
 def seed_mean_std(curves) -> tuple[np.ndarray, np.ndarray]:
     """Mean and std over seeds of learning curves ``(seeds, points)`` after `smooth_nan`;
-    points before any seed's first finished episode stay NaN (matplotlib leaves them out)."""
+    points before any seed's first finished episode stay NaN (matplotlib leaves them out).
+
+    Args:
+        curves: ``(seeds, points)`` learning curves (one curve: ``(points,)``).
+
+    Returns:
+        ``(mean, std)``, each ``(points,)``, over the seeds that have a value at the point.
+    """
     y = smooth_nan(np.atleast_2d(np.asarray(curves, dtype=float)))
     with warnings.catch_warnings():  # all-NaN columns: NaN without "Mean of empty slice"
         warnings.simplefilter("ignore", RuntimeWarning)
@@ -254,7 +296,22 @@ def plot_learning_curve(
     ylabel="daily profit (EUR)",
 ):
     """Mean ± std over seeds of each curve ``(seeds, points)``; baselines as horizontal lines;
-    ``eval_points``: optional ``{label: (timesteps, (seeds, n) array)}`` drawn with markers."""
+    ``eval_points``: optional ``{label: (timesteps, (seeds, n) array)}`` drawn with markers.
+
+    Args:
+        path: the image file to write (its folder is created if missing).
+        timesteps: ``(points,)`` the env steps of the curves' points.
+        curves: ``{label: (seeds, points)}`` the curves, each drawn as its mean with a band
+            of ± one std (`seed_mean_std`).
+        baselines: ``{label: value}`` drawn as horizontal lines.
+        title: the plot's title.
+        eval_points: ``{label: (timesteps, (seeds, n))}`` drawn as mean ± std markers; None
+            for none.
+        ylabel: the y axis's label.
+
+    Returns:
+        ``path``.
+    """
     matplotlib.use("Agg")
 
     fig, ax = plt.subplots(figsize=(7, 4.2))
@@ -352,7 +409,16 @@ def plot_curve(
 def load_run(run_dir: str | Path):
     """``(results, train, params)`` of a ``baselines.train`` output directory: its
     ``results.json``, the rebuilt ``train`` of its algorithm and config, and the trained
-    parameters of every seed (leading axis = seed) from ``params.msgpack``."""
+    parameters of every seed (leading axis = seed) from ``params.msgpack``.
+
+    Args:
+        run_dir: the run's output directory.
+
+    Returns:
+        ``(results, train, params)``: the parsed ``results.json``, the
+        `baselines.algos.trainer.Trainer` of its algorithm and stored config, and the
+        parameters of every seed.
+    """
     run_dir = Path(run_dir)
     results = json.loads((run_dir / "results.json").read_text())
     train = registry.make_train(results["algo"], stored_config(results["config"]))

@@ -128,7 +128,22 @@ def score_run(run_dir: str | Path, task_id: str, references_dir=None) -> dict:
 
 def picture(run_dir, task_id: str, path, name: str | None = None, day_index: int = 0):
     """Draw seed 0 of a run on a held-out day of a task beside always-max
-    (`chargax_marl.benchmark.picture.day_picture`); returns the figure."""
+    (`chargax_marl.benchmark.picture.day_picture`); returns the figure.
+
+    Args:
+        run_dir: a ``baselines.train`` output directory.
+        task_id: a benchmark task id.
+        path: the PNG to write.
+        name: the policy's label (default: the run's algorithm, upper-cased).
+        day_index: the position in the task's held-out days (draw 0 is drawn).
+
+    Returns:
+        The matplotlib figure.
+
+    Raises:
+        CheckpointMismatchError: the run was trained on another station or scenario
+            (`check_run_fits`).
+    """
     task = get_task(task_id)
     results, train, seed_params = load_run(run_dir)
     _, run_params, _, _ = build_env_params(train.config)
@@ -156,7 +171,17 @@ def _missing_fields(data: dict) -> list[str]:
 
 
 def write_score(result: dict, name: str, path: str | Path) -> Path:
-    """Write a score file for the scoreboard: ``name`` is its row label."""
+    """Write a score file for the scoreboard: ``name`` is its row label.
+
+    Args:
+        result: `score_run`'s (or `rescore`'s) result.
+        name: the row label.
+        path: the JSON file to write (its folder is created if missing).
+
+    Returns:
+        ``path``. The file holds ``result`` with ``daily_profit`` as nested lists, ``name``,
+        and of the config only ``TOTAL_TIMESTEPS``, ``SCENARIO`` and ``TRAFFIC``.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     out = {k: v for k, v in result.items() if k not in ("daily_profit", "config")}
@@ -201,6 +226,16 @@ def rescore(path: str | Path, references_dir=None) -> dict:
 
 
 def main(argv=None) -> dict | list:
+    """The command line: score a run on a task (optionally drawing a picture and writing the
+    score file), or with ``--rescore`` compare score files again and write them back.
+
+    Args:
+        argv: the arguments (None: ``sys.argv[1:]``); ``--help`` lists them.
+
+    Returns:
+        `score_run`'s result, or with ``--rescore`` the list of `rescore`'s results (files
+        that are not score files are skipped).
+    """
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("run_dir", nargs="?")
     parser.add_argument("--task", default=None, help="a benchmark task id")

@@ -421,7 +421,11 @@ def ranked_table(results: dict) -> str:
 
 def parser() -> argparse.ArgumentParser:
     """The command line: ``--config``, ``KEY=value`` / ``KEY=v1,v2`` arguments,
-    ``--settings-per-batch`` and ``--overwrite``."""
+    ``--settings-per-batch`` and ``--overwrite``.
+
+    Returns:
+        The argument parser (its description the module docstring).
+    """
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -438,7 +442,19 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> dict:
-    """Run the command line ``argv`` (default ``sys.argv[1:]``); the sweep's results."""
+    """Run the command line ``argv`` (default ``sys.argv[1:]``); the sweep's results.
+
+    Args:
+        argv: the arguments (None: ``sys.argv[1:]``); ``--help`` lists them.
+
+    Returns:
+        `sweep`'s results, written to ``OUT.json``, ``OUT.md`` and ``OUT.params.msgpack``.
+
+    Raises:
+        ConfigError: an unknown config, key or value, or a swept run key (`sweep`).
+        baselines.runs.RunDirError: ``OUT``'s files exist (without ``--overwrite``) or
+            another live process writes them.
+    """
     a = parser().parse_intermixed_args(argv)
     return sweep(a.config, a.overrides, a.settings_per_batch, a.overwrite)
 

@@ -52,7 +52,11 @@ from baselines.runs import RunDirError  # noqa: E402
 
 def parser() -> argparse.ArgumentParser:
     """The command line: ``--config``, ``KEY=value`` overrides, ``--replot``, ``--resume``,
-    ``--overwrite`` and the multi-process flags."""
+    ``--overwrite`` and the multi-process flags.
+
+    Returns:
+        The argument parser (its description the module docstring).
+    """
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -94,6 +98,9 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> dict:
     """Run the command line ``argv`` (default ``sys.argv[1:]``).
+
+    Args:
+        argv: the arguments (None: ``sys.argv[1:]``); ``--help`` lists them.
 
     Returns:
         The run's results (what ``results.json`` holds), or ``{}`` for ``--replot``.
