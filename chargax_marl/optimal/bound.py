@@ -134,8 +134,8 @@ def battery_sessions(params: EnvParams, soc0, first: int, last: int) -> Sessions
         last: the last step (inclusive).
 
     Returns:
-        One session per station battery, SoC window [0, 1], charging and discharging at the
-        battery leaf's rating ``V * I_max`` (kW).
+        One session per station battery, SoC window [0, 1], with charging and discharging
+        rates ``V * I_max`` of its leaf (kW; the LP caps them at the leaf's ratings).
     """
     st = params.station
     nb = st.num_batteries
