@@ -54,7 +54,7 @@ _ENTRY = re.compile(r"^(\*{0,2}[A-Za-z_]\w*)\s*(\([^)]*\))?\s*:")
 
 
 def _own(obj) -> bool:
-    return (getattr(obj, "__module__", None) or "").startswith("chargax_marl")
+    return (getattr(obj, "__module__", None) or "").startswith(("chargax_marl", "baselines"))
 
 
 def _public() -> dict[str, object]:
@@ -166,8 +166,8 @@ def _hand_written_init(cls):
             continue
         if not _own(klass) or not inspect.isfunction(init):
             return None
-        if dataclasses.is_dataclass(klass) and init.__code__.co_filename == "<string>":
-            return None
+        if init.__code__.co_filename != inspect.getfile(klass):
+            return None  # generated (dataclasses, flax modules), not written in the class
         return init
     return None
 
