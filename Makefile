@@ -60,7 +60,8 @@ dist: $(STAMP)
 
 # The client examples with heavy dependencies (stable-baselines3, supersuit, tianshou, torch:
 # the `clients` extra), each on a tiny budget; not part of `make test`. The dependency-light
-# examples (PureJaxRL-style PPO, PettingZoo loop, JaxMARL rollout) run inside `make test`.
+# examples (PureJaxRL-style PPO, PettingZoo loop, JaxMARL rollout) and the quick-start notebook
+# (examples/quickstart.ipynb, in a Jupyter kernel: tests/test_notebook.py) run inside `make test`.
 CLIENTS_STAMP := $(VENV)/.clients
 $(CLIENTS_STAMP): $(STAMP)
 	$(PY) -m pip install --quiet -e ".[dev,clients]"
