@@ -37,7 +37,16 @@ def _short(value: Any) -> str:
 
 
 def check_dtype(action: Any, field: str = "action") -> None:
-    """Raise ``ValueError`` unless ``action`` (array or tracer) holds real numbers or bools."""
+    """Raise ``ValueError`` unless ``action`` (array or tracer) holds real numbers or bools.
+
+    Args:
+        action: the action; anything with a ``dtype`` (numpy or jax array, tracer).
+        field: the name the error message gives the action.
+
+    Raises:
+        ValueError: ``action`` has no ``dtype``, or its dtype is not an integer, floating or
+            bool dtype (a string, object or complex array).
+    """
     dtype = getattr(action, "dtype", None)
     if dtype is None or not (
         np.issubdtype(dtype, np.integer)
@@ -51,7 +60,19 @@ def check_dtype(action: Any, field: str = "action") -> None:
 
 
 def check_size(action: Any, num_leaves: int, field: str = "action") -> None:
-    """Raise ``ValueError`` unless ``action`` has exactly ``num_leaves`` entries (static shapes only)."""
+    """Raise ``ValueError`` unless ``action`` has exactly ``num_leaves`` entries (static shapes only).
+
+    The size is the product of the shape, so an action of shape ``(1, num_leaves)`` passes; a
+    scalar has one entry.
+
+    Args:
+        action: the action (array, tracer or anything `numpy.shape` reads).
+        num_leaves: the number of leaves, ports then batteries.
+        field: the name the error message gives the action.
+
+    Raises:
+        ValueError: ``action`` has a number of entries other than ``num_leaves``.
+    """
     size = int(np.prod(np.shape(action), dtype=np.int64))
     if size != num_leaves:
         raise ValueError(
@@ -62,7 +83,22 @@ def check_size(action: Any, num_leaves: int, field: str = "action") -> None:
 
 def to_int32(x: jnp.ndarray, low, high, idle) -> jnp.ndarray:
     """Integers in ``[low, high]`` as int32 (traceable): floats clipped (non-finite -> ``idle``),
-    then truncated toward zero; integers clipped in their own dtype before the cast."""
+    then truncated toward zero; integers clipped in their own dtype before the cast.
+
+    Bools count as the integers 0 and 1; unsigned integers are only capped at ``high`` before
+    the cast (they cannot be below a ``low`` of 0 or less), and every result is clipped to
+    ``[low, high]`` again after it.
+
+    Args:
+        x: the action entries, any real dtype, any shape.
+        low: the lowest level (scalar, or an array broadcasting against ``x``).
+        high: the highest level (same).
+        idle: the level a non-finite float entry becomes.
+
+    Returns:
+        An int32 array of the broadcast shape of ``x``, ``low`` and ``high``, every entry in
+        ``[low, high]``.
+    """
     x = jnp.asarray(x)
     if jnp.issubdtype(x.dtype, jnp.floating):
         low_f = jnp.asarray(low).astype(x.dtype)
@@ -81,7 +117,16 @@ def to_int32(x: jnp.ndarray, low, high, idle) -> jnp.ndarray:
 
 
 def to_fraction(x: jnp.ndarray) -> jnp.ndarray:
-    """Fractions in ``[-1, 1]`` as float32 (traceable); non-finite -> 0 (idle)."""
+    """Fractions in ``[-1, 1]`` as float32 (traceable); non-finite -> 0 (idle).
+
+    Args:
+        x: the action entries, any real dtype, any shape; integers are clipped to ``[-1, 1]``
+            before the cast.
+
+    Returns:
+        A float32 array of the shape of ``x``: each entry clipped to ``[-1, 1]``, NaN and
+        +-inf entries 0.
+    """
     x = jnp.asarray(x)
     if not jnp.issubdtype(x.dtype, jnp.floating):
         x = jnp.clip(x, -1, 1)
@@ -96,6 +141,24 @@ def host_array(action: Any, num_leaves: int | None = None, field: str = "action"
     are checked). Anything else becomes a numpy array: integers are clipped to the int32
     range and cast to int32; finite floats are clipped to +-`HOST_FLOAT_BOUND` and
     cast to float32 (NaN and +-inf are kept, the traced step reads them as idle).
+
+    Bools become int32 0 / 1 and unsigned integers are capped at the int32 maximum. An object
+    array (Python integers beyond int64) is read as floats. The shape is kept.
+
+    Args:
+        action: the action as the controller emitted it: a jax array or tracer, a numpy
+            array, a Python number or a (nested) sequence of numbers.
+        num_leaves: the number of leaves (ports, then batteries) the action must have entries
+            for; ``None`` skips the size check.
+        field: the name error messages give the action.
+
+    Returns:
+        ``action`` itself when it is a jax array or tracer; otherwise a numpy array of its
+        shape, int32 for bool and integer input, float32 for float input.
+
+    Raises:
+        ValueError: ``action`` is a string or bytes, cannot be read as an array, does not hold
+            real numbers or bools, or (with ``num_leaves``) has another number of entries.
     """
     if isinstance(action, (jax.Array, jax.core.Tracer)):
         check_dtype(action, field)
