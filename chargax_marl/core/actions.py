@@ -60,10 +60,10 @@ def check_dtype(action: Any, field: str = "action") -> None:
 
 
 def check_size(action: Any, num_leaves: int, field: str = "action") -> None:
-    """Raise ``ValueError`` unless ``action`` has exactly ``num_leaves`` entries (static shapes only).
+    """Raise ``ValueError`` unless ``action`` has exactly ``num_leaves`` entries.
 
-    The size is the product of the shape, so an action of shape ``(1, num_leaves)`` passes; a
-    scalar has one entry.
+    Static shapes only. The size is the product of the shape, so an action of shape
+    ``(1, num_leaves)`` passes; a scalar has one entry.
 
     Args:
         action: the action (array, tracer or anything `numpy.shape` reads).
