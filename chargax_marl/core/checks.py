@@ -82,6 +82,27 @@ def number(
     """``value`` as a float that is finite, in range and representable in float32.
 
     ``owner`` prefixes the message (e.g. ``"Port 'p'"``). Bools and strings are rejected.
+
+    Args:
+        field: the name the error message gives the value.
+        value: the value: a Python or numpy real number, or a 0-d numpy or jax array of a real
+            dtype.
+        low: the lowest allowed value; ``None`` for no lower bound.
+        high: the highest allowed value; ``None`` for no upper bound.
+        low_open: ``low`` itself is not allowed.
+        high_open: ``high`` itself is not allowed.
+        unit: the unit the message writes after the bounds (e.g. ``"kW"``).
+        owner: a prefix naming what the value belongs to; empty for none.
+        integer: the value must be an integer (`numbers.Integral`, or a 0-d array of an
+            integer dtype); a float like ``2.0`` is rejected.
+
+    Returns:
+        The value as a Python float (also when ``integer``).
+
+    Raises:
+        ValueError: ``value`` is a bool, not a real number (an integer when ``integer``),
+            not finite, outside the range, or overflows or underflows (a nonzero value
+            becoming 0 or subnormal) in float32.
     """
     who = f"{owner}: " if owner else ""
     allowed = _range_text(low, high, low_open, high_open, unit)
@@ -131,6 +152,22 @@ def array(
     """``value`` as a float64 array whose entries are finite and in range (checked as `number`).
 
     The message names the first offending entry and its index.
+
+    Args:
+        field: the name the error message gives the array.
+        value: anything `numpy.asarray` turns into a float64 array, any shape.
+        low: the lowest allowed entry; ``None`` for no lower bound.
+        high: the highest allowed entry; ``None`` for no upper bound.
+        low_open: ``low`` itself is not allowed.
+        high_open: ``high`` itself is not allowed.
+        unit: the unit the message writes after the bounds (e.g. ``"EUR/kWh"``).
+
+    Returns:
+        ``value`` as a float64 numpy array of its own shape.
+
+    Raises:
+        ValueError: ``value`` cannot be read as an array of numbers, or an entry is not
+            finite, is outside the range, or overflows or underflows in float32.
     """
     try:
         arr = np.asarray(value, dtype=np.float64)
@@ -157,7 +194,16 @@ def array(
 
 
 def keywords(owner: str, given: dict, allowed: tuple | list) -> None:
-    """Raise ``TypeError`` naming unknown keyword arguments and the allowed names."""
+    """Raise ``TypeError`` naming unknown keyword arguments and the allowed names.
+
+    Args:
+        owner: the name of the function or class the message names.
+        given: the keyword arguments given (only the keys are read).
+        allowed: the allowed keyword names.
+
+    Raises:
+        TypeError: ``given`` has a key not in ``allowed``.
+    """
     unknown = sorted(set(given) - set(allowed))
     if unknown:
         raise TypeError(
@@ -166,9 +212,17 @@ def keywords(owner: str, given: dict, allowed: tuple | list) -> None:
 
 
 def known_keywords(fn):
-    """Decorate ``fn`` so that an unknown keyword argument raises ``TypeError`` listing the allowed names.
+    """Decorate ``fn`` so that an unknown keyword raises ``TypeError`` listing the allowed ones.
 
-    (Python's own error names the bad keyword but not the ones that exist.)
+    (Python's own error names the bad keyword but not the ones that exist.) The allowed
+    names are ``fn``'s positional-or-keyword and keyword-only parameters.
+
+    Args:
+        fn: the function to wrap.
+
+    Returns:
+        ``fn`` itself when it takes ``**kwargs``; otherwise a wrapper (`functools.wraps`)
+        that checks the keyword arguments with `keywords` and then calls ``fn``.
     """
 
     sig = inspect.signature(fn)
