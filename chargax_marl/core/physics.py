@@ -23,13 +23,35 @@ opposite leaf flows, which is relative to those flows and not to their small dif
 
 
 def rate_curve_kw(soc: jnp.ndarray, max_rate_kw: jnp.ndarray, tau: jnp.ndarray) -> jnp.ndarray:
-    """Charging rate limit r-hat(SoC): ``r-bar`` up to ``tau``, then a linear taper to 0 at SoC 1."""
+    """Charging rate limit r-hat(SoC): ``r-bar`` up to ``tau``, then a linear taper to 0 at SoC 1.
+
+    The arguments broadcast against each other (per leaf ``(num_leaves,)`` in the step).
+
+    Args:
+        soc: state of charge in [0, 1].
+        max_rate_kw: r-bar, the rate limit below ``tau`` (kW).
+        tau: the SoC where the taper starts, in (0, 1).
+
+    Returns:
+        The rate limit (kW) of the broadcast shape, in ``[0, max_rate_kw]``.
+    """
     taper = (1.0 - soc) * max_rate_kw / jnp.maximum(1.0 - tau, 1e-6)
     return jnp.clip(jnp.where(soc <= tau, max_rate_kw, taper), 0.0, max_rate_kw)
 
 
 def discharge_curve_kw(soc: jnp.ndarray, max_rate_kw: jnp.ndarray, tau: jnp.ndarray) -> jnp.ndarray:
-    """Discharging rate limit: the charging curve mirrored at SoC 0.5, ``r-hat(1 - SoC)``."""
+    """Discharging rate limit: the charging curve mirrored at SoC 0.5, ``r-hat(1 - SoC)``.
+
+    The limit is ``max_rate_kw`` down to SoC ``1 - tau``, then tapers linearly to 0 at SoC 0.
+
+    Args:
+        soc: state of charge in [0, 1].
+        max_rate_kw: the discharge rate limit before the taper (kW).
+        tau: the taper parameter of the charging curve, in (0, 1).
+
+    Returns:
+        The discharge rate limit (kW, >= 0) of the broadcast shape of the arguments.
+    """
     return rate_curve_kw(1.0 - soc, max_rate_kw, tau)
 
 
@@ -40,6 +62,14 @@ def leaf_min_level(station: StationArrays, num_levels: int, v2g: bool) -> jnp.nd
     Batteries may always discharge; ports only when V2G is on and the port has a
     discharge current. Compiled as one program per station shape (the views call it on the
     host to build their action spaces and masks).
+
+    Args:
+        station: the compiled station.
+        num_levels: ``L``, the discrete levels per direction (static).
+        v2g: ports with a discharge current may discharge (static).
+
+    Returns:
+        ``(num_leaves,)`` int32, ``-num_levels`` or 0 per leaf.
     """
     can_discharge = (station.leaf_kind == KIND_BATTERY) | (
         jnp.asarray(v2g) & (station.leaf_max_discharge_current_a > 0)
@@ -55,6 +85,20 @@ def target_current(action: jnp.ndarray, state: EnvState, params: EnvParams) -> j
     range of that leaf (levels ``[min_level, L]``, fractions ``[-1, 1]``, no discharge where
     the leaf cannot discharge); NaN and +-inf are idle (level 0, fraction 0; see
     `chargax_marl.core.actions`).
+
+    A level ``k`` of ``L`` (or a fraction ``f``) asks for ``k / L`` (``f``) of the leaf's max
+    current when positive and of its max discharge current when negative. In ``delta`` mode
+    the level is a change of ``k / L`` of the leaf's max current added to the current set in
+    ``state``, in either direction and on every leaf; the result is not clipped here.
+
+    Args:
+        action: ``(num_leaves,)`` the action per leaf, ports then batteries.
+        state: the current state (``delta`` mode reads its ``current_a``).
+        params: the env parameters (action mode, levels, V2G, station).
+
+    Returns:
+        ``(num_leaves,)`` float32 signed target current per leaf (A; negative =
+        discharging).
     """
     st = params.station
     if params.action_mode == "continuous":
@@ -89,6 +133,14 @@ def clip_to_car(current_a: jnp.ndarray, state: EnvState, params: EnvParams) -> j
     The capacity window is applied here, before the node limits, and not only when charging:
     with flows of both signs under one node, cutting one leaf after the rescale could raise
     the node's net flow above its limit. `charge` keeps the same clip as a guard.
+
+    Args:
+        current_a: ``(num_leaves,)`` signed currents (A; negative = discharging).
+        state: the current state (the cars' SoC, windows, rate limits and occupancy).
+        params: the env parameters (station, step length, V2G).
+
+    Returns:
+        ``(num_leaves,)`` the currents clipped to those limits (A); 0 at empty ports.
     """
     st = params.station
     v = st.leaf_voltage_v
@@ -122,7 +174,15 @@ def _grid_side(leaf_power_kw: jnp.ndarray, eff: jnp.ndarray, has_node: jnp.ndarr
 
 def path_grid_side(leaf_values: jnp.ndarray, station: StationArrays) -> jnp.ndarray:
     """Each leaf's power (or energy) on the grid side of the whole path to the grid connection:
-    divided by the path efficiency when charging, multiplied by it when discharging."""
+    divided by the path efficiency when charging, multiplied by it when discharging.
+
+    Args:
+        leaf_values: ``(num_leaves,)`` signed power (kW) or energy (kWh) at each leaf.
+        station: the compiled station (its ``leaf_path_efficiency``).
+
+    Returns:
+        ``(num_leaves,)`` the values on the grid side, in the unit of ``leaf_values``.
+    """
     eta = station.leaf_path_efficiency
     return jnp.where(leaf_values > 0, leaf_values / eta, leaf_values * eta)
 
@@ -130,7 +190,15 @@ def path_grid_side(leaf_values: jnp.ndarray, station: StationArrays) -> jnp.ndar
 def grid_side_kw(leaf_power_kw: jnp.ndarray, station: StationArrays) -> jnp.ndarray:
     """``(D, L)`` the flow each leaf causes on the grid side of its ancestor at depth ``d``:
     its power divided by the efficiency of the path up to and including that node when it
-    charges, multiplied by it when it discharges (0 where the leaf has no such ancestor)."""
+    charges, multiplied by it when it discharges (0 where the leaf has no such ancestor).
+
+    Args:
+        leaf_power_kw: ``(num_leaves,)`` signed power at each leaf (kW).
+        station: the compiled station.
+
+    Returns:
+        ``(D, num_leaves)`` grid-side flows (kW), ``D`` the station's depth.
+    """
     return _grid_side(
         leaf_power_kw[None, :], station.leaf_efficiency_at_depth, station.node_of_leaf_at_depth >= 0
     )
@@ -141,6 +209,13 @@ def node_flows_kw(leaf_power_kw: jnp.ndarray, station: StationArrays) -> jnp.nda
 
     This is what the node's cable carries: the power of the leaves below it plus the losses
     of every port and node on their paths up to and including the node itself.
+
+    Args:
+        leaf_power_kw: ``(num_leaves,)`` signed power at each leaf (kW).
+        station: the compiled station.
+
+    Returns:
+        ``(num_nodes,)`` float32, the absolute net grid-side flow of each node (kW).
     """
     side = grid_side_kw(leaf_power_kw, station)
     flows = jnp.zeros((station.num_nodes,), jnp.float32)
@@ -153,7 +228,16 @@ def node_flows_kw(leaf_power_kw: jnp.ndarray, station: StationArrays) -> jnp.nda
 
 
 def constraint_excess_kw(leaf_power_kw: jnp.ndarray, station: StationArrays) -> jnp.ndarray:
-    """The paper's c_constraint: the largest grid-side excess over any node limit, kW (0 when all hold)."""
+    """The paper's c_constraint: the largest grid-side excess over any node limit.
+
+    Args:
+        leaf_power_kw: ``(num_leaves,)`` signed power at each leaf (kW).
+        station: the compiled station.
+
+    Returns:
+        ``()`` the largest ``node_flows_kw - node_max_kw`` over the nodes (kW); 0 when every
+        limit holds.
+    """
     return jnp.max(jnp.maximum(node_flows_kw(leaf_power_kw, station) - station.node_max_kw, 0.0))
 
 
@@ -202,7 +286,16 @@ def rescale_to_limits(current_a: jnp.ndarray, station: StationArrays) -> jnp.nda
 
 def requested_current(action: jnp.ndarray, state: EnvState, params: EnvParams) -> jnp.ndarray:
     """The currents the controller asks for: the action's target current within the car's and
-    the port's limits, before the node limits (what `apply_actions` rescales)."""
+    the port's limits, before the node limits (what `apply_actions` rescales).
+
+    Args:
+        action: ``(num_leaves,)`` the action per leaf (see `target_current`).
+        state: the current state.
+        params: the env parameters.
+
+    Returns:
+        ``(num_leaves,)`` signed currents (A), `clip_to_car` of `target_current`.
+    """
     return clip_to_car(target_current(action, state, params), state, params)
 
 
@@ -213,6 +306,15 @@ def apply_actions(action: jnp.ndarray, state: EnvState, params: EnvParams):
     c_constraint of the currents the controller asked for (after car limits, before the hard
     rescale); ``excess_kw`` is c_constraint of the currents that flow. In hard mode the
     rescale brings the latter to 0; in soft mode nothing is rescaled and both are equal.
+
+    Args:
+        action: ``(num_leaves,)`` the action per leaf (see `target_current`).
+        state: the current state.
+        params: the env parameters (``constraint_mode`` picks hard or soft).
+
+    Returns:
+        ``(current_a, excess_kw, requested_excess_kw)``: ``(num_leaves,)`` the signed
+        currents that flow (A), and the two ``()`` excesses (kW).
     """
     volts = params.station.leaf_voltage_v
     requested = requested_current(action, state, params)
@@ -233,6 +335,20 @@ def charge(current_a: jnp.ndarray, state: EnvState, params: EnvParams):
     Returns ``(new_state, leaf_energy_kwh)``: the energy actually moved into each car or
     battery (negative when discharging), which every later computation uses. The stored
     current is the current that actually flowed.
+
+    Each occupied leaf's energy is clipped to ``[-(soc - arrival_soc) * capacity,
+    (target_soc - soc) * capacity]``; empty ports move 0. Parked cars' ``energy_remaining_kwh``
+    drops by the energy (not below 0) and their ``time_remaining_min`` by ``step_minutes``.
+
+    Args:
+        current_a: ``(num_leaves,)`` signed currents (A), held for the whole step.
+        state: the current state.
+        params: the env parameters (station voltages, step length).
+
+    Returns:
+        ``(new_state, leaf_energy_kwh)``: the state with ``current_a``, ``soc``,
+        ``energy_remaining_kwh`` and ``time_remaining_min`` updated, and ``(num_leaves,)``
+        the energy into each leaf (kWh, terminal side).
     """
     st = params.station
     dt_h = params.step_hours
@@ -263,6 +379,19 @@ def energy_flows(leaf_energy_kwh: jnp.ndarray, station: StationArrays) -> dict:
 
     Grid side of a leaf: ``e / eta_path`` when charging, ``e * eta_path`` when discharging.
     ``grid_net = into_cars + into_batteries + losses`` holds by construction; losses >= 0.
+
+    Args:
+        leaf_energy_kwh: ``(num_leaves,)`` energy into each car or battery this step (kWh,
+            terminal side; negative = discharging), as `charge` returns it.
+        station: the compiled station.
+
+    Returns:
+        A dict of ``()`` kWh totals: ``delivered_kwh`` (net into cars), ``charged_kwh``,
+        ``discharged_kwh`` (out of cars, positive), ``battery_net_kwh``,
+        ``battery_discharged_kwh`` (positive), ``grid_to_cars_kwh`` (>= 0),
+        ``cars_to_grid_kwh`` (<= 0), ``battery_grid_kwh``, ``grid_net_kwh`` and
+        ``losses_kwh``; and of ``(num_leaves,)`` arrays: ``leaf_energy_kwh`` (the input),
+        ``leaf_car_kwh`` (0 at batteries) and ``leaf_grid_kwh`` (grid side of each leaf).
     """
     is_port = station.leaf_kind != KIND_BATTERY
     grid_side = path_grid_side(leaf_energy_kwh, station)
