@@ -36,7 +36,25 @@ class FleetData:
     """Car models and their shares: ``share``, ``capacity_kwh``, ``max_ac_kw``,
     ``max_dc_kw``, ``tau``, ``max_ac_discharge_kw`` and ``max_dc_discharge_kw`` are float32
     arrays of shape (K,); ``share`` sums to 1. A discharge limit of 0 means the model cannot
-    feed energy back (no V2G) at that kind of port."""
+    feed energy back (no V2G) at that kind of port.
+
+    `load_fleet` and the CSV readers validate the columns, normalise ``share`` and make the
+    arrays read-only; the constructor itself checks nothing and only fills a missing
+    discharge column with zeros.
+
+    Attributes:
+        name: the fleet's name.
+        models: the ``K`` car model names.
+        share: ``(K,)`` share of each model among arriving cars (sums to 1).
+        capacity_kwh: ``(K,)`` battery capacity of each model (kWh).
+        max_ac_kw: ``(K,)`` charging limit of each model at AC ports (kW).
+        max_dc_kw: ``(K,)`` charging limit of each model at DC ports (kW).
+        tau: ``(K,)`` SoC above which each model's charge rate tapers, in (0, 1).
+        max_ac_discharge_kw: ``(K,)`` discharge (V2G) limit at AC ports (kW; 0 = cannot
+            discharge); ``None`` becomes zeros.
+        max_dc_discharge_kw: ``(K,)`` discharge (V2G) limit at DC ports (kW); ``None``
+            becomes zeros.
+    """
 
     name: str
     models: tuple[str, ...]
@@ -133,12 +151,44 @@ def _make_fleet(
 def read_fleet_csv(path: str | os.PathLike, name: str | None = None) -> FleetData:
     """Read a fleet CSV with columns ``model,share,capacity_kwh,max_ac_kw,max_dc_kw,tau`` and
     optionally ``max_ac_discharge_kw,max_dc_discharge_kw`` (absent: 0, no model discharges);
-    any order, extra columns ignored, '#' lines are comments."""
+    any order, extra columns ignored, '#' lines are comments.
+
+    Args:
+        path: the CSV file (UTF-8).
+        name: the fleet's name; ``None`` takes the file name without its suffix.
+
+    Returns:
+        The validated fleet (see `parse_fleet_csv_text`).
+
+    Raises:
+        FileNotFoundError: ``path`` is not a file.
+        ValueError: the file is not UTF-8, or its content is not a valid fleet.
+    """
     text = _read_text(path)
     return parse_fleet_csv_text(text, name=name or Path(path).stem, source=str(path))
 
 
 def parse_fleet_csv_text(text: str, name: str = "custom", source: str = "<csv>") -> FleetData:
+    """Parse the text of a fleet CSV (the format of `read_fleet_csv`) into a validated fleet.
+
+    Blank lines, '#' comment lines and a leading BOM are skipped; the header is matched
+    case-insensitively. ``share`` is normalised to sum to 1.
+
+    Args:
+        text: the CSV text: a header row, then one row per car model.
+        name: the fleet's name.
+        source: where the text comes from, for error messages.
+
+    Returns:
+        The fleet, its arrays read-only float32 of shape ``(K,)``.
+
+    Raises:
+        ValueError: the text is empty, lacks a required column or any data row, a row has
+            another number of fields than the header, a value is not a finite number, a
+            model name is empty, or a value is out of range (negative or all-zero shares,
+            a capacity or charging limit <= 0, a negative discharge limit, ``tau`` outside
+            (0, 1), or a magnitude beyond `chargax_marl.core.checks`' bounds).
+    """
     rows = _data_rows(text)
     if not rows:
         raise ValueError(f"fleet: {source} is empty; expected a header {','.join(FLEET_COLUMNS)}")
@@ -165,7 +215,23 @@ def parse_fleet_csv_text(text: str, name: str = "custom", source: str = "<csv>")
 
 
 def load_fleet(source: Any = "EU") -> FleetData:
-    """A bundled fleet by name (`FLEETS`), a `FleetData`, or a CSV path."""
+    """A bundled fleet by name (`FLEETS`), a `FleetData`, or a CSV path.
+
+    Args:
+        source: a bundled fleet's name (``"EU"``, ``"US"``, ``"World"``), a `FleetData`
+            (validated again, its shares renormalised), or the path of a fleet CSV (a
+            string ending in ``.csv``, containing a path separator or naming a file, or an
+            `os.PathLike`).
+
+    Returns:
+        The validated fleet; bundled fleets are read once and cached.
+
+    Raises:
+        KeyError: ``source`` is a string that is neither a bundled fleet's name nor looks
+            like a path.
+        ValueError: ``source`` is of another type, or the fleet or CSV is invalid.
+        FileNotFoundError: the CSV path is not a file.
+    """
     if isinstance(source, FleetData):
         return _make_fleet(
             source.name,
