@@ -36,7 +36,21 @@ EXTRA_CONTEXT = 1 + len(PRICE_QUANTILES) + 1 + 1
 
 
 def leaf_features(state: EnvState, params: EnvParams) -> jnp.ndarray:
-    """Per-leaf features ``(L, len(PORT_FEATURES))`` in the order of `PORT_FEATURES`."""
+    """Per-leaf features ``(L, len(PORT_FEATURES))`` in the order of `PORT_FEATURES`.
+
+    Per leaf: occupied (0 / 1), SoC, energy the user still wants over `ENERGY_SCALE_KWH`,
+    minutes to the planned departure over a day (clipped to [-1, 1]), the rate curve's limit
+    at the SoC over the leaf's max power (0 when empty), capacity over `ENERGY_SCALE_KWH`,
+    charge-sensitive (0 / 1), and the current over the leaf's max current (its max
+    discharge current when discharging), so in [-1, 1].
+
+    Args:
+        state: the current state.
+        params: the env parameters.
+
+    Returns:
+        ``(num_leaves, len(PORT_FEATURES))`` float32, ports then batteries.
+    """
     st = params.station
     rate_kw = physics.rate_curve_kw(state.soc, state.max_rate_kw, state.tau)
     signed_max = jnp.where(
@@ -64,7 +78,15 @@ def leaf_features(state: EnvState, params: EnvParams) -> jnp.ndarray:
 def root_load(state: EnvState, params: EnvParams) -> jnp.ndarray:
     """The station's net draw at the grid connection from the currents in ``state`` (each
     leaf's ``V * I`` over its path efficiency when charging, times it when feeding in) as a
-    fraction of the connection's limit: 1 = the grid connection binds, negative = feed-in."""
+    fraction of the connection's limit: 1 = the grid connection binds, negative = feed-in.
+
+    Args:
+        state: the current state.
+        params: the env parameters.
+
+    Returns:
+        ``()`` the net draw (kW) over the root node's limit ``node_max_kw[0]`` (kW).
+    """
     st = params.station
     return (
         jnp.sum(physics.path_grid_side(state.current_a * st.leaf_voltage_v / 1000.0, st))
@@ -81,7 +103,19 @@ def context_features(state: EnvState, params: EnvParams) -> jnp.ndarray:
     changes, the price quantiles of the episode's 24 hours (`PRICE_QUANTILES`), the grid
     connection's load
     (`root_load`), the day's peak draw so far over the connection's limit, and MOER now
-    when ``params.observe_moer``."""
+    when ``params.observe_moer``.
+
+    Prices are divided by `PRICE_SCALE_EUR_KWH`, MOER by `MOER_SCALE_KG_KWH`; the day is
+    divided by ``num_days - 1`` (at least 1). `context_parts` names the parts and their
+    widths.
+
+    Args:
+        state: the current state.
+        params: the env parameters.
+
+    Returns:
+        ``(context_size(params),)`` float32.
+    """
     ahead = jnp.arange(params.price_horizon_hours + 1)  # one gather per table, not one per hour
     prices = day_ahead_price(state.day, state.timestep, params, ahead) + tou_fee(
         state.timestep, params, ahead
@@ -109,7 +143,20 @@ def context_features(state: EnvState, params: EnvParams) -> jnp.ndarray:
 
 
 def obs_dict(state: EnvState, params: EnvParams) -> dict:
-    """Named parts of the single-agent observation: ``ports (P, 8)``, ``batteries (B, 2)``, ``context``."""
+    """Named parts of the single-agent observation: ports, batteries and context.
+
+    ``ports`` is `leaf_features` of the ports, ``(P, len(PORT_FEATURES))``; ``batteries``
+    the ``soc`` and ``current`` features of the batteries, ``(B, 2)``
+    (`BATTERY_FEATURES`); ``context`` is `context_features`.
+
+    Args:
+        state: the current state.
+        params: the env parameters.
+
+    Returns:
+        ``{"ports": (P, 8), "batteries": (B, 2), "context": (context_size(params),)}``,
+        float32 arrays.
+    """
     feats = leaf_features(state, params)
     n = params.station.num_ports
     soc_i, cur_i = PORT_FEATURES.index("soc"), PORT_FEATURES.index("current")
@@ -121,7 +168,17 @@ def obs_dict(state: EnvState, params: EnvParams) -> dict:
 
 
 def flat_obs(state: EnvState, params: EnvParams) -> jnp.ndarray:
-    """The single-agent observation: ports, then batteries, then context, as one float32 vector."""
+    """The single-agent observation: ports, then batteries, then context, as one float32 vector.
+
+    The parts of `obs_dict`, each flattened row by row (a port's features together).
+
+    Args:
+        state: the current state.
+        params: the env parameters.
+
+    Returns:
+        ``(obs_size(params),)`` float32.
+    """
     parts = obs_dict(state, params)
     return jnp.concatenate(
         [parts["ports"].reshape(-1), parts["batteries"].reshape(-1), parts["context"]]
@@ -129,7 +186,18 @@ def flat_obs(state: EnvState, params: EnvParams) -> jnp.ndarray:
 
 
 def context_parts(params: EnvParams) -> tuple[tuple[str, int], ...]:
-    """``(name, width)`` of each part of `context_features`, in order."""
+    """``(name, width)`` of each part of `context_features`, in order.
+
+    Args:
+        params: the env parameters (``price_horizon_hours`` and ``observe_moer`` set
+            widths).
+
+    Returns:
+        The parts ``prices`` (``price_horizon_hours + 1``), ``customer_price``,
+        ``time_of_day`` (2), ``workday``, ``day``, ``hour_left``, ``price_quantiles``
+        (``len(PRICE_QUANTILES)``), ``grid_load``, ``peak_so_far`` and ``moer`` (1 when
+        ``observe_moer``, else 0); the others have width 1.
+    """
     return (
         ("prices", int(params.price_horizon_hours) + 1),
         ("customer_price", 1),
@@ -145,12 +213,31 @@ def context_parts(params: EnvParams) -> tuple[tuple[str, int], ...]:
 
 
 def context_size(params: EnvParams) -> int:
-    """Length of `context_features`."""
+    """Length of `context_features`.
+
+    Args:
+        params: the env parameters.
+
+    Returns:
+        The sum of the widths of `context_parts`.
+    """
     return sum(width for _, width in context_parts(params))
 
 
 def context_index(params: EnvParams, name: str) -> int:
-    """Where part ``name`` of `context_parts` starts inside the context."""
+    """Where part ``name`` of `context_parts` starts inside the context.
+
+    Args:
+        params: the env parameters.
+        name: a part's name (see `context_parts`).
+
+    Returns:
+        The index of the part's first entry in `context_features`. A part of width 0
+        (``moer`` without ``observe_moer``) gets the index where it would start.
+
+    Raises:
+        ValueError: ``name`` is not a part of `context_parts`.
+    """
     start = 0
     for part, width in context_parts(params):
         if part == name:
@@ -160,6 +247,15 @@ def context_index(params: EnvParams, name: str) -> int:
 
 
 def obs_size(params: EnvParams) -> int:
+    """Length of the single-agent observation `flat_obs`.
+
+    Args:
+        params: the env parameters.
+
+    Returns:
+        ``num_ports * len(PORT_FEATURES) + num_batteries * len(BATTERY_FEATURES)`` plus
+        `context_size`.
+    """
     st = params.station
     context = context_size(params)
     return st.num_ports * len(PORT_FEATURES) + st.num_batteries * len(BATTERY_FEATURES) + context
