@@ -226,7 +226,20 @@ def _battery_wear(
 
 
 def resample_day(weights_5min: np.ndarray, num_steps: int) -> np.ndarray:
-    """Resample per-5-minute weights (..., 288) to ``num_steps`` steps, preserving each day's sum."""
+    """Resample per-5-minute weights (..., 288) to ``num_steps`` steps, preserving each day's sum.
+
+    The cumulative sum over the day is interpolated linearly at the new step edges, so a
+    step that covers part of a source slot gets that part of its weight. Any number of
+    source slots works (the last axis).
+
+    Args:
+        weights_5min: ``(..., S)`` weights per source slot, ``S`` slots a day (288 for 5
+            minutes).
+        num_steps: the steps per day to resample to.
+
+    Returns:
+        ``(..., num_steps)`` float64; the input (as float64) when ``S == num_steps``.
+    """
     w = np.asarray(weights_5min, dtype=np.float64)
     if w.shape[-1] == num_steps:
         return w
@@ -262,7 +275,20 @@ def _battery_initial_soc(value: Any, station: StationArrays) -> tuple[np.ndarray
 
 def penalty_weights(alpha: PenaltyWeights | dict | None) -> PenaltyWeights:
     """Validated weights: every term finite with ``|alpha_c| <= checks.MAX_WEIGHT``, whether
-    given as a dict or a `PenaltyWeights`."""
+    given as a dict or a `PenaltyWeights`.
+
+    Args:
+        alpha: the weights: ``None`` (all 0), a `PenaltyWeights`, or a dict
+            ``{term: weight}`` over names of `PENALTY_TERMS` (terms left out are 0).
+
+    Returns:
+        The weights as a `PenaltyWeights` of Python floats.
+
+    Raises:
+        KeyError: a dict names a term not in `PENALTY_TERMS`.
+        ValueError: ``alpha`` is of another type, or a weight is not a finite number in
+            ``[-MAX_WEIGHT, MAX_WEIGHT]`` (see `chargax_marl.core.checks.number`).
+    """
     if alpha is None:
         return PenaltyWeights()
     if isinstance(alpha, PenaltyWeights):
