@@ -51,6 +51,17 @@ class PriceData:
     ``d`` has weekday ``(first_weekday + d) % 7``. ``first_date`` (ISO date) is the date of
     day 0 where the data knows it (the bundled datasets), else None; ``country`` the ISO
     code of the market's country where known.
+
+    `load_prices` validates the prices and makes the array read-only; the constructor
+    itself checks nothing.
+
+    Attributes:
+        name: the dataset's name (``"custom"`` for an array, the file name without its
+            suffix for a CSV).
+        prices_eur_kwh: ``(days, 24)`` float32 day-ahead price per local hour (EUR/kWh).
+        first_weekday: the weekday of day 0 (0 = Monday ... 6 = Sunday).
+        first_date: the ISO date (``YYYY-MM-DD``) of day 0, or ``None`` where unknown.
+        country: the market's country code (e.g. ``"NL"``), or ``None`` where unknown.
     """
 
     name: str
@@ -65,7 +76,11 @@ class PriceData:
 
 
 def list_price_datasets() -> list[str]:
-    """Names accepted by `load_prices`."""
+    """Names accepted by `load_prices`.
+
+    Returns:
+        The bundled datasets' names (`PRICE_DATASETS`), a new list.
+    """
     return list(PRICE_DATASETS)
 
 
@@ -92,6 +107,27 @@ def load_prices(source: Any = "NL-2023", *, first_weekday: int | None = None) ->
     ``(24,)``, or a path to a CSV in EUR/MWh (see `read_prices_csv`).
     ``first_weekday`` (0 = Monday) overrides the weekday of day 0; the default
     is the dataset's own (a CSV: the weekday of its first date; an array: 0).
+
+    Args:
+        source: a bundled dataset name, a `PriceData` (validated again), an array of
+            EUR/kWh (anything with ``__array__``, a list or a tuple), or a CSV path (a
+            string ending in ``.csv``, containing a path separator or naming a file, or an
+            `os.PathLike`).
+        first_weekday: the weekday of day 0 (0 = Monday ... 6 = Sunday), or ``None`` for
+            the data's own. A weekday other than the data's own drops ``first_date``.
+
+    Returns:
+        The prices; bundled datasets are read once and cached. Prices from an array or a
+        CSV have no ``first_date`` and no ``country``.
+
+    Raises:
+        KeyError: ``source`` is a string that is neither a dataset name nor looks like a
+            path.
+        ValueError: ``source`` is of another type; the prices are not of shape ``(days, 24)``
+            or ``(24,)``, are empty, not finite or beyond +-``checks.MAX_PRICE_EUR_KWH``; the
+            CSV is invalid; or ``first_weekday`` is not an integer in 0..6.
+        FileNotFoundError: the CSV path is not a file.
+        RuntimeError: a bundled price file disagrees with its index.
     """
     if isinstance(source, PriceData):
         data = PriceData(
@@ -155,13 +191,42 @@ def read_prices_csv(path: str | os.PathLike) -> tuple[np.ndarray, int]:
       day needs all 24 hours, except that one missing hour per day (the spring
       DST gap) is filled by linear interpolation and repeated hours (the autumn
       DST repeat) are averaged. Days must be consecutive.
+
+    Args:
+        path: the CSV file (UTF-8).
+
+    Returns:
+        ``(prices_eur_kwh, first_weekday)``: ``(days, 24)`` float32 prices by local hour
+        (EUR/kWh), and the weekday of the first date (0 = Monday).
+
+    Raises:
+        FileNotFoundError: ``path`` is not a file.
+        ValueError: the file is not UTF-8 text, or its content is invalid (see
+            `parse_prices_csv_text`).
     """
     text = _read_text(path)
     return parse_prices_csv_text(text, source=str(path))
 
 
 def parse_prices_csv_text(text: str, source: str = "<csv>") -> tuple[np.ndarray, int]:
-    """As `read_prices_csv`, for CSV text."""
+    """As `read_prices_csv`, for CSV text.
+
+    Args:
+        text: the CSV text, in either layout of `read_prices_csv` (prices in EUR/MWh).
+        source: where the text comes from, for error messages.
+
+    Returns:
+        ``(prices_eur_kwh, first_weekday)``: ``(days, 24)`` float32 prices (EUR/kWh), and
+        the weekday of the first date (0 = Monday).
+
+    Raises:
+        ValueError: the text is empty or has no data rows; its header is neither layout's;
+            a row has the wrong number of fields, a date, timestamp or price does not
+            parse or is not finite; a timestamp has a UTC offset or is not on the hour;
+            days are not consecutive; a day (long layout) lacks more than one hour or
+            repeats more than one hour, or one hour more than twice; or a price is beyond
+            +-``checks.MAX_PRICE_EUR_KWH`` EUR/kWh.
+    """
     rows = _data_rows(text)
     if not rows:
         raise ValueError(
@@ -292,10 +357,11 @@ def parse_day_ahead_csv(
 ) -> dict[int, np.ndarray]:
     """Parse a raw day-ahead price export into per-year ``(days, 24)`` arrays by local hour.
 
-    The input has (at least) a UTC timestamp column (header containing
-    "datetime" and "utc") and a price column (header containing "price", in
-    EUR/MWh). Timestamps are ISO ``YYYY-MM-DD HH:MM[:SS]`` or ``dd/mm/yyyy
-    HH:MM`` (day-first vs month-first is decided from the data). Steps:
+    The input has (at least) a UTC timestamp column (the first whose header
+    contains "utc") and a price column (the first whose header contains
+    "price", in EUR/MWh). Timestamps are ISO ``YYYY-MM-DD HH:MM[:SS]`` or
+    ``dd/mm/yyyy HH:MM`` (day-first vs month-first is decided from the data).
+    Steps:
 
     1. rows with a wrong field count, an empty/unparseable/non-hourly timestamp
        or a non-finite price are skipped and reported as malformed;
@@ -312,6 +378,26 @@ def parse_day_ahead_csv(
     (``unit="eur_mwh"``). If ``stats`` is a dict it receives counts and, per
     year, ``first_date``, ``days``, ``dst_gap_filled``, ``dst_repeat_averaged``
     and ``interpolated`` (other missing hours).
+
+    Args:
+        text: the CSV text (a leading BOM and leading blank lines are skipped).
+        timezone: the IANA time zone of the market's local hours.
+        unit: ``"eur_kwh"`` or ``"eur_mwh"``, the unit of the returned arrays.
+        stats: a dict to update, or ``None``. Its keys: ``rows`` (non-blank data rows),
+            ``hours`` (distinct UTC hours kept), ``duplicates``, ``conflicting_duplicates``,
+            ``malformed``, ``malformed_rows`` (``(line number, reason)`` pairs),
+            ``slash_dates_day_first`` and ``years`` (``{year: {"first_date",
+            "first_weekday", "days", "dst_gap_filled", "dst_repeat_averaged",
+            "interpolated"}}``).
+
+    Returns:
+        ``{year: (days, 24) array}``, empty when no row is usable.
+
+    Raises:
+        ValueError: ``unit`` is not one of the two; the input is empty; no header contains
+            "utc" or "price"; or slash dates need day-first in some rows and month-first
+            in others.
+        zoneinfo.ZoneInfoNotFoundError: ``timezone`` is not a known time zone.
     """
     if unit not in ("eur_kwh", "eur_mwh"):
         raise ValueError(f"unit: expected 'eur_kwh' or 'eur_mwh', got {unit!r}")
