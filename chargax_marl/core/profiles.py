@@ -39,7 +39,20 @@ from chargax_marl.core.data_io import (
 
 
 def traffic_cars_per_day(traffic: str | float) -> float:
-    """Mean number of arriving cars per day: a level name or a positive number."""
+    """Mean number of arriving cars per day: a level name or a positive number.
+
+    Args:
+        traffic: a level of `TRAFFIC_LEVELS` (``"low"``, ``"medium"``, ``"high"``) or a
+            number of cars per day in ``(0, checks.MAX_CARS_PER_DAY]``.
+
+    Returns:
+        The cars per day as a float.
+
+    Raises:
+        KeyError: ``traffic`` is a string that is not a level's name.
+        ValueError: ``traffic`` is a bool or not a real number, not finite, <= 0, or above
+            ``checks.MAX_CARS_PER_DAY``.
+    """
     if isinstance(traffic, str):
         if traffic not in TRAFFIC_LEVELS:
             raise KeyError(
@@ -89,6 +102,32 @@ class UserProfileData:
     weekday relative to its day type's (mean 1 over Monday-Friday and over the weekend).
     ``stay_demand_corr``: the correlation of the Gaussian copula that joins a car's stay
     and its energy draws (0: independent; in (-1, 1)).
+
+    Build it with `make_user_profile` (or `load_user_profile`), which validates the fields
+    and makes the arrays read-only; the constructor itself checks nothing.
+
+    Attributes:
+        name: the profile's name.
+        arrival_weights: ``(2, 288)`` float32 share of a day's arrivals per 5-minute slot;
+            row 0 workday, row 1 weekend, each summing to 1.
+        weekend_volume_factor: the weekend daily volume over the workday volume.
+        stay_quantiles_min: ``(101,)`` or ``(24, 101)`` float32 inverse CDF of the planned
+            stay (minutes), for all arrival hours or per arrival hour.
+        stay_scale_by_hour: ``(24,)`` float32 multiplier of a stay by arrival hour.
+        demand_quantiles_kwh: ``(101,)`` or ``(24, 101)`` float32 inverse CDF of the energy
+            the car takes (kWh).
+        demand_scale_by_hour: ``(24,)`` float32 multiplier of a demand by arrival hour.
+        arrival_soc_range: ``(lo, hi)`` bounds of the uniform arrival SoC.
+        charge_sensitive_prob: P(u = 1) at AC ports, in [0, 1].
+        dc_charge_sensitive_prob: P(u = 1) at DC ports, or ``None`` for
+            ``charge_sensitive_prob`` (see the property ``dc_charge_sensitive``).
+        request_ratio_quantiles: ``(101,)`` float32 inverse CDF of taken over requested
+            energy, in (0, 1]; ``None``: all ones (see ``request_ratios``).
+        daily_volume_cv: coefficient of variation of a day's arrival intensity, in
+            ``[0, MAX_VOLUME_CV]``.
+        weekday_volume_factors: ``(7,)`` float32 volume of each weekday, Monday first;
+            ``None``: all ones (see ``weekday_factors``).
+        stay_demand_corr: the copula correlation of stay and demand, in (-1, 1).
     """
 
     name: str
@@ -480,7 +519,11 @@ def _v2_profiles_json() -> dict[str, Any]:
 
 
 def list_user_profiles() -> list[str]:
-    """Names accepted by `load_user_profile` (the paper's four plus the US ACN-Data profiles)."""
+    """Names accepted by `load_user_profile` (the paper's four plus the US ACN-Data profiles).
+
+    Returns:
+        The bundled profiles' names (`ALL_USER_PROFILES`), a new list.
+    """
     return list(ALL_USER_PROFILES)
 
 
@@ -495,7 +538,25 @@ def _load_bundled_profile(name: str, session_model: str = "v2") -> UserProfileDa
 
 def profile_from_dict(name: str, p: dict) -> UserProfileData:
     """A validated profile from one entry of the bundled profile JSON (the runtime loader and
-    ``scripts/build_data.py`` share it, so the data is checked the same way on both sides)."""
+    ``scripts/build_data.py`` share it, so the data is checked the same way on both sides).
+
+    Args:
+        name: the profile's name.
+        p: the entry: ``arrival_weights_workday``, ``arrival_weights_weekend``,
+            ``stay_quantiles_min``, ``demand_quantiles_kwh``, ``weekend_volume_factor``,
+            ``stay_scale_by_hour``, ``demand_scale_by_hour``, ``arrival_soc_range`` and
+            ``charge_sensitive_prob``, and optionally ``dc_charge_sensitive_prob``,
+            ``request_ratio_quantiles``, ``daily_volume_cv``, ``weekday_volume_factors``
+            and ``stay_demand_corr`` (the arguments of `make_user_profile`); other keys are
+            ignored.
+
+    Returns:
+        The validated profile.
+
+    Raises:
+        KeyError: ``p`` lacks a required key.
+        ValueError: a value fails `make_user_profile`'s checks.
+    """
     return make_user_profile(
         name,
         [p["arrival_weights_workday"], p["arrival_weights_weekend"]],
