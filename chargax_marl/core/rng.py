@@ -42,7 +42,14 @@ VOLUME = 3
 
 
 def fmix32(x: jnp.ndarray) -> jnp.ndarray:
-    """MurmurHash3's 32-bit finaliser (a bijection of uint32 with full avalanche)."""
+    """MurmurHash3's 32-bit finaliser (a bijection of uint32 with full avalanche).
+
+    Args:
+        x: uint32 words, any shape.
+
+    Returns:
+        The hashed uint32 words, shaped as ``x``.
+    """
     x = x ^ (x >> 16)
     x = x * _M1
     x = x ^ (x >> 13)
@@ -55,6 +62,13 @@ def key_seed(key: jax.Array) -> jnp.ndarray:
 
     Accepts typed keys (``jax.random.key``, any implementation) and raw ``uint32`` key arrays
     (``jax.random.PRNGKey``). Keys that differ in any bit give unrelated seeds.
+
+    Args:
+        key: one key, typed or raw (its words are flattened; the number of words is
+            static).
+
+    Returns:
+        ``(2,)`` uint32, the seed words.
     """
     words = jax.random.key_data(key) if _is_typed(key) else jnp.asarray(key)
     words = jnp.reshape(words, (-1,)).astype(jnp.uint32)
@@ -71,7 +85,19 @@ def _is_typed(key) -> bool:
 
 
 def bits(seed: jnp.ndarray, stream: int, shape: tuple[int, ...]) -> jnp.ndarray:
-    """``shape`` uint32 words of ``stream`` from ``seed`` (see `key_seed`)."""
+    """``shape`` uint32 words of ``stream`` from ``seed`` (see `key_seed`).
+
+    Word ``i`` (in row-major order) hashes the counter ``i`` offset by the stream, keyed by
+    both seed words; the same ``(seed, stream, i)`` always gives the same word.
+
+    Args:
+        seed: ``(2,)`` uint32, from `key_seed`.
+        stream: the stream id (`ARRIVALS`, `RESET`, `VOLUME`).
+        shape: the static shape of the result.
+
+    Returns:
+        uint32 words of shape ``shape``.
+    """
     n = int(np.prod(shape, dtype=np.int64))
     counter = jnp.arange(n, dtype=jnp.uint32) + np.uint32((stream * int(_STREAM)) & 0xFFFFFFFF)
     x = fmix32(counter * _GOLDEN + seed[1])
@@ -88,6 +114,16 @@ def materialize(x: jnp.ndarray) -> jnp.ndarray:
     cannot fold (``1 + 0 * x``; ``0 * x`` is not simplified for floats) keeps the value exact
     and makes XLA compute it once and store it. (``jax.lax.optimization_barrier`` does not
     help: the CPU compiler removes it before fusion.)
+
+    The value passes through float32, so it comes back unchanged for bools, finite float32
+    and integers of magnitude up to ``2**24``: the values the simulator passes (+-inf
+    becomes NaN, ``0 * inf`` being NaN).
+
+    Args:
+        x: a bool, integer or float array.
+
+    Returns:
+        ``x``'s values, its shape and dtype.
     """
     xf = x.astype(jnp.float32)
     out = xf / (1.0 + 0.0 * xf)
@@ -95,7 +131,16 @@ def materialize(x: jnp.ndarray) -> jnp.ndarray:
 
 
 def uniform(seed: jnp.ndarray, stream: int, shape: tuple[int, ...]) -> jnp.ndarray:
-    """Float32 uniforms in ``[0, 1)`` (24 random bits each), computed once (`materialize`)."""
+    """Float32 uniforms in ``[0, 1)`` (24 random bits each), computed once (`materialize`).
+
+    Args:
+        seed: ``(2,)`` uint32, from `key_seed`.
+        stream: the stream id (`ARRIVALS`, `RESET`, `VOLUME`).
+        shape: the static shape of the result.
+
+    Returns:
+        float32 of shape ``shape``, multiples of ``2**-24`` in ``[0, 1)``.
+    """
     return materialize((bits(seed, stream, shape) >> 8).astype(jnp.float32) * np.float32(2.0**-24))
 
 
@@ -112,6 +157,14 @@ def poisson(u: jnp.ndarray, rate: jnp.ndarray) -> jnp.ndarray:
     `POISSON_EXACT_MAX_RATE` (the truncated tail is below 1e-8); above it, the normal
     approximation ``round(rate + sqrt(rate) z)`` with ``z`` from the same uniform (the rates
     of the bundled scenarios are at most about 6.5 cars per step).
+
+    Args:
+        u: uniforms in ``[0, 1)``.
+        rate: the expected counts (negative rates count as 0); broadcasts with ``u``.
+
+    Returns:
+        int32 counts (>= 0; at most `POISSON_TERMS` below the normal approximation's
+        range), shaped as the broadcast of ``u`` and ``rate``.
     """
     rate = jnp.maximum(jnp.asarray(rate, jnp.float32), 0.0)
     term = jnp.exp(-jnp.minimum(rate, POISSON_EXACT_MAX_RATE))

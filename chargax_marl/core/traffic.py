@@ -47,7 +47,8 @@ def depart(state: EnvState, params: EnvParams):
     they reach their target SoC (remaining demand at most ``charged_tolerance_kwh``).
 
     Returns ``(new_state, report)`` with ``report`` holding ``departed`` (count),
-    ``missing_kwh`` (unmet demand of time-sensitive leavers, against their target SoC:
+    ``missing_kwh`` (unmet request of time-sensitive leavers, `unmet_request_kwh`: the
+    energy to their target SoC plus what their users asked for beyond it;
     c_satisfaction,0), ``overtime_min`` (minutes of this step that parked charge-sensitive
     cars spent beyond their planned stay), ``undertime_min`` and ``satisfaction_charge`` =
     overtime - beta * undertime (c_satisfaction,1), plus the per-leaf ``leaf_missing_kwh``
@@ -67,6 +68,16 @@ def depart(state: EnvState, params: EnvParams):
     stay, that the car stayed beyond that earliest finish (0 when it left as early as it
     could). So with ``beta > 0`` every avoidable minute costs ``beta`` up to the planned
     departure and ``1`` after it. ``beta`` is 0 by default (the term is then the overtime).
+
+    Args:
+        state: the state after charging (`chargax_marl.core.physics.charge`).
+        params: the environment parameters (``charged_tolerance_kwh``, ``beta``, the step
+            length).
+
+    Returns:
+        ``(new_state, report)``: the state with the leaving cars' ports emptied (their car
+        fields 0, not occupied), and the report above, its counts and sums ``()`` float32
+        (kWh, minutes) and its ``leaf_*`` entries ``(L,)``.
     """
     is_port = params.station.leaf_kind != KIND_BATTERY
     active = state.occupied & is_port
@@ -117,13 +128,27 @@ def depart(state: EnvState, params: EnvParams):
 
 def requested_kwh(state: EnvState) -> jnp.ndarray:
     """Each leaf's request, ``(L,)`` kWh: the energy the car takes, ``capacity * (target_soc -
-    arrival_soc)``, plus what its user asked for beyond that (``request_extra_kwh``)."""
+    arrival_soc)``, plus what its user asked for beyond that (``request_extra_kwh``).
+
+    Args:
+        state: the state.
+
+    Returns:
+        ``(L,)`` kWh (0 at free ports, whose car fields are 0).
+    """
     return state.capacity_kwh * (state.target_soc - state.arrival_soc) + state.request_extra_kwh
 
 
 def unmet_request_kwh(state: EnvState) -> jnp.ndarray:
     """Each leaf's energy still missing from its user's request, ``(L,)`` kWh: the energy the
-    car still takes plus what its user asked for beyond that (``request_extra_kwh``)."""
+    car still takes plus what its user asked for beyond that (``request_extra_kwh``).
+
+    Args:
+        state: the state.
+
+    Returns:
+        ``(L,)`` kWh, ``max(energy_remaining_kwh, 0) + request_extra_kwh``.
+    """
     return jnp.maximum(state.energy_remaining_kwh, 0.0) + state.request_extra_kwh
 
 
@@ -131,8 +156,15 @@ def satisfaction(state: EnvState, params: EnvParams) -> jnp.ndarray:
     """Each parked car's satisfaction if it left now, ``(L,)`` (0 where no car is parked).
 
     The energy delivered over the energy its user requested: ``1 - unmet / requested``
-    (`unmet_request_kwh`, `requested_kwh`), clipped to ``[0, 1]``; 1 when the unmet request is within
-    ``charged_tolerance_kwh`` (or the request was no more than that).
+    (`unmet_request_kwh`, `requested_kwh`), clipped to ``[0, 1]``; 1 when the unmet request
+    is within ``charged_tolerance_kwh`` (or the request was no more than that).
+
+    Args:
+        state: the state.
+        params: the environment parameters (``charged_tolerance_kwh``).
+
+    Returns:
+        ``(L,)`` in ``[0, 1]``; 0 at free ports and at batteries.
     """
     is_car = state.occupied & (params.station.leaf_kind != KIND_BATTERY)
     remaining = unmet_request_kwh(state)
@@ -152,6 +184,21 @@ def earliest_finish_min(
     to SoC 1). Rounded up to whole steps, at least one step (a car leaves at the earliest
     after one charging step). The simulator charges at the rate of the start of each step,
     which is never slower than this bound.
+
+    The arguments are per car and broadcast against each other.
+
+    Args:
+        soc0: the arrival SoC.
+        target_soc: the SoC the car charges to.
+        capacity_kwh: the car's battery capacity (kWh).
+        max_rate_kw: r-bar, the car's charging limit at its port's kind (kW).
+        tau: the SoC where the car's taper starts.
+        solo_max_kw: the most power the port can take alone on its path
+            (``StationArrays.leaf_solo_max_kw``, kW).
+        params: the environment parameters (``charged_tolerance_kwh``, ``step_minutes``).
+
+    Returns:
+        Minutes, a whole number of steps of ``step_minutes``, at least one step.
     """
     cap = jnp.maximum(capacity_kwh, 1e-6)
     rbar = jnp.maximum(max_rate_kw, 1e-6)
@@ -199,7 +246,17 @@ def arrival_rate(timestep: jnp.ndarray, is_workday: jnp.ndarray, params: EnvPara
     """Expected number of arrivals in this step on a day of volume factor 1 (the Poisson
     draw's rate is this times the day's `day_volume`): the rate of the step's slot of its
     calendar day (`chargax_marl.core.clock.slot_of_day`), for the day type ``is_workday`` of
-    that calendar day (`chargax_marl.core.clock.is_workday`)."""
+    that calendar day (`chargax_marl.core.clock.is_workday`).
+
+    Args:
+        timestep: the step of the episode (int).
+        is_workday: bool, the day type (row 0 of ``arrival_rate`` when true, row 1 else).
+        params: the environment parameters (``arrival_rate``).
+
+    Returns:
+        Expected arrivals in the step, shaped as the broadcast of ``timestep`` and
+        ``is_workday``.
+    """
     return params.arrival_rate[jnp.where(is_workday, 0, 1), clock.slot_of_day(timestep, params)]
 
 
@@ -243,6 +300,23 @@ class Arrivals:
     the same whatever the policy does (only which of them find a free port differs): this is
     what makes a day replayable (`chargax_marl.trace`). Fields over slots have shape
     ``(num_ports,)``; rates are given for both port kinds because the port is chosen later.
+
+    Attributes:
+        requested: ``()`` int32, cars asking to park this step (the surplus is rejected).
+        model: ``(P,)`` int32 index of each car's model into the fleet.
+        capacity_kwh: ``(P,)`` battery capacity (kWh).
+        ac_kw: ``(P,)`` r-bar at an AC port (kW).
+        dc_kw: ``(P,)`` r-bar at a DC port (kW).
+        ac_discharge_kw: ``(P,)`` discharge limit at an AC port (kW).
+        dc_discharge_kw: ``(P,)`` discharge limit at a DC port (kW).
+        tau: ``(P,)`` SoC where the charge rate starts to taper.
+        arrival_soc: ``(P,)`` SoC at arrival.
+        target_soc: ``(P,)`` arrival SoC + demand / capacity (<= 1).
+        stay_min: ``(P,)`` planned stay (minutes, at least one step).
+        charge_sensitive: ``(P,)`` bool, u = 1 at an AC port.
+        charge_sensitive_dc: ``(P,)`` bool, u = 1 at a DC port.
+        request_ratio: ``(P,)`` energy taken over energy requested, in (0, 1].
+        port_draw: ``()`` uniform in [0, 1): the rotation of the free ports' order.
     """
 
     requested: jnp.ndarray  # () int32, cars asking to park this step (the surplus is rejected)
@@ -260,6 +334,19 @@ class Arrivals:
     charge_sensitive_dc: jnp.ndarray  # (P,) bool, u = 1 at a DC port
     request_ratio: jnp.ndarray  # (P,) energy taken / energy requested, in (0, 1]
     port_draw: jnp.ndarray  # () uniform: the rotation of the free ports' order
+
+
+Arrivals.replace.__doc__ = """A copy with the given fields replaced (flax's ``replace``; unchecked).
+
+Args:
+    **updates: the new values, by field name.
+
+Returns:
+    A new `Arrivals`; ``self`` is unchanged.
+
+Raises:
+    TypeError: a name that is not a field.
+"""
 
 
 SLOT_FIELDS = (
@@ -365,6 +452,21 @@ def place_arrivals(state: EnvState, arrivals: Arrivals, params: EnvParams):
 
     Returns ``(new_state, report)`` with ``arrived``, ``rejected`` and ``requested`` counts
     and ``leaf_arrived`` (L,) bool, the ports that received a car.
+
+    With ``params.random_port_choice`` the free ports' order is rotated by
+    ``arrivals.port_draw`` (see `Arrivals`). A parked car starts at current 0 with its
+    planned stay, its demand ``(target_soc - arrival_soc) * capacity`` as the energy it
+    still wants, the rates of its port's kind, its user type at that kind, and its slack
+    (planned stay minus `earliest_finish_min`).
+
+    Args:
+        state: the state after departures.
+        arrivals: the step's cars (`draw_arrivals`).
+        params: the environment parameters.
+
+    Returns:
+        ``(new_state, report)``: the state with the new cars parked, and the report, its
+        counts ``()`` float32.
     """
     st = params.station
     is_port = st.leaf_kind != KIND_BATTERY
@@ -427,7 +529,18 @@ def place_arrivals(state: EnvState, arrivals: Arrivals, params: EnvParams):
 
 def arrive(key: jax.Array, state: EnvState, params: EnvParams):
     """Step 4: draw the step's cars (`draw_arrivals`) and park them
-    (`place_arrivals`). ``state.timestep`` is the step in which the cars arrive."""
+    (`place_arrivals`). ``state.timestep`` is the step in which the cars arrive.
+
+    The day type is ``state.is_workday`` and the volume ``state.day_volume``.
+
+    Args:
+        key: the step's key.
+        state: the state after departures.
+        params: the environment parameters.
+
+    Returns:
+        ``(new_state, report)`` of `place_arrivals`.
+    """
     return place_arrivals(
         state,
         draw_arrivals(key, state.timestep, state.is_workday, params, state.day_volume),
