@@ -336,7 +336,7 @@ class Arrivals:
     port_draw: jnp.ndarray  # () uniform: the rotation of the free ports' order
 
 
-Arrivals.replace.__doc__ = """A copy with the given fields replaced (flax's ``replace``; unchecked).
+Arrivals.replace.__doc__ = """A copy with the given fields replaced; nothing is checked.
 
 Args:
     **updates: the new values, by field name.

@@ -39,7 +39,8 @@ class PenaltyWeights:
     Attributes:
         constraint: kW over the limit on the grid side (max over nodes; in hard mode the
             excess that flows after the rescale, so 0).
-        satisfaction_time: kWh missing at departure (against the car's target SoC).
+        satisfaction_time: kWh missing at departure (against the user's request, the
+            energy to the car's target SoC plus what the user asked for beyond it).
         satisfaction_charge: minutes (overtime minus beta * undertime, undertime measured
             against the earliest finish; see `chargax_marl.core.traffic.depart`).
         sustainability: kg CO2 (MOER kg/kWh * grid kWh).
@@ -57,6 +58,19 @@ class PenaltyWeights:
     battery_degradation: float = 0.0
     car_degradation: float = 0.0
     grid_demand: float = 0.0
+
+
+PenaltyWeights.replace.__doc__ = """A copy with the given fields replaced; nothing is checked.
+
+Args:
+    **updates: the new values, by field name.
+
+Returns:
+    A new `PenaltyWeights`; ``self`` is unchanged.
+
+Raises:
+    TypeError: a name that is not a field.
+"""
 
 
 @struct.dataclass
@@ -227,6 +241,21 @@ class EnvParams:
         return self.step_minutes / 60.0
 
 
+EnvParams.replace.__doc__ = """A copy with the given fields replaced; nothing is checked.
+
+Nothing is validated: derive params with `chargax_marl.core.params.validated_replace`.
+
+Args:
+    **updates: the new values, by field name.
+
+Returns:
+    A new `EnvParams`; ``self`` is unchanged.
+
+Raises:
+    TypeError: a name that is not a field.
+"""
+
+
 @struct.dataclass
 class EpisodeTotals:
     """Running totals of the episode (reset with the state). Energies in kWh, money in EUR.
@@ -299,6 +328,19 @@ class EpisodeTotals:
         return cls(**{f: z for f in cls.__dataclass_fields__})
 
 
+EpisodeTotals.replace.__doc__ = """A copy with the given fields replaced; nothing is checked.
+
+Args:
+    **updates: the new values, by field name.
+
+Returns:
+    A new `EpisodeTotals`; ``self`` is unchanged.
+
+Raises:
+    TypeError: a name that is not a field.
+"""
+
+
 @struct.dataclass
 class EnvState:
     """The station state. Per-leaf fields have shape ``(L,)``: ports, then batteries.
@@ -359,6 +401,19 @@ class EnvState:
     def time(self) -> jnp.ndarray:
         """gymnax's name for the step counter."""
         return self.timestep
+
+
+EnvState.replace.__doc__ = """A copy with the given fields replaced; nothing is checked.
+
+Args:
+    **updates: the new values, by field name.
+
+Returns:
+    A new `EnvState`; ``self`` is unchanged.
+
+Raises:
+    TypeError: a name that is not a field.
+"""
 
 
 @struct.dataclass
@@ -426,3 +481,16 @@ class StepInfo:
     leaf_energy_kwh: jnp.ndarray
     leaf_arrived: jnp.ndarray
     leaf_reward: jnp.ndarray
+
+
+StepInfo.replace.__doc__ = """A copy with the given fields replaced; nothing is checked.
+
+Args:
+    **updates: the new values, by field name.
+
+Returns:
+    A new `StepInfo`; ``self`` is unchanged.
+
+Raises:
+    TypeError: a name that is not a field.
+"""
