@@ -45,6 +45,16 @@ class MoerData:
     Columns are equal slots of the *local* day (288 = 5 minutes for the bundled
     data). ``first_weekday`` is the weekday of day 0 (0 = Monday); ``year`` the
     calendar year of the data (``None`` for custom data).
+
+    `load_moer` validates the rates and makes the array read-only; the constructor itself
+    checks nothing.
+
+    Attributes:
+        name: the dataset's name (``"custom"`` for an array, the file name without its
+            suffix for a CSV).
+        moer_kg_per_kwh: ``(days, slots)`` float32 rates (kg CO2/kWh).
+        first_weekday: the weekday of day 0 (0 = Monday ... 6 = Sunday).
+        year: the calendar year of the data, or ``None``.
     """
 
     name: str
@@ -77,7 +87,22 @@ def validate_moer(
     """The one validator of MOER rates (kg CO2/kWh), whatever the path (bundled, CSV, array,
     `MoerData`, ``make_params``): shape ``(days, slots)`` or ``(slots,)``, finite, in
     ``[0, MOER_MAX_KG_KWH]``. ``check_resolution``: slots must divide 1440 minutes (off for
-    arrays already at the simulator's step). Returns float32 ``(days, slots)``."""
+    arrays already at the simulator's step). Returns float32 ``(days, slots)``.
+
+    Args:
+        value: the rates (kg CO2/kWh), ``(days, slots)`` or ``(slots,)`` (one day).
+        field: the name error messages give the rates.
+        check_resolution: require the number of slots to divide 1440.
+
+    Returns:
+        ``(days, slots)`` float32; a 1-D input becomes one row.
+
+    Raises:
+        ValueError: ``value`` is not an array of numbers of one of the two shapes, has no
+            day, has a number of slots that does not divide 1440 (with
+            ``check_resolution``), or a rate that is not finite, negative or above
+            `MOER_MAX_KG_KWH`.
+    """
     arr = _as_float_array(value, field)
     if arr.ndim == 1:
         arr = arr[None, :]
@@ -103,7 +128,18 @@ def resample_moer(moer: Any, num_steps: int, field: str = "moer_kg_per_kwh") -> 
 
     Coarser target: mean over the source slots of each step (slots must nest);
     finer target: each source slot repeated. Rates are intensive (kg/kWh), so
-    averaging / repeating preserves the daily mean.
+    averaging / repeating preserves the daily mean. Resolutions that do not nest: the
+    piecewise-constant source averaged over each target step.
+
+    Nothing is validated (see `validate_moer`).
+
+    Args:
+        moer: the rates, ``(days, slots)`` or ``(slots,)``.
+        num_steps: the steps per day to resample to.
+        field: the rates' name (not used).
+
+    Returns:
+        ``(days, num_steps)`` float32 (one row for a 1-D input).
     """
     arr = np.asarray(moer, dtype=np.float64)
     arr = arr[None] if arr.ndim == 1 else arr
@@ -126,7 +162,23 @@ def read_moer_csv(path: str | os.PathLike, *, unit: str = "kg_per_kwh") -> tuple
     """Read a wide MOER CSV: ``date,m0,...,m{N-1}`` (one row per local day, ISO
     date, N slots with N dividing 1440; '#' lines are comments). ``unit`` is
     ``"kg_per_kwh"``, ``"g_per_kwh"`` or ``"lbs_per_mwh"``. Returns
-    ``(moer_kg_per_kwh (days, N) float32, first_weekday)``."""
+    ``(moer_kg_per_kwh (days, N) float32, first_weekday)``.
+
+    Args:
+        path: the CSV file (UTF-8).
+        unit: the unit of the file's rates; they are converted to kg CO2/kWh.
+
+    Returns:
+        ``(moer_kg_per_kwh, first_weekday)``: ``(days, N)`` float32 rates (kg CO2/kWh) and
+        the weekday of the first date (0 = Monday).
+
+    Raises:
+        ValueError: an unknown ``unit``; the file is not UTF-8, is empty, has another
+            header or no data rows; ``N`` does not divide 1440; a row has the wrong number
+            of fields, a date or rate does not parse or is not finite; the dates are not
+            consecutive; or the rates fail `validate_moer`.
+        FileNotFoundError: ``path`` is not a file.
+    """
     factors = {"kg_per_kwh": 1.0, "g_per_kwh": 1e-3, "lbs_per_mwh": 0.45359237e-3}
     if unit not in factors:
         raise ValueError(f"unit: expected one of {sorted(factors)}, got {unit!r}")
@@ -177,7 +229,26 @@ def _load_bundled_moer(name: str) -> MoerData:
 def load_moer(source: Any = "CAISO-SCE-2020") -> MoerData:
     """MOER data: a bundled name (`MOER_DATASETS`), a `MoerData`, an
     array in kg CO2/kWh ``(days, slots)`` or ``(slots,)``, or a CSV path (kg/kWh;
-    see `read_moer_csv`)."""
+    see `read_moer_csv`).
+
+    Args:
+        source: a bundled dataset's name, a `MoerData` (validated again), an array
+            (anything with ``__array__``, a list or a tuple), or a CSV path (a string ending
+            in ``.csv``, containing a path separator or naming a file, or an
+            `os.PathLike`).
+
+    Returns:
+        The validated data; bundled datasets are read once and cached. Arrays get weekday
+        0 and no year; CSVs the weekday of their first date and no year.
+
+    Raises:
+        KeyError: ``source`` is a string that is neither a dataset's name nor looks like
+            a path.
+        ValueError: ``source`` is of another type, or the rates, CSV or weekday are
+            invalid.
+        FileNotFoundError: the CSV path is not a file.
+        RuntimeError: a bundled MOER file disagrees with its index.
+    """
     if isinstance(source, MoerData):
         return MoerData(
             source.name,
@@ -223,7 +294,20 @@ def _residential_shape(num_steps: int) -> np.ndarray:
 
 def validate_grid_demand(value: Any, num_steps: int, field: str = "grid_demand_kwh") -> np.ndarray:
     """The one validator of a grid-demand signal (kWh per step), whatever the path (CSV, array,
-    ``make_params``): shape ``(num_steps,)``, finite, in ``[0, checks.MAX_GRID_DEMAND_KWH]``."""
+    ``make_params``): shape ``(num_steps,)``, finite, in ``[0, checks.MAX_GRID_DEMAND_KWH]``.
+
+    Args:
+        value: the demand per step of the day (kWh).
+        num_steps: the simulator's steps per day.
+        field: the name error messages give the signal.
+
+    Returns:
+        ``(num_steps,)`` float32 kWh per step.
+
+    Raises:
+        ValueError: ``value`` is not a 1-D array of numbers of length ``num_steps``, or an
+            entry is not finite, negative or above ``checks.MAX_GRID_DEMAND_KWH``.
+    """
     arr = _as_float_array(value, field)
     if arr.ndim != 1:
         raise ValueError(
@@ -246,7 +330,20 @@ def read_grid_demand_csv(path: str | os.PathLike) -> np.ndarray:
     """Read a grid-demand CSV: a header with a column ``grid_demand_kwh`` (other
     columns, e.g. a time, are ignored) and one row per step of the day (kWh per
     step). Returns a float64 array ``(steps,)``; the resolution is checked by the
-    caller."""
+    caller.
+
+    Args:
+        path: the CSV file (UTF-8).
+
+    Returns:
+        ``(steps,)`` float64, the column's values in row order (kWh per step).
+
+    Raises:
+        ValueError: the file is not UTF-8, is empty, has no ``grid_demand_kwh`` column or
+            no data rows, a row has another number of fields than the header, or a value
+            does not parse or is not finite.
+        FileNotFoundError: ``path`` is not a file.
+    """
     source = str(path)
     rows = _data_rows(_read_text(path))
     if not rows:
@@ -280,10 +377,30 @@ def load_grid_demand(
 
     ``source``: a shape name (`GRID_DEMAND_SHAPES`), scaled so its daily
     mean is ``scale_kwh`` kWh per step (default
-    `GRID_DEMAND_DEFAULT_SCALE_KWH` times ``num_steps`` / 288, i.e. the
+    `GRID_DEMAND_DEFAULT_SCALE_KWH` times 288 / ``num_steps``, i.e. the
     same daily energy at any resolution); an array ``(num_steps,)``; or a CSV
     path (`read_grid_demand_csv`). For arrays and CSVs ``scale_kwh``, if
     given, rescales to that daily mean per step.
+
+    Args:
+        source: a shape name, an array (anything with ``__array__``, a list or a tuple),
+            or a CSV path (a string ending in ``.csv``, containing a path separator or
+            naming a file, or an `os.PathLike`).
+        num_steps: the steps per day, a positive integer dividing 1440.
+        scale_kwh: the daily mean per step to scale to (kWh, in
+            ``[0, checks.MAX_GRID_DEMAND_KWH]``), or ``None``.
+
+    Returns:
+        ``(num_steps,)`` float32 kWh per step.
+
+    Raises:
+        ValueError: ``num_steps`` is not a positive integer dividing 1440, ``scale_kwh`` is
+            out of range, ``source`` is of another type, the array or CSV is invalid
+            (`validate_grid_demand`, `read_grid_demand_csv`), or an all-zero demand is
+            to be rescaled.
+        KeyError: ``source`` is a string that is neither a shape's name nor looks like a
+            path.
+        FileNotFoundError: the CSV path is not a file.
     """
     if isinstance(num_steps, bool) or not isinstance(num_steps, numbers.Integral) or num_steps < 1:
         raise ValueError(f"num_steps: expected a positive integer, got {num_steps!r}")
