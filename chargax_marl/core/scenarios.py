@@ -80,7 +80,19 @@ COORDINATION_SCENARIOS = tuple(n for n in SCENARIOS if "grid" in n or "peak" in 
 
 
 def scenario_kwargs(name: str, **overrides: Any) -> dict[str, Any]:
-    """The ``make_params`` keywords of scenario ``name`` with ``overrides`` applied on top."""
+    """The ``make_params`` keywords of scenario ``name`` with ``overrides`` applied on top.
+
+    Args:
+        name: a scenario of `SCENARIOS`.
+        **overrides: ``make_params`` keywords that replace or add to the scenario's (not
+            checked here; ``make_params`` checks them).
+
+    Returns:
+        A new dict of keywords.
+
+    Raises:
+        KeyError: ``name`` is not a string naming a scenario of `SCENARIOS`.
+    """
     if not isinstance(name, str) or name not in SCENARIOS:
         raise KeyError(f"unknown scenario {name!r}; allowed: {sorted(SCENARIOS)}")
     return {**SCENARIOS[name], **overrides}

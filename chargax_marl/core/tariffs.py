@@ -53,7 +53,20 @@ DEFAULT_PEAK_DEMAND_EUR_KW = 0.15
 
 def tou_fee(value: Any) -> np.ndarray:
     """Validated time-of-use surcharge ``(24,)`` float32 in EUR/kWh: None (no surcharge), a
-    preset name of `TOU_PRESETS`, or 24 finite numbers within +-``checks.MAX_PRICE_EUR_KWH``."""
+    preset name of `TOU_PRESETS`, or 24 finite numbers within +-``checks.MAX_PRICE_EUR_KWH``.
+
+    Args:
+        value: ``None``, a preset's name, or 24 surcharges (EUR/kWh), one per local hour
+            from 00:00.
+
+    Returns:
+        ``(24,)`` float32 EUR/kWh (zeros for ``None``).
+
+    Raises:
+        ValueError: an unknown preset name; a value that is not 24 numbers; or a surcharge
+            that is not finite, beyond +-``checks.MAX_PRICE_EUR_KWH`` or not representable
+            in float32.
+    """
     if value is None:
         return np.zeros(HOURS_PER_DAY, np.float32)
     if isinstance(value, str):
@@ -86,7 +99,21 @@ def tou_fee(value: Any) -> np.ndarray:
 
 
 def peak_demand(rate_eur_kw: Any, booking: Any) -> tuple[float, bool]:
-    """Validated ``(rate in EUR per kW of the day's peak, incremental booking?)``."""
+    """Validated ``(rate in EUR per kW of the day's peak, incremental booking?)``.
+
+    Args:
+        rate_eur_kw: the peak-demand charge, EUR per kW of the day's peak, in
+            ``[0, 24 * checks.MAX_PRICE_EUR_KWH]``.
+        booking: ``"end_of_day"`` or ``"incremental"`` (`PEAK_BOOKINGS`).
+
+    Returns:
+        ``(rate, incremental)``: the rate as a float and whether ``booking`` is
+        ``"incremental"``.
+
+    Raises:
+        ValueError: the rate is not a finite number in range, or ``booking`` is not one of
+            `PEAK_BOOKINGS`.
+    """
     rate = checks.number(
         "peak_demand_eur_kw",
         rate_eur_kw,
