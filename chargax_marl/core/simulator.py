@@ -26,14 +26,31 @@ def is_workday(day: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
     """Whether the first step of the episode that starts on ``day`` is on a workday: Monday to
     Friday, counting from the weekday of the data's first day, and not a public holiday. A later
     step's day type is `chargax_marl.core.clock.is_workday`'s (the episode may run past
-    midnight)."""
+    midnight).
+
+    Args:
+        day: the episode's day (``state.day``, int).
+        params: the environment parameters.
+
+    Returns:
+        bool, shaped as ``day``.
+    """
     return clock.is_workday(day, 0, params)
 
 
 def battery_initial_soc(params: EnvParams, key: jax.Array | None = None) -> jnp.ndarray:
     """Initial SoC of each station battery ``(B,)``: uniform in ``[battery_soc0_low,
     battery_soc0_high]`` drawn from ``key``; without a key, the middle of the range (the
-    fixed value when the range is a single point, as by default)."""
+    fixed value when the range is a single point, as by default).
+
+    Args:
+        params: the environment parameters.
+        key: the reset key (the draws 1.. of its reset stream, `chargax_marl.core.rng`),
+            or ``None``.
+
+    Returns:
+        ``(B,)`` SoC in ``[battery_soc0_low, battery_soc0_high]``.
+    """
     lo, hi = params.battery_soc0_low, params.battery_soc0_high
     if key is None:
         return 0.5 * (lo + hi)
@@ -153,6 +170,17 @@ def step_with_arrivals(
     """`step` with the step's arriving cars given (`traffic.Arrivals`); the rest
     of the transition is deterministic. Returns ``(new_state, StepInfo)``.
 
+    Args:
+        state: the state to step.
+        action: one entry per leaf (any shape of ``num_leaves`` entries; reshaped to
+            ``(num_leaves,)``), as for `step`.
+        arrivals: the cars that ask to park in this step.
+        params: the environment parameters.
+
+    Returns:
+        ``(new_state, info)``: the state after the step (the dtypes of ``state``) and its
+        float32 `StepInfo`.
+
     Raises:
         ValueError: ``action`` does not have exactly one entry per leaf (a static shape check).
     """
@@ -259,12 +287,28 @@ def step_with_arrivals(
 
 def keep_dtypes(new, like):
     """``new`` with every leaf cast to the dtype of the matching leaf of ``like``: the state's
-    dtypes stay fixed whatever the x64 flag (random draws are float64 / int64 under x64)."""
+    dtypes stay fixed whatever the x64 flag (random draws are float64 / int64 under x64).
+
+    Args:
+        new: a pytree.
+        like: a pytree of the same structure, whose leaves give the dtypes.
+
+    Returns:
+        ``new`` with its leaves as arrays of ``like``'s dtypes.
+    """
     return jax.tree.map(lambda x, y: jnp.asarray(x).astype(jnp.asarray(y).dtype), new, like)
 
 
 def as_float32(tree):
-    """Floating leaves of ``tree`` as float32 (no-op without x64)."""
+    """Floating leaves of ``tree`` as float32 (no-op without x64).
+
+    Args:
+        tree: a pytree.
+
+    Returns:
+        ``tree`` with every leaf an array: floating leaves float32, the others unchanged
+        in dtype.
+    """
 
     def cast(x):
         x = jnp.asarray(x)
