@@ -119,7 +119,16 @@ def battery_calendar_eur_day(
     cost_eur_kwh: float, capacity_kwh: float, calendar_life_years: float | None
 ) -> float:
     """The calendar ageing cost per day, EUR/day: the installed cost spread evenly over the
-    calendar life (0 when ``calendar_life_years`` is None)."""
+    calendar life (0 when ``calendar_life_years`` is None).
+
+    Args:
+        cost_eur_kwh: installed cost per kWh of capacity (EUR/kWh).
+        capacity_kwh: the battery's capacity (kWh).
+        calendar_life_years: the calendar life (years), or ``None`` for no calendar ageing.
+
+    Returns:
+        ``cost_eur_kwh * capacity_kwh / (calendar_life_years * 365)`` (EUR/day), or 0.0.
+    """
     if calendar_life_years is None:
         return 0.0
     return float(cost_eur_kwh) * float(capacity_kwh) / (float(calendar_life_years) * DAYS_PER_YEAR)
@@ -130,9 +139,19 @@ def check_battery_wear(
 ) -> None:
     """Validate the wear inputs of a battery.
 
+    Args:
+        owner: what the inputs belong to, for the message (e.g. ``"Battery 'b'"``).
+        cost_eur_kwh: installed cost per kWh of capacity (EUR/kWh), in
+            ``[0, checks.MAX_BATTERY_COST_EUR_KWH]``.
+        cycle_life: full equivalent cycles to the end of life, in
+            ``[checks.MIN_CYCLE_LIFE, checks.MAX_CYCLE_LIFE]``.
+        calendar_life_years: the calendar life (years), ``None`` or in
+            ``[checks.MIN_CALENDAR_LIFE_YEARS, checks.MAX_CALENDAR_LIFE_YEARS]``.
+
     Raises:
         ValueError: ``cost_eur_kwh`` not finite and >= 0, ``cycle_life`` not finite and > 0,
-            ``calendar_life_years`` neither None nor finite and > 0.
+            ``calendar_life_years`` neither None nor finite and > 0, or a value outside the
+            bounds above.
     """
     _check_non_negative(
         owner, "cost_eur_kwh", cost_eur_kwh, checks.MAX_BATTERY_COST_EUR_KWH, "EUR/kWh"
@@ -401,6 +420,21 @@ class StationArrays:
     @property
     def leaf_max_kw(self) -> jnp.ndarray:
         return self.leaf_voltage_v * self.leaf_max_current_a / 1000.0
+
+
+StationArrays.replace.__doc__ = """A copy with the given fields replaced; nothing is checked.
+
+`check_station_arrays` validates a station built or changed by hand.
+
+Args:
+    **updates: the new values, by field name.
+
+Returns:
+    A new `StationArrays`; ``self`` is unchanged.
+
+Raises:
+    TypeError: a name that is not a field.
+"""
 
 
 def compile_station(root: Splitter) -> StationArrays:
@@ -877,7 +911,19 @@ ARCHITECTURES = {
 def with_grid_fraction(root: Splitter, grid_fraction: float) -> Splitter:
     """``root`` with its limit (the grid connection) set to ``grid_fraction`` times the sum of
     its children's limits: 0.25 makes a station whose connection carries a quarter of what
-    its EVSEs, cables and batteries could draw together, so the agents must share it."""
+    its EVSEs, cables and batteries could draw together, so the agents must share it.
+
+    Args:
+        root: the station's grid connection.
+        grid_fraction: the fraction, in ``(0, 1]``.
+
+    Returns:
+        A copy of ``root`` with the new ``max_kw`` (kW), validated as a `Splitter`.
+
+    Raises:
+        ValueError: ``grid_fraction`` is not a finite number in ``(0, 1]``, or the new
+            limit is outside ``[checks.MIN_POWER_KW, checks.MAX_POWER_KW]``.
+    """
     f = checks.number("grid_fraction", grid_fraction, low=0.0, low_open=True, high=1.0)
     children_kw = sum(c.max_kw for c in root.children)
     return dataclasses.replace(root, max_kw=f * children_kw)
