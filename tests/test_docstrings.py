@@ -277,7 +277,7 @@ def test_public_docstring(name):
 # documented must stay at or above the tree's `COVERAGE`. The strict test above keeps the packages'
 # exported names at every entry.
 TREES = ("chargax_marl", "baselines")
-COVERAGE = {"chargax_marl": 0.47, "baselines": 0.21}
+COVERAGE = {"chargax_marl": 1.0, "baselines": 1.0}
 
 
 def _modules(tree: str) -> list[str]:

@@ -422,21 +422,6 @@ class StationArrays:
         return self.leaf_voltage_v * self.leaf_max_current_a / 1000.0
 
 
-StationArrays.replace.__doc__ = """A copy with the given fields replaced; nothing is checked.
-
-`check_station_arrays` validates a station built or changed by hand.
-
-Args:
-    **updates: the new values, by field name.
-
-Returns:
-    A new `StationArrays`; ``self`` is unchanged.
-
-Raises:
-    TypeError: a name that is not a field.
-"""
-
-
 def compile_station(root: Splitter) -> StationArrays:
     """Validate a station tree and compile it to `StationArrays`.
 

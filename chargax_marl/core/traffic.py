@@ -336,19 +336,6 @@ class Arrivals:
     port_draw: jnp.ndarray  # () uniform: the rotation of the free ports' order
 
 
-Arrivals.replace.__doc__ = """A copy with the given fields replaced; nothing is checked.
-
-Args:
-    **updates: the new values, by field name.
-
-Returns:
-    A new `Arrivals`; ``self`` is unchanged.
-
-Raises:
-    TypeError: a name that is not a field.
-"""
-
-
 SLOT_FIELDS = (
     "model",
     "capacity_kwh",

@@ -60,19 +60,6 @@ class PenaltyWeights:
     grid_demand: float = 0.0
 
 
-PenaltyWeights.replace.__doc__ = """A copy with the given fields replaced; nothing is checked.
-
-Args:
-    **updates: the new values, by field name.
-
-Returns:
-    A new `PenaltyWeights`; ``self`` is unchanged.
-
-Raises:
-    TypeError: a name that is not a field.
-"""
-
-
 @struct.dataclass
 class EnvParams:
     """Everything the step needs besides the state: station, exogenous data, economics, settings.
@@ -241,21 +228,6 @@ class EnvParams:
         return self.step_minutes / 60.0
 
 
-EnvParams.replace.__doc__ = """A copy with the given fields replaced; nothing is checked.
-
-Nothing is validated: derive params with `chargax_marl.core.params.validated_replace`.
-
-Args:
-    **updates: the new values, by field name.
-
-Returns:
-    A new `EnvParams`; ``self`` is unchanged.
-
-Raises:
-    TypeError: a name that is not a field.
-"""
-
-
 @struct.dataclass
 class EpisodeTotals:
     """Running totals of the episode (reset with the state). Energies in kWh, money in EUR.
@@ -328,19 +300,6 @@ class EpisodeTotals:
         return cls(**{f: z for f in cls.__dataclass_fields__})
 
 
-EpisodeTotals.replace.__doc__ = """A copy with the given fields replaced; nothing is checked.
-
-Args:
-    **updates: the new values, by field name.
-
-Returns:
-    A new `EpisodeTotals`; ``self`` is unchanged.
-
-Raises:
-    TypeError: a name that is not a field.
-"""
-
-
 @struct.dataclass
 class EnvState:
     """The station state. Per-leaf fields have shape ``(L,)``: ports, then batteries.
@@ -401,19 +360,6 @@ class EnvState:
     def time(self) -> jnp.ndarray:
         """gymnax's name for the step counter."""
         return self.timestep
-
-
-EnvState.replace.__doc__ = """A copy with the given fields replaced; nothing is checked.
-
-Args:
-    **updates: the new values, by field name.
-
-Returns:
-    A new `EnvState`; ``self`` is unchanged.
-
-Raises:
-    TypeError: a name that is not a field.
-"""
 
 
 @struct.dataclass
@@ -481,16 +427,3 @@ class StepInfo:
     leaf_energy_kwh: jnp.ndarray
     leaf_arrived: jnp.ndarray
     leaf_reward: jnp.ndarray
-
-
-StepInfo.replace.__doc__ = """A copy with the given fields replaced; nothing is checked.
-
-Args:
-    **updates: the new values, by field name.
-
-Returns:
-    A new `StepInfo`; ``self`` is unchanged.
-
-Raises:
-    TypeError: a name that is not a field.
-"""
