@@ -162,6 +162,9 @@ def test_the_wheel_installs_and_runs_in_a_fresh_environment(tmp_path):
     assert not package - names, f"not in the wheel: {sorted(package - names)}"
     assert any(n.startswith(f"{PACKAGE}/core/data/prices_") for n in names)
     assert any(n.startswith(f"{PACKAGE}/benchmark/references/") for n in names)
+    # the licence texts: the project's, and the one of the price data the package derives from
+    assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names), sorted(names)
+    assert f"{PACKAGE}/core/data/LICENSE-green-dcc.txt" in names
 
     # the sdist: the package and what builds it, none of the repository's other folders
     with tarfile.open(sdist) as tar:
