@@ -91,10 +91,12 @@ def test_alike_sibling_nodes_merge_into_one_group_with_their_summed_limit():
 
 @pytest.fixture(scope="module", params=["paper", "v2"])
 def drawn_day(request):
-    """A busy day on a small station, its trace and its pooled bound, per session model."""
+    """A busy day on a small station, its trace and its pooled bound, per session model (in
+    15-minute steps, which keep the LPs small)."""
     params = make_params(
         station_kwargs={"num_dc": 4, "num_ac": 2},
         traffic="high",
+        step_minutes=15.0,
         battery_initial_soc=(0.2, 0.8),
         session_model=request.param,
     )
