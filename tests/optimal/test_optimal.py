@@ -600,10 +600,16 @@ def test_headroom_fraction_by_hand():
     assert seeds["fraction"] == pytest.approx(0.0)
 
 
-def test_training_baselines_carry_the_bound_and_the_headroom(small_setup):
+def test_training_baselines_carry_the_bound_and_the_headroom():
     from baselines.eval.heldout import baseline_results
 
-    params, _ = small_setup
+    # small_setup's station and traffic in 15-minute steps, which keep the LPs small
+    params = make_params(
+        station_kwargs={"num_dc": 4, "num_ac": 2},
+        traffic="high",
+        battery_initial_soc=(0.2, 0.8),
+        step_minutes=15.0,
+    )
     days = np.array([10, 200])
     base = baseline_results(params, days, optimal="bound")
     am, bound = base["always_max"]["daily_profit"], base["lp_bound"]["daily_profit"]
