@@ -196,7 +196,8 @@ class SharedPolicy:
         # PLAN_OBS: each agent's observation ends with its leaf's advice (aids.plan_features:
         # its own plan's charge-now flag, or the coupled plan's share and congestion price;
         # always 0 for the batteries), before the relative prices.
-        features = aids.plan_features(config, env.params)
+        self.plan_config = {"PLAN_OBS": config.get("PLAN_OBS", False)}
+        features = aids.plan_features(self.plan_config, env.params)
         self.plan, plan_width = (None, 0) if features is None else features
         self.obs_dim += plan_width
         if not centralised_critic:
@@ -206,7 +207,23 @@ class SharedPolicy:
             if self.critic_features:
                 self.critic_dim += len(self.relative[0])
 
-    def with_plan(self, obs_matrix, core):
+    def plan_for(self, env_params):
+        """The `PLAN_OBS` advice read from ``env_params``' prices, for a policy played on
+        parameters other than the training env's (a shift task's held-out year): the plan
+        advises on the day the state is in, under the prices of the params it is played on.
+
+        Args:
+            env_params: concrete `chargax_marl.core.types.EnvParams` of the env played.
+
+        Returns:
+            ``advice(core) -> (L, width)``, as `baselines.algos.aids.plan_features` gives
+            it, or None when ``PLAN_OBS`` is off.
+        """
+        if self.plan is None:
+            return None
+        return aids.plan_features(self.plan_config, env_params)[0]
+
+    def with_plan(self, obs_matrix, core, plan=None):
         """``obs_matrix (..., agents, obs)`` with the `PLAN_OBS` column of the (batched)
         core state ``core`` appended; unchanged when ``PLAN_OBS`` is off.
 
@@ -214,6 +231,7 @@ class SharedPolicy:
             obs_matrix: ``(..., agents, obs)`` the agents' observations.
             core: the core state (`chargax_marl.core.types.EnvState`) with the same leading
                 axes.
+            plan: the advice to read (`plan_for`); None: the training env's.
 
         Returns:
             ``(..., agents, obs + width)`` with each agent's leaf advice
@@ -221,7 +239,8 @@ class SharedPolicy:
         """
         if self.plan is None:
             return obs_matrix
-        return jnp.concatenate([obs_matrix, car_plan.batched(self.plan, core)(core)], axis=-1)
+        plan = self.plan if plan is None else plan
+        return jnp.concatenate([obs_matrix, car_plan.batched(plan, core)(core)], axis=-1)
 
     def features(self, obs):
         """The networks' input: ``obs`` with the relative prices when ``RELATIVE_PRICES``
@@ -697,11 +716,12 @@ def make_act_builder(
         if priority_classes:
             env = PriorityFill(env, priority_classes)
         avail = jnp.asarray(env._avail_np)
+        plan = policy.plan_for(eval_params)  # the advice under the prices played on
 
         def make_act(params):
             def choose(obs, state, key):
                 del key
-                obs = policy.with_plan(obs, state)
+                obs = policy.with_plan(obs, state, plan)
                 return jnp.argmax(policy.logits(params, obs, avail), axis=-1)
 
             if delay_steps or loss_prob:

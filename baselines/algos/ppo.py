@@ -135,7 +135,8 @@ class Policy:
             )
         # PLAN_OBS: the observation also ends with every leaf's advice (aids.plan_features),
         # leaf-major, before the relative prices.
-        features = aids.plan_features(config, env_params)
+        self.plan_config = {"PLAN_OBS": config.get("PLAN_OBS", False)}
+        features = aids.plan_features(self.plan_config, env_params)
         self.plan, plan_width = (None, 0) if features is None else features
         self.input_dim = (
             self.obs_dim
@@ -143,7 +144,22 @@ class Policy:
             + (0 if self.relative is None else len(self.relative[0]))
         )
 
-    def with_plan(self, obs, core):
+    def plan_for(self, env_params):
+        """The `PLAN_OBS` advice read from ``env_params``' prices, for a policy played on
+        parameters other than the training env's (a shift task's held-out year).
+
+        Args:
+            env_params: concrete `chargax_marl.core.types.EnvParams` of the env played.
+
+        Returns:
+            ``advice(core) -> (L, width)`` (`baselines.algos.aids.plan_features`), or None
+            when ``PLAN_OBS`` is off.
+        """
+        if self.plan is None:
+            return None
+        return aids.plan_features(self.plan_config, env_params)[0]
+
+    def with_plan(self, obs, core, plan=None):
         """``obs (..., obs_dim)`` with the plan advice of the (batched) core state ``core``
         appended when ``PLAN_OBS`` is on.
 
@@ -151,6 +167,7 @@ class Policy:
             obs: ``(..., obs_dim)`` observations.
             core: the core state (`chargax_marl.core.types.EnvState`) with the same leading
                 axes.
+            plan: the advice to read (`plan_for`); None: the training env's.
 
         Returns:
             ``(..., obs_dim + leaves * width)``, every leaf's advice leaf-major, or ``obs``
@@ -158,7 +175,8 @@ class Policy:
         """
         if self.plan is None:
             return obs
-        advice = car_plan.batched(self.plan, core)(core)  # (..., L, width)
+        plan = self.plan if plan is None else plan
+        advice = car_plan.batched(plan, core)(core)  # (..., L, width)
         return jnp.concatenate([obs, advice.reshape(advice.shape[:-2] + (-1,))], axis=-1)
 
     def features(self, obs):
@@ -420,10 +438,12 @@ def make_act_builder(policy: Policy, env: Chargax):
     cache = IdentityCache()
 
     def build(eval_params):
+        plan = policy.plan_for(eval_params)  # the advice under the prices played on
+
         def make_act(params):
             def act(state, key):
                 del key
-                obs = policy.with_plan(flat_obs(state, eval_params), state)
+                obs = policy.with_plan(flat_obs(state, eval_params), state, plan)
                 action = jnp.argmax(policy.logits(params, obs), axis=-1)
                 return env.action_to_levels(action, eval_params)
 

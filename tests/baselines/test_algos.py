@@ -773,3 +773,53 @@ def test_a_chunk_reports_every_update_to_the_host_and_trains_as_the_trainer_does
     )
     for a, b in zip(jax.tree.leaves(rs_c.params), jax.tree.leaves(rs_t.params)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+@pytest.mark.parametrize("mod", [ippo, ppo])
+@pytest.mark.parametrize("mode", [True, "coupled"])
+def test_the_greedy_act_reads_the_plan_of_the_prices_it_is_played_on(mod, mode, monkeypatch):
+    """A policy trained with ``PLAN_OBS`` and played on other prices (a shift task's held-out
+    year) reads the plan advice of the prices it is played on, not the training env's."""
+    from chargax_marl.core import make_params
+
+    config = {**TINY, "PLAN_OBS": mode}
+    train = mod.make_train(config)
+    other = make_params(**{**TINY_ENV, "prices": "NL-2024"})
+    assert not np.array_equal(
+        np.asarray(other.prices_eur_kwh), np.asarray(train.env_params.prices_eur_kwh)
+    )
+    advice, trained_advice = (aids.plan_features(config, p)[0] for p in (other, train.env_params))
+
+    def a_state(differ: bool):
+        """A busy state of a day of ``other``; with ``differ``, one at which the two price
+        years' plans differ."""
+        for seed in range(10):
+            state = simulator.reset(jax.random.PRNGKey(seed), other)
+            for _ in range(other.num_steps):
+                levels = policies.always_max(state, None, other)
+                state, _ = simulator.step(jax.random.PRNGKey(seed), state, levels, other)
+                x, y = np.asarray(advice(state)), np.asarray(trained_advice(state))
+                if not differ and state.occupied.any() or differ and not np.allclose(x, y):
+                    return state
+        raise AssertionError("the two price years' plans agree on every day tried")
+
+    # the coupled plan's advice (its congestion prices) moves with the prices at some step
+    state = a_state(differ=mode == "coupled")
+    built_for, seen = [], []
+    plan_features, with_plan = aids.plan_features, train.policy.with_plan
+
+    def features_spy(cfg, env_params):
+        built_for.append(env_params)
+        return plan_features(cfg, env_params)
+
+    def with_plan_spy(obs, core, plan=None):
+        seen.append(plan)
+        return with_plan(obs, core, plan)
+
+    monkeypatch.setattr(aids, "plan_features", features_spy)
+    monkeypatch.setattr(train.policy, "with_plan", with_plan_spy)
+    params = train.policy.init(jax.random.PRNGKey(1))
+    train.make_act(other)(params)(state, jax.random.PRNGKey(2))
+    assert any(p is other for p in built_for), "the act's plan was not built from its params"
+    assert seen and seen[-1] is not None, "the act read the training env's plan"
+    np.testing.assert_allclose(np.asarray(seen[-1](state)), np.asarray(advice(state)), rtol=1e-6)
