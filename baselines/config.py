@@ -321,7 +321,7 @@ def parse_override(text: str) -> tuple[str, Any]:
 
     Returns:
         ``(key, value)``: the key stripped and upper-cased; the value as TOML reads it, or
-        the text after ``=`` as it is when it is not a TOML value.
+        the text after ``=``, stripped, when it is not a TOML value.
 
     Raises:
         ConfigError: no ``=`` in ``text``, or nothing before it.
@@ -332,7 +332,7 @@ def parse_override(text: str) -> tuple[str, Any]:
     try:
         value = tomllib.loads(f"v = {raw}")["v"]
     except tomllib.TOMLDecodeError:
-        value = raw
+        value = raw.strip()
     return key.strip().upper(), value
 
 

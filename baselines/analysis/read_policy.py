@@ -125,9 +125,11 @@ def format_reading(out: dict) -> str:
     lines = [f"{out['algo']} run {out['run']}, {out['num_days']} held-out days"]
     for i, s in enumerate(out["per_seed"]):
         share = ", ".join(f"{k} {v:.2f}" for k, v in s["battery_share"].items())
+        agrees = s["agrees_with_dp"]
+        agrees = "- (it never has one)" if agrees is None else f"{agrees:.2f}"
         lines.append(
             f"seed {i}: battery {share}; agrees with the programme where it has a strict best "
-            f"action {s['agrees_with_dp']:.2f}; ports at full power {s['ports_full_power_share']:.3f}, "
+            f"action {agrees}; ports at full power {s['ports_full_power_share']:.3f}, "
             f"as the plan advises (plan_advice) {s['ports_follow_plan_share']:.3f}"
         )
         lines.append("  hourly action " + " ".join(f"{a:+.2f}" for a in s["hourly_action"]))

@@ -76,6 +76,9 @@ def test_read_policy_gives_the_battery_s_action_shares_and_its_hourly_action(tin
         )
         assert 0.0 <= seed["ports_follow_plan_share"] <= 1.0
     assert "hourly SoC" in read_policy.format_reading(reading)
+    # a day on which the programme never strictly prefers an action reads as such
+    never = {**reading, "per_seed": [{**reading["per_seed"][0], "agrees_with_dp": None}]}
+    assert "strict best action - (it never has one)" in read_policy.format_reading(never)
 
 
 def test_redraw_scores_the_run_on_more_cars_and_refuses_a_run_it_does_not_reproduce(

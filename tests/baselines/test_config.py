@@ -15,6 +15,7 @@ from baselines.config import (
     ConfigError,
     build_env_params,
     load,
+    parse_override,
     resolve,
     validation_env,
 )
@@ -132,3 +133,9 @@ def test_every_bundled_config_resolves_and_a_task_config_builds_its_task(path):
     if config["TASK"]:  # a per-task config trains on its task's training data
         _, params, _, _ = build_env_params(config)
         assert params.station.num_leaves == TASKS[config["TASK"]].make_params().station.num_leaves
+
+
+def test_an_override_s_bare_word_loses_the_blanks_around_it():
+    assert parse_override("SCENARIO= shopping ") == ("SCENARIO", "shopping")
+    assert parse_override(" total_timesteps = 2e6") == ("TOTAL_TIMESTEPS", 2e6)
+    assert parse_override("ENV_KWARGS={num_levels=1}") == ("ENV_KWARGS", {"num_levels": 1})
