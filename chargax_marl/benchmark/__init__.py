@@ -7,9 +7,11 @@
   the package;
 - `scoring`: `get_normalized_score` of per-day profits and
   `score` of a policy of any kind (`protocol`);
+- `picture`: `day_picture`, one held-out day of a policy beside always-max;
 - `scoreboard`: the table of every task and policy, from files.
 """
 
+from chargax_marl.benchmark.picture import day_picture
 from chargax_marl.benchmark.protocol import KINDS, play
 from chargax_marl.benchmark.references import (
     ReferenceMismatchError,
@@ -32,6 +34,7 @@ __all__ = [
     "compare",
     "compute_mpc",
     "compute_references",
+    "day_picture",
     "get_normalized_score",
     "get_task",
     "load_references",

@@ -63,9 +63,6 @@ class MultiDiscrete(spaces.Space):
     def contains(self, x: jax.Array) -> jax.Array:
         """Whether ``x`` is an element of the space.
 
-        An ``x`` whose shape does not broadcast against ``(n,)`` raises JAX's ``TypeError``
-        instead of giving False.
-
         Args:
             x: a candidate action.
 
@@ -73,7 +70,9 @@ class MultiDiscrete(spaces.Space):
             A ``()`` bool: ``x`` has shape ``(n,)`` and every entry lies in ``[0, nvec[i])``.
         """
         x = jnp.asarray(x)
-        return (x.shape == self.shape) & jnp.all((x >= 0) & (x < self.nvec))
+        if x.shape != self.shape:  # static: any other shape is not an element
+            return jnp.asarray(False)
+        return jnp.all((x >= 0) & (x < self.nvec))
 
 
 def action_levels(action: jnp.ndarray, params: EnvParams) -> jnp.ndarray:

@@ -20,6 +20,7 @@ from chargax_marl.benchmark import (
     compare,
     compute_mpc,
     compute_references,
+    day_picture,
     get_normalized_score,
     load_references,
     protocol,
@@ -28,7 +29,6 @@ from chargax_marl.benchmark import (
     score,
 )
 from chargax_marl.benchmark import references as references_module
-from chargax_marl.benchmark.picture import day_picture
 from chargax_marl.benchmark.references import BOUND, MPC_REFERENCES, ZERO, reference_path
 from chargax_marl.core import Battery, Port, Splitter, make_params
 from chargax_marl.core.observation import context_index, context_size, obs_size

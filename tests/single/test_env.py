@@ -215,6 +215,11 @@ def test_action_space_and_level_mapping():
     env, params = make("shopping")
     space = env.action_space(params)
     assert space.shape == (17,) and int(space.nvec[0]) == 21
+    # membership: in range and of the space's shape; any other shape is no element
+    assert bool(space.contains(jnp.zeros(17, jnp.int32)))
+    assert not bool(space.contains(jnp.full(17, 21)))
+    assert not bool(space.contains(jnp.zeros(3, jnp.int32)))
+    assert not bool(space.contains(jnp.zeros((2, 17), jnp.int32)))
     levels = jnp.arange(-10, 7)
     np.testing.assert_array_equal(
         np.asarray(env.action_to_levels(env.levels_to_action(levels), params)), levels
