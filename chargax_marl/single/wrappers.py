@@ -205,11 +205,23 @@ class FlatDiscrete:
             ``j``.
 
         Raises:
-            IndexError: a level that is not in `port_levels` or `battery_levels`.
+            ValueError: a level that is not in `port_levels` or `battery_levels`, naming the
+                field, the value and the levels allowed.
         """
-        i = int(np.flatnonzero(self.port_levels == port_level)[0])
-        j = int(np.flatnonzero(self.battery_levels == battery_level)[0])
-        return i * self.battery_levels.size + j
+        i, j = (
+            np.flatnonzero(levels == level)
+            for levels, level in (
+                (self.port_levels, port_level),
+                (self.battery_levels, battery_level),
+            )
+        )
+        for field, value, found, allowed in (
+            ("port_level", port_level, i, self.port_levels),
+            ("battery_level", battery_level, j, self.battery_levels),
+        ):
+            if not found.size:
+                raise ValueError(f"{field} {value!r} is not one of {allowed.tolist()}")
+        return int(i[0]) * self.battery_levels.size + int(j[0])
 
     def levels(self, action) -> jnp.ndarray:
         """The per-leaf levels ``(L,)`` of a flat action (works under jit).

@@ -329,6 +329,10 @@ def test_flat_discrete_through_gymnax_logwrapper():
         base.default_params.num_levels, 0
     )  # every port at full power, battery idle
     np.testing.assert_array_equal(np.asarray(flat.levels(full)), [10] * 16 + [0])
+    with pytest.raises(ValueError, match=r"port_level 11 is not one of \[-10, .*10\]"):
+        flat.action_index(11, 0)
+    with pytest.raises(ValueError, match=r"battery_level 0.5 is not one of"):
+        flat.action_index(10, 0.5)
     obs, state = env.reset(jax.random.PRNGKey(0))
 
     def body(state, k):
