@@ -36,15 +36,15 @@ def rollout_days(policy, params: EnvParams, keys: jax.Array):
     Returns:
         ``(totals, days, returns)`` as above, each with a leading axis ``(n,)``; ``returns``
         is ``totals.reward``.
+
+    Raises:
+        ValueError: the policy returned non-finite or non-integer levels
+            (`chargax_marl.evaluation.check_policy_outputs`; not checked inside a caller's
+            ``jit``).
     """
-
-    @jax.jit
-    def run(keys):
-        days = jax.vmap(lambda k: simulator.reset(k, params).day)(keys)
-        totals = run_days(lambda s, k: policy(s, k, params), params, days, keys[0])
-        return totals, days, totals.reward
-
-    return run(keys)
+    days = jax.jit(jax.vmap(lambda k: simulator.reset(k, params).day))(keys)
+    totals = run_days(lambda s, k: policy(s, k, params), params, days, keys[0])
+    return totals, days, totals.reward
 
 
 def main(argv=None) -> None:

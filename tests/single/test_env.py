@@ -247,6 +247,10 @@ def test_every_named_scenario_runs_a_day():
     for name, (totals, _, _) in zip(names, runs, strict=True):
         assert np.all(np.asarray(totals.cars_arrived) > 0), name
         assert np.all(np.isfinite(np.asarray(totals.profit_eur))), name
+    # run eagerly, a policy's NaN levels are refused, not played as idle and scored
+    nan_policy = lambda state, key, params: jnp.full(params.station.num_leaves, jnp.nan)  # noqa: E731
+    with pytest.raises(ValueError, match="non-finite levels"):
+        rollout_days(nan_policy, all_params[1], keys)
 
 
 @pytest.mark.parametrize(
