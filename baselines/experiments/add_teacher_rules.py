@@ -51,7 +51,7 @@ from baselines.eval.rules import (
     evaluate_rules,
 )
 from baselines.eval.stats import over_seeds
-from baselines.experiments._common import TUNED, with_prices
+from baselines.experiments._common import TUNED, with_env_kwargs
 from chargax_marl.teachers.rules import has_battery
 
 
@@ -179,7 +179,9 @@ def add_to_price_shift(d: dict, where: str = "") -> dict:
             f"{where}: settings {d.get('settings')!r}; only the tuned settings' params are rebuilt here"
         )
     for year, bl in d["baselines"].items():
-        _, params, _, days = build_env_params(resolve(with_prices(TUNED[d["algo"]], year)))
+        # the price-shift runner plays the paper's session model (`_common.config_of`)
+        config = with_env_kwargs(TUNED[d["algo"]], session_model="paper", prices=year)
+        _, params, _, days = build_env_params(resolve(config))
         bl.update(teacher_entries(params, days, bl, f"{where} {year}"))
     rows = {}
     for train_year, row in d["matrix"].items():

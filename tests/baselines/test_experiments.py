@@ -501,3 +501,24 @@ def test_the_measured_effects_in_the_docs_are_those_of_the_result_file():
             assert sum(n.startswith(f"{scenario}: {option}") for n in names) == 1
     for c in record["comparisons"]:  # each paired on two seeds, the grid on four car draws
         assert c["seeds"] == 2 and c["draws"] == (4 if c["name"].startswith("grid") else 1)
+
+
+def test_the_price_shift_back_fill_rebuilds_the_paper_session_model(monkeypatch):
+    """`add_teacher_rules.add_to_price_shift` replays each eval year on the params the
+    price-shift runner played: the tuned settings, that year's prices and the paper's session
+    model (on the default v2 model always-max would not replay)."""
+    from baselines.experiments import add_teacher_rules
+
+    built = []
+
+    def capture(config):
+        built.append(config)
+        raise RuntimeError("captured")
+
+    monkeypatch.setattr(add_teacher_rules, "build_env_params", capture)
+    result = {"settings": "tuned", "algo": "ppo", "matrix": {}, "baselines": {"NL-2023": {}}}
+    with pytest.raises(RuntimeError, match="captured"):
+        add_teacher_rules.add_to_price_shift(result, "price_shift.json")
+    (config,) = built
+    assert config["ENV_KWARGS"]["session_model"] == "paper"
+    assert config["ENV_KWARGS"]["prices"] == "NL-2023"
