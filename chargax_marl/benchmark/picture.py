@@ -56,7 +56,8 @@ def play_day(act: Callable, params, day: int, key: jax.Array) -> dict:
         "grid_kw": np.asarray(infos.grid_net_kwh) / hours,
         "port_kw": np.asarray(infos.leaf_energy_kwh)[:, :ports] / hours,
         "arrived": arrived,
-        "departed": occupied & ~after & ~arrived,
+        # a car leaves in step t when its port is empty after it, or holds the next car
+        "departed": occupied & (~after | arrived),
         "battery_soc": np.asarray(states.soc)[:, ports:],
         "profit_eur": np.asarray(infos.profit_eur, np.float64),
         "total_profit_eur": float(final.totals.profit_eur),

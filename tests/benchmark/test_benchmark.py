@@ -525,3 +525,20 @@ def test_the_picture_of_a_day_shows_the_scored_day(small_task, tmp_path):
     assert data["policy"]["port_kw"].shape == (task.make_params().num_steps, 6)
     with pytest.raises(ValueError, match="draw in"):
         day_picture(programme, task, draw=2, references_dir=directory)
+
+
+def test_the_picture_marks_every_car_s_departure():
+    # a busy small station where ports are refilled in the step their car leaves: every car
+    # that is ever parked gets one departure mark (the cars still parked at the day's end
+    # leave with it; a car arriving in the last step is never parked)
+    from chargax_marl.benchmark.picture import play_day
+
+    params = make_params(
+        station_kwargs={"num_dc": 4, "num_ac": 2}, traffic="high", session_model="paper"
+    )
+    day = play_day(
+        lambda s, k: policies.always_max(s, k, params), params, 200, jax.random.PRNGKey(0)
+    )
+    arrived, departed = day["arrived"], day["departed"]
+    assert (departed[:-1] & arrived[:-1]).any()  # a port refilled in its car's last step
+    assert departed.sum() == arrived[:-1].sum()
