@@ -114,8 +114,14 @@ def day_picture(
         load_references(task, references_dir)["policies"][BOUND]["daily_profit"][day_index, draw]
     )
 
-    fig = Figure(figsize=(10, 12))
-    axes = fig.subplots(5, 1, sharex=True)
+    fig = Figure(figsize=(10, 12), layout="constrained")
+    # the heat map's colour bar in a column of its own, so that every panel keeps the width
+    # of the shared hour axis
+    grid = fig.add_gridspec(5, 2, width_ratios=(1, 0.015))
+    axes = [fig.add_subplot(grid[0, 0])]
+    axes += [fig.add_subplot(grid[i, 0], sharex=axes[0]) for i in range(1, 5)]
+    for ax in axes[:-1]:
+        ax.tick_params(labelbottom=False)
     h = mine["hours"]
     axes[0].step(h, mine["price_eur_kwh"], where="post", color="k")
     axes[0].set_ylabel("buy price\nEUR/kWh")
@@ -140,7 +146,7 @@ def day_picture(
         t, p = np.nonzero(marks)
         axes[2].plot(h[t], p, style, ms=3)
     axes[2].set_ylabel(f"{label}:\nport (▲ arrives, ▼ leaves)")
-    fig.colorbar(image, ax=axes[2], label="kW", pad=0.01)
+    fig.colorbar(image, cax=fig.add_subplot(grid[2, 1]), label="kW")
     if mine["battery_soc"].shape[1]:
         axes[3].plot(h, mine["battery_soc"].mean(axis=1), label=label)
         axes[3].plot(h, ref["battery_soc"].mean(axis=1), label=reference, alpha=0.7)
@@ -150,13 +156,16 @@ def day_picture(
     axes[4].plot(
         h, np.cumsum(ref["profit_eur"]), label=f"{reference}: {ref['total_profit_eur']:.1f}"
     )
-    axes[4].axhline(bound, color="g", ls=":", label=f"LP bound (day total): {bound:.1f}")
+    # the task's bound: over always-max's occupancy (v1; a policy that seats other cars can
+    # pass it) or port-pooled (v2)
+    axes[4].axhline(
+        bound, color="g", ls=":", label=f"LP bound, {task.bound} (day total): {bound:.1f}"
+    )
     axes[4].set_ylabel("cumulative\nprofit, EUR")
     axes[4].set_xlabel("hour of the day")
     clock_axis(axes[4], base)
     axes[4].legend(loc="upper left", fontsize=8)
     fig.suptitle(f"{task.id}, held-out day {day} (draw {draw}): {label} and {reference}")
-    fig.tight_layout()
     if path is not None:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         fig.savefig(path, dpi=90)
