@@ -123,19 +123,17 @@ class MPC:
     ):
         if not horizon_hours > 0:
             raise ValueError(f"field 'horizon_hours' must be > 0, got {horizon_hours!r}")
-        if int(resolve_every) < 1:
-            raise ValueError(
-                f"field 'resolve_every' must be an integer >= 1, got {resolve_every!r}"
-            )
+        for field, value, least in (
+            ("resolve_every", resolve_every, 1),
+            ("deadline_margin_steps", deadline_margin_steps, 0),
+        ):
+            if isinstance(value, bool) or not float(value).is_integer() or value < least:
+                raise ValueError(f"field {field!r} must be an integer >= {least}, got {value!r}")
         self.horizon_steps = max(
             1, int(math.ceil(horizon_hours * 60.0 / params.step_minutes - 1e-9))
         )
         self.resolve_every = int(resolve_every)
         self.urgency_eur_kwh_h = float(urgency_eur_kwh_h)
-        if int(deadline_margin_steps) < 0:
-            raise ValueError(
-                f"field 'deadline_margin_steps' must be an integer >= 0, got {deadline_margin_steps!r}"
-            )
         self.deadline_margin_steps = int(deadline_margin_steps)
         self.time_limit_s = time_limit_s
         self.limits = StationLimits.of(params)

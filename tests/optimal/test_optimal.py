@@ -946,3 +946,21 @@ def test_make_optimal_s_scenarios_are_the_params_of_its_stored_results():
         params, _ = opt.scenario_params(name)
         assert trace.params_fingerprint(params) == stored, name
         assert trace.is_paper_session_model(params), name
+
+
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("resolve_every", 1.5),
+        ("resolve_every", 0),
+        ("resolve_every", True),
+        ("deadline_margin_steps", -1),
+        ("deadline_margin_steps", 0.5),
+    ],
+)
+def test_the_mpc_refuses_a_step_count_that_is_not_a_whole_number(field, value):
+    # a fractional count was truncated silently (1.5 re-solved every step)
+    params = hand_params(ONE_PORT, [0.1] * 24)
+    with pytest.raises(ValueError, match=f"field '{field}' must be an integer >= "):
+        MPC(params, **{field: value})
+    assert MPC(params, resolve_every=2.0).resolve_every == 2
