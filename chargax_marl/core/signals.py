@@ -411,7 +411,8 @@ def load_grid_demand(
     if isinstance(source, str) and source in GRID_DEMAND_SHAPES:
         if scale_kwh is None:
             scale_kwh = GRID_DEMAND_DEFAULT_SCALE_KWH * SLOTS_PER_DAY / num_steps
-        return (_residential_shape(num_steps) * scale_kwh).astype(np.float32)
+        shaped = _residential_shape(num_steps) * scale_kwh
+        return validate_grid_demand(shaped, num_steps, "grid_demand_kwh (scaled by scale_kwh)")
     if isinstance(source, (str, os.PathLike)):
         if isinstance(source, str) and not _looks_like_path(source):
             raise KeyError(
@@ -430,5 +431,8 @@ def load_grid_demand(
         mean = float(arr.mean())
         if not mean > 0:
             raise ValueError("scale_kwh: cannot rescale an all-zero grid demand")
-        arr = arr * (scale_kwh / mean)
+        # the peaks scale with the mean: checked again against the bound
+        arr = validate_grid_demand(
+            arr * (scale_kwh / mean), num_steps, "grid_demand_kwh (scaled by scale_kwh)"
+        )
     return arr.astype(np.float32)

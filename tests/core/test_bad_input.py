@@ -110,6 +110,11 @@ def marl_env(params):
             "capacity_kwh",
         ),
         (lambda: datasets.load_grid_demand("synthetic-residential", scale_kwh=1e39), "scale_kwh"),
+        # a mean within the bound whose peak is not: one step holds the whole day
+        (
+            lambda: datasets.load_grid_demand(np.eye(1, 288, 0)[0], scale_kwh=1e6),
+            r"grid_demand_kwh \(scaled by scale_kwh\)",
+        ),
         (lambda: make_params(num_levels=2**40), "num_levels"),
     ],
 )
