@@ -123,11 +123,11 @@ def validate_moer(
     return arr.astype(np.float32)
 
 
-def resample_moer(moer: Any, num_steps: int, field: str = "moer_kg_per_kwh") -> np.ndarray:
+def resample_moer(moer: Any, num_steps: int) -> np.ndarray:
     """Resample a rate ``(days, slots)`` to ``(days, num_steps)`` per day.
 
-    Coarser target: mean over the source slots of each step (slots must nest);
-    finer target: each source slot repeated. Rates are intensive (kg/kWh), so
+    Coarser target that nests: mean over the source slots of each step; finer target that
+    nests: each source slot repeated. Rates are intensive (kg/kWh), so
     averaging / repeating preserves the daily mean. Resolutions that do not nest: the
     piecewise-constant source averaged over each target step.
 
@@ -136,7 +136,6 @@ def resample_moer(moer: Any, num_steps: int, field: str = "moer_kg_per_kwh") -> 
     Args:
         moer: the rates, ``(days, slots)`` or ``(slots,)``.
         num_steps: the steps per day to resample to.
-        field: the rates' name (not used).
 
     Returns:
         ``(days, num_steps)`` float32 (one row for a 1-D input).
