@@ -12,7 +12,7 @@ from typing import Any
 
 import jax
 import numpy as np
-from tqdm.auto import tqdm
+from tqdm import tqdm  # plain text bars: no widget (nor warning) in Jupyter kernels
 
 from baselines import runs
 from baselines.algos import distributed, ppo_core, registry, runner

@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
-from tqdm.auto import tqdm
+from tqdm import tqdm  # plain text bars: no widget (nor warning) in Jupyter kernels
 
 from baselines.algos.ppo_core import HYPER_KEYS
 

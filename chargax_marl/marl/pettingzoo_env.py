@@ -213,7 +213,7 @@ class ChargaxParallelEnv(ParallelEnv):
         self._steps = 0
 
     # ------------------------------------------------------------------ spaces
-    def observation_space(self, agent: str) -> gymnasium.spaces.Box:
+    def observation_space(self, agent: str) -> gymnasium.spaces.Box | gymnasium.spaces.Dict:
         """An agent's observation space (PettingZoo's API).
 
         Args:
