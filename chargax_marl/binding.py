@@ -112,7 +112,7 @@ def grouped(params: EnvParams, fractions: np.ndarray) -> dict:
 
 def table(scenarios=("shopping",) + COORDINATION_SCENARIOS, num_days: int = 100) -> list[dict]:
     """One row per scenario: the grid limit and the percentage of steps each node group binds
-    under always-max on the held-out days ``split_days(365, num_days)``.
+    under always-max on the held-out days ``split_days(params.num_days, num_days)``.
 
     Args:
         scenarios: names of `chargax_marl.core.scenarios`.
