@@ -208,6 +208,13 @@ def baseline_results(
             else None
         )
         source = "computed" if draws == 1 else f"computed, mean over {draws} car draws per day"
+    mpc_source = source
+    if optimal == "mpc" and mpc_daily is None:  # stored without an MPC of every one of the days
+        mpc_daily = protocol.mean_over_draws(
+            lambda k: references.evaluate_mpc(eval_params, eval_days, k)["daily_profit"],
+            protocol.draw_keys(draws),
+        )
+        mpc_source = "computed"
     out["lp_bound"] = {
         "daily_profit": bound_daily,
         "metrics": summarize_profit(bound_daily),
@@ -218,7 +225,7 @@ def baseline_results(
         out["mpc"] = {
             "daily_profit": mpc_daily,
             "metrics": summarize_profit(mpc_daily),
-            "source": source,
+            "source": mpc_source,
         }
     add_headroom(out, out)
     return out

@@ -238,3 +238,22 @@ def test_the_held_out_bound_is_the_one_that_holds_under_the_session_model(sessio
     np.testing.assert_allclose(bound["daily_profit"], expected, rtol=1e-9)
     for name in ("always_max", "battery_rule"):
         assert (bound["daily_profit"] >= base[name]["daily_profit"] - 1e-3).all(), name
+
+
+def test_a_stored_result_without_every_day_s_mpc_gets_the_mpc_computed(monkeypatch):
+    """``optimal="mpc"`` on stored references whose MPC covers fewer days (``make optimal
+    --mpc-days N``): the bound is read from them and the MPC computed, not left out."""
+    config = resolve({**TINY, "ENV_KWARGS": TINY_ENV})
+    _, full, _, days = build_env_params(config)
+    days = days[:3]
+    stored = {
+        "policies": {"lp_bound": {"daily_profit": [9.0, 9.0, 9.0]}, "mpc": {"daily_profit": [5.0]}}
+    }
+    monkeypatch.setattr(references, "cached", lambda params, d, directory: stored)
+    monkeypatch.setattr(
+        references, "evaluate_mpc", lambda params, d, key: {"daily_profit": np.full(d.size, 7.0)}
+    )
+    base = heldout.baseline_results(full, days, optimal="mpc", references_dir="stored")
+    np.testing.assert_array_equal(base["lp_bound"]["daily_profit"], [9.0, 9.0, 9.0])
+    np.testing.assert_array_equal(base["mpc"]["daily_profit"], [7.0, 7.0, 7.0])
+    assert base["mpc"]["source"] == "computed"
