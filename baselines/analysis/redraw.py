@@ -99,11 +99,14 @@ def reference_profits(
                     np.asarray(policy_bound(eval_params, days, key)["daily_profit"], np.float64)
                 )
             if k < mpc_draws:
-                from_store = k == 0 and stored is not None and "mpc" in stored["policies"]
+                # draw 0's stored MPC only when it ran on every one of the days
+                stored_mpc = references.stored_mpc(stored, days) if k == 0 else None
                 out["mpc"].append(
-                    np.asarray(stored["policies"]["mpc"]["daily_profit"], np.float64)
-                    if from_store
-                    else references.evaluate_mpc(eval_params, days, key)["daily_profit"]
+                    stored_mpc
+                    if stored_mpc is not None
+                    else np.asarray(
+                        references.evaluate_mpc(eval_params, days, key)["daily_profit"], np.float64
+                    )
                 )
         _REFERENCES[cache_key] = {n: np.stack(v) for n, v in out.items()}
     return _REFERENCES[cache_key]

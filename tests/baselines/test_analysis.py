@@ -247,3 +247,24 @@ def test_the_committed_ablation_tables_are_what_their_score_files_give(table):
     )
     text = (ROOT / "results" / "ablation" / f"{table}.md").read_text()
     assert text == ablation.to_markdown(again, ("edf",))
+
+
+def test_redraw_reads_a_stored_mpc_only_when_it_covers_every_day(monkeypatch):
+    """Draw 0's MPC comes from ``make optimal``'s stored result only when it ran on all the
+    held-out days (``--mpc-days N`` stores the first N); otherwise it is computed."""
+    params = make_params(**TINY_ENV)
+    days = np.arange(3)
+    monkeypatch.setattr(
+        redraw,
+        "evaluate_rules",
+        lambda p, d, names, key: {n: {"daily_profit": np.zeros(d.size)} for n in names},
+    )
+    monkeypatch.setattr(
+        references, "evaluate_mpc", lambda p, d, key: {"daily_profit": np.full(d.size, 7.0)}
+    )
+    for stored_days, want in ((1, 7.0), (3, 5.0)):
+        stored = {"policies": {"mpc": {"daily_profit": [5.0] * stored_days}}}
+        monkeypatch.setattr(references, "cached", lambda p, d, directory, s=stored: s)
+        monkeypatch.setattr(redraw, "_REFERENCES", {})  # the process cache, restored after
+        out = redraw.reference_profits(params, days, 1, False, mpc_draws=1, references_dir="x")
+        np.testing.assert_array_equal(out["mpc"], np.full((1, 3), want))
