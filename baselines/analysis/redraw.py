@@ -23,7 +23,7 @@ the mean above two standard errors.
 
 With ``--bound on`` (default) the LP hindsight bound is solved for every draw as well, and a
 seed's headroom fraction is its mean gain over always-max over all days and draws divided
-by the bound's. Several runs of one scenario in one call share the rules' and the bound's
+by the bound's, both over the days and draws on which the bound was solved. Several runs of one scenario in one call share the rules' and the bound's
 draws.
 """
 
@@ -112,6 +112,53 @@ def reference_profits(
     return _REFERENCES[cache_key]
 
 
+def headroom_fractions(learned: np.ndarray, refs: dict, mpc_draws: int = 0) -> dict:
+    """The headroom (LP bound minus always-max) and each policy's fraction of it, over the
+    draws and days on which the bound was solved (a failed solve is NaN and leaves its draw
+    and day out of every mean, the policies' gains included).
+
+    Args:
+        learned: ``(seeds, draws, days)`` the learned seeds' daily profits (EUR/day).
+        refs: `reference_profits`' ``{name: (draws, days)}``, with ``always_max`` and
+            ``lp_bound`` (and ``mpc``, ``(mpc_draws, days)``, with ``mpc_draws``).
+        mpc_draws: the draws the MPC ran on (the first ones); 0 for none.
+
+    Returns:
+        ``{"headroom_eur", "headroom_eur_per_draw", "bound_failed_days", "headroom_fraction":
+        {"per_seed", "references", "over_seeds"[, "mpc_on_its_draws"]}}``; EUR/day, and
+        fractions of the headroom.
+    """
+    am = refs["always_max"]
+    solved = np.isfinite(refs["lp_bound"])
+
+    def mean_solved(x, rows=None) -> float:
+        mask = solved if rows is None else solved[:rows]
+        return float(np.asarray(x)[mask].mean())
+
+    gap = refs["lp_bound"] - am
+    headroom = mean_solved(gap)
+    out = {
+        "headroom_eur": headroom,
+        "headroom_eur_per_draw": [float(g[s].mean()) for g, s in zip(gap, solved, strict=True)],
+        "bound_failed_days": int((~solved).sum()),
+        "headroom_fraction": {
+            "per_seed": [mean_solved(seed - am) / headroom for seed in learned],
+            "references": {
+                n: mean_solved(v - am) / headroom for n, v in refs.items() if n != "mpc"
+            },
+        },
+    }
+    if mpc_draws:  # the MPC's fraction on its own draws, against the bound on the same draws
+        n = int(mpc_draws)
+        own = mean_solved(gap[:n], n)
+        out["headroom_fraction"]["mpc_on_its_draws"] = {
+            "mpc": mean_solved(refs["mpc"] - am[:n], n) / own,
+            "per_seed": [mean_solved(seed[:n] - am[:n], n) / own for seed in learned],
+        }
+    out["headroom_fraction"]["over_seeds"] = over_seeds(out["headroom_fraction"]["per_seed"])
+    return out
+
+
 def redraw(
     run_dir: str | Path,
     draws: int = 8,
@@ -142,8 +189,8 @@ def redraw(
         ``{"run", "algo", "scenario", "num_days", "draws", "seeds", "keys",
         "replay_check_max_abs_eur", "references_mean_profit_eur",
         "references_vs_always_max", "per_draw_vs_always_max", "mpc_draws", "vs"}``; with
-        ``bound`` also ``headroom_eur``, ``headroom_eur_per_draw`` and
-        ``headroom_fraction``. ``vs`` holds, per reference but the bound, each seed's
+        ``bound`` also `headroom_fractions`' ``headroom_eur``, ``headroom_eur_per_draw``,
+        ``bound_failed_days`` and ``headroom_fraction``. ``vs`` holds, per reference but the bound, each seed's
         `baselines.eval.stats.day_clustered` difference (and on draw 0 alone,
         ``draw0_per_seed``), their `baselines.eval.stats.over_seeds`, and the counts of
         seeds above it and beating it. Profits and differences in EUR/day.
@@ -214,29 +261,7 @@ def redraw(
         "vs": {},
     }
     if bound:
-        headroom = float((refs["lp_bound"] - am).mean())
-        out["headroom_eur"] = headroom
-        out["headroom_eur_per_draw"] = [float(x) for x in (refs["lp_bound"] - am).mean(axis=1)]
-        out["headroom_fraction"] = {
-            "per_seed": [
-                float((learned[i] - am).mean() / headroom) for i in range(learned.shape[0])
-            ],
-            "references": {
-                n: float((v - am).mean() / headroom) for n, v in refs.items() if n != "mpc"
-            },
-        }
-        if mpc_draws:  # the MPC's fraction on its own draws, against the bound on the same draws
-            n = int(mpc_draws)
-            out["headroom_fraction"]["mpc_on_its_draws"] = {
-                "mpc": float(
-                    (refs["mpc"] - am[:n]).mean() / (refs["lp_bound"][:n] - am[:n]).mean()
-                ),
-                "per_seed": [
-                    float((learned[i, :n] - am[:n]).mean() / (refs["lp_bound"][:n] - am[:n]).mean())
-                    for i in range(learned.shape[0])
-                ],
-            }
-        out["headroom_fraction"]["over_seeds"] = over_seeds(out["headroom_fraction"]["per_seed"])
+        out.update(headroom_fractions(learned, refs, mpc_draws))
     for name in (n for n in refs if n != "lp_bound"):
         n = len(refs[name])  # the MPC's draws are the first mpc_draws
         per_seed = [

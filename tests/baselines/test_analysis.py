@@ -268,3 +268,24 @@ def test_redraw_reads_a_stored_mpc_only_when_it_covers_every_day(monkeypatch):
         monkeypatch.setattr(redraw, "_REFERENCES", {})  # the process cache, restored after
         out = redraw.reference_profits(params, days, 1, False, mpc_draws=1, references_dir="x")
         np.testing.assert_array_equal(out["mpc"], np.full((1, 3), want))
+
+
+def test_a_failed_bound_solve_leaves_its_draw_and_day_out_of_the_headroom():
+    """A NaN bound (a failed LP) leaves that draw and day out of the headroom and of every
+    fraction, instead of turning them all NaN."""
+    am = np.array([[10.0, 10.0], [10.0, 10.0]])
+    refs = {
+        "always_max": am,
+        "battery_rule": am + 1.0,
+        "lp_bound": np.array([[14.0, np.nan], [12.0, 12.0]]),
+        "mpc": np.array([[13.0, 13.0]]),
+    }
+    learned = np.array([[[12.0, 99.0], [11.0, 11.0]]])  # one seed; 99 on the failed day
+    out = redraw.headroom_fractions(learned, refs, mpc_draws=1)
+    assert out["bound_failed_days"] == 1
+    assert out["headroom_eur"] == pytest.approx((4 + 2 + 2) / 3)
+    assert out["headroom_eur_per_draw"] == pytest.approx([4.0, 2.0])
+    assert out["headroom_fraction"]["per_seed"] == pytest.approx([(2 + 1 + 1) / 8])
+    assert out["headroom_fraction"]["references"]["battery_rule"] == pytest.approx(3 / 8)
+    assert out["headroom_fraction"]["references"]["lp_bound"] == pytest.approx(1.0)
+    assert out["headroom_fraction"]["mpc_on_its_draws"]["mpc"] == pytest.approx(3 / 4)
