@@ -2,12 +2,15 @@
 
 Every page of ``mkdocs.yml``'s nav exists, every page of ``docs/`` is in the nav, every
 relative link or image of a page resolves to a file of ``docs/`` (the site holds nothing
-else), and the figures copied into ``docs/`` from ``results/`` are those files as they are.
+else), the figures copied into ``docs/`` from ``results/`` are those files as they are, and
+every public module is on a page of the API reference.
 """
 
 from __future__ import annotations
 
+import importlib
 import os
+import pkgutil
 import re
 from pathlib import Path
 
@@ -105,3 +108,39 @@ def test_the_notebook_page_is_the_example_notebook():
     # (mkdocs-jupyter, not run at build time) shows that file and no copy that could drift
     page = DOCS / "quickstart.ipynb"
     assert page.is_symlink() and page.resolve() == ROOT / "examples" / "quickstart.ipynb"
+
+
+def _api_directives() -> list[tuple[str, bool]]:
+    """``(object, shows its submodules)`` of every ``::: object`` of the API pages
+    (``show_submodules`` is on in mkdocs.yml unless a directive's options turn it off)."""
+    out = []
+    for page in sorted((DOCS / "api").glob("*.md")):
+        lines = page.read_text().splitlines()
+        for i, line in enumerate(lines):
+            if line.startswith("::: "):
+                options = []
+                for following in lines[i + 1 :]:
+                    if not following.startswith("    "):
+                        break
+                    options.append(following.strip())
+                out.append((line[4:].strip(), "show_submodules: false" not in options))
+    return out
+
+
+@pytest.mark.parametrize("tree", ["chargax_marl", "baselines"])
+def test_every_public_module_is_on_an_api_page(tree):
+    """Each non-private module of the library and of ``baselines`` is rendered by a page of
+    the API reference: named by a directive, or a submodule of one that shows them."""
+    directives = _api_directives()
+    package = importlib.import_module(tree)
+    modules = [tree] + [
+        m.name
+        for m in pkgutil.walk_packages(package.__path__, prefix=f"{tree}.")
+        if not any(part.startswith("_") for part in m.name.split("."))
+    ]
+    missing = [
+        m
+        for m in modules
+        if not any(m == d or (sub and m.startswith(d + ".")) for d, sub in directives)
+    ]
+    assert not missing, f"modules on no API page (docs/api/*.md): {missing}"
