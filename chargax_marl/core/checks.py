@@ -166,14 +166,23 @@ def array(
         ``value`` as a float64 numpy array of its own shape.
 
     Raises:
-        ValueError: ``value`` cannot be read as an array of numbers, or an entry is not
+        ValueError: ``value`` cannot be read as an array of real numbers (strings, bools
+            and complex numbers are refused, as `number` refuses them), or an entry is not
             finite, is outside the range, or overflows or underflows in float32.
     """
     try:
-        arr = np.asarray(value, dtype=np.float64)
+        raw = np.asarray(value)
+        if raw.dtype.kind not in "iuf":
+            # object arrays (numbers of mixed types) pass when each entry would pass `number`
+            if raw.dtype.kind != "O" or any(
+                isinstance(v, (bool, np.bool_, str, bytes)) or not isinstance(v, numbers.Real)
+                for v in raw.ravel()
+            ):
+                raise TypeError(f"entries of dtype {raw.dtype}")
+        arr = raw.astype(np.float64)
     except (TypeError, ValueError) as exc:
         raise ValueError(
-            f"field '{field}' must be an array of numbers, got {type(value).__name__} ({exc})"
+            f"field '{field}' must be an array of real numbers, got {type(value).__name__} ({exc})"
         ) from None
     allowed = _range_text(low, high, low_open, high_open, unit)
     bad = ~np.isfinite(arr)
