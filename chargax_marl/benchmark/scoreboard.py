@@ -73,6 +73,17 @@ def _scored_days(task_id: str, references_dir=None) -> int:
     return compare(task_id, refs["policies"][BOUND]["daily_profit"], references_dir)["days_scored"]
 
 
+SCORE_FIELDS = ("daily_profit",)
+"""The fields a score file needs beside ``name``, ``task`` and ``score``: its cells are
+computed from the profits on the current references (``seeds`` is optional: a policy without
+seeds is shown by its name alone)."""
+
+
+def _label(data: dict) -> str:
+    """A score file's row label: its name and, where it has them, its seeds."""
+    return f"{data['name']} ({data['seeds']} seeds)" if "seeds" in data else str(data["name"])
+
+
 def read_scores(directory: str | Path) -> list[dict]:
     """The score files of ``directory`` (``*.json`` with ``name``, ``task`` and ``score``),
     each checked against the current code's task parameters.
@@ -86,13 +97,21 @@ def read_scores(directory: str | Path) -> list[dict]:
 
     Raises:
         KeyError: a score file of a task not in the registry (`get_task`).
-        ValueError: a score file computed on other parameters than its task's on this code.
+        ValueError: a score file computed on other parameters than its task's on this code,
+            or one without a field of `SCORE_FIELDS`.
     """
     out = []
     for path in sorted(Path(directory).glob("*.json")):
         data = json.loads(path.read_text())
         if not {"name", "task", "score"} <= set(data):
             continue
+        missing = [field for field in SCORE_FIELDS if field not in data]
+        if missing:
+            raise ValueError(
+                f"{path}: a score file needs the fields {list(SCORE_FIELDS)}; it lacks {missing}"
+                " (write it with `python -m baselines.score` or `json.dump` of "
+                "`chargax_marl.benchmark.score`'s result)"
+            )
         current = params_fingerprint(get_task(data["task"]).make_params())
         if data.get("params_fingerprint") != current:
             raise ValueError(
@@ -133,8 +152,9 @@ def render(
                     scored[task_id],
                 )
     for data in read_scores(scores_dir) if scores_dir else []:
-        label = f"{data['name']} ({data['seeds']} seeds)"
-        rows.setdefault(label, {})[data["task"]] = _cell(data, scored[data["task"]])
+        label = _label(data)
+        result = compare(data["task"], data["daily_profit"], references_dir)
+        rows.setdefault(label, {})[data["task"]] = _cell(result, scored[data["task"]])
     short = [t.removeprefix("Chargax-") for t in tasks]
     lines = [
         "| policy | " + " | ".join(f"`{s}`" for s in short) + " |",
@@ -205,7 +225,7 @@ def learner_gaps(scores_dir: str | Path, references_dir: str | Path | None = Non
         strongest = max(rules, key=lambda name: np.nanmean(refs[name]["daily_profit"]))
         cells = [_pm(result["vs"][name]) if name in refs else "–" for name in MPCS]
         lines.append(
-            f"| `{task_id.removeprefix('Chargax-')}` | {data['name']} ({data['seeds']} seeds) "
+            f"| `{task_id.removeprefix('Chargax-')}` | {_label(data)} "
             f"| {result['score']:.2f} ± {result['score_stderr']:.2f} | {cells[0]} | {cells[1]} "
             f"| {REFERENCE_LABELS.get(strongest, strongest)} | {_pm(result['vs'][strongest])} |"
         )
@@ -255,10 +275,10 @@ def embedded(text: str) -> str:
         The text between the first `START` and the next `END`, stripped.
 
     Raises:
-        ValueError: the markers are missing.
+        ValueError: the markers are missing, or no `END` follows the first `START`.
     """
-    if START not in text or END not in text:
-        raise ValueError(f"no {START} ... {END} block in the file")
+    if START not in text or END not in text.split(START, 1)[1]:
+        raise ValueError(f"no {START} ... {END} block in the file (an end after the start)")
     return text.split(START, 1)[1].split(END, 1)[0].strip()
 
 
@@ -273,7 +293,7 @@ def embed(text: str, table: str) -> str:
         ``text`` with the first block's contents replaced by ``table`` (on its own lines).
 
     Raises:
-        ValueError: the markers are missing (`embedded`).
+        ValueError: the markers are missing, or out of order (`embedded`).
     """
     embedded(text)
     head, rest = text.split(START, 1)

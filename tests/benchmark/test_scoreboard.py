@@ -43,6 +43,47 @@ def test_embed_replaces_only_the_block():
     assert scoreboard.embed(text, "new") == f"a\n{scoreboard.START}\nnew\n{scoreboard.END}\nb\n"
     with pytest.raises(ValueError, match="no <!-- scoreboard:start -->"):
         scoreboard.embedded("no block")
+    # an end marker before the start is no block (it raised IndexError)
+    backwards = f"a\n{scoreboard.END}\nold\n{scoreboard.START}\nb\n"
+    with pytest.raises(ValueError, match="an end after the start"):
+        scoreboard.embed(backwards, "new")
+
+
+def _edf_file(tmp_path, **fields):
+    """A score file of EDF's stored profits on the 10 % grid task, with ``fields`` set (a
+    value of None: that field left out)."""
+    task_id = "Chargax-shopping-grid10-high-v1"
+    profit = np.asarray(load_references(task_id)["policies"]["edf"]["daily_profit"])
+    data = {
+        "name": "EDF as a file",
+        "task": task_id,
+        "score": 0.0,
+        "seeds": 1,
+        "daily_profit": profit[None].tolist(),
+        "params_fingerprint": params_fingerprint(get_task(task_id).make_params()),
+    }
+    data.update(fields)
+    data = {k: v for k, v in data.items() if v is not None}
+    (tmp_path / "edf.json").write_text(json.dumps(data))
+    return task_id
+
+
+def test_a_score_file_without_seeds_is_shown_by_its_name(tmp_path):
+    """A policy with no seeds (a hand-written rule): its row is its name; its cells are those
+    of its profits on the references (it raised KeyError: 'seeds')."""
+    task_id = _edf_file(tmp_path, seeds=None)
+    table = scoreboard.render(tmp_path)
+    row = next(line for line in table.splitlines() if line.startswith("| EDF as a file |"))
+    edf = next(line for line in table.splitlines() if line.startswith("| EDF |"))
+    column = list(scoreboard.TASKS).index(task_id) + 2
+    assert row.split("|")[column] == edf.split("|")[column]
+    assert "| `shopping-grid10-high-v1` | EDF as a file |" in scoreboard.learner_gaps(tmp_path)
+
+
+def test_a_score_file_without_profits_is_refused_by_name(tmp_path):
+    _edf_file(tmp_path, daily_profit=None)
+    with pytest.raises(ValueError, match=r"edf.json: .* lacks \['daily_profit'\]"):
+        scoreboard.read_scores(tmp_path)
 
 
 def test_a_cell_says_how_many_days_it_rests_on_when_days_were_left_out(tmp_path):
