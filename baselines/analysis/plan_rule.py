@@ -21,6 +21,31 @@ from chargax_marl.evaluation import run_days
 from chargax_marl.teachers.car_plan import plan_action
 
 
+def bound_headroom(bound_profit, always_max_profit) -> tuple[np.ndarray, float]:
+    """The days whose LP bound was solved, and the bound's mean headroom over always-max on
+    them (a failed solve is stored as ``None``; a plain mean would make every fraction NaN).
+
+    Args:
+        bound_profit: ``(days,)`` the bound's daily profit (EUR), ``None`` where it failed.
+        always_max_profit: ``(days,)`` always-max's daily profit (EUR) on the same days.
+
+    Returns:
+        ``(solved, headroom_eur)``: a ``(days,)`` bool mask and the mean of bound minus
+        always-max over the masked days (EUR/day).
+
+    Raises:
+        ValueError: the shapes differ, or no day was solved.
+    """
+    bound = np.asarray(bound_profit, dtype=np.float64)
+    am = np.asarray(always_max_profit, dtype=np.float64)
+    if bound.shape != am.shape:
+        raise ValueError(f"bound_profit: shape {bound.shape} differs from always-max's {am.shape}")
+    solved = np.isfinite(bound)
+    if not solved.any():
+        raise ValueError("bound_profit: no day has a solved bound (every entry is None or NaN)")
+    return solved, float(np.mean(bound[solved] - am[solved]))
+
+
 def main(argv=None) -> dict:
     """``python -m baselines.analysis.plan_rule [--scenario default]``: the plan rule (`plan_action`)
     on the 100 held-out days of a scenario of `baselines.analysis.references`, with and without the
@@ -52,7 +77,7 @@ def main(argv=None) -> dict:
     bound = json.loads((Path(a.references) / f"{a.scenario}.json").read_text())["policies"][
         "lp_bound"
     ]
-    headroom = float(np.mean(bound["daily_profit"]) - np.mean(am))
+    solved, headroom = bound_headroom(bound["daily_profit"], am)
     key = jax.random.PRNGKey(0)
     out = {
         "scenario": a.scenario,
@@ -62,21 +87,21 @@ def main(argv=None) -> dict:
     }
     print(
         f"{a.scenario}: always-max {am.mean():.2f} EUR/day, battery rule {rule.mean() - am.mean():+.2f}, "
-        f"bound headroom {headroom:.2f}; {len(days)} held-out days, key 0"
+        f"bound headroom {headroom:.2f} over the {int(solved.sum())} days it was solved; "
+        f"{len(days)} held-out days, key 0"
     )
     for battery in ("idle", "dp"):
         for frac in [None] * (battery == "dp") + [float(x) for x in a.fractions.split(",")]:
             act = plan_action(params, battery, frac)
-            totals = jax.jit(lambda d, k: run_days(lambda s, kk: act(s, kk, params), params, d, k))(
-                np.asarray(days), key
-            )
+            # run_days compiles the play itself and then checks the policy's outputs
+            totals = run_days(lambda s, kk, act=act: act(s, kk, params), params, days, key)
             profit = np.asarray(totals.profit_eur, np.float64)
             row = {
                 "battery": battery,
                 "power_fraction": frac,
                 "vs_always_max": stats.paired_difference(profit, am),
                 "vs_battery_rule": stats.paired_difference(profit, rule),
-                "headroom_fraction": float((profit.mean() - am.mean()) / headroom),
+                "headroom_fraction": float((profit[solved].mean() - am[solved].mean()) / headroom),
                 "energy_delivered_kwh": float(np.mean(totals.energy_delivered_kwh)),
             }
             out["rows"].append(row)
