@@ -7,18 +7,17 @@ valued by its cheapest plan under the day's prices.
 from __future__ import annotations
 
 import argparse
-import json
-from pathlib import Path
 
 import jax
 import numpy as np
 
 from baselines.analysis.references import RESULTS_DIR, SCENARIOS
 from baselines.config import build_env_params, resolve
-from baselines.eval import stats
+from baselines.eval import references, stats
 from baselines.eval.rules import evaluate_rules
 from chargax_marl.evaluation import run_days
 from chargax_marl.teachers.car_plan import plan_action
+from chargax_marl.trace import params_fingerprint
 
 
 def bound_headroom(bound_profit, always_max_profit) -> tuple[np.ndarray, float]:
@@ -51,7 +50,8 @@ def main(argv=None) -> dict:
     on the 100 held-out days of a scenario of `baselines.analysis.references`, with and without the
     programme's battery, at several plan power fractions, against always-max and the battery
     rule (paired over days, the same cars), and the fraction of the LP bound's headroom from
-    ``<references>/<scenario>.json``.
+    the stored references of the same parameters (the scenario's, one level per port: the
+    ``*_full_power`` files of ``make optimal``).
 
     Args:
         argv: the command-line arguments; ``None`` reads ``sys.argv``.
@@ -62,6 +62,9 @@ def main(argv=None) -> dict:
         (``"idle"``, ``"dp"``) and power fraction (``None``: always-max ports, with the
         programme's battery only) with ``vs_always_max``, ``vs_battery_rule`` (paired
         differences in EUR/day), ``headroom_fraction`` and ``energy_delivered_kwh``.
+
+    Raises:
+        ValueError: ``--references`` holds no file of these parameters and days.
     """
     p = argparse.ArgumentParser(description=main.__doc__)
     p.add_argument("--scenario", default="default", choices=sorted(SCENARIOS))
@@ -70,13 +73,19 @@ def main(argv=None) -> dict:
         "--references", default=str(RESULTS_DIR), help="the directory `make optimal` wrote"
     )
     a = p.parse_args(argv)
-    config = resolve({**SCENARIOS[a.scenario], "ENV_KWARGS": {"num_levels": 1}})
-    _, params, _, days = build_env_params(config)
+    scenario = SCENARIOS[a.scenario]
+    env_kwargs = {**scenario.get("ENV_KWARGS", {}), "num_levels": 1}
+    _, params, _, days = build_env_params(resolve({**scenario, "ENV_KWARGS": env_kwargs}))
+    stored = references.cached(params, days, a.references)
+    if stored is None:
+        raise ValueError(
+            f"--references {a.references}: no file holds the LP bound of scenario "
+            f"{a.scenario!r} with num_levels=1 on these days (fingerprint "
+            f"{params_fingerprint(params)}); run `make optimal` first"
+        )
+    bound = stored["policies"]["lp_bound"]
     rules = evaluate_rules(params, days, policies=("always_max", "battery_rule"))
     am, rule = rules["always_max"]["daily_profit"], rules["battery_rule"]["daily_profit"]
-    bound = json.loads((Path(a.references) / f"{a.scenario}.json").read_text())["policies"][
-        "lp_bound"
-    ]
     solved, headroom = bound_headroom(bound["daily_profit"], am)
     key = jax.random.PRNGKey(0)
     out = {

@@ -10,8 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from baselines.analysis import ablation, attribution, read_policy, redraw, sensitivity
-from baselines.analysis.plan_rule import bound_headroom
+from baselines.analysis import ablation, attribution, plan_rule, read_policy, redraw, sensitivity
 from baselines.config import build_env_params
 from baselines.eval import references
 from baselines.eval.rules import evaluate_rules
@@ -295,10 +294,18 @@ def test_a_failed_bound_solve_leaves_its_draw_and_day_out_of_the_headroom():
 def test_plan_rule_headroom_leaves_out_the_days_whose_bound_failed():
     """A failed solve (stored as None) leaves its day out of the headroom; a plain mean made
     the headroom and every fraction NaN."""
-    solved, headroom = bound_headroom([10.0, None, 7.0], [4.0, 100.0, 5.0])
+    solved, headroom = plan_rule.bound_headroom([10.0, None, 7.0], [4.0, 100.0, 5.0])
     assert solved.tolist() == [True, False, True]
     assert headroom == pytest.approx(((10 - 4) + (7 - 5)) / 2)
     with pytest.raises(ValueError, match="no day has a solved bound"):
-        bound_headroom([None, None], [1.0, 2.0])
+        plan_rule.bound_headroom([None, None], [1.0, 2.0])
     with pytest.raises(ValueError, match=r"bound_profit: shape \(3,\)"):
-        bound_headroom([1.0, 2.0, 3.0], [1.0, 2.0])
+        plan_rule.bound_headroom([1.0, 2.0, 3.0], [1.0, 2.0])
+
+
+def test_plan_rule_refuses_references_of_other_parameters(tmp_path):
+    """The bound is read from the stored file of the same parameters (the scenario's session
+    model, one level per port); it read ``<scenario>.json`` whatever its parameters, and
+    dropped the scenario's session model, so its headroom came out negative."""
+    with pytest.raises(ValueError, match="no file holds the LP bound of scenario 'peak'"):
+        plan_rule.main(["--scenario", "peak", "--references", str(tmp_path)])
