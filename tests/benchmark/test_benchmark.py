@@ -5,6 +5,8 @@ from __future__ import annotations
 import dataclasses
 import json
 import shutil
+import subprocess
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -30,6 +32,7 @@ from chargax_marl.benchmark import (
 )
 from chargax_marl.benchmark import references as references_module
 from chargax_marl.benchmark.references import BOUND, MPC_REFERENCES, ZERO, reference_path
+from chargax_marl.benchmark.references import __main__ as references_cli
 from chargax_marl.core import Battery, Port, Splitter, make_params
 from chargax_marl.core.observation import context_index, context_size, obs_size
 from chargax_marl.core.station import KIND_BATTERY
@@ -350,17 +353,17 @@ def test_the_references_command_passes_its_time_limit(tmp_path, monkeypatch):
         seen.append(("refill", kwargs["time_limit_s"]))
         raise SystemExit(0)
 
-    monkeypatch.setattr(references_module, "compute_references", fake_compute)
-    monkeypatch.setattr(references_module, "refill_bound", fake_refill)
+    monkeypatch.setattr(references_cli, "compute_references", fake_compute)
+    monkeypatch.setattr(references_cli, "refill_bound", fake_refill)
     task_id = "Chargax-shopping-v2"
     for extra in ([], ["--refill-bound"]):
         with pytest.raises(SystemExit):
-            references_module.main(
+            references_cli.main(
                 ["--task", task_id, "--out", str(tmp_path), "--time-limit", "600"] + extra
             )
     assert seen == [("compute", 600.0), ("refill", 600.0)]
     with pytest.raises(SystemExit) as refused:
-        references_module.main(["--task", task_id, "--time-limit", "0"])
+        references_cli.main(["--task", task_id, "--time-limit", "0"])
     assert refused.value.code == 2
 
 
@@ -542,3 +545,24 @@ def test_the_picture_marks_every_car_s_departure():
     arrived, departed = day["arrived"], day["departed"]
     assert (departed[:-1] & arrived[:-1]).any()  # a port refilled in its car's last step
     assert departed.sum() == arrived[:-1].sum()
+
+
+def test_the_references_command_runs_without_importing_its_module_twice():
+    """``python -m chargax_marl.benchmark.references`` runs the package's ``__main__``: the
+    library module is imported once (a command inside the module that ``chargax_marl.benchmark``
+    imports warned that it was found in sys.modules and ran a second copy of it)."""
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-W",
+            "error::RuntimeWarning",
+            "-m",
+            "chargax_marl.benchmark.references",
+            "--help",
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("usage: python -m chargax_marl.benchmark.references")

@@ -1,0 +1,137 @@
+"""``python -m chargax_marl.benchmark.references``: compute the references of tasks and
+write them as the JSON files `chargax_marl.benchmark.references` ships and loads.
+
+The command lives apart from the library module so that running it does not import the
+module a second time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+
+from chargax_marl.benchmark.references import (
+    BOUND,
+    MPC_REFERENCES,
+    REFERENCES_DIR,
+    ZERO,
+    add_mpc,
+    compute_references,
+    reference_path,
+    refill_bound,
+    save_references,
+)
+from chargax_marl.benchmark.tasks import TASKS, get_task
+
+
+def main(argv=None) -> None:
+    """The command line: compute the references of tasks and write them as JSON files.
+
+    Per task, one of: ``--refill-bound`` (`refill_bound`), ``--mpc`` (`add_mpc`),
+    ``--keep-bound`` (replay the rules, keep the stored bound and MPC references), or a full
+    build (`compute_references`, ``--no-bound`` leaving the bound out); each writes the
+    task's file in ``--out`` and prints its path and wall time.
+
+    Args:
+        argv: the arguments (None: ``sys.argv[1:]``); ``--help`` lists them.
+
+    Raises:
+        SystemExit: ``--keep-bound`` on a task whose parameters' fingerprint or always-max's
+            per-day profits differ from the stored file's (the bound must be rebuilt too).
+    """
+    parser = argparse.ArgumentParser(
+        prog="python -m chargax_marl.benchmark.references", description=__doc__.split("\n\n")[0]
+    )
+    parser.add_argument("--task", action="append", help="a task id (repeatable; default: all)")
+    parser.add_argument("--out", default=str(REFERENCES_DIR), help="directory of the files")
+    parser.add_argument("--no-bound", action="store_true", help="the rules only")
+    parser.add_argument(
+        "--keep-bound",
+        action="store_true",
+        help="replay the rules, keep the stored LP bound (it depends on always-max's occupancy "
+        "and the parameters, which must be unchanged)",
+    )
+    parser.add_argument(
+        "--reuse", default=None, help="make optimal's results directory (results/optimal)"
+    )
+    parser.add_argument(
+        "--mpc",
+        action="store_true",
+        help="add the MPC references to the stored files (an LP per step; nothing else moves)",
+    )
+    parser.add_argument(
+        "--mpc-only",
+        choices=list(MPC_REFERENCES),
+        default=None,
+        help="with --mpc: only this one, the other left as stored",
+    )
+    parser.add_argument(
+        "--processes",
+        type=int,
+        default=os.cpu_count() or 1,
+        help="with --mpc, or for a port-pooled bound: processes that share the days (default: "
+        "one per core)",
+    )
+    parser.add_argument(
+        "--refill-bound",
+        action="store_true",
+        help="solve the stored LP bound's failed days again (each such draw whole, as a full "
+        "rebuild does); every other number stays as stored",
+    )
+    parser.add_argument(
+        "--bound-dir",
+        default=None,
+        help="for a port-pooled bound: keep its solved days in this directory, chunk by chunk, "
+        "and reuse them when the command is run again (a stopped build resumes)",
+    )
+    parser.add_argument(
+        "--time-limit",
+        type=float,
+        default=60.0,
+        help="the LP bound's time limit per day and solver attempt, in seconds (default: 60)",
+    )
+    args = parser.parse_args(argv)
+    if not args.time_limit > 0:
+        parser.error(f"--time-limit must be a positive number of seconds, got {args.time_limit}")
+    for task_id in args.task or list(TASKS):
+        t0 = time.perf_counter()
+        if args.refill_bound:
+            path = refill_bound(task_id, args.out, time_limit_s=args.time_limit)
+            print(f"{path}: {time.perf_counter() - t0:.0f} s")
+            continue
+        if args.mpc:
+            only = None if args.mpc_only is None else [args.mpc_only]
+            path = add_mpc(task_id, args.out, names=only, processes=args.processes)
+            print(f"{path}: {time.perf_counter() - t0:.0f} s")
+            continue
+        if args.keep_bound:
+            stored = json.loads(reference_path(task_id, args.out).read_text())
+            refs = compute_references(task_id, bound=False)
+            if refs["params_fingerprint"] != stored["params_fingerprint"] or (
+                refs["policies"][ZERO]["daily_profit"] != stored["policies"][ZERO]["daily_profit"]
+            ):
+                raise SystemExit(
+                    f"{task_id}: the parameters or always-max's days moved; rebuild the bound too"
+                )
+            for name in (BOUND, *MPC_REFERENCES):
+                if name in stored["policies"]:
+                    refs["policies"][name] = stored["policies"][name]
+                    refs["wall_s"][name] = stored["wall_s"][name]
+        else:
+            pooled = get_task(task_id).bound == "pooled"
+            refs = compute_references(
+                task_id,
+                bound=not args.no_bound,
+                reuse_dir=args.reuse,
+                processes=args.processes if pooled else 1,
+                bound_dir=args.bound_dir if pooled else None,
+                time_limit_s=args.time_limit,
+            )
+        path = save_references(refs, args.out)
+        print(f"{path}: {time.perf_counter() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
