@@ -1,6 +1,8 @@
 """The real sessions, the session model's fit, and a small held-out comparison with the
 thresholds of ``python -m chargax_marl.validation``."""
 
+import dataclasses
+
 import jax
 import numpy as np
 import pytest
@@ -9,7 +11,7 @@ from scipy.stats import spearmanr
 from chargax_marl import policies
 from chargax_marl.core import datasets as ds
 from chargax_marl.core import make_params
-from chargax_marl.core.profiles import marginal_quantiles
+from chargax_marl.core.profiles import load_user_profile, marginal_quantiles
 from chargax_marl.evaluation import run_policy_days
 from chargax_marl.validation import fit, real, report
 from chargax_marl.validation.__main__ import main
@@ -125,3 +127,31 @@ def test_the_acn_fits_join_longer_stays_to_more_energy():
     for site, name in real.SITES.items():
         assert 0.1 < fit.fit_profile(real.load_sessions(site), name).stay_demand_corr < 0.5
         assert ds.load_user_profile(name).stay_demand_corr > 0.1  # the bundled profile has it
+
+
+def test_the_cut_share_by_start_hour_by_hand():
+    """Every car arrives at 20:00 and stays 6 h: an episode from midnight cuts them all, one
+    from noon none, one from 23:00 all (3 h left), on workdays and weekends alike."""
+    base = load_user_profile("residential")
+    weights = np.zeros_like(np.asarray(base.arrival_weights))
+    weights[:, 20 * 12] = 1.0
+    stays = np.full_like(np.asarray(base.stay_quantiles_min), 360.0)
+    stays += np.linspace(0.0, 1e-3, stays.shape[-1])  # a strictly increasing table
+    profile = dataclasses.replace(base, arrival_weights=weights, stay_quantiles_min=stays)
+    share = report.cut_share_by_start_hour(profile)
+    assert share.shape == (24,)
+    assert share[0] == pytest.approx(1.0) and share[23] == pytest.approx(1.0)
+    assert share[12] == pytest.approx(0.0) and share[20] == pytest.approx(0.0)
+
+
+def test_the_simulated_ac_cut_share_is_the_profile_s():
+    """Residential users, noon-to-noon episodes: the AC ports' simulated share of sessions
+    cut by the episode's end is the one `cut_share_by_start_hour` expects from the profile
+    (the all-ports share is far smaller: the DC ports' users leave when charged)."""
+    row = report.elaad("residential", num_days=60, episode_start_hour=12)
+    expected = report.cut_share_by_start_hour(load_user_profile("residential"))[12]
+    assert row["cut_share_ac"] == pytest.approx(expected, abs=0.05), row
+    assert row["cut_share"] < row["cut_share_ac"]
+    assert row["least_cut_share"] == pytest.approx(
+        report.cut_share_by_start_hour(load_user_profile("residential")).min()
+    )
