@@ -421,6 +421,7 @@ TASKS: dict[str, Task] = {
 
 _V2 = (
     "shopping",
+    "shopping-grid25-high",
     "shopping-grid10-high",
     "shopping-peak",
     "workplace",
