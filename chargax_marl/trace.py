@@ -94,6 +94,9 @@ def params_fingerprint(params: EnvParams) -> str:
     structure = _treedef_text(treedef, params)
     dropped = _neutral_later_fields(params)
     collapse_tables = bool(dropped)
+    if not params.fixed_departures:
+        # the session model v3's fields, read only with fixed departures
+        dropped += ("dc_share", "dc_margin_min")
     if float(np.asarray(params.stay_demand_corr)) == 0.0:
         # the copula came after the session model v2's first results: at 0 it changes nothing
         dropped += ("stay_demand_corr",)
@@ -172,19 +175,25 @@ def _neutral_later_fields(params: EnvParams) -> tuple[str, ...]:
 
 def _treedef_text(treedef, params: EnvParams) -> str:
     """The text of ``params``' tree structure (its static settings included) that
-    `params_fingerprint` hashes. ``episode_start_hour`` came after the stored fingerprints:
-    a start hour of 0 is left out of the text, so that the fingerprints of midnight starts,
-    the references' among them, stay what they were."""
+    `params_fingerprint` hashes. ``episode_start_hour`` and ``fixed_departures`` came after
+    the stored fingerprints: trailing ones at a start hour of 0 and no fixed departures are
+    left out of the text, so that the fingerprints of the params before them, the references'
+    among them, stay what they were."""
     text = str(treedef)
-    if params.episode_start_hour == 0:
-        static = tuple(
-            getattr(params, f.name)
-            for f in dataclasses.fields(params)
-            if not f.metadata.get("pytree_node", True)
-        )
-        assert dataclasses.fields(params)[-1].name == "episode_start_hour"
-        text = text.replace(f"EnvParams[{static!r}]", f"EnvParams[{static[:-1]!r}]", 1)
+    fields = [f for f in dataclasses.fields(params) if not f.metadata.get("pytree_node", True)]
+    static = tuple(getattr(params, f.name) for f in fields)
+    kept = len(static)
+    while kept and _LATER_STATIC.get(fields[kept - 1].name, _NONE) == static[kept - 1]:
+        kept -= 1  # a later static field at the value that changes nothing
+    if kept < len(static):
+        text = text.replace(f"EnvParams[{static!r}]", f"EnvParams[{static[:kept]!r}]", 1)
     return text
+
+
+_NONE = object()
+_LATER_STATIC = {"episode_start_hour": 0, "fixed_departures": False}
+"""The static `EnvParams` fields added after the first stored fingerprints (at the end of the
+class, in this order), at the value that computes what the params did before them."""
 
 
 @struct.dataclass
@@ -298,6 +307,8 @@ CAR_DEFAULTS = {
     "stay_min": 60.0,
     "charge_sensitive": False,
     "request_ratio": 1.0,
+    "wants_dc": False,
+    "margin_min": 0.0,
 }
 """Defaults of `trace_from_cars` for fields a car leaves out."""
 
@@ -351,7 +362,7 @@ def trace_from_cars(
         requested=jnp.asarray(requested),
         model=jnp.full((n, slots), -1, jnp.int32),
         **{
-            f: jnp.asarray(v, bool if f == "charge_sensitive" else jnp.float32)
+            f: jnp.asarray(v, bool if f in ("charge_sensitive", "wants_dc") else jnp.float32)
             for f, v in fields.items()
         },
         charge_sensitive_dc=jnp.asarray(fields["charge_sensitive"], bool),

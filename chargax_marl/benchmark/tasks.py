@@ -76,11 +76,12 @@ class Task:
             the evaluations during training a small part of a run.
         validation_seed: seed of the validation draw.
         session_model: the cars' session model (`chargax_marl.core.data_io.SESSION_MODELS`):
-            ``"paper"`` on the version-1 tasks, ``"v2"`` from version 2 on.
+            ``"paper"`` on the version-1 tasks, ``"v2"`` on version 2, ``"v3"`` on version 3.
         bound: the reference that scores 1 (`BOUNDS`): ``"occupancy"``, the LP hindsight
             bound over always-max's port occupancy (`chargax_marl.optimal.bound`), on the
-            version-1 tasks; ``"pooled"``, the port-pooled bound over every policy
-            (`chargax_marl.optimal.pooled`), from version 2 on.
+            version-1 and version-3 tasks (on version 3 every policy has that occupancy, so
+            the bound is exact up to the continuous currents); ``"pooled"``, the port-pooled
+            bound over every policy (`chargax_marl.optimal.pooled`), on version 2.
 
     Raises:
         ValueError: ``num_validation_days``, ``validation_draws`` or ``validation_seed`` not
@@ -436,6 +437,19 @@ TASKS.update(
     for t in (
         dataclasses.replace(
             TASKS[f"Chargax-{name}-v1"], version=2, session_model="v2", bound="pooled"
+        )
+        for name in _V2
+    )
+)
+
+# version 3: the same stations, prices and days on the session model v3, whose departures are
+# fixed when a car arrives, so the occupancy bound is exact: every policy has the day's
+# occupancy
+TASKS.update(
+    (t.id, t)
+    for t in (
+        dataclasses.replace(
+            TASKS[f"Chargax-{name}-v1"], version=3, session_model="v3", bound="occupancy"
         )
         for name in _V2
     )

@@ -52,10 +52,27 @@ PRICE_INDEX_FILES: tuple[str, ...] = (
 )
 USER_PROFILES_FILE = "user_profiles.json"
 USER_PROFILES_V2_FILE = "user_profiles_v2.json"
-SESSION_MODELS: tuple[str, ...] = ("v2", "paper")
+SESSION_MODELS: tuple[str, ...] = ("v2", "v3", "paper")
 """The session models: ``v2`` (stays and energies by arrival hour, requests, day-to-day volume,
-holidays; the default) and ``paper`` (the mechanics of the Chargax paper)."""
+holidays; the default), ``v3`` (v2's sessions with every departure fixed when the car arrives
+and the port kind each car wants) and ``paper`` (the mechanics of the Chargax paper)."""
 US_USER_PROFILES_FILE = "user_profiles_US.json"
+DC_SHARE_BY_PROFILE: dict[str, float] = {
+    "residential": 0.0,
+    "shopping": 0.7,
+    "workplace": 0.1,
+    "highway": 0.9,
+    "workplace-us-caltech": 0.0,
+    "workplace-us-jpl": 0.0,
+}
+"""Under the session model v3, the share of a bundled profile's cars that want a DC port (an
+assumption, documented in ``docs/scenarios.md``: the sessions of the ElaadNL and ACN data are
+AC sessions, and no source at hand gives the split at a station with both kinds)."""
+DEFAULT_DC_SHARE = 0.5
+"""The share of cars that want a DC port for a custom profile (session model v3)."""
+DC_MARGIN_MIN: tuple[float, float] = (0.0, 15.0)
+"""Under the session model v3, the range (minutes) of the uniform margin a DC user stays
+beyond the earliest finish of its charge (an assumption, ``docs/scenarios.md``)."""
 FLEET_FILES: dict[str, str] = {
     "EU": "fleet_EU.csv",
     "US": "fleet_US.csv",

@@ -19,6 +19,7 @@ from chargax_marl.core import (
     calendar_days,
     checks,
     clock,
+    data_io,
     datasets,
     fleets,
     prices,
@@ -29,6 +30,8 @@ from chargax_marl.core.arrays import device_array
 from chargax_marl.core.data_io import NUM_QUANTILES
 from chargax_marl.core.observation import PRICE_QUANTILES
 from chargax_marl.core.station import (
+    KIND_AC,
+    KIND_DC,
     Splitter,
     StationArrays,
     battery_calendar_eur_day,
@@ -321,7 +324,7 @@ def _holidays(country: str | None, price: prices.PriceData, session_model: str) 
     days = price.prices_eur_kwh.shape[0]
     if country == "auto":
         known = price.first_date is not None and price.country in calendar_days.HOLIDAY_COUNTRIES
-        country = price.country if session_model == "v2" and known else None
+        country = price.country if session_model != "paper" and known else None
     if country is None:
         return np.zeros(days, bool)
     if price.first_date is None:
@@ -373,6 +376,8 @@ def make_params(
     holidays: str | None = "auto",
     port_choice: str = "auto",
     episode_start_hour: int = 0,
+    dc_share: float | None = None,
+    dc_margin_min: tuple[float, float] | None = None,
 ) -> EnvParams:
     """Assemble the parameters of a station scenario (paper defaults throughout).
 
@@ -465,9 +470,12 @@ def make_params(
             price data; None: all days an episode can start on (with
             ``episode_start_hour > 0`` all but the last, which has no next day's prices).
         session_model: ``"v2"`` (default: stays and energies by arrival hour, requests,
-            day-to-day volume, holidays) or ``"paper"`` (the Chargax paper's sessions): which
-            bundled profiles a ``user_profile`` name refers to, and the default of
-            ``holidays``.
+            day-to-day volume, holidays), ``"v3"`` (v2's sessions with every departure fixed
+            when the car arrives: each car wants a port kind, an AC user stays its drawn
+            stay, a DC user the earliest finish of its charge plus a margin, nobody leaves
+            when charged; `EnvParams.fixed_departures`) or ``"paper"`` (the Chargax paper's
+            sessions): which bundled profiles a ``user_profile`` name refers to, and the
+            default of ``holidays``.
         holidays: the public holidays of this country (``calendar_days.HOLIDAY_COUNTRIES``)
             get the arrivals of a weekend day; needs prices whose dates are known (a bundled
             dataset). ``"auto"``: under the v2 session model the price market's country
@@ -484,6 +492,15 @@ def make_params(
             (`chargax_marl.core.clock`). 0 (default): an episode is the calendar day; 12: noon
             to noon, so that overnight (home) charging fits in one episode. Must fall on a
             step boundary.
+
+        dc_share: under the session model v3, the probability in [0, 1] that an arriving
+            car wants a DC port; a car finds a free port of its kind or is turned away.
+            None: the profile's share (`chargax_marl.core.data_io.DC_SHARE_BY_PROFILE`,
+            ``DEFAULT_DC_SHARE`` for a custom profile), 0 on a station without DC ports and 1
+            on one without AC ports.
+        dc_margin_min: under the session model v3, the ``(low, high)`` range of the uniform
+            margin a DC user stays beyond the earliest finish of its charge (minutes,
+            rounded to whole steps); None: ``data_io.DC_MARGIN_MIN``.
 
     Returns:
         The validated `EnvParams`.
@@ -528,7 +545,11 @@ def make_params(
             f"field 'port_choice' must be one of {list(PORT_CHOICES)}, got {port_choice!r}"
         )
     if port_choice == "auto":
-        port_choice = "random" if session_model == "v2" else "first_free"
+        port_choice = "first_free" if session_model == "paper" else "random"
+    fixed_departures = session_model == "v3"
+    dc_share, dc_margin = _port_kinds(
+        dc_share, dc_margin_min, stations, profile.name, fixed_departures
+    )
 
     # MOER: a bundled dataset name / MoerData (resampled to num_steps) or an array at the step resolution.
     if moer_kg_per_kwh is None:
@@ -631,6 +652,8 @@ def make_params(
         charge_sensitive_prob=device_array(profile.charge_sensitive_prob, jnp.float32),
         dc_charge_sensitive_prob=device_array(profile.dc_charge_sensitive, jnp.float32),
         random_port_choice=device_array(port_choice == "random"),
+        dc_share=device_array(dc_share, jnp.float32),
+        dc_margin_min=device_array(dc_margin, jnp.float32),
         fleet_share=device_array(fleet_data.share, jnp.float32),
         fleet_capacity_kwh=device_array(fleet_data.capacity_kwh, jnp.float32),
         fleet_ac_kw=device_array(fleet_data.max_ac_kw, jnp.float32),
@@ -669,7 +692,40 @@ def make_params(
         price_horizon_hours=int(price_horizon_hours),
         observe_moer=observe_moer,
         episode_start_hour=start_hour,
+        fixed_departures=fixed_departures,
     )
+
+
+def _port_kinds(
+    dc_share, dc_margin_min, stations: StationArrays, profile: str, fixed: bool
+) -> tuple[float, tuple[float, float]]:
+    """The checked ``dc_share`` and ``dc_margin_min`` of `make_params` (see there)."""
+    kinds = np.asarray(stations.leaf_kind)
+    has_ac, has_dc = bool((kinds == KIND_AC).any()), bool((kinds == KIND_DC).any())
+    if dc_share is None:
+        share = data_io.DC_SHARE_BY_PROFILE.get(profile, data_io.DEFAULT_DC_SHARE)
+        share = share if has_ac and has_dc else float(has_dc)
+    else:
+        share = _finite("dc_share", dc_share, minimum=0.0, maximum=1.0)
+        if fixed and ((share > 0.0 and not has_dc) or (share < 1.0 and not has_ac)):
+            missing, kind = ("DC", "0") if not has_dc else ("AC", "1")
+            raise ValueError(
+                f"field 'dc_share' is {share:g} but the station has no {missing} ports: a car "
+                f"wanting one would always be turned away; use {kind} or None"
+            )
+    margin = data_io.DC_MARGIN_MIN if dc_margin_min is None else dc_margin_min
+    arr = np.asarray(margin, dtype=np.float64) if np.ndim(margin) == 1 else None
+    if arr is None or arr.shape != (2,) or not np.isfinite(arr).all():
+        raise ValueError(
+            f"field 'dc_margin_min' must be a (low, high) pair of finite minutes, got {margin!r}"
+        )
+    low, high = float(arr[0]), float(arr[1])
+    if not 0.0 <= low <= high <= MINUTES_PER_DAY:
+        raise ValueError(
+            f"field 'dc_margin_min' must satisfy 0 <= low <= high <= {MINUTES_PER_DAY:g} "
+            f"minutes, got ({low:g}, {high:g})"
+        )
+    return share, (low, high)
 
 
 def _scalar(params: EnvParams, field: str, kind: str = "number") -> Any:
@@ -750,6 +806,17 @@ def validate_params(params: EnvParams) -> EnvParams:
         raise ValueError(f"field 'first_weekday' must be an integer in [0, 6], got {weekday!r}")
     for field in ("charge_sensitive_prob", "dc_charge_sensitive_prob"):
         _finite(field, _scalar(params, field), minimum=0.0, maximum=1.0)
+    if not isinstance(params.fixed_departures, (bool, np.bool_)):
+        raise ValueError(
+            f"field 'fixed_departures' must be a bool, got {params.fixed_departures!r}"
+        )
+    _port_kinds(
+        _scalar(params, "dc_share"),
+        tuple(_shape("dc_margin_min", params.dc_margin_min, (2,), "(low, high) minutes")),
+        st,
+        "",
+        params.fixed_departures,
+    )
     profiles._validate_volume_cv(_scalar(params, "daily_volume_cv"))
     profiles._validate_corr(_scalar(params, "stay_demand_corr"))
 

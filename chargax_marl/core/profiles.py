@@ -463,7 +463,7 @@ def load_user_profile(
     Args:
         source: a bundled profile's name or a `UserProfileData`.
         session_model: which bundled profiles a name refers to (`SESSION_MODELS`): ``"v2"``
-            (stays and energies by arrival hour, requests, day-to-day volume) or
+            and ``"v3"`` (stays and energies by arrival hour, requests, day-to-day volume) or
             ``"paper"`` (the Chargax paper's profiles). Ignored for a `UserProfileData`.
         **overrides: fields to replace (e.g. ``charge_sensitive_prob=0.5``), validated like
             `make_user_profile` arguments.
@@ -529,7 +529,7 @@ def list_user_profiles() -> list[str]:
 
 @functools.cache
 def _load_bundled_profile(name: str, session_model: str = "v2") -> UserProfileData:
-    if session_model == "v2":
+    if session_model in ("v2", "v3"):  # v3 draws v2's sessions
         doc = _v2_profiles_json()
     else:
         doc = _us_profiles_json() if name in US_USER_PROFILES else _profiles_json()

@@ -39,6 +39,7 @@ are not read back as if they were another's."""
 ARRIVALS = 1
 RESET = 2
 VOLUME = 3
+PORT_KIND = 4  # the session model v3's port kind and DC margin per car
 
 
 def fmix32(x: jnp.ndarray) -> jnp.ndarray:
@@ -92,7 +93,7 @@ def bits(seed: jnp.ndarray, stream: int, shape: tuple[int, ...]) -> jnp.ndarray:
 
     Args:
         seed: ``(2,)`` uint32, from `key_seed`.
-        stream: the stream id (`ARRIVALS`, `RESET`, `VOLUME`).
+        stream: the stream id (`ARRIVALS`, `RESET`, `VOLUME`, `PORT_KIND`).
         shape: the static shape of the result.
 
     Returns:
@@ -135,7 +136,7 @@ def uniform(seed: jnp.ndarray, stream: int, shape: tuple[int, ...]) -> jnp.ndarr
 
     Args:
         seed: ``(2,)`` uint32, from `key_seed`.
-        stream: the stream id (`ARRIVALS`, `RESET`, `VOLUME`).
+        stream: the stream id (`ARRIVALS`, `RESET`, `VOLUME`, `PORT_KIND`).
         shape: the static shape of the result.
 
     Returns:

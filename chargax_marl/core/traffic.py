@@ -12,6 +12,13 @@ fleet and a user profile from the location's distributions (stay and demand cond
 the arrival hour). The draw
 (`draw_arrivals`) does not look at the station, so the cars of a day do not depend on
 the policy; `place_arrivals` parks them.
+
+With ``params.fixed_departures`` (the session model v3) every car's departure is set when it
+arrives: each car wants one port kind (DC with probability ``params.dc_share``) and parks at
+a free port of that kind (turned away when none is free); an AC user stays its drawn stay, a
+DC user the earliest finish of its charge at its port (`earliest_finish_min`) plus a drawn
+margin, and no user leaves when charged. Which ports are free, where a car parks and which
+cars are turned away then follow from the day's cars and key alone, whatever the policy does.
 """
 
 from __future__ import annotations
@@ -21,7 +28,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from chargax_marl.core import clock, rng
-from chargax_marl.core.station import KIND_AC, KIND_BATTERY
+from chargax_marl.core.station import KIND_AC, KIND_BATTERY, KIND_DC
 from chargax_marl.core.types import EnvParams, EnvState
 
 CAR_FIELDS = (
@@ -316,6 +323,10 @@ class Arrivals:
         charge_sensitive: ``(P,)`` bool, u = 1 at an AC port.
         charge_sensitive_dc: ``(P,)`` bool, u = 1 at a DC port.
         request_ratio: ``(P,)`` energy taken over energy requested, in (0, 1].
+        wants_dc: ``(P,)`` bool, the car wants a DC port (read with
+            ``params.fixed_departures``; False otherwise).
+        margin_min: ``(P,)`` the minutes a DC user stays beyond its earliest finish (whole
+            steps; read with ``params.fixed_departures``; 0 otherwise).
         port_draw: ``()`` uniform in [0, 1): the rotation of the free ports' order.
     """
 
@@ -333,6 +344,8 @@ class Arrivals:
     charge_sensitive: jnp.ndarray  # (P,) bool, u = 1 at an AC port
     charge_sensitive_dc: jnp.ndarray  # (P,) bool, u = 1 at a DC port
     request_ratio: jnp.ndarray  # (P,) energy taken / energy requested, in (0, 1]
+    wants_dc: jnp.ndarray  # (P,) bool, the car wants a DC port (fixed departures)
+    margin_min: jnp.ndarray  # (P,) a DC user's stay beyond its earliest finish (minutes)
     port_draw: jnp.ndarray  # () uniform: the rotation of the free ports' order
 
 
@@ -350,6 +363,8 @@ SLOT_FIELDS = (
     "charge_sensitive",
     "charge_sensitive_dc",
     "request_ratio",
+    "wants_dc",
+    "margin_min",
 )
 """The per-slot fields of `Arrivals` (every field but ``requested``)."""
 
@@ -414,6 +429,15 @@ def draw_arrivals(
     hi_fit = jnp.maximum(jnp.minimum(hi, 1.0 - demand / jnp.maximum(capacity, 1e-6)), lo)
     soc0 = lo + (hi_fit - lo) * u[2]
     target = jnp.minimum(soc0 + demand / jnp.maximum(capacity, 1e-6), 1.0)
+    if params.fixed_departures:
+        # their own stream, so that the draws above are those of the session model v2
+        kind_u, margin_u = rng.uniform(rng.key_seed(key), rng.PORT_KIND, (2, num_slots))
+        wants_dc = kind_u < params.dc_share
+        lo, hi = params.dc_margin_min[0], params.dc_margin_min[1]
+        margin = jnp.round((lo + (hi - lo) * margin_u) / params.step_minutes) * params.step_minutes
+    else:
+        wants_dc = jnp.zeros((num_slots,), bool)
+        margin = jnp.zeros((num_slots,), jnp.float32)
     return Arrivals(
         requested=requested,
         model=model,
@@ -429,6 +453,8 @@ def draw_arrivals(
         charge_sensitive=u[4] < params.charge_sensitive_prob,
         charge_sensitive_dc=u[4] < params.dc_charge_sensitive_prob,
         request_ratio=jnp.maximum(_inverse_cdf(params.request_ratio_quantiles, u[5]), 1e-3),
+        wants_dc=wants_dc,
+        margin_min=margin,
         port_draw=draws[-1],
     )
 
@@ -458,17 +484,25 @@ def place_arrivals(state: EnvState, arrivals: Arrivals, params: EnvParams):
     st = params.station
     is_port = st.leaf_kind != KIND_BATTERY
     free = is_port & ~state.occupied
-    num_free = jnp.sum(free)
     requested = arrivals.requested
-    admitted = jnp.minimum(requested, num_free)
-    in_order = jnp.cumsum(free) - 1  # rank among free ports, in port order
-    # random choice: the free ports' order rotated by a uniform number of them (a sort per
-    # step would double the step's cost)
-    offset = jnp.minimum((arrivals.port_draw * num_free).astype(in_order.dtype), num_free - 1)
-    rotated = jnp.mod(in_order - offset, jnp.maximum(num_free, 1))
-    rank = jnp.where(params.random_port_choice, rotated, in_order)
-    new_car = rng.materialize(free & (rank < admitted))
-    slot = jnp.clip(rank, 0, st.num_ports - 1)
+    if params.fixed_departures:
+        # each car parks at a free port of the kind it wants: AC and DC admitted apart
+        in_step = jnp.arange(st.num_ports) < requested
+        new_ac, slot_ac, admitted_ac = _admit(
+            free & (st.leaf_kind == KIND_AC), in_step & ~arrivals.wants_dc, arrivals, params
+        )
+        new_dc, slot_dc, admitted_dc = _admit(
+            free & (st.leaf_kind == KIND_DC), in_step & arrivals.wants_dc, arrivals, params
+        )
+        new_car = rng.materialize(new_ac | new_dc)
+        slot = jnp.where(st.leaf_kind == KIND_AC, slot_ac, slot_dc)
+        admitted = admitted_ac + admitted_dc
+    else:
+        num_free = jnp.sum(free)
+        admitted = jnp.minimum(requested, num_free)
+        rank = _free_port_rank(free, arrivals.port_draw, params)
+        new_car = rng.materialize(free & (rank < admitted))
+        slot = jnp.clip(rank, 0, st.num_ports - 1)
     car = arrivals.replace(**{f: getattr(arrivals, f)[slot] for f in SLOT_FIELDS})  # per leaf now
 
     is_ac = st.leaf_kind == KIND_AC
@@ -486,6 +520,13 @@ def place_arrivals(state: EnvState, arrivals: Arrivals, params: EnvParams):
         params,
     )
 
+    stay = car.stay_min
+    if params.fixed_departures:
+        # a DC user stays as long as its charge takes at its port, plus its margin; nobody
+        # leaves when charged
+        stay = jnp.where(is_ac, car.stay_min, earliest + car.margin_min)
+        charge_sensitive = jnp.zeros_like(charge_sensitive)
+
     def put(new, old):
         return jnp.where(new_car, new, old)
 
@@ -496,8 +537,8 @@ def place_arrivals(state: EnvState, arrivals: Arrivals, params: EnvParams):
         arrival_soc=put(car.arrival_soc, state.arrival_soc),
         request_extra_kwh=put(demand / car.request_ratio - demand, state.request_extra_kwh),
         energy_remaining_kwh=put(demand, state.energy_remaining_kwh),
-        time_remaining_min=put(car.stay_min, state.time_remaining_min),
-        slack_min=put(car.stay_min - earliest, state.slack_min),
+        time_remaining_min=put(stay, state.time_remaining_min),
+        slack_min=put(stay - earliest, state.slack_min),
         capacity_kwh=put(car.capacity_kwh, state.capacity_kwh),
         max_rate_kw=put(max_rate, state.max_rate_kw),
         max_discharge_rate_kw=put(max_dis, state.max_discharge_rate_kw),
@@ -512,6 +553,37 @@ def place_arrivals(state: EnvState, arrivals: Arrivals, params: EnvParams):
         "leaf_arrived": new_car,
     }
     return new_state, report
+
+
+def _free_port_rank(free: jnp.ndarray, port_draw: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
+    """Each free leaf's rank in the order arriving cars take the free ports, ``(L,)`` int
+    (meaningless at leaves that are not free): port order, or with
+    ``params.random_port_choice`` port order rotated by ``port_draw`` times the free ports."""
+    num_free = jnp.sum(free)
+    in_order = jnp.cumsum(free) - 1  # rank among free ports, in port order
+    # random choice: the free ports' order rotated by a uniform number of them (a sort per
+    # step would double the step's cost)
+    offset = jnp.minimum((port_draw * num_free).astype(in_order.dtype), num_free - 1)
+    rotated = jnp.mod(in_order - offset, jnp.maximum(num_free, 1))
+    return jnp.where(params.random_port_choice, rotated, in_order)
+
+
+def _admit(free: jnp.ndarray, wanting: jnp.ndarray, arrivals: Arrivals, params: EnvParams):
+    """Park the cars of the slots ``wanting`` (``(P,)`` bool) at the leaves ``free`` (``(L,)``
+    bool, the free ports of one kind): the ``k``-th of those cars at the ``k``-th of those
+    ports in `_free_port_rank`'s order, the cars beyond the free ports turned away.
+
+    Returns:
+        ``(new_car, slot, admitted)``: ``(L,)`` bool, the leaves that get a car; ``(L,)``
+        int, the slot of each such leaf's car; ``()`` the number of cars parked.
+    """
+    admitted = jnp.minimum(jnp.sum(wanting), jnp.sum(free))
+    rank = _free_port_rank(free, arrivals.port_draw, params)
+    new_car = free & (rank < admitted)
+    car_rank = jnp.cumsum(wanting) - 1  # each wanting slot's rank among the wanting slots
+    match = wanting[None, :] & (car_rank[None, :] == rank[:, None])  # (L, P)
+    slot = jnp.argmax(match, axis=1)
+    return new_car, slot, admitted
 
 
 def arrive(key: jax.Array, state: EnvState, params: EnvParams):

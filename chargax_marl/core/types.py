@@ -102,6 +102,11 @@ class EnvParams:
         dc_charge_sensitive_prob: ``()`` the same at DC ports.
         random_port_choice: ``()`` bool: an arriving car parks at a uniformly random free
             port (else at the first free port in port order).
+        dc_share: ``()`` the probability that an arriving car wants a DC port (read only
+            with ``fixed_departures``).
+        dc_margin_min: ``(2,)`` the range of the uniform margin (minutes, rounded to whole
+            steps) a DC user stays beyond the earliest finish of its charge (read only with
+            ``fixed_departures``).
         fleet_share: ``(K,)`` share of each car model; sums to 1.
         fleet_capacity_kwh: ``(K,)`` battery capacity of each model (kWh).
         fleet_ac_kw: ``(K,)`` charging limit of each model at AC ports (kW).
@@ -159,6 +164,11 @@ class EnvParams:
             ``t`` is at ``episode_start_hour + t * step_minutes / 60`` hours of ``state.day``,
             hours of 24 and more on the next day (`chargax_marl.core.clock`). 0: the
             calendar day.
+        fixed_departures: every car's departure is set when it arrives (the session model
+            v3): a car parks at a free port of the kind it wants (``dc_share``), an AC
+            user stays its drawn stay, a DC user the earliest finish of its charge at its
+            port plus a margin (``dc_margin_min``), and no user leaves when charged; so the
+            occupancy of a day does not depend on the policy.
     """
 
     station: StationArrays
@@ -180,6 +190,8 @@ class EnvParams:
     charge_sensitive_prob: jnp.ndarray
     dc_charge_sensitive_prob: jnp.ndarray
     random_port_choice: jnp.ndarray
+    dc_share: jnp.ndarray
+    dc_margin_min: jnp.ndarray
     fleet_share: jnp.ndarray
     fleet_capacity_kwh: jnp.ndarray
     fleet_ac_kw: jnp.ndarray
@@ -218,6 +230,7 @@ class EnvParams:
     price_horizon_hours: int = struct.field(pytree_node=False, default=6)
     observe_moer: bool = struct.field(pytree_node=False, default=False)
     episode_start_hour: int = struct.field(pytree_node=False, default=0)
+    fixed_departures: bool = struct.field(pytree_node=False, default=False)
 
     @property
     def num_days(self) -> int:
