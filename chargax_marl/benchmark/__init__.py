@@ -16,6 +16,7 @@ from chargax_marl.benchmark.protocol import KINDS, play
 from chargax_marl.benchmark.references import (
     ReferenceMismatchError,
     add_mpc,
+    bound_violations,
     compute_mpc,
     compute_references,
     load_references,
@@ -31,6 +32,7 @@ __all__ = [
     "ReferenceMismatchError",
     "Task",
     "add_mpc",
+    "bound_violations",
     "compare",
     "compute_mpc",
     "compute_references",

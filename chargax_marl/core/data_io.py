@@ -60,7 +60,7 @@ US_USER_PROFILES_FILE = "user_profiles_US.json"
 DC_SHARE_BY_PROFILE: dict[str, float] = {
     "residential": 0.0,
     "shopping": 0.7,
-    "workplace": 0.1,
+    "workplace": 0.3,
     "highway": 0.9,
     "workplace-us-caltech": 0.0,
     "workplace-us-jpl": 0.0,

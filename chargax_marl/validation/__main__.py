@@ -7,6 +7,7 @@ import argparse
 import json
 from pathlib import Path
 
+from chargax_marl.core.data_io import SESSION_MODELS
 from chargax_marl.validation import report
 
 
@@ -27,10 +28,16 @@ def main(argv: list[str] | None = None) -> int:
         default="outputs/validation/sessions",
         help="output prefix (OUT.json, OUT.md; default outputs/validation/sessions)",
     )
+    parser.add_argument(
+        "--session-model",
+        choices=[m for m in SESSION_MODELS if m != "paper"],
+        default=report.SESSION_MODEL,
+        help=f"the session model validated (default {report.SESSION_MODEL})",
+    )
     args = parser.parse_args(argv)
     if args.days < 7:
         parser.error(f"--days must be at least 7 (a week), got {args.days}")
-    result = report.run(args.days, args.seed)
+    result = report.run(args.days, args.seed, session_model=args.session_model)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(result, indent=1) + "\n")

@@ -40,13 +40,20 @@ DAILY_SD_TOLERANCE = 0.25
 REQUEST_MEDIAN_TOLERANCE = 0.10
 
 
-def site_params(site: str, profile: UserProfileData, cars_per_workday: float):
+SESSION_MODEL = "v3"
+"""The session model validated by default (`chargax_marl.core.data_io.SESSION_MODELS`)."""
+
+
+def site_params(
+    site: str, profile: UserProfileData, cars_per_workday: float, session_model: str = SESSION_MODEL
+):
     """A station like an ACN site (AC ports, 208 V, 32 A, no V2G), US fleet and holidays.
 
     Args:
         site: ``"caltech"`` or ``"jpl"``.
         profile: the user profile.
         cars_per_workday: mean arrivals per workday.
+        session_model: the session model (`make_params`'s ``session_model``).
 
     Returns:
         The `EnvParams`.
@@ -62,6 +69,7 @@ def site_params(site: str, profile: UserProfileData, cars_per_workday: float):
         fleet="US",
         holidays="US",
         num_levels=1,
+        session_model=session_model,
     )
 
 
@@ -69,7 +77,9 @@ def _ks(a: np.ndarray, b: np.ndarray) -> float:
     return float(ks_2samp(a, b).statistic)
 
 
-def held_out(site: str, period: str, num_days: int = 364, seed: int = 0) -> dict:
+def held_out(
+    site: str, period: str, num_days: int = 364, seed: int = 0, session_model: str = SESSION_MODEL
+) -> dict:
     """One site with one period held out: the model fitted on the other periods against the
     held-out period's real sessions.
 
@@ -78,6 +88,7 @@ def held_out(site: str, period: str, num_days: int = 364, seed: int = 0) -> dict
         period: the held-out period (`real.PERIODS`).
         num_days: simulated days (from day 0 of `SITE_PRICES`).
         seed: the evaluation key's seed.
+        session_model: the session model (`make_params`'s ``session_model``).
 
     Returns:
         A row: per statistic the KS distance, ``d`` and whether it passes; the daily-count
@@ -88,7 +99,7 @@ def held_out(site: str, period: str, num_days: int = 364, seed: int = 0) -> dict
     train, test = sessions.select(others), sessions.select([period])
     profile = fit.fit_profile(train, real.SITES[site])
     _, counts, _, workday, _ = fit.day_types(test)
-    params = site_params(site, profile, counts[workday].mean())
+    params = site_params(site, profile, counts[workday].mean(), session_model)
     sim = simulate_sessions(params, np.arange(num_days), jax.random.PRNGKey(seed))
     real_of = {
         "stay": (test.stay_min, train.stay_min, sim.stay_min),
@@ -203,13 +214,20 @@ def cut_share_by_start_hour(profile: UserProfileData, step_minutes: float = 5.0)
     return out
 
 
-def elaad(profile: str = "shopping", num_days: int = 364, seed: int = 0, **env) -> dict:
+def elaad(
+    profile: str = "shopping",
+    num_days: int = 364,
+    seed: int = 0,
+    session_model: str = SESSION_MODEL,
+    **env,
+) -> dict:
     """A bundled NL profile against the ElaadNL connection times it comes from.
 
     Args:
         profile: a bundled NL profile (``shopping``, ``workplace``, ``residential``).
         num_days: simulated days (from day 0 of the env's prices).
         seed: the evaluation key's seed.
+        session_model: the session model (`make_params`'s ``session_model``).
         **env: further `make_params` keywords (e.g. ``episode_start_hour``).
 
     Returns:
@@ -220,7 +238,7 @@ def elaad(profile: str = "shopping", num_days: int = 364, seed: int = 0, **env) 
         share of the profile's sessions a one-day episode cuts over every start hour
         (`cut_share_by_start_hour`), with that hour.
     """
-    params = make_params(user_profile=profile, **env)
+    params = make_params(user_profile=profile, session_model=session_model, **env)
     sim = simulate_sessions(params, np.arange(num_days), jax.random.PRNGKey(seed))
     table = load_user_profile(profile, session_model="paper").stay_quantiles_min
     by_hour = cut_share_by_start_hour(load_user_profile(profile), params.step_minutes)
@@ -324,8 +342,8 @@ def markdown(result: dict) -> str:
     """
     st = result["settings"]
     return (
-        f"Held out, each ACN site and period ({st['num_days']} simulated days each, seed "
-        f"{st['seed']}; KS distance, in brackets d, the distance between the period's real "
+        f"Session model {st.get('session_model', 'v2')}. Held out, each ACN site and period "
+        f"({st['num_days']} simulated days each, seed {st['seed']}; KS distance, in brackets d, the distance between the period's real "
         "sessions and the site's other periods'; ✗: above max(threshold, d), or a standard "
         f"deviation off by more than {100 * st['daily_sd_tolerance']:.0f} %, or a request median "
         f"off by more than {100 * st['request_median_tolerance']:.0f} %):\n\n"
@@ -350,26 +368,35 @@ def all_pass(result: dict) -> bool:
     return held and nl
 
 
-def run(num_days: int = 364, seed: int = 0, elaad_env: dict | None = None) -> dict:
+def run(
+    num_days: int = 364,
+    seed: int = 0,
+    elaad_env: dict | None = None,
+    session_model: str = SESSION_MODEL,
+) -> dict:
     """Every held-out row and the ElaadNL comparisons.
 
     Args:
         num_days: simulated days per row.
         seed: the evaluation key's seed.
         elaad_env: per NL profile, further `make_params` keywords of its ElaadNL comparison.
+        session_model: the session model validated.
 
     Returns:
         ``{"held_out": [...], "elaad": [...], "settings": {...}}``.
     """
-    rows = [held_out(s, p, num_days, seed) for s in real.SITES for p in HELD_OUT_PERIODS]
+    rows = [
+        held_out(s, p, num_days, seed, session_model) for s in real.SITES for p in HELD_OUT_PERIODS
+    ]
     envs = ELAAD_RUNS if elaad_env is None else elaad_env
-    nl = [elaad(name, num_days, seed, **env) for name, env in envs.items()]
+    nl = [elaad(name, num_days, seed, session_model, **env) for name, env in envs.items()]
     return {
         "held_out": rows,
         "elaad": nl,
         "settings": {
             "num_days": num_days,
             "seed": seed,
+            "session_model": session_model,
             "thresholds": THRESHOLDS,
             "daily_sd_tolerance": DAILY_SD_TOLERANCE,
             "request_median_tolerance": REQUEST_MEDIAN_TOLERANCE,

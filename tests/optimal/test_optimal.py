@@ -964,3 +964,53 @@ def test_the_mpc_refuses_a_step_count_that_is_not_a_whole_number(field, value):
     with pytest.raises(ValueError, match=f"field '{field}' must be an integer >= "):
         MPC(params, **{field: value})
     assert MPC(params, resolve_every=2.0).resolve_every == 2
+
+
+def test_the_v3_occupancy_bound_is_reached_on_a_hand_made_day():
+    """Under fixed departures the occupancy is every policy's, and the LP's optimum is known:
+    expensive hours 0-11 (0.25 EUR/kWh), cheap hours 12-23 (0.05). An AC user parked all day
+    takes 18 kWh; a DC user arriving for 11:00 takes 20 kWh at 50 kW (24 min, 5 steps) and
+    stays 60 min more, to 12:25: its five steps from 12:00 (20.8 kWh at full power) hold the
+    whole charge. The optimum buys all 38 kWh at 0.05: 38 * (0.75 - 0.05) = 26.6 EUR, and
+    the policy that waits for 12:00 and then charges at full power reaches it."""
+    station = Splitter(
+        "grid",
+        1000.0,
+        (Port("dc0", "DC", 500.0, 100.0), Port("ac0", "AC", 400.0, 25.0)),
+    )
+    prices = np.asarray([0.25] * 12 + [0.05] * 12, np.float32)
+    params = make_params(
+        station=station,
+        prices=prices,
+        session_model="v3",
+        grid_fee_eur_kwh=0.0,
+        fixed_cost_eur=0.0,
+        battery_terminal_price=None,
+    )
+    common = dict(capacity_kwh=60.0, arrival_soc=0.2, tau=0.99, ac_kw=11.0, dc_kw=50.0)
+    cars = [
+        dict(arrival_step=0, wants_dc=False, stay_min=1400.0, target_soc=0.5, **common),
+        dict(arrival_step=131, wants_dc=True, margin_min=60.0, target_soc=0.2 + 20 / 60, **common),
+    ]
+    day = trace.trace_from_cars(params, cars)
+    key = jax.random.PRNGKey(0)
+    occ = bound_module.occupancy(params, day, key)
+    bound = bound_module.hindsight_bound(params, day, occ)
+    assert bound.profit_eur == pytest.approx(26.6, abs=1e-3)
+
+    def wait_for_noon(state, _key):
+        full = policies.always_max(state, _key, params)
+        return jnp.where(state.timestep >= 144, full, 0)
+
+    for act, expected in (
+        (wait_for_noon, 26.6),
+        (lambda s, k: policies.always_max(s, k, params), None),
+    ):
+        states, infos, _ = trace.replay(act, params, day, key)
+        profit = float(np.asarray(infos.profit_eur, np.float64).sum())
+        assert profit <= bound.profit_eur + 1e-3
+        if expected is not None:
+            assert profit == pytest.approx(expected, abs=0.01)
+    # always-max buys the AC car's energy at 0.25 and the DC car's before noon
+    assert profit < 26.6 - 5.0
+    assert occ.reference_profit_eur == pytest.approx(profit, abs=1e-3)

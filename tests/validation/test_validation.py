@@ -96,6 +96,15 @@ def test_workplace_ac_stays_match_elaad():
     assert row["stay_ks_ac"] <= report.ELAAD_THRESHOLD, row
 
 
+@pytest.mark.parametrize("profile", ["shopping", "workplace"])
+def test_v3_ac_ports_hold_the_elaad_stays_with_the_episode_cut_removed(profile):
+    """Under the session model v3 each car parks at a port of the kind it wants, so the AC
+    ports hold AC sessions with the data's stays; with the episode's cut taken out their
+    distance to ElaadNL is within the threshold."""
+    row = report.elaad(profile, num_days=60, session_model="v3")
+    assert row["stay_ks_ac_censored"] <= report.ELAAD_THRESHOLD, row
+
+
 def test_the_command_refuses_fewer_than_a_week():
     with pytest.raises(SystemExit):
         main(["--days", "3"])
@@ -145,10 +154,10 @@ def test_the_cut_share_by_start_hour_by_hand():
 
 
 def test_the_simulated_ac_cut_share_is_the_profile_s():
-    """Residential users, noon-to-noon episodes: the AC ports' simulated share of sessions
+    """Residential users on the session model v2, noon-to-noon episodes: the AC ports' simulated share of sessions
     cut by the episode's end is the one `cut_share_by_start_hour` expects from the profile
     (the all-ports share is far smaller: the DC ports' users leave when charged)."""
-    row = report.elaad("residential", num_days=60, episode_start_hour=12)
+    row = report.elaad("residential", num_days=60, session_model="v2", episode_start_hour=12)
     expected = report.cut_share_by_start_hour(load_user_profile("residential"))[12]
     assert row["cut_share_ac"] == pytest.approx(expected, abs=0.05), row
     assert row["cut_share"] < row["cut_share_ac"]

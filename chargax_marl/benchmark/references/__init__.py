@@ -697,3 +697,71 @@ def load_references(task: str | Task, directory: str | Path | None = None) -> di
         for name, entry in data["policies"].items()
     }
     return out
+
+
+BOUND_RTOL = 1e-4
+"""The relative part of the solver tolerance `bound_violations` allows above the bound."""
+BOUND_ATOL_EUR = 1e-3
+"""The absolute part (EUR per day)."""
+
+
+def bound_violations(
+    task: str | Task,
+    daily_profits: dict[str, np.ndarray] | None = None,
+    directory: str | Path | None = None,
+) -> list[dict]:
+    """Every day and draw on which a policy earns more than the task's bound, beyond solver
+    tolerance: ``profit > bound + BOUND_RTOL * |bound| + BOUND_ATOL_EUR``.
+
+    On a task whose bound is exact (version 3: the occupancy is every policy's) the list is
+    empty for every policy; on the version-1 tasks, whose occupancy bound holds only for the
+    policies with always-max's occupancy, it is not. Days whose bound's solve failed are
+    skipped.
+
+    Args:
+        task: a task id or `Task`.
+        daily_profits: further policies by name, each a ``(days, draws)`` array of its
+            per-day profits on the task's held-out days and draws (EUR), or ``(seeds, days,
+            draws)`` (a score file's ``daily_profit``); the stored references are always
+            checked.
+        directory: where the task's references live (default: the shipped ones).
+
+    Returns:
+        One dict per violation: ``policy``, ``seed`` (None for a stored reference or a 2-d
+        array), ``day_index`` (into the task's held-out days), ``draw``, ``profit_eur``,
+        ``bound_eur`` and ``excess_eur`` (above the tolerance).
+
+    Raises:
+        ReferenceMismatchError: as `load_references`.
+        ValueError: a policy's profits not of the shape of the task's days and draws.
+    """
+    refs = load_references(task, directory)
+    bound = refs["policies"][BOUND]["daily_profit"]
+    limit = bound + BOUND_RTOL * np.abs(bound) + BOUND_ATOL_EUR
+    policies = {k: v["daily_profit"] for k, v in refs["policies"].items() if k != BOUND}
+    policies.update(daily_profits or {})
+    out = []
+    for name, profits in policies.items():
+        arr = np.asarray(profits, np.float64)
+        seeded = arr.ndim == 3
+        if arr.shape[-2:] != bound.shape or arr.ndim not in (2, 3):
+            raise ValueError(
+                f"field 'daily_profits[{name!r}]' must have shape {bound.shape} or (seeds, "
+                f"*{bound.shape}) (the task's days and draws), got {arr.shape}"
+            )
+        for seed, rows in enumerate(arr if seeded else arr[None]):
+            with np.errstate(invalid="ignore"):
+                over = rows - limit
+            for day, draw in zip(*np.nonzero(np.nan_to_num(over, nan=-1.0) > 0.0), strict=True):
+                out.append(
+                    {
+                        "policy": name,
+                        "seed": seed if seeded else None,
+                        "day_index": int(day),
+                        "draw": int(draw),
+                        "profit_eur": float(rows[day, draw]),
+                        "bound_eur": float(bound[day, draw]),
+                        "excess_eur": float(over[day, draw]),
+                    }
+                )
+    return out
