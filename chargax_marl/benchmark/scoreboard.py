@@ -48,9 +48,20 @@ REFERENCE_LABELS = {
     "coupled_plan": "coupled plan",
     "mpc": "MPC (4 h look-ahead)",
     "mpc_levels1": "MPC, learned agents' action space",
-    BOUND: "LP bound (v1: occupancy; v2: port-pooled)",
+    BOUND: "LP bound",
 }
-"""Row labels of the references, in the table's order."""
+"""Row labels of the references, in the table's order (the bound's says which bound, from
+`BOUND_LABELS`)."""
+
+BOUND_LABELS = {
+    "occupancy": "LP bound (occupancy)",
+    "pooled": "LP bound (port-pooled)",
+}
+"""The bound's row label by the tasks' `Task.bound`."""
+
+CURRENT_VERSION = max(task.version for task in TASKS.values())
+"""The benchmark version the README's scoreboard shows; the older versions' tables are in
+``docs/benchmark.md``."""
 
 MPCS = ("mpc", "mpc_levels1")
 """The MPC references: in the task's full action space and in the learned agents'."""
@@ -122,36 +133,52 @@ def read_scores(directory: str | Path) -> list[dict]:
     return out
 
 
+def _reference_label(name: str, task_id: str) -> str:
+    """A reference's row label; the bound's names the task's bound."""
+    return BOUND_LABELS[TASKS[task_id].bound] if name == BOUND else REFERENCE_LABELS[name]
+
+
 def render(
     scores_dir: str | Path | None = None,
     timings: str | Path | None = None,
     references_dir: str | Path | None = None,
+    version: int = CURRENT_VERSION,
 ) -> str:
-    """The scoreboard as a Markdown table.
+    """The scoreboard of one benchmark version as a Markdown table.
 
     Args:
         scores_dir: a directory of score files (none: the references alone).
         timings: a file written by ``--time`` (none: no timing row).
         references_dir: where the references live (default: the shipped ones).
+        version: the tasks' version (`Task.version`): the current one by default.
 
     Returns:
-        The table, one row per policy and one column per task, with the days, draws and
-        seeds each row rests on.
+        The table, one row per policy and one column per task of that version, with the
+        days, draws and seeds each row rests on.
+
+    Raises:
+        ValueError: no registered task has that version.
     """
-    tasks = list(TASKS)
+    tasks = [t for t, task in TASKS.items() if task.version == version]
+    if not tasks:
+        versions = sorted({task.version for task in TASKS.values()})
+        raise ValueError(f"field 'version' must be one of {versions}, got {version!r}")
     rows: dict[str, dict[str, str]] = {}
-    for name, label in REFERENCE_LABELS.items():
-        rows[label] = {}
+    for name in REFERENCE_LABELS:
+        for task_id in tasks:
+            rows.setdefault(_reference_label(name, task_id), {})
     scored = {t: _scored_days(t, references_dir) for t in tasks}
     for task_id in tasks:
         refs = load_references(task_id, references_dir)
-        for name, label in REFERENCE_LABELS.items():
+        for name in REFERENCE_LABELS:
             if name in refs["policies"]:
-                rows[label][task_id] = _cell(
+                rows[_reference_label(name, task_id)][task_id] = _cell(
                     compare(task_id, refs["policies"][name]["daily_profit"], references_dir),
                     scored[task_id],
                 )
     for data in read_scores(scores_dir) if scores_dir else []:
+        if data["task"] not in scored:
+            continue  # a task of another version
         label = _label(data)
         result = compare(data["task"], data["daily_profit"], references_dir)
         rows.setdefault(label, {})[data["task"]] = _cell(result, scored[data["task"]])
@@ -262,32 +289,50 @@ def time_score(path: str | Path) -> dict:
 
 
 START, END = "<!-- scoreboard:start -->", "<!-- scoreboard:end -->"
-"""The markers around the scoreboard in a Markdown file."""
+"""The markers around the current version's scoreboard in a Markdown file."""
 
 
-def embedded(text: str) -> str:
-    """The table between `START` and `END` in ``text``.
+def markers(version: int = CURRENT_VERSION) -> tuple[str, str]:
+    """The markers around a version's scoreboard: `START` and `END` for the current version,
+    ``<!-- scoreboard-v<N>:start -->`` and ``...:end -->`` for an older one.
+
+    Args:
+        version: the tasks' version.
+
+    Returns:
+        ``(start, end)``.
+    """
+    if version == CURRENT_VERSION:
+        return START, END
+    return f"<!-- scoreboard-v{version}:start -->", f"<!-- scoreboard-v{version}:end -->"
+
+
+def embedded(text: str, version: int = CURRENT_VERSION) -> str:
+    """The table between a version's markers (`markers`) in ``text``.
 
     Args:
         text: the contents of a Markdown file.
+        version: whose block (the current version's by default: `START` ... `END`).
 
     Returns:
-        The text between the first `START` and the next `END`, stripped.
+        The text between the first start marker and the next end marker, stripped.
 
     Raises:
-        ValueError: the markers are missing, or no `END` follows the first `START`.
+        ValueError: the markers are missing, or no end marker follows the first start.
     """
-    if START not in text or END not in text.split(START, 1)[1]:
-        raise ValueError(f"no {START} ... {END} block in the file (an end after the start)")
-    return text.split(START, 1)[1].split(END, 1)[0].strip()
+    start, end = markers(version)
+    if start not in text or end not in text.split(start, 1)[1]:
+        raise ValueError(f"no {start} ... {end} block in the file (an end after the start)")
+    return text.split(start, 1)[1].split(end, 1)[0].strip()
 
 
-def embed(text: str, table: str) -> str:
-    """``text`` with the block between the markers replaced by ``table``.
+def embed(text: str, table: str, version: int = CURRENT_VERSION) -> str:
+    """``text`` with the block between a version's markers (`markers`) replaced by ``table``.
 
     Args:
-        text: the contents of a Markdown file with a `START` ... `END` block.
+        text: the contents of a Markdown file with such a block.
         table: the Markdown to put between the markers.
+        version: whose block (the current version's by default: `START` ... `END`).
 
     Returns:
         ``text`` with the first block's contents replaced by ``table`` (on its own lines).
@@ -295,17 +340,19 @@ def embed(text: str, table: str) -> str:
     Raises:
         ValueError: the markers are missing, or out of order (`embedded`).
     """
-    embedded(text)
-    head, rest = text.split(START, 1)
-    return f"{head}{START}\n{table}\n{END}{rest.split(END, 1)[1]}"
+    embedded(text, version)
+    start, end = markers(version)
+    head, rest = text.split(start, 1)
+    return f"{head}{start}\n{table}\n{end}{rest.split(end, 1)[1]}"
 
 
 def main(argv=None) -> str:
-    """The command line: print the scoreboard, and write it where the options say.
+    """The command line: print the scoreboard of ``--version``'s tasks, and write it where the
+    options say.
 
     ``--gaps`` writes `learner_gaps` of ``--scores`` to a file; ``--time`` names a timing
     file, measured first (`time_score`) when it does not exist; ``--readme`` writes the table
-    into that file's `START` ... `END` block.
+    into that file's block of the version (`markers`).
 
     Args:
         argv: the arguments (None: ``sys.argv[1:]``); ``--help`` lists them.
@@ -318,6 +365,12 @@ def main(argv=None) -> str:
     parser.add_argument("--time", default=None, help="a timing file (measured if missing)")
     parser.add_argument("--readme", default=None, help="write the table into this file's block")
     parser.add_argument(
+        "--version",
+        type=int,
+        default=CURRENT_VERSION,
+        help=f"the tasks' version (default {CURRENT_VERSION}, the current one)",
+    )
+    parser.add_argument(
         "--gaps", default=None, help="write the best learned agents' gaps to the MPC here"
     )
     args = parser.parse_args(argv)
@@ -329,11 +382,11 @@ def main(argv=None) -> str:
         print(gaps)
     if args.time and not Path(args.time).exists():
         time_score(args.time)
-    table = render(args.scores, args.time)
+    table = render(args.scores, args.time, version=args.version)
     print(table)
     if args.readme:
         path = Path(args.readme)
-        path.write_text(embed(path.read_text(), table))
+        path.write_text(embed(path.read_text(), table, args.version))
     return table
 
 

@@ -16,6 +16,10 @@ earlier"). A policy that frees ports earlier may admit cars the reference reject
 exceed the bound; `chargax_marl.optimal.milp` bounds over admissions as well on small
 problems. Within the class the bound is an upper bound because currents are continuous (the
 discrete levels are a subset) and every limit the simulator applies is a constraint.
+
+Under fixed departures (the session model v3, `chargax_marl.core.types.EnvParams.fixed_departures`)
+every car leaves at the step set when it arrived and where it parks does not depend on the
+policy, so every policy has the reference's occupancy: the bound holds for all of them.
 """
 
 from __future__ import annotations

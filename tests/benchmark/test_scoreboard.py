@@ -23,11 +23,27 @@ ROOT = Path(__file__).resolve().parents[2]
 SCORES = ROOT / "results" / "scores"
 
 
-def test_the_readme_shows_the_generated_scoreboard():
+def test_the_readme_shows_the_current_version_s_scoreboard():
     table = scoreboard.render(SCORES, SCORES / "score_time.json")
     assert scoreboard.embedded((ROOT / "README.md").read_text()) == table
-    assert "| LP bound (v1: occupancy; v2: port-pooled) | 1.00 ± " in table
+    assert f"-v{scoreboard.CURRENT_VERSION}` |" in table.splitlines()[0]
+    assert f"-v{scoreboard.CURRENT_VERSION - 1}`" not in table
+    assert "| LP bound (occupancy) | 1.00 ± " in table
     assert "always-max | 0.00 ± 0.00 (+0.0)" in table
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_the_docs_show_the_older_versions_scoreboards(version):
+    table = scoreboard.render(SCORES, SCORES / "score_time.json", version=version)
+    assert scoreboard.embedded((ROOT / "docs" / "benchmark.md").read_text(), version) == table
+    assert f"-v{version}` |" in table.splitlines()[0]
+    bound = {1: "occupancy", 2: "port-pooled"}[version]
+    assert f"| LP bound ({bound}) | 1.00 ± " in table
+
+
+def test_a_version_without_tasks_is_refused():
+    with pytest.raises(ValueError, match="field 'version' must be one of"):
+        scoreboard.render(version=99)
 
 
 def test_a_stale_score_file_is_refused(tmp_path):
