@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,6 +26,8 @@ from chargax_marl.benchmark.tasks import OVERRIDE_KEYS, TASK_FILE_FIELDS, load_t
 from chargax_marl.core import make_params
 from chargax_marl.core.scenarios import scenario_kwargs
 from chargax_marl.trace import params_fingerprint
+
+DOCS = Path(__file__).resolve().parents[2] / "docs" / "benchmark.md"
 
 FR_2022 = """\
 name = "shopping-fr2022"
@@ -231,3 +235,10 @@ def test_a_user_task_s_references_are_built_beside_its_file_and_always_max_score
     )
     assert reference_path(task, other).exists()
     assert ZERO in load_references(task, other)["policies"]
+
+
+def test_the_task_file_of_the_docs_reads_as_the_task_it_describes(tmp_path):
+    block = re.search(r"```toml\n(.*?)```", DOCS.read_text(), re.S).group(1)
+    task = load_task(_write(tmp_path, block))
+    assert task.id == "Chargax-shopping-fr2022-v1" and task.prices == "FR-2022"
+    assert dict(task.overrides) == {"grid_fraction": 0.15}
