@@ -5,11 +5,14 @@
         --name IPPO --out results/scores/ippo_Chargax-shopping-v1.json \\
         --picture docs/benchmark_day_ippo_shopping.png
     python -m baselines.score --rescore results/scores/*.json   # after references move
+    python -m baselines.score outputs/train_ippo --task-file my_task.toml --references refs/
 
 The run's greedy policies are played on the task's held-out days and car draws
 (`chargax_marl.benchmark`) in the run's own action space (``num_levels``), and scored
-against the task's shipped references. The score file is what the scoreboard reads
-(``python -m chargax_marl.benchmark.scoreboard``).
+against the task's references: the shipped ones of a registered task, those in the task
+file's folder (or ``--references``) of a task read from a file. A run is scored on any task
+whose observation and action spaces are its own (`check_run_fits`). The score file is what
+the scoreboard reads (``python -m chargax_marl.benchmark.scoreboard``).
 """
 
 from __future__ import annotations
@@ -30,60 +33,105 @@ from chargax_marl.benchmark.references import SECONDARY, load_references, packag
 from chargax_marl.benchmark.scoring import compare
 from chargax_marl.benchmark.tasks import get_task
 from chargax_marl.evaluation import METRICS, check_policy_outputs, play_days, stateless
-from chargax_marl.trace import params_fingerprint, station_fingerprint
+from chargax_marl.marl import ChargaxMARL
+from chargax_marl.single import Chargax
+from chargax_marl.trace import params_fingerprint
 
 
 class CheckpointMismatchError(ValueError):
-    """A checkpoint trained on another station or scenario than the task's."""
+    """A checkpoint whose observation or action spaces are not the task's, or a score file
+    of other parameters than its task's."""
+
+
+def _describe(space) -> str:
+    """A space in words: a `MultiDiscrete` with its choices, a box by its shape."""
+    nvec = getattr(space, "nvec", None)
+    if nvec is not None:
+        return f"MultiDiscrete({[int(n) for n in nvec]})"
+    return f"Box(shape={tuple(int(n) for n in space.shape)})"
+
+
+def spaces(params) -> dict[str, object]:
+    """The observation and action spaces a policy trained on ``params`` reads and writes, in
+    both views (`chargax_marl.single.Chargax` and, for a discrete action mode,
+    `chargax_marl.marl.ChargaxMARL`).
+
+    Args:
+        params: concrete env parameters.
+
+    Returns:
+        ``{what: value}``: the action mode, the levels per direction, the ports and
+        batteries (the agents), the single-agent observation shape and action space, and
+        the multi-agent observation size and number of actions per agent. Limits, prices,
+        cars and economics are not part of them.
+    """
+    single = Chargax(params)
+    st = params.station
+    out = {
+        "action mode": str(params.action_mode),
+        "levels per direction": int(params.num_levels),
+        "ports": int(st.num_ports),
+        "batteries": int(st.num_batteries),
+        "single-agent observation shape": tuple(
+            int(n) for n in single.observation_space(params).shape
+        ),
+        "single-agent action space": _describe(single.action_space(params)),
+    }
+    if params.action_mode != "continuous":  # the multi-agent view has discrete actions only
+        marl = ChargaxMARL(params)
+        out["multi-agent observation size"] = int(marl.obs_size)
+        out["multi-agent actions per agent"] = int(marl.num_actions)
+    return out
 
 
 def check_run_fits(run_params, task) -> None:
-    """Refuse a run whose env differs from the task's in more than its action space.
+    """Refuse a run whose observation or action spaces differ from the task's (`spaces`, in
+    the run's own number of levels). A task of other limits (a grid connection of another
+    size), prices, cars or economics on a station of the same ports is scored: that is what
+    a task of one's own is for.
 
     Args:
         run_params: the run's held-out env parameters.
         task: the benchmark task.
 
     Raises:
-        CheckpointMismatchError: another action mode, another station, or (for a task that is
-            not a shift task) any other parameter: scenario, prices, economics.
+        CheckpointMismatchError: another action mode, another number of ports or batteries,
+            or observations or actions of other shapes; the message lists each difference.
     """
     mine = task.policy_params(int(run_params.num_levels))
-    if run_params.action_mode != mine.action_mode:
+    run, scored = spaces(run_params), spaces(mine)
+    differ = [
+        f"{what}: {run[what]!r} (the task's {scored.get(what)!r})"
+        for what in run
+        if run[what] != scored.get(what)
+    ]
+    if differ:
         raise CheckpointMismatchError(
-            f"the run acts in action mode {run_params.action_mode!r}; task {task.id!r} is scored "
-            f"in {mine.action_mode!r}"
-        )
-    if station_fingerprint(run_params) != station_fingerprint(mine):
-        raise CheckpointMismatchError(
-            f"the run was trained on another station than task {task.id!r}'s (station "
-            f"fingerprint {station_fingerprint(run_params)}, the task's "
-            f"{station_fingerprint(mine)})"
-        )
-    if not task.is_shift and params_fingerprint(run_params) != params_fingerprint(mine):
-        raise CheckpointMismatchError(
-            f"the run was trained on other parameters than task {task.id!r} (scenario, prices "
-            f"or economics: params fingerprint {params_fingerprint(run_params)}, the task's "
-            f"{params_fingerprint(mine)} at num_levels={int(run_params.num_levels)}); score it "
-            "on the task of its scenario"
+            f"the run acts on other observation or action spaces than task {task.id!r} "
+            f"(another station, action mode or action space): {'; '.join(differ)}; a "
+            "checkpoint is scored only on a task of its own spaces"
         )
 
 
-def score_run(run_dir: str | Path, task_id: str, references_dir=None) -> dict:
+def score_run(run_dir: str | Path, task_id, references_dir=None) -> dict:
     """Every seed of a run on a task.
 
     Args:
         run_dir: a ``baselines.train`` output directory (``results.json``, ``params.msgpack``).
-        task_id: a benchmark task id.
-        references_dir: where the references live (default: the shipped ones).
+        task_id: a benchmark task id, a task file's path
+            (`chargax_marl.benchmark.tasks.load_task`) or a `Task`.
+        references_dir: where the references live (default: the shipped ones; for a task
+            read from a task file, the file's folder).
 
     Returns:
         `chargax_marl.benchmark.scoring.compare`'s result over the seeds, plus
         ``daily_profit`` ``(seeds, days, draws)``, ``metrics`` (means), ``per_seed_metrics``,
-        the run's ``algo``, ``seeds``, ``config`` and ``wall_s``.
+        the run's ``algo``, ``seeds``, ``config`` and ``wall_s``; for a task read from a
+        file, ``task_file``, the file's path (`rescore` reads the task from it).
 
     Raises:
-        CheckpointMismatchError: the run was trained on another station or scenario.
+        CheckpointMismatchError: the run acts on other observation or action spaces than
+            the task's (`check_run_fits`).
         ValueError: the policy returned non-finite or non-integer levels
             (`chargax_marl.evaluation.check_policy_outputs`).
     """
@@ -110,8 +158,10 @@ def score_run(run_dir: str | Path, task_id: str, references_dir=None) -> dict:
         ]
         for name in ("daily_profit_eur", *SECONDARY)
     }
+    source = {} if task.source is None else {"task_file": str(task.source)}
     return {
         **compare(task, daily, references_dir),
+        **source,
         "daily_profit": daily,
         "metrics": {k: float(np.mean(v)) for k, v in per_seed.items()},
         "per_seed_metrics": per_seed,
@@ -126,23 +176,27 @@ def score_run(run_dir: str | Path, task_id: str, references_dir=None) -> dict:
     }
 
 
-def picture(run_dir, task_id: str, path, name: str | None = None, day_index: int = 0):
+def picture(
+    run_dir, task_id, path, name: str | None = None, day_index: int = 0, references_dir=None
+):
     """Draw seed 0 of a run on a held-out day of a task beside always-max
     (`chargax_marl.benchmark.picture.day_picture`); returns the figure.
 
     Args:
         run_dir: a ``baselines.train`` output directory.
-        task_id: a benchmark task id.
+        task_id: a benchmark task id, a task file's path or a `Task`.
         path: the PNG to write.
         name: the policy's label (default: the run's algorithm, upper-cased).
         day_index: the position in the task's held-out days (draw 0 is drawn).
+        references_dir: where the references live (default: the shipped ones; for a task
+            read from a task file, the file's folder).
 
     Returns:
         The matplotlib figure.
 
     Raises:
-        CheckpointMismatchError: the run was trained on another station or scenario
-            (`check_run_fits`).
+        CheckpointMismatchError: the run acts on other observation or action spaces than
+            the task's (`check_run_fits`).
     """
     task = get_task(task_id)
     results, train, seed_params = load_run(run_dir)
@@ -157,6 +211,7 @@ def picture(run_dir, task_id: str, path, name: str | None = None, day_index: int
         num_levels=int(run_params.num_levels),
         label=f"{name or results['algo'].upper()} (seed 0)",
         path=path,
+        references_dir=references_dir,
     )
     return fig
 
@@ -199,11 +254,13 @@ def rescore(path: str | Path, references_dir=None) -> dict:
 
     Args:
         path: a score file written by `write_score`.
-        references_dir: where the references live (default: the shipped ones).
+        references_dir: where the references live (default: the shipped ones; for a task
+            read from a task file, the file's folder).
 
     Returns:
         The file's content with `chargax_marl.benchmark.scoring.compare`'s fields made again;
-        its profits, metrics and settings as stored.
+        its profits, metrics and settings as stored. A file of a task read from a task file
+        reads the task from that file again (its ``task_file``).
 
     Raises:
         ValueError: the file is not a score file (it lacks a field `write_score` writes).
@@ -214,7 +271,7 @@ def rescore(path: str | Path, references_dir=None) -> dict:
     missing = _missing_fields(stored)
     if missing:
         raise ValueError(f"{path}: not a score file, it has no field {missing}")
-    task = get_task(stored["task"])
+    task = get_task(stored.get("task_file") or stored["task"])
     current = params_fingerprint(task.make_params())
     if stored.get("params_fingerprint") != current:
         raise CheckpointMismatchError(
@@ -238,7 +295,21 @@ def main(argv=None) -> dict | list:
     """
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("run_dir", nargs="?")
-    parser.add_argument("--task", default=None, help="a benchmark task id")
+    which = parser.add_mutually_exclusive_group()
+    which.add_argument("--task", default=None, help="a benchmark task id")
+    which.add_argument(
+        "--task-file",
+        default=None,
+        metavar="PATH",
+        help="a task file (.toml or .json) of a task of one's own, instead of --task",
+    )
+    parser.add_argument(
+        "--references",
+        default=None,
+        metavar="DIR",
+        help="the folder of the task's references (default: the shipped ones; for "
+        "--task-file, the task file's folder)",
+    )
     parser.add_argument("--name", default=None, help="the row label (default: the algorithm)")
     parser.add_argument("--out", default=None, help="write the score file here")
     parser.add_argument(
@@ -254,25 +325,31 @@ def main(argv=None) -> dict | list:
     )
     args = parser.parse_args(argv)
     if args.rescore:
-        if args.run_dir or args.task:
-            parser.error("--rescore takes score files only (no run directory or --task)")
+        if args.run_dir or args.task or args.task_file:
+            parser.error(
+                "--rescore takes score files only (no run directory, --task or --task-file)"
+            )
         out = []
         for path in args.rescore:
             if _missing_fields(json.loads(Path(path).read_text())):
                 print(f"{path}: not a score file, left as it is")  # score_time.json, say
                 continue
-            result = rescore(path)
+            result = rescore(path, args.references)
             write_score(result, result["name"], path)
             print(f"{path}: score {result['score']:.3f} ± {result['score_stderr']:.3f}")
             out.append(result)
         return out
-    if not (args.run_dir and args.task):
-        parser.error("a run directory and --task are required (or --rescore SCORE_FILE ...)")
+    task = args.task or args.task_file
+    if not (args.run_dir and task):
+        parser.error(
+            "a run directory and --task or --task-file are required (or --rescore SCORE_FILE ...)"
+        )
+    task = get_task(Path(task) if args.task_file else task)
     if args.picture:
-        picture(args.run_dir, args.task, args.picture, args.name)
-    result = score_run(args.run_dir, args.task)
+        picture(args.run_dir, task, args.picture, args.name, references_dir=args.references)
+    result = score_run(args.run_dir, task, args.references)
     print(
-        f"{args.task}: score {result['score']:.3f} ± {result['score_stderr']:.3f} over "
+        f"{task.id}: score {result['score']:.3f} ± {result['score_stderr']:.3f} over "
         f"{result['seeds']} seeds, {result['over_always_max_eur']['mean']:+.2f} ± "
         f"{result['over_always_max_eur']['stderr']:.2f} EUR/day over always-max "
         f"({result['wall_s']:.1f} s)"

@@ -1,7 +1,8 @@
 """The benchmark: versioned tasks, shipped references, and scores against them.
 
 - `tasks`: `TASKS`, the registered `Task` s (the
-  scenario, the held-out days, the car draws and their keys);
+  scenario, the held-out days, the car draws and their keys), and `load_task`, a task of
+  one's own read from a TOML or JSON file;
 - `references`: always-max (score 0), the LP hindsight bound
   (score 1), the strongest rules and (where computed) the MPC per day and draw, shipped with
   the package;
@@ -24,7 +25,7 @@ from chargax_marl.benchmark.references import (
     save_references,
 )
 from chargax_marl.benchmark.scoring import compare, get_normalized_score, score
-from chargax_marl.benchmark.tasks import TASKS, Task, get_task
+from chargax_marl.benchmark.tasks import TASKS, Task, get_task, load_task
 
 __all__ = [
     "KINDS",
@@ -40,6 +41,7 @@ __all__ = [
     "get_normalized_score",
     "get_task",
     "load_references",
+    "load_task",
     "play",
     "refill_bound",
     "save_references",

@@ -89,7 +89,8 @@ def day_picture(
         reference: a rule name (`chargax_marl.policies.get_policy`).
         label: the policy's name in the legend.
         path: where to save the figure (PNG), if given.
-        references_dir: where the references live (default: the shipped ones).
+        references_dir: where the references live (default: the shipped ones; for a task
+            read from a task file, the file's folder).
 
     Returns:
         ``(figure, {"policy": play_day(...), "reference": play_day(...), "bound_eur"})``.

@@ -58,11 +58,13 @@ def get_normalized_score(task_id: str | Task, daily_profit, references_dir=None)
     benchmark): the fraction of the hindsight headroom captured.
 
     Args:
-        task_id: a task id (`chargax_marl.benchmark.TASKS`) or `Task`.
+        task_id: a task id (`chargax_marl.benchmark.TASKS`), a task file's path
+            (`chargax_marl.benchmark.tasks.load_task`) or `Task`.
         daily_profit: EUR per held-out day and draw, ``(..., days, draws)`` (leading axes,
             e.g. seeds, are kept), in the order of ``Task.eval_days()`` and the draws of
             ``Task.day_keys()``; ``(..., days)`` also for a one-draw task.
-        references_dir: where the references live (default: the shipped ones).
+        references_dir: where the references live (default: the shipped ones; for a task
+            read from a task file, the file's folder).
 
     Returns:
         The score, a float64 array of the leading shape (a 0-d array for one policy).
@@ -83,10 +85,11 @@ def compare(task_id: str | Task, daily_profit, references_dir=None) -> dict:
     """A policy's per-day profits set against a task's references.
 
     Args:
-        task_id: a task id or `Task`.
+        task_id: a task id, a task file's path or `Task`.
         daily_profit: ``(days, draws)`` or ``(seeds, days, draws)`` EUR (see
             `get_normalized_score`).
-        references_dir: where the references live (default: the shipped ones).
+        references_dir: where the references live (default: the shipped ones; for a task
+            read from a task file, the file's folder).
 
     Returns:
         ``score`` and ``score_stderr`` (over days, of the per-day mean over seeds and draws),
@@ -139,12 +142,13 @@ def score(
             action``; ``"marl"`` ``act(obs_dict, key) -> action_dict``; ``"gymnasium"``
             ``act(obs) -> action`` and ``"pettingzoo"`` ``act(obs_dict) -> action_dict`` on
             numpy (host loops, slower).
-        task_id: a task id or `Task`.
+        task_id: a task id, a task file's path or `Task`.
         kind: the policy's kind.
         num_levels: levels per direction of the policy's action space, where it was trained
             with fewer than the task's (``ENV_KWARGS = { num_levels = 1 }``: discharge,
             idle, charge at full power); default the task's (`Task.policy_params`).
-        references_dir: where the references live (default: the shipped ones).
+        references_dir: where the references live (default: the shipped ones; for a task
+            read from a task file, the file's folder).
 
     Returns:
         `compare`'s result, plus ``daily_profit`` (``(days, draws)`` array),

@@ -13,6 +13,10 @@ from ``jax.random.split(jax.random.PRNGKey(r), len(days))[i]``: draw 0 is the ev
 Distribution-shift tasks are scored on the held-out days of a test price year (or market)
 that their training data do not contain: `Task.train_params` gives the training env.
 
+Tasks of one's own: a `Task` takes ``overrides``, `chargax_marl.core.make_params` keywords on
+top of its scenario's (another station, traffic or grid connection), and `load_task` reads a
+task from a TOML or JSON file (`get_task` takes the file's path as it takes a registered id).
+
 Validation split: a training run follows and selects its policy on `Task.validation_days`,
 days drawn from the task's training days (played in `Task.validation_params`, the training
 env), under the keys of draws ``0 .. validation_draws - 1`` as above; the held-out days are
@@ -23,7 +27,13 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Callable
+import inspect
+import json
+import os
+import re
+import tomllib
+from collections.abc import Callable, Iterator, Mapping
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -34,7 +44,7 @@ from chargax_marl.core import clock, make_params
 from chargax_marl.core.data_io import SESSION_MODELS
 from chargax_marl.core.params import validate_params
 from chargax_marl.core.prices import PriceData, load_prices
-from chargax_marl.core.scenarios import scenario_kwargs
+from chargax_marl.core.scenarios import SCENARIOS, scenario_kwargs
 from chargax_marl.core.types import EnvParams
 from chargax_marl.evaluation import split_days, validation_days
 
@@ -47,6 +57,64 @@ NUM_VALIDATION_DAYS = 20
 
 BOUNDS = ("occupancy", "pooled")
 """The bounds a task's score 1 can be (`Task.bound`)."""
+
+_TASK_KEYWORDS = {
+    "prices": "set the task's field 'prices'",
+    "session_model": "set the task's field 'session_model'",
+    "reset_days": "the task sets it: its training days",
+}
+"""`make_params` keywords a task sets itself, with what to do instead of overriding them."""
+
+OVERRIDE_KEYS = tuple(
+    k for k in inspect.signature(make_params).parameters if k not in _TASK_KEYWORDS
+)
+"""The `chargax_marl.core.make_params` keywords a task's ``overrides`` may set."""
+
+
+class _FrozenMapping(Mapping):
+    """A read-only, hashable mapping (a task's ``overrides``; its values frozen by `_freeze`),
+    so that a `Task` stays hashable and its parameters are cached per task."""
+
+    def __init__(self, items=()):
+        self._items = dict(items)
+
+    def __getitem__(self, key: str) -> Any:
+        return self._items[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._items)
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def __hash__(self) -> int:
+        return hash(tuple(sorted(self._items.items())))
+
+    def __repr__(self) -> str:
+        return repr(self._items)
+
+
+def _freeze(value: Any) -> Any:
+    """``value`` with its dicts as `_FrozenMapping` s and its lists as tuples, at any depth.
+
+    Raises:
+        TypeError: a value that is not hashable even so (an array, say).
+    """
+    if isinstance(value, Mapping):
+        return _FrozenMapping((k, _freeze(v)) for k, v in value.items())
+    if isinstance(value, (list, tuple)):
+        return tuple(_freeze(v) for v in value)
+    hash(value)
+    return value
+
+
+def _thaw(value: Any) -> Any:
+    """The inverse of `_freeze` for `make_params`: `_FrozenMapping` s as dicts."""
+    if isinstance(value, _FrozenMapping):
+        return {k: _thaw(v) for k, v in value.items()}
+    if isinstance(value, tuple):
+        return tuple(_thaw(v) for v in value)
+    return value
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,6 +143,14 @@ class Task:
             (a noisier station); a quarter or half of ``draws`` on a fifth of the days keeps
             the evaluations during training a small part of a run.
         validation_seed: seed of the validation draw.
+        overrides: `chargax_marl.core.make_params` keywords (`OVERRIDE_KEYS`) applied on top
+            of the scenario's, in the scored, training and validation envs alike: another
+            station (``station``, ``station_kwargs``), traffic, user profile or grid
+            connection (``grid_fraction``). Given as any mapping, kept read-only (dicts at
+            any depth read-only too, lists as tuples), so that the task stays hashable.
+        source: the task file the task was read from (`load_task`); None for a task made
+            in Python. Its references are looked for in the file's folder by default. It
+            takes no part in the task's equality.
         session_model: the cars' session model (`chargax_marl.core.data_io.SESSION_MODELS`):
             ``"paper"`` on the version-1 tasks, ``"v2"`` on version 2, ``"v3"`` on version 3.
         bound: the reference that scores 1 (`BOUNDS`): ``"occupancy"``, the LP hindsight
@@ -85,7 +161,9 @@ class Task:
 
     Raises:
         ValueError: ``num_validation_days``, ``validation_draws`` or ``validation_seed`` not
-            a positive integer (the message names the field, the value and what is allowed).
+            a positive integer; ``overrides`` not a mapping, a key of it that is not one of
+            `OVERRIDE_KEYS`, a value that is not hashable once frozen, or overrides together
+            with ``params_fn`` (the message names the field, the value and what is allowed).
     """
 
     name: str
@@ -103,8 +181,11 @@ class Task:
     validation_seed: int = 1
     session_model: str = "v2"
     bound: str = "pooled"
+    overrides: Mapping[str, Any] = _FrozenMapping()
+    source: Path | None = dataclasses.field(default=None, compare=False)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "overrides", self._frozen_overrides())
         if self.bound not in BOUNDS:
             raise ValueError(
                 f"task {self.name!r}: field 'bound' must be one of {list(BOUNDS)}, "
@@ -122,6 +203,39 @@ class Task:
                     f"task {self.name!r}: field {name!r} must be a positive integer, got {value!r}"
                 )
 
+    def _frozen_overrides(self) -> _FrozenMapping:
+        """``overrides`` checked and frozen (`_freeze`)."""
+        given = self.overrides
+        if not isinstance(given, Mapping):
+            raise ValueError(
+                f"task {self.name!r}: field 'overrides' must be a mapping of make_params "
+                f"keywords to values, got {given!r}"
+            )
+        if given and self.params_fn is not None:
+            raise ValueError(
+                f"task {self.name!r}: field 'overrides' must be empty on a task with params_fn "
+                f"(params_fn builds the whole params), got {dict(given)!r}"
+            )
+        for key, value in given.items():
+            if key in _TASK_KEYWORDS:
+                raise ValueError(
+                    f"task {self.name!r}: field 'overrides' may not set {key!r} "
+                    f"({_TASK_KEYWORDS[key]})"
+                )
+            if key not in OVERRIDE_KEYS:
+                raise ValueError(
+                    f"task {self.name!r}: field 'overrides' has the key {key!r}, which is not "
+                    f"a make_params keyword; allowed: {list(OVERRIDE_KEYS)}"
+                )
+            try:
+                _freeze(value)
+            except TypeError:
+                raise ValueError(
+                    f"task {self.name!r}: override {key!r} must be a number, string, bool, "
+                    f"list or table of them, got {value!r} (build such params with params_fn)"
+                ) from None
+        return _freeze(given)
+
     @property
     def id(self) -> str:
         """The task id, ``Chargax-<name>-v<version>``."""
@@ -133,14 +247,20 @@ class Task:
         return bool(self.train_prices)
 
     def env_kwargs(self) -> dict[str, Any]:
-        """The `chargax_marl.core.make_params` keywords of the scored env.
+        """The `chargax_marl.core.make_params` keywords of the scored env: the scenario's,
+        with the task's ``prices``, ``session_model`` and ``overrides`` on top.
 
         Raises:
             ValueError: a ``params_fn`` task (it has no keywords).
         """
         if self.params_fn is not None:
             raise ValueError(f"task {self.id!r} builds its params with params_fn, not keywords")
-        return scenario_kwargs(self.scenario, prices=self.prices, session_model=self.session_model)
+        return scenario_kwargs(
+            self.scenario,
+            prices=self.prices,
+            session_model=self.session_model,
+            **_thaw(self.overrides),
+        )
 
     def _kwargs(self, overrides: dict[str, Any]) -> dict[str, Any]:
         """The task's `make_params` keywords with ``overrides`` on top; its session model
@@ -457,20 +577,170 @@ TASKS.update(
 """Every registered task by id."""
 
 
-def get_task(task: str | Task) -> Task:
-    """The task of an id.
+TASK_FILE_SUFFIXES = (".toml", ".json")
+"""The suffixes of the task files `load_task` reads (and `get_task` takes as paths)."""
+
+
+def _is_int(value: Any, least: int) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= least
+
+
+def _is_str(value: Any) -> bool:
+    return isinstance(value, str)
+
+
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
+
+TASK_FILE_FIELDS: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "name": (
+        lambda v: isinstance(v, str) and _NAME.fullmatch(v) is not None,
+        "a string of letters, digits, '.', '_' and '-' (the id's middle part)",
+    ),
+    "version": (lambda v: _is_int(v, 1), "an integer >= 1"),
+    "scenario": (lambda v: isinstance(v, str) and v in SCENARIOS, "a scenario name"),
+    "draws": (lambda v: _is_int(v, 1), "an integer >= 1"),
+    "description": (_is_str, "a string"),
+    "prices": (_is_str, "a bundled price dataset name (e.g. 'FR-2022')"),
+    "train_prices": (
+        lambda v: isinstance(v, list) and all(isinstance(x, str) for x in v),
+        "a list of price dataset names",
+    ),
+    "num_eval_days": (lambda v: _is_int(v, 1), "an integer >= 1"),
+    "split_seed": (lambda v: _is_int(v, 0), "an integer >= 0"),
+    "num_validation_days": (lambda v: _is_int(v, 1), "an integer >= 1"),
+    "validation_draws": (lambda v: _is_int(v, 1), "an integer >= 1"),
+    "validation_seed": (lambda v: _is_int(v, 1), "an integer >= 1"),
+    "session_model": (lambda v: isinstance(v, str) and v in SESSION_MODELS, "a session model"),
+    "bound": (lambda v: isinstance(v, str) and v in BOUNDS, f"one of {list(BOUNDS)}"),
+    "overrides": (
+        lambda v: isinstance(v, dict),
+        "a table of make_params keywords (the file's [overrides] section)",
+    ),
+}
+"""The keys of a task file, each with its check and what it allows."""
+
+TASK_FILE_REQUIRED = ("name", "version", "scenario", "draws")
+"""The keys a task file must have; the others default as `Task`'s fields do."""
+
+
+def load_task(path: str | os.PathLike) -> Task:
+    """Read a task from a TOML or JSON file.
+
+    The file's keys are `Task`'s fields (`TASK_FILE_FIELDS`; ``name``, ``version``,
+    ``scenario`` and ``draws`` are required, ``description`` defaults to ``""``), with
+    ``overrides`` a table of `chargax_marl.core.make_params` keywords on top of the
+    scenario's::
+
+        name = "shopping-fr2022"
+        version = 1
+        scenario = "shopping"
+        draws = 2
+        description = "FR 2022 prices on the default station"
+        prices = "FR-2022"
+
+        [overrides]
+        grid_fraction = 0.15
+
+    The task's parameters and held-out days are built once here, so that a value
+    `make_params` refuses is reported now, with the file's path.
 
     Args:
-        task: a registered task id (a key of `TASKS`) or a `Task`, returned as it is.
+        path: a ``.toml`` or ``.json`` file (`TASK_FILE_SUFFIXES`).
+
+    Returns:
+        The `Task`, its ``source`` the file's resolved path.
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: another suffix, a file that does not parse, an unknown key (the message
+            lists the allowed ones), a missing required key, a value of the wrong type or
+            range (naming the key and the value), an override `Task` or `make_params`
+            refuses, or an id that is a registered task's.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in TASK_FILE_SUFFIXES:
+        raise ValueError(
+            f"{path}: a task file must end in one of {list(TASK_FILE_SUFFIXES)}, got {suffix!r}"
+        )
+    text = path.read_text()
+    try:
+        data = tomllib.loads(text) if suffix == ".toml" else json.loads(text)
+    except (tomllib.TOMLDecodeError, json.JSONDecodeError) as e:
+        raise ValueError(f"{path}: not a valid {suffix[1:].upper()} file: {e}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: a task file must hold a table of keys, got {data!r}")
+    unknown = [k for k in data if k not in TASK_FILE_FIELDS]
+    if unknown:
+        raise ValueError(
+            f"{path}: unknown key {unknown[0]!r}; allowed keys: {list(TASK_FILE_FIELDS)}"
+        )
+    missing = [k for k in TASK_FILE_REQUIRED if k not in data]
+    if missing:
+        raise ValueError(
+            f"{path}: missing key {missing[0]!r}; required keys: {list(TASK_FILE_REQUIRED)}"
+        )
+    for key, value in data.items():
+        check, allowed = TASK_FILE_FIELDS[key]
+        if not check(value):
+            raise ValueError(f"{path}: field {key!r} must be {allowed}, got {value!r}")
+    fields = {**data, "description": data.get("description", "")}
+    if "train_prices" in fields:
+        fields["train_prices"] = tuple(fields["train_prices"])
+    try:
+        task = Task(**fields, source=path.resolve())
+    except ValueError as e:
+        raise ValueError(f"{path}: {e}") from None
+    if task.id in TASKS:
+        raise ValueError(
+            f"{path}: the task id {task.id!r} is a registered task's; give the file another "
+            "name or version"
+        )
+    try:
+        task.eval_days()  # builds the parameters: refuses a value make_params refuses
+    except (ValueError, KeyError, TypeError) as e:
+        raise ValueError(f"{path}: task {task.id!r}: {e}") from None
+    return task
+
+
+def is_task_file(task: Any) -> bool:
+    """Whether `get_task` reads ``task`` as a task file's path.
+
+    Args:
+        task: anything `get_task` is given.
+
+    Returns:
+        True for a `pathlib.Path` (any ``os.PathLike``) and for a string ending in one of
+        `TASK_FILE_SUFFIXES`.
+    """
+    if isinstance(task, os.PathLike):
+        return True
+    return isinstance(task, str) and task.lower().endswith(TASK_FILE_SUFFIXES)
+
+
+def get_task(task: str | os.PathLike | Task) -> Task:
+    """The task of an id or of a task file.
+
+    Args:
+        task: a registered task id (a key of `TASKS`), the path of a task file (a
+            `pathlib.Path`, or a string ending in ``.toml`` or ``.json``: `load_task`), or a
+            `Task`, returned as it is.
 
     Returns:
         The `Task`.
 
     Raises:
         KeyError: an unknown id; the message lists the registered ones.
+        FileNotFoundError: a task file that does not exist.
+        ValueError: a task file `load_task` refuses.
     """
     if isinstance(task, Task):
         return task
+    if is_task_file(task):
+        return load_task(task)
     if not isinstance(task, str) or task not in TASKS:
-        raise KeyError(f"unknown task {task!r}; registered tasks: {sorted(TASKS)}")
+        raise KeyError(
+            f"unknown task {task!r}; registered tasks: {sorted(TASKS)} (or the path of a task "
+            f"file ending in {' or '.join(TASK_FILE_SUFFIXES)})"
+        )
     return TASKS[task]

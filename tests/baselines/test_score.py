@@ -16,10 +16,13 @@ from chargax_marl.benchmark import (
     Task,
     compare,
     compute_references,
+    get_task,
     save_references,
     score,
 )
-from chargax_marl.trace import params_fingerprint
+from chargax_marl.benchmark.references import __main__ as references_cli
+from chargax_marl.trace import params_fingerprint, station_fingerprint
+from tests.helpers import TINY_ENV, toml_inline
 
 
 @pytest.fixture(scope="module")
@@ -102,6 +105,74 @@ def test_a_score_file_is_compared_again_against_references_that_moved(
 def test_a_checkpoint_of_another_station_is_refused(tiny_ippo_run):
     with pytest.raises(score_cli.CheckpointMismatchError, match="another station"):
         score_cli.score_run(tiny_ippo_run, "Chargax-shopping-v1")
+
+
+def _tiny_run_task_file(path, **overrides):
+    """A task file on the tiny run's station (3 held-out days, 1 draw), ``overrides`` on top."""
+    table = {**TINY_ENV, **overrides}
+    lines = [
+        'name = "tiny-user"',
+        "version = 1",
+        'scenario = "shopping"',
+        "draws = 1",
+        "num_eval_days = 3",
+        "",
+        "[overrides]",
+        *(f"{k} = {toml_inline(v)}" for k, v in table.items()),
+    ]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_a_checkpoint_is_scored_on_a_task_file_of_a_tighter_grid(tiny_ippo_run, tmp_path):
+    """Another grid connection leaves the run's spaces as they were: the run is scored on the
+    task file's references (in a folder of their own, --references), and its score file
+    names the task file, which --rescore reads again."""
+    path = _tiny_run_task_file(tmp_path / "tight.toml", grid_fraction=0.3)
+    task = get_task(path)
+    results, _, _ = load_run(tiny_ippo_run)
+    _, run_params, _, _ = build_env_params(results["config"])
+    assert station_fingerprint(run_params) != station_fingerprint(task.make_params())
+    refs = tmp_path / "refs"
+    references_cli.main(
+        ["--task-file", str(path), "--rules", "always_max", "--out", str(refs), "--processes", "1"]
+    )
+    out = tmp_path / "score.json"
+    result = score_cli.main(
+        [str(tiny_ippo_run), "--task-file", str(path), "--references", str(refs)]
+        + ["--out", str(out)]
+    )
+    assert result["task"] == task.id and result["daily_profit"].shape == (2, 3, 1)
+    assert result["days_scored"] == 3 and np.isfinite(result["score"])
+    stored = json.loads(out.read_text())
+    assert stored["task_file"] == str(path.resolve())
+    again = score_cli.rescore(out, refs)
+    assert again["score"] == pytest.approx(result["score"], rel=1e-12)
+
+
+@pytest.mark.parametrize(
+    "overrides, match",
+    [
+        ({"station_kwargs": {"num_ports": 3, "battery": True}}, r"ports: 4 \(the task's 3\)"),
+        ({"action_mode": "delta"}, r"action mode: 'absolute' \(the task's 'delta'\)"),
+        ({"price_horizon_hours": 3}, r"observation shape"),
+    ],
+)
+def test_a_checkpoint_is_refused_where_its_spaces_differ(tiny_ippo_run, overrides, match):
+    results, _, _ = load_run(tiny_ippo_run)
+    _, run_params, _, _ = build_env_params(results["config"])
+    task = Task("other", 1, "shopping", 1, "", overrides={**TINY_ENV, **overrides})
+    with pytest.raises(score_cli.CheckpointMismatchError, match=match):
+        score_cli.check_run_fits(run_params, task)
+
+
+def test_a_checkpoint_fits_a_task_of_other_limits_traffic_and_prices(tiny_ippo_run):
+    results, _, _ = load_run(tiny_ippo_run)
+    _, run_params, _, _ = build_env_params(results["config"])
+    overrides = {**TINY_ENV, "grid_fraction": 0.2, "traffic": "high"}
+    task = Task("fits", 1, "shopping", 1, "", prices="DE-2023", overrides=overrides)
+    assert params_fingerprint(task.make_params()) != params_fingerprint(run_params)
+    score_cli.check_run_fits(run_params, task)  # no error: the spaces are the run's
 
 
 def test_a_task_in_the_config_trains_on_its_training_data_and_holds_out_its_days():

@@ -11,6 +11,11 @@ parameters for the task. Rebuild with::
     python -m chargax_marl.benchmark.references --task Chargax-shopping-v1 --mpc   # add the MPC
     python -m chargax_marl.benchmark.references --task Chargax-shopping-v1 --refill-bound
 
+A task of one's own, read from a task file (`chargax_marl.benchmark.tasks.load_task`), has its
+references built by the same code, into the task file's folder unless ``--out`` says otherwise::
+
+    python -m chargax_marl.benchmark.references --task-file my_task.toml
+
 ``--refill-bound`` solves the stored LP bound's failed days again (`refill_bound`) and keeps
 every other number as stored.
 
@@ -137,7 +142,7 @@ def compute_references(
     """Compute a task's references.
 
     Args:
-        task: a task id or `Task`.
+        task: a task id, task file (`chargax_marl.benchmark.tasks.get_task`) or `Task`.
         rules: rule names to play (`chargax_marl.policies.get_policy`).
         bound: whether to solve the LP bound (one LP per day and draw).
         day_index: positions in the task's held-out days to compute (default: all); the keys
@@ -413,7 +418,7 @@ def refill_bound(
 
     Args:
         task: a task id or `Task`.
-        directory: where the files live (default: the shipped `REFERENCES_DIR`).
+        directory: where the files live (default: `default_references_dir`).
         time_limit_s: the LP's time limit per day and attempt.
         log: called with a line of progress (``None``: silent).
 
@@ -424,6 +429,7 @@ def refill_bound(
         ReferenceMismatchError: no stored file for the task, or one of other parameters.
     """
     task = get_task(task)
+    directory = reference_path(task, directory).parent  # written back where it was read
     log = log or (lambda _line: None)
     refs = load_references(task, directory)  # checks the file belongs to the task on this code
     stored = json.loads(reference_path(task, directory).read_text())
@@ -544,7 +550,7 @@ def add_mpc(
 
     Args:
         task: a task id or `Task`.
-        directory: where the files live (default: the shipped `REFERENCES_DIR`).
+        directory: where the files live (default: `default_references_dir`).
         log: called with a line of progress (``None``: silent).
         names: the `MPC_REFERENCES` to compute (default: all).
         processes: how many processes play each reference's days (`compute_mpc`).
@@ -561,6 +567,7 @@ def add_mpc(
     if unknown:
         raise ValueError(f"field 'names' must name {list(MPC_REFERENCES)}, got {unknown}")
     task = get_task(task)
+    directory = reference_path(task, directory).parent  # written back where it was read
     log = log or (lambda _line: None)
     load_references(task, directory)  # checks the file belongs to the task on this code
     refs = json.loads(reference_path(task, directory).read_text())
@@ -594,18 +601,52 @@ def _stored_bound(params, days, directory) -> np.ndarray | None:
     return None
 
 
+def default_references_dir(task: str | Task) -> Path:
+    """Where a task's references live unless a directory is given: the folder of the task
+    file a task was read from (`Task.source`), else the shipped `REFERENCES_DIR`.
+
+    Args:
+        task: a task id or `Task`.
+
+    Returns:
+        The folder.
+    """
+    if isinstance(task, Task) and task.source is not None:
+        return Path(task.source).parent
+    return REFERENCES_DIR
+
+
 def reference_path(task: str | Task, directory: str | Path | None = None) -> Path:
-    """The file of a task's references (in ``directory``, default `REFERENCES_DIR`).
+    """The file of a task's references (in ``directory``, default `default_references_dir`).
 
     Args:
         task: a task id or `Task` (an id is not checked against the registry).
-        directory: the folder of the files; None: `REFERENCES_DIR`.
+        directory: the folder of the files; None: `default_references_dir` (the task file's
+            folder for a task read from a file, else `REFERENCES_DIR`).
 
     Returns:
         ``<directory>/<task id>.json`` (the file need not exist).
     """
     task_id = task.id if isinstance(task, Task) else str(task)
-    return Path(directory or REFERENCES_DIR) / f"{task_id}.json"
+    return Path(directory or default_references_dir(task)) / f"{task_id}.json"
+
+
+def build_command(task: Task) -> str:
+    """The command line that builds a task's references, for the messages that ask for it.
+
+    Args:
+        task: the task.
+
+    Returns:
+        ``python -m chargax_marl.benchmark.references`` with ``--task <id>`` for a registered
+        task, ``--task-file <path>`` for one read from a file; for a task made in Python, the
+        calls that build and save them.
+    """
+    if task.source is not None:
+        return f"python -m chargax_marl.benchmark.references --task-file {task.source}"
+    if TASKS.get(task.id) == task:
+        return f"python -m chargax_marl.benchmark.references --task {task.id}"
+    return "save_references(compute_references(task), DIRECTORY)"
 
 
 def _dumps(refs: dict) -> str:
@@ -644,8 +685,9 @@ def load_references(task: str | Task, directory: str | Path | None = None) -> di
     """A task's references, checked against this code.
 
     Args:
-        task: a task id or `Task`.
-        directory: where the files live (default: the shipped `REFERENCES_DIR`).
+        task: a task id, task file (`chargax_marl.benchmark.tasks.get_task`) or `Task`.
+        directory: where the files live (default: `default_references_dir`: the task file's
+            folder for a task read from a file, else the shipped `REFERENCES_DIR`).
 
     Returns:
         The stored references, with every ``daily_profit`` a float64 ``(days, draws)`` array
@@ -653,6 +695,7 @@ def load_references(task: str | Task, directory: str | Path | None = None) -> di
 
     Raises:
         KeyError: an unknown task.
+        ValueError: a task file `chargax_marl.benchmark.tasks.load_task` refuses.
         ReferenceMismatchError: no file for the task, or one computed for other parameters, days or
             draws than the task's on this code.
     """
@@ -661,7 +704,7 @@ def load_references(task: str | Task, directory: str | Path | None = None) -> di
     if not path.exists():
         raise ReferenceMismatchError(
             f"no references for task {task.id!r} in {path.parent}; build them with "
-            f"python -m chargax_marl.benchmark.references --task {task.id}"
+            f"{build_command(task)}"
         )
     data = _read(path.resolve())
     current = params_fingerprint(task.make_params())
@@ -670,8 +713,7 @@ def load_references(task: str | Task, directory: str | Path | None = None) -> di
             f"references of {task.id!r} were computed on parameters with fingerprint "
             f"{data['params_fingerprint']} (package {data.get('package_version')}), but the "
             f"task's parameters on this code have fingerprint {current}: the model changed; "
-            f"rebuild them (python -m chargax_marl.benchmark.references --task {task.id}) "
-            "and raise the task's version"
+            f"rebuild them ({build_command(task)}) and raise the task's version"
         )
     kind = data["policies"].get(BOUND, {}).get("kind", "occupancy")
     if BOUND in data["policies"] and kind != task.bound:

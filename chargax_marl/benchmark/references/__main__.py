@@ -15,29 +15,35 @@ import time
 from chargax_marl.benchmark.references import (
     BOUND,
     MPC_REFERENCES,
-    REFERENCES_DIR,
+    RULES,
     ZERO,
     add_mpc,
     compute_references,
+    default_references_dir,
     reference_path,
     refill_bound,
     save_references,
 )
-from chargax_marl.benchmark.tasks import TASKS, get_task
+from chargax_marl.benchmark.tasks import TASKS, get_task, load_task
 
 
 def main(argv=None) -> None:
     """The command line: compute the references of tasks and write them as JSON files.
 
-    Per task, one of: ``--refill-bound`` (`refill_bound`), ``--mpc`` (`add_mpc`),
+    The tasks are those of ``--task`` (registered ids) and ``--task-file`` (task files,
+    `chargax_marl.benchmark.tasks.load_task`), or every registered task when neither is
+    given. Per task, one of: ``--refill-bound`` (`refill_bound`), ``--mpc`` (`add_mpc`),
     ``--keep-bound`` (replay the rules, keep the stored bound and MPC references), or a full
-    build (`compute_references`, ``--no-bound`` leaving the bound out); each writes the
-    task's file in ``--out`` and prints its path and wall time.
+    build (`compute_references`, ``--no-bound`` leaving the bound out, ``--rules`` playing
+    only some rules); each writes the task's file in ``--out`` (default: the shipped
+    references' folder, and a task file's own folder for its task) and prints its path and
+    wall time.
 
     Args:
         argv: the arguments (None: ``sys.argv[1:]``); ``--help`` lists them.
 
     Raises:
+        ValueError: a task file `load_task` refuses.
         SystemExit: ``--keep-bound`` on a task whose parameters' fingerprint or always-max's
             per-day profits differ from the stored file's (the bound must be rebuilt too).
     """
@@ -45,8 +51,26 @@ def main(argv=None) -> None:
         prog="python -m chargax_marl.benchmark.references", description=__doc__.split("\n\n")[0]
     )
     parser.add_argument("--task", action="append", help="a task id (repeatable; default: all)")
-    parser.add_argument("--out", default=str(REFERENCES_DIR), help="directory of the files")
+    parser.add_argument(
+        "--task-file",
+        action="append",
+        metavar="PATH",
+        help="a task file (.toml or .json) of a task that is not registered (repeatable)",
+    )
+    parser.add_argument(
+        "--out",
+        default=None,
+        help="directory of the files (default: the shipped references' folder; for --task-file, "
+        "the task file's folder)",
+    )
     parser.add_argument("--no-bound", action="store_true", help="the rules only")
+    parser.add_argument(
+        "--rules",
+        nargs="+",
+        choices=list(RULES),
+        default=None,
+        help=f"the rules to play (default: all; {ZERO} is played in any case, it scores 0)",
+    )
     parser.add_argument(
         "--keep-bound",
         action="store_true",
@@ -95,41 +119,45 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     if not args.time_limit > 0:
         parser.error(f"--time-limit must be a positive number of seconds, got {args.time_limit}")
-    for task_id in args.task or list(TASKS):
+    tasks = [get_task(t) for t in args.task or ()] + [load_task(p) for p in args.task_file or ()]
+    rules = RULES if args.rules is None else (ZERO, *(r for r in args.rules if r != ZERO))
+    for task in tasks or list(TASKS.values()):
+        out = args.out or default_references_dir(task)
         t0 = time.perf_counter()
         if args.refill_bound:
-            path = refill_bound(task_id, args.out, time_limit_s=args.time_limit)
+            path = refill_bound(task, out, time_limit_s=args.time_limit)
             print(f"{path}: {time.perf_counter() - t0:.0f} s")
             continue
         if args.mpc:
             only = None if args.mpc_only is None else [args.mpc_only]
-            path = add_mpc(task_id, args.out, names=only, processes=args.processes)
+            path = add_mpc(task, out, names=only, processes=args.processes)
             print(f"{path}: {time.perf_counter() - t0:.0f} s")
             continue
         if args.keep_bound:
-            stored = json.loads(reference_path(task_id, args.out).read_text())
-            refs = compute_references(task_id, bound=False)
+            stored = json.loads(reference_path(task, out).read_text())
+            refs = compute_references(task, rules=rules, bound=False)
             if refs["params_fingerprint"] != stored["params_fingerprint"] or (
                 refs["policies"][ZERO]["daily_profit"] != stored["policies"][ZERO]["daily_profit"]
             ):
                 raise SystemExit(
-                    f"{task_id}: the parameters or always-max's days moved; rebuild the bound too"
+                    f"{task.id}: the parameters or always-max's days moved; rebuild the bound too"
                 )
             for name in (BOUND, *MPC_REFERENCES):
                 if name in stored["policies"]:
                     refs["policies"][name] = stored["policies"][name]
                     refs["wall_s"][name] = stored["wall_s"][name]
         else:
-            pooled = get_task(task_id).bound == "pooled"
+            pooled = task.bound == "pooled"
             refs = compute_references(
-                task_id,
+                task,
+                rules=rules,
                 bound=not args.no_bound,
                 reuse_dir=args.reuse,
                 processes=args.processes if pooled else 1,
                 bound_dir=args.bound_dir if pooled else None,
                 time_limit_s=args.time_limit,
             )
-        path = save_references(refs, args.out)
+        path = save_references(refs, out)
         print(f"{path}: {time.perf_counter() - t0:.0f} s")
 
 
