@@ -9,7 +9,8 @@ isolated mode (``python -I``: no ``PYTHONPATH``, no user site, not the script's 
 clean environment: ``PATH``, ``HOME`` and the JAX/XLA settings of the test session (the
 compilation cache and the fast-compile flags of ``conftest.py``, which change how fast the
 programs compile, not what they compute). A score needs the shipped references and the bundled
-data, so it fails where the wheel lacks either.
+data, so it fails where the wheel lacks either. In the same environment a task of one's own (a
+task file) gets its references built and a committed checkpoint scored on it.
 
 ``CHARGAX_DIST=DIR`` builds into ``DIR`` (``make test`` passes ``dist/`` and prints the wheel's
 size); by default the distributions go to a temporary folder.
@@ -18,6 +19,7 @@ size); by default the distributions go to a temporary folder.
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -68,6 +70,22 @@ print(json.dumps({{
     "references": sorted(result["vs"]),
 }}))
 '''
+
+
+USER_RUN = "results/ippo_shopping_v2"
+"""A committed run on the default station, scored on `USER_TASK` in the fresh environment."""
+USER_TASK = """\
+name = "shopping-fr2022"
+version = 1
+scenario = "shopping"
+draws = 1
+description = "FR 2022 prices (the price crisis) on the default station, session model v3"
+prices = "FR-2022"
+session_model = "v3"
+bound = "occupancy"
+num_eval_days = 2
+"""
+"""A task of one's own (two held-out days, one draw: the smallest that scores)."""
 
 
 def section(text: str, heading: str) -> str:
@@ -189,3 +207,42 @@ def test_the_wheel_installs_and_runs_in_a_fresh_environment(tmp_path):
     # half power sells less energy than always-max (score 0) on the same cars
     assert out["score"] < 0, out["score"]
     assert {"always_max", "lp_bound"} <= set(out["references"]), out["references"]
+
+    # a task of one's own, built and a committed checkpoint scored on it, in the same fresh
+    # environment: the trainers' code (`baselines/`, not part of the wheel) and the run are
+    # copied next to the task file, as a user copies them out of a clone
+    shutil.copytree(source / "baselines", work / "baselines")
+    shutil.copytree(source / USER_RUN, work / "run")
+    (work / "fr2022.toml").write_text(USER_TASK)
+    env = clean_env(venv)
+    run(
+        python,
+        "-I",
+        "-m",
+        "chargax_marl.benchmark.references",
+        "--task-file",
+        "fr2022.toml",
+        "--rules",
+        "always_max",
+        cwd=work,
+        env=env,
+        timeout=900,
+    )
+    assert (work / "Chargax-shopping-fr2022-v1.json").exists()
+    # not isolated: `python -m baselines.score` imports the copied baselines/ from the folder
+    run(
+        python,
+        "-m",
+        "baselines.score",
+        "run",
+        "--task-file",
+        "fr2022.toml",
+        "--out",
+        "score.json",
+        cwd=work,
+        env=env,
+        timeout=900,
+    )
+    scored = json.loads((work / "score.json").read_text())
+    assert scored["task"] == "Chargax-shopping-fr2022-v1" and scored["seeds"] >= 1, scored
+    assert math.isfinite(scored["score"]) and scored["score"] <= 1.0 + 1e-6, scored["score"]
