@@ -550,26 +550,18 @@ _V2 = (
     "shift-nl2024",
     "shift-de2023",
 )
-# version 2: the same stations, prices and days on the v2 session model, scored against the
-# port-pooled bound
+# versions 2 and 3: the same stations, prices and days on the session model v2, scored against
+# the port-pooled bound, and on the session model v3, whose departures are fixed when a car
+# arrives, so the occupancy bound is exact: every policy has the day's occupancy
 TASKS.update(
     (t.id, t)
+    for version, session_model, bound in ((2, "v2", "pooled"), (3, "v3", "occupancy"))
     for t in (
         dataclasses.replace(
-            TASKS[f"Chargax-{name}-v1"], version=2, session_model="v2", bound="pooled"
-        )
-        for name in _V2
-    )
-)
-
-# version 3: the same stations, prices and days on the session model v3, whose departures are
-# fixed when a car arrives, so the occupancy bound is exact: every policy has the day's
-# occupancy
-TASKS.update(
-    (t.id, t)
-    for t in (
-        dataclasses.replace(
-            TASKS[f"Chargax-{name}-v1"], version=3, session_model="v3", bound="occupancy"
+            TASKS[f"Chargax-{name}-v1"],
+            version=version,
+            session_model=session_model,
+            bound=bound,
         )
         for name in _V2
     )
