@@ -82,8 +82,11 @@ def test_shipped_references_recompute_on_this_code(task_id):
     for name in rules:
         got = np.asarray(fresh["policies"][name]["daily_profit"])
         # float32 profits: a batch of other size (here 2 days, there 100), or another CPU's
-        # vectorisation, may round a day's sum by an ulp or two where node limits bind
-        np.testing.assert_allclose(got, stored["policies"][name]["daily_profit"][rows], rtol=1e-6)
+        # vectorisation, may round a day's sum by an ulp or two where node limits bind; an ulp
+        # of the day's gross flows (hundreds of EUR), where a small profit is their difference
+        np.testing.assert_allclose(
+            got, stored["policies"][name]["daily_profit"][rows], rtol=1e-6, atol=1e-4
+        )
     if task_id in DEEP:
         lp = compute_references(
             dataclasses.replace(task, draws=2), rules=(), day_index=rows[:1], log=None
