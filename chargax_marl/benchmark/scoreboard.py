@@ -35,7 +35,8 @@ from chargax_marl.benchmark.tasks import TASKS, get_task
 from chargax_marl.single.env import Chargax
 from chargax_marl.trace import params_fingerprint
 
-DEFAULT_TASK = "Chargax-shopping-v1"
+DEFAULT_TASK = "Chargax-shopping-v3"
+"""The task `time_score` times a host Gymnasium policy on (the current version's default)."""
 
 REFERENCE_LABELS = {
     "random": "random",
