@@ -10,7 +10,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from baselines.analysis import ablation, attribution, plan_rule, read_policy, redraw, sensitivity
+from baselines.analysis import (
+    ablation,
+    attribution,
+    mpc_gap,
+    plan_rule,
+    read_policy,
+    redraw,
+    sensitivity,
+)
 from baselines.config import build_env_params
 from baselines.eval import references
 from baselines.eval.rules import evaluate_rules
@@ -309,3 +317,21 @@ def test_plan_rule_refuses_references_of_other_parameters(tmp_path):
     dropped the scenario's session model, so its headroom came out negative."""
     with pytest.raises(ValueError, match="no file holds the LP bound of scenario 'peak'"):
         plan_rule.main(["--scenario", "peak", "--references", str(tmp_path)])
+
+
+def test_the_mpc_gap_table_is_over_always_max_and_the_command_refuses_bad_margins():
+    result = {
+        "policies": {
+            "lp_bound": {"energy_kwh": [110.0, 130.0], "profit_eur": [12.0, 14.0]},
+            "always_max": {"energy_kwh": [100.0, 100.0], "profit_eur": [10.0, 10.0]},
+            "mpc_margin1": {"energy_kwh": [105.0, 105.0], "profit_eur": [11.0, 11.5]},
+        }
+    }
+    rows = mpc_gap.table(result).splitlines()
+    assert rows[2] == "| lp_bound | +20.0 | +3.00 |"
+    assert rows[3] == "| always_max | +0.0 | +0.00 |"
+    assert rows[4] == "| mpc_margin1 | +5.0 | +1.25 |"
+    with pytest.raises(SystemExit):
+        mpc_gap.main(["--margins", "1,x"])
+    with pytest.raises(SystemExit):
+        mpc_gap.main(["--days", "0"])
