@@ -208,12 +208,12 @@ def test_bad_session_fields_are_refused_by_name(kwargs, match):
 
 
 def test_bad_session_settings_are_refused_by_name():
-    with pytest.raises(ValueError, match="session_model: unknown 'v3'"):
-        make_params(session_model="v3")
+    with pytest.raises(ValueError, match="session_model: unknown 'v4'"):
+        make_params(session_model="v4")
     with pytest.raises(ValueError, match="field 'port_choice' must be one of"):
         make_params(port_choice="nearest")
     with pytest.raises(ValueError, match="field 'session_model' must be one of"):
-        Task("x", 1, "shopping", 2, "x", session_model="v3")
+        Task("x", 1, "shopping", 2, "x", session_model="v4")
 
 
 def test_a_task_refuses_another_session_model():
