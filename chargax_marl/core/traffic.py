@@ -472,6 +472,12 @@ def place_arrivals(state: EnvState, arrivals: Arrivals, params: EnvParams):
     still wants, the rates of its port's kind, its user type at that kind, and its slack
     (planned stay minus `earliest_finish_min`).
 
+    With ``params.fixed_departures`` the cars that want a DC port (``arrivals.wants_dc``) and
+    those that want an AC port are admitted apart, each to the free ports of its kind in the
+    order above (the surplus of a kind is rejected); an AC car's stay is its planned stay, a
+    DC car's its `earliest_finish_min` at its port plus ``arrivals.margin_min``, and no car
+    is charge-sensitive.
+
     Args:
         state: the state after departures.
         arrivals: the step's cars (`draw_arrivals`).
