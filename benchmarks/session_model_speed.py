@@ -1,12 +1,13 @@
-"""The simulator's step under the session model v2 against the paper's, interleaved.
+"""The simulator's step under the session models v2 and v3 against the paper's, interleaved.
 
     python benchmarks/session_model_speed.py                       # 64 envs, 7 repeats
     python benchmarks/session_model_speed.py --envs 256 --out f.json
 
 Each arm is one jitted program that plays ``--envs`` days of 288 steps of always-max on the
 default station from an empty state (the params an argument, as in training), compiled
-before timing. Arms: ``paper`` (``session_model="paper"``), ``v2`` (the default) and
-``v2_first_free`` (v2 with the paper's first free port). The repeats alternate the arms and
+before timing. Arms: ``paper`` (``session_model="paper"``), ``v2`` (the default),
+``v2_first_free`` (v2 with the paper's first free port) and ``v3`` (``session_model="v3"``:
+fixed departures and the port kind each car wants). The repeats alternate the arms and
 the medians are printed with their ratios to ``paper``. Time it alone: other jobs on the
 cores move the figures.
 """
@@ -51,6 +52,7 @@ def main(argv=None) -> dict:
         "paper": make_params(session_model="paper"),
         "v2": make_params(),
         "v2_first_free": make_params(port_choice="first_free"),
+        "v3": make_params(session_model="v3"),
     }
     play = _program()
     keys = jax.random.split(jax.random.PRNGKey(0), args.envs)
