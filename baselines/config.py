@@ -107,6 +107,16 @@ SCHEMA: dict[str, Field] = {
         "coupled = the coupled plan's share of top power and congestion price",
     ),
     "RELATIVE_PRICES": Field(False, (bool,), doc="the networks also read relative prices"),
+    "RESIDUAL": Field(
+        "off",
+        (str,),
+        ("off", "coupled_plan"),
+        "IPPO / MAPPO: each agent also reads this rule's level, and its actor's logits are "
+        "centred on it (the untrained greedy policy is the rule)",
+    ),
+    "RESIDUAL_PRIOR": Field(
+        2.0, _NUM, doc="with RESIDUAL: logit per level of distance from the rule's action (> 0)"
+    ),
     "FAIRNESS_WEIGHT": Field(
         0.0, _NUM, doc="EUR per unit of the day's fairness metric in the reward (FairnessReward)"
     ),

@@ -6,18 +6,24 @@ parked car's plan value as a potential), ``FAIRNESS_WEIGHT`` / ``FAIRNESS_METRIC
 (`chargax_marl.wrappers.FairnessReward`: a weight on the day's fairness) and the
 multi-agent trainers' imperfect communication, ``OBS_DELAY_STEPS``, ``ACTION_LOSS_PROB`` and
 ``LOST_ACTION`` (`chargax_marl.marl.communication`), and their ``PRIORITY_FILL``
-(`chargax_marl.wrappers.PriorityFill`: charging actions as priorities).
+(`chargax_marl.wrappers.PriorityFill`: charging actions as priorities), and ``RESIDUAL``
+(`chargax_marl.teachers.rules`: a rule's action read beside the observation, which the
+multi-agent actors' logits are centred on).
 """
 
 from __future__ import annotations
 
+import jax
+import jax.numpy as jnp
+
 from chargax_marl.marl import ActionLossWrapper, DelayedObservationWrapper
-from chargax_marl.teachers import car_plan, congestion
+from chargax_marl.teachers import car_plan, congestion, rules
 from chargax_marl.teachers import shaping as teacher_shaping
 from chargax_marl.wrappers import FairnessReward, PriorityFill
 
 PORT_SHAPING_MODES = ("off", "plan", "coupled")
 PLAN_OBS_MODES = ("off", "plan", "coupled")
+RESIDUAL_MODES = ("off", "coupled_plan")
 
 
 def communication(config: dict, env):
@@ -166,6 +172,81 @@ def plan_features(config: dict, env_params):
         return congestion.coupled_advice(env_params), congestion.COUPLED_ADVICE_WIDTH
     plan = car_plan.plan_advice(env_params)
     return (lambda core: plan(core)[:, None]), 1
+
+
+def residual_mode(config: dict) -> str:
+    """``RESIDUAL`` as one of `RESIDUAL_MODES`.
+
+    Args:
+        config: the trainer's config (``RESIDUAL``, default ``"off"``).
+
+    Returns:
+        The mode.
+
+    Raises:
+        ValueError: any other value.
+    """
+    v = config.get("RESIDUAL", "off")
+    if v not in RESIDUAL_MODES:
+        raise ValueError(f"RESIDUAL must be one of {RESIDUAL_MODES}, got {v!r}")
+    return v
+
+
+def residual_features(config: dict, env_params):
+    """The base rule's level per leaf, which ``RESIDUAL`` appends to the observations (the
+    last column of the advice), or ``None`` when off.
+
+    Args:
+        config: the trainer's config (``RESIDUAL``).
+        env_params: concrete `chargax_marl.core.types.EnvParams` of the env played (the rule
+            reads its prices).
+
+    Returns:
+        ``None``, or ``(advice, 1)``: ``advice(core) -> (L, 1)`` float32, the rule's level
+        over ``num_levels`` (in ``[-1, 1]``) for one (unbatched) core state.
+
+    Raises:
+        ValueError: an unknown ``RESIDUAL`` (`residual_mode`).
+    """
+    mode = residual_mode(config)
+    if mode == "off":
+        return None
+    rule = rules.RULE_BUILDERS[mode](env_params)
+    num_levels = float(env_params.num_levels)
+    key = jax.random.PRNGKey(0)  # the rules are deterministic
+
+    def advice(core):
+        return (rule(core, key, env_params).astype(jnp.float32) / num_levels)[:, None]
+
+    return advice, 1
+
+
+def advice_features(config: dict, env_params):
+    """The per-leaf columns appended to the multi-agent observations: the ``PLAN_OBS``
+    advice (`plan_features`), then the ``RESIDUAL`` rule's level (`residual_features`).
+
+    Args:
+        config: the trainer's config (``PLAN_OBS``, ``RESIDUAL``).
+        env_params: concrete `chargax_marl.core.types.EnvParams` of the env played.
+
+    Returns:
+        ``None`` when both are off, else ``(advice, width)`` with ``advice(core) -> (L,
+        width)`` for one (unbatched) core state.
+
+    Raises:
+        ValueError: an unknown ``PLAN_OBS`` or ``RESIDUAL``.
+    """
+    parts = [
+        f
+        for f in (plan_features(config, env_params), residual_features(config, env_params))
+        if f is not None
+    ]
+    if not parts:
+        return None
+    if len(parts) == 1:
+        return parts[0]
+    (a, wa), (b, wb) = parts
+    return (lambda core: jnp.concatenate([a(core), b(core)], axis=-1)), wa + wb
 
 
 SHAPING_MODES = ("off",) + teacher_shaping.BATTERY_POTENTIALS

@@ -196,10 +196,27 @@ class SharedPolicy:
         # PLAN_OBS: each agent's observation ends with its leaf's advice (aids.plan_features:
         # its own plan's charge-now flag, or the coupled plan's share and congestion price;
         # always 0 for the batteries), before the relative prices.
-        self.plan_config = {"PLAN_OBS": config.get("PLAN_OBS", False)}
-        features = aids.plan_features(self.plan_config, env.params)
+        self.plan_config = {
+            "PLAN_OBS": config.get("PLAN_OBS", False),
+            "RESIDUAL": config.get("RESIDUAL", "off"),
+        }
+        features = aids.advice_features(self.plan_config, env.params)
         self.plan, plan_width = (None, 0) if features is None else features
         self.obs_dim += plan_width
+        # RESIDUAL: the base rule's level is the last advice column; the actor's logits get
+        # offsets centred on its action (networks.residual_offsets), so the untrained greedy
+        # policy is the rule and training learns the corrections that pay.
+        self.residual_col = None
+        if aids.residual_mode(self.plan_config) != "off":
+            if config.get("PRIORITY_FILL", False):
+                raise ValueError(
+                    "RESIDUAL centres the actor on the rule's level, which PRIORITY_FILL's "
+                    "actions do not encode: set PRIORITY_FILL=false or RESIDUAL='off'"
+                )
+            self.residual_col = self.obs_dim - 1
+            self.residual_strength = networks.residual_prior(config)
+            self.num_levels = int(env.params.num_levels)
+            self.idle_index = int(env.action_offset)
         if not centralised_critic:
             self.critic_dim += plan_width
         if self.relative is not None:
@@ -221,7 +238,7 @@ class SharedPolicy:
         """
         if self.plan is None:
             return None
-        return aids.plan_features(self.plan_config, env_params)[0]
+        return aids.advice_features(self.plan_config, env_params)[0]
 
     def with_plan(self, obs_matrix, core, plan=None):
         """``obs_matrix (..., agents, obs)`` with the `PLAN_OBS` column of the (batched)
@@ -345,6 +362,11 @@ class SharedPolicy:
             logits = (
                 logits + (1.0 - is_battery) * self.port_offset + is_battery * self.battery_offset
             )
+        if self.residual_col is not None:
+            level = jnp.round(obs[..., self.residual_col] * self.num_levels)
+            logits = logits + networks.residual_offsets(
+                level + self.idle_index, self.k, self.residual_strength
+            )
         return networks.masked_logits(logits, avail)
 
     def value(self, params, critic_in, rows: str | None = None):
@@ -415,6 +437,8 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
                 "BATTERY_ENT_COEF": None,
                 "RELATIVE_PRICES": False,
                 "PLAN_OBS": False,
+                "RESIDUAL": "off",
+                "RESIDUAL_PRIOR": 2.0,
             },
             **(config or {}),
         }

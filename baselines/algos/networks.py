@@ -109,6 +109,43 @@ def always_max_prior(config: dict) -> tuple[float, float]:
     return tuple(out)
 
 
+def residual_prior(config: dict) -> float:
+    """The validated ``RESIDUAL_PRIOR``: how sharply the untrained policy of a ``RESIDUAL``
+    actor centres on the base rule's action (`residual_offsets`).
+
+    Args:
+        config: the trainer's config (``RESIDUAL_PRIOR``).
+
+    Returns:
+        The strength as a float.
+
+    Raises:
+        ValueError: a strength that is not finite or not positive.
+    """
+    b = float(config.get("RESIDUAL_PRIOR", 2.0))
+    if not np.isfinite(b) or b <= 0:
+        raise ValueError(f"RESIDUAL_PRIOR={b} must be a finite number > 0")
+    return b
+
+
+def residual_offsets(rule_index: jnp.ndarray, num_actions: int, strength: float) -> jnp.ndarray:
+    """Logit offsets ``-strength * |j - rule_index|`` over the actions ``j``: the base rule's
+    action gets the largest, and the further an action's level is from it, the smaller its
+    offset. Added to an actor's logits (its head starts near 0), the untrained greedy policy
+    is the rule and the sampled one explores the neighbouring levels most.
+
+    Args:
+        rule_index: ``(...)`` the rule's action indices (floats or ints).
+        num_actions: the actions ``K``.
+        strength: logit per level of distance (`residual_prior`).
+
+    Returns:
+        ``(..., K)`` float32 offsets.
+    """
+    j = jnp.arange(num_actions, dtype=jnp.float32)
+    return -strength * jnp.abs(j - jnp.asarray(rule_index, jnp.float32)[..., None])
+
+
 def masked_logits(logits: jnp.ndarray, mask) -> jnp.ndarray:
     """``logits`` with every action that ``mask`` rules out set to `NEG_INF`.
 

@@ -293,6 +293,11 @@ def make_train(config: dict | None = None, env_params=None):
             "PRIORITY_FILL=true applies to the multi-agent trainers (ippo, mappo) only: it reads "
             "their agents' charging actions as priorities (use false)"
         )
+    if config.get("RESIDUAL", "off") != "off":
+        raise ValueError(
+            f"RESIDUAL={config['RESIDUAL']!r} applies to the multi-agent trainers (ippo, mappo) "
+            "only: it centres each agent's actor on the rule's level (use 'off')"
+        )
     if env_params is None:
         env_params = build_env_params(config)[0]
     base_env = Chargax(params=env_params)

@@ -823,3 +823,57 @@ def test_the_greedy_act_reads_the_plan_of_the_prices_it_is_played_on(mod, mode, 
     assert any(p is other for p in built_for), "the act's plan was not built from its params"
     assert seen and seen[-1] is not None, "the act read the training env's plan"
     np.testing.assert_allclose(np.asarray(seen[-1](state)), np.asarray(advice(state)), rtol=1e-6)
+
+
+@pytest.mark.parametrize("mod", [ippo, mappo])
+def test_residual_starts_at_the_coupled_plan_and_explores_its_neighbouring_levels(mod):
+    """With ``RESIDUAL="coupled_plan"`` every agent reads the coupled plan's level as its last
+    column, the untrained greedy policy plays the coupled plan along a whole day (without the
+    residual it does not), the sampled policy puts most mass on the plan's action and less on
+    levels further from it, and it trains with finite losses."""
+    from chargax_marl.teachers.rules import coupled_plan_rule
+
+    config = {**TINY, "RESIDUAL": "coupled_plan", "RESIDUAL_PRIOR": 2.0}
+    train = mod.make_train(config)
+    plain = mod.make_train(TINY)
+    assert train.policy.obs_dim == plain.policy.obs_dim + 1
+    finite_losses(train)
+    full = train.env_params
+    rule = coupled_plan_rule(full)
+    params = train.policy.init(jax.random.PRNGKey(3))
+    act = jax.jit(train.make_act(full)(params))
+    act_plain = jax.jit(plain.make_act(full)(plain.policy.init(jax.random.PRNGKey(3))))
+    state = simulator.reset(jax.random.PRNGKey(5), full)
+    step = jax.jit(lambda k, s, a: simulator.step(k, s, a, full)[0])
+    differs, moved = False, False
+    for t in range(full.num_steps):
+        k = jax.random.PRNGKey(t)
+        levels, ref = np.asarray(act(state, k)), np.asarray(rule(state, k, full))
+        np.testing.assert_array_equal(levels, ref)
+        differs |= not np.array_equal(np.asarray(act_plain(state, k)), ref)
+        moved |= bool(np.any(ref != 0))
+        state = step(k, state, levels)
+    assert differs and moved
+    # the offsets: -2 per level of distance from the plan's action (index idle + level)
+    rows = np.asarray(train.policy.with_plan(train.env.get_obs_matrix(state), state))
+    np.testing.assert_allclose(
+        rows[:, -1], np.asarray(rule(state, None, full)) / full.num_levels, rtol=1e-6
+    )
+    obs = np.zeros((1, train.policy.obs_dim), np.float32)
+    avail = np.ones((1, train.policy.k), bool)
+    p = np.asarray(jax.nn.softmax(train.policy.logits(params, obs, avail)))[0]
+    idle = train.env.action_offset
+    assert p.argmax() == idle and p[idle] > p[idle + 1] > p[idle + 2] > 0
+    assert p[idle + 1] / p[idle] == pytest.approx(np.exp(-2.0), rel=0.05)
+
+
+def test_residual_settings_are_refused_by_name():
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="RESIDUAL_PRIOR"):
+            ippo.make_train({**TINY, "RESIDUAL": "coupled_plan", "RESIDUAL_PRIOR": bad})
+    with pytest.raises(ValueError, match="RESIDUAL must be one of"):
+        aids.residual_mode({"RESIDUAL": "plan"})
+    with pytest.raises(ValueError, match="RESIDUAL='coupled_plan' applies to the multi-agent"):
+        ppo.make_train({**TINY, "RESIDUAL": "coupled_plan"})
+    with pytest.raises(ValueError, match="PRIORITY_FILL"):
+        ippo.make_train({**TINY, "RESIDUAL": "coupled_plan", "PRIORITY_FILL": True})
