@@ -17,6 +17,7 @@ from baselines.analysis import (
     plan_rule,
     read_policy,
     redraw,
+    robustness,
     sensitivity,
 )
 from baselines.config import build_env_params
@@ -335,3 +336,41 @@ def test_the_mpc_gap_table_is_over_always_max_and_the_command_refuses_bad_margin
         mpc_gap.main(["--margins", "1,x"])
     with pytest.raises(SystemExit):
         mpc_gap.main(["--days", "0"])
+
+
+def test_robustness_verdicts_table_and_refusals(tmp_path):
+    """The verdict is two standard errors either way; the table names the setting, the rule
+    and the verdict; an empty settings folder and a score file of another task are refused."""
+    assert robustness.verdict({"mean": 2.1, "stderr": 1.0}) == "above"
+    assert robustness.verdict({"mean": 1.9, "stderr": 1.0}) == "within"
+    assert robustness.verdict({"mean": -1.9, "stderr": 1.0}) == "within"
+    assert robustness.verdict({"mean": -2.1, "stderr": 1.0}) == "below"
+    row = {
+        "setting": "grid15",
+        "description": "the grid at 15 %",
+        "name": "IPPO",
+        "seeds": 4,
+        "score": 0.5,
+        "score_stderr": 0.05,
+        "vs_always_max": {"mean": 30.0, "stderr": 2.0},
+        "strongest": "coupled_plan",
+        "vs_strongest": {"mean": -1.0, "stderr": 0.8},
+        "verdict": "within",
+        "days": 50,
+        "draws": 2,
+    }
+    text = robustness.table([row])
+    assert (
+        "| the grid at 15 % | IPPO (4 seeds) | 0.50 ± 0.05 | +30.0 ± 2.0 | coupled plan |" in text
+    )
+    assert "| -1.0 ± 0.8 | within | 50 × 2 |" in text
+    with pytest.raises(FileNotFoundError, match="no task files"):
+        robustness.settings(tmp_path)
+    (tmp_path / "s.toml").write_text('name = "s"\nversion = 1\nscenario = "shopping"\ndraws = 1\n')
+    scores = tmp_path / "scores"
+    scores.mkdir()
+    (scores / "x.json").write_text(
+        json.dumps({"name": "IPPO", "task": "Chargax-other-v1", "daily_profit": [[1.0]]})
+    )
+    with pytest.raises(ValueError, match="is none of the settings"):
+        robustness.rows(tmp_path, scores)
