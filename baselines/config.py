@@ -117,6 +117,9 @@ SCHEMA: dict[str, Field] = {
     "RESIDUAL_PRIOR": Field(
         2.0, _NUM, doc="with RESIDUAL: logit per level of distance from the rule's action (> 0)"
     ),
+    "RESIDUAL_BATTERY_PRIOR": Field(
+        None, _NUM, doc="with RESIDUAL: the batteries' RESIDUAL_PRIOR (None: RESIDUAL_PRIOR)"
+    ),
     "FAIRNESS_WEIGHT": Field(
         0.0, _NUM, doc="EUR per unit of the day's fairness metric in the reward (FairnessReward)"
     ),

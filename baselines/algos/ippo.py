@@ -364,9 +364,9 @@ class SharedPolicy:
             )
         if self.residual_col is not None:
             level = jnp.round(obs[..., self.residual_col] * self.num_levels)
-            logits = logits + networks.residual_offsets(
-                level + self.idle_index, self.k, self.residual_strength
-            )
+            port_s, battery_s = self.residual_strength
+            strength = jnp.where(self.is_battery(obs)[..., 0] > 0.5, battery_s, port_s)
+            logits = logits + networks.residual_offsets(level + self.idle_index, self.k, strength)
         return networks.masked_logits(logits, avail)
 
     def value(self, params, critic_in, rows: str | None = None):
@@ -439,6 +439,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
                 "PLAN_OBS": False,
                 "RESIDUAL": "off",
                 "RESIDUAL_PRIOR": 2.0,
+                "RESIDUAL_BATTERY_PRIOR": None,
             },
             **(config or {}),
         }

@@ -109,26 +109,36 @@ def always_max_prior(config: dict) -> tuple[float, float]:
     return tuple(out)
 
 
-def residual_prior(config: dict) -> float:
-    """The validated ``RESIDUAL_PRIOR``: how sharply the untrained policy of a ``RESIDUAL``
-    actor centres on the base rule's action (`residual_offsets`).
+def residual_prior(config: dict) -> tuple[float, float]:
+    """The validated ``(RESIDUAL_PRIOR, RESIDUAL_BATTERY_PRIOR)``: how sharply the untrained
+    policy of a ``RESIDUAL`` actor centres on the base rule's action (`residual_offsets`), at
+    the ports and at the batteries.
 
     Args:
-        config: the trainer's config (``RESIDUAL_PRIOR``).
+        config: the trainer's config (``RESIDUAL_PRIOR``, default 2;
+            ``RESIDUAL_BATTERY_PRIOR``, default None: ``RESIDUAL_PRIOR``).
 
     Returns:
-        The strength as a float.
+        ``(port_strength, battery_strength)`` as floats.
 
     Raises:
         ValueError: a strength that is not finite or not positive.
     """
-    b = float(config.get("RESIDUAL_PRIOR", 2.0))
-    if not np.isfinite(b) or b <= 0:
-        raise ValueError(f"RESIDUAL_PRIOR={b} must be a finite number > 0")
-    return b
+    port = config.get("RESIDUAL_PRIOR", 2.0)
+    battery = config.get("RESIDUAL_BATTERY_PRIOR")
+    out = []
+    for name, b in (
+        ("RESIDUAL_PRIOR", port),
+        ("RESIDUAL_BATTERY_PRIOR", port if battery is None else battery),
+    ):
+        b = float(b)
+        if not np.isfinite(b) or b <= 0:
+            raise ValueError(f"{name}={b} must be a finite number > 0")
+        out.append(b)
+    return tuple(out)
 
 
-def residual_offsets(rule_index: jnp.ndarray, num_actions: int, strength: float) -> jnp.ndarray:
+def residual_offsets(rule_index: jnp.ndarray, num_actions: int, strength) -> jnp.ndarray:
     """Logit offsets ``-strength * |j - rule_index|`` over the actions ``j``: the base rule's
     action gets the largest, and the further an action's level is from it, the smaller its
     offset. Added to an actor's logits (its head starts near 0), the untrained greedy policy
@@ -137,12 +147,14 @@ def residual_offsets(rule_index: jnp.ndarray, num_actions: int, strength: float)
     Args:
         rule_index: ``(...)`` the rule's action indices (floats or ints).
         num_actions: the actions ``K``.
-        strength: logit per level of distance (`residual_prior`).
+        strength: logit per level of distance (`residual_prior`), a float or ``(...)``
+            per row.
 
     Returns:
         ``(..., K)`` float32 offsets.
     """
     j = jnp.arange(num_actions, dtype=jnp.float32)
+    strength = jnp.asarray(strength, jnp.float32)[..., None]
     return -strength * jnp.abs(j - jnp.asarray(rule_index, jnp.float32)[..., None])
 
 

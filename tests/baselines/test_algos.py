@@ -865,12 +865,20 @@ def test_residual_starts_at_the_coupled_plan_and_explores_its_neighbouring_level
     idle = train.env.action_offset
     assert p.argmax() == idle and p[idle] > p[idle + 1] > p[idle + 2] > 0
     assert p[idle + 1] / p[idle] == pytest.approx(np.exp(-2.0), rel=0.05)
+    # the batteries' own strength: a battery row (its kind flag set) centres more loosely
+    battery = train.policy.battery_col
+    obs[0, battery] = 1.0
+    loose = mod.make_train({**config, "RESIDUAL_BATTERY_PRIOR": 0.5})
+    params_b = loose.policy.init(jax.random.PRNGKey(3))
+    q = np.asarray(jax.nn.softmax(loose.policy.logits(params_b, obs, avail)))[0]
+    assert q[idle + 1] / q[idle] == pytest.approx(np.exp(-0.5), rel=0.05)
 
 
 def test_residual_settings_are_refused_by_name():
-    for bad in (0.0, -1.0, float("nan")):
-        with pytest.raises(ValueError, match="RESIDUAL_PRIOR"):
-            ippo.make_train({**TINY, "RESIDUAL": "coupled_plan", "RESIDUAL_PRIOR": bad})
+    for name in ("RESIDUAL_PRIOR", "RESIDUAL_BATTERY_PRIOR"):
+        for bad in (0.0, -1.0, float("nan")):
+            with pytest.raises(ValueError, match=name):
+                ippo.make_train({**TINY, "RESIDUAL": "coupled_plan", name: bad})
     with pytest.raises(ValueError, match="RESIDUAL must be one of"):
         aids.residual_mode({"RESIDUAL": "plan"})
     with pytest.raises(ValueError, match="RESIDUAL='coupled_plan' applies to the multi-agent"):
