@@ -304,7 +304,9 @@ def _run(
             + ("" if optimal == "off" else ", the LP hindsight bound")
             + (", the MPC" if optimal == "mpc" else "")
         )
-        baselines = heldout.baseline_results(eval_params, eval_days, optimal, draws, references_dir)
+        baselines = heldout.baseline_results(
+            eval_params, eval_days, optimal, draws, references_dir, task=config["TASK"] or None
+        )
     am = baselines["always_max"]["metrics"]["daily_profit_eur"]["mean"]
     teachers = [
         name for name in heldout.REFERENCES[2:] if name in baselines

@@ -12,8 +12,10 @@ import numpy as np
 from baselines.algos.trainer import IdentityCache
 from baselines.config import RUN_SCHEMA
 from baselines.eval import protocol, references, rules, stats
+from chargax_marl.benchmark.tasks import get_task
 from chargax_marl.evaluation import (
     METRICS,
+    bound_kind,
     headroom_captured,
     policy_bound,
     run_days,
@@ -21,7 +23,6 @@ from chargax_marl.evaluation import (
     summarize_profit,
 )
 from chargax_marl.teachers.rules import has_battery
-from chargax_marl.trace import is_paper_session_model
 
 
 def evaluate_batched(
@@ -132,7 +133,7 @@ OPTIMAL_CHOICES = RUN_SCHEMA["OPTIMAL"].choices
 
 
 def baseline_results(
-    eval_params, eval_days, optimal: str = "off", draws: int = 1, references_dir=None
+    eval_params, eval_days, optimal: str = "off", draws: int = 1, references_dir=None, task=None
 ) -> dict:
     """The `BASELINES` (and, on a station with a battery, the teachers' rules) on
     ``eval_days`` (the held-out days, or a run's validation days), with the evaluation's
@@ -151,6 +152,9 @@ def baseline_results(
     With ``draws`` > 1 every rule and the bound are scored under the keys of
     `draw_keys`, each day's profit the mean over the draws; the stored
     MPC (one draw) is then not used, and ``optimal="mpc"`` runs the MPC on every draw.
+    With ``task``, the task's shipped bound is read instead of solved where it is the same
+    bound (`baselines.eval.references.shipped_bound`: the task's held-out days and draws, its
+    parameters up to the action levels); its ``source`` names the task.
 
     Args:
         eval_params: the evaluation env parameters.
@@ -159,6 +163,8 @@ def baseline_results(
         draws: car draws per day (a positive integer).
         references_dir: a directory of stored references (``make optimal``), or ``None`` to
             compute the bound (and the MPC) here.
+        task: the benchmark task (id, file or `chargax_marl.benchmark.Task`) whose shipped
+            bound to read where it matches; None: none.
 
     Returns:
         ``{name: entry}`` per rule (`baselines.eval.rules.evaluate_rules` entries;
@@ -191,10 +197,17 @@ def baseline_results(
     stored = None
     if references_dir is not None and draws == 1:
         stored = references.cached(eval_params, eval_days, references_dir)
+    shipped = None
+    if stored is None and task is not None:
+        shipped = references.shipped_bound(task, eval_params, eval_days, draws)
     if stored is not None:
         bound_daily = np.asarray(stored["policies"]["lp_bound"]["daily_profit"])
         mpc_daily = references.stored_mpc(stored, eval_days)
         source = f"{references_dir} (same params and days)"
+    elif shipped is not None:
+        bound_daily, mpc_daily = shipped, None
+        source = f"the shipped references of {get_task(task).id} (same days and cars)"
+        source += "" if draws == 1 else f", mean over {draws} car draws per day"
     else:
         keys = protocol.draw_keys(draws)
         bound_daily = protocol.mean_over_draws(
@@ -219,7 +232,7 @@ def baseline_results(
         "daily_profit": bound_daily,
         "metrics": summarize_profit(bound_daily),
         "source": source,
-        "kind": "occupancy" if is_paper_session_model(eval_params) else "pooled",
+        "kind": bound_kind(eval_params),
     }
     if mpc_daily is not None:
         out["mpc"] = {
