@@ -127,7 +127,8 @@ def run(
             on every day.
         eval_days: the held-out days; None: the config's.
         env_params: the training env's parameters; None: the config's, on its training days.
-        title: the curve's title; None: from the algorithm, scenario, traffic and seeds.
+        title: the curve's title; None: `baselines.runs.curve_title` (the algorithm, the task
+            or the scenario and traffic, the seeds).
         quiet: print nothing but the progress bar.
         optimal: ``"off"``, ``"bound"`` or ``"mpc"``: which optimal-control references the
             held-out evaluation adds (`baselines.eval.heldout.baseline_results`).
@@ -440,9 +441,7 @@ def _run(
             metrics["episode_profit_eur"],
             table,
             evals,
-            title
-            or f"{algo.upper()} {config['SCENARIO']} / {config['TRAFFIC']}: {seeds} seeds"
-            + (f", held-out days x {draws} car draws" if draws > 1 else ""),
+            title or runs.curve_title(algo, config, seeds, draws),
             validation=val_refs,
         )
         runs.write_json(results, out / "results.json")
@@ -598,16 +597,5 @@ def _add_stored_mpc(run_dir: Path, references_dir) -> dict:
         table[algo]["daily_profit"], mpc_daily
     )  # (seeds, days) - (days,)
     runs.write_json(results, run_dir / "results.json")
-    curve = results["curve"]
-    title = f"{algo.upper()} {config['SCENARIO']} / {config['TRAFFIC']}: {results['seeds']} seeds"
-    runs.plot_curve(
-        run_dir / "curve.png",
-        algo,
-        curve["timesteps"],
-        curve["episode_profit_eur"],
-        table,
-        results["eval_curve"],
-        title,
-        validation=(results.get("validation") or {}).get("references"),
-    )
+    runs.plot_run(results, run_dir / "curve.png")
     return results
