@@ -238,10 +238,16 @@ def _run(
 
     evals = []
     val_refs = None  # the references on the validation days (when the chunks are evaluated)
+    # The greedy policy is played a validation's number of days at a time, so the held-out
+    # evaluation, in the same env, runs the validation's compiled program.
+    chunk_days = None
+    final_act = None
     if evaluate_every_chunk:
         say(f"scoring the references on {val_desc}: always-max and the rules")
         val_refs = heldout.baseline_results(val_params, val_days, optimal="off", draws=val_draws)
         val_act = train.make_act(val_params)
+        if val_params is eval_params:
+            chunk_days, final_act = int(np.size(val_days)), val_act
 
     def on_chunk(i, rs, m, steps, seconds):
         if not evaluate_every_chunk:
@@ -254,6 +260,7 @@ def _run(
             val_days,
             reference_profit=val_refs["always_max"].get("daily_profit"),
             draws=val_draws,
+            chunk_days=chunk_days,
         )
         diffs = _paired_differences(ev, val_refs)
         evals.append(
@@ -314,12 +321,13 @@ def _run(
     ]  # the teachers' rules (a station with a battery)
     say(f"evaluating the trained greedy policy on {held_out_desc}")
     final = heldout.evaluate_batched(
-        train.make_act(eval_params),
+        final_act or train.make_act(eval_params),
         params,
         eval_params,
         eval_days,
         reference_profit=baselines["always_max"].get("daily_profit"),
         draws=draws,
+        chunk_days=chunk_days,
     )
     final_diffs = _paired_differences(final, baselines)
     if not quiet:

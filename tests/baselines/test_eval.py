@@ -323,3 +323,30 @@ def test_the_held_out_references_read_a_task_s_shipped_bound(monkeypatch):
     assert base["lp_bound"]["kind"] == "occupancy"
     base = heldout.baseline_results(full, days, optimal="bound")
     assert len(solved) == 1 and base["lp_bound"]["source"] == "computed"
+
+
+def test_days_played_in_chunks_meet_the_same_cars_through_one_program():
+    """``evaluate_batched(..., chunk_days=C)``: every day on the key it has in the whole batch
+    (a random policy, whose levels read the key, scores what it scores unchunked, on every
+    draw; the last chunk padded), and another number of days runs the same compiled program."""
+    from chargax_marl.policies import get_policy
+
+    _, full, _, days = build_env_params(resolve(TINY))
+    days = days[:7]
+    rand = get_policy("random", full)
+
+    def make_act(p):
+        return lambda s, k: rand(s, k, full) + 0 * p.astype(np.int32)
+
+    seeds = np.zeros((2,), np.float32)
+    whole = heldout.evaluate_batched(make_act, seeds, full, days, draws=2)
+    chunked = heldout.evaluate_batched(make_act, seeds, full, days, draws=2, chunk_days=3)
+    np.testing.assert_allclose(chunked["daily_profit"], whole["daily_profit"], rtol=1e-6)
+    assert chunked["daily_profit"].shape == (2, 7)
+    fn = heldout.compiled_keyed_evaluation(make_act, full)
+    compiled = fn._cache_size()
+    heldout.evaluate_batched(make_act, seeds, full, days[:5], chunk_days=3)
+    assert fn._cache_size() == compiled
+    for bad in (0, 1.5, True):
+        with pytest.raises(ValueError, match="chunk_days"):
+            heldout.evaluate_batched(make_act, seeds, full, days, chunk_days=bad)
