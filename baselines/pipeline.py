@@ -127,7 +127,8 @@ def run(
             on every day.
         eval_days: the held-out days; None: the config's.
         env_params: the training env's parameters; None: the config's, on its training days.
-        title: the curve's title; None: from the algorithm, scenario, traffic and seeds.
+        title: the curve's title; None: `baselines.runs.curve_title` (the algorithm, the task
+            or the scenario and traffic, the seeds).
         quiet: print nothing but the progress bar.
         optimal: ``"off"``, ``"bound"`` or ``"mpc"``: which optimal-control references the
             held-out evaluation adds (`baselines.eval.heldout.baseline_results`).
@@ -237,10 +238,16 @@ def _run(
 
     evals = []
     val_refs = None  # the references on the validation days (when the chunks are evaluated)
+    # The greedy policy is played a validation's number of days at a time, so the held-out
+    # evaluation, in the same env, runs the validation's compiled program.
+    chunk_days = None
+    final_act = None
     if evaluate_every_chunk:
         say(f"scoring the references on {val_desc}: always-max and the rules")
         val_refs = heldout.baseline_results(val_params, val_days, optimal="off", draws=val_draws)
         val_act = train.make_act(val_params)
+        if val_params is eval_params:
+            chunk_days, final_act = int(np.size(val_days)), val_act
 
     def on_chunk(i, rs, m, steps, seconds):
         if not evaluate_every_chunk:
@@ -253,6 +260,7 @@ def _run(
             val_days,
             reference_profit=val_refs["always_max"].get("daily_profit"),
             draws=val_draws,
+            chunk_days=chunk_days,
         )
         diffs = _paired_differences(ev, val_refs)
         evals.append(
@@ -304,19 +312,22 @@ def _run(
             + ("" if optimal == "off" else ", the LP hindsight bound")
             + (", the MPC" if optimal == "mpc" else "")
         )
-        baselines = heldout.baseline_results(eval_params, eval_days, optimal, draws, references_dir)
+        baselines = heldout.baseline_results(
+            eval_params, eval_days, optimal, draws, references_dir, task=config["TASK"] or None
+        )
     am = baselines["always_max"]["metrics"]["daily_profit_eur"]["mean"]
     teachers = [
         name for name in heldout.REFERENCES[2:] if name in baselines
     ]  # the teachers' rules (a station with a battery)
     say(f"evaluating the trained greedy policy on {held_out_desc}")
     final = heldout.evaluate_batched(
-        train.make_act(eval_params),
+        final_act or train.make_act(eval_params),
         params,
         eval_params,
         eval_days,
         reference_profit=baselines["always_max"].get("daily_profit"),
         draws=draws,
+        chunk_days=chunk_days,
     )
     final_diffs = _paired_differences(final, baselines)
     if not quiet:
@@ -438,9 +449,7 @@ def _run(
             metrics["episode_profit_eur"],
             table,
             evals,
-            title
-            or f"{algo.upper()} {config['SCENARIO']} / {config['TRAFFIC']}: {seeds} seeds"
-            + (f", held-out days x {draws} car draws" if draws > 1 else ""),
+            title or runs.curve_title(algo, config, seeds, draws),
             validation=val_refs,
         )
         runs.write_json(results, out / "results.json")
@@ -596,16 +605,5 @@ def _add_stored_mpc(run_dir: Path, references_dir) -> dict:
         table[algo]["daily_profit"], mpc_daily
     )  # (seeds, days) - (days,)
     runs.write_json(results, run_dir / "results.json")
-    curve = results["curve"]
-    title = f"{algo.upper()} {config['SCENARIO']} / {config['TRAFFIC']}: {results['seeds']} seeds"
-    runs.plot_curve(
-        run_dir / "curve.png",
-        algo,
-        curve["timesteps"],
-        curve["episode_profit_eur"],
-        table,
-        results["eval_curve"],
-        title,
-        validation=(results.get("validation") or {}).get("references"),
-    )
+    runs.plot_run(results, run_dir / "curve.png")
     return results

@@ -22,6 +22,7 @@ import numpy as np
 
 from baselines.algos import registry
 from baselines.config import stored_config
+from chargax_marl.core.scenarios import SCENARIOS
 
 CHECKPOINT = "checkpoint.msgpack"
 """The file name of a run's checkpoint in its output directory."""
@@ -297,6 +298,9 @@ def plot_learning_curve(
 ):
     """Mean ± std over seeds of each curve ``(seeds, points)``; baselines as horizontal lines;
     ``eval_points``: optional ``{label: (timesteps, (seeds, n) array)}`` drawn with markers.
+    Every line and every set of points has its own line style or marker (`LINE_STYLES`,
+    `POINT_STYLES`), so they stay apart in grey-scale print; the legend sits right of the
+    axes, outside the data.
 
     Args:
         path: the image file to write (its folder is created if missing).
@@ -314,27 +318,81 @@ def plot_learning_curve(
     """
     matplotlib.use("Agg")
 
-    fig, ax = plt.subplots(figsize=(7, 4.2))
+    fig, ax = plt.subplots(figsize=(10, 4.2))
     for label, y in curves.items():
         m, s = seed_mean_std(y)
-        (line,) = ax.plot(timesteps, m, label=label)
+        (line,) = ax.plot(timesteps, m, label=label, lw=1.5)
         ax.fill_between(timesteps, m - s, m + s, alpha=0.25, color=line.get_color())
-    for label, (t, y) in (eval_points or {}).items():
+    for i, (label, (t, y)) in enumerate((eval_points or {}).items()):
         y = np.atleast_2d(y)
-        ax.errorbar(t, y.mean(0), yerr=y.std(0), marker="o", ms=4, capsize=3, label=label)
-    styles = ["--", ":", "-."]
+        style = POINT_STYLES[i % len(POINT_STYLES)]
+        ax.errorbar(t, y.mean(0), yerr=y.std(0), capsize=3, color=f"C{i + 1}", label=label, **style)
     for i, (label, v) in enumerate(baselines.items()):
-        ax.axhline(v, ls=styles[i % 3], color=f"C{i + 3}", label=label)
+        ax.axhline(v, ls=LINE_STYLES[i % len(LINE_STYLES)], lw=1.2, color=f"C{i + 3}", label=label)
     ax.set_xlabel("environment steps")
     ax.set_ylabel(ylabel)
     ax.set_title(title)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
     return path
+
+
+POINT_STYLES = (
+    {"marker": "o", "ms": 5, "ls": "--", "lw": 1.0},
+    {"marker": "s", "ms": 7, "ls": "none", "mfc": "white", "mew": 1.5},
+    {"marker": "^", "ms": 6, "ls": ":", "lw": 1.0},
+    {"marker": "D", "ms": 6, "ls": "none", "mfc": "white", "mew": 1.5},
+)
+"""The markers of a learning curve's evaluation points, in order: the validation evaluations
+(filled circles on a dashed line), the final held-out evaluation (an open square), then
+others; shapes and fills that grey-scale print keeps apart."""
+
+LINE_STYLES = (
+    "--",
+    ":",
+    "-.",
+    (0, (6, 2, 1, 2, 1, 2)),
+    (0, (1, 3)),
+    (0, (10, 3)),
+    (0, (4, 1, 4, 1, 1, 1)),
+    (0, (2, 2)),
+)
+"""The dash patterns of a learning curve's reference lines, one per line in order."""
+
+
+def curve_title(algo: str, config: dict, seeds: int, draws: int = 1) -> str:
+    """A learning curve's title: the algorithm, what it trained on and the seeds.
+
+    Args:
+        algo: the algorithm's name (``"ippo"``).
+        config: the run's resolved config (``TASK``, ``SCENARIO``, ``TRAFFIC``).
+        seeds: the seeds trained.
+        draws: the car draws per held-out day (named when more than one).
+
+    Returns:
+        ``"IPPO on <task id>: N seeds"``, or without a task ``"IPPO on <scenario>, <traffic>
+        traffic: N seeds"`` (the scenario's own traffic where ``TRAFFIC`` is unset; a number
+        of cars per day as ``"<n> cars per day"``), with
+        ``", held-out days x D car draws"`` when ``draws`` > 1.
+    """
+    if config.get("TASK"):
+        trained_on = str(config["TASK"])
+    else:
+        scenario = config["SCENARIO"]
+        traffic = config.get("TRAFFIC")
+        if traffic is None:
+            traffic = SCENARIOS.get(scenario, {}).get("traffic", "default")
+        if isinstance(traffic, str):
+            trained_on = f"{scenario}, {traffic} traffic"
+        else:
+            trained_on = f"{scenario}, {traffic:g} cars per day"
+    seeds_text = f"{seeds} seed" + ("s" if seeds != 1 else "")
+    return f"{algo.upper()} on {trained_on}: {seeds_text}" + (
+        f", held-out days x {draws} car draws" if draws > 1 else ""
+    )
 
 
 LINES = (
@@ -404,6 +462,33 @@ def plot_curve(
         title,
         eval_points=points or None,
     )
+
+
+def plot_run(results: dict, path) -> Path:
+    """Draw a finished run's learning curve (`plot_curve`) from its ``results.json``.
+
+    Args:
+        results: a run's results (what ``results.json`` holds, parsed).
+        path: the PNG to write.
+
+    Returns:
+        ``path`` as a `pathlib.Path`.
+    """
+    config = stored_config(results["config"])
+    curve = results["curve"]
+    evaluation = results["evaluation"]
+    draws = int(evaluation.get("draws", 1))
+    plot_curve(
+        path,
+        results["algo"],
+        curve["timesteps"],
+        curve["episode_profit_eur"],
+        evaluation["table"],
+        results["eval_curve"],
+        curve_title(results["algo"], config, results["seeds"], draws),
+        validation=(results.get("validation") or {}).get("references"),
+    )
+    return Path(path)
 
 
 def load_run(run_dir: str | Path):

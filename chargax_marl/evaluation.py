@@ -659,15 +659,32 @@ def hindsight_bound(
     }
 
 
+def bound_kind(params: EnvParams) -> str:
+    """Which LP bound holds for every policy under the params' session model.
+
+    Args:
+        params: the environment parameters.
+
+    Returns:
+        ``"occupancy"`` (`hindsight_bound`, over always-max's port occupancy) where every
+        policy has that occupancy: on the paper's mechanics (`trace.is_paper_session_model`)
+        and under fixed departures (the session model v3, ``params.fixed_departures``);
+        otherwise ``"pooled"`` (`chargax_marl.optimal.pooled`: a random free port, users who
+        leave when charged), which holds whatever ports the cars get.
+    """
+    if is_paper_session_model(params) or bool(params.fixed_departures):
+        return "occupancy"
+    return "pooled"
+
+
 def policy_bound(
     params: EnvParams, days, key: jax.Array | None = None, time_limit_s: float | None = 60.0
 ) -> dict:
-    """The LP bound no policy beats under the params' session model, per day, with the cars
-    `evaluate` draws with ``key``: on the paper's mechanics (`trace.is_paper_session_model`)
-    the hindsight bound over always-max's occupancy (`hindsight_bound`), whose ports and
-    departures no policy changes; otherwise (a random free port, users who leave when
-    charged) the port-pooled bound (`chargax_marl.optimal.pooled`), which holds whatever
-    ports the cars get.
+    """The LP bound no policy beats under the params' session model (`bound_kind`), per day,
+    with the cars `evaluate` draws with ``key``: the hindsight bound over always-max's
+    occupancy (`hindsight_bound`) where no policy changes the ports and departures (the
+    paper's mechanics, the session model v3), else the port-pooled bound
+    (`chargax_marl.optimal.pooled`).
 
     Args:
         params: the environment parameters.
@@ -680,7 +697,7 @@ def policy_bound(
         where the solve failed), the solver status per day, the failed days (``{"day",
         "status"}`` each) and the bound's kind, ``"occupancy"`` or ``"pooled"``.
     """
-    if is_paper_session_model(params):
+    if bound_kind(params) == "occupancy":
         out = hindsight_bound(params, days, key, time_limit_s=time_limit_s)
         return {k: out[k] for k in ("daily_profit", "status", "failed_days")} | {
             "kind": "occupancy"

@@ -12,20 +12,29 @@ import numpy as np
 from baselines.algos.trainer import IdentityCache
 from baselines.config import RUN_SCHEMA
 from baselines.eval import protocol, references, rules, stats
+from chargax_marl.benchmark.tasks import get_task
 from chargax_marl.evaluation import (
     METRICS,
+    bound_kind,
     headroom_captured,
     policy_bound,
     run_days,
+    run_days_keyed,
     summarize,
     summarize_profit,
 )
 from chargax_marl.teachers.rules import has_battery
-from chargax_marl.trace import is_paper_session_model
 
 
 def evaluate_batched(
-    make_act, net_params, eval_params, days, key=None, reference_profit=None, draws: int = 1
+    make_act,
+    net_params,
+    eval_params,
+    days,
+    key=None,
+    reference_profit=None,
+    draws: int = 1,
+    chunk_days: int | None = None,
 ) -> dict:
     """Greedy held-out evaluation of every seed's parameters (leading axis) with
     `chargax_marl.evaluation.run_days`.
@@ -42,6 +51,12 @@ def evaluate_batched(
     always-max), also ``paired_diff``: per seed, the mean and standard error over days of
     (policy − reference) profit.
 
+    With ``chunk_days``, the days are played ``chunk_days`` at a time through one program
+    compiled for that many days (`compiled_keyed_evaluation`), each day on the key it has in
+    the whole batch: the same cars, and a later call with the same ``make_act``,
+    ``eval_params`` and ``chunk_days`` on any number of days compiles nothing (a training
+    run's held-out days reuse the program of its validation days).
+
     Args:
         make_act: ``make_act(params) -> act(state, key) -> levels`` or a
             `chargax_marl.evaluation.MemoryAct` (a trainer's ``make_act(eval_params)``).
@@ -52,6 +67,8 @@ def evaluate_batched(
         reference_profit: ``(days,)`` daily profits in EUR/day of a reference on the same
             days and key, or ``None`` for no ``paired_diff``.
         draws: car draws per day (a positive integer); only with ``key=None``.
+        chunk_days: the days per compiled call (a positive integer; the last chunk is padded
+            with its last day, whose copies are dropped); None: every day in one call.
 
     Returns:
         ``{"num_days", "num_seeds", "metrics", "per_seed_profit", "daily_profit",
@@ -60,9 +77,16 @@ def evaluate_batched(
         ``paired_diff`` (`baselines.eval.stats.paired_difference`) with ``reference_profit``.
 
     Raises:
-        ValueError: both a ``key`` and ``draws`` other than 1, or ``draws`` not a positive
-            integer (`baselines.eval.protocol.draw_keys`).
+        ValueError: both a ``key`` and ``draws`` other than 1, ``draws`` not a positive
+            integer (`baselines.eval.protocol.draw_keys`), or ``chunk_days`` not a positive
+            integer.
     """
+    if chunk_days is not None and (
+        isinstance(chunk_days, bool)
+        or not isinstance(chunk_days, (int, np.integer))
+        or chunk_days < 1
+    ):
+        raise ValueError(f"field 'chunk_days' must be a positive integer, got {chunk_days!r}")
     if key is not None and draws != 1:
         raise ValueError(
             f"evaluate_batched: give either a key or draws > 1, not both (draws={draws!r})"
@@ -70,8 +94,14 @@ def evaluate_batched(
     keys = [key] if key is not None else protocol.draw_keys(draws)
     days = jnp.asarray(days, jnp.int32)
     seeds = jax.tree.leaves(net_params)[0].shape[0]
-    fn = compiled_evaluation(make_act, eval_params)
-    totals = protocol.mean_over_draws(lambda k: fn(net_params, days, k), keys)
+    if chunk_days is None:
+        fn = compiled_evaluation(make_act, eval_params)
+        totals = protocol.mean_over_draws(lambda k: fn(net_params, days, k), keys)
+    else:
+        fn = compiled_keyed_evaluation(make_act, eval_params)
+        totals = protocol.mean_over_draws(
+            lambda k: _in_chunks(fn, net_params, days, k, int(chunk_days)), keys
+        )
     flat = jax.tree.map(lambda x: np.asarray(x).reshape(-1), totals)
     profit = np.asarray(totals.profit_eur, np.float64)
     out = {
@@ -116,6 +146,51 @@ def compiled_evaluation(make_act, eval_params):
     )
 
 
+_COMPILED_KEYED = IdentityCache()
+
+
+def compiled_keyed_evaluation(make_act, eval_params):
+    """`compiled_evaluation` with one key per day (`chargax_marl.evaluation.run_days_keyed`).
+
+    Args:
+        make_act: ``make_act(params) -> act(state, key) -> levels`` or a
+            `chargax_marl.evaluation.MemoryAct` (a trainer's ``make_act(eval_params)``).
+        eval_params: the evaluation env parameters.
+
+    Returns:
+        ``fn(net_params, days, day_keys) -> totals`` (``day_keys`` ``(days, 2)``, day ``i``'s
+        cars drawn from ``day_keys[i]``), with a leading seed axis on ``net_params`` and on
+        every total, compiled once per number of days for this ``make_act`` and
+        ``eval_params``.
+    """
+    per_params = _COMPILED_KEYED.get(make_act, IdentityCache)
+    return per_params.get(
+        eval_params,
+        lambda: jax.jit(
+            jax.vmap(
+                lambda p, d, kk: run_days_keyed(make_act(p), eval_params, d, kk),
+                in_axes=(0, None, None),
+            )
+        ),
+    )
+
+
+def _in_chunks(fn, net_params, days, key, chunk_days: int):
+    """``fn`` (`compiled_keyed_evaluation`) on ``days`` in calls of ``chunk_days`` days, day
+    ``i`` on ``split(key, len(days))[i]`` as `run_days` plays it; totals ``(seeds, days)``."""
+    n = int(days.shape[0])
+    day_keys = jax.random.split(key, n)
+    padded = -(-n // chunk_days) * chunk_days
+    fill = padded - n
+    days = jnp.concatenate([days, jnp.repeat(days[-1:], fill)])
+    day_keys = jnp.concatenate([day_keys, jnp.repeat(day_keys[-1:], fill, axis=0)])
+    parts = [
+        jax.device_get(fn(net_params, days[i : i + chunk_days], day_keys[i : i + chunk_days]))
+        for i in range(0, padded, chunk_days)
+    ]
+    return jax.tree.map(lambda *x: np.concatenate(x, axis=1)[:, :n], *parts)
+
+
 BASELINES = ("always_max", "battery_rule", "price_threshold")
 """The rule-based references every training run is scored against (``battery_rule`` is
 always-max plus a battery that charges in the day's cheapest 20 % of hours and discharges in
@@ -132,7 +207,7 @@ OPTIMAL_CHOICES = RUN_SCHEMA["OPTIMAL"].choices
 
 
 def baseline_results(
-    eval_params, eval_days, optimal: str = "off", draws: int = 1, references_dir=None
+    eval_params, eval_days, optimal: str = "off", draws: int = 1, references_dir=None, task=None
 ) -> dict:
     """The `BASELINES` (and, on a station with a battery, the teachers' rules) on
     ``eval_days`` (the held-out days, or a run's validation days), with the evaluation's
@@ -151,6 +226,9 @@ def baseline_results(
     With ``draws`` > 1 every rule and the bound are scored under the keys of
     `draw_keys`, each day's profit the mean over the draws; the stored
     MPC (one draw) is then not used, and ``optimal="mpc"`` runs the MPC on every draw.
+    With ``task``, the task's shipped bound is read instead of solved where it is the same
+    bound (`baselines.eval.references.shipped_bound`: the task's held-out days and draws, its
+    parameters up to the action levels); its ``source`` names the task.
 
     Args:
         eval_params: the evaluation env parameters.
@@ -159,6 +237,8 @@ def baseline_results(
         draws: car draws per day (a positive integer).
         references_dir: a directory of stored references (``make optimal``), or ``None`` to
             compute the bound (and the MPC) here.
+        task: the benchmark task (id, file or `chargax_marl.benchmark.Task`) whose shipped
+            bound to read where it matches; None: none.
 
     Returns:
         ``{name: entry}`` per rule (`baselines.eval.rules.evaluate_rules` entries;
@@ -191,10 +271,17 @@ def baseline_results(
     stored = None
     if references_dir is not None and draws == 1:
         stored = references.cached(eval_params, eval_days, references_dir)
+    shipped = None
+    if stored is None and task is not None:
+        shipped = references.shipped_bound(task, eval_params, eval_days, draws)
     if stored is not None:
         bound_daily = np.asarray(stored["policies"]["lp_bound"]["daily_profit"])
         mpc_daily = references.stored_mpc(stored, eval_days)
         source = f"{references_dir} (same params and days)"
+    elif shipped is not None:
+        bound_daily, mpc_daily = shipped, None
+        source = f"the shipped references of {get_task(task).id} (same days and cars)"
+        source += "" if draws == 1 else f", mean over {draws} car draws per day"
     else:
         keys = protocol.draw_keys(draws)
         bound_daily = protocol.mean_over_draws(
@@ -219,7 +306,7 @@ def baseline_results(
         "daily_profit": bound_daily,
         "metrics": summarize_profit(bound_daily),
         "source": source,
-        "kind": "occupancy" if is_paper_session_model(eval_params) else "pooled",
+        "kind": bound_kind(eval_params),
     }
     if mpc_daily is not None:
         out["mpc"] = {

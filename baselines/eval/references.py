@@ -1,5 +1,6 @@
-"""The MPC on held-out days, and references stored by ``python -m baselines.analysis.references``
-read back from a directory the caller names."""
+"""The MPC on held-out days, references stored by ``python -m baselines.analysis.references``
+read back from a directory the caller names, and a task's shipped LP bound read back where a
+run's held-out evaluation is the task's."""
 
 from __future__ import annotations
 
@@ -10,7 +11,9 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from chargax_marl.evaluation import run_days, summarize
+from chargax_marl.benchmark.references import ReferenceMismatchError, load_references
+from chargax_marl.benchmark.tasks import get_task
+from chargax_marl.evaluation import bound_kind, run_days, summarize
 from chargax_marl.optimal.mpc import MPC
 from chargax_marl.trace import params_fingerprint
 
@@ -108,3 +111,49 @@ def stored_mpc(stored: dict | None, days) -> np.ndarray | None:
         return None
     daily = np.asarray(stored["policies"]["mpc"]["daily_profit"], np.float64)
     return daily if daily.shape[0] == len(days) else None
+
+
+def shipped_bound(task, params, days, draws: int = 1) -> np.ndarray | None:
+    """A task's shipped LP bound on a run's held-out days, where it is the bound the run
+    would solve (`chargax_marl.evaluation.policy_bound` under ``params``, keys
+    ``PRNGKey(0) ... PRNGKey(draws - 1)``).
+
+    That holds when ``days`` are the task's held-out days, ``draws`` at most the task's
+    (draw ``r`` of the task's key schedule is the run's key ``r``), the stored bound is of
+    the kind ``params`` call for (`chargax_marl.evaluation.bound_kind`) and solved on every
+    one of those days and draws, and ``params`` are the task's scored parameters up to the
+    policy's action levels (``num_levels``), which the LP, over continuous currents, does not
+    read. The task's references must load (`load_references`: this code's parameters).
+
+    Args:
+        task: a task id, task file or `chargax_marl.benchmark.Task`.
+        params: the run's held-out env parameters.
+        days: the run's held-out days.
+        draws: the run's car draws per held-out day.
+
+    Returns:
+        The ``(days,)`` float64 bound in EUR/day, each day's the mean over draws ``0 ..
+        draws - 1``; ``None`` where any condition above fails (the run solves it then).
+    """
+    task = get_task(task)
+    scored = task.make_params()
+    if draws > task.draws or [int(d) for d in np.asarray(days)] != [
+        int(d) for d in task.eval_days()
+    ]:
+        return None
+    if bound_kind(params) != task.bound:
+        return None
+    levels = params.replace(num_levels=scored.num_levels)
+    if params_fingerprint(levels) != params_fingerprint(scored):
+        return None
+    try:
+        refs = load_references(task)
+    except ReferenceMismatchError:
+        return None
+    bound = refs["policies"].get("lp_bound")
+    if bound is None:
+        return None
+    daily = np.asarray(bound["daily_profit"], np.float64)[:, :draws]
+    if np.isnan(daily).any():
+        return None
+    return daily.mean(axis=1)

@@ -12,7 +12,9 @@ import pytest
 from baselines.config import build_env_params, resolve
 from baselines.eval import heldout, references, stats
 from chargax_marl import evaluation, optimal
+from chargax_marl.benchmark import get_task
 from chargax_marl.core.station import KIND_BATTERY
+from chargax_marl.policies import get_policy
 from chargax_marl.teachers import car_plan, storage_value
 from tests.helpers import TINY, TINY_ENV
 
@@ -216,11 +218,14 @@ def test_a_day_with_a_failed_mpc_solve_is_reported_and_kept_out_of_the_means(mon
     assert d["stderr"] == pytest.approx(1.0)
 
 
-@pytest.mark.parametrize("session_model, kind", [("paper", "occupancy"), ("v2", "pooled")])
+@pytest.mark.parametrize(
+    "session_model, kind", [("paper", "occupancy"), ("v2", "pooled"), ("v3", "occupancy")]
+)
 def test_the_held_out_bound_is_the_one_that_holds_under_the_session_model(session_model, kind):
     """On the v2 session model a policy changes which port a car gets and when a DC user
     leaves, so the bound over always-max's occupancy is no bound there: the held-out
-    evaluation (and a run's headroom) uses the port-pooled bound, the same cars' LP."""
+    evaluation (and a run's headroom) uses the port-pooled bound, the same cars' LP. On v3
+    every policy has always-max's occupancy, so its bound, exact and the v3 tasks', is used."""
     config = resolve({**TINY, "ENV_KWARGS": {**TINY_ENV, "session_model": session_model}})
     _, full, _, days = build_env_params(config)
     days = days[:3]
@@ -257,3 +262,91 @@ def test_a_stored_result_without_every_day_s_mpc_gets_the_mpc_computed(monkeypat
     np.testing.assert_array_equal(base["lp_bound"]["daily_profit"], [9.0, 9.0, 9.0])
     np.testing.assert_array_equal(base["mpc"]["daily_profit"], [7.0, 7.0, 7.0])
     assert base["mpc"]["source"] == "computed"
+
+
+@pytest.mark.parametrize("task_id", ["Chargax-shopping-v2", "Chargax-shopping-v3"])
+def test_a_run_on_a_task_reads_the_shipped_bound_it_would_solve(task_id):
+    """`make train`'s held-out evaluation on a task (one car draw, three action levels where
+    the task has more): the task's shipped bound is the bound solved on the run's own
+    params, days and cars, so the run reads it; other days, draws or params are solved."""
+    task = get_task(task_id)
+    config = resolve({"TASK": task_id, "ENV_KWARGS": {"num_levels": 1}})
+    _, full, _, days = build_env_params(config)
+    assert int(full.num_levels) != int(task.make_params().num_levels)
+    shipped = references.shipped_bound(task_id, full, days, draws=1)
+    assert shipped is not None and shipped.shape == (days.size,)
+    # the run's cars (run_days: day i from split(PRNGKey(0), days)[i]) are the task's draw 0
+    keys = jax.random.split(jax.random.PRNGKey(0), days.size)
+    np.testing.assert_array_equal(keys, task.day_keys()[:, 0])
+    first = np.asarray(days[:2])
+    if evaluation.bound_kind(full) == "pooled":
+        solved = optimal.pooled_bound_days(full, first, keys[:2])
+    else:
+        solved = optimal.bound_days(
+            full, first, day_keys=keys[:2], reference=get_policy("always_max", full)
+        )
+    np.testing.assert_allclose(shipped[:2], [b.profit_eur for b in solved], rtol=1e-5)
+    two = references.shipped_bound(task_id, full, days, draws=2)
+    assert two is not None and not np.allclose(two, shipped)
+    assert references.shipped_bound(task_id, full, days, draws=task.draws + 1) is None
+    assert references.shipped_bound(task_id, full, days[:-1], draws=1) is None
+    busier = task.scored_params(num_levels=1, traffic="high")
+    assert references.shipped_bound(task_id, busier, days, draws=1) is None
+
+
+def test_the_held_out_references_read_a_task_s_shipped_bound(monkeypatch):
+    """``baseline_results(..., task=)`` takes the bound from the task's shipped references,
+    naming them, and solves nothing; without ``task`` it solves the bound."""
+    task_id = "Chargax-shopping-v3"
+    config = resolve({"TASK": task_id, "ENV_KWARGS": {"num_levels": 1}})
+    _, full, _, days = build_env_params(config)
+    played = {
+        name: {"daily_profit": np.full(days.size, 500.0), "metrics": {}}
+        for name in ("always_max", "battery_rule")
+    }
+    monkeypatch.setattr(
+        heldout.rules, "evaluate_rules", lambda *a, **k: {n: dict(e) for n, e in played.items()}
+    )
+    solved = []
+
+    def solve(params, d, key):
+        solved.append(d)
+        return {"daily_profit": np.full(np.size(d), 600.0)}
+
+    monkeypatch.setattr(heldout, "policy_bound", solve)
+    base = heldout.baseline_results(full, days, optimal="bound", task=task_id)
+    assert not solved
+    assert task_id in base["lp_bound"]["source"]
+    np.testing.assert_array_equal(
+        base["lp_bound"]["daily_profit"], references.shipped_bound(task_id, full, days)
+    )
+    assert base["lp_bound"]["kind"] == "occupancy"
+    base = heldout.baseline_results(full, days, optimal="bound")
+    assert len(solved) == 1 and base["lp_bound"]["source"] == "computed"
+
+
+def test_days_played_in_chunks_meet_the_same_cars_through_one_program():
+    """``evaluate_batched(..., chunk_days=C)``: every day on the key it has in the whole batch
+    (a random policy, whose levels read the key, scores what it scores unchunked, on every
+    draw; the last chunk padded), and another number of days runs the same compiled program."""
+    from chargax_marl.policies import get_policy
+
+    _, full, _, days = build_env_params(resolve(TINY))
+    days = days[:7]
+    rand = get_policy("random", full)
+
+    def make_act(p):
+        return lambda s, k: rand(s, k, full) + 0 * p.astype(np.int32)
+
+    seeds = np.zeros((2,), np.float32)
+    whole = heldout.evaluate_batched(make_act, seeds, full, days, draws=2)
+    chunked = heldout.evaluate_batched(make_act, seeds, full, days, draws=2, chunk_days=3)
+    np.testing.assert_allclose(chunked["daily_profit"], whole["daily_profit"], rtol=1e-6)
+    assert chunked["daily_profit"].shape == (2, 7)
+    fn = heldout.compiled_keyed_evaluation(make_act, full)
+    compiled = fn._cache_size()
+    heldout.evaluate_batched(make_act, seeds, full, days[:5], chunk_days=3)
+    assert fn._cache_size() == compiled
+    for bad in (0, 1.5, True):
+        with pytest.raises(ValueError, match="chunk_days"):
+            heldout.evaluate_batched(make_act, seeds, full, days, chunk_days=bad)

@@ -42,7 +42,18 @@ def test_no_evaluation_during_training_plays_a_held_out_day(monkeypatch):
             phase[0] = "after training"
 
     monkeypatch.setattr(runner, "run_in_chunks", training)
+    programs = []  # the compiled evaluation every evaluation of the policy ran
+    keyed = heldout.compiled_keyed_evaluation
+
+    def compiled(make_act, params):
+        programs.append(keyed(make_act, params))
+        return programs[-1]
+
+    monkeypatch.setattr(heldout, "compiled_keyed_evaluation", compiled)
     res = pipeline.run("ippo", config, seeds=2, chunks=2, quiet=True).results
+    # the held-out evaluation ran the validation's program: one compile for all three
+    assert len(programs) == 3 and len({id(fn) for fn in programs}) == 1
+    assert programs[0]._cache_size() == 1
 
     val, held = val_days.tolist(), held_out.tolist()
     until_trained = [p for p in played if p[0] != "after training"]

@@ -64,3 +64,15 @@ def test_training_table_prints_each_run_and_how_far_it_moved(tmp_path, capsys):
     assert "| — | — | — | 0.250 ± 0.010 |" in out
     assert "| battery wear EUR/day | — | 1.50 |" in out
     assert "profit 464.00 → 460.00 (−4.00); vs always-max +9.00 → +5.00 (−4.00)" in out
+
+
+def test_plot_curve_redraws_a_committed_run_without_touching_it(tmp_path, capsys):
+    """``scripts/plot_curve.py`` (the docs' learning curve) draws from the run's results.json
+    into the given file and leaves the run's own files as they are."""
+    script = load("scripts/plot_curve.py")
+    run = ROOT / "results/ippo_shopping_v2"
+    before = {p.name: p.stat().st_mtime_ns for p in run.iterdir()}
+    path = script.main([str(run), str(tmp_path / "curve.png")])
+    assert path == tmp_path / "curve.png" and path.stat().st_size > 0
+    assert f"wrote {path}" in capsys.readouterr().out
+    assert {p.name: p.stat().st_mtime_ns for p in run.iterdir()} == before
