@@ -382,8 +382,29 @@ def report(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def embedded(result: dict) -> str:
+    """What `embed` writes into a page: a line saying how and where the runs were made (the
+    command, the machine, the date, each run's load), then `phase_table`.
+
+    Args:
+        result: the ``.json`` this script writes.
+
+    Returns:
+        Markdown text.
+    """
+    m = result["machine"]
+    loads = "; ".join(
+        f"run {i + 1} {r['load_before']} before, {r['load_after']} after"
+        for i, r in enumerate(result["runs"])
+    )
+    return (
+        f"`{result['command']}`, {result['started']} UTC, on the {m['cpu']} with "
+        f"{m['cores']} cores ({loads}); seconds per phase:\n\n{phase_table(result)}"
+    )
+
+
 def embed(page: Path, result: dict) -> None:
-    """Writes the phase table of ``result`` into ``page`` between its `MARKERS`.
+    """Writes `embedded` of ``result`` into ``page`` between its `MARKERS`.
 
     Args:
         page: a Markdown page with both markers, each on a line of its own.
@@ -398,7 +419,7 @@ def embed(page: Path, result: dict) -> None:
             raise ValueError(f"{page} has no line {marker!r} to embed the phase table at")
     head, rest = text.split(MARKERS[0], 1)
     _, tail = rest.split(MARKERS[1], 1)
-    page.write_text(f"{head}{MARKERS[0]}\n{phase_table(result)}\n{MARKERS[1]}{tail}")
+    page.write_text(f"{head}{MARKERS[0]}\n{embedded(result)}\n{MARKERS[1]}{tail}")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -482,7 +482,13 @@ def test_suite_phases_embeds_its_table_between_the_markers(tmp_path):
         "tests": {"pytest": {"passed": 5, "skipped": 1, "failed": 0}},
         "skipped_phases": [],
     }
-    result = {"runs": [run, {**run, "label": "B", "commit": "b" * 40, "wall_s": 300.0}]}
+    run.update(load_before="load 0.10 0.20 0.30", load_after="load 1.90 1.20 0.60")
+    result = {
+        "command": "python benchmarks/suite_phases.py --commits a b",
+        "machine": {"cpu": "a CPU", "cores": 2},
+        "started": "2026-12-01 10:00",
+        "runs": [run, {**run, "label": "B", "commit": "b" * 40, "wall_s": 300.0}],
+    }
     result["runs"].append({**run, "wall_s": 420.0})
     table = phases.phase_table(result)
     assert "| A 1 (`aaaaaaa`) | B 2 (`bbbbbbb`) | A 3 (`aaaaaaa`) | median `aaaaaaa` |" in table
@@ -491,7 +497,10 @@ def test_suite_phases_embeds_its_table_between_the_markers(tmp_path):
     page.write_text(f"# P\n\n{phases.MARKERS[0]}\nold\n{phases.MARKERS[1]}\n\nafter\n")
     phases.embed(page, result)
     text = page.read_text()
-    assert f"{phases.MARKERS[0]}\n{table}\n{phases.MARKERS[1]}" in text and "old" not in text
+    assert f"{phases.MARKERS[0]}\n{phases.embedded(result)}\n{phases.MARKERS[1]}" in text
+    assert table in text and "old" not in text
+    assert "`python benchmarks/suite_phases.py --commits a b`, 2026-12-01 10:00 UTC" in text
+    assert "run 1 load 0.10 0.20 0.30 before, load 1.90 1.20 0.60 after" in text
     assert text.endswith("\nafter\n")
     with pytest.raises(ValueError, match="has no line"):
         plain = tmp_path / "plain.md"
