@@ -5,7 +5,7 @@ pass, the per-test budget check and the strict docs build.
     python benchmarks/suite_phases.py                             # a fresh clone of HEAD
     python benchmarks/suite_phases.py --repo PATH                 # a checkout as it is
     python benchmarks/suite_phases.py --commits OLD NEW --rounds 2  # OLD, NEW, OLD, NEW
-    python benchmarks/suite_phases.py --phases setup lint docs    # the other phases skipped
+    python benchmarks/suite_phases.py --phases setup lint docs    # the others skipped
     python benchmarks/suite_phases.py --embed docs/performance.md  # the docs' table, re-made
 
 Each run is ``make test`` itself, as ``.ci/run`` starts it, in a fresh ``git clone`` of this
@@ -14,7 +14,7 @@ given checkout instead). Make runs every command of its recipes through ``SHELL`
 sets ``SHELL`` to a small wrapper that times each command, gives it its phase by what it runs
 and, for the pytest commands, has pytest write a JUnit XML report (each test's seconds and
 outcome). The commands of the phases not named by ``--phases`` are skipped (they succeed at
-once), the set-up always runs. The phases are each commit's own: a commit whose Makefile runs
+once), and so are those of the phases that need a skipped one; the set-up always runs. The phases are each commit's own: a commit whose Makefile runs
 other commands is timed on those.
 
 Writes ``--out``'s ``.json`` (every command's seconds, each run's phases, tests and slowest
@@ -69,6 +69,26 @@ LOG_ENV = "CHARGAX_PHASES_LOG"
 SKIP_ENV = "CHARGAX_PHASES_SKIP"
 MARKERS = ("<!-- suite_phases table: begin -->", "<!-- suite_phases table: end -->")
 """The lines of a docs page between which ``--embed`` writes the phase table."""
+
+
+NEEDS = {"budget": ("pytest", "x64"), "other": ("pytest",)}
+"""Phases that read what others write: the budget check reads pytest's reports, and the
+dist/ sizes are printed from the wheel test's output."""
+
+
+def skipped_phases(run: list[str]) -> list[str]:
+    """The phases to skip when only ``run`` are asked for: the others, never the set-up (the
+    rest needs it), and those that need a skipped one (`NEEDS`).
+
+    Args:
+        run: the phases asked for.
+
+    Returns:
+        The phases to skip, in `PHASES`' order.
+    """
+    skip = {ph for ph in PHASES if ph not in run and ph != "setup"}
+    skip |= {ph for ph, needs in NEEDS.items() if skip & set(needs)}
+    return [ph for ph in PHASES if ph in skip]
 
 
 def phase_of(command: str) -> str | None:
@@ -468,7 +488,7 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--rounds and --top must be >= 1, got {args.rounds} and {args.top}")
     if args.repo is not None and (len(args.commits) > 1 or args.commits != ["HEAD"]):
         p.error("--repo runs the checkout as it is: --commits needs fresh clones, drop --repo")
-    skip = [ph for ph in PHASES if ph not in args.phases and ph != "setup"]
+    skip = skipped_phases(args.phases)
     labels = "ABCDEFGH"
     result = {
         "command": shlex.join(["python", "benchmarks/suite_phases.py", *sys.argv[1:]])

@@ -458,6 +458,14 @@ def test_suite_phases_reports_a_failing_make_test_and_its_failed_tests(tmp_path)
     assert run["phases"]["x64"] == 0.0  # make stopped at the failing pytest run
 
 
+def test_suite_phases_skips_the_phases_that_need_a_skipped_one():
+    phases = load("suite_phases")
+    assert phases.skipped_phases(list(phases.PHASES)) == []
+    assert phases.skipped_phases(["setup", "lint", "docs"]) == ["pytest", "x64", "budget", "other"]
+    assert phases.skipped_phases(["pytest", "budget", "other"]) == ["lint", "x64", "budget", "docs"]
+    assert phases.skipped_phases(["lint"]) == ["pytest", "x64", "budget", "docs", "other"]
+
+
 def test_suite_phases_classifies_the_commands_of_make_test():
     phases = load("suite_phases")
     make_n = subprocess.run(
