@@ -117,3 +117,9 @@ def test_the_budget_is_set_once_and_make_test_runs_the_check_on_every_pytest_rep
         junit = run.split("--junitxml=")[1].split()[0]
         assert junit in check and lines.index(check) > lines.index(run), (run, check)
     assert "BUDGET" not in makefile  # the budget lives in the script alone
+
+
+def test_the_performance_page_gives_the_budget_the_script_sets():
+    check = load()
+    page = (ROOT / "docs" / "performance.md").read_text()
+    assert f"the one place it is set: {check.BUDGET_S:g} s" in page
