@@ -514,3 +514,10 @@ def test_suite_phases_embeds_its_table_between_the_markers(tmp_path):
         plain = tmp_path / "plain.md"
         plain.write_text("# no markers\n")
         phases.embed(plain, result)
+
+
+def test_the_suite_phase_table_of_the_docs_is_that_of_the_result_file():
+    phases = load("suite_phases")
+    result = json.loads((BENCH / "results" / "suite_phases.json").read_text())
+    page = (ROOT / "docs" / "performance.md").read_text()
+    assert f"{phases.MARKERS[0]}\n{phases.embedded(result)}\n{phases.MARKERS[1]}" in page
