@@ -43,13 +43,21 @@ X64_TESTS := tests/core/test_model.py tests/core/test_bad_input.py
 DIST       := dist
 DIST_SIZES := $(PY) -c "import pathlib; [print(f'{p}: {p.stat().st_size} bytes ({p.stat().st_size / 1e6:.2f} MB)') for p in sorted(pathlib.Path('$(DIST)').iterdir())]"
 
+# Each pytest run writes its JUnit XML report (every test's seconds) and
+# scripts/check_test_budget.py then fails the target, naming them, when a test took longer than
+# the per-test budget it sets. `python benchmarks/suite_phases.py` times every phase of this
+# target on a fresh clone (docs/performance.md).
+JUNIT := .pytest_cache/junit
+
 test: $(STAMP) $(DOCS_STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 	rm -rf $(DIST)
-	CHARGAX_DIST=$(CURDIR)/$(DIST) $(PY) -m pytest -n 2 -q --durations=20
+	CHARGAX_DIST=$(CURDIR)/$(DIST) $(PY) -m pytest -n 2 -q --durations=20 --junitxml=$(JUNIT).xml
+	$(PY) scripts/check_test_budget.py $(JUNIT).xml
 	@$(DIST_SIZES)
-	JAX_ENABLE_X64=1 $(PY) -m pytest -n 2 -q $(X64_TESTS)
+	JAX_ENABLE_X64=1 $(PY) -m pytest -n 2 -q --junitxml=$(JUNIT)-x64.xml $(X64_TESTS)
+	$(PY) scripts/check_test_budget.py $(JUNIT)-x64.xml
 	$(MAKE) docs
 
 # The release's sdist and wheel in dist/, built and checked by the wheel test alone.

@@ -532,7 +532,13 @@ def test_long_run_with_nan_inf_and_out_of_range_actions_keeps_every_invariant(ac
 
 
 # Each example compiles a new station: few examples, hour-long steps (the station, the
-# explicit example, at 5 minutes), no shrinking.
+# explicit example, at 5 minutes), no shrinking. Not in the x64 pass: there the state keeps its
+# float32 dtypes (test_state_dtypes_stay_float32_when_x64_is_on), so a generated station runs
+# the float32 arithmetic this test checks in the main pass, and the x64 pass's long hostile
+# runs are those of the fixed station above.
+@pytest.mark.skipif(
+    jax.config.jax_enable_x64, reason="the float32 arithmetic of the main pass; x64: see above"
+)
 @settings(
     max_examples=3,
     deadline=None,

@@ -186,28 +186,34 @@ def test_port_shaping_trains_and_keeps_the_logged_profit(mod):
     """The trainers run with the port shaping; it changes the learning signal, not the
     profit the env logs (same seeds, same first rollout). ``SHAPING_WEIGHT`` 0, a value of the
     runner state, takes the shaping out again."""
-    outs = {}
     keys = jax.random.split(jax.random.PRNGKey(0), 2)
+    trains = {}
     for mode in ("off", "plan"):
         config = {**TINY, "PORT_SHAPING": mode, "SPLIT_CREDIT": mod is ppo}
         if mod is ippo:
             config["LOCAL_REWARD_WEIGHT"] = 1.0
-        train = mod.make_train(config)
-        out = train_seeds(train, keys)
-        m = jax.device_get(out["metrics"])
+        trains[mode] = mod.make_train(config)
+    off = jax.device_get(train_seeds(trains["off"], keys)["metrics"])
+    # the shaped trainer as one program of its hyper-parameter values, so the run with the
+    # shaping weighed 0 is the same compiled program as the shaped run
+    train = trains["plan"]
+
+    @jax.jit
+    def seeds(keys, hyper):
+        rs = jax.vmap(train.init, in_axes=(0, None))(keys, hyper)
+        return jax.vmap(lambda r: train.run_updates(r, train.num_updates))(rs)[1]
+
+    shaped = ppo_core.hyper_values(train.config)
+    plan = jax.device_get(seeds(keys, shaped))
+    unshaped = jax.device_get(seeds(keys, {**shaped, "SHAPING_WEIGHT": jnp.float32(0.0)}))
+    for m in (off, plan):
         for k in ("actor_loss", "value_loss"):
             assert np.all(np.isfinite(m[k])), (k, m[k])
-        outs[mode] = m
     np.testing.assert_allclose(
-        outs["plan"]["episode_profit_eur"][:, 0], outs["off"]["episode_profit_eur"][:, 0], rtol=1e-5
+        plan["episode_profit_eur"][:, 0], off["episode_profit_eur"][:, 0], rtol=1e-5
     )
-    unshaped = {**ppo_core.hyper_values(train.config), "SHAPING_WEIGHT": jnp.float32(0.0)}
-    rs = jax.vmap(train.init, in_axes=(0, None))(keys, unshaped)
-    _, m = jax.jit(jax.vmap(lambda r: train.run_updates(r, train.num_updates)))(rs)
-    assert not np.allclose(outs["plan"]["value_loss"], outs["off"]["value_loss"], rtol=1e-3)
-    np.testing.assert_allclose(
-        jax.device_get(m["value_loss"]), outs["off"]["value_loss"], rtol=1e-4
-    )
+    assert not np.allclose(plan["value_loss"], off["value_loss"], rtol=1e-3)
+    np.testing.assert_allclose(unshaped["value_loss"], off["value_loss"], rtol=1e-4)
 
 
 def test_mix_own_terms_adds_up_like_the_rewards():

@@ -398,3 +398,126 @@ def test_profile_kernels_puts_each_kernel_in_the_phase_its_call_count_names():
     assert not pk.is_matrix_product("add_tanh_fusion.6", "jit(train)/MLP/tanh")
     hlo = '  %ynn_fusion.3 = f32[8,16]{1,0} fusion(%p), kind=kCustom, metadata={op_name="jit(f)/a/dot_general" stack_frame_id=1}'
     assert pk.source_ops(hlo) == {"ynn_fusion.3": "jit(f)/a/dot_general"}
+
+
+def _mini_checkout(tmp_path: Path) -> Path:
+    """A checkout whose ``make test`` runs a command of every phase, a one-file pytest run (in
+    the main and the x64 phase, the second with its own report) and the docs through a
+    recursive make."""
+    repo = tmp_path / "repo"
+    (repo / "tests").mkdir(parents=True)
+    (repo / "tests" / "test_one.py").write_text(
+        "def test_quick():\n    pass\n\n\ndef test_slow():\n    import time\n\n"
+        "    time.sleep(0.3)\n"
+    )
+    (repo / "tests" / "test_wheel.py").write_text("def test_wheel():\n    pass\n")
+    py = sys.executable
+    (repo / "Makefile").write_text(
+        "test:\n"
+        "\tmkdir -p .venv && touch .venv/.installed\n"
+        "\techo ruff check .\n"
+        f"\t{py} -m pytest -q -p no:cacheprovider -p no:randomly tests\n"
+        f"\tJAX_ENABLE_X64=1 {py} -m pytest -q -p no:cacheprovider --junitxml=x64.xml"
+        " tests/test_one.py\n"
+        "\techo check_test_budget\n"
+        "\t$(MAKE) docs\n"
+        "docs:\n"
+        "\techo mkdocs build\n"
+    )
+    return repo
+
+
+def test_suite_phases_times_each_phase_of_make_test_and_reads_its_tests(tmp_path):
+    phases = load("suite_phases")
+    run = phases.make_test(_mini_checkout(tmp_path), ["docs"], tmp_path / "work", top=3)
+    assert run["exit_code"] == 0
+    assert [(c["phase"], c["skipped"]) for c in run["commands"]] == [
+        ("setup", False),
+        ("lint", False),
+        ("pytest", False),
+        ("x64", False),
+        ("budget", False),
+        ("docs", True),  # skipped, as asked
+        (None, False),  # the recursive make, timed through the commands it runs
+    ]
+    assert run["skipped_phases"] == ["docs"] and run["phases"]["docs"] == 0.0
+    assert run["phases"]["pytest"] > 0.3 and run["phases"]["x64"] > 0.0
+    assert run["tests"]["pytest"] == {"passed": 3, "skipped": 0, "failed": 0}
+    assert run["tests"]["x64"]["passed"] == 2  # read from the report the command names
+    assert run["slowest"][0][0] == "tests/test_one.py::test_slow"
+    assert run["inside_pytest"]["wheel"] >= 0.0 and len(run["slowest"]) == 3
+
+
+def test_suite_phases_reports_a_failing_make_test_and_its_failed_tests(tmp_path):
+    phases = load("suite_phases")
+    repo = _mini_checkout(tmp_path)
+    (repo / "tests" / "test_one.py").write_text("def test_broken():\n    assert False\n")
+    run = phases.make_test(repo, [], tmp_path / "work", top=3)
+    assert run["exit_code"] != 0
+    assert run["tests"]["pytest"]["failed"] == 1
+    assert run["phases"]["x64"] == 0.0  # make stopped at the failing pytest run
+
+
+def test_suite_phases_skips_the_phases_that_need_a_skipped_one():
+    phases = load("suite_phases")
+    assert phases.skipped_phases(list(phases.PHASES)) == []
+    assert phases.skipped_phases(["setup", "lint", "docs"]) == ["pytest", "x64", "budget", "other"]
+    assert phases.skipped_phases(["pytest", "budget", "other"]) == ["lint", "x64", "budget", "docs"]
+    assert phases.skipped_phases(["lint"]) == ["pytest", "x64", "budget", "docs", "other"]
+
+
+def test_suite_phases_classifies_the_commands_of_make_test():
+    phases = load("suite_phases")
+    make_n = subprocess.run(
+        ["make", "-n", "--always-make", "test"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.splitlines()
+    found = {phases.phase_of(line) for line in make_n if not line.startswith("make[")}
+    assert {"setup", "lint", "pytest", "x64", "budget", "docs"} <= found
+
+
+def test_suite_phases_embeds_its_table_between_the_markers(tmp_path):
+    phases = load("suite_phases")
+    run = {
+        "label": "A",
+        "commit": "a" * 40,
+        "wall_s": 400.0,
+        "phases": {p: 1.0 for p in phases.PHASES},
+        "inside_pytest": {"wheel": 2.0, "notebook": 3.0},
+        "tests": {"pytest": {"passed": 5, "skipped": 1, "failed": 0}},
+        "skipped_phases": [],
+    }
+    run.update(load_before="load 0.10 0.20 0.30", load_after="load 1.90 1.20 0.60")
+    result = {
+        "command": "python benchmarks/suite_phases.py --commits a b",
+        "machine": {"cpu": "a CPU", "cores": 2},
+        "started": "2026-12-01 10:00",
+        "runs": [run, {**run, "label": "B", "commit": "b" * 40, "wall_s": 300.0}],
+    }
+    result["runs"].append({**run, "wall_s": 420.0})
+    table = phases.phase_table(result)
+    assert "| A 1 (`aaaaaaa`) | B 2 (`bbbbbbb`) | A 3 (`aaaaaaa`) | median `aaaaaaa` |" in table
+    assert "| `make test`, wall | 6 min 40 s | 5 min 00 s | 7 min 00 s | 6 min 50 s |" in table
+    page = tmp_path / "page.md"
+    page.write_text(f"# P\n\n{phases.MARKERS[0]}\nold\n{phases.MARKERS[1]}\n\nafter\n")
+    phases.embed(page, result)
+    text = page.read_text()
+    assert f"{phases.MARKERS[0]}\n{phases.embedded(result)}\n{phases.MARKERS[1]}" in text
+    assert table in text and "old" not in text
+    assert "`python benchmarks/suite_phases.py --commits a b`, 2026-12-01 10:00 UTC" in text
+    assert "run 1 load 0.10 0.20 0.30 before, load 1.90 1.20 0.60 after" in text
+    assert text.endswith("\nafter\n")
+    with pytest.raises(ValueError, match="has no line"):
+        plain = tmp_path / "plain.md"
+        plain.write_text("# no markers\n")
+        phases.embed(plain, result)
+
+
+def test_the_suite_phase_table_of_the_docs_is_that_of_the_result_file():
+    phases = load("suite_phases")
+    result = json.loads((BENCH / "results" / "suite_phases.json").read_text())
+    page = (ROOT / "docs" / "performance.md").read_text()
+    assert f"{phases.MARKERS[0]}\n{phases.embedded(result)}\n{phases.MARKERS[1]}" in page
