@@ -25,6 +25,7 @@ from chargax_marl.benchmark.references import (
     save_references,
 )
 from chargax_marl.benchmark.tasks import TASKS, get_task, load_task
+from chargax_marl.core import checks
 
 
 def main(argv=None) -> None:
@@ -60,6 +61,7 @@ def main(argv=None) -> None:
     parser.add_argument(
         "--out",
         default=None,
+        type=checks.output_option("dir"),
         help="directory of the files (default: the shipped references' folder; for --task-file, "
         "the task file's folder)",
     )
@@ -107,6 +109,7 @@ def main(argv=None) -> None:
     parser.add_argument(
         "--bound-dir",
         default=None,
+        type=checks.output_option("dir"),
         help="for a port-pooled bound: keep its solved days in this directory, chunk by chunk, "
         "and reuse them when the command is run again (a stopped build resumes)",
     )
