@@ -298,7 +298,10 @@ class MPC:
         up = np.maximum(self.limits.charge_kw, 1e-9)
         down = np.maximum(self.limits.discharge_kw, 1e-9)
         frac = np.where(net_kw >= 0, net_kw / up, net_kw / down)
-        frac = np.clip(frac, -1.0, 1.0)
+        # a leaf that may not discharge plays no negative level (a solver's -1e-9 there would
+        # be a level outside its range, which the play refuses)
+        low = np.where(self.limits.discharge_kw > 0, -1.0, 0.0)
+        frac = np.clip(frac, low, 1.0)
         frac[np.abs(frac) < 1e-6] = 0.0
         if self.continuous:
             return frac.astype(np.float32)
