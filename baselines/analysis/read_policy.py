@@ -159,6 +159,7 @@ def main(argv=None) -> dict:
     out = read(a.run_dir, a.days)
     print(format_reading(out))
     if a.out:
+        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
         Path(a.out).write_text(json.dumps(out, indent=1))
     return out
 

@@ -413,6 +413,17 @@ def test_the_references_command_passes_its_time_limit(tmp_path, monkeypatch):
     with pytest.raises(SystemExit) as refused:
         references_cli.main(["--task", task_id, "--time-limit", "0"])
     assert refused.value.code == 2
+    (tmp_path / "a_file").write_text("x")
+    for bad in (
+        ["--time-limit", "inf"],  # HiGHS read it as no limit
+        ["--processes", "0"],
+        ["--out", str(tmp_path / "a_file")],
+        ["--bound-dir", str(tmp_path / "a_file" / "bound")],
+    ):
+        with pytest.raises(SystemExit) as refused:
+            references_cli.main(["--task", task_id, *bad])
+        assert refused.value.code == 2, bad
+    assert len(seen) == 2  # nothing was built for a refused command line
 
 
 def half_day_levels(first_half, params):
