@@ -144,7 +144,8 @@ def run(
     Raises:
         ValueError: ``seeds`` or ``chunks`` not an integer >= 1, ``seed`` not one in
             ``[0, 2**31 - 1]``, ``out`` not a usable directory
-            (`chargax_marl.core.checks.output_path`), all before anything is built;
+            (`chargax_marl.core.checks.output_path`), ``references_dir`` not a directory,
+            all before anything is built;
             ``resume`` without ``out``, without a readable checkpoint there, with one
             of another run (algorithm, config, seeds, chunks or references), or on several
             processes; or both ``resume`` and ``overwrite``.
@@ -156,6 +157,11 @@ def run(
     chunks = int(checks.number("chunks (CHUNKS)", chunks, low=1, integer=True))
     if out is not None:
         out = checks.output_path("out (OUT)", out, "dir")
+    if references_dir is not None and not Path(references_dir).is_dir():
+        raise ValueError(
+            f"field 'references_dir' (REFERENCES_DIR) must be a directory of stored references "
+            f"(make optimal's results/optimal), got {str(references_dir)!r}: no such directory"
+        )
     kwargs = dict(
         algo=algo,
         config=config,

@@ -192,6 +192,8 @@ def test_an_unusable_run_directory_is_refused_by_name_before_any_work(tmp_path, 
     for key in ("SEEDS=0", "CHUNKS=0", "SEED=-1", "NUM_ENVS=0", "HIDDEN=-4", "LR=-1"):
         with pytest.raises(ValueError, match=rf"{key} is not allowed"):
             cli.main([*TINY_CLI, key, f"OUT={tmp_path}/fresh"])
+    with pytest.raises(ValueError, match=r"field 'references_dir' \(REFERENCES_DIR\) must be a"):
+        cli.main([*TINY_CLI, f"REFERENCES_DIR={tmp_path}/nowhere", f"OUT={tmp_path}/fresh"])
     with pytest.raises(ValueError, match=r"field 'seeds \(SEEDS\)' must be an integer >= 1"):
         pipeline.run("ippo", {}, seeds=0, out=str(tmp_path / "api"))
     with pytest.raises(ValueError, match=r"prefix.*a prefix needs a file name"):
