@@ -15,6 +15,7 @@ wrong kind, raises `ConfigError` naming the key, the value and what is allowed.
 
 from __future__ import annotations
 
+import json
 import math
 import tomllib
 from dataclasses import dataclass
@@ -46,42 +47,60 @@ class Field:
             whole float is taken for an ``(int,)`` key; a float must be finite).
         choices: the values allowed, when not empty.
         doc: one line on what the key does.
+        low: the least number allowed (None: no least); an ``(int,)`` key without ``low``
+            or ``high`` still lies in int32.
+        high: the greatest number allowed (None: no greatest).
+        low_open: ``low`` itself is not allowed.
+        nonempty: a string key may not be empty (or only spaces).
     """
 
     default: Any
     kinds: tuple
     choices: tuple = ()
     doc: str = ""
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    nonempty: bool = False
 
 
 _NUM = (int, float)
+_INT32_MAX = 2**31 - 1
 _BATTERY_SHAPING = (False, True, "off", "day_mean", "storage_value", "dp")
 
 SCHEMA: dict[str, Field] = {
     # PPO (the paper's Table 3)
-    "LR": Field(2.5e-4, _NUM, doc="Adam learning rate"),
+    "LR": Field(2.5e-4, _NUM, doc="Adam learning rate", low=0.0, low_open=True),
     "ANNEAL_LR": Field(True, (bool,), doc="anneal the learning rate linearly to 0"),
-    "GAMMA": Field(0.99, _NUM, doc="discount per step"),
-    "GAE_LAMBDA": Field(0.95, _NUM, doc="GAE lambda"),
-    "MAX_GRAD_NORM": Field(100.0, _NUM, doc="global gradient-norm clip"),
-    "CLIP_EPS": Field(0.2, _NUM, doc="PPO ratio clip"),
-    "VF_CLIP": Field(10.0, _NUM, doc="value clip"),
-    "ENT_COEF": Field(0.01, _NUM, doc="entropy bonus"),
-    "VF_COEF": Field(0.25, _NUM, doc="value-loss weight"),
-    "NUM_ENVS": Field(12, (int,), doc="parallel envs per seed"),
-    "NUM_STEPS": Field(300, (int,), doc="rollout steps per update"),
-    "NUM_MINIBATCHES": Field(4, (int,), doc="minibatches per epoch"),
-    "UPDATE_EPOCHS": Field(4, (int,), doc="epochs per update"),
-    "TOTAL_TIMESTEPS": Field(10_000_000, _NUM, doc="env steps per seed"),
+    "GAMMA": Field(0.99, _NUM, doc="discount per step", low=0.0, high=1.0),
+    "GAE_LAMBDA": Field(0.95, _NUM, doc="GAE lambda", low=0.0, high=1.0),
+    "MAX_GRAD_NORM": Field(100.0, _NUM, doc="global gradient-norm clip", low=0.0, low_open=True),
+    "CLIP_EPS": Field(0.2, _NUM, doc="PPO ratio clip", low=0.0, low_open=True),
+    "VF_CLIP": Field(10.0, _NUM, doc="value clip", low=0.0, low_open=True),
+    "ENT_COEF": Field(0.01, _NUM, doc="entropy bonus", low=0.0),
+    "VF_COEF": Field(0.25, _NUM, doc="value-loss weight", low=0.0),
+    "NUM_ENVS": Field(12, (int,), doc="parallel envs per seed", low=1),
+    "NUM_STEPS": Field(300, (int,), doc="rollout steps per update", low=1),
+    "NUM_MINIBATCHES": Field(4, (int,), doc="minibatches per epoch", low=1),
+    "UPDATE_EPOCHS": Field(4, (int,), doc="epochs per update", low=1),
+    "TOTAL_TIMESTEPS": Field(10_000_000, _NUM, doc="env steps per seed", low=1),
     # networks and rewards (the paper does not state them)
-    "HIDDEN": Field(256, (int,), doc="hidden units per layer"),
-    "NUM_LAYERS": Field(2, (int,), doc="hidden layers"),
+    "HIDDEN": Field(256, (int,), doc="hidden units per layer", low=1),
+    "NUM_LAYERS": Field(2, (int,), doc="hidden layers (0: a linear policy)", low=0),
     "ACTIVATION": Field("tanh", (str,), ("tanh", "relu")),
     "REWARD_SCALE": Field(
-        1.0, _NUM, doc="rewards (EUR per step) are multiplied by this before GAE"
+        1.0,
+        _NUM,
+        doc="rewards (EUR per step) are multiplied by this before GAE",
+        low=0.0,
+        low_open=True,
     ),
-    "ALWAYS_MAX_PRIOR": Field(0.0, _NUM, doc="logit offset >= 0 on each port's full-power action"),
-    "BATTERY_IDLE_PRIOR": Field(0.0, _NUM, doc="logit offset >= 0 on each battery's idle action"),
+    "ALWAYS_MAX_PRIOR": Field(
+        0.0, _NUM, doc="logit offset >= 0 on each port's full-power action", low=0.0
+    ),
+    "BATTERY_IDLE_PRIOR": Field(
+        0.0, _NUM, doc="logit offset >= 0 on each battery's idle action", low=0.0
+    ),
     # learning aids: the teachers' shaping and observation features
     "BATTERY_SHAPING": Field(
         False,
@@ -121,7 +140,10 @@ SCHEMA: dict[str, Field] = {
         None, _NUM, doc="with RESIDUAL: the batteries' RESIDUAL_PRIOR (None: RESIDUAL_PRIOR)"
     ),
     "FAIRNESS_WEIGHT": Field(
-        0.0, _NUM, doc="EUR per unit of the day's fairness metric in the reward (FairnessReward)"
+        0.0,
+        _NUM,
+        doc="EUR per unit of the day's fairness metric in the reward (FairnessReward)",
+        low=0.0,
     ),
     "FAIRNESS_METRIC": Field(
         "jain_index",
@@ -131,7 +153,9 @@ SCHEMA: dict[str, Field] = {
     ),
     # multi-agent (IPPO / MAPPO)
     "AGENT_ID": Field("onehot", (str,), ("onehot", "scalar"), "agent-index encoding"),
-    "LOCAL_REWARD_WEIGHT": Field(0.0, _NUM, doc="weight in [0, 1] of each agent's own share"),
+    "LOCAL_REWARD_WEIGHT": Field(
+        0.0, _NUM, doc="weight in [0, 1] of each agent's own share", low=0.0, high=1.0
+    ),
     "PRIORITY_FILL": Field(
         False,
         (bool,),
@@ -142,18 +166,25 @@ SCHEMA: dict[str, Field] = {
         (int,),
         doc="with PRIORITY_FILL: 0 = the view's levels are the priorities; P > 0 = each agent "
         "chooses discharge, idle or one of P charging classes, filled at the env's num_levels",
+        low=0,
     ),
     "AGENT_ADV_NORM": Field(False, (bool,), doc="normalise the advantages per agent"),
     "OBS_DELAY_STEPS": Field(
-        0, (int,), doc="the context and node loads seen this many steps late (training)"
+        0, (int,), doc="the context and node loads seen this many steps late (training)", low=0
     ),
-    "ACTION_LOSS_PROB": Field(0.0, _NUM, doc="each agent's action lost with this probability"),
+    "ACTION_LOSS_PROB": Field(
+        0.0, _NUM, doc="each agent's action lost with this probability", low=0.0, high=1.0
+    ),
     "LOST_ACTION": Field(
         "previous", (str,), ("previous", "idle"), "what a port applies when its action is lost"
     ),
     "BATTERY_NET": Field(False, (bool,), doc="a separate actor (and critic) for the batteries"),
-    "BATTERY_GAMMA": Field(None, _NUM, doc="the battery agents' discount (None: GAMMA)"),
-    "BATTERY_ENT_COEF": Field(None, _NUM, doc="the battery agents' entropy bonus (None: ENT_COEF)"),
+    "BATTERY_GAMMA": Field(
+        None, _NUM, doc="the battery agents' discount (None: GAMMA)", low=0.0, high=1.0
+    ),
+    "BATTERY_ENT_COEF": Field(
+        None, _NUM, doc="the battery agents' entropy bonus (None: ENT_COEF)", low=0.0
+    ),
     # single-agent PPO
     "SPLIT_CREDIT": Field(False, (bool,), doc="port heads and battery heads learn from own shares"),
     # the scenario and the held-out protocol
@@ -166,26 +197,39 @@ SCHEMA: dict[str, Field] = {
     ),
     "TRAFFIC": Field(None, (str, int, float), doc="low / medium / high or cars per day"),
     "ENV_KWARGS": Field({}, (dict,), doc="extra keyword arguments of make_params"),
-    "NUM_EVAL_DAYS": Field(100, (int,), doc="held-out days"),
-    "EVAL_DRAWS": Field(1, (int,), doc="car draws per held-out day (keys 0 .. N-1)"),
-    "SPLIT_SEED": Field(0, (int,), doc="seed of the held-out split"),
+    "NUM_EVAL_DAYS": Field(100, (int,), doc="held-out days", low=1),
+    "EVAL_DRAWS": Field(1, (int,), doc="car draws per held-out day (keys 0 .. N-1)", low=1),
+    "SPLIT_SEED": Field(0, (int,), doc="seed of the held-out split", low=0),
     # the validation split: what a run evaluates on while it trains (drawn from training days)
     "NUM_VALIDATION_DAYS": Field(
-        20, (int,), doc="validation days, drawn from the training days (with TASK: the task's)"
+        20,
+        (int,),
+        doc="validation days, drawn from the training days (with TASK: the task's)",
+        low=1,
     ),
     "VALIDATION_DRAWS": Field(
-        1, (int,), doc="car draws per validation day (keys 0 .. N-1; with TASK: the task's)"
+        1,
+        (int,),
+        doc="car draws per validation day (keys 0 .. N-1; with TASK: the task's)",
+        low=1,
     ),
-    "VALIDATION_SEED": Field(1, (int,), doc="seed of the validation draw (with TASK: the task's)"),
+    "VALIDATION_SEED": Field(
+        1, (int,), doc="seed of the validation draw (with TASK: the task's)", low=1
+    ),
 }
 """Every key a trainer reads, with its default (Table 3, learning aids off)."""
 
 RUN_SCHEMA: dict[str, Field] = {
     "ALGO": Field("ippo", (str,), ("ppo", "ippo", "mappo")),
-    "SEEDS": Field(2, (int,), doc="seeds trained at once (vmapped)"),
-    "SEED": Field(0, (int,), doc="the first seed's key"),
-    "CHUNKS": Field(10, (int,), doc="training pieces (progress and validation evaluation)"),
-    "OUT": Field("outputs/run", (str,), doc="run directory (git-ignored outputs/ by default)"),
+    "SEEDS": Field(2, (int,), doc="seeds trained at once (vmapped)", low=1),
+    "SEED": Field(0, (int,), doc="the first seed's key", low=0),
+    "CHUNKS": Field(10, (int,), doc="training pieces (progress and validation evaluation)", low=1),
+    "OUT": Field(
+        "outputs/run",
+        (str,),
+        doc="run directory (git-ignored outputs/ by default)",
+        nonempty=True,
+    ),
     "OPTIMAL": Field("bound", (str,), ("off", "bound", "mpc"), "references beside the rules"),
     "REFERENCES_DIR": Field(
         "", (str,), doc="directory of stored references (make optimal) to reuse; empty: compute"
@@ -196,8 +240,63 @@ RUN_SCHEMA: dict[str, Field] = {
 _INTEGERS = tuple(k for k, f in {**SCHEMA, **RUN_SCHEMA}.items() if f.kinds == (int,))
 
 
-def _check(key: str, value: Any, field: Field) -> Any:
-    """``value`` for ``key`` coerced to its kind, or `ConfigError`."""
+def _allowed(field: Field, value: Any = None) -> str:
+    """What ``field`` allows, in words, for a message about ``value`` (an integer key's int32
+    bound is named only where ``value`` passes it)."""
+    if field.choices:
+        return f"one of {list(field.choices)}"
+    kinds = " or ".join(k.__name__ for k in field.kinds)
+    if field.kinds == (int,):
+        kinds = "an integer"
+    elif field.kinds == _NUM:
+        kinds = "a finite number"
+    low, high = _bounds(field)
+    if field.high is None and not (isinstance(value, (int, float)) and value > _INT32_MAX):
+        high = None
+    low, high = (None if b is None else _number_text(b) for b in (low, high))
+    if low is not None and high is not None:
+        kinds += f" in {'(' if field.low_open else '['}{low}, {high}]"
+    elif low is not None:
+        kinds += f" {'>' if field.low_open else '>='} {low}"
+    if field.nonempty:
+        kinds = f"a non-empty {kinds}"
+    if field.default is None:
+        kinds += " (or None)"
+    return kinds
+
+
+def _number_text(x: float) -> str:
+    """A bound as a message writes it: ``2147483647``, ``0``, ``0.5``."""
+    return str(int(x)) if float(x).is_integer() else f"{x:g}"
+
+
+def _bounds(field: Field) -> tuple[float | None, float | None]:
+    """``(low, high)`` of ``field``: an integer key lies in int32 when no bound says more."""
+    if field.kinds != (int,):
+        return field.low, field.high
+    low = -(2**31) if field.low is None else field.low
+    return low, _INT32_MAX if field.high is None else field.high
+
+
+def check_value(key: str, value: Any, field: Field, what: str = "config key") -> Any:
+    """``value`` for ``key`` coerced to its field's kind, or `ConfigError`: the one check of a
+    user's value for a config key (a file's, an override's, a sweep grid's each value).
+
+    Args:
+        key: the key, for the message.
+        value: the value as read (TOML's value, or the text when it is not one).
+        field: the key's `Field`.
+        what: what the message calls the key (``config key``; a command's option).
+
+    Returns:
+        The value: a whole float of an ``(int,)`` key as an int; otherwise as given.
+
+    Raises:
+        ConfigError: a value of another kind (a bool where ``bool`` is not listed), a float
+            that is not finite, a value not among ``choices``, a number outside the
+            field's bounds, or an empty string where ``nonempty``; the message names the key,
+            the value and what is allowed.
+    """
     if value is None and field.default is None:
         return None
     ok = isinstance(value, field.kinds) and not (
@@ -209,14 +308,43 @@ def _check(key: str, value: Any, field: Field) -> Any:
         ok = False
     if ok and field.choices and value not in field.choices:
         ok = False
+    if ok and isinstance(value, (int, float)) and not isinstance(value, bool):
+        low, high = _bounds(field)
+        if low is not None and (value <= low if field.low_open else value < low):
+            ok = False
+        if high is not None and value > high:
+            ok = False
+    if ok and field.nonempty and isinstance(value, str) and not value.strip():
+        ok = False
     if not ok:
-        allowed = (
-            f"one of {list(field.choices)}"
-            if field.choices
-            else " or ".join(k.__name__ for k in field.kinds)
+        raise ConfigError(
+            f"{what} {key}={value!r} is not allowed: expected {_allowed(field, value)}"
         )
-        raise ConfigError(f"config key {key}={value!r} is not allowed: expected {allowed}")
     return value
+
+
+ALIASES = {
+    "BATTERY_SHAPING": {True: "day_mean", False: "off"},
+    "PLAN_OBS": {True: "plan", False: "off"},
+}
+"""Keys whose bool values are names for one of their string values."""
+
+
+def canonical(key: str, value: Any) -> str:
+    """A checked value of ``key`` as the text two equal settings share (``64`` and ``64.0``,
+    ``True`` and ``"day_mean"`` of ``BATTERY_SHAPING``), to compare settings.
+
+    Args:
+        key: the config key.
+        value: its value, checked (`check_value`).
+
+    Returns:
+        The value's JSON text, after `ALIASES`.
+    """
+    aliases = ALIASES.get(key, {})
+    if isinstance(value, bool) and value in aliases:
+        value = aliases[value]
+    return json.dumps(value, sort_keys=True)
 
 
 def resolve(config: dict | None = None, schema: dict[str, Field] = SCHEMA) -> dict:
@@ -230,7 +358,8 @@ def resolve(config: dict | None = None, schema: dict[str, Field] = SCHEMA) -> di
         A new dict with every key of ``schema``; ``TOTAL_TIMESTEPS`` as an int.
 
     Raises:
-        ConfigError: a key not in ``schema``, or a value it does not allow.
+        ConfigError: a key not in ``schema``, a value it does not allow (`check_value`), or
+            ``TOTAL_TIMESTEPS`` below one rollout (``NUM_ENVS * NUM_STEPS``).
     """
     config = dict(config or {})
     unknown = sorted(set(config) - set(schema))
@@ -239,9 +368,15 @@ def resolve(config: dict | None = None, schema: dict[str, Field] = SCHEMA) -> di
     out = {}
     for key, field in schema.items():
         value = config.get(key, field.default)
-        out[key] = _check(key, dict(value) if isinstance(value, dict) else value, field)
+        out[key] = check_value(key, dict(value) if isinstance(value, dict) else value, field)
     if "TOTAL_TIMESTEPS" in out:
         out["TOTAL_TIMESTEPS"] = int(float(out["TOTAL_TIMESTEPS"]))
+        rollout = out["NUM_ENVS"] * out["NUM_STEPS"]
+        if out["TOTAL_TIMESTEPS"] < rollout:
+            raise ConfigError(
+                f"config key TOTAL_TIMESTEPS={config.get('TOTAL_TIMESTEPS')!r} is not allowed: "
+                f"expected at least one rollout, NUM_ENVS * NUM_STEPS = {rollout} env steps"
+            )
     if "EVAL_DRAWS" in out and out["EVAL_DRAWS"] < 1:
         raise ConfigError(f"config key EVAL_DRAWS={out['EVAL_DRAWS']!r}: expected an integer >= 1")
     if out.get("TASK"):  # the validation keys not given are the task's
@@ -337,16 +472,18 @@ def parse_override(text: str) -> tuple[str, Any]:
         the text after ``=``, stripped, when it is not a TOML value.
 
     Raises:
-        ConfigError: no ``=`` in ``text``, or nothing before it.
+        ConfigError: no ``=`` in ``text``, nothing before it, or a line break in the value.
     """
     key, sep, raw = text.partition("=")
     if not sep or not key.strip():
         raise ConfigError(f"override {text!r}: expected KEY=value, e.g. TOTAL_TIMESTEPS=2e6")
+    if "\n" in raw or "\r" in raw:
+        raise ConfigError(f"override {text!r}: a value is one line (no line breaks)")
     try:
-        value = tomllib.loads(f"v = {raw}")["v"]
+        parsed = tomllib.loads(f"v = {raw}")
     except tomllib.TOMLDecodeError:
-        value = raw.strip()
-    return key.strip().upper(), value
+        parsed = {"v": raw.strip()}
+    return key.strip().upper(), parsed["v"]
 
 
 def settings(name: str | Path) -> dict:

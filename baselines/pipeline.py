@@ -26,6 +26,7 @@ from baselines.config import (
     validation_source,
 )
 from baselines.eval import heldout, references, stats
+from chargax_marl.core import checks
 from chargax_marl.evaluation import format_table, summarize_profit
 from chargax_marl.machine import code_version
 
@@ -142,12 +143,26 @@ def run(
         every seed and the trainer.
 
     Raises:
-        ValueError: ``resume`` without ``out``, without a readable checkpoint there, with one
+        ValueError: ``seeds`` or ``chunks`` not an integer >= 1, ``seed`` not one in
+            ``[0, 2**31 - 1]``, ``out`` not a usable directory
+            (`chargax_marl.core.checks.output_path`), ``references_dir`` not a directory,
+            all before anything is built;
+            ``resume`` without ``out``, without a readable checkpoint there, with one
             of another run (algorithm, config, seeds, chunks or references), or on several
             processes; or both ``resume`` and ``overwrite``.
         baselines.runs.RunDirError: ``out`` holds another run (without ``resume`` or
             ``overwrite``), or another live process is writing it.
     """
+    seeds = int(checks.number("seeds (SEEDS)", seeds, low=1, integer=True))
+    seed = int(checks.number("seed (SEED)", seed, low=0, high=2**31 - 1, integer=True))
+    chunks = int(checks.number("chunks (CHUNKS)", chunks, low=1, integer=True))
+    if out is not None:
+        out = checks.output_path("out (OUT)", out, "dir")
+    if references_dir is not None and not Path(references_dir).is_dir():
+        raise ValueError(
+            f"field 'references_dir' (REFERENCES_DIR) must be a directory of stored references "
+            f"(make optimal's results/optimal), got {str(references_dir)!r}: no such directory"
+        )
     kwargs = dict(
         algo=algo,
         config=config,

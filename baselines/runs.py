@@ -22,6 +22,7 @@ import numpy as np
 
 from baselines.algos import registry
 from baselines.config import stored_config
+from chargax_marl.core import checks
 from chargax_marl.core.scenarios import SCENARIOS
 
 CHECKPOINT = "checkpoint.msgpack"
@@ -537,10 +538,17 @@ def _lock(path: Path, what: str) -> Iterator[None]:
         what: What the lock guards, for the messages (e.g. ``run directory outputs/x``).
 
     Raises:
-        RunDirError: A live process holds the lock; the message names its PID and host.
+        RunDirError: A live process holds the lock (the message names its PID and host), or
+            ``path`` cannot be opened as a file (a directory is there, say).
     """
     while True:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as e:  # a directory or another non-file in the lock's place, no access
+            raise RunDirError(
+                f"{what}: its lock file {path} cannot be opened ({e.strerror}): a run's lock "
+                f"is a plain file; remove what is at {path}, or write to another output"
+            ) from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -662,16 +670,18 @@ def claim_run_dir(
         ``out`` as a `Path`.
 
     Raises:
-        ValueError: Both ``overwrite`` and ``resume``.
-        RunDirError: Another live process holds the lock of ``out``, or ``out`` holds a run
-            and neither ``overwrite`` nor ``resume`` is given.
+        ValueError: Both ``overwrite`` and ``resume``, or ``out`` is not a usable directory
+            (empty, a file, under a file, no write access:
+            `chargax_marl.core.checks.output_path`).
+        RunDirError: Another live process holds the lock of ``out`` (or its lock is not a
+            file), or ``out`` holds a run and neither ``overwrite`` nor ``resume`` is given.
     """
     if overwrite and resume:
         raise ValueError(
             f"{out}: overwrite=True (--overwrite) deletes the run that resume=True (--resume) "
             "continues; give one of them"
         )
-    out = Path(out)
+    out = checks.output_path("out (OUT)", out, "dir")
     out.mkdir(parents=True, exist_ok=True)
 
     def refusal(present: list[Path]) -> str:
@@ -715,10 +725,12 @@ def claim_outputs(
         ``prefix`` as a string.
 
     Raises:
+        ValueError: ``prefix`` is not a usable prefix (empty, a folder alone, under a file, no
+            write access: `chargax_marl.core.checks.output_path`).
         RunDirError: Another live process holds ``prefix.lock``, or a file ``prefix + suffix``
             exists and ``overwrite`` is not given.
     """
-    prefix = str(prefix)
+    prefix = checks.output_path("prefix", prefix, "prefix")
     Path(prefix).parent.mkdir(parents=True, exist_ok=True)
 
     def refusal(present: list[Path]) -> str:

@@ -32,6 +32,7 @@ from chargax_marl.benchmark.picture import day_picture
 from chargax_marl.benchmark.references import SECONDARY, load_references, package_version
 from chargax_marl.benchmark.scoring import compare
 from chargax_marl.benchmark.tasks import get_task
+from chargax_marl.core import checks
 from chargax_marl.evaluation import METRICS, check_policy_outputs, play_days, stateless
 from chargax_marl.marl import ChargaxMARL
 from chargax_marl.single import Chargax
@@ -311,9 +312,14 @@ def main(argv=None) -> dict | list:
         "--task-file, the task file's folder)",
     )
     parser.add_argument("--name", default=None, help="the row label (default: the algorithm)")
-    parser.add_argument("--out", default=None, help="write the score file here")
     parser.add_argument(
-        "--picture", default=None, help="draw seed 0's first held-out day beside always-max here"
+        "--out", default=None, type=checks.output_option("file"), help="write the score file here"
+    )
+    parser.add_argument(
+        "--picture",
+        default=None,
+        type=checks.output_option("file"),
+        help="draw seed 0's first held-out day beside always-max here",
     )
     parser.add_argument(
         "--rescore",

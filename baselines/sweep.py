@@ -52,22 +52,34 @@ from baselines.algos import ppo_core, registry, runner
 from baselines.config import (
     DEFAULT_CONFIG,
     RUN_SCHEMA,
+    SCHEMA,
     ConfigError,
+    Field,
     build_env_params,
+    canonical,
+    check_value,
     load,
     parse_override,
     validation_env,
 )
 from baselines.eval import heldout, stats
+from chargax_marl.core import checks
 from chargax_marl.evaluation import headroom_captured
 from chargax_marl.machine import code_version
 
 SUFFIXES = (".json", ".md", ".params.msgpack")
 """The files a sweep writes after its ``OUT`` prefix."""
 
+_PER_BATCH = Field(1, (int,), low=1, doc="settings vmapped together")
+"""The field of ``--settings-per-batch``, checked as a config key is."""
+
 
 def parse_grid(overrides) -> tuple[list[str], dict[str, list]]:
     """Split ``KEY=value`` arguments into fixed overrides and swept keys.
+
+    Every swept value is read as `baselines.config.parse_override` reads a value and checked
+    by the key's field (`baselines.config.check_value`) here, before anything trains; values
+    are compared as the schema parsed them (``64`` and ``64.0`` are one value).
 
     Args:
         overrides: ``"KEY=value"`` or ``"KEY=v1,v2,..."`` strings. A value that starts with
@@ -75,12 +87,14 @@ def parse_grid(overrides) -> tuple[list[str], dict[str, list]]:
 
     Returns:
         ``(fixed, grid)``: the ``"KEY=value"`` strings of single values, and the swept keys
-        with their values (read as TOML values, as `baselines.config.parse_override` reads
-        them), in the order given. A key given again replaces its earlier value(s).
+        with their checked values, in the order given. A key given again replaces its
+        earlier value(s).
 
     Raises:
         ConfigError: an argument without ``=``, a swept run key (``SEEDS``, ``OUT``, ...:
-            one sweep has one of each), or a swept key with a repeated value.
+            one sweep has one of each), a swept key the schema does not know, an empty value
+            in a grid (``KEY=a,`` or ``KEY=a,,b``), a value the key does not allow, or a
+            value given twice (after parsing).
     """
     fixed, grid, seen = [], {}, set()
     for text in overrides:
@@ -102,9 +116,24 @@ def parse_grid(overrides) -> tuple[list[str], dict[str, list]]:
                 f"config key {key}={raw!r}: a run key takes one value per sweep; sweep the "
                 f"trainer keys only (not {sorted(RUN_SCHEMA)})"
             )
-        values = [parse_override(f"{key}={p.strip()}")[1] for p in parts]
-        if len({json.dumps(v, sort_keys=True) for v in values}) != len(values):
-            raise ConfigError(f"config key {key}={raw!r}: a value is repeated")
+        if key not in SCHEMA:
+            raise ConfigError(f"unknown config key {key!r} in {text!r}; allowed: {sorted(SCHEMA)}")
+        values, texts = [], []
+        for i, part in enumerate(parts):
+            if not part.strip():
+                raise ConfigError(
+                    f"config key {key}={raw!r}: value {i + 1} of {len(parts)} is empty (a "
+                    f"trailing or doubled comma?); a grid lists its values, e.g. {key}=a,b"
+                )
+            value = check_value(key, parse_override(f"{key}={part.strip()}")[1], SCHEMA[key])
+            text_value = canonical(key, value)
+            if text_value in texts:
+                raise ConfigError(
+                    f"config key {key}={raw!r}: the value {part.strip()!r} is the same setting "
+                    f"as {parts[texts.index(text_value)].strip()!r}; give each value once"
+                )
+            values.append(value)
+            texts.append(text_value)
         grid[key] = values
     return fixed, grid
 
@@ -192,10 +221,19 @@ def sweep(
         parameters (leading axis seed), in the order of ``results``.
 
     Raises:
-        ConfigError: an unknown config, key or value (of any setting), or a swept run key.
+        ConfigError: an unknown config, key or value (of any setting; `parse_grid`), a swept
+            run key, ``settings_per_batch`` below 1 or not dividing every compile group's
+            settings, or ``OUT`` an unusable prefix (`chargax_marl.core.checks.output_path`),
+            all before anything trains.
+        ValueError: ``stop_at_headroom`` not a finite number.
         baselines.runs.RunDirError: ``OUT``'s files exist (without ``overwrite``) or another
             live process writes them.
     """
+    settings_per_batch = check_value(
+        "settings_per_batch", settings_per_batch, _PER_BATCH, "--settings-per-batch:"
+    )
+    if stop_at_headroom is not None:
+        stop_at_headroom = checks.number("stop_at_headroom", stop_at_headroom)
     fixed, grid = parse_grid(overrides)
     grid_settings = settings_of(grid)
     configs, run = [], None
@@ -205,13 +243,37 @@ def sweep(
         configs.append(config)
     algo = run["ALGO"]
     out = run["OUT"] if any(o.startswith("OUT=") for o in fixed) else f"outputs/sweep_{algo}"
+    if write:
+        try:
+            out = checks.output_path("OUT", out, "prefix")
+        except ValueError as e:
+            raise ConfigError(str(e)) from None
+    groups = compile_groups(configs, run["CHUNKS"])
+    for g, members in enumerate(groups.values()):
+        if len(members) % settings_per_batch:
+            raise ConfigError(
+                f"settings_per_batch={settings_per_batch} (--settings-per-batch) does not "
+                f"divide compile group {g}'s {len(members)} settings: expected a divisor of "
+                f"every group's size {[len(m) for m in groups.values()]}"
+            )
+    # every group's envs and trainer built before anything trains: a setting the env or the
+    # trainer refuses is refused at once, not after the groups before it have trained
+    prepared = []
+    for members in groups.values():
+        built = build_env_params(configs[members[0]])
+        prepared.append(
+            (
+                validation_env(configs[members[0]], built),
+                registry.make_train(algo, configs[members[0]], built[0]),
+            )
+        )
     train_and_score = functools.partial(
         _sweep, name, fixed, grid, grid_settings, configs, run, settings_per_batch, quiet
     )
     if not write:
-        return train_and_score(stop_at_headroom)
+        return train_and_score(groups, prepared, stop_at_headroom)
     with runs.claim_outputs(out, SUFFIXES, overwrite=overwrite):
-        results = train_and_score(stop_at_headroom)
+        results = train_and_score(groups, prepared, stop_at_headroom)
         params = results.pop("params")
         runs.write_json(results, out + ".json")
         Path(out + ".md").write_text(ranked_table(results) + "\n")
@@ -223,26 +285,31 @@ def sweep(
 
 
 def _sweep(
-    name, fixed, grid, grid_settings, configs, run, settings_per_batch, quiet, stop_at_headroom
+    name,
+    fixed,
+    grid,
+    grid_settings,
+    configs,
+    run,
+    settings_per_batch,
+    quiet,
+    groups,
+    prepared,
+    stop_at_headroom,
 ) -> dict:
-    """`sweep` once its outputs are claimed."""
+    """`sweep` once its outputs are claimed (``groups``: `compile_groups`; ``prepared``: each
+    group's validation env and trainer)."""
     t_start = time.time()
     algo, seeds, seed, chunks = run["ALGO"], run["SEEDS"], run["SEED"], run["CHUNKS"]
     optimal = "off" if run["OPTIMAL"] == "off" else "bound"
-    groups = compile_groups(configs, chunks)
     keys = jax.random.split(jax.random.PRNGKey(seed), seeds)
     entries: list[dict | None] = [None] * len(configs)
     params: list = [None] * len(configs)
     group_records, references_cache = [], {}
     for g, members in enumerate(groups.values()):
-        if len(members) % settings_per_batch:
-            raise ValueError(
-                f"settings_per_batch={settings_per_batch} does not divide compile group {g}'s "
-                f"{len(members)} settings"
-            )
         config = configs[members[0]]
         t_group = time.time()
-        val_params, val_days, val_draws = validation_env(config)
+        (val_params, val_days, val_draws), train = prepared[g]
         refs_key = json.dumps(
             [config[k] for k in ("SCENARIO", "TASK", "TRAFFIC", "ENV_KWARGS")]
             + [np.asarray(val_days).tolist(), val_draws],
@@ -260,7 +327,6 @@ def _sweep(
         refs = references_cache[refs_key]
         am_daily = np.asarray(refs["always_max"]["daily_profit"], np.float64)
         bound_daily = refs.get("lp_bound", {}).get("daily_profit")
-        train = registry.make_train(algo, config, build_env_params(config)[0])
         make_act = train.make_act(val_params)
         hyper = {
             k: np.asarray([configs[i][k] for i in members], np.float32) for k in ppo_core.HYPER_KEYS
@@ -419,6 +485,14 @@ def ranked_table(results: dict) -> str:
     return "\n".join(lines)
 
 
+def _positive_int(text: str) -> int:
+    """``--settings-per-batch``'s value: an integer >= 1, or argparse's error naming it."""
+    try:
+        return check_value("settings_per_batch", int(text), _PER_BATCH, "--settings-per-batch:")
+    except (ValueError, ConfigError):
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
+
+
 def parser() -> argparse.ArgumentParser:
     """The command line: ``--config``, ``KEY=value`` / ``KEY=v1,v2`` arguments,
     ``--settings-per-batch`` and ``--overwrite``.
@@ -433,7 +507,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("overrides", nargs="*", metavar="KEY=v1,v2", help="keys to set or sweep")
     p.add_argument(
         "--settings-per-batch",
-        type=int,
+        type=_positive_int,
         default=1,
         help="settings vmapped together (default 1: bit for bit the runs alone)",
     )
@@ -462,5 +536,5 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     try:
         main()
-    except (ConfigError, runs.RunDirError) as e:
+    except (ValueError, runs.RunDirError) as e:  # ConfigError and the env's refusals
         sys.exit(f"baselines.sweep: {e}")

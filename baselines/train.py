@@ -168,5 +168,5 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     try:
         main()
-    except RunDirError as e:  # the message says what to do; the traceback would bury it
+    except (ValueError, RunDirError) as e:  # the message says what to do; a traceback buries it
         sys.exit(f"baselines.train: {e}")

@@ -167,6 +167,9 @@ def main(argv=None) -> list[dict]:
 
     Returns:
         The rows of `table` that were printed.
+
+    Raises:
+        SystemExit: ``--days`` below 1 (argparse's error, before anything runs).
     """
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -181,6 +184,8 @@ def main(argv=None) -> list[dict]:
         help="default: shopping and every coordination scenario",
     )
     args = parser.parse_args(argv)
+    if args.days < 1:
+        parser.error(f"--days must be an integer >= 1, got {args.days}")
     rows = table(
         tuple(args.scenarios) if args.scenarios else ("shopping",) + COORDINATION_SCENARIOS,
         args.days,

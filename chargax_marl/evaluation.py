@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from chargax_marl.core import clock, simulator
+from chargax_marl.core import checks, clock, physics, simulator
 from chargax_marl.core.types import EnvParams, EnvState, EpisodeTotals
 from chargax_marl.optimal import bound_days, pooled_bound_days
 from chargax_marl.policies import get_policy, is_named_rule
@@ -170,11 +170,18 @@ def split_days(num_days: int, num_eval: int = 100, seed: int = 0) -> tuple[np.nd
         ``num_eval`` day indices.
 
     Raises:
-        ValueError: ``num_eval`` outside ``[1, num_days - 1]``.
+        ValueError: ``num_days`` not an integer >= 2, ``num_eval`` not an integer in
+            ``[1, num_days - 1]``, or ``seed`` not an integer >= 0.
     """
+    num_days = int(checks.number("num_days", num_days, low=2, integer=True))
+    checks.number("seed", seed, low=0, integer=True)
+    if isinstance(num_eval, bool) or not isinstance(num_eval, (int, np.integer)):
+        raise ValueError(
+            f"field 'num_eval' must be an integer in [1, {num_days - 1}], got {num_eval!r}"
+        )
     if not 0 < num_eval < num_days:
         raise ValueError(f"field 'num_eval' must lie in [1, {num_days - 1}], got {num_eval!r}")
-    perm = np.random.default_rng(seed).permutation(num_days)
+    perm = np.random.default_rng(int(seed)).permutation(num_days)
     return np.sort(perm[num_eval:]).astype(np.int32), np.sort(perm[:num_eval]).astype(np.int32)
 
 
@@ -194,15 +201,16 @@ def validation_days(train_days, num: int = 20, seed: int = 1) -> np.ndarray:
         ``(num,)`` sorted int32 day indices, a subset of ``train_days``.
 
     Raises:
-        ValueError: ``num`` outside ``[1, len(train_days)]``.
+        ValueError: ``num`` outside ``[1, len(train_days)]``, or ``seed`` not an integer >= 0.
     """
+    checks.number("seed", seed, low=0, integer=True)
     train_days = np.unique(np.asarray(train_days, np.int64).reshape(-1))
     if isinstance(num, bool) or int(num) != num or not 1 <= num <= train_days.size:
         raise ValueError(
             f"field 'num_validation_days' must lie in [1, {train_days.size}] (the training "
             f"days), got {num!r}"
         )
-    chosen = np.random.default_rng(seed).choice(train_days, size=int(num), replace=False)
+    chosen = np.random.default_rng(int(seed)).choice(train_days, size=int(num), replace=False)
     return np.sort(chosen).astype(np.int32)
 
 
@@ -216,34 +224,68 @@ class PolicyOutputCounts:
         fractional_steps: ``(n,)`` int32, the steps whose finite levels were not integers in a
             discrete action mode (the env truncates a level toward zero: 3.7 plays as 3, -1.5
             as -1); always 0 in the continuous mode, whose fractions are floats.
+        outside_steps: ``(n,)`` int32, the steps with an entry outside its leaf's range
+            (`level_range`: a level above ``L`` or below the leaf's lowest, a fraction above
+            1 or below the leaf's lowest), which the env clips into the range.
     """
 
     nonfinite_steps: jnp.ndarray
     fractional_steps: jnp.ndarray
+    outside_steps: jnp.ndarray
+
+
+def level_range(params: EnvParams) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """The range of each leaf's entry of the core's action, as the env plays it unclipped.
+
+    Args:
+        params: the environment parameters (action mode, levels, V2G, station).
+
+    Returns:
+        ``(low, high)``, each ``(num_leaves,)`` float32: levels ``[min_level, L]`` in the
+        ``absolute`` mode (``min_level`` is ``-L`` where the leaf may discharge, else 0,
+        `chargax_marl.core.physics.leaf_min_level`), changes ``[-L, L]`` in the ``delta``
+        mode, fractions ``[-1, 1]`` (``[0, 1]`` where the leaf may not discharge) in the
+        ``continuous`` mode.
+    """
+    st = params.station
+    n = st.num_leaves
+    if params.action_mode == "delta":
+        low = jnp.full(n, -params.num_levels, jnp.float32)
+        return low, -low
+    top = 1 if params.action_mode == "continuous" else params.num_levels
+    low = physics.leaf_min_level(st, top, params.v2g).astype(jnp.float32)
+    return low, jnp.full(n, top, jnp.float32)
 
 
 def _output_flags(levels: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
-    """``(2,)`` int32 flags of one step's policy output: a non-finite entry; a finite
-    non-integer entry in a discrete action mode. Integer levels cost nothing (static zeros)."""
+    """``(3,)`` int32 flags of one step's policy output: a non-finite entry; a finite
+    non-integer entry in a discrete action mode; a finite entry outside its leaf's range
+    (`level_range`)."""
     x = jnp.asarray(levels)
-    if not jnp.issubdtype(x.dtype, jnp.floating):
-        return jnp.zeros(2, jnp.int32)
+    low, high = level_range(params)
+    if not jnp.issubdtype(x.dtype, jnp.floating):  # float32 holds every level exactly
+        xf = jnp.reshape(x, low.shape).astype(jnp.float32)
+        outside = jnp.any((xf < low) | (xf > high))
+        return jnp.stack([jnp.asarray(False), jnp.asarray(False), outside]).astype(jnp.int32)
     finite = jnp.isfinite(x)
     nonfinite = ~jnp.all(finite)
+    x = jnp.reshape(jnp.where(finite, x, 0.0), low.shape)  # non-finite: counted above
+    outside = jnp.any((x < low.astype(x.dtype)) | (x > high.astype(x.dtype)))
     if params.action_mode == "continuous":
         fractional = jnp.asarray(False)
     else:
-        x = jnp.where(finite, x, 0.0)  # a non-finite entry is counted above, not here
         fractional = jnp.any(x != jnp.trunc(x))
-    return jnp.stack([nonfinite, fractional]).astype(jnp.int32)
+    return jnp.stack([nonfinite, fractional, outside]).astype(jnp.int32)
 
 
 def check_policy_outputs(counts: PolicyOutputCounts, days, what: str = "the policy") -> None:
-    """Refuse the results of a play in which the policy returned non-finite or non-integer levels.
+    """Refuse the results of a play in which the policy returned levels the env reinterprets:
+    non-finite, non-integer or outside the action space.
 
-    A NaN level is played as idle and a level of 3.7 as 3, so the day's profit is that of
-    another policy than the one returned: no result of it is given. Nothing is checked when
-    ``counts`` are traced (a play inside a caller's ``jit``: check its counts after it).
+    A NaN level is played as idle, a level of 3.7 as 3 and a level above the top as the top
+    level, so the day's profit is that of another policy than the one returned: no result
+    of it is given. Nothing is checked when ``counts`` are traced (a play inside a caller's
+    ``jit``: check its counts after it).
 
     Args:
         counts: the play's `PolicyOutputCounts`, one entry per played day (and draw).
@@ -251,8 +293,9 @@ def check_policy_outputs(counts: PolicyOutputCounts, days, what: str = "the poli
         what: the policy's name, for the message.
 
     Raises:
-        ValueError: a step with a non-finite level, or with a non-integer level in a discrete
-            action mode; the message gives the number of steps and the days.
+        ValueError: a step with a non-finite level, with a non-integer level in a discrete
+            action mode, or with an entry outside the action space; the message gives the
+            number of steps and the days.
     """
     if isinstance(counts.nonfinite_steps, jax.core.Tracer):
         return
@@ -268,6 +311,13 @@ def check_policy_outputs(counts: PolicyOutputCounts, days, what: str = "the poli
             "fractional_steps",
             "non-integer levels (truncated toward zero: 3.7 plays as 3)",
             "return integer levels (round them, or cast to int32, in the policy)",
+        ),
+        (
+            "outside_steps",
+            "actions outside the action space (a level above the top level or below the "
+            "leaf's bottom one, an index outside Discrete(n) or MultiDiscrete, a fraction "
+            "outside the Box; clipped into it)",
+            "return actions of the action space",
         ),
     ):
         steps = np.asarray(getattr(counts, name)).reshape(-1)
@@ -485,9 +535,9 @@ def _play_days(act: Act | MemoryAct, params: EnvParams, days, keys: jax.Array):
         # the batteries' initial SoC (when drawn from a range) from a key of its own, so the
         # cars drawn from ``key`` stay the same whatever the battery setting
         start = simulator.empty_state(day, params, battery_key)
-        carry = (start, policy.init(start), jnp.zeros(2, jnp.int32))
+        carry = (start, policy.init(start), jnp.zeros(3, jnp.int32))
         (state, _, flags), _ = jax.lax.scan(body, carry, (act_keys, step_keys))
-        return state.totals, PolicyOutputCounts(flags[0], flags[1])
+        return state.totals, PolicyOutputCounts(flags[0], flags[1], flags[2])
 
     return jax.vmap(one_day)(days, keys)
 
@@ -634,8 +684,10 @@ def hindsight_bound(
         (``{"day", "status"}`` each) and the reference's name.
 
     Raises:
+        ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
         KeyError: an unknown reference name.
     """
+    time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
 
     bounds = bound_days(
         params,
@@ -696,7 +748,11 @@ def policy_bound(
         ``{"daily_profit", "status", "failed_days", "kind"}``: the bound per day (EUR, NaN
         where the solve failed), the solver status per day, the failed days (``{"day",
         "status"}`` each) and the bound's kind, ``"occupancy"`` or ``"pooled"``.
+
+    Raises:
+        ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
     """
+    time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
     if bound_kind(params) == "occupancy":
         out = hindsight_bound(params, days, key, time_limit_s=time_limit_s)
         return {k: out[k] for k in ("daily_profit", "status", "failed_days")} | {

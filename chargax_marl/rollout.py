@@ -53,6 +53,10 @@ def main(argv=None) -> None:
     Args:
         argv: the command-line arguments (``--policy``, ``--scenario``, ``--days``,
             ``--seed``); None: ``sys.argv``.
+
+    Raises:
+        SystemExit: ``--days`` below 1 or ``--seed`` outside ``[0, 2**31 - 1]`` (argparse's
+            error, before anything runs).
     """
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -64,6 +68,10 @@ def main(argv=None) -> None:
     parser.add_argument("--days", type=int, default=1, help="number of random days to average over")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
+    if args.days < 1:
+        parser.error(f"--days must be an integer >= 1, got {args.days}")
+    if not 0 <= args.seed <= 2**31 - 1:
+        parser.error(f"--seed must be an integer in [0, 2**31 - 1], got {args.seed}")
 
     _, params = make(args.scenario)
     keys = jax.random.split(jax.random.PRNGKey(args.seed), args.days)

@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 from hypothesis import strategies as st
 
+from baselines.config import SCHEMA
 from chargax_marl.core import Battery, Port, Splitter, simulator
 from chargax_marl.core.params import make_params
 
@@ -305,3 +306,36 @@ def hand_params(station, hourly_prices=(0.1,) * 24, **kw):
         customer_price_eur_kwh=0.75,
         **kw,
     )
+
+
+CONFIG_TEXT = st.one_of(  # texts a user may type after KEY=
+    st.text(max_size=12),
+    st.integers(-(2**40), 2**40).map(str),
+    st.floats(allow_nan=True, allow_infinity=True).map(repr),
+    st.sampled_from(
+        ["", " ", "true", "True", "nan", "inf", "-0", "1e400", "[1]", "{a=1}", "'x'", '"y"']
+    ),
+)
+
+
+def allowed_by_schema(key: str, value) -> bool:
+    """Whether a resolved value of ``key`` is one its field of `baselines.config.SCHEMA`
+    allows (a property the config and grid parsers' tests check)."""
+    field = SCHEMA[key]
+    if value is None:
+        return field.default is None
+    if isinstance(value, bool) and bool not in field.kinds:
+        return False
+    if not isinstance(value, field.kinds):
+        return False
+    if field.choices and value not in field.choices:
+        return False
+    if isinstance(value, float) and not np.isfinite(value):
+        return False
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        low, high = field.low, field.high
+        if low is not None and (value <= low if field.low_open else value < low):
+            return False
+        if high is not None and value > high:
+            return False
+    return True

@@ -22,6 +22,7 @@ from chargax_marl.evaluation import (
     run_policy_days,
     split_days,
     summarize,
+    validation_days,
     write_json,
 )
 from chargax_marl.policies import (
@@ -306,6 +307,13 @@ def test_split_days_and_json(tmp_path, params):
     np.testing.assert_array_equal(split_days(365, 100, seed=0)[1], held)
     with pytest.raises(ValueError, match="num_eval"):
         split_days(10, 10)
+    # a negative seed ended in numpy's "expected non-negative integer"
+    with pytest.raises(ValueError, match=r"field 'seed' must be an integer >= 0, got -1"):
+        split_days(10, 2, seed=-1)
+    with pytest.raises(ValueError, match=r"field 'seed' must be an integer >= 0, got -1"):
+        validation_days(train, 2, seed=-1)
+    with pytest.raises(ValueError, match=r"field 'num_eval' must be an integer"):
+        split_days(10, 2.5)
     p = make_params(station=three_level_station(), reset_days=train)
     days = [int(simulator.reset(k, p).day) for k in jax.random.split(jax.random.PRNGKey(0), 50)]
     assert set(days) <= set(train.tolist())

@@ -23,6 +23,7 @@ import numpy as np
 from chargax_marl.benchmark.references import RULES, load_references
 from chargax_marl.benchmark.scoring import compare
 from chargax_marl.benchmark.tasks import get_task
+from chargax_marl.core import checks
 
 
 def _mean_se(x: np.ndarray) -> dict:
@@ -169,7 +170,9 @@ def main(argv=None) -> dict:
     parser.add_argument("--base", required=True, type=_pair, help="NAME=SCORE_FILE")
     parser.add_argument("--method", action="append", default=[], type=_pair, help="NAME=FILE")
     parser.add_argument("--rules", default="", help="comma-separated rules to show besides")
-    parser.add_argument("--out", help="write OUT.json and OUT.md")
+    parser.add_argument(
+        "--out", type=checks.output_option("prefix"), help="write OUT.json and OUT.md"
+    )
     args = parser.parse_args(argv)
     result = ablation(args.task, args.base, args.method)
     rules = tuple(r for r in args.rules.split(",") if r)
@@ -179,10 +182,9 @@ def main(argv=None) -> dict:
     text = to_markdown(result, rules)
     print(text)
     if args.out:
-        out = Path(args.out)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.with_suffix(".json").write_text(json.dumps(result, indent=1) + "\n")
-        out.with_suffix(".md").write_text(text)
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out + ".json").write_text(json.dumps(result, indent=1) + "\n")
+        Path(args.out + ".md").write_text(text)
     return result
 
 

@@ -31,6 +31,7 @@ from baselines.eval import stats
 from baselines.eval.rules import evaluate_rules
 from baselines.eval.stats import over_seeds
 from chargax_marl import policies
+from chargax_marl.core import checks
 from chargax_marl.evaluation import run_policies_days, stateless
 
 MIXES = ("learned", "learned_ports_rule_battery", "always_max_ports_learned_battery")
@@ -165,7 +166,9 @@ def main(argv=None) -> dict:
         "run_dir",
         help="an output directory of python -m baselines.train (results.json, params.msgpack)",
     )
-    p.add_argument("--out", default=None, help="write the JSON here")
+    p.add_argument(
+        "--out", default=None, type=checks.output_option("file"), help="write the JSON here"
+    )
     a = p.parse_args(argv)
     out = attribute(a.run_dir)
     print(format_attribution(out))

@@ -23,6 +23,7 @@ import numpy as np
 from chargax_marl.benchmark import protocol
 from chargax_marl.benchmark.references import load_references
 from chargax_marl.benchmark.tasks import get_task
+from chargax_marl.core import checks
 from chargax_marl.policies import get_policy
 
 TASKS = ("Chargax-shopping-grid10-high-v1", "Chargax-shopping-peak-v1", "Chargax-shopping-v1")
@@ -118,7 +119,12 @@ def main(argv=None) -> list[dict]:
         default=2,
         help="car draws per day, the first ones (at most the task's)",
     )
-    parser.add_argument("--out", default=None, help="write the results here (JSON)")
+    parser.add_argument(
+        "--out",
+        default=None,
+        type=checks.output_option("file"),
+        help="write the results here (JSON)",
+    )
     args = parser.parse_args(argv)
     results = []
     for task_id in args.task or TASKS:

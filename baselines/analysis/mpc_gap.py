@@ -23,6 +23,7 @@ import numpy as np
 
 from chargax_marl import trace as trace_lib
 from chargax_marl.benchmark import get_task
+from chargax_marl.core import checks
 from chargax_marl.evaluation import run_days_keyed
 from chargax_marl.optimal import bound as bound_lib
 from chargax_marl.optimal.mpc import MPC
@@ -125,7 +126,12 @@ def main(argv=None) -> dict:
     parser.add_argument("--task", default="Chargax-shopping-grid10-high-v3", help="a task id")
     parser.add_argument("--days", type=int, default=6, help="held-out days, from the first")
     parser.add_argument("--margins", default="1,4", help="the MPC's deadline margins (steps)")
-    parser.add_argument("--out", default=None, help="write the result (JSON) here")
+    parser.add_argument(
+        "--out",
+        default=None,
+        type=checks.output_option("file"),
+        help="write the result (JSON) here",
+    )
     args = parser.parse_args(argv)
     if args.days < 1:
         parser.error(f"--days must be at least 1, got {args.days}")

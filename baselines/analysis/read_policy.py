@@ -25,7 +25,7 @@ import numpy as np
 
 from baselines.config import build_env_params
 from baselines.runs import load_run
-from chargax_marl.core import simulator
+from chargax_marl.core import checks, simulator
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.teachers.car_plan import plan_advice
 from chargax_marl.teachers.storage_value import dp_battery_action
@@ -152,11 +152,14 @@ def main(argv=None) -> dict:
     )
     p.add_argument("run_dir")
     p.add_argument("--days", type=int, default=None, help="the first N held-out days (default all)")
-    p.add_argument("--out", default=None, help="write the JSON here")
+    p.add_argument(
+        "--out", default=None, type=checks.output_option("file"), help="write the JSON here"
+    )
     a = p.parse_args(argv)
     out = read(a.run_dir, a.days)
     print(format_reading(out))
     if a.out:
+        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
         Path(a.out).write_text(json.dumps(out, indent=1))
     return out
 

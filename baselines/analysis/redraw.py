@@ -40,6 +40,7 @@ from baselines.eval import heldout, protocol, references, stats
 from baselines.eval.rules import BATTERY_RULES, evaluate_rules
 from baselines.eval.stats import over_seeds
 from baselines.runs import load_run
+from chargax_marl.core import checks
 from chargax_marl.evaluation import policy_bound
 from chargax_marl.teachers.rules import has_battery
 from chargax_marl.trace import params_fingerprint
@@ -366,7 +367,12 @@ def main(argv=None) -> dict:
     p.add_argument(
         "--references", default=None, help="a directory `make optimal` wrote (e.g. results/optimal)"
     )
-    p.add_argument("--out-dir", default=None, help="write RUN_NAME.json for every run here")
+    p.add_argument(
+        "--out-dir",
+        default=None,
+        type=checks.output_option("dir"),
+        help="write RUN_NAME.json for every run here",
+    )
     a = p.parse_args(argv)
     outs = {}
     for run_dir in a.run_dirs:

@@ -40,6 +40,7 @@ from baselines.eval import references, stats
 from baselines.eval.rules import check_replay, evaluate_rules
 from baselines.runs import write_json
 from chargax_marl import trace as trace_lib
+from chargax_marl.core import checks
 from chargax_marl.evaluation import (
     headroom_captured,
     hindsight_bound,
@@ -429,7 +430,7 @@ def main(argv=None) -> dict:
         default=None,
         help="the MPC on the first N held-out days only (its figures on those days)",
     )
-    p.add_argument("--out", default=str(RESULTS_DIR))
+    p.add_argument("--out", default=str(RESULTS_DIR), type=checks.output_option("dir"))
     p.add_argument(
         "--milp-days",
         type=int,

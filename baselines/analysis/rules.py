@@ -21,6 +21,7 @@ from baselines.eval.rules import (
     format_rules,
 )
 from baselines.runs import write_json
+from chargax_marl.core import checks
 from chargax_marl.teachers.rules import has_battery
 
 
@@ -42,7 +43,9 @@ def main(argv=None) -> dict:
     )
     p.add_argument("--scenario", default="shopping")
     p.add_argument("--traffic", default="medium")
-    p.add_argument("--out", default=None, help="write the results JSON here")
+    p.add_argument(
+        "--out", default=None, type=checks.output_option("file"), help="write the results JSON here"
+    )
     args = p.parse_args(argv)
     _, full, _, days = build_env_params(
         resolve({"SCENARIO": args.scenario, "TRAFFIC": args.traffic})

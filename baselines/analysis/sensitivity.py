@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from chargax_marl.core import checks
 from chargax_marl.core.params import make_params
 from chargax_marl.core.scenarios import scenario_kwargs
 from chargax_marl.core.station import KIND_BATTERY
@@ -144,8 +145,13 @@ def main(argv=None) -> dict:
     p.add_argument(
         "--hour", type=float, default=10.0, help="the hour of the day of the changed step"
     )
-    p.add_argument("--out", default=str(OUT))
+    p.add_argument("--out", default=str(OUT), help="the JSON to write (empty: none)")
     a = p.parse_args(argv)
+    if a.out:  # checked before the scenarios run
+        try:
+            checks.output_path("--out", a.out, "file")
+        except ValueError as e:
+            p.error(str(e))
     _, days = split_days(365, 100, seed=0)
     out = {"days": [int(d) for d in days], "key": 0, "hour": a.hour, "scenarios": {}}
     print(

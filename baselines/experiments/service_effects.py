@@ -31,6 +31,7 @@ from baselines.config import build_env_params
 from baselines.eval import protocol
 from baselines.eval.heldout import compiled_evaluation
 from chargax_marl import policies
+from chargax_marl.core import checks
 from chargax_marl.evaluation import run_days, service_metrics
 
 METRICS = ("daily_profit_eur", "jain_index", "min_satisfaction", "mean_satisfaction")
@@ -210,7 +211,12 @@ def main(argv=None) -> dict | None:
         help="a comparison: its label, the run's directory and the reference run's",
     )
     parser.add_argument("--draws", type=int, default=1, help="car draws per held-out day")
-    parser.add_argument("--out", default=None, help="add the comparisons to this JSON file")
+    parser.add_argument(
+        "--out",
+        default=None,
+        type=checks.output_option("file"),
+        help="add the comparisons to this JSON file",
+    )
     parser.add_argument("--table", default=None, help="print the table of this result file")
     args = parser.parse_args(argv)
     if args.table:

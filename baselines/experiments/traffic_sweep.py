@@ -48,6 +48,7 @@ from baselines.experiments._common import (
     with_env_kwargs,
 )
 from baselines.pipeline import run
+from chargax_marl.core import checks
 
 TRAFFIC = ("low", "medium", "high")
 PROFILES = ("shopping", "residential", "workplace", "highway")
@@ -119,7 +120,10 @@ def main(argv=None, out="outputs/traffic_sweep"):
         help="cells already trained by baselines.train with these settings (default condition shopping/EU)",
     )
     p.add_argument(
-        "--out", default=out, help="path prefix of the result files (.json, .png, _appendix.*)"
+        "--out",
+        default=out,
+        type=checks.output_option("prefix"),
+        help="path prefix of the result files (.json, .png, _appendix.*)",
     )
     args = p.parse_args(argv)
     base, seeds = config_of(args)

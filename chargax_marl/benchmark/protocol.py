@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from chargax_marl.core import observation, simulator
+from chargax_marl.core import observation, physics, simulator
 from chargax_marl.core.types import EnvParams, EpisodeTotals
 from chargax_marl.evaluation import PolicyOutputCounts, check_policy_outputs, play_days
 from chargax_marl.marl.env import ChargaxMARL
@@ -52,6 +52,23 @@ def _single_space(params: EnvParams) -> tuple[tuple[int, ...], bool, np.ndarray 
     if params.action_mode == "continuous":
         return tuple(space.shape), False, None
     return tuple(space.shape), True, np.asarray(space.nvec)
+
+
+def _single_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
+    """``(low, high)`` per leaf of the single-agent action space: ``[0, nvec - 1]`` indices,
+    or ``[-1, 1]`` fractions in the continuous mode (the Box)."""
+    shape, integer, nvec = _single_space(params)
+    if not integer:
+        return np.full(shape, -1.0, np.float32), np.full(shape, 1.0, np.float32)
+    return np.zeros(shape, np.int32), (nvec - 1).astype(np.int32)
+
+
+def _outside_level(params: EnvParams):
+    """A level outside every leaf's range (`chargax_marl.evaluation.level_range`): what a view's
+    action outside its space is played as, so that the play counts it."""
+    if params.action_mode == "continuous":
+        return jnp.float32(2.0)
+    return jnp.int32(params.num_levels + 1)
 
 
 def _check_single_action(out: Any, params: EnvParams, where: str, space=None) -> None:
@@ -121,17 +138,26 @@ def as_core(policy: Callable, kind: str, params: EnvParams) -> Callable:
                 f"core policy: levels of shape {tuple(out.shape)}; the station has {n} leaves"
             )
         return act
+    outside_level = _outside_level(params)
     if kind == "single":
+        low, high = _single_bounds(params)
+        can_discharge = physics.leaf_min_level(params.station, 1, params.v2g) < 0
 
         def act(state, key):
             action = policy(observation.flat_obs(state, params), key)
             levels = action_levels(action, params)
+            raw = jnp.reshape(jnp.asarray(action), levels.shape)
+            # an index or fraction outside the space becomes a level outside the core's range,
+            # so the play counts it (the core clips it as the view would have)
+            outside = (raw < low) | (raw > high)
             if params.action_mode != "continuous":  # integer indices (checked below)
-                return levels
-            # a non-finite fraction stays non-finite, so the play counts it (the core plays it
-            # as idle all the same)
-            finite = jnp.isfinite(jnp.reshape(jnp.asarray(action, jnp.float32), levels.shape))
-            return jnp.where(finite, levels, jnp.nan)
+                return jnp.where(outside, outside_level, levels)
+            # a fraction the leaf cannot take (discharge where it may not) plays as 0, as the
+            # core plays it; a non-finite fraction stays non-finite, so the play counts it (the
+            # core plays it as idle all the same)
+            levels = jnp.where(can_discharge, levels, jnp.maximum(levels, 0.0))
+            finite = jnp.isfinite(raw.astype(jnp.float32))
+            return jnp.where(finite, jnp.where(outside, outside_level, levels), jnp.nan)
 
         out = jax.eval_shape(lambda s, k: policy(observation.flat_obs(s, params), k), state0, key0)
         _check_single_action(out, params, "single-agent policy")
@@ -139,7 +165,10 @@ def as_core(policy: Callable, kind: str, params: EnvParams) -> Callable:
     env = ChargaxMARL(params=params)
 
     def act(state, key):
-        return env.actions_to_levels(policy(env.get_obs(state), key))
+        actions = policy(env.get_obs(state), key)
+        raw = jnp.stack([jnp.reshape(jnp.asarray(actions[a]), ()) for a in env.agents])
+        outside = (raw < 0) | (raw >= env.num_actions)  # counted as in the single kind
+        return jnp.where(outside, outside_level, env.actions_to_levels(actions))
 
     out = jax.eval_shape(lambda s, k: policy(env.get_obs(s), k), state0, key0)
     _check_marl_actions(out, env, "multi-agent policy")
@@ -207,7 +236,8 @@ def play(
 
     Raises:
         ValueError: an unknown kind, an action that does not fit the action space, or levels
-            the env would have reinterpreted: non-finite on any step, or not integers in a
+            the env would have reinterpreted: non-finite or outside the action space on any
+            step, or not integers in a
             discrete action mode (`chargax_marl.evaluation.check_policy_outputs`, counted
             inside the compiled play).
     """
@@ -224,8 +254,9 @@ def play(
 
 def _play_host(policy, kind, params, days, keys) -> tuple[EpisodeTotals, PolicyOutputCounts]:
     """The host loop: every day and draw one env, stepped together, the policy called per env;
-    the totals and the counts of non-finite actions (only a continuous action can hold one:
-    the discrete kinds are checked to be integers)."""
+    the totals and the counts of non-finite actions and of fractions outside the Box (only a
+    continuous action can hold them: the discrete kinds' indices are checked to be integers of
+    the space at each step, and refused at the first that is not)."""
     steps = int(params.num_steps)
     _, step_keys, battery_keys = jax.vmap(lambda k: split_day_key(k, steps))(keys)
     state = jax.jit(jax.vmap(lambda d, k: simulator.empty_state(d, params, k)))(
@@ -259,6 +290,7 @@ def _play_host(policy, kind, params, days, keys) -> tuple[EpisodeTotals, PolicyO
     advance = jax.jit(jax.vmap(lambda s, k, a: simulator.step(k, s, to_levels(a), params)[0]))
     agents = None if kind == "gymnasium" else env.agents
     nonfinite = np.zeros(len(days), np.int32)
+    outside = np.zeros(len(days), np.int32)
     for t in range(steps):
         obs = np.asarray(observe(state))
         if agents is None:
@@ -266,9 +298,13 @@ def _play_host(policy, kind, params, days, keys) -> tuple[EpisodeTotals, PolicyO
         else:
             acts = [check(policy(dict(zip(agents, o)))) for o in obs]
         acts = np.stack(acts)
-        nonfinite += ~np.isfinite(acts.reshape(len(days), -1)).all(axis=1)
+        flat = acts.reshape(len(days), -1)
+        nonfinite += ~np.isfinite(flat).all(axis=1)
+        if np.issubdtype(flat.dtype, np.floating):  # fractions; NaN is counted above
+            with np.errstate(invalid="ignore"):
+                outside += (np.isfinite(flat) & ((flat < -1.0) | (flat > 1.0))).any(axis=1)
         state = advance(state, step_keys[:, t], jnp.asarray(acts))
-    counts = PolicyOutputCounts(nonfinite, np.zeros_like(nonfinite))
+    counts = PolicyOutputCounts(nonfinite, np.zeros_like(nonfinite), outside)
     return jax.device_get(state.totals), counts
 
 
@@ -276,7 +312,7 @@ def _host_single_action(a, params, space) -> np.ndarray:
     arr = np.asarray(a)
     _check_single_action(arr, params, "Gymnasium policy", space)
     _, integer, nvec = space
-    if not integer:
+    if not integer:  # a fraction outside the Box is counted by the loop (as NaN is)
         return arr.astype(np.float32)
     if np.any(arr < 0) or np.any(arr >= nvec):
         raise ValueError(

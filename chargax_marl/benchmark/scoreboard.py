@@ -32,6 +32,7 @@ from chargax_marl import policies
 from chargax_marl.benchmark.references import BOUND, RULES, load_references
 from chargax_marl.benchmark.scoring import compare, score
 from chargax_marl.benchmark.tasks import TASKS, get_task
+from chargax_marl.core import checks
 from chargax_marl.single.env import Chargax
 from chargax_marl.trace import params_fingerprint
 
@@ -363,7 +364,12 @@ def main(argv=None) -> str:
     """
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scores", default=None, help="a directory of score files")
-    parser.add_argument("--time", default=None, help="a timing file (measured if missing)")
+    parser.add_argument(
+        "--time",
+        default=None,
+        type=checks.output_option("file"),
+        help="a timing file (measured if missing)",
+    )
     parser.add_argument("--readme", default=None, help="write the table into this file's block")
     parser.add_argument(
         "--version",
@@ -372,7 +378,10 @@ def main(argv=None) -> str:
         help=f"the tasks' version (default {CURRENT_VERSION}, the current one)",
     )
     parser.add_argument(
-        "--gaps", default=None, help="write the best learned agents' gaps to the MPC here"
+        "--gaps",
+        default=None,
+        type=checks.output_option("file"),
+        help="write the best learned agents' gaps to the MPC here",
     )
     args = parser.parse_args(argv)
     if args.gaps:

@@ -1,4 +1,5 @@
-"""One checker for every scalar the user hands the simulator, and the bounds it enforces.
+"""One checker for every value a user hands the library (scalars, solver time limits, output
+paths), and the bounds it enforces.
 
 The simulator runs in float32 (and draws arrivals as int32), but users pass Python floats
 (float64). A value can be finite in float64 and still overflow to inf, or underflow to 0,
@@ -13,10 +14,14 @@ that no product in the step leaves float32.
 
 from __future__ import annotations
 
+import argparse
 import functools
 import inspect
 import math
 import numbers
+import os
+from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -249,3 +254,125 @@ def known_keywords(fn):
         return fn(*args, **kwargs)
 
     return wrapper
+
+
+def time_limit(field: str, value: Any) -> float | None:
+    """A solver's time limit: ``None`` (no limit) or a positive finite number of seconds.
+
+    ``-1``, ``0``, NaN and inf would reach HiGHS, which reads them as "no limit" (or stops
+    at once); every solver entry point checks its limit here first.
+
+    Args:
+        field: the name the error message gives the value (e.g. ``"time_limit_s"``).
+        value: the limit in seconds, or ``None``.
+
+    Returns:
+        ``None``, or the limit as a float (seconds).
+
+    Raises:
+        ValueError: ``value`` is not ``None`` and not a finite number > 0.
+    """
+    if value is None:
+        return None
+    return number(field, value, low=0.0, low_open=True, unit="s (None: no limit)")
+
+
+OUTPUT_KINDS = ("file", "dir", "prefix")
+"""What `output_path` checks a destination as."""
+
+
+def output_path(field: str, value: Any, kind: str = "file") -> Any:
+    """An output destination, checked before any work: a command refuses it at once instead
+    of failing when it writes.
+
+    Refused: an empty path (or only spaces), a path through an existing file (``a_file/x``),
+    a file where a directory is meant or a directory where a file or a prefix's file is
+    meant, a prefix without a name of its own (``outputs/``, ``.``), and a destination whose
+    nearest existing folder this process may not write to. A prefix is returned as typed:
+    its files are ``prefix + suffix`` (``sessions.v2`` writes ``sessions.v2.json``).
+
+    Args:
+        field: the option or key the message names (e.g. ``"--out"``, ``"OUT"``).
+        value: the destination, a string or path.
+        kind: ``"file"`` (one file, written whole), ``"dir"`` (a directory, created if
+            missing) or ``"prefix"`` (a path prefix of several files ``prefix + suffix``).
+
+    Returns:
+        ``value`` as a `pathlib.Path` (``"file"``, ``"dir"``) or as the string typed
+        (``"prefix"``).
+
+    Raises:
+        ValueError: an unknown ``kind``, or an unusable destination (the message names the
+            field, the value and why).
+    """
+    if kind not in OUTPUT_KINDS:
+        raise ValueError(f"field 'kind' must be one of {list(OUTPUT_KINDS)}, got {kind!r}")
+    if isinstance(value, Path):
+        text = str(value)
+    elif isinstance(value, str):
+        text = value
+    else:
+        raise ValueError(
+            f"field '{field}' must be a path (a string), got {type(value).__name__} {value!r}"
+        )
+
+    def refuse(why: str) -> None:
+        raise ValueError(f"field '{field}' must name a usable output {kind}, got {text!r}: {why}")
+
+    if not text.strip():
+        refuse("the path is empty")
+    if "\x00" in text:
+        refuse("the path holds a NUL character")
+    path = Path(text)
+    if kind == "prefix" and (text.endswith(("/", os.sep)) or path.name in ("", ".", "..")):
+        refuse("a prefix needs a file name after its folder (e.g. outputs/sweep)")
+    if kind == "file" and text.endswith(("/", os.sep)):
+        refuse("a file's path cannot end in '/'")
+    if path.exists():
+        if kind == "dir" and not path.is_dir():
+            refuse("it is an existing file, not a directory")
+        if kind == "file" and path.is_dir():
+            refuse("it is an existing directory, not a file")
+        if kind == "dir" and not os.access(path, os.W_OK | os.X_OK):
+            refuse("this process may not write to that directory")
+        if kind == "file" and not os.access(path, os.W_OK):
+            refuse("this process may not write to that file")
+        if kind == "dir":
+            return path
+    folder = path if kind == "dir" else path.parent
+    ancestor = folder
+    while not ancestor.exists():
+        if ancestor.is_symlink():
+            refuse(f"{str(ancestor)!r} is a broken link")
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        refuse(f"{str(ancestor)!r} is a file, not a folder")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        refuse(f"this process may not write to the folder {str(ancestor)!r}")
+    return text if kind == "prefix" else path
+
+
+def output_option(kind: str = "file") -> Callable[[str], Any]:
+    """An ``argparse`` ``type=`` for an output option: the path checked by `output_path` while
+    the command line is parsed, before any work.
+
+    Args:
+        kind: ``"file"``, ``"dir"`` or ``"prefix"`` (`output_path`).
+
+    Returns:
+        ``parse(text)``: `output_path`'s value, or ``argparse.ArgumentTypeError`` with its
+        message (argparse names the option and exits with status 2).
+
+    Raises:
+        ValueError: an unknown ``kind``.
+    """
+    if kind not in OUTPUT_KINDS:
+        raise ValueError(f"field 'kind' must be one of {list(OUTPUT_KINDS)}, got {kind!r}")
+
+    def parse(text: str) -> Any:
+        try:
+            return output_path("path", text, kind)
+        except ValueError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+
+    return parse

@@ -274,7 +274,10 @@ class FinalObservationWrapper(_Wrapper):
     under code of your own.
 
     It wraps a `ChargaxMARL` itself (other wrappers go on top of it and pass the entry
-    through). Its `step` and `step_arrays` are the env's, with the entry added.
+    through; an observation wrapper that appends columns, such as
+    `chargax_marl.wrappers.RelativePriceObservation`, appends them to the entry too, so that
+    it keeps the observation's size). Its `step` and `step_arrays` are the env's, with the
+    entry added.
 
     Args:
         env: the `ChargaxMARL` to wrap.
@@ -282,6 +285,9 @@ class FinalObservationWrapper(_Wrapper):
     Raises:
         TypeError: ``env`` is not a `ChargaxMARL` (a wrapper of one included).
     """
+
+    adds_final_observation = True
+    """Marks an env whose infos hold ``final_observation`` (wrappers above it read this)."""
 
     def __init__(self, env):
         if not isinstance(env, ChargaxMARL):

@@ -31,6 +31,7 @@ import jax
 import numpy as np
 
 from chargax_marl import trace as trace_lib
+from chargax_marl.core import checks
 from chargax_marl.core import reward as reward_lib
 from chargax_marl.core.types import EnvParams
 from chargax_marl.optimal.model import (
@@ -318,10 +319,12 @@ def hindsight_bound(
         The day's `Bound`; ``profit_eur`` is the bound (EUR), fixed cost included.
 
     Raises:
+        ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
         ValueError: the trace was not made for ``params``, or ``occ`` is of another day.
         chargax_marl.optimal.model.SolverError: HiGHS finds no optimum with any of the
             settings it tries (e.g. each hits the time limit).
     """
+    time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
     trace_lib.check_trace(trace, params)
     if occ.day != int(trace.day):
         raise ValueError(
@@ -397,7 +400,11 @@ def bound_days(
 
     Returns:
         One `Bound` per day, in the order of ``days``.
+
+    Raises:
+        ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
     """
+    time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
     if day_keys is None:
         key = jax.random.PRNGKey(0) if key is None else key
         day_keys = jax.random.split(key, int(np.size(days)))

@@ -29,6 +29,7 @@ import jax
 import numpy as np
 
 from chargax_marl import trace as trace_lib
+from chargax_marl.core import checks
 from chargax_marl.core import reward as reward_lib
 from chargax_marl.core.types import EnvParams
 from chargax_marl.optimal.bound import battery_sessions, economics, occupancy
@@ -151,11 +152,13 @@ def admission_bound(
         ``num_candidates``, the cars they belong to.
 
     Raises:
+        ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
         ValueError: the trace was not made for ``params``, or ``num_steps`` outside
             ``[2, params.num_steps]``.
         chargax_marl.optimal.model.SolverError: HiGHS finds no optimum with any of the
             settings it tries.
     """
+    time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
     trace_lib.check_trace(trace, params)
     if not 2 <= num_steps <= params.num_steps:
         raise ValueError(
@@ -262,10 +265,12 @@ def compare(
         The window's `WindowBounds`.
 
     Raises:
+        ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
         ValueError: the trace was not made for ``params``, or ``num_steps`` outside
             ``[2, params.num_steps]`` (`admission_bound`).
         chargax_marl.optimal.model.SolverError: HiGHS finds no optimum of the MILP or the LP.
     """
+    time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
     fixed = float(reward_lib.fixed_cost_per_step_eur(params)) * num_steps
     milp = admission_bound(params, trace, num_steps, time_limit_s=time_limit_s)
     occ = occupancy(params, trace, day_key, reference)

@@ -43,6 +43,7 @@ import highspy
 import numpy as np
 import scipy.sparse as sp
 
+from chargax_marl.core import checks
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import EnvParams
 
@@ -353,8 +354,10 @@ def new_highs(time_limit_s: float | None = None, options: dict | None = None) ->
         The solver, with no model yet.
 
     Raises:
+        ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
         ValueError: HiGHS refuses an option's name or value.
     """
+    time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
     h = _HIGHS()
     h.setOptionValue("output_flag", False)
     if time_limit_s is not None:
@@ -468,9 +471,11 @@ def solve_with_retries(
         that found the optimum (to read its basis) and the name of its settings.
 
     Raises:
+        ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
         SolverError: no attempt reports an optimum; its ``status`` is the last attempt's and
             its ``attempts`` every attempt's, in order.
     """
+    time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
     num_cols, num_rows = int(model[0].shape[0]), int(model[3].shape[0])
     tried, last = [], None
     for name, options in attempt_settings(first, warm=basis is not None):
@@ -665,8 +670,10 @@ class _Builder:
             the settings that solved it (`attempt_settings`).
 
         Raises:
+            ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
             SolverError: no optimum with any of the settings.
         """
+        time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
         c = _cat(self.cost)
         start, index, value = self.matrix()
         integer = _cat(self.integer, bool)
@@ -830,12 +837,14 @@ def build_and_solve(
         The optimum: its value, each session's net power per step and end SoC.
 
     Raises:
+        ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
         SolverError: HiGHS reports no optimum with any of the settings (its ``status`` is
             the last attempt's, its ``attempts`` each attempt's).
         ValueError: ``warm_start`` or ``keep_basis`` with ``builder``, ``occupancy_vars`` or
             ``pools`` (their columns and rows have no keys); ``pools`` whose car has sessions
             that start in different steps.
     """
+    time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
     b = builder or _Builder()
     dt = econ.step_hours
     n = num_steps

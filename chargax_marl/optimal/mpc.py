@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from chargax_marl.core import checks
 from chargax_marl.core import reward as reward_lib
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState
@@ -107,7 +108,8 @@ class MPC:
 
     Raises:
         ValueError: ``horizon_hours`` not above 0, ``resolve_every`` below 1,
-            ``deadline_margin_steps`` below 0, or ``params.action_mode`` ``"delta"`` (the
+            ``deadline_margin_steps`` below 0, ``time_limit_s`` neither None nor a finite
+            number of seconds > 0, or ``params.action_mode`` ``"delta"`` (the
             MPC acts in ``"absolute"`` or ``"continuous"``).
     """
 
@@ -116,7 +118,7 @@ class MPC:
         params: EnvParams,
         horizon_hours: float = 4.0,
         resolve_every: int = 1,
-        time_limit_s: float = 10.0,
+        time_limit_s: float | None = 10.0,
         urgency_eur_kwh_h: float = 0.1,
         deadline_margin_steps: int = 1,
         warm_start: bool = True,
@@ -135,7 +137,7 @@ class MPC:
         self.resolve_every = int(resolve_every)
         self.urgency_eur_kwh_h = float(urgency_eur_kwh_h)
         self.deadline_margin_steps = int(deadline_margin_steps)
-        self.time_limit_s = time_limit_s
+        self.time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
         self.limits = StationLimits.of(params)
         st = params.station
         self.num_ports = st.num_ports
@@ -296,7 +298,10 @@ class MPC:
         up = np.maximum(self.limits.charge_kw, 1e-9)
         down = np.maximum(self.limits.discharge_kw, 1e-9)
         frac = np.where(net_kw >= 0, net_kw / up, net_kw / down)
-        frac = np.clip(frac, -1.0, 1.0)
+        # a leaf that may not discharge plays no negative level (a solver's -1e-9 there would
+        # be a level outside its range, which the play refuses)
+        low = np.where(self.limits.discharge_kw > 0, -1.0, 0.0)
+        frac = np.clip(frac, low, 1.0)
         frac[np.abs(frac) < 1e-6] = 0.0
         if self.continuous:
             return frac.astype(np.float32)

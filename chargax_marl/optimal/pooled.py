@@ -34,6 +34,7 @@ import jax
 import numpy as np
 
 from chargax_marl import trace as trace_lib
+from chargax_marl.core import checks
 from chargax_marl.core import reward as reward_lib
 from chargax_marl.core.station import KIND_AC
 from chargax_marl.core.types import EnvParams
@@ -206,9 +207,11 @@ def pooled_bound(
         reference policy is replayed).
 
     Raises:
+        ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
         ValueError: the trace was not made for ``params``.
         chargax_marl.optimal.model.SolverError: HiGHS finds no optimum with any setting.
     """
+    time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
     trace_lib.check_trace(trace, params)
     n = trace.num_steps
     cars, pools, num_cars = pooled_sessions(params, trace)
@@ -264,7 +267,11 @@ def pooled_bound_days(
 
     Returns:
         One `Bound` per day, in the order of ``days``.
+
+    Raises:
+        ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
     """
+    time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
     traces = trace_lib.make_traces(params, days, day_keys=day_keys)
     out = []
     for i in range(int(np.size(days))):

@@ -15,6 +15,7 @@ import numpy as np
 from gymnax.environments import spaces
 
 from chargax_marl.core import actions as core_actions
+from chargax_marl.core import checks
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState
 from chargax_marl.marl.env import action_offset, actions_to_levels, levels_to_indices, min_levels
@@ -78,7 +79,11 @@ def priority_class_size(params: EnvParams, num_priorities: int) -> tuple[int, in
     Returns:
         ``(n, idle_index)``: ``n = idle_index + 1 + num_priorities``; ``idle_index`` is 1
         where some leaf may discharge (index 0 is then full discharge), else 0.
+
+    Raises:
+        ValueError: ``num_priorities`` not an integer >= 1.
     """
+    checks.number("num_priorities", num_priorities, low=1, integer=True)
     with jax.ensure_compile_time_eval():  # concrete params inside a traced step
         idle = 1 if action_offset(params) > 0 else 0
     return idle + 1 + int(num_priorities), idle

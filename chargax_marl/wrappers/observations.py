@@ -24,15 +24,35 @@ from chargax_marl.wrappers.base import TeacherWrapper, base_env
 class ObservationFeatures(TeacherWrapper):
     """Appends ``width`` columns to each observation; subclasses define `features`.
 
+    An info's ``final_observation`` (the gymnax view's, or `chargax_marl.marl.FinalObservationWrapper`'s)
+    keeps the observation's size: columns read from the observation alone
+    (``reads_state = False``) are appended to it too; columns read from the state cannot be
+    (the state before an auto-reset is not returned), so the gymnax view's entry is left out
+    of the info and the JaxMARL view's wrapper is refused.
+
     Args:
         env: either view, possibly wrapped.
         width: columns appended per agent (JaxMARL) or to the flat observation (gymnax).
         low: the appended columns' lower bound, for the observation space.
         high: the appended columns' upper bound, for the observation space.
+
+    Raises:
+        TypeError: columns read from the state over a `chargax_marl.marl.FinalObservationWrapper`.
     """
+
+    reads_state = True
+    """Whether `features` reads the state (not only the observation): such columns cannot be
+    appended to an info's ``final_observation``, whose state a step does not return."""
 
     def __init__(self, env, width: int, low: float, high: float):
         super().__init__(env)
+        if self.reads_state and self.is_marl and getattr(env, "adds_final_observation", False):
+            raise TypeError(
+                f"{type(self).__name__}: its columns are read from the state, and the "
+                "infos' final_observation (FinalObservationWrapper below) is of a state the "
+                "step does not return, so its rows could not carry them: leave out "
+                "FinalObservationWrapper, or this wrapper"
+            )
         self.width = int(width)
         self._low = np.full(self.width, low, np.float32)
         self._high = np.full(self.width, high, np.float32)
@@ -111,7 +131,28 @@ class ObservationFeatures(TeacherWrapper):
             observation(s) (after an auto-reset, the new day's).
         """
         obs, state, *rest = self._env.step(key, state, action, *args)
-        return (self._append(obs, state), state, *rest)
+        return (self._append(obs, state), state, *self._final(rest))
+
+    def _final(self, rest: list) -> list:
+        """A step's values after the state, its info's ``final_observation`` grown as the
+        observation is (columns from the observation), or left out of the info (columns from
+        the state: the state before the auto-reset is not returned)."""
+        info = rest[-1] if rest else None
+        if not isinstance(info, dict) or "final_observation" not in info:
+            return list(rest)
+        final = info["final_observation"]
+        info = dict(info)
+        if self.reads_state:
+            del info["final_observation"]
+        elif self.is_marl:
+            info["final_observation"] = jnp.concatenate(
+                [final, self.matrix_features(final, None)], axis=-1
+            )
+        else:
+            info["final_observation"] = jnp.concatenate(
+                [final, self.features(final, None)], axis=-1
+            )
+        return [*rest[:-1], info]
 
     def step_arrays(self, key, state, indices, reset_state=None):
         """The JaxMARL view's ``step_arrays`` with the columns appended to every agent's row
@@ -130,7 +171,8 @@ class ObservationFeatures(TeacherWrapper):
             grown to ``(num_agents, obs_size + width)``.
         """
         obs, state, *rest = self._env.step_arrays(key, state, indices, reset_state)
-        return (jnp.concatenate([obs, self.matrix_features(obs, state)], axis=-1), state, *rest)
+        grown = jnp.concatenate([obs, self.matrix_features(obs, state)], axis=-1)
+        return (grown, state, *self._final(rest))
 
     def matrix_features(self, obs, state):
         """`features` of the observation matrix ``obs (agents, obs_size)`` (JaxMARL view);
@@ -239,6 +281,8 @@ class RelativePriceObservation(ObservationFeatures):
         env: either view, possibly wrapped (other appended columns come after the env's own,
             so the price columns stay where the env puts them).
     """
+
+    reads_state = False
 
     def __init__(self, env):
         params = env.params if hasattr(env, "agents") else env.default_params

@@ -290,7 +290,7 @@ def test_ippo_learns_from_the_local_reward_weight_and_ppo_refuses_it():
     assert np.abs(m["episode_return"] - m["episode_profit_eur"]).max() > 1.0
     with pytest.raises(ValueError, match="LOCAL_REWARD_WEIGHT"):
         ppo.make_train({**TINY, "LOCAL_REWARD_WEIGHT": 0.5})
-    with pytest.raises(ValueError, match="local_reward_weight"):
+    with pytest.raises(ValueError, match=r"LOCAL_REWARD_WEIGHT=2.0 is not allowed.*\[0, 1\]"):
         ippo.make_train({**TINY, "LOCAL_REWARD_WEIGHT": 2.0})
 
 

@@ -9,9 +9,12 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from baselines.config import (
     CONFIG_DIR,
+    SCHEMA,
     ConfigError,
     build_env_params,
     load,
@@ -23,7 +26,7 @@ from chargax_marl.benchmark.tasks import TASKS
 from chargax_marl.evaluation import run_policy_days, validation_days
 from chargax_marl.policies import always_max
 from chargax_marl.trace import params_fingerprint
-from tests.helpers import TINY_ENV
+from tests.helpers import CONFIG_TEXT, TINY_ENV, allowed_by_schema
 
 HIGH = "Chargax-shopping-grid25-high-v1"
 SHIFT = "Chargax-shift-nl2024-v1"
@@ -139,3 +142,29 @@ def test_an_override_s_bare_word_loses_the_blanks_around_it():
     assert parse_override("SCENARIO= shopping ") == ("SCENARIO", "shopping")
     assert parse_override(" total_timesteps = 2e6") == ("TOTAL_TIMESTEPS", 2e6)
     assert parse_override("ENV_KWARGS={num_levels=1}") == ("ENV_KWARGS", {"num_levels": 1})
+
+
+# --- properties of the parsers: any text parses to what the schema says, or is refused by name
+
+
+@settings(max_examples=300, deadline=None)
+@given(key=st.sampled_from(sorted(SCHEMA)), raw=CONFIG_TEXT)
+def test_an_override_resolves_to_what_the_schema_says_or_is_refused_by_name(key, raw):
+    try:
+        parsed_key, value = parse_override(f"{key}={raw}")
+        config = resolve({parsed_key: value})
+    except ConfigError as e:
+        assert key in str(e) or "override" in str(e)
+        return
+    assert allowed_by_schema(key, config[key]), (key, raw, config[key])
+
+
+@settings(max_examples=100, deadline=None)
+@given(n=st.integers(-(2**33), 2**33))
+def test_an_integer_key_reads_an_integer_and_refuses_it_below_one_or_past_int32(n):
+    try:
+        config = resolve({"HIDDEN": parse_override(f"HIDDEN={n}")[1]})
+    except ConfigError as e:
+        assert not 1 <= n <= 2**31 - 1 and f"HIDDEN={n}" in str(e)
+        return
+    assert 1 <= n <= 2**31 - 1 and config["HIDDEN"] == n

@@ -12,7 +12,7 @@ import sys
 
 import pytest
 
-from baselines import runs
+from baselines import pipeline, runs
 from baselines import train as cli
 from baselines.experiments import alpha_ablation
 from tests.helpers import TINY_CLI, toml_inline
@@ -167,3 +167,36 @@ def test_an_experiment_runner_with_overwrite_deletes_the_earlier_files(tmp_path,
     with pytest.raises(AssertionError, match="went on to score"):  # past the claim
         alpha_ablation.main(["--optimal", "off", "--overwrite"], out=str(tmp_path / "ablation"))
     assert _listing(tmp_path) == []
+
+
+def test_an_unusable_run_directory_is_refused_by_name_before_any_work(tmp_path, monkeypatch):
+    """An empty OUT made the working directory the run directory; OUT naming a file, or a
+    directory where the lock file goes, ended in a bare FileExistsError / IsADirectoryError."""
+
+    def trained(*args, **kwargs):
+        raise AssertionError("the run went on to build and train")
+
+    monkeypatch.setattr(pipeline, "_run", trained)
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    with pytest.raises(ValueError, match=r"OUT='' is not allowed: expected a non-empty str"):
+        cli.main([*TINY_CLI, "OUT="])
+    with pytest.raises(ValueError, match=r"field 'out \(OUT\)' .* an existing file, not a dir"):
+        cli.main([*TINY_CLI, f"OUT={a_file}"])
+    with pytest.raises(ValueError, match=r"field 'out \(OUT\)' .*a_file' is a file, not a folder"):
+        cli.main([*TINY_CLI, f"OUT={a_file}/run"])
+    locked = tmp_path / "run"
+    (locked / runs.LOCK).mkdir(parents=True)
+    with pytest.raises(runs.RunDirError, match=r"its lock file .*\.lock cannot be opened"):
+        cli.main([*TINY_CLI, f"OUT={locked}"])
+    for key in ("SEEDS=0", "CHUNKS=0", "SEED=-1", "NUM_ENVS=0", "HIDDEN=-4", "LR=-1"):
+        with pytest.raises(ValueError, match=rf"{key} is not allowed"):
+            cli.main([*TINY_CLI, key, f"OUT={tmp_path}/fresh"])
+    with pytest.raises(ValueError, match=r"field 'references_dir' \(REFERENCES_DIR\) must be a"):
+        cli.main([*TINY_CLI, f"REFERENCES_DIR={tmp_path}/nowhere", f"OUT={tmp_path}/fresh"])
+    with pytest.raises(ValueError, match=r"field 'seeds \(SEEDS\)' must be an integer >= 1"):
+        pipeline.run("ippo", {}, seeds=0, out=str(tmp_path / "api"))
+    with pytest.raises(ValueError, match=r"prefix.*a prefix needs a file name"):
+        with runs.claim_outputs(str(tmp_path) + "/", (".json",)):
+            pass
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "run"]

@@ -8,12 +8,14 @@ import json
 import jax
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from baselines import pipeline, sweep
 from baselines.algos import ppo, ppo_core, runner
-from baselines.config import ConfigError, load, validation_env
+from baselines.config import SCHEMA, ConfigError, canonical, load, validation_env
 from baselines.runs import RunDirError
-from tests.helpers import TINY, TINY_CLI
+from tests.helpers import CONFIG_TEXT, TINY, TINY_CLI, allowed_by_schema
 
 
 def test_parse_grid_splits_swept_keys_from_fixed_ones():
@@ -39,13 +41,63 @@ def test_parse_grid_splits_swept_keys_from_fixed_ones():
     "args, match",
     [
         (["SEEDS=2,4"], "run key"),
-        (["LR=1e-3,1e-3"], "repeated"),
+        (["LR=1e-3,1e-3"], "give each value once"),
         (["LR"], "KEY=value"),
+        (["TASK=Chargax-shopping-v2,"], r"TASK=.*value 2 of 2 is empty"),
+        (["LR=1e-3,,3e-4"], r"value 2 of 3 is empty"),
+        (["HIDDEN=64,64.0"], r"'64.0' is the same setting as '64'"),
+        (["LR=1e-3,0.001"], "the same setting"),
+        (["BATTERY_SHAPING=true,day_mean"], "the same setting"),
+        (["HIDDEN=0,8"], r"HIDDEN=0 is not allowed: expected an integer >= 1"),
+        (["GAMMA=0.9,1.5"], r"GAMMA=1.5 is not allowed: expected a finite number in \[0, 1\]"),
+        (["NOPE=1,2"], "unknown config key 'NOPE'"),
     ],
 )
 def test_parse_grid_refuses_what_a_sweep_cannot_mean(args, match):
     with pytest.raises(ConfigError, match=match):
         sweep.parse_grid(args)
+
+
+@pytest.mark.parametrize(
+    "args, match",
+    [
+        (["SEEDS=0"], r"SEEDS=0 is not allowed: expected an integer >= 1"),
+        (["SEEDS=-1"], r"SEEDS=-1 is not allowed"),
+        (["CHUNKS=0"], r"CHUNKS=0 is not allowed"),
+        (["OUT="], r"OUT='' is not allowed: expected a non-empty str"),
+        (["OUT=outputs/"], r"field 'OUT' .*a prefix needs a file name"),
+        (["NUM_MINIBATCHES=0"], r"NUM_MINIBATCHES=0 is not allowed"),
+        (
+            ["TOTAL_TIMESTEPS=10"],
+            r"TOTAL_TIMESTEPS=10 is not allowed: expected at least one rollout",
+        ),
+    ],
+)
+def test_a_sweep_refuses_bad_run_values_before_any_work(args, match, monkeypatch):
+    def no_training(*a, **k):
+        raise AssertionError("the sweep started training")
+
+    monkeypatch.setattr(sweep, "_sweep", no_training)
+    with pytest.raises(ConfigError, match=match):
+        sweep.sweep("cpu", [*TINY_CLI[2:], *args])
+
+
+def test_a_sweep_refuses_an_out_under_a_file_and_a_bad_batch_before_any_work(tmp_path, monkeypatch):
+    def no_training(*a, **k):
+        raise AssertionError("the sweep started training")
+
+    monkeypatch.setattr(sweep, "_sweep", no_training)
+    (tmp_path / "a_file").write_text("x")
+    with pytest.raises(ConfigError, match=r"field 'OUT' .*a_file' is a file, not a folder"):
+        sweep.sweep("cpu", [*TINY_CLI[2:], f"OUT={tmp_path}/a_file/sweep"])
+    for bad in (0, -1, 1.5, True):
+        with pytest.raises(ConfigError, match=r"settings_per_batch.*expected an integer >= 1"):
+            sweep.sweep("cpu", [*TINY_CLI[2:], f"OUT={tmp_path}/s"], settings_per_batch=bad)
+    with pytest.raises(ConfigError, match=r"does not divide compile group 0's 3 settings"):
+        sweep.sweep("cpu", [*TINY_CLI[2:], "LR=1e-3,2e-3,3e-3", f"OUT={tmp_path}/s"], 2)
+    with pytest.raises(SystemExit):
+        sweep.parser().parse_args(["--settings-per-batch", "0"])
+    assert not list(tmp_path.glob("s*")), "nothing is written for a refused sweep"
 
 
 def test_a_swept_value_the_key_does_not_allow_is_refused_before_training(tmp_path):
@@ -126,3 +178,20 @@ def test_settings_vmapped_together_agree_to_rounding():
         runner.run_settings_in_chunks(train, keys, hyper, 1, settings_per_batch=3)
     with pytest.raises(ValueError, match="missing"):
         runner.run_settings_in_chunks(train, keys, {"LR": hyper["LR"]}, 1)
+
+
+@settings(max_examples=200, deadline=None)
+@given(key=st.sampled_from(sorted(SCHEMA)), parts=st.lists(CONFIG_TEXT, min_size=2, max_size=4))
+def test_a_grid_parses_to_distinct_allowed_values_or_is_refused_by_name(key, parts):
+    raw = ",".join(parts)
+    try:
+        fixed, grid = sweep.parse_grid([f"{key}={raw}"])
+    except ConfigError as e:
+        assert key in str(e) or "argument" in str(e)
+        return
+    values = grid.get(key)
+    if values is None:  # one value after all (a quoted or bracketed text): a fixed override
+        assert len(fixed) == 1
+        return
+    assert len(values) == len({canonical(key, v) for v in values}) >= 2
+    assert all(allowed_by_schema(key, v) for v in values), (key, raw, values)

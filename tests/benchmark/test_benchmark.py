@@ -307,6 +307,13 @@ def test_a_refilled_bound_day_is_the_full_rebuild_s(small_task, tmp_path):
     before = path.stat().st_mtime_ns
     refill_bound(task, work, log=None)  # nothing failed: the file is left alone
     assert path.stat().st_mtime_ns == before
+    # a file built without the bound has nothing to refill (a KeyError 'lp_bound' before)
+    del full["policies"][BOUND]
+    save_references(full, work)
+    with pytest.raises(ReferenceMismatchError, match=r"holds no LP bound \('lp_bound'"):
+        refill_bound(task, work, log=None)
+    with pytest.raises(ValueError, match="field 'time_limit_s'"):
+        refill_bound(task, work, time_limit_s=float("nan"), log=None)
 
 
 def test_an_mpc_day_with_a_failed_solve_is_stored_without_a_profit(small_task, monkeypatch):
@@ -406,6 +413,17 @@ def test_the_references_command_passes_its_time_limit(tmp_path, monkeypatch):
     with pytest.raises(SystemExit) as refused:
         references_cli.main(["--task", task_id, "--time-limit", "0"])
     assert refused.value.code == 2
+    (tmp_path / "a_file").write_text("x")
+    for bad in (
+        ["--time-limit", "inf"],  # HiGHS read it as no limit
+        ["--processes", "0"],
+        ["--out", str(tmp_path / "a_file")],
+        ["--bound-dir", str(tmp_path / "a_file" / "bound")],
+    ):
+        with pytest.raises(SystemExit) as refused:
+            references_cli.main(["--task", task_id, *bad])
+        assert refused.value.code == 2, bad
+    assert len(seen) == 2  # nothing was built for a refused command line
 
 
 def half_day_levels(first_half, params):
@@ -541,6 +559,66 @@ def test_continuous_policies_with_nan_fractions_get_no_score(small_task):
     # finite fractions are floats by nature: played and totalled
     totals = protocol.play(lambda o, k: jnp.full(n, 0.5), params, days, keys, kind="single")
     assert np.all(np.isfinite(totals.profit_eur))
+
+
+def test_a_policy_with_actions_outside_the_action_space_gets_no_score(small_task):
+    """A level above the top, an index outside Discrete(n) or MultiDiscrete, a fraction
+    outside the Box: the env clips them, so the play counts them in its compiled program (and
+    the host loop on the host) and no kind of policy gets a score for the clipped play."""
+    task, directory = small_task
+    params = task.make_params()
+    days, keys = task.eval_days(), task.day_keys()
+    n = params.station.num_leaves
+    env = ChargaxMARL(params=params)
+    played = 2 * task.draws
+    steps = params.num_steps * played
+
+    def refused(kind, policy, p=params, steps=steps):
+        with pytest.raises(
+            ValueError,
+            match=rf"the {kind} policy returned actions outside the action space .* on "
+            rf"{steps} steps, in {played} of the {played} days played",
+        ):
+            protocol.play(policy, p, days, keys, kind=kind)
+
+    top = params.num_levels
+    refused("core", lambda s, k, p: jnp.full(n, 1000, jnp.int32))
+    with pytest.raises(ValueError, match="outside the action space"):  # through score too
+        score(lambda s, k, p: jnp.full(n, 1000, jnp.int32), task, references_dir=directory)
+    refused("core", lambda s, k, p: jnp.full(n, -top - 1, jnp.int32))
+    refused("core", lambda s, k, p: jnp.full(n, top + 1.0))
+    refused("marl", lambda o, k: {a: jnp.int32(env.num_actions + 78) for a in env.agents})
+    refused("marl", lambda o, k: {a: jnp.int32(-1) for a in env.agents})
+    refused("single", lambda o, k: jnp.full(n, 99, jnp.int32))
+    continuous = dataclasses.replace(params, action_mode="continuous")
+    refused("single", lambda o, k: jnp.full(n, 7.0), continuous)
+    refused("gymnasium", lambda o: np.full(n, 7.0, np.float32), continuous)
+    refused("core", lambda s, k, p: jnp.full(n, -1.5), continuous)
+    # the top and bottom levels themselves are in the space: played and totalled
+    totals = protocol.play(lambda s, k, p: jnp.full(n, top, jnp.int32), params, days, keys)
+    assert np.all(np.isfinite(totals.profit_eur))
+
+
+def test_the_range_of_a_leaf_without_discharge_starts_at_zero(small_task):
+    """Per leaf, not one global range: without V2G a port's bottom level is idle, so a
+    discharge level there is outside the core's space (the env plays it as idle), while the
+    battery may still discharge; the single-agent Box is [-1, 1] on every leaf, and a negative
+    fraction there is in the space (the env plays it as 0)."""
+    task, _ = small_task
+    params = dataclasses.replace(task.make_params(), v2g=False)
+    days, keys = task.eval_days(), task.day_keys()
+    n = params.station.num_leaves
+    battery = jnp.asarray(np.asarray(params.station.leaf_kind) == KIND_BATTERY)
+    bottom = jnp.where(battery, -params.num_levels, 0).astype(jnp.int32)
+    totals = protocol.play(lambda s, k, p: bottom, params, days, keys)  # every leaf's bottom
+    assert np.all(np.isfinite(totals.profit_eur))
+    with pytest.raises(ValueError, match="outside the action space"):
+        protocol.play(lambda s, k, p: jnp.full(n, -1, jnp.int32), params, days, keys)
+    continuous = dataclasses.replace(params, action_mode="continuous")
+    totals = protocol.play(lambda o, k: jnp.full(n, -0.5), continuous, days, keys, kind="single")
+    assert np.all(np.isfinite(totals.profit_eur))
+    with pytest.raises(ValueError, match="outside the action space"):
+        protocol.play(lambda s, k, p: jnp.full(n, -0.5), continuous, days, keys)
 
 
 # --- a picture of a day -----------------------------------------------------------------

@@ -1014,3 +1014,22 @@ def test_the_v3_occupancy_bound_is_reached_on_a_hand_made_day():
     # always-max buys the AC car's energy at 0.25 and the DC car's before noon
     assert profit < 26.6 - 5.0
     assert occ.reference_profit_eur == pytest.approx(profit, abs=1e-3)
+
+
+@pytest.mark.parametrize("limit", [-1, 0, float("nan"), float("inf")])
+def test_the_solvers_refuse_a_time_limit_that_is_no_limit(limit):
+    """-1, 0, NaN and inf reached HiGHS, which then solved without a limit: every entry point
+    refuses them before it builds anything."""
+    params = make_params(station=three_level_station(), step_minutes=60.0)
+    days = np.array([0])
+    match = r"field 'time_limit_s' must be a finite number > 0 s"
+    for solve in (
+        lambda: evaluation.hindsight_bound(params, days, time_limit_s=limit),
+        lambda: evaluation.policy_bound(params, days, time_limit_s=limit),
+        lambda: optimal.pooled_bound_days(params, days, None, time_limit_s=limit),
+        lambda: bound_module.bound_days(params, days, time_limit_s=limit),
+        lambda: model_module.new_highs(limit),
+        lambda: MPC(params, time_limit_s=limit),
+    ):
+        with pytest.raises(ValueError, match=match):
+            solve()

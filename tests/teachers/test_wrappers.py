@@ -11,7 +11,7 @@ import pytest
 from chargax_marl.core import make_params, simulator
 from chargax_marl.core.observation import context_size, obs_size
 from chargax_marl.core.station import KIND_BATTERY
-from chargax_marl.marl import ChargaxMARL, LogWrapper, WorldStateWrapper
+from chargax_marl.marl import ChargaxMARL, FinalObservationWrapper, LogWrapper, WorldStateWrapper
 from chargax_marl.single import Chargax
 from chargax_marl.teachers import car_plan, prices, shaping, storage_value
 from chargax_marl.wrappers import (
@@ -222,6 +222,32 @@ def test_single_observation_columns_are_the_teachers_and_agree_with_the_marl_vie
     np.testing.assert_allclose(np.asarray(obs[-h:]), np.asarray(agent_row[-h:]), rtol=1e-6)
     o, _ = wrapped.reset(jax.random.PRNGKey(0), params)
     assert o.shape == (obs_size(params) + n + h,)
+
+
+def test_a_final_observation_keeps_the_observations_size_through_the_columns(params):
+    """The relative prices (read from the observation) are appended to an info's
+    final_observation too: it had 51 entries while the observation had 58. Columns read from
+    the state cannot be: over FinalObservationWrapper they are refused."""
+    marl = ChargaxMARL(params=params)
+    wrapped = RelativePriceObservation(FinalObservationWrapper(marl))
+    _, state = wrapped.reset(jax.random.PRNGKey(0))
+    h = int(params.price_horizon_hours) + 1
+    actions = {a: jnp.int32(marl.action_offset) for a in marl.agents}
+    obs, _, _, _, info = wrapped.step(jax.random.PRNGKey(1), state, actions)
+    final = np.asarray(info["final_observation"])
+    assert final.shape == (marl.num_agents, marl.obs_size + h)
+    np.testing.assert_array_equal(final, np.stack([np.asarray(obs[a]) for a in marl.agents]))
+    indices = jnp.full(marl.num_agents, marl.action_offset, jnp.int32)
+    rows, _, _, _, info = wrapped.step_arrays(jax.random.PRNGKey(1), state, indices)
+    np.testing.assert_array_equal(np.asarray(info["final_observation"]), np.asarray(rows))
+    with pytest.raises(TypeError, match="PlanAdviceObservation: its columns are read from"):
+        PlanAdviceObservation(FinalObservationWrapper(marl))
+    single = RelativePriceObservation(Chargax(params=params))
+    _, s_state = single.reset(jax.random.PRNGKey(0), params)
+    s_obs, *_, s_info = single.step(
+        jax.random.PRNGKey(1), s_state, np.zeros(params.station.num_leaves, np.int32), params
+    )
+    np.testing.assert_array_equal(np.asarray(s_info["final_observation"]), np.asarray(s_obs))
 
 
 def _stack(env):

@@ -6,6 +6,8 @@ import importlib.util
 import json
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -23,6 +25,22 @@ def test_rollout_prints_the_days_figures(capsys):
     out = capsys.readouterr().out
     for label in ("daily profit", "energy delivered", "cars served"):
         assert label in out
+
+
+def test_the_library_commands_refuse_a_count_below_one_before_any_work(capsys):
+    """``--days 0`` (or -1) reached a JAX split of zero keys, or split_days, in a traceback."""
+    from chargax_marl.binding import main as binding_main
+    from chargax_marl.rollout import main as rollout_main
+
+    for main, args in (
+        (rollout_main, ["--days", "0"]),
+        (rollout_main, ["--days", "1", "--seed", "-1"]),
+        (binding_main, ["--days", "-1"]),
+    ):
+        with pytest.raises(SystemExit) as refused:
+            main(args)
+        assert refused.value.code == 2
+        assert "must be an integer" in capsys.readouterr().err
 
 
 def _run_results(profit_eur: float, always_max_eur: float) -> dict:

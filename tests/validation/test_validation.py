@@ -110,6 +110,31 @@ def test_the_command_refuses_fewer_than_a_week():
         main(["--days", "3"])
 
 
+def test_the_command_refuses_an_unusable_out_before_the_comparison(tmp_path, monkeypatch, capsys):
+    """An --out under a file failed only after the whole comparison had run."""
+
+    def compared(*args, **kwargs):
+        raise AssertionError("the comparison ran")
+
+    monkeypatch.setattr(report, "run", compared)
+    (tmp_path / "a_file").write_text("x")
+    for out in (str(tmp_path / "a_file" / "sessions"), "", str(tmp_path) + "/"):
+        with pytest.raises(SystemExit):
+            main(["--days", "7", "--out", out])
+        assert "field '--out' must name a usable output prefix" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["--days", "7", "--seed", "-1"])
+
+
+def test_the_command_keeps_the_prefix_as_typed(tmp_path, monkeypatch):
+    """``--out .../sessions.v2`` wrote ``sessions.json``, dropping the prefix's ``.v2``."""
+    monkeypatch.setattr(report, "run", lambda days, seed, session_model: {"days": days})
+    monkeypatch.setattr(report, "markdown", lambda result: "table\n")
+    monkeypatch.setattr(report, "all_pass", lambda result: True)
+    assert main(["--days", "7", "--out", str(tmp_path / "sessions.v2")]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["sessions.v2.json", "sessions.v2.md"]
+
+
 def test_rank_corr_is_spearmans_with_ties():
     rng = np.random.default_rng(0)
     a = rng.integers(0, 20, 500).astype(float)  # many ties

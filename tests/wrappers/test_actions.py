@@ -255,3 +255,11 @@ def test_the_delta_action_mode_is_refused():
     env = ChargaxMARL(station=station(), step_minutes=60.0, action_mode="delta")
     with pytest.raises(ValueError, match="field 'action_mode' of the env must be 'absolute'"):
         PriorityFill(env)
+
+
+@pytest.mark.parametrize("num_priorities", [-3, 0, 1.5, True])
+def test_priority_class_size_refuses_what_is_not_a_count_of_classes(num_priorities):
+    """-3 gave an action space of -1 classes."""
+    params = params_of(station=wide_station(battery=True), v2g=True)
+    with pytest.raises(ValueError, match=r"field 'num_priorities' must be an integer >= 1"):
+        priority_class_size(params, num_priorities)

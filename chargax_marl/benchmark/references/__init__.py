@@ -41,6 +41,7 @@ import numpy as np
 
 from chargax_marl.benchmark import protocol
 from chargax_marl.benchmark.tasks import TASKS, Task, get_task
+from chargax_marl.core import checks
 from chargax_marl.evaluation import METRICS, service_metrics
 from chargax_marl.optimal import bound_days
 from chargax_marl.optimal.model import FIRST_ATTEMPTS
@@ -167,11 +168,13 @@ def compute_references(
         and draw, `bound_status`'s).
 
     Raises:
+        ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
         ValueError: ``processes`` is not an integer >= 1, or is above 1 for a task whose
             bound is not the port-pooled one, or for a `Task` that does not pickle;
             ``bound_dir`` for a task whose bound is not the port-pooled one, or a chunk file
             there of other parameters or days; ``bound_chunk_days`` is not an integer >= 1.
     """
+    time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
     task = get_task(task)
     if bound and bound_dir is not None:
         if task.bound != "pooled":
@@ -426,13 +429,22 @@ def refill_bound(
         The path of the task's file (left as it is when no day failed).
 
     Raises:
-        ReferenceMismatchError: no stored file for the task, or one of other parameters.
+        ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
+        ReferenceMismatchError: no stored file for the task, one of other parameters, or
+            one without an LP bound.
     """
+    time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
     task = get_task(task)
     directory = reference_path(task, directory).parent  # written back where it was read
     log = log or (lambda _line: None)
     refs = load_references(task, directory)  # checks the file belongs to the task on this code
     stored = json.loads(reference_path(task, directory).read_text())
+    if BOUND not in stored["policies"]:
+        raise ReferenceMismatchError(
+            f"{reference_path(task, directory)} holds no LP bound ({BOUND!r}; it holds "
+            f"{sorted(stored['policies'])}): there is nothing to refill. Build the bound whole "
+            f"(python -m chargax_marl.benchmark.references --task {task.id}, without --no-bound)"
+        )
     profit = refs["policies"][BOUND]["daily_profit"]
     params, days, keys = task.make_params(), np.asarray(refs["days"]), task.day_keys()
     entry = stored["policies"][BOUND]

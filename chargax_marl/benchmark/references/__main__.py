@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import time
 
@@ -25,6 +26,7 @@ from chargax_marl.benchmark.references import (
     save_references,
 )
 from chargax_marl.benchmark.tasks import TASKS, get_task, load_task
+from chargax_marl.core import checks
 
 
 def main(argv=None) -> None:
@@ -45,7 +47,9 @@ def main(argv=None) -> None:
     Raises:
         ValueError: a task file `load_task` refuses.
         SystemExit: ``--keep-bound`` on a task whose parameters' fingerprint or always-max's
-            per-day profits differ from the stored file's (the bound must be rebuilt too).
+            per-day profits differ from the stored file's (the bound must be rebuilt too); or,
+            before any work, ``--processes`` below 1, ``--time-limit`` not a positive finite
+            number, an ``--out`` or ``--bound-dir`` that cannot be a writable directory.
     """
     parser = argparse.ArgumentParser(
         prog="python -m chargax_marl.benchmark.references", description=__doc__.split("\n\n")[0]
@@ -60,6 +64,7 @@ def main(argv=None) -> None:
     parser.add_argument(
         "--out",
         default=None,
+        type=checks.output_option("dir"),
         help="directory of the files (default: the shipped references' folder; for --task-file, "
         "the task file's folder)",
     )
@@ -107,6 +112,7 @@ def main(argv=None) -> None:
     parser.add_argument(
         "--bound-dir",
         default=None,
+        type=checks.output_option("dir"),
         help="for a port-pooled bound: keep its solved days in this directory, chunk by chunk, "
         "and reuse them when the command is run again (a stopped build resumes)",
     )
@@ -117,8 +123,12 @@ def main(argv=None) -> None:
         help="the LP bound's time limit per day and solver attempt, in seconds (default: 60)",
     )
     args = parser.parse_args(argv)
-    if not args.time_limit > 0:
-        parser.error(f"--time-limit must be a positive number of seconds, got {args.time_limit}")
+    if args.processes < 1:
+        parser.error(f"--processes must be an integer >= 1, got {args.processes}")
+    if not (args.time_limit > 0 and math.isfinite(args.time_limit)):
+        parser.error(
+            f"--time-limit must be a positive finite number of seconds, got {args.time_limit}"
+        )
     tasks = [get_task(t) for t in args.task or ()] + [load_task(p) for p in args.task_file or ()]
     rules = RULES if args.rules is None else (ZERO, *(r for r in args.rules if r != ZERO))
     for task in tasks or list(TASKS.values()):
@@ -162,4 +172,7 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except (ValueError, KeyError) as e:  # the message names what to fix; a traceback buries it
+        raise SystemExit(f"python -m chargax_marl.benchmark.references: {e}") from None
