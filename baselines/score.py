@@ -336,6 +336,9 @@ def main(argv=None) -> dict | list:
                 "--rescore takes score files only (no run directory, --task or --task-file)"
             )
         out = []
+        missing = [path for path in args.rescore if not Path(path).is_file()]
+        if missing:
+            parser.error(f"--rescore: no such score files {missing}")
         for path in args.rescore:
             if _missing_fields(json.loads(Path(path).read_text())):
                 print(f"{path}: not a score file, left as it is")  # score_time.json, say
@@ -350,7 +353,19 @@ def main(argv=None) -> dict | list:
         parser.error(
             "a run directory and --task or --task-file are required (or --rescore SCORE_FILE ...)"
         )
-    task = get_task(Path(task) if args.task_file else task)
+    if not (Path(args.run_dir) / "results.json").is_file():
+        parser.error(
+            f"run directory {args.run_dir!r}: no results.json in it (a folder written by "
+            "`python -m baselines.train`)"
+        )
+    if args.task_file and not Path(args.task_file).is_file():
+        parser.error(f"--task-file {args.task_file!r}: no such file (a .toml or .json task file)")
+    if args.references and not Path(args.references).is_dir():
+        parser.error(f"--references {args.references!r}: not a directory of reference files")
+    try:
+        task = get_task(Path(task) if args.task_file else task)
+    except (KeyError, ValueError) as e:
+        parser.error(f"--task{'-file' if args.task_file else ''} {task!r}: {e.args[0]}")
     if args.picture:
         picture(args.run_dir, task, args.picture, args.name, references_dir=args.references)
     result = score_run(args.run_dir, task, args.references)

@@ -213,3 +213,24 @@ def test_a_task_on_the_command_line_overrides_the_files_scenario_and_traffic(tmp
         build_env_params(load(path, [f"TASK={task.id}", "TRAFFIC=medium"])[0])
     with pytest.raises(ConfigError, match="TASK"):
         load(path, ["TASK=Chargax-nope-v1"])
+
+
+def test_the_score_command_refuses_what_it_cannot_read_by_name(tiny_ippo_run, tmp_path, capsys):
+    """An unknown task, a missing task file, a folder that holds no run, a missing references
+    folder and a missing score file are refused at the door, by name, without a traceback."""
+    cases = [
+        ([str(tiny_ippo_run), "--task", "Chargax-nope-v3"], "unknown task 'Chargax-nope-v3'"),
+        ([str(tiny_ippo_run), "--task-file", str(tmp_path / "no.toml")], "no such file"),
+        ([str(tmp_path), "--task", "Chargax-shopping-v3"], "no results.json in it"),
+        (
+            [str(tiny_ippo_run), "--task", "Chargax-shopping-v3", "--references", "nope/"],
+            "--references 'nope/': not a directory",
+        ),
+        (["--rescore", str(tmp_path / "gone.json")], "no such score files"),
+    ]
+    for argv, match in cases:
+        with pytest.raises(SystemExit) as e:
+            score_cli.main(argv)
+        assert e.value.code == 2
+        err = capsys.readouterr().err
+        assert match in err and "Traceback" not in err, (argv, err)
