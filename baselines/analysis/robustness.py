@@ -165,7 +165,12 @@ def main(argv=None) -> str:
     out = Path(a.out) if a.out else None
     if out is not None and (out.is_dir() or not out.parent.is_dir()):
         p.error(f"--out {a.out}: needs a file path in an existing folder")
-    found = rows(a.settings, a.scores)
+    if not Path(a.scores).is_dir():
+        p.error(f"--scores {a.scores}: not a directory of score files")
+    try:
+        found = rows(a.settings, a.scores)
+    except (FileNotFoundError, ValueError) as e:
+        p.error(str(e))
     text = table(found)
     print(text)
     if out is not None:

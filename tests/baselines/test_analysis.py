@@ -374,3 +374,9 @@ def test_robustness_verdicts_table_and_refusals(tmp_path):
     )
     with pytest.raises(ValueError, match="is none of the settings"):
         robustness.rows(tmp_path, scores)
+    for argv in (
+        ["--settings", str(scores), "--scores", str(scores)],
+        ["--settings", str(tmp_path), "--scores", str(tmp_path / "none")],
+    ):
+        with pytest.raises(SystemExit):
+            robustness.main(argv)
