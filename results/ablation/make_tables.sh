@@ -25,3 +25,8 @@ for spec in "shopping-v1:shopping" "shopping-grid25-high-v1:grid25" "shopping-pe
       --base "IPPO, make train's config=$S/${name}_base.json" "${extra[@]}" \
       --out results/ablation/$name > /dev/null
 done
+$PY -m baselines.analysis.ablation --task Chargax-shopping-v3 --rules coupled_plan \
+  --base "IPPO, the ippo_residual config without the residual=$S/shopping_v3_no_residual.json" \
+  --method "IPPO, residual over the coupled plan (ippo_residual)=$S/shopping_v3_residual.json" \
+  --method "IPPO, the ippo config (one level per direction, car plan teacher)=results/scores/ippo_Chargax-shopping-v3.json" \
+  --out results/ablation/shopping_v3 > /dev/null
