@@ -120,6 +120,20 @@ def evaluate_batched(
     return out
 
 
+def _seed_vmapped(cache: IdentityCache, play, make_act, eval_params):
+    """``play(act, eval_params, days, keys)`` of every seed's act, jitted and vmapped over the
+    seeds' parameters, kept in ``cache`` per ``make_act`` and ``eval_params``."""
+    per_params = cache.get(make_act, IdentityCache)
+    return per_params.get(
+        eval_params,
+        lambda: jax.jit(
+            jax.vmap(
+                lambda p, d, kk: play(make_act(p), eval_params, d, kk), in_axes=(0, None, None)
+            )
+        ),
+    )
+
+
 _COMPILED = IdentityCache()
 
 
@@ -135,15 +149,7 @@ def compiled_evaluation(make_act, eval_params):
         ``fn(net_params, days, key) -> totals`` with a leading seed axis on ``net_params`` and
         on every total, compiled once for this ``make_act`` and ``eval_params``.
     """
-    per_params = _COMPILED.get(make_act, IdentityCache)
-    return per_params.get(
-        eval_params,
-        lambda: jax.jit(
-            jax.vmap(
-                lambda p, d, kk: run_days(make_act(p), eval_params, d, kk), in_axes=(0, None, None)
-            )
-        ),
-    )
+    return _seed_vmapped(_COMPILED, run_days, make_act, eval_params)
 
 
 _COMPILED_KEYED = IdentityCache()
@@ -163,16 +169,7 @@ def compiled_keyed_evaluation(make_act, eval_params):
         every total, compiled once per number of days for this ``make_act`` and
         ``eval_params``.
     """
-    per_params = _COMPILED_KEYED.get(make_act, IdentityCache)
-    return per_params.get(
-        eval_params,
-        lambda: jax.jit(
-            jax.vmap(
-                lambda p, d, kk: run_days_keyed(make_act(p), eval_params, d, kk),
-                in_axes=(0, None, None),
-            )
-        ),
-    )
+    return _seed_vmapped(_COMPILED_KEYED, run_days_keyed, make_act, eval_params)
 
 
 def _in_chunks(fn, net_params, days, key, chunk_days: int):
