@@ -42,7 +42,7 @@ from chargax_marl.marl import ChargaxMARL
 from chargax_marl.optimal import SolverError
 from chargax_marl.optimal import mpc as mpc_module
 from chargax_marl.single import Chargax
-from tests.helpers import no_arrivals, three_level_station
+from tests.helpers import count_compiles, no_arrivals, three_level_station
 
 SCORES_DIR = Path(__file__).resolve().parents[2] / "results" / "scores"
 
@@ -571,6 +571,24 @@ def test_a_policy_with_non_finite_or_non_integer_levels_gets_no_score(small_task
     # always-max's own play, as the module's references stored it
     ints = load_references(task, directory)["policies"][ZERO]["daily_profit"]
     np.testing.assert_array_equal(whole, ints)
+
+
+def test_a_named_rule_is_played_by_one_program_for_any_prices(small_task):
+    """A rule of `policies.POLICIES` is played with the params an argument of its program:
+    other prices of the same station shape compile nothing again, and the profits are those
+    of the rule compiled with its params (to float32 rounding)."""
+    task, _ = small_task
+    params = task.make_params()
+    days, keys = task.eval_days(), task.day_keys()
+    rule = policies.battery_rule
+    dear = params.replace(prices_eur_kwh=params.prices_eur_kwh * 1.5)
+    first = protocol.play(rule, params, days, keys)
+    assert count_compiles(lambda: protocol.play(rule, dear, days, keys)) == 0
+    again = protocol.play(rule, dear, days, keys)
+    assert not np.allclose(again.profit_eur, first.profit_eur)  # the prices were read
+    closed = protocol.play(lambda s, k, p: rule(s, k, dear), dear, days, keys)
+    np.testing.assert_allclose(again.profit_eur, closed.profit_eur, rtol=1e-6, atol=1e-4)
+    np.testing.assert_array_equal(again.cars_arrived, closed.cars_arrived)
 
 
 def test_continuous_policies_with_nan_fractions_get_no_score(small_task):
