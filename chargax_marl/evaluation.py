@@ -448,6 +448,31 @@ def run_policy_days(policy: Callable, params: EnvParams, days, key: jax.Array):
     return totals
 
 
+def play_policy_days(
+    policy: Callable, params: EnvParams, days, keys: jax.Array
+) -> tuple[EpisodeTotals, PolicyOutputCounts]:
+    """`play_days` of a rule-based policy, with the params an argument of the program (as in
+    `run_policy_days`): the program of a named rule of `chargax_marl.policies.POLICIES` is
+    compiled once per station shape and kept, so every task of that shape (other prices,
+    traffic, fees) plays it without compiling again.
+
+    Args:
+        policy: ``policy(state, key, params) -> levels`` (`chargax_marl.policies.get_policy`).
+        params: the environment parameters, also passed to the policy.
+        days: ``(n,)`` day indices of the price data.
+        keys: ``(n, 2)`` keys, one per day.
+
+    Returns:
+        ``(totals, counts)`` as `play_days` returns them for
+        ``lambda s, k: policy(s, k, params)`` (to float32 rounding: the params are not
+        constants of the program). Pass ``counts`` to `check_policy_outputs`.
+    """
+    days = jnp.asarray(days, jnp.int32)
+    if is_named_rule(policy):
+        return _policy_days(policy, params, days, keys)
+    return jax.jit(functools.partial(_policy_program, policy))(params, days, keys)
+
+
 def _policy_program(policy, params, days, keys):
     """The traced body of `run_policy_days`: ``(totals, counts)``."""
     return _play_days(lambda s, k: policy(s, k, params), params, days, keys)

@@ -3,7 +3,9 @@
 Kinds of policy (``kind=``):
 
 - ``"core"``: ``policy(state, key, params) -> levels``, the core's signed level per leaf
-  (`chargax_marl.policies`); jitted;
+  (`chargax_marl.policies`); jitted (a named rule of `chargax_marl.policies.POLICIES` by one
+  kept program per station shape with the params its argument,
+  `chargax_marl.evaluation.play_policy_days`);
 - ``"single"``: ``act(obs, key) -> action`` in the single-agent view's spaces
   (`chargax_marl.single.Chargax`); jitted;
 - ``"marl"``: ``act(obs_dict, key) -> action_dict`` in the multi-agent view's spaces
@@ -30,8 +32,14 @@ import numpy as np
 
 from chargax_marl.core import observation, physics, simulator
 from chargax_marl.core.types import EnvParams, EpisodeTotals
-from chargax_marl.evaluation import PolicyOutputCounts, check_policy_outputs, play_days
+from chargax_marl.evaluation import (
+    PolicyOutputCounts,
+    check_policy_outputs,
+    play_days,
+    play_policy_days,
+)
 from chargax_marl.marl.env import ChargaxMARL
+from chargax_marl.policies import is_named_rule
 from chargax_marl.single.env import Chargax, action_levels
 from chargax_marl.trace import day_keys as split_day_key
 
@@ -245,6 +253,10 @@ def play(
     flat_days, flat_keys, n, r = flatten_schedule(days, day_keys)
     if kind in HOST_KINDS:
         totals, counts = _play_host(policy, kind, params, flat_days, flat_keys)
+    elif kind == "core" and is_named_rule(policy):
+        as_core(policy, kind, params)  # its levels' shape checked
+        # one kept program per rule and station shape, the params its argument
+        totals, counts = play_policy_days(policy, params, flat_days, flat_keys)
     else:
         act = as_core(policy, kind, params)
         totals, counts = jax.jit(lambda d, k: play_days(act, params, d, k))(flat_days, flat_keys)

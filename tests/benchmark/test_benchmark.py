@@ -42,7 +42,7 @@ from chargax_marl.marl import ChargaxMARL
 from chargax_marl.optimal import SolverError
 from chargax_marl.optimal import mpc as mpc_module
 from chargax_marl.single import Chargax
-from tests.helpers import no_arrivals, three_level_station
+from tests.helpers import count_compiles, no_arrivals, three_level_station
 
 SCORES_DIR = Path(__file__).resolve().parents[2] / "results" / "scores"
 
@@ -262,11 +262,40 @@ def small_task(tmp_path_factory):
     return task, directory
 
 
-def test_mpc_references_are_added_and_compared_on_the_days_they_have(small_task, tmp_path):
+@pytest.fixture(scope="module")
+def mpc_levels1(small_task):
+    """The one-process MPC reference in one level per direction, computed once: what
+    `add_mpc` stores as ``mpc_levels1`` and what the split over processes must equal."""
+    task, _ = small_task
+    return compute_mpc(task, 1)
+
+
+@pytest.fixture(scope="module")
+def pooled_bound(small_task):
+    """The small task's port-pooled bound, computed whole in one process, once."""
+    task, _ = small_task
+    pooled = dataclasses.replace(task, bound="pooled")
+    return pooled, compute_references(pooled, rules=(), log=None)
+
+
+def test_mpc_references_are_added_and_compared_on_the_days_they_have(
+    small_task, mpc_levels1, tmp_path, monkeypatch
+):
     task, directory = small_task
     work = tmp_path / "refs"
     shutil.copytree(directory, work)
+    real, calls = references_module.compute_mpc, []
+
+    def shared(t, num_levels=None, **kwargs):
+        # the one-level reference is the module's, computed by the same call
+        calls.append((t, num_levels, kwargs))
+        if (t, num_levels, kwargs) == (task, 1, {"processes": 1}):
+            return mpc_levels1
+        return real(t, num_levels, **kwargs)
+
+    monkeypatch.setattr(references_module, "compute_mpc", shared)
     add_mpc(task, work, log=None)
+    assert [c[1] for c in calls] == list(MPC_REFERENCES.values())
     refs = load_references(task, work)
     for name, num_levels in MPC_REFERENCES.items():
         entry = refs["policies"][name]
@@ -328,11 +357,13 @@ def test_an_mpc_day_with_a_failed_solve_is_stored_without_a_profit(small_task, m
     assert entry["failed_days"] == [int(task.eval_days()[0])]
 
 
-def test_an_mpc_reference_split_over_processes_is_the_one_process_reference(small_task):
+def test_an_mpc_reference_split_over_processes_is_the_one_process_reference(
+    small_task, mpc_levels1
+):
     # each process plays whole days (every draw of a day), and a day's decisions depend on
     # that day alone: the same reference, number for number
     task, _ = small_task
-    assert compute_mpc(task, 1, processes=2) == compute_mpc(task, 1)
+    assert compute_mpc(task, 1, processes=2) == mpc_levels1
     for bad in (0, 1.5, True):
         with pytest.raises(ValueError, match="field 'processes' must be an integer >= 1"):
             compute_mpc(task, 1, processes=bad)
@@ -341,11 +372,10 @@ def test_an_mpc_reference_split_over_processes_is_the_one_process_reference(smal
         compute_mpc(local, 1, processes=2)
 
 
-def test_a_pooled_bound_split_over_processes_is_the_one_process_bound(small_task):
+def test_a_pooled_bound_split_over_processes_is_the_one_process_bound(small_task, pooled_bound):
     # the port-pooled bound's days are independent LPs: split by day, the same numbers
     task, _ = small_task
-    pooled = dataclasses.replace(task, bound="pooled")
-    one = compute_references(pooled, rules=(), log=None)
+    pooled, one = pooled_bound
     two = compute_references(pooled, rules=(), log=None, processes=2)
     assert one["policies"][BOUND] == two["policies"][BOUND]
     assert np.isfinite(np.asarray(one["policies"][BOUND]["daily_profit"], float)).all()
@@ -358,13 +388,12 @@ def test_a_pooled_bound_split_over_processes_is_the_one_process_bound(small_task
 
 
 def test_a_pooled_bound_kept_in_chunks_resumes_and_is_the_whole_bound(
-    small_task, tmp_path, monkeypatch
+    small_task, pooled_bound, tmp_path, monkeypatch
 ):
     # each chunk of days is written when solved; a rerun reads the chunks, solves nothing,
     # and gives the numbers of the bound computed whole
     task, _ = small_task
-    pooled = dataclasses.replace(task, bound="pooled")
-    whole = compute_references(pooled, rules=(), log=None)
+    pooled, whole = pooled_bound
     kept = compute_references(pooled, rules=(), log=None, bound_dir=tmp_path, bound_chunk_days=1)
     assert kept["policies"][BOUND] == whole["policies"][BOUND]
     files = sorted(tmp_path.glob("*.bound.*.json"))
@@ -539,8 +568,30 @@ def test_a_policy_with_non_finite_or_non_integer_levels_gets_no_score(small_task
         return policies.always_max(s, k, p).astype(jnp.float32)
 
     whole = score(as_floats, task, references_dir=directory)["daily_profit"]
-    ints = score(policies.always_max, task, references_dir=directory)["daily_profit"]
+    # compiled as as_floats is (with its params), so bit for bit: a named rule's own program
+    # takes the params as an argument and may round float32 sums apart
+    ints = score(lambda s, k, p: policies.always_max(s, k, p), task, references_dir=directory)[
+        "daily_profit"
+    ]
     np.testing.assert_array_equal(whole, ints)
+
+
+def test_a_named_rule_is_played_by_one_program_for_any_prices(small_task):
+    """A rule of `policies.POLICIES` is played with the params an argument of its program:
+    other prices of the same station shape compile nothing again, and the profits are those
+    of the rule compiled with its params (to float32 rounding)."""
+    task, _ = small_task
+    params = task.make_params()
+    days, keys = task.eval_days(), task.day_keys()
+    rule = policies.battery_rule
+    dear = params.replace(prices_eur_kwh=params.prices_eur_kwh * 1.5)
+    first = protocol.play(rule, params, days, keys)
+    assert count_compiles(lambda: protocol.play(rule, dear, days, keys)) == 0
+    again = protocol.play(rule, dear, days, keys)
+    assert not np.allclose(again.profit_eur, first.profit_eur)  # the prices were read
+    closed = protocol.play(lambda s, k, p: rule(s, k, dear), dear, days, keys)
+    np.testing.assert_allclose(again.profit_eur, closed.profit_eur, rtol=1e-6, atol=1e-4)
+    np.testing.assert_array_equal(again.cars_arrived, closed.cars_arrived)
 
 
 def test_continuous_policies_with_nan_fractions_get_no_score(small_task):
@@ -582,10 +633,15 @@ def test_a_policy_with_actions_outside_the_action_space_gets_no_score(small_task
             protocol.play(policy, p, days, keys, kind=kind)
 
     top = params.num_levels
-    refused("core", lambda s, k, p: jnp.full(n, 1000, jnp.int32))
+
+    def above_then_below(s, k, p):
+        # above the top level on the first day, below the bottom on the second, in one play:
+        # "every day played" holds only if each of the two is counted
+        return jnp.where(s.day == days[0], 1000, -top - 1) * jnp.ones(n, jnp.int32)
+
+    refused("core", above_then_below)
     with pytest.raises(ValueError, match="outside the action space"):  # through score too
-        score(lambda s, k, p: jnp.full(n, 1000, jnp.int32), task, references_dir=directory)
-    refused("core", lambda s, k, p: jnp.full(n, -top - 1, jnp.int32))
+        score(above_then_below, task, references_dir=directory)
     refused("core", lambda s, k, p: jnp.full(n, top + 1.0))
     refused("marl", lambda o, k: {a: jnp.int32(env.num_actions + 78) for a in env.agents})
     refused("marl", lambda o, k: {a: jnp.int32(-1) for a in env.agents})

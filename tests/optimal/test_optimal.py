@@ -59,10 +59,17 @@ def bound_for(policy, params, tr):
 
 
 @pytest.fixture(scope="module")
-def default_setup():
+def default_program():
+    """The default station's params, two days and their compiled trace program."""
     params = make_params(battery_initial_soc=(0.2, 0.8))
     days = np.array([5, 123])
-    return params, days, exact_jit(lambda k: trace.make_traces(params, days, k))(KEY)
+    return params, days, exact_jit(lambda k: trace.make_traces(params, days, k))
+
+
+@pytest.fixture(scope="module")
+def default_setup(default_program):
+    params, days, make = default_program
+    return params, days, make(KEY)
 
 
 def test_a_named_reference_is_replayed_by_one_program_for_any_prices(default_setup):
@@ -99,9 +106,9 @@ def test_replay_equals_the_keyed_rollout_bit_for_bit(default_setup, name):
         assert a.tobytes() == b.tobytes(), field
 
 
-def test_the_cars_of_a_day_do_not_depend_on_the_policy(default_setup):
+def test_the_cars_of_a_day_do_not_depend_on_the_policy(default_program, default_setup):
     params, days, traces = default_setup
-    again = exact_jit(lambda k: trace.make_traces(params, days, k))(KEY)
+    again = default_program[2](KEY)  # the same program run again: the same cars
     for a, b in zip(jax.tree_util.tree_leaves(traces), jax.tree_util.tree_leaves(again)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     # the slots hold the cars that ask to park, whichever ports are free: a policy that keeps
@@ -324,10 +331,28 @@ def test_the_bound_is_above_every_policy_with_the_same_occupancy(small_setup, na
         assert b.profit_eur >= b.reference_profit_eur - 1e-3 * abs(b.reference_profit_eur) - 1e-3
 
 
-def test_the_bound_is_above_the_mpc_with_the_same_occupancy(small_setup):
+@pytest.fixture(scope="module")
+def mpc_day(small_setup):
+    """A 2-hour MPC played through small_setup's first day (as the reference of that day's
+    occupancy), once: the controller, the occupancy and what the host saw at each solve."""
     params, traces = small_setup
     mpc = MPC(params, horizon_hours=2.0)
-    b = bound_for(mpc, params, trace.day_of(traces, 0))
+    seen = []
+    act = mpc.host_act
+
+    def record(*arrays, slot=0):
+        seen.append({k: np.asarray(v).copy() for k, v in zip(mpc_module._FIELDS, arrays)})
+        return act(*arrays, slot=slot)
+
+    mpc.host_act = record
+    occ = optimal.occupancy(params, trace.day_of(traces, 0), KEY, reference=mpc)
+    return mpc, occ, seen
+
+
+def test_the_bound_is_above_the_mpc_with_the_same_occupancy(small_setup, mpc_day):
+    params, traces = small_setup
+    mpc, occ, _ = mpc_day
+    b = optimal.hindsight_bound(params, trace.day_of(traces, 0), occ)
     assert mpc.solves > 0 and mpc.failures == 0
     assert b.profit_eur >= b.reference_profit_eur - 1e-3 * abs(b.reference_profit_eur)
 
@@ -372,8 +397,10 @@ def test_a_full_day_mpc_reaches_the_bound_when_no_car_arrives_later(action_mode,
     )
     tr = trace.trace_from_cars(params, _cars_at_dawn())
     mpc = MPC(params, horizon_hours=24.0, deadline_margin_steps=0)
-    profit = run_on_trace(mpc, params, tr)
-    bound = bound_for(mpc, params, tr).profit_eur
+    # the MPC's day, played once: its profit and the occupancy the bound is solved over
+    occ = optimal.occupancy(params, tr, KEY, reference=mpc)
+    profit = occ.reference_profit_eur
+    bound = optimal.hindsight_bound(params, tr, occ).profit_eur
     assert profit <= bound + 1e-3
     assert bound - profit <= tol_eur
 
@@ -792,20 +819,10 @@ def test_the_vectorised_lp_equals_a_straightforward_build(kw):
         assert fast.value_eur == pytest.approx(ref, rel=1e-7, abs=1e-7)
 
 
-def test_a_warm_started_mpc_solve_has_the_value_of_a_cold_one(small_setup):
+def test_a_warm_started_mpc_solve_has_the_value_of_a_cold_one(mpc_day):
     # the MPC's LPs along a day, each started from the previous step's basis, reach the
     # optimum a solve from scratch reaches
-    params, traces = small_setup
-    mpc = MPC(params, horizon_hours=2.0)
-    seen = []
-    act = mpc.host_act
-
-    def record(*arrays, slot=0):
-        seen.append({k: np.asarray(v).copy() for k, v in zip(mpc_module._FIELDS, arrays)})
-        return act(*arrays, slot=slot)
-
-    mpc.host_act = record
-    run_on_trace(mpc, params, trace.day_of(traces, 0))
+    mpc, _, seen = mpc_day
     basis, warm_solves = None, 0
     for s in seen[60:160]:
         t = int(s["timestep"])

@@ -16,7 +16,7 @@ from chargax_marl.core import make_params, simulator
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.teachers import car_plan, shaping
 from tests.helpers import TINY as HELPER_TINY
-from tests.helpers import TINY_ENV, train_seeds
+from tests.helpers import TINY_ENV
 
 # the paper's sessions: every user of the session model v2 at a DC port leaves when charged,
 # and the plan values only the cars that leave at the end of their stay
@@ -181,31 +181,50 @@ def test_single_env_reports_each_leaf_s_energy():
     assert moved > 0.1
 
 
+KEYS = jax.random.split(jax.random.PRNGKey(0), 2)
+
+
+@pytest.fixture(scope="module")
+def plan_obs_runs():
+    """``run(mod, mode, **hyper)``: two seeds of ``mod``'s tiny trainer with the plan advice
+    observed (``PLAN_OBS``) and ``PORT_SHAPING=mode``, trained by one program of its
+    hyper-parameter values (so the run with the shaping weighed 0 is the same compiled program
+    as the shaped run); each trainer is compiled once and each run trained once for the
+    module. Returns ``(train, {"runner_state", "metrics"})``."""
+    programs, runs = {}, {}
+
+    def run(mod, mode, **hyper):
+        if (mod, mode) not in programs:
+            config = {**TINY, "PORT_SHAPING": mode, "PLAN_OBS": True, "SPLIT_CREDIT": mod is ppo}
+            if mod is ippo:
+                config["LOCAL_REWARD_WEIGHT"] = 1.0
+            train = mod.make_train(config)
+
+            @jax.jit
+            def seeds(keys, values):
+                rs = jax.vmap(train.init, in_axes=(0, None))(keys, values)
+                rs, metrics = jax.vmap(lambda r: train.run_updates(r, train.num_updates))(rs)
+                return {"runner_state": rs, "metrics": metrics}
+
+            programs[mod, mode] = train, seeds
+        train, seeds = programs[mod, mode]
+        key = (mod, mode, tuple((k, float(v)) for k, v in sorted(hyper.items())))
+        if key not in runs:
+            values = {**ppo_core.hyper_values(train.config), **hyper}
+            runs[key] = jax.device_get(seeds(KEYS, values))
+        return train, runs[key]
+
+    return run
+
+
 @pytest.mark.parametrize("mod", [ppo, ippo])
-def test_port_shaping_trains_and_keeps_the_logged_profit(mod):
+def test_port_shaping_trains_and_keeps_the_logged_profit(mod, plan_obs_runs):
     """The trainers run with the port shaping; it changes the learning signal, not the
     profit the env logs (same seeds, same first rollout). ``SHAPING_WEIGHT`` 0, a value of the
     runner state, takes the shaping out again."""
-    keys = jax.random.split(jax.random.PRNGKey(0), 2)
-    trains = {}
-    for mode in ("off", "plan"):
-        config = {**TINY, "PORT_SHAPING": mode, "SPLIT_CREDIT": mod is ppo}
-        if mod is ippo:
-            config["LOCAL_REWARD_WEIGHT"] = 1.0
-        trains[mode] = mod.make_train(config)
-    off = jax.device_get(train_seeds(trains["off"], keys)["metrics"])
-    # the shaped trainer as one program of its hyper-parameter values, so the run with the
-    # shaping weighed 0 is the same compiled program as the shaped run
-    train = trains["plan"]
-
-    @jax.jit
-    def seeds(keys, hyper):
-        rs = jax.vmap(train.init, in_axes=(0, None))(keys, hyper)
-        return jax.vmap(lambda r: train.run_updates(r, train.num_updates))(rs)[1]
-
-    shaped = ppo_core.hyper_values(train.config)
-    plan = jax.device_get(seeds(keys, shaped))
-    unshaped = jax.device_get(seeds(keys, {**shaped, "SHAPING_WEIGHT": jnp.float32(0.0)}))
+    off = plan_obs_runs(mod, "off")[1]["metrics"]
+    plan = plan_obs_runs(mod, "plan")[1]["metrics"]
+    unshaped = plan_obs_runs(mod, "plan", SHAPING_WEIGHT=jnp.float32(0.0))[1]["metrics"]
     for m in (off, plan):
         for k in ("actor_loss", "value_loss"):
             assert np.all(np.isfinite(m[k])), (k, m[k])
@@ -276,15 +295,13 @@ def test_plan_advice_is_the_rule_s_port_decision():
     assert not is_bat[0] and is_bat.any()
 
 
-def test_ippo_plan_obs_appends_the_advice_to_every_agent_s_observation():
+def test_ippo_plan_obs_appends_the_advice_to_every_agent_s_observation(plan_obs_runs):
     """With ``PLAN_OBS`` the actor reads one more column, the plan advice of its leaf, in the
     rollout and in the greedy evaluation act."""
     from chargax_marl.marl.env import ChargaxMARL
 
-    train = ippo.make_train(
-        {**TINY, "PORT_SHAPING": "off", "PLAN_OBS": True, "LOCAL_REWARD_WEIGHT": 1.0}
-    )
-    out = train_seeds(train, jax.random.split(jax.random.PRNGKey(0), 2))
+    train, out = plan_obs_runs(ippo, "off")
+    assert train.config["PLAN_OBS"] and train.config["PORT_SHAPING"] == "off"
     assert np.all(np.isfinite(np.asarray(out["metrics"]["actor_loss"])))
     env = ChargaxMARL(params=train.env_params)
     assert train.policy.obs_dim == env.obs_size + 1
@@ -300,11 +317,11 @@ def test_ippo_plan_obs_appends_the_advice_to_every_agent_s_observation():
     assert np.asarray(levels).shape == (params.station.num_leaves,)
 
 
-def test_ppo_plan_obs_appends_every_leaf_s_advice():
+def test_ppo_plan_obs_appends_every_leaf_s_advice(plan_obs_runs):
     from chargax_marl.core.observation import flat_obs
 
-    train = ppo.make_train({**TINY, "PORT_SHAPING": "plan", "PLAN_OBS": True, "SPLIT_CREDIT": True})
-    out = train_seeds(train, jax.random.split(jax.random.PRNGKey(0), 2))
+    train, out = plan_obs_runs(ppo, "plan")
+    assert train.config["PLAN_OBS"] and train.config["SPLIT_CREDIT"]
     assert np.all(np.isfinite(np.asarray(out["metrics"]["actor_loss"])))
     params = make_params(**TINY_ENV, num_levels=1)
     state = _one_car_state(params, minutes_left=120.0, need_kwh=5.0, charge_sensitive=True)
