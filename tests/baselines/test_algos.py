@@ -31,10 +31,25 @@ from tests.helpers import TINY, TINY_ENV, exact_jit, finite_losses
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_mappo_update_runs_with_finite_losses():
-    train = mappo.make_train(TINY)
+@pytest.fixture(scope="module")
+def tiny_trained():
+    """``trained(mod) -> (train, out)``: ``mod.make_train(TINY)`` and its `finite_losses`
+    output (two seeds, one update, on the host), trained once per module for every test that
+    needs the plain trainer's run."""
+    runs = {}
+
+    def trained(mod):
+        if mod not in runs:
+            train = mod.make_train(TINY)
+            runs[mod] = (train, jax.device_get(finite_losses(train)))
+        return runs[mod]
+
+    return trained
+
+
+def test_mappo_update_runs_with_finite_losses(tiny_trained):
+    train, out = tiny_trained(mappo)
     assert train.policy.critic_dim == train.env.state_size  # centralised critic on the world state
-    out = finite_losses(train)
     # one episode (a day of 24 steps) finished in every env during the 24-step rollout
     assert np.all(np.asarray(out["metrics"]["episodes"]) == 4)
 
@@ -82,16 +97,14 @@ def test_ippo_update_finite_and_masks_unavailable_actions():
     # ports cannot discharge: masked levels never chosen by the greedy evaluation policy
     _, full, _, days = build_env_params(train.config)
     act = train.make_act(full)(params)
-    from chargax_marl.core import simulator
-
-    levels = act(simulator.empty_state(0, full), None)
+    levels = jax.jit(lambda: act(simulator.empty_state(0, full), None))()  # one program
     assert np.all(np.asarray(levels)[:4] >= 0)
-    logits = train.policy.logits(
+    probs = jax.jit(lambda p, obs, avail: jax.nn.softmax(train.policy.logits(p, obs, avail)))(
         params,
         np.zeros((5, train.policy.obs_dim), np.float32),
         np.asarray(train.env.get_avail_actions(None)["port_0"])[None].repeat(5, 0),
     )
-    probs = np.asarray(jax.nn.softmax(logits))
+    probs = np.asarray(probs)
     assert probs[:, :10].max() < 1e-6  # discharge indices of a no-V2G port have zero probability
 
 
@@ -252,16 +265,24 @@ def test_always_max_prior_makes_the_untrained_greedy_policy_always_max(mod):
     plain = mod.make_train(TINY)
     _, full, _, days = build_env_params(train.config)
     params = train.policy.init(jax.random.PRNGKey(3))
-    act, act_plain = jax.jit(train.make_act(full)(params)), jax.jit(plain.make_act(full)(params))
+    act, act_plain = train.make_act(full)(params), plain.make_act(full)(params)
     state = simulator.empty_state(int(days[0]), full)
-    step = jax.jit(lambda k, s, a: simulator.step(k, s, a, full)[0])
+
+    @jax.jit
+    def at(k, s):  # one compiled program per step: both acts, the rule and the step
+        levels = act(s, k)
+        return (
+            levels,
+            always_max(s, k, full),
+            act_plain(s, k),
+            simulator.step(k, s, levels, full)[0],
+        )
+
     differs = False
     for t in range(full.num_steps):  # along a whole day of changing observations
-        k = jax.random.PRNGKey(t)
-        levels, ref = np.asarray(act(state, k)), np.asarray(always_max(state, k, full))
-        np.testing.assert_array_equal(levels, ref)
-        differs |= not np.array_equal(np.asarray(act_plain(state, k)), ref)
-        state = step(k, state, levels)
+        levels, ref, plain_levels, state = at(jax.random.PRNGKey(t), state)
+        np.testing.assert_array_equal(np.asarray(levels), np.asarray(ref))
+        differs |= not np.array_equal(np.asarray(plain_levels), np.asarray(ref))
     assert differs
     # sampling explores around it: b = 6 leaves e^0 / (e^6 + 20 e^0), about 5 %, of a head's
     # mass on the other 20 actions (the untrained network's logits are near 0)
@@ -369,8 +390,10 @@ def test_split_credit_gives_port_and_battery_heads_their_own_log_probability_and
     assert bat.sum() == 1 and parts.shape == (3, 2)
     np.testing.assert_allclose(parts[:, 0], np.asarray(head_logp)[:, ~bat].sum(-1), rtol=1e-6)
     np.testing.assert_allclose(parts[:, 1], np.asarray(head_logp)[:, bat].sum(-1), rtol=1e-6)
-    params = policy.init(jax.random.PRNGKey(0))
-    assert policy.value(params, jnp.zeros((5, policy.obs_dim))).shape == (5, 2)
+    value = jax.eval_shape(  # shapes only: nothing to compile
+        lambda: policy.value(policy.init(jax.random.PRNGKey(0)), jnp.zeros((5, policy.obs_dim)))
+    )
+    assert value.shape == (5, 2)
     out = finite_losses(train)
     assert np.all(np.isfinite(out["metrics"]["value_loss"]))
     with pytest.raises(ValueError, match="SPLIT_CREDIT"):
@@ -419,22 +442,23 @@ def test_single_env_reports_the_batteries_share_of_the_reward():
 
 
 @pytest.mark.parametrize("mod", [ppo, ippo])
-def test_battery_shaping_trains_and_changes_the_return_not_the_profit(mod):
-    outs = {}
-    for on in (False, True):
-        train = mod.make_train({**TINY, "BATTERY_SHAPING": on})
-        outs[on] = jax.device_get(finite_losses(train)["metrics"])
+def test_battery_shaping_trains_and_changes_the_return_not_the_profit(mod, tiny_trained):
+    outs = {False: tiny_trained(mod)[1]["metrics"]}  # BATTERY_SHAPING is off by default
+    train = mod.make_train({**TINY, "BATTERY_SHAPING": True})
+    outs[True] = jax.device_get(finite_losses(train)["metrics"])
     # same seeds, same first rollout: the logged profit is the station's in both runs
     np.testing.assert_allclose(
         outs[True]["episode_profit_eur"][:, 0], outs[False]["episode_profit_eur"][:, 0], rtol=1e-5
     )
 
 
-def test_a_fairness_weight_trains_and_changes_the_return_not_the_profit():
-    outs = {}
-    for weight in (0.0, 50.0):
-        config = {**TINY, "FAIRNESS_WEIGHT": weight, "FAIRNESS_METRIC": "min_satisfaction"}
-        outs[weight] = jax.device_get(finite_losses(ippo.make_train(config))["metrics"])
+def test_a_fairness_weight_trains_and_changes_the_return_not_the_profit(tiny_trained):
+    plain, plain_out = tiny_trained(ippo)
+    config = {**TINY, "FAIRNESS_WEIGHT": 50.0, "FAIRNESS_METRIC": "min_satisfaction"}
+    # a weight of 0 leaves the env unwrapped: its run is the plain trainer's
+    assert aids.fairness({**config, "FAIRNESS_WEIGHT": 0.0}, plain.env) is plain.env
+    outs = {0.0: plain_out["metrics"]}
+    outs[50.0] = jax.device_get(finite_losses(ippo.make_train(config))["metrics"])
     # same seeds, same first rollout: the station's profit is the same, the return gains the term
     np.testing.assert_allclose(
         outs[50.0]["episode_profit_eur"][:, 0], outs[0.0]["episode_profit_eur"][:, 0], rtol=1e-5
@@ -475,11 +499,15 @@ def test_ippo_trains_through_the_priority_fill_and_plays_it_when_scored():
     plain = ippo.make_train(TINY).make_act(train.env_params)(seed0)
     filled = train.make_act(train.env_params)(seed0)
     state = simulator.reset(jax.random.PRNGKey(3), train.env_params)
+
+    @jax.jit
+    def at(key, s):  # one compiled program per step
+        want = priority_fill_levels(plain(s, key), s, train.env_params)
+        return filled(s, key), want, simulator.step(key, s, want, train.env_params)[0]
+
     for _ in range(6):  # a few busy steps of the same greedy policy, with and without the fill
-        key = jax.random.PRNGKey(0)
-        want = priority_fill_levels(plain(state, key), state, train.env_params)
-        np.testing.assert_array_equal(filled(state, key), want)
-        state, _ = simulator.step(key, state, want, train.env_params)
+        got, want, state = at(jax.random.PRNGKey(0), state)
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
     with pytest.raises(ValueError, match="PRIORITY_FILL=true .* OBS_DELAY_STEPS=2"):
         ippo.make_train({**config, "OBS_DELAY_STEPS": 2})
     with pytest.raises(ValueError, match="PRIORITY_FILL=true applies to the multi-agent"):
@@ -496,14 +524,18 @@ def test_ippo_trains_in_priority_classes_and_plays_them_at_the_envs_levels_when_
     act = train.make_act(train.env_params)(seed0)
     classes = PriorityFill(train.env, 2)
     state = simulator.reset(jax.random.PRNGKey(3), train.env_params)
-    for _ in range(6):  # the scored levels are the classes the greedy policy picks, filled
-        key = jax.random.PRNGKey(0)
+
+    @jax.jit
+    def at(key, state):  # one compiled program per step
         obs = train.policy.with_plan(train.env.get_obs_matrix(state), state)
         avail = jnp.asarray(classes._avail_np)
         idx = jnp.argmax(train.policy.logits(seed0, obs, avail), axis=-1)
         want = priority_class_levels(idx, state, train.env_params, 2)
-        np.testing.assert_array_equal(act(state, key), want)
-        state, _ = simulator.step(key, state, want, train.env_params)
+        return act(state, key), want, simulator.step(key, state, want, train.env_params)[0]
+
+    for _ in range(6):  # the scored levels are the classes the greedy policy picks, filled
+        got, want, state = at(jax.random.PRNGKey(0), state)
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
     with pytest.raises(ValueError, match="PRIORITY_CLASSES=2 needs PRIORITY_FILL=true"):
         ippo.make_train({**TINY, "PRIORITY_CLASSES": 2})
 
@@ -520,9 +552,13 @@ def test_the_coupled_teacher_shapes_and_advises_the_trainers(mod):
     out = finite_losses(train)
     params = train.env_params
     state = simulator.reset(jax.random.PRNGKey(3), params)
+    step = jax.jit(
+        lambda s: simulator.step(
+            jax.random.PRNGKey(0), s, policies.always_max(s, None, params), params
+        )[0]
+    )
     for _ in range(12):  # cars arrive over the morning
-        levels = policies.always_max(state, None, params)
-        state, _ = simulator.step(jax.random.PRNGKey(0), state, levels, params)
+        state = step(state)
     advice = np.asarray(congestion.coupled_advice(params)(state))
     assert advice.shape == (params.station.num_leaves, 2) and advice[:, 0].max() > 0
     if mod is ippo:
@@ -562,11 +598,12 @@ def test_battery_net_and_agent_advantage_normalisation_train(mod):
     assert ("battery_critic" in params) == (mod is ippo)  # MAPPO's critic reads the world state
     # the battery's logits come from its own actor: changing it moves the battery row only
     policy, env = train.policy, train.env
+    logits = jax.jit(policy.logits, static_argnames="rows")  # compiled, not op by op
     p0 = jax.tree.map(lambda x: x[0], params)
-    obs = env.get_obs_matrix(env.reset_to_day(0)[1])
+    obs = jax.jit(lambda: env.get_obs_matrix(env.reset_to_day(0)[1]))()
     avail = jnp.asarray(env._avail_np)
     p1 = {**p0, "battery_actor": jax.tree.map(lambda x: x + 1.0, p0["battery_actor"])}
-    moved = np.abs(np.asarray(policy.logits(p1, obs, avail) - policy.logits(p0, obs, avail))).max(
+    moved = np.abs(np.asarray(logits(p1, obs, avail)) - np.asarray(logits(p0, obs, avail))).max(
         axis=1
     )
     assert moved[-1] > 0 and np.all(moved[:-1] == 0)
@@ -578,14 +615,12 @@ def test_battery_net_and_agent_advantage_normalisation_train(mod):
     av = jnp.tile(avail, (3, 1))
     for rows, rows_x in (("env_step_major", x), ("agent_major", x_agent_major)):
         np.testing.assert_allclose(
-            policy.logits(p1, rows_x, av, rows=rows),
-            policy.logits(p1, rows_x, av),
-            rtol=1e-6,
-            atol=1e-6,
+            logits(p1, rows_x, av, rows=rows), logits(p1, rows_x, av), rtol=1e-6, atol=1e-6
         )
         if mod is ippo:
+            value = jax.jit(policy.value, static_argnames="rows")
             np.testing.assert_allclose(
-                policy.value(p1, rows_x, rows=rows), policy.value(p1, rows_x), rtol=1e-6, atol=1e-6
+                value(p1, rows_x, rows=rows), value(p1, rows_x), rtol=1e-6, atol=1e-6
             )
     with pytest.raises(ValueError, match="rows must be"):
         policy.logits(p1, x, av, rows="by_agent")
@@ -793,12 +828,18 @@ def test_the_greedy_act_reads_the_plan_of_the_prices_it_is_played_on(mod, mode, 
     def a_state(differ: bool):
         """A busy state of a day of ``other``; with ``differ``, one at which the two price
         years' plans differ."""
+
+        @jax.jit
+        def step(key, state):  # one compiled program per step
+            levels = policies.always_max(state, None, other)
+            state, _ = simulator.step(key, state, levels, other)
+            return state, advice(state), trained_advice(state)
+
         for seed in range(10):
             state = simulator.reset(jax.random.PRNGKey(seed), other)
             for _ in range(other.num_steps):
-                levels = policies.always_max(state, None, other)
-                state, _ = simulator.step(jax.random.PRNGKey(seed), state, levels, other)
-                x, y = np.asarray(advice(state)), np.asarray(trained_advice(state))
+                state, x, y = step(jax.random.PRNGKey(seed), state)
+                x, y = np.asarray(x), np.asarray(y)
                 if not differ and state.occupied.any() or differ and not np.allclose(x, y):
                     return state
         raise AssertionError("the two price years' plans agree on every day tried")
@@ -841,18 +882,21 @@ def test_residual_starts_at_the_coupled_plan_and_explores_its_neighbouring_level
     full = train.env_params
     rule = coupled_plan_rule(full)
     params = train.policy.init(jax.random.PRNGKey(3))
-    act = jax.jit(train.make_act(full)(params))
-    act_plain = jax.jit(plain.make_act(full)(plain.policy.init(jax.random.PRNGKey(3))))
+    act = train.make_act(full)(params)
+    act_plain = plain.make_act(full)(plain.policy.init(jax.random.PRNGKey(3)))
     state = simulator.reset(jax.random.PRNGKey(5), full)
-    step = jax.jit(lambda k, s, a: simulator.step(k, s, a, full)[0])
+
+    @jax.jit
+    def at(k, s):  # one compiled program per step: both acts, the rule and the step
+        levels = act(s, k)
+        return levels, rule(s, k, full), act_plain(s, k), simulator.step(k, s, levels, full)[0]
+
     differs, moved = False, False
     for t in range(full.num_steps):
-        k = jax.random.PRNGKey(t)
-        levels, ref = np.asarray(act(state, k)), np.asarray(rule(state, k, full))
+        levels, ref, plain_levels, state = jax.device_get(at(jax.random.PRNGKey(t), state))
         np.testing.assert_array_equal(levels, ref)
-        differs |= not np.array_equal(np.asarray(act_plain(state, k)), ref)
+        differs |= not np.array_equal(plain_levels, ref)
         moved |= bool(np.any(ref != 0))
-        state = step(k, state, levels)
     assert differs and moved
     # the offsets: -2 per level of distance from the plan's action (index idle + level)
     rows = np.asarray(train.policy.with_plan(train.env.get_obs_matrix(state), state))
