@@ -559,23 +559,38 @@ def test_the_coupled_teacher_shapes_and_advises_the_trainers(mod):
     )
     for _ in range(12):  # cars arrive over the morning
         state = step(state)
-    advice = np.asarray(congestion.coupled_advice(params)(state))
+    energy = jnp.full((params.station.num_leaves,), 3.0)
+    seed0 = jax.tree.map(lambda x: x[0], out["runner_state"].params)
+    # built for the concrete params, played in one program
+    coupled_advice, coupled_potential = (
+        congestion.coupled_advice(params),
+        congestion.coupled_potential(params),
+    )
+    car_potential, make_act = aids.car_potential(config, params), train.make_act(params)
+
+    @jax.jit
+    def read(state, seed0):  # the advice, the observations, potentials and act: one program
+        if mod is ippo:
+            obs = train.policy.with_plan(train.env.get_obs_matrix(state), state)
+        else:
+            obs = train.policy.with_plan(observation.flat_obs(state, params), state)
+        return (
+            coupled_advice(state),
+            obs,
+            car_potential(state)(energy),
+            coupled_potential(state)(energy),
+            make_act(seed0)(state, None),
+        )
+
+    advice, obs, potential, coupled, levels = jax.device_get(read(state, seed0))
     assert advice.shape == (params.station.num_leaves, 2) and advice[:, 0].max() > 0
     if mod is ippo:
         assert train.policy.obs_dim == train.env.obs_size + 2
-        rows = train.policy.with_plan(train.env.get_obs_matrix(state), state)
-        np.testing.assert_allclose(np.asarray(rows[:, -2:]), advice, rtol=1e-6)
+        np.testing.assert_allclose(obs[:, -2:], advice, rtol=1e-6)
     else:
-        obs = train.policy.with_plan(observation.flat_obs(state, params), state)
-        np.testing.assert_allclose(np.asarray(obs[-advice.size :]), advice.reshape(-1), rtol=1e-6)
-    energy = jnp.full((params.station.num_leaves,), 3.0)
-    np.testing.assert_allclose(
-        aids.car_potential(config, params)(state)(energy),
-        congestion.coupled_potential(params)(state)(energy),
-        rtol=1e-6,
-    )
-    seed0 = jax.tree.map(lambda x: x[0], out["runner_state"].params)
-    assert np.asarray(train.make_act(params)(seed0)(state, None)).shape == advice[:, 0].shape
+        np.testing.assert_allclose(obs[-advice.size :], advice.reshape(-1), rtol=1e-6)
+    np.testing.assert_allclose(potential, coupled, rtol=1e-6)
+    assert levels.shape == advice[:, 0].shape
     with pytest.raises(ValueError, match="PLAN_OBS must be a bool or one of"):
         aids.plan_obs_mode({"PLAN_OBS": "later"})
 
@@ -899,10 +914,12 @@ def test_residual_starts_at_the_coupled_plan_and_explores_its_neighbouring_level
         moved |= bool(np.any(ref != 0))
     assert differs and moved
     # the offsets: -2 per level of distance from the plan's action (index idle + level)
-    rows = np.asarray(train.policy.with_plan(train.env.get_obs_matrix(state), state))
-    np.testing.assert_allclose(
-        rows[:, -1], np.asarray(rule(state, None, full)) / full.num_levels, rtol=1e-6
+    rows, ref = jax.device_get(
+        jax.jit(
+            lambda s: (train.policy.with_plan(train.env.get_obs_matrix(s), s), rule(s, None, full))
+        )(state)
     )
+    np.testing.assert_allclose(rows[:, -1], ref / full.num_levels, rtol=1e-6)
     obs = np.zeros((1, train.policy.obs_dim), np.float32)
     avail = np.ones((1, train.policy.k), bool)
     p = np.asarray(jax.nn.softmax(train.policy.logits(params, obs, avail)))[0]
