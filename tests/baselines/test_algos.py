@@ -57,14 +57,17 @@ def test_mappo_update_runs_with_finite_losses(tiny_trained):
 @pytest.mark.parametrize(
     "minibatches", [2, 8]
 )  # 2 < 5 agents: the update gathers from the table; 8: it does not
-def test_mappo_shared_critic_matches_per_agent_critic(monkeypatch, minibatches):
-    """The centralised critic run once per (step, env) gives the training of one run per agent row."""
-    config = {**TINY, "NUM_MINIBATCHES": minibatches, "TOTAL_TIMESTEPS": 2 * 4 * 24}
-    outs = []
-    for dedup in (False, True):
-        monkeypatch.setattr(ippo, "DEDUP_CENTRAL_CRITIC", dedup)
-        outs.append(jax.device_get(jax.jit(mappo.make_train(config))(jax.random.PRNGKey(3))))
-    ref, new = outs
+def test_mappo_shared_critic_matches_per_agent_critic(monkeypatch, minibatches, tiny_trained):
+    """The centralised critic run once per (step, env) gives the training of one run per agent row
+    (two seeds, one update: every loss of the update and the parameters it leaves)."""
+    assert ippo.DEDUP_CENTRAL_CRITIC  # the default: the plain MAPPO run (2 minibatches) has it
+    config = {**TINY, "NUM_MINIBATCHES": minibatches}
+    if minibatches == TINY["NUM_MINIBATCHES"]:
+        new = tiny_trained(mappo)[1]
+    else:
+        new = jax.device_get(finite_losses(mappo.make_train(config)))
+    monkeypatch.setattr(ippo, "DEDUP_CENTRAL_CRITIC", False)
+    ref = jax.device_get(finite_losses(mappo.make_train(config)))
     for k in ("actor_loss", "value_loss", "entropy", "approx_kl", "episode_return"):
         np.testing.assert_allclose(
             new["metrics"][k], ref["metrics"][k], rtol=1e-4, atol=1e-6, err_msg=k
@@ -315,30 +318,44 @@ def test_ippo_learns_from_the_local_reward_weight_and_ppo_refuses_it():
         ippo.make_train({**TINY, "LOCAL_REWARD_WEIGHT": 2.0})
 
 
-def _tiny_day(rewards_of, w):
-    """Step a tiny day with random actions; ``rewards_of(pre_state, reward, info)`` -> the
-    step's (original, shaped) rewards. Returns their sums over the day and the day's profit."""
+@functools.cache
+def _tiny_day_steps(w):
+    """A tiny day stepped with random actions, played once per ``w`` for every shaping test:
+    the env, each step's ``(pre_state, rewards (agents,), info)`` and the day's final state."""
     from chargax_marl.marl.env import ChargaxMARL
 
     env = ChargaxMARL(local_reward_weight=w, **TINY_ENV)
     _, state = env.reset_to_day(3)
-    step = jax.jit(env.step_env)  # one program for the day's steps, not one per operation
-    key = jax.random.PRNGKey(1)
-    raw, shaped, shaped_first = 0.0, 0.0, None
-    for _ in range(int(env.params.num_steps)):
+
+    @jax.jit
+    def step(key, state):  # one program for a step, its random actions included
         key, k_act, k_step = jax.random.split(key, 3)
         idx = jax.random.randint(k_act, (env.num_agents,), 0, env.num_actions)
         idx = jnp.where(
             jnp.asarray(env._avail_np)[jnp.arange(env.num_agents), idx], idx, env.action_offset
         )
         actions = {a: idx[i] for i, a in enumerate(env.agents)}
-        _, new_state, rewards, _, info = step(k_step, state, actions)
-        r = np.stack([np.asarray(rewards[a]) for a in env.agents])
+        _, new_state, rewards, _, info = env.step_env(k_step, state, actions)
+        return key, new_state, jnp.stack([rewards[a] for a in env.agents]), info
+
+    key, steps = jax.random.PRNGKey(1), []
+    for _ in range(int(env.params.num_steps)):
+        key, new_state, rewards, info = step(key, state)
+        steps.append((state, np.asarray(rewards), info))
+        state = new_state
+    return env, steps, state
+
+
+def _tiny_day(rewards_of, w):
+    """Step a tiny day with random actions; ``rewards_of(pre_state, reward, info)`` -> the
+    step's (original, shaped) rewards. Returns their sums over the day and the day's profit."""
+    env, steps, final = _tiny_day_steps(w)
+    raw, shaped, shaped_first = 0.0, 0.0, None
+    for state, r, info in steps:
         s = r + np.asarray(rewards_of(env, state, info))
         raw, shaped = raw + r, shaped + s
         shaped_first = s - r if shaped_first is None else shaped_first
-        state = new_state
-    return raw, shaped, shaped_first, float(state.totals.profit_eur)
+    return raw, shaped, shaped_first, float(final.totals.profit_eur)
 
 
 @pytest.mark.parametrize("w", [0.0, 1.0])
