@@ -31,10 +31,25 @@ from tests.helpers import TINY, TINY_ENV, exact_jit, finite_losses
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_mappo_update_runs_with_finite_losses():
-    train = mappo.make_train(TINY)
+@pytest.fixture(scope="module")
+def tiny_trained():
+    """``trained(mod) -> (train, out)``: ``mod.make_train(TINY)`` and its `finite_losses`
+    output (two seeds, one update, on the host), trained once per module for every test that
+    needs the plain trainer's run."""
+    runs = {}
+
+    def trained(mod):
+        if mod not in runs:
+            train = mod.make_train(TINY)
+            runs[mod] = (train, jax.device_get(finite_losses(train)))
+        return runs[mod]
+
+    return trained
+
+
+def test_mappo_update_runs_with_finite_losses(tiny_trained):
+    train, out = tiny_trained(mappo)
     assert train.policy.critic_dim == train.env.state_size  # centralised critic on the world state
-    out = finite_losses(train)
     # one episode (a day of 24 steps) finished in every env during the 24-step rollout
     assert np.all(np.asarray(out["metrics"]["episodes"]) == 4)
 
@@ -42,14 +57,17 @@ def test_mappo_update_runs_with_finite_losses():
 @pytest.mark.parametrize(
     "minibatches", [2, 8]
 )  # 2 < 5 agents: the update gathers from the table; 8: it does not
-def test_mappo_shared_critic_matches_per_agent_critic(monkeypatch, minibatches):
-    """The centralised critic run once per (step, env) gives the training of one run per agent row."""
-    config = {**TINY, "NUM_MINIBATCHES": minibatches, "TOTAL_TIMESTEPS": 2 * 4 * 24}
-    outs = []
-    for dedup in (False, True):
-        monkeypatch.setattr(ippo, "DEDUP_CENTRAL_CRITIC", dedup)
-        outs.append(jax.device_get(jax.jit(mappo.make_train(config))(jax.random.PRNGKey(3))))
-    ref, new = outs
+def test_mappo_shared_critic_matches_per_agent_critic(monkeypatch, minibatches, tiny_trained):
+    """The centralised critic run once per (step, env) gives the training of one run per agent row
+    (two seeds, one update: every loss of the update and the parameters it leaves)."""
+    assert ippo.DEDUP_CENTRAL_CRITIC  # the default: the plain MAPPO run (2 minibatches) has it
+    config = {**TINY, "NUM_MINIBATCHES": minibatches}
+    if minibatches == TINY["NUM_MINIBATCHES"]:
+        new = tiny_trained(mappo)[1]
+    else:
+        new = jax.device_get(finite_losses(mappo.make_train(config)))
+    monkeypatch.setattr(ippo, "DEDUP_CENTRAL_CRITIC", False)
+    ref = jax.device_get(finite_losses(mappo.make_train(config)))
     for k in ("actor_loss", "value_loss", "entropy", "approx_kl", "episode_return"):
         np.testing.assert_allclose(
             new["metrics"][k], ref["metrics"][k], rtol=1e-4, atol=1e-6, err_msg=k
@@ -82,16 +100,14 @@ def test_ippo_update_finite_and_masks_unavailable_actions():
     # ports cannot discharge: masked levels never chosen by the greedy evaluation policy
     _, full, _, days = build_env_params(train.config)
     act = train.make_act(full)(params)
-    from chargax_marl.core import simulator
-
-    levels = act(simulator.empty_state(0, full), None)
+    levels = jax.jit(lambda: act(simulator.empty_state(0, full), None))()  # one program
     assert np.all(np.asarray(levels)[:4] >= 0)
-    logits = train.policy.logits(
+    probs = jax.jit(lambda p, obs, avail: jax.nn.softmax(train.policy.logits(p, obs, avail)))(
         params,
         np.zeros((5, train.policy.obs_dim), np.float32),
         np.asarray(train.env.get_avail_actions(None)["port_0"])[None].repeat(5, 0),
     )
-    probs = np.asarray(jax.nn.softmax(logits))
+    probs = np.asarray(probs)
     assert probs[:, :10].max() < 1e-6  # discharge indices of a no-V2G port have zero probability
 
 
@@ -252,16 +268,24 @@ def test_always_max_prior_makes_the_untrained_greedy_policy_always_max(mod):
     plain = mod.make_train(TINY)
     _, full, _, days = build_env_params(train.config)
     params = train.policy.init(jax.random.PRNGKey(3))
-    act, act_plain = jax.jit(train.make_act(full)(params)), jax.jit(plain.make_act(full)(params))
+    act, act_plain = train.make_act(full)(params), plain.make_act(full)(params)
     state = simulator.empty_state(int(days[0]), full)
-    step = jax.jit(lambda k, s, a: simulator.step(k, s, a, full)[0])
+
+    @jax.jit
+    def at(k, s):  # one compiled program per step: both acts, the rule and the step
+        levels = act(s, k)
+        return (
+            levels,
+            always_max(s, k, full),
+            act_plain(s, k),
+            simulator.step(k, s, levels, full)[0],
+        )
+
     differs = False
     for t in range(full.num_steps):  # along a whole day of changing observations
-        k = jax.random.PRNGKey(t)
-        levels, ref = np.asarray(act(state, k)), np.asarray(always_max(state, k, full))
-        np.testing.assert_array_equal(levels, ref)
-        differs |= not np.array_equal(np.asarray(act_plain(state, k)), ref)
-        state = step(k, state, levels)
+        levels, ref, plain_levels, state = at(jax.random.PRNGKey(t), state)
+        np.testing.assert_array_equal(np.asarray(levels), np.asarray(ref))
+        differs |= not np.array_equal(np.asarray(plain_levels), np.asarray(ref))
     assert differs
     # sampling explores around it: b = 6 leaves e^0 / (e^6 + 20 e^0), about 5 %, of a head's
     # mass on the other 20 actions (the untrained network's logits are near 0)
@@ -294,30 +318,44 @@ def test_ippo_learns_from_the_local_reward_weight_and_ppo_refuses_it():
         ippo.make_train({**TINY, "LOCAL_REWARD_WEIGHT": 2.0})
 
 
-def _tiny_day(rewards_of, w):
-    """Step a tiny day with random actions; ``rewards_of(pre_state, reward, info)`` -> the
-    step's (original, shaped) rewards. Returns their sums over the day and the day's profit."""
+@functools.cache
+def _tiny_day_steps(w):
+    """A tiny day stepped with random actions, played once per ``w`` for every shaping test:
+    the env, each step's ``(pre_state, rewards (agents,), info)`` and the day's final state."""
     from chargax_marl.marl.env import ChargaxMARL
 
     env = ChargaxMARL(local_reward_weight=w, **TINY_ENV)
     _, state = env.reset_to_day(3)
-    step = jax.jit(env.step_env)  # one program for the day's steps, not one per operation
-    key = jax.random.PRNGKey(1)
-    raw, shaped, shaped_first = 0.0, 0.0, None
-    for _ in range(int(env.params.num_steps)):
+
+    @jax.jit
+    def step(key, state):  # one program for a step, its random actions included
         key, k_act, k_step = jax.random.split(key, 3)
         idx = jax.random.randint(k_act, (env.num_agents,), 0, env.num_actions)
         idx = jnp.where(
             jnp.asarray(env._avail_np)[jnp.arange(env.num_agents), idx], idx, env.action_offset
         )
         actions = {a: idx[i] for i, a in enumerate(env.agents)}
-        _, new_state, rewards, _, info = step(k_step, state, actions)
-        r = np.stack([np.asarray(rewards[a]) for a in env.agents])
+        _, new_state, rewards, _, info = env.step_env(k_step, state, actions)
+        return key, new_state, jnp.stack([rewards[a] for a in env.agents]), info
+
+    key, steps = jax.random.PRNGKey(1), []
+    for _ in range(int(env.params.num_steps)):
+        key, new_state, rewards, info = step(key, state)
+        steps.append((state, np.asarray(rewards), info))
+        state = new_state
+    return env, steps, state
+
+
+def _tiny_day(rewards_of, w):
+    """Step a tiny day with random actions; ``rewards_of(pre_state, reward, info)`` -> the
+    step's (original, shaped) rewards. Returns their sums over the day and the day's profit."""
+    env, steps, final = _tiny_day_steps(w)
+    raw, shaped, shaped_first = 0.0, 0.0, None
+    for state, r, info in steps:
         s = r + np.asarray(rewards_of(env, state, info))
         raw, shaped = raw + r, shaped + s
         shaped_first = s - r if shaped_first is None else shaped_first
-        state = new_state
-    return raw, shaped, shaped_first, float(state.totals.profit_eur)
+    return raw, shaped, shaped_first, float(final.totals.profit_eur)
 
 
 @pytest.mark.parametrize("w", [0.0, 1.0])
@@ -369,8 +407,10 @@ def test_split_credit_gives_port_and_battery_heads_their_own_log_probability_and
     assert bat.sum() == 1 and parts.shape == (3, 2)
     np.testing.assert_allclose(parts[:, 0], np.asarray(head_logp)[:, ~bat].sum(-1), rtol=1e-6)
     np.testing.assert_allclose(parts[:, 1], np.asarray(head_logp)[:, bat].sum(-1), rtol=1e-6)
-    params = policy.init(jax.random.PRNGKey(0))
-    assert policy.value(params, jnp.zeros((5, policy.obs_dim))).shape == (5, 2)
+    value = jax.eval_shape(  # shapes only: nothing to compile
+        lambda: policy.value(policy.init(jax.random.PRNGKey(0)), jnp.zeros((5, policy.obs_dim)))
+    )
+    assert value.shape == (5, 2)
     out = finite_losses(train)
     assert np.all(np.isfinite(out["metrics"]["value_loss"]))
     with pytest.raises(ValueError, match="SPLIT_CREDIT"):
@@ -419,22 +459,23 @@ def test_single_env_reports_the_batteries_share_of_the_reward():
 
 
 @pytest.mark.parametrize("mod", [ppo, ippo])
-def test_battery_shaping_trains_and_changes_the_return_not_the_profit(mod):
-    outs = {}
-    for on in (False, True):
-        train = mod.make_train({**TINY, "BATTERY_SHAPING": on})
-        outs[on] = jax.device_get(finite_losses(train)["metrics"])
+def test_battery_shaping_trains_and_changes_the_return_not_the_profit(mod, tiny_trained):
+    outs = {False: tiny_trained(mod)[1]["metrics"]}  # BATTERY_SHAPING is off by default
+    train = mod.make_train({**TINY, "BATTERY_SHAPING": True})
+    outs[True] = jax.device_get(finite_losses(train)["metrics"])
     # same seeds, same first rollout: the logged profit is the station's in both runs
     np.testing.assert_allclose(
         outs[True]["episode_profit_eur"][:, 0], outs[False]["episode_profit_eur"][:, 0], rtol=1e-5
     )
 
 
-def test_a_fairness_weight_trains_and_changes_the_return_not_the_profit():
-    outs = {}
-    for weight in (0.0, 50.0):
-        config = {**TINY, "FAIRNESS_WEIGHT": weight, "FAIRNESS_METRIC": "min_satisfaction"}
-        outs[weight] = jax.device_get(finite_losses(ippo.make_train(config))["metrics"])
+def test_a_fairness_weight_trains_and_changes_the_return_not_the_profit(tiny_trained):
+    plain, plain_out = tiny_trained(ippo)
+    config = {**TINY, "FAIRNESS_WEIGHT": 50.0, "FAIRNESS_METRIC": "min_satisfaction"}
+    # a weight of 0 leaves the env unwrapped: its run is the plain trainer's
+    assert aids.fairness({**config, "FAIRNESS_WEIGHT": 0.0}, plain.env) is plain.env
+    outs = {0.0: plain_out["metrics"]}
+    outs[50.0] = jax.device_get(finite_losses(ippo.make_train(config))["metrics"])
     # same seeds, same first rollout: the station's profit is the same, the return gains the term
     np.testing.assert_allclose(
         outs[50.0]["episode_profit_eur"][:, 0], outs[0.0]["episode_profit_eur"][:, 0], rtol=1e-5
@@ -475,11 +516,15 @@ def test_ippo_trains_through_the_priority_fill_and_plays_it_when_scored():
     plain = ippo.make_train(TINY).make_act(train.env_params)(seed0)
     filled = train.make_act(train.env_params)(seed0)
     state = simulator.reset(jax.random.PRNGKey(3), train.env_params)
+
+    @jax.jit
+    def at(key, s):  # one compiled program per step
+        want = priority_fill_levels(plain(s, key), s, train.env_params)
+        return filled(s, key), want, simulator.step(key, s, want, train.env_params)[0]
+
     for _ in range(6):  # a few busy steps of the same greedy policy, with and without the fill
-        key = jax.random.PRNGKey(0)
-        want = priority_fill_levels(plain(state, key), state, train.env_params)
-        np.testing.assert_array_equal(filled(state, key), want)
-        state, _ = simulator.step(key, state, want, train.env_params)
+        got, want, state = at(jax.random.PRNGKey(0), state)
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
     with pytest.raises(ValueError, match="PRIORITY_FILL=true .* OBS_DELAY_STEPS=2"):
         ippo.make_train({**config, "OBS_DELAY_STEPS": 2})
     with pytest.raises(ValueError, match="PRIORITY_FILL=true applies to the multi-agent"):
@@ -496,14 +541,18 @@ def test_ippo_trains_in_priority_classes_and_plays_them_at_the_envs_levels_when_
     act = train.make_act(train.env_params)(seed0)
     classes = PriorityFill(train.env, 2)
     state = simulator.reset(jax.random.PRNGKey(3), train.env_params)
-    for _ in range(6):  # the scored levels are the classes the greedy policy picks, filled
-        key = jax.random.PRNGKey(0)
+
+    @jax.jit
+    def at(key, state):  # one compiled program per step
         obs = train.policy.with_plan(train.env.get_obs_matrix(state), state)
         avail = jnp.asarray(classes._avail_np)
         idx = jnp.argmax(train.policy.logits(seed0, obs, avail), axis=-1)
         want = priority_class_levels(idx, state, train.env_params, 2)
-        np.testing.assert_array_equal(act(state, key), want)
-        state, _ = simulator.step(key, state, want, train.env_params)
+        return act(state, key), want, simulator.step(key, state, want, train.env_params)[0]
+
+    for _ in range(6):  # the scored levels are the classes the greedy policy picks, filled
+        got, want, state = at(jax.random.PRNGKey(0), state)
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
     with pytest.raises(ValueError, match="PRIORITY_CLASSES=2 needs PRIORITY_FILL=true"):
         ippo.make_train({**TINY, "PRIORITY_CLASSES": 2})
 
@@ -520,26 +569,45 @@ def test_the_coupled_teacher_shapes_and_advises_the_trainers(mod):
     out = finite_losses(train)
     params = train.env_params
     state = simulator.reset(jax.random.PRNGKey(3), params)
+    step = jax.jit(
+        lambda s: simulator.step(
+            jax.random.PRNGKey(0), s, policies.always_max(s, None, params), params
+        )[0]
+    )
     for _ in range(12):  # cars arrive over the morning
-        levels = policies.always_max(state, None, params)
-        state, _ = simulator.step(jax.random.PRNGKey(0), state, levels, params)
-    advice = np.asarray(congestion.coupled_advice(params)(state))
+        state = step(state)
+    energy = jnp.full((params.station.num_leaves,), 3.0)
+    seed0 = jax.tree.map(lambda x: x[0], out["runner_state"].params)
+    # built for the concrete params, played in one program
+    coupled_advice, coupled_potential = (
+        congestion.coupled_advice(params),
+        congestion.coupled_potential(params),
+    )
+    car_potential, make_act = aids.car_potential(config, params), train.make_act(params)
+
+    @jax.jit
+    def read(state, seed0):  # the advice, the observations, potentials and act: one program
+        if mod is ippo:
+            obs = train.policy.with_plan(train.env.get_obs_matrix(state), state)
+        else:
+            obs = train.policy.with_plan(observation.flat_obs(state, params), state)
+        return (
+            coupled_advice(state),
+            obs,
+            car_potential(state)(energy),
+            coupled_potential(state)(energy),
+            make_act(seed0)(state, None),
+        )
+
+    advice, obs, potential, coupled, levels = jax.device_get(read(state, seed0))
     assert advice.shape == (params.station.num_leaves, 2) and advice[:, 0].max() > 0
     if mod is ippo:
         assert train.policy.obs_dim == train.env.obs_size + 2
-        rows = train.policy.with_plan(train.env.get_obs_matrix(state), state)
-        np.testing.assert_allclose(np.asarray(rows[:, -2:]), advice, rtol=1e-6)
+        np.testing.assert_allclose(obs[:, -2:], advice, rtol=1e-6)
     else:
-        obs = train.policy.with_plan(observation.flat_obs(state, params), state)
-        np.testing.assert_allclose(np.asarray(obs[-advice.size :]), advice.reshape(-1), rtol=1e-6)
-    energy = jnp.full((params.station.num_leaves,), 3.0)
-    np.testing.assert_allclose(
-        aids.car_potential(config, params)(state)(energy),
-        congestion.coupled_potential(params)(state)(energy),
-        rtol=1e-6,
-    )
-    seed0 = jax.tree.map(lambda x: x[0], out["runner_state"].params)
-    assert np.asarray(train.make_act(params)(seed0)(state, None)).shape == advice[:, 0].shape
+        np.testing.assert_allclose(obs[-advice.size :], advice.reshape(-1), rtol=1e-6)
+    np.testing.assert_allclose(potential, coupled, rtol=1e-6)
+    assert levels.shape == advice[:, 0].shape
     with pytest.raises(ValueError, match="PLAN_OBS must be a bool or one of"):
         aids.plan_obs_mode({"PLAN_OBS": "later"})
 
@@ -562,11 +630,12 @@ def test_battery_net_and_agent_advantage_normalisation_train(mod):
     assert ("battery_critic" in params) == (mod is ippo)  # MAPPO's critic reads the world state
     # the battery's logits come from its own actor: changing it moves the battery row only
     policy, env = train.policy, train.env
+    logits = jax.jit(policy.logits, static_argnames="rows")  # compiled, not op by op
     p0 = jax.tree.map(lambda x: x[0], params)
-    obs = env.get_obs_matrix(env.reset_to_day(0)[1])
+    obs = jax.jit(lambda: env.get_obs_matrix(env.reset_to_day(0)[1]))()
     avail = jnp.asarray(env._avail_np)
     p1 = {**p0, "battery_actor": jax.tree.map(lambda x: x + 1.0, p0["battery_actor"])}
-    moved = np.abs(np.asarray(policy.logits(p1, obs, avail) - policy.logits(p0, obs, avail))).max(
+    moved = np.abs(np.asarray(logits(p1, obs, avail)) - np.asarray(logits(p0, obs, avail))).max(
         axis=1
     )
     assert moved[-1] > 0 and np.all(moved[:-1] == 0)
@@ -578,14 +647,12 @@ def test_battery_net_and_agent_advantage_normalisation_train(mod):
     av = jnp.tile(avail, (3, 1))
     for rows, rows_x in (("env_step_major", x), ("agent_major", x_agent_major)):
         np.testing.assert_allclose(
-            policy.logits(p1, rows_x, av, rows=rows),
-            policy.logits(p1, rows_x, av),
-            rtol=1e-6,
-            atol=1e-6,
+            logits(p1, rows_x, av, rows=rows), logits(p1, rows_x, av), rtol=1e-6, atol=1e-6
         )
         if mod is ippo:
+            value = jax.jit(policy.value, static_argnames="rows")
             np.testing.assert_allclose(
-                policy.value(p1, rows_x, rows=rows), policy.value(p1, rows_x), rtol=1e-6, atol=1e-6
+                value(p1, rows_x, rows=rows), value(p1, rows_x), rtol=1e-6, atol=1e-6
             )
     with pytest.raises(ValueError, match="rows must be"):
         policy.logits(p1, x, av, rows="by_agent")
@@ -793,12 +860,18 @@ def test_the_greedy_act_reads_the_plan_of_the_prices_it_is_played_on(mod, mode, 
     def a_state(differ: bool):
         """A busy state of a day of ``other``; with ``differ``, one at which the two price
         years' plans differ."""
+
+        @jax.jit
+        def step(key, state):  # one compiled program per step
+            levels = policies.always_max(state, None, other)
+            state, _ = simulator.step(key, state, levels, other)
+            return state, advice(state), trained_advice(state)
+
         for seed in range(10):
             state = simulator.reset(jax.random.PRNGKey(seed), other)
             for _ in range(other.num_steps):
-                levels = policies.always_max(state, None, other)
-                state, _ = simulator.step(jax.random.PRNGKey(seed), state, levels, other)
-                x, y = np.asarray(advice(state)), np.asarray(trained_advice(state))
+                state, x, y = step(jax.random.PRNGKey(seed), state)
+                x, y = np.asarray(x), np.asarray(y)
                 if not differ and state.occupied.any() or differ and not np.allclose(x, y):
                     return state
         raise AssertionError("the two price years' plans agree on every day tried")
@@ -841,24 +914,29 @@ def test_residual_starts_at_the_coupled_plan_and_explores_its_neighbouring_level
     full = train.env_params
     rule = coupled_plan_rule(full)
     params = train.policy.init(jax.random.PRNGKey(3))
-    act = jax.jit(train.make_act(full)(params))
-    act_plain = jax.jit(plain.make_act(full)(plain.policy.init(jax.random.PRNGKey(3))))
+    act = train.make_act(full)(params)
+    act_plain = plain.make_act(full)(plain.policy.init(jax.random.PRNGKey(3)))
     state = simulator.reset(jax.random.PRNGKey(5), full)
-    step = jax.jit(lambda k, s, a: simulator.step(k, s, a, full)[0])
+
+    @jax.jit
+    def at(k, s):  # one compiled program per step: both acts, the rule and the step
+        levels = act(s, k)
+        return levels, rule(s, k, full), act_plain(s, k), simulator.step(k, s, levels, full)[0]
+
     differs, moved = False, False
     for t in range(full.num_steps):
-        k = jax.random.PRNGKey(t)
-        levels, ref = np.asarray(act(state, k)), np.asarray(rule(state, k, full))
+        levels, ref, plain_levels, state = jax.device_get(at(jax.random.PRNGKey(t), state))
         np.testing.assert_array_equal(levels, ref)
-        differs |= not np.array_equal(np.asarray(act_plain(state, k)), ref)
+        differs |= not np.array_equal(plain_levels, ref)
         moved |= bool(np.any(ref != 0))
-        state = step(k, state, levels)
     assert differs and moved
     # the offsets: -2 per level of distance from the plan's action (index idle + level)
-    rows = np.asarray(train.policy.with_plan(train.env.get_obs_matrix(state), state))
-    np.testing.assert_allclose(
-        rows[:, -1], np.asarray(rule(state, None, full)) / full.num_levels, rtol=1e-6
+    rows, ref = jax.device_get(
+        jax.jit(
+            lambda s: (train.policy.with_plan(train.env.get_obs_matrix(s), s), rule(s, None, full))
+        )(state)
     )
+    np.testing.assert_allclose(rows[:, -1], ref / full.num_levels, rtol=1e-6)
     obs = np.zeros((1, train.policy.obs_dim), np.float32)
     avail = np.ones((1, train.policy.k), bool)
     p = np.asarray(jax.nn.softmax(train.policy.logits(params, obs, avail)))[0]

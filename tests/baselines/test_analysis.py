@@ -49,25 +49,30 @@ def test_attribution_scores_the_run_and_swaps_ports_and_battery(tiny_ippo_run):
     params = make_params(**TINY_ENV)
     key = jax.random.PRNGKey(0)
     start = simulator.reset(key, params)
-    # an hour (60-minute steps) in which the battery rule charges or discharges, so the mixes differ
-    state = next(
-        s
-        for s in (start.replace(timestep=jnp.int32(h)) for h in range(24))
-        if int(policies.battery_rule(s, key, params)[-1]) != 0
-    )
     mixes = attribution.mixed_policies(lambda s, k: policies.always_max(s, k, params), params)
-    np.testing.assert_array_equal(
-        mixes["learned_ports_rule_battery"](state, key), policies.battery_rule(state, key, params)
-    )
-    np.testing.assert_array_equal(
-        mixes["always_max_ports_learned_battery"](state, key),
-        policies.always_max(state, key, params),
-    )
     rule_act = lambda s, k: policies.battery_rule(s, k, params)  # noqa: E731
-    ports_from_rule = attribution.mixed_policies(rule_act, params)[
-        "always_max_ports_learned_battery"
-    ](state, key)
-    np.testing.assert_array_equal(ports_from_rule, policies.battery_rule(state, key, params))
+    from_rule = attribution.mixed_policies(rule_act, params)["always_max_ports_learned_battery"]
+
+    @jax.jit
+    @jax.vmap
+    def at_hour(h):  # every hour of the day in one compiled program, not op by op
+        state = start.replace(timestep=h)
+        return (
+            policies.battery_rule(state, key, params),
+            policies.always_max(state, key, params),
+            mixes["learned_ports_rule_battery"](state, key),
+            mixes["always_max_ports_learned_battery"](state, key),
+            from_rule(state, key),
+        )
+
+    rule, am, rule_battery, learned_battery, ports_from_rule = jax.device_get(
+        at_hour(jnp.arange(24, dtype=jnp.int32))
+    )
+    # an hour (60-minute steps) in which the battery rule charges or discharges, so the mixes differ
+    h = next(h for h in range(24) if int(rule[h, -1]) != 0)
+    np.testing.assert_array_equal(rule_battery[h], rule[h])
+    np.testing.assert_array_equal(learned_battery[h], am[h])
+    np.testing.assert_array_equal(ports_from_rule[h], rule[h])
 
 
 def test_read_policy_gives_the_battery_s_action_shares_and_its_hourly_action(tiny_ippo_run):

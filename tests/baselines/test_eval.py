@@ -39,18 +39,32 @@ def test_battery_programme_rule_is_always_max_ports_and_the_programme_s_battery(
     state = state.replace(
         occupied=jnp.ones_like(state.occupied)
     )  # a car at every port (an empty one's level acts on nothing)
+
+    @jax.jit
+    @jax.vmap
+    def at_step(t):  # every step of the day in one compiled program, not op by op
+        s = state.replace(timestep=t)
+        return (
+            act(s, None, params),
+            always_max(s, None, params),
+            dp(s)[0],
+            plan(s, None, params),
+            advice(s),
+        )
+
+    steps = jnp.arange(int(params.num_steps), dtype=jnp.int32)
+    all_levels, all_ref, all_dp, all_planned, all_advice = jax.device_get(at_step(steps))
     seen = set()
-    for t in range(int(params.num_steps)):
-        s = state.replace(timestep=jnp.int32(t))
-        levels, ref = np.asarray(act(s, None, params)), np.asarray(always_max(s, None, params))
+    for levels, ref, dp_t, planned, adv in zip(
+        all_levels, all_ref, all_dp, all_planned, all_advice, strict=True
+    ):
         np.testing.assert_array_equal(levels[~is_bat], ref[~is_bat])
-        assert np.all(levels[is_bat] == int(dp(s)[0]) * int(params.num_levels))
-        planned = np.asarray(plan(s, None, params))
+        assert np.all(levels[is_bat] == int(dp_t) * int(params.num_levels))
         np.testing.assert_array_equal(
-            planned[~is_bat], (np.asarray(advice(s))[~is_bat] > 0.5) * int(params.num_levels)
+            planned[~is_bat], (adv[~is_bat] > 0.5) * int(params.num_levels)
         )
         np.testing.assert_array_equal(planned[is_bat], levels[is_bat])
-        seen.add(int(dp(s)[0]))
+        seen.add(int(dp_t))
     assert len(seen) > 1  # the battery trades on this day
     bare = make_params(**{**TINY_ENV, "station_kwargs": {"num_ports": 4, "battery": False}})
     for name in (PROGRAMME, PLAN_PROGRAMME):
@@ -86,16 +100,23 @@ def test_grid_programme_holds_the_battery_s_charge_while_the_ports_alone_overloa
             max_rate_kw=car("max_rate_kw", 150.0),
             tau=car("tau", 0.8),
         )
-        for t in range(int(params.num_steps)):
-            s = state.replace(timestep=jnp.int32(t))
-            levels, ref = np.asarray(act(s, None, params)), np.asarray(prog(s, None, params))
+
+        @jax.jit
+        @jax.vmap
+        def at_step(t, state=state, act=act, prog=prog, dp=dp, params=params):
+            s = state.replace(timestep=t)  # every step of the day in one compiled program
+            return act(s, None, params), prog(s, None, params), dp(s)[0]
+
+        steps = jnp.arange(int(params.num_steps), dtype=jnp.int32)
+        all_levels, all_ref, all_dp = jax.device_get(at_step(steps))
+        for t, (levels, ref, dp_t) in enumerate(zip(all_levels, all_ref, all_dp, strict=True)):
             np.testing.assert_array_equal(levels[~is_bat], ref[~is_bat])  # always-max ports
-            want = int(dp(s)[0])
+            want = int(dp_t)
             want = (
                 0 if (fraction is not None and want > 0) else want
             )  # every step overloads the 25 % connection
             assert np.all(levels[is_bat] == want * int(params.num_levels)), (fraction, t)
-            seen.setdefault(fraction, set()).add(int(dp(s)[0]))
+            seen.setdefault(fraction, set()).add(int(dp_t))
     assert 1 in seen[0.25]  # the programme charges at some step, where the rule holds the battery
     bare = make_params(**{**TINY_ENV, "station_kwargs": {"num_ports": 4, "battery": False}})
     with pytest.raises(ValueError, match=GRID_PROGRAMME):
