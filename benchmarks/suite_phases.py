@@ -217,7 +217,9 @@ def summarize_run(records: list[dict], root: Path, top: int) -> dict:
 
 
 def fresh_clone(source: Path, commit: str, into: Path) -> Path:
-    """A ``git clone`` of ``source`` checked out at ``commit``.
+    """A ``git clone`` of ``source`` checked out at ``commit``, with the folder ``shared``
+    beside ``source`` (the data the tests read from ``../shared``, as CI has it beside its
+    clone) linked beside the clone.
 
     Args:
         source: the repository to clone.
@@ -229,6 +231,10 @@ def fresh_clone(source: Path, commit: str, into: Path) -> Path:
     """
     subprocess.run(["git", "clone", "--quiet", str(source), str(into)], check=True)
     subprocess.run(["git", "-C", str(into), "checkout", "--quiet", commit], check=True)
+    shared = source.resolve().parent / "shared"
+    beside = into.parent / "shared"
+    if shared.is_dir() and not beside.exists():
+        beside.symlink_to(shared, target_is_directory=True)
     return into
 
 

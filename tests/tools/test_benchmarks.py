@@ -525,3 +525,19 @@ def test_the_suite_phase_table_of_the_docs_is_that_of_the_result_file():
     result = json.loads((BENCH / "results" / "suite_phases.json").read_text())
     page = (ROOT / "docs" / "performance.md").read_text()
     assert f"{phases.MARKERS[0]}\n{phases.embedded(result)}\n{phases.MARKERS[1]}" in page
+
+
+def test_suite_phases_clones_with_the_shared_folder_beside_as_ci_has_it(tmp_path):
+    phases = load("suite_phases")
+    source = tmp_path / "src" / "repo"
+    (tmp_path / "src" / "shared" / "data").mkdir(parents=True)
+    source.mkdir()
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-C", str(source)]
+    subprocess.run(["git", "init", "--quiet", str(source)], check=True)
+    (source / "README.md").write_text("one\n")
+    subprocess.run([*git, "add", "README.md"], check=True)
+    subprocess.run([*git, "commit", "--quiet", "-m", "one"], check=True)
+    clone = phases.fresh_clone(source, "HEAD", tmp_path / "work" / "clone")
+    assert (clone / "README.md").read_text() == "one\n"
+    assert (clone.parent / "shared").resolve() == (tmp_path / "src" / "shared").resolve()
+    assert (clone / ".." / "shared" / "data").is_dir()
