@@ -6,9 +6,10 @@ with always-max, and the simulated sessions are compared with the held-out perio
 ones by two-sample Kolmogorov-Smirnov distances. Each distance is set against ``d``, the
 distance between the held-out period's real sessions and the site's other periods' real
 sessions: no model should match a period better than the site's own other periods do.
-The day-to-day volume is compared by the standard deviation of the workday counts (the
-simulated station's traffic set to the period's own mean, a level the user chooses), the
-requests by their medians.
+The day-to-day volume is compared by the standard deviation of the workday session counts
+(the simulated sessions are the cars that parked, not those a full station turned away, as
+the real data counts them; the simulated station's traffic set to the period's own mean, a
+level the user chooses), the requests by their medians.
 
 The NL profiles are compared with the ElaadNL tables they come from: the realised stays at
 the AC ports of a station with the profile, against the connection-time distribution.
@@ -117,12 +118,13 @@ def held_out(
             "pass": ks <= max(THRESHOLDS[name], d),
         }
     real_sd = float(counts[workday].std(ddof=1))
-    sim_sd = float(sim.day_requested[sim.day_workday].std(ddof=1))
+    # sessions a day, as the real data counts them (not the cars a full station turned away)
+    sim_sd = float(sim.day_sessions[sim.day_workday].std(ddof=1))
     row["daily_sd"] = {
         "real": real_sd,
         "sim": sim_sd,
         "real_mean": float(counts[workday].mean()),
-        "sim_mean": float(sim.day_requested[sim.day_workday].mean()),
+        "sim_mean": float(sim.day_sessions[sim.day_workday].mean()),
         "pass": abs(sim_sd / real_sd - 1.0) <= DAILY_SD_TOLERANCE,
     }
     req_real, req_sim = float(np.median(test.requested_kwh)), float(np.median(sim.requested_kwh))

@@ -3,7 +3,7 @@
 `simulate_sessions` plays days with a policy (always-max by default) and returns one record
 per car that parked: its arrival time, the stay it realised (until it left, or until the
 episode ended: ``cut``), the energy it received and the energy its user requested, and per
-day the number of cars that asked to park.
+day the number of cars that asked to park and of those that parked (the sessions).
 """
 
 from __future__ import annotations
@@ -36,7 +36,10 @@ class SimulatedSessions:
         requested_kwh: its user's request (kWh).
         cut: the car was still parked when the episode ended.
         ac: the car parked at an AC port.
-        day_requested: ``(days,)`` cars that asked to park on each played day.
+        day_requested: ``(days,)`` cars that asked to park on each played day, those turned
+            away at a full station included.
+        day_sessions: ``(days,)`` cars that parked on each played day: its sessions, as the
+            real data counts them.
         day_workday: ``(days,)`` bool, the played day is a workday.
     """
 
@@ -49,6 +52,7 @@ class SimulatedSessions:
     cut: np.ndarray
     ac: np.ndarray
     day_requested: np.ndarray
+    day_sessions: np.ndarray
     day_workday: np.ndarray
 
 
@@ -65,6 +69,7 @@ def _play(params: EnvParams, days, keys, policy):
                 info.leaf_energy_kwh,
                 traffic.requested_kwh(state),
                 info.cars_arrived + info.cars_rejected,
+                info.cars_arrived,
             )
             return state, record
 
@@ -102,13 +107,14 @@ def simulate_sessions(
     kind = np.asarray(params.station.leaf_kind)
     ports = np.flatnonzero(kind != KIND_BATTERY)
     out = {k: [] for k in ("day", "t0", "steps", "energy", "request", "cut", "ac")}
-    requested, workday = [], []
+    requested, parked, workday = [], [], []
     for lo in range(0, days.shape[0], batch_days):
         rec, work = _play_jit(
             params, jnp.asarray(days[lo : lo + batch_days]), keys[lo : lo + batch_days], policy
         )
-        occ, arrived, energy, request, asked = (np.asarray(x) for x in rec)
+        occ, arrived, energy, request, asked, sessions = (np.asarray(x) for x in rec)
         requested.append(asked.sum(axis=1))
+        parked.append(sessions.sum(axis=1))
         workday.append(np.asarray(work))
         num_steps = occ.shape[1]
         for i in range(occ.shape[0]):
@@ -139,5 +145,6 @@ def simulate_sessions(
         cut=np.asarray(out["cut"], bool),
         ac=np.asarray(out["ac"], bool),
         day_requested=np.concatenate(requested).astype(np.float64),
+        day_sessions=np.concatenate(parked).astype(np.float64),
         day_workday=np.concatenate(workday).astype(bool),
     )

@@ -74,6 +74,8 @@ def test_simulated_sessions_close_energy_and_count_every_car():
     np.testing.assert_array_equal(
         sim.day_requested, np.asarray(totals.cars_arrived + totals.cars_rejected)
     )
+    np.testing.assert_array_equal(sim.day_sessions, np.asarray(totals.cars_arrived))
+    assert (sim.day_sessions < sim.day_requested).any()  # high traffic turns cars away
     delivered = np.bincount(sim.day, weights=sim.delivered_kwh, minlength=3)
     np.testing.assert_allclose(delivered, np.asarray(totals.energy_charged_kwh), rtol=1e-4)
     assert (sim.stay_min[~sim.cut] >= params.step_minutes).all()  # a car stays a step at least
@@ -89,6 +91,26 @@ def test_a_held_out_period_passes_the_thresholds():
         assert cell["ks"] <= max(report.THRESHOLDS[name], cell["d"]), (name, cell)
     assert row["request_median"]["pass"], row["request_median"]
     assert row["cut_share"] < 0.05
+
+
+def test_the_daily_count_compares_sessions_as_the_real_data_counts_them(monkeypatch):
+    """The real periods count sessions; the simulated count is of the cars that parked, not of
+    those that asked (a full station turns some away)."""
+    seen = {}
+
+    def recorded(*args, **kwargs):
+        sim = simulate_sessions(*args, **kwargs)
+        # cars turned away on every day: a count of requests would be off by 5 a day
+        sim = dataclasses.replace(sim, day_requested=sim.day_sessions + 5.0)
+        seen["sim"] = sim
+        return sim
+
+    monkeypatch.setattr(report, "simulate_sessions", recorded)
+    row = report.held_out("jpl", "2019-09-01", num_days=14)
+    sim = seen["sim"]
+    workday = sim.day_sessions[sim.day_workday]
+    assert row["daily_sd"]["sim_mean"] == pytest.approx(workday.mean())
+    assert row["daily_sd"]["sim"] == pytest.approx(workday.std(ddof=1))
 
 
 def test_workplace_ac_stays_match_elaad():
