@@ -39,6 +39,12 @@ THRESHOLDS = {"stay": 0.10, "arrival_hour": 0.11, "delivered": 0.07}
 """A statistic passes when its KS distance is at most max(threshold, d)."""
 DAILY_SD_TOLERANCE = 0.25
 REQUEST_MEDIAN_TOLERANCE = 0.10
+REQUEST_KS_THRESHOLD = 0.10
+"""The requests pass when their KS distance is at most max(this, d)."""
+SERVED_FRACTION = 0.95
+"""A session is served when it received at least this fraction of its request."""
+SERVED_SHARE_TOLERANCE = 0.05
+"""The share of served sessions passes within this many (absolute) of the real share."""
 
 
 SESSION_MODEL = "v3"
@@ -92,8 +98,11 @@ def held_out(
         session_model: the session model (`make_params`'s ``session_model``).
 
     Returns:
-        A row: per statistic the KS distance, ``d`` and whether it passes; the daily-count
-        standard deviations; the request medians; the share of cut sessions.
+        A row: per statistic the KS distance, ``d`` and whether it passes (``requested``:
+        the requests users entered against the model's); the daily-count standard
+        deviations; the request medians; ``served``, the share of sessions that received at
+        least `SERVED_FRACTION` of their request, real and simulated; the share of cut
+        sessions.
     """
     sessions = real.load_sessions(site)
     others = tuple(p for p in real.PERIODS if p != period)
@@ -126,6 +135,19 @@ def held_out(
         "real_mean": float(counts[workday].mean()),
         "sim_mean": float(sim.day_sessions[sim.day_workday].mean()),
         "pass": abs(sim_sd / real_sd - 1.0) <= DAILY_SD_TOLERANCE,
+    }
+    # the requests users entered (sessions without one left out) against the model's requests
+    entered = test.claimed & (test.requested_kwh > 0)
+    rest_entered = train.claimed & (train.requested_kwh > 0)
+    held_req = test.requested_kwh[entered]
+    ks, d = _ks(held_req, sim.requested_kwh), _ks(held_req, train.requested_kwh[rest_entered])
+    row["requested"] = {"ks": ks, "d": d, "pass": ks <= max(REQUEST_KS_THRESHOLD, d)}
+    served_real = float(np.mean(test.delivered_kwh[entered] >= SERVED_FRACTION * held_req))
+    served_sim = float(np.mean(sim.delivered_kwh >= SERVED_FRACTION * sim.requested_kwh))
+    row["served"] = {
+        "real": served_real,
+        "sim": served_sim,
+        "pass": abs(served_sim - served_real) <= SERVED_SHARE_TOLERANCE,
     }
     req_real, req_sim = float(np.median(test.requested_kwh)), float(np.median(sim.requested_kwh))
     row["request_median"] = {
@@ -272,8 +294,9 @@ def table_markdown(rows: list[dict]) -> str:
     """
     head = (
         "| site | held out | stay KS (d) | arrival hour KS (d) | delivered KS (d) "
-        "| workday count sd, real / sim | request median kWh, real / sim |\n"
-        "|---|---|---|---|---|---|---|\n"
+        "| workday count sd, real / sim | request median kWh, real / sim | requested KS (d) "
+        "| served, real / sim |\n"
+        "|---|---|---|---|---|---|---|---|---|\n"
     )
 
     def ks(cell):
@@ -282,12 +305,13 @@ def table_markdown(rows: list[dict]) -> str:
 
     lines = []
     for r in rows:
-        sd, rq = r["daily_sd"], r["request_median"]
+        sd, rq, sv = r["daily_sd"], r["request_median"], r["served"]
         lines.append(
             f"| {r['site']} | {r['held_out']} | {ks(r['stay'])} | {ks(r['arrival_hour'])} "
             f"| {ks(r['delivered'])} | {sd['real']:.1f} / {sd['sim']:.1f}"
             f"{'' if sd['pass'] else ' ✗'} | {rq['real']:.1f} / {rq['sim']:.1f}"
-            f"{'' if rq['pass'] else ' ✗'} |"
+            f"{'' if rq['pass'] else ' ✗'} | {ks(r['requested'])} "
+            f"| {100 * sv['real']:.0f} % / {100 * sv['sim']:.0f} %{'' if sv['pass'] else ' ✗'} |"
         )
     return head + "\n".join(lines) + "\n"
 
@@ -348,7 +372,10 @@ def markdown(result: dict) -> str:
         f"({st['num_days']} simulated days each, seed {st['seed']}; KS distance, in brackets d, the distance between the period's real "
         "sessions and the site's other periods'; ✗: above max(threshold, d), or a standard "
         f"deviation off by more than {100 * st['daily_sd_tolerance']:.0f} %, or a request median "
-        f"off by more than {100 * st['request_median_tolerance']:.0f} %):\n\n"
+        f"off by more than {100 * st['request_median_tolerance']:.0f} %; the requests users "
+        "entered, sessions without one left out; served: the share of sessions that received "
+        f"at least {100 * SERVED_FRACTION:.0f} % of their request, ✗ when off by more than "
+        f"{100 * SERVED_SHARE_TOLERANCE:.0f} points):\n\n"
         + table_markdown(result["held_out"])
         + "\nThe NL profiles against the ElaadNL connection times (✗: KS above "
         f"{ELAAD_THRESHOLD}):\n\n" + elaad_markdown(result["elaad"])
@@ -364,7 +391,15 @@ def all_pass(result: dict) -> bool:
     Returns:
         True when all pass.
     """
-    keys = ("stay", "arrival_hour", "delivered", "daily_sd", "request_median")
+    keys = (
+        "stay",
+        "arrival_hour",
+        "delivered",
+        "daily_sd",
+        "request_median",
+        "requested",
+        "served",
+    )
     held = all(row[k]["pass"] for row in result["held_out"] for k in keys)
     nl = all(r["stay_ks_ac"] <= ELAAD_THRESHOLD for r in result["elaad"])
     return held and nl

@@ -113,6 +113,31 @@ def test_the_daily_count_compares_sessions_as_the_real_data_counts_them(monkeypa
     assert row["daily_sd"]["sim"] == pytest.approx(workday.std(ddof=1))
 
 
+def test_the_requests_users_entered_and_the_served_share_are_compared(monkeypatch):
+    """The requests are compared by KS with the requests the held-out period's users entered
+    (sessions without one left out), and the share of sessions served at least 95 % of their
+    request, real against simulated."""
+    seen = {}
+
+    def recorded(*args, **kwargs):
+        seen["sim"] = simulate_sessions(*args, **kwargs)
+        return seen["sim"]
+
+    monkeypatch.setattr(report, "simulate_sessions", recorded)
+    row = report.held_out("caltech", "2019-09-01", num_days=14)
+    sim, test = seen["sim"], real.load_sessions("caltech").select(["2019-09-01"])
+    entered = test.claimed & (test.requested_kwh > 0)
+    assert 0 < entered.sum() < len(test)  # some users gave no request
+    held = test.requested_kwh[entered]
+    assert row["requested"]["ks"] == pytest.approx(report._ks(held, sim.requested_kwh))
+    served = row["served"]
+    assert served["real"] == pytest.approx(np.mean(test.delivered_kwh[entered] >= 0.95 * held))
+    assert served["sim"] == pytest.approx(np.mean(sim.delivered_kwh >= 0.95 * sim.requested_kwh))
+    assert served["pass"] == (abs(served["sim"] - served["real"]) <= 0.05)
+    text = report.table_markdown([row])
+    assert f"{100 * served['real']:.0f} % / {100 * served['sim']:.0f} %" in text
+
+
 def test_workplace_ac_stays_match_elaad():
     row = report.elaad("workplace", num_days=60)
     assert row["stay_ks_ac"] <= report.ELAAD_THRESHOLD, row
