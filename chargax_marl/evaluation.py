@@ -440,10 +440,7 @@ def run_policy_days(policy: Callable, params: EnvParams, days, key: jax.Array):
     """
     days = _start_days(days, params)
     keys = jax.random.split(key, days.shape[0])
-    if is_named_rule(policy):
-        totals, counts = _policy_days(policy, params, days, keys)
-    else:
-        totals, counts = jax.jit(functools.partial(_policy_program, policy))(params, days, keys)
+    totals, counts = play_policy_days(policy, params, days, keys)
     check_policy_outputs(counts, days)
     return totals
 

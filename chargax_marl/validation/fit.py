@@ -285,7 +285,7 @@ def request_ratios(sessions: Sessions) -> np.ndarray:
         ``(n,)`` ratios.
     """
     ratio = np.where(
-        sessions.claimed & (sessions.requested_kwh > 0),
+        sessions.entered_request,
         sessions.delivered_kwh / np.maximum(sessions.requested_kwh, 1e-9),
         1.0,
     )

@@ -63,6 +63,11 @@ class Sessions:
         return minutes / 60.0
 
     @property
+    def entered_request(self) -> np.ndarray:
+        """``(n,)`` bool, the user entered a request (a positive one)."""
+        return self.claimed & (self.requested_kwh > 0)
+
+    @property
     def arrival_date(self) -> np.ndarray:
         """``(n,)`` ``datetime64[D]`` local arrival date."""
         return self.arrival.astype("datetime64[D]")

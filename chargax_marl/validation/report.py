@@ -137,10 +137,10 @@ def held_out(
         "pass": abs(sim_sd / real_sd - 1.0) <= DAILY_SD_TOLERANCE,
     }
     # the requests users entered (sessions without one left out) against the model's requests
-    entered = test.claimed & (test.requested_kwh > 0)
-    rest_entered = train.claimed & (train.requested_kwh > 0)
+    entered = test.entered_request
     held_req = test.requested_kwh[entered]
-    ks, d = _ks(held_req, sim.requested_kwh), _ks(held_req, train.requested_kwh[rest_entered])
+    rest_req = train.requested_kwh[train.entered_request]
+    ks, d = _ks(held_req, sim.requested_kwh), _ks(held_req, rest_req)
     row["requested"] = {"ks": ks, "d": d, "pass": ks <= max(REQUEST_KS_THRESHOLD, d)}
     served_real = float(np.mean(test.delivered_kwh[entered] >= SERVED_FRACTION * held_req))
     served_sim = float(np.mean(sim.delivered_kwh >= SERVED_FRACTION * sim.requested_kwh))

@@ -69,7 +69,6 @@ def _play(params: EnvParams, days, keys, policy):
                 info.leaf_energy_kwh,
                 traffic.requested_kwh(state),
                 info.cars_arrived + info.cars_rejected,
-                info.cars_arrived,
             )
             return state, record
 
@@ -112,9 +111,9 @@ def simulate_sessions(
         rec, work = _play_jit(
             params, jnp.asarray(days[lo : lo + batch_days]), keys[lo : lo + batch_days], policy
         )
-        occ, arrived, energy, request, asked, sessions = (np.asarray(x) for x in rec)
+        occ, arrived, energy, request, asked = (np.asarray(x) for x in rec)
         requested.append(asked.sum(axis=1))
-        parked.append(sessions.sum(axis=1))
+        parked.append(arrived[:, :, ports].sum(axis=(1, 2)))
         workday.append(np.asarray(work))
         num_steps = occ.shape[1]
         for i in range(occ.shape[0]):
