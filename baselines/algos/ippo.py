@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from baselines.algos import aids, networks, ppo_core, runner
+from baselines.algos import aids, distill, networks, ppo_core, runner
 from baselines.algos.trainer import IdentityCache, Trainer
 from baselines.config import build_env_params, resolve
 from chargax_marl.core.arrays import device_array
@@ -559,6 +559,9 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
     def init(key, hyper=None):
         k_net, k_env, key = jax.random.split(key, 3)
         params = policy.init(k_net)
+        if distill_fn is not None:  # DISTILL: the actor starts from the MPC's decisions
+            key, k_distill = jax.random.split(key)
+            params, _ = distill_fn(params, k_distill)
         obs, env_state = jax.vmap(env.reset)(jax.random.split(k_env, n_envs))
         obs = jnp.stack([obs[a] for a in agents], axis=1)  # (envs, agents, obs)
         obs, env_state = runner.shard_envs((obs, env_state), mesh)
@@ -574,6 +577,19 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         if policy.plan is not None:
             obs = policy.with_plan(obs, teacher_shaping.core_state(env_state))
         return agent_major(obs)
+
+    distill_fn = None
+    if distill.distill_mode(config) != "off":
+        distill_fn = distill.make_distill(
+            config,
+            policy,
+            env,
+            agents,
+            agent_rows,
+            np.stack([np.asarray(avail_agents[a]) for a in agents]),
+            action_env.action_offset,
+            env_params,
+        )
 
     def env_step(hyper, carry, _):
         params, env_state, obs, key = carry

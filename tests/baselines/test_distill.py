@@ -1,0 +1,91 @@
+"""Distillation of the MPC into the IPPO actor (`baselines.algos.distill`)."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+from baselines.algos import distill, ippo
+from baselines.config import ConfigError, resolve
+from chargax_marl.marl.wrappers import LogWrapper
+from tests.helpers import TINY, TINY_ENV
+
+DISTILL = {
+    "DISTILL": "mpc",
+    "DISTILL_ROUNDS": 2,
+    "DISTILL_ENVS": 4,
+    "DISTILL_STEPS": 300,
+    "DISTILL_BATCH": 64,
+    "DISTILL_LR": 3e-3,
+    "BATTERY_NET": True,
+}
+
+
+def _distill(config: dict):
+    """``(distill, trainer)`` for the tiny station (4 ports, a battery, 24 steps a day)."""
+    config = resolve({**TINY, **config})
+    train = ippo.make_train(config)
+    env = train.env
+    avail = np.stack([np.asarray(env.get_avail_actions(None)[a]) for a in env.agents])
+    fn = distill.make_distill(
+        config,
+        train.policy,
+        LogWrapper(env),
+        env.agents,
+        lambda obs, state: ippo.agent_major(obs),
+        avail,
+        env.action_offset,
+        train.env_params,
+    )
+    return fn, train
+
+
+def test_the_fitted_actor_takes_the_mpcs_actions_on_a_day_it_did_not_see():
+    """Round 0 measures the untrained actor against the MPC's labels on the MPC's own day;
+    round 1 measures the actor fitted to round 0's labels on new days (half of them played by
+    the actor itself) before it fits them: it agrees with the MPC far more often."""
+    fn, train = _distill(DISTILL)
+    params = train.policy.init(jax.random.PRNGKey(0))
+    fitted, metrics = jax.jit(fn)(params, jax.random.PRNGKey(1))
+    agree = np.asarray(metrics["agreement"])
+    assert agree.shape == (2,)
+    assert agree[1] > 0.9 and agree[1] > agree[0] + 0.2, agree
+    assert np.all(np.isfinite(np.asarray(metrics["loss"])))
+    # only the actors move: the critics are left as they were
+    for name in ("critic", "battery_critic"):
+        same = jax.tree.map(np.array_equal, params[name], fitted[name])
+        assert all(jax.tree.leaves(same))
+
+
+def test_battery_only_distillation_leaves_the_ports_actor_as_it_was():
+    fn, train = _distill({**DISTILL, "DISTILL_AGENTS": "battery", "DISTILL_ROUNDS": 1})
+    params = train.policy.init(jax.random.PRNGKey(0))
+    fitted, _ = jax.jit(fn)(params, jax.random.PRNGKey(1))
+    assert all(jax.tree.leaves(jax.tree.map(np.array_equal, params["actor"], fitted["actor"])))
+    moved = jax.tree.map(np.array_equal, params["battery_actor"], fitted["battery_actor"])
+    assert not all(jax.tree.leaves(moved))
+
+
+def test_the_trainer_starts_from_the_distilled_actor():
+    """With ``DISTILL="mpc"`` the trainer's initial parameters are the distilled ones (from
+    the same network initialisation), so PPO's updates start there."""
+    plain = ippo.make_train(resolve({**TINY, "BATTERY_NET": True}))
+    distilled = ippo.make_train(resolve({**TINY, **DISTILL, "DISTILL_ROUNDS": 1}))
+    key = jax.random.PRNGKey(0)
+    a = jax.jit(plain.init)(key).params
+    b = jax.jit(distilled.init)(key).params
+    assert all(jax.tree.leaves(jax.tree.map(np.array_equal, a["critic"], b["critic"])))
+    assert not all(jax.tree.leaves(jax.tree.map(np.array_equal, a["actor"], b["actor"])))
+
+
+def test_bad_distillation_settings_are_refused_naming_the_key():
+    with pytest.raises(ConfigError, match="DISTILL"):
+        resolve({"DISTILL": "lp"})
+    with pytest.raises(ConfigError, match="DISTILL_BETA"):
+        resolve({"DISTILL_BETA": 1.5})
+    no_battery = {**TINY_ENV, "station_kwargs": {"num_ports": 4, "battery": False}}
+    with pytest.raises(ValueError, match="DISTILL_AGENTS"):
+        ippo.make_train(
+            resolve({**TINY, **DISTILL, "DISTILL_AGENTS": "battery", "ENV_KWARGS": no_battery})
+        )
