@@ -12,7 +12,11 @@ solves an LP at every step. Distillation buys its decisions at a network's cost 
    (DAgger, Ross et al. 2011).
 2. **Fit.** After each round the actor (and the batteries' actor under ``BATTERY_NET``) takes
    ``DISTILL_STEPS`` Adam steps of the cross-entropy between its masked logits and the labels,
-   on minibatches of ``DISTILL_BATCH`` rows drawn from every round so far.
+   on minibatches of ``DISTILL_BATCH`` rows drawn from every round so far; a port without a
+   car (whose action changes nothing) is left out of the loss.
+
+``DISTILL_AGENTS = "battery"`` fits the batteries' actor alone: the ports keep theirs (with
+``RESIDUAL``, the coupled plan) and play their own greedy actions in every round.
 
 The labels are privileged information that shapes training only: the trained actor reads its
 observation as before and the MPC is not part of the policy that is scored. The critic is not
@@ -85,8 +89,9 @@ def make_distill(
     Returns:
         ``distill(params, key) -> (params, metrics)`` with the actor's parameters fitted
         to the MPC's labels and ``metrics`` ``{"loss": (rounds,), "agreement": (rounds,)}``:
-        each round's mean cross-entropy over its last fitting steps and the share of the
-        round's rows where the actor's greedy action was the MPC's before the fit.
+        each round's mean cross-entropy over its last fitting steps and, before the fit, the
+        share of the round's deciding rows (a battery, or a port with a car) where the
+        actor's greedy action was the MPC's.
 
     Raises:
         ValueError: a ``DISTILL_*`` value out of range.
@@ -150,44 +155,52 @@ def make_distill(
         def step(carry, k):
             obs, env_state = carry
             rows = agent_rows(obs, env_state)
-            label = labels_of(teacher_shaping.core_state(env_state))
+            core = teacher_shaping.core_state(env_state)
+            label = labels_of(core)
+            # the rows where the agent's action matters: a battery, or a port with a car
+            decides = jnp.swapaxes(core.occupied | ~is_port, 0, 1).reshape(-1)
             greedy = jnp.argmax(policy.logits(params, rows, avail, rows="agent_major"), axis=-1)
             action = jnp.where(follow_rows, label, greedy).astype(jnp.int32)
             actions = jnp.swapaxes(action.reshape(n_agents, n_envs), 0, 1)
             obs, env_state, _, _, _ = jax.vmap(env.step_arrays)(
                 jax.random.split(k, n_envs), env_state, actions
             )
-            kept = (rows[learner_rows], label[learner_rows])
+            kept = (rows[learner_rows], label[learner_rows], decides[learner_rows])
             return (obs, env_state), kept + (greedy[learner_rows] == label[learner_rows],)
 
-        _, (rows, label, agree) = jax.lax.scan(
+        _, (rows, label, decides, agree) = jax.lax.scan(
             step, (obs, env_state), jax.random.split(k_steps, n_steps)
         )
-        return rows.reshape(n_rows, -1), label.reshape(n_rows), agree.mean()
+        agreement = jnp.sum(agree & decides) / jnp.maximum(jnp.sum(decides), 1)
+        return rows.reshape(n_rows, -1), label.reshape(n_rows), decides.reshape(n_rows), agreement
 
-    def cross_entropy(actor, params, obs, label, mask):
+    def cross_entropy(actor, params, obs, label, weight, mask):
         logits = policy.logits({**params, **actor}, obs, mask)
-        logp = jax.nn.log_softmax(logits, axis=-1)
-        return -jnp.take_along_axis(logp, label[:, None], axis=-1).mean()
+        nll = -jnp.take_along_axis(jax.nn.log_softmax(logits, axis=-1), label[:, None], axis=-1)
+        return jnp.sum(weight * nll[:, 0]) / jnp.maximum(jnp.sum(weight), 1.0)
 
     def distill(params, key):
         # the rows as stored: the observation with its advice, before the networks' features
         obs_dim = jax.eval_shape(collect, params, key, jnp.float32(1.0))[0].shape[1]
         buf_obs = jnp.zeros((rounds * n_rows, obs_dim), jnp.float32)
         buf_label = jnp.zeros((rounds * n_rows,), jnp.int32)
+        buf_weight = jnp.zeros((rounds * n_rows,), jnp.float32)
         # each row's agent, for its mask: rows are (step, agent, env) within a round
         row_agent = jnp.tile(jnp.repeat(jnp.asarray(learners), n_envs), n_steps * rounds)
         actor = {k: params[k] for k in actor_keys}
         opt_state = tx.init(actor)
 
         def round_(carry, r):
-            actor, opt_state, buf_obs, buf_label, key = carry
+            actor, opt_state, buf_obs, buf_label, buf_weight, key = carry
             key, k_collect, k_fit = jax.random.split(key, 3)
-            obs, label, agree = collect(
+            obs, label, decides, agree = collect(
                 {**params, **actor}, k_collect, jnp.float32(beta) ** r.astype(jnp.float32)
             )
             buf_obs = jax.lax.dynamic_update_slice(buf_obs, obs, (r * n_rows, 0))
             buf_label = jax.lax.dynamic_update_slice(buf_label, label, (r * n_rows,))
+            buf_weight = jax.lax.dynamic_update_slice(
+                buf_weight, decides.astype(jnp.float32), (r * n_rows,)
+            )
             filled = (r + 1) * n_rows
 
             def fit(carry, k):
@@ -195,7 +208,7 @@ def make_distill(
                 idx = jax.random.randint(k, (batch,), 0, filled)
                 mask = jnp.asarray(avail_rows)[row_agent[idx]]
                 loss, grads = jax.value_and_grad(cross_entropy)(
-                    actor, params, buf_obs[idx], buf_label[idx], mask
+                    actor, params, buf_obs[idx], buf_label[idx], buf_weight[idx], mask
                 )
                 updates, opt_state = tx.update(grads, opt_state, actor)
                 return (optax.apply_updates(actor, updates), opt_state), loss
@@ -207,11 +220,11 @@ def make_distill(
             jax.debug.print(
                 "distill round {r}: agreement {a:.3f}, loss {l:.3f}", r=r, a=agree, l=tail
             )
-            return (actor, opt_state, buf_obs, buf_label, key), (tail, agree)
+            return (actor, opt_state, buf_obs, buf_label, buf_weight, key), (tail, agree)
 
-        (actor, _, _, _, _), (loss, agree) = jax.lax.scan(
+        (actor, *_), (loss, agree) = jax.lax.scan(
             round_,
-            (actor, opt_state, buf_obs, buf_label, key),
+            (actor, opt_state, buf_obs, buf_label, buf_weight, key),
             jnp.arange(rounds, dtype=jnp.int32),
         )
         return {**params, **actor}, {"loss": loss, "agreement": agree}
