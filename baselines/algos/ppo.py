@@ -298,6 +298,11 @@ def make_train(config: dict | None = None, env_params=None):
             f"RESIDUAL={config['RESIDUAL']!r} applies to the multi-agent trainers (ippo, mappo) "
             "only: it centres each agent's actor on the rule's level (use 'off')"
         )
+    if config.get("DISTILL", "off") != "off":
+        raise ValueError(
+            f"DISTILL={config['DISTILL']!r} applies to the multi-agent trainers (ippo, mappo) "
+            "only: it fits each agent's actor to the MPC's level for its leaf (use 'off')"
+        )
     if env_params is None:
         env_params = build_env_params(config)[0]
     base_env = Chargax(params=env_params)

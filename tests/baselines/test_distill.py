@@ -6,7 +6,7 @@ import jax
 import numpy as np
 import pytest
 
-from baselines.algos import distill, ippo
+from baselines.algos import distill, ippo, ppo
 from baselines.config import ConfigError, resolve
 from chargax_marl.marl.wrappers import LogWrapper
 from tests.helpers import TINY, TINY_ENV
@@ -84,6 +84,8 @@ def test_bad_distillation_settings_are_refused_naming_the_key():
         resolve({"DISTILL": "lp"})
     with pytest.raises(ConfigError, match="DISTILL_BETA"):
         resolve({"DISTILL_BETA": 1.5})
+    with pytest.raises(ValueError, match="DISTILL='mpc' applies to the multi-agent trainers"):
+        ppo.make_train(resolve({**TINY, "DISTILL": "mpc"}))
     no_battery = {**TINY_ENV, "station_kwargs": {"num_ports": 4, "battery": False}}
     with pytest.raises(ValueError, match="DISTILL_AGENTS"):
         ippo.make_train(
