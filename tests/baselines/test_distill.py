@@ -70,13 +70,13 @@ def test_battery_only_distillation_leaves_the_ports_actor_as_it_was():
 def test_the_trainer_starts_from_the_distilled_actor():
     """With ``DISTILL="mpc"`` the trainer's initial parameters are the distilled ones (from
     the same network initialisation), so PPO's updates start there."""
-    plain = ippo.make_train(resolve({**TINY, "BATTERY_NET": True}))
     distilled = ippo.make_train(resolve({**TINY, **DISTILL, "DISTILL_ROUNDS": 1}))
     key = jax.random.PRNGKey(0)
-    a = jax.jit(plain.init)(key).params
+    a = distilled.policy.init(jax.random.split(key, 3)[0])  # the networks the trainer draws
     b = jax.jit(distilled.init)(key).params
-    assert all(jax.tree.leaves(jax.tree.map(np.array_equal, a["critic"], b["critic"])))
-    assert not all(jax.tree.leaves(jax.tree.map(np.array_equal, a["actor"], b["actor"])))
+    gap = lambda x, y: max(jax.tree.leaves(jax.tree.map(lambda u, v: np.abs(u - v).max(), x, y)))  # noqa: E731
+    assert gap(a["critic"], b["critic"]) < 1e-6  # the same draw (to the rounding of its program)
+    assert gap(a["actor"], b["actor"]) > 1e-2
 
 
 def test_bad_distillation_settings_are_refused_naming_the_key():
