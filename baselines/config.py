@@ -152,8 +152,8 @@ SCHEMA: dict[str, Field] = {
         ("all", "battery"),
         "with DISTILL: the agents fitted to the MPC (battery: the ports keep their actor)",
     ),
-    "DISTILL_ROUNDS": Field(4, (int,), doc="with DISTILL: DAgger rounds of one day each", low=1),
-    "DISTILL_ENVS": Field(16, (int,), doc="with DISTILL: envs (days) labelled per round", low=1),
+    "DISTILL_ROUNDS": Field(6, (int,), doc="with DISTILL: DAgger rounds of one day each", low=1),
+    "DISTILL_ENVS": Field(32, (int,), doc="with DISTILL: envs (days) labelled per round", low=1),
     "DISTILL_BETA": Field(
         0.5,
         _NUM,
@@ -162,7 +162,7 @@ SCHEMA: dict[str, Field] = {
         high=1.0,
     ),
     "DISTILL_STEPS": Field(2000, (int,), doc="with DISTILL: Adam steps per round", low=1),
-    "DISTILL_BATCH": Field(4096, (int,), doc="with DISTILL: rows per Adam step", low=1),
+    "DISTILL_BATCH": Field(2048, (int,), doc="with DISTILL: rows per Adam step", low=1),
     "DISTILL_LR": Field(1e-3, _NUM, doc="with DISTILL: Adam learning rate", low=0.0, low_open=True),
     "DISTILL_HORIZON_H": Field(
         4.0, _NUM, doc="with DISTILL: the MPC's look-ahead (hours)", low=0.0, low_open=True
