@@ -94,7 +94,8 @@ def make_distill(
         actor's greedy action was the MPC's.
 
     Raises:
-        ValueError: a ``DISTILL_*`` value out of range.
+        ValueError: a ``DISTILL_*`` value out of range, ``DISTILL_AGENTS="battery"`` on a
+            station without a battery or without ``BATTERY_NET``, or ``PRIORITY_FILL`` on.
     """
     rounds = int(config["DISTILL_ROUNDS"])
     n_envs = int(config["DISTILL_ENVS"])
@@ -120,12 +121,22 @@ def make_distill(
         learners = learners[n_agents - int(env_params.station.num_batteries) :]
     if learners.size == 0:
         raise ValueError("DISTILL_AGENTS='battery' on a station without a battery")
+    if learners.size < n_agents and not policy.battery_net:
+        raise ValueError(
+            "DISTILL_AGENTS='battery' fits the batteries' own actor: set BATTERY_NET=true "
+            "(with one shared actor the ports' actor would move too)"
+        )
+    if config.get("PRIORITY_FILL", False):
+        raise ValueError(
+            "DISTILL fits the actor to the MPC's levels, which PRIORITY_FILL's actions do not "
+            "encode: set PRIORITY_FILL=false or DISTILL='off'"
+        )
     learner_rows = (learners[:, None] * n_envs + np.arange(n_envs)[None, :]).ravel()
     is_learner_row = np.isin(np.arange(n_agents * n_envs), learner_rows)
     n_rows = n_steps * learner_rows.size  # one round's rows
     avail = jnp.asarray(np.repeat(avail_rows, n_envs, axis=0))  # agent-major
     tx = optax.adam(float(config["DISTILL_LR"]))
-    actor_keys = [k for k in ("actor", "battery_actor") if k in policy.init(jax.random.key(0))]
+    actor_keys = ["actor"] + (["battery_actor"] if policy.battery_net else [])
 
     top = int(env_params.num_levels)
     leaf_max_kw = jnp.asarray(env_params.station.leaf_max_kw)

@@ -86,6 +86,12 @@ def test_bad_distillation_settings_are_refused_naming_the_key():
         resolve({"DISTILL_BETA": 1.5})
     with pytest.raises(ValueError, match="DISTILL='mpc' applies to the multi-agent trainers"):
         ppo.make_train(resolve({**TINY, "DISTILL": "mpc"}))
+    with pytest.raises(ValueError, match="BATTERY_NET=true"):
+        ippo.make_train(
+            resolve({**TINY, **DISTILL, "DISTILL_AGENTS": "battery", "BATTERY_NET": False})
+        )
+    with pytest.raises(ValueError, match="PRIORITY_FILL"):
+        ippo.make_train(resolve({**TINY, **DISTILL, "PRIORITY_FILL": True}))
     no_battery = {**TINY_ENV, "station_kwargs": {"num_ports": 4, "battery": False}}
     with pytest.raises(ValueError, match="DISTILL_AGENTS"):
         ippo.make_train(
