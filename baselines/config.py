@@ -126,6 +126,11 @@ SCHEMA: dict[str, Field] = {
         "coupled = the coupled plan's share of top power and congestion price",
     ),
     "RELATIVE_PRICES": Field(False, (bool,), doc="the networks also read relative prices"),
+    "STATION_OBS": Field(
+        False,
+        (bool,),
+        doc="IPPO / MAPPO: each agent also reads the parked cars' demand on the whole station",
+    ),
     "RESIDUAL": Field(
         "off",
         (str,),

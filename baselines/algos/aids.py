@@ -8,7 +8,8 @@ multi-agent trainers' imperfect communication, ``OBS_DELAY_STEPS``, ``ACTION_LOS
 ``LOST_ACTION`` (`chargax_marl.marl.communication`), and their ``PRIORITY_FILL``
 (`chargax_marl.wrappers.PriorityFill`: charging actions as priorities), and ``RESIDUAL``
 (`chargax_marl.teachers.rules`: a rule's action read beside the observation, which the
-multi-agent actors' logits are centred on).
+multi-agent actors' logits are centred on), and ``STATION_OBS`` (`station_features`: the
+parked cars' demand on the whole station, read beside each agent's observation).
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from chargax_marl.core.observation import ENERGY_SCALE_KWH, MINUTES_PER_DAY
+from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.marl import ActionLossWrapper, DelayedObservationWrapper
 from chargax_marl.teachers import car_plan, congestion, rules
 from chargax_marl.teachers import shaping as teacher_shaping
@@ -333,3 +336,48 @@ def priority_fill(config: dict, env):
             f"combined with OBS_DELAY_STEPS={delay!r} or ACTION_LOSS_PROB={loss!r} (set them to 0)"
         )
     return PriorityFill(env, classes or None)
+
+
+STATION_WIDTH = 5
+"""Columns of `station_features`."""
+
+
+def station_features(core, params) -> jnp.ndarray:
+    """The parked cars' demand on the whole station, the same for every agent (``STATION_OBS``).
+
+    From the state the station knows now (the cars parked, their targets and planned
+    departures; no future car): the energy the parked cars still want, over
+    ``num_ports * ENERGY_SCALE_KWH``; the share of ports with a car; the parked cars' mean time
+    to their planned departure, over a day; the power that would finish every car by its
+    departure, over the ports' total rating; and the energy wanted by cars leaving within the
+    hour, over ``num_ports * ENERGY_SCALE_KWH``.
+
+    Args:
+        core: the core state (`chargax_marl.core.types.EnvState`), any leading axes.
+        params: the env parameters.
+
+    Returns:
+        ``(..., STATION_WIDTH)`` float32 features.
+    """
+    st = params.station
+    port = st.leaf_kind != KIND_BATTERY
+    num_ports = jnp.maximum(port.sum(), 1).astype(jnp.float32)
+    occupied = core.occupied & port
+    want_kwh = jnp.where(
+        occupied, jnp.maximum(core.target_soc - core.soc, 0.0) * core.capacity_kwh, 0.0
+    )
+    left_min = jnp.where(occupied, jnp.maximum(core.time_remaining_min, 0.0), 0.0)
+    cars = occupied.sum(-1)
+    energy_scale = num_ports * ENERGY_SCALE_KWH
+    rating_kw = jnp.maximum(jnp.sum(jnp.where(port, st.leaf_max_kw, 0.0)), 1e-6)
+    finish_kw = want_kwh / jnp.maximum(left_min / 60.0, params.step_hours)
+    return jnp.stack(
+        [
+            want_kwh.sum(-1) / energy_scale,
+            cars / num_ports,
+            left_min.sum(-1) / jnp.maximum(cars, 1) / MINUTES_PER_DAY,
+            finish_kw.sum(-1) / rating_kw,
+            jnp.where(left_min < 60.0, want_kwh, 0.0).sum(-1) / energy_scale,
+        ],
+        axis=-1,
+    ).astype(jnp.float32)

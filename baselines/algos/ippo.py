@@ -202,6 +202,11 @@ class SharedPolicy:
         }
         features = aids.advice_features(self.plan_config, env.params)
         self.plan, plan_width = (None, 0) if features is None else features
+        # STATION_OBS: the parked cars' demand on the whole station (aids.station_features),
+        # the same columns for every agent, before the advice.
+        self.station_params = env.params if config.get("STATION_OBS", False) else None
+        if self.station_params is not None:
+            plan_width += aids.STATION_WIDTH
         self.obs_dim += plan_width
         # RESIDUAL: the base rule's level is the last advice column; the actor's logits get
         # offsets centred on its action (networks.residual_offsets), so the untrained greedy
@@ -241,8 +246,9 @@ class SharedPolicy:
         return aids.advice_features(self.plan_config, env_params)[0]
 
     def with_plan(self, obs_matrix, core, plan=None):
-        """``obs_matrix (..., agents, obs)`` with the `PLAN_OBS` column of the (batched)
-        core state ``core`` appended; unchanged when ``PLAN_OBS`` is off.
+        """``obs_matrix (..., agents, obs)`` with the ``STATION_OBS`` columns and the `PLAN_OBS`
+        column of the (batched) core state ``core`` appended; unchanged when both are off.
+        The station's columns are read with the training env's station (its ports' ratings).
 
         Args:
             obs_matrix: ``(..., agents, obs)`` the agents' observations.
@@ -251,9 +257,14 @@ class SharedPolicy:
             plan: the advice to read (`plan_for`); None: the training env's.
 
         Returns:
-            ``(..., agents, obs + width)`` with each agent's leaf advice
+            ``(..., agents, obs + width)`` with the station's demand
+            (`baselines.algos.aids.station_features`) and each agent's leaf advice
             (`baselines.algos.aids.plan_features`), or ``obs_matrix`` itself.
         """
+        if self.station_params is not None:
+            station = aids.station_features(core, self.station_params)[..., None, :]
+            station = jnp.broadcast_to(station, obs_matrix.shape[:-1] + station.shape[-1:])
+            obs_matrix = jnp.concatenate([obs_matrix, station], axis=-1)
         if self.plan is None:
             return obs_matrix
         plan = self.plan if plan is None else plan
@@ -574,7 +585,7 @@ def make_train(config: dict | None = None, env_params=None, centralised_critic: 
         """The actors' observations ``(agents * envs, obs)`` (agent-major) of the per-env
         matrices ``obs (envs, agents, obs)``, with the plan advice of ``env_state`` when
         ``PLAN_OBS`` is on."""
-        if policy.plan is not None:
+        if policy.plan is not None or policy.station_params is not None:
             obs = policy.with_plan(obs, teacher_shaping.core_state(env_state))
         return agent_major(obs)
 

@@ -298,6 +298,11 @@ def make_train(config: dict | None = None, env_params=None):
             f"RESIDUAL={config['RESIDUAL']!r} applies to the multi-agent trainers (ippo, mappo) "
             "only: it centres each agent's actor on the rule's level (use 'off')"
         )
+    if config.get("STATION_OBS", False):
+        raise ValueError(
+            "STATION_OBS=true applies to the multi-agent trainers (ippo, mappo) only: the "
+            "single agent observes every port already (use false)"
+        )
     if config.get("DISTILL", "off") != "off":
         raise ValueError(
             f"DISTILL={config['DISTILL']!r} applies to the multi-agent trainers (ippo, mappo) "

@@ -9,7 +9,7 @@ import pytest
 from baselines.algos import distill, ippo, ppo
 from baselines.config import ConfigError, resolve
 from chargax_marl.marl.wrappers import LogWrapper
-from tests.helpers import TINY, TINY_ENV
+from tests.helpers import TINY, TINY_ENV, finite_losses
 
 DISTILL = {
     "DISTILL": "mpc",
@@ -97,3 +97,39 @@ def test_bad_distillation_settings_are_refused_naming_the_key():
         ippo.make_train(
             resolve({**TINY, **DISTILL, "DISTILL_AGENTS": "battery", "ENV_KWARGS": no_battery})
         )
+
+
+def test_station_obs_columns_are_the_parked_cars_demand():
+    """``STATION_OBS``: every agent's row ends (before the advice) with the station's parked
+    demand, computed here by hand from the state's cars."""
+    from chargax_marl.core.station import KIND_BATTERY
+    from chargax_marl.marl import ChargaxMARL
+    from chargax_marl.teachers import shaping as teacher_shaping
+
+    train = ippo.make_train(resolve({**TINY, "STATION_OBS": True}))
+    assert train.policy.obs_dim == train.env.obs_size + 5
+    env = ChargaxMARL(**TINY_ENV)
+    state = env.reset_to_day(3)[1]
+    for _ in range(10):  # cars arrive
+        state = env.step_arrays(jax.random.PRNGKey(_), state, np.full(5, env.action_offset))[1]
+    core = teacher_shaping.core_state(state)
+    rows = np.asarray(train.policy.with_plan(env.get_obs_matrix(state), core))
+    port = np.asarray(env.params.station.leaf_kind) != KIND_BATTERY
+    occ = np.asarray(core.occupied) & port
+    assert occ.sum() >= 2  # the case is not trivial
+    want = np.where(occ, np.maximum(core.target_soc - core.soc, 0) * core.capacity_kwh, 0)
+    left = np.where(occ, np.maximum(core.time_remaining_min, 0), 0)
+    rating = np.asarray(env.params.station.leaf_max_kw)[port].sum()
+    finish = want / np.maximum(left / 60.0, env.params.step_hours)
+    expected = [
+        want.sum() / (port.sum() * 100.0),
+        occ.sum() / port.sum(),
+        left.sum() / occ.sum() / 1440.0,
+        finish.sum() / rating,
+        want[left < 60].sum() / (port.sum() * 100.0),
+    ]
+    for row in rows:  # the same for every agent
+        np.testing.assert_allclose(row[-5:], expected, rtol=1e-5, atol=1e-7)
+    finite_losses(train)
+    with pytest.raises(ValueError, match="STATION_OBS"):
+        ppo.make_train(resolve({**TINY, "STATION_OBS": True}))
