@@ -253,6 +253,15 @@ class Policy:
         )
 
 
+# The multi-agent trainers' settings single-agent PPO refuses: (key, its off value, why).
+_MULTI_AGENT_ONLY = (
+    ("PRIORITY_FILL", False, "it reads their agents' charging actions as priorities"),
+    ("RESIDUAL", "off", "it centres each agent's actor on the rule's level"),
+    ("STATION_OBS", False, "the single agent observes every port already"),
+    ("DISTILL", "off", "it fits each agent's actor to the MPC's level for its leaf"),
+)
+
+
 def make_train(config: dict | None = None, env_params=None):
     """Build ``train(key)`` for a config (keys of `baselines.algos.PAPER_DEFAULTS`).
 
@@ -288,26 +297,17 @@ def make_train(config: dict | None = None, env_params=None):
                 "single-agent PPO has one controller and nothing to communicate (use "
                 f"{off})"
             )
-    if config.get("PRIORITY_FILL", False):
-        raise ValueError(
-            "PRIORITY_FILL=true applies to the multi-agent trainers (ippo, mappo) only: it reads "
-            "their agents' charging actions as priorities (use false)"
-        )
-    if config.get("RESIDUAL", "off") != "off":
-        raise ValueError(
-            f"RESIDUAL={config['RESIDUAL']!r} applies to the multi-agent trainers (ippo, mappo) "
-            "only: it centres each agent's actor on the rule's level (use 'off')"
-        )
-    if config.get("STATION_OBS", False):
-        raise ValueError(
-            "STATION_OBS=true applies to the multi-agent trainers (ippo, mappo) only: the "
-            "single agent observes every port already (use false)"
-        )
-    if config.get("DISTILL", "off") != "off":
-        raise ValueError(
-            f"DISTILL={config['DISTILL']!r} applies to the multi-agent trainers (ippo, mappo) "
-            "only: it fits each agent's actor to the MPC's level for its leaf (use 'off')"
-        )
+    for key, off, why in _MULTI_AGENT_ONLY:
+        value = config.get(key, off)
+        if value != off:
+            shown, off_shown = (
+                ("true" if value is True else repr(value)),
+                ("false" if off is False else repr(off)),
+            )
+            raise ValueError(
+                f"{key}={shown} applies to the multi-agent trainers (ippo, mappo) only: {why} "
+                f"(use {off_shown})"
+            )
     if env_params is None:
         env_params = build_env_params(config)[0]
     base_env = Chargax(params=env_params)
