@@ -30,4 +30,5 @@ $PY -m baselines.analysis.ablation --task Chargax-shopping-v3 --rules coupled_pl
   --method "IPPO, residual over the coupled plan (ippo_residual)=$S/shopping_v3_residual.json" \
   --method "IPPO, the ippo config (one level per direction, car plan teacher)=results/scores/ippo_Chargax-shopping-v3.json" \
   --method "IPPO, residual with the battery distilled from the MPC (ippo_distill)=results/scores/ippo_distill_Chargax-shopping-v3.json" \
+  --method "IPPO, the same with the station's demand observed (ippo_distill, STATION_OBS)=results/scores/ippo_distill_station_Chargax-shopping-v3.json" \
   --out results/ablation/shopping_v3 > /dev/null
