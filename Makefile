@@ -85,7 +85,7 @@ examples: $(CLIENTS_STAMP)
 # latest; a second target running into the same OUT at the same time is still refused.
 # IPPO on the default scenario, 4 seeds, scored on the held-out days (outputs/train_ippo).
 train: $(STAMP)
-	$(PY) -m baselines.train --config ippo --overwrite
+	$(PY) -m baselines.train --config ippo_v3 --overwrite
 
 train-mappo: $(STAMP)
 	$(PY) -m baselines.train --config mappo --overwrite

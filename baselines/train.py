@@ -1,6 +1,7 @@
 """Train PPO, IPPO or MAPPO from a config file, score on held-out days, write a run directory.
 
-    python -m baselines.train                                  # --config ippo: `make train`
+    python -m baselines.train --config ippo_v3 --overwrite     # `make train`
+    python -m baselines.train                                  # --config ippo
     python -m baselines.train --config ppo TOTAL_TIMESTEPS=2e6 SEEDS=2 OUT=outputs/ppo_2e6
     python -m baselines.train --config my_settings.toml SCENARIO=shopping-grid25-high
     python -m baselines.train --replot outputs/train_ippo --references results/optimal

@@ -155,12 +155,19 @@ def test_the_makefile_s_training_targets_name_a_config_and_replace_their_run():
     from baselines.experiments import _common
 
     text = Path(__file__).resolve().parents[2].joinpath("Makefile").read_text()
-    for target, name in (("train", "ippo"), ("train-ppo", "ppo"), ("train-mappo", "mappo")):
+    for target, name, algo in (
+        ("train", "ippo_v3", "ippo"),
+        ("train-ppo", "ppo", "ppo"),
+        ("train-mappo", "mappo", "mappo"),
+    ):
         line = re.search(rf"^{target}:.*\n\t(.*)$", text, flags=re.M).group(1)
         assert line == f"$(PY) -m baselines.train --config {name} --overwrite", (target, line)
         config, run = load(name)
-        assert run["ALGO"] == name
-        assert all(config[k] == v for k, v in _common.TUNED[name].items())
+        assert run["ALGO"] == algo
+        if name == algo:
+            assert all(config[k] == v for k, v in _common.TUNED[name].items())
+    # make train is on the default v3 task
+    assert load("ippo_v3")[0]["TASK"] == "Chargax-shopping-v3"
 
 
 def test_the_record_says_when_a_run_is_cut_from_the_paper_s_scale():

@@ -191,7 +191,7 @@ def test_cli_overrides_reach_the_config_and_unknown_keys_raise(monkeypatch):
         and seen["BATTERY_SHAPING"] == "dp"
         and seen["PORT_SHAPING"] == "plan"
     )
-    assert seen["TOTAL_TIMESTEPS"] == 7200 and seen["out"] == "outputs/train_ippo"
+    assert seen["TOTAL_TIMESTEPS"] == 7200 and seen["out"] == "outputs/train_ippo_v2"
     with pytest.raises(ConfigError, match=r"TOTAL_TIMESTEPS=100 .*at least one rollout"):
         cli.main(["TOTAL_TIMESTEPS=100"])
     with pytest.raises(ConfigError, match="BATTERY_NETT.*allowed.*BATTERY_NET"):
