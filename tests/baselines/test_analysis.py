@@ -19,6 +19,7 @@ from baselines.analysis import (
     redraw,
     robustness,
     sensitivity,
+    shaving,
 )
 from baselines.config import build_env_params
 from baselines.eval import references
@@ -386,3 +387,32 @@ def test_robustness_verdicts_table_and_refusals(tmp_path):
     ):
         with pytest.raises(SystemExit):
             robustness.main(argv)
+
+
+def test_the_shaving_control_is_the_coupled_plan_until_the_ports_draw_passes_its_threshold(
+    small_params,
+):
+    """``baselines.analysis.shaving``: above the ports' draw the rule is the coupled plan on
+    every leaf; at a threshold of 0, with cars asking for power, the batteries discharge at
+    full power and the ports keep the plan's levels; a negative threshold is refused."""
+    from chargax_marl.core.station import KIND_BATTERY
+    from chargax_marl.teachers.rules import coupled_plan_rule
+
+    params = small_params
+    key = jax.random.PRNGKey(0)
+    state = simulator.reset(key, params)
+    advance = jax.jit(
+        lambda s, k: simulator.step(k, s, policies.always_max(s, k, params), params)[0]
+    )
+    for k in jax.random.split(key, 110):  # into the morning, cars parked
+        state = advance(state, k)
+    plan = np.asarray(coupled_plan_rule(params)(state, key, params))
+    is_battery = np.asarray(params.station.leaf_kind) == KIND_BATTERY
+    assert (plan[~is_battery] > 0).any() and (plan[is_battery] > -params.num_levels).all()
+    never = np.asarray(shaving.shaving_rule(params, 1e6)(state, key, params))
+    always = np.asarray(shaving.shaving_rule(params, 0.0)(state, key, params))
+    np.testing.assert_array_equal(never, plan)
+    np.testing.assert_array_equal(always[~is_battery], plan[~is_battery])
+    assert (always[is_battery] == -params.num_levels).all()
+    with pytest.raises(ValueError, match="threshold_frac"):
+        shaving.shaving_rule(params, -0.1)
