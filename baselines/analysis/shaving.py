@@ -125,6 +125,9 @@ def main(argv=None) -> dict:
         rows, the chosen threshold, the held-out score and paired differences with the
         references (`chargax_marl.benchmark.scoring.score`), and per ``--against`` file the
         learner less the rule (EUR/day, paired over the held-out days).
+
+    Raises:
+        ValueError: a ``--against`` score file was scored on another task.
     """
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--task", required=True, help="a benchmark task id or task file")
