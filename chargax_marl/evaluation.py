@@ -160,7 +160,7 @@ def split_days(num_days: int, num_eval: int = 100, seed: int = 0) -> tuple[np.nd
 
     Args:
         num_days: the days of the price data; indices ``0 .. num_days - 1`` are split. With
-            episodes that start after midnight pass ``clock.episode_days(params)`` (all days
+            episodes that start after midnight pass ``clock.num_episode_starts(params)`` (all days
             but the last, `chargax_marl.core.clock`).
         num_eval: how many days to hold out, in ``[1, num_days - 1]``.
         seed: the seed of the random permutation.
@@ -358,7 +358,9 @@ def _start_days(days, params: EnvParams) -> jnp.ndarray:
     """``days`` as int32, checked to be days an episode can start on when episodes start after
     midnight (`clock.check_days`: the last day of the data has no next day's prices)."""
     if params.episode_start_hour and not isinstance(days, jax.core.Tracer):
-        clock.check_days(days, params.num_days, params.episode_start_hour)
+        clock.check_days(
+            days, params.num_days, params.episode_start_hour, episode_days=params.episode_days
+        )
     return jnp.asarray(days, jnp.int32)
 
 

@@ -175,9 +175,9 @@ def _neutral_later_fields(params: EnvParams) -> tuple[str, ...]:
 
 def _treedef_text(treedef, params: EnvParams) -> str:
     """The text of ``params``' tree structure (its static settings included) that
-    `params_fingerprint` hashes. ``episode_start_hour`` and ``fixed_departures`` came after
-    the stored fingerprints: trailing ones at a start hour of 0 and no fixed departures are
-    left out of the text, so that the fingerprints of the params before them, the references'
+    `params_fingerprint` hashes. ``episode_start_hour``, ``fixed_departures`` and
+    ``episode_days`` came after the stored fingerprints: trailing ones at a start hour of 0,
+    no fixed departures and one-day episodes are left out of the text, so that the fingerprints of the params before them, the references'
     among them, stay what they were."""
     text = str(treedef)
     fields = [f for f in dataclasses.fields(params) if not f.metadata.get("pytree_node", True)]
@@ -191,7 +191,7 @@ def _treedef_text(treedef, params: EnvParams) -> str:
 
 
 _NONE = object()
-_LATER_STATIC = {"episode_start_hour": 0, "fixed_departures": False}
+_LATER_STATIC = {"episode_start_hour": 0, "fixed_departures": False, "episode_days": 1}
 """The static `EnvParams` fields added after the first stored fingerprints (at the end of the
 class, in this order), at the value that computes what the params did before them."""
 
@@ -286,7 +286,9 @@ def make_traces(
             (`chargax_marl.core.clock.check_days`).
     """
     if params.episode_start_hour and not isinstance(days, jax.core.Tracer):
-        clock.check_days(days, params.num_days, params.episode_start_hour)
+        clock.check_days(
+            days, params.num_days, params.episode_start_hour, episode_days=params.episode_days
+        )
     days = jnp.atleast_1d(jnp.asarray(days, jnp.int32))
     if day_keys is None:
         key = jax.random.PRNGKey(0) if key is None else key
