@@ -543,6 +543,7 @@ _policies_days = jax.jit(_policies_program, static_argnums=0)
 def _play_days(act: Act | MemoryAct, params: EnvParams, days, keys: jax.Array):
     """The traced body of `run_days_keyed`: ``act`` for one day per entry of ``days``;
     ``(totals, PolicyOutputCounts)``, counted in the program (no host call per step)."""
+    clock.require_one_day(params, "chargax_marl.evaluation._play_days")
     policy = with_memory(act)
 
     def one_day(day, key):
@@ -711,6 +712,7 @@ def hindsight_bound(
         ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
         KeyError: an unknown reference name.
     """
+    clock.require_one_day(params, "chargax_marl.evaluation.hindsight_bound")
     time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
 
     bounds = bound_days(
@@ -776,6 +778,7 @@ def policy_bound(
     Raises:
         ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
     """
+    clock.require_one_day(params, "chargax_marl.evaluation.policy_bound")
     time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
     if bound_kind(params) == "occupancy":
         out = hindsight_bound(params, days, key, time_limit_s=time_limit_s)

@@ -285,6 +285,7 @@ def make_traces(
         ValueError: with ``episode_start_hour > 0``, a day of ``days`` is the data's last
             (`chargax_marl.core.clock.check_days`).
     """
+    clock.require_one_day(params, "chargax_marl.trace.make_traces")
     if params.episode_start_hour and not isinstance(days, jax.core.Tracer):
         clock.check_days(
             days, params.num_days, params.episode_start_hour, episode_days=params.episode_days
@@ -337,6 +338,7 @@ def trace_from_cars(
         ValueError: a car with an unknown field or an ``arrival_step`` outside the day, or
             more cars in one step than the station has ports.
     """
+    clock.require_one_day(params, "chargax_marl.trace.trace_from_cars")
     st = params.station
     n, slots = params.num_steps, st.num_ports
     fields = {f: np.zeros((n, slots), np.float32) for f in CAR_DEFAULTS}
@@ -419,6 +421,7 @@ def check_trace(trace: DayTrace, params: EnvParams) -> None:
         ValueError: the trace was made for another station, step length, day length or
             episode start hour.
     """
+    clock.require_one_day(params, "chargax_marl.trace.check_trace")
     if trace.step_minutes != params.step_minutes:
         raise ValueError(
             f"trace field 'step_minutes' is {trace.step_minutes!r} but params have "
@@ -470,6 +473,7 @@ def replay(act: Act, params: EnvParams, trace: DayTrace, day_key: jax.Array):
     Raises:
         ValueError: the trace was not made for ``params`` (`check_trace`).
     """
+    clock.require_one_day(params, "chargax_marl.trace.replay")
     check_trace(trace, params)
     act_keys, _, _ = day_keys(day_key, params.num_steps)
     start = simulator.empty_state(trace.day, params)
@@ -503,6 +507,7 @@ def replay_days(act: Act, params: EnvParams, traces: DayTrace, key: jax.Array | 
         The final `chargax_marl.core.types.EpisodeTotals` (leading axis over days), equal to
         ``run_days(act, params, traces.day, key)``.
     """
+    clock.require_one_day(params, "chargax_marl.trace.replay_days")
     key = jax.random.PRNGKey(0) if key is None else key
     num_days = traces.day.shape[0]
     return jax.vmap(lambda t, k: replay(act, params, t, k)[2].totals)(

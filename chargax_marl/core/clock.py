@@ -47,6 +47,25 @@ def episode_steps(params: EnvParams) -> int:
     return int(params.num_steps) * int(params.episode_days)
 
 
+def require_one_day(params: EnvParams, where: str) -> None:
+    """Refuse episodes of several days where only one-day episodes are supported yet.
+
+    Args:
+        params: the environment parameters (``episode_days``).
+        where: the entry point that refuses, for the message.
+
+    Raises:
+        ValueError: ``params.episode_days`` is not 1; the message names the field, its value
+            and the entry point.
+    """
+    n = int(getattr(params, "episode_days", 1))
+    if n != 1:
+        raise ValueError(
+            f"{where}: field 'episode_days' is {n}, but only episode_days=1 (one-day "
+            f"episodes) is supported here yet"
+        )
+
+
 def start_step(params: EnvParams) -> int:
     """The step of the day at which an episode starts (a Python int).
 

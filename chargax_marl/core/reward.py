@@ -26,7 +26,7 @@ def hour_of_step(timestep: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
         params: the environment parameters (``step_minutes``).
 
     Returns:
-        int32 hours in ``[0, 23]``, shaped as ``timestep``.
+        int32 hours in ``[0, 24 * episode_days - 1]``, shaped as ``timestep``.
     """
     return clock.hours_since_start(timestep, params)
 

@@ -41,6 +41,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from chargax_marl.core import clock
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.teachers.shaping import core_state
 from chargax_marl.teachers.storage_value import dp_battery_action, step_buy_prices
@@ -192,6 +193,7 @@ def plan_constants(env_params):
         ``(L,)`` bool port mask, ``(L,)`` path efficiencies, ``(L,)`` leaf top power (kW),
         the step in minutes and hours (floats) and the customer price (EUR/kWh).
     """
+    clock.require_one_day(env_params, "chargax_marl.teachers.car_plan.plan_constants")
     order_np, sorted_np = price_order(env_params)
     st = env_params.station
     return (
@@ -220,6 +222,7 @@ def car_values(env_params):
         ``values(core, core.timestep, core.time_remaining_min, core.energy_remaining_kwh)``
         is the potential of ``core``.
     """
+    clock.require_one_day(env_params, "chargax_marl.teachers.car_plan.car_values")
     order, sorted_prices, is_port, eff, leaf_max_kw, step_min, step_h, customer = plan_constants(
         env_params
     )
@@ -257,6 +260,7 @@ def car_potential(env_params):
         charge-sensitive cars). The value after the step is computed from the state before
         it, so the env's auto-reset does not hide it.
     """
+    clock.require_one_day(env_params, "chargax_marl.teachers.car_plan.car_potential")
     values = car_values(env_params)
     step_min = float(env_params.step_minutes)
 
@@ -296,6 +300,7 @@ def plan_advice(env_params, power_fraction: float | None = PLAN_POWER_FRACTION):
         ``power_fraction`` of its top power, uses the current step at a positive margin;
         every charge-sensitive car), 0 for idle, empty ports and batteries.
     """
+    clock.require_one_day(env_params, "chargax_marl.teachers.car_plan.plan_advice")
     order, sorted_prices, is_port, eff, leaf_max_kw, step_min, step_h, customer = plan_constants(
         env_params
     )
@@ -343,6 +348,7 @@ def plan_action(
     Raises:
         ValueError: ``battery="dp"`` on a station without a battery.
     """
+    clock.require_one_day(env_params, "chargax_marl.teachers.car_plan.plan_action")
     is_battery = jnp.asarray(np.asarray(env_params.station.leaf_kind) == KIND_BATTERY)
     advice = plan_advice(env_params, power_fraction)
     dp = dp_battery_action(env_params) if battery == "dp" else None

@@ -44,7 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from chargax_marl.core import physics
+from chargax_marl.core import clock, physics
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.teachers.car_plan import batched, steps_of
 from chargax_marl.teachers.fill import able_kw, serve_in_order
@@ -271,6 +271,7 @@ def coupled_plan(
     Raises:
         ValueError: a setting out of its range (the message names it).
     """
+    clock.require_one_day(env_params, "chargax_marl.teachers.congestion.coupled_plan")
     _check_settings(power_fraction, horizon_steps, future_reserve, iterations)
     st = env_params.station
     width = min(int(horizon_steps), int(env_params.num_steps))
@@ -413,6 +414,7 @@ def coupled_plan_action(
     Raises:
         ValueError: ``battery`` not ``"dp"`` or ``"idle"``, or a plan setting out of range.
     """
+    clock.require_one_day(env_params, "chargax_marl.teachers.congestion.coupled_plan_action")
     if battery not in ("dp", "idle"):
         raise ValueError(f"field 'battery' must be 'dp' or 'idle', got {battery!r}")
     plan_of = coupled_plan(env_params, **plan_kwargs)
@@ -494,6 +496,7 @@ def coupled_advice(env_params, **plan_kwargs):
         price on its path now (EUR per kWh into the car, node and peak, in [0, c] with ``c``
         the customer price). 0 for empty ports and batteries.
     """
+    clock.require_one_day(env_params, "chargax_marl.teachers.congestion.coupled_advice")
     plan_of = coupled_plan(env_params, **plan_kwargs)
     st = env_params.station
     leaf_kwh = jnp.asarray(st.leaf_max_kw, jnp.float32) * float(env_params.step_hours)
@@ -552,6 +555,7 @@ def coupled_potential(env_params, **plan_kwargs):
         term (EUR, ``(..., L)``; 0 for batteries and empty ports) for the (possibly wrapped
         and batched) ``env_state`` taken before the step.
     """
+    clock.require_one_day(env_params, "chargax_marl.teachers.congestion.coupled_potential")
     plan_of = coupled_plan(env_params, **plan_kwargs)
     is_port = jnp.asarray(np.asarray(env_params.station.leaf_kind) != KIND_BATTERY)
 

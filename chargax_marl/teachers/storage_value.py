@@ -34,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.optimize import linprog
 
+from chargax_marl.core import clock
 from chargax_marl.core.reward import battery_terminal_value_eur, price_tables
 from chargax_marl.core.station import KIND_BATTERY
 
@@ -94,6 +95,7 @@ def step_buy_prices(params) -> np.ndarray:
         ``(days, steps)`` float64 buy prices (EUR/kWh): day-ahead + grid fee + time-of-use
         (`chargax_marl.core.reward.price_tables`).
     """
+    clock.require_one_day(params, "chargax_marl.teachers.storage_value.step_buy_prices")
     return np.asarray(price_tables(params)[0], np.float64)
 
 
@@ -107,6 +109,7 @@ def terminal_prices(params) -> np.ndarray:
         ``(days,)`` float64 prices (EUR/kWh) of
         `chargax_marl.core.reward.battery_terminal_value_eur`.
     """
+    clock.require_one_day(params, "chargax_marl.teachers.storage_value.terminal_prices")
     days = jnp.arange(np.asarray(params.prices_eur_kwh).shape[0], dtype=jnp.int32)
     return np.asarray(
         jax.vmap(lambda d: battery_terminal_value_eur(jnp.float32(1.0), d, params))(days),
@@ -190,6 +193,7 @@ def storage_values(params) -> np.ndarray:
         ValueError: the station has no battery.
         RuntimeError: an LP fails to solve.
     """
+    clock.require_one_day(params, "chargax_marl.teachers.storage_value.storage_values")
     eta, power_kw, capacity_kwh, e0 = battery_constants(params)
     prices = step_buy_prices(params)
     terminal = terminal_prices(params)
@@ -241,6 +245,7 @@ def dp_values(params, points_per_step: int = 4) -> tuple[np.ndarray, np.ndarray]
         ValueError: the station has no battery, or ``points_per_step`` is not an integer
             >= 1.
     """
+    clock.require_one_day(params, "chargax_marl.teachers.storage_value.dp_values")
     eta, power_kw, capacity_kwh, _ = battery_constants(params)
     grid, value = level_values(
         step_buy_prices(params),
@@ -402,6 +407,7 @@ def dp_battery_action(params):
     Raises:
         ValueError: the station has no battery.
     """
+    clock.require_one_day(params, "chargax_marl.teachers.storage_value.dp_battery_action")
     grid, table = dp_values(params)
     table, grid_kwh = jnp.asarray(table), float(grid[1] - grid[0])
     prices = jnp.asarray(step_buy_prices(params), jnp.float32)
