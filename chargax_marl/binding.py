@@ -49,6 +49,9 @@ def node_binding(
         ``(H,)`` float64, one entry per inner node in node order
         (``params.station.node_names``): the share of steps, averaged over the days, in which
         the node's requested grid-side flow is at least ``(1 - BIND_TOLERANCE)`` of its limit.
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.binding.node_binding")
     key = jax.random.PRNGKey(0) if key is None else key

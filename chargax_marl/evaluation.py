@@ -711,6 +711,7 @@ def hindsight_bound(
     Raises:
         ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
         KeyError: an unknown reference name.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.evaluation.hindsight_bound")
     time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
@@ -777,6 +778,7 @@ def policy_bound(
 
     Raises:
         ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.evaluation.policy_bound")
     time_limit_s = checks.time_limit("time_limit_s", time_limit_s)

@@ -284,6 +284,7 @@ def make_traces(
     Raises:
         ValueError: with ``episode_start_hour > 0``, a day of ``days`` is the data's last
             (`chargax_marl.core.clock.check_days`).
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.trace.make_traces")
     if params.episode_start_hour and not isinstance(days, jax.core.Tracer):
@@ -337,6 +338,7 @@ def trace_from_cars(
     Raises:
         ValueError: a car with an unknown field or an ``arrival_step`` outside the day, or
             more cars in one step than the station has ports.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.trace.trace_from_cars")
     st = params.station
@@ -420,6 +422,7 @@ def check_trace(trace: DayTrace, params: EnvParams) -> None:
     Raises:
         ValueError: the trace was made for another station, step length, day length or
             episode start hour.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.trace.check_trace")
     if trace.step_minutes != params.step_minutes:
@@ -472,6 +475,7 @@ def replay(act: Act, params: EnvParams, trace: DayTrace, day_key: jax.Array):
 
     Raises:
         ValueError: the trace was not made for ``params`` (`check_trace`).
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.trace.replay")
     check_trace(trace, params)
@@ -506,6 +510,9 @@ def replay_days(act: Act, params: EnvParams, traces: DayTrace, key: jax.Array | 
     Returns:
         The final `chargax_marl.core.types.EpisodeTotals` (leading axis over days), equal to
         ``run_days(act, params, traces.day, key)``.
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.trace.replay_days")
     key = jax.random.PRNGKey(0) if key is None else key

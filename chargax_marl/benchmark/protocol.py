@@ -248,6 +248,7 @@ def play(
             step, or not integers in a
             discrete action mode (`chargax_marl.evaluation.check_policy_outputs`, counted
             inside the compiled play).
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.benchmark.protocol.play")
     _check_kind(kind)

@@ -158,6 +158,7 @@ def admission_bound(
             ``[2, params.num_steps]``.
         chargax_marl.optimal.model.SolverError: HiGHS finds no optimum with any of the
             settings it tries.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.optimal.milp.admission_bound")
     time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
@@ -271,6 +272,7 @@ def compare(
         ValueError: the trace was not made for ``params``, or ``num_steps`` outside
             ``[2, params.num_steps]`` (`admission_bound`).
         chargax_marl.optimal.model.SolverError: HiGHS finds no optimum of the MILP or the LP.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.optimal.milp.compare")
     time_limit_s = checks.time_limit("time_limit_s", time_limit_s)

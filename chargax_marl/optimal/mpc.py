@@ -408,6 +408,9 @@ def mpc_policy(params: EnvParams, **kwargs) -> MPC:
 
     Returns:
         The controller.
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.optimal.mpc.mpc_policy")
     return MPC(params, **kwargs)

@@ -137,6 +137,9 @@ def pooled_sessions(params: EnvParams, trace: trace_lib.DayTrace) -> tuple[Sessi
     Returns:
         ``(sessions, pools, num_cars)``: one session per car and group, the `Pools` that tie
         them, and the number of cars.
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.optimal.pooled.pooled_sessions")
     _, first_port, group_ports = port_groups(params)
@@ -211,6 +214,7 @@ def pooled_bound(
         ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
         ValueError: the trace was not made for ``params``.
         chargax_marl.optimal.model.SolverError: HiGHS finds no optimum with any setting.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.optimal.pooled.pooled_bound")
     time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
@@ -272,6 +276,7 @@ def pooled_bound_days(
 
     Raises:
         ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.optimal.pooled.pooled_bound_days")
     time_limit_s = checks.time_limit("time_limit_s", time_limit_s)

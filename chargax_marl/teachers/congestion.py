@@ -270,6 +270,7 @@ def coupled_plan(
 
     Raises:
         ValueError: a setting out of its range (the message names it).
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(env_params, "chargax_marl.teachers.congestion.coupled_plan")
     _check_settings(power_fraction, horizon_steps, future_reserve, iterations)
@@ -413,6 +414,7 @@ def coupled_plan_action(
 
     Raises:
         ValueError: ``battery`` not ``"dp"`` or ``"idle"``, or a plan setting out of range.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(env_params, "chargax_marl.teachers.congestion.coupled_plan_action")
     if battery not in ("dp", "idle"):
@@ -495,6 +497,9 @@ def coupled_advice(env_params, **plan_kwargs):
         of the port's top power its car's plan takes now (in [0, 1]); column 1 the congestion
         price on its path now (EUR per kWh into the car, node and peak, in [0, c] with ``c``
         the customer price). 0 for empty ports and batteries.
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(env_params, "chargax_marl.teachers.congestion.coupled_advice")
     plan_of = coupled_plan(env_params, **plan_kwargs)
@@ -554,6 +559,9 @@ def coupled_potential(env_params, **plan_kwargs):
         ``potential(env_state) -> shift``, where ``shift(leaf_energy_kwh)`` is each leaf's
         term (EUR, ``(..., L)``; 0 for batteries and empty ports) for the (possibly wrapped
         and batched) ``env_state`` taken before the step.
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(env_params, "chargax_marl.teachers.congestion.coupled_potential")
     plan_of = coupled_plan(env_params, **plan_kwargs)

@@ -63,6 +63,7 @@ def battery_programme(params):
 
     Raises:
         ValueError: the station has no battery.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.teachers.rules.battery_programme")
     _check_battery("battery_programme", params)
@@ -80,6 +81,7 @@ def plan_programme(params):
 
     Raises:
         ValueError: the station has no battery.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.teachers.rules.plan_programme")
     _check_battery("plan_programme", params)
@@ -98,6 +100,7 @@ def grid_programme(params):
 
     Raises:
         ValueError: the station has no battery.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.teachers.rules.grid_programme")
     _check_battery("grid_programme", params)
@@ -131,6 +134,9 @@ def coupled_plan_rule(params):
 
     Returns:
         ``policy(state, key, params) -> levels`` (int32 ``(L,)``).
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.teachers.rules.coupled_plan_rule")
     return coupled_plan_action(params, battery="dp" if has_battery(params) else "idle", top_up=True)

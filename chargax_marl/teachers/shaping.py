@@ -100,6 +100,7 @@ def battery_potential(env_params, mode: str = "dp"):
     Raises:
         ValueError: an unknown ``mode``, or ``"storage_value"`` / ``"dp"`` on a station
             without a battery.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(env_params, "chargax_marl.teachers.shaping.battery_potential")
     if mode not in BATTERY_POTENTIALS:

@@ -94,6 +94,9 @@ def step_buy_prices(params) -> np.ndarray:
     Returns:
         ``(days, steps)`` float64 buy prices (EUR/kWh): day-ahead + grid fee + time-of-use
         (`chargax_marl.core.reward.price_tables`).
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.teachers.storage_value.step_buy_prices")
     return np.asarray(price_tables(params)[0], np.float64)
@@ -108,6 +111,9 @@ def terminal_prices(params) -> np.ndarray:
     Returns:
         ``(days,)`` float64 prices (EUR/kWh) of
         `chargax_marl.core.reward.battery_terminal_value_eur`.
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.teachers.storage_value.terminal_prices")
     days = jnp.arange(np.asarray(params.prices_eur_kwh).shape[0], dtype=jnp.int32)
@@ -192,6 +198,7 @@ def storage_values(params) -> np.ndarray:
     Raises:
         ValueError: the station has no battery.
         RuntimeError: an LP fails to solve.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.teachers.storage_value.storage_values")
     eta, power_kw, capacity_kwh, e0 = battery_constants(params)
@@ -244,6 +251,7 @@ def dp_values(params, points_per_step: int = 4) -> tuple[np.ndarray, np.ndarray]
     Raises:
         ValueError: the station has no battery, or ``points_per_step`` is not an integer
             >= 1.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.teachers.storage_value.dp_values")
     eta, power_kw, capacity_kwh, _ = battery_constants(params)
@@ -406,6 +414,7 @@ def dp_battery_action(params):
 
     Raises:
         ValueError: the station has no battery.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
     clock.require_one_day(params, "chargax_marl.teachers.storage_value.dp_battery_action")
     grid, table = dp_values(params)
