@@ -353,7 +353,8 @@ def episode_price_hours(day, params: EnvParams) -> jnp.ndarray:
 def episode_day_ahead_prices(day, params: EnvParams) -> jnp.ndarray:
     """The day-ahead prices (EUR/kWh) of the episode's 24 hours, in the episode's order:
     the row ``prices_eur_kwh[day]`` with a start hour of 0, else the hours from the start
-    hour of ``day`` to the one before it on the next day.
+    hour of ``day`` to the one before it on the next day. For a later day ``k`` of an
+    episode of several days pass ``day + k`` (`episode_day_index`).
 
     Args:
         day: the episode's day (``()`` int).
