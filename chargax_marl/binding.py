@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from chargax_marl.core import physics, simulator
+from chargax_marl.core import clock, physics, simulator
 from chargax_marl.core.params import make_params
 from chargax_marl.core.scenarios import COORDINATION_SCENARIOS, scenario_kwargs
 from chargax_marl.core.types import EnvParams
@@ -49,7 +49,11 @@ def node_binding(
         ``(H,)`` float64, one entry per inner node in node order
         (``params.station.node_names``): the share of steps, averaged over the days, in which
         the node's requested grid-side flow is at least ``(1 - BIND_TOLERANCE)`` of its limit.
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.binding.node_binding")
     key = jax.random.PRNGKey(0) if key is None else key
     days = jnp.asarray(days, jnp.int32)
     st = params.station

@@ -124,7 +124,8 @@ def context_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
 
     Returns:
         ``(low, high)``, float64 vectors of the context's width, in the order of
-        `observation.context_features` (MOER last when ``params.observe_moer``).
+        `observation.context_features` (MOER when ``params.observe_moer``, then the
+        weekday's sine and cosine when ``params.episode_days > 1``).
     """
     tou = np.asarray(params.tou_fee_eur_kwh, np.float64)
     spot = np.asarray(params.prices_eur_kwh, np.float64)
@@ -161,6 +162,9 @@ def context_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
         moer = np.asarray(params.moer_kg_per_kwh, np.float64) / observation.MOER_SCALE_KG_KWH
         low.append([moer.min()])
         high.append([moer.max()])
+    if params.episode_days > 1:
+        low.append([-1.0, -1.0])
+        high.append([1.0, 1.0])
     return np.concatenate(low), np.concatenate(high)
 
 

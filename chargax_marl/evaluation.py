@@ -160,7 +160,7 @@ def split_days(num_days: int, num_eval: int = 100, seed: int = 0) -> tuple[np.nd
 
     Args:
         num_days: the days of the price data; indices ``0 .. num_days - 1`` are split. With
-            episodes that start after midnight pass ``clock.episode_days(params)`` (all days
+            episodes that start after midnight pass ``clock.num_episode_starts(params)`` (all days
             but the last, `chargax_marl.core.clock`).
         num_eval: how many days to hold out, in ``[1, num_days - 1]``.
         seed: the seed of the random permutation.
@@ -358,7 +358,9 @@ def _start_days(days, params: EnvParams) -> jnp.ndarray:
     """``days`` as int32, checked to be days an episode can start on when episodes start after
     midnight (`clock.check_days`: the last day of the data has no next day's prices)."""
     if params.episode_start_hour and not isinstance(days, jax.core.Tracer):
-        clock.check_days(days, params.num_days, params.episode_start_hour)
+        clock.check_days(
+            days, params.num_days, params.episode_start_hour, episode_days=params.episode_days
+        )
     return jnp.asarray(days, jnp.int32)
 
 
@@ -541,6 +543,7 @@ _policies_days = jax.jit(_policies_program, static_argnums=0)
 def _play_days(act: Act | MemoryAct, params: EnvParams, days, keys: jax.Array):
     """The traced body of `run_days_keyed`: ``act`` for one day per entry of ``days``;
     ``(totals, PolicyOutputCounts)``, counted in the program (no host call per step)."""
+    clock.require_one_day(params, "chargax_marl.evaluation._play_days")
     policy = with_memory(act)
 
     def one_day(day, key):
@@ -708,7 +711,9 @@ def hindsight_bound(
     Raises:
         ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
         KeyError: an unknown reference name.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.evaluation.hindsight_bound")
     time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
 
     bounds = bound_days(
@@ -773,7 +778,9 @@ def policy_bound(
 
     Raises:
         ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.evaluation.policy_bound")
     time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
     if bound_kind(params) == "occupancy":
         out = hindsight_bound(params, days, key, time_limit_s=time_limit_s)

@@ -55,19 +55,31 @@ def always_max(state: EnvState, key: jax.Array, params: EnvParams) -> jnp.ndarra
     return jnp.where(_is_battery(params), 0, params.num_levels).astype(jnp.int32)
 
 
+def _day_and_hour(state: EnvState, params: EnvParams) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """``(day, hour)``: the day whose 24 hours from the start hour the step is in (the
+    episode's day for one-day episodes; ``state.day`` plus the episode's day index,
+    `chargax_marl.core.clock.episode_day_index`, for several) and the hour in it (0..23)."""
+    hour = hour_of_step(state.timestep, params)
+    if params.episode_days == 1:
+        return state.day, hour
+    return state.day + hour // 24, jnp.mod(hour, 24)
+
+
 def _day_buy_prices(state: EnvState, params: EnvParams) -> tuple[jnp.ndarray, jnp.ndarray]:
-    """``(day (24,), now ())``: the hourly buy prices of the episode's 24 hours (day-ahead, grid
-    fee, time-of-use surcharge; EUR/kWh; `chargax_marl.core.reward.episode_buy_prices`) and
-    the current hour's."""
-    day_prices = episode_buy_prices(state.day, params)
-    return day_prices, day_prices[hour_of_step(state.timestep, params)]
+    """``(day (24,), now ())``: the hourly buy prices of the 24 hours of the episode's current
+    day (day-ahead, grid fee, time-of-use surcharge; EUR/kWh;
+    `chargax_marl.core.reward.episode_buy_prices`) and the current hour's."""
+    day, hour = _day_and_hour(state, params)
+    day_prices = episode_buy_prices(day, params)
+    return day_prices, day_prices[hour]
 
 
 def _cheap_or_dear_hour(state: EnvState, params: EnvParams, quantile: float):
     """Whether the current hour's buy price (day-ahead plus the time-of-use surcharge) is in the
-    cheapest / dearest ``quantile`` of the episode's 24 hours."""
-    day_prices = episode_buy_prices(state.day, params, grid_fee=False)
-    now = day_prices[hour_of_step(state.timestep, params)]
+    cheapest / dearest ``quantile`` of the 24 hours of the episode's current day."""
+    day, hour = _day_and_hour(state, params)
+    day_prices = episode_buy_prices(day, params, grid_fee=False)
+    now = day_prices[hour]
     return now <= jnp.quantile(day_prices, quantile), now >= jnp.quantile(
         day_prices, 1.0 - quantile
     )

@@ -175,9 +175,9 @@ def _neutral_later_fields(params: EnvParams) -> tuple[str, ...]:
 
 def _treedef_text(treedef, params: EnvParams) -> str:
     """The text of ``params``' tree structure (its static settings included) that
-    `params_fingerprint` hashes. ``episode_start_hour`` and ``fixed_departures`` came after
-    the stored fingerprints: trailing ones at a start hour of 0 and no fixed departures are
-    left out of the text, so that the fingerprints of the params before them, the references'
+    `params_fingerprint` hashes. ``episode_start_hour``, ``fixed_departures`` and
+    ``episode_days`` came after the stored fingerprints: trailing ones at a start hour of 0,
+    no fixed departures and one-day episodes are left out of the text, so that the fingerprints of the params before them, the references'
     among them, stay what they were."""
     text = str(treedef)
     fields = [f for f in dataclasses.fields(params) if not f.metadata.get("pytree_node", True)]
@@ -191,7 +191,7 @@ def _treedef_text(treedef, params: EnvParams) -> str:
 
 
 _NONE = object()
-_LATER_STATIC = {"episode_start_hour": 0, "fixed_departures": False}
+_LATER_STATIC = {"episode_start_hour": 0, "fixed_departures": False, "episode_days": 1}
 """The static `EnvParams` fields added after the first stored fingerprints (at the end of the
 class, in this order), at the value that computes what the params did before them."""
 
@@ -284,9 +284,13 @@ def make_traces(
     Raises:
         ValueError: with ``episode_start_hour > 0``, a day of ``days`` is the data's last
             (`chargax_marl.core.clock.check_days`).
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.trace.make_traces")
     if params.episode_start_hour and not isinstance(days, jax.core.Tracer):
-        clock.check_days(days, params.num_days, params.episode_start_hour)
+        clock.check_days(
+            days, params.num_days, params.episode_start_hour, episode_days=params.episode_days
+        )
     days = jnp.atleast_1d(jnp.asarray(days, jnp.int32))
     if day_keys is None:
         key = jax.random.PRNGKey(0) if key is None else key
@@ -334,7 +338,9 @@ def trace_from_cars(
     Raises:
         ValueError: a car with an unknown field or an ``arrival_step`` outside the day, or
             more cars in one step than the station has ports.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.trace.trace_from_cars")
     st = params.station
     n, slots = params.num_steps, st.num_ports
     fields = {f: np.zeros((n, slots), np.float32) for f in CAR_DEFAULTS}
@@ -416,7 +422,9 @@ def check_trace(trace: DayTrace, params: EnvParams) -> None:
     Raises:
         ValueError: the trace was made for another station, step length, day length or
             episode start hour.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.trace.check_trace")
     if trace.step_minutes != params.step_minutes:
         raise ValueError(
             f"trace field 'step_minutes' is {trace.step_minutes!r} but params have "
@@ -467,7 +475,9 @@ def replay(act: Act, params: EnvParams, trace: DayTrace, day_key: jax.Array):
 
     Raises:
         ValueError: the trace was not made for ``params`` (`check_trace`).
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.trace.replay")
     check_trace(trace, params)
     act_keys, _, _ = day_keys(day_key, params.num_steps)
     start = simulator.empty_state(trace.day, params)
@@ -500,7 +510,11 @@ def replay_days(act: Act, params: EnvParams, traces: DayTrace, key: jax.Array | 
     Returns:
         The final `chargax_marl.core.types.EpisodeTotals` (leading axis over days), equal to
         ``run_days(act, params, traces.day, key)``.
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.trace.replay_days")
     key = jax.random.PRNGKey(0) if key is None else key
     num_days = traces.day.shape[0]
     return jax.vmap(lambda t, k: replay(act, params, t, k)[2].totals)(

@@ -9,7 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from chargax_marl.core import make_params, simulator
+from chargax_marl import policies as policies_lib
+from chargax_marl.core import make_params, multiple_types, reward, simulator
 from chargax_marl.core.physics import leaf_min_level, node_flows_kw
 from chargax_marl.evaluation import (
     _policies_days,
@@ -364,3 +365,17 @@ def test_a_node_bound_car_that_rounds_to_idle_leaves_its_power_to_the_next():
         assert (
             float(info.requested_excess_kw) <= 1e-3
         )  # planned within the limits: nothing to rescale
+
+
+def test_the_price_rules_read_the_current_day_of_a_multi_day_episode():
+    """In an episode of two days the rules' "now" is the step's own buy price, on the second
+    day too (the 24 hours of the episode's current day, not the first day's)."""
+    params = make_params(station=multiple_types(2, 2), step_minutes=60, episode_days=2)
+    T = params.num_steps
+    state = simulator.empty_state(jnp.asarray(3), params)
+    for t in (0, T - 1, T, T + 5, 2 * T - 1):
+        s = state.replace(timestep=jnp.asarray(t, jnp.int32))
+        day_prices, now = policies_lib._day_buy_prices(s, params)
+        want = reward.grid_prices(s.day, s.timestep, params)[0]
+        np.testing.assert_allclose(float(now), float(want), rtol=1e-6)
+        assert day_prices.shape == (24,)

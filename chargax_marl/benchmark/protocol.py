@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from chargax_marl.core import observation, physics, simulator
+from chargax_marl.core import clock, observation, physics, simulator
 from chargax_marl.core.types import EnvParams, EpisodeTotals
 from chargax_marl.evaluation import (
     PolicyOutputCounts,
@@ -248,7 +248,9 @@ def play(
             step, or not integers in a
             discrete action mode (`chargax_marl.evaluation.check_policy_outputs`, counted
             inside the compiled play).
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.benchmark.protocol.play")
     _check_kind(kind)
     flat_days, flat_keys, n, r = flatten_schedule(days, day_keys)
     if kind in HOST_KINDS:

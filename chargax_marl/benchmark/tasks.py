@@ -433,7 +433,8 @@ def _training_days(task: Task) -> np.ndarray:
     if not task.train_prices:
         return _days(task)[0]
     days = sum(int(load_prices(p).prices_eur_kwh.shape[0]) for p in task.train_prices)
-    return np.arange(clock.num_start_days(days, _params(task).episode_start_hour))
+    params = _params(task)
+    return np.arange(clock.num_start_days(days, params.episode_start_hour, params.episode_days))
 
 
 @functools.cache
@@ -446,9 +447,11 @@ def _validation_days(task: Task) -> np.ndarray:
 
 @functools.cache
 def _days(task: Task) -> tuple[np.ndarray, np.ndarray]:
-    # the days an episode can start on: all of them, or all but the last when the scenario's
-    # episodes start after midnight (`clock.episode_days`)
-    return split_days(clock.episode_days(_params(task)), task.num_eval_days, seed=task.split_seed)
+    # the days an episode can start on: all of them, or fewer when the scenario's episodes
+    # start after midnight or span several days (`clock.num_episode_starts`)
+    return split_days(
+        clock.num_episode_starts(_params(task)), task.num_eval_days, seed=task.split_seed
+    )
 
 
 _MEDIUM_DRAWS = 2

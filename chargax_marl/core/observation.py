@@ -102,8 +102,15 @@ def context_features(state: EnvState, params: EnvParams) -> jnp.ndarray:
     the day of the data the episode started on, the fraction of the hour left until the price
     changes, the price quantiles of the episode's 24 hours (`PRICE_QUANTILES`), the grid
     connection's load
-    (`root_load`), the day's peak draw so far over the connection's limit, and MOER now
-    when ``params.observe_moer``.
+    (`root_load`), the episode's peak draw so far over the connection's limit, MOER now
+    when ``params.observe_moer``, and with ``episode_days > 1`` the day of the week.
+
+    With ``episode_days > 1`` the "day's" parts follow the episode as it runs: ``day`` is the
+    calendar day of the step (wrapped around the data), ``price_quantiles`` are those of the
+    24 hours of the episode's current day (`chargax_marl.core.clock.episode_day_index`: the
+    calendar day with a start hour of 0), and a last part ``weekday`` holds the sine and
+    cosine of ``2 pi weekday / 7`` of the step's calendar day (0 = Monday). With one day the
+    context is exactly what it always was.
 
     Prices are divided by `PRICE_SCALE_EUR_KWH`, MOER by `MOER_SCALE_KG_KWH`; the day is
     divided by ``num_days - 1`` (at least 1). `context_parts` names the parts and their
@@ -124,14 +131,21 @@ def context_features(state: EnvState, params: EnvParams) -> jnp.ndarray:
     angle = 2.0 * jnp.pi * now / params.num_steps
     minute_of_hour = jnp.mod(now * params.step_minutes, 60.0)
     root_kw = params.station.node_max_kw[0]
+    multi_day = params.episode_days > 1
+    if multi_day:
+        calendar = jnp.mod(clock.calendar_day(state.day, state.timestep, params), params.num_days)
+        day_index = calendar
+        price_day = state.day + clock.episode_day_index(state.timestep, params)
+    else:
+        day_index = price_day = state.day
     parts = [
         prices / PRICE_SCALE_EUR_KWH,
         jnp.atleast_1d(params.customer_price_eur_kwh / PRICE_SCALE_EUR_KWH),
         jnp.stack([jnp.sin(angle), jnp.cos(angle)]),
         jnp.atleast_1d(state.is_workday.astype(jnp.float32)),
-        jnp.atleast_1d(state.day / jnp.maximum(params.num_days - 1, 1)),
+        jnp.atleast_1d(day_index / jnp.maximum(params.num_days - 1, 1)),
         jnp.atleast_1d((60.0 - minute_of_hour) / 60.0),
-        day_price_quantiles(state.day, params) / PRICE_SCALE_EUR_KWH,
+        day_price_quantiles(price_day, params) / PRICE_SCALE_EUR_KWH,
         jnp.atleast_1d(root_load(state, params)),
         jnp.atleast_1d(state.totals.peak_grid_kw / root_kw),
     ]
@@ -139,6 +153,9 @@ def context_features(state: EnvState, params: EnvParams) -> jnp.ndarray:
         parts.append(
             jnp.atleast_1d(moer_now(state.day, state.timestep, params) / MOER_SCALE_KG_KWH)
         )
+    if multi_day:
+        week_angle = 2.0 * jnp.pi * clock.weekday(calendar, params) / 7.0
+        parts.append(jnp.stack([jnp.sin(week_angle), jnp.cos(week_angle)]))
     return jnp.concatenate(parts).astype(jnp.float32)
 
 
@@ -189,15 +206,17 @@ def context_parts(params: EnvParams) -> tuple[tuple[str, int], ...]:
     """``(name, width)`` of each part of `context_features`, in order.
 
     Args:
-        params: the env parameters (``price_horizon_hours`` and ``observe_moer`` set
-            widths).
+        params: the env parameters (``price_horizon_hours``, ``observe_moer`` and
+            ``episode_days`` set widths).
 
     Returns:
         The parts ``prices`` (``price_horizon_hours + 1``), ``customer_price``,
         ``time_of_day`` (2), ``workday``, ``day``, ``hour_left``, ``price_quantiles``
-        (``len(PRICE_QUANTILES)``), ``grid_load``, ``peak_so_far`` and ``moer`` (1 when
-        ``observe_moer``, else 0); the others have width 1.
+        (``len(PRICE_QUANTILES)``), ``grid_load``, ``peak_so_far``, ``moer`` (1 when
+        ``observe_moer``, else 0) and, only when ``episode_days > 1``, ``weekday`` (2: sine
+        and cosine of the step's weekday); the others have width 1.
     """
+    weekday = (("weekday", 2),) if params.episode_days > 1 else ()
     return (
         ("prices", int(params.price_horizon_hours) + 1),
         ("customer_price", 1),
@@ -209,7 +228,7 @@ def context_parts(params: EnvParams) -> tuple[tuple[str, int], ...]:
         ("grid_load", 1),
         ("peak_so_far", 1),
         ("moer", int(bool(params.observe_moer))),
-    )
+    ) + weekday
 
 
 def context_size(params: EnvParams) -> int:

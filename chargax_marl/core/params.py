@@ -147,16 +147,28 @@ def _check_start_hour(episode_start_hour: Any, step_minutes: float) -> int:
     return int(h)
 
 
-def _check_reset_days(reset_days: Any, days_all: int, episode_start_hour: int = 0) -> np.ndarray:
+def _check_episode_days(episode_days: Any) -> int:
+    """The days an episode spans: an integer >= 1 (not a bool)."""
+    n = episode_days
+    if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(
+            f"field 'episode_days' must be an integer >= 1 (the consecutive days an episode "
+            f"spans; 1: one day), got {n!r}"
+        )
+    return int(n)
+
+
+def _check_reset_days(
+    reset_days: Any, days_all: int, episode_start_hour: int = 0, episode_days: int = 1
+) -> np.ndarray:
     """The days ``reset`` draws from as int32, each a day an episode can start on
-    (`clock.check_days`: all days of the price data, or all but the last when episodes
-    start after midnight)."""
+    (`clock.check_days`: all days of the price data whose episode's days all have prices)."""
     days = np.asarray(reset_days)
     if days.ndim != 1 or days.size == 0 or not np.issubdtype(days.dtype, np.integer):
         raise ValueError(
             f"field 'reset_days' must be a non-empty 1-D array of day indices, got {reset_days!r}"
         )
-    clock.check_days(days, days_all, episode_start_hour, "reset_days")
+    clock.check_days(days, days_all, episode_start_hour, "reset_days", episode_days)
     return days.astype(np.int32)
 
 
@@ -378,6 +390,7 @@ def make_params(
     episode_start_hour: int = 0,
     dc_share: float | None = None,
     dc_margin_min: tuple[float, float] | None = None,
+    episode_days: int = 1,
 ) -> EnvParams:
     """Assemble the parameters of a station scenario (paper defaults throughout).
 
@@ -501,6 +514,14 @@ def make_params(
         dc_margin_min: under the session model v3, the ``(low, high)`` range of the uniform
             margin a DC user stays beyond the earliest finish of its charge (minutes,
             rounded to whole steps); None: ``data_io.DC_MARGIN_MIN``.
+        episode_days: the consecutive days an episode spans, an integer >= 1 (default 1: one
+            day). An episode of N days is ``num_steps * N`` steps from ``episode_start_hour``
+            of its start day; parked cars stay over midnight, each calendar day brings its own
+            prices, arrivals, day type and volume, the batteries' terminal value and the
+            peak-demand charge (the episode's peak) are booked at its last step, and with N >
+            1 the observation also holds the day of the week (`docs/model.md`, "Multi-day
+            episodes"). An episode needs the prices of all its days, so N - 1 fewer days can
+            start one (`chargax_marl.core.clock.num_episode_starts`).
 
     Returns:
         The validated `EnvParams`.
@@ -520,6 +541,7 @@ def make_params(
         action_mode, constraint_mode, num_levels, price_horizon_hours, step_minutes
     )
     start_hour = _check_start_hour(episode_start_hour, step_minutes)
+    num_episode_days = _check_episode_days(episode_days)
 
     stations = build_station(station, grid_fraction=grid_fraction, **(station_kwargs or {}))
     tou = tariffs.tou_fee(tou_fee_eur_kwh)
@@ -595,13 +617,20 @@ def make_params(
 
     days_all = price.prices_eur_kwh.shape[0]
     if reset_days is None:
-        reset_days = np.arange(clock.num_start_days(days_all, start_hour), dtype=np.int32)
+        starts = clock.num_start_days(days_all, start_hour, num_episode_days)
+        reset_days = np.arange(max(starts, 0), dtype=np.int32)
+        if reset_days.size == 0 and num_episode_days > 1:
+            raise ValueError(
+                f"field 'episode_days' ({num_episode_days}) with episode_start_hour "
+                f"{start_hour} needs at least {days_all - starts + 1} days of prices, got "
+                f"{days_all}"
+            )
         if reset_days.size == 0:
             raise ValueError(
                 f"field 'episode_start_hour' ({start_hour}) needs at least two days of prices "
                 f"(an episode runs into the next day), got {days_all} day"
             )
-    days = _check_reset_days(reset_days, days_all, start_hour)
+    days = _check_reset_days(reset_days, days_all, start_hour, num_episode_days)
 
     def scalar(name, value):
         return device_array(_finite(name, value, **_SCALARS[name]), jnp.float32)
@@ -693,6 +722,7 @@ def make_params(
         observe_moer=observe_moer,
         episode_start_hour=start_hour,
         fixed_departures=fixed_departures,
+        episode_days=num_episode_days,
     )
 
 
@@ -785,6 +815,7 @@ def validate_params(params: EnvParams) -> EnvParams:
             f"field 'num_steps' must be 1440 / step_minutes = {num_steps}, got {params.num_steps!r}"
         )
     start_hour = _check_start_hour(params.episode_start_hour, params.step_minutes)
+    episode_days = _check_episode_days(params.episode_days)
     for field in ("v2g", "observe_moer"):
         if not isinstance(getattr(params, field), (bool, np.bool_)):
             raise ValueError(f"field '{field}' must be a bool, got {getattr(params, field)!r}")
@@ -870,7 +901,7 @@ def validate_params(params: EnvParams) -> EnvParams:
         )
     datasets.validate_moer(moer, check_resolution=False)
     datasets.validate_grid_demand(np.asarray(params.grid_demand_kwh), num_steps)
-    _check_reset_days(params.reset_days, price.shape[0], start_hour)
+    _check_reset_days(params.reset_days, price.shape[0], start_hour, episode_days)
     low = _shape("battery_soc0_low", params.battery_soc0_low, b, "one per battery")
     high = _shape("battery_soc0_high", params.battery_soc0_high, b, "one per battery")
     checks.array("battery_soc0_low", low, low=0.0, high=1.0)

@@ -26,7 +26,7 @@ def hour_of_step(timestep: jnp.ndarray, params: EnvParams) -> jnp.ndarray:
         params: the environment parameters (``step_minutes``).
 
     Returns:
-        int32 hours in ``[0, 23]``, shaped as ``timestep``.
+        int32 hours in ``[0, 24 * episode_days - 1]``, shaped as ``timestep``.
     """
     return clock.hours_since_start(timestep, params)
 
@@ -166,7 +166,9 @@ def peak_demand_charge(grid_net_kwh, peak_before_kw, last, params: EnvParams):
     energy over its length; feed-in counts as 0) and the peak-demand charge booked this step,
     ``peak_demand_eur_kw`` times the day's peak at the last step, or times the rise of the
     running peak in every step with incremental booking (the same daily total). The peak is
-    the episode's (it starts at each reset), whatever hour the episode starts at.
+    the episode's (it starts at each reset), whatever hour the episode starts at; the billing
+    period of an episode of ``episode_days > 1`` is the whole episode: one running peak over
+    all its days, booked at its last step (or as it rises, with incremental booking).
 
     Args:
         grid_net_kwh: ``()`` the step's net grid energy (kWh; negative = feed-in).
@@ -290,8 +292,11 @@ def profit_eur(flows: dict, p_buy, p_sell_grid, params: EnvParams) -> jnp.ndarra
 
 
 def battery_terminal_value_eur(battery_day_kwh, day, params: EnvParams) -> jnp.ndarray:
-    """The value of the station batteries' energy change over the day, ``battery_day_kwh``
-    (terminal side, net into the batteries), booked at the day's last step.
+    """The value of the station batteries' energy change over the episode, ``battery_day_kwh``
+    (terminal side, net into the batteries), booked once, at the episode's last step (of its
+    last day when ``episode_days > 1``; `chargax_marl.core.simulator.step` then passes the
+    episode's last day, ``state.day + episode_days - 1``, so the mean buy price is that of
+    the episode's last 24 hours).
 
     Priced at the day's mean buy price (`day_mean_buy_price`) when
     ``params.battery_value_day_mean``, else at ``params.battery_value_eur_kwh`` (0 turns the

@@ -40,6 +40,7 @@ ARRIVALS = 1
 RESET = 2
 VOLUME = 3
 PORT_KIND = 4  # the session model v3's port kind and DC margin per car
+DAY_VOLUME = 5  # a multi-day episode's volume draw of each new calendar day, at midnight
 
 
 def fmix32(x: jnp.ndarray) -> jnp.ndarray:

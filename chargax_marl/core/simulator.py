@@ -155,12 +155,17 @@ def step(key: jax.Array, state: EnvState, action: jnp.ndarray, params: EnvParams
         ValueError: ``action`` does not have exactly one entry per leaf.
     """
     workday = clock.is_workday(state.day, state.timestep, params)
-    return step_with_arrivals(
+    new_state, info = step_with_arrivals(
         state,
         action,
         traffic.draw_arrivals(key, state.timestep, workday, params, state.day_volume),
         params,
     )
+    if params.episode_days > 1:
+        # each calendar day of a multi-day episode brings its own volume, drawn at midnight
+        volume = traffic.next_day_volume(key, state.day, state.timestep, state.day_volume, params)
+        new_state = new_state.replace(day_volume=volume.astype(new_state.day_volume.dtype))
+    return new_state, info
 
 
 @jax.jit
@@ -198,10 +203,12 @@ def step_with_arrivals(
     arrived_state, arr = traffic.place_arrivals(departed_state, arrivals, params)
 
     p_buy, p_sell_grid = reward_lib.grid_prices(state.day, state.timestep, params)
-    last = state.timestep + 1 >= params.num_steps
+    last = state.timestep + 1 >= clock.episode_steps(params)
     battery_day_kwh = state.totals.battery_net_kwh + flows["battery_net_kwh"]
+    # priced at the mean buy price of the episode's last day (its 24 hours from the start hour)
+    value_day = state.day if params.episode_days == 1 else state.day + params.episode_days - 1
     terminal = jnp.where(
-        last, reward_lib.battery_terminal_value_eur(battery_day_kwh, state.day, params), 0.0
+        last, reward_lib.battery_terminal_value_eur(battery_day_kwh, value_day, params), 0.0
     )
     peak_kw, peak_charge = reward_lib.peak_demand_charge(
         flows["grid_net_kwh"], state.totals.peak_grid_kw, last, params
@@ -318,16 +325,17 @@ def as_float32(tree):
 
 
 def is_done(state: EnvState, params: EnvParams) -> jnp.ndarray:
-    """The day is over (truncation; the station never terminates).
+    """The episode is over (truncation; the station never terminates).
 
     Args:
         state: the station state.
         params: the environment parameters.
 
     Returns:
-        A ``()`` bool: ``state.timestep >= params.num_steps``.
+        A ``()`` bool: ``state.timestep >= num_steps * episode_days``
+        (`chargax_marl.core.clock.episode_steps`).
     """
-    return state.timestep >= params.num_steps
+    return state.timestep >= clock.episode_steps(params)
 
 
 def step_auto_reset(

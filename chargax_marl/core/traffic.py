@@ -267,15 +267,21 @@ def arrival_rate(timestep: jnp.ndarray, is_workday: jnp.ndarray, params: EnvPara
     return params.arrival_rate[jnp.where(is_workday, 0, 1), clock.slot_of_day(timestep, params)]
 
 
-def day_volume(day: jnp.ndarray, params: EnvParams, key: jax.Array | None = None) -> jnp.ndarray:
-    """The episode's arrival intensity factor ``()``: the volume factor of its first day's
-    weekday (1 on a public holiday) times a log-normal draw of mean 1 and coefficient of variation
-    ``params.daily_volume_cv`` (1 without a key or with a CV of 0).
+def day_volume(
+    day: jnp.ndarray, params: EnvParams, key: jax.Array | None = None, stream: int = rng.VOLUME
+) -> jnp.ndarray:
+    """A day's arrival intensity factor ``()``: the volume factor of the day's weekday (1 on a
+    public holiday) times a log-normal draw of mean 1 and coefficient of variation
+    ``params.daily_volume_cv`` (1 without a key or with a CV of 0). A one-day episode keeps
+    its first day's factor throughout (past midnight too); an episode of ``episode_days > 1``
+    draws each new calendar day's at its midnight (`next_day_volume`).
 
     Args:
         day: the day's index into the price data.
         params: the environment parameters.
-        key: the episode's reset key (the draw uses its own stream, `rng.VOLUME`).
+        key: the episode's reset key (the draw uses its own stream, `rng.VOLUME`), or the
+            step's key at a midnight (``stream=rng.DAY_VOLUME``).
+        stream: the key's stream the draw uses.
 
     Returns:
         ``()`` float32, the factor on the day's arrival rates.
@@ -287,11 +293,33 @@ def day_volume(day: jnp.ndarray, params: EnvParams, key: jax.Array | None = None
     )
     if key is None:
         return factor.astype(jnp.float32)
-    u = rng.uniform(rng.key_seed(key), rng.VOLUME, (1,))[0]
+    u = rng.uniform(rng.key_seed(key), stream, (1,))[0]
     z = jax.scipy.special.ndtri(jnp.clip(u, 1e-7, 1.0 - 1e-7))
     var_log = jnp.log1p(params.daily_volume_cv**2)
     draw = jnp.exp(jnp.sqrt(var_log) * z - 0.5 * var_log)
     return (factor * draw).astype(jnp.float32)
+
+
+def next_day_volume(key: jax.Array, day, timestep, volume, params: EnvParams) -> jnp.ndarray:
+    """The volume factor of step ``timestep + 1`` of an episode of several days: a fresh
+    `day_volume` of its calendar day when the step crosses midnight, else ``volume``.
+
+    Args:
+        key: the step's key (the draw uses its stream `rng.DAY_VOLUME`).
+        day: the episode's day (``state.day``).
+        timestep: the step just taken (``state.timestep`` before the step).
+        volume: the factor of the step just taken (``state.day_volume``).
+        params: the environment parameters (``episode_days > 1``; one-day episodes keep
+            their start day's factor and do not call this).
+
+    Returns:
+        ``()`` float32, the factor for the next step. After the last step it is unchanged
+        (the clock clamps to the episode).
+    """
+    now = clock.calendar_day(day, timestep, params)
+    after = clock.calendar_day(day, timestep + 1, params)
+    fresh = day_volume(after, params, key, rng.DAY_VOLUME)
+    return jnp.where(after != now, fresh, volume).astype(jnp.float32)
 
 
 @struct.dataclass

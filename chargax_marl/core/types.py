@@ -120,7 +120,7 @@ class EnvParams:
         grid_demand_kwh: ``(T,)`` grid demand signal per step for the grid-demand penalty
             (kWh).
         reset_days: ``(R,)`` int32 day indices ``reset`` draws from (by default all days an
-            episode can start on, `chargax_marl.core.clock.episode_days`).
+            episode can start on, `chargax_marl.core.clock.num_episode_starts`).
         battery_soc0_low: ``(B,)`` the initial SoC of each station battery is uniform in
             ``[low, high]``.
         battery_soc0_high: ``(B,)`` the high end of that range.
@@ -169,6 +169,8 @@ class EnvParams:
             user stays its drawn stay, a DC user the earliest finish of its charge at its
             port plus a margin (``dc_margin_min``), and no user leaves when charged; so the
             occupancy of a day does not depend on the policy.
+        episode_days: the consecutive days an episode spans (1: one day); the episode is
+            ``num_steps * episode_days`` steps long (`chargax_marl.core.clock`).
     """
 
     station: StationArrays
@@ -231,6 +233,7 @@ class EnvParams:
     observe_moer: bool = struct.field(pytree_node=False, default=False)
     episode_start_hour: int = struct.field(pytree_node=False, default=0)
     fixed_departures: bool = struct.field(pytree_node=False, default=False)
+    episode_days: int = struct.field(pytree_node=False, default=1)
 
     @property
     def num_days(self) -> int:
@@ -341,11 +344,12 @@ class EnvState:
         request_extra_kwh: what the car's user asked for beyond the energy the car takes
             (kWh, >= 0; the request is ``(target_soc - arrival_soc) * capacity`` plus this).
         day: ``()`` int32 index into the price data of the day the episode starts on.
-        timestep: ``()`` int32 step of the episode, ``0..num_steps`` (its clock time:
-            `chargax_marl.core.clock`).
+        timestep: ``()`` int32 step of the episode, ``0..num_steps * episode_days`` (its
+            clock time: `chargax_marl.core.clock`).
         is_workday: ``()`` bool, the day type of the calendar day the step falls on.
         day_volume: ``()`` the day's arrival intensity factor (weekday factor times the
-            day's draw, see `chargax_marl.core.traffic.day_volume`).
+            day's draw, see `chargax_marl.core.traffic.day_volume`): the start day's for a
+            one-day episode, the calendar day of the step's for ``episode_days > 1``.
         totals: the episode's running totals.
     """
 

@@ -588,7 +588,7 @@ class ChargaxMARL(MultiAgentEnv):
     def reset_to_day(self, day: int | jax.Array):
         """Start an empty station on a chosen day of the price data (for fixed evaluation days;
         ``ValueError`` for a concrete day outside ``[0, num_days)``, or the data's last day
-        when episodes start after midnight, `chargax_marl.core.clock.episode_days`).
+        when episodes start after midnight, `chargax_marl.core.clock.num_episode_starts`).
 
         Args:
             day: the day index, a Python int or a JAX scalar (a traced day is not checked).
@@ -601,7 +601,7 @@ class ChargaxMARL(MultiAgentEnv):
                 (`chargax_marl.lifecycle.check_day`).
         """
         if not isinstance(day, jax.core.Tracer):
-            check_day(day, clock.episode_days(self.params))
+            check_day(day, clock.num_episode_starts(self.params))
         state = simulator.empty_state(jnp.asarray(day, jnp.int32), self.params)
         return self.get_obs(state), state
 

@@ -245,7 +245,7 @@ class ChargaxParallelEnv(ParallelEnv):
             seed: a non-negative integer that starts the env's key
                 (`chargax_marl.lifecycle.key_from_seed`); None continues the key sequence.
             options: ``{"day": d}`` starts on day ``d`` of the price data (an episode's start
-                day, `chargax_marl.core.clock.episode_days`); without it a random day is
+                day, `chargax_marl.core.clock.num_episode_starts`); without it a random day is
                 drawn. Other keys are ignored.
 
         Returns:
@@ -261,7 +261,7 @@ class ChargaxParallelEnv(ParallelEnv):
         lifecycle.check_not_forked("ChargaxParallelEnv.reset")
         key = None if seed is None else lifecycle.key_from_seed(seed, "ChargaxParallelEnv.reset")
         day = lifecycle.reset_day(
-            options, clock.episode_days(self.params), "ChargaxParallelEnv.reset"
+            options, clock.num_episode_starts(self.params), "ChargaxParallelEnv.reset"
         )
         if key is not None:
             self._key = key

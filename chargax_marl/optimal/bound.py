@@ -31,7 +31,7 @@ import jax
 import numpy as np
 
 from chargax_marl import trace as trace_lib
-from chargax_marl.core import checks
+from chargax_marl.core import checks, clock
 from chargax_marl.core import reward as reward_lib
 from chargax_marl.core.types import EnvParams
 from chargax_marl.optimal.model import (
@@ -75,7 +75,11 @@ def sessions_from_rollout(states, infos, params: EnvParams) -> Sessions:
         The car sessions, port by port and in step order within a port: each starts at the
         car's SoC and constants in its first step, and a charge-sensitive car that left
         before the day's end must reach its target (``must_reach``).
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.optimal.bound.sessions_from_rollout")
     occ = np.asarray(states.occupied)
     arrived = np.asarray(infos.leaf_arrived)
     num_steps = occ.shape[0]
@@ -323,7 +327,9 @@ def hindsight_bound(
         ValueError: the trace was not made for ``params``, or ``occ`` is of another day.
         chargax_marl.optimal.model.SolverError: HiGHS finds no optimum with any of the
             settings it tries (e.g. each hits the time limit).
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.optimal.bound.hindsight_bound")
     time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
     trace_lib.check_trace(trace, params)
     if occ.day != int(trace.day):
@@ -403,7 +409,9 @@ def bound_days(
 
     Raises:
         ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.optimal.bound.bound_days")
     time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
     if day_keys is None:
         key = jax.random.PRNGKey(0) if key is None else key

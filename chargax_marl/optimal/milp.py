@@ -29,7 +29,7 @@ import jax
 import numpy as np
 
 from chargax_marl import trace as trace_lib
-from chargax_marl.core import checks
+from chargax_marl.core import checks, clock
 from chargax_marl.core import reward as reward_lib
 from chargax_marl.core.types import EnvParams
 from chargax_marl.optimal.bound import battery_sessions, economics, occupancy
@@ -70,6 +70,7 @@ def _one(**fields) -> Sessions:
 
 def candidate_sessions(params: EnvParams, trace: trace_lib.DayTrace, num_steps: int):
     """The (car, port[, departure]) sessions of the window and the car each belongs to."""
+    clock.require_one_day(params, "chargax_marl.optimal.milp.candidate_sessions")
     a = {
         k: np.asarray(getattr(trace.arrivals, k))
         for k in (
@@ -157,7 +158,9 @@ def admission_bound(
             ``[2, params.num_steps]``.
         chargax_marl.optimal.model.SolverError: HiGHS finds no optimum with any of the
             settings it tries.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.optimal.milp.admission_bound")
     time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
     trace_lib.check_trace(trace, params)
     if not 2 <= num_steps <= params.num_steps:
@@ -269,7 +272,9 @@ def compare(
         ValueError: the trace was not made for ``params``, or ``num_steps`` outside
             ``[2, params.num_steps]`` (`admission_bound`).
         chargax_marl.optimal.model.SolverError: HiGHS finds no optimum of the MILP or the LP.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.optimal.milp.compare")
     time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
     fixed = float(reward_lib.fixed_cost_per_step_eur(params)) * num_steps
     milp = admission_bound(params, trace, num_steps, time_limit_s=time_limit_s)

@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from chargax_marl.core import checks
+from chargax_marl.core import checks, clock
 from chargax_marl.core import reward as reward_lib
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.core.types import EnvParams, EnvState
@@ -123,6 +123,7 @@ class MPC:
         deadline_margin_steps: int = 1,
         warm_start: bool = True,
     ):
+        clock.require_one_day(params, "chargax_marl.optimal.mpc.MPC")
         if not horizon_hours > 0:
             raise ValueError(f"field 'horizon_hours' must be > 0, got {horizon_hours!r}")
         for field, value, least in (
@@ -407,5 +408,9 @@ def mpc_policy(params: EnvParams, **kwargs) -> MPC:
 
     Returns:
         The controller.
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.optimal.mpc.mpc_policy")
     return MPC(params, **kwargs)

@@ -34,7 +34,7 @@ import jax
 import numpy as np
 
 from chargax_marl import trace as trace_lib
-from chargax_marl.core import checks
+from chargax_marl.core import checks, clock
 from chargax_marl.core import reward as reward_lib
 from chargax_marl.core.station import KIND_AC
 from chargax_marl.core.types import EnvParams
@@ -137,7 +137,11 @@ def pooled_sessions(params: EnvParams, trace: trace_lib.DayTrace) -> tuple[Sessi
     Returns:
         ``(sessions, pools, num_cars)``: one session per car and group, the `Pools` that tie
         them, and the number of cars.
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.optimal.pooled.pooled_sessions")
     _, first_port, group_ports = port_groups(params)
     a = trace.arrivals
     n = trace.num_steps
@@ -210,7 +214,9 @@ def pooled_bound(
         ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
         ValueError: the trace was not made for ``params``.
         chargax_marl.optimal.model.SolverError: HiGHS finds no optimum with any setting.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.optimal.pooled.pooled_bound")
     time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
     trace_lib.check_trace(trace, params)
     n = trace.num_steps
@@ -270,7 +276,9 @@ def pooled_bound_days(
 
     Raises:
         ValueError: ``time_limit_s`` neither None nor a finite number of seconds > 0.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.optimal.pooled.pooled_bound_days")
     time_limit_s = checks.time_limit("time_limit_s", time_limit_s)
     traces = trace_lib.make_traces(params, days, day_keys=day_keys)
     out = []

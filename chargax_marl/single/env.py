@@ -290,11 +290,11 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
             ValueError: a concrete day that is not a day an episode can start on, outside
                 ``[0, num_days)`` or, when episodes start after midnight, the data's last
                 day (`chargax_marl.lifecycle.check_day`,
-                `chargax_marl.core.clock.episode_days`).
+                `chargax_marl.core.clock.num_episode_starts`).
         """
         params = params or self._params
         if not isinstance(day, jax.core.Tracer):
-            check_day(day, clock.episode_days(params))
+            check_day(day, clock.num_episode_starts(params))
         state = simulator.empty_state(jnp.asarray(day, jnp.int32), params)
         return self.get_obs(state, params), state
 
@@ -334,7 +334,7 @@ class Chargax(environment.Environment[EnvState, EnvParams]):
             params: the environment parameters.
 
         Returns:
-            A ``()`` bool: ``state.timestep >= params.num_steps``.
+            A ``()`` bool: ``state.timestep >= num_steps * episode_days``.
         """
         return simulator.is_done(state, params)
 

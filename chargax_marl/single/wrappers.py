@@ -438,7 +438,7 @@ class GymnasiumEnv(gymnasium.Env):
             seed: a non-negative integer that starts the env's key
                 (`chargax_marl.lifecycle.key_from_seed`); None continues the key sequence.
             options: ``{"day": d}`` starts on day ``d`` of the price data (an episode's start
-                day, `chargax_marl.core.clock.episode_days`); without it a random day is
+                day, `chargax_marl.core.clock.num_episode_starts`); without it a random day is
                 drawn. Other keys are ignored.
 
         Returns:
@@ -452,7 +452,9 @@ class GymnasiumEnv(gymnasium.Env):
         lifecycle.check_not_forked("GymnasiumEnv.reset")
         if seed is not None:
             key = lifecycle.key_from_seed(seed, "GymnasiumEnv.reset")
-        day = lifecycle.reset_day(options, clock.episode_days(self.params), "GymnasiumEnv.reset")
+        day = lifecycle.reset_day(
+            options, clock.num_episode_starts(self.params), "GymnasiumEnv.reset"
+        )
         super().reset(seed=seed)
         if seed is not None:
             self._key = key

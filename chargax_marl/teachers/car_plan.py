@@ -41,6 +41,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from chargax_marl.core import clock
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.teachers.shaping import core_state
 from chargax_marl.teachers.storage_value import dp_battery_action, step_buy_prices
@@ -191,7 +192,11 @@ def plan_constants(env_params):
         customer)``: `price_order`'s ``(days, T)`` step indices and buy prices (EUR/kWh),
         ``(L,)`` bool port mask, ``(L,)`` path efficiencies, ``(L,)`` leaf top power (kW),
         the step in minutes and hours (floats) and the customer price (EUR/kWh).
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(env_params, "chargax_marl.teachers.car_plan.plan_constants")
     order_np, sorted_np = price_order(env_params)
     st = env_params.station
     return (
@@ -219,7 +224,11 @@ def car_values(env_params):
         batteries, empty ports and charge-sensitive cars).
         ``values(core, core.timestep, core.time_remaining_min, core.energy_remaining_kwh)``
         is the potential of ``core``.
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(env_params, "chargax_marl.teachers.car_plan.car_values")
     order, sorted_prices, is_port, eff, leaf_max_kw, step_min, step_h, customer = plan_constants(
         env_params
     )
@@ -256,7 +265,11 @@ def car_potential(env_params):
         (shaped like the state's leaves, ``(..., L)``; 0 for batteries, empty ports and
         charge-sensitive cars). The value after the step is computed from the state before
         it, so the env's auto-reset does not hide it.
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(env_params, "chargax_marl.teachers.car_plan.car_potential")
     values = car_values(env_params)
     step_min = float(env_params.step_minutes)
 
@@ -295,7 +308,11 @@ def plan_advice(env_params, power_fraction: float | None = PLAN_POWER_FRACTION):
         should charge its car now (a time-sensitive car whose plan, `plan_energy` at
         ``power_fraction`` of its top power, uses the current step at a positive margin;
         every charge-sensitive car), 0 for idle, empty ports and batteries.
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(env_params, "chargax_marl.teachers.car_plan.plan_advice")
     order, sorted_prices, is_port, eff, leaf_max_kw, step_min, step_h, customer = plan_constants(
         env_params
     )
@@ -342,7 +359,9 @@ def plan_action(
 
     Raises:
         ValueError: ``battery="dp"`` on a station without a battery.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(env_params, "chargax_marl.teachers.car_plan.plan_action")
     is_battery = jnp.asarray(np.asarray(env_params.station.leaf_kind) == KIND_BATTERY)
     advice = plan_advice(env_params, power_fraction)
     dp = dp_battery_action(env_params) if battery == "dp" else None

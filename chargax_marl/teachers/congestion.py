@@ -44,7 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from chargax_marl.core import physics
+from chargax_marl.core import clock, physics
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.teachers.car_plan import batched, steps_of
 from chargax_marl.teachers.fill import able_kw, serve_in_order
@@ -270,7 +270,9 @@ def coupled_plan(
 
     Raises:
         ValueError: a setting out of its range (the message names it).
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(env_params, "chargax_marl.teachers.congestion.coupled_plan")
     _check_settings(power_fraction, horizon_steps, future_reserve, iterations)
     st = env_params.station
     width = min(int(horizon_steps), int(env_params.num_steps))
@@ -412,7 +414,9 @@ def coupled_plan_action(
 
     Raises:
         ValueError: ``battery`` not ``"dp"`` or ``"idle"``, or a plan setting out of range.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(env_params, "chargax_marl.teachers.congestion.coupled_plan_action")
     if battery not in ("dp", "idle"):
         raise ValueError(f"field 'battery' must be 'dp' or 'idle', got {battery!r}")
     plan_of = coupled_plan(env_params, **plan_kwargs)
@@ -493,7 +497,11 @@ def coupled_advice(env_params, **plan_kwargs):
         of the port's top power its car's plan takes now (in [0, 1]); column 1 the congestion
         price on its path now (EUR per kWh into the car, node and peak, in [0, c] with ``c``
         the customer price). 0 for empty ports and batteries.
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(env_params, "chargax_marl.teachers.congestion.coupled_advice")
     plan_of = coupled_plan(env_params, **plan_kwargs)
     st = env_params.station
     leaf_kwh = jnp.asarray(st.leaf_max_kw, jnp.float32) * float(env_params.step_hours)
@@ -551,7 +559,11 @@ def coupled_potential(env_params, **plan_kwargs):
         ``potential(env_state) -> shift``, where ``shift(leaf_energy_kwh)`` is each leaf's
         term (EUR, ``(..., L)``; 0 for batteries and empty ports) for the (possibly wrapped
         and batched) ``env_state`` taken before the step.
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(env_params, "chargax_marl.teachers.congestion.coupled_potential")
     plan_of = coupled_plan(env_params, **plan_kwargs)
     is_port = jnp.asarray(np.asarray(env_params.station.leaf_kind) != KIND_BATTERY)
 

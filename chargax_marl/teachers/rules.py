@@ -28,7 +28,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from chargax_marl.core import physics
+from chargax_marl.core import clock, physics
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.teachers.car_plan import PLAN_POWER_FRACTION, plan_action
 from chargax_marl.teachers.congestion import coupled_plan_action
@@ -63,7 +63,9 @@ def battery_programme(params):
 
     Raises:
         ValueError: the station has no battery.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.teachers.rules.battery_programme")
     _check_battery("battery_programme", params)
     return plan_action(params, battery="dp", power_fraction=None)
 
@@ -79,7 +81,9 @@ def plan_programme(params):
 
     Raises:
         ValueError: the station has no battery.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.teachers.rules.plan_programme")
     _check_battery("plan_programme", params)
     return plan_action(params, battery="dp", power_fraction=PLAN_POWER_FRACTION)
 
@@ -96,7 +100,9 @@ def grid_programme(params):
 
     Raises:
         ValueError: the station has no battery.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.teachers.rules.grid_programme")
     _check_battery("grid_programme", params)
     st = params.station
     is_battery = np.asarray(st.leaf_kind) == KIND_BATTERY
@@ -128,7 +134,11 @@ def coupled_plan_rule(params):
 
     Returns:
         ``policy(state, key, params) -> levels`` (int32 ``(L,)``).
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.teachers.rules.coupled_plan_rule")
     return coupled_plan_action(params, battery="dp" if has_battery(params) else "idle", top_up=True)
 
 

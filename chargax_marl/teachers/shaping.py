@@ -19,6 +19,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
+from chargax_marl.core import clock
 from chargax_marl.core.reward import battery_terminal_value_eur
 from chargax_marl.core.station import KIND_BATTERY
 from chargax_marl.teachers.storage_value import dp_values, level_value, storage_values
@@ -99,7 +100,9 @@ def battery_potential(env_params, mode: str = "dp"):
     Raises:
         ValueError: an unknown ``mode``, or ``"storage_value"`` / ``"dp"`` on a station
             without a battery.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(env_params, "chargax_marl.teachers.shaping.battery_potential")
     if mode not in BATTERY_POTENTIALS:
         raise ValueError(f"battery potential must be one of {BATTERY_POTENTIALS}, got {mode!r}")
     is_battery = jnp.asarray(np.asarray(env_params.station.leaf_kind) == KIND_BATTERY)

@@ -34,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.optimize import linprog
 
+from chargax_marl.core import clock
 from chargax_marl.core.reward import battery_terminal_value_eur, price_tables
 from chargax_marl.core.station import KIND_BATTERY
 
@@ -93,7 +94,11 @@ def step_buy_prices(params) -> np.ndarray:
     Returns:
         ``(days, steps)`` float64 buy prices (EUR/kWh): day-ahead + grid fee + time-of-use
         (`chargax_marl.core.reward.price_tables`).
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.teachers.storage_value.step_buy_prices")
     return np.asarray(price_tables(params)[0], np.float64)
 
 
@@ -106,7 +111,11 @@ def terminal_prices(params) -> np.ndarray:
     Returns:
         ``(days,)`` float64 prices (EUR/kWh) of
         `chargax_marl.core.reward.battery_terminal_value_eur`.
+
+    Raises:
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.teachers.storage_value.terminal_prices")
     days = jnp.arange(np.asarray(params.prices_eur_kwh).shape[0], dtype=jnp.int32)
     return np.asarray(
         jax.vmap(lambda d: battery_terminal_value_eur(jnp.float32(1.0), d, params))(days),
@@ -189,7 +198,9 @@ def storage_values(params) -> np.ndarray:
     Raises:
         ValueError: the station has no battery.
         RuntimeError: an LP fails to solve.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.teachers.storage_value.storage_values")
     eta, power_kw, capacity_kwh, e0 = battery_constants(params)
     prices = step_buy_prices(params)
     terminal = terminal_prices(params)
@@ -240,7 +251,9 @@ def dp_values(params, points_per_step: int = 4) -> tuple[np.ndarray, np.ndarray]
     Raises:
         ValueError: the station has no battery, or ``points_per_step`` is not an integer
             >= 1.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.teachers.storage_value.dp_values")
     eta, power_kw, capacity_kwh, _ = battery_constants(params)
     grid, value = level_values(
         step_buy_prices(params),
@@ -401,7 +414,9 @@ def dp_battery_action(params):
 
     Raises:
         ValueError: the station has no battery.
+        ValueError: ``episode_days`` is not 1 (only one-day episodes are supported here yet).
     """
+    clock.require_one_day(params, "chargax_marl.teachers.storage_value.dp_battery_action")
     grid, table = dp_values(params)
     table, grid_kwh = jnp.asarray(table), float(grid[1] - grid[0])
     prices = jnp.asarray(step_buy_prices(params), jnp.float32)

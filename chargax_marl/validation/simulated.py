@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from chargax_marl import policies
-from chargax_marl.core import simulator, traffic
+from chargax_marl.core import clock, simulator, traffic
 from chargax_marl.core.station import KIND_AC, KIND_BATTERY
 from chargax_marl.core.types import EnvParams
 from chargax_marl.trace import day_keys
@@ -57,6 +57,8 @@ class SimulatedSessions:
 
 
 def _play(params: EnvParams, days, keys, policy):
+    clock.require_one_day(params, "chargax_marl.validation.simulated._play")
+
     def one_day(day, key):
         act_keys, step_keys, battery_key = day_keys(key, params.num_steps)
 

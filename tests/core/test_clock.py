@@ -239,7 +239,7 @@ def test_reset_never_draws_a_day_without_next_day_prices(params12):
 def test_evaluation_refuses_the_last_day_when_episodes_run_into_the_next(params12):
     with pytest.raises(ValueError, match="'days'.*next day"):
         run_policy_days(always_max, params12, [params12.num_days - 1], jax.random.PRNGKey(0))
-    assert clock.episode_days(params12) == params12.num_days - 1
+    assert clock.num_episode_starts(params12) == params12.num_days - 1
 
 
 # ------------------------------------------------------------------ compiled = eager
