@@ -586,8 +586,16 @@ def build_env_params(config: dict):
         years: ``train_days`` then index them) and its held-out days.
 
     Raises:
-        ConfigError: ``TASK`` with a ``TRAFFIC`` or a held-out split other than the task's.
+        ConfigError: ``TASK`` with a ``TRAFFIC`` or a held-out split other than the task's;
+            ``ENV_KWARGS`` with ``episode_days`` other than 1 (the trainers' evaluation, the
+            teachers and the references play one-day episodes).
     """
+    days = (config.get("ENV_KWARGS") or {}).get("episode_days", 1)
+    if days != 1:
+        raise ConfigError(
+            f"ENV_KWARGS: episode_days={days!r}, but the trainers support only episode_days=1 "
+            "(their evaluation, teachers and references play one-day episodes)"
+        )
     if config.get("TASK"):
         return _task_env_params(config)
     kwargs = dict(SCENARIOS[config["SCENARIO"]])

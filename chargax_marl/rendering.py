@@ -106,7 +106,7 @@ def ansi_table(state, params: EnvParams, names: list[str]) -> str:
     kinds = np.asarray(st.leaf_kind)
     volts = np.asarray(st.leaf_voltage_v)
     lines = [
-        f"day {int(state.day)}  step {int(state.timestep)}/{params.num_steps}  "
+        f"day {int(state.day)}  step {int(state.timestep)}/{clock.episode_steps(params)}  "
         f"time {clock_time(state, params)}  "
         f"price {price_now(state, params):.4f} EUR/kWh  profit so far {float(state.totals.profit_eur):.2f} EUR",
         f"{'agent':<12}{'kind':<9}{'occupied':>9}{'SoC':>7}{'current A':>11}{'power kW':>10}",
@@ -149,7 +149,9 @@ def rgb_plot(history: list[tuple[float, float, float]], state, params: EnvParams
     ax_power.set_xlabel("hour of the day")
     ax_power.set_xlim(params.episode_start_hour, params.episode_start_hour + 24)
     clock_axis(ax_power, params)
-    ax_price.set_title(f"day {int(state.day)}, step {int(state.timestep)}/{params.num_steps}")
+    ax_price.set_title(
+        f"day {int(state.day)}, step {int(state.timestep)}/{clock.episode_steps(params)}"
+    )
     fig.tight_layout()
     canvas.draw()
     return np.array(canvas.buffer_rgba(), dtype=np.uint8)[..., :3].copy()

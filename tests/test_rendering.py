@@ -28,3 +28,16 @@ def test_the_plot_draws_clock_hours():
     state = simulator.empty_state(jnp.int32(3), p)
     image = rendering.rgb_plot([(0.0, 0.1, 5.0), (13.0, 0.2, 7.0)], state, p)
     assert image.ndim == 3 and image.shape[2] == 3 and image.dtype == np.uint8
+
+
+def test_the_text_rendering_counts_the_steps_of_a_multi_day_episode():
+    """A two-day episode's state reads ``step t/(2 * num_steps)``, not of one day."""
+    import jax
+
+    from chargax_marl.core import make_params, simulator
+    from chargax_marl.rendering import ansi_table
+
+    params = make_params(episode_days=2)
+    state = simulator.reset(jax.random.PRNGKey(0), params)
+    names = [f"port_{i}" for i in range(params.station.num_ports)] + ["battery_0"]
+    assert f"step 0/{2 * params.num_steps}" in ansi_table(state, params, names)

@@ -168,3 +168,15 @@ def test_an_integer_key_reads_an_integer_and_refuses_it_below_one_or_past_int32(
         assert not 1 <= n <= 2**31 - 1 and f"HIDDEN={n}" in str(e)
         return
     assert 1 <= n <= 2**31 - 1 and config["HIDDEN"] == n
+
+
+def test_a_multi_day_episode_is_refused_before_training():
+    """The trainers evaluate, shape and score one-day episodes: ``episode_days`` other than 1
+    is refused when the env params are built, with the field and value named, on a scenario
+    and on a task."""
+    from baselines.config import ConfigError, build_env_params, resolve
+
+    for extra in ({}, {"TASK": "Chargax-shopping-v3"}):
+        config = resolve({**extra, "ENV_KWARGS": {"episode_days": 2}})
+        with pytest.raises(ConfigError, match=r"episode_days=2.*episode_days=1"):
+            build_env_params(config)
