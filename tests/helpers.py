@@ -10,7 +10,7 @@ import numpy as np
 from hypothesis import strategies as st
 
 from baselines.config import SCHEMA
-from chargax_marl.core import Battery, Port, Splitter, simulator
+from chargax_marl.core import Battery, Port, Splitter, multiple_types, simulator
 from chargax_marl.core.params import make_params
 
 
@@ -339,3 +339,13 @@ def allowed_by_schema(key: str, value) -> bool:
         if high is not None and value > high:
             return False
     return True
+
+
+ONE_DAY_ONLY = r"field 'episode_days' is 2, but only episode_days=1 .* is supported here yet"
+"""The message of `chargax_marl.core.clock.require_one_day` for ``episode_days=2``."""
+
+
+def two_day_params():
+    """A small station (2 AC and 2 DC ports, hourly steps) with two-day episodes, for the
+    entry points that refuse them."""
+    return make_params(station=multiple_types(2, 2), step_minutes=60, episode_days=2)

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from chargax_marl import binding, evaluation, trace
-from chargax_marl.core import make_params, multiple_types
 from chargax_marl.policies import always_max
 from chargax_marl.validation import simulated
+from tests.helpers import ONE_DAY_ONLY as MESSAGE
+from tests.helpers import two_day_params
 
-MESSAGE = r"field 'episode_days' is 2, but only episode_days=1 .* is supported here yet"
 KEY = jax.random.PRNGKey(0)
 
 
@@ -21,7 +21,7 @@ def act(state, key):
     return always_max(state, key, PARAMS)
 
 
-PARAMS = make_params(station=multiple_types(2, 2), step_minutes=60, episode_days=2)
+PARAMS = two_day_params()
 DAYS = np.array([0])
 
 ENTRY_POINTS = {

@@ -6,16 +6,14 @@ from __future__ import annotations
 import jax
 import pytest
 
-from chargax_marl.core import make_params, multiple_types
 from chargax_marl.optimal import bound, milp, mpc, pooled
-
-SMALL = {"station": multiple_types(2, 2), "step_minutes": 60}
-MESSAGE = r"field 'episode_days' is 2, but only episode_days=1 .* is supported here yet"
+from tests.helpers import ONE_DAY_ONLY as MESSAGE
+from tests.helpers import two_day_params
 
 
 @pytest.fixture(scope="module")
 def two_days():
-    return make_params(**SMALL, episode_days=2)
+    return two_day_params()
 
 
 ENTRY_POINTS = {

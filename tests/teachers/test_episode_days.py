@@ -5,16 +5,14 @@ from __future__ import annotations
 
 import pytest
 
-from chargax_marl.core import make_params, multiple_types
 from chargax_marl.teachers import car_plan, congestion, rules, shaping, storage_value
-
-SMALL = {"station": multiple_types(2, 2), "step_minutes": 60}
-MESSAGE = r"field 'episode_days' is 2, but only episode_days=1 .* is supported here yet"
+from tests.helpers import ONE_DAY_ONLY as MESSAGE
+from tests.helpers import two_day_params
 
 
 @pytest.fixture(scope="module")
 def two_days():
-    return make_params(**SMALL, episode_days=2)
+    return two_day_params()
 
 
 ENTRY_POINTS = {
